@@ -1,0 +1,50 @@
+# Fine-pointing firmware workbench. Every target installs what it needs first.
+PYTHON3 ?= python3
+VENV    := .venv
+PY      := $(VENV)/bin/python
+MPY     := $(VENV)/bin/micropython
+STAMP   := $(VENV)/.installed-stamp
+OUT     ?= out
+
+.PHONY: all install test bench fuzz mpy hil distfile calibrate protocol-doc clean
+
+all: test
+
+$(STAMP): requirements.lock pyproject.toml
+	test -x $(PY) || $(PYTHON3) -m venv $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check -r requirements.lock
+	$(PY) -m pip install -q --disable-pip-version-check --no-deps -e .
+	touch $@
+
+install: $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest
+
+bench: $(STAMP) mpy
+	$(PY) -m bench.run
+
+fuzz: $(STAMP)
+	$(PY) -m tests.fuzz_frames 1000000
+
+mpy: $(STAMP)
+	$(PY) -m ground.mpy_build
+
+protocol-doc: $(STAMP)
+	$(VENV)/bin/fps protocol table > protocol/PROTOCOL.md
+
+distfile: $(STAMP)
+	$(VENV)/bin/fps distfile generate --source stat --duration 600 --seed 1 -o $(OUT)/stat600.dist
+
+calibrate: $(STAMP)
+	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
+
+hil: $(STAMP)
+	$(VENV)/bin/fps distfile generate --source stat --duration 600 --seed 1 -o $(OUT)/stat600.dist
+	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
+	$(VENV)/bin/fps hil --distfile $(OUT)/stat600.dist --calibration $(OUT)/calibration.json \
+	    --duration 600 --runtime micropython --link serial -o $(OUT)/hil
+
+clean:
+	rm -rf $(OUT) build *.egg-info .pytest_cache .hypothesis
+	find . -name __pycache__ -prune -exec rm -rf {} + ; find . -name '*.mpy' -delete

@@ -1,0 +1,34 @@
+"""``make bench``: run every benchmark module and print its tables (no pass/fail on timings).
+
+Each ``bench/bench_*.py`` exposes ``main()`` that prints markdown tables with the thesis's or the
+issue's figure beside ours. Pass module names (e.g. ``protocol``) to run a subset.
+"""
+
+import importlib
+import pkgutil
+import sys
+import time
+
+import bench
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    mods = sorted(m.name for m in pkgutil.iter_modules(bench.__path__) if m.name.startswith("bench_"))
+    if argv:
+        mods = [m for m in mods if m[len("bench_"):] in argv]
+    failed = []
+    for name in mods:
+        print("\n## %s\n" % name[len("bench_"):], flush=True)
+        t0 = time.perf_counter()
+        try:
+            importlib.import_module("bench." + name).main()
+        except Exception as exc:  # a broken benchmark must not hide the others
+            failed.append(name)
+            print("benchmark %s failed: %r" % (name, exc), flush=True)
+        print("\n(%s took %.1f s)" % (name, time.perf_counter() - t0), flush=True)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

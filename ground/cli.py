@@ -1,0 +1,56 @@
+"""``fps``: one command line for the whole workbench.
+
+Subcommands live in their own modules and are imported only when used, so ``fps protocol`` never
+pays for numpy or matplotlib. A module registers itself with ``register(subparsers, name, help)``,
+which adds its parser and sets ``func`` (called with the parsed args; its return value is the exit code).
+"""
+
+import argparse
+import importlib
+import sys
+
+COMMANDS = (
+    ("protocol", "protocol.cli", "packet table, DBC file, encode and decode frames"),
+    ("emulator", "emulator.cli", "bench emulator: default config, true H field, serve devices on a link"),
+    ("distfile", "ground.distfile_cli", "generate, inspect and export disturbance files (distfiles)"),
+    ("calibrate", "ground.calibrate", "H-matrix calibration over the P-FSM grid (Sec. 7.4)"),
+    ("hil", "ground.hil", "emulated hardware-in-the-loop run with the Q2 recorder (Sec. 7.5)"),
+)
+
+
+def build_parser(only=None):
+    p = argparse.ArgumentParser(
+        prog="fps",
+        description="Fine-pointing workbench: firmware, emulated bench and ground tools "
+                    "(units: angles in arcsec on the sky unless a flag says otherwise, volts, seconds).")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    for name, mod, help_ in COMMANDS:
+        if only is None or name == only:
+            importlib.import_module(mod).register(sub, name, help_)
+        else:
+            sub.add_parser(name, help=help_)
+    return p
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    names = [c[0] for c in COMMANDS]
+    only = argv[0] if argv and argv[0] in names else None
+    parser = build_parser(only)
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        rc = args.func(args)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as exc:
+        print("fps %s: error: %s" % (args.command, exc), file=sys.stderr)
+        return 1
+    return int(rc or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -25,7 +25,7 @@ def build_parser(only=None):
                     "(units: angles in arcsec on the sky unless a flag says otherwise, volts, seconds).")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for name, mod, help_ in COMMANDS:
-        if only is None or name == only:
+        if name == only:
             importlib.import_module(mod).register(sub, name, help_)
         else:
             sub.add_parser(name, help=help_)

@@ -1,0 +1,181 @@
+"""Rigid spacecraft with four reaction wheels: quaternion kinematics and Euler's equation, RK4.
+
+Conventions (Yoon 2017, Sec. 4.2-4.3): q = [q1, q2, q3, q4] with the scalar last, the attitude from the inertial
+to the body frame, A(q) = (q4^2 - |e|^2) I + 2 e e^T - 2 q4 [e x] (Eq. 4.7), and
+
+    q_dot = 1/2 Omega(w) q,  Omega(w) = [[-[w x], w], [-w^T, 0]]                    (Eq. 4.10)
+    J w_dot = -w x (J w + C Jrw W) - C Jrw W_dot + tau_ext                          (Eq. 4.16, 4.56, 4.67)
+    Jrw W_dot = tau_motor - tau_friction,  angle_dot = W                           (Eq. 4.55-4.56)
+
+J is the spacecraft inertia without the rotors' spin; W the wheel spin rates. As in Eq. 4.53 the rotor momentum
+is Jrw W (the body-rate part Jrw c_i.w is left out: at 1 deg/s it is 0.17 rpm, under the 10 rpm read-out noise). The motor and friction torques are
+internal: H = J w + C Jrw W obeys dH/dt|body = -w x H + tau_ext, so the inertial A^T H is conserved without external
+torque. tau_ext = gravity gradient + residual dipole (Eq. 4.68-4.75) + a pluggable callable + wheel jitter.
+The motor torque is held over each fixed RK4 step (zero-order hold, as a 1 Hz-10 Hz flight computer drives it).
+"""
+
+import numpy as np
+
+from emulator.spacecraft import environment as env
+from emulator.spacecraft.wheels import N_WHEELS, Wheels
+
+# [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], kg m^2 (Sec. 4.8): nominal and true error; products are matrix entries.
+J0_THESIS = (12e-3, 47e-3, 45e-3, 1e-3, 2e-3, 3e-3)
+DJ_THESIS = (-1.2e-3, 3.29e-3, 3.6e-3, 0.1e-3, -0.12e-3, 0.21e-3)
+_DEFAULT = object()     # "use the thesis's orbit / field" (None turns them off)
+
+
+def inertia_matrix(j6):
+    """3 x 3 symmetric inertia from [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz]; ValueError unless positive definite."""
+    a = np.array(j6, dtype=float).reshape(-1)
+    if a.shape != (6,) or not np.all(np.isfinite(a)):
+        raise ValueError("inertia must be 6 finite numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], got %r" % (j6,))
+    j = np.array([[a[0], a[3], a[4]], [a[3], a[1], a[5]], [a[4], a[5], a[2]]])
+    if np.linalg.eigvalsh(j)[0] <= 0:
+        raise ValueError("inertia %r is not positive definite" % (j6,))
+    return j
+
+
+def _finite(name, v, n):
+    try:
+        a = np.array(v, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        a = np.array([np.nan])
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise ValueError("%s must be %d finite numbers, got %r" % (name, n, v))
+    return a
+
+
+def dcm(q):
+    """A(q), inertial to body (Eq. 4.7)."""
+    e1, e2, e3, q4 = q
+    return np.array([
+        [q4*q4 + e1*e1 - e2*e2 - e3*e3, 2*(e1*e2 + q4*e3), 2*(e1*e3 - q4*e2)],
+        [2*(e1*e2 - q4*e3), q4*q4 - e1*e1 + e2*e2 - e3*e3, 2*(e2*e3 + q4*e1)],
+        [2*(e1*e3 + q4*e2), 2*(e2*e3 - q4*e1), q4*q4 - e1*e1 - e2*e2 + e3*e3]])
+
+
+def quat_mul(q, p):
+    """q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.2, scalar last)."""
+    qv, q4, pv, p4 = q[:3], q[3], p[:3], p[3]
+    v = q4 * pv + p4 * qv - env.cross3(qv, pv)
+    return np.array([v[0], v[1], v[2], q4 * p4 - qv @ pv])
+
+
+class Spacecraft:
+    """Attitude and wheel state, propagated by fixed-step RK4.
+
+    State ``x`` = [q (4), w (3) rad/s, W (4) rad/s, wheel angles (4) rad]. ``orbit=None`` turns off the gravity
+    gradient and the magnetic torque; ``disturbance(t, q, w) -> (3,) N m`` adds any other torque (body frame).
+    """
+
+    def __init__(self, wheels=None, inertia=None, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0),
+                 omega_rw=(0.0,) * N_WHEELS, orbit=_DEFAULT, field=_DEFAULT,
+                 dipole=env.M_DIPOLE_THESIS, gravity_gradient=True, disturbance=None, t0=0.0):
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError("dt must be > 0 s, got %r" % (dt,))
+        self.wheels = wheels if wheels is not None else Wheels()
+        if inertia is None:
+            inertia = np.add(J0_THESIS, DJ_THESIS)
+        self.j = inertia_matrix(inertia)
+        self.j_inv = np.linalg.inv(self.j)
+        self.dt = float(dt)
+        if self.wheels.p.jitter:
+            dt_max = 0.1 * 2 * np.pi / self.wheels.speed_max
+            if self.dt > dt_max:
+                raise ValueError("jitter needs dt <= %.3g s (10 steps per turn at speed_max), got dt = %r"
+                                 % (dt_max, dt))
+        self.orbit = env.CircularOrbit() if orbit is _DEFAULT else orbit
+        self.field = env.TiltedDipoleField() if field is _DEFAULT else field
+        self.dipole = None if dipole is None else np.array(dipole, dtype=float)
+        self.gravity_gradient = gravity_gradient
+        self.disturbance = disturbance
+        qa = _finite("q", q, 4)
+        if not qa.any():
+            raise ValueError("q must not be all zero")
+        self.x = np.concatenate([qa / np.linalg.norm(qa), _finite("omega", omega, 3),
+                                 _finite("omega_rw", omega_rw, N_WHEELS), np.zeros(N_WHEELS)])
+        self.t = float(t0)
+        self.tau_motor = np.zeros(N_WHEELS)       # applied over the last step (after limits)
+        self.steps = 0
+        self.q_drift_max = 0.0
+
+    # --- state views ---------------------------------------------------------------------------------
+    @property
+    def q(self):
+        return self.x[0:4]
+
+    @property
+    def omega(self):
+        return self.x[4:7]
+
+    @property
+    def omega_rw(self):
+        return self.x[7:11]
+
+    @property
+    def angle_rw(self):
+        return self.x[11:15]
+
+    def momentum_body(self, x=None):
+        """H = J w + C Jrw W, body frame (Eq. 4.11-4.13, 4.55)."""
+        x = self.x if x is None else x
+        return self.j @ x[4:7] + self.wheels.cj @ x[7:11]
+
+    def momentum_inertial(self):
+        """A(q)^T H: constant without external torque."""
+        return dcm(self.q).T @ self.momentum_body()
+
+    # --- dynamics ------------------------------------------------------------------------------------
+    def external_torque(self, t, x):
+        """tau_ext (body frame, N m) at time t and state x: gravity gradient, residual dipole, the callable,
+        jitter (its force moves the centre of mass, which this model does not follow)."""
+        q, w = x[0:4], x[4:7]
+        tau = np.zeros(3)
+        if self.orbit is not None and (self.gravity_gradient or self.dipole is not None):
+            a = dcm(q)
+            r_i = self.orbit.position(t)
+            if self.gravity_gradient:
+                tau += env.gravity_gradient_torque(self.j, a @ r_i)                   # Eq. 4.69-4.75
+            if self.dipole is not None and self.field is not None:
+                tau += env.magnetic_torque(self.dipole, a @ self.field.field(r_i, t))  # Eq. 4.71, 4.73
+        if self.disturbance is not None:
+            tau += np.asarray(self.disturbance(t, q, w), dtype=float)
+        if self.wheels.p.jitter:
+            tau += self.wheels.jitter(x[7:11], x[11:15])[1]
+        return tau
+
+    def derivative(self, t, x, tau_motor):
+        q, w, wr = x[0:4], x[4:7], x[7:11]
+        net = tau_motor - self.wheels.friction(wr)                  # torque on each rotor
+        wr_dot = net / self.wheels.j
+        h = self.j @ w + self.wheels.cj @ wr
+        tau = self.external_torque(t, x)
+        w_dot = self.j_inv @ (tau - env.cross3(w, h) - self.wheels.c @ net)        # Eq. 4.16
+        e, q4 = q[0:3], q[3]
+        q_dot = 0.5 * np.concatenate([q4 * w - env.cross3(w, e), [-(w @ e)]])     # Eq. 4.10
+        return np.concatenate([q_dot, w_dot, wr_dot, wr])
+
+    def step(self):
+        """One RK4 step of dt with the wheels' limited motor torques held; the quaternion is renormalised."""
+        dt, t, x = self.dt, self.t, self.x
+        tq = self.wheels.apply_limits(x[7:11], dt)
+        k1 = self.derivative(t, x, tq)
+        k2 = self.derivative(t + 0.5 * dt, x + 0.5 * dt * k1, tq)
+        k3 = self.derivative(t + 0.5 * dt, x + 0.5 * dt * k2, tq)
+        k4 = self.derivative(t + dt, x + dt * k3, tq)
+        x = x + (dt / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+        qn = np.sqrt(x[0:4] @ x[0:4])
+        self.q_drift_max = max(self.q_drift_max, abs(qn - 1.0))      # RK4's departure from |q| = 1
+        x[0:4] /= qn
+        self.x = x
+        self.t = t + dt
+        self.tau_motor = tq
+        self.steps += 1
+
+    def run(self, duration):
+        """Advance by ``duration`` seconds (rounded to whole steps); returns the number of steps."""
+        n = int(round(duration / self.dt))
+        for _ in range(n):
+            self.step()
+        return n

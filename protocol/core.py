@@ -43,6 +43,18 @@ for _e in table.ERRORS:
     ERROR[_e[0]] = _e[1]
 
 
+def node_id(name_or_num):
+    """Node address from a node name (``"CONTROLLER"``) or a number 0..255; ValueError otherwise."""
+    if isinstance(name_or_num, str):
+        n = NODE.get(name_or_num.upper())
+        if n is None:
+            raise ValueError("unknown node %r (nodes: %s)" % (name_or_num, ", ".join(NODE)))
+        return n
+    if isinstance(name_or_num, bool) or not isinstance(name_or_num, int) or not 0 <= name_or_num <= 255:
+        raise ValueError("node address %r out of range [0, 255]" % (name_or_num,))
+    return name_or_num
+
+
 class PacketDef:
     """A packet declaration with its derived struct format (all fields little-endian)."""
 

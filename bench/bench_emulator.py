@@ -1,0 +1,167 @@
+"""Bench emulator speed: real-time factor of a 600 s lockstep run and the cost of a tick by part.
+
+The run: 637.8 Hz control ticks, P-FSM at 10.6 kHz (a 2 Hz sine from a numpy player), Q2 at 630 Hz, and a
+trivial in-process controller that holds the mirror at the centre null (the issue's benchmark).
+Parts: physics (mirror dynamics and the P-FSM input sums), sensing (Q1 and Q2 quadcells, amplifiers, ADCs,
+noise), link (a TICK / FSM_SPI round trip in-process through the framing, and over a pty to another process).
+"""
+
+import os
+import subprocess
+import sys
+import time
+from array import array
+
+import numpy as np
+
+from emulator.bench import Bench
+from emulator.lockstep import Lockstep, RemoteController
+from emulator.mirrors import INIT_WORDS, fsm_words
+
+RATE = 637.8
+GOAL_RTF = 150.0
+
+_PEER = r"""
+import sys
+from protocol import core
+from protocol.stream import StreamLink
+link = StreamLink(sys.argv[1], "CONTROLLER")
+words = [int(w) for w in sys.argv[2].split(",")]
+tick_id = core.PACKET_ID["TICK"]
+link.send("HELLO", "BENCH", node=link.node)
+while not link.closed:
+    for pid, src, dst, seq, payload in link.recv(500):
+        if pid == tick_id:
+            tick = core.decode_payload(pid, payload)[0]
+            link.send("FSM_SPI", src, tick=tick, n=4, w0=words[0], w1=words[1], w2=words[2], w3=words[3])
+"""
+
+
+class HoldMirror:
+    """Trivial controller: the init sequence, then the same four words every tick."""
+
+    def __init__(self, cfg):
+        self.words = list(fsm_words(0.0375, -0.0026, cfg))
+
+    def on_tick(self, tick, t_us, vx, vy, vs):
+        return list(INIT_WORDS) if tick == 0 else self.words
+
+
+class SinePlayer:
+    def __init__(self, amp=800, hz=2.0, pfsm_hz=10600.0):
+        self.i, self.amp, self.w = 0, amp, 2 * np.pi * hz / pfsm_hz
+
+    def fill(self, xbuf, ybuf, n):
+        k = self.i + np.arange(n)
+        xbuf[:n] = array("H", (0x8000 + np.round(self.amp * np.sin(self.w * k))).astype(np.uint16).tobytes())
+        ybuf[:n] = array("H", (0x8000 + np.round(self.amp * np.cos(self.w * k))).astype(np.uint16).tobytes())
+        self.i += n
+        return n
+
+
+def full_run(duration_s=600.0):
+    b = Bench(seed=1)
+    res = Lockstep(b, HoldMirror(b.config), SinePlayer()).run(duration_s)
+    return res
+
+
+def parts(n=20000):
+    """Microseconds per tick: physics (step without its Q2 work, with load_pfsm), sensing (Q1 + Q2)."""
+    b = Bench(seed=2)
+    c = HoldMirror(b.config)
+    b.spi_words(INIT_WORDS)
+    b.spi_words(c.words)
+    counts = np.full(256, 17)
+    codes = np.full(17 * 256, 0x8000, np.uint16)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        b.q1_sample()
+    t_q1 = (time.perf_counter() - t0) / n
+    t0 = time.perf_counter()
+    for _ in range(n):
+        b._q2_sample(1e-4, -1e-4, 2e-5, 3e-5)
+    t_q2 = (time.perf_counter() - t0) / n * (630.0 / RATE)
+    t0 = time.perf_counter()
+    for i in range(n):
+        if i % 256 == 0:
+            b.load_pfsm(codes, codes, counts)
+        b.step()
+    t_step = (time.perf_counter() - t0) / n
+    return {"physics": (t_step - t_q2) * 1e6, "sensing": (t_q1 + t_q2) * 1e6}
+
+
+def link_cost(ticks=3000):
+    """Microseconds per tick added by a RemoteController: in-process framing, and a pty to a subprocess."""
+    from protocol.link import inproc_pair, open_link
+    import threading
+
+    out = {}
+    b = Bench(seed=3)
+    c = HoldMirror(b.config)
+    base = Lockstep(b, c).run(n_ticks=ticks)["wall_s"]
+    # in-process pair, peer in a thread
+    a, peer = inproc_pair("BENCH", "CONTROLLER")
+
+    def answer():
+        from protocol import core
+        while not peer.closed:
+            for pid, src, dst, seq, payload in peer.recv(timeout=0.2):
+                if pid == core.PACKET_ID["TICK"]:
+                    tick = core.decode_payload(pid, payload)[0]
+                    peer.send("FSM_SPI", src, tick=tick, n=4, w0=c.words[0], w1=c.words[1], w2=c.words[2],
+                              w3=c.words[3])
+
+    th = threading.Thread(target=answer, daemon=True)
+    th.start()
+    b = Bench(seed=3)
+    r = Lockstep(b, RemoteController(a, timeout_s=2.0)).run(n_ticks=ticks)
+    a.close()
+    out["inproc"] = ((r["wall_s"] - base) / ticks * 1e6, r["counters"]["overruns"])
+    # pty, peer in another process
+    link = open_link("pty", "BENCH")
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    proc = subprocess.Popen([sys.executable, "-c", _PEER, link.peer_path, ",".join(map(str, c.words))], env=env)
+    try:
+        b = Bench(seed=3)
+        rc = RemoteController(link, timeout_s=2.0)
+        rc.wait_peer(10.0)
+        r = Lockstep(b, rc).run(n_ticks=ticks)
+        out["pty"] = ((r["wall_s"] - base) / ticks * 1e6, r["counters"]["overruns"])
+    finally:
+        link.close()
+        proc.kill()
+        proc.wait()
+    return out
+
+
+def main():
+    res = full_run()
+    wall = res["wall_s"]
+    us_tick = wall / res["ticks"] * 1e6
+    print("| 600 s bench run (637.8 Hz ticks, 10.6 kHz P-FSM, Q2 630 Hz, hold controller) | goal | ours |")
+    print("|---|---|---|")
+    print("| real-time factor | >= %.0fx | %.0fx |" % (GOAL_RTF, res["realtime_factor"]))
+    print("| wall time | <= %.1f s | %.2f s |" % (600.0 / GOAL_RTF, wall))
+    print("| cost per tick, total | <= %.1f us | %.2f us |" % (1e6 / RATE / GOAL_RTF, us_tick))
+    print("| ticks / Q2 samples / overruns | 382680 / 378000 / 0 | %d / %d / %d |"
+          % (res["ticks"], len(res["q2"]), res["counters"]["overruns"]))
+    p = parts()
+    print()
+    print("| cost per tick by part | ours (us) |")
+    print("|---|---|")
+    print("| physics (mirrors, P-FSM input sums) | %.2f |" % p["physics"])
+    print("| sensing (Q1 every tick, Q2 at 630 Hz) | %.2f |" % p["sensing"])
+    print("| lockstep, controller, player (rest of the total) | %.2f |" % max(0.0, us_tick - sum(p.values())))
+    try:
+        lc = link_cost()
+    except ImportError:
+        return
+    print()
+    print("| link cost per tick (RemoteController round trip) | ours (us) | overruns |")
+    print("|---|---|---|")
+    print("| in-process pair (COBS + CRC framing, thread peer) | %.1f | %d |" % lc["inproc"])
+    print("| pty to a CPython process (HARDWARE_FACTS: 84 us median) | %.1f | %d |" % lc["pty"])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""``fps emulator``: the bench emulator's command line.
+
+- ``config``  print the default bench config ("thesis bench" preset) as JSON
+- ``truth-h`` write the true H field over the Sec. 7.4 grid (calibration JSON shape)
+- ``serve``   serve the bench on a link (lockstep, the emulator owns time)
+"""
+
+import sys
+
+
+def register(sub, name, help_):
+    p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
+    cmds = p.add_subparsers(dest="emulator_cmd", metavar="CMD")
+
+    c = cmds.add_parser("config", help="print the default bench config (JSON)")
+    c.add_argument("--config", help="validate and print this config file merged over the preset instead")
+    c.set_defaults(func=_config)
+
+    t = cmds.add_parser("truth-h", help="true H field over the P-FSM grid (Sec. 7.4) as calibration JSON")
+    t.add_argument("--grid", type=int, default=11, help="grid points per axis over -5..+5 V (default 11)")
+    t.add_argument("--dv", type=float, default=0.01, help="FSM perturbation in V (default 0.01)")
+    t.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
+    t.add_argument("-o", "--output", required=True, help="output JSON file")
+    t.set_defaults(func=_truth_h)
+
+    s = cmds.add_parser("serve", help="serve the bench on a link; the controller connects to it")
+    s.add_argument("--link", default="serial", choices=("serial", "can"),
+                   help="serial: a pseudo-terminal pair (prints the slave path); can: slcan over a pty")
+    s.add_argument("--config", help="bench config JSON")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--duration", type=float, default=10.0, help="virtual seconds to run (default 10)")
+    s.add_argument("--rate", type=float, default=637.8, help="control tick rate in Hz (default 637.8)")
+    s.add_argument("--pfsm-v", type=float, nargs=2, default=(0.0, 0.0), metavar=("VX", "VY"),
+                   help="hold the P-FSM at these volts (when no --distfile)")
+    s.add_argument("--distfile", help="play this distfile into the P-FSM (firmware player)")
+    s.add_argument("--deadline", type=float, default=1.0, help="seconds to wait for each FSM command")
+    s.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the controller's first packet (HELLO)")
+    s.add_argument("--realtime", action="store_true", help="pace by the wall clock")
+    s.add_argument("-o", "--output", help="write the run summary (JSON) here")
+    s.set_defaults(func=_serve)
+    p.set_defaults(func=lambda args: p.print_help() or 2)
+
+
+def _config(args):
+    from emulator.config import default_config, dumps, load_config
+    cfg = load_config(args.config) if args.config else default_config()
+    sys.stdout.write(dumps(cfg))
+    return 0
+
+
+def _truth_h(args):
+    from emulator.bench import Bench
+    from emulator.config import load_config, write_json_atomic
+    from emulator.truth import sec74_grid, true_h_field
+    bench = Bench(load_config(args.config), noise=False)
+    out = true_h_field(bench, sec74_grid(args.grid), args.dv)
+    write_json_atomic(args.output, out)
+    c = next(p for p in out["points"] if p["pfsm_v"] == [0.0, 0.0]) if args.grid % 2 else out["points"][0]
+    print("wrote %s: %d points; at P-FSM %s V: V0 = (%.4f, %.4f) V, H = %s"
+          % (args.output, len(out["points"]), c["pfsm_v"], c["v0"][0], c["v0"][1],
+             [[round(v, 4) for v in row] for row in c["H"]]))
+    return 0
+
+
+def _serve(args):
+    from emulator.serve import serve
+    return serve(args)

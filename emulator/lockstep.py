@@ -1,0 +1,224 @@
+"""The clock: lockstep (virtual time) and real-time runs of the bench against a controller and a player.
+
+Per control tick k (t = k / rate_hz): the bench's Q1 sample goes to the controller, whose answer (AD5664R words)
+is applied to the MEMS driver, then the physics advances one tick with the P-FSM taking the player's codes at
+its own rate. A controller that answers nothing (None or empty) or too late is a counted overrun and the mirror
+holds its last input, as the hardware would. In real-time mode tick k starts at wall time t0 + k / rate_hz and an
+answer later than ``deadline_s`` after that is an overrun (its words are dropped).
+
+The player is open loop, so its codes are fetched ``block_ticks`` ticks at a time (one ``fill`` call) and the
+P-FSM input sums precomputed per block; ``block_ticks=1`` interleaves player and controller exactly.
+
+Duck types (docs/INTERFACES.md): ``controller.on_tick(tick, t_us, vx, vy, vs) -> words``;
+``player.fill(xbuf, ybuf, n) -> int`` writes n AD660 codes per axis (fewer = the DAC holds its last code).
+"""
+
+import time
+from array import array
+from collections import deque
+
+import numpy as np
+
+from protocol import core
+
+
+class HoldPlayer:
+    """A player that holds the P-FSM at fixed AD660 codes (0x8000 = 0 V)."""
+
+    def __init__(self, x_code=0x8000, y_code=0x8000):
+        self.x_code, self.y_code = x_code, y_code
+
+    def fill(self, xbuf, ybuf, n):
+        xbuf[:n] = array("H", [self.x_code]) * n
+        ybuf[:n] = array("H", [self.y_code]) * n
+        return n
+
+
+class Lockstep:
+    """Runs ``bench`` against ``controller`` and ``player`` (None = hold the P-FSM at 0 V).
+
+    ``run(duration_s)`` returns a dict: ``q2`` (m x 5 int64: sample, t_us, vx, vy, vs), ``truth_arcsec``
+    (m x 2, true sky error at the Q2 instants), ``counters``, ``config``, ``seed``, ``ticks``, ``wall_s``
+    and the timing parameters. ``record=True`` adds ``q1`` (ticks x 3) and ``fsm_v`` (ticks x 2).
+    """
+
+    def __init__(self, bench, controller, player=None, rate_hz=637.8, pfsm_hz=10600.0, deadline_s=1.0,
+                 realtime=False, block_ticks=256, record=False):
+        if not 100.0 <= pfsm_hz <= 1e6 or pfsm_hz < rate_hz:
+            raise ValueError("pfsm_hz = %r must be in [100, 1e6] and >= rate_hz" % pfsm_hz)
+        if deadline_s <= 0:
+            raise ValueError("deadline_s = %r must be > 0" % deadline_s)
+        if block_ticks < 1:
+            raise ValueError("block_ticks = %r must be >= 1" % block_ticks)
+        self.bench = bench
+        self.controller = controller
+        self.player = player if player is not None else HoldPlayer()
+        bench.set_rate(rate_hz)
+        self.rate_hz = float(rate_hz)
+        self.pfsm_hz = float(pfsm_hz)
+        self.deadline_s = float(deadline_s)
+        self.realtime = realtime
+        self.block_ticks = int(block_ticks)
+        self.record = record
+        self.tick = 0
+        self.n_overrun = 0
+        self.n_player_short = 0
+        self._last_x = 0x8000
+        self._last_y = 0x8000
+
+    def _counts(self, k0, n):
+        """P-FSM updates falling in ticks k0 .. k0+n-1 on the uniform pfsm_hz clock (>= 1 per tick)."""
+        r = self.pfsm_hz / self.rate_hz
+        edges = np.floor(np.arange(k0, k0 + n + 1) * r).astype(np.int64)
+        return np.maximum(np.diff(edges), 1)
+
+    def _load_block(self, n):
+        counts = self._counts(self.tick, n)
+        total = int(counts.sum())
+        xbuf = array("H", bytes(2 * total))
+        ybuf = array("H", bytes(2 * total))
+        got = self.player.fill(xbuf, ybuf, total)
+        got = total if got is None else max(0, min(int(got), total))
+        if got < total:
+            self.n_player_short += 1
+            xa = np.frombuffer(xbuf, dtype=np.uint16).copy()
+            ya = np.frombuffer(ybuf, dtype=np.uint16).copy()
+            xa[got:] = xa[got - 1] if got else self._last_x
+            ya[got:] = ya[got - 1] if got else self._last_y
+        else:
+            xa = np.frombuffer(xbuf, dtype=np.uint16)
+            ya = np.frombuffer(ybuf, dtype=np.uint16)
+        self._last_x, self._last_y = int(xa[-1]), int(ya[-1])
+        self.bench.load_pfsm(xa, ya, counts)
+
+    def run(self, duration_s=None, n_ticks=None, progress=None):
+        """Run for ``duration_s`` of virtual time (or ``n_ticks`` ticks); may be called again to continue."""
+        if n_ticks is None:
+            if duration_s is None or duration_s < 0:
+                raise ValueError("run: give duration_s >= 0 or n_ticks")
+            n_ticks = int(round(duration_s * self.rate_hz))
+        bench, ctrl = self.bench, self.controller
+        on_tick = ctrl.on_tick
+        q1_sample, spi_words, step = bench.q1_sample, bench.spi_words, bench.step
+        rate = self.rate_hz
+        us_per_tick = 1e6 / rate
+        q2_rows, q1_rows, fsm_rows = [], [], []
+        realtime, deadline, record = self.realtime, self.deadline_s, self.record
+        clock = time.perf_counter
+        t_wall0 = clock()
+        t_rt0 = t_wall0 - self.tick / rate
+        overruns = 0
+        end = self.tick + n_ticks
+        while self.tick < end:
+            n = min(self.block_ticks, end - self.tick)
+            self._load_block(n)
+            k = self.tick
+            for k in range(self.tick, self.tick + n):
+                if realtime:
+                    due = t_rt0 + k / rate
+                    now = clock()
+                    if now < due:
+                        time.sleep(due - now)
+                    if hasattr(ctrl, "timeout_s"):
+                        ctrl.timeout_s = max(0.0, due + deadline - clock())
+                vx, vy, vs = q1_sample()
+                words = on_tick(k, int(k * us_per_tick + 0.5), vx, vy, vs)
+                if realtime and clock() > t_rt0 + k / rate + deadline:
+                    words = None
+                if words:
+                    spi_words(words)
+                else:
+                    overruns += 1
+                q2 = step()
+                if q2:
+                    q2_rows.extend(q2)
+                if record:
+                    q1_rows.append((vx, vy, vs))
+                    fsm_rows.append(bench.fsm_v)
+            self.tick = k + 1
+            if progress is not None:
+                progress(self.tick)
+        self.n_overrun += overruns
+        wall = clock() - t_wall0
+        rows = np.array(q2_rows, dtype=float).reshape(-1, 7)
+        out = {"q2": rows[:, :5].astype(np.int64), "truth_arcsec": rows[:, 5:7],
+               "counters": self.counters(), "config": bench.config, "seed": bench.seed, "ticks": n_ticks,
+               "wall_s": wall, "rate_hz": rate, "pfsm_hz": self.pfsm_hz, "realtime": realtime,
+               "realtime_factor": (n_ticks / rate) / wall if wall > 0 else float("inf")}
+        if self.record:
+            out["q1"] = np.array(q1_rows, dtype=np.int64).reshape(-1, 3)
+            out["fsm_v"] = np.array(fsm_rows, dtype=float).reshape(-1, 2)
+        return out
+
+    def counters(self):
+        c = dict(self.bench.counters())
+        c.update({"overruns": self.n_overrun, "player_short_blocks": self.n_player_short})
+        if hasattr(self.controller, "counters"):
+            c.update(("controller_" + k, v) for k, v in self.controller.counters().items())
+        return c
+
+
+class RemoteController:
+    """Controller adapter over a protocol Link (docs/INTERFACES.md): sends TICK, waits for the one FSM_SPI
+    (up to 4 words) that answers it.
+
+    ``on_tick`` returns the words of the FSM_SPI answering this tick, or None after ``timeout_s`` (wall).
+    FSM_SPI answering an older tick arrives late: counted and dropped. Every other packet received meanwhile
+    goes to ``inbox`` (a deque of (pid, src, dst, seq, payload)) for the ground.
+    """
+
+    def __init__(self, link, dst="CONTROLLER", timeout_s=1.0):
+        self.link = link
+        self.dst = core.NODE[dst] if isinstance(dst, str) else dst
+        self.timeout_s = timeout_s
+        self.inbox = deque()
+        self.n_late = 0
+        self.n_timeout = 0
+        self.n_bad = 0
+        self._tick_id = core.PACKET_ID["TICK"]
+        self._spi_id = core.PACKET_ID["FSM_SPI"]
+        self._pending = deque()
+
+    def wait_peer(self, timeout_s):
+        """Block until the peer's first packet (the firmware's HELLO) arrives; True if one did.
+
+        Start the clock after it: a TICK written before the peer opened a pty may be flushed by its raw-mode
+        setup."""
+        deadline = time.perf_counter() + timeout_s
+        while not self._pending and not self.link.closed:
+            left = deadline - time.perf_counter()
+            if left <= 0:
+                return False
+            self._pending.extend(self.link.recv(timeout=left))
+        return bool(self._pending)
+
+    def on_tick(self, tick, t_us, vx, vy, vs):
+        link = self.link
+        tick &= 0xFFFFFFFF
+        link.send(self._tick_id, self.dst, tick=tick, t_us=t_us & 0xFFFFFFFF, vx=vx, vy=vy, vs=vs)
+        deadline = time.perf_counter() + self.timeout_s
+        pending = self._pending
+        while True:
+            while pending:
+                pkt = pending.popleft()
+                if pkt[0] != self._spi_id:
+                    self.inbox.append(pkt)
+                    continue
+                try:
+                    vals = core.decode_payload(pkt[0], pkt[4])
+                except ValueError:
+                    self.n_bad += 1
+                    continue
+                if vals[0] != tick:
+                    self.n_late += 1
+                    continue
+                return list(vals[2:2 + vals[1]])
+            left = deadline - time.perf_counter()
+            if left <= 0 or link.closed:
+                self.n_timeout += 1
+                return None
+            pending.extend(link.recv(timeout=left))
+
+    def counters(self):
+        return {"late": self.n_late, "timeouts": self.n_timeout, "bad": self.n_bad}
+

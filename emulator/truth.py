@@ -1,0 +1,35 @@
+"""The true H field of the emulated bench over the Sec. 7.4 grid, in the calibration JSON shape.
+
+At each P-FSM grid point (both axes over ``grid_v``), the FSM tilt volts V0 that null Q1 are found on the
+noiseless reference model, then H = [[a, b], [c, d]] by least squares over the 8 points +-dv along X, Y and
+both (Eq. 7.14-7.16). Points are ordered with X varying fastest. Shape (docs/INTERFACES.md):
+``{"grid_v": [...], "dv": dv, "points": [{"pfsm_v", "v0", "H", "residual"}, ...]}`` plus ``bench_config``,
+``created_utc`` and ``source``.
+"""
+
+import time
+
+import numpy as np
+
+from emulator.bench import Bench
+
+
+def sec74_grid(n=11, half_span_v=5.0):
+    """P-FSM grid volts: -5 V .. +5 V in 1 V steps for n = 11 (Sec. 7.4)."""
+    if n < 2:
+        raise ValueError("grid size %r must be >= 2" % n)
+    return [float(v) for v in np.round(np.linspace(-half_span_v, half_span_v, n), 12)]
+
+
+def true_h_field(bench=None, grid_v=None, dv=0.01):
+    """The true H at every grid point; returns the calibration-shaped dict."""
+    if not 0.0 < dv <= 0.5:
+        raise ValueError("dv = %r V is out of range (0, 0.5]" % dv)
+    bench = bench if bench is not None else Bench(noise=False)
+    grid_v = sec74_grid() if grid_v is None else [float(v) for v in grid_v]
+    points = []
+    for vy in grid_v:
+        for vx in grid_v:
+            points.append(bench.true_h((vx, vy), dv))
+    return {"grid_v": grid_v, "dv": dv, "points": points, "bench_config": bench.config,
+            "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "source": "emulator truth"}

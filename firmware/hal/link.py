@@ -1,0 +1,101 @@
+"""Link HAL: the controller's Q1 input and SPI output carried over the protocol (HIL against the emulator).
+
+``serve_controller`` answers each TICK (the Q1 sample) with one FSM_SPI (the tick number and the AD5664R
+words), plus CTRL_STATUS to the ground every ``decim`` ticks, and handles every other packet between ticks.
+The per-tick path unpacks and packs with preallocated buffers; framing is the link's. ``open_link`` gives a
+``protocol.stream.StreamLink`` for ``serial:PATH`` under MicroPython and, under CPython, any
+``protocol.link`` spec (``serial:PATH`` through pyserial, ``slcan:PATH`` for CAN). Links time out in ms here (``recv_ms``).
+"""
+
+import struct
+import sys
+
+from protocol import core
+
+P_TICK = core.PACKET_ID["TICK"]
+P_FSM_SPI = core.PACKET_ID["FSM_SPI"]
+P_STATUS = core.PACKET_ID["CTRL_STATUS"]
+P_HELLO = core.PACKET_ID["HELLO"]
+GROUND = core.NODE["GROUND"]
+BROADCAST = core.NODE["BROADCAST"]
+_TICK_FMT = core.PACKET[P_TICK].fmt
+_SPI_FMT = core.PACKET[P_FSM_SPI].fmt
+_SPI_SIZE = core.PACKET[P_FSM_SPI].size
+_MICROPYTHON = sys.implementation.name == "micropython"
+
+
+class _Ms:
+    """Adapter giving a ``protocol.link.Link`` (timeout in s) the StreamLink's ``recv_ms``."""
+
+    def __init__(self, link):
+        self.link = link
+        self.node = link.node
+
+    def recv_ms(self, timeout_ms):
+        return self.link.recv(None if timeout_ms is None else timeout_ms / 1000.0)
+
+    def send_raw(self, pid, src, dst, payload):
+        self.link.send_raw(pid, src, dst, payload)
+
+    @property
+    def closed(self):
+        return self.link.closed
+
+    def close(self):
+        self.link.close()
+
+
+class _StreamMs(_Ms):
+    def recv_ms(self, timeout_ms):
+        return self.link.recv(timeout_ms)
+
+
+def open_link(spec, node):
+    """A link for ``spec`` with ``recv_ms``/``send_raw``/``closed``/``close``."""
+    if _MICROPYTHON:
+        if not spec.startswith("serial:"):
+            raise ValueError("link %r: MicroPython speaks serial:PATH only" % spec)
+        from protocol.stream import StreamLink
+        return _StreamMs(StreamLink(spec[len("serial:"):], node))
+    from protocol import link as hostlink
+    return _Ms(hostlink.open_link(spec, node))
+
+
+def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
+    """Run the controller on a link until the peer leaves. Silence counts toward SAFE (``ctl.link_silent``)."""
+    me = link.node
+    out = bytearray(_SPI_SIZE)
+    w = ctl.words
+    link.send_raw(P_HELLO, me, BROADCAST, core.encode_payload(P_HELLO, node=me, fw_major=1, fw_minor=0))
+    silent_ticks = int(poll_ms * rate_hz / 1000) or 1
+    while not link.closed:
+        pkts = link.recv_ms(poll_ms)
+        if not pkts:
+            ctl.link_silent(silent_ticks)
+            continue
+        for pid, src, dst, seq, payload in pkts:
+            if dst != me and dst != BROADCAST:
+                continue
+            if pid == P_TICK:
+                tick, t_us, vx, vy, vs = struct.unpack(_TICK_FMT, payload)
+                ctl.silent = 0
+                n = ctl.step(vx, vy, vs)
+                struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
+                link.send_raw(P_FSM_SPI, me, src, out)
+                if ctl.status_due():
+                    link.send_raw(P_STATUS, me, GROUND, ctl.status_payload(tick))
+            else:
+                for rpid, rdst, rpayload in ctl.handle(pid, src, seq, payload):
+                    link.send_raw(rpid, me, rdst, rpayload)
+    link.close()
+
+
+def serve_player(player, link, poll_ms=100):
+    """Serve the player's packets (PLAYER_CTRL, DIST upload) on a link until the peer leaves."""
+    me = link.node
+    while not link.closed:
+        for pid, src, dst, seq, payload in link.recv_ms(poll_ms):
+            if dst == me or dst == BROADCAST:
+                for rpid, rdst, rpayload in player.handle(pid, src, seq, payload):
+                    link.send_raw(rpid, me, rdst, rpayload)
+    link.close()

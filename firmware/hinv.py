@@ -1,0 +1,122 @@
+"""Fixed-point H^-1 table over the rectilinear FSM-voltage grid, for the integral law (Eq. 7.10-7.12).
+
+Built once from a ``protocol.htable.Grid`` (float, at load time); the controller's hot loop then reads the
+integer lists below and interpolates bilinearly by its current command. Q-formats:
+
+- ``ax``, ``ay``   grid axes in AD5664R tilt codes (Q0 code, ``firmware.ad5664r.CODES_PER_VOLT``), ascending.
+- ``rdx``, ``rdy`` per cell 2^24 // width (Q24 per code): the cell fraction t = ((c - ax[i]) * rdx[i]) >> 12
+  is Q12 in [0, 4096]; the product is at most width * 2^24 / width = 2^24.
+- ``h``            H^-1 per node in code per unit ratio, Q``hq`` (value * 2^hq), four entries
+  (h11, h12, h21, h22) per node at index 4 * (j * nx + i). ``hq`` is the largest of 0..12 keeping every
+  |entry| <= HINV_MAX (16000 < 2^14), so the law's products (|entry| * |g e| <= 16000 * 32767) summed in
+  pairs stay below 2^30 with room for rounding.
+
+A node whose H is singular, or whose H^-1 exceeds HINV_MAX at Q0 (|H^-1| > 1.22 V per unit ratio: the
+quadcell too insensitive to steer by), or is below 1 code per unit ratio, refuses the whole table.
+"""
+
+from firmware import ad5664r
+from protocol.htable import HTableError
+
+HINV_MAX = 16000
+HQ_MAX = 12
+
+
+class HinvTable:
+    """Integer lists for the bilinear H^-1 lookup (see the module docstring for their Q-formats)."""
+
+    def __init__(self, grid):
+        grid.validate()
+        self.nx = grid.nx
+        self.ny = grid.ny
+        self.ax = self._axis(grid.ax, "ax")
+        self.ay = self._axis(grid.ay, "ay")
+        self.rdx = [(1 << 24) // (self.ax[i + 1] - self.ax[i]) for i in range(self.nx - 1)]
+        self.rdy = [(1 << 24) // (self.ay[j + 1] - self.ay[j]) for j in range(self.ny - 1)]
+        inv = []
+        big = 0.0
+        for k in range(len(grid.h)):
+            a, b, c, d = grid.h[k]
+            det = a * d - b * c
+            scale = max(abs(a), abs(b), abs(c), abs(d))
+            where = "node (%d, %d)" % (k % self.nx, k // self.nx)
+            if scale == 0.0 or abs(det) <= 1e-6 * scale * scale:
+                raise HTableError("H table %s is singular: H = %r" % (where, grid.h[k]))
+            # H^-1 in V per unit ratio, then in code per unit ratio
+            m = (d / det * ad5664r.CODES_PER_VOLT, -b / det * ad5664r.CODES_PER_VOLT,
+                 -c / det * ad5664r.CODES_PER_VOLT, a / det * ad5664r.CODES_PER_VOLT)
+            mk = max(abs(m[0]), abs(m[1]), abs(m[2]), abs(m[3]))
+            if mk > HINV_MAX:
+                raise HTableError("H table %s: |H^-1| = %.4g V per unit ratio, above %.4g (H too small)"
+                                  % (where, mk / ad5664r.CODES_PER_VOLT, HINV_MAX / ad5664r.CODES_PER_VOLT))
+            if mk < 1.0:
+                raise HTableError("H table %s: |H^-1| = %.4g V per unit ratio, below one code (H too large)"
+                                  % (where, mk / ad5664r.CODES_PER_VOLT))
+            big = max(big, mk)
+            inv.append(m)
+        hq = 0
+        while hq < HQ_MAX and big * (1 << (hq + 1)) <= HINV_MAX:
+            hq += 1
+        self.hq = hq
+        self.shift = 7 + hq               # Q(15 + hq) product -> Q8 code state
+        self.h = []
+        for m in inv:
+            for e in m:
+                v = e * (1 << hq)
+                self.h.append(int(v + 0.5) if v >= 0 else -int(-v + 0.5))
+        self.grid = grid
+
+    def _axis(self, vals, name):
+        out = [ad5664r.volts_to_code(v) for v in vals]
+        for k in range(1, len(out)):
+            if out[k] <= out[k - 1]:
+                raise HTableError("H table %s[%d] = %d code not above %d (grid too fine)" % (name, k, out[k],
+                                                                                           out[k - 1]))
+        return out
+
+    def hinv_at(self, x_code, y_code):
+        """The interpolated H^-1 entries (Q``hq``) at tilt codes x, y: a reference path for tests and telemetry
+        (the controller inlines the same arithmetic in its hot loop)."""
+        i, tx = _cell(self.ax, self.rdx, x_code)
+        j, ty = _cell(self.ay, self.rdy, y_code)
+        k = (j * self.nx + i) << 2
+        k01 = k + (self.nx << 2)
+        h = self.h
+        out = []
+        for e in range(4):
+            a = h[k + e]
+            b = h[k + 4 + e]
+            c = h[k01 + e]
+            d = h[k01 + 4 + e]
+            t = a + (((b - a) * tx) >> 12)
+            u = c + (((d - c) * tx) >> 12)
+            out.append(t + (((u - t) * ty) >> 12))
+        return out
+
+
+def _cell(ax, rd, c):
+    """(cell index, Q12 fraction) of code c on axis ax, clamped to the grid."""
+    i = 0
+    n = len(ax)
+    while i < n - 2 and c >= ax[i + 1]:
+        i += 1
+    if c <= ax[i]:
+        return i, 0
+    if c >= ax[i + 1]:
+        return i, 4096
+    return i, ((c - ax[i]) * rd[i]) >> 12
+
+
+def load_file(path):
+    """A ``HinvTable`` from a calibration JSON file (``.json``) or an H-table blob on the filesystem."""
+    from protocol import htable
+    with open(path, "rb") as f:
+        data = f.read()
+    if path.endswith(".json"):
+        import json
+        try:
+            cal = json.loads(data)
+        except ValueError as exc:
+            raise HTableError("calibration %s is not valid JSON: %s" % (path, exc))
+        return HinvTable(htable.grid_from_calibration(cal))
+    return HinvTable(htable.parse(data))

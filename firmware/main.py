@@ -1,0 +1,91 @@
+"""Firmware entry point, the same under MicroPython and CPython::
+
+    micropython -m firmware.main controller --link serial:/dev/pts/N [--table cal.json] [--track] ...
+    python -m firmware.main controller --link slcan:/dev/pts/N ...        (CAN: CPython only)
+    micropython -m firmware.main player --link serial:/dev/pts/N [--distfile d.bin] [--store d.bin]
+
+Controller options: --table PATH (calibration JSON or H-table blob), --track (start in TRACK; needs a table),
+--gain Q15, --decim TICKS, --safe-ticks TICKS, --beam-threshold COUNTS, --rate HZ (for link-silence
+accounting). Exit status 0 when the peer leaves, 2 on bad arguments (a message names the option).
+"""
+
+import sys
+
+_CTRL_INT = {"--gain": "gain_q15", "--decim": "decim", "--safe-ticks": "safe_ticks",
+             "--beam-threshold": "beam_threshold"}
+
+
+def _usage(msg):
+    print("firmware.main: error: %s" % msg)
+    print("usage: firmware.main controller|player --link SPEC [options] (see the module docstring)")
+    return 2
+
+
+def parse(argv):
+    """(role, options dict) from argv; ValueError naming a bad or missing option."""
+    if not argv or argv[0] not in ("controller", "player"):
+        raise ValueError("first argument must be controller or player, got %r" % (argv[0] if argv else None))
+    role = argv[0]
+    opts = {"link": None, "table": None, "track": False, "rate": 637.8, "ctl": {}, "distfile": None,
+            "store": None}
+    i = 1
+    while i < len(argv):
+        a = argv[i]
+        if a == "--track":
+            opts["track"] = True
+            i += 1
+            continue
+        if i + 1 >= len(argv):
+            raise ValueError("option %s needs a value" % a)
+        v = argv[i + 1]
+        if a == "--link":
+            opts["link"] = v
+        elif a == "--table":
+            opts["table"] = v
+        elif a == "--distfile":
+            opts["distfile"] = v
+        elif a == "--store":
+            opts["store"] = v
+        elif a == "--rate":
+            opts["rate"] = float(v)
+        elif a in _CTRL_INT:
+            try:
+                opts["ctl"][_CTRL_INT[a]] = int(v)
+            except ValueError:
+                raise ValueError("option %s = %r is not an integer" % (a, v))
+        else:
+            raise ValueError("unknown option %r" % a)
+        i += 2
+    if not opts["link"]:
+        raise ValueError("--link SPEC is required (serial:/dev/pts/N, or slcan:PATH under CPython)")
+    if opts["track"] and not opts["table"]:
+        raise ValueError("--track needs --table")
+    return role, opts
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        role, opts = parse(argv)
+        from firmware.hal import link as hal_link
+        if role == "controller":
+            from firmware.controller import TRACK, Controller
+            ctl = Controller(table=opts["table"], **opts["ctl"])
+            if opts["track"]:
+                ctl.mode = TRACK
+            lk = hal_link.open_link(opts["link"], "CONTROLLER")
+            hal_link.serve_controller(ctl, lk, rate_hz=opts["rate"])
+        else:
+            from firmware.player import Player
+            p = Player(store_path=opts["store"])
+            if opts["distfile"]:
+                p.open_file(opts["distfile"])
+            lk = hal_link.open_link(opts["link"], "PLAYER")
+            hal_link.serve_player(p, lk)
+    except (ValueError, OSError) as exc:
+        return _usage(exc)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,317 @@
+"""``fps hil``: the emulated hardware-in-the-loop run of Sec. 7.5.
+
+Starts the emulated bench, the disturbance player (firmware, in-process beside the bench: the SimArduino)
+and the controller firmware (in-process, or a CPython/MicroPython subprocess over a serial pty or CAN slcan),
+uploads the H calibration (HTABLE_*), calibrates Q2 against the P-FSM, then plays the distfile with the
+controller in TRACK mode and records Q2 at 630 Hz through the ADS1256 model beside the emulator's truth.
+
+Q2 calibration (Sec. 7.5, "by the same method as Sec. 7.4, but with the P-FSM and Q2"): with the FSM held
+at its null, the P-FSM is perturbed by +-dVp along X, Y and both (8 points); least squares gives G2 with
+R2 = G2 dVp (+ offset column for the fit only). A P-FSM voltage is an error angle by Eq. 7.8
+(0.012343 V/arcsec), so a Q2 ratio R2 reads as the error theta = G2^-1 R2 / 0.012343 arcsec. R2 is taken
+absolute (zero at Q2's own centre), so Q1/Q2 misalignment shows as a mean error, as in the thesis.
+
+Run folder (every file written atomically): ``config.json``, ``calibration.json`` (as uploaded),
+``q2_calibration.json``, ``telemetry.csv`` (CTRL_STATUS), ``samples.npz`` (Q2 counts, Q2 and truth error
+angles at the Q2 instants), ``summary.json`` (``complete`` false until the run ends), ``report.md`` and the
+plots ``fig7-18_scatter.png``, ``fig7-19_time.png``. Ctrl-C or SIGTERM stops the run and leaves the folder
+valid with what was recorded and ``complete: false``.
+"""
+
+import contextlib
+import io
+import json
+import os
+import signal
+import sys
+import time
+
+import numpy as np
+
+from ground import report
+from ground.calibrate import STEPS, fit_h, load_calibration
+from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
+from ground.fileio import write_atomic, write_json
+from protocol import htable
+
+CHUNK_S = 1.0     # virtual seconds per lockstep call (progress and interruption granularity)
+
+
+class Interrupted(Exception):
+    pass
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM raises KeyboardInterrupt (like Ctrl-C) while the run is on; restored afterwards."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except ValueError:       # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def calibrate_q2(rig, dvp=0.05, settle_ticks=16, avg_samples=48):
+    """G2 (Q2 ratio per P-FSM volt) around the current operating point, FSM held (HOLD mode)."""
+    rig.settings("HOLD", decim=0)
+    dvs, rs = [], []
+    per_tick = rig.bench.q2_hz / rig.rate_hz
+    n_avg = int(np.ceil(avg_samples / per_tick)) + 1
+    for sx, sy in STEPS:
+        rig.pfsm_v(sx * dvp, sy * dvp)
+        rig.run(settle_ticks)
+        q2 = rig.run(n_avg)["q2"]
+        if len(q2) == 0 or np.any(q2[:, 4] <= 0):
+            raise ValueError("Q2 calibration: no beam on Q2 at P-FSM (%g, %g) V" % (sx * dvp, sy * dvp))
+        rs.append([np.mean(q2[:, 2] / q2[:, 4]), np.mean(q2[:, 3] / q2[:, 4])])
+        dvs.append([(rig.hold.x_code - 0x8000) / 3276.8, (rig.hold.y_code - 0x8000) / 3276.8])
+    rig.pfsm_v(0.0, 0.0)
+    dvs = np.array(dvs)
+    g2, off, resid = fit_h(dvs - dvs.mean(axis=0), rs)
+    return {"G2": g2.tolist(), "offset": off.tolist(), "residual": resid, "dvp": dvp,
+            "arcsec_per_v": 1.0 / V_PER_ARCSEC, "method": "Sec. 7.5: Sec. 7.4 least squares with P-FSM and Q2"}
+
+
+def q2_error_arcsec(q2, q2cal):
+    """Error angles (x, y) arcsec from Q2 counts rows (sample, t_us, vx, vy, vs): G2^-1 R2 / 0.012343."""
+    q2 = np.asarray(q2, dtype=float).reshape(-1, 5)
+    vs = np.where(q2[:, 4] > 0, q2[:, 4], np.nan)
+    r = np.column_stack([q2[:, 2] / vs, q2[:, 3] / vs])
+    ginv = np.linalg.inv(np.array(q2cal["G2"]))
+    v = r @ ginv.T
+    return v * q2cal["arcsec_per_v"]
+
+
+class Recorder:
+    """Accumulates the run's samples and telemetry; writes the run folder."""
+
+    def __init__(self, out_dir):
+        self.dir = out_dir
+        self.q2 = []
+        self.truth = []
+        self.status = []
+        self.t_wall0 = time.perf_counter()
+        self.play_wall = 0.0
+        self.virtual_s = 0.0
+        self.minute_rates = []    # (virtual s, wall s) per chunk, for the first/last minute rate
+
+    def path(self, name):
+        return os.path.join(self.dir, name)
+
+    def add(self, out, status):
+        if len(out["q2"]):
+            self.q2.append(out["q2"])
+            self.truth.append(out["truth_arcsec"])
+        self.status.extend(status)
+
+    def arrays(self):
+        q2 = np.concatenate(self.q2) if self.q2 else np.zeros((0, 5), np.int64)
+        tr = np.concatenate(self.truth) if self.truth else np.zeros((0, 2))
+        return q2, tr
+
+    def write_samples(self, q2, q2_err, truth, t0_us):
+        buf = io.BytesIO()
+        np.savez_compressed(buf, t_s=(q2[:, 1] - t0_us) * 1e-6, q2_sample=q2[:, 0], q2_counts=q2[:, 2:5],
+                            q2_err_arcsec=q2_err, truth_err_arcsec=truth)
+        write_atomic(self.path("samples.npz"), buf.getvalue())
+
+    def write_telemetry(self):
+        cols = ("tick", "mode", "beam", "sat", "rx", "ry", "vs", "n_lost", "n_sat", "n_unknown")
+        lines = [",".join(cols + ("v_cmd_x", "v_cmd_y"))]
+        for s in self.status:
+            lines.append(",".join([str(int(s[c])) if c not in ("rx", "ry") else "%.6f" % s[c] for c in cols]
+                                  + ["%.7f" % s["v_cmd"][0], "%.7f" % s["v_cmd"][1]]))
+        write_atomic(self.path("telemetry.csv"), "\n".join(lines) + "\n")
+
+
+def _progress_bar(total_s, quiet):
+    if quiet or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+    return tqdm(total=round(total_s, 3), unit="s", desc="hil", file=sys.stderr,
+                bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s virtual [{elapsed}<{remaining}, {rate_fmt}]")
+
+
+def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name, out_dir, config=None,
+            seed=0, q2_dvp=0.05, quiet=False, plots=True, log=print):
+    """The whole run; returns the summary dict (also written to ``out_dir/summary.json``)."""
+    from firmware.player import Player
+    from ground import runtime
+
+    runtime.check(runtime_name, link_name)
+    cal = load_calibration(calibration_path)
+    d, dx, dy = load_distfile(distfile_path)
+    check_playable(dx, dy, d.period_us)
+    if not duration_s > 0:
+        raise ValueError("--duration must be > 0 s, got %r" % duration_s)
+    play_s = d.duration_us() * 1e-6
+    if duration_s > play_s + 1e-6:
+        raise ValueError("--duration %g s is longer than the distfile (%g s)" % (duration_s, play_s))
+    os.makedirs(out_dir, exist_ok=True)
+    rec = Recorder(out_dir)
+    summary = {"complete": False, "duration_s": 0.0, "requested_duration_s": duration_s,
+               "real_time_factor": None, "overruns": 0, "q2": None, "truth": None,
+               "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    write_json(rec.path("summary.json"), summary)
+    write_json(rec.path("calibration.json"), cal)
+    with _sigterm_as_interrupt(), runtime.open_rig(runtime_name, link_name, config=config, seed=seed) as rig:
+        write_json(rec.path("config.json"), {
+            "distfile": os.path.abspath(distfile_path), "distfile_source": d.source, "distfile_seed": d.seed,
+            "distfile_count": d.count, "distfile_period_us": d.period_us,
+            "calibration": os.path.abspath(calibration_path), "duration_s": duration_s,
+            "runtime": runtime_name, "link": link_name, "seed": seed, "rate_hz": rig.rate_hz,
+            "pfsm_hz": rig.lockstep.pfsm_hz, "q2_hz": rig.bench.q2_hz, "bench_config": rig.bench.config})
+        interrupted = False
+        q2cal = None
+        t0_us = 0
+        try:
+            rig.upload_htable(htable.pack_calibration(cal))
+            # null at the centre, then Q2 against the P-FSM with the FSM held there
+            rig.pfsm_v(0.0, 0.0)
+            rig.settings("TRACK", decim=0)
+            rig.run(int(0.2 * rig.rate_hz))
+            q2cal = calibrate_q2(rig, q2_dvp)
+            write_json(rec.path("q2_calibration.json"), q2cal)
+            # pre-position at the distfile's first sample in TRACK, then play it once
+            rig.settings("TRACK", decim=64)
+            v_first = (dx[0] * V_PER_ARCSEC, dy[0] * V_PER_ARCSEC)
+            n_walk = max(1, int(np.ceil(max(abs(v_first[0]), abs(v_first[1])) / 0.5)))
+            for k in range(1, n_walk + 1):
+                rig.pfsm_v(v_first[0] * k / n_walk, v_first[1] * k / n_walk)
+                rig.run(24)
+            rig.run(int(0.2 * rig.rate_hz))
+            rig.take_status()
+            player = Player()
+            player.open_file(os.path.abspath(distfile_path))
+            player.oneshot()
+            rig.lockstep.player = player
+            overrun0 = rig.lockstep.n_overrun
+            t0_us = int(round(rig.lockstep.tick * 1e6 / rig.rate_hz))
+            n_total = int(round(duration_s * rig.rate_hz))
+            chunk = max(1, int(round(CHUNK_S * rig.rate_hz)))
+            bar = _progress_bar(duration_s, quiet)
+            done = 0
+            t_play0 = time.perf_counter()
+            try:
+                while done < n_total:
+                    n = min(chunk, n_total - done)
+                    tw = time.perf_counter()
+                    out = rig.run(n)
+                    rec.minute_rates.append((n / rig.rate_hz, time.perf_counter() - tw))
+                    rec.add(out, rig.take_status())
+                    done += n
+                    rec.virtual_s = done / rig.rate_hz
+                    if bar is not None:
+                        bar.update(n / rig.rate_hz)
+            finally:
+                rec.play_wall = time.perf_counter() - t_play0
+                if bar is not None:
+                    bar.close()
+            summary["overruns"] = rig.lockstep.n_overrun - overrun0
+        except KeyboardInterrupt:
+            interrupted = True
+            summary["overruns"] = rig.lockstep.n_overrun
+        summary["counters"] = rig.lockstep.counters()
+        summary["counters"].update(rig.endpoint.counters())
+    summary.update(_finish(rec, q2cal, t0_us, complete=not interrupted, plots=plots))
+    summary["interrupted"] = interrupted
+    write_json(rec.path("summary.json"), summary)
+    write_atomic(rec.path("report.md"), report.table(summary) + "\n")
+    if interrupted:
+        raise Interrupted(out_dir)
+    return summary
+
+
+def _rate(pairs, first):
+    """Virtual/wall over the first (or last) 60 virtual seconds of chunks."""
+    sel, acc = [], 0.0
+    for v, w in (pairs if first else reversed(pairs)):
+        if acc >= 60.0:
+            break
+        sel.append((v, w))
+        acc += v
+    wall = sum(w for _, w in sel)
+    return acc / wall if wall > 0 else None
+
+
+def _finish(rec, q2cal, t0_us, complete, plots):
+    from ground import plots as plt_mod
+    q2, truth = rec.arrays()
+    q2_err = q2_error_arcsec(q2, q2cal) if q2cal is not None else np.full((len(q2), 2), np.nan)
+    rec.write_samples(q2, q2_err, truth, t0_us)
+    rec.write_telemetry()
+    ok = np.all(np.isfinite(q2_err), axis=1)
+    res = {"complete": complete, "duration_s": rec.virtual_s, "play_wall_s": rec.play_wall,
+           "real_time_factor": rec.virtual_s / rec.play_wall if rec.play_wall > 0 else None,
+           "real_time_factor_first_minute": _rate(rec.minute_rates, True),
+           "real_time_factor_last_minute": _rate(rec.minute_rates, False),
+           "q2_samples": int(len(q2)), "q2_beam_lost_samples": int((~ok).sum()),
+           "q2": report.error_stats(q2_err[ok, 0], q2_err[ok, 1]),
+           "truth": report.error_stats(truth[:, 0], truth[:, 1]),
+           "thesis": report.THESIS, "q2_calibration": q2cal,
+           "telemetry_status_packets": len(rec.status),
+           "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    if plots and len(q2):
+        t = (q2[:, 1] - t0_us) * 1e-6
+        plt_mod.hil_scatter({"Q2": (q2_err[ok, 0], q2_err[ok, 1]), "truth": (truth[:, 0], truth[:, 1])},
+                            rec.path("fig7-18_scatter.png"), report.REQUIREMENT_ARCSEC)
+        plt_mod.hil_time_history({"Q2": (t[ok], q2_err[ok, 0], q2_err[ok, 1]),
+                                  "truth": (t, truth[:, 0], truth[:, 1])}, rec.path("fig7-19_time.png"))
+    return res
+
+
+def _cmd(a):
+    cfg = None
+    if a.config:
+        from emulator.config import load_config
+        cfg = load_config(a.config)
+    try:
+        s = run_hil(a.distfile, a.calibration, a.duration, a.runtime, a.link, a.output, config=cfg,
+                    seed=a.seed, q2_dvp=a.q2_dv, quiet=a.quiet, plots=not a.no_plots)
+    except Interrupted:
+        s = json.load(open(os.path.join(a.output, "summary.json")))
+        print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"
+              % (s["duration_s"], a.output), file=sys.stderr)
+        return 130
+    print(report.table(s))
+    print()
+    print("%s over %s: %.1f s virtual in %.1f s wall, real-time factor %.1fx (first minute %s, last %s), "
+          "overruns %d" % (a.runtime, a.link, s["duration_s"], s["play_wall_s"], s["real_time_factor"],
+                           _x(s["real_time_factor_first_minute"]), _x(s["real_time_factor_last_minute"]),
+                           s["overruns"]))
+    print("run folder %s: summary.json, report.md, samples.npz, telemetry.csv, fig7-18_scatter.png, "
+          "fig7-19_time.png" % a.output)
+    return 0
+
+
+def _x(v):
+    return "—" if v is None else "%.1fx" % v
+
+
+def register(sub, name, help_):
+    p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
+    p.add_argument("--distfile", required=True, help="distfile to play (fps distfile generate)")
+    p.add_argument("--calibration", required=True, help="H calibration JSON (fps calibrate)")
+    p.add_argument("--duration", type=float, default=600.0, help="virtual seconds to run (default 600)")
+    p.add_argument("--runtime", default="inproc", choices=("inproc", "cpython", "micropython"),
+                   help="where the controller firmware runs (default inproc)")
+    p.add_argument("--link", default=None, choices=("inproc", "serial", "can"),
+                   help="link to the controller (default: inproc for inproc, serial otherwise)")
+    p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
+    p.add_argument("--seed", type=int, default=0, help="emulator seed")
+    p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration (V)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("-o", "--output", required=True, help="run folder")
+
+    def func(a):
+        if a.link is None:
+            a.link = "inproc" if a.runtime == "inproc" else "serial"
+        return _cmd(a)
+    p.set_defaults(func=func)

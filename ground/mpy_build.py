@@ -1,0 +1,85 @@
+"""``make mpy``: compile every firmware file and the pure protocol core to .mpy with mpy-cross.
+
+``python -m ground.mpy_build [--out build/mpy] [--march armv6m]`` writes ``<out>/<package>/<name>.mpy``
+mirroring the source tree (load it with ``MICROPYPATH=<out>``) and prints a markdown table of sizes.
+Bytecode .mpy files are architecture independent; ``--march`` only matters for native/viper code.
+"""
+
+import argparse
+import os
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# The protocol modules that run on the MCU (the host side, pyserial/python-can links and CLIs, does not).
+PROTOCOL_CORE = ("__init__", "table", "core", "distfile", "htable", "isotp", "stream")
+
+
+def mpy_cross():
+    exe = os.path.join(os.path.dirname(sys.executable), "mpy-cross")
+    if not os.path.exists(exe):
+        raise OSError("mpy-cross not found beside %s (install the test extras)" % sys.executable)
+    return exe
+
+
+def sources():
+    """Relative paths of every file to compile: all of firmware/, and the protocol core that exists."""
+    out = []
+    for d, _, files in os.walk(os.path.join(ROOT, "firmware")):
+        if "__pycache__" in d:
+            continue
+        for f in sorted(files):
+            if f.endswith(".py"):
+                out.append(os.path.relpath(os.path.join(d, f), ROOT))
+    for name in PROTOCOL_CORE:
+        rel = os.path.join("protocol", name + ".py")
+        if os.path.exists(os.path.join(ROOT, rel)):
+            out.append(rel)
+    return sorted(out)
+
+
+def build(out_dir, march=None):
+    """Compile every source into out_dir; returns [(source, mpy path, source bytes, mpy bytes)].
+    Raises RuntimeError naming the file and mpy-cross's message when one fails."""
+    exe = mpy_cross()
+    rows = []
+    for rel in sources():
+        dst = os.path.join(out_dir, rel[:-3] + ".mpy")
+        os.makedirs(os.path.dirname(dst), exist_ok=True)
+        tmp = dst + ".tmp"
+        cmd = [exe, "-o", tmp, "-s", rel]
+        if march:
+            cmd.append("-march=" + march)
+        p = subprocess.run(cmd + [os.path.join(ROOT, rel)], capture_output=True, text=True)
+        if p.returncode != 0:
+            raise RuntimeError("mpy-cross failed on %s: %s" % (rel, (p.stderr or p.stdout).strip()))
+        os.replace(tmp, dst)
+        rows.append((rel, dst, os.path.getsize(os.path.join(ROOT, rel)), os.path.getsize(dst)))
+    return rows
+
+
+def table(rows):
+    lines = ["| file | source bytes | .mpy bytes |", "|---|---:|---:|"]
+    for rel, _, src, mpy in rows:
+        lines.append("| %s | %d | %d |" % (rel, src, mpy))
+    lines.append("| **total** | %d | %d |" % (sum(r[2] for r in rows), sum(r[3] for r in rows)))
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m ground.mpy_build", description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=os.path.join(ROOT, "build", "mpy"), help="output folder (default build/mpy)")
+    ap.add_argument("--march", default=None, help="mpy-cross -march (only for native/viper code)")
+    args = ap.parse_args(argv)
+    try:
+        rows = build(args.out, args.march)
+    except (OSError, RuntimeError) as exc:
+        print("mpy_build: error: %s" % exc, file=sys.stderr)
+        return 1
+    print(table(rows))
+    print("\n%d files compiled into %s" % (len(rows), args.out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

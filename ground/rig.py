@@ -1,0 +1,159 @@
+"""The bench as the ground tools see it: a lockstep emulator, the controller firmware, and packets between.
+
+``Rig`` owns an ``emulator.bench.Bench`` and its ``Lockstep`` clock. The controller firmware runs
+in-process (``InprocController``: the same ``on_tick``/``handle`` a link would reach) or in another process
+behind a protocol link (``ground.runtime``: CPython or MicroPython, serial pty or CAN slcan), seen through
+``RemoteController``. Either way the ground only sends packets to the CONTROLLER node and reads the replies and
+CTRL_STATUS telemetry from ``inbox``; calibration and HIL code therefore takes the same path on every runtime.
+"""
+
+from collections import deque
+
+from emulator.bench import Bench
+from emulator.lockstep import HoldPlayer, Lockstep
+from protocol import core, table
+
+GROUND = core.NODE["GROUND"]
+CONTROLLER = core.NODE["CONTROLLER"]
+P_STATUS = core.PACKET_ID["CTRL_STATUS"]
+P_ACK = core.PACKET_ID["ACK"]
+P_NACK = core.PACKET_ID["NACK"]
+ERROR_NAME = {e[1]: e[0] for e in table.ERRORS}
+CODES_PER_VOLT = 13107.2     # AD5664R tilt code per FSM tilt volt (firmware.ad5664r)
+AD660_CODES_PER_VOLT = 65536 / 20.0
+
+
+class InprocController:
+    """The firmware controller object driven directly: ``on_tick`` for the clock, ``send_ground`` for packets.
+
+    Telemetry: every ``decim`` ticks a CTRL_STATUS payload (``status_payload``) goes to ``inbox`` as a
+    packet tuple (pid, src, dst, seq, payload), as firmware.main would send it on a link.
+    """
+
+    def __init__(self, controller):
+        self.ctrl = controller
+        self.inbox = deque()
+        self._seq = 0
+
+    def on_tick(self, tick, t_us, vx, vy, vs):
+        words = self.ctrl.on_tick(tick, t_us, vx, vy, vs)
+        if self.ctrl.status_due():
+            self._push(P_STATUS, self.ctrl.status_payload(tick))
+        return words
+
+    def _push(self, pid, payload):
+        self.inbox.append((pid, CONTROLLER, GROUND, self._seq & 0xFF, payload))
+        self._seq += 1
+
+    def send_ground(self, pid, payload, seq):
+        for rpid, _dst, rpayload in self.ctrl.handle(pid, GROUND, seq, payload):
+            self._push(rpid, rpayload)
+
+    def counters(self):
+        return {}
+
+
+def decode_status(payload):
+    """CTRL_STATUS as a dict in physical units: ratios, volts, applied tilt codes."""
+    d = core.payload_dict(P_STATUS, payload)
+    x_code = (d["code_xp"] - d["code_xn"]) / 2.0
+    y_code = (d["code_yp"] - d["code_yn"]) / 2.0
+    return {"tick": d["tick"], "mode": d["mode"], "beam": bool(d["flags"] & 1), "sat": bool(d["flags"] & 2),
+            "rx": d["rx"] / 32768.0, "ry": d["ry"] / 32768.0, "vs": d["vs"],
+            "v_cmd": (d["vx"] * 1e-6, d["vy"] * 1e-6),
+            "v_applied": (x_code / CODES_PER_VOLT, y_code / CODES_PER_VOLT),
+            "n_lost": d["n_lost"], "n_sat": d["n_sat"], "n_unknown": d["n_unknown"]}
+
+
+class CommandError(ValueError):
+    """The controller refused a command (NACK) or did not answer."""
+
+
+class Rig:
+    """Bench + clock + controller endpoint. ``endpoint`` has ``on_tick``, ``inbox`` and ``send_ground``.
+
+    ``pfsm_v(x, y)`` holds the P-FSM at the given volts (calibration); ``lockstep.player`` may be replaced
+    by a distfile player for a HIL run.
+    """
+
+    def __init__(self, endpoint, config=None, seed=0, rate_hz=637.8, pfsm_hz=10600.0, block_ticks=64,
+                 deadline_s=1.0, on_q2=None):
+        self.bench = Bench(config, seed=seed, rate_hz=rate_hz)
+        self.endpoint = endpoint
+        self.hold = HoldPlayer()
+        self.lockstep = Lockstep(self.bench, endpoint, self.hold, rate_hz=rate_hz, pfsm_hz=pfsm_hz,
+                                 block_ticks=block_ticks, deadline_s=deadline_s, on_q2=on_q2)
+        self.rate_hz = rate_hz
+        self._seq = 0
+        self.status = []          # decoded CTRL_STATUS since the last take_status()
+        self.n_status_total = 0
+
+    # --- P-FSM -------------------------------------------------------------------------------------
+    def pfsm_v(self, vx, vy):
+        """Hold the P-FSM at (vx, vy) volts through its AD660 codes (offset binary, 0x8000 = 0 V)."""
+        for v in (vx, vy):
+            if not -10.0 <= v <= 10.0:
+                raise ValueError("P-FSM voltage %r outside the AD660 range +-10 V" % v)
+        self.hold.x_code = min(0xFFFF, max(0, int(round(0x8000 + vx * AD660_CODES_PER_VOLT))))
+        self.hold.y_code = min(0xFFFF, max(0, int(round(0x8000 + vy * AD660_CODES_PER_VOLT))))
+
+    # --- clock -------------------------------------------------------------------------------------
+    def run(self, n_ticks, progress=None):
+        out = self.lockstep.run(n_ticks=n_ticks, progress=progress)
+        self._drain()
+        return out
+
+    def _drain(self):
+        inbox = self.endpoint.inbox
+        replies = []
+        while inbox:
+            pkt = inbox.popleft()
+            if pkt[0] == P_STATUS:
+                try:
+                    self.status.append(decode_status(pkt[4]))
+                    self.n_status_total += 1
+                except ValueError:
+                    pass
+            else:
+                replies.append(pkt)
+        return replies
+
+    def take_status(self):
+        s, self.status = self.status, []
+        return s
+
+    # --- commands ----------------------------------------------------------------------------------
+    def command(self, name, max_ticks=8, **fields):
+        """Send a command to the controller and wait (advancing the clock) for its ACK; NACK raises."""
+        pid = core.PACKET_ID[name]
+        payload = core.encode_payload(pid, fields)
+        seq = self._seq & 0xFF
+        self._seq += 1
+        self.endpoint.send_ground(pid, payload, seq)
+        for _ in range(max_ticks + 1):
+            for rpid, _src, _dst, _rseq, rp in self._drain():
+                if rpid == P_ACK and rp[0] == pid:
+                    return
+                if rpid == P_NACK and rp[0] == pid:
+                    code = rp[2]
+                    raise CommandError("controller refused %s %s: %s" % (name, fields, ERROR_NAME.get(code, code)))
+            self.lockstep.run(n_ticks=1)
+        raise CommandError("controller did not answer %s within %d ticks" % (name, max_ticks))
+
+    def settings(self, mode, decim=1, gain_q15=0, safe_ticks=65535):
+        self.command("CTRL_SETTINGS", mode=core.MODE[mode], rx_cmd=0, ry_cmd=0, gain=gain_q15, decim=decim,
+                     safe_ticks=safe_ticks)
+
+    def set_fsm(self, vx, vy):
+        self.command("CTRL_SET_FSM", vx=int(round(vx * 1e6)), vy=int(round(vy * 1e6)))
+
+    def upload_htable(self, blob):
+        """HTABLE_BEGIN / CHUNK / END with the calibration blob (protocol.htable)."""
+        crc = core.crc32(blob) & 0xFFFFFFFF
+        self.command("HTABLE_BEGIN", total=len(blob), crc32=crc)
+        n = table.CHUNK_BYTES
+        for off in range(0, len(blob), n):
+            part = blob[off:off + n]
+            self.command("HTABLE_CHUNK", offset=off, length=len(part), data=part + bytes(n - len(part)))
+        self.command("HTABLE_END", total=len(blob))
+

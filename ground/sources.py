@@ -1,0 +1,231 @@
+"""Disturbance sources: body-pointing error histories (X, Y in arcsec) for the distfile.
+
+Each source produces samples at its own rate; ``ground.resample`` brings them to the 8.192 ms distfile step
+(Sec. 7.3.1). Sources register by name in ``SOURCES`` so a new one (the body pointing simulator of Ch. 6)
+plugs in with ``register_source``: it needs ``add_arguments(parser)`` (its CLI options, prefixed by its
+name) and ``from_args(args)`` returning an object with ``generate(duration_s, seed) -> (t_s, x, y)``.
+"""
+
+import csv
+
+import numpy as np
+
+# Ch. 6 "Body pointing" table, ts = 33 s: (mean, 1 sigma) of delta-theta (arcsec), delta-omega (arcsec/s).
+BODY_POINTING = {
+    "gnss": {  # with SatB GNSS (2-3 s delay)
+        "theta": ((0.955, 20.143), (12.795, 33.945)),
+        "omega": ((-0.024, 7.054), (-0.128, 8.744)),
+    },
+    "nognss": {  # without SatB GNSS
+        "theta": ((1.261, 21.456), (18.644, 35.919)),
+        "omega": ((-0.033, 6.764), (-0.031, 8.617)),
+    },
+}
+
+SOURCES = {}
+
+
+def register_source(name, factory):
+    """Register a source class (``add_arguments``, ``from_args``) under ``name``."""
+    if name in SOURCES:
+        raise ValueError("source %r already registered" % name)
+    SOURCES[name] = factory
+
+
+def get_source(name):
+    try:
+        return SOURCES[name]
+    except KeyError:
+        raise ValueError("unknown source %r (known: %s)" % (name, ", ".join(sorted(SOURCES)))) from None
+
+
+def _pair(text, what):
+    try:
+        vals = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        raise ValueError("%s: expected 'X,Y' numbers, got %r" % (what, text)) from None
+    if len(vals) == 1:
+        vals = vals * 2
+    if len(vals) != 2 or not all(np.isfinite(vals)):
+        raise ValueError("%s: expected 'X,Y' finite numbers, got %r" % (what, text))
+    return vals
+
+
+class GaussMarkov2:
+    """Second-order Gauss-Markov error process per axis, fitted to the Ch. 6 body pointing statistics.
+
+    theta'' + 2 zeta wn theta' + wn^2 theta = w (white, density q). Its stationary covariance is diagonal,
+    var(theta) = q / (4 zeta wn^3), var(theta') = q / (4 zeta wn), so wn = sigma_omega / sigma_theta
+    matches both 1-sigma values of the table. zeta = 1 (critical damping) as the quaternion PD law of
+    Eq. 6.5-6.7. The mean of delta-theta is added; the table's mean rates (|mean| < 2 % of 1 sigma) are
+    taken as zero, since a stationary angle has zero-mean rate. Discretised exactly at ``rate_hz``:
+    x[k+1] = Phi x[k] + w[k], cov(w) = P - Phi P Phi^T with P the stationary covariance.
+    """
+
+    name = "stat"
+
+    def __init__(self, case="gnss", rate_hz=10.0, scale=1.0, zeta=1.0):
+        if case not in BODY_POINTING:
+            raise ValueError("stat case %r unknown (known: %s)" % (case, ", ".join(BODY_POINTING)))
+        if not rate_hz > 0:
+            raise ValueError("stat rate_hz must be > 0, got %r" % rate_hz)
+        if not zeta > 0:
+            raise ValueError("stat zeta must be > 0, got %r" % zeta)
+        self.case, self.rate_hz, self.scale, self.zeta = case, float(rate_hz), float(scale), float(zeta)
+        tab = BODY_POINTING[case]
+        self.mean = np.array([tab["theta"][0][0], tab["theta"][1][0]]) * self.scale
+        self.sig_theta = np.array([tab["theta"][0][1], tab["theta"][1][1]]) * self.scale
+        self.sig_omega = np.array([tab["omega"][0][1], tab["omega"][1][1]]) * self.scale
+        self.wn = self.sig_omega / self.sig_theta
+
+    @staticmethod
+    def add_arguments(p):
+        p.add_argument("--stat-case", default="gnss", choices=sorted(BODY_POINTING),
+                       help="Ch. 6 body pointing case, ts = 33 s (default: with SatB GNSS)")
+        p.add_argument("--stat-rate-hz", type=float, default=10.0, help="source rate (default 10 Hz, as the BPS)")
+        p.add_argument("--stat-scale", type=float, default=1.0, help="multiply mean and 1-sigma by this")
+
+    @classmethod
+    def from_args(cls, a):
+        return cls(a.stat_case, a.stat_rate_hz, a.stat_scale)
+
+    def transition(self, dt):
+        """Phi(dt) for each axis, shape (2, 2, 2) [axis, row, col]."""
+        out = np.empty((2, 2, 2))
+        for ax, wn in enumerate(self.wn):
+            a = np.array([[0.0, 1.0], [-wn * wn, -2.0 * self.zeta * wn]])
+            out[ax] = _expm2(a * dt)
+        return out
+
+    def generate(self, duration_s, seed):
+        dt = 1.0 / self.rate_hz
+        n = _n_samples(duration_s, self.rate_hz)
+        rng = np.random.default_rng(seed)
+        phi = self.transition(dt)
+        xs = np.empty((n, 2))
+        for ax in range(2):
+            p = np.diag([self.sig_theta[ax] ** 2, self.sig_omega[ax] ** 2])
+            qd = p - phi[ax] @ p @ phi[ax].T
+            lq = np.linalg.cholesky(qd + 1e-12 * np.eye(2) * p.max())
+            x = np.linalg.cholesky(p) @ rng.standard_normal(2)
+            w = rng.standard_normal((n, 2)) @ lq.T
+            for k in range(n):
+                xs[k, ax] = x[0]
+                x = phi[ax] @ x + w[k]
+        t = np.arange(n) * dt
+        return t, xs[:, 0] + self.mean[0], xs[:, 1] + self.mean[1]
+
+
+def _n_samples(duration_s, rate_hz):
+    """Samples covering the duration plus one distfile step and the resampler's stencil."""
+    return int(np.ceil((duration_s + 0.01) * rate_hz)) + 4
+
+
+def _expm2(a):
+    """Matrix exponential of a small matrix by scaling and squaring of a Taylor series."""
+    s = max(0, int(np.ceil(np.log2(max(np.abs(a).sum(axis=1).max(), 1e-300)))) + 1)
+    a = a / (2 ** s)
+    e = np.eye(a.shape[0])
+    term = np.eye(a.shape[0])
+    for k in range(1, 20):
+        term = term @ a / k
+        e = e + term
+    for _ in range(s):
+        e = e @ e
+    return e
+
+
+class Sine:
+    """One sine per axis: theta(t) = amp * sin(2 pi f t + phase) + offset, produced at ``rate_hz``."""
+
+    name = "sine"
+
+    def __init__(self, amp_arcsec=(30.0, 30.0), freq_hz=(0.1, 0.13), phase_deg=(0.0, 90.0),
+                 offset_arcsec=(0.0, 0.0), rate_hz=1000.0):
+        self.amp = np.asarray(amp_arcsec, dtype=float)
+        self.freq = np.asarray(freq_hz, dtype=float)
+        self.phase = np.radians(np.asarray(phase_deg, dtype=float))
+        self.offset = np.asarray(offset_arcsec, dtype=float)
+        if not rate_hz > 0:
+            raise ValueError("sine rate_hz must be > 0, got %r" % rate_hz)
+        if np.any(self.freq < 0) or np.any(self.freq >= rate_hz / 2):
+            raise ValueError("sine freq_hz %s must be in [0, rate/2 = %g)" % (list(self.freq), rate_hz / 2))
+        self.rate_hz = float(rate_hz)
+
+    @staticmethod
+    def add_arguments(p):
+        p.add_argument("--amp-arcsec", default="30,30", help="sine amplitudes X,Y (arcsec)")
+        p.add_argument("--freq-hz", default="0.1,0.13", help="sine frequencies X,Y (Hz)")
+        p.add_argument("--phase-deg", default="0,90", help="sine phases X,Y (deg)")
+        p.add_argument("--offset-arcsec", default="0,0", help="constant offsets X,Y (arcsec)")
+        p.add_argument("--sine-rate-hz", type=float, default=1000.0, help="source rate (Hz)")
+
+    @classmethod
+    def from_args(cls, a):
+        return cls(_pair(a.amp_arcsec, "--amp-arcsec"), _pair(a.freq_hz, "--freq-hz"),
+                   _pair(a.phase_deg, "--phase-deg"), _pair(a.offset_arcsec, "--offset-arcsec"),
+                   a.sine_rate_hz)
+
+    def generate(self, duration_s, seed):
+        t = np.arange(_n_samples(duration_s, self.rate_hz)) / self.rate_hz
+        xy = [self.amp[i] * np.sin(2 * np.pi * self.freq[i] * t + self.phase[i]) + self.offset[i]
+              for i in range(2)]
+        return t, xy[0], xy[1]
+
+
+class CsvSource:
+    """A user's own history: CSV with columns t_s, x_arcsec, y_arcsec (header optional), any rate,
+    strictly increasing times (not necessarily uniform)."""
+
+    name = "csv"
+
+    def __init__(self, path):
+        self.path = path
+        self.t, self.x, self.y = read_csv(path)
+
+    @staticmethod
+    def add_arguments(p):
+        p.add_argument("--csv", dest="csv_path", help="input CSV for --source csv (t_s, x_arcsec, y_arcsec)")
+
+    @classmethod
+    def from_args(cls, a):
+        if not a.csv_path:
+            raise ValueError("--source csv needs --csv FILE")
+        return cls(a.csv_path)
+
+    def generate(self, duration_s, seed):
+        return self.t - self.t[0], self.x, self.y
+
+
+def read_csv(path):
+    """Read (t_s, x_arcsec, y_arcsec) columns; a non-numeric first row is a header."""
+    rows = []
+    with open(path, newline="") as f:
+        for lineno, row in enumerate(csv.reader(f), 1):
+            if not row or row[0].lstrip().startswith("#"):
+                continue
+            try:
+                vals = [float(v) for v in row[:3]]
+            except ValueError:
+                if not rows and lineno == 1:
+                    continue  # header
+                raise ValueError("%s line %d: expected numbers t_s,x_arcsec,y_arcsec, got %r"
+                                 % (path, lineno, row)) from None
+            if len(vals) < 3:
+                raise ValueError("%s line %d: expected 3 columns, got %d" % (path, lineno, len(vals)))
+            rows.append(vals)
+    a = np.array(rows, dtype=float).reshape(-1, 3)
+    if len(a) < 4:
+        raise ValueError("%s: need at least 4 samples, got %d" % (path, len(a)))
+    if not np.all(np.isfinite(a)):
+        bad = int(np.argwhere(~np.isfinite(a))[0][0])
+        raise ValueError("%s: non-finite value in sample %d" % (path, bad))
+    if not np.all(np.diff(a[:, 0]) > 0):
+        bad = int(np.argmax(np.diff(a[:, 0]) <= 0)) + 1
+        raise ValueError("%s: times must be strictly increasing (sample %d, t_s=%g)" % (path, bad, a[bad, 0]))
+    return a[:, 0], a[:, 1], a[:, 2]
+
+
+register_source("stat", GaussMarkov2)
+register_source("sine", Sine)
+register_source("csv", CsvSource)

@@ -1,0 +1,210 @@
+"""CAN mapping of the packet table: 29-bit ids, single frames, ISO-TP for longer payloads, DBC file.
+
+Pure Python (CPython and MicroPython). 29-bit extended identifier::
+
+    bits 28..26  priority, 0 = most urgent (derived from the packet id, see ``priority``)
+    bit  25      ISO-TP: 1 = the frame is part of an ISO 15765-2 transfer carrying the payload
+    bits 24..17  packet id
+    bit  16      reserved, 0 (frames with it set are dropped)
+    bits 15..8   source node
+    bits  7..0   destination node
+
+A packet whose payload fits 8 bytes is one frame with the ISO-TP bit clear: data = payload, exactly as
+the serial payload (little-endian fields), so the generated DBC describes it. A longer payload is sent
+with ISO-TP on the id with the ISO-TP bit set; the receiver's flow control frames go back on the same
+id with source and destination swapped. CAN carries no sequence number (its own CRC and arbitration
+cover integrity and order): decoded packets have ``seq`` None.
+"""
+
+from protocol import core, isotp, table
+
+SINGLE_MAX = 8
+ISOTP_BIT = 1 << 25
+RESERVED_BIT = 1 << 16
+EFF_MASK = 0x1FFFFFFF
+PID_MASK = 0xFF << 17
+
+# (first id, last id, priority): lockstep first, bulk uploads last.
+PRIORITIES = (
+    (0x10, 0x1F, 1),  # lockstep tick / FSM command / P-FSM / Q2
+    (0x01, 0x0F, 2),  # hello, ack, nack
+    (0x40, 0x4F, 3),  # wheels and attitude sensors
+    (0x20, 0x3F, 4),  # controller and player settings, status, upload begin/end
+)
+CHUNK_PRIORITY = 6     # *_CHUNK upload packets
+DEFAULT_PRIORITY = 5
+
+DROP_REASONS = ("not_extended", "reserved_bit", "unknown_id", "bad_length") + isotp.ERRORS
+
+
+def priority(pid):
+    """CAN priority of a packet id (0 = most urgent)."""
+    d = core.PACKET.get(pid)
+    if d is not None and d.name.endswith("_CHUNK"):
+        return CHUNK_PRIORITY
+    for lo, hi, p in PRIORITIES:
+        if lo <= pid <= hi:
+            return p
+    return DEFAULT_PRIORITY
+
+
+def can_id(pid, src, dst, iso=False):
+    """The 29-bit id of a packet from ``src`` to ``dst`` (``iso``: an ISO-TP frame)."""
+    return ((priority(pid) << 26) | (ISOTP_BIT if iso else 0) | ((pid & 0xFF) << 17)
+            | ((src & 0xFF) << 8) | (dst & 0xFF))
+
+
+def split_id(cid):
+    """(priority, iso, pid, src, dst) of a 29-bit id."""
+    return (cid >> 26) & 7, (cid >> 25) & 1, (cid >> 17) & 0xFF, (cid >> 8) & 0xFF, cid & 0xFF
+
+
+def reply_id(cid):
+    """The same id with source and destination swapped (ISO-TP flow control goes back on it)."""
+    return (cid & ~0xFFFF & EFF_MASK) | ((cid & 0xFF) << 8) | ((cid >> 8) & 0xFF)
+
+
+def is_single(pid):
+    return core.PACKET[pid].size <= SINGLE_MAX
+
+
+def encode_frames(pid, src, dst, payload):
+    """[(can_id, data)] for one packet: one frame, or ISO-TP SF/FF+CFs (no flow control)."""
+    if len(payload) <= SINGLE_MAX:
+        return [(can_id(pid, src, dst), bytes(payload))]
+    cid = can_id(pid, src, dst, True)
+    return [(cid, f) for f in isotp.segment(payload)]
+
+
+def encode_packet(name_or_id, src, dst, values=None, **kw):
+    pkt = core.packet_def(name_or_id)
+    return encode_frames(pkt.id, src, dst, core.encode_payload(pkt.id, values, **kw))
+
+
+class CanDecoder:
+    """Frames in, packets out; never raises on frame contents. Drops counted in ``drops[reason]``.
+
+    ``feed(can_id, data, extended=True)`` returns ``(pid, src, dst, None, payload)`` or None.
+    ISO-TP transfers are reassembled passively (listen only) per id, so a ``candump`` log decodes
+    without flow control frames.
+    """
+
+    def __init__(self):
+        self.drops = {}
+        for r in DROP_REASONS:
+            self.drops[r] = 0
+        self.frames = 0
+        self._iso = {}
+
+    def feed(self, cid, data, extended=True):
+        if not extended:
+            self.drops["not_extended"] += 1
+            return None
+        if cid & RESERVED_BIT or cid > EFF_MASK:
+            self.drops["reserved_bit"] += 1
+            return None
+        pid = (cid >> 17) & 0xFF
+        if cid & ISOTP_BIT:
+            ch = self._iso.get(cid)
+            if ch is None:
+                ch = self._iso[cid] = isotp.IsoTp()
+            before = sum(ch.errors.values())
+            payload = ch.feed(data)
+            if sum(ch.errors.values()) != before:
+                for r in isotp.ERRORS:
+                    self.drops[r] += ch.errors[r]
+                    ch.errors[r] = 0
+            if payload is None:
+                return None
+        else:
+            payload = bytes(data)
+        return self.packet(pid, (cid >> 8) & 0xFF, cid & 0xFF, payload)
+
+    def packet(self, pid, src, dst, payload):
+        """Check a reassembled payload against the table; the packet tuple or None (counted)."""
+        pkt = core.PACKET.get(pid)
+        if pkt is None:
+            self.drops["unknown_id"] += 1
+            return None
+        if len(payload) != pkt.size:
+            self.drops["bad_length"] += 1
+            return None
+        self.frames += 1
+        return (pid, src, dst, None, payload)
+
+    def counters(self):
+        d = {}
+        for r in self.drops:
+            d[r] = self.drops[r]
+        d["frames"] = self.frames
+        return d
+
+
+# --- candump -L log lines ----------------------------------------------------------------------------
+def candump_line(cid, data, t=0.0, channel="can0"):
+    """One ``candump -L`` line: ``(1700000000.000000) can0 0A2A1001#0102``."""
+    return "(%.6f) %s %08X#%s" % (t, channel, cid, "".join("%02X" % b for b in data))
+
+
+def parse_candump(line):
+    """(t, channel, can_id, extended, data) of a ``candump -L`` line; ValueError if malformed."""
+    parts = line.split()
+    if len(parts) != 3 or "#" not in parts[2]:
+        raise ValueError("not a candump -L line: %r" % line)
+    ident, _, hexdata = parts[2].partition("#")
+    if hexdata.startswith("R"):
+        raise ValueError("remote frame: %r" % line)
+    if hexdata.startswith("#"):
+        raise ValueError("CAN FD frame not supported: %r" % line)
+    return (float(parts[0].strip("()")), parts[1], int(ident, 16), len(ident) == 8,
+            bytes.fromhex(hexdata))
+
+
+# --- DBC ---------------------------------------------------------------------------------------------
+_BITS = {"B": 8, "b": 8, "H": 16, "h": 16, "I": 32, "i": 32, "f": 32}
+
+
+def _num(x):
+    r = repr(float(x))
+    return r[:-2] if r.endswith(".0") else r
+
+
+def dbc_text():
+    """A DBC file describing every single-frame packet (Intel byte order, like the serial payload).
+
+    Message ids carry the packet id with the table's source/destination where it names one node (else
+    0); look frames up with a frame-id mask of ``PID_MASK | ISOTP_BIT`` (cantools: ``frame_id_mask``,
+    ``get_message_by_frame_id``) to match frames from any node.
+    """
+    lines = ['VERSION ""', "", "NS_ :", "", "BS_:", "", "BU_: " + " ".join(n[0] for n in table.NODES), ""]
+    floats = []
+    comments = []
+    for pid in sorted(core.PACKET):
+        pkt = core.PACKET[pid]
+        if pkt.size > SINGLE_MAX:
+            continue
+        src = core.NODE.get(pkt.src, 0)
+        dst = core.NODE.get(pkt.dst, 0)
+        cid = can_id(pid, src, dst)
+        sender = pkt.src if pkt.src in core.NODE else "Vector__XXX"
+        receiver = pkt.dst if pkt.dst in core.NODE else "Vector__XXX"
+        lines.append("BO_ %d %s: %d %s" % (cid | 0x80000000, pkt.name, pkt.size, sender))
+        comments.append('CM_ BO_ %d "%s";' % (cid | 0x80000000, pkt.doc.replace('"', "'")))
+        bit = 0
+        for f in pkt.fields:
+            name, fmt, unit, scale = f[0], f[1], f[2], f[3]
+            n = _BITS[fmt]
+            lo, hi = core.field_range(f)
+            sign = "-" if fmt in "bhif" else "+"
+            if fmt == "f":
+                pmin = lo if lo is not None else 0
+                pmax = hi if hi is not None else 0
+                floats.append("SIG_VALTYPE_ %d %s : 1;" % (cid | 0x80000000, name))
+            else:
+                pmin, pmax = lo * scale, hi * scale
+            lines.append(' SG_ %s : %d|%d@1%s (%s,0) [%s|%s] "%s" %s' % (
+                name, bit, n, sign, _num(scale), _num(pmin), _num(pmax), unit, receiver))
+            comments.append('CM_ SG_ %d %s "%s";' % (cid | 0x80000000, name, f[7].replace('"', "'")))
+            bit += n
+        lines.append("")
+    return "\n".join(lines + comments + [""] + floats) + "\n"

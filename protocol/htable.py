@@ -1,0 +1,227 @@
+"""The H table on a rectilinear grid, and its compact binary blob for the HTABLE upload (pure, MicroPython).
+
+The calibration JSON (docs/INTERFACES.md) holds one point per P-FSM grid voltage: the FSM voltages V0 that null
+the quadcell there and the H measured at V0 (Eq. 7.14-7.16). Those V0 are scattered, because the FSM
+answers a P-FSM step along one axis with a little motion along the other. The controller interpolates over
+a rectilinear grid, so ``grid_from_calibration`` derives one:
+
+- it finds which P-FSM axis drives each FSM axis (the grouping whose column means of V0 spread widest);
+- the FSM X axis values are the means of V0x over each such column, the Y axis values the means of V0y
+  over each row (the choice documented in the issue); they are sorted ascending;
+- node (i, j) takes the H of the grid point in column i and row j. ``max_dev_v`` reports how far the
+  points' own V0 lie from their nodes (the cross-coupling the rectilinear grid ignores).
+
+Blob (all little-endian)::
+
+    magic b"FPSH" | version u16 = 1 | nx u8 | ny u8 | nx x f32 axis X (V) | ny x f32 axis Y (V)
+    | nx*ny x (a, b, c, d) f32 H in ratio per volt, node (i, j) at index j*nx + i | CRC-32 u32
+
+H = [[a, b], [c, d]] maps FSM tilt volts to quadcell ratios, R = H V (Eq. 7.10).
+"""
+
+import struct
+
+try:
+    from binascii import crc32 as _crc32
+except ImportError:  # pragma: no cover
+    from protocol.core import crc32 as _crc32
+
+MAGIC = b"FPSH"
+VERSION = 1
+HEADER_FMT = "<4sHBB"
+HEADER_SIZE = 8
+MAX_AXIS = 32
+V_RANGE = 2.5        # FSM tilt voltage range, V
+
+
+class HTableError(ValueError):
+    """A calibration table or blob is malformed or out of range."""
+
+
+def _finite(v):
+    return v == v and v - v == 0.0
+
+
+def _num(v, what):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(float(v)):
+        raise HTableError("%s = %r is not a finite number" % (what, v))
+    return float(v)
+
+
+def _pair(p, key, i):
+    v = p.get(key) if isinstance(p, dict) else None
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        raise HTableError("calibration points[%d].%s must be [x, y], got %r" % (i, key, v))
+    return _num(v[0], "points[%d].%s[0]" % (i, key)), _num(v[1], "points[%d].%s[1]" % (i, key))
+
+
+def _matrix(p, i):
+    h = p.get("H")
+    if not isinstance(h, (list, tuple)) or len(h) != 2 or not all(isinstance(r, (list, tuple)) and len(r) == 2
+                                                                 for r in h):
+        raise HTableError("calibration points[%d].H must be [[a, b], [c, d]], got %r" % (i, h))
+    return (_num(h[0][0], "points[%d].H[0][0]" % i), _num(h[0][1], "points[%d].H[0][1]" % i),
+            _num(h[1][0], "points[%d].H[1][0]" % i), _num(h[1][1], "points[%d].H[1][1]" % i))
+
+
+def _index(grid, v, what):
+    best = 0
+    for k in range(1, len(grid)):
+        if abs(grid[k] - v) < abs(grid[best] - v):
+            best = k
+    step = abs(grid[1] - grid[0]) if len(grid) > 1 else 1.0
+    if abs(grid[best] - v) > 0.25 * step:
+        raise HTableError("%s = %r is not on grid_v" % (what, v))
+    return best
+
+
+def _spread(vals):
+    return max(vals) - min(vals)
+
+
+class Grid:
+    """A rectilinear H table: ``ax``, ``ay`` (V, ascending), ``h`` (list of (a, b, c, d), index j*nx + i)."""
+
+    def __init__(self, ax, ay, h, max_dev_v=0.0):
+        self.ax = [float(v) for v in ax]
+        self.ay = [float(v) for v in ay]
+        self.h = [tuple(float(e) for e in m) for m in h]
+        self.max_dev_v = max_dev_v
+        self.validate()
+
+    def validate(self):
+        for name, ax in (("ax", self.ax), ("ay", self.ay)):
+            if len(ax) < 2 or len(ax) > MAX_AXIS:
+                raise HTableError("H table axis %s has %d values, need 2..%d" % (name, len(ax), MAX_AXIS))
+            for k in range(len(ax)):
+                v = _num(ax[k], "%s[%d]" % (name, k))
+                if v < -V_RANGE or v > V_RANGE:
+                    raise HTableError("H table %s[%d] = %r V outside the FSM range +-%g V" % (name, k, v, V_RANGE))
+                if k and v <= ax[k - 1]:
+                    raise HTableError("H table %s not strictly increasing at %d: %r <= %r" % (name, k, v,
+                                                                                          ax[k - 1]))
+        if len(self.h) != len(self.ax) * len(self.ay):
+            raise HTableError("H table has %d matrices for a %dx%d grid" % (len(self.h), len(self.ax),
+                                                                          len(self.ay)))
+        for k in range(len(self.h)):
+            m = self.h[k]
+            if len(m) != 4:
+                raise HTableError("H table node %d has %d entries, need 4" % (k, len(m)))
+            for e in range(4):
+                _num(m[e], "H[%d][%d]" % (k, e))
+
+    @property
+    def nx(self):
+        return len(self.ax)
+
+    @property
+    def ny(self):
+        return len(self.ay)
+
+
+def grid_from_calibration(cal):
+    """A ``Grid`` from the calibration JSON dict (see the module docstring for the axis choice)."""
+    if not isinstance(cal, dict):
+        raise HTableError("calibration must be a JSON object, got %r" % type(cal).__name__)
+    grid = cal.get("grid_v")
+    points = cal.get("points")
+    if not isinstance(grid, (list, tuple)) or len(grid) < 2:
+        raise HTableError("calibration grid_v must list >= 2 P-FSM voltages, got %r" % (grid,))
+    if not isinstance(points, (list, tuple)):
+        raise HTableError("calibration points must be a list, got %r" % type(points).__name__)
+    grid = [_num(grid[k], "grid_v[%d]" % k) for k in range(len(grid))]
+    n = len(grid)
+    if len(points) != n * n:
+        raise HTableError("calibration has %d points, a full %dx%d P-FSM grid needs %d" % (len(points), n, n,
+                                                                                           n * n))
+    cells = [None] * (n * n)     # by P-FSM index (p, q): p along P-FSM x, q along P-FSM y
+    for i in range(len(points)):
+        pt = points[i]
+        pv = _pair(pt, "pfsm_v", i)
+        v0 = _pair(pt, "v0", i)
+        if abs(v0[0]) > V_RANGE or abs(v0[1]) > V_RANGE:
+            raise HTableError("calibration points[%d].v0 = %r outside the FSM range +-%g V" % (i, v0, V_RANGE))
+        h = _matrix(pt, i)
+        p = _index(grid, pv[0], "points[%d].pfsm_v[0]" % i)
+        q = _index(grid, pv[1], "points[%d].pfsm_v[1]" % i)
+        if cells[q * n + p] is not None:
+            raise HTableError("calibration points[%d] repeats P-FSM grid point (%r, %r)" % (i, pv[0], pv[1]))
+        cells[q * n + p] = (v0, h)
+    # means[a][axis][k]: mean of V0[axis] over the points whose P-FSM index along a is k
+    means = [[[0.0] * n, [0.0] * n], [[0.0] * n, [0.0] * n]]
+    for q in range(n):
+        for p in range(n):
+            v0 = cells[q * n + p][0]
+            for axis in (0, 1):
+                means[0][axis][p] += v0[axis] / n
+                means[1][axis][q] += v0[axis] / n
+    drive_x = 0 if _spread(means[0][0]) >= _spread(means[1][0]) else 1
+    drive_y = 0 if _spread(means[0][1]) > _spread(means[1][1]) else 1
+    if drive_x == drive_y:
+        raise HTableError("calibration: FSM X and Y both follow P-FSM axis %d; no rectilinear grid" % drive_x)
+    ox = sorted(range(n), key=lambda k: means[drive_x][0][k])   # P-FSM indices in ascending FSM X
+    oy = sorted(range(n), key=lambda k: means[drive_y][1][k])
+    ax = [means[drive_x][0][k] for k in ox]
+    ay = [means[drive_y][1][k] for k in oy]
+    h = []
+    dev = 0.0
+    for j in range(n):
+        for i in range(n):
+            pq = [0, 0]
+            pq[drive_x] = ox[i]
+            pq[drive_y] = oy[j]
+            v0, m = cells[pq[1] * n + pq[0]]
+            dev = max(dev, abs(v0[0] - ax[i]), abs(v0[1] - ay[j]))
+            h.append(m)
+    return Grid(ax, ay, h, dev)
+
+
+def pack(g):
+    """The blob bytes of a ``Grid``."""
+    g.validate()
+    nx, ny = g.nx, g.ny
+    out = bytearray(HEADER_SIZE + 4 * (nx + ny) + 16 * nx * ny + 4)
+    struct.pack_into(HEADER_FMT, out, 0, MAGIC, VERSION, nx, ny)
+    off = HEADER_SIZE
+    for v in g.ax + g.ay:
+        struct.pack_into("<f", out, off, v)
+        off += 4
+    for m in g.h:
+        struct.pack_into("<ffff", out, off, m[0], m[1], m[2], m[3])
+        off += 16
+    struct.pack_into("<I", out, off, _crc32(memoryview(out)[:off]) & 0xFFFFFFFF)
+    return bytes(out)
+
+
+def parse(data):
+    """A ``Grid`` from blob bytes; HTableError on a bad magic, version, size, CRC or value."""
+    mv = memoryview(data)
+    if len(mv) < HEADER_SIZE + 4:
+        raise HTableError("H table blob truncated: %d bytes" % len(mv))
+    magic, ver, nx, ny = struct.unpack_from(HEADER_FMT, mv, 0)
+    if magic != MAGIC:
+        raise HTableError("H table blob bad magic %r (expected %r)" % (bytes(magic), MAGIC))
+    if ver != VERSION:
+        raise HTableError("H table blob version %d not supported (expected %d)" % (ver, VERSION))
+    size = HEADER_SIZE + 4 * (nx + ny) + 16 * nx * ny + 4
+    if len(mv) != size:
+        raise HTableError("H table blob length %d != %d for a %dx%d grid" % (len(mv), size, nx, ny))
+    want = struct.unpack_from("<I", mv, size - 4)[0]
+    got = _crc32(mv[:size - 4]) & 0xFFFFFFFF
+    if want != got:
+        raise HTableError("H table blob CRC-32 mismatch: stored 0x%08x, computed 0x%08x" % (want, got))
+    off = HEADER_SIZE
+    axes = []
+    for k in range(nx + ny):
+        axes.append(struct.unpack_from("<f", mv, off)[0])
+        off += 4
+    h = []
+    for k in range(nx * ny):
+        h.append(struct.unpack_from("<ffff", mv, off))
+        off += 16
+    return Grid(axes[:nx], axes[nx:], h)
+
+
+def pack_calibration(cal):
+    """Blob bytes straight from the calibration JSON dict (what ground uploads)."""
+    return pack(grid_from_calibration(cal))

@@ -1,0 +1,568 @@
+"""Host (CPython) transports carrying packets: pyserial, pseudo-terminals, python-can, in-process.
+
+``open_link(spec, node)`` returns a ``Link``; specs:
+
+- ``inproc``: an in-process pair; the returned Link's ``.peer`` is the other end (see ``inproc_pair``).
+- ``loop://`` or ``serial:PATH`` or any pyserial URL/path (``/dev/ttyUSB0``, ``serial:/dev/pts/3``).
+- ``pty``: create a pseudo-terminal pair; the Link holds the master, ``.peer_path`` is the slave for
+  another process (``serial:PATH`` or ``protocol.stream.StreamLink``). The slave is in raw mode before any
+  byte is written; this side keeps it open until the peer's first byte arrives, after which EIO on the
+  master means the peer left (``closed``).
+- ``can:virtual:CHANNEL`` (or ``can:INTERFACE:CHANNEL``): python-can.
+- ``slcan:PATH``: python-can's slcan adapter on a serial device or pty slave (``sleep_after_open=0``).
+- ``slcan-pty``: be the slcan *device*: create a pty, speak Lawicel ASCII on the master (``LawicelBus``),
+  ``.peer_path`` for the process that opens ``slcan:PATH``.
+
+Serial links frame with ``protocol.host`` (COBS + CRC-16). CAN links send a payload of up to 8 bytes as one
+frame and longer ones with ISO-TP (PyPI ``can-isotp``), ids per ``protocol.can``.
+"""
+
+import collections
+import errno
+import os
+import select
+import threading
+import time
+import tty
+
+from protocol import can as canmap
+from protocol import core, host
+
+
+class Link:
+    """Common part: addressing, sequence numbers, ``send``; subclasses move frames."""
+
+    def __init__(self, node):
+        self.node = core.node_id(node)
+        self.closed = False
+        self.tx_frames = 0
+        self._seq = 0
+
+    def send(self, name_or_id, dst, payload=b"", **fields):
+        """Send a packet from this node: ``payload`` bytes, or field values (defaults for the rest).
+
+        Returns the sequence number used. Unknown names, bad lengths and out-of-range values raise ValueError.
+        """
+        pkt = core.packet_def(name_or_id)
+        if payload:
+            if fields:
+                raise ValueError("%s: give payload bytes or fields, not both" % pkt.name)
+            if len(payload) != pkt.size:
+                raise ValueError("%s payload is %d bytes, expected %d" % (pkt.name, len(payload), pkt.size))
+        else:
+            payload = core.encode_payload(pkt.id, fields)
+        seq = self._seq
+        self.send_raw(pkt.id, self.node, core.node_id(dst), payload)
+        return seq
+
+    def send_raw(self, pid, src, dst, payload):
+        raise NotImplementedError
+
+    def recv(self, timeout=None):
+        """Packets ``[(pid, src, dst, seq, payload)]``: waits up to ``timeout`` s (None = forever) for at
+
+        least one; [] on timeout or once the peer has left.
+        """
+        raise NotImplementedError
+
+    def counters(self):
+        raise NotImplementedError
+
+    def close(self):
+        self.closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+# --- byte streams ----------------------------------------------------------------------------------------
+class PeerGone(Exception):
+    """The other end of a byte stream closed."""
+
+
+class _FdPort:
+    """A file descriptor (pty master, posix serial port): select + os.read, blocking writes."""
+
+    def __init__(self, fd, hold_fd=None, owns=True):
+        self.fd = fd
+        self._hold = hold_fd   # our copy of a pty slave, closed once the peer has spoken
+        self._owns = owns
+
+    def read(self, timeout):
+        r, _, _ = select.select((self.fd,), (), (), timeout)
+        if not r:
+            return b""
+        try:
+            data = os.read(self.fd, 65536)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                raise PeerGone() from None
+            raise
+        if not data:
+            raise PeerGone()
+        if self._hold is not None:
+            os.close(self._hold)
+            self._hold = None
+        return data
+
+    def write(self, data):
+        mv = memoryview(data)
+        try:
+            while mv:
+                n = os.write(self.fd, mv)
+                mv = mv[n:]
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                raise PeerGone() from None
+            raise
+
+    def close(self):
+        if self._hold is not None:
+            os.close(self._hold)
+            self._hold = None
+        if self._owns:
+            os.close(self.fd)
+
+
+class _SerialPort:
+    """A pyserial port without a file descriptor (``loop://``, sockets, ...)."""
+
+    def __init__(self, ser):
+        self.ser = ser
+        self._timeout = -1
+
+    def read(self, timeout):
+        import serial
+        if timeout != self._timeout:
+            self.ser.timeout = timeout
+            self._timeout = timeout
+        try:
+            data = self.ser.read(max(1, self.ser.in_waiting))
+        except serial.SerialException:
+            raise PeerGone() from None
+        return data
+
+    def write(self, data):
+        self.ser.write(data)
+
+    def close(self):
+        self.ser.close()
+
+
+class _PyserialFd(_FdPort):
+    """A posix pyserial port: select + os.read on its fd (raw mode set by pyserial at open)."""
+
+    def __init__(self, ser):
+        _FdPort.__init__(self, ser.fileno(), owns=False)
+        self.ser = ser
+
+    def write(self, data):
+        import serial
+        try:
+            self.ser.write(data)
+        except serial.SerialException:
+            raise PeerGone() from None
+
+    def close(self):
+        self.ser.close()
+
+
+class _MemPipe:
+    """One direction-pair end of an in-process byte pipe (thread safe, never blocks a writer)."""
+
+    def __init__(self, cond, rx, tx, state):
+        self._cond = cond
+        self._rx = rx
+        self._tx = tx
+        self._state = state  # shared dict: open ends
+
+    def read(self, timeout):
+        with self._cond:
+            if not self._rx:
+                if self._state["open"] < 2:
+                    raise PeerGone()
+                self._cond.wait(timeout)
+            if not self._rx:
+                if self._state["open"] < 2:
+                    raise PeerGone()
+                return b""
+            data = b"".join(self._rx)
+            self._rx.clear()
+            return data
+
+    def write(self, data):
+        with self._cond:
+            if self._state["open"] < 2:
+                raise PeerGone()
+            self._tx.append(bytes(data))
+            self._cond.notify_all()
+
+    def close(self):
+        with self._cond:
+            self._state["open"] -= 1
+            self._cond.notify_all()
+
+
+class SerialLink(Link):
+    """Packets framed with COBS + CRC-16 (``protocol.host``) over a byte stream."""
+
+    def __init__(self, port, node):
+        Link.__init__(self, node)
+        self._port = port
+        self._dec = host.Decoder()
+        self.peer_path = None
+        self.peer = None
+
+    def send_raw(self, pid, src, dst, payload):
+        seq = self._seq
+        self._seq = (seq + 1) & 0xFF
+        self.write(host.encode_frame(pid, src, dst, seq, payload))
+        self.tx_frames += 1
+
+    def write(self, data):
+        """Raw bytes onto the stream (tests use it to inject damage); sets ``closed`` if the peer left."""
+        if self.closed:
+            return
+        try:
+            self._port.write(data)
+        except PeerGone:
+            self.closed = True
+
+    def recv(self, timeout=None):
+        deadline = None if timeout is None else time.monotonic() + timeout
+        wait = timeout
+        while not self.closed:
+            try:
+                data = self._port.read(wait)
+            except PeerGone:
+                self.closed = True
+                return []
+            if data:
+                out = self._dec.feed(data)
+                if out:
+                    return out
+            if deadline is not None:
+                wait = deadline - time.monotonic()
+                if wait <= 0:
+                    return []
+        return []
+
+    def counters(self):
+        d = self._dec.counters()
+        d["tx_frames"] = self.tx_frames
+        return d
+
+    def close(self):
+        if self._port is not None:
+            self._port.close()
+            self._port = None
+        self.closed = True
+
+
+def inproc_pair(node_a, node_b):
+    """Two connected in-process serial Links (frames really go through COBS/CRC)."""
+    cond = threading.Condition()
+    ab = collections.deque()
+    ba = collections.deque()
+    state = {"open": 2}
+    a = SerialLink(_MemPipe(cond, ba, ab, state), node_a)
+    b = SerialLink(_MemPipe(cond, ab, ba, state), node_b)
+    a.peer = b
+    b.peer = a
+    return a, b
+
+
+def open_pty(node):
+    """A SerialLink on a new pty master; ``.peer_path`` is the slave (already raw) for the peer."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    link = SerialLink(_FdPort(master, hold_fd=slave), node)
+    link.peer_path = os.ttyname(slave)
+    return link
+
+
+def open_serial(url, node, baudrate=115200):
+    """A SerialLink on a pyserial port (path or URL such as ``loop://``)."""
+    import serial
+    ser = serial.serial_for_url(url, baudrate=baudrate, timeout=0)
+    try:
+        fd = ser.fileno()
+    except (AttributeError, serial.SerialException, OSError):
+        fd = None
+    return SerialLink(_PyserialFd(ser) if isinstance(fd, int) else _SerialPort(ser), node)
+
+
+# --- CAN -------------------------------------------------------------------------------------------------
+class CanLink(Link):
+    """Packets over a python-can bus: one frame up to 8 bytes, else ISO-TP with can-isotp.
+
+    Delivers packets addressed to this node or BROADCAST (others counted as ``other_dst``).
+    ``seq`` is None on CAN (see ``protocol.can``).
+    """
+
+    ISOTP_TIMEOUT = 1.0
+
+    def __init__(self, bus, node):
+        Link.__init__(self, node)
+        self.bus = bus
+        self._dec = canmap.CanDecoder()
+        self._stacks = {}   # rx id -> (TransportLayerLogic, deque of rx frames)
+        self._ready = []    # packets decoded while waiting for flow control
+        self.other_dst = 0
+        self.peer_path = None
+
+    def _stack(self, rxid):
+        entry = self._stacks.get(rxid)
+        if entry is None:
+            import isotp
+            q = collections.deque()
+            txid = canmap.reply_id(rxid)
+
+            def txfn(m):
+                self._tx(m.arbitration_id, m.data)
+
+            addr = isotp.Address(isotp.AddressingMode.Normal_29bits, txid=txid, rxid=rxid)
+            st = isotp.TransportLayerLogic(
+                lambda: q.popleft() if q else None, txfn, addr,
+                params={"stmin": 0, "blocksize": 0, "rx_flowcontrol_timeout": 1000,
+                        "rx_consecutive_frame_timeout": 1000, "max_frame_size": 4095})
+            entry = self._stacks[rxid] = (st, q)
+        return entry
+
+    def _tx(self, cid, data):
+        import can
+        try:
+            self.bus.send(can.Message(arbitration_id=cid, data=bytes(data), is_extended_id=True))
+        except can.CanOperationError:
+            self.closed = True
+
+    def send_raw(self, pid, src, dst, payload):
+        self._seq = (self._seq + 1) & 0xFF
+        if len(payload) <= canmap.SINGLE_MAX:
+            self._tx(canmap.can_id(pid, src, dst), payload)
+        else:
+            st, _ = self._stack(canmap.can_id(pid, dst, src, True))
+            st.send(bytes(payload))
+            deadline = time.monotonic() + self.ISOTP_TIMEOUT
+            st.process()
+            while st.transmitting():
+                if time.monotonic() > deadline:
+                    st.stop_sending()
+                    raise TimeoutError("ISO-TP send of packet 0x%02x to node 0x%02x: no flow control" % (pid, dst))
+                self._ready.extend(self._poll(0.01))
+                st.process()
+        self.tx_frames += 1
+
+    def _poll(self, timeout):
+        """Read one frame (waiting up to ``timeout``) and any already queued; decoded packets."""
+        import can
+        out = []
+        try:
+            msg = self.bus.recv(timeout)
+            while msg is not None:
+                p = self._frame(msg)
+                if p is not None:
+                    out.append(p)
+                msg = self.bus.recv(0)
+        except can.CanOperationError:  # the slcan adapter went away
+            self.closed = True
+        if getattr(self.bus, "peer_gone", False):
+            self.closed = True
+        return out
+
+    def _frame(self, msg):
+        if msg.is_error_frame or msg.is_remote_frame:
+            return None
+        cid = msg.arbitration_id
+        dst = cid & 0xFF
+        if msg.is_extended_id and dst != self.node and dst != 0xFF:
+            self.other_dst += 1
+            return None
+        if msg.is_extended_id and cid & canmap.ISOTP_BIT and not cid & canmap.RESERVED_BIT:
+            st, q = self._stack(cid)
+            q.append(isotp_msg(msg))
+            st.process()
+            payload = st.recv()
+            if payload is None:
+                return None
+            return self._dec.packet((cid >> 17) & 0xFF, (cid >> 8) & 0xFF, dst, bytes(payload))
+        return self._dec.feed(cid, msg.data, msg.is_extended_id)
+
+    def recv(self, timeout=None):
+        if self._ready:
+            out, self._ready = self._ready, []
+            return out
+        deadline = None if timeout is None else time.monotonic() + timeout
+        wait = timeout
+        while not self.closed:
+            out = self._poll(wait)
+            if out:
+                return out
+            if deadline is not None:
+                wait = deadline - time.monotonic()
+                if wait <= 0:
+                    return []
+        return []
+
+    def counters(self):
+        d = self._dec.counters()
+        d["other_dst"] = self.other_dst
+        d["tx_frames"] = self.tx_frames
+        return d
+
+    def close(self):
+        import can
+        if self.bus is not None:
+            try:
+                self.bus.shutdown()
+            except can.CanOperationError:  # an slcan adapter already gone
+                pass
+            self.bus = None
+        self.closed = True
+
+
+def isotp_msg(msg):
+    import isotp
+    return isotp.CanMessage(arbitration_id=msg.arbitration_id, data=msg.data, dlc=msg.dlc,
+                            extended_id=msg.is_extended_id)
+
+
+def _lawicel_bus_class():
+    import can
+
+    class LawicelBus(can.BusABC):
+        """The device side of an slcan adapter on a pty master: Lawicel ASCII in and out.
+
+        Frames the slcan host sends (``T`` lines) are received here; frames sent here reach the host as
+        ``T`` lines. Commands ``O``, ``C``, ``L``, ``S0``..``S9``, ``V``, ``N`` are answered like an adapter.
+        """
+
+        def __init__(self, channel="slcan-pty", **kw):
+            self._master, slave = os.openpty()
+            tty.setraw(slave)
+            self.peer_path = os.ttyname(slave)
+            self._port = _FdPort(self._master, hold_fd=slave)
+            self._buf = bytearray()
+            self._rx = collections.deque()
+            self.is_open = False
+            self.peer_gone = False
+            can.BusABC.__init__(self, channel, **kw)
+
+        def _line(self, line):
+            if not line:
+                return
+            c = line[:1]
+            if c in (b"T", b"t", b"R", b"r"):
+                ext = c in (b"T", b"R")
+                n = 8 if ext else 3
+                try:
+                    cid = int(line[1:1 + n], 16)
+                    dlc = int(line[1 + n:2 + n], 16)
+                    data = b"" if c in (b"R", b"r") else bytes.fromhex(line[2 + n:2 + n + 2 * dlc].decode())
+                except ValueError:
+                    self._port.write(b"\a")
+                    return
+                remote = c in (b"R", b"r")
+                if self.is_open and (remote or len(data) == dlc):
+                    self._rx.append(can.Message(arbitration_id=cid, is_extended_id=ext, data=data, dlc=dlc,
+                                                is_remote_frame=remote, timestamp=time.time()))
+                    self._port.write(b"Z\r" if ext else b"z\r")
+                else:
+                    self._port.write(b"\a")
+            elif c in (b"O", b"L"):
+                self.is_open = True
+                self._port.write(b"\r")
+            elif c == b"C":
+                self.is_open = False
+                self._port.write(b"\r")
+            elif c == b"V":
+                self._port.write(b"V1013\r")
+            elif c == b"N":
+                self._port.write(b"NFPS0\r")
+            else:  # S0-S9, s, F, Z, ...: accepted
+                self._port.write(b"\r")
+
+        def _recv_internal(self, timeout):
+            deadline = None if timeout is None else time.monotonic() + timeout
+            while not self._rx:
+                wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+                try:
+                    data = self._port.read(wait)
+                except PeerGone:
+                    self.peer_gone = True
+                    return None, False
+                self._buf.extend(data)
+                while True:
+                    i = self._buf.find(b"\r")
+                    if i < 0:
+                        break
+                    line = bytes(self._buf[:i])
+                    del self._buf[:i + 1]
+                    self._line(line)
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+            if self._rx:
+                return self._rx.popleft(), False
+            return None, False
+
+        def send(self, msg, timeout=None):
+            if msg.is_extended_id:
+                head = "%s%08X%d" % ("R" if msg.is_remote_frame else "T", msg.arbitration_id, msg.dlc)
+            else:
+                head = "%s%03X%d" % ("r" if msg.is_remote_frame else "t", msg.arbitration_id, msg.dlc)
+            line = head + ("" if msg.is_remote_frame else bytes(msg.data).hex().upper()) + "\r"
+            try:
+                self._port.write(line.encode())
+            except PeerGone:
+                self.peer_gone = True
+
+        def shutdown(self):
+            can.BusABC.shutdown(self)
+            self._port.close()
+
+    return LawicelBus
+
+
+def open_can(interface, channel, node, **kw):
+    import can
+    if interface == "slcan":
+        kw.setdefault("sleep_after_open", 0)
+    bus = can.Bus(interface=interface, channel=channel, **kw)
+    return CanLink(bus, node)
+
+
+def open_slcan_device(node):
+    """Be the slcan adapter: a CanLink on a Lawicel-speaking pty master; ``.peer_path`` for ``slcan:``."""
+    bus = _lawicel_bus_class()()
+    link = CanLink(bus, node)
+    link.peer_path = bus.peer_path
+    return link
+
+
+def open_link(spec, node, **kw):
+    """A Link for ``spec`` (see the module docstring); ``node`` is a node name or address."""
+    if spec == "inproc":
+        a, _ = inproc_pair(node, kw.get("peer_node", "BROADCAST"))
+        return a
+    if spec == "pty":
+        return open_pty(node)
+    if spec == "slcan-pty":
+        return open_slcan_device(node)
+    if spec.startswith("slcan:"):
+        return open_can("slcan", spec[len("slcan:"):], node, **kw)
+    if spec.startswith("can:"):
+        parts = spec.split(":", 2)
+        if len(parts) != 3 or not parts[1] or not parts[2]:
+            raise ValueError("CAN link spec %r: expected can:INTERFACE:CHANNEL" % spec)
+        return open_can(parts[1], parts[2], node, **kw)
+    if spec.startswith("serial:"):
+        return open_serial(spec[len("serial:"):], node, **kw)
+    if "://" in spec or spec.startswith("/") or spec.upper().startswith("COM"):
+        return open_serial(spec, node, **kw)
+    raise ValueError("unknown link spec %r (inproc, pty, loop://, serial:PATH, can:virtual:CH, slcan:PATH, "
+                     "slcan-pty)" % spec)

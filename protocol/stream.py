@@ -1,0 +1,143 @@
+"""Serial stream link on a tty or pty slave, for CPython and MicroPython (the firmware's link HAL uses it).
+
+The device is opened twice, ``'rb'`` and ``'wb'`` (under the MicroPython unix port a single ``'r+b'``
+handle fails its writes), put in raw mode before any byte is written, and read with ``select.poll`` then
+one ``readinto`` into a preallocated buffer. VMIN = VTIME = 0 makes that ``readinto`` return what is
+waiting instead of blocking until the buffer is full (MicroPython loops on ``read`` until it gets 0).
+The peer leaving shows as POLLHUP/POLLERR or EIO and sets ``closed``.
+
+Same methods as ``protocol.link.Link``, except that ``recv`` takes its timeout in milliseconds.
+"""
+
+import select
+import termios
+
+from protocol import core
+
+try:
+    from time import ticks_diff, ticks_ms
+except ImportError:  # CPython
+    import time
+
+    def ticks_ms():
+        return int(time.monotonic() * 1000)
+
+    def ticks_diff(a, b):
+        return a - b
+
+_VMIN = 6   # index in the termios cc list (Linux)
+_VTIME = 5
+
+
+def set_raw(fd):
+    """Raw mode, VMIN = VTIME = 0 (read returns what is waiting). Call before any byte is written."""
+    if hasattr(termios, "setraw"):
+        termios.setraw(fd)       # MicroPython
+    else:
+        import tty
+        tty.setraw(fd)
+    attrs = termios.tcgetattr(fd)
+    attrs[6][_VMIN] = 0
+    attrs[6][_VTIME] = 0
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+
+
+class StreamLink:
+    """Packets over a serial device or pty slave (pure framing core)."""
+
+    def __init__(self, path, node, bufsize=512):
+        self.node = core.node_id(node)
+        self.path = path
+        self._r = open(path, "rb", buffering=0)
+        try:
+            set_raw(self._r.fileno())
+            self._w = open(path, "wb", buffering=0)
+        except Exception:
+            self._r.close()
+            raise
+        self._poll = select.poll()
+        self._poll.register(self._r, select.POLLIN)
+        self._buf = bytearray(bufsize)
+        self._mv = memoryview(self._buf)
+        self._dec = core.Decoder()
+        self._seq = 0
+        self.tx_frames = 0
+        self.closed = False
+
+    def send(self, name_or_id, dst, payload=b"", **fields):
+        """Send a packet from this node; ``payload`` bytes, or field values (defaults for the rest).
+
+        Returns the sequence number used.
+        """
+        pkt = core.packet_def(name_or_id)
+        if payload:
+            if len(payload) != pkt.size:
+                raise ValueError("%s payload is %d bytes, expected %d" % (pkt.name, len(payload), pkt.size))
+        else:
+            payload = core.encode_payload(pkt.id, fields)
+        seq = self._seq
+        self._seq = (seq + 1) & 0xFF
+        self.send_raw(pkt.id, self.node, core.node_id(dst), payload, seq)
+        return seq
+
+    def send_raw(self, pid, src, dst, payload, seq=None):
+        """Send one frame as given (no table checks beyond the header)."""
+        if seq is None:
+            seq = self._seq
+            self._seq = (seq + 1) & 0xFF
+        self.write(core.encode_frame(pid, src, dst, seq, payload))
+        self.tx_frames += 1
+
+    def write(self, data):
+        """Write raw bytes (frames, or garbage in tests); sets ``closed`` if the peer left."""
+        try:
+            mv = memoryview(data)
+            while len(mv):
+                n = self._w.write(mv)
+                if n is None:
+                    n = 0
+                mv = mv[n:]
+        except OSError:
+            self.closed = True
+
+    def recv(self, timeout_ms=None):
+        """Packets received, ``[(pid, src, dst, seq, payload)]``; waits up to ``timeout_ms`` (None = forever)
+
+        for at least one, returns [] on timeout or when the peer has left.
+        """
+        t0 = ticks_ms()
+        wait = -1 if timeout_ms is None else timeout_ms
+        while not self.closed:
+            ev = self._poll.poll(wait)
+            if ev:
+                n = 0
+                if ev[0][1] & select.POLLIN:
+                    try:
+                        n = self._r.readinto(self._buf)
+                    except OSError:  # EIO: the peer closed the pty
+                        n = 0
+                if not n:
+                    self.closed = True  # readable with nothing to read, POLLHUP or POLLERR
+                    return []
+                out = self._dec.feed(self._mv[:n])
+                if out:
+                    return out
+            if timeout_ms is not None:
+                wait = timeout_ms - ticks_diff(ticks_ms(), t0)
+                if wait <= 0:
+                    return []
+        return []
+
+    def counters(self):
+        """Drops by reason, frames received, sequence gaps and duplicates, frames sent."""
+        d = self._dec.counters()
+        d["tx_frames"] = self.tx_frames
+        return d
+
+    def close(self):
+        if self._r is not None:
+            self._poll.unregister(self._r)
+            self._r.close()
+            self._w.close()
+            self._r = None
+        self.closed = True

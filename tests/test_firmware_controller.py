@@ -1,0 +1,352 @@
+"""The fixed-point controller (firmware/controller.py) under CPython: words, law, modes, packets, tables."""
+
+import json
+import struct
+import zlib
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from firmware import ad5664r
+from firmware.controller import CALIBRATE, HOLD, IDLE, SAFE, TRACK, Controller
+from firmware.hinv import HINV_MAX, HinvTable
+from protocol import core, htable
+from tests.mp import firmware_plant as fp
+
+TICKS_10S = 6378          # 10 s at 637.8 Hz
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return htable.grid_from_calibration(fp.calibration())
+
+
+def tracking(grid, **kw):
+    c = Controller(table=grid, **kw)
+    c.step(2048, 2048, 0)          # the init tick
+    c.mode = TRACK
+    return c
+
+
+# --- an independent float reference of the same law ----------------------------------------------------
+class FloatReference:
+    """Eq. 7.4, 7.12, 7.13 in floats: ratio, dR clamp +-0.5, H^-1 per node (float) interpolated bilinearly at
+    the current command, V -= g H^-1 dR in codes, state clamped at the limit, output rounded."""
+
+    def __init__(self, grid, gain=0.5, limit=32767):
+        self.ax = [ad5664r.volts_to_code(v) for v in grid.ax]
+        self.ay = [ad5664r.volts_to_code(v) for v in grid.ay]
+        self.hinv = []
+        for a, b, c, d in grid.h:
+            det = a * d - b * c
+            k = ad5664r.CODES_PER_VOLT / det
+            self.hinv.append((d * k, -b * k, -c * k, a * k))
+        self.nx = len(self.ax)
+        self.g = gain
+        self.lim = limit
+        self.vx = 0.0
+        self.vy = 0.0
+
+    @staticmethod
+    def _frac(axis, c):
+        i = 0
+        while i < len(axis) - 2 and c >= axis[i + 1]:
+            i += 1
+        return i, min(1.0, max(0.0, (c - axis[i]) / (axis[i + 1] - axis[i])))
+
+    def step(self, vx, vy, vs):
+        if vs >= 200:
+            rx = max(-1.0, min(1.0, (2048 - vx) / vs))
+            ry = max(-1.0, min(1.0, (2048 - vy) / vs))
+            ex = max(-0.5, min(0.5, rx))
+            ey = max(-0.5, min(0.5, ry))
+            i, tx = self._frac(self.ax, round(self.vx))
+            j, ty = self._frac(self.ay, round(self.vy))
+            n = self.nx
+            m = []
+            for e in range(4):
+                h00 = self.hinv[j * n + i][e]
+                h10 = self.hinv[j * n + i + 1][e]
+                h01 = self.hinv[(j + 1) * n + i][e]
+                h11 = self.hinv[(j + 1) * n + i + 1][e]
+                top = h00 + (h10 - h00) * tx
+                bot = h01 + (h11 - h01) * tx
+                m.append(top + (bot - top) * ty)
+            self.vx -= self.g * (m[0] * ex + m[1] * ey)
+            self.vy -= self.g * (m[2] * ex + m[3] * ey)
+            self.vx = max(-self.lim, min(self.lim, self.vx))
+            self.vy = max(-self.lim, min(self.lim, self.vy))
+        x, y = round(self.vx), round(self.vy)
+        return [0x8000 + x, 0x18000 - x, 0x38000 + y, 0x128000 - y]
+
+
+def _codes(words):
+    return [(w & 0xFFFF) for w in words]
+
+
+def test_init_sequence_then_differential_words(grid):
+    c = Controller(table=grid)
+    assert c.step(2048, 2048, 2500) == 4
+    assert c.words == list(ad5664r.INIT_WORDS)
+    c.step(2048, 2048, 2500)
+    assert [ad5664r.decode(w)[:2] for w in c.words] == [(0, 0), (0, 1), (0, 3), (2, 2)]
+    c.mode = CALIBRATE
+    c.handle(core.PACKET_ID["CTRL_SET_FSM"], 1, 0, core.encode_payload("CTRL_SET_FSM", vx=1000000, vy=-500000))
+    c.step(2048, 2048, 2500)
+    xp, xn, yp, yn = _codes(c.words)
+    assert ad5664r.pair_to_code(xp, xn) == ad5664r.volts_to_code(1.0)
+    assert ad5664r.pair_to_code(yp, yn) == ad5664r.volts_to_code(-0.5)
+
+
+def test_tracks_plant_and_matches_float_reference_within_one_lsb(grid):
+    """10 s closed loop: fixed point and the float law each drive their own copy of the same plant."""
+    c = tracking(grid)
+    ref = FloatReference(grid)
+    p_fix, p_ref = fp.Plant(seed=3), fp.Plant(seed=3)
+    worst_lsb = 0
+    worst_res = 0.0
+    for k in range(TICKS_10S):
+        words = c.on_tick(k, 0, *p_fix.sample())
+        rwords = ref.step(*p_ref.sample())
+        p_fix.apply(words)
+        p_ref.apply(rwords)
+        worst_lsb = max(worst_lsb, max(abs(a - b) for a, b in zip(_codes(words), _codes(rwords))))
+        if k > 600:
+            worst_res = max(worst_res, max(abs(v) for v in p_fix.residual_v()))
+    assert worst_lsb <= 1
+    assert worst_res < 0.03        # volts: the loop follows a 0.6 V disturbance
+    assert c.mode == TRACK and c.n_sat == 0
+
+
+def test_bilinear_lookup_matches_float_interpolation(grid):
+    t = HinvTable(grid)
+    ref = FloatReference(grid)
+    for x, y in ((-20000, 14000), (0, 0), (3100, -2800), (40000, -40000), (-16383, 16383)):
+        got = [v / (1 << t.hq) for v in t.hinv_at(x, y)]
+        i, tx = ref._frac(ref.ax, x)
+        j, ty = ref._frac(ref.ay, y)
+        n = ref.nx
+        for e in range(4):
+            top = ref.hinv[j * n + i][e] + (ref.hinv[j * n + i + 1][e] - ref.hinv[j * n + i][e]) * tx
+            bot = ref.hinv[(j + 1) * n + i][e] + (ref.hinv[(j + 1) * n + i + 1][e] - ref.hinv[(j + 1) * n + i][e]) * tx
+            assert got[e] == pytest.approx(top + (bot - top) * ty, abs=2.0 / (1 << t.hq) + 1e-3 * abs(top))
+
+
+# --- every intermediate inside +-2^30 -------------------------------------------------------------------
+class Bounded(int):
+    """An int whose arithmetic results must stay inside the 32-bit MicroPython small-int range."""
+
+    def _chk(self, v):
+        assert -(1 << 30) <= v < (1 << 30), "intermediate %d outside +-2^30" % v
+        return Bounded(v)
+
+
+for _op in ("add", "sub", "mul", "floordiv", "lshift", "rshift", "and", "or", "mod"):
+    for _name in ("__%s__" % _op, "__r%s__" % _op):
+        def _f(self, o, _m=getattr(int, _name)):
+            r = _m(int(self), int(o) if isinstance(o, int) else o)
+            return r if r is NotImplemented else Bounded._chk(self, r)
+        setattr(Bounded, _name, _f)
+Bounded.__neg__ = lambda self: Bounded._chk(self, -int(self))
+
+
+def _extreme_table(sign=1.0):
+    """A grid whose H^-1 sits at the fixed-point limit (smallest accepted H) with cross terms."""
+    m = HINV_MAX * 0.9999 / ad5664r.CODES_PER_VOLT      # H^-1 entries in V per unit ratio
+    a, b, c, d = sign * m, 0.3 * m, -0.2 * m, m
+    det = a * d - b * c
+    h = [(d / det, -b / det, -c / det, a / det)] * 4
+    return htable.Grid([-2.4, 2.4], [-2.4, 2.4], h)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 4095), st.integers(0, 4095), st.integers(0, 4095)), min_size=1,
+                max_size=40),
+       st.integers(1, 65535), st.integers(-16384, 16384), st.integers(-16384, 16384), st.sampled_from([1.0, -1.0]))
+def test_intermediates_within_2_30_and_codes_in_safe_range(samples, gain, rxc, ryc, sign):
+    t = HinvTable(_extreme_table(sign))
+    t.h = [Bounded(v) for v in t.h]
+    t.rdx = [Bounded(v) for v in t.rdx]
+    t.rdy = [Bounded(v) for v in t.rdy]
+    t.ax = [Bounded(v) for v in t.ax]
+    t.ay = [Bounded(v) for v in t.ay]
+    c = Controller(table=t, gain_q15=Bounded(gain), rx_cmd_q15=Bounded(rxc), ry_cmd_q15=Bounded(ryc),
+                   limit_code=30000)
+    c.step(2048, 2048, 0)
+    c.mode = TRACK
+    c.vx_q8 = Bounded(c.vx_q8)
+    c.vy_q8 = Bounded(c.vy_q8)
+    for vx, vy, vs in samples * 3:
+        c.silent = 0
+        c.step(Bounded(vx), Bounded(vy), Bounded(vs))
+        for w in c.words:
+            assert 0x8000 - 30000 <= (w & 0xFFFF) <= 0x8000 + 30000
+        assert ad5664r.pair_to_code(c.words[0] & 0xFFFF, c.words[1] & 0xFFFF) == (c.vx_q8 + 128) >> 8
+
+
+# --- modes --------------------------------------------------------------------------------------------
+def test_beam_loss_holds_then_safe_ramps_to_centre_without_windup(grid):
+    c = tracking(grid, safe_ticks=50, ramp_code=100)
+    p = fp.Plant(seed=5)
+    for k in range(400):
+        p.apply(c.on_tick(k, 0, *p.sample()))
+    held = list(c.words)
+    assert held[0] & 0xFFFF != 0x8000            # the mirror is off centre, following the disturbance
+    p.beam = False
+    for k in range(49):
+        c.on_tick(k, 0, *p.sample())
+        assert c.words == held and c.mode == TRACK
+    c.on_tick(49, 0, *p.sample())
+    assert c.mode == SAFE
+    x_prev = abs(ad5664r.pair_to_code(held[0] & 0xFFFF, held[1] & 0xFFFF))
+    for k in range(2000):
+        c.on_tick(k, 0, *p.sample())
+        x = abs(ad5664r.pair_to_code(c.words[0] & 0xFFFF, c.words[1] & 0xFFFF))
+        assert x_prev - 100 <= x <= x_prev
+        x_prev = x
+    assert _codes(c.words) == [0x8000] * 4 and c.vx_q8 == 0 and c.vy_q8 == 0
+    p.beam = True                                # beam back: SAFE latches, no jump, no integration
+    for k in range(100):
+        c.on_tick(k, 0, *p.sample())
+    assert c.mode == SAFE and _codes(c.words) == [0x8000] * 4
+    assert c.n_lost >= 2049
+
+
+def test_link_silence_enters_safe_from_track_hold_and_calibrate(grid):
+    for mode in (TRACK, HOLD, CALIBRATE):
+        c = tracking(grid, safe_ticks=20)
+        c.mode = mode
+        for _ in range(19):
+            c.step(2048, 2048, 2500)
+        assert c.mode == mode
+        c.handle(core.PACKET_ID["HELLO"], 1, 0, core.encode_payload("HELLO"))    # traffic resets the count
+        for _ in range(19):
+            c.step(2048, 2048, 2500)
+        assert c.mode == mode
+        c.step(2048, 2048, 2500)
+        assert c.mode == SAFE
+
+
+def test_saturation_clamps_state_no_windup(grid):
+    c = tracking(grid, limit_code=2000)
+    for k in range(300):                            # a constant far-off spot drives the law into the limit
+        c.on_tick(k, 0, 2048 - 500, 2048 + 500, 2500)
+    assert c.flags & 2 and c.n_sat > 200
+    assert abs(c.vx_q8) == 2000 << 8 and abs(c.vy_q8) == 2000 << 8
+    x_sat = c.vx_q8
+    c.on_tick(0, 0, 2048 + 500, 2048 - 500, 2500)    # the error reverses: the command leaves the limit at once
+    assert abs(c.vx_q8) < abs(x_sat)
+
+
+# --- packets ------------------------------------------------------------------------------------------
+P = core.PACKET_ID
+
+
+def _send(c, name, seq=7, **kw):
+    return c.handle(P[name], core.NODE["GROUND"], seq, core.encode_payload(name, **kw))
+
+
+def test_settings_ack_nack_and_unknown_counted(grid):
+    c = Controller()
+    r = _send(c, "CTRL_SETTINGS", mode=TRACK)
+    assert r == [(P["NACK"], 1, struct.pack("<BBB", P["CTRL_SETTINGS"], 7, core.ERROR["BAD_STATE"]))]
+    c.set_table(grid)
+    r = _send(c, "CTRL_SETTINGS", mode=TRACK, rx_cmd=100, ry_cmd=-100, gain=8192, decim=10, safe_ticks=99)
+    assert r == [(P["ACK"], 1, struct.pack("<BB", P["CTRL_SETTINGS"], 7))]
+    assert (c.mode, c.rx_cmd, c.ry_cmd, c.gain, c.decim, c.safe_ticks) == (TRACK, 100, -100, 8192, 10, 99)
+    _send(c, "CTRL_SETTINGS", mode=HOLD, gain=0)
+    assert c.gain == 8192 and c.mode == HOLD                     # gain 0 keeps the gain
+    bad = bytearray(core.encode_payload("CTRL_SETTINGS", mode=1))
+    bad[0] = 9
+    assert c.handle(P["CTRL_SETTINGS"], 1, 3, bytes(bad))[0][2][2] == core.ERROR["BAD_VALUE"]
+    assert _send(c, "CTRL_SET_FSM", vx=1)[0][2][2] == core.ERROR["BAD_STATE"]   # not in CALIBRATE
+    assert c.handle(P["RW_CMD"], 0x30, 1, core.encode_payload("RW_CMD")) == []
+    assert c.handle(0xEE, 1, 1, b"xx") == []
+    assert c.handle(P["CTRL_SETTINGS"], 1, 1, b"short") == []
+    assert c.n_unknown == 3
+
+
+def test_status_payload_and_decimation(grid):
+    c = tracking(grid, decim=8)
+    p = fp.Plant()
+    due = []
+    for k in range(40):
+        p.apply(c.on_tick(k, 0, *p.sample()))
+        due.append(c.status_due())
+    assert sum(due) == 5
+    st_ = core.payload_dict(P["CTRL_STATUS"], c.status_payload())
+    assert st_["mode"] == TRACK and st_["flags"] & 1 and st_["flags"] & 4
+    assert st_["code_xp"] == c.words[0] & 0xFFFF and st_["code_yn"] == c.words[3] & 0xFFFF
+    assert st_["vx"] == pytest.approx(c.vx_q8 / 256 / ad5664r.CODES_PER_VOLT * 1e6, abs=1)
+
+
+# --- tables -------------------------------------------------------------------------------------------
+def _upload(c, blob, crc=None, chunks=None):
+    replies = _send(c, "HTABLE_BEGIN", total=len(blob), crc32=zlib.crc32(blob) if crc is None else crc)
+    offs = list(range(0, len(blob), 48)) if chunks is None else chunks
+    for off in offs:
+        part = blob[off:off + 48]
+        replies += _send(c, "HTABLE_CHUNK", offset=off, length=len(part), data=part)
+    replies += _send(c, "HTABLE_END", total=len(blob))
+    return replies
+
+
+def test_htable_upload_swaps_in_and_refusals_keep_previous(grid):
+    c = Controller()
+    blob = htable.pack(grid)
+    r = _upload(c, blob)
+    assert all(pid == P["ACK"] for pid, _, _ in r)
+    assert c.table is not None and c.table.h == HinvTable(grid).h
+    first = c.table
+    other = htable.pack(htable.Grid([-1, 1], [-1, 1], [(-8, 0, 0, 8)] * 4))
+    assert _upload(c, other, crc=123)[-1][2][2] == core.ERROR["BAD_CRC"]
+    assert _upload(c, other, chunks=[0])[-1][2][2] == core.ERROR["BAD_SEQUENCE"]       # partial
+    r = _upload(c, other, chunks=[48, 0])                                              # out of order
+    assert r[1][2][2] == core.ERROR["BAD_SEQUENCE"] and r[-1][2][2] == core.ERROR["BAD_SEQUENCE"]
+    nan = bytearray(other)
+    struct.pack_into("<f", nan, 8 + 16 + 4, float("nan"))
+    struct.pack_into("<I", nan, len(nan) - 4, zlib.crc32(bytes(nan[:-4])))
+    assert _upload(c, bytes(nan))[-1][2][2] == core.ERROR["BAD_CONTENT"]
+    tiny = htable.pack(htable.Grid([-1, 1], [-1, 1], [(-0.5, 0, 0, 0.5)] * 4))   # H too small to steer by
+    assert _upload(c, tiny)[-1][2][2] == core.ERROR["BAD_CONTENT"]
+    big = _send(c, "HTABLE_BEGIN", total=100000, crc32=0)
+    assert big[0][2][2] == core.ERROR["TOO_LARGE"]
+    assert c.table is first
+    assert _upload(c, other)[-1][0] == P["ACK"] and c.table is not first
+
+
+def test_table_from_calibration_json_file(tmp_path, grid):
+    p = tmp_path / "calibration.json"
+    p.write_text(json.dumps(fp.calibration()))
+    c = Controller(table=str(p))
+    assert c.table.h == HinvTable(grid).h
+    assert c.table.ax[0] < c.table.ax[-1] and c.table.ay[0] < c.table.ay[-1]   # FSM Y ran reversed: sorted
+
+
+@pytest.mark.parametrize("mutate, match", [
+    (lambda cal: cal["points"].pop(), "points"),
+    (lambda cal: cal["points"][5]["H"][0].__setitem__(0, float("nan")), "finite"),
+    (lambda cal: cal["points"][5]["v0"].__setitem__(0, 9.0), "FSM range"),
+    (lambda cal: cal["points"][5].__setitem__("H", [[1.0, 2.0], [2.0, 4.0]]), "singular"),
+    (lambda cal: cal["points"][5].__setitem__("pfsm_v", [0.37, 0.0]), "grid_v"),
+    (lambda cal: cal.__setitem__("grid_v", "abc"), "grid_v"),
+])
+def test_bad_calibration_refused_and_previous_kept(tmp_path, grid, mutate, match):
+    cal = fp.calibration()
+    mutate(cal)
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(cal))
+    c = Controller(table=grid)
+    before = c.table
+    with pytest.raises(ValueError, match=match):
+        c.set_table(str(p))
+    assert c.table is before
+
+
+def test_constructor_refuses_bad_settings():
+    with pytest.raises(ValueError, match="gain_q15"):
+        Controller(gain_q15=70000)
+    with pytest.raises(ValueError, match="beam_threshold"):
+        Controller(beam_threshold=0)
+    with pytest.raises(ValueError, match="limit_code"):
+        Controller(limit_code=40000)

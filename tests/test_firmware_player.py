@@ -1,0 +1,157 @@
+"""The disturbance player (firmware/player.py): interpolation, Eq. 7.8 codes, actions, uploads, MicroPython."""
+
+import math
+import struct
+import zlib
+
+import pytest
+
+from firmware import ad660
+from firmware.player import LOOP, ONESHOT, START, STOP, Player
+from protocol import core, distfile
+from tests.test_firmware_mp import run_mp
+
+P = core.PACKET_ID
+
+
+def _file(n=62, kind=1, amp=300.0):
+    xs = [amp * math.sin(2 * math.pi * 1.3 * k * 0.008192) for k in range(n)]
+    ys = [-0.5 * amp * math.cos(2 * math.pi * 0.7 * k * 0.008192) + 20.0 for k in range(n)]
+    return xs, ys, distfile.pack(xs, ys, kind=kind, scale=0.001, source="test", seed=1)
+
+
+def _reference(xs, ys, rate_hz, m, period_s=0.008192):
+    """Float truth: linear interpolation in time, then Eq. 7.8 and offset binary, rounded and clipped."""
+    out = []
+    for k in range(m):
+        u = k / rate_hz / period_s
+        i = min(int(u), len(xs) - 2)
+        f = u - i
+        codes = []
+        for s in (xs, ys):
+            th = s[i] + (s[i + 1] - s[i]) * f
+            c = 0x8000 + ad660.V_PER_ARCSEC * th * 65536 / 20.0
+            codes.append(max(0, min(65535, int(math.floor(c + 0.5)))))
+        out.append(tuple(codes))
+    return out
+
+
+def _play(p, m, block=17):
+    xs, ys = [], []
+    xb, yb = [0] * block, [0] * block
+    while len(xs) < m:
+        n = p.fill(xb, yb, min(block, m - len(xs)))
+        if n == 0:
+            break
+        xs += xb[:n]
+        ys += yb[:n]
+    return list(zip(xs, ys))
+
+
+def test_eq_7_8_codes():
+    assert ad660.arcsec_to_code(0.0) == 0x8000
+    assert ad660.arcsec_to_code(100.0) == round(0x8000 + 1.2343 * 3276.8)
+    assert ad660.arcsec_to_code(1e6) == 65535 and ad660.arcsec_to_code(-1e6) == 0
+    assert ad660.code_to_arcsec(ad660.arcsec_to_code(123.0)) == pytest.approx(123.0, abs=0.03)
+
+
+@pytest.mark.parametrize("kind, rate", [(1, 10600), (0, 10600), (1, 4000)])
+def test_oneshot_matches_float_interpolation_within_one_code(kind, rate):
+    xs, ys, b = _file(kind=kind)
+    f = distfile.parse(b)
+    p = Player(f, rate_hz=rate)
+    p.oneshot()
+    got = _play(p, 10 ** 6)
+    xs, ys = f.samples()
+    # the one-shot plays (count - 1) periods and ends on the last sample
+    span = (f.count - 1) * 0.008192 * rate
+    assert abs(len(got) - (math.ceil(span) + 1)) <= 1
+    ref = _reference(xs, ys, rate, len(got) - 1)
+    worst = max(max(abs(a[0] - r[0]), abs(a[1] - r[1])) for a, r in zip(got, ref))
+    assert worst <= 1
+    assert got[-1] == (ad660.arcsec_to_code(xs[-1]), ad660.arcsec_to_code(ys[-1]))
+    assert p.state == STOP and p.fill([0], [0], 1) == 0
+
+
+def test_loop_wraps_and_stop_start_resume():
+    xs, ys, b = _file(n=10)
+    p = Player(distfile.parse(b))
+    assert p.fill([0] * 4, [0] * 4, 4) == 0          # stopped until told
+    p.play_loop()
+    per_loop = 9 * 0.008192 * 10600
+    idx = []
+    got = []
+    for _ in range(int(2.5 * per_loop)):
+        got += _play(p, 1)
+        idx.append(p.index)
+    wraps = [k for k in range(1, len(idx)) if idx[k] < idx[k - 1]]
+    assert len(wraps) == 2 and abs(wraps[0] + 1 - per_loop) <= 1 and abs(wraps[1] - wraps[0] - per_loop) <= 1
+    assert abs(got[wraps[0] + 1][0] - got[0][0]) <= 40        # back near the first sample
+    p.stop()
+    assert p.fill([0], [0], 1) == 0
+    held = (p.x_code, p.y_code)
+    p.start()
+    nxt = _play(p, 1)[0]
+    assert abs(nxt[0] - held[0]) <= 30 and abs(nxt[1] - held[1]) <= 30   # resumes where it stopped
+
+
+def _send(p, name, seq=3, **kw):
+    return p.handle(P[name], core.NODE["GROUND"], seq, core.encode_payload(name, **kw))
+
+
+def _upload(p, blob, crc=None):
+    r = _send(p, "DIST_BEGIN", total=len(blob), crc32=zlib.crc32(blob) if crc is None else crc)
+    for off in range(0, len(blob), 48):
+        part = blob[off:off + 48]
+        r += _send(p, "DIST_CHUNK", offset=off, length=len(part), data=part)
+    return r + _send(p, "DIST_END", total=len(blob))
+
+
+@pytest.mark.parametrize("store", [False, True])
+def test_upload_then_play_and_bad_uploads_keep_previous(tmp_path, store):
+    p = Player(store_path=str(tmp_path / "dist.bin") if store else None)
+    r = _send(p, "PLAYER_CTRL", action=START)
+    assert r[0][0] == P["NACK"] and r[0][2][2] == core.ERROR["BAD_STATE"]
+    xs, ys, b = _file(n=40)
+    assert all(x[0] == P["ACK"] for x in _upload(p, b))
+    assert p.reader.count == 40
+    first = p.reader
+    _, _, other = _file(n=20, amp=10.0)
+    assert _upload(p, other, crc=5)[-1][2][2] == core.ERROR["BAD_CRC"]
+    bad = bytearray(other)
+    bad[0:4] = b"NOPE"
+    assert _upload(p, bytes(bad))[-1][2][2] == core.ERROR["BAD_CONTENT"]
+    assert p.reader is first
+    r = _send(p, "PLAYER_CTRL", action=ONESHOT, rate_hz=10600)
+    assert r[0][0] == P["ACK"] and r[1][0] == P["PLAYER_STATUS"]
+    assert core.payload_dict(P["PLAYER_STATUS"], r[1][2]) == {"state": ONESHOT, "sample": 0, "count": 40}
+    got = _play(p, 50)
+    assert got[0] == (ad660.arcsec_to_code(xs[0]), ad660.arcsec_to_code(ys[0]))
+    if store:
+        assert distfile.parse((tmp_path / "dist.bin").read_bytes()).count == 40
+        assert not (tmp_path / "dist.bin.part").exists()
+
+
+def test_bad_rate_refused():
+    with pytest.raises(ValueError, match="rate_hz"):
+        Player(rate_hz=20)
+    xs, ys, b = _file()
+    p = Player(distfile.parse(b))
+    enc = bytearray(core.encode_payload("PLAYER_CTRL", action=START, rate_hz=10600))
+    struct.pack_into("<H", enc, 1, 60000)
+    assert p.handle(P["PLAYER_CTRL"], 1, 1, bytes(enc))[0][2][2] == core.ERROR["BAD_VALUE"]
+
+
+def test_micropython_player_gives_identical_codes(tmp_path):
+    xs, ys, b = _file(n=62)
+    path = tmp_path / "d.bin"
+    path.write_bytes(b)
+    res = run_mp("firmware_player.py", path)
+    with open(path, "rb") as f:
+        p = Player(distfile.Reader(f))
+        p.oneshot()
+        got = _play(p, 10 ** 6)
+    crc = 0
+    for x, y in got:
+        crc = zlib.crc32(struct.pack("<HH", x, y), crc)
+    assert res == {"n": len(got), "crc": crc}

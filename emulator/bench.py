@@ -57,7 +57,8 @@ class Bench:
         self._cm1, self._cm2 = self.mems.modal.c
         self.tick = 0
         self.q2_next = 0
-        self.zpx = self.zpy = 0j
+        self.zpx = self.zpy = 0j          # P-FSM modal states at the current tick boundary
+        self.tpx = self.tpy = 0.0         # P-FSM mechanical tilts now (rad)
         self.zmx1 = self.zmx2 = self.zmy1 = self.zmy2 = 0j
         self.u_mx = self.u_my = 0.0
         self.fsm_v = (0.0, 0.0)
@@ -84,12 +85,12 @@ class Bench:
         """Set the control tick rate; precompute the exact per-tick and per-sub-step transitions."""
         if not 1.0 <= rate_hz <= 1e5:
             raise ValueError("rate_hz = %r is out of range [1, 1e5]" % rate_hz)
+        self._sync_pfsm()
         self.rate_hz = float(rate_hz)
         self.T = 1.0 / self.rate_hz
         (self._phi_p, _), = self.pfsm.modal.step(self.T)
         (self._pm1, self._gm1), (self._pm2, self._gm2) = self.mems.modal.step(self.T)
         self._sub = {}
-        self._blk_n = self._blk_i = 0
 
     def _substeps(self, n):
         """Tables for a tick of n equal P-FSM sub-steps (cached per n)."""
@@ -111,6 +112,13 @@ class Bench:
         return self.rng.standard_normal(_NOISE_BLOCK).tolist()
 
     # --- P-FSM input ---------------------------------------------------------------------------------
+    def _sync_pfsm(self):
+        """Bring the P-FSM modal state to the current tick from the loaded block's boundary states."""
+        if self._blk_n:
+            i = self._blk_i
+            self.zpx, self.zpy = self._zx[i], self._zy[i]
+            self._blk_n = self._blk_i = 0
+
     def load_pfsm(self, xcodes, ycodes, counts):
         """Queue AD660 codes for the next len(counts) ticks: tick k takes counts[k] codes at equal sub-steps.
 
@@ -123,10 +131,9 @@ class Bench:
         if len(counts) == 0 or counts.min() < 1 or len(x) < total or len(y) < total:
             raise ValueError("load_pfsm: need >= 1 code per tick and %d codes per axis" % total)
         x, y = x[:total], y[:total]
-        bad = (x < 0) | (x > 0xFFFF)
-        bad |= (y < 0) | (y > 0xFFFF)
-        if bad.any():
-            self.n_pfsm_clip += int(bad.sum())
+        bad = int(((x < 0) | (x > 0xFFFF)).sum() + ((y < 0) | (y > 0xFFFF)).sum())
+        if bad:
+            self.n_pfsm_clip += bad
             x = np.clip(x, 0, 0xFFFF)
             y = np.clip(y, 0, 0xFFFF)
         kv = self.pfsm.range_v / 32768.0
@@ -140,8 +147,22 @@ class Bench:
             ks = np.nonzero(counts == n)[0]
             idx = offs[ks][:, None] + np.arange(n)[None, :]
             w_end = self._substeps(n)[0]
-            sx[ks] = ux[idx] @ w_end
-            sy[ks] = uy[idx] @ w_end
+            sx[ks] = (ux[idx] * w_end).sum(axis=1)   # elementwise, not BLAS: no thread pool per block
+            sy[ks] = (uy[idx] * w_end).sum(axis=1)
+        # P-FSM states at every tick boundary of the block: z[k+1] = Phi z[k] + s[k] (exact, Phi = exp(lam T))
+        self._sync_pfsm()
+        phi, cp = self._phi_p, self._cp
+        zx, zy = self.zpx, self.zpy
+        zxs, zys = [zx], [zy]
+        for a, b in zip(sx.tolist(), sy.tolist()):
+            zx = phi * zx + a
+            zy = phi * zy + b
+            zxs.append(zx)
+            zys.append(zy)
+        zxa, zya = np.array(zxs), np.array(zys)
+        self._zx, self._zy = zxs, zys
+        self._tpx = (cp * zxa).real.tolist()
+        self._tpy = (cp * zya).real.tolist()
         # Q2 samples: instant m / q2_hz, taken at the first sub-step boundary at or after it.
         m0 = self.q2_next
         m_end = max(m0, int(math.ceil((self.tick + n_ticks) * self.T * self.q2_hz - 1e-9)))
@@ -150,23 +171,23 @@ class Bench:
         ks = np.clip(np.floor(t_m * self.rate_hz).astype(np.int64) - self.tick, 0, n_ticks - 1)
         ns = counts[ks]
         js = np.clip(np.ceil((t_m * self.rate_hz - (self.tick + ks)) * ns - 1e-9).astype(np.int64), 0, ns)
-        cols = np.empty((7, len(ms)), complex)     # f, px, py, e1, g1, e2, g2
+        tq = np.empty((2, len(ms)))                 # P-FSM tilts x, y at the sample
+        mem = np.empty((len(ms), 4), complex)       # MEMS e1, g1, e2, g2 from the tick start
         for n in np.unique(ns).tolist():
             sel = np.nonzero(ns == n)[0]
             _, w_part, powers, mems = self._substeps(n)
             idx = offs[ks[sel]][:, None] + np.arange(n)[None, :]
             rows = w_part[js[sel]]
-            cols[0, sel] = powers[js[sel]]
-            cols[1, sel] = (ux[idx] * rows).sum(axis=1)
-            cols[2, sel] = (uy[idx] * rows).sum(axis=1)
-            cols[3:, sel] = mems[js[sel]].T
+            f = powers[js[sel]]
+            tq[0, sel] = (cp * (f * zxa[ks[sel]] + (ux[idx] * rows).sum(axis=1))).real
+            tq[1, sel] = (cp * (f * zya[ks[sel]] + (uy[idx] * rows).sum(axis=1))).real
+            mem[sel] = mems[js[sel]]
         self._q2_ticks = ks.tolist() + [-1]
         self._q2_t_us = np.round(t_m * 1e6).astype(np.int64).tolist()
-        self._q2_cols = cols.T.tolist()
+        self._q2_tp = tq.T.tolist()
+        self._q2_mem = mem.tolist()
         self._q2_p = 0
         self._q2_m0 = m0
-        self._sx = sx.tolist()
-        self._sy = sy.tolist()
         self._blk_n = n_ticks
         self._blk_i = 0
 
@@ -201,8 +222,7 @@ class Bench:
     # --- sensing -------------------------------------------------------------------------------------
     def _angles(self):
         """Current mechanical tilts (P-FSM x, y; MEMS x, y) in rad."""
-        cp = self._cp
-        return ((cp * self.zpx).real, (cp * self.zpy).real,
+        return (self.tpx, self.tpy,
                 (self._cm1 * self.zmx1 + self._cm2 * self.zmx2).real,
                 (self._cm1 * self.zmy1 + self._cm2 * self.zmy2).real)
 
@@ -215,10 +235,10 @@ class Bench:
 
     def q1_sample(self):
         """Q1 through the inverting amplifier into the SAMD21: (vx, vy, vs) counts now (INTERFACES Q1 chain)."""
-        cp, c1, c2 = self._cp, self._cm1, self._cm2
+        c1, c2 = self._cm1, self._cm2
         gp, gf, co, si, ox, oy = self._g1
-        xb = gp * (cp * self.zpx).real + gf * (c1 * self.zmx1 + c2 * self.zmx2).real
-        yb = gp * (cp * self.zpy).real + gf * (c1 * self.zmy1 + c2 * self.zmy2).real
+        xb = gp * self.tpx + gf * (c1 * self.zmx1 + c2 * self.zmx2).real
+        yb = gp * self.tpy + gf * (c1 * self.zmy1 + c2 * self.zmy2).real
         xd = co * xb + si * yb - ox
         yd = co * yb - si * xb - oy
         vx, vy, vs = self._fast1(xd, yd)
@@ -296,14 +316,14 @@ class Bench:
             raise RuntimeError("no P-FSM codes queued for tick %d: call load_pfsm or advance_tick" % self.tick)
         out = []
         umx, umy = self.u_mx, self.u_my
-        zpx, zpy = self.zpx, self.zpy
         zmx1, zmx2, zmy1, zmy2 = self.zmx1, self.zmx2, self.zmy1, self.zmy2
         p = self._q2_p
         ticks = self._q2_ticks
         while ticks[p] == i:
-            f, px, py, e1, g1, e2, g2 = self._q2_cols[p]
-            cp, c1, c2 = self._cp, self._cm1, self._cm2
-            s = self._q2_sample((cp * (f * zpx + px)).real, (cp * (f * zpy + py)).real,
+            tpx, tpy = self._q2_tp[p]
+            e1, g1, e2, g2 = self._q2_mem[p]
+            c1, c2 = self._cm1, self._cm2
+            s = self._q2_sample(tpx, tpy,
                                 (c1 * (e1 * zmx1 + g1 * umx) + c2 * (e2 * zmx2 + g2 * umx)).real,
                                 (c1 * (e1 * zmy1 + g1 * umy) + c2 * (e2 * zmy2 + g2 * umy)).real)
             out.append((self._q2_m0 + p, self._q2_t_us[p]) + s)
@@ -311,9 +331,8 @@ class Bench:
         if p != self._q2_p:
             self._q2_p = p
             self.q2_next = self._q2_m0 + p
-        phi = self._phi_p
-        self.zpx = phi * zpx + self._sx[i]
-        self.zpy = phi * zpy + self._sy[i]
+        self.tpx = self._tpx[i + 1]
+        self.tpy = self._tpy[i + 1]
         p1, g1, p2, g2 = self._pm1, self._gm1, self._pm2, self._gm2
         self.zmx1 = p1 * zmx1 + g1 * umx
         self.zmx2 = p2 * zmx2 + g2 * umx
@@ -334,7 +353,9 @@ class Bench:
     def settle(self, pfsm_v=(0.0, 0.0)):
         """Put both mirrors at rest: the P-FSM at the given volts, the MEMS at its current input."""
         ax, ay = self.pfsm.angle(pfsm_v[0], 0), self.pfsm.angle(pfsm_v[1], 1)
+        self._sync_pfsm()
         (self.zpx,), (self.zpy,) = self.pfsm.modal.steady(ax), self.pfsm.modal.steady(ay)
+        self.tpx, self.tpy = ax, ay
         self.zmx1, self.zmx2 = self.mems.modal.steady(self.u_mx)
         self.zmy1, self.zmy2 = self.mems.modal.steady(self.u_my)
 

@@ -40,10 +40,12 @@ class Lockstep:
     ``run(duration_s)`` returns a dict: ``q2`` (m x 5 int64: sample, t_us, vx, vy, vs), ``truth_arcsec``
     (m x 2, true sky error at the Q2 instants), ``counters``, ``config``, ``seed``, ``ticks``, ``wall_s``
     and the timing parameters. ``record=True`` adds ``q1`` (ticks x 3) and ``fsm_v`` (ticks x 2).
+    ``on_q2(sample)`` is called with each Q2 sample as it falls (the tuple of ``Bench.step``), e.g. to forward
+    Q2_SAMPLE packets to a recorder.
     """
 
     def __init__(self, bench, controller, player=None, rate_hz=637.8, pfsm_hz=10600.0, deadline_s=1.0,
-                 realtime=False, block_ticks=256, record=False):
+                 realtime=False, block_ticks=256, record=False, on_q2=None):
         if not 100.0 <= pfsm_hz <= 1e6 or pfsm_hz < rate_hz:
             raise ValueError("pfsm_hz = %r must be in [100, 1e6] and >= rate_hz" % pfsm_hz)
         if deadline_s <= 0:
@@ -60,7 +62,9 @@ class Lockstep:
         self.realtime = realtime
         self.block_ticks = int(block_ticks)
         self.record = record
+        self.on_q2 = on_q2
         self.tick = 0
+        self._bench_tick0 = bench.tick
         self.n_overrun = 0
         self.n_player_short = 0
         self._last_x = 0x8000
@@ -72,8 +76,8 @@ class Lockstep:
         edges = np.floor(np.arange(k0, k0 + n + 1) * r).astype(np.int64)
         return np.maximum(np.diff(edges), 1)
 
-    def _load_block(self, n):
-        counts = self._counts(self.tick, n)
+    def _load_block(self, k0, n):
+        counts = self._counts(k0, n)
         total = int(counts.sum())
         xbuf = array("H", bytes(2 * total))
         ybuf = array("H", bytes(2 * total))
@@ -103,42 +107,48 @@ class Lockstep:
         rate = self.rate_hz
         us_per_tick = 1e6 / rate
         q2_rows, q1_rows, fsm_rows = [], [], []
+        on_q2 = self.on_q2
         realtime, deadline, record = self.realtime, self.deadline_s, self.record
         clock = time.perf_counter
         t_wall0 = clock()
         t_rt0 = t_wall0 - self.tick / rate
         overruns = 0
+        k = self.tick - 1
         end = self.tick + n_ticks
-        while self.tick < end:
-            n = min(self.block_ticks, end - self.tick)
-            self._load_block(n)
-            k = self.tick
-            for k in range(self.tick, self.tick + n):
-                if realtime:
-                    due = t_rt0 + k / rate
-                    now = clock()
-                    if now < due:
-                        time.sleep(due - now)
-                    if hasattr(ctrl, "timeout_s"):
-                        ctrl.timeout_s = max(0.0, due + deadline - clock())
-                vx, vy, vs = q1_sample()
-                words = on_tick(k, int(k * us_per_tick + 0.5), vx, vy, vs)
-                if realtime and clock() > t_rt0 + k / rate + deadline:
-                    words = None
-                if words:
-                    spi_words(words)
-                else:
-                    overruns += 1
-                q2 = step()
-                if q2:
-                    q2_rows.extend(q2)
-                if record:
-                    q1_rows.append((vx, vy, vs))
-                    fsm_rows.append(bench.fsm_v)
-            self.tick = k + 1
-            if progress is not None:
-                progress(self.tick)
-        self.n_overrun += overruns
+        try:
+            while k + 1 < end:
+                n = min(self.block_ticks, end - k - 1)
+                self._load_block(k + 1, n)
+                for k in range(k + 1, k + 1 + n):
+                    if realtime:
+                        due = t_rt0 + k / rate
+                        now = clock()
+                        if now < due:
+                            time.sleep(due - now)
+                        if hasattr(ctrl, "timeout_s"):
+                            ctrl.timeout_s = max(0.0, due + deadline - clock())
+                    vx, vy, vs = q1_sample()
+                    words = on_tick(k, int(k * us_per_tick + 0.5), vx, vy, vs)
+                    if realtime and clock() > t_rt0 + k / rate + deadline:
+                        words = None
+                    if words:
+                        spi_words(words)
+                    else:
+                        overruns += 1
+                    q2 = step()
+                    if q2:
+                        q2_rows.extend(q2)
+                        if on_q2 is not None:
+                            for sample in q2:
+                                on_q2(sample)
+                    if record:
+                        q1_rows.append((vx, vy, vs))
+                        fsm_rows.append(bench.fsm_v)
+                if progress is not None:
+                    progress(k + 1)
+        finally:
+            self.tick = bench.tick - self._bench_tick0
+            self.n_overrun += overruns
         wall = clock() - t_wall0
         rows = np.array(q2_rows, dtype=float).reshape(-1, 7)
         out = {"q2": rows[:, :5].astype(np.int64), "truth_arcsec": rows[:, 5:7],

@@ -6,12 +6,13 @@ Vy = (Q1 + Q2) - (Q3 + Q4), Vs = Q1 + Q2 + Q3 + Q4, in volts (responsivity x tra
 
 Two models:
 - ``reference``: numerical integration over the disc with the gap, for an elliptical spot at any angle
-  (Gauss-Legendre over x, the y integral in closed form by erf for the conditional Gaussian). Used for truth.
+  (composite Gauss-Legendre over x = R sin u, which keeps the disc edge smooth; the y integral in closed form
+  by erf for the conditional Gaussian). Used for truth; a spot wholly off the disc reads zero.
 - ``fast``: closed form with math.erfc for a spot whose ellipse axes lie along the detector axes on a gapped
   infinite detector: the quadrant powers factor into x and y edge fractions. For a round spot at the centre
   the ratio is Vx/Vs = -erf(sqrt 2 x / w). Exact (to ~1e-12) while the disc edge is > 3.3 w away; beyond that
-  radius ``fast`` falls back to the reference. A tilted ellipse gets a polynomial correction fitted to the
-  reference at init.
+  radius ``fast`` falls back to the reference. A tilted ellipse (not separable) gets a 2-D sextic correction
+  fitted to the reference at init (ratios within ~1e-4 over the fast region, tested).
 """
 
 import math

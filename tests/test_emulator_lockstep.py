@@ -76,6 +76,14 @@ def test_closed_loop_nulls_q1_and_q2_runs_at_630_hz():
     assert res["counters"]["overruns"] == 0
 
 
+def test_on_q2_sees_every_sample_as_it_falls():
+    seen = []
+    res = _run(ticks=100, on_q2=seen.append)
+    assert len(seen) == len(res["q2"]) > 90
+    assert [s[:5] for s in seen] == [tuple(r) for r in res["q2"].tolist()]
+    assert np.array_equal(np.array([s[5:] for s in seen]), res["truth_arcsec"])
+
+
 def test_same_seed_is_bit_identical_and_seeds_differ():
     a, b, c = _run(seed=5), _run(seed=5), _run(seed=6)
     assert np.array_equal(a["q1"], b["q1"]) and np.array_equal(a["q2"], b["q2"])
@@ -291,7 +299,7 @@ def test_q2_counts_are_ads1256_twos_complement():
     q2 = b.advance_tick([0x8000] * 17, [0x8000] * 17)
     m, t_us, vx, vy, vs = q2[0][:5]
     k = b.config["q2"]["amp_gain"] / 5.0 * 0x800000
-    assert vs == round(k * b.q2.volts * b.q2.outputs_fast(*b._spot(b.q2, 0, 0, 0, 0))[2] / b.q2.volts)
+    assert vs == round(k * b.q2.outputs_fast(*b._spot(b.q2, 0, 0, 0, 0))[2])
     assert -0x800000 <= vx <= 0x7FFFFF and vs > 0
 
 
@@ -338,3 +346,33 @@ def test_truth_h_cli_writes_the_calibration_shape(tmp_path):
     assert centre["pfsm_v"] == [0.0, 0.0]
     assert centre["v0"] == pytest.approx(V0, abs=1e-3)
     assert d["bench_config"] == default_config()
+
+
+def test_bad_timing_and_codes_are_refused_or_counted():
+    b = Bench(noise=False)
+    with pytest.raises(RuntimeError, match="load_pfsm"):
+        b.step()
+    with pytest.raises(ValueError, match="load_pfsm"):
+        b.load_pfsm([0x8000] * 3, [0x8000] * 3, [4])
+    b.advance_tick([70000] * 17, [-5] * 17)              # beyond the AD660's 16 bits: clipped, counted
+    assert b.counters()["pfsm_code_clips"] == 34
+    assert b.tpx > 0 > b.tpy
+    for kw in ({"pfsm_hz": 50.0}, {"deadline_s": 0.0}, {"block_ticks": 0}, {"rate_hz": 0.5}):
+        with pytest.raises(ValueError, match=next(iter(kw))):
+            Lockstep(Bench(), Integral(default_config()), **kw)
+
+
+def test_distfile_player_interpolates_and_converts_by_eq_7_8():
+    from emulator.serve import DistfilePlayer
+    from protocol import distfile
+    d = distfile.parse(distfile.pack([0.0, 40.0, -20.0], [10.0, 10.0, 10.0]))
+    b = Bench()
+    p = DistfilePlayer(d, b, pfsm_hz=10600.0)
+    n = p.n_total + 50
+    xb, yb = array("H", bytes(2 * n)), array("H", bytes(2 * n))
+    got = p.fill(xb, yb, n)
+    assert got == p.n_total < n                          # one-shot: fewer codes at the end
+    t = np.arange(got) / 10600.0
+    want_x = np.interp(t, [0.0, 0.008192, 0.016384], [0.0, 40.0, -20.0]) * 0.012343
+    assert np.max(np.abs(b.pfsm.code_to_v(np.array(xb[:got], float)) - want_x)) < 20.0 / 65536 + 4e-4
+    assert set(yb[:got]) == {b.pfsm.v_to_code(b.pfsm_v_for_error(10.0))}

@@ -134,7 +134,7 @@ def test_ad5664r_commands_power_reset_ldac_and_unknown():
     assert dac.outputs() == [0, 0, 0, 0]                      # internal reference off at power-up
     dac.write(0x380001)
     assert mems.tilt_v(dac.outputs())[0] == pytest.approx(1.0, abs=1e-4)
-    dac.write(0x200001)                                         # power down A (mode 00 = up; here DB5-4 = 00)
+    dac.write(0x200001)                                         # power command for A, mode 00 = normal: up
     assert dac.powered[0]
     dac.write(0x200031)                                         # A three-state
     assert not dac.powered[0] and dac.outputs()[0] == 0

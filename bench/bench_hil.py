@@ -6,6 +6,7 @@ decay between the first and the last minute of the run.
 """
 
 import os
+import shutil
 import tempfile
 import time
 
@@ -30,6 +31,13 @@ def _calibrate(rt, link, path):
 
 def main(duration_s=DURATION_S):
     tmp = tempfile.mkdtemp(prefix="bench_hil_")
+    try:
+        _main(tmp, duration_s)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _main(tmp, duration_s):
     dist = os.path.join(tmp, "stat.dist")
     write_atomic(dist, distfile_cli.generate(sources.GaussMarkov2(), duration_s, 1, "stat"))
     cal_path = os.path.join(tmp, "cal.json")
@@ -50,8 +58,7 @@ def main(duration_s=DURATION_S):
     for rt, link, goal in COMBOS:
         out = os.path.join(tmp, "hil_%s_%s" % (rt, link))
         try:
-            s = run_hil(dist, cal_path, duration_s, rt, link, out, quiet=True, plots=False,
-                        log=lambda m: None)
+            s = run_hil(dist, cal_path, duration_s, rt, link, out, quiet=True, plots=False)
             print("| %s | %s | %s | %.1fx | %.1fx | %.1fx | %.1f | %d |"
                   % (rt, link, goal, s["real_time_factor"], s["real_time_factor_first_minute"],
                      s["real_time_factor_last_minute"], s["play_wall_s"], s["overruns"]), flush=True)

@@ -18,6 +18,7 @@ lost, the FSM saturates or the null does not converge is reported with the point
 (which is then refused by the controller as incomplete): the tool exits 1 naming every such point.
 """
 
+import contextlib
 import json
 import os
 import sys
@@ -237,8 +238,8 @@ def run_calibration(rig, grid_v, dv, log=print, progress=None, **kw):
     points, failed = cal.run(grid_v, progress)
     wall = time.perf_counter() - t0
     out = {"grid_v": list(grid_v), "dv": dv, "points": points,
-           "bench_config": rig.bench.config, "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-           "source": "fps calibrate", "wall_s": wall, "virtual_s": rig.lockstep.tick / rig.rate_hz}
+           "bench_config": rig.config, "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+           "source": "fps calibrate", "wall_s": wall, "bench_s": rig.elapsed_s()}
     if failed:
         out["failed"] = [{"pfsm_v": list(p), "error": m} for p, m in failed]
     return out, failed, wall
@@ -252,12 +253,16 @@ def _cmd(a):
         from emulator.config import load_config
         cfg = load_config(a.config)
     if a.port:
-        raise ValueError("--port: a real bench needs the free-running Rig (not in this build); "
-                         "use the emulated bench")
-    with runtime.open_rig(a.runtime, a.link, config=cfg, seed=a.seed) as rig:
+        from ground.rig import LiveRig
+        rig_cm = contextlib.closing(LiveRig(a.port))
+        a.no_truth = True
+    else:
+        rig_cm = runtime.open_rig(a.runtime, a.link, config=cfg, seed=a.seed)
+    with rig_cm as rig:
         log = (lambda m: print(m, file=sys.stderr)) if a.verbose else (lambda m: None)
         cal, failed, wall = run_calibration(rig, grid_v, a.dv, log=log)
-        cal["runtime"], cal["link"] = rig.runtime_name, rig.link_name
+        cal["runtime"] = getattr(rig, "runtime_name", "bench")
+        cal["link"] = getattr(rig, "link_name", a.port)
     base = os.path.splitext(a.output)[0]
     if failed:
         write_json(base + ".failed.json", cal)
@@ -299,7 +304,8 @@ def register(sub, name, help_):
                    help="controller firmware: in this process, or a subprocess under CPython or MicroPython")
     p.add_argument("--link", default="inproc", choices=("inproc", "serial", "can"),
                    help="link to a subprocess controller: serial pty or CAN over slcan (default inproc)")
-    p.add_argument("--port", help="a real bench's serial port (e.g. /dev/ttyUSB0)")
+    p.add_argument("--port", help="a real bench's serial port (e.g. /dev/ttyUSB0): the controller and the "
+                                  "player answer there, time is the wall clock")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-truth", action="store_true", help="skip the comparison with the emulator's true H")
     p.add_argument("-v", "--verbose", action="store_true")

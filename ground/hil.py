@@ -139,7 +139,7 @@ def _progress_bar(total_s, quiet):
 
 
 def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name, out_dir, config=None,
-            seed=0, q2_dvp=0.05, quiet=False, plots=True, log=print):
+            seed=0, q2_dvp=0.05, quiet=False, plots=True):
     """The whole run; returns the summary dict (also written to ``out_dir/summary.json``)."""
     from firmware.player import Player
     from ground import runtime
@@ -161,6 +161,9 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     write_json(rec.path("summary.json"), summary)
     write_json(rec.path("calibration.json"), cal)
     with _sigterm_as_interrupt(), runtime.open_rig(runtime_name, link_name, config=config, seed=seed) as rig:
+        if cal.get("bench_config") not in (None, rig.config):
+            print("warning: %s was calibrated on another bench config than this run's" % calibration_path,
+                  file=sys.stderr)
         write_json(rec.path("config.json"), {
             "distfile": os.path.abspath(distfile_path), "distfile_source": d.source, "distfile_seed": d.seed,
             "distfile_count": d.count, "distfile_period_us": d.period_us,
@@ -168,6 +171,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
             "runtime": runtime_name, "link": link_name, "seed": seed, "rate_hz": rig.rate_hz,
             "pfsm_hz": rig.lockstep.pfsm_hz, "q2_hz": rig.bench.q2_hz, "bench_config": rig.bench.config})
         interrupted = False
+        failure = None
         q2cal = None
         t0_us = 0
         try:
@@ -191,6 +195,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
             player.open_file(os.path.abspath(distfile_path))
             player.oneshot()
             rig.lockstep.player = player
+            rig.q1_ratios_from_bench = False
             overrun0 = rig.lockstep.n_overrun
             t0_us = int(round(rig.lockstep.tick * 1e6 / rig.rate_hz))
             n_total = int(round(duration_s * rig.rate_hz))
@@ -207,6 +212,10 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
                     rec.add(out, rig.take_status())
                     done += n
                     rec.virtual_s = done / rig.rate_hz
+                    proc = getattr(rig, "process", None)
+                    if proc is not None and proc.poll() is not None:
+                        raise OSError("controller process exited with status %s after %.1f s of the run"
+                                      % (proc.returncode, rec.virtual_s))
                     if bar is not None:
                         bar.update(n / rig.rate_hz)
             finally:
@@ -217,14 +226,19 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
         except KeyboardInterrupt:
             interrupted = True
             summary["overruns"] = rig.lockstep.n_overrun
+        except OSError as exc:
+            failure = str(exc)
+            summary["overruns"] = rig.lockstep.n_overrun
         summary["counters"] = rig.lockstep.counters()
-        summary["counters"].update(rig.endpoint.counters())
-    summary.update(_finish(rec, q2cal, t0_us, complete=not interrupted, plots=plots))
+    summary.update(_finish(rec, q2cal, t0_us, complete=not (interrupted or failure), plots=plots))
     summary["interrupted"] = interrupted
+    summary["error"] = failure
     write_json(rec.path("summary.json"), summary)
     write_atomic(rec.path("report.md"), report.table(summary) + "\n")
     if interrupted:
         raise Interrupted(out_dir)
+    if failure:
+        raise OSError("%s (partial run in %s, summary complete=false)" % (failure, out_dir))
     return summary
 
 
@@ -240,6 +254,17 @@ def _rate(pairs, first):
     return acc / wall if wall > 0 else None
 
 
+def _per_10s(pairs):
+    out, v_acc, w_acc = [], 0.0, 0.0
+    for v, w in pairs:
+        v_acc += v
+        w_acc += w
+        if v_acc >= 10.0 - 1e-9:
+            out.append(round(v_acc / w_acc, 2) if w_acc > 0 else None)
+            v_acc = w_acc = 0.0
+    return out
+
+
 def _finish(rec, q2cal, t0_us, complete, plots):
     from ground import plots as plt_mod
     q2, truth = rec.arrays()
@@ -251,6 +276,7 @@ def _finish(rec, q2cal, t0_us, complete, plots):
            "real_time_factor": rec.virtual_s / rec.play_wall if rec.play_wall > 0 else None,
            "real_time_factor_first_minute": _rate(rec.minute_rates, True),
            "real_time_factor_last_minute": _rate(rec.minute_rates, False),
+           "real_time_factor_per_10s": _per_10s(rec.minute_rates),
            "q2_samples": int(len(q2)), "q2_beam_lost_samples": int((~ok).sum()),
            "q2": report.error_stats(q2_err[ok, 0], q2_err[ok, 1]),
            "truth": report.error_stats(truth[:, 0], truth[:, 1]),
@@ -275,7 +301,8 @@ def _cmd(a):
         s = run_hil(a.distfile, a.calibration, a.duration, a.runtime, a.link, a.output, config=cfg,
                     seed=a.seed, q2_dvp=a.q2_dv, quiet=a.quiet, plots=not a.no_plots)
     except Interrupted:
-        s = json.load(open(os.path.join(a.output, "summary.json")))
+        with open(os.path.join(a.output, "summary.json")) as f:
+            s = json.load(f)
         print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"
               % (s["duration_s"], a.output), file=sys.stderr)
         return 130

@@ -27,7 +27,7 @@ def calibration_quivers(cal, path):
     pts = [p for p in cal["points"] if p.get("H") is not None]
     v0 = np.array([p["v0"] for p in pts])
     h = np.array([p["H"] for p in pts])
-    fig, ax = plt.subplots(figsize=(6.4, 5.2))
+    fig, ax = plt.subplots(figsize=(7.6, 5.2))
     ax.quiver(v0[:, 0], v0[:, 1], h[:, 0, 0], h[:, 1, 0], color="b", label="h_x = (a, c)")
     ax.quiver(v0[:, 0], v0[:, 1], h[:, 0, 1], h[:, 1, 1], color="r", label="h_y = (b, d)")
     c = _centre_index(v0)
@@ -35,8 +35,9 @@ def calibration_quivers(cal, path):
     ax.set_xlabel("V0x (V)")
     ax.set_ylabel("V0y (V)")
     ax.set_title("H calibration: h_x, h_y over (V0x, V0y) (not to scale), cf. Fig. 7-16")
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     ax.set_aspect("equal", adjustable="datalim")
+    fig.tight_layout()
     _save(fig, path)
 
 

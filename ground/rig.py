@@ -7,7 +7,10 @@ behind a protocol link (``ground.runtime``: CPython or MicroPython, serial pty o
 CTRL_STATUS telemetry from ``inbox``; calibration and HIL code therefore takes the same path on every runtime.
 """
 
+import time
 from collections import deque
+
+import numpy as np
 
 from emulator.bench import Bench
 from emulator.lockstep import HoldPlayer, Lockstep
@@ -15,6 +18,8 @@ from protocol import core, table
 
 GROUND = core.NODE["GROUND"]
 CONTROLLER = core.NODE["CONTROLLER"]
+PLAYER = core.NODE["PLAYER"]
+PFSM_V_PER_ARCSEC = 0.012343     # Eq. 7.8
 P_STATUS = core.PACKET_ID["CTRL_STATUS"]
 P_ACK = core.PACKET_ID["ACK"]
 P_NACK = core.PACKET_ID["NACK"]
@@ -45,7 +50,9 @@ class InprocController:
         self.inbox.append((pid, CONTROLLER, GROUND, self._seq & 0xFF, payload))
         self._seq += 1
 
-    def send_ground(self, pid, payload, seq):
+    def send_ground(self, pid, payload, seq, dst=CONTROLLER):
+        if dst != CONTROLLER:
+            raise ValueError("in-process endpoint reaches the CONTROLLER only, not node 0x%02x" % dst)
         for rpid, _dst, rpayload in self.ctrl.handle(pid, GROUND, seq, payload):
             self._push(rpid, rpayload)
 
@@ -76,17 +83,25 @@ class Rig:
     by a distfile player for a HIL run.
     """
 
-    def __init__(self, endpoint, config=None, seed=0, rate_hz=637.8, pfsm_hz=10600.0, block_ticks=64,
-                 deadline_s=1.0, on_q2=None):
+    def __init__(self, endpoint, config=None, seed=0, rate_hz=637.8, pfsm_hz=10600.0, block_ticks=256,
+                 deadline_s=1.0):
         self.bench = Bench(config, seed=seed, rate_hz=rate_hz)
         self.endpoint = endpoint
         self.hold = HoldPlayer()
         self.lockstep = Lockstep(self.bench, endpoint, self.hold, rate_hz=rate_hz, pfsm_hz=pfsm_hz,
-                                 block_ticks=block_ticks, deadline_s=deadline_s, on_q2=on_q2)
+                                 block_ticks=block_ticks, deadline_s=deadline_s)
         self.rate_hz = rate_hz
+        self.config = self.bench.config
         self._seq = 0
         self.status = []          # decoded CTRL_STATUS since the last take_status()
+        self.replies = deque()    # other packets (ACK, NACK, ...) not yet consumed
         self.n_status_total = 0
+        self.q1_ratios_from_bench = True   # see _patch_ratios; the HIL play turns it off
+        self._q1r = None
+
+    def elapsed_s(self):
+        """Virtual time run so far."""
+        return self.lockstep.tick / self.rate_hz
 
     # --- P-FSM -------------------------------------------------------------------------------------
     def pfsm_v(self, vx, vy):
@@ -99,46 +114,71 @@ class Rig:
 
     # --- clock -------------------------------------------------------------------------------------
     def run(self, n_ticks, progress=None):
+        k0 = self.lockstep.tick
+        self.lockstep.record = self.q1_ratios_from_bench
         out = self.lockstep.run(n_ticks=n_ticks, progress=progress)
+        if self.q1_ratios_from_bench:
+            q1 = out["q1"].astype(float)
+            vs = np.maximum(q1[:, 2], 1.0)
+            seg = (k0, (2048.0 - q1[:, 0]) / vs, (2048.0 - q1[:, 1]) / vs)
+            self._q1r = [self._q1r[-1], seg] if self._q1r else [seg]
         self._drain()
         return out
 
     def _drain(self):
         inbox = self.endpoint.inbox
-        replies = []
+        replies = self.replies
         while inbox:
             pkt = inbox.popleft()
             if pkt[0] == P_STATUS:
                 try:
-                    self.status.append(decode_status(pkt[4]))
-                    self.n_status_total += 1
+                    st = decode_status(pkt[4])
                 except ValueError:
-                    pass
+                    continue
+                self.n_status_total += 1
+                if self._patch_ratios(st):
+                    self.status.append(st)
             else:
                 replies.append(pkt)
-        return replies
+
+    def _patch_ratios(self, st):
+        """Workaround: the controller firmware now updates CTRL_STATUS rx/ry only in TRACK mode, so outside
+        TRACK the ratios of that tick's Q1 sample (the counts the controller read, Eq. 7.4) are put in.
+        Returns False for a status whose tick is no longer known (it is then not used)."""
+        if st["mode"] == core.MODE["TRACK"] or not self.q1_ratios_from_bench:
+            return True
+        for k0, rx, ry in self._q1r or ():
+            i = st["tick"] - k0
+            if 0 <= i < len(rx):
+                st["rx"], st["ry"] = float(rx[i]), float(ry[i])
+                return True
+        return False
 
     def take_status(self):
         s, self.status = self.status, []
         return s
 
     # --- commands ----------------------------------------------------------------------------------
-    def command(self, name, max_ticks=8, **fields):
-        """Send a command to the controller and wait (advancing the clock) for its ACK; NACK raises."""
+    def command(self, name, max_ticks=8, dst=CONTROLLER, **fields):
+        """Send a command (to the controller by default) and wait, advancing the clock, for its ACK;
+        a NACK raises CommandError naming the error code."""
         pid = core.PACKET_ID[name]
         payload = core.encode_payload(pid, fields)
         seq = self._seq & 0xFF
         self._seq += 1
-        self.endpoint.send_ground(pid, payload, seq)
+        self.endpoint.send_ground(pid, payload, seq, dst)
         for _ in range(max_ticks + 1):
-            for rpid, _src, _dst, _rseq, rp in self._drain():
+            self._drain()
+            while self.replies:
+                rpid, src, _dst, _rseq, rp = self.replies.popleft()
                 if rpid == P_ACK and rp[0] == pid:
                     return
                 if rpid == P_NACK and rp[0] == pid:
                     code = rp[2]
-                    raise CommandError("controller refused %s %s: %s" % (name, fields, ERROR_NAME.get(code, code)))
-            self.lockstep.run(n_ticks=1)
-        raise CommandError("controller did not answer %s within %d ticks" % (name, max_ticks))
+                    raise CommandError("%s refused %s %s: %s" % (core.NODE_NAME.get(src, src), name, fields,
+                                                                 ERROR_NAME.get(code, code)))
+            self.run(1)
+        raise CommandError("no answer to %s within %d ticks" % (name, max_ticks))
 
     def settings(self, mode, decim=1, gain_q15=0, safe_ticks=65535):
         self.command("CTRL_SETTINGS", mode=core.MODE[mode], rx_cmd=0, ry_cmd=0, gain=gain_q15, decim=decim,
@@ -147,13 +187,85 @@ class Rig:
     def set_fsm(self, vx, vy):
         self.command("CTRL_SET_FSM", vx=int(round(vx * 1e6)), vy=int(round(vy * 1e6)))
 
-    def upload_htable(self, blob):
-        """HTABLE_BEGIN / CHUNK / END with the calibration blob (protocol.htable)."""
+    def upload(self, prefix, blob, dst=CONTROLLER):
+        """<prefix>_BEGIN / CHUNK / END of ``blob`` (HTABLE to the controller, DIST to the player)."""
         crc = core.crc32(blob) & 0xFFFFFFFF
-        self.command("HTABLE_BEGIN", total=len(blob), crc32=crc)
+        self.command(prefix + "_BEGIN", total=len(blob), crc32=crc, dst=dst)
         n = table.CHUNK_BYTES
         for off in range(0, len(blob), n):
             part = blob[off:off + n]
-            self.command("HTABLE_CHUNK", offset=off, length=len(part), data=part + bytes(n - len(part)))
-        self.command("HTABLE_END", total=len(blob))
+            self.command(prefix + "_CHUNK", offset=off, length=len(part), data=part + bytes(n - len(part)),
+                         dst=dst)
+        self.command(prefix + "_END", total=len(blob), dst=dst)
+
+    def upload_htable(self, blob):
+        """The calibration blob (protocol.htable) to the controller."""
+        self.upload("HTABLE", blob)
+
+
+class LiveRig(Rig):
+    """A real, free-running bench on a serial port (``--port``): the controller and the player MCUs answer
+    on one link, time is the wall clock, ``run(n)`` waits n control periods collecting telemetry.
+
+    The P-FSM is held by uploading a two-sample distfile of the wanted angle (Eq. 7.8) to the PLAYER
+    and looping it: the same packets the thesis's SimArduino would take. No Q2 or truth here.
+    """
+
+    def __init__(self, port, rate_hz=637.8):
+        from protocol.link import open_link
+        self.link = open_link(port if "://" in port or port.startswith("serial:") else "serial:" + port,
+                              "GROUND")
+        self.endpoint = _LinkEndpoint(self.link)
+        self.rate_hz = rate_hz
+        self.config = {"port": port, "rate_hz": rate_hz}
+        self._seq = 0
+        self.status = []
+        self.replies = deque()
+        self.n_status_total = 0
+        self.pfsm_at = None
+        self._t0 = None
+        self._q1r = None
+        self.q1_ratios_from_bench = False
+
+    def elapsed_s(self):
+        return 0.0 if self._t0 is None else time.perf_counter() - self._t0
+
+    def run(self, n_ticks, progress=None):
+        if self._t0 is None:
+            self._t0 = time.perf_counter()
+        end = time.perf_counter() + n_ticks / self.rate_hz
+        while True:
+            left = end - time.perf_counter()
+            if left <= 0:
+                break
+            self.endpoint.inbox.extend(self.link.recv(timeout=left))
+            if self.link.closed:
+                raise OSError("bench link %s closed" % self.config["port"])
+        self._drain()
+        return {"q2": np.zeros((0, 5), np.int64), "truth_arcsec": np.zeros((0, 2))}
+
+    def pfsm_v(self, vx, vy):
+        from protocol import distfile
+        for v in (vx, vy):
+            if not -10.0 <= v <= 10.0:
+                raise ValueError("P-FSM voltage %r outside the AD660 range +-10 V" % v)
+        th = (vx / PFSM_V_PER_ARCSEC, vy / PFSM_V_PER_ARCSEC)
+        self.upload("DIST", distfile.pack([th[0], th[0]], [th[1], th[1]], source="hold"), dst=PLAYER)
+        self.command("PLAYER_CTRL", action=2, rate_hz=10600, dst=PLAYER)      # LOOP
+        self.pfsm_at = (vx, vy)
+
+    def close(self):
+        self.link.close()
+
+
+class _LinkEndpoint:
+    def __init__(self, link):
+        self.link = link
+        self.inbox = deque()
+
+    def send_ground(self, pid, payload, seq, dst=CONTROLLER):
+        self.link.send_raw(pid, GROUND, dst, payload)
+
+    def counters(self):
+        return self.link.counters()
 

@@ -66,8 +66,8 @@ class RemoteEndpoint:
     def on_tick(self, tick, t_us, vx, vy, vs):
         return self.rc.on_tick(tick, t_us, vx, vy, vs)
 
-    def send_ground(self, pid, payload, seq):
-        self.link.send_raw(pid, self._ground, self._ctrl, payload)
+    def send_ground(self, pid, payload, seq, dst=None):
+        self.link.send_raw(pid, self._ground, self._ctrl if dst is None else dst, payload)
 
     def counters(self):
         c = dict(self.rc.counters())

@@ -62,9 +62,10 @@ def _int(text):
 def node_arg(text):
     """A node from a name (CONTROLLER) or a number (16, 0x10)."""
     try:
-        return core.node_id(int(text, 0))
+        n = int(text, 0)
     except ValueError:
         return core.node_id(text)
+    return core.node_id(n)
 
 
 # --- table ------------------------------------------------------------------------------------------------
@@ -136,7 +137,8 @@ def table_markdown():
     for pid in sorted(core.PACKET):
         d = core.PACKET[pid]
         L += ["", "### %s" % d.name, "",
-              "Id 0x%02X, %s → %s, %d payload bytes. %s." % (pid, d.src, d.dst, d.size, d.doc[0].upper() + d.doc[1:]),
+              "Id 0x%02X, %s → %s, %d payload bytes. %s." % (
+                  pid, d.src, d.dst, d.size, d.doc[0].upper() + d.doc[1:]),
               "", "| offset | field | format | unit | scale | min | max | default | meaning |",
               "|---|---|---|---|---|---|---|---|---|"]
         off = 0

@@ -259,7 +259,7 @@ def encode_frame(pid, src, dst, seq, payload, crc_fn=crc16, cobs_fn=cobs_encode)
     """One serial frame: COBS(body + CRC16 big-endian) + 0x00."""
     body = encode_body(pid, src, dst, seq, payload)
     c = crc_fn(body)
-    return cobs_fn(body + bytes(((c >> 8) & 0xFF, c & 0xFF))) + b"\x00"
+    return cobs_fn(body + struct.pack(">H", c)) + b"\x00"
 
 
 def encode_packet(name_or_id, src, dst, seq=0, values=None, **kw):
@@ -307,11 +307,15 @@ class Decoder:
             if z < 0:
                 self._append(data[start:])
                 break
-            self._append(data[start:z])
-            frame = self._buf
-            over = self._overflow
-            self._buf = bytearray()
-            self._overflow = False
+            if self._buf or self._overflow:  # a frame split across feeds
+                self._append(data[start:z])
+                frame = bytes(self._buf)
+                over = self._overflow
+                self._buf = bytearray()
+                self._overflow = False
+            else:                             # the common case: the whole frame is in this chunk
+                frame = data[start:z]
+                over = len(frame) > MAX_FRAME
             start = z + 1
             if over:
                 self._drop("oversize")
@@ -331,26 +335,28 @@ class Decoder:
             self._buf.extend(chunk)
 
     def _frame(self, frame):
-        raw = self._cobs(bytes(frame))
+        raw = self._cobs(frame)
         if raw is None:
             self._drop("bad_cobs")
             return None
         if len(raw) < HEADER_SIZE + CRC_SIZE:
             self._drop("too_short")
             return None
-        body = raw[:-2]
-        if self._crc(body) != (raw[-2] << 8) | raw[-1]:
+        if self._crc(raw[:-2]) != (raw[-2] << 8) | raw[-1]:
             self._drop("bad_crc")
             return None
-        ver, pid, src, dst, seq = struct.unpack(HEADER_FMT, body[:HEADER_SIZE])
-        if ver != table.PROTOCOL_VERSION:
+        if raw[0] != table.PROTOCOL_VERSION:
             self._drop("bad_version")
             return None
+        pid = raw[1]
+        src = raw[2]
+        dst = raw[3]
+        seq = raw[4]
         pkt = PACKET.get(pid)
         if pkt is None:
             self._drop("unknown_id")
             return None
-        payload = body[HEADER_SIZE:]
+        payload = raw[HEADER_SIZE:-2]
         if len(payload) != pkt.size:
             self._drop("bad_length")
             return None

@@ -59,10 +59,8 @@ class Link:
         raise NotImplementedError
 
     def recv(self, timeout=None):
-        """Packets ``[(pid, src, dst, seq, payload)]``: waits up to ``timeout`` s (None = forever) for at
-
-        least one; [] on timeout or once the peer has left.
-        """
+        """Packets ``[(pid, src, dst, seq, payload)]``, waiting up to ``timeout`` s (None = forever) for at
+        least one; [] on timeout or once the peer has left (then ``closed`` is True)."""
         raise NotImplementedError
 
     def counters(self):
@@ -495,7 +493,7 @@ def _lawicel_bus_class():
                     data = self._port.read(wait)
                 except PeerGone:
                     self.peer_gone = True
-                    return None, False
+                    raise can.CanOperationError("the slcan host closed the pty") from None
                 self._buf.extend(data)
                 while True:
                     i = self._buf.find(b"\r")

@@ -25,21 +25,28 @@ except ImportError:  # CPython
     def ticks_diff(a, b):
         return a - b
 
-_VMIN = 6   # index in the termios cc list (Linux)
+# Linux termios values (MicroPython's termios module has no flag constants).
+# IGNBRK BRKINT PARMRK ISTRIP INLCR IGNCR ICRNL IXON
+_IFLAG_OFF = 0o1 | 0o2 | 0o10 | 0o40 | 0o100 | 0o200 | 0o400 | 0o2000
+_OPOST = 0o1
+_LFLAG_OFF = 0o10 | 0o100 | 0o2 | 0o1 | 0o100000  # ECHO ECHONL ICANON ISIG IEXTEN
+_CSIZE_PARENB = 0o60 | 0o400
+_CS8 = 0o60
+_VMIN = 6
 _VTIME = 5
 
 
 def set_raw(fd):
-    """Raw mode, VMIN = VTIME = 0 (read returns what is waiting). Call before any byte is written."""
-    if hasattr(termios, "setraw"):
-        termios.setraw(fd)       # MicroPython
-    else:
-        import tty
-        tty.setraw(fd)
-    attrs = termios.tcgetattr(fd)
-    attrs[6][_VMIN] = 0
-    attrs[6][_VTIME] = 0
-    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    """cfmakeraw() with VMIN = VTIME = 0 (read returns what is waiting), applied with TCSANOW so that
+    bytes already queued are kept (tty.setraw and MicroPython's termios.setraw flush them)."""
+    a = termios.tcgetattr(fd)
+    a[0] &= ~_IFLAG_OFF
+    a[1] &= ~_OPOST
+    a[2] = (a[2] & ~_CSIZE_PARENB) | _CS8
+    a[3] &= ~_LFLAG_OFF
+    a[6][_VMIN] = 0
+    a[6][_VTIME] = 0
+    termios.tcsetattr(fd, termios.TCSANOW, a)
 
 
 class StreamLink:
@@ -101,10 +108,8 @@ class StreamLink:
             self.closed = True
 
     def recv(self, timeout_ms=None):
-        """Packets received, ``[(pid, src, dst, seq, payload)]``; waits up to ``timeout_ms`` (None = forever)
-
-        for at least one, returns [] on timeout or when the peer has left.
-        """
+        """Packets ``[(pid, src, dst, seq, payload)]``, waiting up to ``timeout_ms`` (None = forever) for
+        at least one; [] on timeout or once the peer has left (then ``closed`` is True)."""
         t0 = ticks_ms()
         wait = -1 if timeout_ms is None else timeout_ms
         while not self.closed:

@@ -104,8 +104,8 @@ PACKETS = (
     )),
     (0x12, "PFSM_DAC", "PLAYER", "BENCH", "AD660 offset-binary codes for the P-FSM (0x8000 = 0 V, +-10 V)", (
         ("sample", "I", "", 1, None, None, 0, "player sample number"),
-        ("x", "H", "code", 20.0 / 65536, None, None, 0x8000, "X axis AD660 code"),
-        ("y", "H", "code", 20.0 / 65536, None, None, 0x8000, "Y axis AD660 code"),
+        ("x", "H", "code", 1, None, None, 0x8000, "X axis AD660 code (offset binary: V = (code - 32768) * 20 / 65536)"),
+        ("y", "H", "code", 1, None, None, 0x8000, "Y axis AD660 code (offset binary)"),
     )),
     (0x13, "Q2_SAMPLE", "BENCH", "RECORDER", "ADS1256 24-bit two's complement counts of Q2 (630 Hz)", (
         ("sample", "I", "", 1, None, None, 0, "recorder sample number"),

@@ -5,16 +5,18 @@ on a 32-bit MCU, so the tick allocates nothing and is bit-identical under CPytho
 
 1. beam present when the sum vs >= ``beam_threshold`` counts, else the sample is rejected (hold);
 2. ratios (Eq. 7.4) from the inverted Q1 channels (docs/INTERFACES.md): Rx = (2048 - vx) / vs, in Q15
-   (ratio * 32768), rounded, clamped to +-1.0;
-3. error (Eq. 7.13): dR = R - R_cmd (Q15), clamped per axis to +-0.5 (16383), a slew limit far outside the
-   quadcell's linear range; then g dR with g in Q15 (0..65535 = 0..2.0): Q15, |g dR| <= 32767;
-4. H^-1 (Eq. 7.10-7.11) interpolated bilinearly at the current command from ``firmware.hinv.HinvTable``
-   (Q``hq`` code per unit ratio, cell fractions Q12);
+   (ratio * 32768), rounded; |(2048 - vx) << 15| <= 2^26 before the division;
+3. error (Eq. 7.13): dR = R - R_cmd (Q15), clamped per axis to +-16383 (just under 0.5), a slew limit far
+   outside the quadcell's linear range that also bounds the products below;
+4. g H^-1 (Eq. 7.10-7.11): H^-1 interpolated bilinearly from ``firmware.hinv.HinvTable`` at the centre of the
+   command's 64-code bin (4.9 mV), times g (Q15, 0..65535 = 0..2.0), kept as a high part Q``hq`` (|.| <= 31999)
+   and a low byte (8 more fractional bits); cached, and re-evaluated only when the command changes bin;
 5. integral law (Eq. 7.12): V[k+1] = V[k] - g H^-1 dR; the state V is the tilt command in AD5664R codes Q8
-   (code * 256, 0.298 uV per LSB); the product H^-1 (g dR) is Q(15 + hq), shifted by 7 + hq to Q8, rounded;
+   (code * 256, 0.298 uV per LSB); high parts times dR (each <= 31999 * 16383, the pair < 2^30) plus the low
+   bytes' share, Q(15 + hq), shifted by 7 + hq to Q8 and rounded;
 6. saturation with anti-windup: the state itself is clamped to +-limit_code (Q8), so the integrator never
    runs past the mirror's range; the output codes are (V + 128) >> 8, always within +-limit_code;
-7. the four AD5664R words (``firmware.ad5664r.command_words``), preceded on the first tick by the init sequence.
+7. the four AD5664R words (layout in ``firmware.ad5664r``), preceded on the first tick by the init sequence.
 
 Default gain g = 0.5 (Q15 16384, the table default). The driver/mirror is taken as a first-order lag
 sampled at T = 1/637.8 Hz, pole b = exp(-T/tau) = 0.14 for tau = 0.8 ms (the 200 Hz drive filter); with H^-1 H = I
@@ -27,8 +29,9 @@ gain margin of 2 in the worse case, wide enough for the 12 % spread of H over th
 Modes (``protocol.table.MODES``): IDLE ramps the command to the centre; TRACK runs the law; HOLD freezes the
 command; CALIBRATE takes voltages from CTRL_SET_FSM; SAFE ramps to the centre and stays there until the
 ground commands another mode. TRACK enters SAFE after ``safe_ticks`` consecutive beam-lost ticks (holding
-meanwhile); TRACK, HOLD and CALIBRATE enter SAFE after ``safe_ticks`` ticks without a packet from the link
-(``on_tick``/``handle`` count as link traffic; a board's hardware-timer ``tick`` does not).
+meanwhile); TRACK, HOLD and CALIBRATE enter SAFE after ``safe_ticks`` ticks without a packet from the link:
+on a board ``tick`` counts the hardware-timer ticks since the last ``handle``d packet; over the link HAL
+every TICK is link traffic and the wait between TICKs is counted (``link_silent``).
 """
 
 import struct
@@ -43,6 +46,14 @@ try:
 except ImportError:  # CPython
     def const(x):
         return x
+try:
+    from micropython import heap_lock, heap_unlock
+except ImportError:  # CPython: nothing to lock
+    def heap_lock():
+        return 0
+
+    def heap_unlock():
+        return 0
 
 IDLE = const(0)
 TRACK = const(1)
@@ -50,9 +61,9 @@ HOLD = const(2)
 CALIBRATE = const(3)
 SAFE = const(4)
 
-_Q15_ONE = const(32768)
 _E_MAX = const(16383)             # |dR| clamp, Q15 (0.5)
 _COUNT_MAX = const(0x3FFFFFFF)    # counters saturate / wrap below 2^30
+_NO_BIN = const(1 << 20)          # no command bin (forces g H^-1 to be evaluated)
 _FLAG_BEAM = const(1)
 _FLAG_SAT = const(2)
 _FLAG_TABLE = const(4)
@@ -60,8 +71,6 @@ _MAX_UPLOAD = const(8192)         # bytes of H-table blob the controller accepts
 
 _P = core.PACKET_ID
 _E = core.ERROR
-P_TICK = _P["TICK"]
-P_FSM_SPI = _P["FSM_SPI"]
 P_SETTINGS = _P["CTRL_SETTINGS"]
 P_SET_FSM = _P["CTRL_SET_FSM"]
 P_STATUS = _P["CTRL_STATUS"]
@@ -107,17 +116,21 @@ class Controller:
         self.rx = 0                    # last measured ratios, Q15
         self.ry = 0
         self.vs = 0
-        self.flags = 0
         self.ticks = 0                 # ticks since boot (wraps at 2^30)
         self.lost = 0                  # consecutive beam-lost ticks (saturates)
-        self.silent = 0                # ticks since the last packet from the link (saturates)
+        self._pkt = 0                  # tick of the last packet from the link
+        self._quiet = 0                # ticks the link HAL waited without a TICK (link_silent)
+        self._sat_tick = -1            # last tick the command saturated
         self.n_lost = 0                # telemetry counters, wrap at 2^16
         self.n_sat = 0
         self.n_unknown = 0
         self.words = [0, 0, 0, 0]      # this tick's AD5664R words
         self._init = True
-        self._ci = 0                   # current grid cell (search starts here)
-        self._cj = 0
+        self._bx = _NO_BIN             # 64-code bin of the command where g H^-1 was last evaluated
+        self._by = _NO_BIN
+        self._h4 = [0] * 4             # scratch for the interpolated H^-1
+        self._gh = [0] * 8             # cached g H^-1: high parts h11 h12 h21 h22, then low bytes (_gain_hinv)
+        self._shift = 8
         self._q1 = [0, 0, 0]
         self._upload = Upload(_MAX_UPLOAD)
         self.table = None
@@ -138,11 +151,28 @@ class Controller:
             t = table
         else:
             raise ValueError("table must be a path, blob bytes, Grid or HinvTable, got %r" % type(table))
-        self._ci = 0
-        self._cj = 0
         self.table = t
+        self._shift = t.shift
+        self._bx = _NO_BIN             # re-evaluate g H^-1 on the next tick
 
     # --- the tick ----------------------------------------------------------------------------------
+    def _gain_hinv(self, bx, by):
+        """g H^-1 for the 64-code bin (bx, by) of the command, evaluated at the bin centre (bilinear over the
+        grid, ``HinvTable.hinv_at``, Q``hq``) and cached: the tick re-evaluates it only when the command changes
+        bin (4.9 mV, far below the table's resolution). g h is kept in Q(hq + 8), (g h + 64) >> 7 <= 2^23, and
+        split into a high part (>> 8, Q``hq``, |.| <= 31999) and a low byte (& 255), so the law multiplies
+        16-bit by 15-bit numbers yet keeps 8 more fractional bits of the small cross terms."""
+        h = self._h4
+        self.table.hinv_into((bx << 6) + 32, (by << 6) + 32, h)
+        g = self.gain
+        k = self._gh
+        for e in range(4):
+            v = (g * h[e] + 64) >> 7
+            k[e] = v >> 8
+            k[e + 4] = v & 255
+        self._bx = bx
+        self._by = by
+
     def step(self, vx, vy, vs):
         """One control tick from Q1 counts (Eq. 7.4, 7.12, 7.13); words in ``self.words``; returns 4."""
         w = self.words
@@ -153,176 +183,127 @@ class Controller:
             w[2] = 0x20000F
             w[3] = 0x300000
             return 4
-        self.ticks = (self.ticks + 1) & _COUNT_MAX
-        if self.silent < _COUNT_MAX:
-            self.silent += 1
+        t = (self.ticks + 1) & _COUNT_MAX
+        self.ticks = t
         self.vs = vs
-        beam = vs >= self.beam_threshold
-        if beam:
-            self.lost = 0
-            rx = (((2048 - vx) << 15) + (vs >> 1)) // vs       # Eq. 7.4, Q15; |.| <= 2^26 before the division
-            if rx > _Q15_ONE:
-                rx = _Q15_ONE
-            elif rx < -_Q15_ONE:
-                rx = -_Q15_ONE
-            ry = (((2048 - vy) << 15) + (vs >> 1)) // vs
-            if ry > _Q15_ONE:
-                ry = _Q15_ONE
-            elif ry < -_Q15_ONE:
-                ry = -_Q15_ONE
-            self.rx = rx
-            self.ry = ry
-        else:
-            self.n_lost = (self.n_lost + 1) & 0xFFFF
-            if self.lost < _COUNT_MAX:
-                self.lost += 1
         v_x = self.vx_q8
         v_y = self.vy_q8
         mode = self.mode
-        if mode != IDLE and mode != SAFE and self.silent >= self.safe_ticks:
-            mode = self.mode = SAFE
         if mode == TRACK:
-            if not beam:
-                if self.lost >= self.safe_ticks:
-                    self.mode = SAFE           # held until now; the ramp starts next tick
-            else:
-                ex = rx - self.rx_cmd           # Eq. 7.13, Q15
+            if vs >= self.beam_threshold:
+                if self.lost:
+                    self.lost = 0
+                r = vs >> 1
+                ex = (((2048 - vx) << 15) + r) // vs        # Eq. 7.4: Rx, Q15; |.| <= 2^26 before the division
+                ey = (((2048 - vy) << 15) + r) // vs
+                self.rx = ex
+                self.ry = ey
+                ex -= self.rx_cmd                           # Eq. 7.13: dR, Q15, clamped to +-0.5
                 if ex > _E_MAX:
                     ex = _E_MAX
                 elif ex < -_E_MAX:
                     ex = -_E_MAX
-                ey = ry - self.ry_cmd
+                ey -= self.ry_cmd
                 if ey > _E_MAX:
                     ey = _E_MAX
                 elif ey < -_E_MAX:
                     ey = -_E_MAX
-                g = self.gain
-                ex = (g * ex + 16384) >> 15     # g dR, Q15; |g ex| <= 65535 * 16383
-                ey = (g * ey + 16384) >> 15
-                # H^-1 at the current command: cell search from the last cell, then bilinear (Q12 fractions)
-                t = self.table
-                c = (v_x + 128) >> 8
-                ax = t.ax
-                i = self._ci
-                while i > 0 and c < ax[i]:
-                    i -= 1
-                n = t.nx - 2
-                while i < n and c >= ax[i + 1]:
-                    i += 1
-                self._ci = i
-                if c <= ax[i]:
-                    tx = 0
-                elif c >= ax[i + 1]:
-                    tx = 4096
-                else:
-                    tx = ((c - ax[i]) * t.rdx[i]) >> 12
-                c = (v_y + 128) >> 8
-                ay = t.ay
-                j = self._cj
-                while j > 0 and c < ay[j]:
-                    j -= 1
-                n = t.ny - 2
-                while j < n and c >= ay[j + 1]:
-                    j += 1
-                self._cj = j
-                if c <= ay[j]:
-                    ty = 0
-                elif c >= ay[j + 1]:
-                    ty = 4096
-                else:
-                    ty = ((c - ay[j]) * t.rdy[j]) >> 12
-                h = t.h
-                k = (j * t.nx + i) << 2
-                m = k + (t.nx << 2)             # the node above (j + 1)
-                a = h[k]
-                b = a + (((h[k + 4] - a) * tx) >> 12)
-                a = h[m]
-                a = a + (((h[m + 4] - a) * tx) >> 12)
-                h11 = b + (((a - b) * ty) >> 12)
-                a = h[k + 1]
-                b = a + (((h[k + 5] - a) * tx) >> 12)
-                a = h[m + 1]
-                a = a + (((h[m + 5] - a) * tx) >> 12)
-                h12 = b + (((a - b) * ty) >> 12)
-                a = h[k + 2]
-                b = a + (((h[k + 6] - a) * tx) >> 12)
-                a = h[m + 2]
-                a = a + (((h[m + 6] - a) * tx) >> 12)
-                h21 = b + (((a - b) * ty) >> 12)
-                a = h[k + 3]
-                b = a + (((h[k + 7] - a) * tx) >> 12)
-                a = h[m + 3]
-                a = a + (((h[m + 7] - a) * tx) >> 12)
-                h22 = b + (((a - b) * ty) >> 12)
-                # Eq. 7.12: V -= H^-1 (g dR); each product <= 16000 * 32767, the pair sum < 2^30
-                n = t.shift
+                if (v_x >> 14) != self._bx or (v_y >> 14) != self._by:
+                    self._gain_hinv(v_x >> 14, v_y >> 14)
+                # Eq. 7.12: V -= (g H^-1) dR, high parts (<= 31999 * 16383 each, the pair < 2^30) plus the
+                # low bytes' share (<= 2 * 255 * 16383 >> 8), Q(15 + hq) -> Q8 code
+                k = self._gh
+                n = self._shift
                 r = 1 << (n - 1)
-                v_x -= (h11 * ex + h12 * ey + r) >> n
-                v_y -= (h21 * ex + h22 * ey + r) >> n
-        elif mode == SAFE or mode == IDLE:
-            r = self.ramp_q8                    # ramp to the centre, never integrating
-            if v_x > r:
-                v_x -= r
-            elif v_x < -r:
-                v_x += r
+                v_x -= (k[0] * ex + k[1] * ey + ((k[4] * ex + k[5] * ey + 128) >> 8) + r) >> n
+                v_y -= (k[2] * ex + k[3] * ey + ((k[6] * ex + k[7] * ey + 128) >> 8) + r) >> n
             else:
-                v_x = 0
-            if v_y > r:
-                v_y -= r
-            elif v_y < -r:
-                v_y += r
-            else:
-                v_y = 0
+                self._beam_lost()
+        else:
+            if vs < self.beam_threshold:
+                self.n_lost = (self.n_lost + 1) & 0xFFFF
+            else:                                           # ratios for telemetry (calibration reads them)
+                r = vs >> 1
+                self.rx = (((2048 - vx) << 15) + r) // vs
+                self.ry = (((2048 - vy) << 15) + r) // vs
+            if mode == SAFE or mode == IDLE:
+                self._ramp()
+            v_x = self.vx_q8
+            v_y = self.vy_q8
         # saturation: clamp the state itself (anti-windup)
-        lim = self.lim_q8
-        flags = _FLAG_BEAM if beam else 0
-        if v_x > lim:
-            v_x = lim
-            flags = flags | _FLAG_SAT
-        elif v_x < -lim:
-            v_x = -lim
-            flags = flags | _FLAG_SAT
-        if v_y > lim:
-            v_y = lim
-            flags = flags | _FLAG_SAT
-        elif v_y < -lim:
-            v_y = -lim
-            flags = flags | _FLAG_SAT
-        if flags & _FLAG_SAT:
+        r = self.lim_q8
+        if v_x > r or v_x < -r or v_y > r or v_y < -r:
+            v_x = r if v_x > r else (-r if v_x < -r else v_x)
+            v_y = r if v_y > r else (-r if v_y < -r else v_y)
+            self._sat_tick = t
             self.n_sat = (self.n_sat + 1) & 0xFFFF
-        if self.table is not None:
-            flags = flags | _FLAG_TABLE
-        self.flags = flags
         self.vx_q8 = v_x
         self.vy_q8 = v_y
-        c = (v_x + 128) >> 8
-        w[0] = 0x000000 | (0x8000 + c)          # X+ = bias + x, cmd 000 addr A
-        w[1] = 0x010000 | (0x8000 - c)          # X- = bias - x, cmd 000 addr B
-        c = (v_y + 128) >> 8
-        w[2] = 0x030000 | (0x8000 + c)          # Y+ = bias + y, cmd 000 addr D
-        w[3] = 0x120000 | (0x8000 - c)          # Y- = bias - y, cmd 010 addr C (write, update all)
+        r = (v_x + 128) >> 8
+        w[0] = 0x008000 + r             # X+ = bias + x, cmd 000 addr A
+        w[1] = 0x018000 - r             # X- = bias - x, cmd 000 addr B
+        r = (v_y + 128) >> 8
+        w[2] = 0x038000 + r             # Y+ = bias + y, cmd 000 addr D
+        w[3] = 0x128000 - r             # Y- = bias - y, cmd 010 addr C (write, update all)
         return 4
 
+    def _ramp(self):
+        """IDLE and SAFE: move the command toward the centre by ramp_code per tick, never integrating."""
+        r = self.ramp_q8
+        v = self.vx_q8
+        self.vx_q8 = v - r if v > r else (v + r if v < -r else 0)
+        v = self.vy_q8
+        self.vy_q8 = v - r if v > r else (v + r if v < -r else 0)
+
+    def _beam_lost(self):
+        """TRACK without the beam: hold (no integration); SAFE after ``safe_ticks`` consecutive lost ticks."""
+        self.n_lost = (self.n_lost + 1) & 0xFFFF
+        if self.lost < _COUNT_MAX:
+            self.lost += 1
+        if self.lost >= self.safe_ticks:
+            self.mode = SAFE
+
+    @property
+    def flags(self):
+        """CTRL_STATUS flags: bit0 beam present, bit1 saturated on the last tick, bit2 table loaded."""
+        return ((_FLAG_BEAM if self.vs >= self.beam_threshold else 0)
+                | (_FLAG_SAT if self._sat_tick == self.ticks else 0)
+                | (_FLAG_TABLE if self.table is not None else 0))
+
     def tick(self):
-        """One tick on a board: read Q1 through the HAL, step, clock the words out (allocation-free)."""
+        """One tick on a board: read Q1 through the HAL, step, clock the words out, all with the heap locked
+        (an allocation would raise MemoryError; MicroPython then keeps even large call frames off the heap)."""
         q = self._q1
-        self.hal.read_q1(q)
-        n = self.step(q[0], q[1], q[2])
-        self.hal.spi_write(self.words, n)
+        heap_lock()
+        try:
+            self.hal.read_q1(q)
+            n = self.step(q[0], q[1], q[2])
+            self.hal.spi_write(self.words, n)
+            m = self.mode
+            if m != IDLE and m != SAFE and ((self.ticks - self._pkt) & _COUNT_MAX) >= self.safe_ticks:
+                self.mode = SAFE                            # the ground link fell silent
+        finally:
+            heap_unlock()
         return n
 
     def on_tick(self, tick, t_us, vx, vy, vs):
         """A TICK from the lockstep clock (in-process or over the link): step and return the words (a new
         tuple). A TICK is link traffic, so it resets the link-silence count."""
-        self.silent = 0
+        self.heard(True)
         n = self.step(vx, vy, vs)
         return tuple(self.words[:n])
+
+    def heard(self, tick_packet=False):
+        """A packet arrived from the link: the silence count starts again. A TICK (``tick_packet``) belongs to
+        the tick it starts, so that tick sees no silence; any other packet to the last tick."""
+        self._pkt = (self.ticks + 1) & _COUNT_MAX if tick_packet else self.ticks
+        self._quiet = 0
 
     def link_silent(self, ticks):
         """The link has been silent for about ``ticks`` ticks with no TICK to step on (link HAL): enter SAFE
         once the total reaches ``safe_ticks`` in TRACK, HOLD or CALIBRATE (the ramp runs on the next ticks)."""
-        self.silent = min(self.silent + ticks, _COUNT_MAX)
-        if self.mode != IDLE and self.mode != SAFE and self.silent >= self.safe_ticks:
+        self._quiet = min(self._quiet + ticks, _COUNT_MAX)
+        if self.mode != IDLE and self.mode != SAFE and self._quiet >= self.safe_ticks:
             self.mode = SAFE
 
     def status_due(self):
@@ -332,20 +313,21 @@ class Controller:
     def status_payload(self, tick=None):
         """CTRL_STATUS payload bytes (telemetry path; allocates)."""
         w = self.words
-        rx = self.rx if self.rx < 32767 else 32767
-        ry = self.ry if self.ry < 32767 else 32767
+        rx = max(-32768, min(32767, self.rx))
+        ry = max(-32768, min(32767, self.ry))
         return struct.pack(_STATUS_FMT, self.ticks if tick is None else tick & 0xFFFFFFFF, self.mode,
                            self.flags, _uv(self.vx_q8), _uv(self.vy_q8), rx, ry, self.vs,
                            w[0] & 0xFFFF, w[1] & 0xFFFF, w[2] & 0xFFFF, w[3] & 0xFFFF,
                            self.n_lost, self.n_sat, self.n_unknown)
 
     def handle(self, pid, src, seq, payload):
-        """One packet from the link; returns a list of replies ``(pid, dst, payload)``.
+        """One packet from the link (``seq`` None on CAN); returns a list of replies ``(pid, dst, payload)``.
 
         Commands are ACKed or NACKed with an ``ERRORS`` code; packets this node does not handle are counted
         in n_unknown and ignored (no reply).
         """
-        self.silent = 0
+        self.heard()
+        seq = seq & 0xFF if seq is not None else 0      # CAN frames carry no sequence number
         d = core.PACKET.get(pid)
         if d is None or len(payload) != d.size:
             return self._unknown()
@@ -369,8 +351,8 @@ class Controller:
         else:
             return self._unknown()
         if code:
-            return [(P_NACK, src, struct.pack("<BBB", pid, seq & 0xFF, code))]
-        return [(P_ACK, src, struct.pack("<BB", pid, seq & 0xFF))]
+            return [(P_NACK, src, struct.pack("<BBB", pid, seq, code))]
+        return [(P_ACK, src, struct.pack("<BB", pid, seq))]
 
     def _unknown(self):
         self.n_unknown = (self.n_unknown + 1) & 0xFFFF
@@ -384,8 +366,9 @@ class Controller:
             return _E["BAD_STATE"]
         self.rx_cmd = rx_cmd
         self.ry_cmd = ry_cmd
-        if gain:
+        if gain and gain != self.gain:
             self.gain = gain
+            self._bx = _NO_BIN
         self.decim = decim
         self.safe_ticks = safe_ticks
         if mode != self.mode:

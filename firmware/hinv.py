@@ -1,15 +1,15 @@
 """Fixed-point H^-1 table over the rectilinear FSM-voltage grid, for the integral law (Eq. 7.10-7.12).
 
-Built once from a ``protocol.htable.Grid`` (float, at load time); the controller's hot loop then reads the
-integer lists below and interpolates bilinearly by its current command. Q-formats:
+Built once from a ``protocol.htable.Grid`` (float, at load time); the controller then reads the integer
+lists below and interpolates bilinearly (``hinv_into``) when its command enters a new 64-code bin. Q-formats:
 
 - ``ax``, ``ay``   grid axes in AD5664R tilt codes (Q0 code, ``firmware.ad5664r.CODES_PER_VOLT``), ascending.
 - ``rdx``, ``rdy`` per cell 2^24 // width (Q24 per code): the cell fraction t = ((c - ax[i]) * rdx[i]) >> 12
   is Q12 in [0, 4096]; the product is at most width * 2^24 / width = 2^24.
 - ``h``            H^-1 per node in code per unit ratio, Q``hq`` (value * 2^hq), four entries
   (h11, h12, h21, h22) per node at index 4 * (j * nx + i). ``hq`` is the largest of 0..12 keeping every
-  |entry| <= HINV_MAX (16000 < 2^14), so the law's products (|entry| * |g e| <= 16000 * 32767) summed in
-  pairs stay below 2^30 with room for rounding.
+  |entry| <= HINV_MAX (16000 < 2^14): g h stays below 65535 * 16000 < 2^30, and the law's products
+  ((g h) >> 15 <= 31999, times |dR| <= 16383) summed in pairs stay below 2^30 with room for rounding.
 
 A node whose H is singular, or whose H^-1 exceeds HINV_MAX at Q0 (|H^-1| > 1.22 V per unit ratio: the
 quadcell too insensitive to steer by), or is below 1 code per unit ratio, refuses the whole table.
@@ -74,37 +74,46 @@ class HinvTable:
                                                                                            out[k - 1]))
         return out
 
-    def hinv_at(self, x_code, y_code):
-        """The interpolated H^-1 entries (Q``hq``) at tilt codes x, y: a reference path for tests and telemetry
-        (the controller inlines the same arithmetic in its hot loop)."""
-        i, tx = _cell(self.ax, self.rdx, x_code)
-        j, ty = _cell(self.ay, self.rdy, y_code)
-        k = (j * self.nx + i) << 2
-        k01 = k + (self.nx << 2)
+    def hinv_into(self, x_code, y_code, out):
+        """Write the H^-1 entries (h11, h12, h21, h22; Q``hq``) interpolated bilinearly at tilt codes x, y into
+        out[0..3]; outside the grid the edge values hold. Allocation-free (the controller calls it on a tick)."""
+        ax = self.ax
+        i = 0
+        n = self.nx - 2
+        while i < n and x_code >= ax[i + 1]:
+            i += 1
+        if x_code <= ax[i]:
+            tx = 0
+        elif x_code >= ax[i + 1]:
+            tx = 4096
+        else:
+            tx = ((x_code - ax[i]) * self.rdx[i]) >> 12          # Q12, product <= 2^24
+        ay = self.ay
+        j = 0
+        n = self.ny - 2
+        while j < n and y_code >= ay[j + 1]:
+            j += 1
+        if y_code <= ay[j]:
+            ty = 0
+        elif y_code >= ay[j + 1]:
+            ty = 4096
+        else:
+            ty = ((y_code - ay[j]) * self.rdy[j]) >> 12
         h = self.h
-        out = []
+        k = (j * self.nx + i) << 2                # node (i, j); +4 is (i + 1, j); m is (i, j + 1)
+        m = k + (self.nx << 2)
         for e in range(4):
             a = h[k + e]
-            b = h[k + 4 + e]
-            c = h[k01 + e]
-            d = h[k01 + 4 + e]
-            t = a + (((b - a) * tx) >> 12)
-            u = c + (((d - c) * tx) >> 12)
-            out.append(t + (((u - t) * ty) >> 12))
+            t = a + (((h[k + 4 + e] - a) * tx) >> 12)           # |difference| <= 32000, times 4096 < 2^27
+            a = h[m + e]
+            u = a + (((h[m + 4 + e] - a) * tx) >> 12)
+            out[e] = t + (((u - t) * ty) >> 12)
+
+    def hinv_at(self, x_code, y_code):
+        """``hinv_into`` returning a new list (tests, telemetry)."""
+        out = [0, 0, 0, 0]
+        self.hinv_into(x_code, y_code, out)
         return out
-
-
-def _cell(ax, rd, c):
-    """(cell index, Q12 fraction) of code c on axis ax, clamped to the grid."""
-    i = 0
-    n = len(ax)
-    while i < n - 2 and c >= ax[i + 1]:
-        i += 1
-    if c <= ax[i]:
-        return i, 0
-    if c >= ax[i + 1]:
-        return i, 4096
-    return i, ((c - ax[i]) * rd[i]) >> 12
 
 
 def load_file(path):

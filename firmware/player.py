@@ -206,6 +206,7 @@ class Player:
 
     def handle(self, pid, src, seq, payload):
         """One packet; returns replies ``[(pid, dst, payload)]`` (ACK/NACK, PLAYER_STATUS after PLAYER_CTRL)."""
+        seq = seq & 0xFF if seq is not None else 0      # CAN frames carry no sequence number
         d = core.PACKET.get(pid)
         if d is None or len(payload) != d.size:
             return []
@@ -221,8 +222,8 @@ class Player:
         else:
             return []
         if code:
-            return [(P_NACK, src, struct.pack("<BBB", pid, seq & 0xFF, code))]
-        out = [(P_ACK, src, struct.pack("<BB", pid, seq & 0xFF))]
+            return [(P_NACK, src, struct.pack("<BBB", pid, seq, code))]
+        out = [(P_ACK, src, struct.pack("<BB", pid, seq))]
         if pid == P_CTRL:
             out.append((P_STATUS, src, self.status_payload()))
         return out

@@ -1,6 +1,7 @@
 """The fixed-point controller (firmware/controller.py) under CPython: words, law, modes, packets, tables."""
 
 import json
+import math
 import struct
 import zlib
 
@@ -14,6 +15,7 @@ from protocol import core, htable
 from tests.mp import firmware_plant as fp
 
 TICKS_10S = 6378          # 10 s at 637.8 Hz
+E_MAX = 16383 / 32768     # the firmware's dR clamp (just under 0.5)
 
 
 @pytest.fixture(scope="module")
@@ -31,16 +33,16 @@ def tracking(grid, **kw):
 # --- an independent float reference of the same law ----------------------------------------------------
 class FloatReference:
     """Eq. 7.4, 7.12, 7.13 in floats: ratio, dR clamp +-0.5, H^-1 per node (float) interpolated bilinearly at
-    the current command, V -= g H^-1 dR in codes, state clamped at the limit, output rounded."""
+    the centre of the command's 64-code bin, V -= g H^-1 dR in codes, state clamped at the limit, output rounded."""
 
     def __init__(self, grid, gain=0.5, limit=32767):
         self.ax = [ad5664r.volts_to_code(v) for v in grid.ax]
         self.ay = [ad5664r.volts_to_code(v) for v in grid.ay]
-        self.hinv = []
+        self.hinv_nodes = []
         for a, b, c, d in grid.h:
             det = a * d - b * c
             k = ad5664r.CODES_PER_VOLT / det
-            self.hinv.append((d * k, -b * k, -c * k, a * k))
+            self.hinv_nodes.append((d * k, -b * k, -c * k, a * k))
         self.nx = len(self.ax)
         self.g = gain
         self.lim = limit
@@ -54,24 +56,27 @@ class FloatReference:
             i += 1
         return i, min(1.0, max(0.0, (c - axis[i]) / (axis[i + 1] - axis[i])))
 
+    def hinv(self, x, y):
+        i, tx = self._frac(self.ax, x)
+        j, ty = self._frac(self.ay, y)
+        n = self.nx
+        m = []
+        for e in range(4):
+            h00 = self.hinv_nodes[j * n + i][e]
+            h10 = self.hinv_nodes[j * n + i + 1][e]
+            h01 = self.hinv_nodes[(j + 1) * n + i][e]
+            h11 = self.hinv_nodes[(j + 1) * n + i + 1][e]
+            top = h00 + (h10 - h00) * tx
+            bot = h01 + (h11 - h01) * tx
+            m.append(top + (bot - top) * ty)
+        return m
+
     def step(self, vx, vy, vs):
         if vs >= 200:
-            rx = max(-1.0, min(1.0, (2048 - vx) / vs))
-            ry = max(-1.0, min(1.0, (2048 - vy) / vs))
-            ex = max(-0.5, min(0.5, rx))
-            ey = max(-0.5, min(0.5, ry))
-            i, tx = self._frac(self.ax, round(self.vx))
-            j, ty = self._frac(self.ay, round(self.vy))
-            n = self.nx
-            m = []
-            for e in range(4):
-                h00 = self.hinv[j * n + i][e]
-                h10 = self.hinv[j * n + i + 1][e]
-                h01 = self.hinv[(j + 1) * n + i][e]
-                h11 = self.hinv[(j + 1) * n + i + 1][e]
-                top = h00 + (h10 - h00) * tx
-                bot = h01 + (h11 - h01) * tx
-                m.append(top + (bot - top) * ty)
+            ex = max(-E_MAX, min(E_MAX, (2048 - vx) / vs))
+            ey = max(-E_MAX, min(E_MAX, (2048 - vy) / vs))
+            # H^-1 at the centre of the command's 64-code bin (the firmware's evaluation points)
+            m = self.hinv(64 * math.floor(self.vx / 64) + 32, 64 * math.floor(self.vy / 64) + 32)
             self.vx -= self.g * (m[0] * ex + m[1] * ey)
             self.vy -= self.g * (m[2] * ex + m[3] * ey)
             self.vx = max(-self.lim, min(self.lim, self.vx))
@@ -96,6 +101,10 @@ def test_init_sequence_then_differential_words(grid):
     xp, xn, yp, yn = _codes(c.words)
     assert ad5664r.pair_to_code(xp, xn) == ad5664r.volts_to_code(1.0)
     assert ad5664r.pair_to_code(yp, yn) == ad5664r.volts_to_code(-0.5)
+    assert ad5664r.code_to_volts(ad5664r.pair_to_code(xp, xn)) == pytest.approx(1.0, abs=0.5 / 13107.2)
+    ref = [0] * 4
+    ad5664r.command_words(ad5664r.volts_to_code(1.0), ad5664r.volts_to_code(-0.5), ref)
+    assert c.words == ref                     # the inlined hot-loop words match the driver module's
 
 
 def test_tracks_plant_and_matches_float_reference_within_one_lsb(grid):
@@ -123,13 +132,9 @@ def test_bilinear_lookup_matches_float_interpolation(grid):
     ref = FloatReference(grid)
     for x, y in ((-20000, 14000), (0, 0), (3100, -2800), (40000, -40000), (-16383, 16383)):
         got = [v / (1 << t.hq) for v in t.hinv_at(x, y)]
-        i, tx = ref._frac(ref.ax, x)
-        j, ty = ref._frac(ref.ay, y)
-        n = ref.nx
+        want = ref.hinv(x, y)
         for e in range(4):
-            top = ref.hinv[j * n + i][e] + (ref.hinv[j * n + i + 1][e] - ref.hinv[j * n + i][e]) * tx
-            bot = ref.hinv[(j + 1) * n + i][e] + (ref.hinv[(j + 1) * n + i + 1][e] - ref.hinv[(j + 1) * n + i][e]) * tx
-            assert got[e] == pytest.approx(top + (bot - top) * ty, abs=2.0 / (1 << t.hq) + 1e-3 * abs(top))
+            assert got[e] == pytest.approx(want[e], abs=2.0 / (1 << t.hq) + 1e-3 * abs(want[e]))
 
 
 # --- every intermediate inside +-2^30 -------------------------------------------------------------------
@@ -177,7 +182,7 @@ def test_intermediates_within_2_30_and_codes_in_safe_range(samples, gain, rxc, r
     c.vx_q8 = Bounded(c.vx_q8)
     c.vy_q8 = Bounded(c.vy_q8)
     for vx, vy, vs in samples * 3:
-        c.silent = 0
+        c.heard(True)
         c.step(Bounded(vx), Bounded(vy), Bounded(vs))
         for w in c.words:
             assert 0x8000 - 30000 <= (w & 0xFFFF) <= 0x8000 + 30000
@@ -212,19 +217,36 @@ def test_beam_loss_holds_then_safe_ramps_to_centre_without_windup(grid):
     assert c.n_lost >= 2049
 
 
+class _StillHal:
+    def read_q1(self, out):
+        out[0], out[1], out[2] = 2048, 2048, 2500
+
+    def spi_write(self, words, n):
+        pass
+
+
 def test_link_silence_enters_safe_from_track_hold_and_calibrate(grid):
     for mode in (TRACK, HOLD, CALIBRATE):
         c = tracking(grid, safe_ticks=20)
+        c.hal = _StillHal()
         c.mode = mode
         for _ in range(19):
-            c.step(2048, 2048, 2500)
+            c.tick()
         assert c.mode == mode
         c.handle(core.PACKET_ID["HELLO"], 1, 0, core.encode_payload("HELLO"))    # traffic resets the count
         for _ in range(19):
-            c.step(2048, 2048, 2500)
+            c.tick()
         assert c.mode == mode
-        c.step(2048, 2048, 2500)
+        c.tick()
         assert c.mode == SAFE
+    c = tracking(grid, safe_ticks=30)            # over the link HAL: the waits between TICKs add up
+    c.link_silent(20)
+    assert c.mode == TRACK
+    c.on_tick(0, 0, 2048, 2048, 2500)
+    c.link_silent(20)
+    assert c.mode == TRACK
+    c.link_silent(10)
+    assert c.mode == SAFE
 
 
 def test_saturation_clamps_state_no_windup(grid):
@@ -278,6 +300,12 @@ def test_status_payload_and_decimation(grid):
     assert st_["mode"] == TRACK and st_["flags"] & 1 and st_["flags"] & 4
     assert st_["code_xp"] == c.words[0] & 0xFFFF and st_["code_yn"] == c.words[3] & 0xFFFF
     assert st_["vx"] == pytest.approx(c.vx_q8 / 256 / ad5664r.CODES_PER_VOLT * 1e6, abs=1)
+    c.mode = CALIBRATE                               # ratios are reported outside TRACK too (calibration)
+    c.on_tick(0, 0, 2048 - 250, 2048 + 125, 2500)
+    st_ = core.payload_dict(P["CTRL_STATUS"], c.status_payload())
+    assert (st_["rx"], st_["ry"]) == (round(0.1 * 32768), round(-0.05 * 32768))
+    assert c.handle(P["HELLO"], 1, None, core.encode_payload("HELLO"))[0][0] == P["HELLO"]   # CAN: no seq
+    assert c.handle(P["CTRL_SETTINGS"], 1, None, core.encode_payload("CTRL_SETTINGS", mode=HOLD))[0][0] == P["ACK"]
 
 
 # --- tables -------------------------------------------------------------------------------------------

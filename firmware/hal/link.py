@@ -1,7 +1,8 @@
 """Link HAL: the controller's Q1 input and SPI output carried over the protocol (HIL against the emulator).
 
 ``serve_controller`` answers each TICK (the Q1 sample) with one FSM_SPI (the tick number and the AD5664R
-words), plus CTRL_STATUS to the ground every ``decim`` ticks, and handles every other packet between ticks.
+words), plus CTRL_STATUS every ``decim`` ticks, both addressed to the TICK's sender (the HIL host, whose
+ground side reads the status), and handles every other packet between ticks.
 The per-tick path unpacks and packs with preallocated buffers; framing is the link's. ``open_link`` gives a
 ``protocol.stream.StreamLink`` for ``serial:PATH`` under MicroPython and, under CPython, any
 ``protocol.link`` spec (``serial:PATH`` through pyserial, ``slcan:PATH`` for CAN). Links time out in ms here (``recv_ms``).
@@ -10,13 +11,13 @@ The per-tick path unpacks and packs with preallocated buffers; framing is the li
 import struct
 import sys
 
+from firmware.controller import heap_lock, heap_unlock
 from protocol import core
 
 P_TICK = core.PACKET_ID["TICK"]
 P_FSM_SPI = core.PACKET_ID["FSM_SPI"]
 P_STATUS = core.PACKET_ID["CTRL_STATUS"]
 P_HELLO = core.PACKET_ID["HELLO"]
-GROUND = core.NODE["GROUND"]
 BROADCAST = core.NODE["BROADCAST"]
 _TICK_FMT = core.PACKET[P_TICK].fmt
 _SPI_FMT = core.PACKET[P_FSM_SPI].fmt
@@ -78,12 +79,14 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 continue
             if pid == P_TICK:
                 tick, t_us, vx, vy, vs = struct.unpack(_TICK_FMT, payload)
-                ctl.silent = 0
+                ctl.heard(True)
+                heap_lock()                   # the step allocates nothing; locked, its frame stays off the heap
                 n = ctl.step(vx, vy, vs)
+                heap_unlock()
                 struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
                 link.send_raw(P_FSM_SPI, me, src, out)
-                if ctl.status_due():
-                    link.send_raw(P_STATUS, me, GROUND, ctl.status_payload(tick))
+                if ctl.status_due():       # to the HIL host that clocks us (on CAN, ISO-TP to an absent
+                    link.send_raw(P_STATUS, me, src, ctl.status_payload(tick))   # node would block)
             else:
                 for rpid, rdst, rpayload in ctl.handle(pid, src, seq, payload):
                     link.send_raw(rpid, me, rdst, rpayload)

@@ -1,6 +1,8 @@
-# Runs under micropython: the control tick allocates nothing. 10,000 ticks through Controller.tick() with a
-# preallocated Q1 sample source and SPI sink (a fake HAL), every mode path exercised; gc.mem_alloc() must not
-# grow. A deliberately allocating loop is measured the same way as a positive control.
+# Runs under micropython: the control tick allocates nothing. 10,000 ticks through Controller.tick() (which
+# locks the heap, so any allocation would raise MemoryError) with a preallocated Q1 sample source and SPI sink
+# (a fake HAL), every mode path exercised; gc.mem_alloc() must not grow either, also with Controller.step
+# called unlocked. A deliberately allocating loop is measured the same way as a positive control, and an
+# allocating HAL must fail under the lock.
 import gc
 import json
 
@@ -63,6 +65,32 @@ for k in ticks:
         ctl.mode = SAFE         # the ramp path too
 m1 = gc.mem_alloc()
 
+# Controller.step unlocked: large frames may borrow heap blocks, but nothing stays allocated.
+def unlocked(ctl, src, n, ticks):
+    i = 0
+    for k in ticks:
+        ctl.step(src[i], src[i + 1], src[i + 2])
+        i = i + 3 if i + 3 < n else 0
+
+
+unlocked(ctl, hal.src, hal.n, range(10))
+gc.collect()
+s0 = gc.mem_alloc()
+unlocked(ctl, hal.src, hal.n, ticks)
+s1 = gc.mem_alloc()
+
+# An allocating HAL is caught by the lock.
+class LeakyHal(FakeHal):
+    def spi_write(self, words, n):
+        self.last = list(words)
+
+
+caught = False
+try:
+    Controller(LeakyHal(samples), table=grid).tick()
+except MemoryError:
+    caught = True
+
 # Positive control: one small tuple per iteration is seen.
 gc.collect()
 c0 = gc.mem_alloc()
@@ -72,5 +100,6 @@ for k in ticks:
 c1 = gc.mem_alloc()
 
 print(json.dumps({"ticks": N, "alloc_bytes": m1 - m0, "control_alloc_bytes": c1 - c0,
+                  "step_alloc_bytes": s1 - s0, "leak_caught": caught,
                   "words_out": hal.words_out, "mode": ctl.mode, "n_lost": ctl.n_lost,
                   "last_code_xp": ctl.words[0] & 0xFFFF}))

@@ -85,5 +85,9 @@ if __name__ == "__main__":
     dv = -((h[0] * 1638 + (1 << (t.shift - 1))) >> t.shift)
     check(c.vx_q8 == dv, "law step %d != %d" % (c.vx_q8, dv))
 
+    table = None
+    if len(sys.argv) > 3:        # the calibration JSON file, loaded from this runtime's filesystem
+        t = Controller(table=sys.argv[3]).table
+        table = {"h": t.h, "ax": t.ax, "ay": t.ay, "hq": t.hq}
     crc, last, mode = closed_loop(ticks, seed)
-    print(json.dumps({"checks": checks, "crc": crc, "last": last, "mode": mode}))
+    print(json.dumps({"checks": checks, "crc": crc, "last": last, "mode": mode, "table": table}))

@@ -1,0 +1,286 @@
+"""Firmware benchmark: control step cost under CPython and MicroPython, instructions per step (callgrind),
+the player's cost per P-FSM update, the HIL round trip over a pty, and the .mpy sizes.
+
+The Q1 samples come from a 10 s in-process lockstep run of the controller against the emulated bench (the
+truth H field as calibration, a disturbance with the thesis's body-pointing rates, ~8 arcsec/s 1 sigma);
+replaying them through a fresh controller reproduces that run's commands exactly (the law is deterministic),
+so the timed loop does the work of a closed loop. "Worst case" re-evaluates g H^-1 every tick (the command
+changing its 64-code bin every tick); the realistic stream changes bin on a few percent of ticks. "Heap locked"
+is how the firmware runs the step (Controller.tick, the link HAL): MicroPython then keeps the step's large call
+frame on the C stack; unlocked, the unix port borrows a heap block for it on every call (freed on return).
+Instructions per step: ``valgrind --tool=callgrind`` on micropython at two step counts, differenced.
+"""
+
+import math
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MICROPYTHON = os.path.join(os.path.dirname(sys.executable), "micropython")
+RATE_HZ = 637.8
+GOAL_INSTR = 15000
+
+_MP_STEP = r"""
+import sys, time, struct
+from firmware.controller import Controller, TRACK
+
+
+def run(c, src, n, worst):
+    # the firmware's own calling pattern (ctl.step inside a function: no bound-method object per call)
+    m = len(src)
+    i = 0
+    if worst:
+        for k in range(n):
+            c._bx = 1 << 20
+            c.step(src[i], src[i + 1], src[i + 2])
+            i += 3
+            if i >= m:
+                i = 0
+    else:
+        for k in range(n):
+            c.step(src[i], src[i + 1], src[i + 2])
+            i += 3
+            if i >= m:
+                i = 0
+
+
+n = int(sys.argv[1])
+with open(sys.argv[3], "rb") as f:
+    raw = f.read()
+src = list(struct.unpack("<%dH" % (len(raw) // 2), raw))
+c = Controller(table=sys.argv[4], safe_ticks=65535)
+c.step(2048, 2048, 0)
+c.mode = TRACK
+locked = sys.argv[5] == "locked"
+if locked:                      # as Controller.tick and the link HAL run it
+    import micropython
+    micropython.heap_lock()
+t0 = time.ticks_us()
+run(c, src, n, sys.argv[2] == "worst")
+dt = time.ticks_diff(time.ticks_us(), t0)
+if locked:
+    micropython.heap_unlock()
+print(dt, c.words[0], c.words[2])
+"""
+
+_MP_PLAYER = r"""
+import sys, time
+from firmware.player import Player
+from protocol import distfile
+n = int(sys.argv[1])
+f = open(sys.argv[2], "rb")
+p = Player(distfile.Reader(f))
+p.play_loop()
+xb = [0] * 17
+yb = [0] * 17
+t0 = time.ticks_us()
+k = 0
+while k < n:
+    k += p.fill(xb, yb, 17)
+print(time.ticks_diff(time.ticks_us(), t0), k)
+"""
+
+
+def _disturbance(seconds):
+    """Body-pointing-like error: slow swings (~30 arcsec, ~8 arcsec/s 1 sigma) plus 1 arcsec of 23 Hz jitter."""
+    from protocol import distfile
+    n = int(seconds / 0.008192) + 2
+    xs, ys = [], []
+    for k in range(n):
+        t = k * 0.008192
+        xs.append(40 * math.sin(2 * math.pi * 0.045 * t) + 25 * math.sin(2 * math.pi * 0.09 * t + 1)
+                  + math.sin(2 * math.pi * 23 * t))
+        ys.append(35 * math.cos(2 * math.pi * 0.05 * t) - 20 * math.sin(2 * math.pi * 0.12 * t)
+                  + 0.8 * math.sin(2 * math.pi * 17 * t))
+    return distfile.pack(xs, ys, source="bench", seed=0)
+
+
+def _prepare(tmp):
+    from emulator import truth
+    from emulator.bench import Bench
+    from emulator.lockstep import Lockstep
+    from firmware.controller import TRACK, Controller
+    from firmware.player import Player
+    from protocol import distfile, htable
+    blob = os.path.join(tmp, "htable.bin")
+    with open(blob, "wb") as f:
+        f.write(htable.pack(htable.grid_from_calibration(truth.true_h_field())))
+    dist = os.path.join(tmp, "bench.dist")
+    with open(dist, "wb") as f:
+        f.write(_disturbance(12.0))
+    c = Controller(table=blob)
+    c.mode = TRACK
+    p = Player(distfile.Reader(open(dist, "rb")))
+    p.oneshot()
+    res = Lockstep(Bench(seed=1), c, p, record=True).run(duration_s=10.0)
+    q1 = res["q1"]
+    samples = os.path.join(tmp, "q1.bin")
+    flat = [int(v) for row in q1 for v in row]
+    with open(samples, "wb") as f:
+        f.write(struct.pack("<%dH" % len(flat), *flat))
+    bins = 0
+    c2 = Controller(table=blob)
+    c2.step(2048, 2048, 0)
+    c2.mode = TRACK
+    last = None
+    for row in q1:
+        c2.step(int(row[0]), int(row[1]), int(row[2]))
+        if (c2._bx, c2._by) != last:
+            bins += 1
+            last = (c2._bx, c2._by)
+    return blob, dist, samples, flat, bins / len(q1)
+
+
+def _cpython_step(blob, flat, n, worst):
+    from firmware.controller import TRACK, Controller
+    c = Controller(table=blob, safe_ticks=65535)
+    c.step(2048, 2048, 0)
+    c.mode = TRACK
+    m = len(flat)
+    step = c.step
+    i = 0
+    t0 = time.perf_counter()
+    for _ in range(n):
+        if worst:
+            c._bx = 1 << 20
+        step(flat[i], flat[i + 1], flat[i + 2])
+        i += 3
+        if i >= m:
+            i = 0
+    return (time.perf_counter() - t0) / n * 1e6
+
+
+def _mp(script, args, callgrind=False):
+    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
+    cmd = [MICROPYTHON, script] + [str(a) for a in args]
+    if callgrind:
+        cmd = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    if p.returncode != 0:
+        raise RuntimeError("micropython %s failed: %s" % (script, p.stderr[-500:]))
+    if callgrind:
+        for line in p.stderr.splitlines():
+            if "I   refs:" in line or "I refs:" in line:
+                return int(line.split(":")[1].strip().replace(",", ""))
+        raise RuntimeError("no instruction count in callgrind output")
+    return p.stdout.split()
+
+
+def _instructions(script, extra, n1=2000, n2=12000):
+    a = _mp(script, [n1] + extra, callgrind=True)
+    b = _mp(script, [n2] + extra, callgrind=True)
+    return (b - a) / (n2 - n1)
+
+
+def _hil_pty(blob, dist, seconds=5.0, runtime="micropython"):
+    """Wall time of a lockstep run with the controller as a subprocess over a pty (µs per tick)."""
+    from emulator.bench import Bench
+    from emulator.lockstep import Lockstep, RemoteController
+    from firmware.player import Player
+    from protocol import core, distfile
+    from protocol import link as hostlink
+    lk = hostlink.open_link("pty", "BENCH")
+    exe = MICROPYTHON if runtime == "micropython" else sys.executable
+    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen", PYTHONPATH=ROOT)
+    proc = subprocess.Popen([exe, "-m", "firmware.main", "controller", "--link", "serial:" + lk.peer_path,
+                             "--table", blob, "--track"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            if any(p[0] == core.PACKET_ID["HELLO"] for p in lk.recv(timeout=0.2)):
+                break
+        p = Player(distfile.Reader(open(dist, "rb")))
+        p.oneshot()
+        ls = Lockstep(Bench(seed=1), RemoteController(lk, timeout_s=5.0), p)
+        t0 = time.perf_counter()
+        res = ls.run(duration_s=seconds)
+        wall = time.perf_counter() - t0
+        return wall / res["ticks"] * 1e6, res["counters"].get("overruns", 0)
+    finally:
+        lk.close()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def main():
+    tmp = tempfile.mkdtemp(prefix="bench_fw_")
+    try:
+        _main(tmp)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _main(tmp):
+    have_mp = os.path.exists(MICROPYTHON)
+    have_vg = shutil.which("valgrind") is not None
+    blob, dist, samples, flat, bin_rate = _prepare(tmp)
+    step_py = os.path.join(tmp, "mp_step.py")
+    with open(step_py, "w") as f:
+        f.write(_MP_STEP)
+    player_py = os.path.join(tmp, "mp_player.py")
+    with open(player_py, "w") as f:
+        f.write(_MP_PLAYER)
+    budget_us = 1e6 / RATE_HZ
+    print("Control step (replay of a 10 s lockstep run; g H^-1 re-evaluated on %.1f %% of its ticks)\n"
+          % (100 * bin_rate))
+    print("| runtime | case | µs/step | steps/s | x86-64 instructions/step | goal |")
+    print("|---|---|---:|---:|---:|---|")
+    for case in ("realistic", "worst"):
+        us = _cpython_step(blob, flat, 20000, case == "worst")
+        print("| CPython %s | %s | %.2f | %.0f | – | < %.0f µs (637.8 Hz) |"
+              % (sys.version.split()[0], case, us, 1e6 / us, budget_us))
+    if have_mp:
+        for case, lock in (("realistic", "locked"), ("worst", "locked"), ("realistic", "unlocked")):
+            args = [case, samples, blob, lock]
+            out = _mp(step_py, [20000] + args)
+            us = int(out[0]) / 20000
+            instr = "%.0f" % _instructions(step_py, args) if have_vg else "valgrind missing"
+            print("| MicroPython (unix, bytecode), heap %s | %s | %.2f | %.0f | %s | <= %d instructions |"
+                  % (lock, case, us, 1e6 / us, instr, GOAL_INSTR))
+    else:
+        print("| MicroPython | – | micropython binary missing | | | |")
+
+    print("\nDisturbance player (P-FSM updates, two axes each)\n")
+    print("| runtime | µs/update | updates/s | goal |")
+    print("|---|---:|---:|---|")
+    from firmware.player import Player
+    from protocol import distfile
+    p = Player(distfile.Reader(open(dist, "rb")))
+    p.play_loop()
+    xb, yb = [0] * 17, [0] * 17
+    n = 0
+    t0 = time.perf_counter()
+    while n < 100000:
+        n += p.fill(xb, yb, 17)
+    us = (time.perf_counter() - t0) / n * 1e6
+    print("| CPython | %.2f | %.0f | 10,600/s (thesis) |" % (us, 1e6 / us))
+    if have_mp:
+        out = _mp(player_py, [100000, dist])
+        us = int(out[0]) / int(out[1])
+        print("| MicroPython (unix) | %.2f | %.0f | 10,600/s (thesis) |" % (us, 1e6 / us))
+
+    print("\nHIL lockstep with the controller as a subprocess over a pty (5 s of bench time)\n")
+    print("| controller runtime | µs per tick (round trip + emulator) | x real time | overruns | goal |")
+    print("|---|---:|---:|---:|---|")
+    for rt in (("micropython",) if have_mp else ()) + ("cpython",):
+        try:
+            us, over = _hil_pty(blob, dist, runtime=rt)
+            print("| %s | %.0f | %.1f | %d | >= 12x real time (< 130 µs) |" % (rt, us, budget_us / us, over))
+        except Exception as exc:  # the emulator or links may be missing
+            print("| %s | failed: %r | | | |" % (rt, exc))
+
+    print("\n.mpy sizes (mpy-cross, bytecode)\n")
+    from ground import mpy_build
+    print(mpy_build.table(mpy_build.build(os.path.join(tmp, "mpy"))))
+
+
+if __name__ == "__main__":
+    main()

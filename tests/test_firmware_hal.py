@@ -1,0 +1,117 @@
+"""HAL backends with small fakes (no board exists here), the in-process Bench HAL, and firmware.main's options."""
+
+import pytest
+
+from firmware import ad5664r
+from firmware.controller import TRACK, Controller
+from firmware.hal import backend
+from firmware.hal.board import MachineHal, run
+from firmware.main import parse
+from protocol import core, htable
+from tests.mp import firmware_plant as fp
+
+
+class FakeADC:
+    def __init__(self, value):
+        self.value = value
+
+    def read_u16(self):
+        return self.value << 4 | 0xA           # the low nibble is below the 12-bit resolution
+
+
+class FakeSPI:
+    def __init__(self, sync):
+        self.sync = sync
+        self.frames = []
+
+    def write(self, buf):
+        assert self.sync.level == 0, "SYNC must be low while a word is clocked"
+        self.frames.append(bytes(buf))
+
+
+class FakePin:
+    def __init__(self):
+        self.level = None
+
+    def value(self, v):
+        self.level = v
+
+
+class FakeUART:
+    def __init__(self):
+        self.rx = bytearray()
+        self.tx = bytearray()
+
+    def any(self):
+        return len(self.rx)
+
+    def read(self, n):
+        out = bytes(self.rx[:n])
+        del self.rx[:n]
+        return out
+
+    def write(self, b):
+        self.tx.extend(b)
+
+
+def _board(vx=2048, vy=2048, vs=2500):
+    sync, en = FakePin(), FakePin()
+    spi = FakeSPI(sync)
+    uart = FakeUART()
+    hal = MachineHal(FakeADC(vx), FakeADC(vy), FakeADC(vs), spi, sync, en, uart)
+    return hal, spi, uart, en
+
+
+def test_machine_hal_reads_12_bit_counts_and_clocks_24_bit_words_msb_first():
+    hal, spi, uart, en = _board(1000, 3000, 2500)
+    q = [0, 0, 0]
+    hal.read_q1(q)
+    assert q == [1000, 3000, 2500]
+    hal.spi_write([0x123456, 0xABCDEF], 2)
+    assert spi.frames == [b"\x12\x34\x56", b"\xab\xcd\xef"] and hal.sync.level == 1
+
+
+def test_board_loop_ticks_handles_uart_packets_and_sends_status():
+    grid = htable.grid_from_calibration(fp.calibration())
+    hal, spi, uart, en = _board(2048 - 50, 2048 + 30, 2500)
+    ctl = Controller(hal, table=grid, decim=5)
+    uart.rx.extend(core.encode_packet("CTRL_SETTINGS", core.NODE["GROUND"], core.NODE["CONTROLLER"], 9,
+                                      mode=TRACK, decim=5))
+    assert run(ctl, hal, rate_hz=5000, ticks=20) == 20
+    assert en.level == 1 and ctl.mode == TRACK
+    assert len(spi.frames) == 4 * 20
+    words = [int.from_bytes(f, "big") for f in spi.frames]
+    assert words[:4] == list(ad5664r.INIT_WORDS)
+    assert [ad5664r.decode(w)[:2] for w in words[-4:]] == [(0, 0), (0, 1), (0, 3), (2, 2)]
+    # the spot sits at +X (vx below mid-scale): the law drives X, the pair stays centred on the bias
+    xp, xn = words[-4] & 0xFFFF, words[-3] & 0xFFFF
+    assert xp + xn == 2 * ad5664r.BIAS_CODE and xp != ad5664r.BIAS_CODE
+    pkts = core.Decoder().feed(bytes(uart.tx))
+    kinds = [p[0] for p in pkts]
+    assert kinds[0] == core.PACKET_ID["ACK"] and kinds.count(core.PACKET_ID["CTRL_STATUS"]) >= 3
+
+
+def test_inproc_hal_drives_the_emulator_bench():
+    bench_mod = pytest.importorskip("emulator.bench")
+    bench = bench_mod.Bench(seed=2)
+    hal = backend("inproc").BenchHal(bench)
+    ctl = Controller(hal)
+    for _ in range(5):
+        ctl.tick()
+    assert bench.counters()["spi_words"] == 20
+
+
+def test_backend_names_and_main_options():
+    assert backend("board").MachineHal is MachineHal
+    with pytest.raises(ValueError, match="unknown HAL backend"):
+        backend("usb")
+    role, o = parse(["controller", "--link", "serial:/dev/pts/3", "--table", "t.json", "--track", "--gain",
+                     "8192", "--decim", "0"])
+    assert role == "controller" and o["link"] == "serial:/dev/pts/3" and o["track"]
+    assert o["ctl"] == {"gain_q15": 8192, "decim": 0}
+    for argv, match in ((["controller"], "--link"), (["robot", "--link", "x"], "controller or player"),
+                        (["controller", "--link", "x", "--gain", "high"], "--gain"),
+                        (["controller", "--link", "x", "--track"], "--table"),
+                        (["controller", "--link", "x", "--bogus", "1"], "unknown option")):
+        with pytest.raises(ValueError, match=match):
+            parse(argv)

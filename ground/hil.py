@@ -195,7 +195,6 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
             player.open_file(os.path.abspath(distfile_path))
             player.oneshot()
             rig.lockstep.player = player
-            rig.q1_ratios_from_bench = False
             overrun0 = rig.lockstep.n_overrun
             t0_us = int(round(rig.lockstep.tick * 1e6 / rig.rate_hz))
             n_total = int(round(duration_s * rig.rate_hz))
@@ -214,8 +213,9 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
                     rec.virtual_s = done / rig.rate_hz
                     proc = getattr(rig, "process", None)
                     if proc is not None and proc.poll() is not None:
-                        raise OSError("controller process exited with status %s after %.1f s of the run"
-                                      % (proc.returncode, rec.virtual_s))
+                        from ground.runtime import stderr_tail
+                        raise OSError("controller process exited with status %s after %.1f s of the run: %s"
+                                      % (proc.returncode, rec.virtual_s, stderr_tail(proc)))
                     if bar is not None:
                         bar.update(n / rig.rate_hz)
             finally:

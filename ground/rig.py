@@ -96,8 +96,6 @@ class Rig:
         self.status = []          # decoded CTRL_STATUS since the last take_status()
         self.replies = deque()    # other packets (ACK, NACK, ...) not yet consumed
         self.n_status_total = 0
-        self.q1_ratios_from_bench = True   # see _patch_ratios; the HIL play turns it off
-        self._q1r = None
 
     def elapsed_s(self):
         """Virtual time run so far."""
@@ -114,14 +112,7 @@ class Rig:
 
     # --- clock -------------------------------------------------------------------------------------
     def run(self, n_ticks, progress=None):
-        k0 = self.lockstep.tick
-        self.lockstep.record = self.q1_ratios_from_bench
         out = self.lockstep.run(n_ticks=n_ticks, progress=progress)
-        if self.q1_ratios_from_bench:
-            q1 = out["q1"].astype(float)
-            vs = np.maximum(q1[:, 2], 1.0)
-            seg = (k0, (2048.0 - q1[:, 0]) / vs, (2048.0 - q1[:, 1]) / vs)
-            self._q1r = [self._q1r[-1], seg] if self._q1r else [seg]
         self._drain()
         return out
 
@@ -136,23 +127,9 @@ class Rig:
                 except ValueError:
                     continue
                 self.n_status_total += 1
-                if self._patch_ratios(st):
-                    self.status.append(st)
+                self.status.append(st)
             else:
                 replies.append(pkt)
-
-    def _patch_ratios(self, st):
-        """Workaround: the controller firmware now updates CTRL_STATUS rx/ry only in TRACK mode, so outside
-        TRACK the ratios of that tick's Q1 sample (the counts the controller read, Eq. 7.4) are put in.
-        Returns False for a status whose tick is no longer known (it is then not used)."""
-        if st["mode"] == core.MODE["TRACK"] or not self.q1_ratios_from_bench:
-            return True
-        for k0, rx, ry in self._q1r or ():
-            i = st["tick"] - k0
-            if 0 <= i < len(rx):
-                st["rx"], st["ry"] = float(rx[i]), float(ry[i])
-                return True
-        return False
 
     def take_status(self):
         s, self.status = self.status, []
@@ -224,8 +201,6 @@ class LiveRig(Rig):
         self.n_status_total = 0
         self.pfsm_at = None
         self._t0 = None
-        self._q1r = None
-        self.q1_ratios_from_bench = False
 
     def elapsed_s(self):
         return 0.0 if self._t0 is None else time.perf_counter() - self._t0

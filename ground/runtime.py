@@ -17,6 +17,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 
 from ground.rig import InprocController, Rig
@@ -80,7 +81,8 @@ class RemoteEndpoint:
 
 def _start(runtime, link_kind, timeout_s):
     from protocol.link import open_link
-    link = open_link("pty" if link_kind == "serial" else "slcan-pty", "BENCH")
+    # one link carries the BENCH (TICK/FSM_SPI) and the GROUND (commands, ACK/NACK, status): CAN must deliver both
+    link = open_link("pty" if link_kind == "serial" else "slcan-pty", "BENCH", accept=("GROUND",))
     spec = ("serial:" if link_kind == "serial" else "slcan:") + link.peer_path
     exe = [micropython_binary()] if runtime == "micropython" else [sys.executable]
     env = dict(os.environ)
@@ -88,9 +90,19 @@ def _start(runtime, link_kind, timeout_s):
         env["MICROPYPATH"] = ROOT + ":" + env.get("MICROPYPATH", ".frozen:~/.micropython/lib")
     else:
         env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    # stderr to a file, not a pipe: nobody reads a pipe during the run, and a full one would stall the controller
+    errlog = tempfile.TemporaryFile()
     proc = subprocess.Popen(exe + ["-m", "firmware.main", "controller", "--link", spec], cwd=ROOT, env=env,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errlog)
+    proc.errlog = errlog
     return link, proc
+
+
+def stderr_tail(proc, n_chars=2000):
+    """The last ``n_chars`` the controller process wrote to stderr."""
+    proc.errlog.seek(0, os.SEEK_END)
+    proc.errlog.seek(max(0, proc.errlog.tell() - n_chars))
+    return proc.errlog.read().decode(errors="replace")
 
 
 def _stop(link, proc):
@@ -103,8 +115,7 @@ def _stop(link, proc):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(2.0)
-    with contextlib.suppress(Exception):
-        proc.stderr.close()
+    proc.errlog.close()
 
 
 @contextlib.contextmanager
@@ -144,7 +155,7 @@ def _first_contact(rig, ep, proc, wait_s):
             break
         ep.inbox.extend(p for p in pkts if p[0] != hello)
         if proc.poll() is not None:
-            err = proc.stderr.read().decode(errors="replace")[-2000:]
+            err = stderr_tail(proc)
             raise OSError("controller process exited with %s before saying HELLO: %s" % (proc.returncode, err))
         if time.perf_counter() - t0 > wait_s:
             raise OSError("controller process did not say HELLO within %g s" % wait_s)

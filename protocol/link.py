@@ -14,7 +14,9 @@
   ``.peer_path`` for the process that opens ``slcan:PATH``.
 
 Serial links frame with ``protocol.host`` (COBS + CRC-16). CAN links send a payload of up to 8 bytes as one
-frame and longer ones with ISO-TP (PyPI ``can-isotp``), ids per ``protocol.can``.
+frame and longer ones with ISO-TP (PyPI ``can-isotp``), ids per ``protocol.can``; a receive thread answers
+ISO-TP flow control at once, and ``accept=(nodes...)`` makes a CAN link also deliver packets addressed to the
+nodes it serves (see ``CanLink``).
 """
 
 import collections
@@ -299,20 +301,33 @@ def open_serial(url, node, baudrate=115200):
 class CanLink(Link):
     """Packets over a python-can bus: one frame up to 8 bytes, else ISO-TP with can-isotp.
 
-    Delivers packets addressed to this node or BROADCAST (others counted as ``other_dst``).
+    Delivers packets addressed to this node, to BROADCAST, or to one of the ``accept`` nodes (names or
+    addresses: the nodes this link serves, e.g. GROUND on the HIL host's BENCH link, whose replies and ISO-TP
+    flow control come back addressed to GROUND); others are counted as ``other_dst``.
     ``seq`` is None on CAN (see ``protocol.can``).
+
+    A receive thread reads the bus all the time, reassembles ISO-TP transfers and answers their flow control
+    at once, as a CAN driver would: a peer's multi-frame send must not wait for this side to call ``recv``
+    (it gives up after ``ISOTP_TIMEOUT`` and the packet is lost). ``recv`` takes the packets it queued.
     """
 
     ISOTP_TIMEOUT = 1.0
+    POLL_S = 0.05     # the receive thread's bus wait: how soon it sees close()
 
-    def __init__(self, bus, node):
+    def __init__(self, bus, node, accept=()):
         Link.__init__(self, node)
         self.bus = bus
+        self.accept = frozenset([self.node, 0xFF] + [core.node_id(n) for n in accept])
         self._dec = canmap.CanDecoder()
         self._stacks = {}   # rx id -> (TransportLayerLogic, deque of rx frames)
-        self._ready = []    # packets decoded while waiting for flow control
+        self._rxq = collections.deque()
+        self._cond = threading.Condition()   # guards everything above and every bus.send
         self.other_dst = 0
+        self.isotp_errors = collections.Counter()
         self.peer_path = None
+        self._stop = False
+        self._thread = threading.Thread(target=self._receive, name="canlink-rx", daemon=True)
+        self._thread.start()
 
     def _stack(self, rxid):
         entry = self._stacks.get(rxid)
@@ -324,11 +339,15 @@ class CanLink(Link):
             def txfn(m):
                 self._tx(m.arbitration_id, m.data)
 
+            def count(err):
+                self.isotp_errors[type(err).__name__] += 1
+
             addr = isotp.Address(isotp.AddressingMode.Normal_29bits, txid=txid, rxid=rxid)
+            ms = int(self.ISOTP_TIMEOUT * 1000)
             st = isotp.TransportLayerLogic(
-                lambda: q.popleft() if q else None, txfn, addr,
-                params={"stmin": 0, "blocksize": 0, "rx_flowcontrol_timeout": 1000,
-                        "rx_consecutive_frame_timeout": 1000, "max_frame_size": 4095})
+                lambda *_: q.popleft() if q else None, txfn, addr, error_handler=count,
+                params={"stmin": 0, "blocksize": 0, "rx_flowcontrol_timeout": ms + 500,   # ours fires first
+                        "rx_consecutive_frame_timeout": ms, "max_frame_size": 4095})
             entry = self._stacks[rxid] = (st, q)
         return entry
 
@@ -340,45 +359,55 @@ class CanLink(Link):
             self.closed = True
 
     def send_raw(self, pid, src, dst, payload):
+        """Send one packet; a long one blocks until its ISO-TP transfer is done (TimeoutError after
+        ``ISOTP_TIMEOUT`` s without flow control)."""
         self._seq = (self._seq + 1) & 0xFF
-        if len(payload) <= canmap.SINGLE_MAX:
-            self._tx(canmap.can_id(pid, src, dst), payload)
-        else:
-            st, _ = self._stack(canmap.can_id(pid, dst, src, True))
-            st.send(bytes(payload))
-            deadline = time.monotonic() + self.ISOTP_TIMEOUT
-            st.process()
-            while st.transmitting():
-                if time.monotonic() > deadline:
-                    st.stop_sending()
-                    raise TimeoutError("ISO-TP send of packet 0x%02x to node 0x%02x: no flow control" % (pid, dst))
-                self._ready.extend(self._poll(0.01))
+        with self._cond:
+            if len(payload) <= canmap.SINGLE_MAX:
+                self._tx(canmap.can_id(pid, src, dst), payload)
+            else:
+                st, _ = self._stack(canmap.can_id(pid, dst, src, True))
+                st.send(bytes(payload))
                 st.process()
+                deadline = time.monotonic() + self.ISOTP_TIMEOUT
+                while st.transmitting() and not self.closed:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        st.stop_sending()
+                        raise TimeoutError("ISO-TP send of packet 0x%02x to node 0x%02x: no flow control"
+                                           % (pid, dst))
+                    self._cond.wait(min(left, 0.01))   # the receive thread takes the flow control
+                    st.process()
         self.tx_frames += 1
 
-    def _poll(self, timeout):
-        """Read one frame (waiting up to ``timeout``) and any already queued; decoded packets."""
+    def _receive(self):
+        """The receive thread: frames to packets (and ISO-TP flow control) until close() or the bus fails."""
         import can
-        out = []
-        try:
-            msg = self.bus.recv(timeout)
-            while msg is not None:
-                p = self._frame(msg)
-                if p is not None:
-                    out.append(p)
-                msg = self.bus.recv(0)
-        except can.CanOperationError:  # the slcan adapter went away
-            self.closed = True
-        if getattr(self.bus, "peer_gone", False):
-            self.closed = True
-        return out
+        while not self._stop:
+            try:
+                msg = self.bus.recv(self.POLL_S)
+                gone = getattr(self.bus, "peer_gone", False)
+            except (can.CanError, OSError):   # the slcan adapter or host went away
+                msg, gone = None, True
+            if msg is None and not gone:
+                continue
+            with self._cond:
+                if msg is not None:
+                    p = self._frame(msg)
+                    if p is not None:
+                        self._rxq.append(p)
+                if gone:
+                    self.closed = True
+                self._cond.notify_all()
+            if gone:
+                return
 
     def _frame(self, msg):
         if msg.is_error_frame or msg.is_remote_frame:
             return None
         cid = msg.arbitration_id
         dst = cid & 0xFF
-        if msg.is_extended_id and dst != self.node and dst != 0xFF:
+        if msg.is_extended_id and dst not in self.accept:
             self.other_dst += 1
             return None
         if msg.is_extended_id and cid & canmap.ISOTP_BIT and not cid & canmap.RESERVED_BIT:
@@ -392,36 +421,44 @@ class CanLink(Link):
         return self._dec.feed(cid, msg.data, msg.is_extended_id)
 
     def recv(self, timeout=None):
-        if self._ready:
-            out, self._ready = self._ready, []
-            return out
         deadline = None if timeout is None else time.monotonic() + timeout
-        wait = timeout
-        while not self.closed:
-            out = self._poll(wait)
-            if out:
-                return out
-            if deadline is not None:
-                wait = deadline - time.monotonic()
-                if wait <= 0:
+        with self._cond:
+            while not self._rxq:
+                if self.closed:
                     return []
-        return []
+                if deadline is None:
+                    self._cond.wait()
+                else:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        return []
+                    self._cond.wait(left)
+            out = list(self._rxq)
+            self._rxq.clear()
+            return out
 
     def counters(self):
-        d = self._dec.counters()
-        d["other_dst"] = self.other_dst
-        d["tx_frames"] = self.tx_frames
+        with self._cond:
+            d = self._dec.counters()
+            d["other_dst"] = self.other_dst
+            d["tx_frames"] = self.tx_frames
+            d.update(("isotp_" + k, v) for k, v in self.isotp_errors.items())
         return d
 
     def close(self):
         import can
+        self._stop = True
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join()
         if self.bus is not None:
             try:
                 self.bus.shutdown()
             except can.CanOperationError:  # an slcan adapter already gone
                 pass
             self.bus = None
-        self.closed = True
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
 
 
 def isotp_msg(msg):
@@ -449,7 +486,15 @@ def _lawicel_bus_class():
             self._rx = collections.deque()
             self.is_open = False
             self.peer_gone = False
+            self._wlock = threading.Lock()   # replies from the receive thread, frames from any thread
             can.BusABC.__init__(self, channel, **kw)
+
+        def _write(self, data):
+            with self._wlock:
+                try:
+                    self._port.write(data)
+                except PeerGone:
+                    self.peer_gone = True
 
         def _line(self, line):
             if not line:
@@ -463,27 +508,27 @@ def _lawicel_bus_class():
                     dlc = int(line[1 + n:2 + n], 16)
                     data = b"" if c in (b"R", b"r") else bytes.fromhex(line[2 + n:2 + n + 2 * dlc].decode())
                 except ValueError:
-                    self._port.write(b"\a")
+                    self._write(b"\a")
                     return
                 remote = c in (b"R", b"r")
                 if self.is_open and (remote or len(data) == dlc):
                     self._rx.append(can.Message(arbitration_id=cid, is_extended_id=ext, data=data, dlc=dlc,
                                                 is_remote_frame=remote, timestamp=time.time()))
-                    self._port.write(b"Z\r" if ext else b"z\r")
+                    self._write(b"Z\r" if ext else b"z\r")
                 else:
-                    self._port.write(b"\a")
+                    self._write(b"\a")
             elif c in (b"O", b"L"):
                 self.is_open = True
-                self._port.write(b"\r")
+                self._write(b"\r")
             elif c == b"C":
                 self.is_open = False
-                self._port.write(b"\r")
+                self._write(b"\r")
             elif c == b"V":
-                self._port.write(b"V1013\r")
+                self._write(b"V1013\r")
             elif c == b"N":
-                self._port.write(b"NFPS0\r")
+                self._write(b"NFPS0\r")
             else:  # S0-S9, s, F, Z, ...: accepted
-                self._port.write(b"\r")
+                self._write(b"\r")
 
         def _recv_internal(self, timeout):
             deadline = None if timeout is None else time.monotonic() + timeout
@@ -514,10 +559,7 @@ def _lawicel_bus_class():
             else:
                 head = "%s%03X%d" % ("r" if msg.is_remote_frame else "t", msg.arbitration_id, msg.dlc)
             line = head + ("" if msg.is_remote_frame else bytes(msg.data).hex().upper()) + "\r"
-            try:
-                self._port.write(line.encode())
-            except PeerGone:
-                self.peer_gone = True
+            self._write(line.encode())
 
         def shutdown(self):
             can.BusABC.shutdown(self)
@@ -526,38 +568,42 @@ def _lawicel_bus_class():
     return LawicelBus
 
 
-def open_can(interface, channel, node, **kw):
+def open_can(interface, channel, node, accept=(), **kw):
     import can
     if interface == "slcan":
         kw.setdefault("sleep_after_open", 0)
     bus = can.Bus(interface=interface, channel=channel, **kw)
-    return CanLink(bus, node)
+    return CanLink(bus, node, accept)
 
 
-def open_slcan_device(node):
+def open_slcan_device(node, accept=()):
     """Be the slcan adapter: a CanLink on a Lawicel-speaking pty master; ``.peer_path`` for ``slcan:``."""
     bus = _lawicel_bus_class()()
-    link = CanLink(bus, node)
+    link = CanLink(bus, node, accept)
     link.peer_path = bus.peer_path
     return link
 
 
 def open_link(spec, node, **kw):
-    """A Link for ``spec`` (see the module docstring); ``node`` is a node name or address."""
+    """A Link for ``spec`` (see the module docstring); ``node`` is a node name or address.
+
+    ``accept``: further destination nodes a CAN link delivers (see ``CanLink``); serial links deliver every
+    packet whatever its destination, so it changes nothing there."""
+    accept = kw.pop("accept", ())
     if spec == "inproc":
         a, _ = inproc_pair(node, kw.get("peer_node", "BROADCAST"))
         return a
     if spec == "pty":
         return open_pty(node)
     if spec == "slcan-pty":
-        return open_slcan_device(node)
+        return open_slcan_device(node, accept)
     if spec.startswith("slcan:"):
-        return open_can("slcan", spec[len("slcan:"):], node, **kw)
+        return open_can("slcan", spec[len("slcan:"):], node, accept, **kw)
     if spec.startswith("can:"):
         parts = spec.split(":", 2)
         if len(parts) != 3 or not parts[1] or not parts[2]:
             raise ValueError("CAN link spec %r: expected can:INTERFACE:CHANNEL" % spec)
-        return open_can(parts[1], parts[2], node, **kw)
+        return open_can(parts[1], parts[2], node, accept, **kw)
     if spec.startswith("serial:"):
         return open_serial(spec[len("serial:"):], node, **kw)
     if "://" in spec or spec.startswith("/") or spec.upper().startswith("COM"):

@@ -164,8 +164,6 @@ def test_calibrate_real_bench_port_same_code_path(tmp_path, capsys):
     assert max(e for _, e in calibrate.compare_truth(cal, truth)) < 0.03
 
 
-@pytest.mark.xfail(reason="firmware.controller now updates rx/ry only in TRACK; calibration needs them in "
-                          "CALIBRATE mode too (reported to the firmware owner)", strict=False)
 def test_status_reports_ratios_outside_track():
     """The calibration reads (Rx, Ry) from CTRL_STATUS in CALIBRATE mode (Sec. 7.4 through the protocol)."""
     from protocol import core

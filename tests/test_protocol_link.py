@@ -132,6 +132,51 @@ def test_can_link_ignores_other_destinations():
     b.close()
 
 
+def test_can_link_accepts_the_nodes_it_serves():
+    """A HIL host's BENCH link also takes GROUND's packets (single frames and ISO-TP flow control): it can
+    send as GROUND and get the answers, and still drops other destinations."""
+    ch = "link-test-%d" % next(_ch)
+    host = link.open_link("can:virtual:" + ch, "BENCH", accept=("GROUND",))
+    ctrl = link.open_link("can:virtual:" + ch, "CONTROLLER")
+    serial = link.open_link("inproc", "BENCH", accept=("GROUND",))   # serial links deliver all: no-op there
+    assert serial.node == core.NODE["BENCH"]
+    serial.close()
+    [(pid, chunk)] = all_bytes_chunks()[:1]
+    ground = core.NODE["GROUND"]
+    host.send_raw(pid, ground, ctrl.node, chunk)       # ISO-TP: ctrl's flow control goes to GROUND
+    [(p, src, dst, seq, got)] = ctrl.recv(2.0)
+    assert (p, src, dst, got) == (pid, ground, ctrl.node, chunk)
+    ack = core.encode_payload("ACK", ref_id=pid, ref_seq=0)
+    ctrl.send_raw(core.PACKET_ID["ACK"], ctrl.node, ground, ack)
+    ctrl.send_raw(pid, ctrl.node, ground, chunk)
+    ctrl.send("RW_CMD", "RW1", torque=0.5)
+    got = []
+    while len(got) < 2:
+        got += host.recv(2.0)
+    assert [(p[0], p[2], p[4]) for p in got] == [(core.PACKET_ID["ACK"], ground, ack), (pid, ground, chunk)]
+    assert host.recv(0.1) == [] and host.counters()["other_dst"] == 1
+    host.close()
+    ctrl.close()
+
+
+def test_can_isotp_flow_control_answered_while_receiver_busy():
+    """The receive thread answers flow control: a long packet gets through while the receiver is not in recv."""
+    ch = "link-test-%d" % next(_ch)
+    a = link.open_link("can:virtual:" + ch, "GROUND")
+    b = link.open_link("can:virtual:" + ch, "CONTROLLER")
+    chunks = all_bytes_chunks()
+    for pid, payload in chunks:
+        a.send(pid, "CONTROLLER", payload)             # would raise TimeoutError without flow control
+    got = []
+    while len(got) < len(chunks):
+        got += b.recv(2.0)
+    assert [(p[0], p[4]) for p in got] == chunks
+    assert not any(k.startswith("isotp_") for k in a.counters())
+    a.close()
+    b.close()
+    assert b.recv(0.1) == [] and b.closed
+
+
 def test_send_and_spec_errors():
     a, b = link.inproc_pair("GROUND", "CONTROLLER")
     with pytest.raises(ValueError, match="unknown packet name 'NOPE'"):

@@ -5,10 +5,12 @@ The Q1 samples come from a 10 s in-process lockstep run of the controller agains
 truth H field as calibration, a disturbance with the thesis's body-pointing rates, ~8 arcsec/s 1 sigma);
 replaying them through a fresh controller reproduces that run's commands exactly (the law is deterministic),
 so the timed loop does the work of a closed loop. "Worst case" re-evaluates g H^-1 every tick (the command
-changing its 64-code bin every tick); the realistic stream changes bin on a few percent of ticks. "Heap locked"
+changing its 64-code bin every tick); the realistic stream changes bin on the share of ticks printed. "Heap locked"
 is how the firmware runs the step (Controller.tick, the link HAL): MicroPython then keeps the step's large call
 frame on the C stack; unlocked, the unix port borrows a heap block for it on every call (freed on return).
-Instructions per step: ``valgrind --tool=callgrind`` on micropython at two step counts, differenced.
+Instructions per step: ``valgrind --tool=callgrind`` on micropython at two step counts, differenced; they
+include the replay loop and the call (the "harness alone" row). "bytecode" is ``firmware.controller.Controller``,
+"viper" is ``firmware.controller_viper.ViperController`` (same codes; its common tick is machine code).
 """
 
 import math
@@ -26,8 +28,14 @@ RATE_HZ = 637.8
 GOAL_INSTR = 15000
 
 _MP_STEP = r"""
-import sys, time, struct
-from firmware.controller import Controller, TRACK
+import micropython, sys, time, struct
+from firmware.controller import Controller, TRACK, S_BXQ
+
+
+class Harness(Controller):
+    # the replay loop's own cost: a step that returns at once
+    def step(self, vx, vy, vs):
+        return 4
 
 
 def run(c, src, n, worst):
@@ -36,7 +44,7 @@ def run(c, src, n, worst):
     i = 0
     if worst:
         for k in range(n):
-            c._bx = 1 << 20
+            c._s[S_BXQ] = 1 << 29
             c.step(src[i], src[i + 1], src[i + 2])
             i += 3
             if i >= m:
@@ -49,23 +57,32 @@ def run(c, src, n, worst):
                 i = 0
 
 
-n = int(sys.argv[1])
-with open(sys.argv[3], "rb") as f:
-    raw = f.read()
-src = list(struct.unpack("<%dH" % (len(raw) // 2), raw))
-c = Controller(table=sys.argv[4], safe_ticks=65535)
-c.step(2048, 2048, 0)
-c.mode = TRACK
-locked = sys.argv[5] == "locked"
-if locked:                      # as Controller.tick and the link HAL run it
-    import micropython
-    micropython.heap_lock()
-t0 = time.ticks_us()
-run(c, src, n, sys.argv[2] == "worst")
-dt = time.ticks_diff(time.ticks_us(), t0)
-if locked:
-    micropython.heap_unlock()
-print(dt, c.words[0], c.words[2])
+def main():
+    # in a function: the globals dict cannot grow (allocate) while the heap is locked
+    n = int(sys.argv[1])
+    with open(sys.argv[3], "rb") as f:
+        raw = f.read()
+    src = list(struct.unpack("<%dH" % (len(raw) // 2), raw))
+    cls = Controller
+    if sys.argv[6] == "viper":
+        from firmware.controller_viper import ViperController as cls
+    elif sys.argv[6] == "harness":
+        cls = Harness
+    c = cls(table=sys.argv[4], safe_ticks=65535)
+    c.step(2048, 2048, 0)
+    c.mode = TRACK
+    locked = sys.argv[5] == "locked"
+    if locked:                  # as Controller.tick and the link HAL run it
+        micropython.heap_lock()
+    t0 = time.ticks_us()
+    run(c, src, n, sys.argv[2] == "worst")
+    dt = time.ticks_diff(time.ticks_us(), t0)
+    if locked:
+        micropython.heap_unlock()
+    print(dt, c.words[0], c.words[2])
+
+
+main()
 """
 
 _MP_PLAYER = r"""
@@ -104,7 +121,7 @@ def _prepare(tmp):
     from emulator import truth
     from emulator.bench import Bench
     from emulator.lockstep import Lockstep
-    from firmware.controller import TRACK, Controller
+    from firmware.controller import S_BXQ, S_BYQ, TRACK, Controller
     from firmware.player import Player
     from protocol import distfile, htable
     blob = os.path.join(tmp, "htable.bin")
@@ -130,14 +147,15 @@ def _prepare(tmp):
     last = None
     for row in q1:
         c2.step(int(row[0]), int(row[1]), int(row[2]))
-        if (c2._bx, c2._by) != last:
+        b = (c2._s[S_BXQ], c2._s[S_BYQ])
+        if b != last:
             bins += 1
-            last = (c2._bx, c2._by)
+            last = b
     return blob, dist, samples, flat, bins / len(q1)
 
 
 def _cpython_step(blob, flat, n, worst):
-    from firmware.controller import TRACK, Controller
+    from firmware.controller import S_BXQ, TRACK, Controller
     c = Controller(table=blob, safe_ticks=65535)
     c.step(2048, 2048, 0)
     c.mode = TRACK
@@ -147,7 +165,7 @@ def _cpython_step(blob, flat, n, worst):
     t0 = time.perf_counter()
     for _ in range(n):
         if worst:
-            c._bx = 1 << 20
+            c._s[S_BXQ] = 1 << 29
         step(flat[i], flat[i + 1], flat[i + 2])
         i += 3
         if i >= m:
@@ -238,13 +256,22 @@ def _main(tmp):
         print("| CPython %s | %s | %.2f | %.0f | – | < %.0f µs (637.8 Hz) |"
               % (sys.version.split()[0], case, us, 1e6 / us, budget_us))
     if have_mp:
-        for case, lock in (("realistic", "locked"), ("worst", "locked"), ("realistic", "unlocked")):
-            args = [case, samples, blob, lock]
+        last = {}
+        for path, case, lock in (("bytecode", "realistic", "locked"), ("bytecode", "worst", "locked"),
+                                 ("bytecode", "realistic", "unlocked"), ("viper", "realistic", "locked"),
+                                 ("viper", "worst", "locked"), ("harness", "realistic", "locked")):
+            args = [case, samples, blob, lock, path]
             out = _mp(step_py, [20000] + args)
             us = int(out[0]) / 20000
+            last[path, case] = out[1:]
             instr = "%.0f" % _instructions(step_py, args) if have_vg else "valgrind missing"
-            print("| MicroPython (unix, bytecode), heap %s | %s | %.2f | %.0f | %s | <= %d instructions |"
-                  % (lock, case, us, 1e6 / us, instr, GOAL_INSTR))
+            label = ("harness alone (replay loop and a step that returns at once)" if path == "harness"
+                     else "%s, heap %s" % (path, lock))
+            print("| MicroPython (unix), %s | %s | %.2f | %.0f | %s | <= %d instructions |"
+                  % (label, case, us, 1e6 / us, instr, GOAL_INSTR))
+        same = all(last["viper", c] == last["bytecode", c] for c in ("realistic", "worst"))
+        print("\nViper and bytecode end on the same words after 20,000 steps: %s (tick-by-tick identity over"
+              " long runs: tests/test_firmware_mp.py)." % ("yes" if same else "NO"))
     else:
         print("| MicroPython | – | micropython binary missing | | | |")
 
@@ -277,7 +304,7 @@ def _main(tmp):
         except Exception as exc:  # the emulator or links may be missing
             print("| %s | failed: %r | | | |" % (rt, exc))
 
-    print("\n.mpy sizes (mpy-cross, bytecode)\n")
+    print("\n.mpy sizes (mpy-cross; the viper module holds machine code for this host)\n")
     from ground import mpy_build
     print(mpy_build.table(mpy_build.build(os.path.join(tmp, "mpy"))))
 

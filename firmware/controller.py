@@ -32,6 +32,11 @@ ground commands another mode. TRACK enters SAFE after ``safe_ticks`` consecutive
 meanwhile); TRACK, HOLD and CALIBRATE enter SAFE after ``safe_ticks`` ticks without a packet from the link:
 on a board ``tick`` counts the hardware-timer ticks since the last ``handle``d packet; over the link HAL
 every TICK is link traffic and the wait between TICKs is counted (``link_silent``).
+
+Speed (bench/bench_firmware.py): the tick's state is one preallocated integer list (slots ``S_*`` below) read
+through a local, and ``step`` runs the common case (TRACK, beam present) inline with every other case in
+``_step_other``. ``firmware.controller_viper.ViperController`` (MicroPython only) runs that common case as
+viper machine code over an int32 array with the same slots and gives identical codes.
 """
 
 import struct
@@ -61,9 +66,35 @@ HOLD = const(2)
 CALIBRATE = const(3)
 SAFE = const(4)
 
+# The tick's state lives in one preallocated integer list, ``Controller._s`` (an index load is far cheaper than
+# an attribute lookup under MicroPython); the slots, with their Q-formats:
+S_MODE = const(0)        # mode, plus _INIT_BIT until the init tick went out
+S_TICKS = const(1)       # ticks since boot (wraps at 2^30)
+S_VX = const(2)          # command state, AD5664R tilt code Q8 (code * 256, 0.298 uV per LSB)
+S_VY = const(3)
+S_RX = const(4)          # last measured ratios, Q15
+S_RY = const(5)
+S_VS = const(6)          # last Q1 sum, counts
+S_LOST = const(7)        # consecutive beam-lost ticks (saturates)
+S_THR = const(8)         # beam threshold, counts
+S_RXC = const(9)         # ratio commands, Q15
+S_RYC = const(10)
+S_LIM = const(11)        # +- saturation limit, code Q8
+S_NLIM = const(12)
+S_BXQ = const(13)        # bin of the cached g H^-1, as (bin << 14) in code Q8 (_NO_BIN: none)
+S_BYQ = const(14)
+S_SHIFT = const(15)      # 7 + hq: law product Q(15 + hq) -> Q8
+S_ROUND = const(16)      # 128 + (1 << (shift - 1) << 8): both roundings of the law, added before its >> 8
+S_SAT_TICK = const(17)   # last tick the command saturated (-1: never)
+S_N_LOST = const(18)     # telemetry counters, wrap at 2^16
+S_N_SAT = const(19)
+S_GH = const(20)         # cached g H^-1 (_gain_hinv): high parts h11 h12 h21 h22 (Q hq), then low bytes
+S_SIZE = const(28)
+
+_INIT_BIT = const(8)
 _E_MAX = const(16383)             # |dR| clamp, Q15 (0.5)
 _COUNT_MAX = const(0x3FFFFFFF)    # counters saturate / wrap below 2^30
-_NO_BIN = const(1 << 20)          # no command bin (forces g H^-1 to be evaluated)
+_NO_BIN = const(1 << 29)          # (v ^ _NO_BIN) >> 14 != 0 for every |v| < 2^29: forces g H^-1 to be evaluated
 _FLAG_BEAM = const(1)
 _FLAG_SAT = const(2)
 _FLAG_TABLE = const(4)
@@ -85,11 +116,34 @@ _Q8_PER_UV = ad5664r.CODES_PER_VOLT * 256 / 1e6
 FW_VERSION = (1, 0)
 
 
+def _slot(i):
+    """A property reading and writing slot i of the state list."""
+    def get(self):
+        return self._s[i]
+
+    def put(self, v):
+        self._s[i] = v
+    return property(get, put)
+
+
 class Controller:
     """The fine-pointing controller. ``step`` is the allocation-free tick; ``handle`` the packet side.
 
     hal: optional HAL (``firmware.hal``) used by ``tick`` (read Q1, write SPI) and to send telemetry.
     """
+
+    ticks = _slot(S_TICKS)
+    vx_q8 = _slot(S_VX)
+    vy_q8 = _slot(S_VY)
+    rx = _slot(S_RX)
+    ry = _slot(S_RY)
+    vs = _slot(S_VS)
+    lost = _slot(S_LOST)
+    beam_threshold = _slot(S_THR)
+    rx_cmd = _slot(S_RXC)
+    ry_cmd = _slot(S_RYC)
+    n_lost = _slot(S_N_LOST)
+    n_sat = _slot(S_N_SAT)
 
     def __init__(self, hal=None, table=None, gain_q15=16384, beam_threshold=200, safe_ticks=638, decim=64,
                  limit_code=ad5664r.TILT_LIMIT_CODE, ramp_code=64, rx_cmd_q15=0, ry_cmd_q15=0):
@@ -101,41 +155,51 @@ class Controller:
         _check_int("ramp_code", ramp_code, 1, ad5664r.TILT_LIMIT_CODE)
         _check_int("rx_cmd_q15", rx_cmd_q15, -16384, 16384)
         _check_int("ry_cmd_q15", ry_cmd_q15, -16384, 16384)
+        self._s = s = self._state()
+        s[S_MODE] = IDLE | _INIT_BIT   # the first tick sends the AD5664R init sequence
+        s[S_THR] = beam_threshold
+        s[S_RXC] = rx_cmd_q15
+        s[S_RYC] = ry_cmd_q15
+        s[S_LIM] = limit_code << 8
+        s[S_NLIM] = -(limit_code << 8)
+        s[S_BXQ] = _NO_BIN
+        s[S_SHIFT] = 8
+        s[S_ROUND] = 128 + (128 << 8)
+        s[S_SAT_TICK] = -1
         self.hal = hal
         self.gain = gain_q15
-        self.beam_threshold = beam_threshold
         self.safe_ticks = safe_ticks
         self.decim = decim
-        self.lim_q8 = limit_code << 8
         self.ramp_q8 = ramp_code << 8
-        self.rx_cmd = rx_cmd_q15
-        self.ry_cmd = ry_cmd_q15
-        self.mode = IDLE
-        self.vx_q8 = 0                 # command state, AD5664R tilt code Q8
-        self.vy_q8 = 0
-        self.rx = 0                    # last measured ratios, Q15
-        self.ry = 0
-        self.vs = 0
-        self.ticks = 0                 # ticks since boot (wraps at 2^30)
-        self.lost = 0                  # consecutive beam-lost ticks (saturates)
         self._pkt = 0                  # tick of the last packet from the link
         self._quiet = 0                # ticks the link HAL waited without a TICK (link_silent)
-        self._sat_tick = -1            # last tick the command saturated
-        self.n_lost = 0                # telemetry counters, wrap at 2^16
-        self.n_sat = 0
-        self.n_unknown = 0
-        self.words = [0, 0, 0, 0]      # this tick's AD5664R words
-        self._init = True
-        self._bx = _NO_BIN             # 64-code bin of the command where g H^-1 was last evaluated
-        self._by = _NO_BIN
+        self.n_unknown = 0             # telemetry counter, wraps at 2^16
+        self.words = self._words()     # this tick's AD5664R words
         self._h4 = [0] * 4             # scratch for the interpolated H^-1
-        self._gh = [0] * 8             # cached g H^-1: high parts h11 h12 h21 h22, then low bytes (_gain_hinv)
-        self._shift = 8
         self._q1 = [0, 0, 0]
         self._upload = Upload(_MAX_UPLOAD)
         self.table = None
         if table is not None:
             self.set_table(table)
+
+    def _state(self):
+        return [0] * S_SIZE
+
+    def _words(self):
+        return [0, 0, 0, 0]
+
+    @property
+    def mode(self):
+        return self._s[S_MODE] & 7
+
+    @mode.setter
+    def mode(self, m):
+        s = self._s
+        s[S_MODE] = m | (s[S_MODE] & _INIT_BIT)
+
+    @property
+    def lim_q8(self):
+        return self._s[S_LIM]
 
     # --- table -------------------------------------------------------------------------------------
     def set_table(self, table):
@@ -152,8 +216,10 @@ class Controller:
         else:
             raise ValueError("table must be a path, blob bytes, Grid or HinvTable, got %r" % type(table))
         self.table = t
-        self._shift = t.shift
-        self._bx = _NO_BIN             # re-evaluate g H^-1 on the next tick
+        s = self._s
+        s[S_SHIFT] = t.shift
+        s[S_ROUND] = 128 + (1 << (t.shift - 1) << 8)
+        s[S_BXQ] = _NO_BIN             # re-evaluate g H^-1 on the next tick
 
     # --- the tick ----------------------------------------------------------------------------------
     def _gain_hinv(self, bx, by):
@@ -165,80 +231,55 @@ class Controller:
         h = self._h4
         self.table.hinv_into((bx << 6) + 32, (by << 6) + 32, h)
         g = self.gain
-        k = self._gh
+        s = self._s
         for e in range(4):
             v = (g * h[e] + 64) >> 7
-            k[e] = v >> 8
-            k[e + 4] = v & 255
-        self._bx = bx
-        self._by = by
+            s[S_GH + e] = v >> 8
+            s[S_GH + 4 + e] = v & 255
+        s[S_BXQ] = bx << 14
+        s[S_BYQ] = by << 14
 
     def step(self, vx, vy, vs):
-        """One control tick from Q1 counts (Eq. 7.4, 7.12, 7.13); words in ``self.words``; returns 4."""
+        """One control tick from Q1 counts (Eq. 7.4, 7.12, 7.13); words in ``self.words``; returns 4.
+        The common case (TRACK, beam present) runs inline; every other case is ``_step_other``."""
+        s = self._s
+        if s[S_MODE] != TRACK or vs < s[S_THR]:
+            return self._step_other(vx, vy, vs)
+        s[S_TICKS] = (s[S_TICKS] + 1) & _COUNT_MAX
+        s[S_VS] = vs
+        s[S_LOST] = 0
+        r = vs >> 1
+        ex = (((2048 - vx) << 15) + r) // vs                # Eq. 7.4: Rx, Q15; |.| <= 2^26 before the division
+        ey = (((2048 - vy) << 15) + r) // vs
+        s[S_RX] = ex
+        s[S_RY] = ey
+        ex -= s[S_RXC]                                      # Eq. 7.13: dR, Q15, clamped to +-0.5
+        if ex > _E_MAX:
+            ex = _E_MAX
+        elif ex < -_E_MAX:
+            ex = -_E_MAX
+        ey -= s[S_RYC]
+        if ey > _E_MAX:
+            ey = _E_MAX
+        elif ey < -_E_MAX:
+            ey = -_E_MAX
+        v_x = s[S_VX]
+        v_y = s[S_VY]
+        if ((v_x ^ s[S_BXQ]) | (v_y ^ s[S_BYQ])) >> 14:     # the command left the cached 64-code bin
+            self._gain_hinv(v_x >> 14, v_y >> 14)
+        # Eq. 7.12: V -= (g H^-1) dR, high parts (<= 31999 * 16383 each, the pair < 2^30) plus the
+        # low bytes' share (<= 2 * 255 * 16383 >> 8), Q(15 + hq) -> Q8 code, rounded: r = 128 + (2^(n-1) << 8)
+        # <= 2^26 rounds the low bytes' share and, being 2^(n-1) after the >> 8, the whole
+        n = s[S_SHIFT]
+        r = s[S_ROUND]
+        v_x -= (s[S_GH] * ex + s[S_GH + 1] * ey + ((s[S_GH + 4] * ex + s[S_GH + 5] * ey + r) >> 8)) >> n
+        v_y -= (s[S_GH + 2] * ex + s[S_GH + 3] * ey + ((s[S_GH + 6] * ex + s[S_GH + 7] * ey + r) >> 8)) >> n
+        r = s[S_LIM]
+        if v_x > r or v_y > r or v_x < s[S_NLIM] or v_y < s[S_NLIM]:
+            return self._out(v_x, v_y)
+        s[S_VX] = v_x
+        s[S_VY] = v_y
         w = self.words
-        if self._init:                 # first tick after boot: the AD5664R init sequence
-            self._init = False
-            w[0] = 0x280001
-            w[1] = 0x380001
-            w[2] = 0x20000F
-            w[3] = 0x300000
-            return 4
-        t = (self.ticks + 1) & _COUNT_MAX
-        self.ticks = t
-        self.vs = vs
-        v_x = self.vx_q8
-        v_y = self.vy_q8
-        mode = self.mode
-        if mode == TRACK:
-            if vs >= self.beam_threshold:
-                if self.lost:
-                    self.lost = 0
-                r = vs >> 1
-                ex = (((2048 - vx) << 15) + r) // vs        # Eq. 7.4: Rx, Q15; |.| <= 2^26 before the division
-                ey = (((2048 - vy) << 15) + r) // vs
-                self.rx = ex
-                self.ry = ey
-                ex -= self.rx_cmd                           # Eq. 7.13: dR, Q15, clamped to +-0.5
-                if ex > _E_MAX:
-                    ex = _E_MAX
-                elif ex < -_E_MAX:
-                    ex = -_E_MAX
-                ey -= self.ry_cmd
-                if ey > _E_MAX:
-                    ey = _E_MAX
-                elif ey < -_E_MAX:
-                    ey = -_E_MAX
-                if (v_x >> 14) != self._bx or (v_y >> 14) != self._by:
-                    self._gain_hinv(v_x >> 14, v_y >> 14)
-                # Eq. 7.12: V -= (g H^-1) dR, high parts (<= 31999 * 16383 each, the pair < 2^30) plus the
-                # low bytes' share (<= 2 * 255 * 16383 >> 8), Q(15 + hq) -> Q8 code
-                k = self._gh
-                n = self._shift
-                r = 1 << (n - 1)
-                v_x -= (k[0] * ex + k[1] * ey + ((k[4] * ex + k[5] * ey + 128) >> 8) + r) >> n
-                v_y -= (k[2] * ex + k[3] * ey + ((k[6] * ex + k[7] * ey + 128) >> 8) + r) >> n
-            else:
-                self._beam_lost()
-        else:
-            if vs < self.beam_threshold:
-                self.n_lost = (self.n_lost + 1) & 0xFFFF
-            else:                                           # ratios for telemetry (calibration reads them)
-                r = vs >> 1
-                self.rx = (((2048 - vx) << 15) + r) // vs
-                self.ry = (((2048 - vy) << 15) + r) // vs
-            if mode == SAFE or mode == IDLE:
-                self._ramp()
-            v_x = self.vx_q8
-            v_y = self.vy_q8
-        # saturation: clamp the state itself (anti-windup)
-        r = self.lim_q8
-        if v_x > r or v_x < -r or v_y > r or v_y < -r:
-            v_x = r if v_x > r else (-r if v_x < -r else v_x)
-            v_y = r if v_y > r else (-r if v_y < -r else v_y)
-            self._sat_tick = t
-            self.n_sat = (self.n_sat + 1) & 0xFFFF
-        self.vx_q8 = v_x
-        self.vy_q8 = v_y
         r = (v_x + 128) >> 8
         w[0] = 0x008000 + r             # X+ = bias + x, cmd 000 addr A
         w[1] = 0x018000 - r             # X- = bias - x, cmd 000 addr B
@@ -247,41 +288,80 @@ class Controller:
         w[3] = 0x128000 - r             # Y- = bias - y, cmd 010 addr C (write, update all)
         return 4
 
-    def _ramp(self):
-        """IDLE and SAFE: move the command toward the centre by ramp_code per tick, never integrating."""
-        r = self.ramp_q8
-        v = self.vx_q8
-        self.vx_q8 = v - r if v > r else (v + r if v < -r else 0)
-        v = self.vy_q8
-        self.vy_q8 = v - r if v > r else (v + r if v < -r else 0)
+    def _step_other(self, vx, vy, vs):
+        """``step`` for the init tick, beam loss and the modes other than TRACK."""
+        s = self._s
+        m = s[S_MODE]
+        if m & _INIT_BIT:              # first tick after boot: the AD5664R init sequence
+            s[S_MODE] = m & 7
+            w = self.words
+            w[0] = 0x280001
+            w[1] = 0x380001
+            w[2] = 0x20000F
+            w[3] = 0x300000
+            return 4
+        s[S_TICKS] = (s[S_TICKS] + 1) & _COUNT_MAX
+        s[S_VS] = vs
+        if vs < s[S_THR]:
+            s[S_N_LOST] = (s[S_N_LOST] + 1) & 0xFFFF
+            if m == TRACK:             # hold (no integration); SAFE after safe_ticks consecutive lost ticks
+                if s[S_LOST] < _COUNT_MAX:
+                    s[S_LOST] += 1
+                if s[S_LOST] >= self.safe_ticks:
+                    s[S_MODE] = SAFE
+        else:                          # ratios for telemetry (calibration reads them)
+            r = vs >> 1
+            s[S_RX] = (((2048 - vx) << 15) + r) // vs
+            s[S_RY] = (((2048 - vy) << 15) + r) // vs
+        if m == SAFE or m == IDLE:     # move the command toward the centre by ramp_code per tick, never integrating
+            r = self.ramp_q8
+            v = s[S_VX]
+            s[S_VX] = v - r if v > r else (v + r if v < -r else 0)
+            v = s[S_VY]
+            s[S_VY] = v - r if v > r else (v + r if v < -r else 0)
+        return self._out(s[S_VX], s[S_VY])
 
-    def _beam_lost(self):
-        """TRACK without the beam: hold (no integration); SAFE after ``safe_ticks`` consecutive lost ticks."""
-        self.n_lost = (self.n_lost + 1) & 0xFFFF
-        if self.lost < _COUNT_MAX:
-            self.lost += 1
-        if self.lost >= self.safe_ticks:
-            self.mode = SAFE
+    def _out(self, v_x, v_y):
+        """Saturation (the state itself is clamped: anti-windup), then the words of command v_x, v_y (Q8)."""
+        s = self._s
+        r = s[S_LIM]
+        if v_x > r or v_x < -r or v_y > r or v_y < -r:
+            v_x = r if v_x > r else (-r if v_x < -r else v_x)
+            v_y = r if v_y > r else (-r if v_y < -r else v_y)
+            s[S_SAT_TICK] = s[S_TICKS]
+            s[S_N_SAT] = (s[S_N_SAT] + 1) & 0xFFFF
+        s[S_VX] = v_x
+        s[S_VY] = v_y
+        w = self.words
+        r = (v_x + 128) >> 8
+        w[0] = 0x008000 + r
+        w[1] = 0x018000 - r
+        r = (v_y + 128) >> 8
+        w[2] = 0x038000 + r
+        w[3] = 0x128000 - r
+        return 4
 
     @property
     def flags(self):
         """CTRL_STATUS flags: bit0 beam present, bit1 saturated on the last tick, bit2 table loaded."""
-        return ((_FLAG_BEAM if self.vs >= self.beam_threshold else 0)
-                | (_FLAG_SAT if self._sat_tick == self.ticks else 0)
+        s = self._s
+        return ((_FLAG_BEAM if s[S_VS] >= s[S_THR] else 0)
+                | (_FLAG_SAT if s[S_SAT_TICK] == s[S_TICKS] else 0)
                 | (_FLAG_TABLE if self.table is not None else 0))
 
     def tick(self):
         """One tick on a board: read Q1 through the HAL, step, clock the words out, all with the heap locked
         (an allocation would raise MemoryError; MicroPython then keeps even large call frames off the heap)."""
         q = self._q1
+        s = self._s
         heap_lock()
         try:
             self.hal.read_q1(q)
             n = self.step(q[0], q[1], q[2])
             self.hal.spi_write(self.words, n)
-            m = self.mode
-            if m != IDLE and m != SAFE and ((self.ticks - self._pkt) & _COUNT_MAX) >= self.safe_ticks:
-                self.mode = SAFE                            # the ground link fell silent
+            m = s[S_MODE]
+            if m != IDLE and m != SAFE and ((s[S_TICKS] - self._pkt) & _COUNT_MAX) >= self.safe_ticks:
+                s[S_MODE] = SAFE                            # the ground link fell silent
         finally:
             heap_unlock()
         return n
@@ -296,7 +376,8 @@ class Controller:
     def heard(self, tick_packet=False):
         """A packet arrived from the link: the silence count starts again. A TICK (``tick_packet``) belongs to
         the tick it starts, so that tick sees no silence; any other packet to the last tick."""
-        self._pkt = (self.ticks + 1) & _COUNT_MAX if tick_packet else self.ticks
+        t = self._s[S_TICKS]
+        self._pkt = (t + 1) & _COUNT_MAX if tick_packet else t
         self._quiet = 0
 
     def link_silent(self, ticks):
@@ -307,7 +388,7 @@ class Controller:
             self.mode = SAFE
 
     def status_due(self):
-        return self.decim != 0 and self.ticks % self.decim == 0
+        return self.decim != 0 and self._s[S_TICKS] % self.decim == 0
 
     # --- packets -----------------------------------------------------------------------------------
     def status_payload(self, tick=None):
@@ -368,7 +449,7 @@ class Controller:
         self.ry_cmd = ry_cmd
         if gain and gain != self.gain:
             self.gain = gain
-            self._bx = _NO_BIN
+            self._s[S_BXQ] = _NO_BIN
         self.decim = decim
         self.safe_ticks = safe_ticks
         if mode != self.mode:
@@ -382,9 +463,9 @@ class Controller:
         uvx, uvy = v
         if not (-2500000 <= uvx <= 2500000) or not (-2500000 <= uvy <= 2500000):
             return _E["BAD_VALUE"]
-        lim = self.lim_q8
-        self.vx_q8 = max(-lim, min(lim, _q8(uvx)))
-        self.vy_q8 = max(-lim, min(lim, _q8(uvy)))
+        s = self._s
+        s[S_VX] = max(s[S_NLIM], min(s[S_LIM], _q8(uvx)))
+        s[S_VY] = max(s[S_NLIM], min(s[S_LIM], _q8(uvy)))
         return 0
 
     def _upload_end(self, total):

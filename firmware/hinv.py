@@ -57,6 +57,8 @@ class HinvTable:
         hq = 0
         while hq < HQ_MAX and big * (1 << (hq + 1)) <= HINV_MAX:
             hq += 1
+        self._i = 0                       # the cell hinv_into found last (where its next search starts)
+        self._j = 0
         self.hq = hq
         self.shift = 7 + hq               # Q(15 + hq) product -> Q8 code state
         self.h = []
@@ -76,12 +78,16 @@ class HinvTable:
 
     def hinv_into(self, x_code, y_code, out):
         """Write the H^-1 entries (h11, h12, h21, h22; Q``hq``) interpolated bilinearly at tilt codes x, y into
-        out[0..3]; outside the grid the edge values hold. Allocation-free (the controller calls it on a tick)."""
+        out[0..3]; outside the grid the edge values hold. Allocation-free (the controller calls it on a tick).
+        The cell search starts from the last call's cell (the command moves little between calls)."""
         ax = self.ax
-        i = 0
-        n = self.nx - 2
-        while i < n and x_code >= ax[i + 1]:
+        nx = self.nx
+        i = self._i
+        while i and x_code < ax[i]:
+            i -= 1
+        while i < nx - 2 and x_code >= ax[i + 1]:
             i += 1
+        self._i = i
         if x_code <= ax[i]:
             tx = 0
         elif x_code >= ax[i + 1]:
@@ -89,10 +95,12 @@ class HinvTable:
         else:
             tx = ((x_code - ax[i]) * self.rdx[i]) >> 12          # Q12, product <= 2^24
         ay = self.ay
-        j = 0
-        n = self.ny - 2
-        while j < n and y_code >= ay[j + 1]:
+        j = self._j
+        while j and y_code < ay[j]:
+            j -= 1
+        while j < self.ny - 2 and y_code >= ay[j + 1]:
             j += 1
+        self._j = j
         if y_code <= ay[j]:
             ty = 0
         elif y_code >= ay[j + 1]:
@@ -100,14 +108,16 @@ class HinvTable:
         else:
             ty = ((y_code - ay[j]) * self.rdy[j]) >> 12
         h = self.h
-        k = (j * self.nx + i) << 2                # node (i, j); +4 is (i + 1, j); m is (i, j + 1)
-        m = k + (self.nx << 2)
+        k = (j * nx + i) << 2                     # node (i, j); +4 is (i + 1, j); m is (i, j + 1)
+        m = k + (nx << 2)
         for e in range(4):
-            a = h[k + e]
-            t = a + (((h[k + 4 + e] - a) * tx) >> 12)           # |difference| <= 32000, times 4096 < 2^27
-            a = h[m + e]
-            u = a + (((h[m + 4 + e] - a) * tx) >> 12)
+            a = h[k]
+            t = a + (((h[k + 4] - a) * tx) >> 12)               # |difference| <= 32000, times 4096 < 2^27
+            a = h[m]
+            u = a + (((h[m + 4] - a) * tx) >> 12)
             out[e] = t + (((u - t) * ty) >> 12)
+            k += 1
+            m += 1
 
     def hinv_at(self, x_code, y_code):
         """``hinv_into`` returning a new list (tests, telemetry)."""

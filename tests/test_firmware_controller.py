@@ -137,6 +137,23 @@ def test_bilinear_lookup_matches_float_interpolation(grid):
             assert got[e] == pytest.approx(want[e], abs=2.0 / (1 << t.hq) + 1e-3 * abs(want[e]))
 
 
+def test_bilinear_cell_search_from_last_cell_matches_fresh_search(grid):
+    """hinv_into starts its cell search where the last call ended: any sequence of points, jumps across the
+    grid and points outside it included, gives what a fresh table (searching from cell 0) gives."""
+    t = HinvTable(grid)
+    x = y = 0
+    xs = []
+    cells = set()
+    for k in range(400):
+        x = (x * 7 + 12345 + 911 * k) % 80001 - 40000 if k % 50 == 0 else x + (k * 37) % 3001 - 1500
+        y = (y * 5 + 23456 + 577 * k) % 80001 - 40000 if k % 60 == 0 else y - (k * 53) % 2801 + 1400
+        xs.append(x)
+        assert t.hinv_at(x, y) == HinvTable(grid).hinv_at(x, y)
+        cells.add((t._i, t._j))
+    assert min(xs) < t.ax[0] and max(xs) > t.ax[-1]     # the walk left the grid on both sides
+    assert len(cells) > 20                              # and the search moved both ways between many cells
+
+
 # --- every intermediate inside +-2^30 -------------------------------------------------------------------
 class Bounded(int):
     """An int whose arithmetic results must stay inside the 32-bit MicroPython small-int range."""

@@ -2,8 +2,9 @@
 
 The run: 637.8 Hz control ticks, P-FSM at 10.6 kHz (a 2 Hz sine from a numpy player), Q2 at 630 Hz, and a
 trivial in-process controller that holds the mirror at the centre null (the issue's benchmark).
-Parts: physics (mirror dynamics and the P-FSM input sums), sensing (Q1 and Q2 quadcells, amplifiers, ADCs,
-noise), link (a TICK / FSM_SPI round trip in-process through the framing, and over a pty to another process).
+Parts, as the lockstep's loop runs them (``Bench.run_ticks``): the tick advance (mirror dynamics, the Q2
+sample, the P-FSM input sums), the Q1 sample with the controller call, the SPI decode of new words (alone);
+link (a TICK / FSM_SPI round trip in-process through the framing, and over a pty to another process).
 """
 
 import os
@@ -68,31 +69,35 @@ def full_run(duration_s=600.0):
     return res
 
 
-def parts(n=20000):
-    """CPU microseconds per tick: physics (step without its Q2 work, with load_pfsm), sensing (Q1 + Q2)."""
+def parts(blocks=80):
+    """CPU microseconds per tick, as the lockstep runs them (``Bench.run_ticks`` over blocks of 256 ticks):
+    the tick advance alone (P-FSM input sums, mirrors, Q2 at 630 Hz), the Q1 sample with a trivial controller
+    call added, and the SPI decode of a new set of words (``spi_words`` called alone)."""
     b = Bench(seed=2)
     c = HoldMirror(b.config)
     b.spi_words(INIT_WORDS)
-    b.spi_words(c.words)
+    words = [fsm_words(0.0375 + 1e-4 * (i % 7), -0.0026, b.config) for i in range(8)]
     counts = np.full(256, 17)
     codes = np.full(17 * 256, 0x8000, np.uint16)
     clock = time.process_time
-    t0 = clock()
-    for _ in range(n):
-        b.q1_sample()
-    t_q1 = (clock() - t0) / n
-    t0 = clock()
-    for _ in range(n):
-        b._q2_sample(1e-6, -1e-6, 2e-7, 3e-7)
-    t_q2 = (clock() - t0) / n * (630.0 / RATE)
+    n = 256 * blocks
     t0 = clock()
     for i in range(n):
-        if i % 256 == 0:
-            b.load_pfsm(codes, codes, counts)
-        b.step()
-    t_step = (clock() - t0) / n
-    return {"physics": (t_step - t_q2) * 1e6, "sensing": (t_q1 + t_q2) * 1e6}
-
+        b.spi_words(words[i & 7])
+    t_spi = (clock() - t0) / n
+    b.spi_words(c.words)
+    rows = []
+    t0 = clock()
+    for _ in range(blocks):
+        b.load_pfsm(codes, codes, counts)
+        b.run_ticks(256, rows)
+    t_adv = (clock() - t0) / n
+    t0 = clock()
+    for _ in range(blocks):
+        b.load_pfsm(codes, codes, counts)
+        b.run_ticks(256, rows, c.on_tick)
+    t_q1 = (clock() - t0) / n - t_adv
+    return {"advance": t_adv * 1e6, "sensing": t_q1 * 1e6, "spi": t_spi * 1e6}
 
 def link_cost(ticks=3000):
     """Microseconds per tick added by a RemoteController: in-process framing, and a pty to a subprocess."""
@@ -152,11 +157,14 @@ def main():
           % (res["ticks"], len(res["q2"]), res["counters"]["overruns"]))
     p = parts()
     print()
-    print("| CPU cost per tick by part | ours (us) |")
+    print("| CPU cost per tick by part (fused loop, blocks of 256 ticks) | ours (us) |")
     print("|---|---|")
-    print("| physics (mirrors, P-FSM input sums) | %.2f |" % p["physics"])
-    print("| sensing (Q1 every tick, Q2 at 630 Hz) | %.2f |" % p["sensing"])
-    print("| lockstep, controller, player (rest of the total) | %.2f |" % max(0.0, us_tick - sum(p.values())))
+    print("| tick advance (P-FSM input sums, mirrors, Q2 at 630 Hz) | %.2f |" % p["advance"])
+    print("| Q1 sample and the controller call (same words: no decode) | %.2f |" % p["sensing"])
+    print("| player and lockstep (rest of the total) | %.2f |"
+          % max(0.0, us_tick - p["advance"] - p["sensing"]))
+    print("| SPI decode of 4 new AD5664R words and MEMS input (alone; a tracking controller's cost) | %.2f |"
+          % p["spi"])
     try:
         lc = link_cost()
     except ImportError:

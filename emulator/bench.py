@@ -4,13 +4,15 @@ Physics in SI units and radians; the truth is reported in arcsec on the sky (Eq.
 advanced at a time: the P-FSM takes its AD660 codes at equal sub-steps across the tick, the MEMS FSM holds the
 input decoded from the last AD5664R words. Both mirrors' linear dynamics are updated exactly in modal form
 (emulator.mirrors.Modal); the P-FSM's per-tick input sums are precomputed with numpy for a block of ticks
-(``load_pfsm``), the per-tick work (``q1_sample``, ``spi_words``, ``step``) is plain Python floats.
+(``load_pfsm``), the per-tick work (``q1_sample``, ``spi_words``, ``step``) is plain Python floats;
+``run_ticks`` runs a block of ticks against a controller with that work inlined (the lockstep's fast path).
 
 Randomness: one numpy Generator per bench (seeded), drawn in fixed-size blocks, so the same seed, config and
 call sequence give bit-identical samples.
 """
 
 import math
+from math import erfc, sqrt
 
 import numpy as np
 
@@ -64,6 +66,7 @@ class Bench:
         self.fsm_v = (0.0, 0.0)
         self.mems_clipped = False
         self.n_mems_clip_ticks = 0
+        self.n_missed = 0                 # ticks without words in run_ticks
         self.n_pfsm_clip = 0
         self._last_words = None
         self._last_unknown = 0
@@ -78,6 +81,9 @@ class Bench:
         self._g2 = self._geometry("q2")
         self._fast1 = self.q1.outputs_fast
         self._fast2 = self.q2.outputs_fast
+        a1, a2 = self.adc1, self.adc2        # constants of the sensing chains, for the per-tick code
+        self._adc1 = (a1.mid, a1.k, a1.top, self.q1.sigma0_v, self.q1.pos_noise, a1.noise_counts * a1.noise_counts)
+        self._adc2 = (a2.k, self.q2.sigma0_v, self.q2.pos_noise, a2.noise_counts * a2.noise_counts)
         self.set_rate(rate_hz)
 
     # --- timing ------------------------------------------------------------------------------------
@@ -89,22 +95,35 @@ class Bench:
         self.rate_hz = float(rate_hz)
         self.T = 1.0 / self.rate_hz
         (self._phi_p, _), = self.pfsm.modal.step(self.T)
-        (self._pm1, self._gm1), (self._pm2, self._gm2) = self.mems.modal.step(self.T)
+        (pm1, gm1), (pm2, gm2) = self.mems.modal.step(self.T)
+        self._mems_step = (pm1, gm1, pm2, gm2)
         self._sub = {}
+        self._mems_rows = []
 
-    def _substeps(self, n):
-        """Tables for a tick of n equal P-FSM sub-steps (cached per n)."""
-        tab = self._sub.get(n)
+    def _substeps(self, ns):
+        """Tables for ticks of n equal P-FSM sub-steps, n in the tuple ``ns``, zero-padded to nmax = max(ns) and
+        stacked along the first axis (cached per ns): w_end[u, i] weight of u_i in z_n; w_part[u, j, i] weight
+        of u_i in z_j (i < j); powers[u, j] = phi^j; ``_mems_rows[mems_row[u] + j]`` the MEMS (e1, g1, e2, g2)
+        over j sub-steps."""
+        tab = self._sub.get(ns)
         if tab is None:
-            dt = self.T / n
-            (phi, gam), = self.pfsm.modal.step(dt)
-            powers = phi ** np.arange(n + 1)
-            w_end = gam * powers[n - 1::-1]                 # weight of u_i in z_n
-            w_part = np.zeros((n + 1, n), complex)          # weight of u_i in z_j (i < j)
-            for j in range(1, n + 1):
-                w_part[j, :j] = gam * powers[j - 1::-1]
-            mems = np.array([[c for pair in self.mems.modal.step(j * dt) for c in pair] for j in range(n + 1)])
-            tab = self._sub[n] = (w_end, w_part, powers, mems)
+            nmax = ns[-1]
+            w_end = np.zeros((len(ns), nmax), complex)
+            w_part = np.zeros((len(ns), nmax + 1, nmax), complex)
+            powers = np.zeros((len(ns), nmax + 1), complex)
+            mems_row = []
+            for u, n in enumerate(ns):
+                dt = self.T / n
+                (phi, gam), = self.pfsm.modal.step(dt)
+                pw = phi ** np.arange(n + 1)
+                powers[u, :n + 1] = pw
+                w_end[u, :n] = gam * pw[n - 1::-1]
+                for j in range(1, n + 1):
+                    w_part[u, j, :j] = gam * pw[j - 1::-1]
+                mems_row.append(len(self._mems_rows))
+                self._mems_rows.extend(tuple(c for pair in self.mems.modal.step(j * dt) for c in pair)
+                                       for j in range(n + 1))
+            tab = self._sub[ns] = (w_end, w_part, powers, np.array(mems_row))
         return tab
 
     # --- noise ---------------------------------------------------------------------------------------
@@ -125,30 +144,39 @@ class Bench:
         Precomputes the P-FSM's exact modal input sums per tick and the states at the Q2 sample instants.
         """
         counts = np.asarray(counts, dtype=np.int64)
-        x = np.asarray(xcodes, dtype=float)
-        y = np.asarray(ycodes, dtype=float)
+        x = np.asarray(xcodes)
+        y = np.asarray(ycodes)
         total = int(counts.sum())
         if len(counts) == 0 or counts.min() < 1 or len(x) < total or len(y) < total:
             raise ValueError("load_pfsm: need >= 1 code per tick and %d codes per axis" % total)
-        x, y = x[:total], y[:total]
-        bad = int(((x < 0) | (x > 0xFFFF)).sum() + ((y < 0) | (y > 0xFFFF)).sum())
-        if bad:
-            self.n_pfsm_clip += bad
-            x = np.clip(x, 0, 0xFFFF)
-            y = np.clip(y, 0, 0xFFFF)
+        codes16 = x.dtype == np.uint16 and y.dtype == np.uint16      # in range by type
+        x = x[:total].astype(float)
+        y = y[:total].astype(float)
+        if not codes16:
+            bad = int(((x < 0) | (x > 0xFFFF)).sum() + ((y < 0) | (y > 0xFFFF)).sum())
+            if bad:
+                self.n_pfsm_clip += bad
+                x = np.clip(x, 0, 0xFFFF)
+                y = np.clip(y, 0, 0xFFFF)
         kv = self.pfsm.range_v / 32768.0
-        ux = (x - 32768.0) * (kv * self.pfsm.rad_per_v[0])
-        uy = (y - 32768.0) * (kv * self.pfsm.rad_per_v[1])
+        lo, hi = int(counts.min()), int(counts.max())
+        if hi - lo < 8:                             # the lockstep's counts: floor(r) and floor(r) + 1
+            ns, inv = tuple(range(lo, hi + 1)), counts - lo
+        else:
+            ns, inv = np.unique(counts, return_inverse=True)
+            ns = tuple(ns.tolist())
+        w_end, w_part, powers, mems_row = self._substeps(ns)
+        nmax = w_end.shape[1]
+        pad = np.zeros(nmax)
+        ux = np.concatenate(((x - 32768.0) * (kv * self.pfsm.rad_per_v[0]), pad))   # padded for the gathers
+        uy = np.concatenate(((y - 32768.0) * (kv * self.pfsm.rad_per_v[1]), pad))
         offs = np.concatenate(([0], np.cumsum(counts)))
         n_ticks = len(counts)
-        sx = np.empty(n_ticks, complex)
-        sy = np.empty(n_ticks, complex)
-        for n in np.unique(counts).tolist():
-            ks = np.nonzero(counts == n)[0]
-            idx = offs[ks][:, None] + np.arange(n)[None, :]
-            w_end = self._substeps(n)[0]
-            sx[ks] = (ux[idx] * w_end).sum(axis=1)   # elementwise, not BLAS: no thread pool per block
-            sy[ks] = (uy[idx] * w_end).sum(axis=1)
+        # per-tick input sums, each row over its tick's codes (weights beyond n are zero)
+        idx = offs[:-1, None] + np.arange(nmax)
+        w = w_end[inv]
+        sx = (ux[idx] * w).sum(axis=1)              # elementwise, not BLAS: no thread pool per block
+        sy = (uy[idx] * w).sum(axis=1)
         # P-FSM states at every tick boundary of the block: z[k+1] = Phi z[k] + s[k] (exact, Phi = exp(lam T))
         self._sync_pfsm()
         phi, cp = self._phi_p, self._cp
@@ -169,23 +197,19 @@ class Bench:
         ms = np.arange(m0, m_end)
         t_m = ms / self.q2_hz
         ks = np.clip(np.floor(t_m * self.rate_hz).astype(np.int64) - self.tick, 0, n_ticks - 1)
-        ns = counts[ks]
-        js = np.clip(np.ceil((t_m * self.rate_hz - (self.tick + ks)) * ns - 1e-9).astype(np.int64), 0, ns)
-        tq = np.empty((2, len(ms)))                 # P-FSM tilts x, y at the sample
-        mem = np.empty((len(ms), 4), complex)       # MEMS e1, g1, e2, g2 from the tick start
-        for n in np.unique(ns).tolist():
-            sel = np.nonzero(ns == n)[0]
-            _, w_part, powers, mems = self._substeps(n)
-            idx = offs[ks[sel]][:, None] + np.arange(n)[None, :]
-            rows = w_part[js[sel]]
-            f = powers[js[sel]]
-            tq[0, sel] = (cp * (f * zxa[ks[sel]] + (ux[idx] * rows).sum(axis=1))).real
-            tq[1, sel] = (cp * (f * zya[ks[sel]] + (uy[idx] * rows).sum(axis=1))).real
-            mem[sel] = mems[js[sel]]
+        ns_q = counts[ks]
+        js = np.clip(np.ceil((t_m * self.rate_hz - (self.tick + ks)) * ns_q - 1e-9).astype(np.int64), 0, ns_q)
+        uq = inv[ks]
+        rows = w_part[uq, js]
+        f = powers[uq, js]
+        idx = offs[ks][:, None] + np.arange(nmax)
+        tqx = (cp * (f * zxa[ks] + (ux[idx] * rows).sum(axis=1))).real     # P-FSM tilts at the sample
+        tqy = (cp * (f * zya[ks] + (uy[idx] * rows).sum(axis=1))).real
         self._q2_ticks = ks.tolist() + [-1]
         self._q2_t_us = np.round(t_m * 1e6).astype(np.int64).tolist()
-        self._q2_tp = tq.T.tolist()
-        self._q2_mem = mem.tolist()
+        self._q2_tpx = tqx.tolist()
+        self._q2_tpy = tqy.tolist()
+        self._q2_mem = (mems_row[uq] + js).tolist()     # MEMS (e1, g1, e2, g2) from the tick start
         self._q2_p = 0
         self._q2_m0 = m0
         self._blk_n = n_ticks
@@ -208,8 +232,7 @@ class Bench:
             dac.n_unknown += self._last_unknown
             return
         before = dac.n_unknown
-        for w in t:
-            dac.write(w)
+        dac.write_many(t)
         self._last_unknown = dac.n_unknown - before
         self._last_words = t
         self._update_mems()
@@ -241,9 +264,19 @@ class Bench:
         yb = gp * self.tpy + gf * (c1 * self.zmy1 + c2 * self.zmy2).real
         xd = co * xb + si * yb - ox
         yd = co * yb - si * xb - oy
-        vx, vy, vs = self._fast1(xd, yd)
-        adc = self.adc1
-        k = adc.k
+        r2 = xd * xd + yd * yd
+        f = self.q1.inline
+        if f is not None and r2 <= f[0]:        # Quadcell.outputs_fast, inlined
+            _, h, kx, ky, v = f
+            fxp = erfc(kx * (h - xd))
+            fxn = erfc(kx * (h + xd))
+            fyp = erfc(ky * (h - yd))
+            fyn = erfc(ky * (h + yd))
+            sx, sy = fxp + fxn, fyp + fyn
+            vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+        else:
+            vx, vy, vs = self._fast1(xd, yd)
+        mid, k, top, s0, pn, nc2 = self._adc1
         if self.noise:
             i = self._n1_i
             n = self._n1
@@ -251,51 +284,17 @@ class Bench:
                 n = self._n1 = self._refill()
                 i = 0
             self._n1_i = i + 3
-            q = self.q1
-            sv = k * (q.sigma0_v + q.pos_noise * math.sqrt(xd * xd + yd * yd))
-            sd = math.sqrt(sv * sv + adc.noise_counts * adc.noise_counts)
-            cx = round(adc.mid - k * vx + sd * n[i])
-            cy = round(adc.mid - k * vy + sd * n[i + 1])
+            sv = k * (s0 + pn * sqrt(r2))
+            sd = sqrt(sv * sv + nc2)
+            cx = round(mid - k * vx + sd * n[i])
+            cy = round(mid - k * vy + sd * n[i + 1])
             cs = round(k * vs + sd * n[i + 2])
         else:
-            cx, cy, cs = round(adc.mid - k * vx), round(adc.mid - k * vy), round(k * vs)
-        top = adc.top
+            cx, cy, cs = round(mid - k * vx), round(mid - k * vy), round(k * vs)
         if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
-            adc.n_clip += 1
+            self.adc1.n_clip += 1
             cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
         return cx, cy, cs
-
-    def _q2_sample(self, tpx, tpy, tfx, tfy):
-        gp, gf, co, si, ox, oy = self._g2
-        xb = gp * tpx + gf * tfx
-        yb = gp * tpy + gf * tfy
-        xd = co * xb + si * yb - ox
-        yd = co * yb - si * xb - oy
-        vx, vy, vs = self._fast2(xd, yd)
-        k = self._sky
-        ang = self._ang_mag2
-        ex = (ang * tpx - 2.0 * tfx - self.bore[0]) * k
-        ey = (ang * tpy - 2.0 * tfy - self.bore[1]) * k
-        adc = self.adc2
-        g = adc.k
-        if self.noise:
-            i = self._n2_i
-            n = self._n2
-            if i + 3 > len(n):
-                n = self._n2 = self._refill()
-                i = 0
-            self._n2_i = i + 3
-            q = self.q2
-            sv = g * (q.sigma0_v + q.pos_noise * math.sqrt(xd * xd + yd * yd))
-            sd = math.sqrt(sv * sv + adc.noise_counts * adc.noise_counts)
-            cx, cy, cs = round(g * vx + sd * n[i]), round(g * vy + sd * n[i + 1]), round(g * vs + sd * n[i + 2])
-        else:
-            cx, cy, cs = round(g * vx), round(g * vy), round(g * vs)
-        lo, hi = adc.LO, adc.HI
-        if cx < lo or cx > hi or cy < lo or cy > hi or cs < lo or cs > hi:
-            adc.n_clip += 1
-            cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
-        return cx, cy, cs, ex, ey
 
     def _spot(self, q, tpx, tpy, tfx, tfy):
         """Detector-frame spot position on quadcell q for the given tilts."""
@@ -311,38 +310,144 @@ class Bench:
         Returns the Q2 samples that fell in the tick: tuples (sample, t_us, vx, vy, vs, err_x_arcsec,
         err_y_arcsec), the first five as in the Q2_SAMPLE packet, the last two the true sky error then.
         """
-        i = self._blk_i
-        if i >= self._blk_n:
-            raise RuntimeError("no P-FSM codes queued for tick %d: call load_pfsm or advance_tick" % self.tick)
         out = []
-        umx, umy = self.u_mx, self.u_my
-        zmx1, zmx2, zmy1, zmy2 = self.zmx1, self.zmx2, self.zmy1, self.zmy2
-        p = self._q2_p
-        ticks = self._q2_ticks
-        while ticks[p] == i:
-            tpx, tpy = self._q2_tp[p]
-            e1, g1, e2, g2 = self._q2_mem[p]
-            c1, c2 = self._cm1, self._cm2
-            s = self._q2_sample(tpx, tpy,
-                                (c1 * (e1 * zmx1 + g1 * umx) + c2 * (e2 * zmx2 + g2 * umx)).real,
-                                (c1 * (e1 * zmy1 + g1 * umy) + c2 * (e2 * zmy2 + g2 * umy)).real)
-            out.append((self._q2_m0 + p, self._q2_t_us[p]) + s)
-            p += 1
-        if p != self._q2_p:
-            self._q2_p = p
-            self.q2_next = self._q2_m0 + p
-        self.tpx = self._tpx[i + 1]
-        self.tpy = self._tpy[i + 1]
-        p1, g1, p2, g2 = self._pm1, self._gm1, self._pm2, self._gm2
-        self.zmx1 = p1 * zmx1 + g1 * umx
-        self.zmx2 = p2 * zmx2 + g2 * umx
-        self.zmy1 = p1 * zmy1 + g1 * umy
-        self.zmy2 = p2 * zmy2 + g2 * umy
-        if self.mems_clipped:
-            self.n_mems_clip_ticks += 1
-        self._blk_i = i + 1
-        self.tick += 1
+        self.run_ticks(1, out)
         return out
+
+    def run_ticks(self, n, rows, on_tick=None, k0=0, us_per_tick=0.0, q1_rows=None, fsm_rows=None):
+        """Advance n queued ticks in one call (the lockstep's loop, state kept in locals meanwhile).
+
+        With ``on_tick``, each tick k = k0, k0 + 1, ... starts with ``on_tick(k, t_us, vx, vy, vs)``, t_us =
+        round(k us_per_tick), given the Q1 sample (as ``q1_sample``); its words, if any, go to ``spi_words``.
+        Then the tick advances (``step``); its Q2 samples are appended to the list ``rows``. Ticks whose answer
+        was empty or None (overruns) are counted in ``n_missed``. ``q1_rows``, ``fsm_rows``: lists that record
+        each tick's Q1 sample and the MEMS tilt volts after its words (with ``on_tick``).
+        """
+        i = self._blk_i
+        if i + n > self._blk_n:
+            raise RuntimeError("no P-FSM codes queued for tick %d: call load_pfsm or advance_tick" % self.tick)
+        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+        zmx1, zmx2, zmy1, zmy2 = self.zmx1, self.zmx2, self.zmy1, self.zmy2
+        tpx, tpy = self.tpx, self.tpy
+        tpxs, tpys = self._tpx, self._tpy
+        p1, g1, p2, g2 = self._mems_step
+        c1, c2 = self._cm1, self._cm2
+        p = self._q2_p
+        q2_ticks, q2_m0, q2_t_us = self._q2_ticks, self._q2_m0, self._q2_t_us
+        q2_tpx, q2_tpy, q2_mem, mems_rows = self._q2_tpx, self._q2_tpy, self._q2_mem, self._mems_rows
+        noise = self.noise
+        n1, n1_i, n2, n2_i = self._n1, self._n1_i, self._n2, self._n2_i
+        gp1, gf1, co1, si1, ox1, oy1 = self._g1
+        gp2, gf2, co2, si2, ox2, oy2 = self._g2
+        f1, f2 = self.q1.inline, self.q2.inline
+        mid, k1, top, s01, pn1, nc21 = self._adc1
+        k2, s02, pn2, nc22 = self._adc2
+        lo, hi = ADS1256.LO, ADS1256.HI
+        ksky, ang = self._sky, self._ang_mag2
+        borex, borey = self.bore
+        missed = done = 0
+        try:
+            for k in range(k0, k0 + n):
+                if on_tick is not None:
+                    # --- Q1 sample: as q1_sample ---
+                    xb = gp1 * tpx + gf1 * (c1 * zmx1 + c2 * zmx2).real
+                    yb = gp1 * tpy + gf1 * (c1 * zmy1 + c2 * zmy2).real
+                    xd = co1 * xb + si1 * yb - ox1
+                    yd = co1 * yb - si1 * xb - oy1
+                    r2 = xd * xd + yd * yd
+                    if f1 is not None and r2 <= f1[0]:
+                        _, h, kx, ky, v = f1
+                        fxp = erfc(kx * (h - xd))
+                        fxn = erfc(kx * (h + xd))
+                        fyp = erfc(ky * (h - yd))
+                        fyn = erfc(ky * (h + yd))
+                        sx, sy = fxp + fxn, fyp + fyn
+                        vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+                    else:
+                        vx, vy, vs = self._fast1(xd, yd)
+                    if noise:
+                        if n1_i + 3 > len(n1):
+                            n1 = self._n1 = self._refill()
+                            n1_i = 0
+                        sv = k1 * (s01 + pn1 * sqrt(r2))
+                        sd = sqrt(sv * sv + nc21)
+                        cx = round(mid - k1 * vx + sd * n1[n1_i])
+                        cy = round(mid - k1 * vy + sd * n1[n1_i + 1])
+                        cs = round(k1 * vs + sd * n1[n1_i + 2])
+                        n1_i += 3
+                    else:
+                        cx, cy, cs = round(mid - k1 * vx), round(mid - k1 * vy), round(k1 * vs)
+                    if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
+                        self.adc1.n_clip += 1
+                        cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
+                    # --- the controller's answer ---
+                    words = on_tick(k, int(k * us_per_tick + 0.5), cx, cy, cs)
+                    if words:
+                        self.spi_words(words)
+                        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                    else:
+                        missed += 1
+                    if q1_rows is not None:
+                        q1_rows.append((cx, cy, cs))
+                        fsm_rows.append(self.fsm_v)
+                # --- Q2 samples in this tick: MEMS from the tick start, P-FSM precomputed (load_pfsm) ---
+                while q2_ticks[p] == i:
+                    e1, h1, e2, h2 = mems_rows[q2_mem[p]]
+                    qx, qy = q2_tpx[p], q2_tpy[p]
+                    tfx = (c1 * (e1 * zmx1 + h1 * umx) + c2 * (e2 * zmx2 + h2 * umx)).real
+                    tfy = (c1 * (e1 * zmy1 + h1 * umy) + c2 * (e2 * zmy2 + h2 * umy)).real
+                    xb = gp2 * qx + gf2 * tfx
+                    yb = gp2 * qy + gf2 * tfy
+                    xd = co2 * xb + si2 * yb - ox2
+                    yd = co2 * yb - si2 * xb - oy2
+                    r2 = xd * xd + yd * yd
+                    if f2 is not None and r2 <= f2[0]:
+                        _, h, kx, ky, v = f2
+                        fxp = erfc(kx * (h - xd))
+                        fxn = erfc(kx * (h + xd))
+                        fyp = erfc(ky * (h - yd))
+                        fyn = erfc(ky * (h + yd))
+                        sx, sy = fxp + fxn, fyp + fyn
+                        vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+                    else:
+                        vx, vy, vs = self._fast2(xd, yd)
+                    ex = (ang * qx - 2.0 * tfx - borex) * ksky       # true sky error (Eq. 7.5)
+                    ey = (ang * qy - 2.0 * tfy - borey) * ksky
+                    if noise:
+                        if n2_i + 3 > len(n2):
+                            n2 = self._n2 = self._refill()
+                            n2_i = 0
+                        sv = k2 * (s02 + pn2 * sqrt(r2))
+                        sd = sqrt(sv * sv + nc22)
+                        cx = round(k2 * vx + sd * n2[n2_i])
+                        cy = round(k2 * vy + sd * n2[n2_i + 1])
+                        cs = round(k2 * vs + sd * n2[n2_i + 2])
+                        n2_i += 3
+                    else:
+                        cx, cy, cs = round(k2 * vx), round(k2 * vy), round(k2 * vs)
+                    if cx < lo or cx > hi or cy < lo or cy > hi or cs < lo or cs > hi:
+                        self.adc2.n_clip += 1
+                        cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
+                    rows.append((q2_m0 + p, q2_t_us[p], cx, cy, cs, ex, ey))
+                    p += 1
+                # --- advance: P-FSM from the block's boundary states, MEMS exactly (modal form) ---
+                i += 1
+                tpx = tpxs[i]
+                tpy = tpys[i]
+                zmx1, zmx2 = p1 * zmx1 + g1 * umx, p2 * zmx2 + g2 * umx
+                zmy1, zmy2 = p1 * zmy1 + g1 * umy, p2 * zmy2 + g2 * umy
+                if clipped:
+                    self.n_mems_clip_ticks += 1
+                done += 1
+        finally:
+            self.zmx1, self.zmx2, self.zmy1, self.zmy2 = zmx1, zmx2, zmy1, zmy2
+            self.tpx, self.tpy = tpx, tpy
+            self._blk_i = i
+            self.tick += done
+            self._q2_p = p
+            self.q2_next = q2_m0 + p
+            self._n1_i, self._n2_i = n1_i, n2_i
+            self.n_missed += missed
 
     def advance_tick(self, pfsm_x_codes, pfsm_y_codes):
         """Advance one control tick, the P-FSM taking the given AD660 codes at equal sub-steps across it.

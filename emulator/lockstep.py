@@ -7,7 +7,9 @@ holds its last input, as the hardware would. In real-time mode tick k starts at 
 answer later than ``deadline_s`` after that is an overrun (its words are dropped).
 
 The player is open loop, so its codes are fetched ``block_ticks`` ticks at a time (one ``fill`` call) and the
-P-FSM input sums precomputed per block; ``block_ticks=1`` interleaves player and controller exactly.
+P-FSM input sums precomputed per block; ``block_ticks=1`` interleaves player and controller exactly. In virtual
+time without ``on_q2`` the ticks of a block run in one ``Bench.run_ticks`` call (the fast path); real time and
+``on_q2`` go tick by tick.
 
 Duck types (docs/INTERFACES.md): ``controller.on_tick(tick, t_us, vx, vy, vs) -> words``;
 ``player.fill(xbuf, ybuf, n) -> int`` writes n AD660 codes per axis (fewer = the DAC holds its last code).
@@ -103,52 +105,32 @@ class Lockstep:
             n_ticks = int(round(duration_s * self.rate_hz))
         bench, ctrl = self.bench, self.controller
         on_tick = ctrl.on_tick
-        q1_sample, spi_words, step = bench.q1_sample, bench.spi_words, bench.step
         rate = self.rate_hz
         us_per_tick = 1e6 / rate
         q2_rows, q1_rows, fsm_rows = [], [], []
         on_q2 = self.on_q2
-        realtime, deadline, record = self.realtime, self.deadline_s, self.record
+        realtime, record = self.realtime, self.record
         clock = time.perf_counter
         t_wall0 = clock()
         t_rt0 = t_wall0 - self.tick / rate
-        overruns = 0
+        missed0 = bench.n_missed
         k = self.tick - 1
         end = self.tick + n_ticks
         try:
             while k + 1 < end:
                 n = min(self.block_ticks, end - k - 1)
                 self._load_block(k + 1, n)
-                for k in range(k + 1, k + 1 + n):
-                    if realtime:
-                        due = t_rt0 + k / rate
-                        now = clock()
-                        if now < due:
-                            time.sleep(due - now)
-                        if hasattr(ctrl, "timeout_s"):
-                            ctrl.timeout_s = max(0.0, due + deadline - clock())
-                    vx, vy, vs = q1_sample()
-                    words = on_tick(k, int(k * us_per_tick + 0.5), vx, vy, vs)
-                    if realtime and clock() > t_rt0 + k / rate + deadline:
-                        words = None
-                    if words:
-                        spi_words(words)
-                    else:
-                        overruns += 1
-                    q2 = step()
-                    if q2:
-                        q2_rows.extend(q2)
-                        if on_q2 is not None:
-                            for sample in q2:
-                                on_q2(sample)
-                    if record:
-                        q1_rows.append((vx, vy, vs))
-                        fsm_rows.append(bench.fsm_v)
+                if realtime or on_q2 is not None:
+                    k = self._ticks_general(k + 1, n, t_rt0, q2_rows, q1_rows, fsm_rows)
+                else:       # virtual time, Q2 samples taken after the block: the bench's loop
+                    bench.run_ticks(n, q2_rows, on_tick, k + 1, us_per_tick, q1_rows if record else None,
+                                    fsm_rows)
+                    k += n
                 if progress is not None:
                     progress(k + 1)
         finally:
             self.tick = bench.tick - self._bench_tick0
-            self.n_overrun += overruns
+            self.n_overrun += bench.n_missed - missed0
         wall = clock() - t_wall0
         rows = np.array(q2_rows, dtype=float).reshape(-1, 7)
         out = {"q2": rows[:, :5].astype(np.int64), "truth_arcsec": rows[:, 5:7],
@@ -159,6 +141,39 @@ class Lockstep:
             out["q1"] = np.array(q1_rows, dtype=np.int64).reshape(-1, 3)
             out["fsm_v"] = np.array(fsm_rows, dtype=float).reshape(-1, 2)
         return out
+
+    def _ticks_general(self, k0, n, t_rt0, q2_rows, q1_rows, fsm_rows):
+        """Ticks k0 .. k0+n-1 one by one: the real-time pacing and deadline, ``on_q2`` as each sample falls."""
+        bench, ctrl = self.bench, self.controller
+        rate, deadline, realtime, on_q2 = self.rate_hz, self.deadline_s, self.realtime, self.on_q2
+        us_per_tick = 1e6 / rate
+        clock = time.perf_counter
+        for k in range(k0, k0 + n):
+            if realtime:
+                due = t_rt0 + k / rate
+                now = clock()
+                if now < due:
+                    time.sleep(due - now)
+                if hasattr(ctrl, "timeout_s"):
+                    ctrl.timeout_s = max(0.0, due + deadline - clock())
+            vx, vy, vs = bench.q1_sample()
+            words = ctrl.on_tick(k, int(k * us_per_tick + 0.5), vx, vy, vs)
+            if realtime and clock() > t_rt0 + k / rate + deadline:
+                words = None
+            if words:
+                bench.spi_words(words)
+            else:
+                self.n_overrun += 1
+            q2 = bench.step()
+            if q2:
+                q2_rows.extend(q2)
+                if on_q2 is not None:
+                    for sample in q2:
+                        on_q2(sample)
+            if self.record:
+                q1_rows.append((vx, vy, vs))
+                fsm_rows.append(bench.fsm_v)
+        return k
 
     def counters(self):
         c = dict(self.bench.counters())

@@ -24,6 +24,7 @@ CMD_LDAC = 6
 CMD_REFERENCE = 7
 ADDR_ALL = 7
 CH_XP, CH_XN, CH_YN, CH_YP = 0, 1, 2, 3   # A = X+, B = X-, C = Y-, D = Y+ (NODE fsm.cpp mapping)
+_ALL_UP = [True, True, True, True]
 
 
 class Modal:
@@ -149,6 +150,27 @@ class AD5664R:
     def _channels(self, addr):
         return (0, 1, 2, 3) if addr == ADDR_ALL else (addr,)
 
+    def write_many(self, words):
+        """Clock in words in order, as ``write`` each; plain data writes (write input register with the LDAC
+        mask bit clear, write and update all) to a channel A-D are decoded inline, the common case."""
+        inp = self.input
+        fast = 0
+        for w in words:
+            if 0 <= w <= 0xFFFFFF:
+                t = (w >> 16) & 0x3F                # command DB21-19, address DB18-16
+                if t < 4 and not self.ldac_mask >> t & 1:
+                    inp[t] = w & 0xFFFF
+                    fast += 1
+                    continue
+                if 16 <= t < 20:                    # CMD_WRITE_UPDATE_ALL to one channel
+                    inp[t - 16] = w & 0xFFFF
+                    self.dac[:] = inp
+                    fast += 1
+                    continue
+            self.write(w)
+            inp = self.input                        # a reset replaces the registers
+        self.n_words += fast
+
     def write(self, word):
         """Clock in one 24-bit word (latched on the 24th falling SCLK edge)."""
         self.n_words += 1
@@ -195,6 +217,8 @@ class AD5664R:
         """Channel codes as seen at the outputs (0 when the reference is off or the channel powered down)."""
         if not self.ref_on:
             return [0, 0, 0, 0]
+        if self.powered == _ALL_UP:
+            return self.dac[:]
         return [c if p else 0 for c, p in zip(self.dac, self.powered)]
 
 
@@ -204,7 +228,8 @@ class MEMS:
     Tilt volts per axis = full_scale_tilt_v * (code X+ - code X-) / (2 full_scale_codes) (Y: D - C), so
     X+ = bias + x, X- = bias - x gives x * full_scale_tilt_v / full_scale_codes whatever the bias.
     Static angle (rad) = deg_per_v (1 + gain error) (V + q V^2 + c V^3), then axis cross-coupling, clipped to
-    +-range_deg (the bench counts clipped ticks). Dynamics: the driver's low-pass (2nd-order Butterworth) then the mirror's resonance.
+    +-range_deg (the bench counts clipped ticks). Dynamics: the driver's low-pass (2nd-order Butterworth) then
+    the mirror's resonance.
     """
 
     def __init__(self, cfg):

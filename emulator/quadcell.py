@@ -76,6 +76,9 @@ class Quadcell:
         self.corr = None
         if abs(self.sxy) > 1e-9 * (self.sxx + self.syy) and self.fast_r2 > 0.0:
             self._fit_correction()
+        # constants of the separable fast path for callers that inline it (None: call outputs_fast)
+        self.inline = (self.fast_r2, self.half_gap, self.kx, self.ky, 0.25 * self.volts) if self.corr is None \
+            else None
 
     # --- geometry --------------------------------------------------------------------------------
     def to_detector(self, x, y):

@@ -8,7 +8,10 @@ interpolates linearly between them (Sec. 7.3.1) and converts to AD660 codes by E
 - time: a phase accumulator in units of 1/(rate_hz x period_us) s reduced by their gcd with 10^6: each output
   adds ``_inc``; a segment lasts ``_cell`` (10.6 kHz and 8.192 ms: 625 and 54272); the fraction
   f = ((phase >> s) << 12) // (cell >> s) is Q12 (s keeps cell >> s below 2^18, so phase << 12 < 2^30);
-- output: (c0 + ((c1 - c0) f + 2048) >> 12 + 2) >> 2, each product <= 262140 x 4096 < 2^30.
+- output: (c0 + ((c1 - c0) f + 2048) >> 12 + 2) >> 2, each product <= 262140 x 4096 < 2^30, computed as
+  (4096 c0 + 10240 + (c1 - c0) f) >> 14 (the same floor; < 2^30, as it lies between c0 and c1 in Q12);
+- speed: with s = 0 the quotient f and remainder of phase << 12 by cell advance by fixed steps, so within a
+  segment each output costs two additions and a compare instead of a division (bit-identical codes).
 
 Actions (PLAYER_CTRL, ``protocol.table.PLAYER_ACTIONS``): STOP pauses (the DAC holds its last code); START
 resumes from where it stopped; LOOP rewinds and plays repeatedly; ONESHOT rewinds and plays once, then stops
@@ -99,6 +102,8 @@ class Player:
         self._cell = cell
         self._shift = s
         self._div = cell >> s
+        self._fq = (inc << 12) // cell if s == 0 else 0     # per-output step of f and its remainder
+        self._fr = (inc << 12) - self._fq * cell if s == 0 else 0
 
     def load(self, reader):
         """Play ``reader`` (stopped, rewound). Needs at least 2 samples (the distfile format ensures it)."""
@@ -118,14 +123,19 @@ class Player:
         self._phase = 0
         self._segment(0)
 
-    def _segment(self, i):
+    def _segment(self, i, follow=False):
+        """Load segment i (samples i and i + 1); ``follow``: it follows the loaded one, whose end it starts at."""
         self.index = i
         r = self.reader
-        x0, y0 = r.sample(i)
+        if follow:
+            self._c0x = self._c1x
+            self._c0y = self._c1y
+        else:
+            x0, y0 = r.sample(i)
+            self._c0x = ad660.arcsec_to_code_q2(x0)
+            self._c0y = ad660.arcsec_to_code_q2(y0)
         x1, y1 = r.sample(i + 1)
-        self._c0x = ad660.arcsec_to_code_q2(x0)
         self._c1x = ad660.arcsec_to_code_q2(x1)
-        self._c0y = ad660.arcsec_to_code_q2(y0)
         self._c1y = ad660.arcsec_to_code_q2(y1)
 
     # --- actions -----------------------------------------------------------------------------------
@@ -158,45 +168,69 @@ class Player:
         cell = self._cell
         s = self._shift
         div = self._div
-        c0x = self._c0x
-        dx = self._c1x - c0x
-        c0y = self._c0y
-        dy = self._c1y - c0y
+        fq = self._fq
+        fr = self._fr
         last = self.reader.count - 2
-        x = self.x_code
-        y = self.y_code
         k = 0
         while k < n:
-            f = ((ph >> s) << 12) // div             # Q12 fraction of the segment
-            x = (c0x + ((dx * f + 2048) >> 12) + 2) >> 2
-            y = (c0y + ((dy * f + 2048) >> 12) + 2) >> 2
-            xbuf[k] = x
-            ybuf[k] = y
-            k += 1
-            ph += inc
+            m = (cell - 1 - ph) // inc + 1               # outputs left in this segment
+            if m > n - k:
+                m = n - k
+            c0x = self._c0x
+            c0y = self._c0y
+            dx = self._c1x - c0x
+            dy = self._c1y - c0y
+            bx = (c0x << 12) + 10240                     # c0 Q12 plus both roundings (2048 and 2 << 12)
+            by = (c0y << 12) + 10240
+            if s:
+                for j in range(k, k + m):
+                    f = ((ph >> s) << 12) // div         # Q12 fraction of the segment
+                    xbuf[j] = (bx + dx * f) >> 14
+                    ybuf[j] = (by + dy * f) >> 14
+                    ph += inc
+            else:
+                f = (ph << 12) // div                    # phase << 12 = f div + r, 0 <= r < div
+                r = (ph << 12) - f * div
+                ax = bx + dx * f
+                ay = by + dy * f
+                xbuf[k] = ax >> 14
+                ybuf[k] = ay >> 14
+                if m > 1:                                # so inc < cell, fq < 4096: |dx| (fq + 1) < 2^30
+                    sx = dx * fq                         # f advances by fq or fq + 1 per output
+                    sy = dy * fq
+                    sx1 = sx + dx
+                    sy1 = sy + dy
+                    for j in range(k + 1, k + m):
+                        r += fr
+                        if r >= div:
+                            r -= div
+                            ax += sx1
+                            ay += sy1
+                        else:
+                            ax += sx
+                            ay += sy
+                        xbuf[j] = ax >> 14
+                        ybuf[j] = ay >> 14
+                ph += m * inc
+            k += m
             if ph >= cell:
                 ph -= cell
                 i = self.index + 1
                 if i > last:
-                    if not self.loop:                # one-shot: hold the last sample and stop
-                        x = (self._c1x + 2) >> 2
-                        y = (self._c1y + 2) >> 2
+                    if not self.loop:                    # one-shot: hold the last sample and stop
                         if k < n:
-                            xbuf[k] = x
-                            ybuf[k] = y
+                            xbuf[k] = (self._c1x + 2) >> 2
+                            ybuf[k] = (self._c1y + 2) >> 2
                             k += 1
                         self.state = STOP
                         self.index = last + 1
                         break
                     i = 0
-                self._segment(i)
-                c0x = self._c0x
-                dx = self._c1x - c0x
-                c0y = self._c0y
-                dy = self._c1y - c0y
+                self._segment(i, i > 0)
         self._phase = ph
-        self.x_code = x
-        self.y_code = y
+        if k:
+            self.x_code = xbuf[k - 1]
+            self.y_code = ybuf[k - 1]
         return k
 
     # --- packets -----------------------------------------------------------------------------------

@@ -73,6 +73,53 @@ def test_oneshot_matches_float_interpolation_within_one_code(kind, rate):
     assert p.state == STOP and p.fill([0], [0], 1) == 0
 
 
+def _per_sample(f, rate_hz, loop, m):
+    """The module doc's arithmetic one output at a time (phase accumulator, Q12 fraction, Q2 codes)."""
+    period = f.period_us
+    g = math.gcd(1000000, rate_hz * period)
+    inc, cell = 1000000 // g, rate_hz * period // g
+    s = 0
+    while (cell >> s) >= (1 << 18):
+        s += 1
+    q2 = [(ad660.arcsec_to_code_q2(x), ad660.arcsec_to_code_q2(y)) for x, y in (f.sample(i) for i in range(f.count))]
+    out, ph, i = [], 0, 0
+    while len(out) < m:
+        fr = ((ph >> s) << 12) // (cell >> s)
+        out.append(tuple((a + (((b - a) * fr + 2048) >> 12) + 2) >> 2 for a, b in zip(q2[i], q2[i + 1])))
+        ph += inc
+        if ph >= cell:
+            ph -= cell
+            i += 1
+            if i > f.count - 2:
+                if not loop:
+                    out.append(tuple((c + 2) >> 2 for c in q2[-1]))
+                    break
+                i = 0
+    return out[:m]
+
+
+@pytest.mark.parametrize("rate, loop", [(10600, False), (10600, True), (4001, False), (2049, True), (777, False)])
+def test_fill_equals_the_per_sample_arithmetic(rate, loop):
+    """fill's segment-wise fast path (s = 0) and general path (s > 0: 4001, 2049 Hz) give exactly the codes of
+    the per-sample formula, in blocks of any size."""
+    xs, ys, b = _file(n=23, amp=2000.0)
+    f = distfile.parse(b)
+    p = Player(f, rate_hz=rate)
+    assert (p._shift > 0) == (rate in (4001, 2049))
+    p.play_loop() if loop else p.oneshot()
+    m = int(3.2 * (f.count - 1) * 0.008192 * rate)
+    got = []
+    blocks = [1, 2, 17, 100, 4255, 3]
+    while len(got) < m:
+        k = _play(p, min(m - len(got), blocks[len(got) % len(blocks)]), block=4255)
+        if not k:
+            break
+        got += k
+    want = _per_sample(f, rate, loop, m)
+    assert got == want
+    assert (p.x_code, p.y_code) == want[-1]
+
+
 def test_loop_wraps_and_stop_start_resume():
     xs, ys, b = _file(n=10)
     p = Player(distfile.parse(b))

@@ -39,10 +39,12 @@ class InprocController:
         self.ctrl = controller
         self.inbox = deque()
         self._seq = 0
+        self._on_tick = controller.on_tick      # bound once: this runs every tick
+        self._status_due = controller.status_due
 
     def on_tick(self, tick, t_us, vx, vy, vs):
-        words = self.ctrl.on_tick(tick, t_us, vx, vy, vs)
-        if self.ctrl.status_due():
+        words = self._on_tick(tick, t_us, vx, vy, vs)
+        if self._status_due():
             self._push(P_STATUS, self.ctrl.status_payload(tick))
         return words
 

@@ -1,8 +1,11 @@
-"""Protocol benchmark: frame encode+decode throughput (host and pure paths, CPython and MicroPython)
-and the round trip of a ~32-byte packet between two processes over pty serial and slcan-over-pty CAN.
+"""Protocol benchmark: frame encode+decode throughput (host and pure paths, CPython and MicroPython; pure
+beside viper under MicroPython), the round trip of a ~32-byte packet between two processes over pty serial
+and slcan-over-pty CAN, and the lockstep round trip (TICK -> FSM_SPI) against the MicroPython firmware.
 
 Goal (issue 2): host path >= 100,000 frames/s encode+decode on one core. Reference for the round trip
 (HARDWARE_FACTS, Links): a 64-byte frame between two processes over a pty, median 84 us, p99 161 us.
+Goal for the MicroPython HIL: >= 12x real time at 637.8 Hz, i.e. <= 130 us per lockstep tick in all
+(emulator included; the round trip here is the link and firmware share of it).
 """
 
 import os
@@ -17,6 +20,8 @@ BIN = os.path.dirname(sys.executable)
 MP_BENCH = os.path.join(ROOT, "tests", "mp", "protocol_bench.py")
 ECHO = os.path.join(ROOT, "tests", "mp", "protocol_echo.py")
 GOAL_HOST = 100000
+RATE_HZ = 637.8
+GOAL_TICK_US = 1e6 / RATE_HZ / 12   # 12x real time
 RTT_PACKET = "CTRL_STATUS"   # 34-byte payload, the table's nearest to 32 bytes
 
 
@@ -38,8 +43,9 @@ def rate_host(name, n):
     return n / dt
 
 
-def rate_script(exe, name, n):
-    r = subprocess.run([exe, MP_BENCH, name, str(n)], capture_output=True, text=True, env=_env(), timeout=300)
+def rate_script(exe, name, n, path="pure"):
+    r = subprocess.run([exe, MP_BENCH, name, str(n), path], capture_output=True, text=True, env=_env(),
+                       timeout=300)
     if r.returncode:
         raise RuntimeError(r.stderr.strip())
     return float(r.stdout.split()[-1])
@@ -69,6 +75,33 @@ def round_trip(spec, exe, prefix, n):
     return ts[len(ts) // 2] * 1e6, ts[int(len(ts) * 0.99)] * 1e6
 
 
+def lockstep_round_trip(n):
+    """(median_us, p99_us) of TICK -> FSM_SPI through emulator.lockstep.RemoteController (the HIL's own
+    CPython path) with the MicroPython firmware (firmware.main controller) on the pty slave."""
+    from emulator.lockstep import RemoteController
+    here = link.open_link("pty", "BENCH")
+    env = dict(_env(), MICROPYPATH=ROOT + ":.frozen")
+    proc = subprocess.Popen([os.path.join(BIN, "micropython"), "-m", "firmware.main", "controller", "--link",
+                             "serial:" + here.peer_path], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    try:
+        rc = RemoteController(here, timeout_s=5.0)
+        if not rc.wait_peer(20.0):
+            raise RuntimeError("firmware did not start: %s" % proc.stderr.read())
+        ts = []
+        for i in range(n + n // 10):
+            t0 = time.perf_counter()
+            if rc.on_tick(i, i * 1568, 2048, 2048, 1000) is None:
+                raise RuntimeError("no FSM_SPI for tick %d" % i)
+            if i >= n // 10:
+                ts.append(time.perf_counter() - t0)
+    finally:
+        here.close()
+        proc.wait(20)
+    ts.sort()
+    return ts[len(ts) // 2] * 1e6, ts[int(len(ts) * 0.99)] * 1e6
+
+
 def main():
     mp = os.path.join(BIN, "micropython")
     print("| path | interpreter | packet | frames/s encode+decode | goal |")
@@ -79,8 +112,16 @@ def main():
             name, r, GOAL_HOST, "met" if r >= GOAL_HOST else "NOT met"))
         pure = rate_script(sys.executable, name, 20000)
         print("| pure core | CPython | %s | %.0f | (firmware path) |" % (name, pure))
-        print("| pure core | MicroPython | %s | %.0f | (firmware path) |" % (name, rate_script(mp, name, 20000)))
+        print("| pure core | MicroPython | %s | %.0f | (reference; the firmware runs viper, below) |"
+              % (name, rate_script(mp, name, 20000)))
     print("| host (crcmod + cobs) | MicroPython | - | n/a: crcmod and cobs are CPython packages | |")
+    print()
+    print("| packet | MicroPython pure frames/s | MicroPython viper frames/s (Encoder + Decoder) | speedup "
+          "| us per frame pure -> viper |")
+    print("|---|---|---|---|---|")
+    for name in ("TICK", "FSM_SPI", RTT_PACKET):
+        pure, fast = rate_script(mp, name, 20000), rate_script(mp, name, 100000, "fast")
+        print("| %s | %.0f | %.0f | %.1fx | %.1f -> %.1f |" % (name, pure, fast, fast / pure, 1e6 / pure, 1e6 / fast))
     print()
     print("| round trip, %s (%d-byte payload), two processes | peer | median us | p99 us | reference |"
           % (RTT_PACKET, core.packet_def(RTT_PACKET).size))
@@ -93,6 +134,9 @@ def main():
         med, p99 = round_trip(spec, exe, prefix, n)
         peer = "%s %s" % ("MicroPython" if exe == mp else "CPython", prefix.rstrip(":"))
         print("| %s | %s | %.0f | %.0f | %s |" % (label, peer, med, p99, ref if "serial" in label else ""))
+    med, p99 = lockstep_round_trip(5000)
+    print("| lockstep TICK -> FSM_SPI, pty serial (RemoteController) | MicroPython firmware.main | %.0f | %.0f "
+          "| whole HIL tick <= %.0f us for 12x at %.1f Hz |" % (med, p99, GOAL_TICK_US, RATE_HZ))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,9 @@
 
 ``python -m ground.mpy_build [--out build/mpy] [--march armv6m]`` writes ``<out>/<package>/<name>.mpy``
 mirroring the source tree (load it with ``MICROPYPATH=<out>``) and prints a markdown table of sizes.
-Bytecode .mpy files are architecture independent; ``--march`` only matters for native/viper code.
+Bytecode .mpy files are architecture independent, but ``protocol/fast.py`` holds viper code, which mpy-cross
+refuses to compile without ``-march`` ("invalid arch"). The default ``host`` is this machine's port (x64 here,
+what the unix MicroPython loads); give the board's arch (e.g. ``armv6m``) when building for an MCU.
 """
 
 import argparse
@@ -12,7 +14,8 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # The protocol modules that run on the MCU (the host side, pyserial/python-can links and CLIs, does not).
-PROTOCOL_CORE = ("__init__", "table", "core", "distfile", "htable", "isotp", "stream")
+PROTOCOL_CORE = ("__init__", "table", "core", "fast", "distfile", "htable", "isotp", "stream")
+DEFAULT_MARCH = "host"
 
 
 def mpy_cross():
@@ -38,8 +41,9 @@ def sources():
     return sorted(out)
 
 
-def build(out_dir, march=None):
-    """Compile every source into out_dir; returns [(source, mpy path, source bytes, mpy bytes)].
+def build(out_dir, march=DEFAULT_MARCH):
+    """Compile every source into out_dir for native code of ``march`` (mpy-cross -march; bytecode-only files
+    come out the same for any arch); returns [(source, mpy path, source bytes, mpy bytes)].
     Raises RuntimeError naming the file and mpy-cross's message when one fails."""
     exe = mpy_cross()
     rows = []
@@ -69,7 +73,8 @@ def table(rows):
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m ground.mpy_build", description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=os.path.join(ROOT, "build", "mpy"), help="output folder (default build/mpy)")
-    ap.add_argument("--march", default=None, help="mpy-cross -march (only for native/viper code)")
+    ap.add_argument("--march", default=DEFAULT_MARCH,
+                    help="mpy-cross -march for the viper code (default host: this machine's port, x64 here)")
     args = ap.parse_args(argv)
     try:
         rows = build(args.out, args.march)

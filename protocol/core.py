@@ -2,6 +2,9 @@
 
 Runs unchanged under CPython and MicroPython (the firmware uses it). The host path in
 ``protocol.host`` swaps in crcmod and the ``cobs`` package; tests prove both give identical bytes.
+Under MicroPython ``crc16``, ``cobs_encode``, ``cobs_decode``, ``Encoder`` and ``Decoder`` run the viper
+code of ``protocol.fast`` (``FAST`` is True); ``crc16_pure``, ``cobs_encode_pure`` and ``cobs_decode_pure``
+stay the reference (CPython uses them), and tests/mp/protocol_fast.py proves the same bytes.
 
 Serial frame on the wire::
 
@@ -12,6 +15,7 @@ Serial frame on the wire::
 """
 
 import struct
+import sys
 
 from protocol import table
 
@@ -185,7 +189,7 @@ _CRC16 = _make_crc16_table()
 _CRC32 = _make_crc32_table()
 
 
-def crc16(data, crc=0xFFFF):
+def crc16_pure(data, crc=0xFFFF):
     """CRC-16/CCITT-FALSE (crcmod ``crc-ccitt-false``)."""
     t = _CRC16
     for b in data:
@@ -203,7 +207,7 @@ def crc32(data, crc=0):
 
 
 # --- COBS -----------------------------------------------------------------------------------------
-def cobs_encode(data):
+def cobs_encode_pure(data):
     """Consistent Overhead Byte Stuffing; the result holds no 0x00 (delimiter not appended)."""
     n = len(data)
     out = bytearray(n + n // 254 + 1)
@@ -230,7 +234,7 @@ def cobs_encode(data):
     return bytes(out[:o])
 
 
-def cobs_decode(data):
+def cobs_decode_pure(data):
     """Inverse of cobs_encode; None if the encoding is invalid (never raises on bytes)."""
     out = bytearray()
     i = 0
@@ -250,6 +254,40 @@ def cobs_decode(data):
     return bytes(out)
 
 
+# --- fast paths: viper (protocol.fast) under MicroPython, the pure functions above elsewhere -------
+_fast = None
+if sys.implementation.name == "micropython":
+    try:
+        from protocol import fast as _fast
+    except (ImportError, SyntaxError, ValueError):  # no native emitter, or a .mpy built for another arch
+        _fast = None
+FAST = _fast is not None
+
+if FAST:
+    _fast.set_table(_CRC16)
+
+    def crc16(data, crc=0xFFFF):
+        """CRC-16/CCITT-FALSE of a bytes-like object (viper)."""
+        return _fast.crc16(data, len(data), crc)
+
+    def cobs_encode(data):
+        """COBS encode a bytes-like object (viper); same bytes as cobs_encode_pure."""
+        n = len(data)
+        out = bytearray(n + n // 254 + 1)
+        return bytes(memoryview(out)[:_fast.cobs_encode(data, n, out)])
+
+    def cobs_decode(data):
+        """COBS decode a bytes-like object (viper); None if invalid, like cobs_decode_pure."""
+        n = len(data)
+        out = bytearray(n)
+        k = _fast.cobs_decode(data, 0, n, out)
+        return None if k < 0 else bytes(memoryview(out)[:k])
+else:
+    crc16 = crc16_pure
+    cobs_encode = cobs_encode_pure
+    cobs_decode = cobs_decode_pure
+
+
 # --- frames ---------------------------------------------------------------------------------------
 def encode_body(pid, src, dst, seq, payload):
     return struct.pack(HEADER_FMT, table.PROTOCOL_VERSION, pid, src, dst, seq & 0xFF) + payload
@@ -260,6 +298,32 @@ def encode_frame(pid, src, dst, seq, payload, crc_fn=crc16, cobs_fn=cobs_encode)
     body = encode_body(pid, src, dst, seq, payload)
     c = crc_fn(body)
     return cobs_fn(body + struct.pack(">H", c)) + b"\x00"
+
+
+class Encoder:
+    """Frames built in preallocated buffers, for the per-tick send path: ``frame(...)`` returns a memoryview
+    of the frame (same bytes as ``encode_frame``), valid until the next call. Under MicroPython one viper
+    call copies the payload, appends the CRC and COBS-encodes; only the returned view is allocated."""
+
+    def __init__(self):
+        self._body = bytearray(MAX_BODY + CRC_SIZE)
+        self._out = bytearray(MAX_FRAME)
+        self._mv = memoryview(self._out)
+
+    def frame(self, pid, src, dst, seq, payload):
+        if len(payload) > MAX_PAYLOAD:
+            raise ValueError("payload is %d bytes > %d" % (len(payload), MAX_PAYLOAD))
+        if FAST:
+            b = self._body
+            b[0] = table.PROTOCOL_VERSION
+            b[1] = pid
+            b[2] = src
+            b[3] = dst
+            b[4] = seq & 0xFF
+            return self._mv[:_fast.frame(b, HEADER_SIZE, payload, self._out)]
+        f = encode_frame(pid, src, dst, seq, payload)
+        self._out[:len(f)] = f
+        return self._mv[:len(f)]
 
 
 def encode_packet(name_or_id, src, dst, seq=0, values=None, **kw):
@@ -283,6 +347,11 @@ class Decoder:
     def __init__(self, crc_fn=crc16, cobs_fn=cobs_decode):
         self._crc = crc_fn
         self._cobs = cobs_fn
+        # the viper path (MicroPython, default functions) decodes into a preallocated buffer
+        self._fast = FAST and crc_fn is crc16 and cobs_fn is cobs_decode
+        if self._fast:
+            self._raw = bytearray(MAX_FRAME)
+            self._rawmv = memoryview(self._raw)
         self._buf = bytearray()
         self._overflow = False
         self.drops = {}
@@ -296,7 +365,12 @@ class Decoder:
     def _drop(self, reason):
         self.drops[reason] += 1
 
-    def feed(self, data):
+    def feed(self, data, n=None):
+        """Packets completed by ``data`` (only its first ``n`` bytes if given: a read buffer, not sliced)."""
+        if self._fast:
+            return self._feed_fast(data, len(data) if n is None else n)
+        if n is not None:
+            data = data[:n]
         out = []
         if not isinstance(data, bytes):
             data = bytes(data)
@@ -325,6 +399,39 @@ class Decoder:
                     out.append(p)
         return out
 
+    def _feed_fast(self, data, n):
+        """``feed`` without copying the chunk: find, COBS and CRC in viper, straight from ``data``."""
+        out = []
+        start = 0
+        while start < n:
+            z = _fast.find0(data, start, n)
+            if z < 0:
+                self._append(data[start:n])
+                break
+            if self._buf or self._overflow:  # a frame split across feeds
+                self._append(data[start:z])
+                src, i, end, over = self._buf, 0, len(self._buf), self._overflow
+                self._buf = bytearray()
+                self._overflow = False
+            else:
+                src, i, end, over = data, start, z, z - start > MAX_FRAME
+            start = z + 1
+            if over:
+                self._drop("oversize")
+            elif end > i:
+                r = _fast.unframe(src, i, end, self._raw)
+                if r < 0:
+                    self._drop("bad_cobs")
+                elif r & 0xFFFF < HEADER_SIZE + CRC_SIZE:
+                    self._drop("too_short")
+                elif r > 0xFFFF:
+                    self._drop("bad_crc")
+                else:
+                    p = self._packet(self._raw, self._rawmv[HEADER_SIZE:r - CRC_SIZE])
+                    if p is not None:
+                        out.append(p)
+        return out
+
     def _append(self, chunk):
         if self._overflow:
             return
@@ -345,6 +452,10 @@ class Decoder:
         if self._crc(raw[:-2]) != (raw[-2] << 8) | raw[-1]:
             self._drop("bad_crc")
             return None
+        return self._packet(raw, raw[HEADER_SIZE:-CRC_SIZE])
+
+    def _packet(self, raw, payload):
+        """The packet whose header starts ``raw`` (CRC already checked), or None with the drop counted."""
         if raw[0] != table.PROTOCOL_VERSION:
             self._drop("bad_version")
             return None
@@ -356,10 +467,10 @@ class Decoder:
         if pkt is None:
             self._drop("unknown_id")
             return None
-        payload = raw[HEADER_SIZE:-2]
         if len(payload) != pkt.size:
             self._drop("bad_length")
             return None
+        payload = bytes(payload)
         self.frames += 1
         last = self._last_seq.get(src)
         if last is not None:

@@ -5,6 +5,9 @@ handle fails its writes), put in raw mode before any byte is written, and read w
 one ``readinto`` into a preallocated buffer. VMIN = VTIME = 0 makes that ``readinto`` return what is
 waiting instead of blocking until the buffer is full (MicroPython loops on ``read`` until it gets 0).
 The peer leaving shows as POLLHUP/POLLERR or EIO and sets ``closed``.
+Under MicroPython a TICK's way through (``ipoll``, ``readinto``, the viper ``Decoder`` fed the buffer
+unsliced, ``Encoder`` frames written from its own buffer) allocates a few hundred bytes: the packet list,
+tuple and payload, and the frame's view.
 
 Same methods as ``protocol.link.Link``, except that ``recv`` takes its timeout in milliseconds.
 """
@@ -64,9 +67,10 @@ class StreamLink:
             raise
         self._poll = select.poll()
         self._poll.register(self._r, select.POLLIN)
+        self._ipoll = getattr(self._poll, "ipoll", None)   # MicroPython: polls without allocating
         self._buf = bytearray(bufsize)
-        self._mv = memoryview(self._buf)
         self._dec = core.Decoder()
+        self._enc = core.Encoder()
         self._seq = 0
         self.tx_frames = 0
         self.closed = False
@@ -92,18 +96,17 @@ class StreamLink:
         if seq is None:
             seq = self._seq
             self._seq = (seq + 1) & 0xFF
-        self.write(core.encode_frame(pid, src, dst, seq, payload))
+        self.write(self._enc.frame(pid, src, dst, seq, payload))
         self.tx_frames += 1
 
     def write(self, data):
         """Write raw bytes (frames, or garbage in tests); sets ``closed`` if the peer left."""
         try:
-            mv = memoryview(data)
-            while len(mv):
-                n = self._w.write(mv)
-                if n is None:
-                    n = 0
-                mv = mv[n:]
+            n = self._w.write(data) or 0
+            if n < len(data):    # rare: a partial write; the rest through a view
+                mv = memoryview(data)
+                while n < len(mv):
+                    n += self._w.write(mv[n:]) or 0
         except OSError:
             self.closed = True
 
@@ -113,10 +116,10 @@ class StreamLink:
         t0 = ticks_ms()
         wait = -1 if timeout_ms is None else timeout_ms
         while not self.closed:
-            ev = self._poll.poll(wait)
+            ev = self._events(wait)
             if ev:
                 n = 0
-                if ev[0][1] & select.POLLIN:
+                if ev & select.POLLIN:
                     try:
                         n = self._r.readinto(self._buf)
                     except OSError:  # EIO: the peer closed the pty
@@ -124,7 +127,7 @@ class StreamLink:
                 if not n:
                     self.closed = True  # readable with nothing to read, POLLHUP or POLLERR
                     return []
-                out = self._dec.feed(self._mv[:n])
+                out = self._dec.feed(self._buf, n)
                 if out:
                     return out
             if timeout_ms is not None:
@@ -132,6 +135,15 @@ class StreamLink:
                 if wait <= 0:
                     return []
         return []
+
+    def _events(self, wait):
+        """The read handle's poll events after waiting up to ``wait`` ms (-1: forever), 0 if none."""
+        if self._ipoll is not None:
+            for e in self._ipoll(wait):
+                return e[1]
+            return 0
+        ev = self._poll.poll(wait)
+        return ev[0][1] if ev else 0
 
     def counters(self):
         """Drops by reason, frames received, sequence gaps and duplicates, frames sent."""

@@ -3,6 +3,7 @@
 import random
 import zlib
 
+import pytest
 from cobs import cobs
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -23,6 +24,17 @@ def test_10k_random_bodies_identical_frames_pure_and_host():
         assert frame == host.encode_frame(pid, src, dst, seq, payload)
         assert frame.count(0) == 1 and frame[-1] == 0
         assert core.cobs_decode(frame[:-1]) == host.cobs_decode(frame[:-1]) == body + frame_crc(body)
+
+
+def test_encoder_buffer_frames_match_host_frames_and_reject_oversize_payload():
+    rng = random.Random(5)
+    enc = core.Encoder()
+    for i in range(2000):
+        payload = rng.randbytes(rng.randint(0, core.MAX_PAYLOAD))
+        pid, src, dst, seq = rng.getrandbits(8), rng.getrandbits(8), rng.getrandbits(8), i
+        assert bytes(enc.frame(pid, src, dst, seq, payload)) == host.encode_frame(pid, src, dst, seq, payload)
+    with pytest.raises(ValueError, match="256 bytes > 255"):
+        enc.frame(1, 2, 3, 4, bytes(256))
 
 
 def frame_crc(body):

@@ -47,8 +47,12 @@ class _Ms:
 
 
 class _StreamMs(_Ms):
-    def recv_ms(self, timeout_ms):
-        return self.link.recv(timeout_ms)
+    """A StreamLink already speaks ms: its own bound methods, one call less per packet."""
+
+    def __init__(self, link):
+        _Ms.__init__(self, link)
+        self.recv_ms = link.recv
+        self.send_raw = link.send_raw
 
 
 def open_link(spec, node):

@@ -15,6 +15,7 @@ Duck types (docs/INTERFACES.md): ``controller.on_tick(tick, t_us, vx, vy, vs) ->
 ``player.fill(xbuf, ybuf, n) -> int`` writes n AD660 codes per axis (fewer = the DAC holds its last code).
 """
 
+import struct
 import time
 from array import array
 from collections import deque
@@ -202,6 +203,7 @@ class RemoteController:
         self.n_bad = 0
         self._tick_id = core.PACKET_ID["TICK"]
         self._spi_id = core.PACKET_ID["FSM_SPI"]
+        self._tick_fmt = struct.Struct(core.PACKET[self._tick_id].fmt)   # ADC counts are already in range
         self._pending = deque()
 
     def wait_peer(self, timeout_s):
@@ -220,7 +222,8 @@ class RemoteController:
     def on_tick(self, tick, t_us, vx, vy, vs):
         link = self.link
         tick &= 0xFFFFFFFF
-        link.send(self._tick_id, self.dst, tick=tick, t_us=t_us & 0xFFFFFFFF, vx=vx, vy=vy, vs=vs)
+        link.send_raw(self._tick_id, link.node, self.dst,
+                      self._tick_fmt.pack(tick, t_us & 0xFFFFFFFF, vx, vy, vs))
         deadline = time.perf_counter() + self.timeout_s
         pending = self._pending
         while True:

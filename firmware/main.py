@@ -70,6 +70,10 @@ def main(argv=None):
         from firmware.hal import link as hal_link
         if role == "controller":
             from firmware.controller import TRACK, Controller
+            try:  # MicroPython with a native emitter: the viper step, identical codes (tests/mp/firmware_viper.py)
+                from firmware.controller_viper import ViperController as Controller
+            except ImportError:
+                pass
             ctl = Controller(table=opts["table"], **opts["ctl"])
             if opts["track"]:
                 ctl.mode = TRACK

@@ -2,7 +2,8 @@
 
 - ``config``  print the default bench config ("thesis bench" preset) as JSON
 - ``truth-h`` write the true H field over the Sec. 7.4 grid (calibration JSON shape)
-- ``serve``   serve the bench on a link (lockstep, the emulator owns time)
+- ``serve``   serve the bench (lockstep, the emulator owns time) or the reaction wheels and star tracker
+  (``--devices wheels``, paced by the wall clock) on a link
 """
 
 import sys
@@ -23,20 +24,29 @@ def register(sub, name, help_):
     t.add_argument("-o", "--output", required=True, help="output JSON file")
     t.set_defaults(func=_truth_h)
 
-    s = cmds.add_parser("serve", help="serve the bench on a link; the controller connects to it")
+    s = cmds.add_parser("serve", help="serve the bench or the wheels on a link; the flight software connects to it")
+    s.add_argument("--devices", default="bench", choices=("bench", "wheels"),
+                   help="bench: the optical bench in lockstep (default); wheels: RW0..RW3 and STARTRACKER of the "
+                        "spacecraft emulator, paced by the wall clock")
     s.add_argument("--link", default="serial", choices=("serial", "can"),
                    help="serial: a pseudo-terminal pair (prints the slave path); can: slcan over a pty")
-    s.add_argument("--config", help="bench config JSON")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--duration", type=float, default=10.0, help="virtual seconds to run (default 10)")
-    s.add_argument("--rate", type=float, default=637.8, help="control tick rate in Hz (default 637.8)")
-    s.add_argument("--pfsm-v", type=float, nargs=2, default=(0.0, 0.0), metavar=("VX", "VY"),
-                   help="hold the P-FSM at these volts (when no --distfile)")
-    s.add_argument("--distfile", help="play this distfile into the P-FSM (firmware player)")
-    s.add_argument("--deadline", type=float, default=1.0, help="seconds to wait for each FSM command")
-    s.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the controller's first packet (HELLO)")
-    s.add_argument("--realtime", action="store_true", help="pace by the wall clock")
+    s.add_argument("--duration", type=float,
+                   help="seconds to run (bench: virtual, default 10; wheels: wall = virtual, default until stopped)")
+    s.add_argument("--wait", type=float, default=30.0,
+                   help="seconds to wait for the peer's first packet (bench: HELLO; wheels: any)")
     s.add_argument("-o", "--output", help="write the run summary (JSON) here")
+    b = s.add_argument_group("bench (--devices bench)")
+    b.add_argument("--config", help="bench config JSON")
+    b.add_argument("--rate", type=float, default=637.8, help="control tick rate in Hz (default 637.8)")
+    b.add_argument("--pfsm-v", type=float, nargs=2, default=(0.0, 0.0), metavar=("VX", "VY"),
+                   help="hold the P-FSM at these volts (when no --distfile)")
+    b.add_argument("--distfile", help="play this distfile into the P-FSM (firmware player)")
+    b.add_argument("--deadline", type=float, default=1.0, help="seconds to wait for each FSM command")
+    b.add_argument("--realtime", action="store_true", help="pace by the wall clock")
+    w = s.add_argument_group("wheels (--devices wheels)")
+    w.add_argument("--dt", type=float, default=0.1, help="physics step in s (default 0.1)")
+    w.add_argument("--startracker-hz", type=float, default=1.0, help="STARTRACKER packets to ADCS per s (default 1)")
     s.set_defaults(func=_serve)
     p.set_defaults(func=lambda args: p.print_help() or 2)
 
@@ -63,5 +73,9 @@ def _truth_h(args):
 
 
 def _serve(args):
-    from emulator.serve import serve
-    return serve(args)
+    from emulator import serve
+    if args.devices == "bench":
+        return serve.serve(args)
+    if args.config or args.distfile:
+        raise ValueError("--config and --distfile are bench options, not for --devices wheels")
+    return serve.serve_wheels(args)

@@ -1,4 +1,4 @@
-"""The bench as a device on a link: ``fps emulator serve --link serial|can``.
+"""Devices on a link: ``fps emulator serve --link serial|can [--devices bench|wheels]``.
 
 Creates the device end of a link (a pseudo-terminal pair for serial, an slcan device on a pty for CAN),
 prints the path the controller firmware should open, waits for its first packet (HELLO), and runs the
@@ -7,10 +7,15 @@ carries the Q1 sample, the controller answers with FSM_SPI (``emulator.lockstep.
 P-FSM holds fixed volts or plays a distfile (linear interpolation between its samples, Eq. 7.7-7.8).
 At the end a summary (counters, true sky error statistics, packets received from the controller) is printed
 and optionally written as JSON.
+
+``--devices wheels`` serves the spacecraft instead (``serve_wheels``): RW0..RW3 and the star tracker of
+``emulator.spacecraft``, paced by the wall clock.
 """
 
 import collections
+import signal
 import sys
+import time
 from array import array
 
 import numpy as np
@@ -51,6 +56,7 @@ class DistfilePlayer:
 def serve(args):
     """Run the bench on a link for ``args.duration`` virtual seconds (see emulator/cli.py for the options)."""
     from protocol.link import open_link
+    duration = 10.0 if args.duration is None else args.duration
     bench = Bench(load_config(args.config), seed=args.seed)
     if args.distfile:
         from protocol import distfile
@@ -67,13 +73,13 @@ def serve(args):
     try:
         if not ctrl.wait_peer(args.wait):
             raise OSError("no controller spoke on %s within %g s" % (link.peer_path, args.wait))
-        res = lock.run(args.duration)
+        res = lock.run(duration)
     finally:
         link.close()
     truth = res["truth_arcsec"]
     seen = collections.Counter(core.PACKET[p[0]].name if p[0] in core.PACKET else str(p[0]) for p in ctrl.inbox)
     summary = summarize(truth, lock.counters())
-    summary.update({"link": args.link, "seed": args.seed, "duration_s": args.duration, "rate_hz": args.rate,
+    summary.update({"link": args.link, "seed": args.seed, "duration_s": duration, "rate_hz": args.rate,
                     "packets_from_controller": dict(seen), "bench_config": bench.config})
     print("bench: %d ticks, %d overruns; true error mean (%.3f, %.3f) arcsec, 1 sigma (%.3f, %.3f), max |e| %.3f"
           % (summary["counters"]["ticks"], summary["counters"]["overruns"], *summary["mean_arcsec"],
@@ -92,3 +98,122 @@ def summarize(truth_arcsec, counters):
     return {"counters": counters, "samples": len(t), "mean_arcsec": t.mean(axis=0).tolist(),
             "std_arcsec": t.std(axis=0).tolist(), "max_abs_arcsec": float(np.hypot(t[:, 0], t[:, 1]).max()),
             "last_arcsec": t[-1].tolist()}
+
+
+# --- the spacecraft: reaction wheels and star tracker -----------------------------------------------------
+class _StopSignals:
+    """SIGTERM and SIGINT set ``.name`` instead of killing the process, so the serve loop ends cleanly
+    (the loop waits at most one physics step between checks); the old handlers come back on exit."""
+
+    def __init__(self):
+        self.name = None
+        self._old = {}
+
+    def _handler(self, signum, frame):
+        self.name = signal.Signals(signum).name
+
+    def __enter__(self):
+        for s in (signal.SIGTERM, signal.SIGINT):
+            self._old[s] = signal.signal(s, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        for s, h in self._old.items():
+            signal.signal(s, h)
+
+
+def _name(pid):
+    return core.PACKET[pid].name if pid in core.PACKET else "0x%02x" % pid
+
+
+def serve_wheels(args):
+    """Serve RW0..RW3 and the star tracker on a link, the physics paced by the wall clock.
+
+    The clock starts when the flight computer speaks first (any packet, e.g. HELLO or an RW_CMD; until then
+    nothing is sent, so nothing stale piles up in the pty). Then every ``args.dt`` of wall time the spacecraft
+    takes one RK4 step (Eq. 4.10, 4.16) with the motor torques held; a step that starts more than one step
+    late is counted in ``late_steps`` (the physics catches up, virtual time stays on the wall clock). RW_CMD
+    to RW<i> is answered at once with RW_TLM or a NACK (``SpacecraftDevices.handle``); STARTRACKER goes to
+    ADCS at virtual times 0, 1/hz, 2/hz, ... Ends after ``args.duration`` s (None: never), on SIGTERM or
+    Ctrl-C, or when the peer leaves; then prints the counters (and writes them as JSON with ``-o``).
+    """
+    from emulator.spacecraft import Spacecraft, SpacecraftDevices, WheelParams, Wheels
+    from emulator.spacecraft.devices import NACK, RW_NODES
+    from emulator.spacecraft.wheels import RPM
+    from protocol.link import open_link
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError("--duration must be > 0 s, got %r" % args.duration)
+    if not (args.startracker_hz > 0 and np.isfinite(args.startracker_hz)):
+        raise ValueError("--startracker-hz must be > 0, got %r" % args.startracker_hz)
+    sc = Spacecraft(wheels=Wheels(WheelParams(), rng=np.random.default_rng(args.seed)), dt=args.dt)
+    dev = SpacecraftDevices(sc)
+    # on CAN the link also takes what is addressed to the wheels and the star tracker's ISO-TP flow control
+    link = open_link("pty" if args.link == "serial" else "slcan-pty", "SPACECRAFT",
+                     accept=RW_NODES + (core.NODE["STARTRACKER"],))
+    print(link.peer_path, flush=True)
+    print("wheels: RW0..RW3 and STARTRACKER waiting for the flight computer on %s (%s link)"
+          % (link.peer_path, args.link), file=sys.stderr, flush=True)
+    rx, tx, nacks = collections.Counter(), collections.Counter(), collections.Counter()
+    error_name = {code: name for name, code in core.ERROR.items()}
+
+    def answer(packets):
+        for pid, src, dst, seq, payload in packets:
+            rx[_name(pid)] += 1
+            for reply in dev.handle(pid, src, dst, payload, seq):
+                if reply[0] == NACK:
+                    nacks[error_name.get(core.payload_dict(NACK, reply[3])["code"], "?")] += 1
+                link.send_raw(*reply)
+                tx[_name(reply[0])] += 1
+
+    clock = time.monotonic
+    late = tx_timeouts = 0
+    st_period = 1.0 / args.startracker_hz
+    st_next = 0.0
+    with _StopSignals() as stop:
+        try:
+            t_wait = clock() + args.wait
+            first = []
+            while not first and stop.name is None and not link.closed and clock() < t_wait:
+                first = link.recv(timeout=min(0.1, max(0.0, t_wait - clock())))
+            if not first and stop.name is None and not link.closed:
+                raise OSError("no flight computer spoke on %s within %g s" % (link.peer_path, args.wait))
+            t0 = clock()
+            answer(first)
+            while True:
+                if stop.name is not None or link.closed:
+                    stopped_by = stop.name or "peer_left"
+                    break
+                if sc.t + 1e-9 >= st_next:
+                    st_next += st_period
+                    try:
+                        link.send_raw(*dev.startracker())
+                        tx["STARTRACKER"] += 1
+                    except TimeoutError:          # CAN: the ISO-TP receiver gave no flow control
+                        tx_timeouts += 1
+                if args.duration is not None and sc.t + 1e-9 >= args.duration:
+                    stopped_by = "duration"
+                    break
+                due = t0 + (sc.steps + 1) * sc.dt
+                now = clock()
+                if now >= due:
+                    if now - due > sc.dt:
+                        late += 1
+                    sc.step()
+                    continue
+                answer(link.recv(timeout=due - now))
+            wall = clock() - t0
+        finally:
+            link_counters = link.counters()
+            link.close()
+    summary = {"devices": "wheels", "link": args.link, "seed": args.seed, "dt": sc.dt, "stopped_by": stopped_by,
+               "virtual_s": sc.t, "wall_s": wall, "steps": sc.steps, "late_steps": late, "tx_timeouts": tx_timeouts,
+               "packets_rx": dict(rx), "packets_tx": dict(tx), "nacks": dict(nacks), "link_counters": link_counters,
+               "clips": sc.wheels.counters(), "omega_rw_rpm": (sc.omega_rw / RPM).tolist()}
+    drops = {k: v for k, v in link_counters.items() if v and k not in ("frames", "tx_frames")}
+    print("wheels: stopped by %s after %.2f s (%d steps, %d late); packets in %s, out %s; NACKs %s; "
+          "link drops %s; clips torque %s speed %s"
+          % (stopped_by, sc.t, sc.steps, late, dict(rx), dict(tx), dict(nacks), drops,
+             summary["clips"]["torque_clip"], summary["clips"]["speed_clip"]), file=sys.stderr, flush=True)
+    if args.output:
+        write_json_atomic(args.output, summary)
+    return 0

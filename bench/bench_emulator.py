@@ -11,12 +11,11 @@ import os
 import subprocess
 import sys
 import time
-from array import array
 
 import numpy as np
 
 from emulator.bench import Bench
-from emulator.lockstep import Lockstep, RemoteController
+from emulator.lockstep import Lockstep, RemoteController, SinePlayer
 from emulator.mirrors import INIT_WORDS, fsm_words
 
 RATE = 637.8
@@ -46,18 +45,6 @@ class HoldMirror:
 
     def on_tick(self, tick, t_us, vx, vy, vs):
         return list(INIT_WORDS) if tick == 0 else self.words
-
-
-class SinePlayer:
-    def __init__(self, amp=800, hz=2.0, pfsm_hz=10600.0):
-        self.i, self.amp, self.w = 0, amp, 2 * np.pi * hz / pfsm_hz
-
-    def fill(self, xbuf, ybuf, n):
-        k = self.i + np.arange(n)
-        xbuf[:n] = array("H", (0x8000 + np.round(self.amp * np.sin(self.w * k))).astype(np.uint16).tobytes())
-        ybuf[:n] = array("H", (0x8000 + np.round(self.amp * np.cos(self.w * k))).astype(np.uint16).tobytes())
-        self.i += n
-        return n
 
 
 def full_run(duration_s=600.0):

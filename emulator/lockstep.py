@@ -37,6 +37,20 @@ class HoldPlayer:
         return n
 
 
+class SinePlayer:
+    """A player that drives both P-FSM axes with a sine (X) and a cosine (Y) of ``amp`` AD660 codes at ``hz``."""
+
+    def __init__(self, amp=800, hz=2.0, pfsm_hz=10600.0):
+        self.i, self.amp, self.w = 0, amp, 2 * np.pi * hz / pfsm_hz
+
+    def fill(self, xbuf, ybuf, n):
+        k = self.i + np.arange(n)
+        xbuf[:n] = array("H", (0x8000 + np.round(self.amp * np.sin(self.w * k))).astype(np.uint16).tobytes())
+        ybuf[:n] = array("H", (0x8000 + np.round(self.amp * np.cos(self.w * k))).astype(np.uint16).tobytes())
+        self.i += n
+        return n
+
+
 class Lockstep:
     """Runs ``bench`` against ``controller`` and ``player`` (None = hold the P-FSM at 0 V).
 

@@ -13,6 +13,7 @@ import pytest
 from emulator.bench import Bench
 from emulator.config import default_config, load_config, validate
 from emulator.lockstep import Lockstep, RemoteController
+from emulator.lockstep import SinePlayer as Sine
 from emulator.mirrors import INIT_WORDS, fsm_words
 from protocol import core
 
@@ -40,24 +41,10 @@ class Integral:
         return list(fsm_words(self.v[0], self.v[1], self.cfg))
 
 
-class Sine:
-    """Player: a sine on both P-FSM axes, amplitude in AD660 codes."""
-
-    def __init__(self, amp=3000, hz=7.0, pfsm_hz=10600.0):
-        self.i, self.amp, self.w = 0, amp, 2 * np.pi * hz / pfsm_hz
-
-    def fill(self, xbuf, ybuf, n):
-        k = self.i + np.arange(n)
-        xbuf[:n] = array("H", (0x8000 + np.round(self.amp * np.sin(self.w * k))).astype(np.uint16).tobytes())
-        ybuf[:n] = array("H", (0x8000 + np.round(self.amp * np.cos(self.w * k))).astype(np.uint16).tobytes())
-        self.i += n
-        return n
-
-
 def _run(seed=1, ticks=400, controller=None, **kw):
     b = Bench(seed=seed)
     c = controller or Integral(b.config)
-    return Lockstep(b, c, Sine(), record=True, **kw).run(n_ticks=ticks)
+    return Lockstep(b, c, Sine(amp=3000, hz=7.0), record=True, **kw).run(n_ticks=ticks)
 
 
 # --- lockstep --------------------------------------------------------------------------------------------
@@ -109,7 +96,7 @@ def test_fused_block_loop_matches_the_per_tick_path():
         b = Bench(seed=7)
         c = Clipping(b.config, gain=0.9, skip=range(50, 60))
         seen = []
-        res = Lockstep(b, c, Sine(), record=True, block_ticks=33,
+        res = Lockstep(b, c, Sine(amp=3000, hz=7.0), record=True, block_ticks=33,
                        on_q2=seen.append if per_tick else None).run(n_ticks=300)
         return res, b
     (a, ba), (b, bb) = go(False), go(True)
@@ -123,7 +110,7 @@ def test_fused_block_loop_matches_the_per_tick_path():
 def test_missing_commands_are_overruns_and_the_mirror_holds():
     b = Bench(seed=2)
     ctrl = Integral(b.config, skip=range(100, 110))
-    res = Lockstep(b, ctrl, Sine(), record=True).run(n_ticks=200)
+    res = Lockstep(b, ctrl, Sine(amp=3000, hz=7.0), record=True).run(n_ticks=200)
     assert res["counters"]["overruns"] == 10
     fsm = res["fsm_v"]
     assert np.all(fsm[100:110] == fsm[99])
@@ -192,7 +179,7 @@ def _remote_run(link, peer_recv, peer_send, ticks):
     th = threading.Thread(target=_serve_controller, args=(peer_recv, peer_send, Integral(b.config), ticks))
     th.start()
     rc = RemoteController(link, timeout_s=5.0)
-    res = Lockstep(b, rc, Sine(), record=True).run(n_ticks=ticks)
+    res = Lockstep(b, rc, Sine(amp=3000, hz=7.0), record=True).run(n_ticks=ticks)
     th.join(5)
     return res, rc
 
@@ -203,7 +190,7 @@ def test_physics_does_not_depend_on_the_transport():
     from protocol.stream import StreamLink
     ticks = 150
     b = Bench(seed=3)
-    ref = Lockstep(b, Integral(b.config), Sine(), record=True).run(n_ticks=ticks)
+    ref = Lockstep(b, Integral(b.config), Sine(amp=3000, hz=7.0), record=True).run(n_ticks=ticks)
 
     a, peer = inproc_pair("BENCH", "CONTROLLER")
     res_in, rc = _remote_run(a, lambda: peer.recv(timeout=0.5), peer.send, ticks)

@@ -131,6 +131,7 @@ class Lockstep:
         missed0 = bench.n_missed
         k = self.tick - 1
         end = self.tick + n_ticks
+        self.partial = None
         try:
             while k + 1 < end:
                 n = min(self.block_ticks, end - k - 1)
@@ -143,10 +144,20 @@ class Lockstep:
                     k += n
                 if progress is not None:
                     progress(k + 1)
+        except BaseException:
+            # interrupted or failed mid-call: keep every sample already taken (``partial``), then re-raise
+            self.tick = bench.tick - self._bench_tick0
+            self.n_overrun += bench.n_missed - missed0
+            missed0 = bench.n_missed
+            self.partial = self._result(q2_rows, q1_rows, fsm_rows, self.tick - (end - n_ticks), clock() - t_wall0)
+            raise
         finally:
             self.tick = bench.tick - self._bench_tick0
             self.n_overrun += bench.n_missed - missed0
-        wall = clock() - t_wall0
+        return self._result(q2_rows, q1_rows, fsm_rows, n_ticks, clock() - t_wall0)
+
+    def _result(self, q2_rows, q1_rows, fsm_rows, n_ticks, wall):
+        bench, rate, realtime = self.bench, self.rate_hz, self.realtime
         rows = np.array(q2_rows, dtype=float).reshape(-1, 7)
         out = {"q2": rows[:, :5].astype(np.int64), "truth_arcsec": rows[:, 5:7],
                "counters": self.counters(), "config": bench.config, "seed": bench.seed, "ticks": n_ticks,
@@ -198,25 +209,50 @@ class Lockstep:
         return c
 
 
+class LinkFailure(OSError):
+    """The link to the controller is dead or too noisy to keep lockstep: the run cannot go on correctly."""
+
+
 class RemoteController:
     """Controller adapter over a protocol Link (docs/INTERFACES.md): sends TICK, waits for the one FSM_SPI
-    (up to 4 words) that answers it.
+    (up to 4 words) that answers it, and resends the same TICK when the answer does not come.
 
-    ``on_tick`` returns the words of the FSM_SPI answering this tick, or None after ``timeout_s`` (wall).
+    Exactly once: the controller steps on the first copy of TICK k and answers any resend of k from its cache
+    (``firmware.hal.link``), so a resend costs time, never a second integration.
+
+    - ``try_timeout_s``: wait for an answer before resending (default: ``timeout_s``, one try);
+    - ``timeout_s``: the whole patience for one tick; after it the tick is an overrun (the mirror holds its last
+      input, as hardware would). Real-time mode sets it per tick from the deadline;
+    - an overrun while the link kept delivering bytes (frames that failed their checks) means the link is too
+      noisy to keep lockstep: ``LinkFailure``. An overrun on a silent link is an outage: the clock goes on,
+      each further tick gets one try until the link answers, and ``max_failed_ticks`` consecutive overruns
+      end the run (``LinkFailure``); None: no bound;
+    - ``status_decim``: when set, CTRL_STATUS is due on ticks k with k % status_decim == 0 and is part of the
+      answer: a resend asks for it again. Duplicate or older CTRL_STATUS are dropped.
+
     FSM_SPI answering an older tick arrives late: counted and dropped. Every other packet received meanwhile
     goes to ``inbox`` (a deque of (pid, src, dst, seq, payload)) for the ground.
     """
 
-    def __init__(self, link, dst="CONTROLLER", timeout_s=1.0):
+    def __init__(self, link, dst="CONTROLLER", timeout_s=1.0, try_timeout_s=None, max_failed_ticks=None):
         self.link = link
         self.dst = core.NODE[dst] if isinstance(dst, str) else dst
         self.timeout_s = timeout_s
+        self.try_timeout_s = try_timeout_s
+        self.max_failed_ticks = max_failed_ticks
+        self.status_decim = None
         self.inbox = deque()
         self.n_late = 0
         self.n_timeout = 0
         self.n_bad = 0
+        self.n_resent = 0
+        self.n_status_dup = 0
+        self.n_status_missed = 0
+        self.failed_run = 0          # consecutive overruns
+        self.last_status_tick = -1
         self._tick_id = core.PACKET_ID["TICK"]
         self._spi_id = core.PACKET_ID["FSM_SPI"]
+        self._status_id = core.PACKET_ID["CTRL_STATUS"]
         self._tick_fmt = struct.Struct(core.PACKET[self._tick_id].fmt)   # ADC counts are already in range
         self._pending = deque()
 
@@ -233,34 +269,104 @@ class RemoteController:
             self._pending.extend(self.link.recv(timeout=left))
         return bool(self._pending)
 
-    def on_tick(self, tick, t_us, vx, vy, vs):
-        link = self.link
-        tick &= 0xFFFFFFFF
-        link.send_raw(self._tick_id, link.node, self.dst,
-                      self._tick_fmt.pack(tick, t_us & 0xFFFFFFFF, vx, vy, vs))
-        deadline = time.perf_counter() + self.timeout_s
-        pending = self._pending
-        while True:
-            while pending:
-                pkt = pending.popleft()
-                if pkt[0] != self._spi_id:
-                    self.inbox.append(pkt)
-                    continue
+    def poll(self, timeout_s):
+        """Take what the link delivers within ``timeout_s`` into ``inbox`` (between ticks: commands)."""
+        self._pending.extend(self.link.recv(timeout=timeout_s))
+        self._sort(-1)
+
+    def _sort(self, tick):
+        """Move pending packets to ``inbox``; the FSM_SPI words for ``tick`` (or None) and whether its status
+        came."""
+        pending, inbox = self._pending, self.inbox
+        words = None
+        got_status = False
+        while pending:
+            pkt = pending.popleft()
+            pid = pkt[0]
+            if pid == self._spi_id:
                 try:
-                    vals = core.decode_payload(pkt[0], pkt[4])
+                    vals = core.decode_payload(pid, pkt[4])
                 except ValueError:
                     self.n_bad += 1
                     continue
-                if vals[0] != tick:
+                if vals[0] != tick or words is not None:
                     self.n_late += 1
                     continue
-                return list(vals[2:2 + vals[1]])
-            left = deadline - time.perf_counter()
-            if left <= 0 or link.closed:
-                self.n_timeout += 1
-                return None
-            pending.extend(link.recv(timeout=left))
+                words = list(vals[2:2 + vals[1]])
+            elif pid == self._status_id and len(pkt[4]) >= 4:
+                st = pkt[4][0] | pkt[4][1] << 8 | pkt[4][2] << 16 | pkt[4][3] << 24
+                if st <= self.last_status_tick:
+                    self.n_status_dup += 1
+                    continue
+                self.last_status_tick = st
+                if st == tick:
+                    got_status = True
+                inbox.append(pkt)
+            else:
+                inbox.append(pkt)
+        return words, got_status
+
+    def _activity(self):
+        try:
+            c = self.link.counters()
+        except AttributeError:
+            return 0
+        return sum(v for k, v in c.items() if k != "tx_frames" and isinstance(v, int))
+
+    def on_tick(self, tick, t_us, vx, vy, vs):
+        link = self.link
+        tick &= 0xFFFFFFFF
+        payload = self._tick_fmt.pack(tick, t_us & 0xFFFFFFFF, vx, vy, vs)
+        decim = self.status_decim
+        want_status = bool(decim) and tick % decim == 0 and tick > self.last_status_tick
+        clock = time.perf_counter
+        t0 = clock()
+        end = t0 + self.timeout_s
+        try_s = self.try_timeout_s or self.timeout_s
+        if self.failed_run:               # the link was out on the last tick: one try until it answers
+            end = min(end, t0 + try_s)
+        words, got_status = None, False
+        tries = 0
+        activity0 = None
+        while True:
+            if tries == 1:
+                activity0 = self._activity()
+            if tries:
+                self.n_resent += 1
+            link.send_raw(self._tick_id, link.node, self.dst, payload)
+            tries += 1
+            try_end = min(end, clock() + try_s)
+            while True:
+                w, s = self._sort(tick)
+                if w is not None:
+                    words = w
+                got_status = got_status or s
+                if words is not None and (got_status or not want_status):
+                    self.failed_run = 0
+                    return words
+                left = try_end - clock()
+                if left <= 0 or link.closed:
+                    break
+                self._pending.extend(link.recv(timeout=left))
+            if link.closed or clock() >= end:
+                break
+        if words is not None:             # the command came, its telemetry did not: apply the command
+            self.n_status_missed += 1
+            self.failed_run = 0
+            return words
+        self.n_timeout += 1
+        self.failed_run += 1
+        if link.closed:
+            raise LinkFailure("the controller's link closed at tick %d" % tick)
+        if activity0 is not None and self._activity() != activity0 and not self.failed_run > 1:
+            raise LinkFailure("tick %d unanswered after %d tries in %.0f ms while the link kept delivering "
+                              "damaged frames: too noisy to keep lockstep" % (tick, tries,
+                                                                              (clock() - t0) * 1e3))
+        if self.max_failed_ticks and self.failed_run >= self.max_failed_ticks:
+            raise LinkFailure("no answer for %d consecutive ticks (from tick %d): the link is down"
+                              % (self.failed_run, tick - self.failed_run + 1))
+        return None
 
     def counters(self):
-        return {"late": self.n_late, "timeouts": self.n_timeout, "bad": self.n_bad}
-
+        return {"late": self.n_late, "timeouts": self.n_timeout, "bad": self.n_bad, "resent": self.n_resent,
+                "status_dup": self.n_status_dup, "status_missed": self.n_status_missed}

@@ -98,6 +98,9 @@ _NO_BIN = const(1 << 29)          # (v ^ _NO_BIN) >> 14 != 0 for every |v| < 2^2
 _FLAG_BEAM = const(1)
 _FLAG_SAT = const(2)
 _FLAG_TABLE = const(4)
+WHY_BEAM = const(1)               # CTRL_STATUS.why (protocol.table.SAFE_REASONS)
+WHY_LINK = const(2)
+WHY_COMMANDED = const(3)
 _MAX_UPLOAD = const(8192)         # bytes of H-table blob the controller accepts (32x32 grid fits 16 kB; 11x11 is 2 kB)
 
 _P = core.PACKET_ID
@@ -173,7 +176,12 @@ class Controller:
         self.ramp_q8 = ramp_code << 8
         self._pkt = 0                  # tick of the last packet from the link
         self._quiet = 0                # ticks the link HAL waited without a TICK (link_silent)
-        self.n_unknown = 0             # telemetry counter, wraps at 2^16
+        self.n_unknown = 0             # telemetry counters, wrap at 2^16
+        self.n_dup = 0                 # set by the link HAL: resent TICKs answered from its cache,
+        self.n_gap = 0                 # ticks the bench ran without us, frames its decoder dropped
+        self.n_rx_drop = 0
+        self.why = 0                   # why SAFE was last entered (WHY_*)
+        self._end = None               # (total, crc, code) of the last finished upload: END is idempotent
         self.words = self._words()     # this tick's AD5664R words
         self._h4 = [0] * 4             # scratch for the interpolated H^-1
         self._q1 = [0, 0, 0]
@@ -309,6 +317,7 @@ class Controller:
                     s[S_LOST] += 1
                 if s[S_LOST] >= self.safe_ticks:
                     s[S_MODE] = SAFE
+                    self.why = WHY_BEAM
         else:                          # ratios for telemetry (calibration reads them)
             r = vs >> 1
             s[S_RX] = (((2048 - vx) << 15) + r) // vs
@@ -362,6 +371,7 @@ class Controller:
             m = s[S_MODE]
             if m != IDLE and m != SAFE and ((s[S_TICKS] - self._pkt) & _COUNT_MAX) >= self.safe_ticks:
                 s[S_MODE] = SAFE                            # the ground link fell silent
+                self.why = WHY_LINK
         finally:
             heap_unlock()
         return n
@@ -386,9 +396,17 @@ class Controller:
         self._quiet = min(self._quiet + ticks, _COUNT_MAX)
         if self.mode != IDLE and self.mode != SAFE and self._quiet >= self.safe_ticks:
             self.mode = SAFE
+            self.why = WHY_LINK
 
     def status_due(self):
+        """On a board: CTRL_STATUS every ``decim`` of the controller's own ticks."""
         return self.decim != 0 and self._s[S_TICKS] % self.decim == 0
+
+    def status_due_at(self, tick):
+        """In lockstep: CTRL_STATUS on the bench ticks k with k % decim == 0, so the bench knows which ticks
+        carry one and can ask again for a lost one."""
+        d = self.decim
+        return d != 0 and tick % d == 0
 
     # --- packets -----------------------------------------------------------------------------------
     def status_payload(self, tick=None):
@@ -399,7 +417,8 @@ class Controller:
         return struct.pack(_STATUS_FMT, self.ticks if tick is None else tick & 0xFFFFFFFF, self.mode,
                            self.flags, _uv(self.vx_q8), _uv(self.vy_q8), rx, ry, self.vs,
                            w[0] & 0xFFFF, w[1] & 0xFFFF, w[2] & 0xFFFF, w[3] & 0xFFFF,
-                           self.n_lost, self.n_sat, self.n_unknown)
+                           self.n_lost, self.n_sat, self.n_unknown, self.why, self.n_dup & 0xFFFF,
+                           self.n_gap & 0xFFFF, self.n_rx_drop & 0xFFFF)
 
     def handle(self, pid, src, seq, payload):
         """One packet from the link (``seq`` None on CAN); returns a list of replies ``(pid, dst, payload)``.
@@ -419,6 +438,7 @@ class Controller:
         elif pid == P_HT_BEGIN:
             total, crc = struct.unpack(d.fmt, payload)
             code = self._upload.begin(total, crc)
+            self._end = None
         elif pid == P_HT_CHUNK:
             offset, length, data = struct.unpack(d.fmt, payload)
             code = self._upload.chunk(offset, length, data)
@@ -455,6 +475,8 @@ class Controller:
         if mode != self.mode:
             self.mode = mode          # TRACK starts from the current command: bumpless
             self.lost = 0
+            if mode == SAFE:
+                self.why = WHY_COMMANDED
         return 0
 
     def _set_fsm(self, v):
@@ -469,14 +491,23 @@ class Controller:
         return 0
 
     def _upload_end(self, total):
-        r = self._upload.end(total)
+        """END swaps the table in; an END repeated after the transfer finished (its answer was lost) gets the
+        same answer again and changes nothing."""
+        up = self._upload
+        if not up.active and self._end is not None and self._end[0] == total:
+            return self._end[2]
+        crc = up.crc
+        r = up.end(total)
         if isinstance(r, int):
-            return r
-        try:
-            self.set_table(bytes(r))
-        except ValueError:
-            return _E["BAD_CONTENT"]
-        return 0
+            code = r
+        else:
+            code = 0
+            try:
+                self.set_table(bytes(r))
+            except ValueError:
+                code = _E["BAD_CONTENT"]
+        self._end = (total, crc, code)
+        return code
 
 
 def _q8(uv):

@@ -40,13 +40,16 @@ class InprocController:
         self.inbox = deque()
         self._seq = 0
         self._on_tick = controller.on_tick      # bound once: this runs every tick
-        self._status_due = controller.status_due
+        self._status_due = controller.status_due_at
 
     def on_tick(self, tick, t_us, vx, vy, vs):
         words = self._on_tick(tick, t_us, vx, vy, vs)
-        if self._status_due():
+        if self._status_due(tick):
             self._push(P_STATUS, self.ctrl.status_payload(tick))
         return words
+
+    def poll(self, timeout_s):
+        """Replies are immediate in-process: nothing to wait for."""
 
     def _push(self, pid, payload):
         self.inbox.append((pid, CONTROLLER, GROUND, self._seq & 0xFF, payload))
@@ -71,11 +74,16 @@ def decode_status(payload):
             "rx": d["rx"] / 32768.0, "ry": d["ry"] / 32768.0, "vs": d["vs"],
             "v_cmd": (d["vx"] * 1e-6, d["vy"] * 1e-6),
             "v_applied": (x_code / CODES_PER_VOLT, y_code / CODES_PER_VOLT),
-            "n_lost": d["n_lost"], "n_sat": d["n_sat"], "n_unknown": d["n_unknown"]}
+            "n_lost": d["n_lost"], "n_sat": d["n_sat"], "n_unknown": d["n_unknown"],
+            "why": d["why"], "n_dup": d["n_dup"], "n_gap": d["n_gap"], "n_rx_drop": d["n_rx_drop"]}
 
 
 class CommandError(ValueError):
-    """The controller refused a command (NACK) or did not answer."""
+    """The controller refused a command (NACK)."""
+
+
+class NoAnswer(OSError):
+    """A command went unanswered through every retry: the link is down."""
 
 
 class Rig:
@@ -98,6 +106,7 @@ class Rig:
         self.status = []          # decoded CTRL_STATUS since the last take_status()
         self.replies = deque()    # other packets (ACK, NACK, ...) not yet consumed
         self.n_status_total = 0
+        self.n_cmd_retries = 0
 
     def elapsed_s(self):
         """Virtual time run so far."""
@@ -114,8 +123,10 @@ class Rig:
 
     # --- clock -------------------------------------------------------------------------------------
     def run(self, n_ticks, progress=None):
-        out = self.lockstep.run(n_ticks=n_ticks, progress=progress)
-        self._drain()
+        try:
+            out = self.lockstep.run(n_ticks=n_ticks, progress=progress)
+        finally:
+            self._drain()
         return out
 
     def _drain(self):
@@ -137,31 +148,49 @@ class Rig:
         s, self.status = self.status, []
         return s
 
-    # --- commands ----------------------------------------------------------------------------------
-    def command(self, name, max_ticks=8, dst=CONTROLLER, **fields):
-        """Send a command (to the controller by default) and wait, advancing the clock, for its ACK;
-        a NACK raises CommandError naming the error code."""
+    # --- commands ---------------------------------------------------------------------------------
+    cmd_timeout_s = 0.05      # wait for ACK/NACK before resending a command
+    cmd_tries = 40            # sends of one command before the link is declared down (NoAnswer)
+
+    def command(self, name, dst=CONTROLLER, **fields):
+        """Send a command (to the controller by default) and wait for its ACK, resending it every
+        ``cmd_timeout_s`` until ACK or NACK. The clock does not advance meanwhile, so a command takes effect
+        before the same tick however many tries it took. Commands are idempotent (the firmware's contract), so
+        a resend whose first copy was executed does no harm. A NACK raises CommandError naming the error code;
+        ``cmd_tries`` unanswered sends raise NoAnswer."""
         pid = core.PACKET_ID[name]
         payload = core.encode_payload(pid, fields)
-        seq = self._seq & 0xFF
-        self._seq += 1
-        self.endpoint.send_ground(pid, payload, seq, dst)
-        for _ in range(max_ticks + 1):
-            self._drain()
-            while self.replies:
-                rpid, src, _dst, _rseq, rp = self.replies.popleft()
-                if rpid == P_ACK and rp[0] == pid:
-                    return
-                if rpid == P_NACK and rp[0] == pid:
-                    code = rp[2]
-                    raise CommandError("%s refused %s %s: %s" % (core.NODE_NAME.get(src, src), name, fields,
-                                                                 ERROR_NAME.get(code, code)))
-            self.run(1)
-        raise CommandError("no answer to %s within %d ticks" % (name, max_ticks))
+        clock = time.perf_counter
+        for attempt in range(self.cmd_tries):
+            if attempt:
+                self.n_cmd_retries += 1
+            seq = self._seq & 0xFF
+            self._seq += 1
+            self.endpoint.send_ground(pid, payload, seq, dst)
+            end = clock() + self.cmd_timeout_s
+            while True:
+                self._drain()
+                while self.replies:
+                    rpid, src, _dst, _rseq, rp = self.replies.popleft()
+                    if rpid == P_ACK and rp[0] == pid:
+                        return
+                    if rpid == P_NACK and rp[0] == pid:
+                        code = rp[2]
+                        raise CommandError("%s refused %s %s: %s" % (core.NODE_NAME.get(src, src), name,
+                                                                     fields, ERROR_NAME.get(code, code)))
+                left = end - clock()
+                if left <= 0:
+                    break
+                self.endpoint.poll(left)
+        raise NoAnswer("no answer to %s after %d tries over %.1f s" % (name, self.cmd_tries,
+                                                                      self.cmd_tries * self.cmd_timeout_s))
 
     def settings(self, mode, decim=1, gain_q15=0, safe_ticks=65535):
         self.command("CTRL_SETTINGS", mode=core.MODE[mode], rx_cmd=0, ry_cmd=0, gain=gain_q15, decim=decim,
                      safe_ticks=safe_ticks)
+        rc = getattr(self.endpoint, "rc", None)
+        if rc is not None:        # the bench now knows which ticks carry CTRL_STATUS and asks again for a lost one
+            rc.status_decim = decim
 
     def set_fsm(self, vx, vy):
         self.command("CTRL_SET_FSM", vx=int(round(vx * 1e6)), vy=int(round(vy * 1e6)))
@@ -201,6 +230,7 @@ class LiveRig(Rig):
         self.status = []
         self.replies = deque()
         self.n_status_total = 0
+        self.n_cmd_retries = 0
         self.pfsm_at = None
         self._t0 = None
 
@@ -242,6 +272,9 @@ class _LinkEndpoint:
 
     def send_ground(self, pid, payload, seq, dst=CONTROLLER):
         self.link.send_raw(pid, GROUND, dst, payload)
+
+    def poll(self, timeout_s):
+        self.inbox.extend(self.link.recv(timeout=timeout_s))
 
     def counters(self):
         return self.link.counters()

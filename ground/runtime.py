@@ -23,8 +23,11 @@ import time
 from ground.rig import InprocController, Rig
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-RUNTIMES = ("inproc", "cpython", "micropython")
+RUNTIMES = ("inproc", "cpython", "micropython", "board")
 LINKS = ("inproc", "serial", "can")
+TICK_TIMEOUT_MS = 3.0      # resend a TICK after this long without its answer (a MicroPython pty round trip: ~0.1 ms)
+TICK_TRIES = 50            # sends of one TICK before it is an overrun (the mirror holds)
+MAX_FAILED_TICKS = 2000    # consecutive overruns (a dead link) that end a run: 3.1 s at 637.8 Hz
 
 
 def micropython_binary():
@@ -44,6 +47,11 @@ def check(runtime, link):
         raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
     if link not in LINKS:
         raise ValueError("link %r not one of %s" % (link, ", ".join(LINKS)))
+    if runtime == "board":
+        if link != "serial":
+            raise ValueError("runtime board with link %s: a board is reached on its serial port (--link serial)"
+                             % link)
+        return
     if (runtime == "inproc") != (link == "inproc"):
         raise ValueError("runtime %s with link %s: inproc goes with inproc, cpython/micropython with serial "
                          "or can" % (runtime, link))
@@ -55,11 +63,13 @@ def check(runtime, link):
 class RemoteEndpoint:
     """A ``RemoteController`` plus ``send_ground`` (packets from GROUND on the same link)."""
 
-    def __init__(self, link, proc, timeout_s):
+    def __init__(self, link, proc, timeout_s, try_timeout_s=None, max_failed_ticks=None):
         from emulator.lockstep import RemoteController
         from protocol import core
         self.link, self.proc = link, proc
-        self.rc = RemoteController(link, timeout_s=timeout_s)
+        self.faults = None
+        self.rc = RemoteController(link, timeout_s=timeout_s, try_timeout_s=try_timeout_s,
+                                   max_failed_ticks=max_failed_ticks)
         self.inbox = self.rc.inbox
         self._ground = core.NODE["GROUND"]
         self._ctrl = core.NODE["CONTROLLER"]
@@ -70,16 +80,29 @@ class RemoteEndpoint:
     def send_ground(self, pid, payload, seq, dst=None):
         self.link.send_raw(pid, self._ground, self._ctrl if dst is None else dst, payload)
 
+    def poll(self, timeout_s):
+        self.rc.poll(timeout_s)
+
+    @property
+    def timeout_s(self):          # real-time mode sets each tick's patience from its deadline
+        return self.rc.timeout_s
+
+    @timeout_s.setter
+    def timeout_s(self, v):
+        self.rc.timeout_s = v
+
     def counters(self):
         c = dict(self.rc.counters())
         try:
             c.update(("link_" + k, v) for k, v in self.link.counters().items())
         except AttributeError:
             pass
+        if self.faults is not None:
+            c.update(self.faults.counters())
         return c
 
 
-def _start(runtime, link_kind, timeout_s):
+def _start(runtime, link_kind, rate_hz):
     from protocol.link import open_link
     # one link carries the BENCH (TICK/FSM_SPI) and the GROUND (commands, ACK/NACK, status): CAN must deliver both
     link = open_link("pty" if link_kind == "serial" else "slcan-pty", "BENCH", accept=("GROUND",))
@@ -92,7 +115,8 @@ def _start(runtime, link_kind, timeout_s):
         env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
     # stderr to a file, not a pipe: nobody reads a pipe during the run, and a full one would stall the controller
     errlog = tempfile.TemporaryFile()
-    proc = subprocess.Popen(exe + ["-m", "firmware.main", "controller", "--link", spec], cwd=ROOT, env=env,
+    proc = subprocess.Popen(exe + ["-m", "firmware.main", "controller", "--link", spec, "--rate", repr(rate_hz)],
+                            cwd=ROOT, env=env,
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errlog)
     proc.errlog = errlog
     return link, proc
@@ -119,47 +143,104 @@ def _stop(link, proc):
 
 
 @contextlib.contextmanager
-def open_rig(runtime="inproc", link="inproc", config=None, seed=0, deadline_s=2.0, first_wait_s=30.0, **kw):
-    """A ``Rig`` with the controller in the chosen runtime; see the module docstring."""
+def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=30.0, port=None, baud=115200,
+             link_faults=None, tick_timeout_ms=TICK_TIMEOUT_MS, tick_tries=TICK_TRIES,
+             max_failed_ticks=MAX_FAILED_TICKS, realtime=False, rate_hz=637.8, **kw):
+    """A ``Rig`` with the controller in the chosen runtime; see the module docstring.
+
+    ``board``: a controller board flashed with ``firmware/`` on the serial port ``port`` at ``baud``.
+    ``link_faults``: a ``protocol.faults.LinkFaults`` injected on the serial link (``rig.faults`` is the
+    ``FaultyPort``; set its ``clock``). TICKs are resent after ``tick_timeout_ms``, ``tick_tries`` times, and
+    ``max_failed_ticks`` consecutive overruns end the run (``emulator.lockstep.RemoteController``).
+    ``realtime``: ticks paced by the wall clock, each answer due within one period (overruns counted)."""
     check(runtime, link)
+    for name, v, lo in (("--tick-timeout-ms", tick_timeout_ms, 0.05), ("--tick-tries", tick_tries, 1),
+                        ("--max-failed-ticks", max_failed_ticks, 1)):
+        if not (isinstance(v, (int, float)) and v == v and lo <= v < 1e9):
+            raise ValueError("%s = %r: must be >= %g" % (name, v, lo))
     if runtime == "inproc":
+        if link_faults is not None:
+            raise ValueError("--link-faults needs a link: use --runtime cpython|micropython|board with --link "
+                             "serial")
         from firmware.controller import Controller
-        rig = Rig(InprocController(Controller()), config=config, seed=seed, **kw)
+        rig = Rig(InprocController(Controller()), config=config, seed=seed, rate_hz=rate_hz, **kw)
         rig.runtime_name, rig.link_name = "inproc", "inproc"
         rig.process = None
+        rig.faults = None
+        rig.lockstep.realtime = realtime
         yield rig
         return
-    lk, proc = _start(runtime, link, deadline_s)
+    if link_faults is not None and link != "serial":
+        raise ValueError("--link-faults: injected on serial links only; CAN frames are checked and "
+                         "retransmitted by the CAN controller itself")
+    try_s = tick_timeout_ms / 1000.0
+    patience_s = try_s * tick_tries
+    if runtime == "board":
+        if not port:
+            raise ValueError("--runtime board needs --port (the board's serial port, e.g. /dev/ttyACM0)")
+        from protocol.link import open_serial
+        try:
+            lk = open_serial(port, "BENCH", baudrate=baud)
+        except Exception as exc:       # pyserial's SerialException is an IOError subclass, but say which port
+            raise OSError("cannot open the board's port %s: %s" % (port, exc)) from None
+        proc = None
+        name = "board %s" % port
+    else:
+        lk, proc = _start(runtime, link, rate_hz)
+        name = "%s over %s" % (runtime, link)
     try:
-        ep = RemoteEndpoint(lk, proc, first_wait_s)
-        rig = Rig(ep, config=config, seed=seed, deadline_s=max(deadline_s, first_wait_s), **kw)
+        ep = RemoteEndpoint(lk, proc, patience_s, try_timeout_s=try_s, max_failed_ticks=max_failed_ticks)
+        if link_faults is not None:
+            from protocol.faults import inject
+            ep.faults = inject(lk, link_faults)
+        rig = Rig(ep, config=config, seed=seed, rate_hz=rate_hz, deadline_s=max(patience_s, 1.0 / rate_hz), **kw)
         rig.runtime_name, rig.link_name = runtime, link
+        rig.link_desc = name + (" (%s)" % port if port and runtime != "board" else "")
         rig.process = proc
+        rig.faults = ep.faults
         _first_contact(rig, ep, proc, first_wait_s)
-        ep.rc.timeout_s = deadline_s
-        rig.lockstep.deadline_s = deadline_s
+        if realtime:
+            rig.lockstep.realtime = True
+            rig.lockstep.deadline_s = 1.0 / rate_hz
         yield rig
     finally:
-        _stop(lk, proc)
+        if proc is not None:
+            _stop(lk, proc)
+        else:
+            with contextlib.suppress(Exception):
+                lk.close()
 
 
 def _first_contact(rig, ep, proc, wait_s):
-    """Wait for the controller's HELLO (sent once its link is open: a TICK sent earlier could be flushed
-    by the device opening), then for its answer to a first TICK."""
+    """HELLO to the controller, repeated every 50 ms until it answers (its own HELLO counts: it says one when
+    its link opens); a HELLO also starts a new session in the firmware (tick numbers from 0 again)."""
     from protocol import core
     hello = core.PACKET_ID["HELLO"]
+    payload = core.encode_payload(hello, node=core.NODE["GROUND"])
     t0 = time.perf_counter()
+    tries = 0
     while True:
-        pkts = ep.link.recv(timeout=0.05)
-        if any(p[0] == hello for p in pkts):
+        ep.send_ground(hello, payload, 0)
+        tries += 1
+        end = time.perf_counter() + 0.05
+        got = False
+        while not got:
+            left = end - time.perf_counter()
+            if left <= 0:
+                break
+            pkts = ep.link.recv(timeout=left)
+            got = any(p[0] == hello for p in pkts)
+            ep.inbox.extend(p for p in pkts if p[0] != hello)
+        if got:
             break
-        ep.inbox.extend(p for p in pkts if p[0] != hello)
-        if proc.poll() is not None:
+        if proc is not None and proc.poll() is not None:
             err = stderr_tail(proc)
             raise OSError("controller process exited with %s before saying HELLO: %s" % (proc.returncode, err))
+        if ep.link.closed:
+            raise OSError("the controller's link closed before it said HELLO")
         if time.perf_counter() - t0 > wait_s:
-            raise OSError("controller process did not say HELLO within %g s" % wait_s)
-    before = rig.lockstep.n_overrun
-    rig.run(1)
-    if rig.lockstep.n_overrun != before:
-        raise OSError("controller process said HELLO but did not answer a TICK within %g s" % wait_s)
+            raise OSError("controller did not answer HELLO within %g s (%d tries)" % (wait_s, tries))
+    rig.hello_tries = tries
+    if tries > 1:
+        rig.n_cmd_retries += tries - 1
+    ep.inbox.clear()

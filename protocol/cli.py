@@ -23,6 +23,7 @@ _ENUMS = {
     "state": dict((a[0], a[1]) for a in table.PLAYER_ACTIONS),
     "action": dict((a[0], a[1]) for a in table.PLAYER_ACTIONS),
     "code": dict((e[0], e[1]) for e in table.ERRORS),
+    "why": dict((r[0], r[1]) for r in table.SAFE_REASONS),
 }
 
 
@@ -125,6 +126,8 @@ def table_markdown():
         L.append("| %d | %s | %s |" % (e[1], e[0], e[2]))
     L += ["", "## Controller modes", "", "| value | mode |", "|---|---|"]
     L += ["| %d | %s |" % (m[1], m[0]) for m in table.MODES]
+    L += ["", "## Why the controller entered SAFE (CTRL_STATUS.why)", "", "| value | reason |", "|---|---|"]
+    L += ["| %d | %s |" % (r[1], r[0]) for r in table.SAFE_REASONS]
     L += ["", "## Player actions", "", "| value | action |", "|---|---|"]
     L += ["| %d | %s |" % (a[1], a[0]) for a in table.PLAYER_ACTIONS]
     L += ["", "Upload chunks carry %d data bytes." % table.CHUNK_BYTES, "", "## Packets", "",
@@ -169,6 +172,7 @@ def table_json():
             "nodes": [{"name": n[0], "address": n[1], "doc": n[2]} for n in table.NODES],
             "errors": [{"name": e[0], "code": e[1], "doc": e[2]} for e in table.ERRORS],
             "modes": [{"name": m[0], "value": m[1]} for m in table.MODES],
+            "safe_reasons": [{"name": r[0], "value": r[1]} for r in table.SAFE_REASONS],
             "packets": packets}
 
 

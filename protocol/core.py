@@ -42,6 +42,9 @@ MODE_NAME = {}
 for _m in table.MODES:
     MODE[_m[0]] = _m[1]
     MODE_NAME[_m[1]] = _m[0]
+SAFE_REASON = {}
+for _m in table.SAFE_REASONS:
+    SAFE_REASON[_m[1]] = _m[0]
 ERROR = {}
 for _e in table.ERRORS:
     ERROR[_e[0]] = _e[1]

@@ -36,6 +36,9 @@ NODES = (
 # Controller modes (CTRL_SETTINGS.mode, CTRL_STATUS.mode).
 MODES = (("IDLE", 0), ("TRACK", 1), ("HOLD", 2), ("CALIBRATE", 3), ("SAFE", 4))
 
+# Why the controller last entered SAFE (CTRL_STATUS.why).
+SAFE_REASONS = (("NONE", 0), ("BEAM_LOST", 1), ("LINK_SILENT", 2), ("COMMANDED", 3))
+
 # Error codes carried by NACK.code (0 is never sent: it means "no error").
 ERRORS = (
     ("OK", 0, "no error"),
@@ -143,6 +146,10 @@ PACKETS = (
         ("n_lost", "H", "", 1, None, None, 0, "ticks with the beam below threshold (wraps)"),
         ("n_sat", "H", "", 1, None, None, 0, "ticks with the command saturated (wraps)"),
         ("n_unknown", "H", "", 1, None, None, 0, "unknown packets ignored (wraps)"),
+        ("why", "B", "", 1, 0, 3, 0, "why the controller last entered SAFE, see SAFE_REASONS"),
+        ("n_dup", "H", "", 1, None, None, 0, "resent TICKs answered again without a step (wraps)"),
+        ("n_gap", "H", "", 1, None, None, 0, "ticks the bench ran without this controller (wraps)"),
+        ("n_rx_drop", "H", "", 1, None, None, 0, "frames this controller's decoder dropped (wraps)"),
     )),
     (0x23, "HTABLE_BEGIN", "GROUND", "CONTROLLER", "begin an H-table upload", _BEGIN),
     (0x24, "HTABLE_CHUNK", "GROUND", "CONTROLLER", "one chunk of an H-table upload", _CHUNK),

@@ -23,6 +23,7 @@ _TICK_FMT = core.PACKET[P_TICK].fmt
 _SPI_FMT = core.PACKET[P_FSM_SPI].fmt
 _SPI_SIZE = core.PACKET[P_FSM_SPI].size
 _MICROPYTHON = sys.implementation.name == "micropython"
+_DROPS = core.DROP_REASONS
 
 
 class _Ms:
@@ -44,6 +45,9 @@ class _Ms:
 
     def close(self):
         self.link.close()
+
+    def counters(self):
+        return self.link.counters()
 
 
 class _StreamMs(_Ms):
@@ -67,10 +71,23 @@ def open_link(spec, node):
 
 
 def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
-    """Run the controller on a link until the peer leaves. Silence counts toward SAFE (``ctl.link_silent``)."""
+    """Run the controller on a link until the peer leaves.
+
+    Exactly-once ticks: the first copy of TICK k steps the controller; a resent TICK k (its answer was lost)
+    is answered again with the FSM_SPI words, and the CTRL_STATUS if one was due, computed for k, without a
+    second step (``n_dup``). A TICK older than the last is stale and ignored. Ticks the bench ran without us
+    (a gap in the tick numbers) count as link silence toward SAFE (``n_gap``), as does a wait of ``poll_ms``
+    without any packet. A HELLO from the bench starts a new session (tick numbers may start again).
+    CTRL_STATUS is due on ticks k with k % decim == 0 (``status_due_at``), so the bench knows which ticks
+    carry one; it goes out before the FSM_SPI, to the TICK's sender.
+    """
     me = link.node
     out = bytearray(_SPI_SIZE)
+    status = None
+    status_tick = -1
+    last = -1
     w = ctl.words
+    counters = getattr(link, "counters", None)
     link.send_raw(P_HELLO, me, BROADCAST, core.encode_payload(P_HELLO, node=me, fw_major=1, fw_minor=0))
     silent_ticks = int(poll_ms * rate_hz / 1000) or 1
     while not link.closed:
@@ -83,15 +100,35 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 continue
             if pid == P_TICK:
                 tick, t_us, vx, vy, vs = struct.unpack(_TICK_FMT, payload)
+                if tick == last:              # a resend: the same answer, no second step
+                    ctl.n_dup += 1
+                    if status_tick == tick:
+                        link.send_raw(P_STATUS, me, src, status)
+                    link.send_raw(P_FSM_SPI, me, src, out)
+                    continue
+                if tick < last:
+                    continue
+                if last >= 0 and tick > last + 1:
+                    ctl.n_gap += tick - last - 1
+                    ctl.link_silent(tick - last - 1)
+                last = tick
                 ctl.heard(True)
                 heap_lock()                   # the step allocates nothing; locked, its frame stays off the heap
                 n = ctl.step(vx, vy, vs)
                 heap_unlock()
                 struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
+                if ctl.status_due_at(tick):   # to the HIL host that clocks us (on CAN, ISO-TP to an absent
+                    if counters is not None:  # node would block)
+                        d = counters()
+                        ctl.n_rx_drop = sum(d.get(k, 0) for k in _DROPS)
+                    status = ctl.status_payload(tick)
+                    status_tick = tick
+                    link.send_raw(P_STATUS, me, src, status)
                 link.send_raw(P_FSM_SPI, me, src, out)
-                if ctl.status_due():       # to the HIL host that clocks us (on CAN, ISO-TP to an absent
-                    link.send_raw(P_STATUS, me, src, ctl.status_payload(tick))   # node would block)
             else:
+                if pid == P_HELLO:
+                    last = -1
+                    status_tick = -1
                 for rpid, rdst, rpayload in ctl.handle(pid, src, seq, payload):
                     link.send_raw(rpid, me, rdst, rpayload)
     link.close()

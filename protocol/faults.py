@@ -1,0 +1,187 @@
+"""Fault injection on a serial link's byte stream, so a team can rehearse a bad harness (host side, CPython).
+
+``LinkFaults.parse("bytes=0.01,frames=0.05,seed=1,silence=30:2")`` describes the faults; ``FaultyPort`` wraps
+the port under a ``protocol.link.SerialLink`` (its ``read``/``write``/``close``) and applies them to the frames
+in both directions, below the framing, as a noisy cable would:
+
+- ``frames=P``: each frame (the bytes up to and including its 0x00 delimiter) is dropped with probability P;
+- ``bytes=P``: each byte of a frame that passes gets one random bit flipped with probability P (a delimiter
+  may be hit too, merging or splitting frames: the decoder must cope);
+- ``silence=START_S:LENGTH_S``: nothing passes while the clock reads START_S <= t < START_S + LENGTH_S
+  (``LENGTH_S`` ``inf`` for good). The clock is a callable set by the tool (``FaultyPort.clock``); the HIL
+  sets it to the virtual seconds since the play started (None before: no silence). Several items may be given;
+- ``seed=N``: the generator's seed (one ``random.Random`` per direction).
+
+Every action is counted (``counters()``). The pattern is reproducible for a seed given the same traffic; the
+traffic itself depends on timing (resends), so two runs see different faults, by design.
+"""
+
+import math
+import random
+
+KEYS = ("bytes", "frames", "seed", "silence")
+
+
+class LinkFaults:
+    """Parsed fault settings: ``p_byte``, ``p_frame``, ``seed``, ``silences`` [(start_s, length_s)]."""
+
+    def __init__(self, p_byte=0.0, p_frame=0.0, seed=0, silences=()):
+        for name, p in (("bytes", p_byte), ("frames", p_frame)):
+            if not (isinstance(p, (int, float)) and 0.0 <= p < 1.0):
+                raise ValueError("--link-faults %s=%r: a probability in [0, 1)" % (name, p))
+        for start, length in silences:
+            if not (math.isfinite(start) and start >= 0 and length > 0):
+                raise ValueError("--link-faults silence=%r:%r: START_S >= 0 and LENGTH_S > 0 seconds "
+                                 "(LENGTH_S may be inf)" % (start, length))
+        self.p_byte = float(p_byte)
+        self.p_frame = float(p_frame)
+        self.seed = int(seed)
+        self.silences = [(float(a), float(b)) for a, b in silences]
+
+    @classmethod
+    def parse(cls, spec):
+        """From ``bytes=P,frames=P,seed=N,silence=START_S:LENGTH_S`` (any subset, any order)."""
+        kw = {"p_byte": 0.0, "p_frame": 0.0, "seed": 0, "silences": []}
+        if not spec or not spec.strip():
+            raise ValueError("--link-faults: empty; give e.g. bytes=0.01,frames=0.05,seed=1")
+        for item in spec.split(","):
+            key, sep, val = item.strip().partition("=")
+            if not sep or key not in KEYS:
+                raise ValueError("--link-faults item %r: expected KEY=VALUE with KEY one of %s"
+                                 % (item, ", ".join(KEYS)))
+            try:
+                if key == "seed":
+                    kw["seed"] = int(val)
+                elif key == "silence":
+                    a, sep2, b = val.partition(":")
+                    if not sep2:
+                        raise ValueError
+                    kw["silences"].append((float(a), float(b)))
+                else:
+                    v = float(val)
+                    if not math.isfinite(v):
+                        raise ValueError
+                    kw["p_byte" if key == "bytes" else "p_frame"] = v
+            except ValueError:
+                raise ValueError("--link-faults item %r: bad value (bytes/frames: a probability, seed: an "
+                                 "integer, silence: START_S:LENGTH_S in seconds)" % item) from None
+        return cls(**kw)
+
+    def describe(self):
+        parts = ["bytes=%g" % self.p_byte, "frames=%g" % self.p_frame, "seed=%d" % self.seed]
+        parts += ["silence=%g:%g" % s for s in self.silences]
+        return ",".join(parts)
+
+    def as_dict(self):
+        return {"bytes": self.p_byte, "frames": self.p_frame, "seed": self.seed,
+                "silence": [list(s) for s in self.silences]}
+
+
+class _Direction:
+    """Faults for one direction: frame drops, bit flips at a geometric distance, silence."""
+
+    def __init__(self, faults, seed):
+        self.f = faults
+        self.rng = random.Random(seed)
+        self.next_flip = self._gap()
+        self.frames = 0
+        self.dropped = 0
+        self.flipped = 0
+        self.silenced = 0
+
+    def _gap(self):
+        p = self.f.p_byte
+        if p <= 0:
+            return -1
+        return int(math.log(1.0 - self.rng.random()) / math.log(1.0 - p))
+
+    def frame(self, data, silent):
+        """The frame as it arrives (b"" if it is lost)."""
+        self.frames += 1
+        if silent:
+            self.silenced += 1
+            return b""
+        if self.f.p_frame and self.rng.random() < self.f.p_frame:
+            self.dropped += 1
+            return b""
+        if self.next_flip < 0:
+            return data
+        if self.next_flip >= len(data):
+            self.next_flip -= len(data)
+            return data
+        buf = bytearray(data)
+        i = self.next_flip
+        while i < len(buf):
+            buf[i] ^= 1 << self.rng.randrange(8)
+            self.flipped += 1
+            i += 1 + self._gap()
+        self.next_flip = i - len(buf)
+        return bytes(buf)
+
+
+class FaultyPort:
+    """A port (``read(timeout)``, ``write(data)``, ``close()``) whose frames meet ``faults`` both ways."""
+
+    def __init__(self, port, faults, clock=None):
+        self.port = port
+        self.faults = faults
+        self.clock = clock
+        self.tx = _Direction(faults, faults.seed * 2 + 1)
+        self.rx = _Direction(faults, faults.seed * 2 + 2)
+        self._rx_part = b""
+        self._tx_part = b""
+
+    def silent(self):
+        if not self.faults.silences or self.clock is None:
+            return False
+        t = self.clock()
+        if t is None:
+            return False
+        return any(a <= t < a + b for a, b in self.faults.silences)
+
+    def _pass(self, direction, data, part):
+        """Whole frames of ``part + data`` through ``direction``; returns (bytes out, unfinished tail)."""
+        data = part + bytes(data)
+        out = []
+        silent = self.silent()
+        start = 0
+        while True:
+            end = data.find(b"\x00", start)
+            if end < 0:
+                break
+            out.append(direction.frame(data[start:end + 1], silent))
+            start = end + 1
+        return b"".join(out), data[start:]
+
+    def read(self, timeout):
+        data = self.port.read(timeout)
+        if not data:
+            return data
+        out, self._rx_part = self._pass(self.rx, data, self._rx_part)
+        return out
+
+    def write(self, data):
+        out, self._tx_part = self._pass(self.tx, data, self._tx_part)
+        if out:
+            self.port.write(out)
+
+    def close(self):
+        self.port.close()
+
+    def counters(self):
+        d = {}
+        for name, s in (("tx", self.tx), ("rx", self.rx)):
+            d.update({"fault_%s_frames" % name: s.frames, "fault_%s_dropped" % name: s.dropped,
+                      "fault_%s_bits_flipped" % name: s.flipped, "fault_%s_silenced" % name: s.silenced})
+        return d
+
+
+def inject(link, faults, clock=None):
+    """Wrap a ``protocol.link.SerialLink``'s port with ``faults``; returns the ``FaultyPort``."""
+    port = getattr(link, "_port", None)
+    if port is None:
+        raise ValueError("--link-faults: injected on serial links only (pty or a serial port); CAN frames are "
+                         "checked and retransmitted by the CAN controller itself")
+    fp = FaultyPort(port, faults, clock)
+    link._port = fp
+    return fp

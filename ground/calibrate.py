@@ -245,6 +245,10 @@ def run_calibration(rig, grid_v, dv, log=print, progress=None, **kw):
     return out, failed, wall
 
 
+class CalibrationFailed(OSError):
+    """Grid points failed (beam lost, no null found) or the link went down: no calibration written."""
+
+
 def _cmd(a):
     from ground import plots, runtime
     grid_v = sec74_grid(a.grid, a.span)
@@ -252,24 +256,35 @@ def _cmd(a):
     if a.config:
         from emulator.config import load_config
         cfg = load_config(a.config)
-    if a.port:
+    if a.link is None:
+        a.link = "inproc" if a.runtime == "inproc" else "serial"
+    if a.port and a.runtime != "board":        # a real, free-running bench: wall-clock time, no lockstep
         from ground.rig import LiveRig
         rig_cm = contextlib.closing(LiveRig(a.port))
         a.no_truth = True
     else:
-        rig_cm = runtime.open_rig(a.runtime, a.link, config=cfg, seed=a.seed)
-    with rig_cm as rig:
-        log = (lambda m: print(m, file=sys.stderr)) if a.verbose else (lambda m: None)
-        cal, failed, wall = run_calibration(rig, grid_v, a.dv, log=log)
-        cal["runtime"] = getattr(rig, "runtime_name", "bench")
-        cal["link"] = getattr(rig, "link_name", a.port)
+        opts = runtime.link_options(a)
+        runtime.check_options(a.runtime, a.link, **opts)
+        rig_cm = runtime.open_rig(a.runtime, a.link, config=cfg, seed=a.seed, **opts)
+    try:
+        with rig_cm as rig:
+            if getattr(rig, "faults", None) is not None:      # silence windows in virtual seconds of the run
+                rig.faults.clock = rig.elapsed_s
+            log = (lambda m: print(m, file=sys.stderr)) if a.verbose else (lambda m: None)
+            cal, failed, wall = run_calibration(rig, grid_v, a.dv, log=log)
+            cal["runtime"] = getattr(rig, "runtime_name", "bench")
+            cal["link"] = getattr(rig, "link_name", a.port)
+            from ground.hil import link_counters
+            cal["link_counters"] = link_counters(rig) if hasattr(rig, "lockstep") else None
+    except (OSError, ValueError) as exc:     # the inputs were checked: this is the run failing (link, process)
+        raise CalibrationFailed("calibration stopped: %s; no calibration written" % exc) from None
     base = os.path.splitext(a.output)[0]
     if failed:
         write_json(base + ".failed.json", cal)
         for p, msg in failed:
             print("calibration failed at %s" % msg, file=sys.stderr)
-        raise ValueError("%d of %d grid points failed (details in %s.failed.json); no calibration written"
-                         % (len(failed), len(grid_v) ** 2, base))
+        raise CalibrationFailed("%d of %d grid points failed (details in %s.failed.json); no calibration "
+                                "written" % (len(failed), len(grid_v) ** 2, base))
     write_json(a.output, cal)
     print("wrote %s: %d points, dv %g V, %.2f s wall (%s, %s)" % (a.output, len(cal["points"]), a.dv, wall,
                                                                 cal["runtime"], cal["link"]))
@@ -293,19 +308,20 @@ def _cmd(a):
 
 
 def register(sub, name, help_):
-    p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
+    import argparse
+    p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="--port without --runtime board: a real, free-running bench (the controller and the player "
+                              "answer there,\ntime is the wall clock).\nexit status: 0 calibration written; 1 the run failed (grid points failed, link "
+                              "down): nothing written\nbut NAME.failed.json for failed points; 2 bad input.")
     p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
     p.add_argument("--grid", type=int, default=11, help="grid points per axis (default 11: 121 points)")
     p.add_argument("--span", type=float, default=5.0, help="P-FSM grid half span in V (default 5: -5..+5 V)")
     p.add_argument("--dv", type=float, default=0.01, help="FSM perturbation in V (default 0.01)")
     p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
     p.add_argument("--seed", type=int, default=0, help="emulator seed")
-    p.add_argument("--runtime", default="inproc", choices=("inproc", "cpython", "micropython"),
-                   help="controller firmware: in this process, or a subprocess under CPython or MicroPython")
-    p.add_argument("--link", default="inproc", choices=("inproc", "serial", "can"),
-                   help="link to a subprocess controller: serial pty or CAN over slcan (default inproc)")
-    p.add_argument("--port", help="a real bench's serial port (e.g. /dev/ttyUSB0): the controller and the "
-                                  "player answer there, time is the wall clock")
+    from ground.runtime import add_link_arguments
+    add_link_arguments(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-truth", action="store_true", help="skip the comparison with the emulator's true H")
     p.add_argument("-v", "--verbose", action="store_true")

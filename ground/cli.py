@@ -3,10 +3,14 @@
 Subcommands live in their own modules and are imported only when used, so ``fps protocol`` never
 pays for numpy or matplotlib. A module registers itself with ``register(subparsers, name, help)``,
 which adds its parser and sets ``func`` (called with the parsed args; its return value is the exit code).
+Exit status: 0 success, 1 the run failed (OSError: link, process, disk; or an internal error), 2 bad input
+(ValueError, or argparse's own), 3 a run that completed but missed its requirement (``fps hil``), 130
+interrupted.
 """
 
 import argparse
 import importlib
+import os
 import sys
 
 COMMANDS = (
@@ -46,8 +50,17 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    except (ValueError, OSError) as exc:
+    except ValueError as exc:          # bad input: a file, a value, an option combination
         print("fps %s: error: %s" % (args.command, exc), file=sys.stderr)
+        return 2
+    except OSError as exc:             # the run failed: a link, a process, the disk
+        print("fps %s: error: %s" % (args.command, exc), file=sys.stderr)
+        return 1
+    except Exception as exc:           # a bug: say so in one line, the traceback only on request
+        if os.environ.get("FPS_DEBUG"):
+            raise
+        print("fps %s: internal error: %s: %s (please report it; FPS_DEBUG=1 shows the traceback)"
+              % (args.command, type(exc).__name__, exc), file=sys.stderr)
         return 1
     return int(rc or 0)
 

@@ -122,11 +122,14 @@ class Recorder:
         write_atomic(self.path("samples.npz"), buf.getvalue())
 
     def write_telemetry(self):
-        cols = ("tick", "mode", "beam", "sat", "rx", "ry", "vs", "n_lost", "n_sat", "n_unknown")
-        lines = [",".join(cols + ("v_cmd_x", "v_cmd_y"))]
+        cols = ("tick", "mode", "beam", "sat", "rx", "ry", "vs", "n_lost", "n_sat", "n_unknown", "why",
+                "n_gap")
+        link = ("n_dup", "n_rx_drop")       # the link's own counters: they differ between runs by design
+        lines = [",".join(cols + ("v_cmd_x", "v_cmd_y") + link)]
         for s in self.status:
             lines.append(",".join([str(int(s[c])) if c not in ("rx", "ry") else "%.6f" % s[c] for c in cols]
-                                  + ["%.7f" % s["v_cmd"][0], "%.7f" % s["v_cmd"][1]]))
+                                  + ["%.7f" % s["v_cmd"][0], "%.7f" % s["v_cmd"][1]]
+                                  + [str(int(s[c])) for c in link]))
         write_atomic(self.path("telemetry.csv"), "\n".join(lines) + "\n")
 
 
@@ -138,13 +141,49 @@ def _progress_bar(total_s, quiet):
                 bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s virtual [{elapsed}<{remaining}, {rate_fmt}]")
 
 
+def link_counters(rig):
+    """Both sides' link counters: the bench's (lockstep, commands, decoder, injected faults) and the
+    controller's as of its last CTRL_STATUS."""
+    if rig is None:
+        return {"bench": {}, "controller": None}
+    bench = dict(rig.lockstep.counters())
+    bench["command_retries"] = rig.n_cmd_retries
+    bench["hello_tries"] = getattr(rig, "hello_tries", 0)
+    st = rig.last_status
+    ctl = None if st is None else {"at_tick": st["tick"], "resent_ticks_answered": st["n_dup"],
+                                   "gap_ticks": st["n_gap"], "rx_frames_dropped": st["n_rx_drop"],
+                                   "unknown_packets": st["n_unknown"]}
+    return {"bench": bench, "controller": ctl}
+
+
+def mode_changes(rig, tick0):
+    """Each mode change seen in CTRL_STATUS after ``tick0`` (the play's start): time, modes and why."""
+    from protocol import core
+    out = []
+    if rig is None:
+        return out
+    prev = None
+    for tick, mode, why in rig.mode_log:
+        if tick >= tick0 and prev is not None and mode != prev:
+            out.append({"t_s": round((tick - tick0) / rig.rate_hz, 4), "tick": tick,
+                        "from": core.MODE_NAME.get(prev, prev), "to": core.MODE_NAME.get(mode, mode),
+                        "why": core.SAFE_REASON.get(why, why) if mode == core.MODE["SAFE"] else "commanded"})
+        prev = mode
+    return out
+
+
 def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name, out_dir, config=None,
-            seed=0, q2_dvp=0.05, quiet=False, plots=True):
-    """The whole run; returns the summary dict (also written to ``out_dir/summary.json``)."""
+            seed=0, q2_dvp=0.05, quiet=False, plots=True, link_opts=None):
+    """The whole run; returns the summary dict (also written to ``out_dir/summary.json``).
+
+    Bad input raises ValueError before anything is written. Once the folder exists it always ends with a
+    ``summary.json`` holding ``complete``, ``error``, ``requirement_met``, ``mode_changes`` and both sides'
+    link counters; a failure then raises ``RunFailed``, an interruption ``Interrupted``."""
     from firmware.player import Player
     from ground import runtime
 
-    runtime.check(runtime_name, link_name)
+    link_opts = dict(link_opts or {})
+    runtime.check_options(runtime_name, link_name, **link_opts)
     cal = load_calibration(calibration_path)
     d, dx, dy = load_distfile(distfile_path)
     check_playable(dx, dy, d.period_us)
@@ -155,26 +194,36 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
         raise ValueError("--duration %g s is longer than the distfile (%g s)" % (duration_s, play_s))
     os.makedirs(out_dir, exist_ok=True)
     rec = Recorder(out_dir)
-    summary = {"complete": False, "duration_s": 0.0, "requested_duration_s": duration_s,
-               "real_time_factor": None, "overruns": 0, "q2": None, "truth": None,
+    faults = link_opts.get("link_faults")
+    summary = {"complete": False, "error": None, "requirement_met": False, "duration_s": 0.0,
+               "requested_duration_s": duration_s, "real_time_factor": None, "overruns": 0, "q2": None,
+               "truth": None, "mode_changes": [], "link_faults": faults.as_dict() if faults else None,
+               "link": {"bench": {}, "controller": None},
                "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     write_json(rec.path("summary.json"), summary)
     write_json(rec.path("calibration.json"), cal)
-    with _sigterm_as_interrupt(), runtime.open_rig(runtime_name, link_name, config=config, seed=seed) as rig:
-        if cal.get("bench_config") not in (None, rig.config):
-            print("warning: %s was calibrated on another bench config than this run's" % calibration_path,
-                  file=sys.stderr)
-        write_json(rec.path("config.json"), {
-            "distfile": os.path.abspath(distfile_path), "distfile_source": d.source, "distfile_seed": d.seed,
-            "distfile_count": d.count, "distfile_period_us": d.period_us,
-            "calibration": os.path.abspath(calibration_path), "duration_s": duration_s,
-            "runtime": runtime_name, "link": link_name, "seed": seed, "rate_hz": rig.rate_hz,
-            "pfsm_hz": rig.lockstep.pfsm_hz, "q2_hz": rig.bench.q2_hz, "bench_config": rig.bench.config})
-        interrupted = False
-        failure = None
-        q2cal = None
-        t0_us = 0
-        try:
+    interrupted = False
+    failure = None
+    q2cal = None
+    t0_us = 0
+    tick0 = None
+    rig = None
+    try:
+        with _sigterm_as_interrupt(), runtime.open_rig(runtime_name, link_name, config=config, seed=seed,
+                                                       **link_opts) as rig:
+            if cal.get("bench_config") not in (None, rig.config):
+                print("warning: %s was calibrated on another bench config than this run's" % calibration_path,
+                      file=sys.stderr)
+            write_json(rec.path("config.json"), {
+                "distfile": os.path.abspath(distfile_path), "distfile_source": d.source, "distfile_seed": d.seed,
+                "distfile_count": d.count, "distfile_period_us": d.period_us,
+                "calibration": os.path.abspath(calibration_path), "duration_s": duration_s,
+                "runtime": runtime_name, "link": link_name, "seed": seed, "rate_hz": rig.rate_hz,
+                "pfsm_hz": rig.lockstep.pfsm_hz, "q2_hz": rig.bench.q2_hz, "bench_config": rig.bench.config,
+                "realtime": rig.lockstep.realtime, "port": link_opts.get("port"),
+                "link_faults": faults.describe() if faults else None,
+                "tick_timeout_ms": link_opts.get("tick_timeout_ms"), "tick_tries": link_opts.get("tick_tries"),
+                "max_failed_ticks": link_opts.get("max_failed_ticks")})
             rig.upload_htable(htable.pack_calibration(cal))
             # null at the centre, then Q2 against the P-FSM with the FSM held there
             rig.pfsm_v(0.0, 0.0)
@@ -196,7 +245,10 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
             player.oneshot()
             rig.lockstep.player = player
             overrun0 = rig.lockstep.n_overrun
-            t0_us = int(round(rig.lockstep.tick * 1e6 / rig.rate_hz))
+            tick0 = rig.lockstep.tick
+            t0_us = int(round(tick0 * 1e6 / rig.rate_hz))
+            if rig.faults is not None:       # silence windows count in virtual seconds of the play
+                rig.faults.clock = lambda: (rig.lockstep.tick - tick0) / rig.rate_hz
             n_total = int(round(duration_s * rig.rate_hz))
             chunk = max(1, int(round(CHUNK_S * rig.rate_hz)))
             bar = _progress_bar(duration_s, quiet)
@@ -206,7 +258,13 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
                 while done < n_total:
                     n = min(chunk, n_total - done)
                     tw = time.perf_counter()
-                    out = rig.run(n)
+                    try:
+                        out = rig.run(n)
+                    except BaseException:
+                        if rig.lockstep.partial is not None:     # keep every sample played before the stop
+                            rec.add(rig.lockstep.partial, rig.take_status())
+                            rec.virtual_s = (rig.lockstep.tick - tick0) / rig.rate_hz
+                        raise
                     rec.minute_rates.append((n / rig.rate_hz, time.perf_counter() - tw))
                     rec.add(out, rig.take_status())
                     done += n
@@ -222,24 +280,74 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
                 rec.play_wall = time.perf_counter() - t_play0
                 if bar is not None:
                     bar.close()
-            summary["overruns"] = rig.lockstep.n_overrun - overrun0
-        except KeyboardInterrupt:
-            interrupted = True
-            summary["overruns"] = rig.lockstep.n_overrun
-        except OSError as exc:
-            failure = str(exc)
-            summary["overruns"] = rig.lockstep.n_overrun
-        summary["counters"] = rig.lockstep.counters()
+                summary["overruns"] = rig.lockstep.n_overrun - overrun0
+    except KeyboardInterrupt:
+        interrupted = True
+    except (OSError, ValueError) as exc:       # inputs were checked above: anything now is the run failing
+        where = getattr(rig, "link_desc", None) or "%s over %s" % (runtime_name, link_name)
+        failure = "%s: %s" % (where, exc)
+    summary["link"] = link_counters(rig)
+    if rig is not None and tick0 is None:
+        summary["overruns"] = rig.lockstep.n_overrun
     summary.update(_finish(rec, q2cal, t0_us, complete=not (interrupted or failure), plots=plots))
+    summary["mode_changes"] = mode_changes(rig, tick0) if tick0 is not None else []
     summary["interrupted"] = interrupted
     summary["error"] = failure
+    if failure:
+        c = summary["link"]
+        summary["error"] = "%s [bench counters %s; controller counters %s]" % (
+            failure, _nonzero(c["bench"]), _nonzero(c["controller"] or {}) or "none received")
     write_json(rec.path("summary.json"), summary)
-    write_atomic(rec.path("report.md"), report.table(summary) + "\n")
+    write_atomic(rec.path("report.md"), report.table(summary) + "\n" + "\n".join(
+        "- " + line for line in verdict_lines(summary)) + "\n")
     if interrupted:
         raise Interrupted(out_dir)
     if failure:
-        raise OSError("%s (partial run in %s, summary complete=false)" % (failure, out_dir))
+        raise RunFailed("%s (partial run in %s, summary complete=false)" % (summary["error"], out_dir))
     return summary
+
+
+class RunFailed(OSError):
+    """The run could not go on (link, controller process, a refused command); its folder holds what was done."""
+
+
+def _nonzero(d):
+    return ", ".join("%s=%s" % (k, v) for k, v in sorted(d.items()) if v not in (0, None, "", [])) or "all zero"
+
+
+def verdict_lines(s):
+    """The closing lines: requirement, beam, mode changes, link faults (every run, failed or not)."""
+    lines = []
+    q2 = s.get("q2") or {}
+    if s.get("error"):
+        lines.append("FAILED: %s" % s["error"])
+    elif s.get("interrupted"):
+        lines.append("INTERRUPTED after %.1f s of virtual time: partial run, complete=false" % s["duration_s"])
+    if s.get("complete"):
+        if s.get("requirement_met"):
+            lines.append("requirement met: all %d Q2 samples within %.2f″" % (s["q2_samples"],
+                                                                            report.REQUIREMENT_ARCSEC))
+        else:
+            share = q2.get("within_requirement")
+            lines.append("REQUIREMENT MISSED: %s of %d Q2 samples within %.2f″, largest %s″" % (
+                "—" if share is None else "%.4f %%" % (100 * share), s.get("q2_samples", 0),
+                report.REQUIREMENT_ARCSEC, _fmt_num(q2.get("max_radial_arcsec"))))
+    if s.get("q2_beam_lost_samples"):
+        lines.append("BEAM LOST on Q2 in %d samples" % s["q2_beam_lost_samples"])
+    for m in s.get("mode_changes", []):
+        lines.append("controller left %s for %s at t = %.2f s (%s)" % (m["from"], m["to"], m["t_s"], m["why"])
+                     if m["from"] == "TRACK" else
+                     "controller went from %s to %s at t = %.2f s (%s)" % (m["from"], m["to"], m["t_s"],
+                                                                          m["why"]))
+    b = (s.get("link") or {}).get("bench") or {}
+    if b.get("controller_resent") or b.get("command_retries") or b.get("overruns"):
+        lines.append("link: %d TICKs resent, %d command retries, %d overruns (ticks the mirror held)" % (
+            b.get("controller_resent", 0), b.get("command_retries", 0), b.get("overruns", 0)))
+    return lines
+
+
+def _fmt_num(v):
+    return "—" if v is None else "%.2f" % v
 
 
 def _rate(pairs, first):
@@ -272,7 +380,9 @@ def _finish(rec, q2cal, t0_us, complete, plots):
     rec.write_samples(q2, q2_err, truth, t0_us)
     rec.write_telemetry()
     ok = np.all(np.isfinite(q2_err), axis=1)
-    res = {"complete": complete, "duration_s": rec.virtual_s, "play_wall_s": rec.play_wall,
+    radial = np.hypot(q2_err[:, 0], q2_err[:, 1])
+    met = bool(complete and len(q2) > 0 and ok.all() and np.all(radial <= report.REQUIREMENT_ARCSEC))
+    res = {"complete": complete, "requirement_met": met, "duration_s": rec.virtual_s, "play_wall_s": rec.play_wall,
            "real_time_factor": rec.virtual_s / rec.play_wall if rec.play_wall > 0 else None,
            "real_time_factor_first_minute": _rate(rec.minute_rates, True),
            "real_time_factor_last_minute": _rate(rec.minute_rates, False),
@@ -293,43 +403,60 @@ def _finish(rec, q2cal, t0_us, complete, plots):
 
 
 def _cmd(a):
+    from ground import runtime
     cfg = None
     if a.config:
         from emulator.config import load_config
         cfg = load_config(a.config)
     try:
         s = run_hil(a.distfile, a.calibration, a.duration, a.runtime, a.link, a.output, config=cfg,
-                    seed=a.seed, q2_dvp=a.q2_dv, quiet=a.quiet, plots=not a.no_plots)
+                    seed=a.seed, q2_dvp=a.q2_dv, quiet=a.quiet, plots=not a.no_plots, link_opts=runtime.link_options(a))
     except Interrupted:
         with open(os.path.join(a.output, "summary.json")) as f:
             s = json.load(f)
         print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"
               % (s["duration_s"], a.output), file=sys.stderr)
         return 130
+    except RunFailed as exc:
+        with open(os.path.join(a.output, "summary.json")) as f:
+            s = json.load(f)
+        for line in verdict_lines(s)[1:]:
+            print(line, file=sys.stderr)
+        print("fps hil: error: %s" % exc, file=sys.stderr)
+        return 1
     print(report.table(s))
     print()
     print("%s over %s: %.1f s virtual in %.1f s wall, real-time factor %.1fx (first minute %s, last %s), "
           "overruns %d" % (a.runtime, a.link, s["duration_s"], s["play_wall_s"], s["real_time_factor"],
                            _x(s["real_time_factor_first_minute"]), _x(s["real_time_factor_last_minute"]),
                            s["overruns"]))
-    print("run folder %s: summary.json, report.md, samples.npz, telemetry.csv, fig7-18_scatter.png, "
-          "fig7-19_time.png" % a.output)
-    return 0
+    files = "summary.json, report.md, samples.npz, telemetry.csv"
+    if not a.no_plots and s.get("q2_samples"):
+        files += ", fig7-18_scatter.png, fig7-19_time.png"
+    print("run folder %s: %s" % (a.output, files))
+    for line in verdict_lines(s):
+        print(line)
+    return 0 if s["requirement_met"] else 3
 
 
 def _x(v):
     return "—" if v is None else "%.1fx" % v
 
 
+EXIT_STATUS = """exit status: 0 complete and every Q2 sample within 11.98 arcsec; 3 complete but the requirement
+missed; 1 failed (link down or too noisy, controller exited, a command refused: the folder holds the partial
+run with complete=false and the error); 2 bad input; 130 interrupted (partial folder, complete=false)."""
+
+
 def register(sub, name, help_):
-    p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
+    import argparse
+    p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--distfile", required=True, help="distfile to play (fps distfile generate)")
     p.add_argument("--calibration", required=True, help="H calibration JSON (fps calibrate)")
     p.add_argument("--duration", type=float, default=600.0, help="virtual seconds to run (default 600)")
-    p.add_argument("--runtime", default="inproc", choices=("inproc", "cpython", "micropython"),
-                   help="where the controller firmware runs (default inproc)")
-    p.add_argument("--link", default=None, choices=("inproc", "serial", "can"),
-                   help="link to the controller (default: inproc for inproc, serial otherwise)")
+    from ground.runtime import add_link_arguments
+    add_link_arguments(p)
     p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
     p.add_argument("--seed", type=int, default=0, help="emulator seed")
     p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration (V)")

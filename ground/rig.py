@@ -107,6 +107,8 @@ class Rig:
         self.replies = deque()    # other packets (ACK, NACK, ...) not yet consumed
         self.n_status_total = 0
         self.n_cmd_retries = 0
+        self.last_status = None   # the latest CTRL_STATUS (decoded)
+        self.mode_log = []        # (tick, mode, why) at each mode change seen in CTRL_STATUS
 
     def elapsed_s(self):
         """Virtual time run so far."""
@@ -141,6 +143,9 @@ class Rig:
                     continue
                 self.n_status_total += 1
                 self.status.append(st)
+                if self.last_status is None or st["mode"] != self.last_status["mode"]:
+                    self.mode_log.append((st["tick"], st["mode"], st["why"]))
+                self.last_status = st
             else:
                 replies.append(pkt)
 
@@ -231,6 +236,8 @@ class LiveRig(Rig):
         self.replies = deque()
         self.n_status_total = 0
         self.n_cmd_retries = 0
+        self.last_status = None   # the latest CTRL_STATUS (decoded)
+        self.mode_log = []        # (tick, mode, why) at each mode change seen in CTRL_STATUS
         self.pfsm_at = None
         self._t0 = None
 

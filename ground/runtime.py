@@ -30,6 +30,42 @@ TICK_TRIES = 50            # sends of one TICK before it is an overrun (the mirr
 MAX_FAILED_TICKS = 2000    # consecutive overruns (a dead link) that end a run: 3.1 s at 637.8 Hz
 
 
+def link_options(a):
+    """``runtime.open_rig`` keywords from the parsed link flags shared by ``fps hil`` and ``fps calibrate``."""
+    from protocol.faults import LinkFaults
+    return {"port": a.port, "baud": a.baud, "realtime": a.realtime, "rate_hz": a.rate_hz,
+            "link_faults": LinkFaults.parse(a.link_faults) if a.link_faults else None,
+            "tick_timeout_ms": a.tick_timeout_ms, "tick_tries": a.tick_tries,
+            "max_failed_ticks": a.max_failed_ticks}
+
+
+def add_link_arguments(p):
+    """The runtime/link/fault flags of ``fps hil`` and ``fps calibrate``."""
+    p.add_argument("--runtime", default="inproc", choices=RUNTIMES,
+                   help="where the controller firmware runs: in this process, a CPython or MicroPython "
+                        "subprocess, or a board flashed with firmware/ on --port (default inproc)")
+    p.add_argument("--link", default=None, choices=LINKS,
+                   help="link to the controller (default: inproc for inproc, serial otherwise)")
+    p.add_argument("--port", help="--runtime board: the board's serial port, e.g. /dev/ttyACM0")
+    p.add_argument("--baud", type=int, default=115200, help="--runtime board: baud rate (default 115200)")
+    p.add_argument("--realtime", action="store_true",
+                   help="pace ticks by the wall clock; an answer later than one period is an overrun "
+                        "(for a board whose loop runs from its own timer)")
+    p.add_argument("--rate-hz", type=float, default=637.8, help="control loop rate in Hz (default 637.8)")
+    p.add_argument("--link-faults", metavar="SPEC",
+                   help="inject faults on the serial link, both directions: bytes=P (bit flip per byte), "
+                        "frames=P (frame drop), seed=N, silence=START_S:LENGTH_S (no traffic for that span of "
+                        "virtual seconds; LENGTH_S may be inf), e.g. bytes=0.01,frames=0.05,seed=1")
+    p.add_argument("--tick-timeout-ms", type=float, default=TICK_TIMEOUT_MS,
+                   help="resend a TICK after this many ms without its answer (default %g)" % TICK_TIMEOUT_MS)
+    p.add_argument("--tick-tries", type=int, default=TICK_TRIES,
+                   help="sends of one TICK before it counts as an overrun, the mirror holding (default %d)"
+                        % TICK_TRIES)
+    p.add_argument("--max-failed-ticks", type=int, default=MAX_FAILED_TICKS,
+                   help="consecutive overruns on a silent link that end the run (default %d: 3.1 s at "
+                        "637.8 Hz)" % MAX_FAILED_TICKS)
+
+
 def micropython_binary():
     """The MicroPython unix port: beside this interpreter (the venv) or on PATH."""
     cand = os.path.join(os.path.dirname(sys.executable), "micropython")
@@ -142,6 +178,25 @@ def _stop(link, proc):
     proc.errlog.close()
 
 
+def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=TICK_TIMEOUT_MS,
+                  tick_tries=TICK_TRIES, max_failed_ticks=MAX_FAILED_TICKS, rate_hz=637.8, **_):
+    """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse."""
+    check(runtime, link)
+    for name, v, lo in (("--tick-timeout-ms", tick_timeout_ms, 0.05), ("--tick-tries", tick_tries, 1),
+                        ("--max-failed-ticks", max_failed_ticks, 1), ("--rate-hz", rate_hz, 100.0)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v < 1e9:
+            raise ValueError("%s = %r: must be a number >= %g" % (name, v, lo))
+    if runtime == "board" and not port:
+        raise ValueError("--runtime board needs --port (the board's serial port, e.g. /dev/ttyACM0)")
+    if runtime != "board" and port:
+        raise ValueError("--port %s goes with --runtime board" % port)
+    if link_faults is not None and runtime == "inproc":
+        raise ValueError("--link-faults needs a link: use --runtime cpython|micropython|board with --link serial")
+    if link_faults is not None and link != "serial":
+        raise ValueError("--link-faults: injected on serial links only; CAN frames are checked and "
+                         "retransmitted by the CAN controller itself")
+
+
 @contextlib.contextmanager
 def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=30.0, port=None, baud=115200,
              link_faults=None, tick_timeout_ms=TICK_TIMEOUT_MS, tick_tries=TICK_TRIES,
@@ -153,15 +208,9 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
     ``FaultyPort``; set its ``clock``). TICKs are resent after ``tick_timeout_ms``, ``tick_tries`` times, and
     ``max_failed_ticks`` consecutive overruns end the run (``emulator.lockstep.RemoteController``).
     ``realtime``: ticks paced by the wall clock, each answer due within one period (overruns counted)."""
-    check(runtime, link)
-    for name, v, lo in (("--tick-timeout-ms", tick_timeout_ms, 0.05), ("--tick-tries", tick_tries, 1),
-                        ("--max-failed-ticks", max_failed_ticks, 1)):
-        if not (isinstance(v, (int, float)) and v == v and lo <= v < 1e9):
-            raise ValueError("%s = %r: must be >= %g" % (name, v, lo))
+    check_options(runtime, link, port=port, link_faults=link_faults, tick_timeout_ms=tick_timeout_ms,
+                  tick_tries=tick_tries, max_failed_ticks=max_failed_ticks, rate_hz=rate_hz)
     if runtime == "inproc":
-        if link_faults is not None:
-            raise ValueError("--link-faults needs a link: use --runtime cpython|micropython|board with --link "
-                             "serial")
         from firmware.controller import Controller
         rig = Rig(InprocController(Controller()), config=config, seed=seed, rate_hz=rate_hz, **kw)
         rig.runtime_name, rig.link_name = "inproc", "inproc"
@@ -170,14 +219,9 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
         rig.lockstep.realtime = realtime
         yield rig
         return
-    if link_faults is not None and link != "serial":
-        raise ValueError("--link-faults: injected on serial links only; CAN frames are checked and "
-                         "retransmitted by the CAN controller itself")
     try_s = tick_timeout_ms / 1000.0
     patience_s = try_s * tick_tries
     if runtime == "board":
-        if not port:
-            raise ValueError("--runtime board needs --port (the board's serial port, e.g. /dev/ttyACM0)")
         from protocol.link import open_serial
         try:
             lk = open_serial(port, "BENCH", baudrate=baud)

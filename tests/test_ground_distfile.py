@@ -110,7 +110,7 @@ def test_refuses_samples_beyond_pfsm_range(tmp_path, capsys):
     out = tmp_path / "big.dist"
     rc = fps(["distfile", "generate", "--source", "sine", "--duration", "5", "--amp-arcsec", "%g,1" % (limit + 5),
               "--freq-hz", "1,1", "-o", str(out)])
-    assert rc == 1 and not out.exists()
+    assert rc == 2 and not out.exists()            # bad input
     err = capsys.readouterr().err
     assert "beyond the P-FSM" in err and "810.2" in err
     distfile_cli.check_playable([limit - 0.01], [-limit + 0.01])  # inside: accepted
@@ -122,7 +122,7 @@ def test_refuses_malformed_distfiles(tmp_path, capsys):
     for name, data in cases.items():
         p = tmp_path / (name + ".dist")
         p.write_bytes(data)
-        assert fps(["distfile", "info", str(p)]) == 1
+        assert fps(["distfile", "info", str(p)]) == 2
         assert str(p) in capsys.readouterr().err
 
 

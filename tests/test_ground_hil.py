@@ -85,13 +85,13 @@ def test_hil_subprocess_runtimes(tmp_path, inputs, runtime, link):
 def test_hil_refuses_bad_combinations_and_inputs(tmp_path, capsys, inputs):
     dist, cal = inputs
     base = ["hil", "--distfile", dist, "--calibration", cal, "-o", str(tmp_path / "r")]
-    assert fps(base + ["--runtime", "micropython", "--link", "can"]) == 1
+    assert fps(base + ["--runtime", "micropython", "--link", "can"]) == 2
     assert "serial only" in capsys.readouterr().err
-    assert fps(base + ["--duration", "100"]) == 1
+    assert fps(base + ["--duration", "100"]) == 2
     assert "longer than the distfile" in capsys.readouterr().err
     bad = tmp_path / "bad.json"
     bad.write_text('{"grid_v": [0, 1], "points": []}')
-    assert fps(["hil", "--distfile", dist, "--calibration", str(bad), "-o", str(tmp_path / "r2")]) == 1
+    assert fps(["hil", "--distfile", dist, "--calibration", str(bad), "-o", str(tmp_path / "r2")]) == 2
     assert "calibration" in capsys.readouterr().err
 
 

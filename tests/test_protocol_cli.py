@@ -112,7 +112,7 @@ def test_encode_can_then_decode_candump_log_every_packet(capsys, tmp_path):
 ])
 def test_encode_errors_are_clear(capsys, args, message):
     rc, out, err = fps(capsys, *args)
-    assert rc == 1 and out == "" and message in err
+    assert rc == 2 and out == "" and message in err
 
 
 def test_node_arg_accepts_names_and_numbers():

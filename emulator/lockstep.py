@@ -220,9 +220,11 @@ class RemoteController:
     Exactly once: the controller steps on the first copy of TICK k and answers any resend of k from its cache
     (``firmware.hal.link``), so a resend costs time, never a second integration.
 
-    - ``try_timeout_s``: wait for an answer before resending (default: ``timeout_s``, one try);
-    - ``timeout_s``: the whole patience for one tick; after it the tick is an overrun (the mirror holds its last
-      input, as hardware would). Real-time mode sets it per tick from the deadline;
+    - ``try_timeout_s``: wait for an answer before the first resend, doubled at each resend up to
+      ``MAX_TRY_S`` (a slow peer is not flooded); ``tries`` sends at most. None: one try of ``timeout_s``.
+      A frame that fails its checks while the answer is awaited triggers the resend at once (``resent_early``);
+    - ``timeout_s``: a bound on the whole wait for one tick; after the tries or this the tick is an overrun
+      (the mirror holds its last input, as hardware would). Real-time mode sets it per tick from the deadline;
     - an overrun while the link kept delivering bytes (frames that failed their checks) means the link is too
       noisy to keep lockstep: ``LinkFailure``. An overrun on a silent link is an outage: the clock goes on,
       each further tick gets one try until the link answers, and ``max_failed_ticks`` consecutive overruns
@@ -234,8 +236,13 @@ class RemoteController:
     goes to ``inbox`` (a deque of (pid, src, dst, seq, payload)) for the ground.
     """
 
-    def __init__(self, link, dst="CONTROLLER", timeout_s=1.0, try_timeout_s=None, max_failed_ticks=None):
+    MAX_TRY_S = 0.1
+    SLICE_S = 0.0005      # after this without the answer, a damaged frame seen meanwhile triggers the resend
+
+    def __init__(self, link, dst="CONTROLLER", timeout_s=1.0, try_timeout_s=None, tries=1,
+                 max_failed_ticks=None):
         self.link = link
+        self.tries = tries
         self.dst = core.NODE[dst] if isinstance(dst, str) else dst
         self.timeout_s = timeout_s
         self.try_timeout_s = try_timeout_s
@@ -246,6 +253,7 @@ class RemoteController:
         self.n_timeout = 0
         self.n_bad = 0
         self.n_resent = 0
+        self.n_early = 0
         self.n_status_dup = 0
         self.n_status_missed = 0
         self.failed_run = 0          # consecutive overruns
@@ -306,6 +314,13 @@ class RemoteController:
                 inbox.append(pkt)
         return words, got_status
 
+    def _drops(self):
+        try:
+            c = self.link.counters()
+        except AttributeError:
+            return 0
+        return sum(c.get(r, 0) for r in core.DROP_REASONS)
+
     def _activity(self):
         try:
             c = self.link.counters()
@@ -321,10 +336,11 @@ class RemoteController:
         want_status = bool(decim) and tick % decim == 0 and tick > self.last_status_tick
         clock = time.perf_counter
         t0 = clock()
-        end = t0 + self.timeout_s
         try_s = self.try_timeout_s or self.timeout_s
+        tries_left = self.tries if self.try_timeout_s else 1
+        end = t0 + self.timeout_s
         if self.failed_run:               # the link was out on the last tick: one try until it answers
-            end = min(end, t0 + try_s)
+            tries_left = 1
         words, got_status = None, False
         tries = 0
         activity0 = None
@@ -335,7 +351,10 @@ class RemoteController:
                 self.n_resent += 1
             link.send_raw(self._tick_id, link.node, self.dst, payload)
             tries += 1
+            tries_left -= 1
             try_end = min(end, clock() + try_s)
+            try_s = min(2 * try_s, self.MAX_TRY_S)     # back off: a slow peer is not flooded with resends
+            drops0 = self._drops()
             while True:
                 w, s = self._sort(tick)
                 if w is not None:
@@ -347,8 +366,11 @@ class RemoteController:
                 left = try_end - clock()
                 if left <= 0 or link.closed:
                     break
-                self._pending.extend(link.recv(timeout=left))
-            if link.closed or clock() >= end:
+                self._pending.extend(link.recv(timeout=min(left, self.SLICE_S)))
+                if not self._pending and self._drops() != drops0:
+                    self.n_early += 1     # a damaged frame came instead of the answer: resend now
+                    break
+            if link.closed or clock() >= end or tries_left <= 0:
                 break
         if words is not None:             # the command came, its telemetry did not: apply the command
             self.n_status_missed += 1
@@ -368,5 +390,5 @@ class RemoteController:
         return None
 
     def counters(self):
-        return {"late": self.n_late, "timeouts": self.n_timeout, "bad": self.n_bad, "resent": self.n_resent,
+        return {"late": self.n_late, "timeouts": self.n_timeout, "bad": self.n_bad, "resent": self.n_resent, "resent_early": self.n_early,
                 "status_dup": self.n_status_dup, "status_missed": self.n_status_missed}

@@ -296,7 +296,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     if failure:
         c = summary["link"]
         summary["error"] = "%s [bench counters %s; controller counters %s]" % (
-            failure, _nonzero(c["bench"]), _nonzero(c["controller"] or {}) or "none received")
+            failure, _nonzero(c["bench"]), "none received" if c["controller"] is None else _nonzero(c["controller"]))
     write_json(rec.path("summary.json"), summary)
     write_atomic(rec.path("report.md"), report.table(summary) + "\n" + "\n".join(
         "- " + line for line in verdict_lines(summary)) + "\n")

@@ -26,7 +26,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIMES = ("inproc", "cpython", "micropython", "board")
 LINKS = ("inproc", "serial", "can")
 TICK_TIMEOUT_MS = 3.0      # resend a TICK after this long without its answer (a MicroPython pty round trip: ~0.1 ms)
-TICK_TRIES = 50            # sends of one TICK before it is an overrun (the mirror holds)
+TICK_TRIES = 30            # sends of one TICK (waits doubling up to 0.1 s: 2.6 s) before it is an overrun
 MAX_FAILED_TICKS = 2000    # consecutive overruns (a dead link) that end a run: 3.1 s at 637.8 Hz
 
 
@@ -59,8 +59,8 @@ def add_link_arguments(p):
     p.add_argument("--tick-timeout-ms", type=float, default=TICK_TIMEOUT_MS,
                    help="resend a TICK after this many ms without its answer (default %g)" % TICK_TIMEOUT_MS)
     p.add_argument("--tick-tries", type=int, default=TICK_TRIES,
-                   help="sends of one TICK before it counts as an overrun, the mirror holding (default %d)"
-                        % TICK_TRIES)
+                   help="sends of one TICK, the wait doubling from --tick-timeout-ms up to 100 ms, before the "
+                        "tick counts as an overrun, the mirror holding (default %d: 2.6 s)" % TICK_TRIES)
     p.add_argument("--max-failed-ticks", type=int, default=MAX_FAILED_TICKS,
                    help="consecutive overruns on a silent link that end the run (default %d: 3.1 s at "
                         "637.8 Hz)" % MAX_FAILED_TICKS)
@@ -99,12 +99,12 @@ def check(runtime, link):
 class RemoteEndpoint:
     """A ``RemoteController`` plus ``send_ground`` (packets from GROUND on the same link)."""
 
-    def __init__(self, link, proc, timeout_s, try_timeout_s=None, max_failed_ticks=None):
+    def __init__(self, link, proc, timeout_s, try_timeout_s=None, tries=1, max_failed_ticks=None):
         from emulator.lockstep import RemoteController
         from protocol import core
         self.link, self.proc = link, proc
         self.faults = None
-        self.rc = RemoteController(link, timeout_s=timeout_s, try_timeout_s=try_timeout_s,
+        self.rc = RemoteController(link, timeout_s=timeout_s, try_timeout_s=try_timeout_s, tries=tries,
                                    max_failed_ticks=max_failed_ticks)
         self.inbox = self.rc.inbox
         self._ground = core.NODE["GROUND"]
@@ -220,7 +220,7 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
         yield rig
         return
     try_s = tick_timeout_ms / 1000.0
-    patience_s = try_s * tick_tries
+    patience_s = 3600.0         # the tries bound a tick (RemoteController backs off to 0.1 s per try)
     if runtime == "board":
         from protocol.link import open_serial
         try:
@@ -233,11 +233,12 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
         lk, proc = _start(runtime, link, rate_hz)
         name = "%s over %s" % (runtime, link)
     try:
-        ep = RemoteEndpoint(lk, proc, patience_s, try_timeout_s=try_s, max_failed_ticks=max_failed_ticks)
+        ep = RemoteEndpoint(lk, proc, patience_s, try_timeout_s=try_s, tries=tick_tries,
+                            max_failed_ticks=max_failed_ticks)
         if link_faults is not None:
             from protocol.faults import inject
             ep.faults = inject(lk, link_faults)
-        rig = Rig(ep, config=config, seed=seed, rate_hz=rate_hz, deadline_s=max(patience_s, 1.0 / rate_hz), **kw)
+        rig = Rig(ep, config=config, seed=seed, rate_hz=rate_hz, deadline_s=1.0, **kw)
         rig.runtime_name, rig.link_name = runtime, link
         rig.link_desc = name + (" (%s)" % port if port and runtime != "board" else "")
         rig.process = proc

@@ -86,20 +86,45 @@ main()
 """
 
 _MP_PLAYER = r"""
-import sys, time
+import gc, sys, time
+import micropython
 from firmware.player import Player
 from protocol import distfile
-n = int(sys.argv[1])
-f = open(sys.argv[2], "rb")
-p = Player(distfile.Reader(f))
-p.play_loop()
-xb = [0] * 17
-yb = [0] * 17
-t0 = time.ticks_us()
-k = 0
-while k < n:
-    k += p.fill(xb, yb, 17)
-print(time.ticks_diff(time.ticks_us(), t0), k)
+
+
+def updates(p, xb, yb, n, block):
+    k = 0
+    while k < n:
+        k += p.fill(xb, yb, block)
+    return k
+
+
+def main():
+    n = int(sys.argv[1])
+    f = open(sys.argv[2], "rb")
+    p = Player(distfile.Reader(f))
+    p.play_loop()
+    xb = [0] * 17
+    yb = [0] * 17
+    t0 = time.ticks_us()
+    k = updates(p, xb, yb, n, 17)
+    dt = time.ticks_diff(time.ticks_us(), t0)
+    # heap bytes per update: one update per call (as from a timer), heap locked, crossings included
+    i0 = p.index
+    gc.collect()
+    a0 = gc.mem_alloc()
+    micropython.heap_lock()
+    try:
+        m = updates(p, xb, yb, n, 1)
+        locked = "ok"
+    except MemoryError:
+        m = 1
+        locked = "MemoryError"
+    micropython.heap_unlock()
+    print(dt, k, gc.mem_alloc() - a0, m, locked)
+
+
+main()
 """
 
 
@@ -276,8 +301,8 @@ def _main(tmp):
         print("| MicroPython | – | micropython binary missing | | | |")
 
     print("\nDisturbance player (P-FSM updates, two axes each)\n")
-    print("| runtime | µs/update | updates/s | goal |")
-    print("|---|---:|---:|---|")
+    print("| runtime | µs/update | updates/s | goal | heap bytes/update (heap locked, 1 update per call) | goal |")
+    print("|---|---:|---:|---|---:|---|")
     from firmware.player import Player
     from protocol import distfile
     p = Player(distfile.Reader(open(dist, "rb")))
@@ -288,11 +313,14 @@ def _main(tmp):
     while n < 100000:
         n += p.fill(xb, yb, 17)
     us = (time.perf_counter() - t0) / n * 1e6
-    print("| CPython | %.2f | %.0f | 10,600/s (thesis) |" % (us, 1e6 / us))
+    print("| CPython | %.2f | %.0f | 10,600/s (thesis) | – | – |" % (us, 1e6 / us))
     if have_mp:
         out = _mp(player_py, [100000, dist])
         us = int(out[0]) / int(out[1])
-        print("| MicroPython (unix) | %.2f | %.0f | 10,600/s (thesis) |" % (us, 1e6 / us))
+        heap = ("%.3f" % (int(out[2]) / int(out[3])) if out[4] == "ok"
+                else "allocates (%s under heap_lock)" % out[4])
+        print("| MicroPython (unix) | %.2f | %.0f | 10,600/s (thesis) | %s over %s updates | 0 |"
+              % (us, 1e6 / us, heap, out[3]))
 
     print("\nHIL lockstep with the controller as a subprocess over a pty (5 s of bench time)\n")
     print("| controller runtime | µs per tick (round trip + emulator) | x real time | overruns | goal |")

@@ -66,8 +66,9 @@ def grid_points(grid_v):
 
 
 def sec74_grid(n=11, half_span_v=5.0):
-    if n < 2:
-        raise ValueError("--grid %r must be >= 2" % n)
+    if not 2 <= n <= htable.MAX_AXIS:
+        raise ValueError("--grid %r must be in [2, %d] (the controller's H table holds %d per axis)"
+                         % (n, htable.MAX_AXIS, htable.MAX_AXIS))
     if not 0 < half_span_v <= 10.0:
         raise ValueError("--span %r V must be in (0, 10] (the P-FSM's AD660 range)" % half_span_v)
     return [float(v) for v in np.round(np.linspace(-half_span_v, half_span_v, n), 12)]
@@ -276,11 +277,13 @@ def run_calibration(rig, grid_v, dv, log=print, progress=None, **kw):
 def _cmd(a):
     from ground import plots, runtime
     grid_v = sec74_grid(a.grid, a.span)
+    if a.seed < 0:
+        raise ValueError("--seed %d must be >= 0" % a.seed)
     cfg = None
-    if a.config:
+    if a.config is not None:
         from emulator.config import load_config
         cfg = load_config(a.config)
-    if a.port:
+    if a.port is not None:
         from ground.rig import LiveRig
         rig_cm = contextlib.closing(LiveRig(a.port))
         a.no_truth = True

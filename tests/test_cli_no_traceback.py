@@ -89,7 +89,8 @@ def _bad_cases(f):
              ["emulator", "truth-h", "-o", o, "--grid", "x"], ["emulator", "truth-h", "-o", "", "--grid", "2"],
              ["emulator", "truth-h", "-o", m, "--grid", "2"], ["emulator", "truth-h", "-o", o, "--config", g],
              ["emulator", "serve", "--devices", "nope"], ["emulator", "serve", "--link", ""],
-             ["emulator", "serve", "--distfile", m, "--wait", "0"], ["emulator", "serve", "--distfile", g, "--wait", "0"],
+             ["emulator", "serve", "--distfile", m, "--wait", "0"],
+             ["emulator", "serve", "--distfile", g, "--wait", "0"],
              ["emulator", "serve", "--config", g, "--wait", "0"], ["emulator", "serve", "--wait", "0.05"],
              ["emulator", "serve", "--devices", "wheels", "--config", f["cal"], "--duration", "0.1", "--wait", "0"],
              ["emulator", "serve", "--devices", "wheels", "--wait", "0"]]
@@ -124,7 +125,8 @@ def _bad_cases(f):
                   ["calibrate", "-o", o, "--grid", "2", "--config", p]]
     for p in (f["csv_nan"], f["csv_big"], f["csv_bad"], f["binjson"]):
         cases += [["distfile", "generate", "-o", o, "--source", "csv", "--csv", p]]
-    cases += [["distfile", "generate", "-o", o, "--source", "csv"], ["distfile", "generate", "-o", o, "--source", "nope"],
+    cases += [["distfile", "generate", "-o", o, "--source", "csv"],
+              ["distfile", "generate", "-o", o, "--source", "nope"],
               ["distfile", "generate", "-o", o, "--duration", "1", "--seed", "-1"],
               ["distfile", "generate", "-o", o, "--duration", "1", "--seed", str(2 ** 40)],
               ["distfile", "generate", "-o", o, "--duration", "1", "--stat-case", "nope"],
@@ -133,7 +135,8 @@ def _bad_cases(f):
               ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--offset-arcsec", ""],
               ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--freq-hz", "600"],
               ["distfile", "csv", f["dist"], "-o", d], ["calibrate"], ["calibrate", "-o", o, "--grid", "100000"],
-              ["calibrate", "-o", o, "--grid", "2", "--seed", "-5"], ["calibrate", "-o", o, "--grid", "2", "--port", ""],
+              ["calibrate", "-o", o, "--grid", "2", "--seed", "-5"],
+              ["calibrate", "-o", o, "--grid", "2", "--port", ""],
               ["calibrate", "-o", o, "--grid", "2", "--port", m], ["calibrate", "-o", o, "--runtime", "nope"],
               ["calibrate", "-o", o, "--grid", "2", "--link", ""], ["hil"],
               ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["nanjson"], "--duration", "0.01"],

@@ -47,7 +47,7 @@ class Q2Converter:
     (Eq. 7.7-7.8; K4 = 4 x 0.012343 x 3276.8 as the double ``arcsec_to_code_q2`` uses, held exactly as
     ``K4_C`` / 2^45), rounded half up and clipped to 0 .. 262140. The double arithmetic of
     ``arcsec_to_code_q2`` rounds twice (relative error < 2^-52), so the two differ only if 131072 + K4 x lies
-    within ~2^-35 of a half code/4: tests/test_firmware_player.py checks 10^5 samples and near-ties.
+    within ~2^-35 of a half code/4; tests/test_firmware_player.py checks ~60,000 samples, near-ties included.
 
     kind 1 (float32 arcsec): x = mantissa x 2^(exponent - 150) from the IEEE-754 bits; |x| >= 1024 clips.
     kind 0 (int32 in units of ``scale`` arcsec): x = n x scale; K4 x scale is rounded to 56 bits at load

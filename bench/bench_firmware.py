@@ -86,20 +86,45 @@ main()
 """
 
 _MP_PLAYER = r"""
-import sys, time
+import gc, sys, time
+import micropython
 from firmware.player import Player
 from protocol import distfile
-n = int(sys.argv[1])
-f = open(sys.argv[2], "rb")
-p = Player(distfile.Reader(f))
-p.play_loop()
-xb = [0] * 17
-yb = [0] * 17
-t0 = time.ticks_us()
-k = 0
-while k < n:
-    k += p.fill(xb, yb, 17)
-print(time.ticks_diff(time.ticks_us(), t0), k)
+
+
+def updates(p, xb, yb, n, block):
+    k = 0
+    while k < n:
+        k += p.fill(xb, yb, block)
+    return k
+
+
+def main():
+    n = int(sys.argv[1])
+    f = open(sys.argv[2], "rb")
+    p = Player(distfile.Reader(f))
+    p.play_loop()
+    xb = [0] * 17
+    yb = [0] * 17
+    t0 = time.ticks_us()
+    k = updates(p, xb, yb, n, 17)
+    dt = time.ticks_diff(time.ticks_us(), t0)
+    # heap bytes per update: one update per call (as from a timer), heap locked, crossings included
+    i0 = p.index
+    gc.collect()
+    a0 = gc.mem_alloc()
+    micropython.heap_lock()
+    try:
+        m = updates(p, xb, yb, n, 1)
+        locked = "ok"
+    except MemoryError:
+        m = 1
+        locked = "MemoryError"
+    micropython.heap_unlock()
+    print(dt, k, gc.mem_alloc() - a0, m, locked)
+
+
+main()
 """
 
 
@@ -228,6 +253,32 @@ def _hil_pty(blob, dist, seconds=5.0, runtime="micropython"):
             proc.wait()
 
 
+def _player(dist, player_py, have_mp):
+    """The player's speed and heap bytes per P-FSM update (issue 8: goal 0, the thesis's 10.6 kHz timer)."""
+    print("\nDisturbance player (P-FSM updates, two axes each)\n")
+    print("| runtime | µs/update | updates/s | goal | heap bytes/update (heap locked, 1 update per call) | goal |")
+    print("|---|---:|---:|---|---:|---|")
+    from firmware.player import Player
+    from protocol import distfile
+    p = Player(distfile.Reader(open(dist, "rb")))
+    p.play_loop()
+    xb, yb = [0] * 17, [0] * 17
+    n = 0
+    t0 = time.perf_counter()
+    while n < 100000:
+        n += p.fill(xb, yb, 17)
+    us = (time.perf_counter() - t0) / n * 1e6
+    print("| CPython | %.2f | %.0f | 10,600/s (thesis) | – | – |" % (us, 1e6 / us))
+    if have_mp:
+        out = _mp(player_py, [100000, dist])
+        us = int(out[0]) / int(out[1])
+        heap = ("%.3f" % (int(out[2]) / int(out[3])) if out[4] == "ok"
+                else "allocates (%s under heap_lock)" % out[4])
+        crossed = int(int(out[3]) / (p.rate_hz * p.reader.period_us * 1e-6))
+        print("| MicroPython (unix) | %.2f | %.0f | 10,600/s (thesis) | %s over %s updates (%d distfile samples "
+              "crossed) | 0 |" % (us, 1e6 / us, heap, out[3], crossed))
+
+
 def main():
     tmp = tempfile.mkdtemp(prefix="bench_fw_")
     try:
@@ -275,24 +326,7 @@ def _main(tmp):
     else:
         print("| MicroPython | – | micropython binary missing | | | |")
 
-    print("\nDisturbance player (P-FSM updates, two axes each)\n")
-    print("| runtime | µs/update | updates/s | goal |")
-    print("|---|---:|---:|---|")
-    from firmware.player import Player
-    from protocol import distfile
-    p = Player(distfile.Reader(open(dist, "rb")))
-    p.play_loop()
-    xb, yb = [0] * 17, [0] * 17
-    n = 0
-    t0 = time.perf_counter()
-    while n < 100000:
-        n += p.fill(xb, yb, 17)
-    us = (time.perf_counter() - t0) / n * 1e6
-    print("| CPython | %.2f | %.0f | 10,600/s (thesis) |" % (us, 1e6 / us))
-    if have_mp:
-        out = _mp(player_py, [100000, dist])
-        us = int(out[0]) / int(out[1])
-        print("| MicroPython (unix) | %.2f | %.0f | 10,600/s (thesis) |" % (us, 1e6 / us))
+    _player(dist, player_py, have_mp)
 
     print("\nHIL lockstep with the controller as a subprocess over a pty (5 s of bench time)\n")
     print("| controller runtime | µs per tick (round trip + emulator) | x real time | overruns | goal |")

@@ -6,6 +6,7 @@
   (``--devices wheels``, paced by the wall clock) on a link
 """
 
+import math
 import sys
 
 
@@ -53,7 +54,7 @@ def register(sub, name, help_):
 
 def _config(args):
     from emulator.config import default_config, dumps, load_config
-    cfg = load_config(args.config) if args.config else default_config()
+    cfg = load_config(args.config) if args.config is not None else default_config()
     sys.stdout.write(dumps(cfg))
     return 0
 
@@ -72,8 +73,31 @@ def _truth_h(args):
     return 0
 
 
+MAX_SECONDS = 1e6        # ~11.6 days: longer --duration or --wait is a typo (and overflows select's timeout)
+
+
+def _check_serve_args(args):
+    """Refuse serve options that are not finite or out of range before anything opens (ValueError)."""
+    def finite(name, v, lo, lo_open=False, hi=math.inf):
+        if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
+            raise ValueError("%s must be a finite number %s %g%s, got %r"
+                             % (name, ">" if lo_open else ">=", lo, "" if hi == math.inf else " and <= %g" % hi, v))
+    if args.duration is not None:
+        finite("--duration (s)", args.duration, 0.0, lo_open=True, hi=MAX_SECONDS)
+    finite("--wait (s)", args.wait, 0.0, hi=MAX_SECONDS)
+    if args.devices == "bench":
+        finite("--deadline (s)", args.deadline, 0.0, lo_open=True, hi=MAX_SECONDS)
+        finite("--rate (Hz)", args.rate, 0.0, lo_open=True)
+        for v in args.pfsm_v:
+            finite("--pfsm-v (V)", v, -10.0, hi=10.0)
+    else:
+        finite("--dt (s)", args.dt, 0.0, lo_open=True, hi=MAX_SECONDS)
+        finite("--startracker-hz", args.startracker_hz, 0.0, lo_open=True, hi=1000.0)
+
+
 def _serve(args):
     from emulator import serve
+    _check_serve_args(args)
     if args.devices == "bench":
         return serve.serve(args)
     if args.config or args.distfile:

@@ -227,6 +227,8 @@ def load_config(path=None):
             data = json.load(f)
         except json.JSONDecodeError as exc:
             raise ValueError("config %s: not valid JSON: %s" % (path, exc)) from None
+        except UnicodeDecodeError as exc:
+            raise ValueError("config %s: not a text (JSON) file: %s" % (path, exc)) from None
     return validate(data)
 
 

@@ -12,12 +12,14 @@ import time
 import numpy as np
 
 from emulator.bench import Bench
+from protocol.htable import MAX_AXIS
 
 
 def sec74_grid(n=11, half_span_v=5.0):
     """P-FSM grid volts: -5 V .. +5 V in 1 V steps for n = 11 (Sec. 7.4)."""
-    if n < 2:
-        raise ValueError("grid size %r must be >= 2" % n)
+    if not 2 <= n <= MAX_AXIS:
+        raise ValueError("grid size %r must be in [2, %d] (the controller's H table holds %d per axis)"
+                         % (n, MAX_AXIS, MAX_AXIS))
     return [float(v) for v in np.round(np.linspace(-half_span_v, half_span_v, n), 12)]
 
 

@@ -11,15 +11,45 @@ lists below and interpolates bilinearly (``hinv_into``) when its command enters 
   |entry| <= HINV_MAX (16000 < 2^14): g h stays below 65535 * 16000 < 2^30, and the law's products
   ((g h) >> 15 <= 31999, times |dR| <= 16383) summed in pairs stay below 2^30 with room for rounding.
 
-A node whose H is singular, or whose H^-1 exceeds HINV_MAX at Q0 (|H^-1| > 1.22 V per unit ratio: the
-quadcell too insensitive to steer by), or is below 1 code per unit ratio, refuses the whole table.
+A node refuses the whole table (``HTableError`` naming the node, its FSM volts, det H and the condition
+number of H) when:
+
+- H is singular or nearly so: |det H| <= 1e-6 max|h|^2, i.e. a 2-norm condition number above ~10^6;
+- H^-1 exceeds HINV_MAX at Q0 (|H^-1| > 1.22 V per unit ratio: the quadcell too insensitive to steer by),
+  or is below 1 code per unit ratio;
+- the fixed-point H^-1 (the Q``hq`` integers) no longer inverts H: the row-sum norm of Hq^-1 H - I is above
+  ``QUANT_TOL`` (0.5), so the loop's gain matrix g Hq^-1 H could lose an eigenvalue near g. It happens where
+  H^-1 is tiny beside the table's largest and near singular, so rounding to ``hq`` bits destroys it.
+
+The error carries ``node`` (the index j * nx + i) so ground tools can name the calibration point.
 """
+
+import math
 
 from firmware import ad5664r
 from protocol.htable import HTableError
 
 HINV_MAX = 16000
 HQ_MAX = 12
+SINGULAR_TOL = 1e-6
+QUANT_TOL = 0.5
+
+
+def condition(h):
+    """2-norm condition number of H = (a, b, c, d) (inf when singular): sigma_max / sigma_min from
+    sigma_max^2 + sigma_min^2 = a^2 + b^2 + c^2 + d^2 and sigma_max sigma_min = |det H|."""
+    a, b, c, d = h
+    det = abs(a * d - b * c)
+    s = a * a + b * b + c * c + d * d
+    if det == 0.0:
+        return float("inf")
+    return (s + math.sqrt(max(0.0, s * s - 4.0 * det * det))) / (2.0 * det)
+
+
+def _refuse(msg, k):
+    e = HTableError(msg)
+    e.node = k
+    raise e
 
 
 class HinvTable:
@@ -39,19 +69,22 @@ class HinvTable:
             a, b, c, d = grid.h[k]
             det = a * d - b * c
             scale = max(abs(a), abs(b), abs(c), abs(d))
-            where = "node (%d, %d)" % (k % self.nx, k // self.nx)
-            if scale == 0.0 or abs(det) <= 1e-6 * scale * scale:
-                raise HTableError("H table %s is singular: H = %r" % (where, grid.h[k]))
+            where = self._where(grid, k)
+            if scale == 0.0 or abs(det) <= SINGULAR_TOL * scale * scale:
+                _refuse("H table %s: H is singular: det H = %.4g, condition number %.4g (limit ~%.0g): H = %r"
+                        % (where, det, condition(grid.h[k]), 1 / SINGULAR_TOL, grid.h[k]), k)
             # H^-1 in V per unit ratio, then in code per unit ratio
             m = (d / det * ad5664r.CODES_PER_VOLT, -b / det * ad5664r.CODES_PER_VOLT,
                  -c / det * ad5664r.CODES_PER_VOLT, a / det * ad5664r.CODES_PER_VOLT)
             mk = max(abs(m[0]), abs(m[1]), abs(m[2]), abs(m[3]))
             if mk > HINV_MAX:
-                raise HTableError("H table %s: |H^-1| = %.4g V per unit ratio, above %.4g (H too small)"
-                                  % (where, mk / ad5664r.CODES_PER_VOLT, HINV_MAX / ad5664r.CODES_PER_VOLT))
+                _refuse("H table %s: |H^-1| = %.4g V per unit ratio, above %.4g (H too small; det H = %.4g, "
+                        "condition number %.4g)" % (where, mk / ad5664r.CODES_PER_VOLT,
+                                                    HINV_MAX / ad5664r.CODES_PER_VOLT, det,
+                                                    condition(grid.h[k])), k)
             if mk < 1.0:
-                raise HTableError("H table %s: |H^-1| = %.4g V per unit ratio, below one code (H too large)"
-                                  % (where, mk / ad5664r.CODES_PER_VOLT))
+                _refuse("H table %s: |H^-1| = %.4g V per unit ratio, below one code (H too large; det H = %.4g)"
+                        % (where, mk / ad5664r.CODES_PER_VOLT, det), k)
             big = max(big, mk)
             inv.append(m)
         hq = 0
@@ -62,11 +95,36 @@ class HinvTable:
         self.hq = hq
         self.shift = 7 + hq               # Q(15 + hq) product -> Q8 code state
         self.h = []
-        for m in inv:
-            for e in m:
+        for k in range(len(inv)):
+            q = []
+            for e in inv[k]:
                 v = e * (1 << hq)
-                self.h.append(int(v + 0.5) if v >= 0 else -int(-v + 0.5))
+                q.append(int(v + 0.5) if v >= 0 else -int(-v + 0.5))
+            err = self._quant_error(q, grid.h[k], hq)
+            if err > QUANT_TOL:
+                _refuse("H table %s: the fixed-point H^-1 (Q%d: %r) does not invert H: |Hq^-1 H - I| = %.3g > %g "
+                        "(H near singular beside the table's largest H^-1: det H = %.4g, condition number %.4g)"
+                        % (self._where(grid, k), hq, q, err, QUANT_TOL,
+                           grid.h[k][0] * grid.h[k][3] - grid.h[k][1] * grid.h[k][2], condition(grid.h[k])), k)
+            self.h.extend(q)
         self.grid = grid
+
+    @staticmethod
+    def _where(grid, k):
+        i = k % len(grid.ax)
+        j = k // len(grid.ax)
+        return "node (%d, %d) at FSM (%.4f, %.4f) V" % (i, j, grid.ax[i], grid.ay[j])
+
+    @staticmethod
+    def _quant_error(q, h, hq):
+        """Row-sum norm of Hq^-1 H - I, Hq^-1 the integer entries q (code per unit ratio, Q hq)."""
+        f = 1.0 / ((1 << hq) * ad5664r.CODES_PER_VOLT)
+        a, b, c, d = h
+        m11 = (q[0] * a + q[1] * c) * f - 1.0
+        m12 = (q[0] * b + q[1] * d) * f
+        m21 = (q[2] * a + q[3] * c) * f
+        m22 = (q[2] * b + q[3] * d) * f - 1.0
+        return max(abs(m11) + abs(m12), abs(m21) + abs(m22))
 
     def _axis(self, vals, name):
         out = [ad5664r.volts_to_code(v) for v in vals]

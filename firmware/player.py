@@ -4,7 +4,8 @@ The distfile (``protocol.distfile``) holds body pointing error angles every ``pe
 interpolates linearly between them (Sec. 7.3.1) and converts to AD660 codes by Eq. 7.7-7.8
 (``firmware.ad660``) at ``rate_hz`` (10.6 kHz by default). ``fill(xbuf, ybuf, n)`` is integer arithmetic:
 
-- segment ends c0, c1: AD660 codes Q2 (code x 4, 0 .. 262140), converted once per distfile sample;
+- segment ends c0, c1: AD660 codes Q2 (code x 4, 0 .. 262140), converted once per distfile sample from its
+  raw bytes by ``ad660.Q2Converter`` (integer limbs, the same codes as ``ad660.arcsec_to_code_q2``);
 - time: a phase accumulator in units of 1/(rate_hz x period_us) s reduced by their gcd with 10^6: each output
   adds ``_inc``; a segment lasts ``_cell`` (10.6 kHz and 8.192 ms: 625 and 54272); the fraction
   f = ((phase >> s) << 12) // (cell >> s) is Q12 (s keeps cell >> s below 2^18, so phase << 12 < 2^30);
@@ -12,6 +13,9 @@ interpolates linearly between them (Sec. 7.3.1) and converts to AD660 codes by E
   (4096 c0 + 10240 + (c1 - c0) f) >> 14 (the same floor; < 2^30, as it lies between c0 and c1 in Q12);
 - speed: with s = 0 the quotient f and remainder of phase << 12 by cell advance by fixed steps, so within a
   segment each output costs two additions and a compare instead of a division (bit-identical codes).
+- allocation: none per update, crossings into the next sample included (the sample's bytes are read into
+  the reader's preallocated buffer, or indexed in memory): the 10.6 kHz timer path of Sec. 7.3.1 can run
+  with the heap locked (tests/mp/firmware_player_alloc.py).
 
 Actions (PLAYER_CTRL, ``protocol.table.PLAYER_ACTIONS``): STOP pauses (the DAC holds its last code); START
 resumes from where it stopped; LOOP rewinds and plays repeatedly; ONESHOT rewinds and plays once, then stops
@@ -116,6 +120,7 @@ class Player:
         except ValueError:
             self.reader = old
             raise
+        self._conv = ad660.Q2Converter(reader.kind, reader.scale)
         self.state = STOP
         self.rewind()
 
@@ -127,16 +132,17 @@ class Player:
         """Load segment i (samples i and i + 1); ``follow``: it follows the loaded one, whose end it starts at."""
         self.index = i
         r = self.reader
+        cv = self._conv
         if follow:
             self._c0x = self._c1x
             self._c0y = self._c1y
         else:
-            x0, y0 = r.sample(i)
-            self._c0x = ad660.arcsec_to_code_q2(x0)
-            self._c0y = ad660.arcsec_to_code_q2(y0)
-        x1, y1 = r.sample(i + 1)
-        self._c1x = ad660.arcsec_to_code_q2(x1)
-        self._c1y = ad660.arcsec_to_code_q2(y1)
+            o = r.sample_offset(i)
+            self._c0x = cv.code(r.raw, o)
+            self._c0y = cv.code(r.raw, o + 4)
+        o = r.sample_offset(i + 1)
+        self._c1x = cv.code(r.raw, o)
+        self._c1y = cv.code(r.raw, o + 4)
 
     # --- actions -----------------------------------------------------------------------------------
     def start(self):

@@ -66,8 +66,9 @@ def grid_points(grid_v):
 
 
 def sec74_grid(n=11, half_span_v=5.0):
-    if n < 2:
-        raise ValueError("--grid %r must be >= 2" % n)
+    if not 2 <= n <= htable.MAX_AXIS:
+        raise ValueError("--grid %r must be in [2, %d] (the controller's H table holds %d per axis)"
+                         % (n, htable.MAX_AXIS, htable.MAX_AXIS))
     if not 0 < half_span_v <= 10.0:
         raise ValueError("--span %r V must be in (0, 10] (the P-FSM's AD660 range)" % half_span_v)
     return [float(v) for v in np.round(np.linspace(-half_span_v, half_span_v, n), 12)]
@@ -137,6 +138,10 @@ class Calibrator:
         prov = {"grid_v": [-1.0, 1.0], "dv": self.dv,
                 "points": [{"pfsm_v": [px, py], "v0": [v[0] + 0.5 * px, v[1] + 0.5 * py], "H": h.tolist(),
                             "residual": 0.0} for py in (-1.0, 1.0) for px in (-1.0, 1.0)]}
+        try:
+            check_calibration(prov)
+        except htable.HTableError as exc:
+            raise PointError("bootstrap at P-FSM (0, 0) V: %s" % exc) from None
         rig.upload_htable(htable.pack_calibration(prov))
         return v
 
@@ -214,15 +219,39 @@ def compare_truth(cal, truth):
     return out
 
 
+def check_calibration(cal):
+    """The controller's own check of a calibration dict, before any upload: the grid (protocol.htable) and
+    the fixed-point H^-1 table (firmware.hinv.HinvTable) built from the very blob the controller would get
+    (float32 H). A refused node is named by its calibration point: index, P-FSM volts, then the node, det H
+    and condition number. Raises HTableError (a ValueError); returns the Grid."""
+    from firmware.hinv import HinvTable
+    grid = htable.grid_from_calibration(cal)
+    try:
+        HinvTable(htable.parse(htable.pack(grid)))
+    except htable.HTableError as exc:
+        k = getattr(exc, "node", None)
+        if k is None or grid.points is None:
+            raise
+        i = grid.points[k]
+        pv = cal["points"][i]["pfsm_v"]
+        raise htable.HTableError("points[%d] at P-FSM grid point (%g, %g) V refused: %s" % (i, pv[0], pv[1],
+                                                                                          exc)) from None
+    return grid
+
+
 def load_calibration(path):
-    """Read and validate a calibration JSON (the controller's own check, protocol.htable); returns the dict."""
+    """Read and validate a calibration JSON (the controller's own check, ``check_calibration``); returns the
+    dict. A singular or fixed-point non-invertible H is refused here, naming its grid point, not after the
+    upload."""
     try:
         with open(path) as f:
             cal = json.load(f)
     except json.JSONDecodeError as exc:
         raise ValueError("calibration %s: not valid JSON: %s" % (path, exc)) from None
+    except UnicodeDecodeError as exc:
+        raise ValueError("calibration %s: not a text (JSON) file: %s" % (path, exc)) from None
     try:
-        htable.grid_from_calibration(cal)
+        check_calibration(cal)
     except htable.HTableError as exc:
         raise ValueError("calibration %s: %s" % (path, exc)) from None
     for i, p in enumerate(cal["points"]):
@@ -252,13 +281,17 @@ class CalibrationFailed(OSError):
 def _cmd(a):
     from ground import plots, runtime
     grid_v = sec74_grid(a.grid, a.span)
+    if a.seed < 0:
+        raise ValueError("--seed %d must be >= 0" % a.seed)
     cfg = None
-    if a.config:
+    if a.config is not None:
         from emulator.config import load_config
         cfg = load_config(a.config)
     if a.link is None:
         a.link = "inproc" if a.runtime == "inproc" else "serial"
-    if a.port and a.runtime != "board":        # a real, free-running bench: wall-clock time, no lockstep
+    if a.port is not None and a.runtime != "board":      # a real, free-running bench: wall-clock time
+        if not a.port:
+            raise ValueError("--port: empty path")
         from ground.rig import LiveRig
         rig_cm = contextlib.closing(LiveRig(a.port))
         a.no_truth = True
@@ -285,6 +318,12 @@ def _cmd(a):
             print("calibration failed at %s" % msg, file=sys.stderr)
         raise CalibrationFailed("%d of %d grid points failed (details in %s.failed.json); no calibration "
                                 "written" % (len(failed), len(grid_v) ** 2, base))
+    try:
+        check_calibration(cal)          # what the controller would refuse is not written as a calibration
+    except htable.HTableError as exc:
+        write_json(base + ".failed.json", cal)
+        raise CalibrationFailed("the measured H table would be refused by the controller: %s (details in "
+                                "%s.failed.json); no calibration written" % (exc, base)) from None
     write_json(a.output, cal)
     print("wrote %s: %d points, dv %g V, %.2f s wall (%s, %s)" % (a.output, len(cal["points"]), a.dv, wall,
                                                                 cal["runtime"], cal["link"]))

@@ -6,6 +6,7 @@ format of ``protocol.distfile``. Samples the P-FSM cannot play are refused: the 
 13.33 theta_e (Eq. 7.7) within +-3 deg mechanical (+-10 V, Eq. 7.8), so |theta_e| <= 810.2 arcsec.
 """
 
+import math
 import os
 import sys
 
@@ -37,8 +38,12 @@ def check_playable(x, y, period_us=resample.DIST_PERIOD_US):
 
 def generate(source, duration_s, seed, source_name=None):
     """Run ``source`` and resample to the distfile step: returns the distfile bytes."""
-    if not duration_s > 0:
-        raise ValueError("duration must be > 0 s, got %r" % duration_s)
+    if not 0 < duration_s < math.inf:
+        raise ValueError("duration must be > 0 s and finite, got %r" % duration_s)
+    longest = (distfile.MAX_COUNT - 2) * resample.DIST_PERIOD_US * 1e-6
+    if duration_s > longest:
+        raise ValueError("duration %g s is longer than a distfile holds (%d samples of %d us: %.0f s)"
+                         % (duration_s, distfile.MAX_COUNT, resample.DIST_PERIOD_US, longest))
     if not 0 <= seed <= 0xFFFFFFFF:
         raise ValueError("seed %r out of range [0, 2**32-1]" % seed)
     t, x, y = source.generate(duration_s, seed)

@@ -189,6 +189,8 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     check_playable(dx, dy, d.period_us)
     if not duration_s > 0:
         raise ValueError("--duration must be > 0 s, got %r" % duration_s)
+    if not 0 < q2_dvp <= 2.0:
+        raise ValueError("--q2-dv must be in (0, 2] V, got %r" % q2_dvp)
     play_s = d.duration_us() * 1e-6
     if duration_s > play_s + 1e-6:
         raise ValueError("--duration %g s is longer than the distfile (%g s)" % (duration_s, play_s))
@@ -405,7 +407,7 @@ def _finish(rec, q2cal, t0_us, complete, plots):
 def _cmd(a):
     from ground import runtime
     cfg = None
-    if a.config:
+    if a.config is not None:
         from emulator.config import load_config
         cfg = load_config(a.config)
     try:

@@ -69,6 +69,8 @@ class GaussMarkov2:
             raise ValueError("stat case %r unknown (known: %s)" % (case, ", ".join(BODY_POINTING)))
         if not rate_hz > 0:
             raise ValueError("stat rate_hz must be > 0, got %r" % rate_hz)
+        if not 0 <= scale < np.inf:
+            raise ValueError("stat scale must be finite and >= 0, got %r" % scale)
         if not zeta > 0:
             raise ValueError("stat zeta must be > 0, got %r" % zeta)
         self.case, self.rate_hz, self.scale, self.zeta = case, float(rate_hz), float(scale), float(zeta)
@@ -116,9 +118,16 @@ class GaussMarkov2:
         return t, xs[:, 0] + self.mean[0], xs[:, 1] + self.mean[1]
 
 
+MAX_SOURCE_SAMPLES = 1 << 24      # ~400 MB of float64 t, x, y: a source longer than this is a mistake
+
+
 def _n_samples(duration_s, rate_hz):
     """Samples covering the duration plus one distfile step and the resampler's stencil."""
-    return int(np.ceil((duration_s + 0.01) * rate_hz)) + 4
+    n = (duration_s + 0.01) * rate_hz
+    if not n < MAX_SOURCE_SAMPLES:
+        raise ValueError("%g s at %g Hz is %.3g source samples, more than %d: lower the duration or the "
+                         "source rate" % (duration_s, rate_hz, n, MAX_SOURCE_SAMPLES))
+    return int(np.ceil(n)) + 4
 
 
 def _expm2(a):

@@ -298,7 +298,7 @@ def decode_can(f, out):
 
 
 def cmd_decode(args):
-    if args.serial:
+    if args.serial is not None:
         with open(args.serial, "rb") as f:
             summary = decode_serial(f, sys.stdout)
     else:

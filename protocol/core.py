@@ -26,6 +26,9 @@ MAX_PAYLOAD = 255
 MAX_BODY = HEADER_SIZE + MAX_PAYLOAD
 MAX_FRAME = MAX_BODY + CRC_SIZE + (MAX_BODY + CRC_SIZE) // 254 + 2
 
+FLOAT32_MAX = 3.4028234663852886e38     # largest finite float32 ('f' fields)
+FLOAT64_MAX = 1.7976931348623157e308    # largest finite double ('d' fields)
+
 _INT_RANGE = {
     "B": (0, 0xFF), "b": (-0x80, 0x7F), "H": (0, 0xFFFF), "h": (-0x8000, 0x7FFF),
     "I": (0, 0xFFFFFFFF), "i": (-0x80000000, 0x7FFFFFFF),
@@ -125,8 +128,13 @@ def _check(pkt, field, v):
         if isinstance(v, bool) or not isinstance(v, int):
             raise ValueError("%s: expected an integer, got %r" % (name, v))
     else:
-        if not isinstance(v, (int, float)) or v != v:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v:
             raise ValueError("%s: expected a number, got %r" % (name, v))
+        # refuse what struct would reject or silently carry: non-finite values, and beyond float32 for 'f'
+        flo, fhi = (-FLOAT32_MAX, FLOAT32_MAX) if fmt == "f" else (-FLOAT64_MAX, FLOAT64_MAX)
+        if v < flo or v > fhi:
+            raise ValueError("%s = %r out of range [%r, %r]" % (name, v, flo if lo is None else lo,
+                                                                fhi if hi is None else hi))
         v = float(v)
     if (lo is not None and v < lo) or (hi is not None and v > hi):
         raise ValueError("%s = %r out of range [%r, %r]" % (name, v, lo, hi))
@@ -136,7 +144,8 @@ def _check(pkt, field, v):
 def encode_payload(name_or_id, values=None, **kw):
     """Payload bytes for a packet; ``values`` (dict) or keywords give raw field values.
 
-    Fields left out take their default. Unknown names and out-of-range values raise ValueError.
+    Fields left out take their default. Unknown names and out-of-range values raise ValueError; so do
+    non-finite floats and floats beyond float32 (an 'f' field) or a field's declared range.
     """
     pkt = packet_def(name_or_id)
     if values:

@@ -149,6 +149,7 @@ class Distfile(Header):
         if got != want:
             raise DistfileError("distfile CRC-32 mismatch: stored 0x%08x, computed 0x%08x" % (want, got))
         self._mv = mv
+        self.raw = mv
         if self.kind == KIND_FLOAT32:
             for i in range(self.count):
                 self.sample(i)   # raises on a non-finite sample
@@ -158,6 +159,12 @@ class Distfile(Header):
             raise IndexError("distfile sample %d out of range [0, %d)" % (i, self.count))
         x, y = struct.unpack_from(self._fmt, self._mv, HEADER_SIZE + i * SAMPLE_SIZE)
         return self._to_arcsec(x, y, i)
+
+    def sample_offset(self, i):
+        """Where sample i's 8 raw bytes (x then y, little-endian) start in ``raw`` (no allocation)."""
+        if i < 0 or i >= self.count:
+            raise IndexError("distfile sample %d out of range [0, %d)" % (i, self.count))
+        return HEADER_SIZE + i * SAMPLE_SIZE
 
     def samples(self):
         """(xs, ys) lists in arcsec."""
@@ -194,7 +201,8 @@ class Reader(Header):
     """Streaming reader over a seekable binary file (the player's SD card): checks length, CRC and
     finiteness in one pass of ``_CHUNK``-byte reads at open, then reads samples on demand by seeking.
 
-    ``sample(i) -> (x, y)`` arcsec reads into one preallocated buffer.
+    ``sample(i) -> (x, y)`` arcsec reads into one preallocated buffer; ``sample_offset(i)`` reads sample i's
+    raw bytes into ``raw`` (that buffer) without allocating and returns 0.
     """
 
     def __init__(self, f):
@@ -202,6 +210,7 @@ class Reader(Header):
         Header.__init__(self, f.read(HEADER_SIZE))
         self._f = f
         self._buf = bytearray(SAMPLE_SIZE)
+        self.raw = self._buf
         self._verify()
 
     def _verify(self):
@@ -247,3 +256,11 @@ class Reader(Header):
         self._f.readinto(self._buf)
         x, y = struct.unpack_from(self._fmt, self._buf, 0)
         return self._to_arcsec(x, y, i)
+
+    def sample_offset(self, i):
+        if i < 0 or i >= self.count:
+            raise IndexError("distfile sample %d out of range [0, %d)" % (i, self.count))
+        self._f.seek(HEADER_SIZE + i * SAMPLE_SIZE)
+        if self._f.readinto(self._buf) != SAMPLE_SIZE:
+            raise DistfileError("distfile sample %d: short read" % i)
+        return 0

@@ -87,6 +87,7 @@ class Grid:
         self.ay = [float(v) for v in ay]
         self.h = [tuple(float(e) for e in m) for m in h]
         self.max_dev_v = max_dev_v
+        self.points = None
         self.validate()
 
     def validate(self):
@@ -146,7 +147,7 @@ def grid_from_calibration(cal):
         q = _index(grid, pv[1], "points[%d].pfsm_v[1]" % i)
         if cells[q * n + p] is not None:
             raise HTableError("calibration points[%d] repeats P-FSM grid point (%r, %r)" % (i, pv[0], pv[1]))
-        cells[q * n + p] = (v0, h)
+        cells[q * n + p] = (v0, h, i)
     # means[a][axis][k]: mean of V0[axis] over the points whose P-FSM index along a is k
     means = [[[0.0] * n, [0.0] * n], [[0.0] * n, [0.0] * n]]
     for q in range(n):
@@ -164,16 +165,20 @@ def grid_from_calibration(cal):
     ax = [means[drive_x][0][k] for k in ox]
     ay = [means[drive_y][1][k] for k in oy]
     h = []
+    src = []
     dev = 0.0
     for j in range(n):
         for i in range(n):
             pq = [0, 0]
             pq[drive_x] = ox[i]
             pq[drive_y] = oy[j]
-            v0, m = cells[pq[1] * n + pq[0]]
+            v0, m, k = cells[pq[1] * n + pq[0]]
             dev = max(dev, abs(v0[0] - ax[i]), abs(v0[1] - ay[j]))
             h.append(m)
-    return Grid(ax, ay, h, dev)
+            src.append(k)
+    g = Grid(ax, ay, h, dev)
+    g.points = src          # node -> index in the calibration's points (to name a refused node's point)
+    return g
 
 
 def pack(g):

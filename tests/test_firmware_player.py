@@ -202,3 +202,79 @@ def test_micropython_player_gives_identical_codes(tmp_path):
     for x, y in got:
         crc = zlib.crc32(struct.pack("<HH", x, y), crc)
     assert res == {"n": len(got), "crc": crc}
+
+
+def _f32(v):
+    return struct.unpack("<f", struct.pack("<f", v))[0]
+
+
+def _exact_q2(x):
+    """Eq. 7.7-7.8 in exact rational arithmetic: 131072 + K4 x (K4 the double the firmware uses), rounded
+    half up, clipped."""
+    from fractions import Fraction
+    v = 131072 + Fraction(4 * ad660.V_PER_ARCSEC * ad660.CODES_PER_VOLT) * Fraction(x)
+    return max(0, min(ad660.Q2_MAX, math.floor(v + Fraction(1, 2))))
+
+
+def test_integer_q2_conversion_equals_the_float_one():
+    """ad660.Q2Converter (integer limbs) gives the codes of arcsec_to_code_q2 (doubles) for float32 and
+    int32 samples: random values over and beyond the DAC range, tiny and subnormal ones, signed zeros,
+    the int32 extremes, and float32 values next to every rounding tie of a code range (where the exact
+    rational value decides)."""
+    import random
+    assert ad660.K4_C == 4 * ad660.V_PER_ARCSEC * ad660.CODES_PER_VOLT * 2 ** ad660.K4_Q
+    rnd = random.Random(8)
+    cv = ad660.Q2Converter(1)
+    xs = [_f32(rnd.uniform(-1100.0, 1100.0)) for _ in range(30000)]
+    xs += [_f32(rnd.uniform(-1.0, 1.0) * 10.0 ** rnd.uniform(-40, 0)) for _ in range(5000)]
+    xs += [0.0, -0.0, 1e-45, -1e-45, 1023.99993, -1023.99993, 1024.0, -1024.0, 3.4e38, -3.4e38, 810.2, -810.2]
+    for n in list(range(-131072, 131072, 997)) + [-131072, 131070, 131071]:   # ties of Q2 n + 1/2
+        t = (n + 0.5) / (4 * ad660.V_PER_ARCSEC * ad660.CODES_PER_VOLT)
+        b = struct.unpack("<I", struct.pack("<f", t))[0]
+        xs += [struct.unpack("<f", struct.pack("<I", b + d))[0] for d in (-1, 0, 1) if 0 <= b + d < 1 << 32]
+    for x in xs:
+        x = _f32(x)
+        got = cv.code(struct.pack("<f", x), 0)
+        assert got == ad660.arcsec_to_code_q2(x), x
+        assert got == _exact_q2(x), x
+    for scale in (0.001, 1.0, 3e-7, 0.1234, 50.0, 1e-30, 1e30):
+        scale = _f32(scale)
+        cv0 = ad660.Q2Converter(0, scale)
+        ns = [rnd.randint(-2 ** 31, 2 ** 31 - 1) for _ in range(2000)]
+        ns += [int(rnd.uniform(-1100, 1100) / scale) for _ in range(3000) if abs(1100 / scale) < 2 ** 31]
+        ns += [0, 1, -1, 2 ** 31 - 1, -2 ** 31]
+        for n in ns:
+            n = max(-2 ** 31, min(2 ** 31 - 1, n))
+            got = cv0.code(struct.pack("<i", n), 0)
+            assert got == ad660.arcsec_to_code_q2(n * scale), (scale, n)
+
+
+def test_micropython_player_update_allocates_nothing(tmp_path):
+    """Under micropython with the heap locked: 10^5 single-update fill() calls per distfile (float32 and
+    int32, streamed from a file and in memory) cross > 1000 distfile samples and wrap the loop, without a
+    MemoryError and with gc.mem_alloc() unchanged; the codes hash as under CPython. The float conversion
+    the player used before fails under the same lock (the lock does catch allocations)."""
+    n = 500
+    xs = [1000 * math.sin(0.05 * k) for k in range(n)]          # beyond +-10 V at the peaks: clipped codes
+    ys = [300 * math.cos(0.031 * k) + 5 for k in range(n)]
+    paths = []
+    for kind in (1, 0):
+        path = tmp_path / ("d%d.bin" % kind)
+        path.write_bytes(distfile.pack(xs, ys, kind=kind, scale=0.001))
+        paths.append(str(path))
+    updates = 100000
+    res = run_mp("firmware_player_alloc.py", updates, *paths)
+    assert res["float_path_caught"] is True
+    assert len(res["runs"]) == 4
+    for r in res["runs"]:
+        assert r["error"] is None and r["alloc_bytes"] == 0
+        assert r["updates"] == updates + 10 and r["crossings"] > 1000
+        with open(r["path"], "rb") as f:
+            p = Player(distfile.Reader(f))
+            p.play_loop()
+            h = 0
+            for _ in range(r["updates"]):
+                xb, yb = [0], [0]
+                assert p.fill(xb, yb, 1) == 1
+                h = (h * 31 + xb[0] * 65536 + yb[0]) & 0x3FFFFFF
+        assert r["hash"] == h

@@ -1,0 +1,242 @@
+"""No ``fps`` command ends in a traceback, whatever it is given.
+
+Every sub-command (and sub-sub-command) runs in-process through ``ground.cli.main`` over bad inputs: missing,
+empty, garbage and binary files, directories, NaN/inf/1e40 numbers, negative durations, unknown names and
+empty strings; ``fps protocol encode`` and ``decode`` also over hypothesis-generated argument lists and
+captures. Bad input must end with exit status 1 or 2 and a one-line ``error`` message; good input with 0.
+An exception escaping ``main`` fails the test with its traceback (what a user would have seen).
+"""
+
+import json
+import math
+import os
+import string
+import sys
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ground import cli
+from protocol import core, distfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "mp"))
+try:
+    import firmware_plant as fp
+finally:
+    sys.path.pop(0)
+
+BAD_NUMBERS = ("nan", "inf", "-inf", "1e40", "-1e40", "1e400", "", "x", "-1")
+
+
+def run(capsys, argv):
+    """(exit status, stdout, stderr) of ``fps argv``; argparse's SystemExit gives its code."""
+    capsys.readouterr()
+    try:
+        rc = cli.main([str(a) for a in argv])
+    except SystemExit as e:
+        rc = e.code if isinstance(e.code, int) else 1
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err, (argv, out, err)
+    return rc, out, err
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    f = {"dir": str(d), "missing": str(d / "missing" / "nothing.bin"), "out": str(d / "out")}
+    os.makedirs(f["out"])
+    rnd = bytes((i * 167 + 13) & 0xFF for i in range(300))
+    for name, data in (("garbage", rnd), ("empty", b""), ("text", b"hello {"), ("binjson", b"\xff\xfe\x00x"),
+                       ("nanjson", b'{"grid_v": [NaN, 1e400], "points": []}'),
+                       ("csv_nan", b"t_s,x_arcsec,y_arcsec\n0,nan,1\n0.1,inf,2\n0.2,1,1\n0.3,1,1\n"),
+                       ("csv_big", b"t_s,x_arcsec,y_arcsec\n0,1e40,1\n0.1,2,2\n0.2,3,3\n0.3,1,1\n"),
+                       ("csv_bad", b"garbage\n,,,\n"),
+                       ("dist", distfile.pack([0.0, 1.0, 2.0], [0.0, 1.0, 2.0])),
+                       ("cal", json.dumps(fp.calibration(3)).encode())):
+        f[name] = str(d / name)
+        with open(f[name], "wb") as fh:
+            fh.write(data)
+    sing = fp.calibration(3)
+    sing["points"][4]["H"] = [[1.0, 2.0], [2.0, 4.0]]
+    f["cal_singular"] = str(d / "cal_singular.json")
+    with open(f["cal_singular"], "w") as fh:
+        json.dump(sing, fh)
+    return f
+
+
+def _bad_cases(f):
+    """Argument lists that must be refused (exit 1 or 2)."""
+    o = os.path.join(f["out"], "x")
+    m, g, e, t, d = f["missing"], f["garbage"], f["empty"], f["text"], f["dir"]
+    cases = [["nope"], [""], ["protocol"], ["protocol", "nope"], ["protocol", "encode"],
+             ["protocol", "encode", ""], ["protocol", "encode", "NOPE"], ["protocol", "encode", "999"],
+             ["protocol", "encode", "-1"], ["protocol", "encode", "RW_CMD", "torque"],
+             ["protocol", "encode", "RW_CMD", "=1"], ["protocol", "encode", "RW_CMD", "bogus=1"],
+             ["protocol", "encode", "TICK", "--seq", "-1"], ["protocol", "encode", "TICK", "--seq", "256"],
+             ["protocol", "encode", "TICK", "--src", "NOPE"], ["protocol", "encode", "TICK", "--dst", "999"],
+             ["protocol", "encode", "TICK", "--src", ""], ["protocol", "encode", "DIST_CHUNK", "data=zz"],
+             ["protocol", "encode", "DIST_CHUNK", "data=" + "00" * 49], ["protocol", "decode"],
+             ["protocol", "decode", "--serial", m], ["protocol", "decode", "--serial", d],
+             ["protocol", "decode", "--serial", ""], ["protocol", "decode", "--can", m],
+             ["protocol", "dbc"], ["protocol", "dbc", "-o", m], ["protocol", "dbc", "-o", ""],
+             ["protocol", "dbc", "-o", d],
+             ["emulator", "config", "--config", m], ["emulator", "config", "--config", g],
+             ["emulator", "config", "--config", t], ["emulator", "config", "--config", f["nanjson"]],
+             ["emulator", "config", "--config", f["binjson"]], ["emulator", "config", "--config", ""],
+             ["emulator", "truth-h"], ["emulator", "truth-h", "-o", o, "--grid", "0"],
+             ["emulator", "truth-h", "-o", o, "--grid", "-3"], ["emulator", "truth-h", "-o", o, "--grid", "100000000"],
+             ["emulator", "truth-h", "-o", o, "--grid", "x"], ["emulator", "truth-h", "-o", "", "--grid", "2"],
+             ["emulator", "truth-h", "-o", m, "--grid", "2"], ["emulator", "truth-h", "-o", o, "--config", g],
+             ["emulator", "serve", "--devices", "nope"], ["emulator", "serve", "--link", ""],
+             ["emulator", "serve", "--distfile", m, "--wait", "0"],
+             ["emulator", "serve", "--distfile", g, "--wait", "0"],
+             ["emulator", "serve", "--config", g, "--wait", "0"], ["emulator", "serve", "--wait", "0.05"],
+             ["emulator", "serve", "--devices", "wheels", "--config", f["cal"], "--duration", "0.1", "--wait", "0"],
+             ["emulator", "serve", "--devices", "wheels", "--wait", "0"]]
+    for v in BAD_NUMBERS:
+        cases += [["emulator", "truth-h", "-o", o, "--dv", v],
+                  ["emulator", "serve", "--duration", v, "--wait", "0"],
+                  ["emulator", "serve", "--wait", v], ["emulator", "serve", "--rate", v, "--wait", "0"],
+                  ["emulator", "serve", "--deadline", v, "--wait", "0"],
+                  ["emulator", "serve", "--pfsm-v", v, "0", "--wait", "0"],
+                  ["emulator", "serve", "--devices", "wheels", "--dt", v, "--duration", "0.1", "--wait", "0"],
+                  ["emulator", "serve", "--devices", "wheels", "--startracker-hz", v, "--duration", "0.1",
+                   "--wait", "0"],
+                  ["emulator", "serve", "--devices", "wheels", "--duration", v, "--wait", "0"],
+                  ["distfile", "generate", "-o", o, "--duration", v],
+                  ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--amp-arcsec", v],
+                  ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--freq-hz", v + ",1"],
+                  ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--sine-rate-hz", v],
+                  ["distfile", "generate", "-o", o, "--source", "stat", "--duration", "1", "--stat-rate-hz", v],
+                  ["distfile", "generate", "-o", o, "--source", "stat", "--duration", "1", "--stat-scale", v],
+                  ["calibrate", "-o", o, "--grid", "2", "--span", v], ["calibrate", "-o", o, "--grid", "2", "--dv", v],
+                  ["calibrate", "-o", o, "--grid", v],
+                  ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", v],
+                  ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", "0.01",
+                   "--q2-dv", v if v != "-1" else "-inf"]]
+    cases += [["distfile", "info"], ["distfile", "nope"]]
+    for p in (m, g, e, d, "", f["text"], f["cal"]):
+        cases += [["distfile", "info", p], ["distfile", "csv", p],
+                  ["distfile", "generate", "-o", o, "--source", "csv", "--csv", p],
+                  ["hil", "-o", o, "--distfile", p, "--calibration", f["cal"], "--duration", "0.01"],
+                  ["hil", "-o", o, "--distfile", f["dist"], "--calibration", p if p != f["cal"] else f["dist"],
+                   "--duration", "0.01"],
+                  ["calibrate", "-o", o, "--grid", "2", "--config", p]]
+    for p in (f["csv_nan"], f["csv_big"], f["csv_bad"], f["binjson"]):
+        cases += [["distfile", "generate", "-o", o, "--source", "csv", "--csv", p]]
+    cases += [["distfile", "generate", "-o", o, "--source", "csv"],
+              ["distfile", "generate", "-o", o, "--source", "nope"],
+              ["distfile", "generate", "-o", o, "--duration", "1", "--seed", "-1"],
+              ["distfile", "generate", "-o", o, "--duration", "1", "--seed", str(2 ** 40)],
+              ["distfile", "generate", "-o", o, "--duration", "1", "--stat-case", "nope"],
+              ["distfile", "generate", "-o", "", "--source", "sine", "--duration", "1"],
+              ["distfile", "generate", "-o", d, "--source", "sine", "--duration", "1"],
+              ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--offset-arcsec", ""],
+              ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--freq-hz", "600"],
+              ["distfile", "csv", f["dist"], "-o", d], ["calibrate"], ["calibrate", "-o", o, "--grid", "100000"],
+              ["calibrate", "-o", o, "--grid", "2", "--seed", "-5"],
+              ["calibrate", "-o", o, "--grid", "2", "--port", ""],
+              ["calibrate", "-o", o, "--grid", "2", "--port", m], ["calibrate", "-o", o, "--runtime", "nope"],
+              ["calibrate", "-o", o, "--grid", "2", "--link", ""], ["hil"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["nanjson"], "--duration", "0.01"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["binjson"], "--duration", "0.01"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal_singular"], "--duration", "0.01"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", "0.01",
+               "--config", g],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", "10"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--runtime", "nope"]]
+    return cases
+
+
+def test_every_command_is_covered(files):
+    """The bad cases reach every command and sub-command ``fps --help`` and their own help list."""
+    reached = {tuple(a[:2]) if a[0] in ("protocol", "emulator", "distfile") else (a[0],)
+               for a in _bad_cases(files) if a and a[0]}
+    want = {("protocol", "encode"), ("protocol", "decode"), ("protocol", "dbc"), ("emulator", "config"),
+            ("emulator", "truth-h"), ("emulator", "serve"), ("distfile", "generate"), ("distfile", "info"),
+            ("distfile", "csv"), ("calibrate",), ("hil",)}
+    assert want <= reached
+    assert {c[0] for c in cli.COMMANDS} == {w[0] for w in want}
+
+
+def test_help_of_every_command(capsys):
+    for argv in ([], ["--help"], ["protocol"], ["protocol", "--help"], ["emulator"], ["distfile"]):
+        rc, out, err = run(capsys, argv)
+        assert rc in (0, 2) and (out or err)
+    subs = {"protocol": ("table", "dbc", "encode", "decode"), "emulator": ("config", "truth-h", "serve"),
+            "distfile": ("generate", "info", "csv")}
+    for cmd, names in subs.items():
+        for name in names:
+            rc, out, _ = run(capsys, [cmd, name, "--help"])
+            assert rc == 0 and "usage: fps %s %s" % (cmd, name) in out
+    for cmd in ("calibrate", "hil"):
+        rc, out, _ = run(capsys, [cmd, "--help"])
+        assert rc == 0 and "usage: fps %s" % cmd in out
+
+
+def test_bad_inputs_give_a_clear_error_never_a_traceback(capsys, files):
+    for argv in _bad_cases(files):
+        rc, out, err = run(capsys, argv)
+        assert rc in (1, 2), (argv, rc, out, err)
+        last = err.strip().splitlines()[-1] if err.strip() else ""
+        assert last.startswith("fps") and "error: " in last, (argv, err)     # argparse's usage may precede it
+
+
+def test_fine_inputs_exit_0(capsys, files):
+    o = os.path.join(files["out"], "fine")
+    for argv in (["protocol", "table"], ["protocol", "table", "--json"], ["protocol", "encode", "RW_CMD", "torque=0.5"],
+                 ["protocol", "encode", "RW_CMD", "torque=3.4028234663852886e38", "--can"],
+                 ["protocol", "decode", "--serial", files["garbage"]], ["protocol", "decode", "--can", files["empty"]],
+                 ["emulator", "config"], ["distfile", "info", files["dist"]], ["distfile", "csv", files["dist"]],
+                 ["distfile", "generate", "-o", o + ".dist", "--source", "sine", "--duration", "0.5"]):
+        rc, out, err = run(capsys, argv)
+        assert rc == 0, (argv, err)
+
+
+# --- hypothesis: fps protocol encode / decode ----------------------------------------------------------
+_NAMES = sorted(core.PACKET_ID)
+_FIELDS = sorted({f[0] for p in core.PACKET.values() for f in p.fields})
+_text = st.text(alphabet=string.printable, max_size=12)
+_number = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr),
+                    st.integers(min_value=-2 ** 70, max_value=2 ** 70).map(str),
+                    st.integers(min_value=-2 ** 40, max_value=2 ** 40).map(hex),
+                    st.sampled_from(BAD_NUMBERS + ("0x", "1_0", "0b12", "١", "5e-324", "True")),
+                    st.binary(max_size=60).map(bytes.hex), _text)
+_item = st.one_of(st.builds(lambda k, v: "%s=%s" % (k, v), st.sampled_from(_FIELDS) | _text, _number), _text)
+_flag = st.one_of(st.tuples(st.sampled_from(["--seq", "--src", "--dst"]),
+                            st.one_of(_number, st.sampled_from(sorted(core.NODE)))).map(list),
+                  st.just(["--can"]))
+
+
+@settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.one_of(st.sampled_from(_NAMES), st.integers(-5, 300).map(str), _text),
+       st.lists(_item, max_size=6), st.lists(_flag, max_size=3))
+def test_hypothesis_protocol_encode(capsys, name, items, flags):
+    argv = ["protocol", "encode", name] + items + [a for f in flags for a in f]
+    rc, out, err = run(capsys, argv)
+    assert rc in (0, 1, 2), (argv, rc)
+    if rc:
+        assert "error" in err and not out, (argv, out, err)
+    else:
+        assert out.strip() and not err, (argv, err)
+        text = out.strip().splitlines()
+        if "--can" not in argv:
+            assert all(c in string.hexdigits for c in text[0])
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.sampled_from(["--serial", "--can"]), st.binary(max_size=400),
+       st.lists(st.sampled_from(["--serial", "--can", "-h", "", "x", "--bogus"]), max_size=2))
+def test_hypothesis_protocol_decode(capsys, tmp_path_factory, how, data, extra):
+    path = os.path.join(str(tmp_path_factory.getbasetemp()), "capture.bin")
+    with open(path, "wb") as f:
+        f.write(data)
+    argv = ["protocol", "decode", how, path] + extra
+    rc, out, err = run(capsys, argv)
+    assert rc in (0, 1, 2), (argv, rc)
+    if rc == 0 and "-h" not in extra:
+        summary = json.loads(out.strip().splitlines()[-1])["summary"]
+        assert summary["dropped"] >= 0
+    elif rc:
+        assert "error" in err

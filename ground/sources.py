@@ -157,6 +157,9 @@ class Sine:
         self.offset = np.asarray(offset_arcsec, dtype=float)
         if not rate_hz > 0:
             raise ValueError("sine rate_hz must be > 0, got %r" % rate_hz)
+        if not np.all(self.amp >= 0):
+            raise ValueError("--amp-arcsec %s: amplitudes must be >= 0 arcsec (a sign is a phase: --phase-deg)"
+                             % [float(v) for v in self.amp])
         if np.any(self.freq < 0) or np.any(self.freq >= rate_hz / 2):
             raise ValueError("sine freq_hz %s must be in [0, rate/2 = %g)" % (list(self.freq), rate_hz / 2))
         self.rate_hz = float(rate_hz)

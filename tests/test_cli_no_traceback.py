@@ -178,7 +178,7 @@ def test_help_of_every_command(capsys):
 def test_bad_inputs_give_a_clear_error_never_a_traceback(capsys, files):
     for argv in _bad_cases(files):
         rc, out, err = run(capsys, argv)
-        assert rc in (1, 2), (argv, rc, out, err)
+        assert rc in (1, 2), (" ".join(argv), rc, out, err)
         last = err.strip().splitlines()[-1] if err.strip() else ""
         assert last.startswith("fps") and "error: " in last, (argv, err)     # argparse's usage may precede it
 

@@ -1,0 +1,152 @@
+"""Benchmark of the HIL over a bad link (issue 8): MicroPython controller over a serial pty, faults injected at the
+transport (``--link-faults``). Figures: wall time and counters of a 120 s run with and without faults and whether
+its samples and control telemetry are bit-identical; heavy faults (complete and identical, or a clear stop within
+60 s wall); a 2 s silence and a permanent one; calibration under faults; real-time overruns of a board (MicroPython
+``firmware.main`` on a relayed pty) at 637.8 Hz and 2 kHz.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+
+import numpy as np
+
+from emulator.bench import Bench
+from emulator.truth import true_h_field
+from ground import distfile_cli, sources
+from ground.cli import main as fps
+from ground.fileio import write_atomic, write_json
+from ground.runtime import ROOT, micropython_binary
+
+DURATION_S = 120.0
+LIGHT = "bytes=0.01,frames=0.05,seed=1"
+HEAVY = "bytes=0.05,frames=0.20,seed=1"
+CONTROL_COLS = 14
+
+
+def _hil(tmp, name, dist, cal, duration, *extra):
+    out = os.path.join(tmp, name)
+    t0 = time.perf_counter()
+    rc = fps(["hil", "--distfile", dist, "--calibration", cal, "--duration", "%g" % duration, "--runtime",
+              "micropython", "--no-plots", "--quiet", "-o", out] + list(extra))
+    wall = time.perf_counter() - t0
+    with open(os.path.join(out, "summary.json")) as f:
+        return rc, wall, out, json.load(f)
+
+
+def _identical(a, b):
+    za, zb = np.load(os.path.join(a, "samples.npz")), np.load(os.path.join(b, "samples.npz"))
+    same = all(np.array_equal(za[k], zb[k]) for k in za.files)
+    ta = [",".join(line.split(",")[:CONTROL_COLS]) for line in open(os.path.join(a, "telemetry.csv"))]
+    tb = [",".join(line.split(",")[:CONTROL_COLS]) for line in open(os.path.join(b, "telemetry.csv"))]
+    return same and ta == tb
+
+
+def _row(label, rc, wall, s, ident="—"):
+    b = s["link"]["bench"]
+    c = s["link"]["controller"] or {}
+    return "| %s | %d | %s | %.1f | %s | %s | %s | %s | %s | %s |" % (
+        label, rc, s["complete"], wall, b.get("controller_resent", 0), b.get("command_retries", 0),
+        b.get("overruns", 0), c.get("resent_ticks_answered", "—"), c.get("rx_frames_dropped", "—"), ident)
+
+
+def main(duration_s=DURATION_S):
+    tmp = tempfile.mkdtemp(prefix="bench_faults_")
+    try:
+        _main(tmp, duration_s)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _main(tmp, duration_s):
+    dist = os.path.join(tmp, "stat.dist")
+    write_atomic(dist, distfile_cli.generate(sources.GaussMarkov2(), duration_s + 5, 1, "stat"))
+    cal = os.path.join(tmp, "cal.json")
+    write_json(cal, true_h_field(Bench(noise=False), None, 0.01))
+
+    print("### fps hil, MicroPython over a serial pty, %g s virtual, faults on the link\n" % duration_s)
+    print("| run | exit | complete | wall (s) | TICKs resent | command retries | overruns | controller: "
+          "resends answered | controller: frames dropped | bit-identical to clean |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    rc, wall, clean, s = _hil(tmp, "clean", dist, cal, duration_s)
+    print(_row("clean", rc, wall, s), flush=True)
+    rc, wall, out, s = _hil(tmp, "light", dist, cal, duration_s, "--link-faults", LIGHT)
+    print(_row("`%s` (goal: completes, identical)" % LIGHT, rc, wall, s, _identical(clean, out)), flush=True)
+    rc, wall, out, s = _hil(tmp, "heavy", dist, cal, duration_s, "--link-faults", HEAVY)
+    ident = _identical(clean, out) if s["complete"] else "stopped: %s" % (s["error"] or "")[:90]
+    print(_row("`%s` (goal: identical, or a clear stop within 60 s)" % HEAVY, rc, wall, s, ident), flush=True)
+    rc, wall, out, s = _hil(tmp, "silence", dist, cal, min(duration_s, 10.0), "--link-faults", "silence=3:2")
+    print(_row("10 s with `silence=3:2` (goal: ridden through)", rc, wall, s, "held %d ticks" % s["overruns"]),
+          flush=True)
+    rc, wall, out, s = _hil(tmp, "dead", dist, cal, min(duration_s, 10.0), "--link-faults", "silence=3:inf")
+    n = len(np.load(os.path.join(out, "samples.npz"))["t_s"])
+    print(_row("10 s with `silence=3:inf` (goal: ends within the bound, valid folder)", rc, wall, s,
+               "%d samples kept" % n), flush=True)
+
+    print("\n### fps calibrate under faults (MicroPython, 5x5 grid)\n")
+    print("| run | wall (s) | exit | same H table as clean |")
+    print("|---|---|---|---|")
+    hs = []
+    for name, extra in (("clean", []), ("`%s`" % LIGHT, ["--link-faults", LIGHT])):
+        out = os.path.join(tmp, "cal_%d.json" % len(hs))
+        t0 = time.perf_counter()
+        rc = fps(["calibrate", "--runtime", "micropython", "--grid", "5", "--no-plots", "--no-truth", "-o", out]
+                 + extra)
+        wall = time.perf_counter() - t0
+        hs.append(json.load(open(out))["points"] if rc == 0 else None)
+        print("| %s | %.1f | %d | %s |" % (name, wall, rc, "—" if len(hs) == 1 else
+                                          (hs[0] is not None and hs[0] == hs[1])), flush=True)
+
+    print("\n### A board in real time (MicroPython firmware.main on a relayed pty), 10 s\n")
+    print("| loop rate | overruns | ticks | share |")
+    print("|---|---|---|---|")
+    for rate in (637.8, 2000.0):
+        ov, n = _board_realtime(tmp, dist, cal, rate)
+        print("| %g Hz | %d | %d | %.2f %% |" % (rate, ov, n, 100.0 * ov / max(n, 1)), flush=True)
+
+
+def _board_realtime(tmp, dist, cal, rate, duration=10.0):
+    import select
+    import tty
+    m1, s1 = os.openpty()
+    m2, s2 = os.openpty()
+    for fd in (s1, s2):
+        tty.setraw(fd)
+    stop = threading.Event()
+
+    def relay():
+        while not stop.is_set():
+            r, _, _ = select.select([m1, m2], [], [], 0.05)
+            for fd in r:
+                try:
+                    os.write(m2 if fd == m1 else m1, os.read(fd, 4096))
+                except OSError:
+                    return
+    th = threading.Thread(target=relay, daemon=True)
+    th.start()
+    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
+    proc = subprocess.Popen([micropython_binary(), "-m", "firmware.main", "controller", "--link",
+                             "serial:" + os.ttyname(s1), "--rate", repr(rate)], cwd=ROOT, env=env,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        out = os.path.join(tmp, "rt_%g" % rate)
+        fps(["hil", "--distfile", dist, "--calibration", cal, "--duration", "%g" % duration, "--runtime", "board",
+             "--port", os.ttyname(s2), "--realtime", "--rate-hz", repr(rate), "--no-plots", "--quiet", "-o", out])
+        with open(os.path.join(out, "summary.json")) as f:
+            s = json.load(f)
+        return s["overruns"], int(round(s["duration_s"] * rate))
+    finally:
+        proc.terminate()
+        proc.wait(5)
+        stop.set()
+        th.join(2)
+        for fd in (m1, m2, s1, s2):
+            os.close(fd)
+
+
+if __name__ == "__main__":
+    main()

@@ -77,8 +77,18 @@ def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
 def insert_node(X, P, n, pos, xb, Pbb, row):
     """Plug node b in at node position ``pos`` (Fig. 5-2)."""
     k = pos * n
+    m = P.shape[0]
     X = np.concatenate([X[:k], xb, X[k:]])
-    Pn = np.insert(np.insert(P, [k] * n, row, axis=0), [k] * n, np.vstack([row.T[:k], Pbb, row.T[k:]]), axis=1)
+    Pn = np.empty((m + n, m + n))
+    Pn[:k, :k] = P[:k, :k]
+    Pn[:k, k + n:] = P[:k, k:]
+    Pn[k + n:, :k] = P[k:, :k]
+    Pn[k + n:, k + n:] = P[k:, k:]
+    Pn[k:k + n, :k] = row[:, :k]
+    Pn[k:k + n, k + n:] = row[:, k:]
+    Pn[:k, k:k + n] = row[:, :k].T
+    Pn[k + n:, k:k + n] = row[:, k:].T
+    Pn[k:k + n, k:k + n] = Pbb
     return X, Pn
 
 

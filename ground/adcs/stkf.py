@@ -21,6 +21,10 @@ IB = slice(6, 9)
 VB = slice(9, 12)
 
 
+I3 = np.eye(3)
+I12 = np.eye(N)
+
+
 def skew(v):
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
@@ -28,10 +32,13 @@ def skew(v):
 # ---- dynamics (Eq. 5.4, 5.7, 5.9) ----
 
 def _deriv(x):
-    r = x.reshape(2, 6)
-    p = r[:, :3]
-    a = -MU * p / (np.sqrt((p * p).sum(axis=1)) ** 3)[:, None]
-    return np.hstack([r[:, 3:], a]).ravel()
+    d = np.empty(N)
+    d[0:3] = x[3:6]
+    d[6:9] = x[9:12]
+    ra, rb = x[0:3], x[6:9]
+    d[3:6] = ra * (-MU / (ra @ ra) ** 1.5)
+    d[9:12] = rb * (-MU / (rb @ rb) ** 1.5)
+    return d
 
 
 def f(x, dt):
@@ -50,8 +57,8 @@ def f(x, dt):
 
 def gravity_gradient(r):
     """d(-mu r/|r|^3)/dr = -mu/|r|^3 (I - 3 r r^T/|r|^2): the lower-left block of F_2-body (Eq. 5.4)."""
-    rn = np.linalg.norm(r)
-    return -MU / rn ** 3 * (np.eye(3) - 3.0 * np.outer(r, r) / rn ** 2)
+    r2 = r @ r
+    return (-MU / r2 ** 1.5) * (I3 - (3.0 / r2) * np.outer(r, r))
 
 
 def F(x):
@@ -69,8 +76,8 @@ def Phi(x, dt):
     With F = [[0, I], [G, 0]] per satellite, each term is a block product; the neglected 4th-order term is
     ~(n dt)^4 ~ 1e-12 at dt = 1 s in LEO.
     """
-    out = np.eye(N)
-    i3 = np.eye(3)
+    out = I12.copy()
+    i3 = I3
     for k in (0, 6):
         G = gravity_gradient(x[k:k + 3])
         s, t = slice(k, k + 3), slice(k + 3, k + 6)
@@ -83,14 +90,23 @@ def Phi(x, dt):
 def Q(dt, qa=QA_THESIS):
     """Discrete process noise of white acceleration noise with density ``qa`` (Eq. 5.8-5.9, G = [0 I]^T):
     per axis [[qa dt^3/3, qa dt^2/2], [qa dt^2/2, qa dt]] for each satellite."""
-    dt = abs(dt)
+    dt = abs(float(dt))
+    key = (dt, float(qa))
+    if key in _Q_CACHE:
+        return _Q_CACHE[key]
     q = np.zeros((N, N))
     for k in (0, 6):
         i3 = np.eye(3)
         q[k:k + 3, k:k + 3] = qa * dt ** 3 / 3.0 * i3
         q[k:k + 3, k + 3:k + 6] = q[k + 3:k + 6, k:k + 3] = qa * dt ** 2 / 2.0 * i3
         q[k + 3:k + 6, k + 3:k + 6] = qa * dt * i3
+    if len(_Q_CACHE) < 4096:
+        q.flags.writeable = False
+        _Q_CACHE[key] = q
     return q
+
+
+_Q_CACHE = {}
 
 
 def predict(x, P, dt, qa=QA_THESIS):
@@ -124,14 +140,14 @@ def h_gnss(x, sat):
 def los(x):
     """(u, rho): unit vector rA->rB (J2000) and the range (Eq. 5.14)."""
     d = x[IB] - x[IA]
-    rho = np.linalg.norm(d)
+    rho = float(np.sqrt(d @ d))
     return d / rho, rho
 
 
 def Hb(x):
     """Hb,A of Eq. 5.17: d u / d rA = -(I - u u^T)/rho; Hb,B = -Hb,A."""
     u, rho = los(x)
-    return -(np.eye(3) - np.outer(u, u)) / rho
+    return (np.outer(u, u) - I3) / rho
 
 
 def h_beacon(x, A):
@@ -151,18 +167,17 @@ def H_beacon(x, A):
 def R_beacon(y, sigma_b, P_att):
     """Beacon noise plus attitude knowledge (Eq. 5.15-5.16): sigma_b^2 I + [y x] P_att [y x]^T."""
     sy = skew(y)
-    return sigma_b ** 2 * np.eye(3) + sy @ P_att @ sy.T
+    return sigma_b ** 2 * I3 + sy @ P_att @ sy.T
 
 
 # ---- pointing vector (Eq. 5.54-5.60) ----
 
 def T_b2z(p):
     """A DCM whose 3rd row is p (Eq. 5.57: T_b2z p = [0, 0, 1]); the other rows any orthonormal pair."""
-    p = p / np.linalg.norm(p)
-    a = np.eye(3)[int(np.argmin(np.abs(p)))]
-    e1 = np.cross(p, a)
-    e1 /= np.linalg.norm(e1)
-    return np.vstack([e1, np.cross(p, e1), p])
+    p = p / np.sqrt(p @ p)
+    e1 = skew(p) @ I3[int(np.argmin(np.abs(p)))]
+    e1 /= np.sqrt(e1 @ e1)
+    return np.vstack([e1, skew(p) @ e1, p])
 
 
 def pointing(x, A):

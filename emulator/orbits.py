@@ -134,7 +134,7 @@ def force_model(bh, spacecraft=CUBESAT_3U):
 def hpop(x0, duration_s, step_s=1.0, epoch_utc=EPOCH_UTC, spacecraft=CUBESAT_3U):
     """brahe numerical propagation of one EME2000 state; samples (n, 6) in EME2000 every ``step_s``.
 
-    The integrator (DP54, abs 1e-8, rel 1e-10) runs over the whole span once; the samples come from its
+    The integrator (DP54, abs 1e-8, rel 1e-10, step <= span/16) runs over the whole span once; the samples come from its
     trajectory with brahe's 8th-order Lagrange interpolation (within 0.3 mm of stopping the integrator
     at each sample, checked when this was written).
     """
@@ -143,9 +143,11 @@ def hpop(x0, duration_s, step_s=1.0, epoch_utc=EPOCH_UTC, spacecraft=CUBESAT_3U)
     ep = bh.Epoch.from_datetime(y, mo, d, h, mi, s, 0.0, bh.TimeSystem.UTC)
     fm, params = force_model(bh, spacecraft)
     x_gcrf = np.array(bh.state_eme2000_to_gcrf(np.asarray(x0, dtype=float)))
-    prop = bh.NumericalOrbitPropagator(ep, x_gcrf, bh.NumericalPropagationConfig.default(), fm, params)
-    prop.set_interpolation_method(bh.InterpolationMethod.lagrange(8))
     n = int(round(duration_s / step_s)) + 1
+    # at least 16 integrator steps over the span, so the 9-point interpolation has its stencil
+    cfg = bh.NumericalPropagationConfig.default().with_max_step(min(60.0, (n - 1) * step_s / 16.0))
+    prop = bh.NumericalOrbitPropagator(ep, x_gcrf, cfg, fm, params)
+    prop.set_interpolation_method(bh.InterpolationMethod.lagrange(8))
     prop.propagate_to(ep + float((n - 1) * step_s))
     out = np.array(prop.states_eme2000([ep + float(k * step_s) for k in range(n)]))
     out[0] = x0

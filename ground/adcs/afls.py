@@ -26,7 +26,8 @@ def predict(X, P, n, x0_new, Phi, Q):
     m = P.shape[0]
     Pn = np.empty((m + n, m + n))
     top = Phi @ P[:n, :]
-    Pn[:n, :n] = top[:, :n] @ Phi.T + Q
+    p00 = top[:, :n] @ Phi.T + Q
+    Pn[:n, :n] = 0.5 * (p00 + p00.T)
     Pn[:n, n:] = top
     Pn[n:, :n] = top.T
     Pn[n:, n:] = P
@@ -35,14 +36,13 @@ def predict(X, P, n, x0_new, Phi, Q):
 
 def update(X, P, n, idx, z, R, H, hx):
     """FLS update with a measurement of node ``idx`` (Eq. 5.24): C = [0 .. H .. 0],
-    K = P C^T (H P_ii H^T + R)^-1, X + K (z - h(x_i)), P - K S K^T (symmetrised)."""
+    K = P C^T (H P_ii H^T + R)^-1, X + K (z - h(x_i)), P - K S K^T (= P - K C P; the prediction
+    re-symmetrises the current block)."""
     s = slice(idx * n, (idx + 1) * n)
     PCt = P[:, s] @ H.T
     S = H @ PCt[s, :] + R
     K = np.linalg.solve(S, PCt.T).T
-    X = X + K @ (z - hx)
-    P = P - K @ PCt.T
-    return X, 0.5 * (P + P.T)
+    return X + K @ (z - hx), P - K @ PCt.T
 
 
 def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):

@@ -65,26 +65,31 @@ def F(x):
     """F of Eq. 5.9: blockdiag(F_2-body,A, F_2-body,B), each [[0, I], [G(r), 0]] (Eq. 5.4)."""
     out = np.zeros((N, N))
     for k in (0, 6):
-        out[k:k + 3, k + 3:k + 6] = np.eye(3)
+        out[k:k + 3, k + 3:k + 6] = I3
         out[k + 3:k + 6, k:k + 3] = gravity_gradient(x[k:k + 3])
     return out
 
 
 def Phi(x, dt):
-    """State transition over ``dt`` from F at x: I + F dt + (F dt)^2/2 + (F dt)^3/6 (Eq. 3.30).
+    """State transition over ``dt`` from F at x (Eq. 3.30): I + F dt + (F dt)^2/2 + (F dt)^3/6.
 
-    With F = [[0, I], [G, 0]] per satellite, each term is a block product; the neglected 4th-order term is
-    ~(n dt)^4 ~ 1e-12 at dt = 1 s in LEO.
+    With F = [[0, I], [G, 0]] per satellite: [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]]; the
+    dropped terms (G^2 dt^3/6 and beyond) are ~(n dt)^4 ~ 1e-12 at dt = 1 s in LEO.
     """
-    out = I12.copy()
-    i3 = I3
-    for k in (0, 6):
-        G = gravity_gradient(x[k:k + 3])
-        s, t = slice(k, k + 3), slice(k + 3, k + 6)
-        out[s, s] = out[t, t] = i3 + 0.5 * G * dt * dt
-        out[s, t] = i3 * dt + G * dt ** 3 / 6.0
-        out[t, s] = G * dt + G @ G * dt ** 3 / 6.0
+    out = np.zeros((N, N))
+    ga = gravity_gradient(x[0:3])
+    gb = gravity_gradient(x[6:9])
+    h2, h3 = 0.5 * dt * dt, dt ** 3 / 6.0
+    out[0:3, 0:3] = out[3:6, 3:6] = I3 + h2 * ga
+    out[6:9, 6:9] = out[9:12, 9:12] = I3 + h2 * gb
+    out[0:3, 3:6] = DT_I3 * dt + h3 * ga
+    out[6:9, 9:12] = DT_I3 * dt + h3 * gb
+    out[3:6, 0:3] = dt * ga
+    out[9:12, 6:9] = dt * gb
     return out
+
+
+DT_I3 = np.eye(3)
 
 
 def Q(dt, qa=QA_THESIS):

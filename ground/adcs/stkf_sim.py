@@ -55,6 +55,16 @@ def parse_outage(text):
     return parts[0], t0, t1
 
 
+Q_ID = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def _blockdiag(a, b):
+    out = np.zeros((a.shape[0] + b.shape[0],) * 2)
+    out[:a.shape[0], :a.shape[0]] = a
+    out[a.shape[0]:, a.shape[0]:] = b
+    return out
+
+
 def small_rotation(alpha):
     """A(dq) of the rotation vector alpha (dq = [alpha/2, 1] normalised, Eq. 4.77)."""
     q = np.array([0.5 * alpha[0], 0.5 * alpha[1], 0.5 * alpha[2], 1.0])
@@ -136,14 +146,22 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
         t0 = time.perf_counter()
         if k > 0:
             flt.predict(t)
-        if not out("gnss_a", t):
-            flt.update(gnss_a.measure(x_true[:6]), gnss_a.R, h_a, lambda x: H_a)
+        have_g, have_b = not out("gnss_a", t), not out("beacon", t)
+        if have_g:
+            zg = gnss_a.measure(x_true[:6])
             gaps.seen("gnss_a", t)
-        if not out("beacon", t):
-            y = beacon.measure(x_true[0:3], x_true[6:9], np.array([0.0, 0.0, 0.0, 1.0]))
-            R = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
-            flt.update(y, R, lambda x: stkf.h_beacon(x, A_hat), lambda x: stkf.H_beacon(x, A_hat))
+        if have_b:
+            y = beacon.measure(x_true[0:3], x_true[6:9], Q_ID)
+            Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
             gaps.seen("beacon", t)
+        if have_g and have_b:  # one stacked update: the two noises are independent
+            flt.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb),
+                       lambda x: np.concatenate([x[0:6], stkf.h_beacon(x, A_hat)]),
+                       lambda x: np.vstack([H_a, stkf.H_beacon(x, A_hat)]))
+        elif have_g:
+            flt.update(zg, gnss_a.R, h_a, lambda x: H_a)
+        elif have_b:
+            flt.update(y, Rb, lambda x: stkf.h_beacon(x, A_hat), lambda x: stkf.H_beacon(x, A_hat))
         if case == 2:
             while jb < tb.size and tb[jb] <= t:
                 if not out("relay", tb[jb]):

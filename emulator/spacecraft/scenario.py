@@ -175,7 +175,7 @@ def filter_truth(sc):
     js = s * j_eq
     return {"scale": s, "J5": np.array([js[1, 1], js[2, 2], js[0, 1], js[0, 2], js[1, 2]]),
             "m": s * sc.dipole, "delta1": np.radians(w.p.delta1_deg), "delta2": np.radians(w.p.delta2_deg),
-            "jrw": s * w.j * c1n, "J": js}
+            "jrw": s * w.j / c1n, "J": js}
 
 
 def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.1, duration=None,

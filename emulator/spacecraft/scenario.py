@@ -179,11 +179,12 @@ def filter_truth(sc):
 
 
 def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.1, duration=None,
-             wheel_params=None):
+             wheel_params=None, inertia=None, dipole=None):
     """Run the scenario; returns a dict of 1 Hz arrays (index k is t = k s) and the truth parameters.
 
     Keys: t, q, w, w_rel (true), tach (measured W - c.w, rad/s), st_q, st_valid, gyro (index k: over k-1..k),
-    tau_d (true, N m), truth (``filter_truth``), set_ends (s).
+    gyro_bias (true bias in gyro[k]), tau_d (true, N m), truth (``filter_truth``), set_ends (s).
+    ``inertia`` [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz] and ``dipole`` (A m^2) replace the thesis's true values.
     """
     if case not in CASES:
         raise ValueError("case must be 1, 2 or 3, got %r" % (case,))
@@ -197,15 +198,17 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
     r_st, r_rw, r_g = (np.random.default_rng(s) for s in rng.integers(0, 2 ** 63, 3))
     wheels = Wheels(wheel_params or WheelParams(**SCENARIO_WHEELS), rng=r_rw)
     q0, _, _ = man.command(0.0)
-    sc = Spacecraft(wheels=wheels, dt=dt, q=q0, omega=np.radians([1.0, 0.0, 0.0]),
-                    disturbance=lambda t, q, w: tau_d_case(case, t, q))
+    kw = {} if dipole is None else {"dipole": dipole}
+    sc = Spacecraft(wheels=wheels, dt=dt, q=q0, omega=np.radians([1.0, 0.0, 0.0]), inertia=inertia,
+                    disturbance=lambda t, q, w: tau_d_case(case, t, q), **kw)
     st = StarTracker(r_st)
     gy = MemsGyro(r_g) if gyro else None
     pd = PD()
     n = int(round(T))
     sub = int(round(1.0 / dt))
     out = {k: np.zeros((n + 1, m)) for k, m in (("q", 4), ("w", 3), ("w_rel", 4), ("tach", 4), ("st_q", 4),
-                                                 ("gyro", 3), ("tau_d", 3), ("tau_c", 3))}
+                                                 ("gyro", 3), ("gyro_bias", 3), ("tau_d", 3),
+                                                 ("tau_c", 3))}
     out["st_valid"] = np.zeros(n + 1, dtype=bool)
 
     def sample(k):
@@ -227,6 +230,7 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
             raise FloatingPointError("truth diverged at t = %.0f s" % sc.t)
         sample(k)
         if gy is not None:
+            out["gyro_bias"][k] = gy.b
             out["gyro"][k] = gy.measure(q_prev, sc.q, 1.0)
     out["t"] = np.arange(n + 1, dtype=float)
     out["truth"] = filter_truth(sc)

@@ -49,8 +49,12 @@ class Beacon:
         return self.sigma ** 2 * np.eye(3)
 
     def measure(self, r_a, r_b, q):
+        return self.measure_dcm(r_a, r_b, dcm(q))
+
+    def measure_dcm(self, r_a, r_b, A):
+        """The same with the attitude as its matrix A (inertial to body)."""
         d = np.asarray(r_b, dtype=float) - np.asarray(r_a, dtype=float)
-        return dcm(q) @ (d / np.linalg.norm(d)) + self.sigma * self.rng.standard_normal(3)
+        return A @ (d / np.linalg.norm(d)) + self.sigma * self.rng.standard_normal(3)
 
 
 class Relay:

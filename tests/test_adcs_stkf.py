@@ -233,3 +233,15 @@ def test_cli_bad_input_and_interrupt(tmp_path, capsys, monkeypatch):
     rc = main(["adcs", "stkf", "--case", "1", "--truth", "two-body", "--duration", "20", "--quiet", "-o", str(out)])
     assert rc == 130
     assert json.loads((out / "summary.json").read_text())["complete"] is False
+
+
+def test_apkf_attitude_feeds_the_beacon_noise():
+    """With the APKF in the same simulation the body rotates (Sec. 4.8 scenario) and P_att is the APKF's."""
+    A_true, A_hat, P_att = stkf_sim.apkf_attitude(0, 40)
+    assert np.abs(A_true[40] - A_true[0]).max() > 1e-3            # the scenario's attitude moves
+    ang = [np.arccos(np.clip((np.trace(A_hat[k] @ A_true[k].T) - 1) / 2, -1, 1)) for k in (10, 40)]
+    assert max(ang) < 10 * np.sqrt(np.trace(P_att[40]))         # estimate near truth, in its own sigma
+    r, h = stkf_sim.simulate(1, 40.0, seed=0, attitude="apkf")
+    assert r["attitude"] == "apkf" and np.all(np.isfinite(h["psig"]))
+    with pytest.raises(ValueError, match="attitude"):
+        stkf_sim.simulate(1, 10.0, attitude="gyro")

@@ -44,12 +44,13 @@ def _cmd(a):
         results = campaign.run_campaign(stkf_sim.run_one, seeds, out, workers=a.workers, scheduler=a.scheduler,
                                         progress=not a.quiet, desc="stkf case %d" % a.case, case=a.case,
                                         duration_s=a.duration, truth=a.truth, cache_dir=os.path.abspath(out),
-                                        lag_s=a.lag, outages=outages)
+                                        lag_s=a.lag, outages=outages, attitude=a.attitude)
     except KeyboardInterrupt:
         complete = False
         results = _collect(out, runs)
     summary = stkf_sim.aggregate(results, runs, complete)
-    summary.update(case=a.case, truth=a.truth, duration_s=a.duration, wall_s=time.perf_counter() - t0)
+    summary.update(case=a.case, truth=a.truth, attitude=a.attitude, duration_s=a.duration,
+                   wall_s=time.perf_counter() - t0)
     plots = []
     if not a.no_plots and summary["runs"]:
         plots = stkf_sim.plots(out, [campaign.run_dir_for(out, i) for i in range(runs)], a.case)
@@ -100,6 +101,9 @@ def register(sub, name, help_):
                    help="true orbits: brahe high-fidelity (default) or two-body (fast)")
     p.add_argument("--lag", type=float, default=stkf_sim.LAG_S,
                    help="smoother lag in s: the longest delay accepted (default 4)")
+    p.add_argument("--attitude", choices=stkf_sim.ATTITUDES, default="stated",
+                   help="attitude knowledge in the beacon noise: stated covariance (9.81, 8.01, 19.70 arcsec 1 "
+                   "sigma, body on J2000; default) or the APKF run in the same simulation")
     p.add_argument("--outage", action="append", metavar="SENSOR:T0:T1",
                    help="silence a sensor (gnss_a, beacon or relay) from T0 to T1 s; repeatable")
     g = p.add_mutually_exclusive_group()

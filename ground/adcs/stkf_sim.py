@@ -210,6 +210,9 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
         x, Pk = flt.x, flt.Pk
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):
             raise FloatingPointError("filter diverged at t=%.0f s (NaN in x or P)" % t)
+        if min(x[0:3] @ x[0:3], x[6:9] @ x[6:9]) < orbits.R_EARTH ** 2:
+            raise FloatingPointError("filter diverged at t=%.0f s: an estimated orbit is under the Earth's "
+                                     "surface" % t)
         hist["err"][k] = x - x_true
         hist["sig"][k] = np.sqrt(np.diag(Pk))
         hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / ARCSEC

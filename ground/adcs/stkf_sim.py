@@ -178,17 +178,23 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
             A_hat = small_rotation(att_sd * r_att.standard_normal(3)).T @ A_true
         else:
             A_true, A_hat, P_att = att[0][k], att[1][k], att[2][k]
+        # sensors (truth side, not timed)
+        have_g, have_b = not out("gnss_a", t), not out("beacon", t)
+        zg = gnss_a.measure(x_true[:6]) if have_g else None
+        y = beacon.measure_dcm(x_true[0:3], x_true[6:9], A_true) if have_b else None
+        due = []
+        if case == 2:
+            while jb < tb.size and tb[jb] <= t:
+                if not out("relay", tb[jb]):
+                    relay.sample(tb[jb], xb_at[jb])
+                jb += 1
+            due = relay.due(t)
+        # the filter step (timed)
         t0 = time.perf_counter()
         if k > 0:
             flt.predict(t)
-        have_g, have_b = not out("gnss_a", t), not out("beacon", t)
-        if have_g:
-            zg = gnss_a.measure(x_true[:6])
-            gaps.seen("gnss_a", t)
         if have_b:
-            y = beacon.measure_dcm(x_true[0:3], x_true[6:9], A_true)
             Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
-            gaps.seen("beacon", t)
         if have_g and have_b:  # one stacked update: the two noises are independent
             flt.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb),
                        lambda x: np.concatenate([x[0:6], stkf.h_beacon(x, A_hat)]),
@@ -197,15 +203,15 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
             flt.update(zg, gnss_a.R, h_a, lambda x: H_a)
         elif have_b:
             flt.update(y, Rb, lambda x: stkf.h_beacon(x, A_hat), lambda x: stkf.H_beacon(x, A_hat))
-        if case == 2:
-            while jb < tb.size and tb[jb] <= t:
-                if not out("relay", tb[jb]):
-                    relay.sample(tb[jb], xb_at[jb])
-                jb += 1
-            for tm, z in relay.due(t):
-                flt.update(z, relay.gnss.R, h_b, lambda x: H_b, t=tm)
-                gaps.seen("relay", t)
+        for tm, z in due:
+            flt.update(z, relay.gnss.R, h_b, lambda x: H_b, t=tm)
         step_s.append(time.perf_counter() - t0)
+        if have_g:
+            gaps.seen("gnss_a", t)
+        if have_b:
+            gaps.seen("beacon", t)
+        if due:
+            gaps.seen("relay", t)
         gaps.tick(t)
         x, Pk = flt.x, flt.Pk
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):

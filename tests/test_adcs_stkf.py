@@ -225,6 +225,8 @@ def test_cli_bad_input_and_interrupt(tmp_path, capsys, monkeypatch):
     assert "lag" in capsys.readouterr().err
     assert main(["adcs", "stkf", "--case", "1", "--runs", "0", "-o", str(tmp_path / "b")]) == 1
     assert main(["adcs", "stkf", "--case", "1", "--outage", "sun:1:2", "-o", str(tmp_path / "c")]) == 1
+    assert main(["adcs", "stkf", "--case", "1", "--outage", "relay:1:2", "-o", str(tmp_path / "c")]) == 1
+    assert "no relay" in capsys.readouterr().err
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt

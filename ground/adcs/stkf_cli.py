@@ -20,6 +20,8 @@ def _cmd(a):
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     outages = [stkf_sim.parse_outage(o) for o in (a.outage or [])]
+    if a.case == 1 and any(o[0] == "relay" for o in outages):
+        raise ValueError("--outage relay:... was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
     if not (a.duration >= 1):
         raise ValueError("--duration must be >= 1 s, got %r" % a.duration)
     if not (a.lag > 0):

@@ -140,6 +140,8 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
         raise ValueError("relay delay up to %.2f s is longer than the smoother's lag of %.2f s"
                          % (delay_s[1], lag_s))
     outages = [o if isinstance(o, tuple) else parse_outage(o) for o in outages]
+    if case == 1 and any(o[0] == "relay" for o in outages):
+        raise ValueError("a relay outage was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
     t_s, xs = orbits.truth_samples(truth, duration_s, cache_dir=cache_dir)
     K = int(np.floor(duration_s + 1e-9))
     r_init, r_ga, r_gb, r_bc, r_att, r_rel = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]

@@ -52,7 +52,7 @@ def test_wheel_speed_follows_torque_until_the_limit():
     assert w.counters()["speed_clip"] == [0, 0, 0, 0]
     t_lim = w.speed_max * w.j[0] / u[0]                      # 62.8 s for wheel 0
     sc.run(100.0)
-    assert sc.omega_rw[0] == pytest.approx(w.speed_max, rel=1e-12)
+    assert sc.omega_rw_rel[0] == pytest.approx(w.speed_max, rel=1e-4)     # the limit is on the relative speed
     assert sc.omega_rw[1] == pytest.approx(u[1] / w.j[1] * 130.0, rel=1e-12)
     n_clip = w.counters()["speed_clip"][0]
     assert abs(n_clip - (130.0 - t_lim) / 0.1) <= 2
@@ -216,4 +216,26 @@ def test_jitter_shakes_the_body_at_the_wheel_rate():
     expect = (np.linalg.inv(sc.j) @ integral[100::100].T).T
     assert np.ptp(expect) > 1e-6                             # a visible swing (rad/s)
     assert np.abs(rates - expect).max() < 0.005 * np.ptp(expect)
-    assert np.allclose(sc.angle_rw[0], speed * 0.04, rtol=1e-9)
+    assert np.allclose(sc.angle_rw[0], speed * 0.04, rtol=1e-7)       # phase turns with W - c.w (w ~ 1e-6 rad/s)
+
+
+def test_wheel_speed_relative_to_body_everywhere():
+    """W is absolute; the read-out, friction, speed limit, jitter phase and initial speeds use W - c_i.w."""
+    p = WheelParams.ideal(friction_viscous=1e-6, speed_max_rpm=2000.0)
+    w = Wheels(p)
+    omega = np.radians([2.0, -1.0, 0.5])
+    rel0 = np.array([1000.0, -500.0, 0.0, 200.0]) * RPM
+    sc = Spacecraft(wheels=w, orbit=None, dt=0.1, omega=omega, omega_rw=rel0)
+    cw = w.c.T @ omega
+    assert np.allclose(sc.omega_rw, rel0 + cw, rtol=0, atol=1e-15)         # initial speeds are relative
+    assert np.allclose(sc.omega_rw_rel, rel0, rtol=0, atol=1e-15)
+    assert np.all(np.abs(cw) > 1e-3)                                        # the two differ here
+    d = sc.derivative(0.0, sc.x, np.zeros(4))
+    assert np.allclose(d[7:11] * w.j, -p.friction_viscous * rel0, rtol=1e-12)   # friction on W - c.w
+    assert np.allclose(d[11:15], rel0, rtol=1e-12)                          # jitter phase turns with W - c.w
+    assert np.allclose(w.read_speed_rpm(sc.omega_rw_rel), rel0 / RPM)
+    # momentum stays exact: H = J w + C Jrw W is conserved without external torque
+    h0 = sc.momentum_inertial()
+    w.command_all([1e-5, -1e-5, 2e-5, 0.0])
+    sc.run(20.0)
+    assert np.allclose(sc.momentum_inertial(), h0, rtol=0, atol=1e-12 + 1e-9 * np.linalg.norm(h0))

@@ -73,8 +73,8 @@ class SpacecraftDevices:
         w = self.sc.wheels
         w.command(i, d["torque"], d["enable"])
         self.n_cmd += 1
-        tq = w.limit(self.sc.omega_rw, self.sc.dt)[0][i]
-        speed_rpm = w.read_speed_rpm(self.sc.omega_rw)[i]
+        tq = w.limit(self.sc.omega_rw_rel, self.sc.dt)[0][i]
+        speed_rpm = w.read_speed_rpm(self.sc.omega_rw_rel)[i]
         return [(RW_TLM, dst, src, core.encode_payload(RW_TLM, speed=float(speed_rpm), torque=float(tq)))]
 
     def startracker(self, dst=core.NODE["ADCS"]):

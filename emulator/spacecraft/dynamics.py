@@ -5,10 +5,14 @@ to the body frame, A(q) = (q4^2 - |e|^2) I + 2 e e^T - 2 q4 [e x] (Eq. 4.7), and
 
     q_dot = 1/2 Omega(w) q,  Omega(w) = [[-[w x], w], [-w^T, 0]]                    (Eq. 4.10)
     J w_dot = -w x (J w + C Jrw W) - C Jrw W_dot + tau_ext                          (Eq. 4.16, 4.56, 4.67)
-    Jrw W_dot = tau_motor - tau_friction,  angle_dot = W                           (Eq. 4.55-4.56)
+    Jrw W_dot = tau_motor - tau_friction(W_rel),  angle_dot = W_rel                (Eq. 4.55-4.56)
 
-J is the spacecraft inertia without the rotors' spin; W the wheel spin rates. As in Eq. 4.53 the rotor momentum
-is Jrw W (the body-rate part Jrw c_i.w is left out: at 1 deg/s it is 0.17 rpm, under the 10 rpm read-out noise). The motor and friction torques are
+J is the spacecraft inertia without the rotors' axial inertia; W the rotors' absolute spin rates about their axes
+(inertial rate projected on c_i), so the rotor momentum C Jrw W is exact and nothing is left out. What a
+tachometer reads, what friction and the motor's speed limit act on, and what turns the jitter phase is the speed
+relative to the body, W_rel = W - C^T w (``omega_rw_rel``); the ``omega_rw`` given to the constructor is that
+relative speed. In the thesis's form (Eq. 4.12-4.16, 4.55) the same momentum is (J + C Jrw C^T) w + C Jrw W_rel:
+its J includes the rotors' transverse share J_a. The motor and friction torques are
 internal: H = J w + C Jrw W obeys dH/dt|body = -w x H + tau_ext, so the inertial A^T H is conserved without external
 torque. tau_ext = gravity gradient + residual dipole (Eq. 4.68-4.75) + a pluggable callable + wheel jitter.
 The motor torque is held over each fixed RK4 step (zero-order hold, as a 1 Hz-10 Hz flight computer drives it).
@@ -65,8 +69,10 @@ def quat_mul(q, p):
 class Spacecraft:
     """Attitude and wheel state, propagated by fixed-step RK4.
 
-    State ``x`` = [q (4), w (3) rad/s, W (4) rad/s, wheel angles (4) rad]. ``orbit=None`` turns off the gravity
-    gradient and the magnetic torque; ``disturbance(t, q, w) -> (3,) N m`` adds any other torque (body frame).
+    State ``x`` = [q (4), w (3) rad/s, W (4) rad/s absolute, wheel angles relative to the body (4) rad].
+    ``omega_rw`` (constructor) is the wheels' speed relative to the body, W_rel = W - C^T w.
+    ``orbit=None`` turns off the gravity gradient and the magnetic torque; ``disturbance(t, q, w) -> (3,) N m``
+    adds any other torque (body frame).
     """
 
     def __init__(self, wheels=None, inertia=None, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0),
@@ -93,8 +99,9 @@ class Spacecraft:
         qa = _finite("q", q, 4)
         if not qa.any():
             raise ValueError("q must not be all zero")
-        self.x = np.concatenate([qa / np.linalg.norm(qa), _finite("omega", omega, 3),
-                                 _finite("omega_rw", omega_rw, N_WHEELS), np.zeros(N_WHEELS)])
+        w0 = _finite("omega", omega, 3)
+        wr0 = _finite("omega_rw", omega_rw, N_WHEELS) + self.wheels.c.T @ w0      # absolute from relative
+        self.x = np.concatenate([qa / np.linalg.norm(qa), w0, wr0, np.zeros(N_WHEELS)])
         self.t = float(t0)
         self.tau_motor = np.zeros(N_WHEELS)       # applied over the last step (after limits)
         self.steps = 0
@@ -112,6 +119,11 @@ class Spacecraft:
     @property
     def omega_rw(self):
         return self.x[7:11]
+
+    @property
+    def omega_rw_rel(self):
+        """Wheel speeds relative to the body, W - C^T w (what a tachometer reads), rad/s."""
+        return self.x[7:11] - self.wheels.c.T @ self.x[4:7]
 
     @property
     def angle_rw(self):
@@ -142,24 +154,25 @@ class Spacecraft:
         if self.disturbance is not None:
             tau += np.asarray(self.disturbance(t, q, w), dtype=float)
         if self.wheels.p.jitter:
-            tau += self.wheels.jitter(x[7:11], x[11:15])[1]
+            tau += self.wheels.jitter(x[7:11] - self.wheels.c.T @ x[4:7], x[11:15])[1]
         return tau
 
     def derivative(self, t, x, tau_motor):
         q, w, wr = x[0:4], x[4:7], x[7:11]
-        net = tau_motor - self.wheels.friction(wr)                  # torque on each rotor
+        wrel = wr - self.wheels.c.T @ w                             # speed relative to the body
+        net = tau_motor - self.wheels.friction(wrel)                # torque on each rotor
         wr_dot = net / self.wheels.j
         h = self.j @ w + self.wheels.cj @ wr
         tau = self.external_torque(t, x)
         w_dot = self.j_inv @ (tau - env.cross3(w, h) - self.wheels.c @ net)        # Eq. 4.16
         e, q4 = q[0:3], q[3]
         q_dot = 0.5 * np.concatenate([q4 * w - env.cross3(w, e), [-(w @ e)]])     # Eq. 4.10
-        return np.concatenate([q_dot, w_dot, wr_dot, wr])
+        return np.concatenate([q_dot, w_dot, wr_dot, wrel])
 
     def step(self):
         """One RK4 step of dt with the wheels' limited motor torques held; the quaternion is renormalised."""
         dt, t, x = self.dt, self.t, self.x
-        tq = self.wheels.apply_limits(x[7:11], dt)
+        tq = self.wheels.apply_limits(x[7:11] - self.wheels.c.T @ x[4:7], dt)
         k1 = self.derivative(t, x, tq)
         k2 = self.derivative(t + 0.5 * dt, x + 0.5 * dt * k1, tq)
         k3 = self.derivative(t + 0.5 * dt, x + 0.5 * dt * k2, tq)

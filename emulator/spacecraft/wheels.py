@@ -5,7 +5,8 @@ C = normalise(C0 + C1 D(delta1) + C2 D(delta2)) (Eq. 4.58-4.60 with Eq. 4.148), 
 thesis's Eq. 4.149 to its five printed digits (tests/test_spacecraft_wheels.py).
 
 Rotor model (Eq. 4.53-4.57): wheel i spins about c_i with inertia Jrw_i; ``omega_rw`` is its spin rate,
-H_rw = C Jrw omega_rw (Eq. 4.55). The motor torque is clipped to ``torque_max`` and cut so that the speed
+H_rw = C Jrw omega_rw (Eq. 4.55) with omega_rw absolute. Friction, the speed limit, the read-out and the
+jitter phase take the speed relative to the body, omega_rw - C^T w (``Spacecraft.omega_rw_rel``). The motor torque is clipped to ``torque_max`` and cut so that the speed
 cannot pass ``speed_max_rpm`` within a step; friction (viscous + Coulomb, smoothed through zero) is an internal
 torque between rotor and body, so it changes wheel speeds but not the total angular momentum.
 

@@ -1,0 +1,191 @@
+"""Augmented fixed-lag smoother (AFLS, thesis Sec. 5.4, Eq. 5.18-5.42) and its extended form (EAFLS,
+Eq. 5.43-5.52), for out-of-sequence measurements (OOSM).
+
+The smoother keeps the nodes (estimate and joint covariance) of the last ``lag`` seconds, newest first:
+X = [x_k, x_k-1, ..., x_k-N] with one covariance P over all of them (Eq. 5.18-5.22). Each prediction prepends
+the propagated current node (the augmented transition of Eq. 5.21: the old nodes are carried with the
+identity and no noise). A measurement at the current time, or at an existing node, updates every node
+(Eq. 5.24). A measurement time-tagged between two nodes a (older) and c (newer) first gets its own node b,
+interpolated from a and c (Eq. 5.40-5.42; nonlinear Eq. 5.49-5.52), plugged in between them (Fig. 5-2),
+and is then applied with Eq. 5.24. Nodes older than the lag are dropped (marginalised: exact).
+
+Functions (``predict``, ``update``, ``generate_node``) carry the algebra; ``Afls`` keeps the node list.
+The model is given as callables: ``f(x, dt)`` propagation (negative dt = backward, Eq. 5.51),
+``Phi(x, dt)`` its Jacobian at x, ``Q(dt)`` the discrete process noise. For a linear system f(x, dt) is
+Phi(dt) x and the EAFLS reduces to the AFLS exactly.
+"""
+
+import numpy as np
+
+
+def predict(X, P, n, x0_new, Phi, Q):
+    """Augmented prediction (Eq. 5.20-5.22): prepend x0_new = f(x_k); P_new = A P A^T + diag(Q, 0...).
+
+    Written block-wise: P00 = Phi P00 Phi^T + Q, P0j = Phi P0j, the old block unchanged.
+    """
+    m = P.shape[0]
+    Pn = np.empty((m + n, m + n))
+    top = Phi @ P[:n, :]
+    p00 = top[:, :n] @ Phi.T + Q
+    Pn[:n, :n] = 0.5 * (p00 + p00.T)
+    Pn[:n, n:] = top
+    Pn[n:, :n] = top.T
+    Pn[n:, n:] = P
+    return np.concatenate([x0_new, X]), Pn
+
+
+def update(X, P, n, idx, z, R, H, hx):
+    """FLS update with a measurement of node ``idx`` (Eq. 5.24): C = [0 .. H .. 0],
+    K = P C^T (H P_ii H^T + R)^-1, X + K (z - h(x_i)), P - K S K^T (= P - K C P; the prediction
+    re-symmetrises the current block)."""
+    s = slice(idx * n, (idx + 1) * n)
+    PCt = P[:, s] @ H.T
+    S = H @ PCt[s, :] + R
+    K = np.linalg.solve(S, PCt.T).T
+    return X + K @ (z - hx), P - K @ PCt.T
+
+
+def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
+    """Node b between a (index ia, older) and c (index ic, newer), dt_a = t_b - t_a, dt_b = t_c - t_b.
+
+    Eq. 5.46-5.48: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
+    B = Qa Fb^T Qca^-1, A = (I - B Fb) Fa.
+    State (Eq. 5.49-5.52): x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)); for a linear f this
+    is A x_a + B x_c (Eq. 5.40).
+    Covariance: P_bb = A Paa A^T + B Pcc B^T + A Pac B^T + B Pca A^T + (I - B Fb) Qa (Eq. 5.41, 5.44),
+    P_bj = A P_aj + B P_cj for every other node j (Eq. 5.42, 5.45).
+    Returns (x_b, P_bb, row) with row = [P_bj for all current nodes j] (n x m).
+    """
+    sa = slice(ia * n, (ia + 1) * n)
+    sc = slice(ic * n, (ic + 1) * n)
+    xa, xc = X[sa], X[sc]
+    xb_pred = f(xa, dt_a)
+    Fa = Phi(xa, dt_a)
+    Fb = Phi(xb_pred, dt_b)
+    Qa, Qb = Q(dt_a), Q(dt_b)
+    Qca = Fb @ Qa @ Fb.T + Qb
+    B = np.linalg.solve(Qca, Fb @ Qa).T           # Qa Fb^T Qca^-1 (Qa, Qca symmetric)
+    IBF = np.eye(n) - B @ Fb
+    A = IBF @ Fa
+    xb = xb_pred + B @ Fb @ (f(xc, -dt_b) - xb_pred)
+    row = A @ P[sa, :] + B @ P[sc, :]               # P_bj, j over all nodes (Eq. 5.42)
+    Pbb = row[:, sa] @ A.T + row[:, sc] @ B.T + IBF @ Qa   # = Eq. 5.41 expanded
+    Pbb = 0.5 * (Pbb + Pbb.T)
+    return xb, Pbb, row
+
+
+def insert_node(X, P, n, pos, xb, Pbb, row):
+    """Plug node b in at node position ``pos`` (Fig. 5-2)."""
+    k = pos * n
+    m = P.shape[0]
+    X = np.concatenate([X[:k], xb, X[k:]])
+    Pn = np.empty((m + n, m + n))
+    Pn[:k, :k] = P[:k, :k]
+    Pn[:k, k + n:] = P[:k, k:]
+    Pn[k + n:, :k] = P[k:, :k]
+    Pn[k + n:, k + n:] = P[k:, k:]
+    Pn[k:k + n, :k] = row[:, :k]
+    Pn[k:k + n, k + n:] = row[:, k:]
+    Pn[:k, k:k + n] = row[:, :k].T
+    Pn[k + n:, k:k + n] = row[:, k:].T
+    Pn[k:k + n, k:k + n] = Pbb
+    return X, Pn
+
+
+class Afls:
+    """Node list of the (E)AFLS. ``t`` holds node times newest first; ``x``/``P`` the current node.
+
+    ``lag_s``: the longest delay accepted; a measurement older than that is refused (ValueError).
+    """
+
+    def __init__(self, x0, P0, t0, lag_s, f, Phi, Q, tol=1e-9):
+        x0 = np.asarray(x0, dtype=float)
+        P0 = np.asarray(P0, dtype=float)
+        if not (np.isfinite(lag_s) and lag_s >= 0):
+            raise ValueError("smoother lag must be >= 0 s, got %r" % (lag_s,))
+        if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(P0))):
+            raise ValueError("initial state or covariance has a NaN")
+        self.n = x0.size
+        self.X, self.P = x0.copy(), P0.copy()
+        self.t = [float(t0)]
+        self.lag = float(lag_s)
+        self.f, self.Phi, self.Q = f, Phi, Q
+        self.tol = tol
+        self.generated = 0
+
+    @property
+    def x(self):
+        return self.X[:self.n]
+
+    @property
+    def Pk(self):
+        return self.P[:self.n, :self.n]
+
+    @property
+    def now(self):
+        return self.t[0]
+
+    def predict(self, t_new):
+        dt = float(t_new) - self.now
+        if not dt > 0:
+            raise ValueError("prediction time %.6f s is not after the current %.6f s" % (t_new, self.now))
+        x0 = self.x
+        self.X, self.P = predict(self.X, self.P, self.n, self.f(x0, dt), self.Phi(x0, dt), self.Q(dt))
+        self.t.insert(0, float(t_new))
+        self._prune()
+
+    def _prune(self):
+        """Keep every node within the lag and the newest one older than it (node a for the oldest OOSM)."""
+        horizon = self.now - self.lag - self.tol
+        keep = len(self.t)
+        for i, ti in enumerate(self.t):
+            if ti < horizon:
+                keep = i + 1
+                break
+        if keep < len(self.t):
+            self.t = self.t[:keep]
+            m = keep * self.n
+            self.X, self.P = self.X[:m], self.P[:m, :m]
+
+    def update(self, z, R, h, H, t=None):
+        """Measurement z = h(x(t)) + v, v ~ N(0, R); ``h(x)`` and ``H(x)`` callables of the node state.
+
+        ``t`` None means now. A time between nodes creates a node (Eq. 5.40-5.42 / 5.49-5.52).
+        """
+        z = np.asarray(z, dtype=float)
+        if not np.all(np.isfinite(z)):
+            raise ValueError("measurement has a NaN or infinite value: %s" % z.tolist())
+        t = self.now if t is None else float(t)
+        if not np.isfinite(t):
+            raise ValueError("measurement time tag is not finite: %r" % (t,))
+        if t > self.now + self.tol:
+            raise ValueError("measurement time-tagged %.3f s in the future (tag %.3f s, filter at %.3f s)"
+                             % (t - self.now, t, self.now))
+        if t < self.now - self.lag - self.tol:
+            raise ValueError("measurement delayed %.3f s, longer than the smoother's lag of %.3f s"
+                             % (self.now - t, self.lag))
+        idx = self._node_at(t)
+        xi = self.X[idx * self.n:(idx + 1) * self.n]
+        self.X, self.P = update(self.X, self.P, self.n, idx, z, R, H(xi), h(xi))
+
+    def _node_at(self, t):
+        for i, ti in enumerate(self.t):
+            if abs(ti - t) <= self.tol:
+                return i
+            if ti < t:  # nodes are newest first: c = i - 1 is newer, a = i older
+                ic, ia = i - 1, i
+                xb, Pbb, row = generate_node(self.X, self.P, self.n, ia, ic, t - ti, self.t[ic] - t,
+                                             self.f, self.Phi, self.Q)
+                self.X, self.P = insert_node(self.X, self.P, self.n, i, xb, Pbb, row)
+                self.t.insert(i, t)
+                self.generated += 1
+                return i
+        raise ValueError("measurement time %.3f s is before the oldest node %.3f s" % (t, self.t[-1]))
+
+    def node(self, t):
+        """(x, P) of the node at time t (must exist)."""
+        for i, ti in enumerate(self.t):
+            if abs(ti - t) <= self.tol:
+                s = slice(i * self.n, (i + 1) * self.n)
+                return self.X[s].copy(), self.P[s, s].copy()
+        raise KeyError(t)

@@ -1,0 +1,358 @@
+"""The APKF: gyroless attitude and parameter estimation (Yoon 2017, Sec. 4.5-4.7, Eq. 4.53-4.145, App. A).
+
+State x (42 numbers; the error state dx has 41, Eq. 4.78):
+
+    q (4)        dq (3)     vector part of q (x) q_hat^-1 (Eq. 4.77)
+    w (3)        dw (3)     body rate, rad/s
+    tau_d (3)    dtau_d     disturbance torque bias, N m (Eq. 4.76)
+    J5 (5)       dJ5        [Jyy, Jzz, Jxy, Jxz, Jyz]; Jxx is the fixed reference (Sec. 4.6.2)
+    m (3)        dm         residual dipole, A m^2
+    d1, d2 (4+4) dd1, dd2   wheel misalignment angles, rad (Eq. 4.58-4.61)
+    Jrw (4)      dJrw       wheel inertias, kg m^2
+    W (4)        dW         wheel speeds (relative to the body), rad/s
+    W- , W+ (4+4)           tachometer read-outs at the start and end of the step (Eq. 4.57, 4.62)
+
+Dynamics (Eq. 4.67, 4.83): J w_dot = -w x (J w + C Jrw W) - C Jrw (W+ - W-)/dt + tau_gg(J) + m x b_b + tau_d with
+C = C0 + C1 D(d1) + C2 D(d2) (Eq. 4.60), W(t) = W + (t - t-)(W+ - W-)/dt over the step (Eq. 4.95), J here
+includes the rotors' transverse share (Eq. 4.16, J = Ja + Jb). The orbit and field are known (Sec. 4.6.1).
+
+Linearisation F (Eq. 4.98-4.110): written out here from the model above (the OCR of Eq. 4.99-4.110 and of
+App. A.1 is partly unreadable; this is our derivation, tested against a finite-difference Jacobian):
+
+    F11 = -[w x], F12 = I/2
+    F21 = J^-1 {3 mu/r^3 ([r x] J - [(J r) x]) 2[r x] + [m x] 2[b x]}     (r, b: body-frame unit orbit radius, field)
+    F22 = J^-1 {-[w x] J + [H x]},  H = J w + C Jrw W
+    F23 = J^-1,  F24[:, k] = J^-1 {-w x (E_k w) + 3 mu/r^3 r x (E_k r) - E_k w_dot},  F25 = -J^-1 [b x]
+    F26 = -J^-1 {[w x] C1 D(Jrw W) + C1 D(Jrw a)},  F27 = same with C2,  a = (W+ - W-)/dt
+    F28 = -J^-1 {[w x] C D(W) + C D(a)},  F29 = -J^-1 [w x] C D(Jrw),  F2a = J^-1 C D(Jrw)/dt = -F2b
+    F9a = -I/dt, F9b = I/dt (wheel speed row, Eq. 4.109-4.110); every other row is zero.
+
+Phi in closed form (Eq. 4.114-4.127, App. A.2): with A = [[F11, F12], [F21, F22]] (attitude and rate), the
+parameters constant and W driven linearly by W+- W-, Phi is exactly
+
+    Phi_AA = e^{A dt},  Phi_A,p = G1 F_A,p  (p = tau_d .. Jrw, W),  Phi_A,W+- = G1 F_A,W+- + G2 F_A,W F_W,W+-,
+    Phi_W,W+- = F_W,W+- dt,  G1 = int_0^dt e^{A s} ds,  G2 = int_0^dt e^{A s} (dt - s) ds,
+
+which we sum as series in (A dt) to the 4th power (App. A.2 truncates the same series at dt^3; the A dt here is
+~0.03, so the truncation is < 1e-8). Tested against expm(F dt).
+
+Q (Eq. 4.135-4.136), from Phi ~ I + F dt: Q_pp = Q_p dt, Q_wp = F2p Q_p dt^2/2, Q_ww = sum F2p Q_p F2p^T dt^3/3,
+for p in tau_d, J5, m, d1/d2, Jrw. The tachometer noise enters through W+ (reset to R_rw, uncorrelated, at
+each step; the old W+ becomes W-, keeping its correlations).
+
+Update (Eq. 4.139-4.142): z = vec(q_meas (x) q_hat^-1), H = [I3 0 ...], R = diag(sigma_st^2)/4, Joseph form.
+Variable fictitious noise (Sec. 4.7.4): Q and R_st x100 until the first maneuver set ends, x10 until the second
+ends, then nominal. Adaptive q_d (Eq. 4.152, Case 3): q_d,i = q_d0 + q_d1 |w_i| + q_d2 sum_{j != i} |w_j|.
+"""
+
+import numpy as np
+
+from emulator.spacecraft import environment as env
+from emulator.spacecraft.dynamics import J0_THESIS
+from emulator.spacecraft.wheels import J_RW_NOMINAL, misalignment_axes, pyramid_c0
+from ground.adcs import mekf, quat
+from ground.adcs.quat import skew
+
+HOUR = 3600.0
+DEG = np.pi / 180.0
+RPM = 2 * np.pi / 60.0
+NW = 4
+N = 41
+# error-state slices
+IQ, IW, ITD, IJ, IM = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 14), slice(14, 17)
+ID1, ID2, IJR, IWR, IWM, IWP = (slice(17, 21), slice(21, 25), slice(25, 29), slice(29, 33), slice(33, 37),
+                                slice(37, 41))
+PARAMS = slice(6, 29)            # tau_d .. Jrw (constant)
+# the symmetric basis E_k of J5 = [Jyy, Jzz, Jxy, Jxz, Jyz]
+_E = np.zeros((5, 3, 3))
+for _k, (_i, _j) in enumerate(((1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+    _E[_k, _i, _j] = _E[_k, _j, _i] = 1.0
+
+# nominal process noise (Sec. 4.8), per second
+Q_NOMINAL = {
+    "qd": (2.0e-7) ** 2 / HOUR,                 # Case 1, (N m)^2/s
+    "qJm": (4.7e-5) ** 2 / HOUR, "qJp": (4.7e-6) ** 2 / HOUR,
+    "qm": (1e-3) ** 2 / HOUR, "qdelta": (0.01 * DEG) ** 2 / HOUR, "qJrw": (3e-9) ** 2 / HOUR,
+}
+QD_CASE = {1: (2.0e-7) ** 2 / HOUR, 2: (4.0e-6) ** 2 / HOUR, 3: (2.0e-7) ** 2 / HOUR}
+# Eq. 4.152: q_d1 per rad/s. The OCR reads "2.0 10^-? Nm/sqrt(h)"; we take 2.0e-5, which makes q_d1 |w| during a
+# 1.4 deg/s rotation comparable with Case 2's q_d (the thesis's stated intent); q_d2 = 0.1 q_d1.
+QD1 = (2.0e-5) ** 2 / HOUR
+QD2 = 0.1 * QD1
+
+
+class Model:
+    """What the filter knows: nominal geometry, the Jxx reference, the orbit and field, noise levels."""
+
+    def __init__(self, dt=1.0, jxx=J0_THESIS[0], orbit=None, field=None, dipole_known=False,
+                 sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0):
+        self.dt = float(dt)
+        self.jxx = float(jxx)
+        self.c0 = pyramid_c0()
+        self.c1, self.c2 = misalignment_axes(self.c0)
+        self.orbit = orbit or env.CircularOrbit()
+        self.field = field or env.TiltedDipoleField()
+        self.R_st = np.diag((np.asarray(sigma_st_arcsec) * quat.ARCSEC) ** 2) / 4.0
+        self.R_rw = (tach_rpm * RPM) ** 2
+
+    def env_inertial(self, t):
+        """(unit orbit radius, 3 mu/r^3, field) in the inertial frame at t."""
+        r = self.orbit.position(t)
+        rn = np.linalg.norm(r)
+        return r / rn, 3 * env.MU_EARTH / rn ** 3, self.field.field(r, t)
+
+
+# --- state helpers ---------------------------------------------------------------------------------------
+def inertia(x, model):
+    j5 = x[10:15]
+    return np.array([[model.jxx, j5[2], j5[3]], [j5[2], j5[0], j5[4]], [j5[3], j5[4], j5[1]]])
+
+
+def c_rw(x, model):
+    """C = C0 + C1 D(d1) + C2 D(d2) (Eq. 4.60)."""
+    return model.c0 + model.c1 * x[18:22] + model.c2 * x[22:26]
+
+
+def initial_state(q, w, w_rw, j5=J0_THESIS[1:], jrw=J_RW_NOMINAL):
+    """x0 (Sec. 4.8): q, w from the star tracker, W = W- = W+ from the tachometers, the rest nominal/zero."""
+    x = np.zeros(N + 1)
+    x[0:4], x[4:7] = q, w
+    x[10:15] = j5
+    x[26:30] = jrw
+    x[30:34] = x[34:38] = x[38:42] = w_rw
+    return x
+
+
+def initial_covariance(model):
+    """P0 (Sec. 4.8): (10 deg)^2 attitude, (10 deg/s)^2 rate, J (5e-3)^2 / (2e-3)^2, m 0.3^2, d (10 deg)^2,
+    Jrw (1e-6)^2, wheel speeds R_rw; tau_d is not given: (1e-6 N m)^2, the thesis's disturbance size."""
+    d = np.zeros(N)
+    d[IQ] = (10 * DEG / 2) ** 2
+    d[IW] = (10 * DEG) ** 2
+    d[ITD] = 1e-6 ** 2
+    d[IJ] = [5e-3 ** 2] * 2 + [2e-3 ** 2] * 3
+    d[IM] = 0.3 ** 2
+    d[ID1] = d[ID2] = (10 * DEG) ** 2
+    d[IJR] = 1e-6 ** 2
+    d[IWR] = d[IWM] = d[IWP] = model.R_rw
+    return np.diag(d)
+
+
+# --- dynamics --------------------------------------------------------------------------------------------
+def rates(x, model, t, w_rw, acc, env_i=None):
+    """(q_dot, w_dot) of Eq. 4.10 and 4.83 at wheel speed w_rw and acceleration acc."""
+    q, w = x[0:4], x[4:7]
+    J = inertia(x, model)
+    C = c_rw(x, model)
+    jrw = x[26:30]
+    r_i, k, b_i = env_i if env_i is not None else model.env_inertial(t)
+    A = quat.dcm(q)
+    r, b = A @ r_i, A @ b_i
+    h = J @ w + C @ (jrw * w_rw)
+    T = -env.cross3(w, h) - C @ (jrw * acc) + k * env.cross3(r, J @ r) + env.cross3(x[15:18], b) + x[7:10]
+    w_dot = np.linalg.solve(J, T)
+    e, q4 = q[0:3], q[3]
+    q_dot = 0.5 * np.concatenate([q4 * w - env.cross3(w, e), [-(w @ e)]])
+    return q_dot, w_dot
+
+
+def propagate(x, model, t):
+    """x from t to t + dt: RK4 of q and w with W(s) linear from W to W + (W+ - W-) (Eq. 4.95); the wheel speed
+    state moves by W+ - W-; parameters constant."""
+    dt = model.dt
+    acc = (x[38:42] - x[34:38]) / dt
+    w0 = x[30:34]
+    env_i = model.env_inertial(t + 0.5 * dt)           # orbit and field change by < 0.1 deg over a step
+
+    def f(y, s):
+        xx = x.copy()
+        xx[0:7] = y
+        qd, wd = rates(xx, model, t + s, w0 + acc * s, acc, env_i)
+        return np.concatenate([qd, wd])
+
+    y = x[0:7]
+    k1 = f(y, 0.0)
+    k2 = f(y + 0.5 * dt * k1, 0.5 * dt)
+    k3 = f(y + 0.5 * dt * k2, 0.5 * dt)
+    k4 = f(y + dt * k3, dt)
+    y = y + dt / 6.0 * (k1 + 2 * (k2 + k3) + k4)
+    out = x.copy()
+    out[0:4] = y[0:4] / np.linalg.norm(y[0:4])
+    out[4:7] = y[4:7]
+    out[30:34] = w0 + acc * dt
+    return out
+
+
+def jacobian(x, model, t):
+    """F (41 x 41) of Eq. 4.98 at x (see the module docstring for each block)."""
+    dt = model.dt
+    q, w = x[0:4], x[4:7]
+    J = inertia(x, model)
+    Ji = np.linalg.inv(J)
+    C = c_rw(x, model)
+    jrw, wr = x[26:30], x[30:34]
+    acc = (x[38:42] - x[34:38]) / dt
+    r_i, k, b_i = model.env_inertial(t)
+    A = quat.dcm(q)
+    r, b = A @ r_i, A @ b_i
+    wx, rx, bx = skew(w), skew(r), skew(b)
+    h = J @ w + C @ (jrw * wr)
+    T = -env.cross3(w, h) - C @ (jrw * acc) + k * env.cross3(r, J @ r) + env.cross3(x[15:18], b) + x[7:10]
+    w_dot = Ji @ T
+    F = np.zeros((N, N))
+    F[IQ, IQ] = -wx
+    F[IQ, IW] = 0.5 * np.eye(3)
+    F[IW, IQ] = Ji @ (k * (rx @ J - skew(J @ r)) @ (2 * rx) + skew(x[15:18]) @ (2 * bx))
+    F[IW, IW] = Ji @ (-wx @ J + skew(h))
+    F[IW, ITD] = Ji
+    for i in range(5):
+        E = _E[i]
+        F[3:6, 9 + i] = Ji @ (-env.cross3(w, E @ w) + k * env.cross3(r, E @ r) - E @ w_dot)
+    F[IW, IM] = -Ji @ bx
+    F[IW, ID1] = -Ji @ (wx @ model.c1 * (jrw * wr) + model.c1 * (jrw * acc))
+    F[IW, ID2] = -Ji @ (wx @ model.c2 * (jrw * wr) + model.c2 * (jrw * acc))
+    F[IW, IJR] = -Ji @ (wx @ C * wr + C * acc)
+    F[IW, IWR] = -Ji @ wx @ C * jrw
+    F[IW, IWM] = Ji @ C * (jrw / dt)
+    F[IW, IWP] = -F[IW, IWM]
+    F[IWR, IWM] = -np.eye(NW) / dt
+    F[IWR, IWP] = np.eye(NW) / dt
+    return F
+
+
+def phi(F, dt, order=4):
+    """Closed-form Phi (App. A.2 construction; see the module docstring)."""
+    A = F[0:6, 0:6]
+    Ad = A * dt
+    E, G1, G2 = np.eye(6), np.eye(6) * dt, np.eye(6) * (dt * dt / 2)
+    term = np.eye(6)
+    fact = 1.0
+    for n in range(1, order + 1):
+        term = term @ Ad
+        fact *= n
+        E = E + term / fact
+        G1 = G1 + term * (dt / (fact * (n + 1)))
+        G2 = G2 + term * (dt * dt / (fact * (n + 1) * (n + 2)))
+    Phi = np.eye(N)
+    Phi[0:6, 0:6] = E
+    Phi[0:6, 6:] = G1 @ F[0:6, 6:]
+    Phi[0:6, 33:41] += G2 @ F[0:6, IWR] @ F[IWR, 33:41]
+    Phi[IWR, 33:41] = F[IWR, 33:41] * dt
+    return Phi
+
+
+def noise_density(x, case, scale=1.0):
+    """Diagonal q (per second) of the parameter noises: tau_d (3), J5 (5), m (3), d1/d2 (8), Jrw (4)."""
+    if case == 3:
+        aw = np.abs(x[4:7])
+        qd = Q_NOMINAL["qd"] + QD1 * aw + QD2 * (aw.sum() - aw)          # Eq. 4.152
+    else:
+        qd = np.full(3, QD_CASE.get(case, Q_NOMINAL["qd"]))
+    q = Q_NOMINAL
+    return scale * np.concatenate([qd, [q["qJm"]] * 2 + [q["qJp"]] * 3, [q["qm"]] * 3, [q["qdelta"]] * 8,
+                                   [q["qJrw"]] * 4])
+
+
+def process_noise(F, qp, dt):
+    """Q of Eq. 4.135-4.136 for the parameter noise densities qp (23)."""
+    Q = np.zeros((N, N))
+    F2p = F[IW, PARAMS]
+    Q[PARAMS, PARAMS] = np.diag(qp * dt)
+    Q[IW, PARAMS] = F2p * (qp * dt * dt / 2)
+    Q[PARAMS, IW] = Q[IW, PARAMS].T
+    Q[IW, IW] = (F2p * qp) @ F2p.T * (dt ** 3 / 3)
+    return Q
+
+
+def shift_tach(x, P, w_plus, R_rw):
+    """New step: W- <- W+ (with its correlations), W+ <- the new read-out (variance R_rw, uncorrelated)."""
+    x = x.copy()
+    x[34:38] = x[38:42]
+    x[38:42] = w_plus
+    P = P.copy()
+    P[IWM, :] = P[IWP, :]
+    P[:, IWM] = P[:, IWP]
+    P[IWM, IWM] = P[IWP, IWP]
+    P[IWP, :] = 0.0
+    P[:, IWP] = 0.0
+    P[IWP, IWP] = np.eye(NW) * R_rw
+    return x, P
+
+
+def predict(x, P, w_plus, model, t, case=1, scale=1.0):
+    """(x, P) at t + dt from t, with the tachometer read-out w_plus at t + dt (rad/s)."""
+    x, P = shift_tach(x, P, w_plus, model.R_rw)
+    F = jacobian(x, model, t)
+    Phi = phi(F, model.dt)
+    Q = process_noise(F, noise_density(x, case, scale), model.dt)
+    x = propagate(x, model, t)
+    P = Phi @ P @ Phi.T + Q
+    return x, 0.5 * (P + P.T)
+
+
+def update(x, P, q_meas, R):
+    """Star-tracker update, Eq. 4.139-4.142, Joseph form."""
+    z = quat.error_vec(q_meas, x[0:4])
+    S = P[IQ, IQ] + R                                    # H P H^T + R, H = [I3 0]
+    K = np.linalg.solve(S, P[IQ, :]).T                   # P H^T S^-1 (Eq. 4.140)
+    dx = K @ z                                           # Eq. 4.141
+    H = np.zeros((3, N))
+    H[:, IQ] = np.eye(3)
+    P = mekf.joseph(P, H, R, K)                          # Eq. 4.142
+    return correct(x, dx), P
+
+
+def update_standard(x, P, q_meas, R):
+    """The same update with P+ = (I - K H) P (for the tests)."""
+    z = quat.error_vec(q_meas, x[0:4])
+    K = np.linalg.solve(P[IQ, IQ] + R, P[IQ, :]).T
+    H = np.zeros((3, N))
+    H[:, IQ] = np.eye(3)
+    return correct(x, K @ z), (np.eye(N) - K @ H) @ P
+
+
+def correct(x, dx):
+    """Apply an error-state correction: q = dq (x) q_hat, the rest additive."""
+    out = x.copy()
+    out[0:4] = quat.from_small(dx[0:3], x[0:4])
+    out[4:] = x[4:] + dx[3:]
+    return out
+
+
+def fictitious_scale(t, set_ends):
+    """Sec. 4.7.4: x100 until the first maneuver set ends, x10 until the second, then 1."""
+    if len(set_ends) > 0 and t < set_ends[0]:
+        return 100.0
+    if len(set_ends) > 1 and t < set_ends[1]:
+        return 10.0
+    return 1.0
+
+
+def check_covariance(P, t):
+    """Divergence check: FloatingPointError naming the time unless P is finite and positive definite."""
+    if not np.all(np.isfinite(P)):
+        raise FloatingPointError("APKF diverged at t = %.0f s: P is not finite" % t)
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        raise FloatingPointError("APKF diverged at t = %.0f s: P is not positive definite" % t) from None
+
+
+class APKF:
+    """The APKF over a recorded run: ``step(t, w_plus, q_meas or None)`` per dt."""
+
+    def __init__(self, x0, model=None, case=1, set_ends=()):
+        self.model = model or Model()
+        self.x = np.array(x0, dtype=float)
+        self.P = initial_covariance(self.model)
+        self.case = case
+        self.set_ends = list(set_ends)
+
+    def step(self, t, w_plus, q_meas=None):
+        """Propagate from t to t + dt with the read-out at t + dt, then update if a star-tracker output came."""
+        m = self.model
+        s = fictitious_scale(t, self.set_ends)
+        self.x, self.P = predict(self.x, self.P, w_plus, m, t, self.case, s)
+        if q_meas is not None:
+            self.x, self.P = update(self.x, self.P, q_meas, m.R_st * fictitious_scale(t + m.dt, self.set_ends))
+        return self.x, self.P

@@ -1,0 +1,123 @@
+"""Monte Carlo campaigns over seeds, on ``dask.distributed``.
+
+``run_campaign(fn, seeds, out_dir, ...)`` calls ``fn(seed=s, run_dir=out_dir/'run_%04d' % i, **kwargs)`` for each
+seed and returns the result dicts in seed order:
+
+- ``workers=1``: in-process, no Dask (the reference path; also what a debugger wants);
+- ``workers=N`` (default ``os.cpu_count()``): a ``LocalCluster`` of N single-threaded worker processes;
+- ``scheduler="tcp://host:port"``: an existing Dask cluster (``Client(scheduler)``, short connect timeout;
+  an unreachable address is a ValueError naming it).
+
+A run is a pure function of its seed (``fn`` must draw all its randomness from ``seed``), so it gives the same
+result whichever worker runs it. A run that raises is returned as ``{"seed": s, "error": "message"}`` and the
+others go on. Ctrl-C cancels the outstanding futures and re-raises KeyboardInterrupt (the caller writes
+``complete: false``).
+"""
+
+import os
+import sys
+
+CONNECT_TIMEOUT_S = 3.0
+
+
+def check_runs(n):
+    """``n`` as a run count >= 1; ValueError naming the value otherwise."""
+    try:
+        k = int(n)
+    except (TypeError, ValueError):
+        raise ValueError("--runs must be an integer >= 1, got %r" % (n,)) from None
+    if k != n or k < 1:
+        raise ValueError("--runs must be >= 1, got %r" % (n,))
+    return k
+
+
+def check_workers(n):
+    if n is None:
+        return max(1, os.cpu_count() or 1)
+    if int(n) != n or n < 1:
+        raise ValueError("--workers must be >= 1, got %r" % (n,))
+    return int(n)
+
+
+def run_dir_for(out_dir, i):
+    return os.path.join(str(out_dir), "run_%04d" % i)
+
+
+def _call(fn, seed, run_dir, kwargs):
+    """One run; an exception becomes an error record (the message, not a traceback)."""
+    try:
+        res = fn(seed=seed, run_dir=run_dir, **kwargs)
+    except KeyboardInterrupt:
+        raise
+    except Exception as exc:         # noqa: BLE001 - any failure of one run must not end the campaign
+        return {"seed": seed, "error": "%s: %s" % (type(exc).__name__, exc)}
+    if not isinstance(res, dict):
+        return {"seed": seed, "error": "run returned %s, not a dict" % type(res).__name__}
+    res.setdefault("seed", seed)
+    return res
+
+
+def _bar(total, progress, desc):
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit="run", file=sys.stderr, disable=not progress, leave=False)
+
+
+def _connect(scheduler):
+    from distributed import Client
+    try:
+        return Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError) as exc:
+        raise ValueError("scheduler %r is unreachable within %.0f s (%s)"
+                         % (scheduler, CONNECT_TIMEOUT_S, exc)) from None
+    except Exception as exc:  # noqa: BLE001 - bad address formats raise assorted types
+        raise ValueError("scheduler %r: cannot connect (%s: %s)" % (scheduler, type(exc).__name__, exc)) from None
+
+
+def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=True, desc="runs", **kwargs):
+    """Run ``fn`` once per seed (see the module docstring); returns the list of result dicts in seed order."""
+    seeds = [int(s) for s in seeds]
+    check_runs(len(seeds))
+    dirs = [run_dir_for(out_dir, i) for i in range(len(seeds))]
+    os.makedirs(str(out_dir), exist_ok=True)
+    if scheduler is None:
+        workers = check_workers(workers)
+        if workers == 1:
+            out = []
+            with _bar(len(seeds), progress, desc) as bar:
+                for s, d in zip(seeds, dirs):
+                    out.append(_call(fn, s, d, kwargs))
+                    bar.update(1)
+            return out
+    if scheduler is not None:
+        client, cluster = _connect(scheduler), None
+    else:
+        from distributed import Client, LocalCluster
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=40)
+        client = Client(cluster)
+    futures = []
+    try:
+        futures = [client.submit(_call, fn, s, d, kwargs, pure=False, key="%s-%04d-%d" % (desc, i, s))
+                   for i, (s, d) in enumerate(zip(seeds, dirs))]
+        index = {f.key: i for i, f in enumerate(futures)}
+        out = [None] * len(seeds)
+        from distributed import as_completed
+        with _bar(len(seeds), progress, desc) as bar:
+            for f in as_completed(futures):
+                i = index[f.key]
+                try:
+                    out[i] = f.result()
+                except KeyboardInterrupt:
+                    raise
+                except Exception as exc:  # noqa: BLE001 - a lost worker etc.: that run is an error record
+                    out[i] = {"seed": seeds[i], "error": "%s: %s" % (type(exc).__name__, exc)}
+                bar.update(1)
+        return out
+    except KeyboardInterrupt:
+        for f in futures:
+            f.cancel()
+        raise
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

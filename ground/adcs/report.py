@@ -1,0 +1,186 @@
+"""report.md (the thesis's Sec. 4.8 table beside ours) and plots like Fig. 4-5 for an ``fps adcs`` campaign."""
+
+import io
+import os
+
+import numpy as np
+
+from ground.fileio import write_atomic
+
+# Yoon 2017, Sec. 4.4.1 and 4.8 (final 1 sigma)
+THESIS = {
+    ("mekf", None): {"final_sigma_attitude_arcsec": (19.88, 19.88, 57.18)},
+    ("apkf", 1): {"final_sigma_attitude_arcsec": (9.81, 8.01, 19.70), "final_sigma_rate_arcsec_s": (49.08, 11.72, 15.89),
+                  "sigma_jyy_jzz_kgm2": (0.078e-3, 0.079e-3), "sigma_dipole_am2": 0.002,
+                  "max_sigma_delta_rw_deg": 0.061, "max_sigma_jrw_kgm2": 0.61e-8},
+    ("apkf", 2): {"final_sigma_attitude_arcsec": (9.83, 8.32, 21.19), "final_sigma_rate_arcsec_s": (49.33, 12.19, 17.13),
+                  "sigma_jyy_jzz_kgm2": (0.109e-3, 0.123e-3), "sigma_dipole_am2": 0.011,
+                  "max_sigma_delta_rw_deg": 0.13, "max_sigma_jrw_kgm2": 0.93e-8},
+    ("apkf", 3): {"final_sigma_attitude_arcsec": (9.82, 8.10, 20.88), "final_sigma_rate_arcsec_s": (49.37, 11.76, 17.01),
+                  "sigma_jyy_jzz_kgm2": (0.091e-3, 0.095e-3), "sigma_dipole_am2": 0.0056,
+                  "max_sigma_delta_rw_deg": 0.072, "max_sigma_jrw_kgm2": 0.71e-8},
+}
+# goal: attitude and rate within 25 %, parameters within a factor of 2 (issue 9)
+TOL = {"final_sigma_attitude_arcsec": ("rel", 0.25), "final_sigma_rate_arcsec_s": ("rel", 0.25)}
+
+
+def thesis_row(name, case):
+    return THESIS.get((name, None if name == "mekf" else case), {})
+
+
+def verdict(key, ours, theirs):
+    """'ok' / 'MISS' against the issue's goal for one figure (all axes)."""
+    if ours is None or theirs is None:
+        return "—"
+    o, t = np.atleast_1d(np.asarray(ours, float)), np.atleast_1d(np.asarray(theirs, float))
+    kind, tol = TOL.get(key, ("factor", 2.0))
+    if kind == "rel":
+        good = np.all(np.abs(o - t) <= tol * t)
+    else:
+        good = np.all((o <= tol * t) & (o >= t / tol))
+    return "ok" if good else "MISS"
+
+
+def _fmt(v):
+    if v is None:
+        return "—"
+    a = np.atleast_1d(np.asarray(v, float))
+    return ", ".join("%.3g" % x for x in a)
+
+
+def table(summary):
+    """Markdown table: figure, ours, thesis, goal verdict."""
+    th = thesis_row(summary["filter"], summary["case"])
+    rows = ["| figure | ours | thesis | goal |", "|---|---|---|---|"]
+    for k in ("final_sigma_attitude_arcsec", "final_sigma_rate_arcsec_s", "final_error_attitude_arcsec",
+              "sigma_jyy_jzz_kgm2", "sigma_dipole_am2", "max_sigma_delta_rw_deg", "max_sigma_jrw_kgm2",
+              "nees_in_band_fraction"):
+        if summary.get(k) is None and k not in th:
+            continue
+        rows.append("| %s | %s | %s | %s |" % (k, _fmt(summary.get(k)), _fmt(th.get(k)),
+                                             verdict(k, summary.get(k), th.get(k)) if k in th else "—"))
+    return "\n".join(rows)
+
+
+def markdown(summary):
+    name = summary["filter"].upper()
+    head = "# %s, %s\n\n" % (name, "MEMS gyro baseline (Sec. 4.4.1)" if summary["filter"] == "mekf"
+                             else "Case %d (Sec. 4.8.%d)" % (summary["case"], summary["case"]))
+    lines = [head, "Runs: %d ok, %d failed; complete: %s.\n" % (summary["runs"], summary.get("runs_failed", 0),
+                                                                  summary["complete"]), table(summary), ""]
+    n = summary.get("nees")
+    if n:
+        lines.append("NEES (%s): mean after %.0f s = %.2f (dof %d); 95 %% band over %d runs [%.2f, %.2f]; "
+                     "fraction of steps inside: %.2f.\n" % (n["note"], n["from_s"], n["mean_after"] or float("nan"),
+                                                             n["dof"], n["runs"], n["band"][0], n["band"][1],
+                                                             summary["nees_in_band_fraction"]))
+    lines.append("Final 1 sigma are the filter's P at the last step (mean over runs); the final attitude error is the "
+                 "RMS over runs. 'goal': attitude and rate within 25 % of the thesis, parameters within a factor "
+                 "of 2 (issue 9). Parameter sigmas are in the filter's relative units (Jxx = 12e-3 kg m^2 fixed, "
+                 "Sec. 4.6.2).\n")
+    for f in summary.get("failures", []):
+        lines.append("- seed %d failed: %s" % (f["seed"], f["error"]))
+    return "\n".join(lines) + "\n"
+
+
+def _save(fig, path):
+    import matplotlib.pyplot as plt
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    write_atomic(path, buf.getvalue())
+
+
+APKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600)),
+               ("rate (arcsec/s)", slice(3, 6), 1 / (np.pi / 180 / 3600)),
+               ("tau_d (1e-6 N m)", slice(6, 9), 1e6), ("Jyy, Jzz (1e-3 kg m^2)", slice(9, 11), 1e3),
+               ("Jxy, Jxz, Jyz (1e-3 kg m^2)", slice(11, 14), 1e3), ("dipole (A m^2)", slice(14, 17), 1.0),
+               ("delta_rw,1 (deg)", slice(17, 21), 180 / np.pi), ("delta_rw,2 (deg)", slice(21, 25), 180 / np.pi),
+               ("Jrw (1e-8 kg m^2)", slice(25, 29), 1e8), ("W_rw (rpm)", slice(29, 33), 60 / (2 * np.pi))]
+MEKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600)),
+               ("gyro bias (deg/h)", slice(3, 6), 180 / np.pi * 3600)]
+
+
+def plot_run(series_npz, name, path):
+    """Fig. 4-5 style: each state group's error (solid) with its +-3 sigma bounds (dashed), one run."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    d = np.load(series_npz)
+    t, e, s = d["t"], d["error"], d["sigma"]
+    groups = APKF_GROUPS if name == "apkf" else MEKF_GROUPS
+    ncol = 2
+    nrow = (len(groups) + 1) // 2
+    fig, axs = plt.subplots(nrow, ncol, figsize=(11, 2.3 * nrow), sharex=True, squeeze=False)
+    for ax, (label, sl, k) in zip(axs.flat, groups):
+        for i, c in zip(range(sl.start, sl.stop), "bgrmk"):
+            ax.plot(t, e[:, i] * k, c, lw=0.7)
+            ax.plot(t, 3 * s[:, i] * k, c + "--", lw=0.5)
+            ax.plot(t, -3 * s[:, i] * k, c + "--", lw=0.5)
+        ax.set_title(label, fontsize=9)
+        lim = np.nanmax(np.abs(3 * s[len(t) // 3:, sl] * k)) if len(t) > 3 else 1.0
+        if np.isfinite(lim) and lim > 0:
+            ax.set_ylim(-2 * lim, 2 * lim)
+    for ax in axs[-1]:
+        ax.set_xlabel("time (s)")
+    for ax in list(axs.flat)[len(groups):]:
+        ax.axis("off")
+    fig.suptitle("%s: estimation error (solid) and +-3 sigma (dashed), cf. Fig. 4-%s" % (name.upper(),
+                                                                                     "5" if name == "apkf" else "1"))
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def plot_spread(results, summary, path):
+    """Monte Carlo spread of the attitude error over runs (per axis) and the mean NEES with its band."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    ok = [r for r in results if r and "series" in r]
+    if not ok:
+        return
+    a = np.array([r["series"]["att_err"] for r in ok], dtype=float)
+    nees = np.array([r["series"]["nees"] for r in ok], dtype=float)
+    t = np.arange(a.shape[1])
+    fig, axs = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+    for i, ax in enumerate(axs[:3]):
+        for run in a[:, :, i]:
+            ax.plot(t, run, lw=0.4, alpha=0.5)
+        rms = np.sqrt(np.nanmean(a[:, :, i] ** 2, axis=0)) if len(a) else None
+        ax.plot(t, 3 * rms, "k--", lw=0.8, label="3 x RMS over runs")
+        ax.plot(t, -3 * rms, "k--", lw=0.8)
+        ax.set_ylabel("%s error (arcsec)" % "xyz"[i])
+        fin = np.nanmax(np.abs(a[:, a.shape[1] // 3:, i])) if a.shape[1] > 3 else 1
+        if np.isfinite(fin) and fin > 0:
+            ax.set_ylim(-1.2 * fin, 1.2 * fin)
+    axs[0].legend(fontsize=8)
+    mean = np.nanmean(nees, axis=0)
+    axs[3].semilogy(t, mean, "b", lw=0.7, label="mean NEES over %d runs" % len(nees))
+    n = summary.get("nees")
+    if n:
+        axs[3].axhline(n["band"][0], color="k", ls="--", lw=0.7)
+        axs[3].axhline(n["band"][1], color="k", ls="--", lw=0.7, label="95 % band")
+        axs[3].axvline(n["from_s"], color="gray", lw=0.5)
+    axs[3].set_ylabel("NEES")
+    axs[3].set_xlabel("time (s)")
+    axs[3].legend(fontsize=8)
+    fig.suptitle("Monte Carlo spread: %s%s" % (summary["filter"].upper(),
+                                                "" if summary["filter"] == "mekf" else ", case %d" % summary["case"]))
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def write_all(out_dir, results, summary, plots=True):
+    write_atomic(os.path.join(out_dir, "report.md"), markdown(summary))
+    if not plots:
+        return []
+    made = []
+    first = next((i for i, r in enumerate(results) if r and "error" not in r), None)
+    if first is not None:
+        npz = os.path.join(out_dir, "run_%04d" % first, "series.npz")
+        if os.path.exists(npz):
+            plot_run(npz, summary["filter"], os.path.join(out_dir, "fig4-5_errors.png"))
+            made.append("fig4-5_errors.png")
+    plot_spread(results, summary, os.path.join(out_dir, "monte_carlo.png"))
+    made.append("monte_carlo.png")
+    return made

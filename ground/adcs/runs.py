@@ -1,0 +1,260 @@
+"""One Monte Carlo run of the Sec. 4.8 scenario through the APKF or the MEKF, and the campaign's aggregate.
+
+``run_apkf(seed, run_dir, case, ...)`` and ``run_mekf(seed, run_dir, ...)`` are top-level (picklable for Dask):
+each simulates the truth from its seed, runs the filter from its initialisation (the first two consecutive
+star-tracker outputs, Sec. 4.8), checks P (finite, symmetric positive definite) at every step, writes
+``run_dir/series.npz`` (t, error, sigma, nees) and ``run_dir/result.json``, and returns the result dict.
+A diverged filter raises FloatingPointError (the campaign records it as that run's error).
+
+Units: attitude errors are the full small angles 2 dq (arcsec), rates arcsec/s, the rest SI.
+NEES (attitude and rate, 6 dof; MEKF: attitude and gyro bias): e^T P^-1 e per step; over N runs the mean is
+compared with the 95 % band chi2(6N) / N (Bar-Shalom), after the first maneuver set.
+"""
+
+import json
+import math
+import os
+
+import numpy as np
+
+from emulator.spacecraft import scenario
+from ground.adcs import apkf, mekf, quat
+from ground.fileio import write_atomic, write_json
+
+ARCSEC = quat.ARCSEC
+PARAM_KEYS = {
+    "inertia_kgm2": "6 numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], positive definite (the true spacecraft)",
+    "dipole_am2": "3 numbers (true residual dipole)",
+    "duration_s": "scenario length, 2..930 s (default 930)",
+    "dt_truth_s": "truth RK4 step dividing 1 s, (0, 1] (default 1)",
+}
+
+
+def load_params(path):
+    """A scenario/parameter JSON file, checked: unknown keys, NaN and a non-PD inertia are ValueErrors."""
+    try:
+        with open(path) as f:
+            d = json.load(f, parse_constant=lambda c: float("nan"))
+    except json.JSONDecodeError as exc:
+        raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
+    if not isinstance(d, dict):
+        raise ValueError("%s: expected a JSON object with keys %s" % (path, ", ".join(sorted(PARAM_KEYS))))
+    return check_params(d, path)
+
+
+def check_params(d, where="params"):
+    out = {}
+    for k, v in d.items():
+        if k not in PARAM_KEYS:
+            raise ValueError("%s: unknown key %r (allowed: %s)" % (where, k, ", ".join(sorted(PARAM_KEYS))))
+        try:
+            a = np.array(v, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError("%s: %s = %r is not numeric (%s)" % (where, k, v, PARAM_KEYS[k])) from None
+        if not np.all(np.isfinite(a)):
+            raise ValueError("%s: %s = %r is not finite (%s)" % (where, k, v, PARAM_KEYS[k]))
+        out[k] = a
+    if "inertia_kgm2" in out:
+        a = out["inertia_kgm2"]
+        if a.shape != (6,):
+            raise ValueError("%s: inertia_kgm2 = %r must be %s" % (where, d["inertia_kgm2"], PARAM_KEYS["inertia_kgm2"]))
+        from emulator.spacecraft.dynamics import inertia_matrix
+        try:
+            inertia_matrix(a)
+        except ValueError:
+            raise ValueError("%s: inertia_kgm2 = %r is not positive definite (%s)"
+                             % (where, d["inertia_kgm2"], PARAM_KEYS["inertia_kgm2"])) from None
+    if "dipole_am2" in out and out["dipole_am2"].shape != (3,):
+        raise ValueError("%s: dipole_am2 = %r must be %s" % (where, d["dipole_am2"], PARAM_KEYS["dipole_am2"]))
+    for k, lo, hi in (("duration_s", 2.0, 930.0), ("dt_truth_s", 1e-6, 1.0)):
+        if k in out and not (out[k].shape == () and lo <= out[k] <= hi):
+            raise ValueError("%s: %s = %r out of range (%s)" % (where, k, d[k], PARAM_KEYS[k]))
+    return {k: (v.tolist() if v.shape else float(v)) for k, v in out.items()}
+
+
+def _simulate(case, seed, params, gyro):
+    p = params or {}
+    return scenario.simulate(case=case, seed=seed, dt=p.get("dt_truth_s", 1.0), gyro=gyro,
+                             duration=p.get("duration_s"), inertia=p.get("inertia_kgm2"),
+                             dipole=p.get("dipole_am2"))
+
+
+def _start(o):
+    """Index of the first star-tracker output that follows another one (filter initialisation)."""
+    v = o["st_valid"]
+    ks = np.flatnonzero(v[1:] & v[:-1])
+    if len(ks) == 0:
+        raise ValueError("no two consecutive star-tracker outputs: the filter cannot start")
+    return int(ks[0]) + 1
+
+
+def apkf_error(o, k, x, case):
+    """Truth minus estimate in the APKF's 41 error coordinates (truth in the filter's own terms, Sec. 4.6.2)."""
+    tr = o["truth"]
+    e = np.zeros(apkf.N)
+    e[0:3] = quat.error_vec(o["q"][k], x[0:4])
+    e[3:6] = o["w"][k] - x[4:7]
+    e[6:9] = tr["scale"] * o["tau_d"][k] - x[7:10]
+    e[9:14] = tr["J5"] - x[10:15]
+    e[14:17] = tr["m"] - x[15:18]
+    e[17:21] = tr["delta1"] - x[18:22]
+    e[21:25] = tr["delta2"] - x[22:26]
+    e[25:29] = tr["jrw"] - x[26:30]
+    e[29:33] = o["w_rel"][k] - x[30:34]
+    e[33:37] = o["w_rel"][k - 1] - x[34:38]
+    e[37:41] = o["w_rel"][k] - x[38:42]
+    return e
+
+
+def _nees(e, P):
+    return float(e @ np.linalg.solve(P, e))
+
+
+def _write_run(run_dir, res, t, err, sig, nees):
+    if run_dir is None:
+        return
+    os.makedirs(run_dir, exist_ok=True)
+    import io
+    buf = io.BytesIO()
+    np.savez_compressed(buf, t=t, error=err, sigma=sig, nees=nees)
+    write_atomic(os.path.join(run_dir, "series.npz"), buf.getvalue())
+    write_json(os.path.join(run_dir, "result.json"), res)
+
+
+def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True):
+    """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series."""
+    o = _simulate(case, seed, params, gyro=False)
+    k0 = _start(o)
+    q0 = o["st_q"][k0]
+    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))       # differentiated (Sec. 4.8)
+    f = apkf.APKF(apkf.initial_state(q0, w0, o["tach"][k0]), case=case, set_ends=o["set_ends"])
+    n = len(o["t"])
+    err = np.full((n, apkf.N), np.nan)
+    sig = np.full((n, apkf.N), np.nan)
+    nees = np.full(n, np.nan)
+    for k in range(k0, n):
+        if k > k0:
+            f.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
+            apkf.check_covariance(f.P, o["t"][k])
+        err[k] = apkf_error(o, k, f.x, case)
+        sig[k] = np.sqrt(np.diag(f.P))
+        nees[k] = _nees(err[k, 0:6], f.P[0:6, 0:6])
+    res = _final(seed, "apkf", case, o, err, sig, nees, k0)
+    _write_run(run_dir, res, o["t"], err, sig, nees)
+    if keep_series:
+        res["series"] = {"att_err": (2 * err[:, 0:3] / ARCSEC).tolist(), "nees": nees.tolist()}
+    return res
+
+
+def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True):
+    """One MEKF run with the MEMS gyro (Sec. 4.4.1)."""
+    o = _simulate(case, seed, params, gyro=True)
+    k0 = np.flatnonzero(o["st_valid"])
+    if len(k0) == 0:
+        raise ValueError("no star-tracker output: the filter cannot start")
+    k0 = int(k0[0])
+    f = mekf.MEKF(o["st_q"][k0])
+    n = len(o["t"])
+    err = np.full((n, 6), np.nan)
+    sig = np.full((n, 6), np.nan)
+    nees = np.full(n, np.nan)
+    for k in range(k0, n):
+        if k > k0:
+            f.step(o["gyro"][k], o["st_q"][k] if o["st_valid"][k] else None)
+            apkf.check_covariance(f.P, o["t"][k])
+        err[k, 0:3] = quat.error_vec(o["q"][k], f.x[0:4])
+        err[k, 3:6] = o["gyro_bias"][max(k, 1)] - f.x[4:7]
+        sig[k] = np.sqrt(np.diag(f.P))
+        nees[k] = _nees(err[k], f.P)
+    res = _final(seed, "mekf", case, o, err, sig, nees, k0)
+    _write_run(run_dir, res, o["t"], err, sig, nees)
+    if keep_series:
+        res["series"] = {"att_err": (2 * err[:, 0:3] / ARCSEC).tolist(), "nees": nees.tolist()}
+    return res
+
+
+def _final(seed, name, case, o, err, sig, nees, k0):
+    s, e = sig[-1], err[-1]
+    res = {"seed": int(seed), "filter": name, "case": case, "start_s": float(o["t"][k0]),
+           "duration_s": float(o["t"][-1]), "set_ends_s": list(o["set_ends"]),
+           "final_sigma_attitude_arcsec": (2 * s[0:3] / ARCSEC).tolist(),
+           "final_error_attitude_arcsec": (2 * e[0:3] / ARCSEC).tolist()}
+    if name == "apkf":
+        res.update({
+            "final_sigma_rate_arcsec_s": (s[3:6] / ARCSEC).tolist(),
+            "final_error_rate_arcsec_s": (e[3:6] / ARCSEC).tolist(),
+            "sigma_jyy_jzz_kgm2": s[9:11].tolist(),
+            "sigma_dipole_am2": float(s[14:17].max()),
+            "max_sigma_delta_rw_deg": float(np.degrees(s[17:25].max())),
+            "max_sigma_jrw_kgm2": float(s[25:29].max()),
+            "final_error_params": {"jyy_jzz_kgm2": e[9:11].tolist(), "dipole_am2": e[14:17].tolist(),
+                                   "delta_rw_deg": np.degrees(e[17:25]).tolist(), "jrw_kgm2": e[25:29].tolist()},
+            "final_normalised_error": (e / s).tolist(),
+        })
+    else:
+        res["final_sigma_bias_deg_h"] = (np.degrees(s[3:6]) * 3600).tolist()
+    res["wheel_speed_clips"] = o["clips"]
+    return res
+
+
+# --- aggregate --------------------------------------------------------------------------------------------
+def nees_band(runs, dof=6, p=0.95):
+    """(lo, hi) of the mean NEES over `runs` runs (chi-square with dof * runs degrees of freedom, / runs)."""
+    from scipy.stats import chi2
+    n = dof * runs
+    return chi2.ppf((1 - p) / 2, n) / runs, chi2.ppf(1 - (1 - p) / 2, n) / runs
+
+
+def aggregate(results, name, case, dof=6):
+    """The summary dict (keys of issue 9) over the successful runs; None figures when no run succeeded."""
+    ok = [r for r in results if r and "error" not in r]
+    errors = [r for r in results if r and "error" in r]
+    s = {"filter": name, "case": case, "runs": len(ok), "runs_failed": len(errors),
+         "failures": [{"seed": r["seed"], "error": r["error"]} for r in errors]}
+    keys = ["final_sigma_attitude_arcsec", "final_sigma_rate_arcsec_s", "final_error_attitude_arcsec",
+            "sigma_jyy_jzz_kgm2", "sigma_dipole_am2", "max_sigma_delta_rw_deg", "max_sigma_jrw_kgm2"]
+    for k in keys:
+        s[k] = None
+    s["nees_in_band_fraction"] = None
+    if not ok:
+        return s
+    for k in keys:
+        if k == "final_error_attitude_arcsec":
+            a = np.array([r[k] for r in ok])
+            s[k] = np.sqrt(np.mean(a ** 2, axis=0)).tolist()          # RMS over runs
+        elif k in ok[0]:
+            a = np.array([r[k] for r in ok], dtype=float)
+            s[k] = np.mean(a, axis=0).tolist()
+    nees = np.array([r["series"]["nees"] for r in ok if "series" in r], dtype=float)
+    t0 = ok[0]["set_ends_s"][0] if ok[0]["set_ends_s"] else 0.0
+    if len(nees):
+        mean = np.nanmean(nees, axis=0) if np.isfinite(nees).any() else nees[0]
+        lo, hi = nees_band(len(nees), dof)
+        sel = np.arange(nees.shape[1]) >= t0
+        sel &= np.all(np.isfinite(nees), axis=0)
+        inside = (mean >= lo) & (mean <= hi)
+        s["nees_in_band_fraction"] = float(inside[sel].mean()) if sel.any() else None
+        s["nees"] = {"band": [lo, hi], "from_s": t0, "dof": dof, "mean_after": float(np.mean(mean[sel]))
+                     if sel.any() else None, "runs": len(nees),
+                     "note": "mean over runs of e^T P^-1 e (attitude + %s); band: 95 %% chi-square"
+                             % ("rate" if name == "apkf" else "gyro bias")}
+    return s
+
+
+def finite_or_none(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def load_run(run_dir):
+    """A finished run back from its folder (result.json + series.npz), or None if it did not finish."""
+    try:
+        with open(os.path.join(run_dir, "result.json")) as f:
+            res = json.load(f)
+        d = np.load(os.path.join(run_dir, "series.npz"))
+    except (OSError, ValueError):
+        return None
+    k = 2 / ARCSEC
+    res["series"] = {"att_err": (d["error"][:, 0:3] * k).tolist(), "nees": d["nees"].tolist()}
+    return res

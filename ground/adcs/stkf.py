@@ -1,0 +1,213 @@
+"""Satellite Tracking Kalman Filter (STKF), thesis Sec. 5.3 and 5.5.2.
+
+State x = [rA, vA, rB, vB] (12, SI units, J2000; Eq. 5.6). Two-body dynamics with white acceleration noise
+of spectral density Qa (Eq. 5.7-5.9); GNSS updates (Eq. 5.10-5.12); the beacon unit-vector update in SatA's
+body frame (Eq. 5.13-5.17), with the attitude covariance as extra measurement noise (Sec. 5.3.3). SatB's
+delayed GNSS goes through the smoother in ``ground.adcs.afls`` (Eq. 5.18-5.52). The pointing vector, its
+error and covariance, and the two angles perpendicular to it: Eq. 5.54-5.60.
+
+Attitude errors: the true attitude is A(q) = A(dq) A(q_hat) with the small rotation d_alpha = 2 dq_vec
+(Eq. 4.77); ``P_att`` is the covariance of d_alpha (rad^2), so 4 Pqq of Eq. 5.59 is ``P_att``.
+"""
+
+import numpy as np
+
+MU = 398600.4415e9  # m^3/s^2, Eq. 5.7
+QA_THESIS = 0.1 ** 2  # m^2/s^3 per axis, Sec. 5.5.1
+N = 12
+IA = slice(0, 3)
+VA = slice(3, 6)
+IB = slice(6, 9)
+VB = slice(9, 12)
+
+
+I3 = np.eye(3)
+I12 = np.eye(N)
+
+
+def skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+# ---- dynamics (Eq. 5.4, 5.7, 5.9) ----
+
+def _deriv(x):
+    d = np.empty(N)
+    d[0:3] = x[3:6]
+    d[6:9] = x[9:12]
+    ra, rb = x[0:3], x[6:9]
+    d[3:6] = ra * (-MU / (ra @ ra) ** 1.5)
+    d[9:12] = rb * (-MU / (rb @ rb) ** 1.5)
+    return d
+
+
+def f(x, dt):
+    """Two-body propagation of both satellites over ``dt`` (s; negative runs backward, Eq. 5.51): one RK4
+    step for |dt| <= 1 s (local error ~1e-8 m in LEO), more for longer spans."""
+    n = max(1, int(np.ceil(abs(dt) - 1e-9)))
+    h = dt / n
+    for _ in range(n):
+        k1 = _deriv(x)
+        k2 = _deriv(x + 0.5 * h * k1)
+        k3 = _deriv(x + 0.5 * h * k2)
+        k4 = _deriv(x + h * k3)
+        x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
+def gravity_gradient(r):
+    """d(-mu r/|r|^3)/dr = -mu/|r|^3 (I - 3 r r^T/|r|^2): the lower-left block of F_2-body (Eq. 5.4)."""
+    r2 = r @ r
+    return (-MU / r2 ** 1.5) * (I3 - (3.0 / r2) * np.outer(r, r))
+
+
+def F(x):
+    """F of Eq. 5.9: blockdiag(F_2-body,A, F_2-body,B), each [[0, I], [G(r), 0]] (Eq. 5.4)."""
+    out = np.zeros((N, N))
+    for k in (0, 6):
+        out[k:k + 3, k + 3:k + 6] = I3
+        out[k + 3:k + 6, k:k + 3] = gravity_gradient(x[k:k + 3])
+    return out
+
+
+def Phi(x, dt):
+    """State transition over ``dt`` from F at x (Eq. 3.30): I + F dt + (F dt)^2/2 + (F dt)^3/6.
+
+    With F = [[0, I], [G, 0]] per satellite: [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]]; the
+    dropped terms (G^2 dt^3/6 and beyond) are ~(n dt)^4 ~ 1e-12 at dt = 1 s in LEO.
+    """
+    out = np.zeros((N, N))
+    ga = gravity_gradient(x[0:3])
+    gb = gravity_gradient(x[6:9])
+    h2, h3 = 0.5 * dt * dt, dt ** 3 / 6.0
+    out[0:3, 0:3] = out[3:6, 3:6] = I3 + h2 * ga
+    out[6:9, 6:9] = out[9:12, 9:12] = I3 + h2 * gb
+    out[0:3, 3:6] = DT_I3 * dt + h3 * ga
+    out[6:9, 9:12] = DT_I3 * dt + h3 * gb
+    out[3:6, 0:3] = dt * ga
+    out[9:12, 6:9] = dt * gb
+    return out
+
+
+DT_I3 = np.eye(3)
+
+
+def Q(dt, qa=QA_THESIS):
+    """Discrete process noise of white acceleration noise with density ``qa`` (Eq. 5.8-5.9, G = [0 I]^T):
+    per axis [[qa dt^3/3, qa dt^2/2], [qa dt^2/2, qa dt]] for each satellite."""
+    dt = abs(float(dt))
+    key = (dt, float(qa))
+    if key in _Q_CACHE:
+        return _Q_CACHE[key]
+    q = np.zeros((N, N))
+    for k in (0, 6):
+        i3 = np.eye(3)
+        q[k:k + 3, k:k + 3] = qa * dt ** 3 / 3.0 * i3
+        q[k:k + 3, k + 3:k + 6] = q[k + 3:k + 6, k:k + 3] = qa * dt ** 2 / 2.0 * i3
+        q[k + 3:k + 6, k + 3:k + 6] = qa * dt * i3
+    if len(_Q_CACHE) < 4096:
+        q.flags.writeable = False
+        _Q_CACHE[key] = q
+    return q
+
+
+_Q_CACHE = {}
+
+
+def predict(x, P, dt, qa=QA_THESIS):
+    """EKF prediction (Eq. 3.29-3.31 with Eq. 5.7-5.9): x <- f(x, dt), P <- Phi P Phi^T + Q."""
+    ph = Phi(x, dt)
+    return f(x, dt), ph @ P @ ph.T + Q(dt, qa)
+
+
+def update(x, P, z, R, H, hx):
+    """EKF update in Joseph form: K = P H^T (H P H^T + R)^-1, x + K (z - h(x)), (I-KH) P (I-KH)^T + K R K^T."""
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T
+    ikh = np.eye(P.shape[0]) - K @ H
+    return x + K @ (z - hx), ikh @ P @ ikh.T + K @ R @ K.T
+
+
+# ---- measurements (Eq. 5.10-5.17) ----
+
+def H_gnss(sat):
+    """H of Eq. 5.12: [I 0] on SatA's or SatB's 6 states."""
+    H = np.zeros((6, N))
+    k = 0 if sat == "A" else 6
+    H[:, k:k + 6] = np.eye(6)
+    return H
+
+
+def h_gnss(x, sat):
+    return x[0:6] if sat == "A" else x[6:12]
+
+
+def los(x):
+    """(u, rho): unit vector rA->rB (J2000) and the range (Eq. 5.14)."""
+    d = x[IB] - x[IA]
+    rho = float(np.sqrt(d @ d))
+    return d / rho, rho
+
+
+def Hb(x):
+    """Hb,A of Eq. 5.17: d u / d rA = -(I - u u^T)/rho; Hb,B = -Hb,A."""
+    u, rho = los(x)
+    return (np.outer(u, u) - I3) / rho
+
+
+def h_beacon(x, A):
+    """y_b = A(q) (rB - rA)/rho (Eq. 5.13)."""
+    return A @ los(x)[0]
+
+
+def H_beacon(x, A):
+    """[A Hb,A, 0, A Hb,B, 0] (Eq. 5.16)."""
+    H = np.zeros((3, N))
+    hb = A @ Hb(x)
+    H[:, IA] = hb
+    H[:, IB] = -hb
+    return H
+
+
+def R_beacon(y, sigma_b, P_att):
+    """Beacon noise plus attitude knowledge (Eq. 5.15-5.16): sigma_b^2 I + [y x] P_att [y x]^T."""
+    sy = skew(y)
+    return sigma_b ** 2 * I3 + sy @ P_att @ sy.T
+
+
+# ---- pointing vector (Eq. 5.54-5.60) ----
+
+def T_b2z(p):
+    """A DCM whose 3rd row is p (Eq. 5.57: T_b2z p = [0, 0, 1]); the other rows any orthonormal pair."""
+    p = p / np.sqrt(p @ p)
+    e1 = skew(p) @ I3[int(np.argmin(np.abs(p)))]
+    e1 /= np.sqrt(e1 @ e1)
+    return np.vstack([e1, skew(p) @ e1, p])
+
+
+def pointing(x, A):
+    """p_body = A(q) (rB - rA)/rho (Eq. 5.54-5.55)."""
+    return h_beacon(x, A)
+
+
+def pointing_covariance(x, P, A, P_att):
+    """2x2 covariance of the two angles perpendicular to p_body (rad^2), Eq. 5.59-5.60.
+
+    Pz = T_i2z (Hb PAA Hb^T + Hb PBB Hb^T - Hb PAB Hb^T - Hb PBA Hb^T) T_i2z^T + T_b2z [p x] P_att [p x]^T T_b2z^T
+    with Hb,B = -Hb,A and T_i2z = T_b2z A(q).
+    """
+    p = pointing(x, A)
+    T = T_b2z(p)
+    hb = Hb(x)
+    Ti = T @ A
+    Pr = P[IA, IA] + P[IB, IB] - P[IA, IB] - P[IB, IA]
+    sp = skew(p)
+    Pz = Ti @ hb @ Pr @ hb.T @ Ti.T + T @ sp @ P_att @ sp.T @ T.T
+    return Pz[:2, :2]
+
+
+def pointing_error(x_hat, A_hat, x_true, A_true):
+    """The two perpendicular angular errors (rad) of the estimated p_body (Eq. 5.56-5.58)."""
+    p_hat = pointing(x_hat, A_hat)
+    dp = p_hat - pointing(x_true, A_true)
+    return (T_b2z(p_hat) @ dp)[:2]

@@ -1,0 +1,118 @@
+"""``fps adcs stkf``: the STKF study of Sec. 5.5 over Monte Carlo seeds.
+
+Run folder (every file written atomically): ``summary.json`` (``complete`` false until the end; keys
+final_sigma_ra_m, final_sigma_va_m_s, final_sigma_rb_m, final_sigma_vb_m_s, final_sigma_pointing_arcsec,
+runs, complete, plus outages and Monte Carlo error RMS), ``report.md`` (thesis table beside ours),
+``fig5-4_states.png``/``fig5-5_pointing.png`` (Case 1) or ``fig5-6``/``fig5-7`` (Case 2), ``run_NNNN/``
+per seed (history.npz, result.json, run.log) and ``truth_cache/`` (the 1 s truth samples).
+"""
+
+import os
+import sys
+import time
+
+from ground.adcs import campaign, stkf_sim
+from ground.fileio import write_atomic, write_json
+
+
+def _cmd(a):
+    runs = campaign.check_runs(a.runs)
+    if a.scheduler is None:
+        campaign.check_workers(a.workers)
+    outages = [stkf_sim.parse_outage(o) for o in (a.outage or [])]
+    if a.case == 1 and any(o[0] == "relay" for o in outages):
+        raise ValueError("--outage relay:... was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
+    if not (a.duration >= 1):
+        raise ValueError("--duration must be >= 1 s, got %r" % a.duration)
+    if not (a.lag > 0):
+        raise ValueError("--lag must be > 0 s, got %r" % a.lag)
+    if a.case == 2 and a.lag < 3.0 + 1.0:
+        raise ValueError("--lag %.2f s is shorter than the relay's longest delay (3 s) plus one filter step "
+                         "(1 s): delayed measurements would be refused" % a.lag)
+    out = a.output
+    os.makedirs(out, exist_ok=True)
+    args_text = "fps adcs stkf " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "fps adcs stkf"
+    summary = stkf_sim.aggregate([], runs, False)
+    summary.update(case=a.case, truth=a.truth, duration_s=a.duration)
+    write_json(os.path.join(out, "summary.json"), summary)
+    t0 = time.perf_counter()
+    if a.truth == "hpop":  # make the cache once, before the workers read it
+        from emulator import orbits
+        print("truth: brahe high-fidelity orbits for SatA and SatB over %.0f s ..." % a.duration, file=sys.stderr)
+        orbits.truth_samples("hpop", a.duration, cache_dir=out)
+    results, complete = [], True
+    seeds = [a.seed + i for i in range(runs)]
+    try:
+        results = campaign.run_campaign(stkf_sim.run_one, seeds, out, workers=a.workers, scheduler=a.scheduler,
+                                        progress=not a.quiet, desc="stkf case %d" % a.case, case=a.case,
+                                        duration_s=a.duration, truth=a.truth, cache_dir=os.path.abspath(out),
+                                        lag_s=a.lag, outages=outages, attitude=a.attitude)
+    except KeyboardInterrupt:
+        complete = False
+        results = _collect(out, runs)
+    summary = stkf_sim.aggregate(results, runs, complete)
+    summary.update(case=a.case, truth=a.truth, attitude=a.attitude, duration_s=a.duration,
+                   wall_s=time.perf_counter() - t0)
+    plots = []
+    if not a.no_plots and summary["runs"]:
+        plots = stkf_sim.plots(out, [campaign.run_dir_for(out, i) for i in range(runs)], a.case)
+    summary["plots"] = plots
+    write_atomic(os.path.join(out, "report.md"), stkf_sim.report_md(summary, a.case, args_text))
+    write_json(os.path.join(out, "summary.json"), summary)
+    _print(summary, a.case)
+    if not complete:
+        print("interrupted: partial run in %s (summary complete=false)" % out, file=sys.stderr)
+        return 130
+    if summary["failed_runs"]:
+        print("%d run(s) failed; see %s/summary.json" % (len(summary["failed_runs"]), out), file=sys.stderr)
+        return 1
+    return 0
+
+
+def _collect(out, runs):
+    import json
+    res = []
+    for i in range(runs):
+        p = os.path.join(campaign.run_dir_for(out, i), "result.json")
+        if os.path.exists(p):
+            with open(p) as f:
+                res.append(json.load(f))
+    return res
+
+
+def _print(s, case):
+    th = stkf_sim.THESIS[case]
+    print("| final 1 sigma | thesis | ours |")
+    print("|---|---|---|")
+    for k in stkf_sim.KEYS:
+        print("| %s | %g | %s |" % (k, th[k], "—" if s[k] is None else "%.4g" % s[k]))
+    for seed, ol in s["outages"].items():
+        for o in ol:
+            print("seed %s: %s silent from %.1f s to %s (filter propagated on)" % (
+                seed, o["sensor"], o["from_s"], "the end" if o["to_s"] is None else "%.1f s" % o["to_s"]))
+
+
+def register(sub, name, help_):
+    p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
+    p.add_argument("--case", type=int, choices=(1, 2), required=True,
+                   help="1: SatA GNSS + beacon; 2: plus SatB GNSS relayed with a U(2, 3) s delay")
+    p.add_argument("--duration", type=float, default=1200.0, help="simulated seconds (default 1200, as Sec. 5.5)")
+    p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds seed .. seed+runs-1)")
+    p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",
+                   help="true orbits: brahe high-fidelity (default) or two-body (fast)")
+    p.add_argument("--lag", type=float, default=stkf_sim.LAG_S,
+                   help="smoother lag in s: the longest delay accepted (default 4)")
+    p.add_argument("--attitude", choices=stkf_sim.ATTITUDES, default="stated",
+                   help="attitude knowledge in the beacon noise: stated covariance (9.81, 8.01, 19.70 arcsec 1 "
+                   "sigma, body on J2000; default) or the APKF run in the same simulation")
+    p.add_argument("--outage", action="append", metavar="SENSOR:T0:T1",
+                   help="silence a sensor (gnss_a, beacon or relay) from T0 to T1 s; repeatable")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count; 1 = "
+                   "in-process)")
+    g.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler address (tcp://host:port)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("-o", "--output", required=True, help="run folder")
+    p.set_defaults(func=_cmd)

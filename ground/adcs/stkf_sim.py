@@ -1,0 +1,375 @@
+"""The STKF simulation of thesis Sec. 5.5: one run per seed, and the Monte Carlo aggregate.
+
+A run: truth orbits (``emulator.orbits``, 1 s samples, 10th-order Lagrange interpolation as in Sec. 6.4.1
+for SatB's off-tick measurement times), the sensors of ``emulator.navsensors``, and the STKF with the EAFLS
+at 1 Hz. Case 1: SatA's GNSS and the beacon. Case 2: plus SatB's GNSS through the relay, delayed U(2, 3) s,
+each solution time-tagged on SatB's own clock (a random phase per run, so the tags fall between nodes).
+
+Attitude (stated; Sec. 5.5 gives no attitude profile and no APKF runs here): SatA's body frame is held on
+J2000 (q = [0, 0, 0, 1]), and the attitude estimate carries a white error each second with the stated
+covariance ``ATT_SIGMA_ARCSEC`` = the APKF's final 1 sigma of Sec. 4.8 Case 1 (9.81, 8.01, 19.70 arcsec).
+That covariance is the P_att of Eq. 5.16 and 5.59.
+
+With ``attitude="apkf"`` the APKF runs in the same simulation instead (issue 9: the Sec. 4.8 Case 1 scenario,
+same seed, for the same duration): the true attitude is the scenario's, the STKF uses the APKF's estimate
+A(q_hat) and its attitude covariance 4 P[0:3, 0:3] (P of dq_vec, Eq. 4.77) as P_att; before the APKF starts,
+the star-tracker quaternion with its 20/20/60 arcsec covariance.
+
+Figures: a "final 1 sigma" is sqrt(trace) of the 3x3 block (the thesis's "for the three axes in total");
+the pointing figure is sqrt(Pz11 + Pz22) of Eq. 5.59 ("for the two axes in total").
+"""
+
+import json
+import os
+import time
+
+import numpy as np
+
+from emulator import orbits
+from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
+from emulator.spacecraft.dynamics import dcm
+from ground.adcs import stkf
+from ground.adcs.afls import Afls
+from ground.fileio import write_atomic, write_json
+from ground.resample import lagrange
+
+ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
+P0_DIAG = np.array([4e3 ** 2] * 3 + [100.0 ** 2] * 3)
+P0_DIAG = np.concatenate([P0_DIAG, P0_DIAG])   # (4 km)^2, (0.1 km/s)^2 (Sec. 5.5.1)
+LAG_S = 4.0
+SENSORS = ("gnss_a", "beacon", "relay")
+GAP_S = {"gnss_a": 2.0, "beacon": 2.0, "relay": 5.0}   # silence longer than this is logged as an outage
+THESIS = {1: {"final_sigma_ra_m": 9.22, "final_sigma_va_m_s": 0.5252, "final_sigma_rb_m": 3264.2,
+              "final_sigma_vb_m_s": 4.52, "final_sigma_pointing_arcsec": 23.0},
+          2: {"final_sigma_ra_m": 9.21, "final_sigma_va_m_s": 0.5252, "final_sigma_rb_m": 9.21,
+              "final_sigma_vb_m_s": 0.5252, "final_sigma_pointing_arcsec": 19.8}}
+KEYS = tuple(THESIS[1])
+
+
+def parse_outage(text):
+    """'SENSOR:T0:T1' (seconds from the start) -> (sensor, t0, t1); SENSOR one of gnss_a, beacon, relay."""
+    parts = str(text).split(":")
+    if len(parts) != 3 or parts[0] not in SENSORS:
+        raise ValueError("outage must be SENSOR:T0:T1 with SENSOR one of %s, got %r" % ("/".join(SENSORS), text))
+    try:
+        t0, t1 = float(parts[1]), float(parts[2])
+    except ValueError:
+        raise ValueError("outage times must be numbers (s), got %r" % (text,)) from None
+    if not (np.isfinite(t0) and np.isfinite(t1) and 0 <= t0 < t1):
+        raise ValueError("outage must have 0 <= T0 < T1 (s), got %r" % (text,))
+    return parts[0], t0, t1
+
+
+def _blockdiag(a, b):
+    out = np.zeros((a.shape[0] + b.shape[0],) * 2)
+    out[:a.shape[0], :a.shape[0]] = a
+    out[a.shape[0]:, a.shape[0]:] = b
+    return out
+
+
+def small_rotation(alpha):
+    """A(dq) of the rotation vector alpha (dq = [alpha/2, 1] normalised, Eq. 4.77)."""
+    q = np.array([0.5 * alpha[0], 0.5 * alpha[1], 0.5 * alpha[2], 1.0])
+    return dcm(q / np.linalg.norm(q))
+
+
+class _Gaps:
+    """Logs the silence of each sensor: the filter keeps propagating and says so."""
+
+    def __init__(self, log, sensors):
+        self.log, self.last, self.open, self.done = log, {s: 0.0 for s in sensors}, {}, []
+
+    def seen(self, sensor, t):
+        if sensor in self.open:
+            t0 = self.open.pop(sensor)
+            self.done.append({"sensor": sensor, "from_s": t0, "to_s": t})
+            self.log.append("t=%7.1f s  %s back after %.1f s; filter was propagating on the others"
+                            % (t, sensor, t - t0))
+        self.last[sensor] = t
+
+    def tick(self, t):
+        for s, tl in self.last.items():
+            if s not in self.open and t - tl > GAP_S[s]:
+                self.open[s] = tl
+                self.log.append("t=%7.1f s  no %s since t=%.1f s: propagating without it" % (t, s, tl))
+
+    def close(self, t):
+        for s, t0 in sorted(self.open.items()):
+            self.done.append({"sensor": s, "from_s": t0, "to_s": None})
+            self.log.append("t=%7.1f s  %s still silent at the end (since t=%.1f s)" % (t, s, t0))
+        return sorted(self.done, key=lambda d: (d["from_s"], d["sensor"]))
+
+
+ATTITUDES = ("stated", "apkf")
+
+
+def apkf_attitude(seed, K):
+    """(A_true, A_hat, P_att) for k = 0..K from the APKF over the Sec. 4.8 Case 1 scenario (issue 9)."""
+    from emulator.spacecraft import scenario
+    from ground.adcs import apkf, quat
+    from ground.adcs.runs import _start
+    o = scenario.simulate(case=1, seed=seed, duration=max(K, 2))
+    k0 = _start(o)
+    q0 = o["st_q"][k0]
+    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
+    flt = apkf.APKF(apkf.initial_state(q0, w0, o["tach"][k0]), case=1, set_ends=o["set_ends"])
+    A_true = np.array([dcm(q) for q in o["q"][:K + 1]])
+    A_hat = np.empty_like(A_true)
+    P_att = np.empty_like(A_true)
+    st = np.diag((np.array([20.0, 20.0, 60.0]) * ARCSEC) ** 2)
+    for k in range(K + 1):
+        if k < k0:
+            A_hat[k], P_att[k] = dcm(o["st_q"][k]), st
+            continue
+        if k > k0:
+            flt.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
+        A_hat[k], P_att[k] = dcm(flt.x[0:4]), 4.0 * flt.P[0:3, 0:3]
+    return A_true, A_hat, P_att
+
+
+def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, lag_s=LAG_S, outages=(),
+             att_sigma_arcsec=ATT_SIGMA_ARCSEC, qa=stkf.QA_THESIS, delay_s=(2.0, 3.0), attitude="stated"):
+    """One run; returns (result dict, history dict of arrays). ``attitude``: "stated" or "apkf"."""
+    if attitude not in ATTITUDES:
+        raise ValueError("attitude must be one of %s, got %r" % ("/".join(ATTITUDES), attitude))
+    if case not in (1, 2):
+        raise ValueError("case must be 1 or 2, got %r" % (case,))
+    if not (np.isfinite(duration_s) and duration_s >= 1):
+        raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
+    if case == 2 and delay_s[1] > lag_s:
+        raise ValueError("relay delay up to %.2f s is longer than the smoother's lag of %.2f s"
+                         % (delay_s[1], lag_s))
+    outages = [o if isinstance(o, tuple) else parse_outage(o) for o in outages]
+    if case == 1 and any(o[0] == "relay" for o in outages):
+        raise ValueError("a relay outage was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
+    t_s, xs = orbits.truth_samples(truth, duration_s, cache_dir=cache_dir)
+    K = int(np.floor(duration_s + 1e-9))
+    r_init, r_ga, r_gb, r_bc, r_att, r_rel = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]
+    P0 = np.diag(P0_DIAG)
+    x_true0 = xs[0].ravel()
+    x0 = x_true0 + np.sqrt(P0_DIAG) * r_init.standard_normal(12)
+    flt = Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa))
+    gnss_a, beacon = Gnss(r_ga), Beacon(r_bc)
+    relay = Relay(r_rel, Gnss(r_gb), delay_s)
+    phase = r_rel.uniform(0.0, 1.0)               # SatB's receiver clock vs SatA's ticks
+    tb = phase + np.arange(0, K)                  # SatB GNSS epochs
+    tb = tb[tb <= K]
+    xb_at = lagrange(t_s, xs[:, 1, :], tb, order=10) if case == 2 else None
+    att_sd = np.asarray(att_sigma_arcsec, dtype=float) * ARCSEC
+    P_att = np.diag(att_sd ** 2)
+    A_true = np.eye(3)                            # body frame held on J2000 (stated)
+    att = apkf_attitude(seed, K) if attitude == "apkf" else None
+    H_a, H_b = stkf.H_gnss("A"), stkf.H_gnss("B")
+    h_a = lambda x: x[0:6]                        # noqa: E731
+    h_b = lambda x: x[6:12]                       # noqa: E731
+
+    def out(sensor, t):
+        return any(s == sensor and t0 <= t < t1 for s, t0, t1 in outages)
+
+    log = []
+    gaps = _Gaps(log, ("gnss_a", "beacon") + (("relay",) if case == 2 else ()))
+    hist = {k: np.zeros((K + 1,) + s) for k, s in
+            (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)))}
+    hist["t"] = np.arange(K + 1, dtype=float)
+    step_s = []
+    jb = 0
+    for k in range(K + 1):
+        t = float(k)
+        x_true = xs[k].ravel()
+        if att is None:
+            A_hat = small_rotation(att_sd * r_att.standard_normal(3)).T @ A_true
+        else:
+            A_true, A_hat, P_att = att[0][k], att[1][k], att[2][k]
+        # sensors (truth side, not timed)
+        have_g, have_b = not out("gnss_a", t), not out("beacon", t)
+        zg = gnss_a.measure(x_true[:6]) if have_g else None
+        y = beacon.measure_dcm(x_true[0:3], x_true[6:9], A_true) if have_b else None
+        due = []
+        if case == 2:
+            while jb < tb.size and tb[jb] <= t:
+                if not out("relay", tb[jb]):
+                    relay.sample(tb[jb], xb_at[jb])
+                jb += 1
+            due = relay.due(t)
+        # the filter step (timed)
+        t0 = time.perf_counter()
+        if k > 0:
+            flt.predict(t)
+        if have_b:
+            Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
+        if have_g and have_b:  # one stacked update: the two noises are independent
+            flt.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb),
+                       lambda x: np.concatenate([x[0:6], stkf.h_beacon(x, A_hat)]),
+                       lambda x: np.vstack([H_a, stkf.H_beacon(x, A_hat)]))
+        elif have_g:
+            flt.update(zg, gnss_a.R, h_a, lambda x: H_a)
+        elif have_b:
+            flt.update(y, Rb, lambda x: stkf.h_beacon(x, A_hat), lambda x: stkf.H_beacon(x, A_hat))
+        for tm, z in due:
+            flt.update(z, relay.gnss.R, h_b, lambda x: H_b, t=tm)
+        step_s.append(time.perf_counter() - t0)
+        if have_g:
+            gaps.seen("gnss_a", t)
+        if have_b:
+            gaps.seen("beacon", t)
+        if due:
+            gaps.seen("relay", t)
+        gaps.tick(t)
+        x, Pk = flt.x, flt.Pk
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):
+            raise FloatingPointError("filter diverged at t=%.0f s (NaN in x or P)" % t)
+        if min(x[0:3] @ x[0:3], x[6:9] @ x[6:9]) < orbits.R_EARTH ** 2:
+            raise FloatingPointError("filter diverged at t=%.0f s: an estimated orbit is under the Earth's "
+                                     "surface" % t)
+        hist["err"][k] = x - x_true
+        hist["sig"][k] = np.sqrt(np.diag(Pk))
+        hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / ARCSEC
+        hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / ARCSEC
+    outage_list = gaps.close(float(K))
+    Pk = flt.Pk
+    tot = lambda s: float(np.sqrt(np.trace(Pk[s, s])))  # noqa: E731
+    res = {"seed": int(seed), "case": case, "truth": truth, "attitude": attitude, "duration_s": float(K),
+           "final_sigma_ra_m": tot(stkf.IA), "final_sigma_va_m_s": tot(stkf.VA),
+           "final_sigma_rb_m": tot(stkf.IB), "final_sigma_vb_m_s": tot(stkf.VB),
+           "final_sigma_pointing_arcsec": float(np.hypot(*hist["psig"][-1])),
+           "final_error_ra_m": float(np.linalg.norm(hist["err"][-1, 0:3])),
+           "final_error_va_m_s": float(np.linalg.norm(hist["err"][-1, 3:6])),
+           "final_error_rb_m": float(np.linalg.norm(hist["err"][-1, 6:9])),
+           "final_error_vb_m_s": float(np.linalg.norm(hist["err"][-1, 9:12])),
+           "final_error_pointing_arcsec": float(np.hypot(*hist["perr"][-1])),
+           "oosm_nodes_generated": flt.generated, "step_us_mean": 1e6 * float(np.mean(step_s[1:] or step_s)),
+           "outages": outage_list, "log": log}
+    return res, hist
+
+
+def run_one(seed, run_dir, **kw):
+    """Campaign entry (top level, picklable): simulate, write run_dir/history.npz, result.json, run.log."""
+    t0 = time.perf_counter()
+    res, hist = simulate(seed=seed, **kw)
+    res["wall_s"] = time.perf_counter() - t0
+    if run_dir:
+        import io
+        buf = io.BytesIO()
+        np.savez(buf, **hist)
+        write_atomic(os.path.join(run_dir, "history.npz"), buf.getvalue())
+        write_atomic(os.path.join(run_dir, "run.log"), "\n".join(res["log"] + ["end of run"]) + "\n")
+        write_json(os.path.join(run_dir, "result.json"), res)
+    return res
+
+
+def aggregate(results, runs_requested, complete):
+    """summary.json content: the means over the good runs of the final 1 sigma (the issue's keys)."""
+    good = [r for r in results if r and "error" not in r]
+    s = {k: (float(np.mean([r[k] for r in good])) if good else None) for k in KEYS}
+    s["runs"] = len(good)
+    s["complete"] = bool(complete and len(good) == runs_requested)
+    s["runs_requested"] = runs_requested
+    s["failed_runs"] = [r for r in results if r and "error" in r]
+    for k in ("final_error_ra_m", "final_error_va_m_s", "final_error_rb_m", "final_error_vb_m_s",
+              "final_error_pointing_arcsec"):
+        s["rms_" + k] = float(np.sqrt(np.mean([r[k] ** 2 for r in good]))) if good else None
+    s["step_us_mean"] = float(np.mean([r["step_us_mean"] for r in good])) if good else None
+    s["outages"] = {str(r["seed"]): r["outages"] for r in good if r["outages"]}
+    return s
+
+
+def report_md(summary, case, args_text):
+    th = THESIS[case]
+    names = {"final_sigma_ra_m": ("rA", "m"), "final_sigma_va_m_s": ("vA", "m/s"),
+             "final_sigma_rb_m": ("rB", "m"), "final_sigma_vb_m_s": ("vB", "m/s"),
+             "final_sigma_pointing_arcsec": ("pointing vector", "arcsec")}
+    lines = ["# STKF Case %d (%s)" % (case, "without SatB GNSS" if case == 1 else "with SatB GNSS, delayed (EAFLS)"),
+             "", "`%s`" % args_text, "",
+             "Runs: %d of %d, complete: %s." % (summary["runs"], summary["runs_requested"], summary["complete"]), "",
+             "Attitude: %s." % ("from the APKF run in the same simulation (Sec. 4.8 Case 1 scenario)"
+                                if summary.get("attitude") == "apkf" else "stated covariance (below)"), "",
+             "| final 1 sigma | thesis | ours | ours/thesis | within 25 % | MC RMS of the final error |",
+             "|---|---|---|---|---|---|"]
+    for k, (n, u) in names.items():
+        v = summary.get(k)
+        e = summary.get("rms_" + k.replace("sigma", "error"))
+        if v is None:
+            lines.append("| %s (%s) | %g | — | — | — | — |" % (n, u, th[k]))
+            continue
+        lines.append("| %s (%s) | %g | %.4g | %.2f | %s | %s |" % (n, u, th[k], v, v / th[k],
+                     "yes" if abs(v / th[k] - 1) <= 0.25 else "**no**", "—" if e is None else "%.4g" % e))
+    lines += ["", "Definitions: 1 sigma totals are sqrt(trace) of each 3x3 block; the pointing figure is",
+              "sqrt(Pz11 + Pz22) of Eq. 5.59. Stated attitude: body held on J2000, attitude knowledge error white",
+              "with the APKF's Sec. 4.8 Case 1 final 1 sigma (9.81, 8.01, 19.70 arcsec) as P_att.",
+              "Truth: %s. The thesis's truth was STK HPOP (JGM-2); ours is brahe (EGM2008 30x30, NRLMSISE-00,"
+              % summary.get("truth", "?"),
+              "conical SRP, low-precision Sun/Moon; no tides, no DE440s) or two-body: a figure that misses is",
+              "reported as is, not tuned.", ""]
+    if summary["outages"]:
+        lines += ["## Sensor outages (the filter propagated through them)", ""]
+        for seed, ol in summary["outages"].items():
+            for o in ol:
+                lines.append("- seed %s: %s silent from %.1f s to %s" % (
+                    seed, o["sensor"], o["from_s"], "the end" if o["to_s"] is None else "%.1f s" % o["to_s"]))
+        lines.append("")
+    if summary["failed_runs"]:
+        lines += ["## Failed runs", ""] + ["- seed %s: %s" % (r["seed"], r["error"]) for r in summary["failed_runs"]]
+    return "\n".join(lines) + "\n"
+
+
+def plots(out_dir, run_dirs, case):
+    """Fig. 5-4/5-6 (state errors with +-3 sigma) and Fig. 5-5/5-7 (pointing vector), first run bold."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    hs = []
+    for d in run_dirs:
+        p = os.path.join(d, "history.npz")
+        if os.path.exists(p):
+            with np.load(p) as z:
+                hs.append({k: z[k] for k in z.files})
+    if not hs:
+        return []
+    files = []
+    fig, ax = plt.subplots(3, 4, figsize=(14, 8), sharex=True)
+    titles = ["rA error (m)", "vA error (m/s)", "rB error (m)", "vB error (m/s)"]
+    for c in range(4):
+        for r in range(3):
+            i = 3 * c + r
+            a = ax[r, c]
+            for h in hs[1:]:
+                a.plot(h["t"], h["err"][:, i], color="0.75", lw=0.5)
+            h = hs[0]
+            a.plot(h["t"], h["err"][:, i], "b", lw=0.8)
+            a.plot(h["t"], 3 * h["sig"][:, i], "r--", lw=0.8)
+            a.plot(h["t"], -3 * h["sig"][:, i], "r--", lw=0.8)
+            lim = 6 * max(h["sig"][len(h["t"]) // 4:, i].max(), 1e-9)
+            a.set_ylim(-lim, lim)
+            a.grid(True, lw=0.3)
+            if r == 0:
+                a.set_title(titles[c])
+        ax[2, c].set_xlabel("time (s)")
+    fig.suptitle("STKF Case %d: errors (first run blue, others grey), +-3 sigma dashed" % case)
+    fig.tight_layout()
+    name = "fig5-%d_states.png" % (4 if case == 1 else 6)
+    fig.savefig(os.path.join(out_dir, name), dpi=90)
+    plt.close(fig)
+    files.append(name)
+    fig, ax = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    for j in range(2):
+        for h in hs[1:]:
+            ax[j].plot(h["t"], h["perr"][:, j], color="0.75", lw=0.5)
+        h = hs[0]
+        ax[j].plot(h["t"], h["perr"][:, j], "b", lw=0.8)
+        ax[j].plot(h["t"], 3 * h["psig"][:, j], "r--", lw=0.8)
+        ax[j].plot(h["t"], -3 * h["psig"][:, j], "r--", lw=0.8)
+        ax[j].set_ylim(-150, 150)
+        ax[j].set_ylabel("angle %d (arcsec)" % (j + 1))
+        ax[j].grid(True, lw=0.3)
+    ax[1].set_xlabel("time (s)")
+    fig.suptitle("STKF Case %d: pointing vector error in the body frame, +-3 sigma" % case)
+    fig.tight_layout()
+    name = "fig5-%d_pointing.png" % (5 if case == 1 else 7)
+    fig.savefig(os.path.join(out_dir, name), dpi=90)
+    plt.close(fig)
+    files.append(name)
+    return files
+
+
+def dumps(obj):
+    return json.dumps(obj, indent=1)

@@ -1,0 +1,56 @@
+"""ground/adcs/campaign.py: in-process and Dask (in-process LocalCluster) paths, errors, reproducibility."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from ground.adcs import campaign
+
+
+def draw(seed, run_dir, n=3, fail_on=None):
+    """A run: random numbers from its seed only; writes its own folder; fails on request."""
+    if seed == fail_on:
+        raise FloatingPointError("filter diverged at t = 12 s")
+    os.makedirs(run_dir, exist_ok=True)
+    x = np.random.default_rng(seed).normal(size=n).tolist()
+    with open(os.path.join(run_dir, "x.json"), "w") as f:
+        json.dump(x, f)
+    return {"x": x, "pid": os.getpid()}
+
+
+def test_in_process_seed_order_and_error_record(tmp_path):
+    res = campaign.run_campaign(draw, [5, 6, 7], tmp_path, workers=1, progress=False, fail_on=6)
+    assert [r["seed"] for r in res] == [5, 6, 7]
+    assert "diverged" in res[1]["error"] and "x" not in res[1]
+    assert res[0]["x"] == np.random.default_rng(5).normal(size=3).tolist()
+    assert os.path.exists(tmp_path / "run_0002" / "x.json") and not os.path.exists(tmp_path / "run_0001")
+
+
+def test_dask_local_cluster_matches_in_process(tmp_path):
+    seeds = [11, 12, 13, 14, 15]
+    ref = campaign.run_campaign(draw, seeds, tmp_path / "a", workers=1, progress=False, fail_on=13)
+    res = campaign.run_campaign(draw, seeds, tmp_path / "b", workers=2, progress=False, fail_on=13)
+    assert [r["seed"] for r in res] == seeds
+    assert [r.get("x") for r in res] == [r.get("x") for r in ref]     # same result whichever worker ran it
+    assert "diverged" in res[2]["error"]
+    assert os.getpid() not in {r["pid"] for r in res if "pid" in r}    # ran in worker processes
+
+
+def test_dask_scheduler_address(tmp_path):
+    from distributed import LocalCluster
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cl:
+        res = campaign.run_campaign(draw, [3, 4], tmp_path, scheduler=cl.scheduler_address, progress=False)
+    assert [r["x"] for r in res] == [np.random.default_rng(s).normal(size=3).tolist() for s in (3, 4)]
+
+
+def test_bad_inputs(tmp_path):
+    with pytest.raises(ValueError, match="--runs must be >= 1, got 0"):
+        campaign.check_runs(0)
+    with pytest.raises(ValueError, match="--runs"):
+        campaign.run_campaign(draw, [], tmp_path)
+    with pytest.raises(ValueError, match="--workers must be >= 1, got 0"):
+        campaign.run_campaign(draw, [1], tmp_path, workers=0)
+    with pytest.raises(ValueError, match="127.0.0.1:9"):
+        campaign.run_campaign(draw, [1], tmp_path, scheduler="tcp://127.0.0.1:9", progress=False)

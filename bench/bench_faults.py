@@ -5,6 +5,8 @@ its samples and control telemetry are bit-identical; heavy faults (complete and 
 ``firmware.main`` on a relayed pty) at 637.8 Hz and 2 kHz.
 """
 
+import contextlib
+import io
 import json
 import os
 import shutil
@@ -18,7 +20,7 @@ import numpy as np
 from emulator.bench import Bench
 from emulator.truth import true_h_field
 from ground import distfile_cli, sources
-from ground.cli import main as fps
+from ground.cli import main as _fps
 from ground.fileio import write_atomic, write_json
 from ground.runtime import ROOT, micropython_binary
 
@@ -26,6 +28,12 @@ DURATION_S = 120.0
 LIGHT = "bytes=0.01,frames=0.05,seed=1"
 HEAVY = "bytes=0.05,frames=0.20,seed=1"
 CONTROL_COLS = 14
+
+
+def fps(argv):
+    """``fps`` in-process with its printout swallowed (the tables below say what matters)."""
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return _fps(argv)
 
 
 def _hil(tmp, name, dist, cal, duration, *extra):

@@ -195,7 +195,7 @@ def truth_samples(kind="hpop", duration_s=1200.0, x0s=(X0_A, X0_B), step_s=1.0, 
     if not np.all(np.isfinite(x)) or r.min() < R_EARTH:
         raise ValueError("the %s truth left the valid range (min |r| %.1f km)" % (kind, np.nanmin(r) / 1e3))
     if path:
-        from ground.fileio import write_atomic  # the project's one atomic writer
+        from emulator.fileio import write_atomic  # the project's one atomic writer
         buf = io.BytesIO()
         np.savez(buf, t=t, x=x, inputs=json.dumps(inputs))
         write_atomic(path, buf.getvalue())

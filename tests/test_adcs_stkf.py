@@ -221,11 +221,11 @@ def test_cli_summary_keys_report_and_plots(tmp_path, capsys):
 def test_cli_bad_input_and_interrupt(tmp_path, capsys, monkeypatch):
     from ground.cli import main
     from ground.adcs import campaign
-    assert main(["adcs", "stkf", "--case", "2", "--lag", "2", "-o", str(tmp_path / "a")]) == 1
+    assert main(["adcs", "stkf", "--case", "2", "--lag", "2", "-o", str(tmp_path / "a")]) == 2
     assert "lag" in capsys.readouterr().err
-    assert main(["adcs", "stkf", "--case", "1", "--runs", "0", "-o", str(tmp_path / "b")]) == 1
-    assert main(["adcs", "stkf", "--case", "1", "--outage", "sun:1:2", "-o", str(tmp_path / "c")]) == 1
-    assert main(["adcs", "stkf", "--case", "1", "--outage", "relay:1:2", "-o", str(tmp_path / "c")]) == 1
+    assert main(["adcs", "stkf", "--case", "1", "--runs", "0", "-o", str(tmp_path / "b")]) == 2
+    assert main(["adcs", "stkf", "--case", "1", "--outage", "sun:1:2", "-o", str(tmp_path / "c")]) == 2
+    assert main(["adcs", "stkf", "--case", "1", "--outage", "relay:1:2", "-o", str(tmp_path / "c")]) == 2
     assert "no relay" in capsys.readouterr().err
 
     def interrupted(*a, **k):

@@ -145,17 +145,28 @@ def _bad_cases(f):
               ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", "0.01",
                "--config", g],
               ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", "10"],
-              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--runtime", "nope"]]
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--runtime", "nope"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--runtime", "micropython",
+               "--link-faults", "bytes=2"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--link-faults", "frames=0.1"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--runtime", "board"],
+              ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--tick-tries", "0",
+               "--runtime", "cpython"]]
+    for sub in ("apkf", "mekf", "stkf"):
+        cases += [["adcs", sub, "-o", o, "--runs", "0"], ["adcs", sub, "-o", o, "--runs", "x"],
+                  ["adcs", sub, "-o", o, "--workers", "0"], ["adcs", sub, "-o", o, "--seed", "-1e40"],
+                  ["adcs", sub, "-o", o, "--params", f["missing"]], ["adcs", sub, "-o", o, "--params", f["garbage"]],
+                  ["adcs", sub, "-o", o, "--scheduler", "tcp://127.0.0.1:9", "--runs", "1"]]
     return cases
 
 
 def test_every_command_is_covered(files):
     """The bad cases reach every command and sub-command ``fps --help`` and their own help list."""
-    reached = {tuple(a[:2]) if a[0] in ("protocol", "emulator", "distfile") else (a[0],)
+    reached = {tuple(a[:2]) if a[0] in ("protocol", "emulator", "distfile", "adcs") else (a[0],)
                for a in _bad_cases(files) if a and a[0]}
     want = {("protocol", "encode"), ("protocol", "decode"), ("protocol", "dbc"), ("emulator", "config"),
             ("emulator", "truth-h"), ("emulator", "serve"), ("distfile", "generate"), ("distfile", "info"),
-            ("distfile", "csv"), ("calibrate",), ("hil",)}
+            ("distfile", "csv"), ("calibrate",), ("hil",), ("adcs", "apkf"), ("adcs", "mekf"), ("adcs", "stkf")}
     assert want <= reached
     assert {c[0] for c in cli.COMMANDS} == {w[0] for w in want}
 

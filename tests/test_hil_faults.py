@@ -7,9 +7,7 @@ telemetry, bit for bit, as the same run without.
 
 import json
 import os
-import select
 import subprocess
-import sys
 import threading
 import time
 
@@ -258,38 +256,17 @@ def test_calibration_under_faults_gives_the_same_h(tmp_path):
 
 
 # --- a board on a serial port: a pty pair relayed, MicroPython running firmware.main on one end ------------
-def _relay(m1, m2, stop):
-    while not stop.is_set():
-        r, _, _ = select.select([m1, m2], [], [], 0.05)
-        for fd in r:
-            try:
-                data = os.read(fd, 4096)
-            except OSError:
-                return
-            os.write(m2 if fd == m1 else m1, data)
-
-
 @pytest.fixture
 def board():
-    import tty
-    m1, s1 = os.openpty()
-    m2, s2 = os.openpty()
-    for fd in (s1, s2):
-        tty.setraw(fd)
-    stop = threading.Event()
-    th = threading.Thread(target=_relay, args=(m1, m2, stop), daemon=True)
-    th.start()
-    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
-    proc = subprocess.Popen([micropython_binary(), "-m", "firmware.main", "controller", "--link",
-                             "serial:" + os.ttyname(s1)], cwd=ROOT, env=env, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    yield os.ttyname(s2)
-    proc.terminate()
-    proc.wait(5)
-    stop.set()
-    th.join(2)
-    for fd in (m1, m2, s1, s2):
-        os.close(fd)
+    from tests.ptyrelay import relay_pair
+    with relay_pair() as (board_path, host_path):
+        env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
+        proc = subprocess.Popen([micropython_binary(), "-m", "firmware.main", "controller", "--link",
+                                 "serial:" + board_path], cwd=ROOT, env=env, stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        yield host_path
+        proc.terminate()
+        proc.wait(5)
 
 
 def test_a_board_on_a_serial_port_in_lockstep_and_in_real_time(tmp_path, inputs, board):

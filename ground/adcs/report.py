@@ -2,6 +2,7 @@
 
 import io
 import os
+import warnings
 
 import numpy as np
 
@@ -133,6 +134,12 @@ def plot_run(series_npz, name, path):
 
 def plot_spread(results, summary, path):
     """Monte Carlo spread of the attitude error over runs (per axis) and the mean NEES with its band."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)            # NaN before the filter starts
+        _plot_spread(results, summary, path)
+
+
+def _plot_spread(results, summary, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -14,6 +14,7 @@ compared with the 95 % band chi2(6N) / N (Bar-Shalom), after the first maneuver 
 import json
 import math
 import os
+import warnings
 
 import numpy as np
 
@@ -228,7 +229,9 @@ def aggregate(results, name, case, dof=6):
     nees = np.array([r["series"]["nees"] for r in ok if "series" in r], dtype=float)
     t0 = ok[0]["set_ends_s"][0] if ok[0]["set_ends_s"] else 0.0
     if len(nees):
-        mean = np.nanmean(nees, axis=0) if np.isfinite(nees).any() else nees[0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)        # steps before the filter started: all NaN
+            mean = np.nanmean(nees, axis=0)
         lo, hi = nees_band(len(nees), dof)
         sel = np.arange(nees.shape[1]) >= t0
         sel &= np.all(np.isfinite(nees), axis=0)

@@ -30,10 +30,10 @@ def _fmt(v, k=1.0, f="%.3g"):
     return ", ".join(f % x for x in a)
 
 
-def _campaign(fn, case, workers, runs_n=RUNS):
+def _campaign(fn, case, workers, runs_n=RUNS, **kw):
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
-        res = campaign.run_campaign(fn, list(range(runs_n)), d, workers=workers, progress=False, case=case)
+        res = campaign.run_campaign(fn, list(range(runs_n)), d, workers=workers, progress=False, case=case, **kw)
         wall = time.perf_counter() - t0
     return res, wall
 
@@ -95,6 +95,12 @@ def main():
         by[("apkf", case)] = runs.aggregate(_campaign(runs.run_apkf, case, workers=2)[0], "apkf", case)
     by[("mekf", None)] = runs.aggregate(_campaign(runs.run_mekf, 1, workers=2)[0], "mekf", 1)
     print(accuracy_tables(by))
+    diag = runs.aggregate(_campaign(runs.run_apkf, 1, workers=2, start_at_truth=True)[0], "apkf", 1)
+    print("\nDiagnostic, APKF case 1 started at the true parameters (same P0): NEES in band %.2f (mean %.2f, "
+          "band %.2f-%.2f); final attitude 1 sigma %s arcsec, RMS error %s arcsec."
+          % (diag["nees_in_band_fraction"], diag["nees"]["mean_after"], diag["nees"]["band"][0],
+             diag["nees"]["band"][1], _fmt(diag["final_sigma_attitude_arcsec"], 1, "%.2f"),
+             _fmt(diag["final_error_attitude_arcsec"], 1, "%.2f")))
     print("\n(accuracy campaigns took %.0f s)\n" % (time.perf_counter() - t0))
 
     pred_us, upd_us = step_time()

@@ -122,13 +122,19 @@ def _write_run(run_dir, res, t, err, sig, nees):
     write_json(os.path.join(run_dir, "result.json"), res)
 
 
-def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True):
-    """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series."""
+def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False):
+    """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series.
+    ``start_at_truth`` (a diagnostic, not in the CLI) starts the parameters at their true values, same P0."""
     o = _simulate(case, seed, params, gyro=False)
     k0 = _start(o)
     q0 = o["st_q"][k0]
     w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))       # differentiated (Sec. 4.8)
-    f = apkf.APKF(apkf.initial_state(q0, w0, o["tach"][k0]), case=case, set_ends=o["set_ends"])
+    x0 = apkf.initial_state(q0, w0, o["tach"][k0])
+    if start_at_truth:
+        tr = o["truth"]
+        x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
+                                                                  tr["jrw"])
+    f = apkf.APKF(x0, case=case, set_ends=o["set_ends"])
     n = len(o["t"])
     err = np.full((n, apkf.N), np.nan)
     sig = np.full((n, apkf.N), np.nan)

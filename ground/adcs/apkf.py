@@ -84,7 +84,7 @@ QD2 = 0.1 * QD1
 class Model:
     """What the filter knows: nominal geometry, the Jxx reference, the orbit and field, noise levels."""
 
-    def __init__(self, dt=1.0, jxx=J0_THESIS[0], orbit=None, field=None, dipole_known=False,
+    def __init__(self, dt=1.0, jxx=J0_THESIS[0], orbit=None, field=None,
                  sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0):
         self.dt = float(dt)
         self.jxx = float(jxx)

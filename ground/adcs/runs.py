@@ -12,7 +12,6 @@ compared with the 95 % band chi2(6N) / N (Bar-Shalom), after the first maneuver 
 """
 
 import json
-import math
 import os
 import warnings
 
@@ -248,12 +247,6 @@ def aggregate(results, name, case, dof=6):
                      "note": "mean over runs of e^T P^-1 e (attitude + %s); band: 95 %% chi-square"
                              % ("rate" if name == "apkf" else "gyro bias")}
     return s
-
-
-def finite_or_none(v):
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
 
 
 def load_run(run_dir):

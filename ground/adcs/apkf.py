@@ -149,19 +149,24 @@ def terms(x, model, t):
     J = inertia(x, model)
     C = c_rw(x, model)
     r_i, k, b_i = model.env_inertial(t)
-    return {"J": J, "Ji": np.linalg.inv(J), "C": C, "jrw": x[26:30], "W": x[30:34],
-            "acc": (x[38:42] - x[34:38]) / model.dt, "r_i": r_i, "k": k, "b_i": b_i}
+    m = {"J": J, "Ji": np.linalg.inv(J), "C": C, "jrw": x[26:30], "W": x[30:34],
+         "acc": (x[38:42] - x[34:38]) / model.dt, "r_i": r_i, "k": k, "b_i": b_i}
+    _wheel_terms(m)
+    return m
+
+
+def _wheel_terms(m):
+    cj = m["C"] * m["jrw"]
+    m["cjW"], m["cja"] = cj @ m["W"], cj @ m["acc"]              # C Jrw W, C Jrw a
 
 
 def _rates(q, w, x, m, s):
     """(q_dot, w_dot, r_b, b_b, H, T) at s seconds into the step (Eq. 4.10, 4.83)."""
     A = quat.dcm(q)
     r, b = A @ m["r_i"], A @ m["b_i"]
-    cj = m["C"] * m["jrw"]
     J = m["J"]
-    h = J @ w + cj @ (m["W"] + m["acc"] * s)
-    T = (-env.cross3(w, h) - cj @ m["acc"] + m["k"] * env.cross3(r, J @ r) + env.cross3(x[15:18], b)
-         + x[7:10])
+    h = J @ w + m["cjW"] + m["cja"] * s
+    T = -env.cross3(w, h) - m["cja"] + m["k"] * env.cross3(r, J @ r) + env.cross3(x[15:18], b) + x[7:10]
     e, q4 = q[0:3], q[3]
     q_dot = 0.5 * np.array([q4 * w[0] - (w[1] * e[2] - w[2] * e[1]), q4 * w[1] - (w[2] * e[0] - w[0] * e[2]),
                             q4 * w[2] - (w[0] * e[1] - w[1] * e[0]), -(w @ e)])
@@ -174,6 +179,7 @@ def rates(x, model, t, w_rw, acc, env_i=None):
     if env_i is not None:
         m["r_i"], m["k"], m["b_i"] = env_i
     m["W"], m["acc"] = w_rw, acc
+    _wheel_terms(m)
     return _rates(x[0:4], x[4:7], x, m, 0.0)[:2]
 
 

@@ -125,8 +125,12 @@ def test_joseph_equals_standard_update_when_well_conditioned():
     xs, Ps = apkf.update_standard(x, P, q_meas, R)
     assert np.allclose(xj, xs, rtol=0, atol=1e-14)
     assert np.allclose(Pj, Ps, rtol=1e-9, atol=1e-12 * np.abs(P).max())
-    # and a suboptimal gain: Joseph stays symmetric PSD, the standard form does not equal it
     assert np.abs(Pj - P).max() > 1e-6
+    # the fast form in apkf.update is the textbook Joseph form (Eq. 4.142) with H = [I3 0]
+    H = np.zeros((3, apkf.N))
+    H[:, :3] = np.eye(3)
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+    assert np.allclose(Pj, mekf.joseph(P, H, R, K), rtol=1e-10, atol=1e-14)
 
 
 def test_mekf_phi_is_the_exponential():

@@ -25,7 +25,7 @@ import numpy as np
 
 from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import J0_THESIS, Spacecraft, dcm, inertia_matrix, quat_mul
-from emulator.spacecraft.wheels import J_RW_NOMINAL, N_WHEELS, Wheels, WheelParams, pyramid_c0
+from emulator.spacecraft.wheels import J_RW_NOMINAL, Wheels, WheelParams, pyramid_c0
 
 DEG = np.pi / 180.0
 ARCSEC = DEG / 3600.0

@@ -50,7 +50,7 @@ import numpy as np
 from emulator.spacecraft import environment as env
 from emulator.spacecraft.dynamics import J0_THESIS
 from emulator.spacecraft.wheels import J_RW_NOMINAL, misalignment_axes, pyramid_c0
-from ground.adcs import mekf, quat
+from ground.adcs import quat
 from ground.adcs.quat import skew
 
 HOUR = 3600.0
@@ -84,7 +84,7 @@ QD2 = 0.1 * QD1
 class Model:
     """What the filter knows: nominal geometry, the Jxx reference, the orbit and field, noise levels."""
 
-    def __init__(self, dt=1.0, jxx=J0_THESIS[0], orbit=None, field=None, dipole_known=False,
+    def __init__(self, dt=1.0, jxx=J0_THESIS[0], orbit=None, field=None,
                  sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0):
         self.dt = float(dt)
         self.jxx = float(jxx)
@@ -138,85 +138,98 @@ def initial_covariance(model):
     return np.diag(d)
 
 
-# --- dynamics --------------------------------------------------------------------------------------------
-def rates(x, model, t, w_rw, acc, env_i=None):
-    """(q_dot, w_dot) of Eq. 4.10 and 4.83 at wheel speed w_rw and acceleration acc."""
-    q, w = x[0:4], x[4:7]
+# --- dynamics ------------------------------------------------------------------------------------------
+def omega5(v):
+    """[E_k v] for the J5 basis (the Omega_5 of Eq. 4.111): d(J v)/dJ5, 3 x 5."""
+    return np.array([[0.0, 0.0, v[1], v[2], 0.0], [v[1], 0.0, v[0], 0.0, v[2]], [0.0, v[2], 0.0, v[0], v[1]]])
+
+
+def terms(x, model, t):
+    """What one step's model needs, computed once: J, J^-1, C, Jrw, W, a = (W+ - W-)/dt, orbit and field."""
     J = inertia(x, model)
     C = c_rw(x, model)
-    jrw = x[26:30]
-    r_i, k, b_i = env_i if env_i is not None else model.env_inertial(t)
+    r_i, k, b_i = model.env_inertial(t)
+    m = {"J": J, "Ji": np.linalg.inv(J), "C": C, "jrw": x[26:30], "W": x[30:34],
+         "acc": (x[38:42] - x[34:38]) / model.dt, "r_i": r_i, "k": k, "b_i": b_i}
+    _wheel_terms(m)
+    return m
+
+
+def _wheel_terms(m):
+    cj = m["C"] * m["jrw"]
+    m["cjW"], m["cja"] = cj @ m["W"], cj @ m["acc"]              # C Jrw W, C Jrw a
+
+
+def _rates(q, w, x, m, s):
+    """(q_dot, w_dot, r_b, b_b, H, T) at s seconds into the step (Eq. 4.10, 4.83)."""
     A = quat.dcm(q)
-    r, b = A @ r_i, A @ b_i
-    h = J @ w + C @ (jrw * w_rw)
-    T = -env.cross3(w, h) - C @ (jrw * acc) + k * env.cross3(r, J @ r) + env.cross3(x[15:18], b) + x[7:10]
-    w_dot = np.linalg.solve(J, T)
+    r, b = A @ m["r_i"], A @ m["b_i"]
+    J = m["J"]
+    h = J @ w + m["cjW"] + m["cja"] * s
+    T = -env.cross3(w, h) - m["cja"] + m["k"] * env.cross3(r, J @ r) + env.cross3(x[15:18], b) + x[7:10]
     e, q4 = q[0:3], q[3]
-    q_dot = 0.5 * np.concatenate([q4 * w - env.cross3(w, e), [-(w @ e)]])
-    return q_dot, w_dot
+    q_dot = 0.5 * np.array([q4 * w[0] - (w[1] * e[2] - w[2] * e[1]), q4 * w[1] - (w[2] * e[0] - w[0] * e[2]),
+                            q4 * w[2] - (w[0] * e[1] - w[1] * e[0]), -(w @ e)])
+    return q_dot, m["Ji"] @ T, r, b, h, T
 
 
-def propagate(x, model, t):
+def rates(x, model, t, w_rw, acc, env_i=None):
+    """(q_dot, w_dot) of Eq. 4.10 and 4.83 at wheel speed w_rw and acceleration acc."""
+    m = terms(x, model, t)
+    if env_i is not None:
+        m["r_i"], m["k"], m["b_i"] = env_i
+    m["W"], m["acc"] = w_rw, acc
+    _wheel_terms(m)
+    return _rates(x[0:4], x[4:7], x, m, 0.0)[:2]
+
+
+def propagate(x, model, t, m=None):
     """x from t to t + dt: RK4 of q and w with W(s) linear from W to W + (W+ - W-) (Eq. 4.95); the wheel speed
-    state moves by W+ - W-; parameters constant."""
+    state moves by W+ - W-; parameters constant. The orbit and field are taken at mid-step (``m``) unless given:
+    they turn by < 0.1 deg over a step."""
     dt = model.dt
-    acc = (x[38:42] - x[34:38]) / dt
-    w0 = x[30:34]
-    env_i = model.env_inertial(t + 0.5 * dt)           # orbit and field change by < 0.1 deg over a step
-
-    def f(y, s):
-        xx = x.copy()
-        xx[0:7] = y
-        qd, wd = rates(xx, model, t + s, w0 + acc * s, acc, env_i)
-        return np.concatenate([qd, wd])
-
-    y = x[0:7]
-    k1 = f(y, 0.0)
-    k2 = f(y + 0.5 * dt * k1, 0.5 * dt)
-    k3 = f(y + 0.5 * dt * k2, 0.5 * dt)
-    k4 = f(y + dt * k3, dt)
-    y = y + dt / 6.0 * (k1 + 2 * (k2 + k3) + k4)
+    if m is None:
+        m = terms(x, model, t + 0.5 * dt)
+    q, w = x[0:4], x[4:7]
+    q1, w1 = _rates(q, w, x, m, 0.0)[:2]
+    q2, w2 = _rates(q + 0.5 * dt * q1, w + 0.5 * dt * w1, x, m, 0.5 * dt)[:2]
+    q3, w3 = _rates(q + 0.5 * dt * q2, w + 0.5 * dt * w2, x, m, 0.5 * dt)[:2]
+    q4, w4 = _rates(q + dt * q3, w + dt * w3, x, m, dt)[:2]
     out = x.copy()
-    out[0:4] = y[0:4] / np.linalg.norm(y[0:4])
-    out[4:7] = y[4:7]
-    out[30:34] = w0 + acc * dt
+    qn = q + dt / 6.0 * (q1 + 2 * (q2 + q3) + q4)
+    out[0:4] = qn / np.sqrt(qn @ qn)
+    out[4:7] = w + dt / 6.0 * (w1 + 2 * (w2 + w3) + w4)
+    out[30:34] = m["W"] + m["acc"] * dt
     return out
 
 
-def jacobian(x, model, t):
+def jacobian(x, model, t, m=None):
     """F (41 x 41) of Eq. 4.98 at x (see the module docstring for each block)."""
     dt = model.dt
-    q, w = x[0:4], x[4:7]
-    J = inertia(x, model)
-    Ji = np.linalg.inv(J)
-    C = c_rw(x, model)
-    jrw, wr = x[26:30], x[30:34]
-    acc = (x[38:42] - x[34:38]) / dt
-    r_i, k, b_i = model.env_inertial(t)
-    A = quat.dcm(q)
-    r, b = A @ r_i, A @ b_i
+    if m is None:
+        m = terms(x, model, t)
+    w = x[4:7]
+    _, w_dot, r, b, h, _ = _rates(x[0:4], w, x, m, 0.0)
+    J, Ji, C, jrw, wr, acc, k = m["J"], m["Ji"], m["C"], m["jrw"], m["W"], m["acc"], m["k"]
     wx, rx, bx = skew(w), skew(r), skew(b)
-    h = J @ w + C @ (jrw * wr)
-    T = -env.cross3(w, h) - C @ (jrw * acc) + k * env.cross3(r, J @ r) + env.cross3(x[15:18], b) + x[7:10]
-    w_dot = Ji @ T
     F = np.zeros((N, N))
-    F[IQ, IQ] = -wx
-    F[IQ, IW] = 0.5 * np.eye(3)
-    F[IW, IQ] = Ji @ (k * (rx @ J - skew(J @ r)) @ (2 * rx) + skew(x[15:18]) @ (2 * bx))
-    F[IW, IW] = Ji @ (-wx @ J + skew(h))
-    F[IW, ITD] = Ji
-    for i in range(5):
-        E = _E[i]
-        F[3:6, 9 + i] = Ji @ (-env.cross3(w, E @ w) + k * env.cross3(r, E @ r) - E @ w_dot)
-    F[IW, IM] = -Ji @ bx
-    F[IW, ID1] = -Ji @ (wx @ model.c1 * (jrw * wr) + model.c1 * (jrw * acc))
-    F[IW, ID2] = -Ji @ (wx @ model.c2 * (jrw * wr) + model.c2 * (jrw * acc))
-    F[IW, IJR] = -Ji @ (wx @ C * wr + C * acc)
-    F[IW, IWR] = -Ji @ wx @ C * jrw
-    F[IW, IWM] = Ji @ C * (jrw / dt)
-    F[IW, IWP] = -F[IW, IWM]
-    F[IWR, IWM] = -np.eye(NW) / dt
-    F[IWR, IWP] = np.eye(NW) / dt
+    F[0:3, 0:3] = -wx
+    F[0:3, 3:6] = 0.5 * np.eye(3)
+    F[3:6, 0:3] = Ji @ (k * (rx @ J - skew(J @ r)) @ (2 * rx) + skew(x[15:18]) @ (2 * bx))
+    F[3:6, 3:6] = Ji @ (-wx @ J + skew(h))
+    F[3:6, 6:9] = Ji
+    F[3:6, 9:14] = Ji @ (-wx @ omega5(w) + k * rx @ omega5(r) - omega5(w_dot))
+    F[3:6, 14:17] = -Ji @ bx
+    jw, ja = jrw * wr, jrw * acc
+    F[3:6, 17:21] = -Ji @ (wx @ (model.c1 * jw) + model.c1 * ja)
+    F[3:6, 21:25] = -Ji @ (wx @ (model.c2 * jw) + model.c2 * ja)
+    F[3:6, 25:29] = -Ji @ (wx @ (C * wr) + C * acc)
+    JiC = Ji @ C
+    F[3:6, 29:33] = -(Ji @ wx @ C) * jrw
+    F[3:6, 33:37] = JiC * (jrw / dt)
+    F[3:6, 37:41] = -F[3:6, 33:37]
+    F[29:33, 33:37] = -np.eye(NW) / dt
+    F[29:33, 37:41] = np.eye(NW) / dt
     return F
 
 
@@ -282,10 +295,11 @@ def shift_tach(x, P, w_plus, R_rw):
 def predict(x, P, w_plus, model, t, case=1, scale=1.0):
     """(x, P) at t + dt from t, with the tachometer read-out w_plus at t + dt (rad/s)."""
     x, P = shift_tach(x, P, w_plus, model.R_rw)
-    F = jacobian(x, model, t)
+    m = terms(x, model, t + 0.5 * model.dt)           # orbit and field at mid-step for F and the propagation
+    F = jacobian(x, model, t, m)
     Phi = phi(F, model.dt)
     Q = process_noise(F, noise_density(x, case, scale), model.dt)
-    x = propagate(x, model, t)
+    x = propagate(x, model, t, m)
     P = Phi @ P @ Phi.T + Q
     return x, 0.5 * (P + P.T)
 
@@ -296,10 +310,10 @@ def update(x, P, q_meas, R):
     S = P[IQ, IQ] + R                                    # H P H^T + R, H = [I3 0]
     K = np.linalg.solve(S, P[IQ, :]).T                   # P H^T S^-1 (Eq. 4.140)
     dx = K @ z                                           # Eq. 4.141
-    H = np.zeros((3, N))
-    H[:, IQ] = np.eye(3)
-    P = mekf.joseph(P, H, R, K)                          # Eq. 4.142
-    return correct(x, dx), P
+    # Eq. 4.142 with H = [I3 0]: (I - K H) P (I - K H)^T + K R K^T, without forming the 41 x 41 I - K H
+    AP = P - K @ P[IQ, :]
+    P = AP - AP[:, IQ] @ K.T + K @ R @ K.T
+    return correct(x, dx), 0.5 * (P + P.T)
 
 
 def update_standard(x, P, q_meas, R):

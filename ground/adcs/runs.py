@@ -12,8 +12,8 @@ compared with the 95 % band chi2(6N) / N (Bar-Shalom), after the first maneuver 
 """
 
 import json
-import math
 import os
+import warnings
 
 import numpy as np
 
@@ -121,13 +121,19 @@ def _write_run(run_dir, res, t, err, sig, nees):
     write_json(os.path.join(run_dir, "result.json"), res)
 
 
-def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True):
-    """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series."""
+def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False):
+    """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series.
+    ``start_at_truth`` (a diagnostic, not in the CLI) starts the parameters at their true values, same P0."""
     o = _simulate(case, seed, params, gyro=False)
     k0 = _start(o)
     q0 = o["st_q"][k0]
     w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))       # differentiated (Sec. 4.8)
-    f = apkf.APKF(apkf.initial_state(q0, w0, o["tach"][k0]), case=case, set_ends=o["set_ends"])
+    x0 = apkf.initial_state(q0, w0, o["tach"][k0])
+    if start_at_truth:
+        tr = o["truth"]
+        x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
+                                                                  tr["jrw"])
+    f = apkf.APKF(x0, case=case, set_ends=o["set_ends"])
     n = len(o["t"])
     err = np.full((n, apkf.N), np.nan)
     sig = np.full((n, apkf.N), np.nan)
@@ -228,7 +234,9 @@ def aggregate(results, name, case, dof=6):
     nees = np.array([r["series"]["nees"] for r in ok if "series" in r], dtype=float)
     t0 = ok[0]["set_ends_s"][0] if ok[0]["set_ends_s"] else 0.0
     if len(nees):
-        mean = np.nanmean(nees, axis=0) if np.isfinite(nees).any() else nees[0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)        # steps before the filter started: all NaN
+            mean = np.nanmean(nees, axis=0)
         lo, hi = nees_band(len(nees), dof)
         sel = np.arange(nees.shape[1]) >= t0
         sel &= np.all(np.isfinite(nees), axis=0)
@@ -239,12 +247,6 @@ def aggregate(results, name, case, dof=6):
                      "note": "mean over runs of e^T P^-1 e (attitude + %s); band: 95 %% chi-square"
                              % ("rate" if name == "apkf" else "gyro bias")}
     return s
-
-
-def finite_or_none(v):
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
 
 
 def load_run(run_dir):

@@ -142,5 +142,5 @@ def test_cli_bad_input(tmp_path, capsys, args, params, msg):
     extra = ["--params", _params(tmp_path, params)] if params is not None else []
     rc = cli.main(["adcs", "apkf", "--quiet", "-o", str(tmp_path / "o")] + args + extra)
     err = capsys.readouterr().err
-    assert rc == 1 and msg in err and err.startswith("fps adcs: error:")
+    assert rc == 2 and msg in err and err.startswith("fps adcs: error:")
     assert "Traceback" not in err

@@ -286,6 +286,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     except KeyboardInterrupt:
         interrupted = True
     except (OSError, ValueError) as exc:       # inputs were checked above: anything now is the run failing
+        rig = rig if rig is not None else getattr(exc, "rig", None)
         where = getattr(rig, "link_desc", None) or "%s over %s" % (runtime_name, link_name)
         failure = "%s: %s" % (where, exc)
     summary["link"] = link_counters(rig)

@@ -243,7 +243,11 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
         rig.link_desc = name + (" (%s)" % port if port and runtime != "board" else "")
         rig.process = proc
         rig.faults = ep.faults
-        _first_contact(rig, ep, proc, first_wait_s)
+        try:
+            _first_contact(rig, ep, proc, first_wait_s)
+        except OSError as exc:
+            exc.rig = rig          # the caller reports the link counters of a failed start
+            raise
         if realtime:
             rig.lockstep.realtime = True
             rig.lockstep.deadline_s = 1.0 / rate_hz

@@ -114,6 +114,7 @@ def test_hil_sigterm_leaves_valid_partial_folder(tmp_path, inputs):
     assert s["complete"] is False and s["duration_s"] < 30
     z = np.load(out / "samples.npz")
     assert len(z["t_s"]) == s["q2_samples"]
+    assert abs(len(z["t_s"]) - 630 * s["duration_s"]) <= 2      # every sample played is kept, to the last tick
     assert b"partial run" in err
     assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
 

@@ -55,7 +55,8 @@ def add_link_arguments(p):
     p.add_argument("--link-faults", metavar="SPEC",
                    help="inject faults on the serial link, both directions: bytes=P (bit flip per byte), "
                         "frames=P (frame drop), seed=N, silence=START_S:LENGTH_S (no traffic for that span of "
-                        "virtual seconds; LENGTH_S may be inf), e.g. bytes=0.01,frames=0.05,seed=1")
+                        "virtual seconds, counted from the play's start in fps hil and from the run's start in "
+                        "fps calibrate; LENGTH_S may be inf), e.g. bytes=0.01,frames=0.05,seed=1")
     p.add_argument("--tick-timeout-ms", type=float, default=TICK_TIMEOUT_MS,
                    help="resend a TICK after this many ms without its answer (default %g)" % TICK_TIMEOUT_MS)
     p.add_argument("--tick-tries", type=int, default=TICK_TRIES,

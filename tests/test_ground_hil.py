@@ -11,25 +11,12 @@ import time
 import numpy as np
 import pytest
 
-from emulator.bench import Bench
-from emulator.truth import true_h_field
 from ground import report
 from ground.cli import main as fps
-from ground.fileio import write_json
 
 SUMMARY_KEYS = {"complete", "duration_s", "real_time_factor", "overruns", "q2", "truth"}
 STAT_KEYS = {"mean_arcsec", "std_arcsec", "max_radial_arcsec", "within_4_arcsec", "within_requirement",
              "pointing_loss_db"}
-
-
-@pytest.fixture(scope="module")
-def inputs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("hil_inputs")
-    dist = str(d / "stat.dist")
-    assert fps(["distfile", "generate", "--source", "stat", "--duration", "30", "--seed", "1", "-o", dist]) == 0
-    cal = str(d / "cal.json")
-    write_json(cal, true_h_field(Bench(noise=False), None, 0.01))
-    return dist, cal
 
 
 def _check_run(folder, duration):

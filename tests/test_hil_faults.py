@@ -19,23 +19,12 @@ from emulator.lockstep import Lockstep, RemoteController
 from emulator.truth import true_h_field
 from firmware.controller import SAFE, TRACK, Controller
 from ground.cli import main as fps
-from ground.fileio import write_json
 from ground.hil import mode_changes
 from ground.runtime import ROOT, micropython_binary
 from protocol import core, htable
 from protocol.faults import FaultyPort, LinkFaults
 
 CONTROL_COLS = 14      # telemetry.csv: the control columns; the last two are the link's own counters
-
-
-@pytest.fixture(scope="module")
-def inputs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("fault_inputs")
-    dist = str(d / "stat.dist")
-    assert fps(["distfile", "generate", "--source", "stat", "--duration", "30", "--seed", "1", "-o", dist]) == 0
-    cal = str(d / "cal.json")
-    write_json(cal, true_h_field(Bench(noise=False), None, 0.01))
-    return dist, cal
 
 
 def _hil(tmp_path, inputs, name, *extra, duration="3"):

@@ -234,6 +234,11 @@ def statistics(dtheta, domega):
 
 
 # --- 3. pointing and tracking -------------------------------------------------------------------------------
+def truth_span(seconds):
+    """The truth's span for a run of ``seconds``: rounded up to 1000 s so runs of similar length share it."""
+    return float(np.ceil((seconds + 2) / 1000.0) * 1000.0)
+
+
 def check_ts(ts):
     return control.natural_frequency(ts) and float(ts)
 
@@ -251,7 +256,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
     t_settle = hold_s + settle_ts * ts
     K = int(np.ceil(t_settle + duration_s))
-    t_s, xs = orbits.truth_samples(truth, K + 2, cache_dir=cache_dir)
+    t_s, xs = orbits.truth_samples(truth, truth_span(K), cache_dir=cache_dir)
     rate = 20
     tg = np.arange(0, (K + 1) * rate + 1) / rate
     xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)   # Sec. 6.4.1
@@ -415,10 +420,10 @@ def run_one(seed, run_dir, params=None, **kw):
     return res
 
 
-def sweep_one(seed, run_dir, ts_list=(), params=None, **kw):
-    """Campaign entry for the sweep: ``seed`` indexes ts_list (one run per ts, the same noise seed 0 + kw)."""
+def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, **kw):
+    """Campaign entry for the sweep: ``seed`` indexes ts_list (one run per t_s, all with ``noise_seed``)."""
     ts = ts_list[seed]
-    res, hist = simulate(ts=ts, params=params, **kw)
+    res, hist = simulate(ts=ts, params=params, seed=noise_seed, **kw)
     if run_dir:
         os.makedirs(run_dir, exist_ok=True)
         write_json(os.path.join(run_dir, "result.json"), res)

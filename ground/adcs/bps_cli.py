@@ -47,6 +47,16 @@ def parse_ts_range(text):
     return [float(v) for v in out]
 
 
+MAX_DURATION_S = 86400.0
+
+
+def check_run_args(a):
+    if not (1 <= a.duration <= MAX_DURATION_S):
+        raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, a.duration))
+    if not 0 <= a.seed < 2 ** 32:
+        raise ValueError("--seed must be in [0, 2**32), got %r" % a.seed)
+
+
 def _key(d):
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -145,8 +155,7 @@ def plot_history(path, hist, settle_s, title):
 
 def _cmd_bps(a):
     ts = bps.check_ts(a.ts)
-    if not (a.duration >= 1):
-        raise ValueError("--duration must be >= 1 s, got %r" % a.duration)
+    check_run_args(a)
     params = bps.load_params(a.params)[-1] if a.params else None
     out = a.output
     os.makedirs(out, exist_ok=True)
@@ -232,8 +241,7 @@ def plot_sweep(path, s):
 
 def _cmd_sweep(a):
     ts_list = parse_ts_range(a.ts)
-    if not (a.duration >= 1):
-        raise ValueError("--duration must be >= 1 s, got %r" % a.duration)
+    check_run_args(a)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     params = bps.load_params(a.params)[-1] if a.params else None

@@ -11,8 +11,6 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-
 from ground.adcs import bps, bps_cli
 
 REDUCED = os.environ.get("BPS_BENCH_REDUCED") == "1"
@@ -85,8 +83,7 @@ def main():
         # distfile: cold (calibration cached as make hil has it after the first run) and from the cache
         dcache = os.path.join(tmp, "dcache")
         args = ["distfile", "generate", "--source", "bps", "--duration", "600", "--seed", "1", "--bps-cache", dcache,
-                "--quiet", "-o", os.path.join(tmp, "b.dist")]
-        args = [a for a in args if a != "--quiet"]
+                "-o", os.path.join(tmp, "b.dist")]
         rc1, cold_s, _ = _fps(args, tmp)
         rc2, warm_s, _ = _fps(args, tmp)
         print()

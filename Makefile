@@ -34,15 +34,17 @@ protocol-doc: $(STAMP)
 	$(VENV)/bin/fps protocol table > protocol/PROTOCOL.md
 
 distfile: $(STAMP)
-	$(VENV)/bin/fps distfile generate --source stat --duration 600 --seed 1 -o $(OUT)/stat600.dist
+	$(VENV)/bin/fps distfile generate --source bps --duration 600 --seed 1 --bps-cache $(OUT)/bps_cache \
+	    -o $(OUT)/bps600.dist
 
 calibrate: $(STAMP)
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
 
 hil: $(STAMP)
-	$(VENV)/bin/fps distfile generate --source stat --duration 600 --seed 1 -o $(OUT)/stat600.dist
+	$(VENV)/bin/fps distfile generate --source bps --duration 600 --seed 1 --bps-cache $(OUT)/bps_cache \
+	    -o $(OUT)/bps600.dist
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
-	$(VENV)/bin/fps hil --distfile $(OUT)/stat600.dist --calibration $(OUT)/calibration.json \
+	$(VENV)/bin/fps hil --distfile $(OUT)/bps600.dist --calibration $(OUT)/calibration.json \
 	    --duration 600 --runtime micropython --link serial -o $(OUT)/hil
 
 clean:

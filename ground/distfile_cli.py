@@ -30,10 +30,16 @@ def check_playable(x, y, period_us=resample.DIST_PERIOD_US):
                          | ~np.isfinite(x) | ~np.isfinite(y))
     if bad.size:
         i = int(bad[0])
+        with np.errstate(invalid="ignore"):
+            peak = float(np.nanmax(np.abs(np.concatenate([x, y]))))
+        excess = peak - MAX_THETA_E_ARCSEC
         raise ValueError("sample %d (t = %.3f s) = (%.2f, %.2f) arcsec is beyond the P-FSM's range: "
                          "|theta_e| <= %.1f arcsec (+-%g deg mechanical / %.2f, Eq. 7.7); %d samples out of "
-                         "range; not clipped" % (i, i * period_us * 1e-6, x[i], y[i], MAX_THETA_E_ARCSEC,
-                                                PFSM_MAX_DEG, MAG_PFSM, bad.size))
+                         "range, the largest |theta_e| %.1f arcsec passes the limit by %.1f arcsec (the P-FSM "
+                         "would need %.3f deg, %.3f deg beyond its +-%g deg); not clipped"
+                         % (i, i * period_us * 1e-6, x[i], y[i], MAX_THETA_E_ARCSEC, PFSM_MAX_DEG, MAG_PFSM,
+                            bad.size, peak, excess, peak * MAG_PFSM / 3600.0, excess * MAG_PFSM / 3600.0,
+                            PFSM_MAX_DEG))
 
 
 def generate(source, duration_s, seed, source_name=None):
@@ -49,6 +55,8 @@ def generate(source, duration_s, seed, source_name=None):
     t, x, y = source.generate(duration_s, seed)
     xr, yr = resample.to_dist_step(t, x, y, duration_s)
     check_playable(xr, yr)
+    if hasattr(source, "header_source"):      # a source that names its own parameters (bps)
+        source_name = source.header_source()
     return distfile.pack(xr, yr, period_us=resample.DIST_PERIOD_US, kind=distfile.KIND_FLOAT32,
                          source=source_name or getattr(source, "name", "user"), seed=int(seed))
 
@@ -80,6 +88,11 @@ def _cmd_generate(a):
     src = sources.get_source(a.source).from_args(a)
     data = generate(src, a.duration, a.seed, a.source)
     write_atomic(a.output, data)
+    if getattr(src, "inputs", None) is not None:          # the source's parameters in full, beside the file
+        from ground.fileio import write_json
+        write_json(a.output + ".json", dict(src.inputs, from_cache=bool(getattr(src, "from_cache", False))))
+        print("source parameters in %s.json%s" % (a.output, " (run taken from the cache)"
+                                                    if getattr(src, "from_cache", False) else ""))
     d, x, y = load(a.output)
     s = stats(x, y)
     print("wrote %s: %d samples at %d us (%.1f s), source %s, seed %d; 1-sigma (%.2f, %.2f) arcsec, "

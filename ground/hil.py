@@ -293,6 +293,9 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     if rig is not None and tick0 is None:
         summary["overruns"] = rig.lockstep.n_overrun
     summary.update(_finish(rec, q2cal, t0_us, complete=not (interrupted or failure), plots=plots))
+    n_played = min(len(dx), int(round(rec.virtual_s * 1e6 / d.period_us)) + 1)
+    summary["disturbance"] = report.error_stats(dx[:n_played], dy[:n_played])   # the body pointing error played
+    summary["disturbance"]["source"] = d.source
     summary["mode_changes"] = mode_changes(rig, tick0) if tick0 is not None else []
     summary["interrupted"] = interrupted
     summary["error"] = failure

@@ -71,11 +71,20 @@ def table(summary):
             ("share within 11.98″ requirement", "within_requirement", True),
             ("mean pointing loss (dB)", "pointing_loss_db", False))
     q2, tr = summary.get("q2") or {}, summary.get("truth") or {}
-    out = ["| figure | thesis (Sec. 7.5) | ours: Q2 | ours: truth |", "|---|---|---|---|"]
+    dist = summary.get("disturbance")
+    out = ["| figure | thesis (Sec. 7.5) | ours: Q2 | ours: truth |" + (" disturbance played |" if dist else ""),
+           "|---|---|---|---|" + ("---|" if dist else "")]
     for label, key, pct in rows:
         out.append("| %s | %s | %s | %s |" % (label, _fmt(THESIS[key], pct), _fmt(q2.get(key), pct),
-                                              _fmt(tr.get(key), pct)))
+                                              _fmt(tr.get(key), pct))
+                   + (" %s |" % _fmt(dist.get(key), pct) if dist else ""))
     out.append("")
+    if dist and dist.get("n"):
+        out.append("disturbance (body pointing error, distfile source %s): 1σ (%s) arcsec, largest %s arcsec; "
+                   "residual on Q2: 1σ %s arcsec, largest %s arcsec (the fine pointing system's rejection)"
+                   % (dist.get("source", "?"), ", ".join("%.2f" % v for v in dist["std_arcsec"]),
+                      _fmt(dist["max_radial_arcsec"]), _fmt(q2.get("std_arcsec")), _fmt(q2.get("max_radial_arcsec"))))
+        out.append("")
     out.append("thesis loss estimated from its mean and 1σ; Q2 samples %s, truth samples %s; requirement "
                "%.2f″ = FWHM/2, θ0 = %.3f″" % (q2.get("n", 0), tr.get("n", 0), REQUIREMENT_ARCSEC,
                                                THETA0_ARCSEC))

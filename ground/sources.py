@@ -241,3 +241,11 @@ def read_csv(path):
 register_source("stat", GaussMarkov2)
 register_source("sine", Sine)
 register_source("csv", CsvSource)
+
+
+def _register_bps():
+    from ground.adcs.bps_source import BpsSource   # the body pointing simulator of Sec. 6.4 (issue 11)
+    register_source("bps", BpsSource)
+
+
+_register_bps()

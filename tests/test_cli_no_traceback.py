@@ -157,6 +157,16 @@ def _bad_cases(f):
                   ["adcs", sub, "-o", o, "--workers", "0"], ["adcs", sub, "-o", o, "--seed", "-1e40"],
                   ["adcs", sub, "-o", o, "--params", f["missing"]], ["adcs", sub, "-o", o, "--params", f["garbage"]],
                   ["adcs", sub, "-o", o, "--scheduler", "tcp://127.0.0.1:9", "--runs", "1"]]
+    for sub, ts in (("bps", "0"), ("sweep", "10:5:5")):
+        cases += [["adcs", sub, "-o", o, "--ts", ts], ["adcs", sub, "-o", o, "--ts", "nan"],
+                  ["adcs", sub, "-o", o, "--ts", "-1"], ["adcs", sub, "-o", o, "--duration", "0"],
+                  ["adcs", sub, "-o", o, "--duration", "1e40"], ["adcs", sub, "-o", o, "--seed", "-1"],
+                  ["adcs", sub, "-o", o, "--params", f["missing"]], ["adcs", sub, "-o", o, "--params", f["garbage"]],
+                  ["adcs", sub, "-o", o, "--params", f["nanjson"]]]
+    cases += [["adcs", "sweep", "-o", o, "--ts", "x"], ["adcs", "sweep", "-o", o, "--workers", "0"],
+              ["distfile", "generate", "-o", o, "--source", "bps", "--ts", "0"],
+              ["distfile", "generate", "-o", o, "--source", "bps", "--params", f["garbage"]],
+              ["distfile", "generate", "-o", o, "--source", "bps", "--bps-truth", "nope"]]
     return cases
 
 
@@ -166,7 +176,8 @@ def test_every_command_is_covered(files):
                for a in _bad_cases(files) if a and a[0]}
     want = {("protocol", "encode"), ("protocol", "decode"), ("protocol", "dbc"), ("emulator", "config"),
             ("emulator", "truth-h"), ("emulator", "serve"), ("distfile", "generate"), ("distfile", "info"),
-            ("distfile", "csv"), ("calibrate",), ("hil",), ("adcs", "apkf"), ("adcs", "mekf"), ("adcs", "stkf")}
+            ("distfile", "csv"), ("calibrate",), ("hil",), ("adcs", "apkf"), ("adcs", "mekf"), ("adcs", "stkf"),
+            ("adcs", "bps"), ("adcs", "sweep")}
     assert want <= reached
     assert {c[0] for c in cli.COMMANDS} == {w[0] for w in want}
 

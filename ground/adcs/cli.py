@@ -99,7 +99,17 @@ def _stkf(sub):
     stkf_cli.register(sub, "stkf", "satellite tracking KF with the EAFLS for SatB's delayed GNSS (Sec. 5.5)")
 
 
-SUBCOMMANDS = [_apkf, _mekf, _stkf]
+def _bps(sub):
+    from ground.adcs import bps_cli
+    bps_cli.register_bps(sub)
+
+
+def _sweep(sub):
+    from ground.adcs import bps_cli
+    bps_cli.register_sweep(sub)
+
+
+SUBCOMMANDS = [_apkf, _mekf, _stkf, _bps, _sweep]
 
 
 def register(sub, name, help_):

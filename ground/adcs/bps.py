@@ -1,0 +1,430 @@
+"""The body pointing simulator (BPS) of Yoon 2017, Sec. 6.4: calibration, parameter file, pointing and tracking.
+
+Truth (the spacecraft simulator of Fig. 6-1): ``emulator.spacecraft.Spacecraft`` (Eq. 4.16, 4.56; true J, wheel
+inertias and misalignments, residual dipole of Sec. 4.8) by RK4 at 0.1 s, sampled at 10 Hz. The orbits of SatA
+and SatB are the STKF issue's truth (``emulator.orbits.truth_samples``: brahe "hpop" or "two-body", 1 s samples)
+interpolated by 10th-order Lagrange (Sec. 6.4.1) onto a 20 Hz grid; the spacecraft's gravity gradient and
+magnetic field use SatA's interpolated position, and so does the APKF's model. Sensors (their own time tags): the
+star tracker (20/20/60 arcsec, none at |w| >= 0.1 deg/s) and the tachometers (10 rpm) at each 1 s tick, SatA's
+GNSS and the beacon (60 arcsec) at each tick, SatB's GNSS on SatB's clock (random phase) relayed 2-3 s late.
+
+Flight software at 1 Hz, from the sensor outputs and wheel read-outs only: the APKF (``ground.adcs.apkf``,
+started from the parameter file), the STKF with the EAFLS (``ground.adcs.stkf``/``afls``, the attitude
+covariance 4 P_qq from the APKF as in Sec. 5.3.3) and the controller of ``ground.adcs.control`` (command
+from the STKF's rA, vA, rB; PD on the APKF's q, w; its J, C, Jrw; minimum-norm wheel torques, held 1 s).
+
+Sequence (Sec. 6.4.2):
+1. ``calibrate``: nine sets of the Sec. 4.7.1 calibration maneuver (the ``emulator.spacecraft.scenario``
+   truth at 1 s, whose controller has perfect q and w as in Sec. 4.8) with the APKF; 30 s + 9 x 180 s = 1650 s.
+   (Stated: the calibration is not closed through the APKF here; Sec. 6.4.2 does not say it is.)
+2. The APKF's final parameters and covariances go to a parameter file (``write_params``; format below).
+3. ``simulate``: the pointing-and-tracking run from q = [0, 0, 0, 1] at rest, the APKF started from that
+   file (attitude and rate from the first two star-tracker outputs). The wheels stay idle for a 30 s hold while
+   the APKF's rate converges on the star tracker (stated: without it the slew starts with the rate still at its
+   (10 deg/s)^2 prior, the star tracker goes blind above 0.1 deg/s, and the filter never regains it; measured:
+   errors of ~10^4 arcsec). After the hold and 4 t_s of settling the pointing error
+   (dtheta1, dtheta2, Eq. 6.12-6.17) and the stability (domega1, domega2, Eq. 6.18-6.21) are collected at 10 Hz.
+
+Parameter file (JSON): ``format`` "fps-bps-params/1"; ``wheels`` 4; ``jxx_ref_kgm2`` (the APKF's fixed
+reference Jxx, Sec. 4.6.2); ``torque_scale`` s (the APKF's relative scale, from ``absolute_jrw``: the controller
+divides the filter's J, Jrw, m, tau_d by it); ``x`` {tau_d_nm [3], J5_kgm2 [Jyy, Jzz, Jxy, Jxz, Jyz], dipole_am2 [3],
+delta1_rad [4], delta2_rad [4], jrw_kgm2 [4]}; ``P`` the 23 x 23 covariance of those (same order);
+``calibration`` {seed, sets, duration_s}. Refused: a wheel count other than the spacecraft's 4, an inertia that is
+not positive definite, wheel inertias <= 0, a covariance that is not symmetric positive definite.
+
+Units in the outputs: arcsec and arcsec/s; J (Eq. 6.22) in rad^2, like Fig. 6-2's axis.
+"""
+
+import io
+import json
+import os
+import time
+
+import numpy as np
+
+from emulator import orbits
+from emulator.navsensors import Beacon, Gnss, Relay
+from emulator.spacecraft import scenario
+from emulator.spacecraft.devices import StarTracker
+from emulator.spacecraft.dynamics import Spacecraft, dcm
+from emulator.spacecraft.wheels import N_WHEELS, Wheels, WheelParams
+from ground.adcs import apkf, control, quat, stkf
+from ground.adcs.afls import Afls
+from ground.adcs.stkf_sim import LAG_S, P0_DIAG, _blockdiag
+from ground.fileio import write_atomic, write_json
+from ground.resample import lagrange
+
+ARCSEC = quat.ARCSEC
+FORMAT = "fps-bps-params/1"
+CAL_SETS = 9
+W_OBJ = np.array([1.0, 1.0, 10.0, 10.0])        # Eq. 6.24
+THESIS = {  # Sec. 6.4.4, ts = 33 s: (mean, 1 sigma)
+    False: {"theta": ((1.261, 21.456), (18.644, 35.919)), "omega": ((-0.033, 6.764), (-0.031, 8.617))},
+    True: {"theta": ((0.955, 20.143), (12.795, 33.945)), "omega": ((-0.024, 7.054), (-0.128, 8.744))},
+}
+TS_THESIS = 33.0
+BUDGET_POINTING_3SIGMA = 150.0
+BUDGET_STABILITY_3SIGMA = 35.0
+HOLD_S = 30.0      # wheels idle while the APKF converges on the star tracker (as the 30 s hold of Sec. 4.7.1)
+SUMMARY_KEYS = ("pointing_mean_arcsec", "pointing_sigma_arcsec", "stability_mean_arcsec_s",
+                "stability_sigma_arcsec_s", "pointing_3sigma_arcsec", "stability_3sigma_arcsec_s", "complete")
+
+
+class GridOrbit:
+    """SatA's position on a fine time grid (the 10th-order Lagrange interpolation done once, vectorised)."""
+
+    def __init__(self, t0, rate_hz, r):
+        self.t0, self.rate, self.r = float(t0), float(rate_hz), r
+
+    def position(self, t):
+        i = int(round((t - self.t0) * self.rate))
+        return self.r[min(max(i, 0), len(self.r) - 1)]
+
+
+# --- parameter file ------------------------------------------------------------------------------------------
+def absolute_jrw(u, tach, dt=1.0):
+    """Each wheel's absolute inertia from the commanded motor torques u[k] (held over step k -> k+1) and the
+    tachometer read-outs: least squares of dW_i = u_i dt / Jrw_i (friction and the body's own acceleration,
+    < 1 % here, are neglected). Our addition: the APKF's calibration is relative (everything scaled by
+    s = Jxx_ref / Jxx, Sec. 4.6.2), and a controller must know the absolute scale to cancel a torque."""
+    dW = np.diff(tach, axis=0)
+    uu = u[:-1] * dt
+    return np.sum(uu * uu, axis=0) / np.sum(uu * dW, axis=0)
+
+
+def torque_scale(x, jrw_abs, model):
+    """s_hat = mean over wheels of Jrw_filter |c_i| / Jrw_abs (|c_i| the unnormalised Eq. 4.60 column)."""
+    cn = np.sqrt(1 + x[18:22] ** 2 + x[22:26] ** 2)
+    return float(np.mean(x[26:30] * cn / jrw_abs))
+
+
+def params_from_apkf(x, P, jxx, meta, scale=1.0):
+    return {"format": FORMAT, "wheels": N_WHEELS, "jxx_ref_kgm2": float(jxx), "torque_scale": float(scale),
+            "x": {"tau_d_nm": x[7:10].tolist(), "J5_kgm2": x[10:15].tolist(), "dipole_am2": x[15:18].tolist(),
+                  "delta1_rad": x[18:22].tolist(), "delta2_rad": x[22:26].tolist(), "jrw_kgm2": x[26:30].tolist()},
+            "P": P[apkf.PARAMS, apkf.PARAMS].tolist(), "calibration": meta}
+
+
+def check_params(d, where="parameter file"):
+    """Validate a parameter file dict against the spacecraft; returns (x_params (23), P (23 x 23), jxx)."""
+    if not isinstance(d, dict) or d.get("format") != FORMAT:
+        raise ValueError("%s: not a BPS parameter file (format must be %r)" % (where, FORMAT))
+    if d.get("wheels") != N_WHEELS:
+        raise ValueError("%s: %r wheels, but the spacecraft has %d" % (where, d.get("wheels"), N_WHEELS))
+    try:
+        xd = d["x"]
+        parts = [np.array(xd[k], dtype=float) for k in ("tau_d_nm", "J5_kgm2", "dipole_am2", "delta1_rad",
+                                                         "delta2_rad", "jrw_kgm2")]
+        P = np.array(d["P"], dtype=float)
+        jxx = float(d["jxx_ref_kgm2"])
+        scale = float(d.get("torque_scale", 1.0))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError("%s: missing or non-numeric entry (%s)" % (where, exc)) from None
+    sizes = [3, 5, 3, N_WHEELS, N_WHEELS, N_WHEELS]
+    for p, n, k in zip(parts, sizes, ("tau_d_nm", "J5_kgm2", "dipole_am2", "delta1_rad", "delta2_rad",
+                                      "jrw_kgm2")):
+        if p.shape != (n,) or not np.all(np.isfinite(p)):
+            raise ValueError("%s: x.%s must be %d finite numbers (the spacecraft has %d wheels), got %r"
+                             % (where, k, n, N_WHEELS, xd[k]))
+    xp = np.concatenate(parts)
+    j5 = parts[1]
+    J = np.array([[jxx, j5[2], j5[3]], [j5[2], j5[0], j5[4]], [j5[3], j5[4], j5[1]]])
+    if not (np.isfinite(jxx) and np.linalg.eigvalsh(J)[0] > 0):
+        raise ValueError("%s: the inertia [Jxx ref %g; J5 %s] is not positive definite"
+                         % (where, jxx, j5.tolist()))
+    if np.any(parts[5] <= 0):
+        raise ValueError("%s: wheel inertias must be > 0, got %s" % (where, parts[5].tolist()))
+    if P.shape != (23, 23) or not np.all(np.isfinite(P)) or np.abs(P - P.T).max() > 1e-9 * np.abs(P).max():
+        raise ValueError("%s: P must be a symmetric 23 x 23 matrix" % where)
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        raise ValueError("%s: P is not positive definite" % where) from None
+    if not (np.isfinite(scale) and 0.2 < scale < 5):
+        raise ValueError("%s: torque_scale %r out of range (0.2, 5)" % (where, scale))
+    return xp, P, jxx, scale
+
+
+def load_params(path):
+    try:
+        with open(path) as f:
+            d = json.load(f)
+    except json.JSONDecodeError as exc:
+        raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
+    return check_params(d, path) + (d,)
+
+
+def write_params(path, d):
+    check_params(d, path)
+    write_json(path, d)
+
+
+# --- 1. calibration ----------------------------------------------------------------------------------------
+def calibrate(seed=0, sets=CAL_SETS, progress=False):
+    """Nine calibration maneuver sets through the APKF; returns the parameter-file dict (and the final errors)."""
+    from ground.adcs.runs import _start
+    man = scenario.Maneuver(sets=sets)
+    o = scenario.simulate(case=1, seed=seed, maneuver=man)
+    k0 = _start(o)
+    q0 = o["st_q"][k0]
+    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
+    f = apkf.APKF(apkf.initial_state(q0, w0, o["tach"][k0]), case=1, set_ends=o["set_ends"])
+    n = len(o["t"])
+    it = range(k0 + 1, n)
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(it, desc="calibration (%d sets)" % sets, unit="s", leave=False)
+    for k in it:
+        f.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
+        apkf.check_covariance(f.P, o["t"][k])
+    tr = o["truth"]
+    c0 = control.pyramid_c0()
+    u = np.array([control.wheel_torques(o["tau_c"][k], c0, 0.1, o["w_rel"][k - 1]) if k > 0 else np.zeros(4)
+                  for k in range(n)])                      # what scenario.simulate commanded over step k-1 -> k
+    u = np.clip(np.vstack([u[1:], np.zeros((1, 4))]), -1e-3, 1e-3)
+    jabs = absolute_jrw(u, o["tach"])
+    scale = torque_scale(f.x, jabs, f.model)
+    meta = {"seed": int(seed), "jrw_abs_kgm2": jabs.tolist(), "scale_true": float(tr["scale"]), "sets": int(sets), "duration_s": float(o["t"][-1]),
+            "final_error": {"J5_kgm2": (tr["J5"] - f.x[10:15]).tolist(),
+                            "delta_deg": np.degrees(np.concatenate([tr["delta1"] - f.x[18:22],
+                                                                    tr["delta2"] - f.x[22:26]])).tolist(),
+                            "jrw_kgm2": (tr["jrw"] - f.x[26:30]).tolist()}}
+    return params_from_apkf(f.x, f.P, f.model.jxx, meta, scale)
+
+
+# --- pointing error (Eq. 6.12-6.21) ------------------------------------------------------------------------
+def l_frame(laser_axis=control.LASER_AXIS):
+    """T_b of Eq. 6.17: body to the l frame whose z axis is l_b (minimum rotation of l_b onto z)."""
+    return dcm(control.min_rotation(np.array([0.0, 0.0, 1.0]), np.asarray(laser_axis, float)))
+
+
+def pointing_errors(q, w, ra, va, rb, vb, laser_axis=control.LASER_AXIS):
+    """(dtheta (n, 2) rad, domega (n, 2) rad/s) for arrays of true q, w and orbit states (Eq. 6.12-6.21).
+
+    p = rB - rA, p_b = A(q) p, p_l = T_b p_b / |p|, dtheta = asin(p_l[0:2]); v = vB - vA, v_b = A(q) v - w x p_b
+    (the line of sight's rate seen from the turning body), domega = (T_b v_b)[0:2] / |p|.
+    """
+    Tb = l_frame(laser_axis)
+    A = np.array([dcm(qq) for qq in q])
+    p = rb - ra
+    rho = np.linalg.norm(p, axis=1)
+    pb = np.einsum("nij,nj->ni", A, p)
+    pl = pb @ Tb.T / rho[:, None]
+    vb_ = np.einsum("nij,nj->ni", A, vb - va) - np.cross(w, pb)
+    vl = vb_ @ Tb.T / rho[:, None]
+    return np.arcsin(np.clip(pl[:, 0:2], -1, 1)), vl[:, 0:2]
+
+
+def objective(dtheta, domega):
+    """J = E[eps^T W eps] (Eq. 6.22-6.24), eps in rad and rad/s."""
+    e = np.column_stack([dtheta, domega])
+    return float(np.mean(e ** 2 @ W_OBJ))
+
+
+def statistics(dtheta, domega):
+    """The summary figures (arcsec, arcsec/s) of the collected samples."""
+    th, om = dtheta / ARCSEC, domega / ARCSEC
+    sth, som = th.std(axis=0), om.std(axis=0)
+    return {"pointing_mean_arcsec": th.mean(axis=0).tolist(), "pointing_sigma_arcsec": sth.tolist(),
+            "stability_mean_arcsec_s": om.mean(axis=0).tolist(), "stability_sigma_arcsec_s": som.tolist(),
+            "pointing_3sigma_arcsec": float(3 * np.hypot(*sth)),
+            "stability_3sigma_arcsec_s": float(3 * np.hypot(*som)),
+            "pointing_max_arcsec": float(np.abs(th).max()), "J_rad2": objective(dtheta, domega),
+            "samples": int(len(th))}
+
+
+# --- 3. pointing and tracking -------------------------------------------------------------------------------
+def truth_span(seconds):
+    """The truth's span for a run of ``seconds``: rounded up to 1000 s so runs of similar length share it."""
+    return float(np.ceil((seconds + 2) / 1000.0) * 1000.0)
+
+
+def check_ts(ts):
+    return control.natural_frequency(ts) and float(ts)
+
+
+def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
+             cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S):
+    """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection
+    time after the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict of 10 Hz arrays).
+    A KeyboardInterrupt returns what was collected so far with ``complete`` false."""
+    ts = check_ts(ts)
+    if params is None:
+        raise ValueError("simulate needs the parameter file (run calibrate first)")
+    xp, Pp, jxx, scale = check_params(params)
+    if not (np.isfinite(duration_s) and duration_s >= 1):
+        raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
+    t_settle = hold_s + settle_ts * ts
+    K = int(np.ceil(t_settle + duration_s))
+    t_s, xs = orbits.truth_samples(truth, truth_span(K), cache_dir=cache_dir)
+    rate = 20
+    tg = np.arange(0, (K + 1) * rate + 1) / rate
+    xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)   # Sec. 6.4.1
+    orb = GridOrbit(0.0, rate, xg[:, 0, 0:3])
+    ss = np.random.SeedSequence(seed)
+    r_rw, r_st, r_init, r_ga, r_gb, r_bc, r_rel = [np.random.default_rng(s) for s in ss.spawn(7)]
+    wheels = Wheels(WheelParams(**scenario.SCENARIO_WHEELS), rng=r_rw)
+    sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orb)
+    st = StarTracker(r_st)
+    gnss_a, beacon = Gnss(r_ga), Beacon(r_bc)
+    relay = Relay(r_rel, Gnss(r_gb)) if satb_gnss else None
+    tb = (r_rel.uniform(0.0, 1.0) + np.arange(K)) if satb_gnss else np.zeros(0)
+    xb_tb = lagrange(t_s, xs[:, 1, :], tb, order=10) if satb_gnss else None
+    # flight software state
+    model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb)
+    f_stkf = Afls(xg[0].ravel() + np.sqrt(P0_DIAG) * r_init.standard_normal(12), np.diag(P0_DIAG), 0.0, LAG_S,
+                  stkf.f, stkf.Phi, lambda dt: stkf.Q(dt))
+    flt = None
+    q_prev = None
+    u = np.zeros(N_WHEELS)
+    n10 = K * 10 + 1
+    hist = {"t": np.arange(n10) / 10.0, "q": np.zeros((n10, 4)), "w": np.zeros((n10, 3)),
+            "w_rel": np.zeros((n10, 4))}
+    fsw = {k: np.full((K + 1, m), np.nan) for k, m in (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3),
+                                                        ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
+                                                        ("wc", 3))}
+    hist["q"][0], hist["w"][0], hist["w_rel"][0] = sc.q, sc.omega, sc.omega_rw_rel
+    jb = 0
+    complete = True
+    k_done = 0
+    t_wall = time.perf_counter()
+    it = range(K + 1)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=K, desc="bps ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), unit="s",
+                   leave=False)
+    try:
+        for k in it:
+            t = float(k)
+            # sensors at t (own time tags: t, SatB's tb)
+            tach = wheels.read_speed_rpm(sc.omega_rw_rel) * (2 * np.pi / 60)
+            q_st, st_ok = st.measure(sc.q, sc.omega)
+            x_true = xg[k * rate].ravel()
+            zg = gnss_a.measure(x_true[0:6])
+            y = beacon.measure_dcm(x_true[0:3], x_true[6:9], dcm(sc.q))
+            due = []
+            if relay is not None:
+                while jb < tb.size and tb[jb] <= t:
+                    relay.sample(tb[jb], xb_tb[jb])
+                    jb += 1
+                due = relay.due(t)
+            # flight software (sensor outputs and wheel read-outs only)
+            if flt is None:
+                if st_ok and q_prev is not None:
+                    w0 = quat.rotvec(quat.quat_mul(q_st, quat.conj(q_prev)))
+                    x0 = apkf.initial_state(q_st, w0, tach)
+                    x0[7:30] = xp
+                    flt = apkf.APKF(x0, model=model, case=1)
+                    flt.P[apkf.PARAMS, apkf.PARAMS] = Pp
+                q_prev = q_st if st_ok else None
+            else:
+                flt.step(t - 1.0, tach, q_st if st_ok else None)
+                if not np.all(np.isfinite(flt.x)):
+                    raise FloatingPointError("APKF diverged at t = %.0f s" % t)
+            if flt is not None:
+                q_hat, w_hat, P_att = flt.x[0:4], flt.x[4:7], 4.0 * flt.P[0:3, 0:3]
+            else:
+                q_hat, w_hat = (q_st if st_ok else np.array([0, 0, 0, 1.0])), np.zeros(3)
+                P_att = np.diag((np.array([20.0, 20.0, 60.0]) * ARCSEC) ** 2)
+            A_hat = dcm(q_hat)
+            if k > 0:
+                f_stkf.predict(t)
+            Rb = stkf.R_beacon(stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
+            f_stkf.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb),
+                          lambda x: np.concatenate([x[0:6], stkf.h_beacon(x, A_hat)]),
+                          lambda x: np.vstack([stkf.H_gnss("A"), stkf.H_beacon(x, A_hat)]))
+            for tm, z in due:
+                f_stkf.update(z, relay.gnss.R, lambda x: x[6:12], lambda x: stkf.H_gnss("B"), t=tm)
+            xh = f_stkf.x
+            if not np.all(np.isfinite(xh)):
+                raise FloatingPointError("STKF diverged at t = %.0f s" % t)
+            if flt is not None and t >= hold_s:
+                x = flt.x
+                J = apkf.inertia(x, model) / scale          # physical units (see ``absolute_jrw``)
+                C = apkf.c_rw(x, model)
+                qc, wc = control.command_rate(xh, stkf.f)
+                Kp, Dd = control.gains(J, ts)
+                H = J @ w_hat + (C * x[26:30] / scale) @ x[38:42] if feedforward else None
+                tff = None
+                if feedforward:
+                    tff = control.external_torque(J, x[15:18] / scale, x[7:10] / scale, q_hat, orb.position(t),
+                                                  model.field.field(orb.position(t), t))
+                tau_c = control.pd_torque(q_hat, w_hat, qc, wc, Kp, Dd, H, tff)
+                tau_c = control.saturate(tau_c, C, wheels.p.torque_max)
+                u = control.wheel_torques(tau_c, C, null_fraction=0.0)        # Eq. 6.11 (no null torque)
+                if feedforward:
+                    wp = wheels.p
+                    u = u + control.friction_compensation(tach, wp.friction_coulomb, wp.friction_viscous,
+                                                          wp.friction_smooth_rpm * 2 * np.pi / 60)
+                fsw["qc"][k], fsw["tau_c"][k], fsw["wc"][k] = qc, tau_c, wc
+                if tff is not None:
+                    fsw["tau_ff"][k] = tff
+            fsw["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)        # truth, for the record only
+            fsw["q_hat"][k], fsw["w_hat"][k], fsw["u"][k] = q_hat, w_hat, u
+            if k == K:
+                k_done = k
+                break
+            wheels.command_all(u)
+            for j in range(1, 11):
+                sc.step()
+                i = k * 10 + j
+                hist["q"][i], hist["w"][i], hist["w_rel"][i] = sc.q, sc.omega, sc.omega_rw_rel
+            if not np.all(np.isfinite(sc.x)):
+                raise FloatingPointError("truth diverged at t = %.0f s" % sc.t)
+            k_done = k + 1
+            if bar is not None:
+                bar.update(1)
+    except KeyboardInterrupt:
+        complete = False
+    finally:
+        if bar is not None:
+            bar.close()
+    n_ok = k_done * 10 + 1
+    for key in ("q", "w", "w_rel", "t"):
+        hist[key] = hist[key][:n_ok]
+    for key in fsw:
+        fsw[key] = fsw[key][:k_done + 1]
+    xs10 = xg[:n_ok * 2:2]
+    dth, dom = pointing_errors(hist["q"], hist["w"], xs10[:, 0, 0:3], xs10[:, 0, 3:6], xs10[:, 1, 0:3],
+                               xs10[:, 1, 3:6])
+    hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / ARCSEC, dom / ARCSEC
+    hist.update({"fsw_" + k: v for k, v in fsw.items()})
+    sel = hist["t"] >= t_settle
+    res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
+           "duration_s": float(duration_s), "settle_s": float(t_settle), "simulated_s": float(k_done),
+           "complete": bool(complete and k_done == K), "feedforward": bool(feedforward),
+           "wall_s": time.perf_counter() - t_wall, "wheel_speed_clips": wheels.counters(),
+           "max_wheel_speed_rpm": float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi))}
+    if sel.sum() >= 2:
+        res.update(statistics(dth[sel], dom[sel]))
+    else:
+        res.update({k: None for k in SUMMARY_KEYS if k != "complete"})
+        res["J_rad2"] = None
+    return res, hist
+
+
+def save_history(path, hist):
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **hist)
+    write_atomic(path, buf.getvalue())
+
+
+def run_one(seed, run_dir, params=None, **kw):
+    """Campaign entry (top level, picklable): one pointing run; writes run_dir/result.json (and history)."""
+    res, hist = simulate(seed=seed, params=params, **kw)
+    if run_dir:
+        os.makedirs(run_dir, exist_ok=True)
+        save_history(os.path.join(run_dir, "history.npz"), hist)
+        write_json(os.path.join(run_dir, "result.json"), res)
+    return res
+
+
+def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, **kw):
+    """Campaign entry for the sweep: ``seed`` indexes ts_list (one run per t_s, all with ``noise_seed``)."""
+    ts = ts_list[seed]
+    res, hist = simulate(ts=ts, params=params, seed=noise_seed, **kw)
+    if run_dir:
+        os.makedirs(run_dir, exist_ok=True)
+        write_json(os.path.join(run_dir, "result.json"), res)
+    return res

@@ -1,0 +1,148 @@
+"""Attitude control for pointing and tracking (Yoon 2017, Ch. 6): plain functions a flight version can follow.
+
+Conventions as the APKF (Sec. 4.2): q = [q1, q2, q3, q4] scalar last, A(q) maps inertial (J2000) to body,
+A(q (x) p) = A(q) A(p).
+
+- ``orbit_frame``: the Orbit Frame of Eq. 6.1-6.2 (x along SatA's velocity, y the orbit normal, z = x cross y).
+- ``attitude_command``: the minimum rotation that puts the laser axis l_b on the line of sight to SatB
+  (Eq. 6.3), composed with the Orbit Frame (Eq. 6.4).
+- ``gains`` / ``pd_torque``: the quaternion feedback PD of Eq. 6.5-6.7,
+  tau_c = -K q_e - D w_e, K = 2 wn^2 J, D = 2 zeta wn J (zeta = 1).
+  Eq. 6.7 as read: the OCR shows only "8 ... t_s". We read it as wn = 8 / (2 zeta t_s), i.e. the settling time
+  of Wie et al. (Ref. [46]): t_s = 8 / c with the rate gain c = 2 zeta wn, which is the 2 % envelope
+  e^(-zeta wn t_s) = e^-4 of the small-angle loop theta'' + 2 zeta wn theta' + wn^2 theta = 0 (K q_e ~ wn^2 J theta
+  since q_e ~ theta/2). With zeta = 1 that is wn = 4 / t_s. (The "2 zeta" of the denominator is what the OCR lost;
+  reading wn = 8 / t_s would settle twice as fast as the t_s it names.) Tested: the closed-loop poles' real part is
+  -4 / t_s.
+  Beyond Eq. 6.5 (the thesis is silent; a flight team would add them, and they are switchable): w_e = w - w_c
+  with the command rate w_c (the tracking attitude turns at about the orbit rate: without it the PD lags by
+  2 zeta |w_c| / wn, ~30 arcmin), the gyroscopic term w x H, and the feed-forward of the known external torques
+  the APKF estimates (gravity gradient with its J, residual dipole m x b, tau_d).
+- ``wheel_torques``: minimum-norm wheel torques (Eq. 6.11) and, during calibration maneuvers, the null-space
+  torque of Eq. 4.145 (a = 10 % of the largest minimum-norm torque). This is the Sec. 4.8 code of
+  ``emulator.spacecraft.scenario`` (one copy; the emulator does not import ground). Sign: the body feels -C u,
+  so the motor torques are u = -C^T (C C^T)^-1 tau_c (+ a N).
+- ``friction_compensation``: wheel friction feed-forward from the datasheet model (our addition).
+- ``saturate``: scales tau_c down (direction kept) so that no wheel torque passes its limit.
+"""
+
+import numpy as np
+
+from emulator.spacecraft import environment as env
+from emulator.spacecraft.wheels import pyramid_c0  # noqa: F401
+from emulator.spacecraft.scenario import null_vector, wheel_torques  # noqa: F401  (Eq. 4.144-4.145, 6.11)
+from ground.adcs import quat
+
+LASER_AXIS = np.array([1.0, 0.0, 0.0])    # l_b: the 3U's long axis (stated; the thesis does not give it)
+ZETA = 1.0
+
+
+def orbit_frame(r_a, v_a):
+    """T_o<-j2k (Eq. 6.1-6.2): rows x_o = v/|v|, y_o = r x v/|r x v|, z_o = x_o x y_o."""
+    x = v_a / np.linalg.norm(v_a)
+    y = np.cross(r_a, v_a)
+    y = y / np.linalg.norm(y)
+    return np.vstack([x, y, np.cross(x, y)])
+
+
+def dcm_to_quat(T):
+    """q with A(q) = T (scalar last, q4 >= 0), Shepperd's method."""
+    tr = np.trace(T)
+    d = np.array([T[0, 0], T[1, 1], T[2, 2], tr])
+    i = int(np.argmax(d))
+    if i == 3:
+        q4 = 0.5 * np.sqrt(1 + tr)
+        q = np.array([T[1, 2] - T[2, 1], T[2, 0] - T[0, 2], T[0, 1] - T[1, 0], 0.0]) / (4 * q4)
+        q[3] = q4
+    else:
+        j, k = (i + 1) % 3, (i + 2) % 3
+        qi = 0.5 * np.sqrt(1 + 2 * T[i, i] - tr)
+        q = np.zeros(4)
+        q[i] = qi
+        q[j] = (T[i, j] + T[j, i]) / (4 * qi)
+        q[k] = (T[i, k] + T[k, i]) / (4 * qi)
+        q[3] = (T[j, k] - T[k, j]) / (4 * qi)
+    q = q / np.linalg.norm(q)
+    return q if q[3] >= 0 else -q
+
+
+def min_rotation(a, b):
+    """q with A(q) b = a for unit vectors a, b, the smallest rotation (Eq. 6.3, 6.17):
+    q4 = sqrt((1 + a.b)/2), q_vec = a x b / (2 q4)."""
+    c = float(a @ b)
+    if c < -1 + 1e-12:
+        raise ValueError("laser axis and line of sight are opposite: the minimum rotation is not unique")
+    q4 = np.sqrt(0.5 * (1.0 + c))
+    v = np.cross(a, b) / (2 * q4)
+    return np.array([v[0], v[1], v[2], q4])
+
+
+def attitude_command(r_a, v_a, r_b, laser_axis=LASER_AXIS):
+    """q_c (Eq. 6.3-6.4): p_o = T_o p, Pq = min_rotation(l_b, p_o), q_c = Pq (x) q_j2k."""
+    T = orbit_frame(r_a, v_a)
+    p = r_b - r_a
+    p_o = T @ (p / np.linalg.norm(p))
+    return quat.quat_mul(min_rotation(np.asarray(laser_axis, float), p_o), dcm_to_quat(T))
+
+
+def command_rate(x_hat, f, laser_axis=LASER_AXIS, h=0.5):
+    """(q_c, w_c): the command at the STKF state x_hat (12) and its rate in the command frame by a central
+    difference over +-h s of the orbit propagator f(x, dt) (our addition, see the module docstring)."""
+    qc = attitude_command(x_hat[0:3], x_hat[3:6], x_hat[6:9], laser_axis)
+    xm, xp = f(x_hat, -h), f(x_hat, h)
+    qm = attitude_command(xm[0:3], xm[3:6], xm[6:9], laser_axis)
+    qp = attitude_command(xp[0:3], xp[3:6], xp[6:9], laser_axis)
+    return qc, quat.rotvec(quat.quat_mul(qp, quat.conj(qm))) / (2 * h)
+
+
+def natural_frequency(ts, zeta=ZETA):
+    """wn of Eq. 6.7 as read: wn = 8 / (2 zeta t_s) (rad/s)."""
+    ts = float(ts)
+    if not (np.isfinite(ts) and ts > 0):
+        raise ValueError("settling time ts must be > 0 s, got %r" % (ts,))
+    return 8.0 / (2.0 * zeta * ts)
+
+
+def gains(J, ts, zeta=ZETA):
+    """(K, D) of Eq. 6.6: K = 2 wn^2 J, D = 2 zeta wn J."""
+    wn = natural_frequency(ts, zeta)
+    return 2 * wn * wn * J, 2 * zeta * wn * J
+
+
+def attitude_error(q, qc):
+    """q_e = q (x) q_c^-1 with q4 >= 0 (the short way round); its vector part is used in Eq. 6.5."""
+    qe = quat.quat_mul(q, quat.conj(qc))
+    return qe if qe[3] >= 0 else -qe
+
+
+def pd_torque(q, w, qc, wc, K, D, H=None, tau_ff=None):
+    """tau_c = -K q_e,vec - D (w - A(q_e) w_c) (Eq. 6.5) + w x H + tau_ff (our additions; None leaves out).
+    w_c is in the command frame; A(q_e) brings it to the body frame."""
+    qe = attitude_error(q, qc)
+    we = w - quat.dcm(qe) @ wc
+    tau = -K @ qe[0:3] - D @ we
+    if H is not None:
+        tau = tau + env.cross3(w, H)
+    if tau_ff is not None:
+        tau = tau - tau_ff
+    return tau
+
+
+def external_torque(J, m, tau_d, q, r_i, b_i):
+    """The known external torque the APKF models (Eq. 4.68-4.75): gravity gradient with J, m x b, tau_d."""
+    A = quat.dcm(q)
+    return env.gravity_gradient_torque(J, A @ r_i) + env.cross3(m, A @ b_i) + tau_d
+
+
+def friction_compensation(w_rw, coulomb=2e-6, viscous=2e-10, smooth_rad_s=10 * 2 * np.pi / 60):
+    """Motor torque that cancels the wheels' friction at the read-out speeds w_rw (rad/s): the datasheet
+    model (Coulomb + viscous, smoothed through zero). Our addition: without it the ~2 uN m per spinning wheel
+    reaches the body and the PD holds it with a steady error of ~10^3 arcsec."""
+    return viscous * w_rw + coulomb * np.tanh(w_rw / smooth_rad_s)
+
+
+def saturate(tau_c, C, torque_max):
+    """tau_c scaled down, direction kept, so that the minimum-norm wheel torques stay within torque_max."""
+    u = C.T @ np.linalg.solve(C @ C.T, tau_c)
+    peak = float(np.max(np.abs(u)))
+    return tau_c if peak <= torque_max else tau_c * (torque_max / peak)

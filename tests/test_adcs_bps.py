@@ -1,0 +1,247 @@
+"""Attitude control (Eq. 6.1-6.11) and the body pointing simulator (Sec. 6.4): fast checks (two-body truth,
+short runs)."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from emulator import orbits
+from emulator.spacecraft.wheels import pyramid_c0
+from ground import cli
+from ground.adcs import bps, bps_cli, control, quat
+from ground.adcs.bps_source import BpsSource
+
+ARC = quat.ARCSEC
+
+
+@pytest.fixture(scope="module")
+def params():
+    return bps.calibrate(seed=0)                 # the nine sets, ~5 s
+
+
+@pytest.fixture(scope="module")
+def params_file(params, tmp_path_factory):
+    p = tmp_path_factory.mktemp("bps") / "params.json"
+    bps.write_params(str(p), params)
+    return str(p)
+
+
+# --- control ------------------------------------------------------------------------------------------------
+def test_orbit_frame_and_command_point_the_laser_axis_at_satb():
+    xa, xb = orbits.X0_A, orbits.X0_B
+    T = control.orbit_frame(xa[0:3], xa[3:6])
+    assert np.allclose(T @ T.T, np.eye(3), atol=1e-12) and np.linalg.det(T) > 0
+    assert np.allclose(T[0], xa[3:6] / np.linalg.norm(xa[3:6]))                       # x along velocity
+    assert abs(T[1] @ xa[0:3]) < 1e-6 * np.linalg.norm(xa[0:3])                       # y normal to the orbit
+    qc = control.attitude_command(xa[0:3], xa[3:6], xb[0:3])
+    p = (xb[0:3] - xa[0:3]) / np.linalg.norm(xb[0:3] - xa[0:3])
+    assert np.allclose(quat.dcm(qc) @ p, control.LASER_AXIS, atol=1e-12)
+    # minimum rotation: from the orbit frame, the command turns by exactly the angle between l_b and p_o
+    qo = control.dcm_to_quat(T)
+    assert np.allclose(quat.dcm(qo), T, atol=1e-12)
+    ang = 2 * np.arccos(min(1.0, abs(quat.quat_mul(qc, quat.conj(qo))[3])))
+    assert ang == pytest.approx(np.arccos(control.LASER_AXIS @ (T @ p)), abs=1e-9)
+
+
+def test_pd_closed_loop_poles_follow_ts():
+    """Eq. 6.7 as read (wn = 4/t_s with zeta = 1): the small-angle loop has a double pole at -4/t_s."""
+    J = np.diag([0.012, 0.047, 0.045])
+    for ts in (10.0, 33.0, 100.0):
+        K, D = control.gains(J, ts)
+        A = np.zeros((6, 6))
+        A[0:3, 3:6] = np.eye(3)
+        h = 1e-7
+        for i in range(6):                      # linearise theta'' = J^-1 tau(q(theta), w) numerically
+            x = np.zeros(6)
+            x[i] = h
+            q = np.concatenate([0.5 * x[0:3], [1.0]])
+            q /= np.linalg.norm(q)
+            tau = control.pd_torque(q, x[3:6], np.array([0, 0, 0, 1.0]), np.zeros(3), K, D)
+            A[3:6, i] = np.linalg.solve(J, tau) / h
+        ev = np.linalg.eigvals(A)
+        assert np.allclose(ev.real, -4.0 / ts, rtol=1e-3)
+
+
+def test_ts_must_be_positive():
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="ts"):
+            control.natural_frequency(bad)
+
+
+def test_min_norm_torques_and_saturation():
+    C = pyramid_c0()
+    tau = np.array([1e-4, -2e-4, 5e-5])
+    u = control.wheel_torques(tau, C, null_fraction=0.0)
+    assert np.allclose(-C @ u, tau)
+    assert abs(control.null_vector(C) @ u) < 1e-15                     # Eq. 6.11: no null-space part
+    u2 = control.wheel_torques(tau, C, null_fraction=0.1)
+    assert np.allclose(-C @ u2, tau) and np.linalg.norm(u2) > np.linalg.norm(u)  # Eq. 4.145 adds only null
+    big = tau * 100
+    s = control.saturate(big, C, 1e-3)
+    assert np.allclose(np.cross(s, big), 0, atol=1e-15) and np.abs(control.wheel_torques(s, C, 0.0)).max() \
+        == pytest.approx(1e-3)
+
+
+def test_friction_compensation_cancels_the_datasheet_friction():
+    from emulator.spacecraft.wheels import Wheels
+    w = Wheels()
+    W = np.array([-500.0, -1.0, 0.5, 300.0])
+    p = w.p
+    assert np.allclose(control.friction_compensation(W, p.friction_coulomb, p.friction_viscous,
+                                                     p.friction_smooth_rpm * 2 * np.pi / 60), w.friction(W))
+
+
+# --- pointing error, parameter file ---------------------------------------------------------------------------
+def test_pointing_error_of_a_known_offset():
+    xa, xb = orbits.X0_A, orbits.X0_B
+    qc = control.attitude_command(xa[0:3], xa[3:6], xb[0:3])
+    off = np.radians(100 / 3600)                                        # 100 arcsec about body z
+    q = quat.quat_mul(np.array([0, 0, np.sin(off / 2), np.cos(off / 2)]), qc)
+    th, om = bps.pointing_errors(np.array([qc, q]), np.zeros((2, 3)), np.array([xa[0:3]] * 2),
+                                 np.array([xa[3:6]] * 2), np.array([xb[0:3]] * 2), np.array([xb[3:6]] * 2))
+    assert np.allclose(th[0], 0, atol=1e-12)
+    assert np.hypot(*th[1]) / ARC == pytest.approx(100, rel=1e-6)
+    # rate: the line of sight seen from a body turning at w moves at (relative velocity)/rho - w
+    v_rel = (xb[3:6] - xa[3:6]) - ((xb[3:6] - xa[3:6]) @ (xb[0:3] - xa[0:3])) * (xb[0:3] - xa[0:3]) / \
+        np.linalg.norm(xb[0:3] - xa[0:3]) ** 2
+    assert np.hypot(*om[0]) == pytest.approx(np.linalg.norm(v_rel) / np.linalg.norm(xb[0:3] - xa[0:3]), rel=1e-6)
+    assert bps.objective(th, om) == pytest.approx(np.mean(np.sum(th ** 2, 1) + 10 * np.sum(om ** 2, 1)))
+
+
+def test_absolute_wheel_inertia_from_torque_and_tach():
+    rng = np.random.default_rng(3)
+    j = np.array([3.45e-6, 3.36e-6, 2.25e-6, 2.4e-6])
+    u = rng.uniform(-1e-4, 1e-4, (500, 4))
+    W = np.vstack([np.zeros(4), np.cumsum(u / j, axis=0)])[:-1] + rng.normal(0, 1.05, (500, 4))
+    assert np.allclose(bps.absolute_jrw(u, W), j, rtol=0.01)
+
+
+def test_parameter_file_is_checked_against_the_spacecraft(params, tmp_path):
+    xp, P, jxx, scale = bps.check_params(params)
+    assert xp.shape == (23,) and P.shape == (23, 23) and 0.9 < scale < 1.3
+    bad = json.loads(json.dumps(params))
+    bad["wheels"] = 3
+    with pytest.raises(ValueError, match="3 wheels"):
+        bps.check_params(bad)
+    bad = json.loads(json.dumps(params))
+    bad["x"]["J5_kgm2"] = [-0.05, 0.05, 0, 0, 0]
+    with pytest.raises(ValueError, match="not positive definite"):
+        bps.check_params(bad)
+    bad = json.loads(json.dumps(params))
+    bad["x"]["jrw_kgm2"] = [3e-6] * 3
+    with pytest.raises(ValueError, match="4 finite numbers"):
+        bps.check_params(bad)
+    bad = json.loads(json.dumps(params))
+    bad["P"][0][0] = -1.0
+    with pytest.raises(ValueError, match="P"):
+        bps.check_params(bad)
+    p = tmp_path / "p.json"
+    bps.write_params(str(p), params)
+    assert bps.load_params(str(p))[3] == pytest.approx(scale)
+
+
+# --- the simulator ---------------------------------------------------------------------------------------------
+def test_short_pointing_run_tracks_satb(params):
+    res, hist = bps.simulate(ts=33, duration_s=60, seed=1, params=params, truth="two-body")
+    assert res["complete"] and res["samples"] == 601
+    for k in bps.SUMMARY_KEYS:
+        assert k in res
+    # the run starts ~2e5 arcsec off; after the slew the error is a small fraction of the P-FSM's range
+    assert np.abs(hist["dtheta_arcsec"][0]).max() > 1e4
+    assert max(res["pointing_sigma_arcsec"]) < 300 and res["pointing_max_arcsec"] < 810
+    assert res["stability_3sigma_arcsec_s"] < 100
+    assert hist["dtheta_arcsec"].shape == (len(hist["t"]), 2)
+
+
+def test_interrupted_run_is_marked_incomplete(params, monkeypatch):
+    calls = {"n": 0}
+    real = bps.Spacecraft.step
+
+    def step(self):
+        calls["n"] += 1
+        if calls["n"] == 1500:
+            raise KeyboardInterrupt
+        return real(self)
+    monkeypatch.setattr(bps.Spacecraft, "step", step)
+    res, hist = bps.simulate(ts=10, duration_s=100, seed=1, params=params, truth="two-body")
+    assert not res["complete"] and res["simulated_s"] < 150
+    assert len(hist["t"]) == int(res["simulated_s"]) * 10 + 1
+
+
+# --- commands ---------------------------------------------------------------------------------------------------
+def test_bps_command_writes_the_run_folder(params_file, tmp_path, capsys):
+    out = tmp_path / "run"
+    rc = cli.main(["adcs", "bps", "--ts", "20", "--duration", "30", "--seed", "2", "--params", params_file,
+                   "--truth", "two-body", "--quiet", "--cache-dir", str(tmp_path / "c"), "-o", str(out)])
+    s = json.loads((out / "summary.json").read_text())
+    assert rc in (0, 3) and rc == (0 if s["budgets_met"] else 3)
+    assert set(bps.SUMMARY_KEYS) <= set(s) and s["complete"] is True
+    assert len(s["pointing_sigma_arcsec"]) == 2 and len(s["stability_mean_arcsec_s"]) == 2
+    h = np.load(out / "history.npz")
+    assert h["dtheta_arcsec"].shape[1] == 2 and np.all(np.diff(h["t"]) == pytest.approx(0.1))
+    assert (out / "fig6-3_pointing.png").exists() and "21.456" in (out / "report.md").read_text()
+    bps.load_params(str(out / "params.json"))
+
+
+def test_sweep_command(params_file, tmp_path):
+    out = tmp_path / "sweep"
+    rc = cli.main(["adcs", "sweep", "--ts", "15:25:10", "--duration", "20", "--workers", "1", "--params",
+                   params_file, "--truth", "two-body", "--quiet", "--cache-dir", str(tmp_path / "c"), "-o", str(out)])
+    s = json.loads((out / "summary.json").read_text())
+    assert rc == 0 and s["complete"] and s["ts_s"] == [15.0, 25.0] and len(s["J"]) == 2
+    assert s["ts_best_s"] == s["ts_s"][int(np.argmin(s["J"]))]
+    assert (out / "fig6-2_sweep.png").exists()
+
+
+def test_ts_range_parsing():
+    assert len(bps_cli.parse_ts_range("10:100:5")) == 19
+    for bad in ("0", "10:5:5", "10:100:0", "a:b:c", "-5:10:5"):
+        with pytest.raises(ValueError):
+            bps_cli.parse_ts_range(bad)
+
+
+def test_bps_distfile_source_caches_whole_runs_only(params_file, tmp_path, monkeypatch):
+    from ground import distfile_cli
+    from protocol import distfile
+    cache = str(tmp_path / "cache")
+    src = BpsSource(ts=33, params_path=params_file, truth="two-body", cache_dir=cache, quiet=True)
+    data = distfile_cli.generate(src, 5.0, 4)
+    d = distfile.parse(data)
+    assert d.source.startswith("bps33n ") and d.seed == 4 and not src.from_cache
+    assert len([f for f in os.listdir(cache) if f.startswith("run_")]) == 1
+    src2 = BpsSource(ts=33, params_path=params_file, truth="two-body", cache_dir=cache, quiet=True)
+    assert distfile_cli.generate(src2, 5.0, 4) == data and src2.from_cache
+    # an interrupted run leaves nothing in the cache
+    real = bps.Spacecraft.step
+    calls = {"n": 0}
+
+    def step(self):
+        calls["n"] += 1
+        if calls["n"] == 100:
+            raise KeyboardInterrupt
+        return real(self)
+    monkeypatch.setattr(bps.Spacecraft, "step", step)
+    src3 = BpsSource(ts=20, params_path=params_file, truth="two-body", cache_dir=cache, quiet=True)
+    with pytest.raises(KeyboardInterrupt):
+        distfile_cli.generate(src3, 5.0, 4)
+    assert len([f for f in os.listdir(cache) if f.startswith("run_")]) == 1
+    assert not [f for f in os.listdir(cache) if ".tmp" in f or f.startswith(".")]
+
+
+def test_distfile_beyond_the_pfsm_says_by_how_much():
+    from ground import distfile_cli
+    x = np.zeros(10)
+    y = np.zeros(10)
+    y[3] = 900.0
+    with pytest.raises(ValueError, match=r"passes the limit by 89\.8 arcsec"):
+        distfile_cli.check_playable(x, y)
+
+
+def test_hil_report_shows_the_disturbance_beside_the_residual():
+    from ground import report
+    s = {"q2": report.error_stats([0.1, -0.1], [0.2, 0.0]), "truth": report.error_stats([0.0], [0.0]),
+         "disturbance": dict(report.error_stats([30.0, -30.0], [0.0, 40.0]), source="bps33n x")}
+    t = report.table(s)
+    assert "disturbance played" in t and "1σ (30.00, 20.00) arcsec" in t and "bps33n" in t

@@ -255,6 +255,7 @@ class RemoteController:
         self.n_resent = 0
         self.n_early = 0
         self.n_rx = 0                # packets taken from the link
+        self.tick_now = 0            # the tick being answered (a per-tick clock for fault injection)
         self.n_status_dup = 0
         self.n_status_missed = 0
         self.failed_run = 0          # consecutive overruns
@@ -333,6 +334,7 @@ class RemoteController:
     def on_tick(self, tick, t_us, vx, vy, vs):
         link = self.link
         tick &= 0xFFFFFFFF
+        self.tick_now = tick
         payload = self._tick_fmt.pack(tick, t_us & 0xFFFFFFFF, vx, vy, vs)
         decim = self.status_decim
         want_status = bool(decim) and tick % decim == 0 and tick > self.last_status_tick

@@ -302,7 +302,8 @@ def _cmd(a):
     try:
         with rig_cm as rig:
             if getattr(rig, "faults", None) is not None:      # silence windows in virtual seconds of the run
-                rig.faults.clock = rig.elapsed_s
+                rc = rig.endpoint.rc
+                rig.faults.clock = lambda: rc.tick_now / rig.rate_hz
             log = (lambda m: print(m, file=sys.stderr)) if a.verbose else (lambda m: None)
             cal, failed, wall = run_calibration(rig, grid_v, a.dv, log=log)
             cal["runtime"] = getattr(rig, "runtime_name", "bench")

@@ -249,8 +249,9 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
             overrun0 = rig.lockstep.n_overrun
             tick0 = rig.lockstep.tick
             t0_us = int(round(tick0 * 1e6 / rig.rate_hz))
-            if rig.faults is not None:       # silence windows count in virtual seconds of the play
-                rig.faults.clock = lambda: (rig.lockstep.tick - tick0) / rig.rate_hz
+            if rig.faults is not None:       # silence windows count in virtual seconds of the play, per tick
+                rc = rig.endpoint.rc
+                rig.faults.clock = lambda: (rc.tick_now - tick0) / rig.rate_hz
             n_total = int(round(duration_s * rig.rate_hz))
             chunk = max(1, int(round(CHUNK_S * rig.rate_hz)))
             bar = _progress_bar(duration_s, quiet)

@@ -174,6 +174,8 @@ class Lockstep:
         rate, deadline, realtime, on_q2 = self.rate_hz, self.deadline_s, self.realtime, self.on_q2
         us_per_tick = 1e6 / rate
         clock = time.perf_counter
+        if bench._timed:        # the board's timing lives in the bench's loop: one tick per call
+            return self._ticks_timed(k0, n, t_rt0, q2_rows, q1_rows, fsm_rows)
         for k in range(k0, k0 + n):
             if realtime:
                 due = t_rt0 + k / rate
@@ -200,6 +202,35 @@ class Lockstep:
                 q1_rows.append((vx, vy, vs))
                 fsm_rows.append(bench.fsm_v)
         return k
+
+    def _ticks_timed(self, k0, n, t_rt0, q2_rows, q1_rows, fsm_rows):
+        """``_ticks_general`` for a bench with the board's timing: each tick through ``Bench.run_ticks`` (the
+        controller wrapped for the real-time pacing and deadline); overruns are counted by the bench."""
+        bench, ctrl = self.bench, self.controller
+        rate, deadline, realtime, on_q2 = self.rate_hz, self.deadline_s, self.realtime, self.on_q2
+        clock = time.perf_counter
+
+        def on_tick(k, t_us, vx, vy, vs):
+            if realtime:
+                due = t_rt0 + k / rate
+                now = clock()
+                if now < due:
+                    time.sleep(due - now)
+                if hasattr(ctrl, "timeout_s"):
+                    ctrl.timeout_s = max(0.0, due + deadline - clock())
+            words = ctrl.on_tick(k, t_us, vx, vy, vs)
+            if realtime and clock() > t_rt0 + k / rate + deadline:
+                return None
+            return words
+
+        rec = q1_rows if self.record else None
+        for k in range(k0, k0 + n):
+            m = len(q2_rows)
+            bench.run_ticks(1, q2_rows, on_tick, k, 1e6 / rate, rec, fsm_rows)
+            if on_q2 is not None:
+                for sample in q2_rows[m:]:
+                    on_q2(sample)
+        return k0 + n - 1
 
     def counters(self):
         c = dict(self.bench.counters())

@@ -119,17 +119,25 @@ class LoopModel:
         return float(f0 + (2 ** -0.5 - s0) * (f1 - f0) / (s1 - s0))
 
 
-def fit_tone(t, y, f_hz):
-    """Complex amplitude of the tone at f in samples y(t) (least squares with an offset)."""
+def fit_tone(t, y, f_hz, others=()):
+    """Complex amplitude of the tone at f in samples y(t) (least squares with an offset), fitted together with
+    tones at ``others`` (Hz) that would leak into it over a short window."""
     w = 2 * np.pi * f_hz
-    a = np.column_stack([np.cos(w * t), np.sin(w * t), np.ones_like(t)])
+    cols = [np.cos(w * t), np.sin(w * t), np.ones_like(t)]
+    for fo in others:
+        cols += [np.cos(2 * np.pi * fo * t), np.sin(2 * np.pi * fo * t)]
+    a = np.column_stack(cols)
     sol, *_ = np.linalg.lstsq(a, y, rcond=None)
     return sol[0] - 1j * sol[1]
 
 
-def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=4, min_s=0.25, progress=None):
+def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=4, min_s=0.25, progress=None, model=None):
     """Play each tone through the P-FSM with the loop in TRACK; return per frequency the complex S of X and
-    Y (residual / input from the truth at the Q2 instants). The rig's player is restored after."""
+    Y (residual / input from the truth at the Q2 instants). The rig's player is restored after.
+
+    With a ``model`` (LoopModel) the amplitude is scheduled: amp / |S_model|, between amp and 3 amp, so the
+    residual stays well above the FSM DAC's step (1 AD5664R code ~ 0.02 arcsec on the sky), which otherwise
+    biases a small |S| by several per cent."""
     from emulator.lockstep import SinePlayer
     from ground.rig import AD660_CODES_PER_VOLT, PFSM_V_PER_ARCSEC
     b, ls = rig.bench, rig.lockstep
@@ -142,7 +150,8 @@ def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=4, min_s=0.25, 
             n_meas = max(min_cycles / f, min_s)
             n_meas = math.ceil(n_meas * f) / f                   # whole cycles
             n_ticks = int(round((settle_s + n_meas) * rig.rate_hz)) + 1
-            ls.player = SinePlayer(amp=amp_codes, hz=f, pfsm_hz=ls.pfsm_hz)
+            k = 1.0 if model is None else float(np.clip(1.0 / abs(model.s_truth(f)[0]), 1.0, 3.0))
+            ls.player = SinePlayer(amp=amp_codes * k, hz=f, pfsm_hz=ls.pfsm_hz)
             ls.block_ticks = n_ticks                             # one block: the P-FSM tilts at every Q2 instant
             t0 = ls.tick / rig.rate_hz
             res = rig.run(n_ticks)
@@ -150,10 +159,15 @@ def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=4, min_s=0.25, 
             tq = res["q2"][:, 1] * 1e-6 - t0
             inp = np.column_stack([np.asarray(b._q2_tpx[:m]), np.asarray(b._q2_tpy[:m])]) * ksky
             keep = (tq >= settle_s) & (tq < settle_s + n_meas)
+            # the held command's images at rate -+ f, sampled by Q2 at q2_hz, fold to |rate -+ f - q2_hz|
+            # (the recorder's aliasing): fit them too where they fall near f
+            win = n_meas
+            others = [fo for fo in (abs(rig.rate_hz - f - b.q2_hz), abs(rig.rate_hz + f - b.q2_hz))
+                      if abs(fo - f) > 0.5 / win and fo > 0.5 / win and fo < 0.5 * b.q2_hz]
             s = []
             for ax in (0, 1):
                 a_in = fit_tone(tq[keep], inp[keep, ax], f)
-                a_out = fit_tone(tq[keep], res["truth_arcsec"][keep, ax], f)
+                a_out = fit_tone(tq[keep], res["truth_arcsec"][keep, ax], f, others)
                 s.append(a_out / a_in)
             out.append(s)
             if progress:
@@ -195,8 +209,9 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
         raise ValueError("--to %g Hz is at or above the loop's Nyquist frequency %g Hz" % (f_to, nyq))
     if points < 2:
         raise ValueError("--points %d: need >= 2" % points)
-    if amp_arcsec <= 0 or amp_arcsec > 50:
-        raise ValueError("--amp %g: need 0 < amp <= 50 arcsec (the quadcell's linear range)" % amp_arcsec)
+    if amp_arcsec <= 0 or amp_arcsec > 10:
+        raise ValueError("--amp %g: need 0 < amp <= 10 arcsec (scheduled up to 3x where |S| is small; the "
+                         "residual must stay in the quadcell's linear range)" % amp_arcsec)
     freqs = np.geomspace(f_from, f_to, points)
     models = [LoopModel(cfg, rate, 0.5, ax) for ax in (0, 1)]     # refuses a board too slow for the rate
     cal = truth_calibration(cfg) if calibration is None else calibration
@@ -216,7 +231,8 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
             rig.pfsm_v(0.0, 0.0)
             rig.settings("TRACK", decim=0)
             rig.run(int(0.2 * rig.rate_hz))
-            s = measure(rig, freqs, amp_arcsec, progress=(lambda i: bar.update(1)) if bar else None)
+            s = measure(rig, freqs, amp_arcsec, progress=(lambda i: bar.update(1)) if bar else None,
+                        model=models[0])
     finally:
         if bar:
             bar.close()

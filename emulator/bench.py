@@ -12,7 +12,6 @@ call sequence give bit-identical samples.
 """
 
 import math
-from cmath import exp as cmath_exp
 from math import erfc, sqrt
 
 import numpy as np
@@ -112,6 +111,11 @@ class Bench:
             f = self._land_f
             # per channel: MEMS (e1, g1, e2, g2) from the tick start, and g1, g2 from the landing (if after it)
             self._q1_mem = [(flat(t), flat(t - f)[1::2] if t >= f else (0j, 0j)) for t in tm.sample_s]
+            c1, c2 = self._cm1, self._cm2
+            # per channel: the MEMS tilt at its instant = Re(c1 e1 z1 + c2 e2 z2) + u_old Re(c1 g1 + c2 g2)
+            # + (u_new - u_old) Re(c1 l1 + c2 l2) (the input is real)
+            self._q1_gains = [(c1 * e1, c2 * e2, (c1 * h1 + c2 * h2).real, (c1 * l1 + c2 * l2).real)
+                              for (e1, h1, e2, h2), (l1, l2) in self._q1_mem]
             self._mem_tail = flat(self.T - f)[1::2]
 
     def _substeps(self, ns):
@@ -225,7 +229,12 @@ class Bench:
         self._q2_tpy = tqy.tolist()
         self._q2_mem = (mems_row[uq] + js).tolist()     # MEMS (e1, g1, e2, g2) from the tick start
         if self._timed:
-            self._q2_tau = (js / ns_q * self.T).tolist()    # Q2 instants from their tick's start (s)
+            tau = js / ns_q * self.T                         # Q2 instants from their tick's start (s)
+            dt = np.maximum(tau - self._land_f, 0.0)
+            mm = self.mems.modal
+            lg = sum(c * (np.exp(lam * dt) - 1.0) / lam * bb for c, lam, bb in zip(mm.c, mm.lam, mm.b))
+            # the MEMS tilt's real gain on (u_new - u_old) at each Q2 instant of a tick whose words landed
+            self._q2_land = np.where(tau >= self._land_f, lg.real, 0.0).tolist()
             self._q1_tp = self._pfsm_at(self.timing.sample_s, counts, inv, offs, ux, uy, zxa, zya,
                                         w_part, powers)
         self._q2_p = 0
@@ -504,12 +513,12 @@ class Bench:
         p1, g1, p2, g2 = self._mems_step
         t1, t2 = self._mem_tail
         c1, c2 = self._cm1, self._cm2
-        (lm1, lm2), (bm1, bm2) = self.mems.modal.lam, self.mems.modal.b
         d, fl = self._land_d, self._land_f
         pending = self._pending
-        q1_mem, q1_tp = self._q1_mem, self._q1_tp
+        (tpx0, tpy0), (tpx1, tpy1), (tpx2, tpy2) = self._q1_tp
+        (ae1, ae2, ah0, al0), (be1, be2, bh0, bl0), (ce1, ce2, ch0, cl0) = self._q1_gains
         p = self._q2_p
-        q2_ticks, q2_m0, q2_t_us, q2_tau = self._q2_ticks, self._q2_m0, self._q2_t_us, self._q2_tau
+        q2_ticks, q2_m0, q2_t_us, q2_land = self._q2_ticks, self._q2_m0, self._q2_t_us, self._q2_land
         q2_tpx, q2_tpy, q2_mem, mems_rows = self._q2_tpx, self._q2_tpy, self._q2_mem, self._mems_rows
         noise = self.noise
         n1, n1_i, n2, n2_i = self._n1, self._n1_i, self._n2, self._n2_i
@@ -517,12 +526,12 @@ class Bench:
         gp2, gf2, co2, si2, ox2, oy2 = self._g2
         f1, f2 = self.q1.inline, self.q2.inline
         fast1, fast2 = self._fast1, self._fast2
+        lim1, hq1, kx1, ky1, v1 = f1 if f1 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
         mid, k1, top, s01, pn1, nc21 = self._adc1
         k2, s02, pn2, nc22 = self._adc2
         lo, hi = ADS1256.LO, ADS1256.HI
         ksky, ang = self._sky, self._ang_mag2
         borex, borey = self.bore
-        cexp = cmath_exp
         missed = done = 0
         bt = self.tick
         try:
@@ -540,40 +549,52 @@ class Bench:
                         n1 = self._n1 = self._refill()
                         n1_i = 0
                     ux0, uy0 = umx - dux, umy - duy
-                    cq = []
-                    for ch in (0, 1, 2):
-                        (e1, h1, e2, h2), (l1, l2) = q1_mem[ch]
-                        tpc = q1_tp[ch]
-                        mx = (c1 * (e1 * zmx1 + h1 * ux0 + l1 * dux) + c2 * (e2 * zmx2 + h2 * ux0 + l2 * dux)).real
-                        my = (c1 * (e1 * zmy1 + h1 * uy0 + l1 * duy) + c2 * (e2 * zmy2 + h2 * uy0 + l2 * duy)).real
-                        xb = gp1 * tpc[0][i] + gf1 * mx
-                        yb = gp1 * tpc[1][i] + gf1 * my
-                        xd = co1 * xb + si1 * yb - ox1
-                        yd = co1 * yb - si1 * xb - oy1
-                        r2 = xd * xd + yd * yd
-                        if f1 is not None and r2 <= f1[0]:
-                            _, h, kx, ky, v = f1
-                            fxp = erfc(kx * (h - xd))
-                            fxn = erfc(kx * (h + xd))
-                            fyp = erfc(ky * (h - yd))
-                            fyn = erfc(ky * (h + yd))
-                            if ch == 0:
-                                val = v * (fxn - fxp) * (fyp + fyn)
-                            elif ch == 1:
-                                val = v * (fyp - fyn) * (fxp + fxn)
-                            else:
-                                val = v * (fxp + fxn) * (fyp + fyn)
-                        else:
-                            val = fast1(xd, yd)[ch]
-                        if noise:
-                            sv = k1 * (s01 + pn1 * sqrt(r2))
-                            val = k1 * val + sqrt(sv * sv + nc21) * n1[n1_i + ch]
-                        else:
-                            val = k1 * val
-                        cq.append(round(val) if ch == 2 else round(mid - val))
+                    # X at its instant (MEMS: modal part + the held inputs' real gains, see set_rate)
+                    xb = gp1 * tpx0[i] + gf1 * ((ae1 * zmx1 + ae2 * zmx2).real + ah0 * ux0 + al0 * dux)
+                    yb = gp1 * tpy0[i] + gf1 * ((ae1 * zmy1 + ae2 * zmy2).real + ah0 * uy0 + al0 * duy)
+                    xd = co1 * xb + si1 * yb - ox1
+                    yd = co1 * yb - si1 * xb - oy1
+                    r2 = xd * xd + yd * yd
+                    if r2 <= lim1:
+                        val = v1 * (erfc(kx1 * (hq1 + xd)) - erfc(kx1 * (hq1 - xd))) * (erfc(ky1 * (hq1 - yd)) + erfc(ky1 * (hq1 + yd)))
+                    else:
+                        val = fast1(xd, yd)[0]
                     if noise:
+                        sv = k1 * (s01 + pn1 * sqrt(r2))
+                        cx = round(mid - k1 * val - sqrt(sv * sv + nc21) * n1[n1_i])
+                    else:
+                        cx = round(mid - k1 * val)
+                    # Y
+                    xb = gp1 * tpx1[i] + gf1 * ((be1 * zmx1 + be2 * zmx2).real + bh0 * ux0 + bl0 * dux)
+                    yb = gp1 * tpy1[i] + gf1 * ((be1 * zmy1 + be2 * zmy2).real + bh0 * uy0 + bl0 * duy)
+                    xd = co1 * xb + si1 * yb - ox1
+                    yd = co1 * yb - si1 * xb - oy1
+                    r2 = xd * xd + yd * yd
+                    if r2 <= lim1:
+                        val = v1 * (erfc(ky1 * (hq1 - yd)) - erfc(ky1 * (hq1 + yd))) * (erfc(kx1 * (hq1 - xd)) + erfc(kx1 * (hq1 + xd)))
+                    else:
+                        val = fast1(xd, yd)[1]
+                    if noise:
+                        sv = k1 * (s01 + pn1 * sqrt(r2))
+                        cy = round(mid - k1 * val - sqrt(sv * sv + nc21) * n1[n1_i + 1])
+                    else:
+                        cy = round(mid - k1 * val)
+                    # SUM
+                    xb = gp1 * tpx2[i] + gf1 * ((ce1 * zmx1 + ce2 * zmx2).real + ch0 * ux0 + cl0 * dux)
+                    yb = gp1 * tpy2[i] + gf1 * ((ce1 * zmy1 + ce2 * zmy2).real + ch0 * uy0 + cl0 * duy)
+                    xd = co1 * xb + si1 * yb - ox1
+                    yd = co1 * yb - si1 * xb - oy1
+                    r2 = xd * xd + yd * yd
+                    if r2 <= lim1:
+                        val = v1 * (erfc(kx1 * (hq1 - xd)) + erfc(kx1 * (hq1 + xd))) * (erfc(ky1 * (hq1 - yd)) + erfc(ky1 * (hq1 + yd)))
+                    else:
+                        val = fast1(xd, yd)[2]
+                    if noise:
+                        sv = k1 * (s01 + pn1 * sqrt(r2))
+                        cs = round(k1 * val + sqrt(sv * sv + nc21) * n1[n1_i + 2])
                         n1_i += 3
-                    cx, cy, cs = cq
+                    else:
+                        cs = round(k1 * val)
                     if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
                         self.adc1.n_clip += 1
                         cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
@@ -597,12 +618,10 @@ class Bench:
                     qx, qy = q2_tpx[p], q2_tpy[p]
                     tfx = (c1 * (e1 * zmx1 + h1 * ux0) + c2 * (e2 * zmx2 + h2 * ux0)).real
                     tfy = (c1 * (e1 * zmy1 + h1 * uy0) + c2 * (e2 * zmy2 + h2 * uy0)).real
-                    if land and q2_tau[p] >= fl:             # the new command acts since fl
-                        dt = q2_tau[p] - fl
-                        l1 = c1 * (cexp(lm1 * dt) - 1.0) / lm1 * bm1
-                        l2 = c2 * (cexp(lm2 * dt) - 1.0) / lm2 * bm2
-                        tfx += (l1 * dux + l2 * dux).real
-                        tfy += (l1 * duy + l2 * duy).real
+                    if land:                                  # the new command acts since fl
+                        lq = q2_land[p]
+                        tfx += lq * dux
+                        tfy += lq * duy
                     xb = gp2 * qx + gf2 * tfx
                     yb = gp2 * qy + gf2 * tfy
                     xd = co2 * xb + si2 * yb - ox2

@@ -186,7 +186,7 @@ def truth_calibration(cfg, grid=(-1.0, 0.0, 1.0)):
     for y in grid:
         for x in grid:
             r = b.true_h((x, y))
-            pts.append({"pfsm_v": [x, y], "v0": r["v0"], "H": r["H"]})
+            pts.append({"pfsm_v": [x, y], "v0": r["v0"], "H": r["H"], "residual": r["residual"]})
     return {"grid_v": list(grid), "points": pts, "source": "emulator truth"}
 
 
@@ -209,7 +209,7 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
         raise ValueError("--to %g Hz is at or above the loop's Nyquist frequency %g Hz" % (f_to, nyq))
     if points < 2:
         raise ValueError("--points %d: need >= 2" % points)
-    if amp_arcsec <= 0 or amp_arcsec > 10:
+    if not 0 < amp_arcsec <= 10:
         raise ValueError("--amp %g: need 0 < amp <= 10 arcsec (scheduled up to 3x where |S| is small; the "
                          "residual must stay in the quadcell's linear range)" % amp_arcsec)
     freqs = np.geomspace(f_from, f_to, points)

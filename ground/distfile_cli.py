@@ -107,10 +107,31 @@ def _cmd_generate(a):
     write_atomic(a.output, data)
     d, x, y = load(a.output)
     s = stats(x, y)
+    side = a.output + ".jitter.json"
+    if a.source == "jitter":
+        write_jitter_sidecar(side, src, d, x, y)
+    elif os.path.exists(side):
+        os.unlink(side)             # a stale sidecar would describe another file
     print("wrote %s: %d samples at %d us (%.1f s), source %s, seed %d; 1-sigma (%.2f, %.2f) arcsec, "
           "peak P-FSM (%.2f, %.2f) V" % (a.output, d.count, d.period_us, d.duration_us() * 1e-6, d.source,
                                           d.seed, s["std_arcsec"][0], s["std_arcsec"][1], *s["pfsm_peak_v"]))
     return 0
+
+
+def write_jitter_sidecar(path, src, d, x, y):
+    """The wheel harmonics of a jitter distfile (``path`` = F.jitter.json): frequencies, amplitudes in the file
+    and as the player plays them (sinc^2); printed too."""
+    import json
+    t = np.arange(d.count) * d.period_us * 1e-6
+    amp = src.harmonics(t, x, y)
+    side = {"wheel_rpm": src.rpm.tolist(), "wheel_hz": src.wheel_hz.tolist(), "file_amp_arcsec": amp.tolist(),
+            "player_gain": resample.player_gain(src.wheel_hz, d.period_us).tolist(), "period_us": d.period_us,
+            "jitter_scale": src.scale}
+    write_atomic(path, (json.dumps(side, indent=2) + "\n").encode())
+    print("wheel harmonics (arcsec in the file, X / Y; the player plays them x sinc^2):")
+    for f, (ax, ay), g in zip(side["wheel_hz"], amp, side["player_gain"]):
+        print("  %8.3f Hz  %.4f / %.4f  x%.4f" % (f, ax, ay, g))
+    print("wrote %s" % path)
 
 
 def _cmd_info(a):

@@ -259,3 +259,7 @@ def read_csv(path):
 register_source("stat", GaussMarkov2)
 register_source("sine", Sine)
 register_source("csv", CsvSource)
+
+from ground.jitter import WheelJitter  # noqa: E402  (it uses the registry above for its --jitter-base)
+
+register_source("jitter", WheelJitter)

@@ -157,11 +157,21 @@ def _bad_cases(f):
         cases += [["response", "-o", o, "--points", "2", "--from", v], ["response", "-o", o, "--points", "2",
                                                                         "--to", v],
                   ["response", "-o", o, "--points", "2", "--amp", v],
-                  ["distfile", "generate", "-o", o, "--duration", "1", "--step-us", v]]
+                  ["distfile", "generate", "-o", o, "--duration", "1", "--step-us", v],
+                  ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+                   "--jitter-scale", v],
+                  ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+                   "--jitter-step-us", v],
+                  ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+                   "--jitter-rpm", v]]
     cases += [["response"], ["response", "-o", o, "--points", "1"], ["response", "-o", o, "--config", g],
               ["response", "-o", o, "--points", "2", "--rate-hz", "2000"],
               ["response", "-o", o, "--points", "2", "--timing", "nope"],
               ["distfile", "generate", "-o", o, "--duration", "1", "--step-us", "94"],
+              ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+               "--jitter-base", "jitter"],
+              ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+               "--jitter-base", "nope"],
               ["distfile", "generate", "-o", o, "--duration", "1", "--step-us", "100.5"],
               ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--freq-hz", "110"],
               ["distfile", "generate", "-o", o, "--source", "csv", "--csv", f["csv_ok"], "--seed", "3"]]

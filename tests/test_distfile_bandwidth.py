@@ -110,3 +110,30 @@ def test_hil_plays_fine_steps(tmp_path, step_us):
     s = json.load(open(tmp_path / "run" / "summary.json"))
     assert rc == 0 and s["complete"] and s["overruns"] == 0
     assert s["truth"]["max_radial_arcsec"] < 3.0        # a 3" tone at 40 Hz through the loop (|S| ~ 0.6)
+
+
+def test_jitter_source_harmonics_in_the_file_and_as_played(tmp_path, capsys):
+    """Wheel harmonics at rpm/60 Hz reach the file (sidecar written) and the player plays each x sinc^2."""
+    import json
+    o = str(tmp_path / "j.dist")
+    assert main(["distfile", "generate", "--source", "jitter", "--jitter-scale", "100", "--jitter-rpm",
+                 "3000,4200,6000,9000", "--duration", "1.2", "--step-us", "1000", "-o", o]) == 0
+    side = json.load(open(o + ".jitter.json"))
+    assert side["wheel_hz"] == [50.0, 70.0, 100.0, 150.0]
+    d, x, y = distfile_cli.load(o)
+    assert d.source == "jitter+aa" and d.period_us == 1000
+    amp = np.array(side["file_amp_arcsec"])
+    assert np.all(amp[:, 0] > 0.5)                       # each wheel's harmonic is in the file
+    from ground.jitter import harmonic_amplitudes
+    xp, yp = _play(o, 10600)
+    t = np.arange(10600) / 10600.0
+    keep = (t > 0.05) & (t < 1.15)
+    played = harmonic_amplitudes(t[keep], np.column_stack([xp[keep], yp[keep]]), side["wheel_hz"])
+    gain = resample.player_gain(np.array(side["wheel_hz"]), 1000)
+    assert np.allclose(played[:, 0] / amp[:, 0], gain, rtol=0.01)
+    # the file's step must hold the harmonics: a 9000 rpm wheel at an 8.192 ms step is refused
+    assert main(["distfile", "generate", "--source", "jitter", "--jitter-rpm", "3000,4200,6000,9000",
+                 "--duration", "0.2", "-o", str(tmp_path / "k.dist")]) == 2
+    assert "Nyquist" in capsys.readouterr().err
+    assert main(["distfile", "generate", "--source", "jitter", "--jitter-step-us", "700", "--duration", "0.2",
+                 "--step-us", "1000", "-o", str(tmp_path / "k.dist")]) == 2

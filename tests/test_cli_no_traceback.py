@@ -216,6 +216,7 @@ def test_bad_inputs_give_a_clear_error_never_a_traceback(capsys, files):
         assert rc in (1, 2), (" ".join(argv), rc, out, err)
         last = err.strip().splitlines()[-1] if err.strip() else ""
         assert last.startswith("fps") and "error: " in last, (argv, err)     # argparse's usage may precede it
+        assert "np.float" not in err and "np.int" not in err, (argv, err)   # numbers as people write them
 
 
 def test_fine_inputs_exit_0(capsys, files):

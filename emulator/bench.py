@@ -7,6 +7,11 @@ input decoded from the last AD5664R words. Both mirrors' linear dynamics are upd
 (``load_pfsm``), the per-tick work (``q1_sample``, ``spi_words``, ``step``) is plain Python floats;
 ``run_ticks`` runs a block of ticks against a controller with that work inlined (the lockstep's fast path).
 
+The board's timing (``emulator.timing``): with ``zero-latency`` the Q1 sample is taken at the tick start and the
+controller's words act at once (``run_ticks``' original loop); otherwise ``_run_ticks_timed`` samples X, Y and SUM
+at their own instants (P-FSM and MEMS states exact there) and applies the words at their landing instant, in this
+tick or a later one. ``spi_write``/``spi_words`` called directly still act at once (devices on a link, tests).
+
 Randomness: one numpy Generator per bench (seeded), drawn in fixed-size blocks, so the same seed, config and
 call sequence give bit-identical samples.
 """

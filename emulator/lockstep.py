@@ -11,6 +11,11 @@ P-FSM input sums precomputed per block; ``block_ticks=1`` interleaves player and
 time without ``on_q2`` the ticks of a block run in one ``Bench.run_ticks`` call (the fast path); real time and
 ``on_q2`` go tick by tick.
 
+The board's timing (``emulator.timing``, the bench config's ``board``) decides when within tick k each Q1 channel
+is sampled and when the answer's words act: at their modelled instant inside tick k or a later tick (the thesis's
+board: just inside tick k + 1). It is deterministic: the words of tick k always land at the same instant, whatever
+the link's retries. ``zero-latency`` samples at the tick start and applies the words at once.
+
 Duck types (docs/INTERFACES.md): ``controller.on_tick(tick, t_us, vx, vy, vs) -> words``;
 ``player.fill(xbuf, ybuf, n) -> int`` writes n AD660 codes per axis (fewer = the DAC holds its last code).
 """

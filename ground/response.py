@@ -133,7 +133,8 @@ def fit_tone(t, y, f_hz, others=()):
 
 def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=4, min_s=0.25, progress=None, model=None):
     """Play each tone through the P-FSM with the loop in TRACK; return per frequency the complex S of X and
-    Y (residual / input from the truth at the Q2 instants). The rig's player is restored after.
+    Y (residual / input from the truth at the Q2 instants): (frequencies played, S). The rig's player is
+    restored after.
 
     With a ``model`` (LoopModel) the amplitude is scheduled: amp / |S_model|, between amp and 3 amp, so the
     residual stays well above the FSM DAC's step (1 AD5664R code ~ 0.02 arcsec on the sky), which otherwise
@@ -144,10 +145,18 @@ def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=4, min_s=0.25, 
     amp_codes = amp_arcsec * PFSM_V_PER_ARCSEC * AD660_CODES_PER_VOLT
     ksky = b._ang_mag2 * b._sky
     out = []
+    used = []
     hold, block0 = ls.player, ls.block_ticks
     try:
         for i, f in enumerate(freqs):
-            n_meas = max(min_cycles / f, min_s)
+            # the held command's images at rate -+ f, sampled by Q2 at q2_hz, fold to |rate -+ f - q2_hz|: near
+            # f = (rate - q2_hz) / 2 (3.9 Hz) one falls on the tone itself. The window is lengthened to resolve
+            # it (3 / |f_alias - f|, up to 12 s), and a tone within 0.15 Hz of it is moved 0.3 Hz up.
+            def alias(f):
+                return abs(rig.rate_hz - f - b.q2_hz)
+            if abs(alias(f) - f) < 0.15:
+                f = f + 0.3
+            n_meas = max(min_cycles / f, min_s, min(12.0, 3.0 / max(abs(alias(f) - f), 1e-9)))
             n_meas = math.ceil(n_meas * f) / f                   # whole cycles
             n_ticks = int(round((settle_s + n_meas) * rig.rate_hz)) + 1
             k = 1.0 if model is None else float(np.clip(1.0 / abs(model.s_truth(f)[0]), 1.0, 3.0))
@@ -170,12 +179,13 @@ def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=4, min_s=0.25, 
                 a_out = fit_tone(tq[keep], res["truth_arcsec"][keep, ax], f, others)
                 s.append(a_out / a_in)
             out.append(s)
+            used.append(f)
             if progress:
                 progress(i + 1)
     finally:
         ls.player, ls.block_ticks = hold, block0
         rig.pfsm_v(0.0, 0.0)
-    return np.array(out)
+    return np.array(used), np.array(out)
 
 
 def truth_calibration(cfg, grid=(-1.0, 0.0, 1.0)):
@@ -231,8 +241,8 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
             rig.pfsm_v(0.0, 0.0)
             rig.settings("TRACK", decim=0)
             rig.run(int(0.2 * rig.rate_hz))
-            s = measure(rig, freqs, amp_arcsec, progress=(lambda i: bar.update(1)) if bar else None,
-                        model=models[0])
+            freqs, s = measure(rig, freqs, amp_arcsec, progress=(lambda i: bar.update(1)) if bar else None,
+                               model=models[0])
     finally:
         if bar:
             bar.close()
@@ -278,7 +288,8 @@ def _plot(out_dir, freqs, s_meas, model, summary):
     plt.close(fig)
     w = 2 * np.pi * np.geomspace(0.5, 0.499 / model.T, 400)
     fig = plt.figure(figsize=(7, 6))
-    model.control.bode_plot(model.L, w, dB=True, Hz=True, display_margins=True)
+    model.control.bode_plot(model.L, w, dB=True, Hz=True, display_margins=True,
+                            title="Loop C(z) P(z), X axis, g = %g" % model.gain)
     plt.savefig(os.path.join(out_dir, "bode_loop.png"), dpi=100)
     plt.close("all")
 

@@ -72,13 +72,11 @@ def test_measured_sensitivity_matches_the_model_to_0_4_nyquist(timing):
         rig.pfsm_v(0.0, 0.0)
         rig.settings("TRACK", decim=0)
         rig.run(128)
-        s = measure(rig, freqs, model=LoopModel(cfg))
+        freqs, s = measure(rig, freqs, model=LoopModel(cfg))
     for ax in (0, 1):
         m = LoopModel(cfg, axis=ax).s_truth(freqs)
         err = np.abs(np.abs(s[:, ax]) / np.abs(m) - 1)
-        # goal: within 5 % everywhere; one low tone (4.3 Hz, |S| ~ 0.09) measures ~6 % high on X with this seed
-        # (reported as a miss, cause not found), so the test holds the median and a 10 % bound
-        assert np.median(err) < 0.02 and np.all(err < 0.10), (ax, np.abs(s[:, ax]), np.abs(m))
+        assert np.all(err < 0.05), (ax, np.abs(s[:, ax]), np.abs(m))
         dphi = np.degrees(np.angle(s[:, ax] / m))
         assert np.all(np.abs(dphi) < 5.0), (ax, dphi)
 

@@ -7,6 +7,11 @@ input decoded from the last AD5664R words. Both mirrors' linear dynamics are upd
 (``load_pfsm``), the per-tick work (``q1_sample``, ``spi_words``, ``step``) is plain Python floats;
 ``run_ticks`` runs a block of ticks against a controller with that work inlined (the lockstep's fast path).
 
+The board's timing (``emulator.timing``): with ``zero-latency`` the Q1 sample is taken at the tick start and the
+controller's words act at once (``run_ticks``' original loop); otherwise ``_run_ticks_timed`` samples X, Y and SUM
+at their own instants (P-FSM and MEMS states exact there) and applies the words at their landing instant, in this
+tick or a later one. ``spi_write``/``spi_words`` called directly still act at once (devices on a link, tests).
+
 Randomness: one numpy Generator per bench (seeded), drawn in fixed-size blocks, so the same seed, config and
 call sequence give bit-identical samples.
 """
@@ -21,6 +26,7 @@ from emulator.config import default_config, validate
 from emulator.mirrors import AD5664R, MEMS, PFSM
 from emulator.optics import Optics
 from emulator.quadcell import Quadcell
+from emulator.timing import board_timing
 
 ARCSEC = 180.0 / math.pi * 3600.0     # arcsec per radian
 _NOISE_BLOCK = 3 * 4096
@@ -84,6 +90,8 @@ class Bench:
         a1, a2 = self.adc1, self.adc2        # constants of the sensing chains, for the per-tick code
         self._adc1 = (a1.mid, a1.k, a1.top, self.q1.sigma0_v, self.q1.pos_noise, a1.noise_counts * a1.noise_counts)
         self._adc2 = (a2.k, self.q2.sigma0_v, self.q2.pos_noise, a2.noise_counts * a2.noise_counts)
+        self.timing = board_timing(cfg)
+        self._pending = []                # (tick, words) the controller answered, landing later (timed board)
         self.set_rate(rate_hz)
 
     # --- timing ------------------------------------------------------------------------------------
@@ -99,6 +107,21 @@ class Bench:
         self._mems_step = (pm1, gm1, pm2, gm2)
         self._sub = {}
         self._mems_rows = []
+        tm = self.timing
+        self._timed = not tm.zero
+        if self._timed:
+            self._land_d, self._land_f = tm.split(self.T)
+            mm = self.mems.modal
+            flat = lambda dt: tuple(c for pair in mm.step(dt) for c in pair)      # (e1, g1, e2, g2) over dt
+            f = self._land_f
+            # per channel: MEMS (e1, g1, e2, g2) from the tick start, and g1, g2 from the landing (if after it)
+            self._q1_mem = [(flat(t), flat(t - f)[1::2] if t >= f else (0j, 0j)) for t in tm.sample_s]
+            c1, c2 = self._cm1, self._cm2
+            # per channel: the MEMS tilt at its instant = Re(c1 e1 z1 + c2 e2 z2) + u_old Re(c1 g1 + c2 g2)
+            # + (u_new - u_old) Re(c1 l1 + c2 l2) (the input is real)
+            self._q1_gains = [(c1 * e1, c2 * e2, (c1 * h1 + c2 * h2).real, (c1 * l1 + c2 * l2).real)
+                              for (e1, h1, e2, h2), (l1, l2) in self._q1_mem]
+            self._mem_tail = flat(self.T - f)[1::2]
 
     def _substeps(self, ns):
         """Tables for ticks of n equal P-FSM sub-steps, n in the tuple ``ns``, zero-padded to nmax = max(ns) and
@@ -210,10 +233,40 @@ class Bench:
         self._q2_tpx = tqx.tolist()
         self._q2_tpy = tqy.tolist()
         self._q2_mem = (mems_row[uq] + js).tolist()     # MEMS (e1, g1, e2, g2) from the tick start
+        if self._timed:
+            tau = js / ns_q * self.T                         # Q2 instants from their tick's start (s)
+            dt = np.maximum(tau - self._land_f, 0.0)
+            mm = self.mems.modal
+            lg = sum(c * (np.exp(lam * dt) - 1.0) / lam * bb for c, lam, bb in zip(mm.c, mm.lam, mm.b))
+            # the MEMS tilt's real gain on (u_new - u_old) at each Q2 instant of a tick whose words landed
+            self._q2_land = np.where(tau >= self._land_f, lg.real, 0.0).tolist()
+            self._q1_tp = self._pfsm_at(self.timing.sample_s, counts, inv, offs, ux, uy, zxa, zya,
+                                        w_part, powers)
         self._q2_p = 0
         self._q2_m0 = m0
         self._blk_n = n_ticks
         self._blk_i = 0
+
+    def _pfsm_at(self, taus, counts, inv, offs, ux, uy, zxa, zya, w_part, powers):
+        """P-FSM tilts (x list, y list per tick of the block) at each offset tau (s) after the tick starts:
+        the modal state at the last code change before tau, then exactly over the rest with that code held."""
+        (lam,), (b,) = self.pfsm.modal.lam, self.pfsm.modal.b
+        cp, nmax = self._cp, w_part.shape[2]
+        out = []
+        for tau in taus:
+            dt = self.T / counts
+            js = np.minimum((tau / dt + 1e-9).astype(np.int64), counts - 1)
+            delta = tau - js * dt
+            ph = np.exp(lam * delta)
+            ga = (ph - 1.0) / lam * b
+            rows = w_part[inv, js]
+            f = powers[inv, js]
+            idx = offs[:-1, None] + np.arange(nmax)
+            ucur = offs[:-1] + js
+            zx = f * zxa[:-1] + (ux[idx] * rows).sum(axis=1)
+            zy = f * zya[:-1] + (uy[idx] * rows).sum(axis=1)
+            out.append(((cp * (ph * zx + ga * ux[ucur])).real.tolist(), (cp * (ph * zy + ga * uy[ucur])).real.tolist()))
+        return out
 
     # --- MEMS FSM input ------------------------------------------------------------------------------
     def spi_write(self, word):
@@ -323,6 +376,8 @@ class Bench:
         was empty or None (overruns) are counted in ``n_missed``. ``q1_rows``, ``fsm_rows``: lists that record
         each tick's Q1 sample and the MEMS tilt volts after its words (with ``on_tick``).
         """
+        if self._timed:
+            return self._run_ticks_timed(n, rows, on_tick, k0, us_per_tick, q1_rows, fsm_rows)
         i = self._blk_i
         if i + n > self._blk_n:
             raise RuntimeError("no P-FSM codes queued for tick %d: call load_pfsm or advance_tick" % self.tick)
@@ -442,6 +497,187 @@ class Bench:
         finally:
             self.zmx1, self.zmx2, self.zmy1, self.zmy2 = zmx1, zmx2, zmy1, zmy2
             self.tpx, self.tpy = tpx, tpy
+            self._blk_i = i
+            self.tick += done
+            self._q2_p = p
+            self.q2_next = q2_m0 + p
+            self._n1_i, self._n2_i = n1_i, n2_i
+            self.n_missed += missed
+
+    def _run_ticks_timed(self, n, rows, on_tick, k0, us_per_tick, q1_rows, fsm_rows):
+        """``run_ticks`` with the board's timing (emulator.timing): Q1's X, Y and SUM channels are sampled at
+        their own instants in the tick (P-FSM and MEMS states exact there), and the controller's words act
+        ``land`` after the tick start: in this tick (d = 0) or d ticks later, at offset f. A tick without an
+        answer is an overrun; the words in flight still land."""
+        i = self._blk_i
+        if i + n > self._blk_n:
+            raise RuntimeError("no P-FSM codes queued for tick %d: call load_pfsm or advance_tick" % self.tick)
+        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+        zmx1, zmx2, zmy1, zmy2 = self.zmx1, self.zmx2, self.zmy1, self.zmy2
+        tpxs, tpys = self._tpx, self._tpy
+        p1, g1, p2, g2 = self._mems_step
+        t1, t2 = self._mem_tail
+        c1, c2 = self._cm1, self._cm2
+        d, fl = self._land_d, self._land_f
+        pending = self._pending
+        (tpx0, tpy0), (tpx1, tpy1), (tpx2, tpy2) = self._q1_tp
+        (ae1, ae2, ah0, al0), (be1, be2, bh0, bl0), (ce1, ce2, ch0, cl0) = self._q1_gains
+        p = self._q2_p
+        q2_ticks, q2_m0, q2_t_us, q2_land = self._q2_ticks, self._q2_m0, self._q2_t_us, self._q2_land
+        q2_tpx, q2_tpy, q2_mem, mems_rows = self._q2_tpx, self._q2_tpy, self._q2_mem, self._mems_rows
+        noise = self.noise
+        n1, n1_i, n2, n2_i = self._n1, self._n1_i, self._n2, self._n2_i
+        gp1, gf1, co1, si1, ox1, oy1 = self._g1
+        gp2, gf2, co2, si2, ox2, oy2 = self._g2
+        f1, f2 = self.q1.inline, self.q2.inline
+        fast1, fast2 = self._fast1, self._fast2
+        lim1, hq1, kx1, ky1, v1 = f1 if f1 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
+        mid, k1, top, s01, pn1, nc21 = self._adc1
+        k2, s02, pn2, nc22 = self._adc2
+        lo, hi = ADS1256.LO, ADS1256.HI
+        ksky, ang = self._sky, self._ang_mag2
+        borex, borey = self.bore
+        missed = done = 0
+        bt = self.tick
+        try:
+            for k in range(k0, k0 + n):
+                dux = duy = 0.0
+                land = False
+                if d and pending and pending[0][0] <= bt:        # words of tick bt - d land at fl
+                    words = pending.pop(0)[1]
+                    ux0, uy0 = umx, umy
+                    self.spi_words(words)
+                    umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                    dux, duy, land = umx - ux0, umy - uy0, True
+                if on_tick is not None:
+                    if noise and n1_i + 3 > len(n1):
+                        n1 = self._n1 = self._refill()
+                        n1_i = 0
+                    ux0, uy0 = umx - dux, umy - duy
+                    # X at its instant (MEMS: modal part + the held inputs' real gains, see set_rate)
+                    xb = gp1 * tpx0[i] + gf1 * ((ae1 * zmx1 + ae2 * zmx2).real + ah0 * ux0 + al0 * dux)
+                    yb = gp1 * tpy0[i] + gf1 * ((ae1 * zmy1 + ae2 * zmy2).real + ah0 * uy0 + al0 * duy)
+                    xd = co1 * xb + si1 * yb - ox1
+                    yd = co1 * yb - si1 * xb - oy1
+                    r2 = xd * xd + yd * yd
+                    if r2 <= lim1:
+                        val = v1 * (erfc(kx1 * (hq1 + xd)) - erfc(kx1 * (hq1 - xd))) * (erfc(ky1 * (hq1 - yd)) + erfc(ky1 * (hq1 + yd)))
+                    else:
+                        val = fast1(xd, yd)[0]
+                    if noise:
+                        sv = k1 * (s01 + pn1 * sqrt(r2))
+                        cx = round(mid - k1 * val - sqrt(sv * sv + nc21) * n1[n1_i])
+                    else:
+                        cx = round(mid - k1 * val)
+                    # Y
+                    xb = gp1 * tpx1[i] + gf1 * ((be1 * zmx1 + be2 * zmx2).real + bh0 * ux0 + bl0 * dux)
+                    yb = gp1 * tpy1[i] + gf1 * ((be1 * zmy1 + be2 * zmy2).real + bh0 * uy0 + bl0 * duy)
+                    xd = co1 * xb + si1 * yb - ox1
+                    yd = co1 * yb - si1 * xb - oy1
+                    r2 = xd * xd + yd * yd
+                    if r2 <= lim1:
+                        val = v1 * (erfc(ky1 * (hq1 - yd)) - erfc(ky1 * (hq1 + yd))) * (erfc(kx1 * (hq1 - xd)) + erfc(kx1 * (hq1 + xd)))
+                    else:
+                        val = fast1(xd, yd)[1]
+                    if noise:
+                        sv = k1 * (s01 + pn1 * sqrt(r2))
+                        cy = round(mid - k1 * val - sqrt(sv * sv + nc21) * n1[n1_i + 1])
+                    else:
+                        cy = round(mid - k1 * val)
+                    # SUM
+                    xb = gp1 * tpx2[i] + gf1 * ((ce1 * zmx1 + ce2 * zmx2).real + ch0 * ux0 + cl0 * dux)
+                    yb = gp1 * tpy2[i] + gf1 * ((ce1 * zmy1 + ce2 * zmy2).real + ch0 * uy0 + cl0 * duy)
+                    xd = co1 * xb + si1 * yb - ox1
+                    yd = co1 * yb - si1 * xb - oy1
+                    r2 = xd * xd + yd * yd
+                    if r2 <= lim1:
+                        val = v1 * (erfc(kx1 * (hq1 - xd)) + erfc(kx1 * (hq1 + xd))) * (erfc(ky1 * (hq1 - yd)) + erfc(ky1 * (hq1 + yd)))
+                    else:
+                        val = fast1(xd, yd)[2]
+                    if noise:
+                        sv = k1 * (s01 + pn1 * sqrt(r2))
+                        cs = round(k1 * val + sqrt(sv * sv + nc21) * n1[n1_i + 2])
+                        n1_i += 3
+                    else:
+                        cs = round(k1 * val)
+                    if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
+                        self.adc1.n_clip += 1
+                        cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
+                    words = on_tick(k, int(k * us_per_tick + 0.5), cx, cy, cs)
+                    if words:
+                        if d:
+                            pending.append((bt + d, tuple(words)))
+                        else:                                   # lands in this tick, after the samples
+                            ux0, uy0 = umx, umy
+                            self.spi_words(words)
+                            umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                            dux, duy, land = umx - ux0, umy - uy0, True
+                    else:
+                        missed += 1
+                    if q1_rows is not None:
+                        q1_rows.append((cx, cy, cs))
+                        fsm_rows.append(self.fsm_v)
+                ux0, uy0 = umx - dux, umy - duy
+                while q2_ticks[p] == i:
+                    e1, h1, e2, h2 = mems_rows[q2_mem[p]]
+                    qx, qy = q2_tpx[p], q2_tpy[p]
+                    tfx = (c1 * (e1 * zmx1 + h1 * ux0) + c2 * (e2 * zmx2 + h2 * ux0)).real
+                    tfy = (c1 * (e1 * zmy1 + h1 * uy0) + c2 * (e2 * zmy2 + h2 * uy0)).real
+                    if land:                                  # the new command acts since fl
+                        lq = q2_land[p]
+                        tfx += lq * dux
+                        tfy += lq * duy
+                    xb = gp2 * qx + gf2 * tfx
+                    yb = gp2 * qy + gf2 * tfy
+                    xd = co2 * xb + si2 * yb - ox2
+                    yd = co2 * yb - si2 * xb - oy2
+                    r2 = xd * xd + yd * yd
+                    if f2 is not None and r2 <= f2[0]:
+                        _, h, kx, ky, v = f2
+                        fxp = erfc(kx * (h - xd))
+                        fxn = erfc(kx * (h + xd))
+                        fyp = erfc(ky * (h - yd))
+                        fyn = erfc(ky * (h + yd))
+                        sx, sy = fxp + fxn, fyp + fyn
+                        vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+                    else:
+                        vx, vy, vs = fast2(xd, yd)
+                    ex = (ang * qx - 2.0 * tfx - borex) * ksky       # true sky error (Eq. 7.5)
+                    ey = (ang * qy - 2.0 * tfy - borey) * ksky
+                    if noise:
+                        if n2_i + 3 > len(n2):
+                            n2 = self._n2 = self._refill()
+                            n2_i = 0
+                        sv = k2 * (s02 + pn2 * sqrt(r2))
+                        sd = sqrt(sv * sv + nc22)
+                        cx = round(k2 * vx + sd * n2[n2_i])
+                        cy = round(k2 * vy + sd * n2[n2_i + 1])
+                        cs = round(k2 * vs + sd * n2[n2_i + 2])
+                        n2_i += 3
+                    else:
+                        cx, cy, cs = round(k2 * vx), round(k2 * vy), round(k2 * vs)
+                    if cx < lo or cx > hi or cy < lo or cy > hi or cs < lo or cs > hi:
+                        self.adc2.n_clip += 1
+                        cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
+                    rows.append((q2_m0 + p, q2_t_us[p], cx, cy, cs, ex, ey))
+                    p += 1
+                # --- advance: the old input up to fl, the new one after it (exact, modal form) ---
+                i += 1
+                if land:
+                    zmx1 = p1 * zmx1 + g1 * ux0 + t1 * dux
+                    zmx2 = p2 * zmx2 + g2 * ux0 + t2 * dux
+                    zmy1 = p1 * zmy1 + g1 * uy0 + t1 * duy
+                    zmy2 = p2 * zmy2 + g2 * uy0 + t2 * duy
+                else:
+                    zmx1, zmx2 = p1 * zmx1 + g1 * umx, p2 * zmx2 + g2 * umx
+                    zmy1, zmy2 = p1 * zmy1 + g1 * umy, p2 * zmy2 + g2 * umy
+                if clipped:
+                    self.n_mems_clip_ticks += 1
+                done += 1
+                bt += 1
+        finally:
+            self.zmx1, self.zmx2, self.zmy1, self.zmy2 = zmx1, zmx2, zmy1, zmy2
+            self.tpx, self.tpy = tpxs[i], tpys[i]
             self._blk_i = i
             self.tick += done
             self._q2_p = p

@@ -67,9 +67,9 @@ def _truth_h(args):
     out = true_h_field(bench, sec74_grid(args.grid), args.dv)
     write_json_atomic(args.output, out)
     c = next(p for p in out["points"] if p["pfsm_v"] == [0.0, 0.0]) if args.grid % 2 else out["points"][0]
-    print("wrote %s: %d points; at P-FSM %s V: V0 = (%.4f, %.4f) V, H = %s"
-          % (args.output, len(out["points"]), c["pfsm_v"], c["v0"][0], c["v0"][1],
-             [[round(v, 4) for v in row] for row in c["H"]]))
+    from emulator.truth import format_h
+    print("wrote %s: %d points; at P-FSM %s V: V0 = (%.4f, %.4f) V, %s"
+          % (args.output, len(out["points"]), c["pfsm_v"], c["v0"][0], c["v0"][1], format_h(c["H"])))
     return 0
 
 

@@ -93,6 +93,13 @@ _DEFAULT = {
         "rate_hz": 630.0,
     },
     "flight_magnification": 13.33,    # Table 2.1, 80 mm / 6 mm, as used in Eq. 7.7-7.8
+    "board": {                         # the controller board's timing in a tick (emulator.timing)
+        "timing": "arduino-zero",     # arduino-zero (thesis board) | zero-latency (ideal) | custom
+        "adc_read_us": 426.0,         # one analogRead, Arduino core defaults (ArduinoCore-samd issue 327)
+        "hold_before_end_us": 75.0,   # sample held 7 ADC clocks before the result (SAMD21 datasheet)
+        "compute_us": 250.0,          # assumed: arithmetic, fills the 1568 us period with the SPI
+        "spi_us": 40.0,               # 4 x 24-bit words at 4 MHz plus chip-select handling
+    },
 }
 
 # Dotted key -> (lo, hi) for numbers (inclusive), or a tuple of choices for strings.
@@ -132,6 +139,11 @@ _RANGES = {
     "adc_q2.rate_hz": (1.0, 30000.0),
     "flight_magnification": (0.1, 1000.0),
     "preset": None,
+    "board.timing": ("arduino-zero", "zero-latency", "custom"),
+    "board.adc_read_us": (0.1, 1e5),
+    "board.hold_before_end_us": (0.0, 1e5),
+    "board.compute_us": (0.0, 1e6),
+    "board.spi_us": (0.0, 1e5),
 }
 for _q in ("q1", "q2"):
     _RANGES.update({
@@ -187,7 +199,10 @@ def _validate(cfg, ref, path=""):
             _validate(val, ref_val, dotted)
             continue
         rng = _RANGES[dotted]
-        if rng is None:
+        if rng and isinstance(rng[0], str):
+            if val not in rng:
+                raise ValueError("config %s = %r is not one of %s" % (dotted, val, ", ".join(rng)))
+        elif rng is None:
             if not isinstance(val, str):
                 raise ValueError("config %s: expected a string, got %r" % (dotted, val))
         elif isinstance(ref_val, list):
@@ -212,6 +227,8 @@ def validate(cfg):
                          "need z1 < (f1/f2)(f1 + f2)" % m["resizer"]["z1_m"])
     if abs(m["mems"]["driver_cutoff_hz"] - m["mems"]["resonance_hz"]) < 1.0:
         raise ValueError("config mems.driver_cutoff_hz must differ from mems.resonance_hz")
+    if m["board"]["hold_before_end_us"] >= m["board"]["adc_read_us"]:
+        raise ValueError("config board.hold_before_end_us must be smaller than board.adc_read_us")
     for q in ("q1", "q2"):
         if m[q]["gap_m"] >= m[q]["radius_m"]:
             raise ValueError("config %s.gap_m must be smaller than %s.radius_m" % (q, q))

@@ -11,6 +11,11 @@ P-FSM input sums precomputed per block; ``block_ticks=1`` interleaves player and
 time without ``on_q2`` the ticks of a block run in one ``Bench.run_ticks`` call (the fast path); real time and
 ``on_q2`` go tick by tick.
 
+The board's timing (``emulator.timing``, the bench config's ``board``) decides when within tick k each Q1 channel
+is sampled and when the answer's words act: at their modelled instant inside tick k or a later tick (the thesis's
+board: just inside tick k + 1). It is deterministic: the words of tick k always land at the same instant, whatever
+the link's retries. ``zero-latency`` samples at the tick start and applies the words at once.
+
 Duck types (docs/INTERFACES.md): ``controller.on_tick(tick, t_us, vx, vy, vs) -> words``;
 ``player.fill(xbuf, ybuf, n) -> int`` writes n AD660 codes per axis (fewer = the DAC holds its last code).
 """
@@ -174,6 +179,8 @@ class Lockstep:
         rate, deadline, realtime, on_q2 = self.rate_hz, self.deadline_s, self.realtime, self.on_q2
         us_per_tick = 1e6 / rate
         clock = time.perf_counter
+        if bench._timed:        # the board's timing lives in the bench's loop: one tick per call
+            return self._ticks_timed(k0, n, t_rt0, q2_rows, q1_rows, fsm_rows)
         for k in range(k0, k0 + n):
             if realtime:
                 due = t_rt0 + k / rate
@@ -200,6 +207,35 @@ class Lockstep:
                 q1_rows.append((vx, vy, vs))
                 fsm_rows.append(bench.fsm_v)
         return k
+
+    def _ticks_timed(self, k0, n, t_rt0, q2_rows, q1_rows, fsm_rows):
+        """``_ticks_general`` for a bench with the board's timing: each tick through ``Bench.run_ticks`` (the
+        controller wrapped for the real-time pacing and deadline); overruns are counted by the bench."""
+        bench, ctrl = self.bench, self.controller
+        rate, deadline, realtime, on_q2 = self.rate_hz, self.deadline_s, self.realtime, self.on_q2
+        clock = time.perf_counter
+
+        def on_tick(k, t_us, vx, vy, vs):
+            if realtime:
+                due = t_rt0 + k / rate
+                now = clock()
+                if now < due:
+                    time.sleep(due - now)
+                if hasattr(ctrl, "timeout_s"):
+                    ctrl.timeout_s = max(0.0, due + deadline - clock())
+            words = ctrl.on_tick(k, t_us, vx, vy, vs)
+            if realtime and clock() > t_rt0 + k / rate + deadline:
+                return None
+            return words
+
+        rec = q1_rows if self.record else None
+        for k in range(k0, k0 + n):
+            m = len(q2_rows)
+            bench.run_ticks(1, q2_rows, on_tick, k, 1e6 / rate, rec, fsm_rows)
+            if on_q2 is not None:
+                for sample in q2_rows[m:]:
+                    on_q2(sample)
+        return k0 + n - 1
 
     def counters(self):
         c = dict(self.bench.counters())

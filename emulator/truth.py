@@ -35,3 +35,10 @@ def true_h_field(bench=None, grid_v=None, dv=0.01):
             points.append(bench.true_h((vx, vy), dv))
     return {"grid_v": grid_v, "dv": dv, "points": points, "bench_config": bench.config,
             "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "source": "emulator truth"}
+
+
+def format_h(h):
+    """H printed one way everywhere: by columns, h_x = dR/dV_x = (H11, H21) and h_y = dR/dV_y = (H12, H22), the
+    layout of the thesis's Eq. 7.18 (1/V)."""
+    return ("h_x = (%.4f, %.4f), h_y = (%.4f, %.4f) 1/V (H by columns: h_x = dR/dV_x, h_y = dR/dV_y)"
+            % (h[0][0], h[1][0], h[0][1], h[1][1]))

@@ -18,13 +18,15 @@ on a 32-bit MCU, so the tick allocates nothing and is bit-identical under CPytho
    runs past the mirror's range; the output codes are (V + 128) >> 8, always within +-limit_code;
 7. the four AD5664R words (layout in ``firmware.ad5664r``), preceded on the first tick by the init sequence.
 
-Default gain g = 0.5 (Q15 16384, the table default). The driver/mirror is taken as a first-order lag
-sampled at T = 1/637.8 Hz, pole b = exp(-T/tau) = 0.14 for tau = 0.8 ms (the 200 Hz drive filter); with H^-1 H = I
-the loop per axis is u[k] = u[k-1] - g p[k - d], p[k+1] = b p[k] + (1 - b) u[k]. Lockstep (d = 0: the sample
-sees the previous command through the lag): z^2 - (1 + b - g (1 - b)) z + b = 0, stable for g < 2(1 + b)/(1 - b)
-= 2.66. One more tick of delay (d = 1, a board whose ADC, arithmetic and SPI fill the tick):
-z^2 - (1 + b) z + b + g (1 - b) = 0, stable for g < 1. g = 0.5 gives poles of radius 0.38 and 0.76 and keeps a
-gain margin of 2 in the worse case, wide enough for the 12 % spread of H over the grid (Fig. 7-17).
+Default gain g = 0.5 (Q15 16384, the table default). The loop per axis (H^-1 H = I) is the integral law
+C(z) = g z / (z - 1) around the MEMS drive as the bench config has it: a 2nd-order Butterworth at 800 Hz, then
+the mirror's 2 kHz resonance (emulator.mirrors.MEMS; an earlier version of this note assumed a 200 Hz first-order
+filter), held from the instant the SPI words land and sampled at each Q1 channel's instant (emulator.timing).
+ground.response.LoopModel discretises it exactly (python-control): with the thesis's board (X sampled 351 us
+into the tick, words landing 1568 us after the tick start, one tick later at 637.8 Hz) g = 0.5 keeps a gain
+margin of 14.2 dB (stable up to g = 2.6) and a phase margin of 69 deg, -3 dB rejection bandwidth 39 Hz; with
+zero latency 11.6 dB, 76 deg, 41 Hz. Both exceed the factor 2 wanted for the 12 % spread of H over the grid
+(Fig. 7-17), so the default gain stays. ``fps response`` measures it on the bench.
 
 Modes (``protocol.table.MODES``): IDLE ramps the command to the centre; TRACK runs the law; HOLD freezes the
 command; CALIBRATE takes voltages from CTRL_SET_FSM; SAFE ramps to the centre and stays there until the

@@ -329,9 +329,12 @@ def _cmd(a):
     print("wrote %s: %d points, dv %g V, %.2f s wall (%s, %s)" % (a.output, len(cal["points"]), a.dv, wall,
                                                                 cal["runtime"], cal["link"]))
     c = next(p for p in cal["points"] if p["pfsm_v"] == [0.0, 0.0]) if 0.0 in grid_v else cal["points"][0]
-    print("centre: V0 = %s V, h_x = (%.4f, %.4f) 1/V, h_y = (%.4f, %.4f) 1/V (thesis Eq. 7.18: "
-          "(-8.5221, 0.0717), (-0.0370, 7.6871))" % (_fmt_v(c["v0"]), c["H"][0][0], c["H"][1][0],
-                                                     c["H"][0][1], c["H"][1][1]))
+    from emulator.config import default_config
+    from emulator.truth import format_h
+    thesis = (cfg is None or cfg == default_config()) and not a.port   # Eq. 7.18 is the thesis preset's figure
+    print("centre: V0 = %s V, %s%s" % (_fmt_v(c["v0"]), format_h(c["H"]),
+                                       "; thesis Eq. 7.18: h_x = (-8.5221, 0.0717), h_y = (-0.0370, 7.6871)"
+                                       if thesis else ""))
     if not a.no_plots:
         plots.calibration_quivers(cal, base + "_fig7-16.png")
         plots.calibration_difference(cal, base + "_fig7-17.png")

@@ -19,6 +19,7 @@ COMMANDS = (
     ("distfile", "ground.distfile_cli", "generate, inspect and export disturbance files (distfiles)"),
     ("calibrate", "ground.calibrate", "H-matrix calibration over the P-FSM grid (Sec. 7.4)"),
     ("hil", "ground.hil", "emulated hardware-in-the-loop run with the Q2 recorder (Sec. 7.5)"),
+    ("response", "ground.response", "the loop's frequency response: stepped sines, measured |S| beside the model"),
     ("adcs", "ground.adcs.cli", "attitude and orbit filters: APKF, MEKF (Ch. 4), STKF with the EAFLS (Ch. 5)"),
 )
 

@@ -42,23 +42,45 @@ def check_playable(x, y, period_us=resample.DIST_PERIOD_US):
                             PFSM_MAX_DEG))
 
 
-def generate(source, duration_s, seed, source_name=None):
-    """Run ``source`` and resample to the distfile step: returns the distfile bytes."""
+def check_step(step_us):
+    """The distfile step: a whole number of us (the format's period_us), not below the P-FSM period."""
+    if step_us != int(step_us) or not resample.PFSM_PERIOD_US <= step_us <= 10_000_000:
+        raise ValueError("--step-us %s: need a whole number of us from %d (the first at or above the P-FSM's "
+                         "%.2f us period, 10.6 kHz) to 10000000" % (_num(step_us), math.ceil(resample.PFSM_PERIOD_US),
+                                                                   resample.PFSM_PERIOD_US))
+    return int(step_us)
+
+
+def _num(v):
+    """A number for a message: 110 or 110.5, never np.float64(110.0)."""
+    v = float(v)
+    return "%d" % v if v == int(v) else "%g" % v
+
+
+def generate(source, duration_s, seed, source_name=None, period_us=resample.DIST_PERIOD_US):
+    """Run ``source``, keep it from aliasing (``resample.antialias``), resample to the step ``period_us`` by
+    3rd-order Lagrange interpolation: returns the distfile bytes."""
+    period_us = check_step(period_us)
     if not 0 < duration_s < math.inf:
-        raise ValueError("duration must be > 0 s and finite, got %r" % duration_s)
-    longest = (distfile.MAX_COUNT - 2) * resample.DIST_PERIOD_US * 1e-6
+        raise ValueError("duration must be > 0 s and finite, got %s" % _num(duration_s))
+    longest = (distfile.MAX_COUNT - 2) * period_us * 1e-6
     if duration_s > longest:
-        raise ValueError("duration %g s is longer than a distfile holds (%d samples of %d us: %.0f s)"
-                         % (duration_s, distfile.MAX_COUNT, resample.DIST_PERIOD_US, longest))
+        raise ValueError("duration %s s is longer than a distfile holds (%d samples of %d us: %.0f s)"
+                         % (_num(duration_s), distfile.MAX_COUNT, period_us, longest))
     if not 0 <= seed <= 0xFFFFFFFF:
-        raise ValueError("seed %r out of range [0, 2**32-1]" % seed)
+        raise ValueError("seed %s out of range [0, 2**32-1]" % _num(seed))
+    if hasattr(source, "check_rate"):
+        source.check_rate(period_us)
+    name = source_name or getattr(source, "name", "user")
     t, x, y = source.generate(duration_s, seed)
-    xr, yr = resample.to_dist_step(t, x, y, duration_s)
-    check_playable(xr, yr)
+    x, y, filtered = resample.antialias(t, x, y, period_us, "source %s" % name)
+    xr, yr = resample.to_dist_step(t, x, y, duration_s, period_us)
+    check_playable(xr, yr, period_us)
     if hasattr(source, "header_source"):      # a source that names its own parameters (bps)
-        source_name = source.header_source()
-    return distfile.pack(xr, yr, period_us=resample.DIST_PERIOD_US, kind=distfile.KIND_FLOAT32,
-                         source=source_name or getattr(source, "name", "user"), seed=int(seed))
+        name = source.header_source()
+    if filtered:
+        name = name[:16 - len(resample.AA_TAG)] + resample.AA_TAG
+    return distfile.pack(xr, yr, period_us=period_us, kind=distfile.KIND_FLOAT32, source=name, seed=int(seed))
 
 
 def load(path):
@@ -86,7 +108,10 @@ def stats(x, y):
 
 def _cmd_generate(a):
     src = sources.get_source(a.source).from_args(a)
-    data = generate(src, a.duration, a.seed, a.source)
+    if a.source == "csv" and a.seed_given:
+        raise ValueError("--seed: the csv source takes no seed (its samples are the file's); leave --seed out")
+    data = generate(src, a.duration, a.seed if a.seed_given or a.source != "csv" else 0, a.source,
+                    period_us=check_step(a.step_us))
     write_atomic(a.output, data)
     if getattr(src, "inputs", None) is not None:          # the source's parameters in full, beside the file
         from ground.fileio import write_json
@@ -95,10 +120,31 @@ def _cmd_generate(a):
                                                     if getattr(src, "from_cache", False) else ""))
     d, x, y = load(a.output)
     s = stats(x, y)
+    side = a.output + ".jitter.json"
+    if a.source == "jitter":
+        write_jitter_sidecar(side, src, d, x, y)
+    elif os.path.exists(side):
+        os.unlink(side)             # a stale sidecar would describe another file
     print("wrote %s: %d samples at %d us (%.1f s), source %s, seed %d; 1-sigma (%.2f, %.2f) arcsec, "
           "peak P-FSM (%.2f, %.2f) V" % (a.output, d.count, d.period_us, d.duration_us() * 1e-6, d.source,
                                           d.seed, s["std_arcsec"][0], s["std_arcsec"][1], *s["pfsm_peak_v"]))
     return 0
+
+
+def write_jitter_sidecar(path, src, d, x, y):
+    """The wheel harmonics of a jitter distfile (``path`` = F.jitter.json): frequencies, amplitudes in the file
+    and as the player plays them (sinc^2); printed too."""
+    import json
+    t = np.arange(d.count) * d.period_us * 1e-6
+    amp = src.harmonics(t, x, y)
+    side = {"wheel_rpm": src.rpm.tolist(), "wheel_hz": src.wheel_hz.tolist(), "file_amp_arcsec": amp.tolist(),
+            "player_gain": resample.player_gain(src.wheel_hz, d.period_us).tolist(), "period_us": d.period_us,
+            "jitter_scale": src.scale}
+    write_atomic(path, (json.dumps(side, indent=2) + "\n").encode())
+    print("wheel harmonics (arcsec in the file, X / Y; the player plays them x sinc^2):")
+    for f, (ax, ay), g in zip(side["wheel_hz"], amp, side["player_gain"]):
+        print("  %8.3f Hz  %.4f / %.4f  x%.4f" % (f, ax, ay, g))
+    print("wrote %s" % path)
 
 
 def _cmd_info(a):
@@ -115,7 +161,36 @@ def _cmd_info(a):
         print("%-10s %12.4f %12.4f" % (key, s[key][0], s[key][1]))
     print("max radial %.4f arcsec (P-FSM limit %.1f arcsec per axis)" % (s["max_radial_arcsec"],
                                                                          MAX_THETA_E_ARCSEC))
+    for line in bandwidth_lines(d):
+        print(line)
     return 0
+
+
+def bandwidth_lines(d):
+    """What the file can hold and what the player makes of it (``fps distfile info``)."""
+    ts = d.period_us
+    nyq = resample.nyquist_hz(ts)
+    fs = 1e6 / ts
+    out = ["nyquist    %.3f Hz (half the file's rate): content above it cannot be in the file" % nyq]
+    if d.source.endswith(resample.AA_TAG):
+        out.append("anti-alias Butterworth order %d at %.3f Hz (%.1f x Nyquist), forward and backward (zero phase), "
+                   "applied before resampling: x%.4f at 0.5 Nyquist, x%.4f at %.3f Hz, x%.4f at Nyquist"
+                   % (resample.AA_ORDER, resample.AA_FRACTION * nyq, resample.AA_FRACTION,
+                      resample.antialias_gain(0.5 * nyq, ts), resample.antialias_gain(resample.AA_FRACTION * nyq, ts),
+                      resample.AA_FRACTION * nyq, resample.antialias_gain(nyq, ts)))
+    else:
+        out.append("anti-alias none needed: the source was no faster than the file (or a sine checked against "
+                   "its Nyquist)")
+    out.append("player     linear interpolation plays a tone f at sinc^2(f x %d us) and adds images at "
+               "%.3f Hz -+ f (then the AD660 holds each code for 1/10.6 kHz):" % (ts, fs))
+    out.append("           %10s %10s %12s %10s %12s %10s" % ("f (Hz)", "gain", "image (Hz)", "gain", "image (Hz)",
+                                                             "gain"))
+    for k in (0.05, 0.25, 0.5, 0.75, 0.9):
+        f = k * nyq
+        out.append("           %10.3f %10.4f %12.3f %10.4f %12.3f %10.4f"
+                   % (f, resample.player_gain(f, ts), fs - f, resample.player_gain(fs - f, ts), fs + f,
+                      resample.player_gain(fs + f, ts)))
+    return out
 
 
 def _cmd_csv(a):
@@ -130,17 +205,30 @@ def _cmd_csv(a):
     return 0
 
 
+def _seeded(fn):
+    def run(a):
+        a.seed_given = a.seed is not None
+        if a.seed is None:
+            a.seed = 1
+        return fn(a)
+    return run
+
+
 def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
     s = p.add_subparsers(dest="distfile_cmd", metavar="ACTION")
     g = s.add_parser("generate", help="generate a distfile from a source")
     g.add_argument("--source", default="stat", choices=sorted(sources.SOURCES), help="disturbance source")
     g.add_argument("--duration", type=float, default=600.0, help="seconds (default 600)")
-    g.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    g.add_argument("--seed", type=int, default=None,
+                   help="random seed (default 1; not for --source csv, which has no randomness)")
+    g.add_argument("--step-us", type=float, default=resample.DIST_PERIOD_US,
+                   help="distfile step in whole us, from 95 (the P-FSM's 94.3 us period) up (default %d, the "
+                        "thesis's 8.192 ms: Nyquist 61 Hz)" % resample.DIST_PERIOD_US)
     g.add_argument("-o", "--output", required=True, help="distfile to write")
     for cls in sources.SOURCES.values():
         cls.add_arguments(g)
-    g.set_defaults(func=_cmd_generate)
+    g.set_defaults(func=_seeded(_cmd_generate))
     i = s.add_parser("info", help="print the header and statistics")
     i.add_argument("file")
     i.set_defaults(func=_cmd_info)

@@ -297,6 +297,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     n_played = min(len(dx), int(round(rec.virtual_s * 1e6 / d.period_us)) + 1)
     summary["disturbance"] = report.error_stats(dx[:n_played], dy[:n_played])   # the body pointing error played
     summary["disturbance"]["source"] = d.source
+    summary["jitter_harmonics"] = jitter_harmonics(distfile_path, rec, t0_us, rig)
     summary["mode_changes"] = mode_changes(rig, tick0) if tick0 is not None else []
     summary["interrupted"] = interrupted
     summary["error"] = failure
@@ -312,6 +313,36 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     if failure:
         raise RunFailed("%s (partial run in %s, summary complete=false)" % (summary["error"], out_dir))
     return summary
+
+
+def jitter_harmonics(distfile_path, rec, t0_us, rig):
+    """For a jitter distfile (its F.jitter.json sidecar): each wheel harmonic's amplitude in the file, as
+    played (x sinc^2 of the player), after the FSM loop (the truth at the Q2 instants) and the loop model's
+    prediction (played x |S|, ground.response.LoopModel). None for other distfiles."""
+    side = distfile_path + ".jitter.json"
+    if not os.path.exists(side) or rig is None:
+        return None
+    try:
+        with open(side) as f:
+            j = json.load(f)
+        freqs = [float(v) for v in j["wheel_hz"]]
+        file_amp = np.asarray(j["file_amp_arcsec"], float).reshape(len(freqs), 2)
+        gain = np.asarray(j["player_gain"], float)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return {"error": "%s: %s" % (side, exc)}
+    q2, truth = rec.arrays()
+    if len(q2) < 4 * len(freqs) + 2:
+        return None
+    from ground.jitter import harmonic_amplitudes
+    from ground.response import LoopModel
+    t = (q2[:, 1] - t0_us) * 1e-6
+    after = harmonic_amplitudes(t, truth, freqs)
+    fs = [f for f in freqs]
+    model = np.column_stack([np.abs(LoopModel(rig.config, rig.rate_hz, 0.5, ax).s_truth(fs)) for ax in (0, 1)])
+    played = file_amp * gain[:, None]
+    return [{"wheel_hz": f, "file_arcsec": file_amp[i].tolist(), "played_arcsec": played[i].tolist(),
+             "after_loop_arcsec": after[i].tolist(), "model_after_arcsec": (played[i] * model[i]).tolist()}
+            for i, f in enumerate(freqs)]
 
 
 class RunFailed(OSError):
@@ -440,6 +471,15 @@ def _cmd(a):
     files = "summary.json, report.md, samples.npz, telemetry.csv"
     if not a.no_plots and s.get("q2_samples"):
         files += ", fig7-18_scatter.png, fig7-19_time.png"
+    if s.get("jitter_harmonics") and isinstance(s["jitter_harmonics"], list):
+        print()
+        print("| wheel harmonic (Hz) | in the file X / Y (arcsec) | played | after the FSM loop (truth) | "
+              "model after |")
+        print("|---|---|---|---|---|")
+        for h in s["jitter_harmonics"]:
+            print("| %.2f | %.4f / %.4f | %.4f / %.4f | %.4f / %.4f | %.4f / %.4f |" % (
+                h["wheel_hz"], *h["file_arcsec"], *h["played_arcsec"], *h["after_loop_arcsec"],
+                *h["model_after_arcsec"]))
     print("run folder %s: %s" % (a.output, files))
     for line in verdict_lines(s):
         print(line)

@@ -76,3 +76,54 @@ def to_dist_step(t_s, x, y, duration_s=None, period_us=DIST_PERIOD_US):
     t_out = t_s[0] + np.arange(count) * dt
     xy = lagrange3(t_s, np.column_stack([x, y]), t_out)
     return xy[:, 0], xy[:, 1]
+
+
+# --- bandwidth: what a distfile step can hold and what the player plays -------------------------------------
+PFSM_PERIOD_US = 1e6 / 10600.0    # the P-FSM update period (94.34 us): no distfile step below it plays
+AA_ORDER = 8                      # anti-aliasing filter: Butterworth, applied forward and backward (zero phase)
+AA_FRACTION = 0.8                 # its cutoff, as a fraction of the file's Nyquist frequency
+AA_TAG = "+aa"                    # appended to the distfile's source name when the filter was applied
+
+
+def nyquist_hz(period_us):
+    return 0.5e6 / period_us
+
+
+def antialias_gain(f_hz, period_us):
+    """Amplitude response of the anti-aliasing filter for a file of step period_us: the Butterworth of order
+    AA_ORDER at AA_FRACTION x Nyquist, forward and backward, |H|^2 = 1 / (1 + (f / fc)^(2 n))."""
+    fc = AA_FRACTION * nyquist_hz(period_us)
+    return 1.0 / (1.0 + (np.asarray(f_hz, float) / fc) ** (2 * AA_ORDER))
+
+
+def player_gain(f_hz, period_us):
+    """Linear interpolation between samples every Ts plays a tone f at sinc^2(f Ts) (the triangle kernel's
+    transform; np.sinc(x) = sin(pi x) / (pi x)); its images at k/Ts -+ f come out at sinc^2(k -+ f Ts)."""
+    return np.sinc(np.asarray(f_hz, float) * period_us * 1e-6) ** 2
+
+
+def antialias(t_s, x, y, period_us, what="source"):
+    """Keep a source from aliasing when it is resampled to ``period_us``.
+
+    Returns (x, y, filtered). A source no faster than the file needs nothing (its content is below its own
+    Nyquist frequency, at most the file's). A faster uniform source is low-pass filtered (``antialias_gain``,
+    scipy.signal.butter + sosfiltfilt) before resampling; a faster non-uniform one is refused, naming its
+    highest representable frequency and the file's Nyquist frequency.
+    """
+    t_s = np.asarray(t_s, float)
+    dt = np.diff(t_s)
+    step = float(np.median(dt))
+    file_step = period_us * 1e-6
+    if step >= file_step * (1 - 1e-9):
+        return x, y, False
+    nyq = nyquist_hz(period_us)
+    if np.max(np.abs(dt - step)) > 1e-6 * step + 1e-12:
+        raise ValueError("%s: its samples are not uniform and come faster (median step %.6g s, content up to "
+                         "%.4g Hz) than the distfile step %d us can hold (Nyquist %.4g Hz): resample it "
+                         "uniformly (it is then low-pass filtered) or use a finer --step-us"
+                         % (what, step, 0.5 / step, period_us, nyq))
+    from scipy import signal
+    sos = signal.butter(AA_ORDER, AA_FRACTION * nyq, fs=1.0 / step, output="sos")
+    if len(x) <= 3 * (2 * len(sos) + 1):
+        raise ValueError("%s: too few samples (%d) to low-pass filter before resampling" % (what, len(x)))
+    return signal.sosfiltfilt(sos, x), signal.sosfiltfilt(sos, y), True

@@ -150,19 +150,34 @@ class Sine:
     name = "sine"
 
     def __init__(self, amp_arcsec=(30.0, 30.0), freq_hz=(0.1, 0.13), phase_deg=(0.0, 90.0),
-                 offset_arcsec=(0.0, 0.0), rate_hz=1000.0):
+                 offset_arcsec=(0.0, 0.0), rate_hz=None):
         self.amp = np.asarray(amp_arcsec, dtype=float)
         self.freq = np.asarray(freq_hz, dtype=float)
         self.phase = np.radians(np.asarray(phase_deg, dtype=float))
         self.offset = np.asarray(offset_arcsec, dtype=float)
-        if not rate_hz > 0:
-            raise ValueError("sine rate_hz must be > 0, got %r" % rate_hz)
+        if rate_hz is not None and not rate_hz > 0:
+            raise ValueError("sine rate_hz must be > 0, got %g" % rate_hz)
         if not np.all(self.amp >= 0):
             raise ValueError("--amp-arcsec %s: amplitudes must be >= 0 arcsec (a sign is a phase: --phase-deg)"
                              % [float(v) for v in self.amp])
-        if np.any(self.freq < 0) or np.any(self.freq >= rate_hz / 2):
-            raise ValueError("sine freq_hz %s must be in [0, rate/2 = %g)" % (list(self.freq), rate_hz / 2))
-        self.rate_hz = float(rate_hz)
+        if np.any(self.freq < 0):
+            raise ValueError("sine freq_hz %s must be >= 0" % [float(v) for v in self.freq])
+        if rate_hz is not None and np.any(self.freq >= rate_hz / 2):
+            raise ValueError("sine freq_hz %s must be below its rate's Nyquist frequency %g Hz"
+                             % ([float(v) for v in self.freq], rate_hz / 2))
+        self.rate_hz = None if rate_hz is None else float(rate_hz)
+
+    def check_rate(self, period_us):
+        """Refuse a tone at or above the distfile's Nyquist frequency (it would alias); by default the sine is
+        produced at the file's own rate."""
+        nyq = 0.5e6 / period_us
+        top = float(self.freq.max())
+        if top >= nyq:
+            raise ValueError("sine %g Hz is at or above the distfile's Nyquist frequency %g Hz (step %d us): it "
+                             "would alias; use --step-us %d or finer" % (top, nyq, period_us,
+                                                                       int(0.5e6 / top / 1.25)))
+        if self.rate_hz is None:
+            self._file_rate = 1e6 / period_us
 
     @staticmethod
     def add_arguments(p):
@@ -170,7 +185,9 @@ class Sine:
         p.add_argument("--freq-hz", default="0.1,0.13", help="sine frequencies X,Y (Hz)")
         p.add_argument("--phase-deg", default="0,90", help="sine phases X,Y (deg)")
         p.add_argument("--offset-arcsec", default="0,0", help="constant offsets X,Y (arcsec)")
-        p.add_argument("--sine-rate-hz", type=float, default=1000.0, help="source rate (Hz)")
+        p.add_argument("--sine-rate-hz", type=float, default=None,
+                       help="source rate (Hz; default the distfile's own rate; a faster one is low-pass filtered "
+                            "before resampling)")
 
     @classmethod
     def from_args(cls, a):
@@ -179,7 +196,8 @@ class Sine:
                    a.sine_rate_hz)
 
     def generate(self, duration_s, seed):
-        t = np.arange(_n_samples(duration_s, self.rate_hz)) / self.rate_hz
+        rate = self.rate_hz or getattr(self, "_file_rate", 1000.0)
+        t = np.arange(_n_samples(duration_s, rate)) / rate
         xy = [self.amp[i] * np.sin(2 * np.pi * self.freq[i] * t + self.phase[i]) + self.offset[i]
               for i in range(2)]
         return t, xy[0], xy[1]
@@ -243,9 +261,14 @@ register_source("sine", Sine)
 register_source("csv", CsvSource)
 
 
+
 def _register_bps():
     from ground.adcs.bps_source import BpsSource   # the body pointing simulator of Sec. 6.4 (issue 11)
     register_source("bps", BpsSource)
 
 
 _register_bps()
+
+from ground.jitter import WheelJitter  # noqa: E402  (it uses the registry above for its --jitter-base)
+
+register_source("jitter", WheelJitter)

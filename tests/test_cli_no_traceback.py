@@ -52,6 +52,7 @@ def files(tmp_path_factory):
                        ("csv_nan", b"t_s,x_arcsec,y_arcsec\n0,nan,1\n0.1,inf,2\n0.2,1,1\n0.3,1,1\n"),
                        ("csv_big", b"t_s,x_arcsec,y_arcsec\n0,1e40,1\n0.1,2,2\n0.2,3,3\n0.3,1,1\n"),
                        ("csv_bad", b"garbage\n,,,\n"),
+                       ("csv_ok", b"t_s,x_arcsec,y_arcsec\n0,1,1\n0.1,2,2\n0.2,3,3\n0.3,1,1\n0.4,1,1\n"),
                        ("dist", distfile.pack([0.0, 1.0, 2.0], [0.0, 1.0, 2.0])),
                        ("cal", json.dumps(fp.calibration(3)).encode())):
         f[name] = str(d / name)
@@ -152,6 +153,28 @@ def _bad_cases(f):
               ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--runtime", "board"],
               ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--tick-tries", "0",
                "--runtime", "cpython"]]
+    for v in BAD_NUMBERS:
+        cases += [["response", "-o", o, "--points", "2", "--from", v], ["response", "-o", o, "--points", "2",
+                                                                        "--to", v],
+                  ["response", "-o", o, "--points", "2", "--amp", v],
+                  ["distfile", "generate", "-o", o, "--duration", "1", "--step-us", v],
+                  ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+                   "--jitter-scale", v],
+                  ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+                   "--jitter-step-us", v],
+                  ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+                   "--jitter-rpm", v]]
+    cases += [["response"], ["response", "-o", o, "--points", "1"], ["response", "-o", o, "--config", g],
+              ["response", "-o", o, "--points", "2", "--rate-hz", "2000"],
+              ["response", "-o", o, "--points", "2", "--timing", "nope"],
+              ["distfile", "generate", "-o", o, "--duration", "1", "--step-us", "94"],
+              ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+               "--jitter-base", "jitter"],
+              ["distfile", "generate", "-o", o, "--source", "jitter", "--duration", "0.1", "--step-us", "1000",
+               "--jitter-base", "nope"],
+              ["distfile", "generate", "-o", o, "--duration", "1", "--step-us", "100.5"],
+              ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--freq-hz", "110"],
+              ["distfile", "generate", "-o", o, "--source", "csv", "--csv", f["csv_ok"], "--seed", "3"]]
     for sub in ("apkf", "mekf", "stkf"):
         cases += [["adcs", sub, "-o", o, "--runs", "0"], ["adcs", sub, "-o", o, "--runs", "x"],
                   ["adcs", sub, "-o", o, "--workers", "0"], ["adcs", sub, "-o", o, "--seed", "-1e40"],
@@ -177,7 +200,7 @@ def test_every_command_is_covered(files):
     want = {("protocol", "encode"), ("protocol", "decode"), ("protocol", "dbc"), ("emulator", "config"),
             ("emulator", "truth-h"), ("emulator", "serve"), ("distfile", "generate"), ("distfile", "info"),
             ("distfile", "csv"), ("calibrate",), ("hil",), ("adcs", "apkf"), ("adcs", "mekf"), ("adcs", "stkf"),
-            ("adcs", "bps"), ("adcs", "sweep")}
+            ("adcs", "bps"), ("adcs", "sweep"), ("response",)}
     assert want <= reached
     assert {c[0] for c in cli.COMMANDS} == {w[0] for w in want}
 
@@ -203,6 +226,7 @@ def test_bad_inputs_give_a_clear_error_never_a_traceback(capsys, files):
         assert rc in (1, 2), (" ".join(argv), rc, out, err)
         last = err.strip().splitlines()[-1] if err.strip() else ""
         assert last.startswith("fps") and "error: " in last, (argv, err)     # argparse's usage may precede it
+        assert "np.float" not in err and "np.int" not in err, (argv, err)   # numbers as people write them
 
 
 def test_fine_inputs_exit_0(capsys, files):

@@ -17,7 +17,8 @@ from emulator.lockstep import SinePlayer as Sine
 from emulator.mirrors import INIT_WORDS, fsm_words
 from protocol import core
 
-V0 = (0.0375, -0.0026)       # the default bench's null at P-FSM 0 V
+V0 = (0.0375, -0.0026)
+ZERO_LATENCY = {"board": {"timing": "zero-latency"}}    # the ideal loop these tests were written for       # the default bench's null at P-FSM 0 V
 
 
 class Integral:
@@ -42,7 +43,7 @@ class Integral:
 
 
 def _run(seed=1, ticks=400, controller=None, **kw):
-    b = Bench(seed=seed)
+    b = Bench(ZERO_LATENCY, seed=seed)
     c = controller or Integral(b.config)
     return Lockstep(b, c, Sine(amp=3000, hz=7.0), record=True, **kw).run(n_ticks=ticks)
 
@@ -93,7 +94,7 @@ def test_fused_block_loop_matches_the_per_tick_path():
             return super().on_tick(tick, t_us, vx, vy, max(vs, 1))
 
     def go(per_tick):
-        b = Bench(seed=7)
+        b = Bench(ZERO_LATENCY, seed=7)
         c = Clipping(b.config, gain=0.9, skip=range(50, 60))
         seen = []
         res = Lockstep(b, c, Sine(amp=3000, hz=7.0), record=True, block_ticks=33,
@@ -108,7 +109,7 @@ def test_fused_block_loop_matches_the_per_tick_path():
 
 
 def test_missing_commands_are_overruns_and_the_mirror_holds():
-    b = Bench(seed=2)
+    b = Bench(ZERO_LATENCY, seed=2)
     ctrl = Integral(b.config, skip=range(100, 110))
     res = Lockstep(b, ctrl, Sine(amp=3000, hz=7.0), record=True).run(n_ticks=200)
     assert res["counters"]["overruns"] == 10
@@ -124,7 +125,7 @@ def test_player_running_short_holds_the_last_code():
             xbuf[:m] = array("H", [40000] * m)
             ybuf[:m] = array("H", [30000] * m)
             return m
-    b = Bench(noise=False)
+    b = Bench(ZERO_LATENCY, noise=False)
     lock = Lockstep(b, Integral(b.config), Short(), block_ticks=4)
     lock.run(n_ticks=400)
     assert lock.counters()["player_short_blocks"] == 100
@@ -140,14 +141,14 @@ def test_realtime_slow_controller_overruns():
             time.sleep(0.004)
             return Integral.on_tick(self, tick, t_us, vx, vy, vs)
 
-    b = Bench()
+    b = Bench(ZERO_LATENCY)
     res = Lockstep(b, Slow(b.config), deadline_s=0.001, realtime=True).run(n_ticks=5)
     assert res["counters"]["overruns"] == 5
     assert b.counters()["spi_words"] == 0
 
 
 def test_unknown_spi_words_counted_and_ignored():
-    b = Bench(noise=False)
+    b = Bench(ZERO_LATENCY, noise=False)
     b.spi_words(INIT_WORDS)
     b.spi_words(fsm_words(0.5, 0.2, b.config))
     before = b.fsm_v
@@ -175,7 +176,7 @@ def _serve_controller(recv, send, ctrl, n):
 
 
 def _remote_run(link, peer_recv, peer_send, ticks):
-    b = Bench(seed=3)
+    b = Bench(ZERO_LATENCY, seed=3)
     th = threading.Thread(target=_serve_controller, args=(peer_recv, peer_send, Integral(b.config), ticks))
     th.start()
     rc = RemoteController(link, timeout_s=5.0)
@@ -189,7 +190,7 @@ def test_physics_does_not_depend_on_the_transport():
     from protocol.link import inproc_pair, open_link
     from protocol.stream import StreamLink
     ticks = 150
-    b = Bench(seed=3)
+    b = Bench(ZERO_LATENCY, seed=3)
     ref = Lockstep(b, Integral(b.config), Sine(amp=3000, hz=7.0), record=True).run(n_ticks=ticks)
 
     a, peer = inproc_pair("BENCH", "CONTROLLER")
@@ -223,7 +224,7 @@ def test_remote_timeout_is_an_overrun_and_late_answers_are_dropped():
     pytest.importorskip("protocol.link")
     from protocol.link import inproc_pair
     a, peer = inproc_pair("BENCH", "CONTROLLER")
-    b = Bench(seed=1)
+    b = Bench(ZERO_LATENCY, seed=1)
     rc = RemoteController(a, timeout_s=0.05)
     lock = Lockstep(b, rc)
     lock.run(n_ticks=1)                                   # nobody answers tick 0
@@ -277,7 +278,7 @@ def test_serve_cli_over_a_pty(tmp_path, link):
 
 # --- ADC chains ------------------------------------------------------------------------------------------
 def test_q1_counts_follow_the_interfaces_convention_and_quantize():
-    b = Bench(noise=False)
+    b = Bench(ZERO_LATENCY, noise=False)
     b.spi_words(INIT_WORDS)
     for fv in ((0.0375, -0.0026), (0.06, 0.01), (0.0, -0.05)):
         b.spi_words(fsm_words(fv[0], fv[1], b.config))
@@ -306,7 +307,7 @@ def test_adc_clipping_is_counted():
 
 
 def test_q2_counts_are_ads1256_twos_complement():
-    b = Bench(noise=False)
+    b = Bench(ZERO_LATENCY, noise=False)
     q2 = b.advance_tick([0x8000] * 17, [0x8000] * 17)
     m, t_us, vx, vy, vs = q2[0][:5]
     k = b.config["q2"]["amp_gain"] / 5.0 * 0x800000
@@ -360,7 +361,7 @@ def test_truth_h_cli_writes_the_calibration_shape(tmp_path):
 
 
 def test_bad_timing_and_codes_are_refused_or_counted():
-    b = Bench(noise=False)
+    b = Bench(ZERO_LATENCY, noise=False)
     with pytest.raises(RuntimeError, match="load_pfsm"):
         b.step()
     with pytest.raises(ValueError, match="load_pfsm"):
@@ -370,14 +371,14 @@ def test_bad_timing_and_codes_are_refused_or_counted():
     assert b.tpx > 0 > b.tpy
     for kw in ({"pfsm_hz": 50.0}, {"deadline_s": 0.0}, {"block_ticks": 0}, {"rate_hz": 0.5}):
         with pytest.raises(ValueError, match=next(iter(kw))):
-            Lockstep(Bench(), Integral(default_config()), **kw)
+            Lockstep(Bench(ZERO_LATENCY), Integral(default_config()), **kw)
 
 
 def test_distfile_player_interpolates_and_converts_by_eq_7_8():
     from emulator.serve import DistfilePlayer
     from protocol import distfile
     d = distfile.parse(distfile.pack([0.0, 40.0, -20.0], [10.0, 10.0, 10.0]))
-    b = Bench()
+    b = Bench(ZERO_LATENCY)
     p = DistfilePlayer(d, b, pfsm_hz=10600.0)
     n = p.n_total + 50
     xb, yb = array("H", bytes(2 * n)), array("H", bytes(2 * n))

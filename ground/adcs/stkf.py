@@ -24,6 +24,7 @@ VB = slice(9, 12)
 
 
 I3 = np.eye(3)
+I6 = np.eye(6)
 I12 = np.eye(N)
 
 
@@ -193,15 +194,30 @@ def h_gnss(x, sat):
 
 def los(x):
     """(u, rho): unit vector rA->rB (J2000) and the range (Eq. 5.14)."""
-    d = x[IB] - x[IA]
-    rho = float(np.sqrt(d @ d))
+    d = x[6:9] - x[0:3]
+    rho = sqrt(d @ d)
     return d / rho, rho
 
 
 def Hb(x):
     """Hb,A of Eq. 5.17: d u / d rA = -(I - u u^T)/rho; Hb,B = -Hb,A."""
     u, rho = los(x)
-    return (np.outer(u, u) - I3) / rho
+    return (u[:, None] * u - I3) / rho
+
+
+def gnss_beacon(x, A):
+    """(h, H) of SatA's GNSS and the beacon stacked (Eq. 5.12, 5.13, 5.16): h = [rA, vA, y_b] (9),
+    H = [[I6, 0], [A Hb,A, 0, A Hb,B, 0]] (9 x 12), from one line-of-sight evaluation."""
+    u, rho = los(x)
+    h = np.empty(9)
+    h[0:6] = x[0:6]
+    h[6:9] = A @ u
+    H = np.zeros((9, N))
+    H[0:6, 0:6] = I6
+    hb = A @ ((u[:, None] * u - I3) / rho)
+    H[6:9, IA] = hb
+    H[6:9, IB] = -hb
+    return h, H
 
 
 def h_beacon(x, A):

@@ -198,7 +198,7 @@ def rates(x, model, t, w_rw, acc, env_i=None):
 
 
 def _rates_f(q, w, s, c):
-    """(q_dot, w_dot, r_b, b_b, H) of ``_rates`` on Python floats (the same equations; ~10x fewer instructions
+    """(q_dot, w_dot, r_b, b_b, H) of ``_rates`` on Python floats (the same equations; ~4x fewer instructions
     than the numpy form on 3-vectors). ``c`` = (J, J^-1, C Jrw W, C Jrw a, r_i, b_i, 3 mu/r^3, m, tau_d)."""
     J, Ji, cjW, cja, ri, bi, k, mm, td = c
     e1, e2, e3, q4 = q

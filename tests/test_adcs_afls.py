@@ -154,3 +154,35 @@ def test_prune_keeps_lag_plus_one_node():
         flt.predict(float(k))
     assert flt.t == [9.0, 8.0, 7.0, 6.0, 5.0]
     assert flt.P.shape == (20, 20)
+
+
+def test_module_functions_equal_the_buffered_class():
+    """The class keeps its nodes in a preallocated buffer and updates in place; the module's functions
+    (``predict``, ``generate_node``, ``insert_node``, ``update``: the textbook form a flight version follows)
+    must give the same nodes, to 1e-12, through predictions, updates, generated nodes and pruning."""
+    in_seq, oosm = scenario(3)
+    flt = make_filter(lag=3.0)
+    X, P, t = flt.X.copy(), flt.P.copy(), [0.0]
+    n = 4
+    for k in range(1, 13):
+        flt.predict(float(k))
+        x0 = X[:n]
+        X, P = afls.predict(X, P, n, phi_lin(1.0) @ x0, phi_lin(1.0), q_lin(1.0))
+        t.insert(0, float(k))
+        keep = next((i + 1 for i, ti in enumerate(t) if ti < k - 3.0 - 1e-9), len(t))
+        t, X, P = t[:keep], X[:keep * n], P[:keep * n, :keep * n]
+        meas = [(float(k), in_seq[k])] + [(tm, z) for tm, kd, z in oosm if kd == k]
+        for tm, z in meas:
+            flt.update(z, R_LIN, lambda x: H_LIN @ x, lambda x: H_LIN, t=tm)
+            i = next(i for i, ti in enumerate(t) if ti <= tm + 1e-9)
+            if abs(t[i] - tm) > 1e-9:
+                xb, Pbb, row = afls.generate_node(X, P, n, i, i - 1, tm - t[i], t[i - 1] - tm,
+                                                  lambda x, dt: phi_lin(dt) @ x, lambda x, dt: phi_lin(dt), q_lin)
+                X, P = afls.insert_node(X, P, n, i, xb, Pbb, row)
+                t.insert(i, tm)
+            s = slice(i * n, (i + 1) * n)
+            X, P = afls.update(X, P, n, i, z, R_LIN, H_LIN, H_LIN @ X[s])
+        assert flt.t == t
+        np.testing.assert_allclose(flt.X, X, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(flt.P, P, rtol=0, atol=1e-12)
+    assert flt.generated > 3

@@ -16,6 +16,7 @@ Phi(dt) x and the EAFLS reduces to the AFLS exactly.
 """
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf, dtrtri
 
 
 def predict(X, P, n, x0_new, Phi, Q):
@@ -34,15 +35,29 @@ def predict(X, P, n, x0_new, Phi, Q):
     return np.concatenate([x0_new, X]), Pn
 
 
+def chol_inv(S):
+    """L^-1 with S = L L^T (LAPACK dpotrf + dtrtri: ~2 us for the 6-12 dimensional S here, where
+    numpy.linalg.solve costs ~15-40 us in per-call overhead). LinAlgError unless S is positive definite."""
+    c, info = dpotrf(S, lower=1)
+    if info == 0:
+        c, info = dtrtri(c, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError("innovation covariance is not positive definite (LAPACK info %d)" % info)
+    return c
+
+
 def update(X, P, n, idx, z, R, H, hx):
     """FLS update with a measurement of node ``idx`` (Eq. 5.24): C = [0 .. H .. 0],
-    K = P C^T (H P_ii H^T + R)^-1, X + K (z - h(x_i)), P - K S K^T (= P - K C P; the prediction
-    re-symmetrises the current block)."""
+    K = P C^T (H P_ii H^T + R)^-1, X + K (z - h(x_i)), P - K S K^T (= P - K C P).
+
+    In square-root form with S = L L^T: W = P C^T L^-T, K = W L^-1, P - W W^T. (W W^T is formed as the
+    product with a contiguous copy of W^T: numpy's syrk path for ``W @ W.T`` is ~2x slower at this size.)"""
     s = slice(idx * n, (idx + 1) * n)
     PCt = P[:, s] @ H.T
-    S = H @ PCt[s, :] + R
-    K = np.linalg.solve(S, PCt.T).T
-    return X + K @ (z - hx), P - K @ PCt.T
+    Li = chol_inv(H @ PCt[s, :] + R)
+    W = PCt @ Li.T
+    WWt = W @ np.ascontiguousarray(W.T)
+    return X + W @ (Li @ (z - hx)), np.subtract(P, WWt, out=WWt)
 
 
 def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
@@ -62,14 +77,22 @@ def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
     xb_pred = f(xa, dt_a)
     Fa = Phi(xa, dt_a)
     Fb = Phi(xb_pred, dt_b)
-    Qa, Qb = Q(dt_a), Q(dt_b)
-    Qca = Fb @ Qa @ Fb.T + Qb
-    B = np.linalg.solve(Qca, Fb @ Qa).T           # Qa Fb^T Qca^-1 (Qa, Qca symmetric)
-    IBF = np.eye(n) - B @ Fb
+    Qa = Q(dt_a)
+    FQ = Fb @ Qa
+    Li = chol_inv(FQ @ Fb.T + Q(dt_b))             # Qca = L L^T
+    B = (FQ.T @ Li.T) @ Li                         # Qa Fb^T Qca^-1 (Qa symmetric)
+    BF = B @ Fb
+    IBF = np.eye(n) - BF
     A = IBF @ Fa
-    xb = xb_pred + B @ Fb @ (f(xc, -dt_b) - xb_pred)
-    row = A @ P[sa, :] + B @ P[sc, :]               # P_bj, j over all nodes (Eq. 5.42)
-    Pbb = row[:, sa] @ A.T + row[:, sc] @ B.T + IBF @ Qa   # = Eq. 5.41 expanded
+    xb = xb_pred + BF @ (f(xc, -dt_b) - xb_pred)
+    if ia == ic + 1:                               # c just before a in the node list: one product (Eq. 5.42)
+        BA = np.empty((n, 2 * n))
+        BA[:, :n], BA[:, n:] = B, A
+        row = BA @ P[sc.start:sa.stop, :]
+        Pbb = row[:, sc.start:sa.stop] @ BA.T + IBF @ Qa      # = Eq. 5.41 expanded
+    else:
+        row = A @ P[sa, :] + B @ P[sc, :]
+        Pbb = row[:, sa] @ A.T + row[:, sc] @ B.T + IBF @ Qa
     Pbb = 0.5 * (Pbb + Pbb.T)
     return xb, Pbb, row
 
@@ -106,31 +129,90 @@ class Afls:
         if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(P0))):
             raise ValueError("initial state or covariance has a NaN")
         self.n = x0.size
-        self.X, self.P = x0.copy(), P0.copy()
+        self._load(x0, P0)
         self.t = [float(t0)]
         self.lag = float(lag_s)
         self.f, self.Phi, self.Q = f, Phi, Q
         self.tol = tol
         self.generated = 0
 
+    # The nodes live in a preallocated buffer, newest first, in the window [o, o + m) of its rows and columns;
+    # a prediction writes the new node just before the window (the old joint covariance is not copied),
+    # pruning shortens the window, and a generated node moves only the nodes newer than it. When the window
+    # reaches the buffer's start it is moved back to the end (one copy every ~cap/n steps).
+    def _load(self, X, P, cap=None):
+        m = X.size
+        cap = max(cap or 0, 4 * m + 16 * self.n)
+        self._Xb = np.empty(cap)
+        self._Pb = np.empty((cap, cap))
+        self._o, self._m = cap - m, m
+        self._Xb[cap - m:] = X
+        self._Pb[cap - m:, cap - m:] = P
+
+    def _room(self):
+        """Make room for one node before the window."""
+        if self._o >= self.n:
+            return
+        o, m, cap = self._o, self._m, self._Xb.size
+        if cap < 2 * m + 2 * self.n:
+            self._load(self._Xb[o:o + m].copy(), self._Pb[o:o + m, o:o + m].copy(), cap=cap)
+            return
+        d = cap - m
+        self._Xb[d:] = self._Xb[o:o + m].copy()
+        self._Pb[d:, d:] = self._Pb[o:o + m, o:o + m].copy()
+        self._o = d
+
+    @property
+    def X(self):
+        """All node states, newest first (a view: read it, do not keep it across steps)."""
+        return self._Xb[self._o:self._o + self._m]
+
+    @X.setter
+    def X(self, value):
+        self._load(np.asarray(value, dtype=float), self.P.copy())
+
+    @property
+    def P(self):
+        """The joint covariance of all nodes (a view: read it, do not keep it across steps)."""
+        o = self._o
+        return self._Pb[o:o + self._m, o:o + self._m]
+
+    @P.setter
+    def P(self, value):
+        self._load(self.X.copy(), np.asarray(value, dtype=float))
+
     @property
     def x(self):
-        return self.X[:self.n]
+        """The current node's state (a copy)."""
+        return self._Xb[self._o:self._o + self.n].copy()
 
     @property
     def Pk(self):
-        return self.P[:self.n, :self.n]
+        """The current node's covariance (a copy)."""
+        o = self._o
+        return self._Pb[o:o + self.n, o:o + self.n].copy()
 
     @property
     def now(self):
         return self.t[0]
 
     def predict(self, t_new):
+        """Eq. 5.20-5.22 in the buffer: P00 = Phi P00 Phi^T + Q, P0j = Phi P0j, the old block unchanged."""
         dt = float(t_new) - self.now
         if not dt > 0:
             raise ValueError("prediction time %.6f s is not after the current %.6f s" % (t_new, self.now))
-        x0 = self.x
-        self.X, self.P = predict(self.X, self.P, self.n, self.f(x0, dt), self.Phi(x0, dt), self.Q(dt))
+        n = self.n
+        self._room()
+        o, m, Xb, Pb = self._o, self._m, self._Xb, self._Pb
+        x0 = Xb[o:o + n]
+        ph = self.Phi(x0, dt)
+        Xb[o - n:o] = self.f(x0, dt)
+        top = ph @ Pb[o:o + n, o:o + m]
+        p00 = top[:, :n] @ ph.T + self.Q(dt)
+        Pb[o - n:o, o - n:o] = 0.5 * (p00 + p00.T)
+        Pb[o - n:o, o:o + m] = top
+        Pb[o:o + m, o - n:o] = top.T
+        self._o, self._m = o - n, m + n
         self.t.insert(0, float(t_new))
         self._prune()
 
@@ -144,13 +226,13 @@ class Afls:
                 break
         if keep < len(self.t):
             self.t = self.t[:keep]
-            m = keep * self.n
-            self.X, self.P = self.X[:m], self.P[:m, :m]
+            self._m = keep * self.n
 
     def update(self, z, R, h, H, t=None):
         """Measurement z = h(x(t)) + v, v ~ N(0, R); ``h(x)`` and ``H(x)`` callables of the node state.
 
-        ``t`` None means now. A time between nodes creates a node (Eq. 5.40-5.42 / 5.49-5.52).
+        ``t`` None means now. A time between nodes creates a node (Eq. 5.40-5.42 / 5.49-5.52). The update
+        is the module's ``update`` (Eq. 5.24), done in place in the buffer.
         """
         z = np.asarray(z, dtype=float)
         if not np.all(np.isfinite(z)):
@@ -165,8 +247,17 @@ class Afls:
             raise ValueError("measurement delayed %.3f s, longer than the smoother's lag of %.3f s"
                              % (self.now - t, self.lag))
         idx = self._node_at(t)
-        xi = self.X[idx * self.n:(idx + 1) * self.n]
-        self.X, self.P = update(self.X, self.P, self.n, idx, z, R, H(xi), h(xi))
+        n = self.n
+        X, P = self.X, self.P
+        s = slice(idx * n, (idx + 1) * n)
+        xi = X[s]
+        Hi = H(xi)
+        r = z - h(xi)
+        PCt = P[:, s] @ Hi.T
+        Li = chol_inv(Hi @ PCt[s, :] + R)
+        W = PCt @ Li.T
+        X += W @ (Li @ r)
+        np.subtract(P, W @ np.ascontiguousarray(W.T), out=P)
 
     def _node_at(self, t):
         for i, ti in enumerate(self.t):
@@ -176,11 +267,32 @@ class Afls:
                 ic, ia = i - 1, i
                 xb, Pbb, row = generate_node(self.X, self.P, self.n, ia, ic, t - ti, self.t[ic] - t,
                                              self.f, self.Phi, self.Q)
-                self.X, self.P = insert_node(self.X, self.P, self.n, i, xb, Pbb, row)
+                self._insert(i, xb, Pbb, row)
                 self.t.insert(i, t)
                 self.generated += 1
                 return i
         raise ValueError("measurement time %.3f s is before the oldest node %.3f s" % (t, self.t[-1]))
+
+    def _insert(self, pos, xb, Pbb, row):
+        """``insert_node`` in the buffer: the nodes newer than b move up by one node (Fig. 5-2)."""
+        n = self.n
+        self._room()
+        o, m, Xb, Pb = self._o, self._m, self._Xb, self._Pb
+        k = pos * n
+        e = o + m
+        u = o - n                       # the new window start
+        Xb[u:u + k] = Xb[o:o + k]
+        Pb[u:u + k, u:u + k] = Pb[o:o + k, o:o + k]
+        Pb[u:u + k, o + k:e] = Pb[o:o + k, o + k:e]
+        Pb[o + k:e, u:u + k] = Pb[o + k:e, o:o + k]
+        b = u + k                       # node b's rows and columns: [b, b + n)
+        Xb[b:b + n] = xb
+        Pb[b:b + n, u:b] = row[:, :k]
+        Pb[b:b + n, b + n:e] = row[:, k:]
+        Pb[u:b, b:b + n] = row[:, :k].T
+        Pb[b + n:e, b:b + n] = row[:, k:].T
+        Pb[b:b + n, b:b + n] = Pbb
+        self._o, self._m = u, m + n
 
     def node(self, t):
         """(x, P) of the node at time t (must exist)."""

@@ -260,3 +260,50 @@ def load_run(run_dir):
     k = 2 / ARCSEC
     res["series"] = {"att_err": (d["error"][:, 0:3] * k).tolist(), "nees": d["nees"].tolist()}
     return res
+
+
+def hold_consistency(seed, case=1, start_at_truth=False, t_from=630.0, settle=10):
+    """Diagnostic of the APKF's attitude accuracy (issue 9): over the attitude holds after ``t_from`` (steps
+    with a star-tracker output in each of the last ``settle`` + 1 seconds), the star-tracker innovations'
+    NIS (z^T S^-1 z, 3 dof, before the update), the attitude and rate NEES (3 dof each), and the errors and
+    1 sigma (attitude as full angles, arcsec; rate arcsec/s). Returns a dict of arrays."""
+    o = _simulate(case, seed, None, gyro=False)
+    k0 = _start(o)
+    q0 = o["st_q"][k0]
+    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
+    x0 = apkf.initial_state(q0, w0, o["tach"][k0])
+    if start_at_truth:
+        tr = o["truth"]
+        x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
+                                                                  tr["jrw"])
+    f = apkf.APKF(x0, case=case, set_ends=o["set_ends"])
+    v = o["st_valid"]
+    nis, err, sig, nees = [], [], [], []
+    for k in range(k0 + 1, len(o["t"])):
+        t = o["t"][k - 1]
+        f.x, f.P = apkf.predict(f.x, f.P, o["tach"][k], f.model, t, f.case, apkf.fictitious_scale(t, f.set_ends))
+        hold = t >= t_from and k > settle and bool(v[k - settle:k + 1].all())
+        if v[k]:
+            R = f.model.R_st * apkf.fictitious_scale(t + f.model.dt, f.set_ends)
+            if hold:
+                z = quat.error_vec(o["st_q"][k], f.x[0:4])
+                nis.append(float(z @ np.linalg.solve(f.P[0:3, 0:3] + R, z)))
+            f.x, f.P = apkf.update(f.x, f.P, o["st_q"][k], R)
+        if hold:
+            e = apkf_error(o, k, f.x, case)[0:6]
+            err.append(e)
+            sig.append(np.sqrt(np.diag(f.P)[0:6]))
+            nees.append([_nees(e[0:3], f.P[0:3, 0:3]), _nees(e[3:6], f.P[3:6, 3:6])])
+    err, sig = np.array(err), np.array(sig)
+    k = np.array([2 / ARCSEC] * 3 + [1 / ARCSEC] * 3)
+    return {"nis": np.array(nis), "nees_att_rate": np.array(nees), "error": err * k, "sigma": sig * k}
+
+
+def random_walk_bound(rate_sigma, st_sigma=(20.0, 20.0, 60.0), dt=1.0):
+    """Per axis, the steady-state 1 sigma after a star-tracker update (sigma ``st_sigma``, every dt) of an
+    attitude that walks by ``rate_sigma`` dt per step (white rate errors integrated): P+ of the scalar Kalman
+    filter, P- = (q + sqrt(q^2 + 4 q r)) / 2, P+ = P- r / (P- + r). Units of the inputs (arcsec, arcsec/s)."""
+    q = (np.asarray(rate_sigma, dtype=float) * dt) ** 2
+    r = np.asarray(st_sigma, dtype=float) ** 2
+    p = (q + np.sqrt(q * q + 4 * q * r)) / 2
+    return np.sqrt(p * r / (p + r))

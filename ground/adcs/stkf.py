@@ -10,6 +10,8 @@ Attitude errors: the true attitude is A(q) = A(dq) A(q_hat) with the small rotat
 (Eq. 4.77); ``P_att`` is the covariance of d_alpha (rad^2), so 4 Pqq of Eq. 5.59 is ``P_att``.
 """
 
+from math import sqrt
+
 import numpy as np
 
 MU = 398600.4415e9  # m^3/s^2, Eq. 5.7
@@ -22,6 +24,7 @@ VB = slice(9, 12)
 
 
 I3 = np.eye(3)
+I6 = np.eye(6)
 I12 = np.eye(N)
 
 
@@ -31,28 +34,42 @@ def skew(v):
 
 # ---- dynamics (Eq. 5.4, 5.7, 5.9) ----
 
-def _deriv(x):
-    d = np.empty(N)
-    d[0:3] = x[3:6]
-    d[6:9] = x[9:12]
-    ra, rb = x[0:3], x[6:9]
-    d[3:6] = ra * (-MU / (ra @ ra) ** 1.5)
-    d[9:12] = rb * (-MU / (rb @ rb) ** 1.5)
-    return d
+def _rk4_sat(rx, ry, rz, vx, vy, vz, h):
+    """One RK4 step of one satellite's two-body motion on Python floats: the same equations as the 12-state
+    numpy form, ~3x faster (numpy's per-call cost dominated that form)."""
+    def acc(x, y, z):
+        r2 = x * x + y * y + z * z
+        c = -MU / (r2 * sqrt(r2))
+        return c * x, c * y, c * z
+
+    hh = 0.5 * h
+    a1 = acc(rx, ry, rz)
+    x2, y2, z2 = rx + hh * vx, ry + hh * vy, rz + hh * vz
+    u2, v2, w2 = vx + hh * a1[0], vy + hh * a1[1], vz + hh * a1[2]
+    a2 = acc(x2, y2, z2)
+    x3, y3, z3 = rx + hh * u2, ry + hh * v2, rz + hh * w2
+    u3, v3, w3 = vx + hh * a2[0], vy + hh * a2[1], vz + hh * a2[2]
+    a3 = acc(x3, y3, z3)
+    x4, y4, z4 = rx + h * u3, ry + h * v3, rz + h * w3
+    u4, v4, w4 = vx + h * a3[0], vy + h * a3[1], vz + h * a3[2]
+    a4 = acc(x4, y4, z4)
+    k = h / 6.0
+    return (rx + k * (vx + 2 * (u2 + u3) + u4), ry + k * (vy + 2 * (v2 + v3) + v4),
+            rz + k * (vz + 2 * (w2 + w3) + w4),
+            vx + k * (a1[0] + 2 * (a2[0] + a3[0]) + a4[0]), vy + k * (a1[1] + 2 * (a2[1] + a3[1]) + a4[1]),
+            vz + k * (a1[2] + 2 * (a2[2] + a3[2]) + a4[2]))
 
 
 def f(x, dt):
     """Two-body propagation of both satellites over ``dt`` (s; negative runs backward, Eq. 5.51): one RK4
     step for |dt| <= 1 s (local error ~1e-8 m in LEO), more for longer spans."""
     n = max(1, int(np.ceil(abs(dt) - 1e-9)))
-    h = dt / n
+    h = float(dt) / n
+    a, b = x[0:6].tolist(), x[6:12].tolist()
     for _ in range(n):
-        k1 = _deriv(x)
-        k2 = _deriv(x + 0.5 * h * k1)
-        k3 = _deriv(x + 0.5 * h * k2)
-        k4 = _deriv(x + h * k3)
-        x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return x
+        a = _rk4_sat(*a, h)
+        b = _rk4_sat(*b, h)
+    return np.array(a + b)
 
 
 def gravity_gradient(r):
@@ -70,26 +87,49 @@ def F(x):
     return out
 
 
+def _phi_entries(x, dt):
+    """The nonzero entries of Phi (Eq. 3.30 with Eq. 5.4) in the order of ``_PHI_IDX``, on Python floats."""
+    h2, h3 = 0.5 * dt * dt, dt ** 3 / 6.0
+    vals = []
+    for k in (0, 6):
+        rx, ry, rz = x[k:k + 3].tolist()
+        r2 = rx * rx + ry * ry + rz * rz
+        c = -MU / r2 ** 1.5
+        d = -3.0 * c / r2
+        gxy, gxz, gyz = d * rx * ry, d * rx * rz, d * ry * rz            # G = c (I - 3 r r^T / r^2)
+        gxx, gyy, gzz = c + d * rx * rx, c + d * ry * ry, c + d * rz * rz
+        axy, axz, ayz = h2 * gxy, h2 * gxz, h2 * gyz
+        diag = [1.0 + h2 * gxx, axy, axz, axy, 1.0 + h2 * gyy, ayz, axz, ayz, 1.0 + h2 * gzz]
+        bxy, bxz, byz = h3 * gxy, h3 * gxz, h3 * gyz
+        cxy, cxz, cyz = dt * gxy, dt * gxz, dt * gyz
+        vals += diag                                                                          # r r
+        vals += [dt + h3 * gxx, bxy, bxz, bxy, dt + h3 * gyy, byz, bxz, byz, dt + h3 * gzz]    # r v
+        vals += [dt * gxx, cxy, cxz, cxy, dt * gyy, cyz, cxz, cyz, dt * gzz]                  # v r
+        vals += diag                                                                          # v v
+    return vals
+
+
+def _phi_index():
+    idx = []
+    for k in (0, 6):
+        for r0, c0 in ((k, k), (k, k + 3), (k + 3, k), (k + 3, k + 3)):
+            idx += [(r0 + i) * N + c0 + j for i in range(3) for j in range(3)]
+    return np.array(idx)
+
+
+_PHI_IDX = _phi_index()
+
+
 def Phi(x, dt):
     """State transition over ``dt`` from F at x (Eq. 3.30): I + F dt + (F dt)^2/2 + (F dt)^3/6.
 
     With F = [[0, I], [G, 0]] per satellite: [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]]; the
-    dropped terms (G^2 dt^3/6 and beyond) are ~(n dt)^4 ~ 1e-12 at dt = 1 s in LEO.
+    dropped terms (G^2 dt^3/6 and beyond) are ~(n dt)^4 ~ 1e-12 at dt = 1 s in LEO. Block-diagonal (the two
+    satellites propagate independently): its 144 entries are filled in one indexed assignment.
     """
-    out = np.zeros((N, N))
-    ga = gravity_gradient(x[0:3])
-    gb = gravity_gradient(x[6:9])
-    h2, h3 = 0.5 * dt * dt, dt ** 3 / 6.0
-    out[0:3, 0:3] = out[3:6, 3:6] = I3 + h2 * ga
-    out[6:9, 6:9] = out[9:12, 9:12] = I3 + h2 * gb
-    out[0:3, 3:6] = DT_I3 * dt + h3 * ga
-    out[6:9, 9:12] = DT_I3 * dt + h3 * gb
-    out[3:6, 0:3] = dt * ga
-    out[9:12, 6:9] = dt * gb
-    return out
-
-
-DT_I3 = np.eye(3)
+    out = np.zeros(N * N)
+    out[_PHI_IDX] = _phi_entries(x, float(dt))
+    return out.reshape(N, N)
 
 
 def Q(dt, qa=QA_THESIS):
@@ -144,15 +184,30 @@ def h_gnss(x, sat):
 
 def los(x):
     """(u, rho): unit vector rA->rB (J2000) and the range (Eq. 5.14)."""
-    d = x[IB] - x[IA]
-    rho = float(np.sqrt(d @ d))
+    d = x[6:9] - x[0:3]
+    rho = sqrt(d @ d)
     return d / rho, rho
 
 
 def Hb(x):
     """Hb,A of Eq. 5.17: d u / d rA = -(I - u u^T)/rho; Hb,B = -Hb,A."""
     u, rho = los(x)
-    return (np.outer(u, u) - I3) / rho
+    return (u[:, None] * u - I3) / rho
+
+
+def gnss_beacon(x, A):
+    """(h, H) of SatA's GNSS and the beacon stacked (Eq. 5.12, 5.13, 5.16): h = [rA, vA, y_b] (9),
+    H = [[I6, 0], [A Hb,A, 0, A Hb,B, 0]] (9 x 12), from one line-of-sight evaluation."""
+    u, rho = los(x)
+    h = np.empty(9)
+    h[0:6] = x[0:6]
+    h[6:9] = A @ u
+    H = np.zeros((9, N))
+    H[0:6, 0:6] = I6
+    hb = A @ ((u[:, None] * u - I3) / rho)
+    H[6:9, IA] = hb
+    H[6:9, IB] = -hb
+    return h, H
 
 
 def h_beacon(x, A):

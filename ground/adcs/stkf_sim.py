@@ -199,8 +199,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
             Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
         if have_g and have_b:  # one stacked update: the two noises are independent
             flt.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb),
-                       lambda x: np.concatenate([x[0:6], stkf.h_beacon(x, A_hat)]),
-                       lambda x: np.vstack([H_a, stkf.H_beacon(x, A_hat)]))
+                       lambda x: stkf.gnss_beacon(x, A_hat)[0], lambda x: stkf.gnss_beacon(x, A_hat)[1])
         elif have_g:
             flt.update(zg, gnss_a.R, h_a, lambda x: H_a)
         elif have_b:

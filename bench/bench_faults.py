@@ -109,11 +109,12 @@ def _main(tmp, duration_s):
                                           (hs[0] is not None and hs[0] == hs[1])), flush=True)
 
     print("\n### A board in real time (MicroPython firmware.main on a relayed pty), 10 s\n")
-    print("| loop rate | overruns | ticks | share | requirement met |")
-    print("|---|---|---|---|---|")
+    print("| loop rate | board timing | overruns | ticks | share | requirement met |")
+    print("|---|---|---|---|---|---|")
     for rate in (637.8, 2000.0):
-        ov, n, met = _board_realtime(tmp, dist, cal, rate)
-        print("| %g Hz | %d | %d | %.2f %% | %s |" % (rate, ov, n, 100.0 * ov / max(n, 1), met), flush=True)
+        ov, n, met, zl = _board_realtime(tmp, dist, cal, rate)
+        print("| %g Hz | %s | %d | %d | %.2f %% | %s |" % (rate, "zero-latency" if zl else "arduino-zero", ov, n,
+                                                           100.0 * ov / max(n, 1), met), flush=True)
 
 
 def _board_realtime(tmp, dist, cal, rate, duration=10.0):
@@ -125,12 +126,17 @@ def _board_realtime(tmp, dist, cal, rate, duration=10.0):
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             out = os.path.join(tmp, "rt_%g" % rate)
+            extra = []
+            if rate * (3 * 426e-6 + 290e-6) > 1.0:      # the Arduino Zero's reads do not fit in the tick
+                cfg = os.path.join(tmp, "zero_latency.json")
+                write_json(cfg, {"board": {"timing": "zero-latency"}})
+                extra = ["--config", cfg]
             fps(["hil", "--distfile", dist, "--calibration", cal, "--duration", "%g" % duration, "--runtime",
                  "board", "--port", host_path, "--realtime", "--rate-hz", repr(rate), "--no-plots", "--quiet",
-                 "-o", out])
+                 "-o", out] + extra)
             with open(os.path.join(out, "summary.json")) as f:
                 s = json.load(f)
-            return s["overruns"], int(round(s["duration_s"] * rate)), s["requirement_met"]
+            return s["overruns"], int(round(s["duration_s"] * rate)), s["requirement_met"], bool(extra)
         finally:
             proc.terminate()
             proc.wait(5)

@@ -126,3 +126,20 @@ def test_float32_stable_and_within_10_percent_of_float64(seconds):
     assert np.all(np.isfinite(s32)) and np.all(s64 < 100)                # arcsec: the filter works
     assert np.all(np.abs(s32 / s64 - 1) < 0.10), (s32, s64)
     assert np.all(np.abs(r32 / r64 - 1) < 0.10), (r32, r64)
+
+
+def test_phi_series_matches_the_matrix_exponential():
+    """Phi (the 4th-order series of App. A.2, built on 6 rows) equals expm(F dt) of the same F to 1e-7."""
+    from scipy.linalg import expm
+    sc = scenario(1)
+    old = linalg.zeros
+    linalg.zeros = lambda n: [0.0] * n
+    try:
+        f = L.Lean(sc["params"], sc["q"][0], [1e-3, -2e-3, 5e-4], [300.0, -200.0, 100.0, 50.0])
+        L.jacobian(f.work.F, f.x, f.model, f.wm, sc["env"][0], f.work)
+        L.phi(f.work.Phi, f.work.F, 1.0, f.work)
+        Fm = np.reshape(f.work.F, (9, 9))
+        assert np.abs(Fm[6:]).max() == 0
+        assert np.allclose(np.reshape(f.work.Phi, (9, 9)), expm(Fm), rtol=0, atol=1e-7 * np.abs(Fm).max())
+    finally:
+        linalg.zeros = old

@@ -175,6 +175,7 @@ class Work:
         self.T2 = z(81)
         self.W = z(81)
         self.Kt = z(27)
+        self.RK = z(27)
         self.L = z(9)
         self.dx = z(9)
         self.k = z(7 * 4)       # RK4 slopes (q 4 + w 3) x 4
@@ -311,26 +312,35 @@ def jacobian(F, x, model, wm, env, work):
 
 
 def phi(Phi, F, dt, work, order=4):
-    """Phi = sum_{n <= order} (F dt)^n / n! (App. A.2's series)."""
+    """Phi = sum_{n <= order} (F dt)^n / n! (App. A.2's series). F's tau_d rows are zero, so every power's
+    rows 6-8 are zero and row i of F^n is sum over k < 6 of F^(n-1)[i, k] F[k, :]: 6 x 6 x 9 per power."""
     term, nxt = work.T1, work.T2
     linalg.eye(Phi, N)
-    linalg.eye(term, N)
-    for n in range(1, order + 1):
-        linalg.matmul(nxt, term, F, N, N, N)
+    for i in range(54):
+        t = F[i] * dt
+        term[i] = t
+        Phi[i] += t
+    for n in range(2, order + 1):
         c = dt / n
-        for i in range(81):
-            t = nxt[i] * c                          # term_n = term_{n-1} F dt / n
+        for i in range(6):
+            for j in range(N):
+                s = 0.0
+                for k in range(6):
+                    s += term[i * N + k] * F[k * N + j]
+                nxt[i * N + j] = s * c
+        for i in range(54):
+            t = nxt[i]
             term[i] = t
             Phi[i] += t
 
 
 def predict(x, P, wm, wp, env, model, work):
     """(x, P) from t to t + dt (Eq. 4.95-4.136, cut to 9 states): F and Phi at the step's start, RK4 for x,
-    P = Phi P Phi^T + Q (symmetric by construction). env = (r_i unit (3), 3 mu/r^3, b_i (3)), mid-step."""
+    P = Phi P Phi^T + Q (symmetric by construction; Phi's tau_d rows are the identity's). env = (r_i unit (3), 3 mu/r^3, b_i (3)), mid-step."""
     jacobian(work.F, x, model, wm, env, work)
     phi(work.Phi, work.F, model.dt, work)
     propagate(x, model, wm, wp, env, work)
-    linalg.sandwich(P, work.Phi, work.T1, N)
+    linalg.sandwich_ident(P, work.Phi, work.T1, N, 6)      # Phi's tau_d rows are [0 I]
     Q = model.Q
     for i in range(81):
         P[i] += Q[i]
@@ -353,7 +363,7 @@ def update(x, P, q_meas, model, work):
     z = work.y
     error_vec(z, q_meas, x)
     Kt = work.Kt
-    if not linalg.joseph_select(P, N, 0, 3, model.R, Kt, work.L, work.W):
+    if not linalg.joseph_select(P, N, 0, 3, model.R, Kt, work.L, work.W, work.RK):
         return False
     dx = work.dx
     for i in range(N):

@@ -78,6 +78,33 @@ def sandwich(P, Phi, T, n):
             P[jp + i] = s
 
 
+def sandwich_ident(P, Phi, T, n, r):
+    """P = Phi P Phi^T for a Phi whose rows r .. n-1 are those of the identity (the parameter rows of an
+    error-state transition): only rows 0 .. r-1 of Phi P and the blocks they touch are computed. T: n x n work."""
+    for i in range(r):                           # T[0:r] = Phi[0:r] P
+        ia = i * n
+        for j in range(n):
+            s = 0.0
+            k2 = j
+            for k in range(ia, ia + n):
+                s += Phi[k] * P[k2]
+                k2 += n
+            T[ia + j] = s
+    for i in range(r):                           # P[0:r, 0:r] = T[0:r] Phi[0:r]^T; P[0:r, r:] = T[0:r, r:]
+        it = i * n
+        for j in range(i, r):
+            s = 0.0
+            jp = j * n
+            for k in range(n):
+                s += T[it + k] * Phi[jp + k]
+            P[it + j] = s
+            P[jp + i] = s
+        for j in range(r, n):
+            v = T[it + j]
+            P[it + j] = v
+            P[j * n + i] = v
+
+
 def symmetrize(P, n):
     """P = (P + P^T) / 2."""
     for i in range(n):
@@ -125,14 +152,14 @@ def chol_solve_rows(X, L, B, n, m):
             X[o + i] = s / L[i * n + i]
 
 
-def joseph_select(P, n, r0, m, R, Kt, L, W):
+def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
     """Kalman gain and Joseph-form covariance update for a measurement of the error states r0 .. r0+m-1,
     H = [0 I_m 0] (the star tracker's H of Eq. 4.139, the GNSS's of Eq. 5.31):
 
         S = H P H^T + R,  K = P H^T S^-1,  P+ = (I - K H) P (I - K H)^T + K R K^T     (Eq. 4.140, 4.142)
 
     with R (m x m, symmetric). Writes K^T into Kt (m x n) and returns False (P untouched) when S is not
-    positive definite. L (m x m) and W (n x n) are work buffers. P is kept exactly symmetric."""
+    positive definite. L (m x m), W (n x n) and RK (m x n) are work buffers. P is kept exactly symmetric."""
     for i in range(m):                           # S = P[r0:, r0:] + R into W's first m*m slots
         for j in range(m):
             W[i * m + j] = P[(r0 + i) * n + r0 + j] + R[i * m + j]
@@ -149,16 +176,13 @@ def joseph_select(P, n, r0, m, R, Kt, L, W):
             for k in range(m):
                 s -= Kt[k * n + i] * P[(r0 + k) * n + j]
             W[i * n + j] = s
+    matmul(RK, R, Kt, m, m, n)                   # R K^T
     # P+ = A (I - K H)^T + K R K^T = A - A[:, r0:] K^T + K R K^T, upper triangle mirrored
     for i in range(n):
         for j in range(i, n):
             s = W[i * n + j]
             for k in range(m):
-                s -= W[i * n + r0 + k] * Kt[k * n + j]
-                kr = 0.0
-                for l in range(m):
-                    kr += R[k * m + l] * Kt[l * n + j]
-                s += Kt[k * n + i] * kr
+                s += Kt[k * n + i] * RK[k * n + j] - W[i * n + r0 + k] * Kt[k * n + j]
             P[i * n + j] = s
             P[j * n + i] = s
     return True

@@ -143,3 +143,55 @@ def test_phi_series_matches_the_matrix_exponential():
         assert np.allclose(np.reshape(f.work.Phi, (9, 9)), expm(Fm), rtol=0, atol=1e-7 * np.abs(Fm).max())
     finally:
         linalg.zeros = old
+
+
+def _control_cases(n=5):
+    from emulator.spacecraft.wheels import misaligned_c, pyramid_c0
+    rng = np.random.default_rng(3)
+    out = []
+    for _ in range(n):
+        ra = rng.standard_normal(3) * 7e6
+        va = np.cross([0, 0, 1.0], ra) / np.linalg.norm(ra) * 7.6e3 + rng.standard_normal(3) * 100
+        rb = ra + rng.standard_normal(3) * 1e5
+        q = rng.standard_normal(4)
+        q /= np.linalg.norm(q)
+        A = rng.standard_normal((3, 3)) * 1e-3
+        out.append({"ra": ra.tolist(), "va": va.tolist(), "rb": rb.tolist(), "q": q.tolist(),
+                    "w": (rng.standard_normal(3) * 1e-3).tolist(), "wc": (rng.standard_normal(3) * 1e-3).tolist(),
+                    "J": (np.diag([0.012, 0.05, 0.048]) + A @ A.T).ravel().tolist(), "ts": 33.0,
+                    "H": (rng.standard_normal(3) * 1e-4).tolist(), "tff": (rng.standard_normal(3) * 1e-7).tolist(),
+                    "C": misaligned_c(pyramid_c0(), rng.standard_normal(4) * 0.1,
+                                      rng.standard_normal(4) * 0.1).ravel().tolist()})
+    return out
+
+
+def test_flight_control_equals_ground_control_and_runs_the_same_under_micropython(tmp_path):
+    """attitude_command, gains, pd_torque and the minimum-norm wheel torques equal ground/adcs/control.py's
+    (CPython, float64 lists) and the micropython run of the same code (array('f') buffers, float32 tolerance)."""
+    from firmware.adcs import control as fc
+    from ground.adcs import control as gc
+    cases = _control_cases()
+    p = tmp_path / "cases.json"
+    p.write_text(json.dumps(cases))
+    mp = run_mp("firmware_adcs_control.py", p)["cases"]
+    z = lambda n: [0.0] * n                       # noqa: E731
+    w = fc.Work(z)
+    for c, m in zip(cases, mp):
+        qc, K, D, tau, u = z(4), z(9), z(9), z(3), z(4)
+        fc.attitude_command(qc, c["ra"], c["va"], c["rb"], w)
+        fc.gains(K, D, c["J"], c["ts"])
+        fc.pd_torque(tau, c["q"], c["w"], qc, c["wc"], K, D, c["H"], c["tff"])
+        fc.wheel_torques(u, tau, c["C"])
+        qg = gc.attitude_command(np.array(c["ra"]), np.array(c["va"]), np.array(c["rb"]))
+        Kg, Dg = gc.gains(np.reshape(c["J"], (3, 3)), c["ts"])
+        tg = gc.pd_torque(np.array(c["q"]), np.array(c["w"]), qg, np.array(c["wc"]), Kg, Dg, np.array(c["H"]),
+                          np.array(c["tff"]))
+        ug = gc.wheel_torques(tg, np.reshape(c["C"], (3, 4)), null_fraction=0.0)
+        assert np.allclose(qc, qg, atol=1e-12)
+        assert np.allclose(tau, tg, rtol=1e-9, atol=1e-15)
+        assert np.allclose(u, ug, rtol=1e-9, atol=1e-15)
+        assert np.allclose(m["qc"], qc, atol=1e-6)
+        assert np.allclose(m["tau"], tau, rtol=1e-5, atol=1e-6 * np.abs(tau).max())
+        assert np.allclose(m["u"], u, rtol=1e-5, atol=1e-6 * np.abs(u).max())
+    with pytest.raises(ValueError, match="opposite"):
+        fc.min_rotation(z(4), (1.0, 0.0, 0.0), (-1.0, 0.0, 0.0))

@@ -13,7 +13,24 @@ from firmware.adcs import apkf_lean as L
 from firmware.adcs import linalg
 from ground.adcs import apkf, quat
 from tests.adcs_lean_scenario import scenario
-from tests.test_firmware_mp import run_mp
+from tests.test_firmware_mp import MICROPYTHON, ROOT
+from tests.test_firmware_mp import run_mp as _run_mp_default
+
+
+def run_mp(script, *args):
+    """tests/mp/<script> under micropython with a 64 MB heap: the heap measurement turns the collector off
+    for a whole cycle, and the STKF's cycle allocates more than the unix port's default heap."""
+    import subprocess
+    if not os.path.exists(MICROPYTHON):
+        pytest.skip("micropython binary not installed in the venv")
+    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
+    p = subprocess.run([MICROPYTHON, "-X", "heapsize=64M", os.path.join(ROOT, "tests", "mp", script)]
+                       + [str(a) for a in args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, "micropython %s failed:\n%s\n%s" % (script, p.stdout, p.stderr)
+    return json.loads([ln for ln in p.stdout.splitlines() if ln.startswith("{")][-1])
+
+
+del _run_mp_default
 
 
 class F32(list):
@@ -195,3 +212,75 @@ def test_flight_control_equals_ground_control_and_runs_the_same_under_micropytho
         assert np.allclose(m["u"], u, rtol=1e-5, atol=1e-6 * np.abs(u).max())
     with pytest.raises(ValueError, match="opposite"):
         fc.min_rotation(z(4), (1.0, 0.0, 0.0), (-1.0, 0.0, 0.0))
+
+
+def _stkf_sequence(n=14):
+    """Orbits of SatA and SatB, SatA's GNSS every second, SatB's GNSS 2.37 s late from t = 4 s."""
+    from ground.adcs.stkf_sim import LAG_S, P0_DIAG
+    rng = np.random.default_rng(0)
+    v = 7.546e3
+    x0 = [7.0e6, 0, 0, 0, v * 0.8, v * 0.6, 7.0e6 * 0.999, 1e5, 2e4, -100, v * 0.8, v * 0.6]
+    steps = []
+    for k in range(1, n + 1):
+        s = {"t": float(k), "za": (np.array(x0[0:6]) + rng.standard_normal(6)).tolist()}
+        if k >= 4:
+            s["tb"], s["zb"] = k - 2.37, (np.array(x0[6:12]) + rng.standard_normal(6)).tolist()
+        steps.append(s)
+    R = np.diag([100.0] * 3 + [0.01] * 3)
+    return {"x0": x0, "P0": P0_DIAG.tolist(), "lag": LAG_S, "R": R.ravel().tolist(), "steps": steps}
+
+
+def _lean_stkf(seq, zeros):
+    from firmware.adcs import stkf_lean as S
+    old = linalg.zeros
+    linalg.zeros = zeros
+    try:
+        f = S.Afls(seq["x0"], seq["P0"], 0.0, seq["lag"])
+        for s in seq["steps"]:
+            f.predict(s["t"])
+            f.update_gnss(s["za"], seq["R"], 0)
+            if "zb" in s:
+                f.update_gnss(s["zb"], seq["R"], 1, s["tb"])
+    finally:
+        linalg.zeros = old
+    return f
+
+
+def test_lean_stkf_afls_equals_the_ground_smoother_and_runs_the_same_under_micropython(tmp_path):
+    """Every node's state and the joint covariance equal ground/adcs/afls.py's EAFLS (SatA GNSS now, SatB GNSS
+    2.37 s late, so a node is generated each second); under micropython (P in array('f')) the current node
+    agrees, P stays PD, and the heap per cycle is measured and bounded. The STKF keeps float64 buffers: with
+    the covariance in array('f') the update loses positive definiteness (checked here)."""
+    from ground.adcs import stkf
+    from ground.adcs.afls import Afls
+    seq = _stkf_sequence()
+    g = Afls(np.array(seq["x0"]), np.diag(seq["P0"]), 0.0, seq["lag"], stkf.f, stkf.Phi, lambda dt: stkf.Q(dt))
+    R = np.reshape(seq["R"], (6, 6))
+    for s in seq["steps"]:
+        g.predict(s["t"])
+        g.update(s["za"], R, lambda x: x[0:6], lambda x: stkf.H_gnss("A"))
+        if "zb" in s:
+            g.update(s["zb"], R, lambda x: x[6:12], lambda x: stkf.H_gnss("B"), s["tb"])
+    f = _lean_stkf(seq, lambda n: [0.0] * n)
+    n = f.k * 12
+    assert f.k == len(g.t) and list(f.t[:f.k]) == g.t and f.generated == g.generated > 0
+    Pl = np.array([[f.P[i * f.ld + j] for j in range(n)] for i in range(n)])
+    assert np.abs(np.array(f.X[:n]) - g.X).max() < 1e-4                          # m, m/s
+    assert np.abs(Pl - g.P).max() < 1e-8 * np.abs(g.P).max()
+    p = tmp_path / "seq.json"
+    p.write_text(json.dumps(seq))
+    res = run_mp("firmware_stkf.py", p)
+    assert res["k"] == f.k and res["generated"] == f.generated
+    assert np.abs(np.array(res["x"]) - g.X[:12]).max() < 1e-4
+    P0 = np.reshape(res["P"], (12, 12))
+    assert np.allclose(P0, g.P[:12, :12], rtol=1e-8, atol=1e-8 * np.abs(g.P[:12, :12]).max())
+    np.linalg.cholesky(P0)
+    assert 0 < res["heap_max"] < 20_000_000          # measured 15.5 MB on the unix x64 port
+    from firmware.adcs import stkf_lean
+    old = stkf_lean.zeros_d
+    stkf_lean.zeros_d = linalg.zeros            # float32 storage: the stated failure
+    try:
+        with pytest.raises(ValueError, match="not positive definite"):
+            _lean_stkf(seq, linalg.zeros)
+    finally:
+        stkf_lean.zeros_d = old

@@ -1,0 +1,165 @@
+"""Lean flight ADCS (issue 13): what dropping states costs, heap bytes and instructions per 1 Hz cycle.
+
+Scenario (tests/adcs_lean_scenario.py): the emulator's spacecraft (true J, misaligned wheels with their true
+inertias, gravity gradient, a residual dipole) held in an inertial attitude by a PD on the truth for 4000 s,
+with the star tracker (20/20/60 arcsec, 1 Hz) and the tachometers (10 rpm). Both filters start from the
+parameter file a perfect calibration writes (ground/adcs/bps.py format), attitude from the first star-tracker
+output, rate zero:
+- lean: firmware/adcs/apkf_lean.py (9 states: attitude, rate, disturbance torque; parameters held), float64
+  lists and numpy.float32 scalars;
+- ground: ground/adcs/apkf.py (41 states, the parameters estimated on, wheel speeds as states).
+Figures over t >= 300 s: attitude and rate error 1 sigma per axis (truth minus estimate), and the pointing
+error of the laser axis (body x): the angle about the two axes perpendicular to it, sqrt(e_y^2 + e_z^2), RMS
+and 3 sigma (RMS x 3). The issue's goal: the lean filter within 25 % of the ground filter's pointing figures.
+
+Heap: gc.mem_alloc() before and after each cycle under micropython (gc off in the cycle), 30 s.
+Instructions: ``valgrind --tool=callgrind`` on micropython over 5 and 25 cycles, differenced (includes the
+harness's own input copying, a few thousand instructions). The lean STKF with the AFLS (float64 buffers, 8 nodes
+at steady state) is counted the same way over 10 and 20 s of the test sequence (SatA GNSS each second, SatB's
+2.37 s late, so each second generates a node), with a 64 MB heap and the collector off during each cycle.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from firmware.adcs import apkf_lean as L
+from firmware.adcs import linalg
+from ground.adcs import apkf, quat
+from tests.adcs_lean_scenario import scenario
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MICROPYTHON = os.path.join(os.path.dirname(sys.executable), "micropython")
+SECONDS = 4000
+T0 = 300
+GOAL_INSTR = 10e6
+GOAL_RATIO = 1.25
+
+
+class F32(list):
+    def __setitem__(self, i, v):
+        list.__setitem__(self, i, np.float32(v))
+
+
+def _errors(sc, qs, ws):
+    ea = np.array([2 * quat.error_vec(np.array(sc["q"][k]), qs[k]) for k in range(len(qs))]) / quat.ARCSEC
+    ew = (np.array(ws) - np.array(sc["w"][:len(ws)])) / quat.ARCSEC
+    return ea[T0:], ew[T0:]
+
+
+def run_lean(sc, f32=False):
+    old = linalg.zeros
+    linalg.zeros = (lambda n: F32([np.float32(0.0)] * n)) if f32 else (lambda n: [0.0] * n)
+    c = (lambda v: None if v is None else [np.float32(e) for e in v]) if f32 else (lambda v: v)
+    try:
+        f = L.Lean(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0])
+        qs, ws = [np.array(f.x[0:4], float)], [np.zeros(3)]
+        for k in range(1, len(sc["wp"])):
+            e = sc["env"][k - 1]
+            f.step(c(sc["wp"][k]), c(sc["qm"][k]), (c(e[0]), e[1], c(e[2])))
+            qs.append(np.array(f.x[0:4], float))
+            ws.append(np.array(f.x[4:7], float))
+    finally:
+        linalg.zeros = old
+    return _errors(sc, qs, ws)
+
+
+def run_ground(sc):
+    d = sc["params"]["x"]
+    model = apkf.Model(dt=1.0, jxx=sc["params"]["jxx_ref_kgm2"])
+    x0 = apkf.initial_state(np.array(sc["qm"][0]), np.zeros(3), np.array(sc["wp"][0]))
+    x0[7:30] = np.concatenate([d["tau_d_nm"], d["J5_kgm2"], d["dipole_am2"], d["delta1_rad"], d["delta2_rad"],
+                               d["jrw_kgm2"]])
+    flt = apkf.APKF(x0, model=model, case=1)
+    flt.P[apkf.PARAMS, apkf.PARAMS] = np.array(sc["params"]["P"])
+    qs, ws = [x0[0:4].copy()], [np.zeros(3)]
+    for k in range(1, len(sc["wp"])):
+        qm = sc["qm"][k]
+        flt.step(float(k - 1), np.array(sc["wp"][k]), None if qm is None else np.array(qm))
+        qs.append(flt.x[0:4].copy())
+        ws.append(flt.x[4:7].copy())
+    return _errors(sc, qs, ws)
+
+
+def figures(ea, ew):
+    p = np.sqrt(ea[:, 1] ** 2 + ea[:, 2] ** 2)
+    rms = float(np.sqrt(np.mean(p ** 2)))
+    return {"att": ea.std(0), "rate": ew.std(0), "pointing_rms": rms, "pointing_3sigma": 3 * rms}
+
+
+def _mp(args, callgrind=False, script="firmware_adcs.py"):
+    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
+    heap = ["-X", "heapsize=64M"] if script == "firmware_stkf.py" else []     # its cycles run with the gc off
+    cmd = [MICROPYTHON] + heap + [os.path.join(ROOT, "tests", "mp", script)] + [str(a) for a in args]
+    if callgrind:
+        cmd = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    if p.returncode != 0:
+        raise RuntimeError("micropython firmware_adcs.py failed: %s" % p.stderr[-500:])
+    if callgrind:
+        for line in p.stderr.splitlines():
+            if "I   refs:" in line or "I refs:" in line:
+                return int(line.split(":")[1].strip().replace(",", ""))
+        raise RuntimeError("no instruction count in callgrind output")
+    return json.loads([ln for ln in p.stdout.splitlines() if ln.startswith("{")][-1])
+
+
+def main():
+    t0 = time.perf_counter()
+    sc = scenario(SECONDS)
+    t_truth = time.perf_counter() - t0
+    runs = {}
+    for name, fn in (("lean (float64)", lambda: run_lean(sc)), ("lean (float32)", lambda: run_lean(sc, True)),
+                     ("ground 41-state", lambda: run_ground(sc))):
+        t0 = time.perf_counter()
+        runs[name] = figures(*fn())
+        runs[name]["wall"] = time.perf_counter() - t0
+    g = runs["ground 41-state"]
+    print("Accuracy, %d s emulated inertial hold (truth %.1f s wall), t >= %d s; arcsec, arcsec/s\n"
+          % (SECONDS, t_truth, T0))
+    print("| filter | attitude 1σ x / y / z | rate 1σ x / y / z | pointing RMS | pointing 3σ | "
+          "pointing vs ground (goal <= %.2f) | wall |" % GOAL_RATIO)
+    print("|---|---|---|---|---|---|---|")
+    for name, r in runs.items():
+        ratio = r["pointing_rms"] / g["pointing_rms"]
+        print("| %s | %.1f / %.1f / %.1f | %.1f / %.1f / %.1f | %.1f | %.1f | %.2f%s | %.1f s |" % (
+            name, *r["att"], *r["rate"], r["pointing_rms"], r["pointing_3sigma"], ratio,
+            "" if name.startswith("ground") else (" (met)" if ratio <= GOAL_RATIO else " (missed)"), r["wall"]))
+    with tempfile.TemporaryDirectory() as d:
+        p = os.path.join(d, "sc.json")
+        short = {k: sc[k][:31] if isinstance(sc[k], list) else sc[k] for k in ("params", "wp", "qm", "env")}
+        with open(p, "w") as fh:
+            json.dump(short, fh)
+        res = _mp([p])
+        have_vg = subprocess.run(["which", "valgrind"], capture_output=True).returncode == 0
+        instr = (_mp([p, 25], True) - _mp([p, 5], True)) / 20.0 if have_vg else float("nan")
+        from tests.test_adcs_lean import _stkf_sequence
+        ins = []
+        for n in (10, 20):
+            q = os.path.join(d, "seq%d.json" % n)
+            with open(q, "w") as fh:
+                json.dump(_stkf_sequence(n), fh)
+            ins.append(_mp([q], have_vg, "firmware_stkf.py") if have_vg else 0)
+        st = _mp([q], False, "firmware_stkf.py")
+        instr_stkf = (ins[1] - ins[0]) / 10.0 if have_vg else float("nan")
+    print("\nCost of one 1 Hz cycle (predict + star-tracker update) under micropython (unix x64 port)\n")
+    print("| item | goal | ours |")
+    print("|---|---|---|")
+    print("| x86-64 instructions per cycle (callgrind) | <= %.0f M | %.2f M%s |"
+          % (GOAL_INSTR / 1e6, instr / 1e6, "" if instr <= GOAL_INSTR else " (missed)"))
+    print("| heap bytes per cycle (gc.mem_alloc delta, max over 30 s) | measured, bounded | %d |" % res["heap_max"])
+    print("| STKF + AFLS cycle (predict, SatA GNSS, SatB GNSS 2.37 s late: a node generated), instructions "
+          "| (10 M for the whole ADCS) | %.2f M%s |" % (instr_stkf / 1e6, "" if instr_stkf + instr <= GOAL_INSTR
+                                                       else " (APKF + STKF over the goal)"))
+    print("| STKF + AFLS cycle, heap bytes (max over 20 s) | measured, bounded | %d |" % st["heap_max"])
+    print("\nOn this port every float result is a 16-byte heap object (float64, object representation A); a board "
+          "port with single-precision floats packed in the object word (representation C) allocates none for them.")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,415 @@
+"""The lean APKF for pointing (flight code, MicroPython): 9 error states, parameters from the calibration file.
+
+Grounds (Yoon 2017): the remark after Case 1 (Sec. 4.8.1) that once the maneuvers have calibrated the inertia,
+wheel alignment and wheel inertias they can be held, and the Ch. 6 parameter file that carries them to the
+pointing phase. The full 41-state filter is ``ground/adcs/apkf.py``; this one keeps
+
+    x = [q (4), w (3) rad/s, tau_d (3) N m]          dx = [dq (3), dw (3), dtau_d (3)]   (Eq. 4.76-4.78, cut)
+
+and takes J (Jxx reference + J5), C = C0 + C1 D(d1) + C2 D(d2) (Eq. 4.60), Jrw and the dipole m from the
+parameter file of ``ground/adcs/bps.py`` ("fps-bps-params/1"), all in the file's (filter-scaled) units.
+
+Dynamics (Eq. 4.67, 4.83), RK4 over the step with W(s) = W- + s (W+ - W-)/dt (Eq. 4.95):
+    J w_dot = -w x (J w + C Jrw W) - C Jrw (W+ - W-)/dt + 3 mu/r^3 r x J r + m x b + tau_d
+The tachometer read-outs W-, W+ (start and end of the step) are inputs here, not states: their noise R_rw enters
+as process noise on w through the momentum exchange, Q_ww += G (2 R_rw) G^T with G = J^-1 C D(Jrw) (the
+Eq. 4.135 construction for the F2a/F2b columns; it ignores that consecutive steps share a read-out, so it is
+conservative). The orbit direction r, 3 mu/r^3 and the field b (inertial) are inputs (from the STKF and the
+field model).
+
+F (Eq. 4.98-4.101, the 9 x 9 corner of ground/adcs/apkf.py's derivation):
+    F11 = -[w x], F12 = I/2, F21 = J^-1 {3 mu/r^3 ([r x] J - [(J r) x]) 2[r x] + [m x] 2[b x]},
+    F22 = J^-1 (-[w x] J + [H x]), F23 = J^-1, the tau_d rows zero.
+Phi = sum_{n<=4} (F dt)^n / n! (App. A.2's series; |F dt| ~ 0.03). Q (Eq. 4.135-4.136) for q_d:
+    Q_tt = q_d dt I, Q_wt = J^-1 q_d dt^2/2, Q_ww = J^-1 J^-T q_d dt^3/3 (+ the tachometer term).
+Star-tracker update (Eq. 4.139-4.142): z = vec(q_meas (x) q_hat^-1), H = [I3 0 0], R = diag(sigma^2)/4, Joseph
+form, P kept symmetric (linalg.joseph_select). Every buffer is allocated once, in ``Lean``.
+"""
+
+import math
+
+from firmware.adcs import linalg
+
+N = 9
+ARCSEC = math.pi / 180.0 / 3600.0
+HOUR = 3600.0
+RPM = 2.0 * math.pi / 60.0
+QD_CASE1 = (2.0e-7) ** 2 / HOUR            # Sec. 4.8, Case 1, (N m)^2/s
+FORMAT = "fps-bps-params/1"
+NW = 4
+
+
+def pyramid():
+    """(C0, C1, C2) flat 3 x 4: the nominal pyramid (Eq. 4.147) and the misalignment axes (Eq. 4.148)."""
+    s = 1.0 / math.sqrt(3.0)
+    c0 = [[-s, -s, s, s], [-s, s, s, -s], [s, s, s, s]]
+    c1 = [[0.0] * 4 for _ in range(3)]
+    c2 = [[0.0] * 4 for _ in range(3)]
+    for i in range(4):
+        a = [c0[r][i] for r in range(3)]
+        b = [c0[r][(i + 1) % 4] for r in range(3)]
+        v = _cross(a, b)
+        n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        v = [v[0] / n, v[1] / n, v[2] / n]
+        u = _cross(a, v)
+        n = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+        for r in range(3):
+            c1[r][i] = v[r]
+            c2[r][i] = u[r] / n
+    return c0, c1, c2
+
+
+def _cross(a, b):
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def check_params(d):
+    """Validate the parameter-file dict (ground/adcs/bps.py's format); ValueError naming what is wrong."""
+    if not isinstance(d, dict) or d.get("format") != FORMAT:
+        raise ValueError("not a BPS parameter file (format must be %r)" % FORMAT)
+    if d.get("wheels") != NW:
+        raise ValueError("%r wheels, the spacecraft has %d" % (d.get("wheels"), NW))
+    x = d.get("x")
+    sizes = (("tau_d_nm", 3), ("J5_kgm2", 5), ("dipole_am2", 3), ("delta1_rad", 4), ("delta2_rad", 4),
+             ("jrw_kgm2", 4))
+    if not isinstance(x, dict):
+        raise ValueError("parameter file has no 'x'")
+    for k, n in sizes:
+        v = x.get(k)
+        if not isinstance(v, list) or len(v) != n:
+            raise ValueError("parameter file: x.%s must be %d numbers" % (k, n))
+        for e in v:
+            if not (isinstance(e, (int, float)) and e == e and abs(e) < 1e30):
+                raise ValueError("parameter file: x.%s has a non-finite value" % k)
+    for e in x["jrw_kgm2"]:
+        if not e > 0:
+            raise ValueError("parameter file: wheel inertias must be > 0")
+    jxx = d.get("jxx_ref_kgm2")
+    if not (isinstance(jxx, (int, float)) and jxx > 0):
+        raise ValueError("parameter file: jxx_ref_kgm2 must be > 0")
+    return d
+
+
+class Model:
+    """What the lean filter holds fixed: J, J^-1, C Jrw (3 x 4), m, noise levels; flat float buffers."""
+
+    def __init__(self, params, dt=1.0, sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, qd=QD_CASE1):
+        check_params(params)
+        x = params["x"]
+        j5 = x["J5_kgm2"]
+        jxx = float(params["jxx_ref_kgm2"])
+        self.dt = float(dt)
+        self.J = linalg.zeros(9)
+        for i, v in enumerate((jxx, j5[2], j5[3], j5[2], j5[0], j5[4], j5[3], j5[4], j5[1])):
+            self.J[i] = v
+        self.Ji = linalg.zeros(9)
+        if not _inv3(self.Ji, self.J):
+            raise ValueError("parameter file: inertia is not positive definite")
+        c0, c1, c2 = pyramid()
+        self.CJ = linalg.zeros(12)
+        d1, d2, jrw = x["delta1_rad"], x["delta2_rad"], x["jrw_kgm2"]
+        for r in range(3):
+            for i in range(4):
+                self.CJ[r * 4 + i] = (c0[r][i] + c1[r][i] * d1[i] + c2[r][i] * d2[i]) * jrw[i]
+        self.m = linalg.zeros(3)
+        for i in range(3):
+            self.m[i] = x["dipole_am2"][i]
+        self.tau_d0 = [float(v) for v in x["tau_d_nm"]]
+        self.R = linalg.zeros(9)
+        for i in range(3):
+            self.R[i * 4] = (sigma_st_arcsec[i] * ARCSEC) ** 2 / 4.0
+        self.R_rw = (tach_rpm * RPM) ** 2
+        self.qd = qd
+        # the constant parts of Q: tau_d and the tachometer term (G (2 R_rw) G^T, G = J^-1 C D(Jrw))
+        G = linalg.zeros(12)
+        linalg.matmul(G, self.Ji, self.CJ, 3, 3, 4)
+        self.Q = linalg.zeros(81)
+        dt = self.dt
+        for i in range(3):
+            self.Q[(6 + i) * 9 + 6 + i] = qd * dt
+            for j in range(3):
+                s = 0.0
+                for k in range(4):
+                    s += G[i * 4 + k] * G[j * 4 + k]
+                jj = 0.0
+                for k in range(3):
+                    jj += self.Ji[i * 3 + k] * self.Ji[j * 3 + k]
+                self.Q[(3 + i) * 9 + 3 + j] = 2.0 * self.R_rw * s + qd * jj * dt ** 3 / 3.0
+                v = self.Ji[i * 3 + j] * qd * dt * dt / 2.0
+                self.Q[(3 + i) * 9 + 6 + j] = v
+                self.Q[(6 + j) * 9 + 3 + i] = v
+
+
+def _inv3(D, A):
+    """D = A^-1 (3 x 3, flat); False if singular."""
+    a, b, c, d, e, f, g, h, k = A[0], A[1], A[2], A[3], A[4], A[5], A[6], A[7], A[8]
+    c00, c01, c02 = e * k - f * h, c * h - b * k, b * f - c * e
+    det = a * c00 + d * c01 + g * c02
+    if not abs(det) > 0.0:
+        return False
+    r = 1.0 / det
+    D[0], D[1], D[2] = c00 * r, c01 * r, c02 * r
+    D[3], D[4], D[5] = (f * g - d * k) * r, (a * k - c * g) * r, (c * d - a * f) * r
+    D[6], D[7], D[8] = (d * h - e * g) * r, (b * g - a * h) * r, (a * e - b * d) * r
+    return True
+
+
+def initial_covariance(P, model, att_deg=10.0, rate_dps=10.0, tau_nm=1e-6):
+    """P0 (Sec. 4.8): (10 deg)^2 attitude (as dq: /2), (10 deg/s)^2 rate, tau_d (1e-6 N m)^2 (as the ground)."""
+    linalg.fill(P, 81, 0.0)
+    d = math.pi / 180.0
+    for i in range(3):
+        P[i * 10] = (att_deg * d / 2.0) ** 2
+        P[(3 + i) * 10] = (rate_dps * d) ** 2
+        P[(6 + i) * 10] = tau_nm ** 2
+
+
+class Work:
+    """Every scratch buffer one cycle needs, allocated once."""
+
+    def __init__(self):
+        z = linalg.zeros
+        self.F = z(81)
+        self.Phi = z(81)
+        self.T1 = z(81)
+        self.T2 = z(81)
+        self.W = z(81)
+        self.Kt = z(27)
+        self.RK = z(27)
+        self.L = z(9)
+        self.dx = z(9)
+        self.k = z(7 * 4)       # RK4 slopes (q 4 + w 3) x 4
+        self.y = z(7)           # RK4 stage state
+        self.v = z(24)          # small vectors: r_b, b_b, h, J w, J r, torque, ...
+
+
+def _dcm_apply(out, o, q, v):
+    """out[o:o+3] = A(q) v (inertial to body, scalar-last q, Eq. 4.4)."""
+    q1, q2, q3, q4 = q[0], q[1], q[2], q[3]
+    x, y, z = v[0], v[1], v[2]
+    out[o] = (q1 * q1 - q2 * q2 - q3 * q3 + q4 * q4) * x + 2.0 * (q1 * q2 + q3 * q4) * y \
+        + 2.0 * (q1 * q3 - q2 * q4) * z
+    out[o + 1] = 2.0 * (q1 * q2 - q3 * q4) * x + (-q1 * q1 + q2 * q2 - q3 * q3 + q4 * q4) * y \
+        + 2.0 * (q2 * q3 + q1 * q4) * z
+    out[o + 2] = 2.0 * (q1 * q3 + q2 * q4) * x + 2.0 * (q2 * q3 - q1 * q4) * y \
+        + (-q1 * q1 - q2 * q2 + q3 * q3 + q4 * q4) * z
+
+
+def _slope(ks, o, y, x, model, wm, acc, s, env, v):
+    """RK4 slope at stage state y = [q, w] and s seconds into the step into ks[o:o+7] (Eq. 4.10, 4.83)."""
+    J, CJ, m = model.J, model.CJ, model.m
+    r_i, kgg, b_i = env
+    _dcm_apply(v, 0, y, r_i)                      # r_b in v[0:3]
+    _dcm_apply(v, 3, y, b_i)                      # b_b in v[3:6]
+    w0, w1, w2 = y[4], y[5], y[6]
+    for i in range(3):
+        h = J[i * 3] * w0 + J[i * 3 + 1] * w1 + J[i * 3 + 2] * w2
+        ha = 0.0
+        for k in range(4):
+            c = CJ[i * 4 + k]
+            h += c * (wm[k] + acc[k] * s)
+            ha += c * acc[k]
+        v[6 + i] = h                              # H
+        v[9 + i] = ha                             # C Jrw a
+        v[12 + i] = J[i * 3] * v[0] + J[i * 3 + 1] * v[1] + J[i * 3 + 2] * v[2]   # J r
+    h0, h1, h2 = v[6], v[7], v[8]
+    r0, r1, r2 = v[0], v[1], v[2]
+    jr0, jr1, jr2 = v[12], v[13], v[14]
+    b0, b1, b2 = v[3], v[4], v[5]
+    t0 = -(w1 * h2 - w2 * h1) - v[9] + kgg * (r1 * jr2 - r2 * jr1) + (m[1] * b2 - m[2] * b1) + x[7]
+    t1 = -(w2 * h0 - w0 * h2) - v[10] + kgg * (r2 * jr0 - r0 * jr2) + (m[2] * b0 - m[0] * b2) + x[8]
+    t2 = -(w0 * h1 - w1 * h0) - v[11] + kgg * (r0 * jr1 - r1 * jr0) + (m[0] * b1 - m[1] * b0) + x[9]
+    e0, e1, e2, q4 = y[0], y[1], y[2], y[3]
+    ks[o] = 0.5 * (q4 * w0 - (w1 * e2 - w2 * e1))
+    ks[o + 1] = 0.5 * (q4 * w1 - (w2 * e0 - w0 * e2))
+    ks[o + 2] = 0.5 * (q4 * w2 - (w0 * e1 - w1 * e0))
+    ks[o + 3] = -0.5 * (w0 * e0 + w1 * e1 + w2 * e2)
+    Ji = model.Ji
+    for i in range(3):
+        ks[o + 4 + i] = Ji[i * 3] * t0 + Ji[i * 3 + 1] * t1 + Ji[i * 3 + 2] * t2
+
+
+def propagate(x, model, wm, wp, env, work):
+    """x over one step (RK4, Eq. 4.95) with the tachometer read-outs wm (start) and wp (end), rad/s."""
+    dt = model.dt
+    a = work.dx                                    # a = (W+ - W-)/dt in dx[0:4], free during propagation
+    for k in range(4):
+        a[k] = (wp[k] - wm[k]) / dt
+    ks, y, v = work.k, work.y, work.v
+    for i in range(7):
+        y[i] = x[i]
+    _slope(ks, 0, y, x, model, wm, a, 0.0, env, v)
+    for st in range(1, 4):
+        h = dt if st == 3 else 0.5 * dt
+        o = (st - 1) * 7
+        for i in range(7):
+            y[i] = x[i] + h * ks[o + i]
+        _slope(ks, st * 7, y, x, model, wm, a, h, env, v)
+    for i in range(7):
+        x[i] = x[i] + dt / 6.0 * (ks[i] + 2.0 * (ks[7 + i] + ks[14 + i]) + ks[21 + i])
+    n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
+    for i in range(4):
+        x[i] = x[i] / n
+
+
+def jacobian(F, x, model, wm, env, work):
+    """F (9 x 9) of Eq. 4.98-4.101 at x (see the module docstring), with W = wm."""
+    J, Ji, CJ, m = model.J, model.Ji, model.CJ, model.m
+    v = work.v
+    r_i, kgg, b_i = env
+    _dcm_apply(v, 0, x, r_i)
+    _dcm_apply(v, 3, x, b_i)
+    w = (x[4], x[5], x[6])
+    for i in range(3):
+        h = J[i * 3] * w[0] + J[i * 3 + 1] * w[1] + J[i * 3 + 2] * w[2]
+        for k in range(4):
+            h += CJ[i * 4 + k] * wm[k]
+        v[6 + i] = h
+        v[9 + i] = J[i * 3] * v[0] + J[i * 3 + 1] * v[1] + J[i * 3 + 2] * v[2]
+    linalg.fill(F, 81, 0.0)
+    F[1], F[2], F[9], F[11], F[18], F[19] = w[2], -w[1], -w[2], w[0], w[1], -w[0]     # -[w x]
+    F[3], F[13], F[23] = 0.5, 0.5, 0.5
+    # M = kgg ([r x] J - [(J r) x]) 2[r x] + [m x] 2[b x]  (3 x 3) into T1[0:9], then F21 = Ji M
+    T = work.T1
+    r0, r1, r2 = v[0], v[1], v[2]
+    b0, b1, b2 = v[3], v[4], v[5]
+    jr = (v[9], v[10], v[11])
+    rx = (0.0, -r2, r1, r2, 0.0, -r0, -r1, r0, 0.0)
+    bx = (0.0, -b2, b1, b2, 0.0, -b0, -b1, b0, 0.0)
+    mx = (0.0, -m[2], m[1], m[2], 0.0, -m[0], -m[1], m[0], 0.0)
+    jrx = (0.0, -jr[2], jr[1], jr[2], 0.0, -jr[0], -jr[1], jr[0], 0.0)
+    for i in range(3):
+        for j in range(3):
+            a = 0.0
+            for k in range(3):
+                a += rx[i * 3 + k] * J[k * 3 + j]
+            T[9 + i * 3 + j] = a - jrx[i * 3 + j]          # [r x] J - [(J r) x]
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for k in range(3):
+                s += kgg * T[9 + i * 3 + k] * 2.0 * rx[k * 3 + j] + mx[i * 3 + k] * 2.0 * bx[k * 3 + j]
+            T[i * 3 + j] = s
+    wx = (0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0)
+    hh = (v[6], v[7], v[8])
+    hx = (0.0, -hh[2], hh[1], hh[2], 0.0, -hh[0], -hh[1], hh[0], 0.0)
+    for i in range(3):
+        for j in range(3):
+            a = hx[i * 3 + j]
+            for k in range(3):
+                a -= wx[i * 3 + k] * J[k * 3 + j]
+            T[18 + i * 3 + j] = a
+    for i in range(3):
+        for j in range(3):
+            s21 = 0.0
+            s22 = 0.0
+            for k in range(3):
+                s21 += Ji[i * 3 + k] * T[k * 3 + j]
+                s22 += Ji[i * 3 + k] * T[18 + k * 3 + j]
+            F[(3 + i) * 9 + j] = s21
+            F[(3 + i) * 9 + 3 + j] = s22
+            F[(3 + i) * 9 + 6 + j] = Ji[i * 3 + j]
+
+
+def phi(Phi, F, dt, work, order=4):
+    """Phi = sum_{n <= order} (F dt)^n / n! (App. A.2's series). F's tau_d rows are zero, so every power's
+    rows 6-8 are zero and row i of F^n is sum over k < 6 of F^(n-1)[i, k] F[k, :]: 6 x 6 x 9 per power."""
+    term, nxt = work.T1, work.T2
+    linalg.eye(Phi, N)
+    for i in range(54):
+        t = F[i] * dt
+        term[i] = t
+        Phi[i] += t
+    for n in range(2, order + 1):
+        c = dt / n
+        for i in range(6):
+            for j in range(N):
+                s = 0.0
+                for k in range(6):
+                    s += term[i * N + k] * F[k * N + j]
+                nxt[i * N + j] = s * c
+        for i in range(54):
+            t = nxt[i]
+            term[i] = t
+            Phi[i] += t
+
+
+def predict(x, P, wm, wp, env, model, work):
+    """(x, P) from t to t + dt (Eq. 4.95-4.136, cut to 9 states): F and Phi at the step's start, RK4 for x,
+    P = Phi P Phi^T + Q (symmetric by construction; Phi's tau_d rows are the identity's). env = (r_i unit (3), 3 mu/r^3, b_i (3)), mid-step."""
+    jacobian(work.F, x, model, wm, env, work)
+    phi(work.Phi, work.F, model.dt, work)
+    propagate(x, model, wm, wp, env, work)
+    linalg.sandwich_ident(P, work.Phi, work.T1, N, 6)      # Phi's tau_d rows are [0 I]
+    Q = model.Q
+    for i in range(81):
+        P[i] += Q[i]
+
+
+def error_vec(out, qm, q):
+    """out[0:3] = vector part of q_meas (x) q_hat^-1, sign so that dq4 >= 0 (Eq. 4.25, 4.139)."""
+    a1, a2, a3, a4 = qm[0], qm[1], qm[2], qm[3]
+    b1, b2, b3, b4 = -q[0], -q[1], -q[2], q[3]
+    d1 = a4 * b1 + a1 * b4 - (a2 * b3 - a3 * b2)
+    d2 = a4 * b2 + a2 * b4 - (a3 * b1 - a1 * b3)
+    d3 = a4 * b3 + a3 * b4 - (a1 * b2 - a2 * b1)
+    d4 = a4 * b4 - (a1 * b1 + a2 * b2 + a3 * b3)
+    s = 1.0 if d4 >= 0 else -1.0
+    out[0], out[1], out[2] = s * d1, s * d2, s * d3
+
+
+def update(x, P, q_meas, model, work):
+    """Star-tracker update (Eq. 4.139-4.142), Joseph form; returns False (x, P untouched) if S is not PD."""
+    z = work.y
+    error_vec(z, q_meas, x)
+    Kt = work.Kt
+    if not linalg.joseph_select(P, N, 0, 3, model.R, Kt, work.L, work.W, work.RK):
+        return False
+    dx = work.dx
+    for i in range(N):
+        dx[i] = Kt[i] * z[0] + Kt[N + i] * z[1] + Kt[2 * N + i] * z[2]       # Eq. 4.141
+    correct(x, dx)
+    return True
+
+
+def correct(x, dx):
+    """q = dq (x) q_hat with dq = [dx0:3, sqrt(1 - |.|^2)] (Eq. 4.51), normalised; w, tau_d additive."""
+    a1, a2, a3 = dx[0], dx[1], dx[2]
+    n2 = a1 * a1 + a2 * a2 + a3 * a3
+    a4 = math.sqrt(1.0 - n2) if n2 < 1.0 else 0.0
+    b1, b2, b3, b4 = x[0], x[1], x[2], x[3]
+    q1 = a4 * b1 + a1 * b4 - (a2 * b3 - a3 * b2)
+    q2 = a4 * b2 + a2 * b4 - (a3 * b1 - a1 * b3)
+    q3 = a4 * b3 + a3 * b4 - (a1 * b2 - a2 * b1)
+    q4 = a4 * b4 - (a1 * b1 + a2 * b2 + a3 * b3)
+    n = math.sqrt(q1 * q1 + q2 * q2 + q3 * q3 + q4 * q4)
+    x[0], x[1], x[2], x[3] = q1 / n, q2 / n, q3 / n, q4 / n
+    for i in range(3, 9):
+        x[i + 1] = x[i + 1] + dx[i]
+
+
+class Lean:
+    """The lean APKF at 1 Hz: ``step(wp, q_meas or None, env)`` per dt, the read-out wp at the step's end."""
+
+    def __init__(self, params, q0, w0, w_rw0, dt=1.0, **kw):
+        self.model = Model(params, dt=dt, **kw)
+        self.x = linalg.zeros(10)
+        for i in range(4):
+            self.x[i] = q0[i]
+        for i in range(3):
+            self.x[4 + i] = w0[i]
+            self.x[7 + i] = self.model.tau_d0[i]
+        self.P = linalg.zeros(81)
+        initial_covariance(self.P, self.model)
+        self.wm = linalg.zeros(4)
+        for i in range(4):
+            self.wm[i] = w_rw0[i]
+        self.work = Work()
+        self.skipped = 0           # star-tracker updates refused (S not positive definite)
+
+    def step(self, wp, q_meas, env):
+        predict(self.x, self.P, self.wm, wp, env, self.model, self.work)
+        for i in range(4):
+            self.wm[i] = wp[i]
+        if q_meas is not None and not update(self.x, self.P, q_meas, self.model, self.work):
+            self.skipped += 1

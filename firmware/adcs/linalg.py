@@ -1,0 +1,203 @@
+"""Small dense float routines for the flight filters, over preallocated flat row-major buffers.
+
+A matrix is a flat buffer (``array('f')`` on the flight computer) with its dimensions passed alongside:
+element (i, j) of an n x m matrix A is ``A[i * m + j]``. Every routine writes into a destination the caller
+allocated once; none builds a list or an array. Floats are still boxed objects on most MicroPython ports, so the
+arithmetic itself allocates a bounded amount per call (measured per 1 Hz cycle by tests/mp/firmware_adcs.py).
+
+``zeros(n)`` is the only constructor; a test may replace it (``linalg.zeros = ...``) with a buffer of
+numpy.float32 scalars to run the same code in float32 arithmetic under CPython.
+"""
+
+from array import array
+import math
+
+
+def zeros(n):
+    """A float32 buffer of n zeros (the storage the flight code uses)."""
+    return array("f", bytes(4 * n))
+
+
+def fill(A, n, v=0.0):
+    for i in range(n):
+        A[i] = v
+
+
+def copy(D, S, n):
+    for i in range(n):
+        D[i] = S[i]
+
+
+def eye(A, n):
+    """A = I (n x n)."""
+    for i in range(n * n):
+        A[i] = 0.0
+    for i in range(n):
+        A[i * n + i] = 1.0
+
+
+def matmul(C, A, B, n, m, p):
+    """C (n x p) = A (n x m) B (m x p); C must not alias A or B."""
+    for i in range(n):
+        ia = i * m
+        ic = i * p
+        for j in range(p):
+            s = 0.0
+            k2 = j
+            for k in range(ia, ia + m):
+                s += A[k] * B[k2]
+                k2 += p
+            C[ic + j] = s
+
+
+def matmul_bt(C, A, B, n, m, p):
+    """C (n x p) = A (n x m) B^T, B being p x m; C must not alias A or B."""
+    for i in range(n):
+        ia = i * m
+        ic = i * p
+        for j in range(p):
+            s = 0.0
+            jb = j * m
+            for k in range(m):
+                s += A[ia + k] * B[jb + k]
+            C[ic + j] = s
+
+
+def sandwich(P, Phi, T, n):
+    """P = Phi P Phi^T (n x n), symmetric by construction: only the upper triangle is computed and mirrored.
+    T is an n x n work buffer."""
+    matmul(T, Phi, P, n, n, n)                   # T = Phi P
+    for i in range(n):
+        it = i * n
+        for j in range(i, n):
+            s = 0.0
+            jp = j * n
+            for k in range(n):
+                s += T[it + k] * Phi[jp + k]
+            P[it + j] = s
+            P[jp + i] = s
+
+
+def sandwich_ident(P, Phi, T, n, r):
+    """P = Phi P Phi^T for a Phi whose rows r .. n-1 are those of the identity (the parameter rows of an
+    error-state transition): only rows 0 .. r-1 of Phi P and the blocks they touch are computed. T: n x n work."""
+    for i in range(r):                           # T[0:r] = Phi[0:r] P
+        ia = i * n
+        for j in range(n):
+            s = 0.0
+            k2 = j
+            for k in range(ia, ia + n):
+                s += Phi[k] * P[k2]
+                k2 += n
+            T[ia + j] = s
+    for i in range(r):                           # P[0:r, 0:r] = T[0:r] Phi[0:r]^T; P[0:r, r:] = T[0:r, r:]
+        it = i * n
+        for j in range(i, r):
+            s = 0.0
+            jp = j * n
+            for k in range(n):
+                s += T[it + k] * Phi[jp + k]
+            P[it + j] = s
+            P[jp + i] = s
+        for j in range(r, n):
+            v = T[it + j]
+            P[it + j] = v
+            P[j * n + i] = v
+
+
+def symmetrize(P, n):
+    """P = (P + P^T) / 2."""
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (P[i * n + j] + P[j * n + i])
+            P[i * n + j] = v
+            P[j * n + i] = v
+
+
+def cholesky(L, A, n):
+    """Lower Cholesky factor L (n x n) of the symmetric A; returns False (L undefined) unless A is positive
+    definite. L may alias nothing."""
+    for i in range(n * n):
+        L[i] = 0.0
+    for j in range(n):
+        s = A[j * n + j]
+        for k in range(j):
+            s -= L[j * n + k] * L[j * n + k]
+        if not s > 0.0:                          # also catches NaN
+            return False
+        d = math.sqrt(s)
+        L[j * n + j] = d
+        for i in range(j + 1, n):
+            s = A[i * n + j]
+            for k in range(j):
+                s -= L[i * n + k] * L[j * n + k]
+            L[i * n + j] = s / d
+    return True
+
+
+def chol_solve_rows(X, L, B, n, m):
+    """X (m x n) = B (m x n) S^-1 for S = L L^T (n x n): each row b of B solves S x = b (S symmetric).
+    X may alias B."""
+    for r in range(m):
+        o = r * n
+        for i in range(n):                       # forward: L y = b
+            s = B[o + i]
+            for k in range(i):
+                s -= L[i * n + k] * X[o + k]
+            X[o + i] = s / L[i * n + i]
+        for i in range(n - 1, -1, -1):           # back: L^T x = y
+            s = X[o + i]
+            for k in range(i + 1, n):
+                s -= L[k * n + i] * X[o + k]
+            X[o + i] = s / L[i * n + i]
+
+
+def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
+    """Kalman gain and Joseph-form covariance update for a measurement of the error states r0 .. r0+m-1,
+    H = [0 I_m 0] (the star tracker's H of Eq. 4.139, the GNSS's of Eq. 5.31):
+
+        S = H P H^T + R,  K = P H^T S^-1,  P+ = (I - K H) P (I - K H)^T + K R K^T     (Eq. 4.140, 4.142)
+
+    with R (m x m, symmetric). Writes K^T into Kt (m x n) and returns False (P untouched) when S is not
+    positive definite. L (m x m), W (n x n) and RK (m x n) are work buffers. P is kept exactly symmetric."""
+    for i in range(m):                           # S = P[r0:, r0:] + R into W's first m*m slots
+        for j in range(m):
+            W[i * m + j] = P[(r0 + i) * n + r0 + j] + R[i * m + j]
+    if not cholesky(L, W, m):
+        return False
+    for i in range(m):                           # Kt = S^-1 H P = S^-1 P[r0:r0+m, :]
+        for j in range(n):
+            Kt[i * n + j] = P[(r0 + i) * n + j]
+    _solve_cols(Kt, L, n, m)
+    # A = (I - K H) P = P - K P[r0:, :]  into W
+    for i in range(n):
+        for j in range(n):
+            s = P[i * n + j]
+            for k in range(m):
+                s -= Kt[k * n + i] * P[(r0 + k) * n + j]
+            W[i * n + j] = s
+    matmul(RK, R, Kt, m, m, n)                   # R K^T
+    # P+ = A (I - K H)^T + K R K^T = A - A[:, r0:] K^T + K R K^T, upper triangle mirrored
+    for i in range(n):
+        for j in range(i, n):
+            s = W[i * n + j]
+            for k in range(m):
+                s += Kt[k * n + i] * RK[k * n + j] - W[i * n + r0 + k] * Kt[k * n + j]
+            P[i * n + j] = s
+            P[j * n + i] = s
+    return True
+
+
+def _solve_cols(X, L, n, m):
+    """X (m x n) = S^-1 X for S = L L^T (m x m), column by column."""
+    for c in range(n):
+        for i in range(m):
+            s = X[i * n + c]
+            for k in range(i):
+                s -= L[i * m + k] * X[k * n + c]
+            X[i * n + c] = s / L[i * m + i]
+        for i in range(m - 1, -1, -1):
+            s = X[i * n + c]
+            for k in range(i + 1, m):
+                s -= L[k * m + i] * X[k * n + c]
+            X[i * n + c] = s / L[i * m + i]

@@ -127,7 +127,7 @@ def _board_realtime(tmp, dist, cal, rate, duration=10.0):
         try:
             out = os.path.join(tmp, "rt_%g" % rate)
             extra = []
-            if rate * (3 * 426e-6 + 290e-6) > 1.0:      # the Arduino Zero's reads do not fit in the tick
+            if rate * (3 * 426e-6 + 290e-6) > 1.001:    # the Arduino Zero's reads do not fit in the tick
                 cfg = os.path.join(tmp, "zero_latency.json")
                 write_json(cfg, {"board": {"timing": "zero-latency"}})
                 extra = ["--config", cfg]

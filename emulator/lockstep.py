@@ -183,12 +183,7 @@ class Lockstep:
             return self._ticks_timed(k0, n, t_rt0, q2_rows, q1_rows, fsm_rows)
         for k in range(k0, k0 + n):
             if realtime:
-                due = t_rt0 + k / rate
-                now = clock()
-                if now < due:
-                    time.sleep(due - now)
-                if hasattr(ctrl, "timeout_s"):
-                    ctrl.timeout_s = max(0.0, due + deadline - clock())
+                self._pace(k, t_rt0)
             vx, vy, vs = bench.q1_sample()
             words = ctrl.on_tick(k, int(k * us_per_tick + 0.5), vx, vy, vs)
             if realtime and clock() > t_rt0 + k / rate + deadline:
@@ -208,6 +203,15 @@ class Lockstep:
                 fsm_rows.append(bench.fsm_v)
         return k
 
+    def _pace(self, k, t_rt0):
+        """Real time: wait for tick k's wall-clock instant; a remote controller gets the time left to the deadline."""
+        due = t_rt0 + k / self.rate_hz
+        now = time.perf_counter()
+        if now < due:
+            time.sleep(due - now)
+        if hasattr(self.controller, "timeout_s"):
+            self.controller.timeout_s = max(0.0, due + self.deadline_s - time.perf_counter())
+
     def _ticks_timed(self, k0, n, t_rt0, q2_rows, q1_rows, fsm_rows):
         """``_ticks_general`` for a bench with the board's timing: each tick through ``Bench.run_ticks`` (the
         controller wrapped for the real-time pacing and deadline); overruns are counted by the bench."""
@@ -217,12 +221,7 @@ class Lockstep:
 
         def on_tick(k, t_us, vx, vy, vs):
             if realtime:
-                due = t_rt0 + k / rate
-                now = clock()
-                if now < due:
-                    time.sleep(due - now)
-                if hasattr(ctrl, "timeout_s"):
-                    ctrl.timeout_s = max(0.0, due + deadline - clock())
+                self._pace(k, t_rt0)
             words = ctrl.on_tick(k, t_us, vx, vy, vs)
             if realtime and clock() > t_rt0 + k / rate + deadline:
                 return None

@@ -287,8 +287,7 @@ def _cmd(a):
     if a.config is not None:
         from emulator.config import load_config
         cfg = load_config(a.config)
-    if a.link is None:
-        a.link = "inproc" if a.runtime == "inproc" else "serial"
+    runtime.default_link(a)
     if a.port is not None and a.runtime != "board":      # a real, free-running bench: wall-clock time
         if not a.port:
             raise ValueError("--port: empty path")

@@ -339,7 +339,7 @@ def register(sub, name, help_):
     p.add_argument("-o", "--output", required=True, help="run folder")
 
     def func(a):
-        if a.link is None:
-            a.link = "inproc" if a.runtime == "inproc" else "serial"
+        from ground.runtime import default_link
+        default_link(a)
         return _cmd(a)
     p.set_defaults(func=func)

@@ -39,6 +39,12 @@ def link_options(a):
             "max_failed_ticks": a.max_failed_ticks}
 
 
+def default_link(a):
+    """``--link`` left out: inproc for the inproc runtime, serial for every other."""
+    if a.link is None:
+        a.link = "inproc" if a.runtime == "inproc" else "serial"
+
+
 def add_link_arguments(p):
     """The runtime/link/fault flags of ``fps hil`` and ``fps calibrate``."""
     p.add_argument("--runtime", default="inproc", choices=RUNTIMES,

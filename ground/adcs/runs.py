@@ -79,6 +79,20 @@ def _simulate(case, seed, params, gyro):
                              dipole=p.get("dipole_am2"))
 
 
+def _start_apkf(o, case, start_at_truth=False):
+    """(first step, APKF) for a simulated run: attitude from the star tracker, rate differentiated from it
+    (Sec. 4.8); ``start_at_truth`` puts the parameters at their true values (a diagnostic), same P0."""
+    k0 = _start(o)
+    q0 = o["st_q"][k0]
+    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
+    x0 = apkf.initial_state(q0, w0, o["tach"][k0])
+    if start_at_truth:
+        tr = o["truth"]
+        x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
+                                                                  tr["jrw"])
+    return k0, apkf.APKF(x0, case=case, set_ends=o["set_ends"])
+
+
 def _start(o):
     """Index of the first star-tracker output that follows another one (filter initialisation)."""
     v = o["st_valid"]
@@ -125,15 +139,7 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
     """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series.
     ``start_at_truth`` (a diagnostic, not in the CLI) starts the parameters at their true values, same P0."""
     o = _simulate(case, seed, params, gyro=False)
-    k0 = _start(o)
-    q0 = o["st_q"][k0]
-    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))       # differentiated (Sec. 4.8)
-    x0 = apkf.initial_state(q0, w0, o["tach"][k0])
-    if start_at_truth:
-        tr = o["truth"]
-        x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
-                                                                  tr["jrw"])
-    f = apkf.APKF(x0, case=case, set_ends=o["set_ends"])
+    k0, f = _start_apkf(o, case, start_at_truth)
     n = len(o["t"])
     err = np.full((n, apkf.N), np.nan)
     sig = np.full((n, apkf.N), np.nan)
@@ -268,15 +274,7 @@ def hold_consistency(seed, case=1, start_at_truth=False, t_from=630.0, settle=10
     NIS (z^T S^-1 z, 3 dof, before the update), the attitude and rate NEES (3 dof each), and the errors and
     1 sigma (attitude as full angles, arcsec; rate arcsec/s). Returns a dict of arrays."""
     o = _simulate(case, seed, None, gyro=False)
-    k0 = _start(o)
-    q0 = o["st_q"][k0]
-    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
-    x0 = apkf.initial_state(q0, w0, o["tach"][k0])
-    if start_at_truth:
-        tr = o["truth"]
-        x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
-                                                                  tr["jrw"])
-    f = apkf.APKF(x0, case=case, set_ends=o["set_ends"])
+    k0, f = _start_apkf(o, case, start_at_truth)
     v = o["st_valid"]
     nis, err, sig, nees = [], [], [], []
     for k in range(k0 + 1, len(o["t"])):

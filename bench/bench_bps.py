@@ -49,6 +49,14 @@ def main():
                     rows.append("| %s | %s%d | (%.3f, %.3f) | (%.3f, %.3f) | %.2f | %s |" % (
                         name, label, i + 1, t_mean, t_sig, mean, sig, sig / t_sig,
                         "yes" if abs(sig / t_sig - 1) <= 0.25 else "NO"))
+            b = r.get("budget")
+            if b:
+                rows.append("| %s | δθ 1σ: estimation / tracking (its 60 s mean) / command; tracking mean "
+                            "| (%.0f, %.0f) thesis total | (%.1f, %.1f) / (%.1f, %.1f) ((%.1f, %.1f)) / (%.1f, %.1f); "
+                            "(%.1f, %.1f) | | |" % (
+                                name, th["theta"][0][1], th["theta"][1][1], *b["estimation_sigma_arcsec"],
+                                *b["tracking_sigma_arcsec"], *b["tracking_slow_sigma_arcsec"],
+                                *b["command_sigma_arcsec"], *b["tracking_mean_arcsec"]))
             rows.append("| %s | 3σ pointing / stability | < 150″ / < 35″/s | %.1f″ / %.1f″/s | | %s |" % (
                 name, r["pointing_3sigma_arcsec"], r["stability_3sigma_arcsec_s"],
                 "yes" if r["pointing_3sigma_arcsec"] < 150 and r["stability_3sigma_arcsec_s"] < 35 else "NO"))

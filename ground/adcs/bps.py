@@ -391,6 +391,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / ARCSEC, dom / ARCSEC
     hist.update({"fsw_" + k: v for k, v in fsw.items()})
     sel = hist["t"] >= t_settle
+    budget = error_budget(hist, xg[:(k_done + 1) * rate:rate], t_settle)
     res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
            "duration_s": float(duration_s), "settle_s": float(t_settle), "simulated_s": float(k_done),
            "complete": bool(complete and k_done == K), "feedforward": bool(feedforward),
@@ -401,7 +402,37 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     else:
         res.update({k: None for k in SUMMARY_KEYS if k != "complete"})
         res["J_rad2"] = None
+    res["budget"] = budget
     return res, hist
+
+
+def error_budget(hist, x1, t_settle, slow_s=60):
+    """Where the pointing error comes from, at the 1 Hz flight-software instants after settling (arcsec, 1σ per
+    axis): with e(q) the Eq. 6.12-6.16 pointing error of attitude q against the true line of sight,
+    ``estimation`` = e(q) - e(q_hat), ``tracking`` = e(q_hat) - e(q_c) (the controller's), ``command`` = e(q_c)
+    (the STKF's and the command law's); ``total`` = e(q) is their sum. ``tracking_slow`` is the tracking part's
+    ``slow_s`` moving average: the bias a PD leaves against a torque it does not model. Each part's mean is
+    given too (``*_mean_arcsec``)."""
+    k = np.arange(len(x1))
+    keep = (k >= t_settle) & np.all(np.isfinite(hist["fsw_qc"][:len(x1)]), axis=1)
+    if keep.sum() < 2 * slow_s:
+        return None
+    k = k[keep]
+    q, w = hist["q"][k * 10], hist["w"][k * 10]
+    ra, va, rb, vb = x1[k, 0, 0:3], x1[k, 0, 3:6], x1[k, 1, 0:3], x1[k, 1, 3:6]
+
+    def e(qq):
+        return pointing_errors(qq, w, ra, va, rb, vb)[0] / ARCSEC
+
+    tot, est, cmd = e(q), e(hist["fsw_q_hat"][k]), e(hist["fsw_qc"][k])
+    parts = {"total": tot, "estimation": tot - est, "tracking": est - cmd, "command": cmd}
+    box = np.ones(slow_s) / slow_s
+    slow = np.column_stack([np.convolve(parts["tracking"][:, i], box, mode="valid") for i in range(2)])
+    out = {name + "_sigma_arcsec": v.std(axis=0).tolist() for name, v in parts.items()}
+    out["tracking_slow_sigma_arcsec"] = slow.std(axis=0).tolist()
+    out.update({name + "_mean_arcsec": v.mean(axis=0).tolist() for name, v in parts.items()})
+    out["samples"] = int(len(k))
+    return out
 
 
 def save_history(path, hist):

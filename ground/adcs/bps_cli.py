@@ -118,11 +118,29 @@ def report_md(s, args_text):
             "wall %.1f s." % ("—" if s.get("J_rad2") is None else "%.3e" % s["J_rad2"],
                               "—" if s.get("pointing_max_arcsec") is None else "%.1f" % s["pointing_max_arcsec"],
                               s["max_wheel_speed_rpm"], s["wall_s"]), "",
+            ] + budget_md(s.get("budget")) + [
             "Known differences from the thesis: the APKF misses the thesis's attitude 1σ by ~2x (README, issue 9); "
             "the controller adds the command rate, w x H, the APKF's external-torque estimate, the wheels' "
             "datasheet friction and the absolute torque scale to Eq. 6.5 (see ground/adcs/control.py); a 30 s "
             "hold precedes the slew; Eq. 6.7 read as wn = 4/t_s.", ""]
     return "\n".join(out)
+
+
+def budget_md(b):
+    """The error budget table (``bps.error_budget``), or nothing when the run was too short for one."""
+    if not b:
+        return []
+    rows = [("total", "e(q): the pointing error at the 1 Hz instants"),
+            ("estimation", "e(q) - e(q̂): the APKF's attitude error"),
+            ("tracking", "e(q̂) - e(q_c): the controller's"),
+            ("tracking_slow", "its %d s moving average: the bias a PD leaves" % 60),
+            ("command", "e(q_c): the STKF's and the command law's")]
+    out = ["| error budget (arcsec) | δθ1 mean, 1σ | δθ2 mean, 1σ | what |", "|---|---|---|---|"]
+    for k, what in rows:
+        v, m = b[k + "_sigma_arcsec"], b.get(k + "_mean_arcsec")
+        out.append("| %s | %s%.1f | %s%.1f | %s |" % (k, "" if m is None else "%.1f, " % m[0], v[0],
+                                                       "" if m is None else "%.1f, " % m[1], v[1], what))
+    return out + ["", "The parts are correlated (the controller acts on q̂), so their σ do not add in quadrature.", ""]
 
 
 def plot_history(path, hist, settle_s, title):

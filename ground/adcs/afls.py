@@ -60,20 +60,16 @@ def update(X, P, n, idx, z, R, H, hx):
     return X + W @ (Li @ (z - hx)), np.subtract(P, WWt, out=WWt)
 
 
-def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
-    """Node b between a (index ia, older) and c (index ic, newer), dt_a = t_b - t_a, dt_b = t_c - t_b.
+def interpolation(X, n, ia, ic, dt_a, dt_b, f, Phi, Q):
+    """(x_b, A, B, N) of node b between a (index ia, older) and c (index ic, newer), dt_a = t_b - t_a,
+    dt_b = t_c - t_b: x_b ~ A x_a + B x_c + w, cov(w) = N = (I - B Fb) Qa.
 
     Eq. 5.46-5.48: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
     B = Qa Fb^T Qca^-1, A = (I - B Fb) Fa.
     State (Eq. 5.49-5.52): x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)); for a linear f this
     is A x_a + B x_c (Eq. 5.40).
-    Covariance: P_bb = A Paa A^T + B Pcc B^T + A Pac B^T + B Pca A^T + (I - B Fb) Qa (Eq. 5.41, 5.44),
-    P_bj = A P_aj + B P_cj for every other node j (Eq. 5.42, 5.45).
-    Returns (x_b, P_bb, row) with row = [P_bj for all current nodes j] (n x m).
     """
-    sa = slice(ia * n, (ia + 1) * n)
-    sc = slice(ic * n, (ic + 1) * n)
-    xa, xc = X[sa], X[sc]
+    xa, xc = X[ia * n:(ia + 1) * n], X[ic * n:(ic + 1) * n]
     xb_pred = f(xa, dt_a)
     Fa = Phi(xa, dt_a)
     Fb = Phi(xb_pred, dt_b)
@@ -83,16 +79,28 @@ def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
     B = (FQ.T @ Li.T) @ Li                         # Qa Fb^T Qca^-1 (Qa symmetric)
     BF = B @ Fb
     IBF = np.eye(n) - BF
-    A = IBF @ Fa
     xb = xb_pred + BF @ (f(xc, -dt_b) - xb_pred)
+    return xb, IBF @ Fa, B, IBF @ Qa
+
+
+def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
+    """Node b between a (index ia, older) and c (index ic, newer) (``interpolation``, Eq. 5.46-5.52).
+
+    Covariance: P_bb = A Paa A^T + B Pcc B^T + A Pac B^T + B Pca A^T + (I - B Fb) Qa (Eq. 5.41, 5.44),
+    P_bj = A P_aj + B P_cj for every other node j (Eq. 5.42, 5.45).
+    Returns (x_b, P_bb, row) with row = [P_bj for all current nodes j] (n x m).
+    """
+    sa = slice(ia * n, (ia + 1) * n)
+    sc = slice(ic * n, (ic + 1) * n)
+    xb, A, B, N = interpolation(X, n, ia, ic, dt_a, dt_b, f, Phi, Q)
     if ia == ic + 1:                               # c just before a in the node list: one product (Eq. 5.42)
         BA = np.empty((n, 2 * n))
         BA[:, :n], BA[:, n:] = B, A
         row = BA @ P[sc.start:sa.stop, :]
-        Pbb = row[:, sc.start:sa.stop] @ BA.T + IBF @ Qa      # = Eq. 5.41 expanded
+        Pbb = row[:, sc.start:sa.stop] @ BA.T + N      # = Eq. 5.41 expanded
     else:
         row = A @ P[sa, :] + B @ P[sc, :]
-        Pbb = row[:, sa] @ A.T + row[:, sc] @ B.T + IBF @ Qa
+        Pbb = row[:, sa] @ A.T + row[:, sc] @ B.T + N
     Pbb = 0.5 * (Pbb + Pbb.T)
     return xb, Pbb, row
 
@@ -119,9 +127,16 @@ class Afls:
     """Node list of the (E)AFLS. ``t`` holds node times newest first; ``x``/``P`` the current node.
 
     ``lag_s``: the longest delay accepted; a measurement older than that is refused (ValueError).
+    ``keep_generated``: keep a node generated for an OOSM in the list after its update (Fig. 5-2, default);
+    False generates, applies and drops it in one (``_update_between``: the same algebra, with only the
+    measured part of node b formed; exact for the nodes kept), so the joint covariance stays ~half the
+    size. A later OOSM in the same interval is then interpolated from the interval's ends without the dropped
+    node, which loses what the first measurement told about the process noise inside the interval; with one
+    OOSM per interval (SatB's relayed solutions: one per second, on SatB's own clock) the linear AFLS gives the
+    same kept nodes either way, and the in-order Kalman filter's result (tested to 1e-9).
     """
 
-    def __init__(self, x0, P0, t0, lag_s, f, Phi, Q, tol=1e-9):
+    def __init__(self, x0, P0, t0, lag_s, f, Phi, Q, tol=1e-9, keep_generated=True):
         x0 = np.asarray(x0, dtype=float)
         P0 = np.asarray(P0, dtype=float)
         if not (np.isfinite(lag_s) and lag_s >= 0):
@@ -135,6 +150,7 @@ class Afls:
         self.f, self.Phi, self.Q = f, Phi, Q
         self.tol = tol
         self.generated = 0
+        self.keep_generated = bool(keep_generated)
 
     # The nodes live in a preallocated buffer, newest first, in the window [o, o + m) of its rows and columns;
     # a prediction writes the new node just before the window (the old joint covariance is not copied),
@@ -228,8 +244,9 @@ class Afls:
             self.t = self.t[:keep]
             self._m = keep * self.n
 
-    def update(self, z, R, h, H, t=None):
-        """Measurement z = h(x(t)) + v, v ~ N(0, R); ``h(x)`` and ``H(x)`` callables of the node state.
+    def update(self, z, R, h, H=None, t=None):
+        """Measurement z = h(x(t)) + v, v ~ N(0, R); ``h(x)`` and ``H(x)`` callables of the node state, or
+        ``H`` None and ``h(x)`` returning (h, H) from one evaluation.
 
         ``t`` None means now. A time between nodes creates a node (Eq. 5.40-5.42 / 5.49-5.52). The update
         is the module's ``update`` (Eq. 5.24), done in place in the buffer.
@@ -246,18 +263,58 @@ class Afls:
         if t < self.now - self.lag - self.tol:
             raise ValueError("measurement delayed %.3f s, longer than the smoother's lag of %.3f s"
                              % (self.now - t, self.lag))
+        if not self.keep_generated:
+            i = self._between(t)
+            if i is not None:
+                self._update_between(i, t, z, R, h, H)
+                return
         idx = self._node_at(t)
         n = self.n
         X, P = self.X, self.P
         s = slice(idx * n, (idx + 1) * n)
         xi = X[s]
-        Hi = H(xi)
-        r = z - h(xi)
+        if H is None:
+            hx, Hi = h(xi)
+        else:
+            hx, Hi = h(xi), H(xi)
+        r = z - hx
         PCt = P[:, s] @ Hi.T
         Li = chol_inv(Hi @ PCt[s, :] + R)
         W = PCt @ Li.T
         X += W @ (Li @ r)
         np.subtract(P, W @ np.ascontiguousarray(W.T), out=P)
+
+    def _between(self, t):
+        """Index a of the older neighbour when t lies strictly between two nodes; None at a node."""
+        for i, ti in enumerate(self.t):
+            if abs(ti - t) <= self.tol:
+                return None
+            if ti < t:
+                return i
+        raise ValueError("measurement time %.3f s is before the oldest node %.3f s" % (t, self.t[-1]))
+
+    def _update_between(self, ia, t, z, R, h, H):
+        """Generate node b between c = ia - 1 and a = ia, update every node with z = h(x_b) + v and drop b,
+        in one: with C the measurement's Jacobian at x_b, cov(z, X) = C [B A] P[c:a, :] (Eq. 5.42) and
+        cov(z) = that times [B A]^T C^T + C (I - B Fb) Qa C^T + R (Eq. 5.41), then Eq. 5.24 on the kept
+        nodes. Node b's own n x m row and n x n block are never formed."""
+        n = self.n
+        X, P = self.X, self.P
+        ic = ia - 1
+        xb, A, B, N = interpolation(X, n, ia, ic, t - self.t[ia], self.t[ic] - t, self.f, self.Phi, self.Q)
+        if H is None:
+            hx, Hi = h(xb)
+        else:
+            hx, Hi = h(xb), H(xb)
+        CBA = np.hstack([Hi @ B, Hi @ A])
+        s = slice(ic * n, (ia + 1) * n)
+        row = CBA @ P[s, :]
+        S = row[:, s] @ CBA.T + Hi @ N @ Hi.T + R
+        Li = chol_inv(0.5 * (S + S.T))
+        W = row.T @ Li.T
+        X += W @ (Li @ (z - hx))
+        np.subtract(P, W @ np.ascontiguousarray(W.T), out=P)
+        self.generated += 1
 
     def _node_at(self, t):
         for i, ti in enumerate(self.t):

@@ -273,7 +273,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     # flight software state
     model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb)
     f_stkf = Afls(xg[0].ravel() + np.sqrt(P0_DIAG) * r_init.standard_normal(12), np.diag(P0_DIAG), 0.0, LAG_S,
-                  stkf.f, stkf.Phi, lambda dt: stkf.Q(dt))
+                  stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False)
     flt = None
     q_prev = None
     u = np.zeros(N_WHEELS)

@@ -148,7 +148,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     P0 = np.diag(P0_DIAG)
     x_true0 = xs[0].ravel()
     x0 = x_true0 + np.sqrt(P0_DIAG) * r_init.standard_normal(12)
-    flt = Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa))
+    flt = Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa), keep_generated=False)
     gnss_a, beacon = Gnss(r_ga), Beacon(r_bc)
     relay = Relay(r_rel, Gnss(r_gb), delay_s)
     phase = r_rel.uniform(0.0, 1.0)               # SatB's receiver clock vs SatA's ticks
@@ -198,8 +198,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
         if have_b:
             Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
         if have_g and have_b:  # one stacked update: the two noises are independent
-            flt.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb),
-                       lambda x: stkf.gnss_beacon(x, A_hat)[0], lambda x: stkf.gnss_beacon(x, A_hat)[1])
+            flt.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb), lambda x: stkf.gnss_beacon(x, A_hat))
         elif have_g:
             flt.update(zg, gnss_a.R, h_a, lambda x: H_a)
         elif have_b:

@@ -18,15 +18,17 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    Approximation: the A-B cross covariance the beacon would create is dropped, and the beacon does not
    refine B's older nodes. SatA's GNSS gives rA to ~9 m, which is ~0.8 arcsec at 2300 km beside the beacon's
    60 arcsec, so little is lost; bench/bench_adcs_lean.py measures it against the ground filter.
-3. A short lag. The smoother keeps the nodes within ``lag`` (default 3 s: the relay's delay is U(2, 3) s,
-   Sec. 5.5.1) and the anchor, the newest node at least ``lag`` old (node a for the oldest admissible tag);
-   older nodes are marginalised out (exact). At 1 Hz that is 4 nodes of 6 states (24), 5 while a generated
-   node is in the list, where the ground form keeps 12 states per node. A measurement older than the lag is
-   refused. With ``in_order`` (default: the relay delivers SatB's 1 Hz solutions in order, its delay spread
-   of 1 s not exceeding their spacing), the newest SatB node measured is the anchor instead when it is newer:
-   no later tag can fall before it, so the older nodes are marginalised (exact); an older tag is refused.
-   (Keeping fewer nodes, e.g. every other second, is not exact: a measurement already applied at a
-   dropped node between a and c is missing from the conditional that node generation uses; measured.)
+3. A short lag, and the generated node as a measurement. The smoother keeps the nodes within ``lag``
+   (default 4 s: the relay's delay is U(2, 3) s, Sec. 5.5.1, and a solution waits up to 1 s more for the next
+   1 Hz cycle) and the anchor (node a of the oldest admissible tag); older nodes are marginalised out, which
+   is exact. SatB's solutions come at 1 Hz and the relay delivers them in order (its delay spread of 1 s does
+   not exceed their spacing), so no tag can come before the newest one applied: that node is the anchor when
+   newer, and an out-of-order tag is refused and counted. A tag between nodes a and c generates node b
+   (EAFLS, Eq. 5.46-5.52): x_b = A x_a + B x_c + e with e ~ N(0, (I - B Fb) Qa). Plugging b in, updating all
+   nodes (Eq. 5.24) and marginalising b out again gives the other nodes exactly what one update with
+   H = [.. A .. B ..] and R + (I - B Fb) Qa gives, which is what this form does; b is not kept (no later tag
+   falls between a and c). At 1 Hz: 4-5 nodes of 6 states (24-30), where the ground form keeps 12 states per
+   node and every generated node. Equal to the ground smoother without the beacon (tested).
 4. Floats. States and times are float64 (``zeros_d``, array('d')): a LEO position is ~7e6 m, which float32
    holds to 0.5 m only. SatA's covariance and its work buffers are float32 (``linalg.zeros``, array('f')):
    stored full, written symmetric (upper triangle computed and mirrored), GNSS update in the Joseph form
@@ -199,7 +201,7 @@ class Work:
 class Afls:
     """The lean STKF: SatA's EKF and SatB's AFLS.
 
-    ``Afls(x0, P0diag, t0, lag_s=LAG_S, cap=7, qa=QA_THESIS)``: x0 = [rA, vA, rB, vB] (12, m,
+    ``Afls(x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS)``: x0 = [rA, vA, rB, vB] (12, m,
     m/s), P0diag its 12 variances. ``predict(t)``; ``update_gnss(z6, R (6 x 6 flat), sat, t=None)`` (sat 0
     SatA, on time; sat 1 SatB, any tag within the lag); ``update_beacon(y, q_hat, P_att, sigma_b)``;
     ``get(x12, sig12)`` writes the current estimate and its 1 sigma into the caller's buffers.
@@ -208,7 +210,7 @@ class Afls:
     SatA: ``xa`` (6), ``Pa`` (6 x 6). SatB's nodes, newest first: ``X[6 i: 6 i + 6]`` at ``t[i]``, i < ``k``,
     joint covariance ``P`` (leading dimension ``ld``)."""
 
-    def __init__(self, x0, P0diag, t0, lag_s=LAG_S, cap=7, qa=QA_THESIS, in_order=True, tol=1e-9):
+    def __init__(self, x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS, tol=1e-9):
         if not (lag_s - lag_s == 0.0 and lag_s >= 0):
             raise ValueError("smoother lag must be >= 0 s, got %r" % (lag_s,))
         if not (_finite(x0, 12) and _finite(P0diag, 12) and t0 - t0 == 0.0):
@@ -230,7 +232,6 @@ class Afls:
             self.X[i] = x0[6 + i]
             self.P[i * self.ld + i] = P0diag[6 + i]
         self.t[0] = t0
-        self.in_order = in_order
         self.t_last = t0 - 2.0 * self.lag - 1.0     # the newest SatB tag applied
         self.k = 1
         self.generated = 0
@@ -276,8 +277,8 @@ class Afls:
         """Keep the nodes within the lag of t_ref and the anchor: the newest node at least ``lag`` older than
         t_ref (node a for the oldest admissible time tag). Older nodes are marginalised out (exact)."""
         h = t_ref - self.lag + self.tol
-        if self.in_order and self.t_last > h:
-            h = self.t_last + self.tol          # in order: the newest SatB tag applied is the anchor
+        if self.t_last > h:
+            h = self.t_last + self.tol          # in order: nothing older than the newest SatB tag is needed
         for i in range(self.k):
             if self.t[i] <= h:
                 self.k = i + 1
@@ -349,73 +350,52 @@ class Afls:
             self.refused += 1
             raise ValueError("measurement delayed %.3f s, longer than the smoother's lag of %.3f s"
                              % (self.t[0] - t, self.lag))
-        if t < self.t[self.k - 1] - self.tol:
+        if t < self.t_last - self.tol:
             self.refused += 1
-            raise ValueError("measurement time %.3f s is before the oldest node %.3f s%s" % (
-                t, self.t[self.k - 1], " (out of order: in_order=True)" if self.in_order else ""))
-        idx = self._node_at(t)
-        self._update_select(idx * N, z, R)
+            raise ValueError("SatB measurement at %.3f s is out of order (the newest applied is at %.3f s)"
+                             % (t, self.t_last))
+        for i in range(self.k):
+            ti = self.t[i]
+            if abs(ti - t) <= self.tol:                 # at a node: Eq. 5.24 with C = [0 .. I6 .. 0]
+                self._hp_node(i)
+                break
+            if ti < t:                                  # between nodes c = i - 1 and a = i
+                self._hp_between(i - 1, i, t - ti, self.t[i - 1] - t)
+                break
+        else:
+            self.refused += 1
+            raise ValueError("measurement time %.3f s is before the oldest node %.3f s" % (t, self.t[self.k - 1]))
+        if not self._update_rows(z, R):
+            self.refused += 1
+            raise ValueError("innovation covariance is not positive definite")
         if t > self.t_last:
             self.t_last = t
         self._prune(self.t[0])
 
-    def _update_select(self, c0, z, R):
-        """Eq. 5.24 for H selecting the six states from column c0 of B's joint state: S = P_ii + R,
-        K = P C^T S^-1, X += K (z - x_i), P -= K S K^T (= P - K C P, upper triangle, mirrored)."""
+    def _hp_node(self, i):
+        """Hp = C P = P[6 i: 6 i + 6, :] (6 x m), its block S0 = P_ii, h = x_i (Eq. 5.24)."""
         w, ld, P, X = self.work, self.ld, self.P, self.X
-        m = self.k * N
-        PCt, S, Kt = w.PCt, w.S, w.Kt
-        for i in range(m):
-            for j in range(6):
-                PCt[i * 6 + j] = P[i * ld + c0 + j]
-        for i in range(6):
-            for j in range(6):
-                S[i * 6 + j] = PCt[(c0 + i) * 6 + j] + R[i * 6 + j]
-        if not linalg.cholesky(w.L, S, 6):
-            self.refused += 1
-            raise ValueError("innovation covariance is not positive definite")
-        for i in range(m * 6):
-            Kt[i] = PCt[i]
-        linalg.chol_solve_rows(Kt, w.L, Kt, 6, m)       # row i of Kt = row i of K
-        r = w.r
-        for j in range(6):
-            r[j] = z[j] - X[c0 + j]
-        for i in range(m):
-            o = 6 * i
-            X[i] = X[i] + Kt[o] * r[0] + Kt[o + 1] * r[1] + Kt[o + 2] * r[2] + Kt[o + 3] * r[3] \
-                + Kt[o + 4] * r[4] + Kt[o + 5] * r[5]
-        for i in range(m):
-            o = 6 * i
-            k0, k1, k2, k3, k4, k5 = Kt[o], Kt[o + 1], Kt[o + 2], Kt[o + 3], Kt[o + 4], Kt[o + 5]
-            for j in range(i, m):
-                q = 6 * j
-                v = P[i * ld + j] - (k0 * PCt[q] + k1 * PCt[q + 1] + k2 * PCt[q + 2] + k3 * PCt[q + 3]
-                                     + k4 * PCt[q + 4] + k5 * PCt[q + 5])
-                P[i * ld + j] = v
-                P[j * ld + i] = v
+        m, c0 = self.k * N, i * N
+        Hp, S, d = w.row, w.S, w.d
+        for a in range(6):
+            for j in range(m):
+                Hp[a * m + j] = P[(c0 + a) * ld + j]
+        for a in range(6):
+            for b in range(6):
+                S[a * 6 + b] = Hp[a * m + c0 + b]
+            d[N + a] = X[c0 + a]
 
-    def _node_at(self, t):
-        for i in range(self.k):
-            ti = self.t[i]
-            if abs(ti - t) <= self.tol:
-                return i
-            if ti < t:
-                self._generate(i - 1, i, t - ti, self.t[i - 1] - t)
-                self.t[i] = t
-                self.generated += 1
-                return i
-        raise ValueError("measurement time %.3f s is before the oldest node" % t)
+    def _hp_between(self, ic, ia, dt_a, dt_b):
+        """The generated node b between a (older, index ia) and c (newer, ic) of Eq. 5.46-5.52, as a
+        measurement of a and c: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
+        B = Qa Fb^T Qca^-1, A = (I - B Fb) Fa; x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)),
+        P_bj = A P_aj + B P_cj (Hp, 6 x m), P_bb = P_ba A^T + P_bc B^T + (I - B Fb) Qa (S0).
 
-    def _generate(self, ic, ia, dt_a, dt_b):
-        """Node b between a (older, index ia) and c (newer, ic), plugged in at position ia (Eq. 5.46-5.52):
-        Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb, B = Qa Fb^T Qca^-1,
-        A = (I - B Fb) Fa, x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)),
-        P_bj = A P_aj + B P_cj, P_bb = P_ba A^T + P_bc B^T + (I - B Fb) Qa."""
+        A measurement of b is then a measurement of a and c with H = [A .. B], noise R + (I - B Fb) Qa. The
+        update of Eq. 5.24 with node b plugged in (Fig. 5-2) and then marginalised out is the same update of
+        the other nodes (exact); b is not kept: with in-order tags 1 s apart no later tag falls between a and
+        c, and the pruning keeps a as the anchor."""
         w, ld, P, X = self.work, self.ld, self.P, self.X
-        if self.k == self.cap:
-            if ia == self.k - 1:
-                raise ValueError("smoother full: raise its capacity")
-            self.k -= 1
         m = self.k * N
         xb, xc = w.xb, w.xc
         for i in range(N):
@@ -456,39 +436,69 @@ class Afls:
             for j in range(N):
                 s += B[i * N + j] * d[j]
             d[N + i] = s
-        row = w.row
+        Hp = w.row
         sa, sc = ia * N, ic * N
-        for j in range(m):                                # row = A P[sa, :] + B P[sc, :]  (6 x m)
+        for j in range(m):                                # Hp = A P[sa, :] + B P[sc, :]  (6 x m)
             a0, a1, a2 = P[sa * ld + j], P[(sa + 1) * ld + j], P[(sa + 2) * ld + j]
             a3, a4, a5 = P[(sa + 3) * ld + j], P[(sa + 4) * ld + j], P[(sa + 5) * ld + j]
             c0, c1, c2 = P[sc * ld + j], P[(sc + 1) * ld + j], P[(sc + 2) * ld + j]
             c3, c4, c5 = P[(sc + 3) * ld + j], P[(sc + 4) * ld + j], P[(sc + 5) * ld + j]
             for i in range(N):
                 o = 6 * i
-                row[i * m + j] = A[o] * a0 + A[o + 1] * a1 + A[o + 2] * a2 + A[o + 3] * a3 + A[o + 4] * a4 \
+                Hp[i * m + j] = A[o] * a0 + A[o + 1] * a1 + A[o + 2] * a2 + A[o + 3] * a3 + A[o + 4] * a4 \
                     + A[o + 5] * a5 + B[o] * c0 + B[o + 1] * c1 + B[o + 2] * c2 + B[o + 3] * c3 \
                     + B[o + 4] * c4 + B[o + 5] * c5
-        Pbb = w.Fb
-        for i in range(N):                                # P_bb, upper triangle mirrored
+        S = w.S
+        for i in range(N):                                # S0 = P_bb, upper triangle mirrored
             for j in range(i, N):
                 s = 0.0
                 for a in range(N):
-                    s += row[i * m + sa + a] * A[j * N + a] + row[i * m + sc + a] * B[j * N + a] \
+                    s += Hp[i * m + sa + a] * A[j * N + a] + Hp[i * m + sc + a] * B[j * N + a] \
                         + T[i * N + a] * Qa[a * N + j]
-                Pbb[i * N + j] = s
-                Pbb[j * N + i] = s
-        self._shift(ia)
-        p = ia * N
-        for i in range(N):
-            X[p + i] = d[N + i]
-        for i in range(N):
-            for j in range(m):
-                v = row[i * m + j]
-                jj = j + N if j >= p else j
-                P[(p + i) * ld + jj] = v
-                P[jj * ld + p + i] = v
-            for j in range(N):
-                P[(p + i) * ld + p + j] = Pbb[i * N + j]
+                S[i * N + j] = s
+                S[j * N + i] = s
+        self.generated += 1
+
+    def _update_rows(self, z, R):
+        """Eq. 5.24 from Hp = C P (6 x m, in ``work.row``), S0 = C P C^T (``work.S``) and h (``work.d[6:12]``):
+        S = S0 + R = L L^T, V = L^-1 Hp, X += V^T L^-1 (z - h), P -= V^T V (= K S K^T; upper triangle,
+        mirrored). False (nothing changed) unless S is positive definite."""
+        w, ld, P, X = self.work, self.ld, self.P, self.X
+        m = self.k * N
+        V, S, L, d, r = w.row, w.S, w.L, w.d, w.r
+        for i in range(36):
+            S[i] = S[i] + R[i]
+        if not linalg.cholesky(L, S, 6):
+            return False
+        for j in range(6):
+            r[j] = z[j] - d[N + j]
+        l00, l10, l11, l20, l21, l22 = L[0], L[6], L[7], L[12], L[13], L[14]
+        l30, l31, l32, l33, l40, l41 = L[18], L[19], L[20], L[21], L[24], L[25]
+        l42, l43, l44, l50, l51, l52, l53, l54, l55 = L[26], L[27], L[28], L[30], L[31], L[32], L[33], L[34], L[35]
+        r0 = r[0] / l00                                   # r = L^-1 (z - h)
+        r1 = (r[1] - l10 * r0) / l11
+        r2 = (r[2] - l20 * r0 - l21 * r1) / l22
+        r3 = (r[3] - l30 * r0 - l31 * r1 - l32 * r2) / l33
+        r4 = (r[4] - l40 * r0 - l41 * r1 - l42 * r2 - l43 * r3) / l44
+        r5 = (r[5] - l50 * r0 - l51 * r1 - l52 * r2 - l53 * r3 - l54 * r4) / l55
+        for j in range(m):                                # V = L^-1 Hp, column by column, in place
+            v0 = V[j] / l00
+            v1 = (V[m + j] - l10 * v0) / l11
+            v2 = (V[2 * m + j] - l20 * v0 - l21 * v1) / l22
+            v3 = (V[3 * m + j] - l30 * v0 - l31 * v1 - l32 * v2) / l33
+            v4 = (V[4 * m + j] - l40 * v0 - l41 * v1 - l42 * v2 - l43 * v3) / l44
+            v5 = (V[5 * m + j] - l50 * v0 - l51 * v1 - l52 * v2 - l53 * v3 - l54 * v4) / l55
+            V[j], V[m + j], V[2 * m + j], V[3 * m + j], V[4 * m + j], V[5 * m + j] = v0, v1, v2, v3, v4, v5
+            X[j] = X[j] + v0 * r0 + v1 * r1 + v2 * r2 + v3 * r3 + v4 * r4 + v5 * r5
+        m2, m3, m4, m5 = 2 * m, 3 * m, 4 * m, 5 * m
+        for i in range(m):
+            v0, v1, v2, v3, v4, v5 = V[i], V[m + i], V[m2 + i], V[m3 + i], V[m4 + i], V[m5 + i]
+            for j in range(i, m):
+                v = P[i * ld + j] - (v0 * V[j] + v1 * V[m + j] + v2 * V[m2 + j] + v3 * V[m3 + j]
+                                     + v4 * V[m4 + j] + v5 * V[m5 + j])
+                P[i * ld + j] = v
+                P[j * ld + i] = v
+        return True
 
     # ---- beacon (Eq. 5.13-5.17, Sec. 5.3.3) ----
 

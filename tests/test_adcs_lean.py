@@ -251,6 +251,10 @@ def test_lean_stkf_without_the_beacon_equals_the_ground_smoother():
     Pb = np.array([[f.P[i * f.ld + j] for j in range(6)] for i in range(6)])
     assert np.allclose(Pa, g.Pk[0:6, 0:6], rtol=1e-9, atol=1e-12)
     assert np.allclose(Pb, g.Pk[6:12, 6:12], rtol=1e-9, atol=1e-12)
+    PA, PB = [0.0] * 9, [0.0] * 9
+    f.position_cov(PA, PB)
+    assert np.allclose(np.reshape(PA, (3, 3)), g.Pk[0:3, 0:3], rtol=1e-9)
+    assert np.allclose(np.reshape(PB, (3, 3)), g.Pk[6:9, 6:9], rtol=1e-9)
     for i in range(f.k):                      # every lean node is a ground node, with SatB's part equal
         xg, _ = g.node(f.t[i])
         assert np.abs(np.array(f.X[6 * i:6 * i + 6]) - xg[6:12]).max() < 1e-6
@@ -281,6 +285,22 @@ def test_lean_stkf_with_the_beacon_stays_beside_the_ground_filter(case):
         rms = lambda x: np.sqrt(((x - truth)[200:, i:i + 3] ** 2).sum(1).mean())    # noqa: E731
         assert abs(tot(sl) / tot(sg) - 1) < 0.05, (i, tot(sl), tot(sg))
         assert abs(rms(xl) / rms(xg) - 1) < 0.10, (i, rms(xl), rms(xg))
+
+
+def test_lean_stkf_beacon_jacobian_is_eq_5_16_5_17():
+    """The beacon's H on rB (Eq. 5.16-5.17: A Hb,B = -A Hb,A) and h = A u (Eq. 5.13) as ground/adcs/stkf.py
+    has them, at the prior state of an update."""
+    from emulator.spacecraft.dynamics import dcm
+    from ground.adcs import stkf
+    sc = stkf_scenario(3, case=1)
+    _, _, f, _ = run_stkf_lean(sc, **_f64())
+    x = np.concatenate([np.array(f.xa), np.array(f.X[0:6])])
+    q = np.array([0.1, -0.2, 0.3, 0.9])
+    q /= np.linalg.norm(q)
+    A = dcm(q)
+    f.update_beacon(stkf.h_beacon(x, A).tolist(), q.tolist(), sc["P_att"], sc["sigma_b"])
+    assert np.allclose(np.reshape(f.work.H, (3, 3)), stkf.H_beacon(x, A)[:, 6:9], rtol=1e-12, atol=1e-20)
+    assert np.allclose(f.work.d[3:6], stkf.h_beacon(x, A), atol=1e-14)
 
 
 def test_lean_stkf_runs_the_same_under_micropython_with_bounded_heap(tmp_path):
@@ -333,7 +353,8 @@ def test_lean_stkf_float32_stable_and_within_10_percent_of_float64(seconds):
 def test_lean_stkf_smoother_covariance_in_float32_loses_positive_definiteness():
     """Why SatB's smoother keeps float64: its joint covariance over nodes 1 s apart has a condition number
     far beyond float32's 1/eps (measured in the docstring); stored in float32 it stops being PD within
-    60 s of Case 1 (the beacon only)."""
+    60 s of Case 1 (the beacon only), and the exact float64 P merely rounded to float32 is indefinite at most
+    steps, so no update form would keep it PD."""
     sc = stkf_scenario(60, case=1)
     lost = []
 
@@ -349,10 +370,21 @@ def test_lean_stkf_smoother_covariance_in_float32_loses_positive_definiteness():
     except (ValueError, ArithmeticError):
         lost.append("raised")
     assert lost
+    rounded = []                              # the storage alone: the float64 P rounded to float32
+
+    def cast(f):
+        m = f.k * 6
+        P = np.array([[f.P[i * f.ld + j] for j in range(m)] for i in range(m)])
+        assert _pd(P)
+        rounded.append(_pd(P.astype(np.float32).astype(float)))
+
+    run_stkf_lean(sc, every=cast)
+    assert rounded.count(False) > len(rounded) // 2
 
 
 def test_lean_stkf_refuses_bad_input_and_keeps_its_state():
-    """Delay beyond the lag, NaN, infinite or future time tags, SatA's GNSS late, a bad satellite index,
+    """Delay beyond the lag, NaN, infinite or future time tags, SatB's solutions repeated or out of order,
+    SatA's GNSS late, a bad satellite index,
     a NaN beacon or a non-positive beacon sigma: ValueError, the filter unchanged, the refusal counted."""
     from firmware.adcs import stkf_lean as S
     sc = stkf_scenario(12, case=2)
@@ -363,6 +395,8 @@ def test_lean_stkf_refuses_bad_input_and_keeps_its_state():
     n0 = f.refused
     bad = [(lambda: f.update_gnss(z, R, 1, f.now - S.LAG_S - 0.5), "longer than the smoother's lag"),
            (lambda: f.update_gnss(z, R, 1, f.now + 0.5), "future"),
+           (lambda: f.update_gnss(z, R, 1, f.t_last), "out of order or repeated"),
+           (lambda: f.update_gnss(z, R, 1, f.t_last - 0.5), "out of order or repeated"),
            (lambda: f.update_gnss(z, R, 1, float("nan")), "NaN"),
            (lambda: f.update_gnss([float("nan")] + z[1:], R, 0), "NaN"),
            (lambda: f.update_gnss(z, [float("inf")] + R[1:], 0), "NaN"),

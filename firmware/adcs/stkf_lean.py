@@ -35,13 +35,16 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    (Eq. 4.142 via ``linalg.joseph_select``); its condition number stays below 1e3. SatB's smoother is float64:
    its joint covariance over nodes 1 s apart is nearly singular (consecutive nodes differ by 1 s of process
    noise): its condition number reaches 1e11-1e12 in Case 1 and 3e7-3e11 in Case 2 (measured over 600 s),
-   beyond float32's 1/eps = 1.7e7, so a float32 P of it loses positive definiteness whatever the update form
-   (Joseph included; measured, tests/test_adcs_lean.py). A square-root (QR) form would hold it but costs
+   beyond float32's 1/eps = 1.7e7. Rounding the exact (float64) P to float32 alone makes it indefinite in 596
+   of 601 steps of Case 1, so no update form (Joseph included) keeps a float32 P of it positive definite
+   (measured, tests/test_adcs_lean.py). A square-root (QR) form would hold it but costs
    O(m^3), ~3e4 multiply-adds per step at m = 30, tens of times this whole filter. So the design needs a port
    with float64 floats (the unix port; STM32 builds with double floats). On a float32-only port (SAMD21)
    array('d') reads back float32: not supported by this design.
 
-Cost: see bench/bench_adcs_lean.py (callgrind instructions and heap bytes per 1 Hz cycle under micropython).
+Cost (bench/bench_adcs_lean.py, micropython unix x64 port, a cycle with SatA's GNSS, the beacon and SatB's
+delayed GNSS): ~30 M x86-64 instructions and ~1.3 MB of boxed floats per 1 Hz cycle (2.1 MB when two SatB
+solutions arrive in one second); the previous 12-state-per-node port of the ground smoother took 515 M / 15.5 MB.
 """
 
 from array import array
@@ -204,7 +207,8 @@ class Afls:
     ``Afls(x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS)``: x0 = [rA, vA, rB, vB] (12, m,
     m/s), P0diag its 12 variances. ``predict(t)``; ``update_gnss(z6, R (6 x 6 flat), sat, t=None)`` (sat 0
     SatA, on time; sat 1 SatB, any tag within the lag); ``update_beacon(y, q_hat, P_att, sigma_b)``;
-    ``get(x12, sig12)`` writes the current estimate and its 1 sigma into the caller's buffers.
+    ``get(x12, sig12)`` writes the current estimate and its 1 sigma into the caller's buffers,
+    ``position_cov(PA9, PB9)`` the position covariances (for the pointing covariance, Eq. 5.59).
     Bad input raises ValueError and leaves the filter as it was.
 
     SatA: ``xa`` (6), ``Pa`` (6 x 6). SatB's nodes, newest first: ``X[6 i: 6 i + 6]`` at ``t[i]``, i < ``k``,
@@ -250,6 +254,15 @@ class Afls:
             x[6 + i] = self.X[i]
             sig[i] = math.sqrt(self.Pa[i * 7])
             sig[6 + i] = math.sqrt(self.P[i * self.ld + i])
+
+    def position_cov(self, PA, PB):
+        """PA[0:9], PB[0:9] = the 3 x 3 covariances of rA and rB now (m^2); their cross covariance is zero in
+        this form, so the relative position rB - rA has PA + PB (Eq. 5.59's P_AA + P_BB - P_AB - P_BA)."""
+        ld = self.ld
+        for i in range(3):
+            for j in range(3):
+                PA[3 * i + j] = self.Pa[6 * i + j]
+                PB[3 * i + j] = self.P[i * ld + j]
 
     # ---- node list ----
 
@@ -350,10 +363,10 @@ class Afls:
             self.refused += 1
             raise ValueError("measurement delayed %.3f s, longer than the smoother's lag of %.3f s"
                              % (self.t[0] - t, self.lag))
-        if t < self.t_last - self.tol:
+        if t <= self.t_last + self.tol:
             self.refused += 1
-            raise ValueError("SatB measurement at %.3f s is out of order (the newest applied is at %.3f s)"
-                             % (t, self.t_last))
+            raise ValueError("SatB measurement at %.3f s is out of order or repeated (the newest applied is at "
+                             "%.3f s)" % (t, self.t_last))
         for i in range(self.k):
             ti = self.t[i]
             if abs(ti - t) <= self.tol:                 # at a node: Eq. 5.24 with C = [0 .. I6 .. 0]
@@ -505,7 +518,8 @@ class Afls:
     def update_beacon(self, y, q, P_att, sigma_b, t=None):
         """The beacon's unit vector y (SatA body frame) of rB - rA (Eq. 5.13-5.14), with the attitude
         estimate q (x, y, z, w; A(q) inertial to body, Eq. 4.7), P_att (3 x 3 flat, rad^2) the covariance of
-        the attitude error d_alpha = 2 dq_vec (4 P_qq of the APKF) and sigma_b (rad) the beacon's 1 sigma.
+        the attitude error d_alpha = 2 dq_vec (from firmware/adcs/apkf_lean.py, whose error state is dq_vec:
+        P_att[3 i + j] = 4 P[9 i + j]) and sigma_b (rad) the beacon's 1 sigma.
 
         h = A (rB - rA)/rho, H_B = A (I - u u^T)/rho = -A Hb,A (Eq. 5.16-5.17) on B's current node;
         R = sigma_b^2 I + [y x] P_att [y x]^T (Sec. 5.3.3) + (A Hb,A) P_rA (A Hb,A)^T (rA considered).

@@ -38,9 +38,11 @@ def truth_params(sc):
             "P": np.diag(np.full(23, 1e-12)).tolist(), "calibration": {"seed": -1, "sets": 0, "duration_s": 0}}
 
 
-def scenario(seconds, seed=0, dt_truth=0.25, ts=33.0):
+def scenario(seconds, seed=0, dt_truth=0.25, ts=33.0, tach_rpm=None):
+    """``tach_rpm``: the tachometer read-out 1 sigma (None: the scenario's 10 rpm; the truth is the same)."""
     rng = np.random.default_rng(seed)
-    wheels = Wheels(WheelParams(**SCENARIO_WHEELS), rng=np.random.default_rng(seed + 1))
+    wp = dict(SCENARIO_WHEELS) if tach_rpm is None else dict(SCENARIO_WHEELS, noise_rpm=float(tach_rpm))
+    wheels = Wheels(WheelParams(**wp), rng=np.random.default_rng(seed + 1))
     q0 = rng.standard_normal(4)
     q0 /= np.linalg.norm(q0)
     sc = Spacecraft(wheels=wheels, dt=dt_truth, q=q0, omega=(0.0, 0.0, 0.0), dipole=np.asarray(M_DIPOLE_THESIS) / 20,

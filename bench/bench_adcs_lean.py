@@ -184,6 +184,7 @@ def main():
     print("| STKF cycle, heap bytes (max over 30 s) | measured, bounded | %d (before: 15.5 M) |" % st["heap_max"])
     print("\nOn this port every float result is a 16-byte heap object (float64, object representation A); a board "
           "port with single-precision floats packed in the object word (representation C) allocates none for them.")
+    stkf_main()
 
 
 STKF_S = 1200
@@ -251,4 +252,3 @@ def stkf_main():
 
 if __name__ == "__main__":
     main()
-    stkf_main()

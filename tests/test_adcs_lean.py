@@ -412,5 +412,9 @@ def test_lean_stkf_refuses_bad_input_and_keeps_its_state():
     assert (list(f.xa), list(f.Pa), list(f.X), list(f.P), list(f.t), f.k) == before
     with pytest.raises(ValueError, match="not after"):
         f.predict(f.now)
+    with pytest.raises(ValueError, match="longer than"):
+        f.predict(float("inf"))
+    with pytest.raises(ValueError, match="not after"):
+        f.predict(float("nan"))
     with pytest.raises(ValueError, match="NaN"):
         S.Afls([float("nan")] * 12, sc["P0"], 0.0)

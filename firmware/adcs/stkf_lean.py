@@ -56,6 +56,7 @@ MU = 398600.4415e9
 QA_THESIS = 0.1 ** 2
 N = 6                  # states per satellite
 LAG_S = 4.0            # the relay delay U(2, 3) s (Sec. 5.5.1) + up to 1 s until the next 1 Hz cycle
+MAX_STEP_S = 600.0     # one predict() at most (RK4 substeps of 1 s)
 
 
 def zeros_d(n):
@@ -209,7 +210,9 @@ class Afls:
     SatA, on time; sat 1 SatB, any tag within the lag); ``update_beacon(y, q_hat, P_att, sigma_b)``;
     ``get(x12, sig12)`` writes the current estimate and its 1 sigma into the caller's buffers,
     ``position_cov(PA9, PB9)`` the position covariances (for the pointing covariance, Eq. 5.59).
-    Bad input raises ValueError and leaves the filter as it was.
+    Bad input raises ValueError and leaves the filter as it was (``refused`` counts refused measurements).
+    ``cap`` must hold the nodes of the lag at the predict rate plus two (6 at 1 Hz with the 4 s lag); a full
+    list drops its oldest node, and a tag older than the oldest node left is refused.
 
     SatA: ``xa`` (6), ``Pa`` (6 x 6). SatB's nodes, newest first: ``X[6 i: 6 i + 6]`` at ``t[i]``, i < ``k``,
     joint covariance ``P`` (leading dimension ``ld``)."""
@@ -305,6 +308,8 @@ class Afls:
         dt = t_new - self.t[0]
         if not dt > 0:
             raise ValueError("prediction time %r s is not after the current %.6f s" % (t_new, self.t[0]))
+        if not dt <= MAX_STEP_S:
+            raise ValueError("prediction step of %r s is longer than %g s (propagate in steps)" % (dt, MAX_STEP_S))
         wa, w = self.wa, self.work
         process_noise(wa.Q, dt, self.qa)
         phi(wa.Phi, self.xa, 0, dt)
@@ -367,6 +372,7 @@ class Afls:
             self.refused += 1
             raise ValueError("SatB measurement at %.3f s is out of order or repeated (the newest applied is at "
                              "%.3f s)" % (t, self.t_last))
+        between = False
         for i in range(self.k):
             ti = self.t[i]
             if abs(ti - t) <= self.tol:                 # at a node: Eq. 5.24 with C = [0 .. I6 .. 0]
@@ -374,6 +380,7 @@ class Afls:
                 break
             if ti < t:                                  # between nodes c = i - 1 and a = i
                 self._hp_between(i - 1, i, t - ti, self.t[i - 1] - t)
+                between = True
                 break
         else:
             self.refused += 1
@@ -381,8 +388,9 @@ class Afls:
         if not self._update_rows(z, R):
             self.refused += 1
             raise ValueError("innovation covariance is not positive definite")
-        if t > self.t_last:
-            self.t_last = t
+        if between:
+            self.generated += 1
+        self.t_last = t
         self._prune(self.t[0])
 
     def _hp_node(self, i):
@@ -470,7 +478,6 @@ class Afls:
                         + T[i * N + a] * Qa[a * N + j]
                 S[i * N + j] = s
                 S[j * N + i] = s
-        self.generated += 1
 
     def _update_rows(self, z, R):
         """Eq. 5.24 from Hp = C P (6 x m, in ``work.row``), S0 = C P C^T (``work.S``) and h (``work.d[6:12]``):

@@ -1,18 +1,50 @@
-"""The lean STKF with the AFLS (flight code, MicroPython): ground/adcs/stkf.py and afls.py over flat buffers.
+"""The lean STKF with the AFLS (flight code, MicroPython): thesis Sec. 5.3-5.4 over preallocated flat buffers.
 
-State x = [rA, vA, rB, vB] (12, m and m/s, J2000; Eq. 5.6); two-body dynamics with white acceleration noise qa
-(Eq. 5.7-5.9), Phi to third order (Eq. 3.30, closed form per satellite), GNSS updates (Eq. 5.10-5.12).
-SatB's delayed GNSS goes through the augmented fixed-lag smoother (Sec. 5.4): the nodes of the last ``lag``
-seconds are kept, newest first, with one joint covariance (Eq. 5.18-5.22); a prediction prepends the
-propagated node (Eq. 5.21); a measurement of node i updates every node (Eq. 5.24); a measurement time-tagged
-between nodes a (older) and c (newer) first gets its own node b (EAFLS, Eq. 5.46-5.52), plugged in between.
+State [rA, vA, rB, vB] (12, m and m/s, J2000; Eq. 5.6); two-body dynamics with white acceleration noise qa
+(Eq. 5.7-5.9), Phi to third order (Eq. 3.30 with F of Eq. 5.4), GNSS updates (Eq. 5.10-5.12), the beacon
+(Eq. 5.13-5.17, the attitude error as measurement noise as in Sec. 5.3.3), SatB's delayed GNSS through the
+augmented fixed-lag smoother (AFLS, Eq. 5.18-5.24) with node generation between nodes (EAFLS, Eq. 5.46-5.52).
 
-Storage: float64 buffers (``zeros_d``, array('d')) for the node states (a LEO position needs ~1e-7 relative,
-below float32's 0.5 m at 7000 km) and for the joint covariance: with P in float32 the update P - K S K^T of
-Eq. 5.24 loses positive definiteness within the first 14 s of the test sequence ((4 km)^2 prior against 10 m
-GNSS; measured, tests/test_adcs_lean.py). A square-root (UD) form of the smoother would be the float32 fix;
-it is not built. The joint covariance has a fixed leading dimension (capacity x 12), so adding or dropping a
-node moves blocks but allocates no buffer.
+What this flight form chooses, and why (the ground form is ground/adcs/stkf.py + afls.py, 12 states per node):
+
+1. Two 6-state blocks, A and B, with no cross covariance. F, Q (Eq. 5.9) and the GNSS H (Eq. 5.12) are
+   block-diagonal, so without the beacon SatA's and SatB's states never couple: the joint covariance stays
+   block-diagonal and this split is exact (tested against the ground smoother). SatA's GNSS comes on time,
+   so A is a plain EKF (no nodes); only B carries the smoother's nodes.
+2. The beacon (Eq. 5.13-5.17) is the one coupling. It updates B only, with rA's covariance taken as extra
+   measurement noise (a "consider" update: R + (A Hb,A) P_rA (A Hb,A)^T, the same way Sec. 5.3.3 takes the
+   attitude error), and the gain on B's older smoother nodes is set to zero (Schmidt form: their states are
+   left, their cross covariance with the current node becomes (I - K H) P_0j, which is exact for that gain).
+   Approximation: the A-B cross covariance the beacon would create is dropped, and the beacon does not
+   refine B's older nodes. SatA's GNSS gives rA to ~9 m, which is ~0.8 arcsec at 2300 km beside the beacon's
+   60 arcsec, so little is lost; bench/bench_adcs_lean.py measures it against the ground filter.
+3. A short lag, and the generated node as a measurement. The smoother keeps the nodes within ``lag``
+   (default 4 s: the relay's delay is U(2, 3) s, Sec. 5.5.1, and a solution waits up to 1 s more for the next
+   1 Hz cycle) and the anchor (node a of the oldest admissible tag); older nodes are marginalised out, which
+   is exact. SatB's solutions come at 1 Hz and the relay delivers them in order (its delay spread of 1 s does
+   not exceed their spacing), so no tag can come before the newest one applied: that node is the anchor when
+   newer, and an out-of-order tag is refused and counted. A tag between nodes a and c generates node b
+   (EAFLS, Eq. 5.46-5.52): x_b = A x_a + B x_c + e with e ~ N(0, (I - B Fb) Qa). Plugging b in, updating all
+   nodes (Eq. 5.24) and marginalising b out again gives the other nodes exactly what one update with
+   H = [.. A .. B ..] and R + (I - B Fb) Qa gives, which is what this form does; b is not kept (no later tag
+   falls between a and c). At 1 Hz: 4-5 nodes of 6 states (24-30), where the ground form keeps 12 states per
+   node and every generated node. Equal to the ground smoother without the beacon (tested).
+4. Floats. States and times are float64 (``zeros_d``, array('d')): a LEO position is ~7e6 m, which float32
+   holds to 0.5 m only. SatA's covariance and its work buffers are float32 (``linalg.zeros``, array('f')):
+   stored full, written symmetric (upper triangle computed and mirrored), GNSS update in the Joseph form
+   (Eq. 4.142 via ``linalg.joseph_select``); its condition number stays below 1e3. SatB's smoother is float64:
+   its joint covariance over nodes 1 s apart is nearly singular (consecutive nodes differ by 1 s of process
+   noise): its condition number reaches 1e11-1e12 in Case 1 and 3e7-3e11 in Case 2 (measured over 600 s),
+   beyond float32's 1/eps = 1.7e7. Rounding the exact (float64) P to float32 alone makes it indefinite in 596
+   of 601 steps of Case 1, so no update form (Joseph included) keeps a float32 P of it positive definite
+   (measured, tests/test_adcs_lean.py). A square-root (QR) form would hold it but costs
+   O(m^3), ~3e4 multiply-adds per step at m = 30, tens of times this whole filter. So the design needs a port
+   with float64 floats (the unix port; STM32 builds with double floats). On a float32-only port (SAMD21)
+   array('d') reads back float32: not supported by this design.
+
+Cost (bench/bench_adcs_lean.py, micropython unix x64 port, a cycle with SatA's GNSS, the beacon and SatB's
+delayed GNSS): ~30 M x86-64 instructions and ~1.3 MB of boxed floats per 1 Hz cycle (2.1 MB when two SatB
+solutions arrive in one second); the previous 12-state-per-node port of the ground smoother took 515 M / 15.5 MB.
 """
 
 from array import array
@@ -22,139 +54,234 @@ from firmware.adcs import linalg
 
 MU = 398600.4415e9
 QA_THESIS = 0.1 ** 2
-N = 12
+N = 6                  # states per satellite
+LAG_S = 4.0            # the relay delay U(2, 3) s (Sec. 5.5.1) + up to 1 s until the next 1 Hz cycle
+MAX_STEP_S = 600.0     # one predict() at most (RK4 substeps of 1 s)
 
 
 def zeros_d(n):
     return array("d", bytes(8 * n))
 
 
-def _acc(d, o, x, i):
-    """d[o:o+3] = -mu r/|r|^3 for r = x[i:i+3]."""
-    r0, r1, r2 = x[i], x[i + 1], x[i + 2]
-    r2s = r0 * r0 + r1 * r1 + r2 * r2
-    c = -MU / (r2s * math.sqrt(r2s))
-    d[o], d[o + 1], d[o + 2] = c * r0, c * r1, c * r2
-
-
-def f(x, o, dt, work):
-    """Two-body propagation (Eq. 5.4, 5.7) of the node at x[o:o+12] by dt (negative: backward, Eq. 5.51), in
-    place: RK4 steps of at most 1 s."""
-    n = max(1, int(math.ceil(abs(dt) - 1e-9)))
+def f(x, o, dt):
+    """Two-body propagation (Eq. 5.4, 5.7) of one satellite's state x[o:o+6] by dt (negative: backward,
+    Eq. 5.51), in place: RK4 steps of at most 1 s."""
+    n = 1
+    while n < abs(dt) - 1e-9:
+        n += 1
     h = dt / n
-    k, y = work.k, work.y
+    rx, ry, rz, vx, vy, vz = x[o], x[o + 1], x[o + 2], x[o + 3], x[o + 4], x[o + 5]
+    hh, k = 0.5 * h, h / 6.0
     for _ in range(n):
-        for s in range(4):
-            src = x if s == 0 else y
-            so = o if s == 0 else 0
-            ko = s * N
-            for j in (0, 6):
-                for i in range(3):
-                    k[ko + j + i] = src[so + j + 3 + i]
-                _acc(k, ko + j + 3, src, so + j)
-            if s < 3:
-                c = h if s == 2 else 0.5 * h
-                for i in range(N):
-                    y[i] = x[o + i] + c * k[ko + i]
-        for i in range(N):
-            x[o + i] = x[o + i] + h / 6.0 * (k[i] + 2.0 * (k[N + i] + k[2 * N + i]) + k[3 * N + i])
+        r2 = rx * rx + ry * ry + rz * rz
+        c = -MU / (r2 * math.sqrt(r2))
+        a1x, a1y, a1z = c * rx, c * ry, c * rz
+        x2, y2, z2 = rx + hh * vx, ry + hh * vy, rz + hh * vz
+        u2, v2, w2 = vx + hh * a1x, vy + hh * a1y, vz + hh * a1z
+        r2 = x2 * x2 + y2 * y2 + z2 * z2
+        c = -MU / (r2 * math.sqrt(r2))
+        a2x, a2y, a2z = c * x2, c * y2, c * z2
+        x3, y3, z3 = rx + hh * u2, ry + hh * v2, rz + hh * w2
+        u3, v3, w3 = vx + hh * a2x, vy + hh * a2y, vz + hh * a2z
+        r2 = x3 * x3 + y3 * y3 + z3 * z3
+        c = -MU / (r2 * math.sqrt(r2))
+        a3x, a3y, a3z = c * x3, c * y3, c * z3
+        x4, y4, z4 = rx + h * u3, ry + h * v3, rz + h * w3
+        u4, v4, w4 = vx + h * a3x, vy + h * a3y, vz + h * a3z
+        r2 = x4 * x4 + y4 * y4 + z4 * z4
+        c = -MU / (r2 * math.sqrt(r2))
+        rx, ry, rz = rx + k * (vx + 2.0 * (u2 + u3) + u4), ry + k * (vy + 2.0 * (v2 + v3) + v4), \
+            rz + k * (vz + 2.0 * (w2 + w3) + w4)
+        vx, vy, vz = vx + k * (a1x + 2.0 * (a2x + a3x) + c * x4), vy + k * (a1y + 2.0 * (a2y + a3y) + c * y4), \
+            vz + k * (a1z + 2.0 * (a2z + a3z) + c * z4)
+    x[o], x[o + 1], x[o + 2], x[o + 3], x[o + 4], x[o + 5] = rx, ry, rz, vx, vy, vz
 
 
 def phi(Phi, x, o, dt):
-    """Phi (12 x 12) over dt at the node x[o:o+12] (Eq. 3.30 with F of Eq. 5.9): per satellite
+    """Phi (6 x 6) of one satellite over dt at x[o:o+3] (Eq. 3.30 with F of Eq. 5.4):
     [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]], G = -mu/|r|^3 (I - 3 r r^T/|r|^2)."""
-    linalg.fill(Phi, N * N, 0.0)
+    r0, r1, r2 = x[o], x[o + 1], x[o + 2]
+    rr = r0 * r0 + r1 * r1 + r2 * r2
+    c = -MU / (rr * math.sqrt(rr))
+    d = -3.0 * c / rr
     h2, h3 = 0.5 * dt * dt, dt * dt * dt / 6.0
-    for b in (0, 6):
-        r0, r1, r2 = x[o + b], x[o + b + 1], x[o + b + 2]
-        rr = r0 * r0 + r1 * r1 + r2 * r2
-        c = -MU / (rr * math.sqrt(rr))
-        r = (r0, r1, r2)
-        for i in range(3):
-            for j in range(3):
-                g = c * ((1.0 if i == j else 0.0) - 3.0 * r[i] * r[j] / rr)
-                e = 1.0 if i == j else 0.0
-                Phi[(b + i) * N + b + j] = e + h2 * g
-                Phi[(b + 3 + i) * N + b + 3 + j] = e + h2 * g
-                Phi[(b + i) * N + b + 3 + j] = e * dt + h3 * g
-                Phi[(b + 3 + i) * N + b + j] = dt * g
+    r = (r0, r1, r2)
+    for i in range(3):
+        for j in range(3):
+            g = d * r[i] * r[j]
+            if i == j:
+                g += c
+            e = 1.0 if i == j else 0.0
+            Phi[i * 6 + j] = Phi[(3 + i) * 6 + 3 + j] = e + h2 * g
+            Phi[i * 6 + 3 + j] = e * dt + h3 * g
+            Phi[(3 + i) * 6 + j] = dt * g
 
 
 def process_noise(Q, dt, qa=QA_THESIS):
-    """Q of Eq. 5.8-5.9: per axis [[qa dt^3/3, qa dt^2/2], [qa dt^2/2, qa dt]] for each satellite."""
+    """Q of Eq. 5.8-5.9 for one satellite: per axis [[qa dt^3/3, qa dt^2/2], [qa dt^2/2, qa dt]]."""
     dt = abs(dt)
-    linalg.fill(Q, N * N, 0.0)
-    for b in (0, 6):
-        for i in range(3):
-            Q[(b + i) * N + b + i] = qa * dt ** 3 / 3.0
-            Q[(b + i) * N + b + 3 + i] = Q[(b + 3 + i) * N + b + i] = qa * dt * dt / 2.0
-            Q[(b + 3 + i) * N + b + 3 + i] = qa * dt
+    linalg.fill(Q, 36, 0.0)
+    for i in range(3):
+        Q[i * 6 + i] = qa * dt * dt * dt / 3.0
+        Q[i * 6 + 3 + i] = Q[(3 + i) * 6 + i] = qa * dt * dt / 2.0
+        Q[(3 + i) * 6 + 3 + i] = qa * dt
 
 
-class Work:
-    def __init__(self, cap):
-        z = zeros_d
-        M = cap * N
-        self.k = zeros_d(4 * N)
-        self.y = zeros_d(N)
-        self.xb = zeros_d(N)
-        self.xc = zeros_d(N)
-        self.Phi = z(N * N)
-        self.Fa = z(N * N)
-        self.Fb = z(N * N)
-        self.Qa = z(N * N)
-        self.Qb = z(N * N)
-        self.A = z(N * N)
-        self.B = z(N * N)
-        self.T = z(N * N)
-        self.L = z(N * N)
-        self.row = z(N * M)             # also Phi P[0:12, :] in predict
-        self.PCt = z(M * 6)
-        self.Kt = z(6 * M)
-        self.S = z(36)
-        self.Ls = z(36)
+def left_mul(P, ld, r0, c_lo, c_hi, F):
+    """P[r0:r0+6, c] = F P[r0:r0+6, c] for c_lo <= c < c_hi (F 6 x 6), in place, column by column."""
+    for c in range(c_lo, c_hi):
+        b = r0 * ld + c
+        p0, p1, p2 = P[b], P[b + ld], P[b + 2 * ld]
+        p3, p4, p5 = P[b + 3 * ld], P[b + 4 * ld], P[b + 5 * ld]
+        for i in range(6):
+            o = 6 * i
+            P[b + i * ld] = F[o] * p0 + F[o + 1] * p1 + F[o + 2] * p2 + F[o + 3] * p3 + F[o + 4] * p4 \
+                + F[o + 5] * p5
+    return P
+
+
+def sandwich(P, ld, r0, F, Q, T):
+    """P[r0:r0+6, r0:r0+6] = F P F^T + Q (Eq. 3.31), symmetric: T = F P (work, 6 x 6), then the upper
+    triangle of T F^T + Q, mirrored."""
+    for i in range(6):
+        for j in range(6):
+            T[i * 6 + j] = P[(r0 + i) * ld + r0 + j]
+    left_mul(T, 6, 0, 0, 6, F)
+    for i in range(6):
+        o = 6 * i
+        t0, t1, t2, t3, t4, t5 = T[o], T[o + 1], T[o + 2], T[o + 3], T[o + 4], T[o + 5]
+        for j in range(i, 6):
+            q = 6 * j
+            s = Q[o + j] + t0 * F[q] + t1 * F[q + 1] + t2 * F[q + 2] + t3 * F[q + 3] + t4 * F[q + 4] \
+                + t5 * F[q + 5]
+            P[(r0 + i) * ld + r0 + j] = s
+            P[(r0 + j) * ld + r0 + i] = s
+
+
+def _finite(v, n):
+    for i in range(n):
+        e = v[i]
+        if not (e - e == 0.0):                 # NaN and +-inf fail
+            return False
+    return True
+
+
+class WorkA:
+    """SatA's EKF work buffers: float32 (``linalg.zeros``), like its covariance."""
+
+    def __init__(self):
+        z = linalg.zeros
+        self.Phi, self.Q, self.T, self.L, self.W, self.RK, self.Kt = z(36), z(36), z(36), z(36), z(36), z(36), z(36)
         self.r = zeros_d(6)
 
 
-class Afls:
-    """The node list: ``predict(t)``, ``update_gnss(z6, R6 (6 x 6 flat), sat, t=None)``; the current node is
-    x[0:12], P[0:12, 0:12] (leading dimension ``ld``). ``cap`` nodes at most (the lag's nodes, the one before
-    it and the generated ones); a full list drops its oldest node (marginalising, exact)."""
+class Work:
+    """SatB's smoother work buffers: float64 (``zeros_d``), like its joint covariance."""
 
-    def __init__(self, x0, P0diag, t0, lag_s, cap=12, qa=QA_THESIS, tol=1e-9):
-        if not lag_s >= 0:
+    def __init__(self, cap):
+        z, m = zeros_d, cap * N
+        self.Phi = z(36)
+        self.Fb = z(36)
+        self.Q = z(36)
+        self.Qb = z(36)
+        self.A = z(36)
+        self.B = z(36)
+        self.T = z(36)
+        self.L = z(36)
+        self.W = z(36)
+        self.RK = z(36)
+        self.Kt = z(6 * m)
+        self.PCt = z(m * 6)
+        self.row = z(6 * m)
+        self.S = z(36)
+        self.xb = zeros_d(N)
+        self.xc = zeros_d(N)
+        self.r = zeros_d(6)
+        self.d = zeros_d(12)
+        self.H = z(9)
+        self.R3 = z(9)
+
+
+class Afls:
+    """The lean STKF: SatA's EKF and SatB's AFLS.
+
+    ``Afls(x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS)``: x0 = [rA, vA, rB, vB] (12, m,
+    m/s), P0diag its 12 variances. ``predict(t)``; ``update_gnss(z6, R (6 x 6 flat), sat, t=None)`` (sat 0
+    SatA, on time; sat 1 SatB, any tag within the lag); ``update_beacon(y, q_hat, P_att, sigma_b)``;
+    ``get(x12, sig12)`` writes the current estimate and its 1 sigma into the caller's buffers,
+    ``position_cov(PA9, PB9)`` the position covariances (for the pointing covariance, Eq. 5.59).
+    Bad input raises ValueError and leaves the filter as it was (``refused`` counts refused measurements).
+    ``cap`` must hold the nodes of the lag at the predict rate plus two (6 at 1 Hz with the 4 s lag); a full
+    list drops its oldest node, and a tag older than the oldest node left is refused.
+
+    SatA: ``xa`` (6), ``Pa`` (6 x 6). SatB's nodes, newest first: ``X[6 i: 6 i + 6]`` at ``t[i]``, i < ``k``,
+    joint covariance ``P`` (leading dimension ``ld``)."""
+
+    def __init__(self, x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS, tol=1e-9):
+        if not (lag_s - lag_s == 0.0 and lag_s >= 0):
             raise ValueError("smoother lag must be >= 0 s, got %r" % (lag_s,))
+        if not (_finite(x0, 12) and _finite(P0diag, 12) and t0 - t0 == 0.0):
+            raise ValueError("initial state, variances or time has a NaN or infinity")
+        for i in range(12):
+            if not P0diag[i] > 0:
+                raise ValueError("initial variances must be > 0")
+        if cap < 3:
+            raise ValueError("smoother capacity must be >= 3 nodes")
         self.cap, self.ld, self.qa, self.tol, self.lag = cap, cap * N, qa, tol, float(lag_s)
+        self.xa = zeros_d(N)
+        self.Pa = linalg.zeros(36)
         self.X = zeros_d(cap * N)
         self.P = zeros_d(self.ld * self.ld)
         self.t = zeros_d(cap)
         for i in range(N):
-            self.X[i] = x0[i]
-            self.P[i * self.ld + i] = P0diag[i]
+            self.xa[i] = x0[i]
+            self.Pa[i * 7] = P0diag[i]
+            self.X[i] = x0[6 + i]
+            self.P[i * self.ld + i] = P0diag[6 + i]
         self.t[0] = t0
+        self.t_last = t0 - 2.0 * self.lag - 1.0     # the newest SatB tag applied
         self.k = 1
         self.generated = 0
+        self.refused = 0
         self.work = Work(cap)
+        self.wa = WorkA()
 
     @property
     def now(self):
         return self.t[0]
 
+    def get(self, x, sig):
+        """x[0:12] = [rA, vA, rB, vB] now, sig[0:12] their 1 sigma (m, m/s)."""
+        for i in range(N):
+            x[i] = self.xa[i]
+            x[6 + i] = self.X[i]
+            sig[i] = math.sqrt(self.Pa[i * 7])
+            sig[6 + i] = math.sqrt(self.P[i * self.ld + i])
+
+    def position_cov(self, PA, PB):
+        """PA[0:9], PB[0:9] = the 3 x 3 covariances of rA and rB now (m^2); their cross covariance is zero in
+        this form, so the relative position rB - rA has PA + PB (Eq. 5.59's P_AA + P_BB - P_AB - P_BA)."""
+        ld = self.ld
+        for i in range(3):
+            for j in range(3):
+                PA[3 * i + j] = self.Pa[6 * i + j]
+                PB[3 * i + j] = self.P[i * ld + j]
+
+    # ---- node list ----
+
     def _shift(self, pos):
-        """Open an empty node slot at position pos: nodes pos .. k-1 move one place older (state, time,
-        covariance blocks). The caller fills slot pos."""
-        ld, P, X = self.ld, self.P, self.X
+        """Open an empty node slot at pos: nodes pos .. k-1 move one place older (a full list drops its
+        oldest node: marginalising is exact). The caller fills the slot."""
+        ld, P, X, t = self.ld, self.P, self.X, self.t
         k = self.k
-        if k == self.cap:                       # drop the oldest: marginalising is exact
+        if k == self.cap:
             k -= 1
-        m = k * N
-        p = pos * N
+        m, p = k * N, pos * N
         for i in range(m - 1, p - 1, -1):
             X[i + N] = X[i]
         for i in range(k - 1, pos - 1, -1):
-            self.t[i + 1] = self.t[i]
-        # P: rows/cols >= p move by N; iterate from the bottom-right so nothing is overwritten before it moves
-        for i in range(m - 1, -1, -1):
+            t[i + 1] = t[i]
+        for i in range(m - 1, -1, -1):          # bottom-right first: nothing is overwritten before it moves
             ni = i + N if i >= p else i
             for j in range(m - 1, -1, -1):
                 nj = j + N if j >= p else j
@@ -162,196 +289,347 @@ class Afls:
                     P[ni * ld + nj] = P[i * ld + j]
         self.k = k + 1
 
-    def _prune(self):
-        horizon = self.t[0] - self.lag - self.tol
+    def _prune(self, t_ref):
+        """Keep the nodes within the lag of t_ref and the anchor: the newest node at least ``lag`` older than
+        t_ref (node a for the oldest admissible time tag). Older nodes are marginalised out (exact)."""
+        h = t_ref - self.lag + self.tol
+        if self.t_last > h:
+            h = self.t_last + self.tol          # in order: nothing older than the newest SatB tag is needed
         for i in range(self.k):
-            if self.t[i] < horizon:
+            if self.t[i] <= h:
                 self.k = i + 1
                 return
 
+    # ---- prediction (Eq. 3.29-3.31, 5.20-5.22) ----
+
     def predict(self, t_new):
-        """Augmented prediction (Eq. 5.20-5.22): prepend f(x_k); P00 = Phi P00 Phi^T + Q, P0j = Phi P0j."""
+        """A: x = f(x), P = Phi P Phi^T + Q. B: prepend f(x_0) as the new current node (Eq. 5.21):
+        P00 = Phi P00 Phi^T + Q, P0j = Phi P0j, the older block unchanged."""
         dt = t_new - self.t[0]
         if not dt > 0:
-            raise ValueError("prediction time %.6f s is not after the current %.6f s" % (t_new, self.t[0]))
-        w, ld = self.work, self.ld
+            raise ValueError("prediction time %r s is not after the current %.6f s" % (t_new, self.t[0]))
+        if not dt <= MAX_STEP_S:
+            raise ValueError("prediction step of %r s is longer than %g s (propagate in steps)" % (dt, MAX_STEP_S))
+        wa, w = self.wa, self.work
+        process_noise(wa.Q, dt, self.qa)
+        phi(wa.Phi, self.xa, 0, dt)
+        f(self.xa, 0, dt)
+        sandwich(self.Pa, 6, 0, wa.Phi, wa.Q, wa.T)
+        process_noise(w.Q, dt, self.qa)
         phi(w.Phi, self.X, 0, dt)
+        self._prune(t_new)                      # before the products: dropped nodes cost nothing
         self._shift(0)
-        X, P = self.X, self.P
+        X, P, ld = self.X, self.P, self.ld
         for i in range(N):
             X[i] = X[N + i]
-        f(X, 0, dt, w)
+        f(X, 0, dt)
         self.t[0] = t_new
         m = self.k * N
-        Phi, T = w.Phi, w.row
-        for i in range(N):                      # T = Phi P[old node 0 rows, all old columns]
+        for i in range(N):                      # rows 0..5 <- old node 0's rows (then Phi applied)
             for j in range(N, m):
-                s = 0.0
-                for a in range(N):
-                    s += Phi[i * N + a] * P[(N + a) * ld + j]
-                T[i * m + j] = s
+                P[i * ld + j] = P[(N + i) * ld + j]
+        left_mul(P, ld, 0, N, m, w.Phi)
         for i in range(N):
             for j in range(N, m):
-                v = T[i * m + j]
-                P[i * ld + j] = v
-                P[j * ld + i] = v
-        Q = w.Qa
-        process_noise(Q, dt, self.qa)
-        for i in range(N):                      # P00 = (Phi P_old00) Phi^T + Q, symmetric
-            for j in range(i, N):
-                s = Q[i * N + j]
-                for a in range(N):
-                    s += T[i * m + N + a] * Phi[j * N + a]
-                P[i * ld + j] = s
-                P[j * ld + i] = s
-        self._prune()
+                P[j * ld + i] = P[i * ld + j]
+        for i in range(N):
+            for j in range(N):
+                P[i * ld + j] = P[(N + i) * ld + N + j]
+        sandwich(P, ld, 0, w.Phi, w.Q, w.T)
+
+    # ---- GNSS (Eq. 5.10-5.12, 5.24) ----
 
     def update_gnss(self, z, R, sat, t=None):
-        """GNSS of SatA (sat 0) or SatB (sat 1), position and velocity (Eq. 5.10-5.12, H = [I6] on its six
-        states), at node time t (None: now; between nodes: a node is generated first)."""
+        """GNSS position and velocity of SatA (sat 0, time-tagged now) or SatB (sat 1, at time t within the
+        lag: between nodes a node is generated first, Eq. 5.46-5.52; then Eq. 5.24 updates every node).
+        R: 6 x 6 flat, symmetric positive definite."""
         t = self.t[0] if t is None else t
+        if sat not in (0, 1):
+            raise ValueError("sat must be 0 (SatA) or 1 (SatB), got %r" % (sat,))
+        if not (_finite(z, 6) and _finite(R, 36) and t - t == 0.0):
+            self.refused += 1
+            raise ValueError("GNSS measurement, its R or its time tag has a NaN or infinity")
         if t > self.t[0] + self.tol:
-            raise ValueError("measurement time-tagged in the future")
+            self.refused += 1
+            raise ValueError("measurement time-tagged %.3f s in the future" % (t - self.t[0]))
+        if sat == 0:
+            if t < self.t[0] - self.tol:
+                self.refused += 1
+                raise ValueError("SatA's GNSS must be time-tagged now (%.3f s late)" % (self.t[0] - t))
+            wa = self.wa
+            for j in range(6):
+                wa.r[j] = z[j] - self.xa[j]
+            if not linalg.joseph_select(self.Pa, 6, 0, 6, R, wa.Kt, wa.L, wa.W, wa.RK):
+                self.refused += 1
+                raise ValueError("innovation covariance is not positive definite")
+            _add_gain(self.xa, 6, wa.Kt, wa.r, 6)
+            return
         if t < self.t[0] - self.lag - self.tol:
+            self.refused += 1
             raise ValueError("measurement delayed %.3f s, longer than the smoother's lag of %.3f s"
                              % (self.t[0] - t, self.lag))
-        idx = self._node_at(t)
-        self._update_select(idx * N + 6 * sat, z, R)
-
-    def _update_select(self, c0, z, R):
-        """Eq. 5.24 for H selecting the six states from column c0 of the joint state: K = P C^T S^-1,
-        X += K (z - X[c0:c0+6]), P -= K S K^T (= P - K C P; computed on the upper triangle and mirrored)."""
-        w, ld, P, X = self.work, self.ld, self.P, self.X
-        m = self.k * N
-        PCt, S, Kt = w.PCt, w.S, w.Kt
-        for i in range(m):
-            for j in range(6):
-                PCt[i * 6 + j] = P[i * ld + c0 + j]
-        for i in range(6):
-            for j in range(6):
-                S[i * 6 + j] = PCt[(c0 + i) * 6 + j] + R[i * 6 + j]
-        if not linalg.cholesky(w.Ls, S, 6):
-            raise ValueError("innovation covariance is not positive definite")
-        for i in range(m):                      # Kt rows = S^-1 applied to each row of PCt (S symmetric)
-            for j in range(6):
-                Kt[i * 6 + j] = PCt[i * 6 + j]
-        linalg.chol_solve_rows(Kt, w.Ls, Kt, 6, m)     # Kt[i, :] = K[i, :]
-        r = w.r
-        for j in range(6):
-            r[j] = z[j] - X[c0 + j]
-        for i in range(m):
-            s = 0.0
-            for j in range(6):
-                s += Kt[i * 6 + j] * r[j]
-            X[i] = X[i] + s
-        for i in range(m):
-            for j in range(i, m):
-                s = 0.0
-                for a in range(6):
-                    s += Kt[i * 6 + a] * PCt[j * 6 + a]
-                v = P[i * ld + j] - s
-                P[i * ld + j] = v
-                P[j * ld + i] = v
-
-    def _node_at(self, t):
+        if t <= self.t_last + self.tol:
+            self.refused += 1
+            raise ValueError("SatB measurement at %.3f s is out of order or repeated (the newest applied is at "
+                             "%.3f s)" % (t, self.t_last))
+        between = False
         for i in range(self.k):
             ti = self.t[i]
-            if abs(ti - t) <= self.tol:
-                return i
-            if ti < t:
-                self._generate(i - 1, i, t - ti, self.t[i - 1] - t)
-                self.t[i] = t
-                self.generated += 1
-                return i
-        raise ValueError("measurement time %.3f s is before the oldest node" % t)
+            if abs(ti - t) <= self.tol:                 # at a node: Eq. 5.24 with C = [0 .. I6 .. 0]
+                self._hp_node(i)
+                break
+            if ti < t:                                  # between nodes c = i - 1 and a = i
+                self._hp_between(i - 1, i, t - ti, self.t[i - 1] - t)
+                between = True
+                break
+        else:
+            self.refused += 1
+            raise ValueError("measurement time %.3f s is before the oldest node %.3f s" % (t, self.t[self.k - 1]))
+        if not self._update_rows(z, R):
+            self.refused += 1
+            raise ValueError("innovation covariance is not positive definite")
+        if between:
+            self.generated += 1
+        self.t_last = t
+        self._prune(self.t[0])
 
-    def _generate(self, ic, ia, dt_a, dt_b):
-        """Node b between a (older, index ia) and c (newer, ic) and plug it in at position ia (Eq. 5.46-5.52):
-        Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb, B = Qa Fb^T Qca^-1,
-        A = (I - B Fb) Fa, x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)),
-        P_bj = A P_aj + B P_cj, P_bb = P_ba A^T + P_bc B^T + (I - B Fb) Qa."""
+    def _hp_node(self, i):
+        """Hp = C P = P[6 i: 6 i + 6, :] (6 x m), its block S0 = P_ii, h = x_i (Eq. 5.24)."""
         w, ld, P, X = self.work, self.ld, self.P, self.X
-        if self.k == self.cap:                  # make room: drop the oldest node unless it is node a
-            if ia == self.k - 1:
-                raise ValueError("smoother full: raise its capacity")
-            self.k -= 1
+        m, c0 = self.k * N, i * N
+        Hp, S, d = w.row, w.S, w.d
+        for a in range(6):
+            for j in range(m):
+                Hp[a * m + j] = P[(c0 + a) * ld + j]
+        for a in range(6):
+            for b in range(6):
+                S[a * 6 + b] = Hp[a * m + c0 + b]
+            d[N + a] = X[c0 + a]
+
+    def _hp_between(self, ic, ia, dt_a, dt_b):
+        """The generated node b between a (older, index ia) and c (newer, ic) of Eq. 5.46-5.52, as a
+        measurement of a and c: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
+        B = Qa Fb^T Qca^-1, A = (I - B Fb) Fa; x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)),
+        P_bj = A P_aj + B P_cj (Hp, 6 x m), P_bb = P_ba A^T + P_bc B^T + (I - B Fb) Qa (S0).
+
+        A measurement of b is then a measurement of a and c with H = [A .. B], noise R + (I - B Fb) Qa. The
+        update of Eq. 5.24 with node b plugged in (Fig. 5-2) and then marginalised out is the same update of
+        the other nodes (exact); b is not kept: with in-order tags 1 s apart no later tag falls between a and
+        c, and the pruning keeps a as the anchor."""
+        w, ld, P, X = self.work, self.ld, self.P, self.X
         m = self.k * N
         xb, xc = w.xb, w.xc
         for i in range(N):
             xb[i] = X[ia * N + i]
             xc[i] = X[ic * N + i]
-        phi(w.Fa, xb, 0, dt_a)
-        f(xb, 0, dt_a, w)
-        phi(w.Fb, xb, 0, dt_b)
-        f(xc, 0, -dt_b, w)
-        process_noise(w.Qa, dt_a, self.qa)
-        process_noise(w.Qb, dt_b, self.qa)
-        Fa, Fb, Qa, A, B, T, L = w.Fa, w.Fb, w.Qa, w.A, w.B, w.T, w.L
+        Fa, Fb, Qa, Qb, A, B, T, L = w.Phi, w.Fb, w.Q, w.Qb, w.A, w.B, w.T, w.L
+        phi(Fa, xb, 0, dt_a)
+        f(xb, 0, dt_a)
+        phi(Fb, xb, 0, dt_b)
+        f(xc, 0, -dt_b)
+        process_noise(Qa, dt_a, self.qa)
+        process_noise(Qb, dt_b, self.qa)
         linalg.matmul(T, Fb, Qa, N, N, N)                 # T = Fb Qa
-        linalg.matmul_bt(A, T, Fb, N, N, N)               # A = Fb Qa Fb^T (work)
-        for i in range(N * N):
-            A[i] = A[i] + w.Qb[i]                         # Qca
+        linalg.matmul_bt(A, T, Fb, N, N, N)               # A = Fb Qa Fb^T + Qb = Qca (work)
+        for i in range(36):
+            A[i] = A[i] + Qb[i]
         linalg.symmetrize(A, N)
         if not linalg.cholesky(L, A, N):
             raise ValueError("Qca is not positive definite")
-        # row i of B = Qca^-1 (row i of Qa Fb^T = (Fb Qa)^T), Qca and Qa symmetric
-        linalg.chol_solve_rows(B, L, _transpose_into(B, T), N, N)
-        # IBF = I - B Fb into T; A = IBF Fa
-        linalg.matmul(T, B, Fb, N, N, N)
-        for i in range(N * N):
+        for i in range(N):                                # B rows: Qca^-1 (Fb Qa)^T rows
+            for j in range(N):
+                B[j * N + i] = T[i * N + j]
+        linalg.chol_solve_rows(B, L, B, N, N)
+        linalg.matmul(T, B, Fb, N, N, N)                  # T = I - B Fb
+        for i in range(36):
             T[i] = -T[i]
         for i in range(N):
-            T[i * N + i] = T[i * N + i] + 1.0
-        linalg.matmul(A, T, Fa, N, N, N)
-        # x_b = f(x_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a))  (Fb d first, then B)
-        r = w.k
+            T[i * 7] = T[i * 7] + 1.0
+        linalg.matmul(A, T, Fa, N, N, N)                  # A = (I - B Fb) Fa
+        d = w.d
         for i in range(N):
             s = 0.0
             for j in range(N):
                 s += Fb[i * N + j] * (xc[j] - xb[j])
-            r[i] = s
+            d[i] = s
         for i in range(N):
-            s = 0.0
+            s = xb[i]
             for j in range(N):
-                s += B[i * N + j] * r[j]
-            r[N + i] = xb[i] + s
-        # row = A P[sa, :] + B P[sc, :]  (12 x m)
-        row = w.row
+                s += B[i * N + j] * d[j]
+            d[N + i] = s
+        Hp = w.row
         sa, sc = ia * N, ic * N
-        for i in range(N):
-            for j in range(m):
+        for j in range(m):                                # Hp = A P[sa, :] + B P[sc, :]  (6 x m)
+            a0, a1, a2 = P[sa * ld + j], P[(sa + 1) * ld + j], P[(sa + 2) * ld + j]
+            a3, a4, a5 = P[(sa + 3) * ld + j], P[(sa + 4) * ld + j], P[(sa + 5) * ld + j]
+            c0, c1, c2 = P[sc * ld + j], P[(sc + 1) * ld + j], P[(sc + 2) * ld + j]
+            c3, c4, c5 = P[(sc + 3) * ld + j], P[(sc + 4) * ld + j], P[(sc + 5) * ld + j]
+            for i in range(N):
+                o = 6 * i
+                Hp[i * m + j] = A[o] * a0 + A[o + 1] * a1 + A[o + 2] * a2 + A[o + 3] * a3 + A[o + 4] * a4 \
+                    + A[o + 5] * a5 + B[o] * c0 + B[o + 1] * c1 + B[o + 2] * c2 + B[o + 3] * c3 \
+                    + B[o + 4] * c4 + B[o + 5] * c5
+        S = w.S
+        for i in range(N):                                # S0 = P_bb, upper triangle mirrored
+            for j in range(i, N):
                 s = 0.0
                 for a in range(N):
-                    s += A[i * N + a] * P[(sa + a) * ld + j] + B[i * N + a] * P[(sc + a) * ld + j]
-                row[i * m + j] = s
-        # P_bb = row[:, sa] A^T + row[:, sc] B^T + IBF Qa (symmetric part kept)
-        Pbb = w.Fb                                        # Fb no longer needed
-        for i in range(N):
-            for j in range(N):
-                s = 0.0
-                for a in range(N):
-                    s += row[i * m + sa + a] * A[j * N + a] + row[i * m + sc + a] * B[j * N + a] \
+                    s += Hp[i * m + sa + a] * A[j * N + a] + Hp[i * m + sc + a] * B[j * N + a] \
                         + T[i * N + a] * Qa[a * N + j]
-                Pbb[i * N + j] = s
-        linalg.symmetrize(Pbb, N)
-        # plug in at position ia: shift, then write (old column index j maps to j + N if j >= ia * N)
-        self._shift(ia)
-        p = ia * N
+                S[i * N + j] = s
+                S[j * N + i] = s
+
+    def _update_rows(self, z, R):
+        """Eq. 5.24 from Hp = C P (6 x m, in ``work.row``), S0 = C P C^T (``work.S``) and h (``work.d[6:12]``):
+        S = S0 + R = L L^T, V = L^-1 Hp, X += V^T L^-1 (z - h), P -= V^T V (= K S K^T; upper triangle,
+        mirrored). False (nothing changed) unless S is positive definite."""
+        w, ld, P, X = self.work, self.ld, self.P, self.X
+        m = self.k * N
+        V, S, L, d, r = w.row, w.S, w.L, w.d, w.r
+        for i in range(36):
+            S[i] = S[i] + R[i]
+        if not linalg.cholesky(L, S, 6):
+            return False
+        for j in range(6):
+            r[j] = z[j] - d[N + j]
+        l00, l10, l11, l20, l21, l22 = L[0], L[6], L[7], L[12], L[13], L[14]
+        l30, l31, l32, l33, l40, l41 = L[18], L[19], L[20], L[21], L[24], L[25]
+        l42, l43, l44, l50, l51, l52, l53, l54, l55 = L[26], L[27], L[28], L[30], L[31], L[32], L[33], L[34], L[35]
+        r0 = r[0] / l00                                   # r = L^-1 (z - h)
+        r1 = (r[1] - l10 * r0) / l11
+        r2 = (r[2] - l20 * r0 - l21 * r1) / l22
+        r3 = (r[3] - l30 * r0 - l31 * r1 - l32 * r2) / l33
+        r4 = (r[4] - l40 * r0 - l41 * r1 - l42 * r2 - l43 * r3) / l44
+        r5 = (r[5] - l50 * r0 - l51 * r1 - l52 * r2 - l53 * r3 - l54 * r4) / l55
+        for j in range(m):                                # V = L^-1 Hp, column by column, in place
+            v0 = V[j] / l00
+            v1 = (V[m + j] - l10 * v0) / l11
+            v2 = (V[2 * m + j] - l20 * v0 - l21 * v1) / l22
+            v3 = (V[3 * m + j] - l30 * v0 - l31 * v1 - l32 * v2) / l33
+            v4 = (V[4 * m + j] - l40 * v0 - l41 * v1 - l42 * v2 - l43 * v3) / l44
+            v5 = (V[5 * m + j] - l50 * v0 - l51 * v1 - l52 * v2 - l53 * v3 - l54 * v4) / l55
+            V[j], V[m + j], V[2 * m + j], V[3 * m + j], V[4 * m + j], V[5 * m + j] = v0, v1, v2, v3, v4, v5
+            X[j] = X[j] + v0 * r0 + v1 * r1 + v2 * r2 + v3 * r3 + v4 * r4 + v5 * r5
+        m2, m3, m4, m5 = 2 * m, 3 * m, 4 * m, 5 * m
+        for i in range(m):
+            v0, v1, v2, v3, v4, v5 = V[i], V[m + i], V[m2 + i], V[m3 + i], V[m4 + i], V[m5 + i]
+            for j in range(i, m):
+                v = P[i * ld + j] - (v0 * V[j] + v1 * V[m + j] + v2 * V[m2 + j] + v3 * V[m3 + j]
+                                     + v4 * V[m4 + j] + v5 * V[m5 + j])
+                P[i * ld + j] = v
+                P[j * ld + i] = v
+        return True
+
+    # ---- beacon (Eq. 5.13-5.17, Sec. 5.3.3) ----
+
+    def update_beacon(self, y, q, P_att, sigma_b, t=None):
+        """The beacon's unit vector y (SatA body frame) of rB - rA (Eq. 5.13-5.14), with the attitude
+        estimate q (x, y, z, w; A(q) inertial to body, Eq. 4.7), P_att (3 x 3 flat, rad^2) the covariance of
+        the attitude error d_alpha = 2 dq_vec (from firmware/adcs/apkf_lean.py, whose error state is dq_vec:
+        P_att[3 i + j] = 4 P[9 i + j]) and sigma_b (rad) the beacon's 1 sigma.
+
+        h = A (rB - rA)/rho, H_B = A (I - u u^T)/rho = -A Hb,A (Eq. 5.16-5.17) on B's current node;
+        R = sigma_b^2 I + [y x] P_att [y x]^T (Sec. 5.3.3) + (A Hb,A) P_rA (A Hb,A)^T (rA considered).
+        Joseph form for B's current node; its older nodes get zero gain: P_0j = (I - K H) P_0j."""
+        if not (_finite(y, 3) and _finite(q, 4) and _finite(P_att, 9) and sigma_b - sigma_b == 0.0
+                and sigma_b > 0):
+            self.refused += 1
+            raise ValueError("beacon measurement, attitude, its covariance or sigma has a NaN, infinity or "
+                             "sigma <= 0")
+        if t is not None and abs(t - self.t[0]) > self.tol:
+            self.refused += 1
+            raise ValueError("the beacon must be time-tagged now (%.3f s off)" % (t - self.t[0]))
+        w, P, ld = self.work, self.P, self.ld
+        d = w.d
+        for i in range(3):
+            d[i] = self.X[i] - self.xa[i]
+        rho = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        if not rho > 0:
+            raise ValueError("SatA and SatB estimates coincide")
+        u0, u1, u2 = d[0] / rho, d[1] / rho, d[2] / rho
+        e1, e2, e3, q4 = q[0], q[1], q[2], q[3]
+        nq = math.sqrt(e1 * e1 + e2 * e2 + e3 * e3 + q4 * q4)
+        if not nq > 0.5:
+            raise ValueError("attitude quaternion is not a unit quaternion")
+        e1, e2, e3, q4 = e1 / nq, e2 / nq, e3 / nq, q4 / nq
+        Am = w.A                                              # A(q), Eq. 4.7 (emulator dynamics.dcm)
+        Am[0], Am[1], Am[2] = q4 * q4 + e1 * e1 - e2 * e2 - e3 * e3, 2 * (e1 * e2 + q4 * e3), 2 * (e1 * e3 - q4 * e2)
+        Am[3], Am[4], Am[5] = 2 * (e1 * e2 - q4 * e3), q4 * q4 - e1 * e1 + e2 * e2 - e3 * e3, 2 * (e2 * e3 + q4 * e1)
+        Am[6], Am[7], Am[8] = 2 * (e1 * e3 + q4 * e2), 2 * (e2 * e3 - q4 * e1), q4 * q4 - e1 * e1 - e2 * e2 + e3 * e3
+        H, u = w.H, (u0, u1, u2)
+        for i in range(3):                                     # H_B = A (I - u u^T) / rho  (3 x 3 on rB)
+            a0, a1, a2 = Am[3 * i], Am[3 * i + 1], Am[3 * i + 2]
+            au = a0 * u0 + a1 * u1 + a2 * u2
+            d[3 + i] = au                                      # h = A u
+            for j in range(3):
+                H[3 * i + j] = (Am[3 * i + j] - au * u[j]) / rho
+        r = w.r
+        for i in range(3):
+            r[i] = y[i] - d[3 + i]
+        R3, T, S = w.R3, w.T, w.S
+        # R = sigma^2 I + [y x] P_att [y x]^T + H P_rA H^T, then S = R + H P_rB H^T
+        y0, y1, y2 = y[0], y[1], y[2]
+        sy = (0.0, -y2, y1, y2, 0.0, -y0, -y1, y0, 0.0)
+        for i in range(3):
+            for j in range(3):
+                T[3 * i + j] = sy[3 * i] * P_att[j] + sy[3 * i + 1] * P_att[3 + j] + sy[3 * i + 2] * P_att[6 + j]
+        for i in range(3):
+            for j in range(i, 3):
+                v = T[3 * i] * sy[3 * j] + T[3 * i + 1] * sy[3 * j + 1] + T[3 * i + 2] * sy[3 * j + 2]
+                if i == j:
+                    v += sigma_b * sigma_b
+                R3[3 * i + j] = R3[3 * j + i] = v
+        Wm, Pa = w.W, self.Pa                                  # Wm = H P[0:3, 0:6] (B's current node)
+        for i in range(3):
+            h0, h1, h2 = H[3 * i], H[3 * i + 1], H[3 * i + 2]
+            for j in range(6):
+                Wm[6 * i + j] = h0 * P[j] + h1 * P[ld + j] + h2 * P[2 * ld + j]
+            for j in range(3):                                 # T = H P_rA
+                T[3 * i + j] = h0 * Pa[j] + h1 * Pa[6 + j] + h2 * Pa[12 + j]
+        for i in range(3):                                     # R += H P_rA H^T; S = R + H P_rB H^T
+            for j in range(i, 3):
+                h0, h1, h2 = H[3 * j], H[3 * j + 1], H[3 * j + 2]
+                v = R3[3 * i + j] + T[3 * i] * h0 + T[3 * i + 1] * h1 + T[3 * i + 2] * h2
+                R3[3 * i + j] = R3[3 * j + i] = v
+                v += Wm[6 * i] * h0 + Wm[6 * i + 1] * h1 + Wm[6 * i + 2] * h2
+                S[3 * i + j] = S[3 * j + i] = v
+        if not linalg.cholesky(w.L, S, 3):
+            self.refused += 1
+            raise ValueError("beacon innovation covariance is not positive definite")
+        Kt = w.Kt                                              # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
+        for i in range(3):
+            for j in range(6):
+                Kt[6 * i + j] = Wm[6 * i + j]
+        linalg._solve_cols(Kt, w.L, 6, 3)
+        X = self.X
+        for i in range(6):
+            X[i] = X[i] + Kt[i] * r[0] + Kt[6 + i] * r[1] + Kt[12 + i] * r[2]
+        IKH = w.B                                              # I - K H (6 x 6; H is 3 x 6 = [H 0])
+        for i in range(6):
+            for j in range(6):
+                v = 1.0 if i == j else 0.0
+                if j < 3:
+                    v -= Kt[i] * H[j] + Kt[6 + i] * H[3 + j] + Kt[12 + i] * H[6 + j]
+                IKH[6 * i + j] = v
+        KRK = w.Q                                              # K R K^T
+        for i in range(6):
+            for j in range(i, 6):
+                s = 0.0
+                for a in range(3):
+                    s += Kt[a * 6 + i] * (R3[3 * a] * Kt[j] + R3[3 * a + 1] * Kt[6 + j] + R3[3 * a + 2] * Kt[12 + j])
+                KRK[6 * i + j] = KRK[6 * j + i] = s
+        m = self.k * N
+        left_mul(P, ld, 0, N, m, IKH)                         # P_0j = (I - K H) P_0j
         for i in range(N):
-            X[p + i] = r[N + i]
-        for i in range(N):
-            for j in range(m):
-                v = row[i * m + j]
-                jj = j + N if j >= p else j
-                P[(p + i) * ld + jj] = v
-                P[jj * ld + p + i] = v
-            for j in range(N):
-                P[(p + i) * ld + p + j] = Pbb[i * N + j]
+            for j in range(N, m):
+                P[j * ld + i] = P[i * ld + j]
+        sandwich(P, ld, 0, IKH, KRK, w.T)                    # Joseph form (Eq. 4.142)
 
 
-def _transpose_into(D, S):
-    """D = S^T (12 x 12); returns D."""
-    for i in range(N):
-        for j in range(N):
-            D[j * N + i] = S[i * N + j]
-    return D
+def _add_gain(x, n, Kt, r, m):
+    """x += K r with K^T stored m x n."""
+    for i in range(n):
+        s = 0.0
+        for a in range(m):
+            s += Kt[a * n + i] * r[a]
+        x[i] = x[i] + s

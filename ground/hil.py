@@ -284,7 +284,8 @@ class RunOutcome:
 def prepare_play(rig, rec, cal, q2_dvp, first_arcsec):
     """Upload the H calibration, null at the centre, calibrate Q2 against the P-FSM (written to
     ``q2_calibration.json``), then walk the P-FSM in TRACK to the disturbance's first sample (Eq. 7.8).
-    Returns the Q2 calibration."""
+    Returns the Q2 calibration. ``first_arcsec``: (x, y), or a callable giving it once Q2 is calibrated (a
+    live disturbance, known later)."""
     rig.upload_htable(htable.pack_calibration(cal))
     rig.pfsm_v(0.0, 0.0)
     rig.settings("TRACK", decim=0)
@@ -292,6 +293,8 @@ def prepare_play(rig, rec, cal, q2_dvp, first_arcsec):
     q2cal = calibrate_q2(rig, q2_dvp)
     write_json(rec.path("q2_calibration.json"), q2cal)
     rig.settings("TRACK", decim=64)
+    if callable(first_arcsec):
+        first_arcsec = first_arcsec()
     v_first = (first_arcsec[0] * V_PER_ARCSEC, first_arcsec[1] * V_PER_ARCSEC)
     n_walk = max(1, int(np.ceil(max(abs(v_first[0]), abs(v_first[1])) / 0.5)))
     for k in range(1, n_walk + 1):

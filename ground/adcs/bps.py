@@ -282,7 +282,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             "w_rel": np.zeros((n10, 4))}
     fsw = {k: np.full((K + 1, m), np.nan) for k, m in (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3),
                                                         ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
-                                                        ("wc", 3))}
+                                                        ("wc", 3), ("x_stkf", 12))}
     hist["q"][0], hist["w"][0], hist["w_rel"][0] = sc.q, sc.omega, sc.omega_rw_rel
     jb = 0
     complete = True
@@ -362,6 +362,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                     fsw["tau_ff"][k] = tff
             fsw["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)        # truth, for the record only
             fsw["q_hat"][k], fsw["w_hat"][k], fsw["u"][k] = q_hat, w_hat, u
+            fsw["x_stkf"][k] = xh                                          # rA, vA, rB, vB estimated
             if k == K:
                 k_done = k
                 break

@@ -552,6 +552,16 @@ missed; 1 failed (link down or too noisy, controller exited, a command refused: 
 run with complete=false and the error); 2 bad input; 130 interrupted (partial folder, complete=false)."""
 
 
+def add_run_arguments(p, seed_help="emulator seed"):
+    """The run flags ``fps hil`` and ``fps system`` share: bench config, seed, Q2 calibration, output."""
+    p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
+    p.add_argument("--seed", type=int, default=0, help=seed_help)
+    p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration (V)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("-o", "--output", required=True, help="run folder")
+
+
 def register(sub, name, help_):
     import argparse
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS,
@@ -561,12 +571,7 @@ def register(sub, name, help_):
     p.add_argument("--duration", type=float, default=600.0, help="virtual seconds to run (default 600)")
     from ground.runtime import add_link_arguments
     add_link_arguments(p)
-    p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
-    p.add_argument("--seed", type=int, default=0, help="emulator seed")
-    p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration (V)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="run folder")
+    add_run_arguments(p)
 
     def func(a):
         from ground.runtime import default_link

@@ -179,26 +179,45 @@ def estimation_accuracy(t, err, t_from, t_to):
             "samples": int(sel.sum())}
 
 
-def _ground_run(spec, params):
-    """``bps.simulate`` for the spec; returns (result, history, 10 Hz orbits (n, 2, 6), estimate errors (K+1, 8))."""
+class _Stopped(Exception):
+    """The parent asked the ADCS process to stop."""
+
+
+def _ground_run(spec, params, on_cycle=None, stop=None):
+    """``bps.simulate`` for the spec; returns (result, history, estimate errors (K+1, 8)). ``on_cycle(msg)``
+    gets each second as the simulation makes it (the body pointing error of its ten steps, Eq. 6.12-6.21, and the
+    estimate errors at its start)."""
     from emulator import orbits
     from ground.adcs import bps
     from ground.resample import lagrange
+    n = int(np.ceil(settle_s(spec["ts"]) + spec["adcs_duration_s"]))
+    t_s, xs = orbits.truth_samples(spec["truth"], bps.truth_span(n), cache_dir=spec["cache_dir"])
+    t10 = np.arange(10 * n + 1) / 10.0
+    x10 = lagrange(t_s, xs.reshape(len(t_s), -1), t10, order=10).reshape(len(t10), 2, 6)   # as simulate's grid
+
+    def est_err(k, hist, fsw):
+        xh, i = fsw["x_stkf"][k], 10 * k
+        if not (np.all(np.isfinite(fsw["q_hat"][k])) and np.all(np.isfinite(xh))):
+            return np.full(len(EST_COLS), np.nan)
+        return estimate_errors(fsw["q_hat"][k], fsw["w_hat"][k], xh[0:3], xh[6:9], hist["q"][i], hist["w"][i],
+                               x10[i, 0, 0:3], x10[i, 1, 0:3])
+
+    def second(k, hist, fsw):
+        if stop is not None and stop.is_set():
+            raise _Stopped
+        sl = slice(10 * k + 1, 10 * k + 11)
+        x = x10[sl]
+        dth, dom = bps.pointing_errors(hist["q"][sl], hist["w"][sl], x[:, 0, 0:3], x[:, 0, 3:6], x[:, 1, 0:3],
+                                       x[:, 1, 3:6])
+        on_cycle({"t": hist["t"][sl].copy(), "dtheta": dth / ARCSEC, "domega": dom / ARCSEC, "t_est": float(k),
+                  "est_err": est_err(k, hist, fsw)})
+
     res, hist = bps.simulate(ts=spec["ts"], satb_gnss=spec["satb_gnss"], duration_s=spec["adcs_duration_s"],
-                             seed=spec["seed"], params=params, truth=spec["truth"], cache_dir=spec["cache_dir"])
-    k_done = int(res["simulated_s"])
-    t_s, xs = orbits.truth_samples(spec["truth"], bps.truth_span(int(np.ceil(bps.HOLD_S + 4 * spec["ts"]
-                                                                             + spec["adcs_duration_s"]))),
-                                   cache_dir=spec["cache_dir"])
-    x10 = lagrange(t_s, xs.reshape(len(t_s), -1), hist["t"], order=10).reshape(len(hist["t"]), 2, 6)  # as simulate
-    err = np.full((k_done + 1, len(EST_COLS)), np.nan)
-    for k in range(k_done + 1):
-        xh = hist["fsw_x_stkf"][k]
-        if np.all(np.isfinite(hist["fsw_q_hat"][k])) and np.all(np.isfinite(xh)):
-            i = 10 * k
-            err[k] = estimate_errors(hist["fsw_q_hat"][k], hist["fsw_w_hat"][k], xh[0:3], xh[6:9],
-                                     hist["q"][i], hist["w"][i], x10[i, 0, 0:3], x10[i, 1, 0:3])
-    return res, hist, x10, err
+                             seed=spec["seed"], params=params, truth=spec["truth"], cache_dir=spec["cache_dir"],
+                             on_second=second if on_cycle is not None else None)
+    fsw = {k[4:]: v for k, v in hist.items() if k.startswith("fsw_")}
+    err = np.array([est_err(k, hist, fsw) for k in range(int(res["simulated_s"]) + 1)])
+    return res, hist, err
 
 
 def _reference(res, hist, err, spec):
@@ -215,14 +234,11 @@ def _reference(res, hist, err, spec):
 
 
 def _send_ground(spec, params, q, stop):
-    res, hist, x10, err = _ground_run(spec, params)
-    q.put(("info", {"settle_s": res["settle_s"], "wheel_speed_clips": res["wheel_speed_clips"]}))
-    for k in range(int(res["simulated_s"])):
-        if stop.is_set():
-            return
-        sl = slice(10 * k + 1, 10 * k + 11)
-        q.put(("cycle", {"t": hist["t"][sl], "dtheta": hist["dtheta_arcsec"][sl],
-                         "domega": hist["domega_arcsec_s"][sl], "t_est": float(k), "est_err": err[k]}))
+    q.put(("info", {"settle_s": settle_s(spec["ts"])}))
+    try:
+        res, hist, err = _ground_run(spec, params, lambda m: q.put(("cycle", m)), stop)
+    except _Stopped:
+        return
     q.put(("reference", _reference(res, hist, err, spec)))
 
 
@@ -252,7 +268,7 @@ def _send_firmware(spec, params, q, stop):
         q.put(("adcs_summary", _jsonable(s.summary())))
     finally:
         s.close()
-    res, hist, _x10, err = _ground_run(spec, params)          # the ground filters on the same scenario
+    res, hist, err = _ground_run(spec, params)          # the ground filters on the same scenario
     q.put(("reference", _reference(res, hist, err, spec)))
 
 
@@ -650,10 +666,5 @@ def register(sub, name, help_):
     p.add_argument("--bps-cache", default=None, help="calibration and truth cache folder (default out/bps_cache)")
     p.add_argument("--calibration", default=None, help="H calibration JSON (fps calibrate; default: calibrate "
                    "in-process first, 121 points, written to the run folder)")
-    p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the ADCS scenario and the bench emulator")
-    p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration (V)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="run folder")
+    hil.add_run_arguments(p, "seed of the ADCS scenario and the bench emulator")
     p.set_defaults(func=_cmd)

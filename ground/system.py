@@ -394,9 +394,11 @@ class AdcsFeed:
 
 
 # --- the run -------------------------------------------------------------------------------------------------
-def check_inputs(duration_s, runtime_name, adcs, ts, truth):
+def check_inputs(duration_s, runtime_name, adcs, ts, truth, seed=0):
     from ground.adcs import bps
     from ground.adcs.bps_source import TRUTHS
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
+        raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (seed,))
     if not (isinstance(duration_s, (int, float)) and math.isfinite(duration_s) and duration_s > 0):
         raise ValueError("--duration must be a finite number of seconds > 0, got %r" % (duration_s,))
     if runtime_name not in RUNTIMES:
@@ -437,7 +439,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     from ground.calibrate import load_calibration
 
     t_wall0 = time.perf_counter()
-    ts = check_inputs(duration_s, runtime_name, adcs, ts, truth)
+    ts = check_inputs(duration_s, runtime_name, adcs, ts, truth, seed)
     if not 0 < q2_dvp <= 2.0:
         raise ValueError("--q2-dv must be in (0, 2] V, got %r" % q2_dvp)
     cal = load_calibration(calibration_path) if calibration_path else None

@@ -287,11 +287,17 @@ def _jsonable(v):
 def adcs_worker(spec, q, stop):
     """The ADCS process: messages ("info" | "cycle" | "adcs_summary" | "reference" | "error" | "end", dict)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)      # the parent takes Ctrl-C and stops this process
+
+    def on_term(signum, frame):                       # terminate(): unwind, so the session closes its firmware
+        raise _Stopped
+    signal.signal(signal.SIGTERM, on_term)
     try:
         from ground.adcs import bps, bps_cli
         params = spec["params"] or bps_cli.calibration(spec["seed"], spec["bps_cache"], progress=False)
         bps.check_params(params)
         (_send_ground if spec["adcs"] == "ground" else _send_firmware)(spec, params, q, stop)
+    except _Stopped:
+        return
     except BaseException as exc:       # noqa: BLE001 (reported to the parent, which fails the run)
         q.put(("error", "%s: %s" % (type(exc).__name__, exc)))
     q.put(("end", {}))
@@ -305,8 +311,8 @@ class AdcsFeed:
         ctx = multiprocessing.get_context("spawn")
         self.q = ctx.Queue()
         self.stop = ctx.Event()
-        self.proc = ctx.Process(target=adcs_worker, args=(spec, self.q, self.stop), name="fps-system-adcs",
-                                daemon=True)
+        # not a daemon: the session may start processes of its own; close() always ends it
+        self.proc = ctx.Process(target=adcs_worker, args=(spec, self.q, self.stop), name="fps-system-adcs")
         self.on_samples = on_samples
         self.t, self.dth, self.dom = [], [], []
         self.t_est, self.est_err = [], []
@@ -384,9 +390,14 @@ class AdcsFeed:
 
     def close(self):
         self.stop.set()
+        if self.proc.pid is None:
+            return
         self.proc.join(2.0)
         if self.proc.is_alive():
-            self.proc.terminate()
+            self.proc.terminate()          # SIGTERM: the worker unwinds and closes the session
+            self.proc.join(5.0)
+        if self.proc.is_alive():
+            self.proc.kill()
             self.proc.join(2.0)
         with contextlib.suppress(Exception):
             self.q.cancel_join_thread()
@@ -414,7 +425,7 @@ def check_inputs(duration_s, runtime_name, adcs, ts, truth, seed=0):
     return bps.check_ts(ts)
 
 
-def _calibrate_inproc(seed, config, path):
+def calibrate_inproc(seed, config, path):
     """The Sec. 7.4 H calibration (121 points) in this process, written to ``path``; OSError if points fail."""
     from ground import calibrate, runtime
     with runtime.open_rig("inproc", "inproc", config=config, seed=seed) as rig:
@@ -470,7 +481,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 "duration_s": duration_s, "runtime": runtime_name, "link": "serial",
                 "distfile_period_us": live.reader.period_us, "live_player": True})
             if cal is None:
-                cal = _calibrate_inproc(seed, config, rec.path("calibration.json"))
+                cal = calibrate_inproc(seed, config, rec.path("calibration.json"))
             else:
                 write_json(rec.path("calibration.json"), cal)
             with runtime.open_rig(runtime_name, "serial", config=config, seed=seed) as rig:

@@ -468,6 +468,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
             "bps_cache": bps_cache or bps_cli.CACHE_DEFAULT,
             "cache_dir": os.path.abspath(bps_cache or bps_cli.CACHE_DEFAULT)}
     live = LiveDisturbance(t_settle)
+    say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
     feed.info["adcs"] = adcs
     q2cal = None
@@ -482,6 +483,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 "duration_s": duration_s, "runtime": runtime_name, "link": "serial",
                 "distfile_period_us": live.reader.period_us, "live_player": True})
             if cal is None:
+                say("calibrating H in-process first (Sec. 7.4, 121 points; --calibration FILE skips this) ...")
                 cal = calibrate_inproc(seed, config, rec.path("calibration.json"))
             else:
                 write_json(rec.path("calibration.json"), cal)
@@ -489,6 +491,9 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 run.rig = rig
 
                 def first_sample():
+                    if feed.t_last < t_settle + STENCIL_S + 0.2:
+                        say("waiting for the ADCS to reach the end of its settling (t = %g s of its time) ..."
+                            % t_settle)
                     feed.take(t_settle + STENCIL_S + 0.2)
                     return live.reader.sample(0)
                 q2cal = hil.prepare_play(rig, rec, cal, q2_dvp, first_sample)
@@ -634,6 +639,9 @@ def report_md(s):
               "the fine loop waited %.1f s for the ADCS" % (_x(s.get("real_time_factor")), s.get("wall_s") or 0.0,
                                                              GOAL_RTF, _x(s.get("real_time_factor_play")),
                                                              s.get("adcs_wait_s") or 0.0), ""]
+    if s.get("adcs_summary") is not None or s.get("adcs_last_status") is not None:
+        lines += ["## ADCS session", "", "- counters and fault log: `%s`" % json.dumps(s.get("adcs_summary")),
+                  "- last status packet: `%s`" % json.dumps(s.get("adcs_last_status")), ""]
     lines += ["- " + line for line in hil.verdict_lines(s)]
     return "\n".join(lines) + "\n"
 

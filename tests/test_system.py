@@ -247,3 +247,23 @@ def test_report_table_puts_the_figures_side_by_side():
     md = system.side_by_side(s)
     assert "| body pointing 3σ (arcsec) | 120.50 | 99.25 | ≤ 150 (budget); 125.5 (Sec. 6.4.4, 4000 s) |" in md
     assert "50.0000 %" in md and report.THESIS["max_radial_arcsec"] == 3.9103
+
+
+def test_adcs_feed_keeps_the_session_counters_and_fails_on_an_adcs_error():
+    got = []
+    feed = system.AdcsFeed({}, lambda t, d: got.append((t, d)))
+    feed._handle("cycle", {"t": np.arange(1, 11) / 10.0, "dtheta": np.ones((10, 2)), "domega": np.zeros((10, 2)),
+                           "t_est": 0.0, "est_err": np.full(8, np.nan), "status": {"mode": 3, "stale": ["gnss"]}})
+    feed._handle("adcs_summary", {"missed": {"wheel2": 4}})
+    assert feed.t_last == pytest.approx(1.0) and len(got) == 1
+    assert feed.last_status == {"mode": 3, "stale": ["gnss"]} and feed.adcs_summary == {"missed": {"wheel2": 4}}
+    with pytest.raises(OSError, match="ADCS .*failed: ValueError: boom"):
+        feed._handle("error", "ValueError: boom")
+    feed._handle("end", {})
+    with pytest.raises(OSError, match="ended at t = 1.0 s"):
+        feed.take(until_t=5.0, timeout_s=1.0)
+    feed.close()                                    # never started: nothing to stop
+    s = {"adcs": "firmware", "thesis_body": system.thesis_body(), "adcs_summary": feed.adcs_summary,
+         "adcs_last_status": feed.last_status, "duration_s": 1.0}
+    md = system.report_md(s)
+    assert '"wheel2": 4' in md and '"stale": ["gnss"]' in md

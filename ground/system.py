@@ -243,12 +243,16 @@ def _send_ground(spec, params, q, stop):
 
 
 def _send_firmware(spec, params, q, stop):
+    """The session's cycles (``duration_s`` = its number of 1 s cycles: the settling, the play and the lead);
+    the orbit truth and its cache as the ground reference's, where the session takes them."""
+    import inspect
     from emulator.adcs_session import AdcsSession
     from ground.adcs import bps
     n = int(np.ceil(settle_s(spec["ts"]) + spec["adcs_duration_s"]))
     q.put(("info", {"settle_s": settle_s(spec["ts"])}))
-    s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"],
-                    duration_s=spec["adcs_duration_s"], ts=spec["ts"], params=params)
+    extra = {k: spec[k] for k in ("truth", "cache_dir") if k in inspect.signature(AdcsSession).parameters}
+    s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"], duration_s=float(n),
+                    ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), **extra)
     try:
         s.start()
         prev = None          # the truth at the end of the previous cycle: the instant of this cycle's estimate
@@ -262,8 +266,9 @@ def _send_firmware(spec, params, q, stop):
             if prev is not None and all(k in e for k in ("q", "w", "ra", "rb")):
                 err = estimate_errors(e["q"], e["w"], e["ra"], e["rb"], *prev)
             prev = (c["q"][-1], c["w"][-1], c["ra"][-1], c["rb"][-1])
-            q.put(("cycle", {"t": np.asarray(c["t"], float), "dtheta": dth / ARCSEC, "domega": dom / ARCSEC,
-                             "t_est": float(c["t"][0]) - 0.1, "est_err": err,
+            t = np.round(np.asarray(c["t"], float) * 10.0) / 10.0      # the 0.1 s steps, without summing drift
+            q.put(("cycle", {"t": t, "dtheta": dth / ARCSEC, "domega": dom / ARCSEC,
+                             "t_est": float(e.get("t", t[0] - 0.1)), "est_err": err,
                              "status": _jsonable(c.get("status"))}))
         q.put(("adcs_summary", _jsonable(s.summary())))
     finally:
@@ -319,6 +324,7 @@ class AdcsFeed:
         self.info, self.reference, self.adcs_summary, self.last_status = {}, None, None, None
         self.t_last = -1.0
         self.ended = False
+        self.log = []               # the session's one-line messages (mode changes, late cycles, faults)
         self.wait_s = 0.0           # the fine loop's wall time spent waiting for the ADCS
 
     def start(self):
@@ -343,6 +349,8 @@ class AdcsFeed:
             self.adcs_summary = d
         elif kind == "error":
             raise OSError("the ADCS (%s) failed: %s" % (self.info.get("adcs", "process"), d))
+        elif kind == "log":
+            self.log.append(d)
         elif kind == "end":
             self.ended = True
 
@@ -541,6 +549,7 @@ def _body_summary(feed, live, rec, t_settle):
     dist["source"] = "live ADCS (%s)" % feed.info.get("adcs")
     return {"settle_s": t_settle, "body_pointing": body, "estimation": est, "ground_reference": feed.reference,
             "disturbance": dist, "adcs_summary": feed.adcs_summary, "adcs_last_status": feed.last_status,
+            "adcs_log": feed.log[-200:],
             "adcs_info": {k: v for k, v in feed.info.items() if k != "adcs"},
             "thesis_body": thesis_body()}
 

@@ -181,6 +181,8 @@ class FakeSession:
         return ra, va, rb, va.copy()
 
     def cycle(self):
+        if self.k >= int(np.ceil(self.kw["duration_s"])):
+            raise ValueError("the session's %d s are done" % self.k)       # as emulator.adcs_session
         t = self.k + np.arange(1, 11) / 10.0
         ra, va, rb, vb = self._truth(t)
         q = np.tile([0.0, 0.0, 0.0, 1.0], (10, 1))
@@ -211,7 +213,8 @@ def test_firmware_path_bookkeeping_with_a_fake_session(monkeypatch, params_file)
     system._send_firmware(spec, spec["params"], q, threading.Event())
     sess = FakeSession.instances[-1]
     assert sess.started and sess.closed
-    assert sess.kw == {"runtime": "micropython", "satb_gnss": True, "seed": 4, "duration_s": 5.0, "ts": 10.0}
+    # duration_s is the session's number of cycles: the 30 s hold, 4 t_s of settling, the play and the lead
+    assert sess.kw == {"runtime": "micropython", "satb_gnss": True, "seed": 4, "duration_s": 75.0, "ts": 10.0}
     msgs = []
     while not q.empty():
         msgs.append(q.get())

@@ -484,12 +484,13 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     with run.guard():
         try:
             feed.start()
-            write_json(rec.path("config.json"), {
+            config_json = {
                 "adcs": adcs, "adcs_runtime": runtime_name if adcs == "firmware" else None, "satb_gnss": satb_gnss,
                 "ts_s": ts, "truth": truth, "settle_s": t_settle, "params": params_path and os.path.abspath(params_path),
                 "calibration": calibration_path and os.path.abspath(calibration_path), "seed": seed,
                 "duration_s": duration_s, "runtime": runtime_name, "link": "serial",
-                "distfile_period_us": live.reader.period_us, "live_player": True})
+                "distfile_period_us": live.reader.period_us, "live_player": True}
+            write_json(rec.path("config.json"), config_json)
             if cal is None:
                 say("calibrating H in-process first (Sec. 7.4, 121 points; --calibration FILE skips this) ...")
                 cal = calibrate_inproc(seed, config, rec.path("calibration.json"))
@@ -497,6 +498,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 write_json(rec.path("calibration.json"), cal)
             with runtime.open_rig(runtime_name, "serial", config=config, seed=seed) as rig:
                 run.rig = rig
+                write_json(rec.path("config.json"), dict(hil.run_config(rig, duration_s, seed, {}), **config_json))
 
                 def first_sample():
                     if feed.t_last < t_settle + STENCIL_S + 0.2:

@@ -6,7 +6,7 @@ MPY     := $(VENV)/bin/micropython
 STAMP   := $(VENV)/.installed-stamp
 OUT     ?= out
 
-.PHONY: all install test bench fuzz mpy hil distfile calibrate protocol-doc clean
+.PHONY: all install test bench fuzz mpy hil distfile calibrate protocol-doc clean system
 
 all: test
 
@@ -46,6 +46,11 @@ hil: $(STAMP)
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
 	$(VENV)/bin/fps hil --distfile $(OUT)/bps600.dist --calibration $(OUT)/calibration.json \
 	    --duration 600 --runtime micropython --link serial -o $(OUT)/hil
+
+system: $(STAMP)
+	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
+	$(VENV)/bin/fps system --duration 600 --seed 1 --runtime micropython --calibration $(OUT)/calibration.json \
+	    --bps-cache $(OUT)/bps_cache -o $(OUT)/system
 
 clean:
 	rm -rf $(OUT) build *.egg-info .pytest_cache .hypothesis

@@ -20,6 +20,7 @@ COMMANDS = (
     ("calibrate", "ground.calibrate", "H-matrix calibration over the P-FSM grid (Sec. 7.4)"),
     ("hil", "ground.hil", "emulated hardware-in-the-loop run with the Q2 recorder (Sec. 7.5)"),
     ("response", "ground.response", "the loop's frequency response: stepped sines, measured |S| beside the model"),
+    ("system", "ground.system", "the whole terminal in one run: ADCS and fine-pointing loops coupled live"),
     ("adcs", "ground.adcs.cli", "attitude and orbit filters: APKF, MEKF (Ch. 4), STKF with the EAFLS (Ch. 5)"),
 )
 

@@ -100,6 +100,8 @@ class Recorder:
         self.play_wall = 0.0
         self.virtual_s = 0.0
         self.minute_rates = []    # (virtual s, wall s) per chunk, for the first/last minute rate
+        self.tick0 = None         # the play's first tick (None: the play has not started)
+        self.t0_us = 0
 
     def path(self, name):
         return os.path.join(self.dir, name)
@@ -133,11 +135,11 @@ class Recorder:
         write_atomic(self.path("telemetry.csv"), "\n".join(lines) + "\n")
 
 
-def _progress_bar(total_s, quiet):
+def _progress_bar(total_s, quiet, desc="hil"):
     if quiet or not sys.stderr.isatty():
         return None
     from tqdm import tqdm
-    return tqdm(total=round(total_s, 3), unit="s", desc="hil", file=sys.stderr,
+    return tqdm(total=round(total_s, 3), unit="s", desc=desc, file=sys.stderr,
                 bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s virtual [{elapsed}<{remaining}, {rate_fmt}]")
 
 
@@ -197,121 +199,176 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     os.makedirs(out_dir, exist_ok=True)
     rec = Recorder(out_dir)
     faults = link_opts.get("link_faults")
-    summary = {"complete": False, "error": None, "requirement_met": False, "duration_s": 0.0,
-               "requested_duration_s": duration_s, "real_time_factor": None, "overruns": 0, "q2": None,
-               "truth": None, "mode_changes": [], "link_faults": faults.as_dict() if faults else None,
-               "link": {"bench": {}, "controller": None},
-               "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    summary = new_summary(duration_s, faults)
     write_json(rec.path("summary.json"), summary)
     write_json(rec.path("calibration.json"), cal)
-    interrupted = False
-    failure = None
     q2cal = None
-    t0_us = 0
-    tick0 = None
-    rig = None
-    try:
-        with _sigterm_as_interrupt(), runtime.open_rig(runtime_name, link_name, config=config, seed=seed,
-                                                       **link_opts) as rig:
+    run = RunOutcome(runtime_name, link_name)
+    with run.guard():
+        with runtime.open_rig(runtime_name, link_name, config=config, seed=seed, **link_opts) as rig:
+            run.rig = rig
             if cal.get("bench_config") not in (None, rig.config):
                 print("warning: %s was calibrated on another bench config than this run's" % calibration_path,
                       file=sys.stderr)
-            write_json(rec.path("config.json"), {
+            write_json(rec.path("config.json"), dict({
                 "distfile": os.path.abspath(distfile_path), "distfile_source": d.source, "distfile_seed": d.seed,
                 "distfile_count": d.count, "distfile_period_us": d.period_us,
-                "calibration": os.path.abspath(calibration_path), "duration_s": duration_s,
-                "runtime": runtime_name, "link": link_name, "seed": seed, "rate_hz": rig.rate_hz,
-                "pfsm_hz": rig.lockstep.pfsm_hz, "q2_hz": rig.bench.q2_hz, "bench_config": rig.bench.config,
-                "realtime": rig.lockstep.realtime, "port": link_opts.get("port"),
-                "link_faults": faults.describe() if faults else None,
-                "tick_timeout_ms": link_opts.get("tick_timeout_ms"), "tick_tries": link_opts.get("tick_tries"),
-                "max_failed_ticks": link_opts.get("max_failed_ticks")})
-            rig.upload_htable(htable.pack_calibration(cal))
-            # null at the centre, then Q2 against the P-FSM with the FSM held there
-            rig.pfsm_v(0.0, 0.0)
-            rig.settings("TRACK", decim=0)
-            rig.run(int(0.2 * rig.rate_hz))
-            q2cal = calibrate_q2(rig, q2_dvp)
-            write_json(rec.path("q2_calibration.json"), q2cal)
-            # pre-position at the distfile's first sample in TRACK, then play it once
-            rig.settings("TRACK", decim=64)
-            v_first = (dx[0] * V_PER_ARCSEC, dy[0] * V_PER_ARCSEC)
-            n_walk = max(1, int(np.ceil(max(abs(v_first[0]), abs(v_first[1])) / 0.5)))
-            for k in range(1, n_walk + 1):
-                rig.pfsm_v(v_first[0] * k / n_walk, v_first[1] * k / n_walk)
-                rig.run(24)
-            rig.run(int(0.2 * rig.rate_hz))
-            rig.take_status()
+                "calibration": os.path.abspath(calibration_path)}, **run_config(rig, duration_s, seed, link_opts)))
+            q2cal = prepare_play(rig, rec, cal, q2_dvp, (dx[0], dy[0]))
             player = Player()
             player.open_file(os.path.abspath(distfile_path))
             player.oneshot()
-            rig.lockstep.player = player
-            overrun0 = rig.lockstep.n_overrun
-            tick0 = rig.lockstep.tick
-            t0_us = int(round(tick0 * 1e6 / rig.rate_hz))
-            if rig.faults is not None:       # silence windows count in virtual seconds of the play, per tick
-                rc = rig.endpoint.rc
-                rig.faults.clock = lambda: (rc.tick_now - tick0) / rig.rate_hz
-            n_total = int(round(duration_s * rig.rate_hz))
-            chunk = max(1, int(round(CHUNK_S * rig.rate_hz)))
-            bar = _progress_bar(duration_s, quiet)
-            done = 0
-            t_play0 = time.perf_counter()
-            try:
-                while done < n_total:
-                    n = min(chunk, n_total - done)
-                    tw = time.perf_counter()
-                    try:
-                        out = rig.run(n)
-                    except BaseException:
-                        if rig.lockstep.partial is not None:     # keep every sample played before the stop
-                            rec.add(rig.lockstep.partial, rig.take_status())
-                            rec.virtual_s = (rig.lockstep.tick - tick0) / rig.rate_hz
-                        raise
-                    rec.minute_rates.append((n / rig.rate_hz, time.perf_counter() - tw))
-                    rec.add(out, rig.take_status())
-                    done += n
-                    rec.virtual_s = done / rig.rate_hz
-                    proc = getattr(rig, "process", None)
-                    if proc is not None and proc.poll() is not None:
-                        from ground.runtime import stderr_tail
-                        raise OSError("controller process exited with status %s after %.1f s of the run: %s"
-                                      % (proc.returncode, rec.virtual_s, stderr_tail(proc)))
-                    if bar is not None:
-                        bar.update(n / rig.rate_hz)
-            finally:
-                rec.play_wall = time.perf_counter() - t_play0
-                if bar is not None:
-                    bar.close()
-                summary["overruns"] = rig.lockstep.n_overrun - overrun0
-    except KeyboardInterrupt:
-        interrupted = True
-    except (OSError, ValueError) as exc:       # inputs were checked above: anything now is the run failing
-        rig = rig if rig is not None else getattr(exc, "rig", None)
-        where = getattr(rig, "link_desc", None) or "%s over %s" % (runtime_name, link_name)
-        failure = "%s: %s" % (where, exc)
-    summary["link"] = link_counters(rig)
-    if rig is not None and tick0 is None:
-        summary["overruns"] = rig.lockstep.n_overrun
-    summary.update(_finish(rec, q2cal, t0_us, complete=not (interrupted or failure), plots=plots))
+            play(rig, rec, player, duration_s, summary, quiet)
+    finish_summary(rec, run, summary, q2cal, plots)
     n_played = min(len(dx), int(round(rec.virtual_s * 1e6 / d.period_us)) + 1)
     summary["disturbance"] = report.error_stats(dx[:n_played], dy[:n_played])   # the body pointing error played
     summary["disturbance"]["source"] = d.source
-    summary["jitter_harmonics"] = jitter_harmonics(distfile_path, rec, t0_us, rig)
-    summary["mode_changes"] = mode_changes(rig, tick0) if tick0 is not None else []
-    summary["interrupted"] = interrupted
-    summary["error"] = failure
-    if failure:
-        c = summary["link"]
-        summary["error"] = "%s [bench counters %s; controller counters %s]" % (
-            failure, _nonzero(c["bench"]), "none received" if c["controller"] is None else _nonzero(c["controller"]))
+    summary["jitter_harmonics"] = jitter_harmonics(distfile_path, rec, rec.t0_us, run.rig)
     write_json(rec.path("summary.json"), summary)
     write_atomic(rec.path("report.md"), report.table(summary) + "\n" + "\n".join(
         "- " + line for line in verdict_lines(summary)) + "\n")
-    if interrupted:
-        raise Interrupted(out_dir)
-    if failure:
-        raise RunFailed("%s (partial run in %s, summary complete=false)" % (summary["error"], out_dir))
+    run.raise_if_stopped(out_dir, summary)
+    return summary
+
+
+def new_summary(duration_s, faults=None):
+    """The summary a run folder starts with (``complete`` false until the run ends)."""
+    return {"complete": False, "error": None, "requirement_met": False, "duration_s": 0.0,
+            "requested_duration_s": duration_s, "real_time_factor": None, "overruns": 0, "q2": None,
+            "truth": None, "mode_changes": [], "link_faults": faults.as_dict() if faults else None,
+            "link": {"bench": {}, "controller": None},
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+
+def run_config(rig, duration_s, seed, link_opts):
+    """The rig's part of ``config.json``."""
+    faults = link_opts.get("link_faults")
+    return {"duration_s": duration_s, "runtime": rig.runtime_name, "link": rig.link_name, "seed": seed,
+            "rate_hz": rig.rate_hz, "pfsm_hz": rig.lockstep.pfsm_hz, "q2_hz": rig.bench.q2_hz,
+            "bench_config": rig.bench.config, "realtime": rig.lockstep.realtime, "port": link_opts.get("port"),
+            "link_faults": faults.describe() if faults else None,
+            "tick_timeout_ms": link_opts.get("tick_timeout_ms"), "tick_tries": link_opts.get("tick_tries"),
+            "max_failed_ticks": link_opts.get("max_failed_ticks")}
+
+
+class RunOutcome:
+    """How a run ended: ``guard()`` turns Ctrl-C/SIGTERM into ``interrupted`` and an OSError/ValueError (the
+    inputs were checked before: anything now is the run failing) into ``failure``; ``rig`` is the rig, once open."""
+
+    def __init__(self, runtime_name, link_name):
+        self.runtime_name, self.link_name = runtime_name, link_name
+        self.rig = None
+        self.interrupted = False
+        self.failure = None
+
+    @contextlib.contextmanager
+    def guard(self):
+        try:
+            with _sigterm_as_interrupt():
+                yield self
+        except KeyboardInterrupt:
+            self.interrupted = True
+        except (OSError, ValueError) as exc:
+            self.rig = self.rig if self.rig is not None else getattr(exc, "rig", None)
+            where = getattr(self.rig, "link_desc", None) or "%s over %s" % (self.runtime_name, self.link_name)
+            self.failure = "%s: %s" % (where, exc)
+
+    def raise_if_stopped(self, out_dir, summary):
+        """After the folder is written: ``Interrupted`` or ``RunFailed`` (with the summary's error)."""
+        if self.interrupted:
+            raise Interrupted(out_dir)
+        if self.failure:
+            raise RunFailed("%s (partial run in %s, summary complete=false)" % (summary["error"], out_dir))
+
+
+def prepare_play(rig, rec, cal, q2_dvp, first_arcsec):
+    """Upload the H calibration, null at the centre, calibrate Q2 against the P-FSM (written to
+    ``q2_calibration.json``), then walk the P-FSM in TRACK to the disturbance's first sample (Eq. 7.8).
+    Returns the Q2 calibration. ``first_arcsec``: (x, y), or a callable giving it once Q2 is calibrated (a
+    live disturbance, known later)."""
+    rig.upload_htable(htable.pack_calibration(cal))
+    rig.pfsm_v(0.0, 0.0)
+    rig.settings("TRACK", decim=0)
+    rig.run(int(0.2 * rig.rate_hz))
+    q2cal = calibrate_q2(rig, q2_dvp)
+    write_json(rec.path("q2_calibration.json"), q2cal)
+    rig.settings("TRACK", decim=64)
+    if callable(first_arcsec):
+        first_arcsec = first_arcsec()
+    v_first = (first_arcsec[0] * V_PER_ARCSEC, first_arcsec[1] * V_PER_ARCSEC)
+    n_walk = max(1, int(np.ceil(max(abs(v_first[0]), abs(v_first[1])) / 0.5)))
+    for k in range(1, n_walk + 1):
+        rig.pfsm_v(v_first[0] * k / n_walk, v_first[1] * k / n_walk)
+        rig.run(24)
+    rig.run(int(0.2 * rig.rate_hz))
+    rig.take_status()
+    return q2cal
+
+
+def play(rig, rec, player, duration_s, summary, quiet, before_chunk=None, desc="hil"):
+    """Play ``player`` (its first fill is the play's t = 0) for ``duration_s`` in chunks of ``CHUNK_S``,
+    recording Q2, truth and telemetry into ``rec`` (``rec.tick0``, ``rec.t0_us`` mark the start). Before each
+    chunk, ``before_chunk(t_end_s)`` may feed the player up to the chunk's end (a live disturbance). Every
+    sample played before an interruption or failure is kept."""
+    rig.lockstep.player = player
+    overrun0 = rig.lockstep.n_overrun
+    tick0 = rec.tick0 = rig.lockstep.tick
+    rec.t0_us = int(round(tick0 * 1e6 / rig.rate_hz))
+    if rig.faults is not None:       # silence windows count in virtual seconds of the play, per tick
+        rc = rig.endpoint.rc
+        rig.faults.clock = lambda: (rc.tick_now - tick0) / rig.rate_hz
+    n_total = int(round(duration_s * rig.rate_hz))
+    chunk = max(1, int(round(CHUNK_S * rig.rate_hz)))
+    bar = _progress_bar(duration_s, quiet, desc)
+    done = 0
+    t_play0 = time.perf_counter()
+    try:
+        while done < n_total:
+            n = min(chunk, n_total - done)
+            if before_chunk is not None:
+                before_chunk((done + n) / rig.rate_hz)
+            tw = time.perf_counter()
+            try:
+                out = rig.run(n)
+            except BaseException:
+                if rig.lockstep.partial is not None:     # keep every sample played before the stop
+                    rec.add(rig.lockstep.partial, rig.take_status())
+                    rec.virtual_s = (rig.lockstep.tick - tick0) / rig.rate_hz
+                raise
+            rec.minute_rates.append((n / rig.rate_hz, time.perf_counter() - tw))
+            rec.add(out, rig.take_status())
+            done += n
+            rec.virtual_s = done / rig.rate_hz
+            proc = getattr(rig, "process", None)
+            if proc is not None and proc.poll() is not None:
+                from ground.runtime import stderr_tail
+                raise OSError("controller process exited with status %s after %.1f s of the run: %s"
+                              % (proc.returncode, rec.virtual_s, stderr_tail(proc)))
+            if bar is not None:
+                bar.update(n / rig.rate_hz)
+    finally:
+        rec.play_wall = time.perf_counter() - t_play0
+        if bar is not None:
+            bar.close()
+        summary["overruns"] = rig.lockstep.n_overrun - overrun0
+
+
+def finish_summary(rec, run, summary, q2cal, plots):
+    """Fill ``summary`` from what ``rec`` holds and how ``run`` ended (samples, statistics, plots, link
+    counters, mode changes, the error with both sides' counters)."""
+    rig = run.rig
+    summary["link"] = link_counters(rig)
+    if rig is not None and rec.tick0 is None:
+        summary["overruns"] = rig.lockstep.n_overrun
+    summary.update(_finish(rec, q2cal, rec.t0_us, complete=not (run.interrupted or run.failure), plots=plots))
+    summary["mode_changes"] = mode_changes(rig, rec.tick0) if rec.tick0 is not None else []
+    summary["interrupted"] = run.interrupted
+    summary["error"] = run.failure
+    if run.failure:
+        c = summary["link"]
+        summary["error"] = "%s [bench counters %s; controller counters %s]" % (
+            run.failure, _nonzero(c["bench"]),
+            "none received" if c["controller"] is None else _nonzero(c["controller"]))
     return summary
 
 
@@ -495,6 +552,16 @@ missed; 1 failed (link down or too noisy, controller exited, a command refused: 
 run with complete=false and the error); 2 bad input; 130 interrupted (partial folder, complete=false)."""
 
 
+def add_run_arguments(p, seed_help="emulator seed"):
+    """The run flags ``fps hil`` and ``fps system`` share: bench config, seed, Q2 calibration, output."""
+    p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
+    p.add_argument("--seed", type=int, default=0, help=seed_help)
+    p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration (V)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("-o", "--output", required=True, help="run folder")
+
+
 def register(sub, name, help_):
     import argparse
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS,
@@ -504,12 +571,7 @@ def register(sub, name, help_):
     p.add_argument("--duration", type=float, default=600.0, help="virtual seconds to run (default 600)")
     from ground.runtime import add_link_arguments
     add_link_arguments(p)
-    p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
-    p.add_argument("--seed", type=int, default=0, help="emulator seed")
-    p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration (V)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="run folder")
+    add_run_arguments(p)
 
     def func(a):
         from ground.runtime import default_link

@@ -103,3 +103,23 @@ def hil_time_history(series, path):
     axs[0].set_title("Pointing error time history, cf. Fig. 7-19")
     fig.tight_layout()
     _save(fig, path)
+
+
+def system_time_history(series, path, requirement_arcsec=11.98):
+    """``fps system``: the body pointing error and the fine pointing error on one time axis (X, Y of each).
+    ``series``: {label: (t, x, y)}, the first the body's, the second the fine loop's."""
+    items = list(series.items())
+    fig, axs = plt.subplots(len(items), 1, figsize=(9, 2.8 * len(items) + 0.6), sharex=True, squeeze=False)
+    for ax, (label, (t, x, y)) in zip(axs[:, 0], items):
+        step = max(1, len(t) // 60000)
+        ax.plot(t[::step], x[::step], lw=0.4, label=label + " X")
+        ax.plot(t[::step], y[::step], lw=0.4, label=label + " Y")
+        ax.set_ylabel("error (arcsec)")
+        ax.legend(loc="upper right", fontsize=8)
+    if "fine" in items[-1][0]:
+        for s in (-1, 1):
+            axs[-1, 0].axhline(s * requirement_arcsec, color="r", lw=0.6, ls="--")
+    axs[-1, 0].set_xlabel("time from the start of the collection window (s)")
+    axs[0, 0].set_title("Body pointing error (ADCS) and fine pointing error (Q2), one time axis")
+    fig.tight_layout()
+    _save(fig, path)

@@ -186,6 +186,18 @@ def _bad_cases(f):
                   ["adcs", sub, "-o", o, "--duration", "1e40"], ["adcs", sub, "-o", o, "--seed", "-1"],
                   ["adcs", sub, "-o", o, "--params", f["missing"]], ["adcs", sub, "-o", o, "--params", f["garbage"]],
                   ["adcs", sub, "-o", o, "--params", f["nanjson"]]]
+    for v in ("nan", "inf", "-inf", "", "x", "-1", "0"):
+        cases += [["system", "--adcs", "ground", "-o", o, "--duration", v], ["system", "--adcs", "ground", "-o", o,
+                                                                           "--ts", v],
+                  ["system", "--adcs", "ground", "-o", o, "--seed", v if v != "0" else "-5"]]
+    cases += [["system", "--adcs", "ground", "-o", o, "--calibration", f["missing"]],
+              ["system", "--adcs", "ground", "-o", o, "--calibration", f["garbage"]],
+              ["system", "--adcs", "ground", "-o", o, "--params", f["nanjson"]],
+              ["system", "--adcs", "ground", "-o", o, "--params", f["missing"]],
+              ["system", "--adcs", "ground", "-o", o, "--truth", "nope"],
+              ["system", "--adcs", "ground", "-o", o, "--runtime", "inproc"],
+              ["system", "--adcs", "ground", "-o", o, "--q2-dv", "0"],
+              ["system", "--adcs", "nope", "-o", o], ["system"]]
     cases += [["adcs", "sweep", "-o", o, "--ts", "x"], ["adcs", "sweep", "-o", o, "--workers", "0"],
               ["distfile", "generate", "-o", o, "--source", "bps", "--ts", "0"],
               ["distfile", "generate", "-o", o, "--source", "bps", "--params", f["garbage"]],
@@ -200,7 +212,7 @@ def test_every_command_is_covered(files):
     want = {("protocol", "encode"), ("protocol", "decode"), ("protocol", "dbc"), ("emulator", "config"),
             ("emulator", "truth-h"), ("emulator", "serve"), ("distfile", "generate"), ("distfile", "info"),
             ("distfile", "csv"), ("calibrate",), ("hil",), ("adcs", "apkf"), ("adcs", "mekf"), ("adcs", "stkf"),
-            ("adcs", "bps"), ("adcs", "sweep"), ("response",)}
+            ("adcs", "bps"), ("adcs", "sweep"), ("response",), ("system",)}
     assert want <= reached
     assert {c[0] for c in cli.COMMANDS} == {w[0] for w in want}
 
@@ -215,7 +227,7 @@ def test_help_of_every_command(capsys):
         for name in names:
             rc, out, _ = run(capsys, [cmd, name, "--help"])
             assert rc == 0 and "usage: fps %s %s" % (cmd, name) in out
-    for cmd in ("calibrate", "hil"):
+    for cmd in ("calibrate", "hil", "system"):
         rc, out, _ = run(capsys, [cmd, "--help"])
         assert rc == 0 and "usage: fps %s" % cmd in out
 

@@ -244,10 +244,12 @@ def check_ts(ts):
 
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
-             cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S):
+             cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection
     time after the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict of 10 Hz arrays).
-    A KeyboardInterrupt returns what was collected so far with ``complete`` false."""
+    A KeyboardInterrupt returns what was collected so far with ``complete`` false. ``on_second(k, hist, fsw)``,
+    if given, is called after each second's ten truth steps (rows up to 10 (k + 1) of ``hist``, k of ``fsw``,
+    are final; it must only read them): a live consumer (``fps system``) follows the run as it goes."""
     ts = check_ts(ts)
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
@@ -282,7 +284,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             "w_rel": np.zeros((n10, 4))}
     fsw = {k: np.full((K + 1, m), np.nan) for k, m in (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3),
                                                         ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
-                                                        ("wc", 3))}
+                                                        ("wc", 3), ("x_stkf", 12))}
     hist["q"][0], hist["w"][0], hist["w_rel"][0] = sc.q, sc.omega, sc.omega_rw_rel
     jb = 0
     complete = True
@@ -362,6 +364,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                     fsw["tau_ff"][k] = tff
             fsw["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)        # truth, for the record only
             fsw["q_hat"][k], fsw["w_hat"][k], fsw["u"][k] = q_hat, w_hat, u
+            fsw["x_stkf"][k] = xh                                          # rA, vA, rB, vB estimated
             if k == K:
                 k_done = k
                 break
@@ -373,6 +376,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             if not np.all(np.isfinite(sc.x)):
                 raise FloatingPointError("truth diverged at t = %.0f s" % sc.t)
             k_done = k + 1
+            if on_second is not None:
+                on_second(k, hist, fsw)
             if bar is not None:
                 bar.update(1)
     except KeyboardInterrupt:

@@ -102,7 +102,7 @@ class AdcsSession:
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=HOLD_S,
-                 reply_timeout_s=30.0, heap_out=None):
+                 reply_timeout_s=30.0, heap_out=None, record=False):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
         if not (np.isfinite(duration_s) and duration_s >= 1):
@@ -117,6 +117,7 @@ class AdcsSession:
         self.log = log
         self.reply_timeout_s = float(reply_timeout_s)
         self.heap_out = heap_out
+        self.recorded = [] if record else None     # per tick: [tick, t_ms, [[pid, src, payload hex], ...]]
         self.K = int(np.ceil(self.duration_s))
         span = float(np.ceil((self.K + 8) / 1000.0) * 1000.0)
         t_s, xs = orbits.truth_samples(truth, span, cache_dir=cache_dir)
@@ -157,6 +158,10 @@ class AdcsSession:
     def _say(self, msg):
         if self.log is not None:
             self.log(msg)
+
+    def config(self):
+        """The firmware's configuration (written to its config.json): parameter file, gains, STKF start."""
+        return self._config()
 
     def _config(self):
         wp = self.wheels.p
@@ -220,6 +225,8 @@ class AdcsSession:
 
     def _send(self, pid, src, payload):
         self.link.send_raw(pid, src, N["ADCS"], payload)
+        if self.recorded is not None:
+            self._rec.append([pid, src, payload.hex()])
 
     # --- faults ---------------------------------------------------------------------------------------
     def _fault(self, name, t):
@@ -247,6 +254,7 @@ class AdcsSession:
         k, sc = self.k, self.sc
         t = float(k)
         t_ms = int(round(t * 1000))
+        self._rec = []
         dead = self.faults["wheel_silent"][0] if self._fault("wheel_silent", t) else -1
         if dead >= 0:
             self.wheels.command(dead, 0.0, False)          # the node is dead: its driver stops, the rotor coasts
@@ -283,6 +291,8 @@ class AdcsSession:
             P["BEACON"], t_ms=t_ms, ux=float(y[0]), uy=float(y[1]), uz=float(y[2]), valid=0 if lost else 1))
         self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"],
                            core.encode_payload(P["ADCS_TICK"], tick=k, t_ms=t_ms))
+        if self.recorded is not None:
+            self.recorded.append([k, t_ms, self._rec])
 
     def _await(self):
         """RW_CMDs and ADCS_STATUS of tick k (None if late)."""

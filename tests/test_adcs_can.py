@@ -194,3 +194,26 @@ def test_fault_beacon_lost():
     assert "BEACON" in st["stale_names"] and st["adcs_mode_name"] == "DEGRADED"
     assert st["n_beacon_invalid"] == 18 and st["miss_beacon"] == 0
     assert cycles[11]["status"]["n_beacon_invalid"] == 0
+
+
+def test_replay_of_a_session_gives_its_status_under_micropython_and_cpython(tmp_path):
+    """The sensor bursts a session sent, replayed through the application without CAN, give the status the
+    firmware process sent (same runtime: equal; the other runtime: within float32 tolerance)."""
+    import json
+    with AdcsSession(runtime="micropython" if os.path.exists(MICROPYTHON) else "cpython", duration_s=40,
+                     hold_s=20.0, record=True) as s:
+        for _ in range(40):
+            last = s.cycle()["status"]
+        cfg, rec = s.config(), s.recorded
+    (tmp_path / "cfg.json").write_text(json.dumps(cfg))
+    (tmp_path / "rec.json").write_text(json.dumps(rec))
+    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen", PYTHONPATH=ROOT)
+    script = os.path.join(ROOT, "tests", "mp", "firmware_adcs_app.py")
+    for exe in [sys.executable] + ([MICROPYTHON] if os.path.exists(MICROPYTHON) else []):
+        p = subprocess.run([exe, script, str(tmp_path / "cfg.json"), str(tmp_path / "rec.json")], cwd=ROOT,
+                           env=env, capture_output=True, text=True, timeout=120)
+        assert p.returncode == 0, p.stderr
+        st = json.loads(p.stdout.strip().splitlines()[-1])["status"]
+        assert st["adcs_mode"] == last["adcs_mode"] and st["stale"] == last["stale"]
+        for k in ("q0", "q1", "q2", "q3", "rax", "rbx"):
+            assert st[k] == pytest.approx(last[k], rel=1e-5, abs=1e-6), k

@@ -217,3 +217,12 @@ def test_replay_of_a_session_gives_its_status_under_micropython_and_cpython(tmp_
         assert st["adcs_mode"] == last["adcs_mode"] and st["stale"] == last["stale"]
         for k in ("q0", "q1", "q2", "q3", "rax", "rbx"):
             assert st[k] == pytest.approx(last[k], rel=1e-5, abs=1e-6), k
+
+
+def test_session_with_satb_relayed_gnss_fuses_the_late_fixes():
+    """SatB's GNSS, relayed 2-3 s late, goes through the AFLS (nodes generated at its time tags)."""
+    cycles, summary, _ = _run(20, satb_gnss=True)
+    _check_intact(cycles, summary, 20)
+    st = cycles[-1]["status"]
+    assert st["n_gnss_b"] >= 15 and "GNSS_B" not in st["stale_names"] and st["adcs_mode_name"] == "HOLD"
+    assert np.linalg.norm(cycles[-1]["est"]["rb"] - cycles[-2]["rb"][-1]) < 100.0   # from a 4 km prior

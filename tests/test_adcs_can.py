@@ -226,3 +226,13 @@ def test_session_with_satb_relayed_gnss_fuses_the_late_fixes():
     st = cycles[-1]["status"]
     assert st["n_gnss_b"] >= 15 and "GNSS_B" not in st["stale_names"] and st["adcs_mode_name"] == "HOLD"
     assert np.linalg.norm(cycles[-1]["est"]["rb"] - cycles[-2]["rb"][-1]) < 100.0   # from a 4 km prior
+
+
+def test_session_refuses_to_cycle_before_start_and_close_is_idempotent():
+    s = AdcsSession(runtime="cpython", duration_s=5)
+    with pytest.raises(OSError, match="not started"):
+        s.cycle()
+    s.close()
+    s.close()
+    with pytest.raises(ValueError, match="parameter file"):
+        AdcsSession(runtime="cpython", duration_s=5, params={"format": "nope"})

@@ -236,3 +236,38 @@ def test_session_refuses_to_cycle_before_start_and_close_is_idempotent():
     s.close()
     with pytest.raises(ValueError, match="parameter file"):
         AdcsSession(runtime="cpython", duration_s=5, params={"format": "nope"})
+
+
+def test_fps_adcs_can_writes_a_run_folder_and_refuses_bad_input(tmp_path):
+    import json
+    from ground import cli
+    out = tmp_path / "run"
+    rc = cli.main(["adcs", "can", "--duration", "12", "--runtime", "cpython", "--beacon-lost", "1", "--quiet",
+                   "-o", str(out)])
+    assert rc == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["complete"] and s["cycles"] == 12 and s["last_mode"] == "DEGRADED"
+    assert s["firmware_missed"]["beacon_invalid"] == 11 and "pointing" not in s      # too short to settle
+    h = np.load(out / "history.npz")
+    assert h["t"].shape == (120,) and h["dtheta_arcsec"].shape == (120, 2) and h["status_tick"].tolist() == list(range(12))
+    assert (out / "pointing.png").stat().st_size > 0
+    for bad in (["--wheel-silent", "7:3"], ["--gnss-outage", "50"], ["--duration", "0"]):
+        assert cli.main(["adcs", "can", "--runtime", "cpython", "--quiet", "-o", str(tmp_path / "b")] + bad) == 2
+
+
+def test_fps_adcs_can_interrupted_leaves_a_valid_partial_folder(tmp_path, monkeypatch):
+    import json
+    from emulator import adcs_session
+    from ground import cli
+    real = adcs_session.AdcsSession.cycle
+
+    def cycle(self):
+        if self.k == 5:
+            raise KeyboardInterrupt
+        return real(self)
+    monkeypatch.setattr(adcs_session.AdcsSession, "cycle", cycle)
+    out = tmp_path / "run"
+    assert cli.main(["adcs", "can", "--duration", "30", "--runtime", "cpython", "--quiet", "-o", str(out)]) == 130
+    s = json.loads((out / "summary.json").read_text())
+    assert s["complete"] is False and s["cycles"] == 5
+    assert np.load(out / "history.npz")["t"].shape == (50,)

@@ -19,6 +19,9 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
    (Eq. 6.11) plus friction compensation;
 5. RW_CMD to each wheel, then ADCS_STATUS (mode, stale sensors, missed replies, estimates).
 
+The smoother's lag (4 s, ``lag_s``) is kept only with SatB's GNSS: without it no measurement arrives late, so
+the AFLS holds two nodes (lag 0), which keeps its joint covariance at 24 x 24.
+
 Degraded operation: a sensor that misses its cycle is counted and the filters propagate without it; a wheel
 whose RW_TLM is missed 3 cycles in a row is declared failed, its column leaves the torque allocation (the other
 three span the body axes) and its read-out is held for the APKF; the mode is DEGRADED while a wheel has

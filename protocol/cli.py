@@ -24,6 +24,7 @@ _ENUMS = {
     "action": dict((a[0], a[1]) for a in table.PLAYER_ACTIONS),
     "code": dict((e[0], e[1]) for e in table.ERRORS),
     "why": dict((r[0], r[1]) for r in table.SAFE_REASONS),
+    "adcs_mode": dict((m[0], m[1]) for m in table.ADCS_MODES),
 }
 
 
@@ -128,6 +129,10 @@ def table_markdown():
     L += ["| %d | %s |" % (m[1], m[0]) for m in table.MODES]
     L += ["", "## Why the controller entered SAFE (CTRL_STATUS.why)", "", "| value | reason |", "|---|---|"]
     L += ["| %d | %s |" % (r[1], r[0]) for r in table.SAFE_REASONS]
+    L += ["", "## ADCS modes (ADCS_STATUS.adcs_mode)", "", "| value | mode |", "|---|---|"]
+    L += ["| %d | %s |" % (m[1], m[0]) for m in table.ADCS_MODES]
+    L += ["", "## ADCS stale bits (ADCS_STATUS.stale)", "", "| bit | sensor |", "|---|---|"]
+    L += ["| %d | %s |" % (b[1], b[0]) for b in table.ADCS_STALE]
     L += ["", "## Player actions", "", "| value | action |", "|---|---|"]
     L += ["| %d | %s |" % (a[1], a[0]) for a in table.PLAYER_ACTIONS]
     L += ["", "Upload chunks carry %d data bytes." % table.CHUNK_BYTES, "", "## Packets", "",

@@ -52,6 +52,13 @@ ERRORS = (
     ("BUSY", 8, "node busy"),
 )
 
+# ADCS flight software modes (ADCS_STATUS.adcs_mode).
+ADCS_MODES = (("INIT", 0), ("HOLD", 1), ("POINT", 2), ("DEGRADED", 3))
+
+# ADCS_STATUS.stale bits: the sensor gave nothing usable this cycle (missed, invalid or too old).
+ADCS_STALE = (("STARTRACKER", 0), ("GNSS_A", 1), ("GNSS_B", 2), ("BEACON", 3), ("RW0", 4), ("RW1", 5),
+              ("RW2", 6), ("RW3", 7))
+
 # Player actions (PLAYER_CTRL.action).
 PLAYER_ACTIONS = (("STOP", 0), ("START", 1), ("LOOP", 2), ("ONESHOT", 3))
 
@@ -200,5 +207,43 @@ PACKETS = (
         ("uy", "f", "", 1, -1.0, 1.0, 0.0, "unit vector y"),
         ("uz", "f", "", 1, -1.0, 1.0, 1.0, "unit vector z"),
         ("valid", "B", "", 1, 0, 1, 1, "1 = beacon in view"),
+    )),
+    (0x45, "ADCS_TICK", "SPACECRAFT", "ADCS",
+     "lockstep: the sensor burst of this 1 Hz cycle is complete, run the cycle (emulated spacecraft only)", (
+        ("tick", "I", "", 1, None, None, 0, "ADCS cycle number"),
+        ("t_ms", "I", "ms", 1, None, None, 0, "virtual time of the sensor burst"),
+    )),
+    (0x46, "ADCS_STATUS", "ADCS", "*", "ADCS status, once per 1 Hz cycle after the wheel commands", (
+        ("tick", "I", "", 1, None, None, 0, "ADCS cycle this status closes"),
+        ("adcs_mode", "B", "", 1, 0, 3, 0, "see ADCS_MODES"),
+        ("stale", "B", "", 1, None, None, 0, "sensors without a usable reading this cycle, see ADCS_STALE"),
+        ("wheels_failed", "B", "", 1, 0, 15, 0, "bit i: wheel i declared failed (3 missed replies in a row)"),
+        ("miss_rw0", "H", "", 1, None, None, 0, "RW_TLM replies of wheel 0 missed by their deadline (wraps)"),
+        ("miss_rw1", "H", "", 1, None, None, 0, "RW_TLM replies of wheel 1 missed (wraps)"),
+        ("miss_rw2", "H", "", 1, None, None, 0, "RW_TLM replies of wheel 2 missed (wraps)"),
+        ("miss_rw3", "H", "", 1, None, None, 0, "RW_TLM replies of wheel 3 missed (wraps)"),
+        ("miss_st", "H", "", 1, None, None, 0, "cycles without a STARTRACKER packet (wraps)"),
+        ("miss_gnss", "H", "", 1, None, None, 0, "cycles without SatA's GNSS (wraps)"),
+        ("miss_beacon", "H", "", 1, None, None, 0, "cycles without a BEACON packet (wraps)"),
+        ("n_st_invalid", "H", "", 1, None, None, 0, "STARTRACKER packets flagged invalid (wraps)"),
+        ("n_beacon_invalid", "H", "", 1, None, None, 0, "BEACON packets flagged invalid (wraps)"),
+        ("n_gnss_b", "H", "", 1, None, None, 0, "SatB GNSS fixes fused (wraps)"),
+        ("n_rx_drop", "H", "", 1, None, None, 0, "CAN frames or ISO-TP transfers dropped (wraps)"),
+        ("gnss_age_s", "H", "s", 1, None, None, 0, "age of SatA's newest GNSS fix (65535 = never)"),
+        ("q0", "f", "", 1, None, None, 0.0, "estimated attitude, quaternion x"),
+        ("q1", "f", "", 1, None, None, 0.0, "quaternion y"),
+        ("q2", "f", "", 1, None, None, 0.0, "quaternion z"),
+        ("q3", "f", "", 1, None, None, 1.0, "quaternion scalar"),
+        ("wx", "f", "rad/s", 1, None, None, 0.0, "estimated body rate x"),
+        ("wy", "f", "rad/s", 1, None, None, 0.0, "estimated body rate y"),
+        ("wz", "f", "rad/s", 1, None, None, 0.0, "estimated body rate z"),
+        ("rax", "f", "m", 1, None, None, 0.0, "estimated SatA position x, J2000"),
+        ("ray", "f", "m", 1, None, None, 0.0, "estimated SatA position y"),
+        ("raz", "f", "m", 1, None, None, 0.0, "estimated SatA position z"),
+        ("rbx", "f", "m", 1, None, None, 0.0, "estimated SatB position x, J2000"),
+        ("rby", "f", "m", 1, None, None, 0.0, "estimated SatB position y"),
+        ("rbz", "f", "m", 1, None, None, 0.0, "estimated SatB position z"),
+        ("att_sigma", "f", "rad", 1, None, None, 0.0, "APKF attitude 1 sigma, sqrt(trace 4 P_qq)"),
+        ("cycle_us", "I", "us", 1, None, None, 0, "time the cycle took on this computer"),
     )),
 )

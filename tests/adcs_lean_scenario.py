@@ -14,28 +14,10 @@ from emulator.spacecraft import environment as env
 from emulator.spacecraft.environment import M_DIPOLE_THESIS
 from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import Spacecraft, quat_mul
-from emulator.spacecraft.scenario import SCENARIO_WHEELS
-from emulator.spacecraft.wheels import (DELTA1_DEG_THESIS, DELTA2_DEG_THESIS, Wheels, WheelParams,
-                                        misalignment_axes, pyramid_c0)
+from emulator.spacecraft.scenario import SCENARIO_WHEELS, truth_params  # noqa: F401 (used by the tests)
+from emulator.spacecraft.wheels import Wheels, WheelParams
 
 RPM = 2 * np.pi / 60
-
-
-def truth_params(sc):
-    """The parameter file of a perfect calibration: the spacecraft's own J, misalignment, dipole; Jrw scaled so
-    that the filter's unnormalised C Jrw (Eq. 4.60) equals the true normalised axes times the true Jrw."""
-    j = sc.j
-    w = sc.wheels
-    d1, d2 = np.radians(DELTA1_DEG_THESIS), np.radians(DELTA2_DEG_THESIS)
-    c0 = pyramid_c0()
-    c1, c2 = misalignment_axes(c0)
-    cn = np.linalg.norm(c0 + c1 * d1 + c2 * d2, axis=0)
-    jrw = np.asarray(w.p.j_rw, float) / cn
-    return {"format": "fps-bps-params/1", "wheels": 4, "jxx_ref_kgm2": float(j[0, 0]), "torque_scale": 1.0,
-            "x": {"tau_d_nm": [0.0, 0.0, 0.0], "J5_kgm2": [j[1, 1], j[2, 2], j[0, 1], j[0, 2], j[1, 2]],
-                  "dipole_am2": list(map(float, sc.dipole)), "delta1_rad": d1.tolist(), "delta2_rad": d2.tolist(),
-                  "jrw_kgm2": jrw.tolist()},
-            "P": np.diag(np.full(23, 1e-12)).tolist(), "calibration": {"seed": -1, "sets": 0, "duration_s": 0}}
 
 
 def scenario(seconds, seed=0, dt_truth=0.25, ts=33.0, tach_rpm=None):

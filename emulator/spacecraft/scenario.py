@@ -241,3 +241,33 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
     return out
 
 
+
+
+class GridOrbit:
+    """An orbit given on a uniform time grid (rate_hz samples from t0): ``position(t)`` is the nearest
+    sample (the caller interpolated the grid finely enough, as ground/adcs/bps.py does at 20 Hz)."""
+
+    def __init__(self, t0, rate_hz, r):
+        self.t0, self.rate, self.r = float(t0), float(rate_hz), r
+
+    def position(self, t):
+        i = int(round((t - self.t0) * self.rate))
+        return self.r[min(max(i, 0), len(self.r) - 1)]
+
+
+def truth_params(sc):
+    """The parameter file a perfect calibration would write for spacecraft ``sc`` (ground/adcs/bps.py format):
+    its own J, wheel misalignment (the thesis's deltas) and dipole; Jrw scaled so that the filter's
+    unnormalised C Jrw (Eq. 4.60) equals the true normalised axes times the true Jrw."""
+    from emulator.spacecraft.wheels import DELTA1_DEG_THESIS, DELTA2_DEG_THESIS, misalignment_axes, pyramid_c0
+    j = sc.j
+    d1, d2 = np.radians(DELTA1_DEG_THESIS), np.radians(DELTA2_DEG_THESIS)
+    c0 = pyramid_c0()
+    c1, c2 = misalignment_axes(c0)
+    cn = np.linalg.norm(c0 + c1 * d1 + c2 * d2, axis=0)
+    jrw = np.asarray(sc.wheels.p.j_rw, float) / cn
+    return {"format": "fps-bps-params/1", "wheels": 4, "jxx_ref_kgm2": float(j[0, 0]), "torque_scale": 1.0,
+            "x": {"tau_d_nm": [0.0, 0.0, 0.0], "J5_kgm2": [float(v) for v in (j[1, 1], j[2, 2], j[0, 1], j[0, 2], j[1, 2])],
+                  "dipole_am2": [float(v) for v in sc.dipole], "delta1_rad": d1.tolist(), "delta2_rad": d2.tolist(),
+                  "jrw_kgm2": jrw.tolist()},
+            "P": np.diag(np.full(23, 1e-12)).tolist(), "calibration": {"seed": -1, "sets": 0, "duration_s": 0}}

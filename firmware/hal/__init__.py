@@ -13,7 +13,9 @@ Backends, imported lazily by name so a missing module breaks only its own backen
 - ``link``    ``serve_controller``/``serve_player``: the same I/O carried over the protocol (TICK in,
               FSM_SPI out) on a serial device or pty (``protocol.stream``) or, under CPython, any
               ``protocol.link`` spec (CAN via slcan);
-- ``inproc``  ``BenchHal``: direct calls into the emulator's Bench, for speed.
+- ``inproc``  ``BenchHal``: direct calls into the emulator's Bench, for speed;
+- ``slcan``   ``SlcanAdapter``/``CanPort``: CAN frames as the serial-CAN adapter's side of Lawicel on a pty
+              (the ADCS on CAN; a board's ``machine.CAN`` backend replaces the adapter).
 """
 
 
@@ -25,6 +27,8 @@ def backend(name):
         from firmware.hal import link as m
     elif name == "inproc":
         from firmware.hal import inproc as m
+    elif name == "slcan":
+        from firmware.hal import slcan as m
     else:
-        raise ValueError("unknown HAL backend %r (board, link, inproc)" % (name,))
+        raise ValueError("unknown HAL backend %r (board, link, inproc, slcan)" % (name,))
     return m

@@ -109,7 +109,12 @@ def _sweep(sub):
     bps_cli.register_sweep(sub)
 
 
-SUBCOMMANDS = [_apkf, _mekf, _stkf, _bps, _sweep]
+def _can(sub):
+    from ground.adcs import can_cli
+    can_cli.register(sub)
+
+
+SUBCOMMANDS = [_apkf, _mekf, _stkf, _bps, _sweep, _can]
 
 
 def register(sub, name, help_):

@@ -1,0 +1,441 @@
+"""The emulated spacecraft serving its devices on CAN to the ADCS flight software in a separate process.
+
+Contract: /work/helpers/ADCS_SESSION_API.md (``AdcsSession``: start, cycle, summary, close).
+
+The wire: a pseudo-terminal. The firmware (``firmware/adcs/main_can.py``, under ``micropython`` or CPython)
+holds the master and plays the serial-CAN adapter's side of Lawicel (``firmware/hal/slcan.py``); this side
+opens python-can's ``slcan`` interface on the slave (``protocol.link.open_link("slcan:PATH")``), with
+can-isotp for the payloads over 8 bytes. Devices: RW0..RW3 (RW_CMD -> RW_TLM), STARTRACKER, GNSS (SatA, and
+SatB's fixes relayed 2-3 s late when ``satb_gnss``), BEACON; the emulator is node SPACECRAFT.
+
+Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s):
+
+1. burst for t_k (sent at the end of the previous cycle, or by ``start``): the RW_TLM of each wheel that was
+   commanded (its reply, with the speed at t_k: the reply's deadline is the next tick) or at k = 0 the first
+   read-out; STARTRACKER, GNSS A, due GNSS B, BEACON (ISO-TP); then ADCS_TICK(k, t_k) last;
+2. the firmware runs its cycle on what arrived before the tick and sends RW_CMD x4 and ADCS_STATUS(k);
+3. this side waits for ADCS_STATUS(k) (``reply_timeout_s`` of wall time; missing = a late cycle, the wheels
+   keep their last command as a driver would), applies the commands, steps the dynamics 10 x 0.1 s;
+4. k + 1: the next burst.
+
+A device reply the firmware misses by its tick is counted by the firmware (ADCS_STATUS counters); a wheel
+that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``). Faults (``faults`` dict):
+``wheel_silent`` [i, t0]: from t0 wheel i's node is dead (no RW_TLM, commands ignored, the rotor coasts);
+``startracker_blind`` [t0, t1]: the star tracker answers "no solution" (valid 0); ``gnss_outage`` [t0, t1]:
+no GNSS fix of SatA (SatB's relay too); ``beacon_lost`` t0: the beacon answers "not in view" (valid 0).
+
+Truth (as ground/adcs/bps.py): orbits of ``emulator.orbits`` (two-body by default, brahe ``hpop`` on request)
+on a 20 Hz grid by 10th-order Lagrange, the spacecraft of ``emulator.spacecraft`` (RK4 at 0.1 s) from
+q = [0, 0, 0, 1] at rest, the star tracker, GNSS, beacon and relay of ``emulator.navsensors``; the parameter
+file of a perfect calibration (``emulator.spacecraft.scenario.truth_params``) unless one is given.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import tty
+
+import numpy as np
+
+from emulator import orbits
+from emulator.navsensors import Beacon, Gnss, Relay
+from emulator.spacecraft import scenario
+from emulator.spacecraft.devices import StarTracker
+from emulator.spacecraft.dynamics import Spacecraft, dcm
+from emulator.spacecraft.wheels import N_WHEELS, Wheels, WheelParams
+from protocol import core, table
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
+RUNTIMES = ("micropython", "cpython")
+FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
+P0_DIAG = [4e3 ** 2] * 3 + [100.0 ** 2] * 3 + [4e3 ** 2] * 3 + [100.0 ** 2] * 3   # Sec. 5.5.1
+LAG_S = 4.0
+HOLD_S = 30.0
+RATE = 20            # Hz, the orbit grid (RK4 mid-steps at 0.05 s)
+MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
+STALE_BITS = table.ADCS_STALE
+
+P = core.PACKET_ID
+N = core.NODE
+RW_NODES = tuple(N["RW%d" % i] for i in range(N_WHEELS))
+
+
+def check_faults(faults, duration_s):
+    """Validate the faults dict (see the module docstring); returns a normalised copy."""
+    if faults is None:
+        return {}
+    if not isinstance(faults, dict):
+        raise ValueError("faults must be a dict with keys among %s" % ", ".join(FAULTS))
+    out = {}
+    for k, v in faults.items():
+        if k not in FAULTS:
+            raise ValueError("unknown fault %r (known: %s)" % (k, ", ".join(FAULTS)))
+        try:
+            if k == "beacon_lost":
+                out[k] = float(v)
+                ok = np.isfinite(out[k]) and out[k] >= 0
+            elif k == "wheel_silent":
+                i, t0 = int(v[0]), float(v[1])
+                out[k] = [i, t0]
+                ok = 0 <= i < N_WHEELS and np.isfinite(t0) and t0 >= 0 and float(v[0]) == i and len(v) == 2
+            else:
+                t0, t1 = float(v[0]), float(v[1])
+                out[k] = [t0, t1]
+                ok = len(v) == 2 and np.isfinite(t0) and np.isfinite(t1) and 0 <= t0 < t1
+        except (TypeError, ValueError, IndexError):
+            ok = False
+        if not ok:
+            raise ValueError("fault %s = %r: expected %s" % (k, v, {
+                "wheel_silent": "[wheel 0-3, t0_s >= 0]", "beacon_lost": "t0_s >= 0"}.get(k, "[t0_s, t1_s], 0 <= t0 < t1")))
+    return out
+
+
+class AdcsSession:
+    """See the module docstring and ADCS_SESSION_API.md. Extra keywords: ``truth`` ("two-body" or "hpop"),
+    ``cache_dir`` (orbit truth cache), ``hold_s``, ``reply_timeout_s`` (wall seconds a cycle may take),
+    ``heap_out`` (micropython: a JSON file of the heap bytes per cycle, written when the firmware exits)."""
+
+    def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
+                 params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=HOLD_S,
+                 reply_timeout_s=30.0, heap_out=None, record=False):
+        if runtime not in RUNTIMES:
+            raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
+        if not (np.isfinite(duration_s) and duration_s >= 1):
+            raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
+        if not (np.isfinite(ts) and ts > 0):
+            raise ValueError("settling time ts must be > 0 s, got %r" % (ts,))
+        if truth not in orbits.TRUTHS:
+            raise ValueError("truth %r not one of %s" % (truth, ", ".join(orbits.TRUTHS)))
+        self.runtime, self.satb, self.seed = runtime, bool(satb_gnss), int(seed)
+        self.duration_s, self.ts, self.hold_s = float(duration_s), float(ts), float(hold_s)
+        self.faults = check_faults(faults, duration_s)
+        self.log = log
+        self.reply_timeout_s = float(reply_timeout_s)
+        self.heap_out = heap_out
+        self.recorded = [] if record else None     # per tick: [tick, t_ms, [[pid, src, payload hex], ...]]
+        self.K = int(np.ceil(self.duration_s))
+        span = float(np.ceil((self.K + 8) / 1000.0) * 1000.0)
+        t_s, xs = orbits.truth_samples(truth, span, cache_dir=cache_dir)
+        from ground.resample import lagrange      # the interpolation of Sec. 6.4.1 (numpy)
+        tg = np.arange(0, (self.K + 1) * RATE + 1) / RATE
+        self.xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)
+        ss = np.random.SeedSequence(self.seed)
+        r_rw, r_st, r_init, r_ga, r_gb, r_bc, r_rel = [np.random.default_rng(s) for s in ss.spawn(7)]
+        from emulator.spacecraft.scenario import GridOrbit
+        self.wheels = Wheels(WheelParams(**scenario.SCENARIO_WHEELS), rng=r_rw)
+        self.sc = Spacecraft(wheels=self.wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0),
+                             orbit=GridOrbit(0.0, RATE, self.xg[:, 0, 0:3]))
+        self.st = StarTracker(r_st)
+        self.gnss_a, self.beacon = Gnss(r_ga), Beacon(r_bc)
+        self.relay = Relay(r_rel, Gnss(r_gb)) if self.satb else None
+        if self.satb:
+            self.tb = r_rel.uniform(0.0, 1.0) + np.arange(self.K + 1)
+            self.xb_tb = lagrange(t_s, xs[:, 1, :], self.tb, order=10)
+        self.jb = 0
+        self.params = scenario.truth_params(self.sc) if params is None else _load_params(params)
+        self.stkf_x0 = (self.xg[0].ravel() + np.sqrt(P0_DIAG) * r_init.standard_normal(12)).tolist()
+        self.k = 0
+        self.proc = None
+        self.link = None
+        self._tmp = None
+        self._cmd = [None] * N_WHEELS            # RW_CMD payload received this cycle
+        self._commanded = [True] * N_WHEELS      # a reply (RW_TLM) is due in the next burst
+        self.n_late = 0
+        self.missed_rw_cmd = [0] * N_WHEELS
+        self.fault_log = []
+        self.last_status = None
+        self._mode = None
+        self._active = set()
+        self.wall_s = 0.0
+        self.closed = False
+
+    # --- process and link -----------------------------------------------------------------------------
+    def _say(self, msg):
+        if self.log is not None:
+            self.log(msg)
+
+    def config(self):
+        """The firmware's configuration (written to its config.json): parameter file, gains, STKF start."""
+        return self._config()
+
+    def _config(self):
+        wp = self.wheels.p
+        return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
+                "stkf_x0": self.stkf_x0, "stkf_P0": P0_DIAG, "lag_s": LAG_S, "cap": 8,
+                "torque_max": wp.torque_max,
+                "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
+                "beacon_sigma_arcsec": self.beacon.sigma / orbits_arcsec(), "gnss_sigma": [30.0, 1.0]}
+
+    def start(self):
+        """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""
+        from protocol import link as hostlink
+        from ground.runtime import micropython_binary
+        self._tmp = tempfile.mkdtemp(prefix="fps-adcs-")
+        cfg = os.path.join(self._tmp, "config.json")
+        with open(cfg, "w") as fh:
+            json.dump(self._config(), fh)
+        m, s = os.openpty()
+        tty.setraw(s)
+        os.set_blocking(m, False)
+        path = os.ttyname(s)
+        extra = [self.heap_out] if self.heap_out else []
+        if self.runtime == "micropython":
+            cmd = [micropython_binary(), "-X", "heapsize=64M", MAIN, str(m), cfg] + extra
+            env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
+        else:
+            cmd = [sys.executable, MAIN, str(m), cfg] + extra
+            env = dict(os.environ, PYTHONPATH=ROOT)
+        self._err = open(os.path.join(self._tmp, "stderr.txt"), "w+")
+        try:
+            self.proc = subprocess.Popen(cmd, pass_fds=(m,), cwd=ROOT, env=env, stdout=self._err,
+                                         stderr=subprocess.STDOUT)
+        finally:
+            os.close(m)
+        try:
+            self.link = hostlink.open_link("slcan:" + path, "SPACECRAFT", bitrate=1000000,
+                                           accept=("RW0", "RW1", "RW2", "RW3", "STARTRACKER", "GNSS", "BEACON"))
+        finally:
+            os.close(s)
+        deadline = time.monotonic() + 30.0
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or self.proc.poll() is not None or self.link.closed:
+                err = self._stderr()
+                self.close()
+                raise OSError("ADCS firmware (%s) did not start: %s" % (self.runtime, err or "no HELLO in 30 s"))
+            if any(p[0] == P["HELLO"] for p in self.link.recv(min(left, 0.5))):
+                break
+        self._say("ADCS firmware up (%s, pid %d), CAN over slcan on %s" % (self.runtime, self.proc.pid, path))
+        self._t_wall = time.perf_counter()
+        self._burst()
+        return self
+
+    def _stderr(self):
+        try:
+            self._err.flush()
+            self._err.seek(0)
+            return self._err.read().strip()[-2000:]
+        except (OSError, ValueError):
+            return ""
+
+    def _send(self, pid, src, payload):
+        self.link.send_raw(pid, src, N["ADCS"], payload)
+        if self.recorded is not None:
+            self._rec.append([pid, src, payload.hex()])
+
+    # --- faults ---------------------------------------------------------------------------------------
+    def _fault(self, name, t):
+        f = self.faults.get(name)
+        if f is None:
+            on = False
+        elif name == "beacon_lost":
+            on = t >= f
+        elif name == "wheel_silent":
+            on = t >= f[1]
+        else:
+            on = f[0] <= t < f[1]
+        if on != (name in self._active):
+            (self._active.add if on else self._active.discard)(name)
+            what = "%s %s" % (name, "begins" if on else "ends")
+            if name == "wheel_silent":
+                what += " (wheel %d)" % f[0]
+            self.fault_log.append({"t_s": t, "event": what})
+            self._say("t = %.0f s: fault %s" % (t, what))
+        return on
+
+    # --- the cycle -----------------------------------------------------------------------------------
+    def _burst(self):
+        """Device replies and sensor outputs at t_k, then ADCS_TICK(k)."""
+        k, sc = self.k, self.sc
+        t = float(k)
+        t_ms = int(round(t * 1000))
+        self._rec = []
+        dead = self.faults["wheel_silent"][0] if self._fault("wheel_silent", t) else -1
+        if dead >= 0:
+            self.wheels.command(dead, 0.0, False)          # the node is dead: its driver stops, the rotor coasts
+        speed = self.wheels.read_speed_rpm(sc.omega_rw_rel)
+        for i in range(N_WHEELS):
+            if i != dead and self._commanded[i]:
+                self._send(P["RW_TLM"], RW_NODES[i], core.encode_payload(
+                    P["RW_TLM"], speed=float(speed[i]), torque=float(sc.tau_motor[i])))
+            self._commanded[i] = False
+        qm, ok = self.st.measure(sc.q, sc.omega)
+        if self._fault("startracker_blind", t):
+            ok = False
+        if not ok:
+            qm = np.array([0.0, 0.0, 0.0, 1.0])
+        self._send(P["STARTRACKER"], N["STARTRACKER"], core.encode_payload(
+            P["STARTRACKER"], t_ms=t_ms, q0=float(qm[0]), q1=float(qm[1]), q2=float(qm[2]), q3=float(qm[3]),
+            valid=int(ok)))
+        x = self.xg[k * RATE].ravel()
+        outage = self._fault("gnss_outage", t)
+        zg = self.gnss_a.measure(x[0:6])                      # drawn always: streams stay aligned
+        if not outage:
+            self._send(P["GNSS"], N["GNSS"], _gnss_payload(t_ms, 0, zg))
+        if self.relay is not None:
+            while self.jb < self.tb.size and self.tb[self.jb] <= t:
+                self.relay.sample(self.tb[self.jb], self.xb_tb[self.jb])
+                self.jb += 1
+            for tm, z in self.relay.due(t):
+                if not outage:
+                    self._send(P["GNSS"], N["GNSS"], _gnss_payload(int(round(tm * 1000)), 1, z))
+        y = self.beacon.measure_dcm(x[0:3], x[6:9], dcm(sc.q))
+        lost = self._fault("beacon_lost", t)
+        y = y / np.linalg.norm(y)
+        self._send(P["BEACON"], N["BEACON"], core.encode_payload(
+            P["BEACON"], t_ms=t_ms, ux=float(y[0]), uy=float(y[1]), uz=float(y[2]), valid=0 if lost else 1))
+        self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"],
+                           core.encode_payload(P["ADCS_TICK"], tick=k, t_ms=t_ms))
+        if self.recorded is not None:
+            self.recorded.append([k, t_ms, self._rec])
+
+    def _await(self):
+        """RW_CMDs and ADCS_STATUS of tick k (None if late)."""
+        k = self.k
+        deadline = time.monotonic() + self.reply_timeout_s
+        self._cmd = [None] * N_WHEELS
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            for pid, src, dst, seq, payload in self.link.recv(min(left, 0.5)):
+                if pid == P["RW_CMD"] and dst in RW_NODES:
+                    self._cmd[RW_NODES.index(dst)] = payload
+                elif pid == P["ADCS_STATUS"]:
+                    d = core.payload_dict(pid, payload)
+                    if d["tick"] == k:
+                        return d
+            if self.link.closed or self.proc.poll() is not None:
+                raise OSError("ADCS firmware exited at t = %d s (code %s): %s"
+                              % (k, self.proc.poll(), self._stderr() or "no message"))
+
+    def cycle(self):
+        """One 1 s flight-software cycle = 10 dynamics steps of 0.1 s (see the module docstring)."""
+        if self.proc is None:
+            raise OSError("session not started (call start())")
+        if self.k >= self.K:
+            raise ValueError("the session's %d s are done" % self.K)
+        status = self._await()
+        t = float(self.k)
+        dead = self.faults["wheel_silent"][0] if "wheel_silent" in self._active else -1
+        if status is None:
+            self.n_late += 1
+            self._say("t = %.0f s: no ADCS_STATUS within %.0f s (late cycle; wheels hold)" % (t, self.reply_timeout_s))
+            status = {}
+        for i in range(N_WHEELS):
+            pl = self._cmd[i]
+            if i == dead:
+                continue
+            if pl is None:
+                self.missed_rw_cmd[i] += 1
+                continue
+            d = core.payload_dict(P["RW_CMD"], pl)
+            if np.isfinite(d["torque"]) and d["enable"] <= 1:
+                self.wheels.command(i, d["torque"], bool(d["enable"]))
+            self._commanded[i] = True
+        out = {k: np.zeros((10, n)) for k, n in (("q", 4), ("w", 3), ("ra", 3), ("va", 3), ("rb", 3), ("vb", 3))}
+        out["t"] = np.zeros(10)
+        for j in range(10):
+            self.sc.step()
+            g = self.xg[(self.k * 10 + j + 1) * (RATE // 10)]
+            out["t"][j] = self.sc.t
+            out["q"][j], out["w"][j] = self.sc.q, self.sc.omega
+            out["ra"][j], out["va"][j], out["rb"][j], out["vb"][j] = g[0, 0:3], g[0, 3:6], g[1, 0:3], g[1, 3:6]
+        if not np.all(np.isfinite(self.sc.x)):
+            raise FloatingPointError("truth diverged at t = %.1f s" % self.sc.t)
+        if status:
+            status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
+            status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
+            self.last_status = status
+            if status["adcs_mode_name"] != self._mode:
+                self.fault_log.append({"t_s": t, "event": "ADCS mode %s" % status["adcs_mode_name"]})
+                self._say("t = %.0f s: ADCS mode %s -> %s%s" % (t, self._mode, status["adcs_mode_name"],
+                                                                  (" (stale: %s)" % ", ".join(status["stale_names"]))
+                                                                  if status["stale_names"] else ""))
+                self._mode = status["adcs_mode_name"]
+        est = {}
+        if status:
+            est = {"q": np.array([status[n] for n in ("q0", "q1", "q2", "q3")]),
+                   "w": np.array([status[n] for n in ("wx", "wy", "wz")]),
+                   "ra": np.array([status[n] for n in ("rax", "ray", "raz")]),
+                   "rb": np.array([status[n] for n in ("rbx", "rby", "rbz")]),
+                   "att_sigma_rad": status["att_sigma"], "t": t}
+        out["status"], out["est"] = status, est
+        self.k += 1
+        if self.k < self.K:
+            self._burst()
+        self.wall_s = time.perf_counter() - self._t_wall
+        return out
+
+    def summary(self):
+        st = self.last_status or {}
+        return {"runtime": self.runtime, "satb_gnss": self.satb, "seed": self.seed, "ts_s": self.ts,
+                "cycles": self.k, "virtual_s": float(self.k), "wall_s": self.wall_s,
+                "speed_x_realtime": (self.k / self.wall_s) if self.wall_s > 0 else None,
+                "late_cycles": self.n_late, "missed_rw_cmd": list(self.missed_rw_cmd),
+                "firmware_missed": {"rw": [st.get("miss_rw%d" % i) for i in range(N_WHEELS)],
+                                    "startracker": st.get("miss_st"), "gnss": st.get("miss_gnss"),
+                                    "beacon": st.get("miss_beacon"), "st_invalid": st.get("n_st_invalid"),
+                                    "beacon_invalid": st.get("n_beacon_invalid"), "gnss_b_fused": st.get("n_gnss_b"),
+                                    "rx_drops": st.get("n_rx_drop")},
+                "wheels_failed": st.get("wheels_failed"), "last_mode": st.get("adcs_mode_name"),
+                "link": self.link.counters() if self.link is not None else {},
+                "faults": self.faults, "fault_log": list(self.fault_log),
+                "complete": self.k >= self.K}
+
+    def close(self):
+        if self.closed:
+            return
+        self.closed = True
+        if self.link is not None:
+            try:
+                self.link.close()
+            except Exception:   # noqa: BLE001 - a bus already gone must not stop the cleanup
+                pass
+        if self.proc is not None and self.proc.poll() is None:
+            try:
+                self.proc.wait(2.0)          # the firmware leaves when the pty closes
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self._tmp is not None:
+            try:
+                self._err.close()
+            except (OSError, AttributeError):
+                pass
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def orbits_arcsec():
+    return np.pi / (180.0 * 3600.0)
+
+
+def _gnss_payload(t_ms, sat, z):
+    return core.encode_payload(P["GNSS"], t_ms=t_ms & 0xFFFFFFFF, sat=sat, x=int(round(z[0] * 100)),
+                               y=int(round(z[1] * 100)), z=int(round(z[2] * 100)), vx=int(round(z[3] * 1e4)),
+                               vy=int(round(z[4] * 1e4)), vz=int(round(z[5] * 1e4)))
+
+
+def _load_params(params):
+    """A parameter-file dict or path (ground/adcs/bps.py format), checked by the flight side's rules."""
+    from firmware.adcs import apkf_lean
+    if isinstance(params, (str, os.PathLike)):
+        try:
+            with open(params) as fh:
+                params = json.load(fh)
+        except json.JSONDecodeError as exc:
+            raise ValueError("%s: not valid JSON (%s)" % (params, exc)) from None
+    return apkf_lean.check_params(params)

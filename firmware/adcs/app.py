@@ -1,0 +1,574 @@
+"""The ADCS flight application (MicroPython): the 1 Hz cycle that ties the lean APKF, the lean STKF/AFLS and
+the pointing controller together, and its CAN service loop.
+
+One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2):
+
+1. sensors: the wheels' RW_TLM (tachometer read-outs at the cycle's time), the star tracker, SatA's GNSS, the
+   beacon and SatB's relayed GNSS (time-tagged 2-3 s back) received since the last cycle;
+2. lean APKF (attitude, rate, disturbance torque; parameters from the calibration's parameter file), started
+   from the first two valid star-tracker outputs; its orbit and field inputs from the STKF's rA and a tilted
+   dipole field model (the emulator's own model, IGRF-2020 degree 1);
+3. lean STKF/AFLS: predict, SatA's GNSS, the beacon (Eq. 5.13-5.17) with the APKF's attitude covariance
+   4 P_qq in its noise (Eq. 5.15-5.16, Sec. 5.3.3), SatB's GNSS at its time tag (EAFLS);
+4. during the hold (``hold_s``, while the APKF converges) rate damping: -D w plus the gyroscopic and
+   modelled external torques fed forward (not bps.py's idle wheels: with the thesis's residual dipole the body
+   passes the star tracker's 0.1 deg/s within ~6 s of idle wheels, measured, and the filter goes blind);
+   after it the command at SatB (Eq. 6.3-6.4) and
+   its rate (central difference over +-0.5 s of the orbit propagator), quaternion PD (Eq. 6.5-6.7) with the
+   gyroscopic term and the modelled external torque fed forward, saturation, minimum-norm wheel torques
+   (Eq. 6.11) plus friction compensation;
+5. RW_CMD to each wheel, then ADCS_STATUS (mode, stale sensors, missed replies, estimates).
+
+The smoother's lag (4 s, ``lag_s``) is kept only with SatB's GNSS: without it no measurement arrives late, so
+the AFLS holds two nodes (lag 0), which keeps its joint covariance at 24 x 24.
+
+Degraded operation: a sensor that misses its cycle is counted and the filters propagate without it; a wheel
+whose RW_TLM is missed 3 cycles in a row is declared failed, its column leaves the torque allocation (the other
+three span the body axes) and its read-out is held for the APKF; the mode is DEGRADED while a wheel has
+failed or the star tracker, SatA's GNSS or the beacon (or SatB's GNSS when used) has been silent or invalid
+for ``stale_s`` seconds.
+"""
+
+import math
+import struct
+
+from firmware.adcs import apkf_lean, control, linalg, stkf_lean
+from protocol import core, table
+
+MU_EARTH = 3.986004418e14
+R_EARTH = 6371.2e3
+OMEGA_EARTH = 7.2921159e-5
+IGRF2020_DIPOLE_NT = (-29404.8, -1450.9, 4652.5)
+ARCSEC = math.pi / 180.0 / 3600.0
+RPM = 2.0 * math.pi / 60.0
+NW = 4
+FAIL_AFTER = 3
+NEVER = 65535
+
+P_RW_CMD = core.PACKET_ID["RW_CMD"]
+P_RW_TLM = core.PACKET_ID["RW_TLM"]
+P_ST = core.PACKET_ID["STARTRACKER"]
+P_GNSS = core.PACKET_ID["GNSS"]
+P_BEACON = core.PACKET_ID["BEACON"]
+P_TICK = core.PACKET_ID["ADCS_TICK"]
+P_STATUS = core.PACKET_ID["ADCS_STATUS"]
+RW0 = core.NODE["RW0"]
+MODE = dict(table.ADCS_MODES)
+STALE = dict(table.ADCS_STALE)
+_FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_TICK, P_STATUS, P_RW_CMD))
+
+
+def field_dipole(b, r, t, gmst0=0.0):
+    """b (3) = the tilted-dipole field (T, inertial) at r (m) and time t (s): (R/|r|)^3 (3 (m.r^) r^ - m)."""
+    th = gmst0 + OMEGA_EARTH * t
+    c, s = math.cos(th), math.sin(th)
+    g10, g11, h11 = IGRF2020_DIPOLE_NT
+    mx, my, mz = 1e-9 * (c * g11 - s * h11), 1e-9 * (s * g11 + c * h11), 1e-9 * g10
+    rn = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    rx, ry, rz = r[0] / rn, r[1] / rn, r[2] / rn
+    k = (R_EARTH / rn) ** 3
+    d = 3.0 * (mx * rx + my * ry + mz * rz)
+    b[0], b[1], b[2] = k * (d * rx - mx), k * (d * ry - my), k * (d * rz - mz)
+
+
+def dcm(A, q):
+    """A(q) (3 x 3 flat), inertial to body (Eq. 4.7)."""
+    e1, e2, e3, q4 = q[0], q[1], q[2], q[3]
+    A[0] = q4 * q4 + e1 * e1 - e2 * e2 - e3 * e3
+    A[1] = 2 * (e1 * e2 + q4 * e3)
+    A[2] = 2 * (e1 * e3 - q4 * e2)
+    A[3] = 2 * (e1 * e2 - q4 * e3)
+    A[4] = q4 * q4 - e1 * e1 + e2 * e2 - e3 * e3
+    A[5] = 2 * (e2 * e3 + q4 * e1)
+    A[6] = 2 * (e1 * e3 + q4 * e2)
+    A[7] = 2 * (e2 * e3 - q4 * e1)
+    A[8] = q4 * q4 - e1 * e1 - e2 * e2 + e3 * e3
+
+
+def _inv3(M, S):
+    """M = S^-1 for a 3 x 3 (flat); False if singular."""
+    a, b, c, d, e, f, g, h, i = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8]
+    c00, c01, c02 = e * i - f * h, c * h - b * i, b * f - c * e
+    det = a * c00 + b * (f * g - d * i) + c * (d * h - e * g)
+    if not abs(det) > 0.0:
+        return False
+    M[0], M[1], M[2] = c00 / det, c01 / det, c02 / det
+    M[3], M[4], M[5] = (f * g - d * i) / det, (a * i - c * g) / det, (c * d - a * f) / det
+    M[6], M[7], M[8] = (d * h - e * g) / det, (b * g - a * h) / det, (a * e - b * d) / det
+    return True
+
+
+class BeaconWork:
+    def __init__(self, ld):
+        z = stkf_lean.zeros_d
+        self.hb = z(9)
+        self.PHt = z(ld * 3)
+        self.S = z(9)
+        self.Si = z(9)
+        self.K = z(ld * 3)
+        self.r = z(3)
+
+
+def update_beacon(afls, y, A, sigma_b, P_att, w):
+    """The beacon update (Eq. 5.13-5.17) on the AFLS's joint state, at the current node:
+    h = A u, u = (rB - rA)/rho, H = [A Hb,A, 0, -A Hb,A, 0] on the node, Hb,A = (u u^T - I)/rho,
+    R = sigma_b^2 I + [y x] P_att [y x]^T (Eq. 5.15-5.16), K = P H^T S^-1, x += K (y - h), P -= K S K^T.
+    (Thin on purpose: the AFLS's own ``update_beacon`` replaces it once it has one.) False if S is singular."""
+    X, P, ld = afls.X, afls.P, afls.ld
+    m = afls.k * 12
+    dx, dy, dz = X[6] - X[0], X[7] - X[1], X[8] - X[2]
+    rho = math.sqrt(dx * dx + dy * dy + dz * dz)
+    u = (dx / rho, dy / rho, dz / rho)
+    hb = w.hb
+    for i in range(3):                       # hb = A (u u^T - I)/rho
+        for j in range(3):
+            s = 0.0
+            for a in range(3):
+                s += A[i * 3 + a] * (u[a] * u[j] - (1.0 if a == j else 0.0))
+            hb[i * 3 + j] = s / rho
+    PHt = w.PHt                              # PHt[i, a] = sum_j P[i, j] H[a, j]
+    for i in range(m):
+        row = i * ld
+        for a in range(3):
+            s = 0.0
+            for j in range(3):
+                s += (P[row + j] - P[row + 6 + j]) * hb[a * 3 + j]
+            PHt[i * 3 + a] = s
+    S = w.S
+    y0, y1, y2 = y[0], y[1], y[2]
+    sy = (0.0, -y2, y1, y2, 0.0, -y0, -y1, y0, 0.0)
+    for a in range(3):                       # S = H PHt + R
+        for b in range(3):
+            s = 0.0
+            for j in range(3):
+                s += hb[a * 3 + j] * (PHt[j * 3 + b] - PHt[(6 + j) * 3 + b])
+            r = 0.0
+            for i in range(3):
+                for j in range(3):
+                    r += sy[a * 3 + i] * P_att[i * 3 + j] * sy[b * 3 + j]
+            S[a * 3 + b] = s + r + (sigma_b * sigma_b if a == b else 0.0)
+    for a in range(3):
+        for b in range(a + 1, 3):
+            v = 0.5 * (S[a * 3 + b] + S[b * 3 + a])
+            S[a * 3 + b] = S[b * 3 + a] = v
+    if not _inv3(w.Si, S):
+        return False
+    Si, K, r = w.Si, w.K, w.r
+    for a in range(3):
+        r[a] = y[a] - (A[a * 3] * u[0] + A[a * 3 + 1] * u[1] + A[a * 3 + 2] * u[2])
+    for i in range(m):
+        for b in range(3):
+            s = 0.0
+            for a in range(3):
+                s += PHt[i * 3 + a] * Si[a * 3 + b]
+            K[i * 3 + b] = s
+    for i in range(m):
+        X[i] = X[i] + K[i * 3] * r[0] + K[i * 3 + 1] * r[1] + K[i * 3 + 2] * r[2]
+    for i in range(m):                        # P -= K PHt^T (= K S K^T), symmetric
+        k0, k1, k2 = K[i * 3], K[i * 3 + 1], K[i * 3 + 2]
+        for j in range(i, m):
+            v = P[i * ld + j] - (k0 * PHt[j * 3] + k1 * PHt[j * 3 + 1] + k2 * PHt[j * 3 + 2])
+            P[i * ld + j] = v
+            P[j * ld + i] = v
+    return True
+
+
+class _OrbitWork:
+    def __init__(self):
+        self.k = stkf_lean.zeros_d(48)
+        self.y = stkf_lean.zeros_d(12)
+
+
+class App:
+    """The ADCS application's state. ``on_packet(pid, src, payload)`` stores a sensor reading;
+    ``cycle(tick, t)`` runs one 1 Hz cycle and returns the wheel torques (``u``, N m) it commands."""
+
+    def __init__(self, cfg):
+        self.params = cfg["params"]
+        self.scale = float(self.params.get("torque_scale", 1.0))
+        self.ts = float(cfg.get("ts", 33.0))
+        self.hold_s = float(cfg.get("hold_s", 30.0))
+        self.stale_s = float(cfg.get("stale_s", 10.0))
+        self.satb = bool(cfg.get("satb_gnss", False))
+        self.torque_max = float(cfg.get("torque_max", 1e-3))
+        self.fric = cfg.get("friction", (2e-6, 2e-10, 1.0 * RPM))   # coulomb, viscous, smoothing rad/s
+        self.sigma_b = float(cfg.get("beacon_sigma_arcsec", 60.0)) * ARCSEC
+        sg = cfg.get("gnss_sigma", (30.0, 1.0))
+        self.Rg = stkf_lean.zeros_d(36)
+        for i in range(6):
+            self.Rg[i * 7] = (sg[0] if i < 3 else sg[1]) ** 2
+        lag = float(cfg.get("lag_s", 4.0)) if self.satb else 0.0
+        self.stkf = stkf_lean.Afls(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=int(cfg.get("cap", 8)))
+        self.bw = BeaconWork(self.stkf.ld)
+        self.ow = _OrbitWork()
+        self.apkf = None
+        self.model = apkf_lean.Model(self.params)      # J, C Jrw for the controller before the APKF starts
+        zeros = linalg.zeros
+        m = self.model
+        self.J = zeros(9)
+        for i in range(9):
+            self.J[i] = m.J[i] / self.scale
+        self.C = zeros(12)                  # normalised axes (3 x 4) and their Jrw
+        self.Cu = zeros(12)                 # the axes in use (failed wheels' columns zero)
+        self.jrw = zeros(4)
+        for i in range(4):
+            n = math.sqrt(sum(m.CJ[r * 4 + i] ** 2 for r in range(3)))
+            self.jrw[i] = n / self.scale
+            for r in range(3):
+                self.C[r * 4 + i] = m.CJ[r * 4 + i] / n
+        self.K = zeros(9)
+        self.D = zeros(9)
+        control.gains(self.K, self.D, self.J, self.ts)
+        self.cw = control.Work(zeros)
+        self.qc = zeros(4)
+        self.qm_, self.qp_ = zeros(4), zeros(4)
+        self.wc = zeros(3)
+        self.tau = zeros(3)
+        self.tff = zeros(3)
+        self.H = zeros(3)
+        self.u = zeros(4)
+        self.A = zeros(9)
+        self.b = zeros(3)
+        self.rmid = zeros(3)
+        self.xo = stkf_lean.zeros_d(12)
+        self.Patt = zeros(9)
+        # sensor inputs of the cycle
+        self.wp = zeros(4)
+        self.rw_got = [False] * NW
+        self.rw_seen = [False] * NW        # any read-out yet
+        self.rw_miss_run = [0] * NW
+        self.rw_expect = [True] * NW       # a reply is due (initial read-out, or a command was sent)
+        self.failed = 0
+        self.qst = zeros(4)
+        self.qst_prev = zeros(4)
+        self.st_got = self.st_valid = self.st_prev_ok = False
+        self.zg = stkf_lean.zeros_d(6)
+        self.gnss_got = False
+        self.gnss_t = -1.0
+        self.yb = zeros(3)
+        self.bc_got = self.bc_valid = False
+        self.zb = [stkf_lean.zeros_d(6) for _ in range(4)]
+        self.tb = [0.0] * 4
+        self.nb = 0
+        # counters and ages
+        self.miss_rw = [0] * NW
+        self.miss_st = self.miss_gnss = self.miss_beacon = 0
+        self.n_st_invalid = self.n_beacon_invalid = self.n_gnss_b = self.n_gnss_b_drop = 0
+        self.last_ok = {"st": 0.0, "gnss": 0.0, "beacon": 0.0, "gnss_b": 0.0}
+        self.stale = 0
+        self.mode = MODE["INIT"]
+        self.t = 0.0
+
+    # --- inputs -----------------------------------------------------------------------------------
+    def on_packet(self, pid, src, payload):
+        if pid == P_RW_TLM:
+            i = src - RW0
+            if 0 <= i < NW:
+                speed, _ = struct.unpack(_FMT[P_RW_TLM], payload)
+                self.wp[i] = speed * RPM
+                self.rw_got[i] = True
+                self.rw_seen[i] = True
+        elif pid == P_ST:
+            t_ms, q0, q1, q2, q3, valid = struct.unpack(_FMT[P_ST], payload)
+            self.st_got = True
+            self.st_valid = bool(valid)
+            q = self.qst
+            q[0], q[1], q[2], q[3] = q0, q1, q2, q3
+        elif pid == P_GNSS:
+            v = struct.unpack(_FMT[P_GNSS], payload)
+            if v[1] == 0:
+                z = self.zg
+                self.gnss_got = True
+            elif self.nb < len(self.zb):
+                z = self.zb[self.nb]
+                self.tb[self.nb] = v[0] / 1000.0
+                self.nb += 1
+            else:
+                self.n_gnss_b_drop += 1
+                return
+            for i in range(3):
+                z[i] = v[2 + i] * 0.01
+                z[3 + i] = v[5 + i] * 1e-4
+        elif pid == P_BEACON:
+            t_ms, ux, uy, uz, valid = struct.unpack(_FMT[P_BEACON], payload)
+            self.bc_got = True
+            self.bc_valid = bool(valid)
+            self.yb[0], self.yb[1], self.yb[2] = ux, uy, uz
+
+    # --- the cycle -------------------------------------------------------------------------------
+    def _wheels_in(self):
+        for i in range(NW):
+            if self.rw_got[i]:
+                self.rw_miss_run[i] = 0
+                if self.failed & (1 << i):
+                    self.failed &= ~(1 << i)        # it answers again: back into the allocation
+            elif self.rw_expect[i]:
+                self.miss_rw[i] += 1
+                self.rw_miss_run[i] += 1
+                if self.rw_miss_run[i] >= FAIL_AFTER:
+                    self.failed |= 1 << i
+        for r in range(3):
+            for i in range(4):
+                self.Cu[r * 4 + i] = 0.0 if self.failed & (1 << i) else self.C[r * 4 + i]
+
+    def _env(self, t):
+        """(r unit, 3 mu/r^3, b_i) at mid-step t - 0.5 from the STKF's rA, vA at t - 1."""
+        X = self.stkf.X
+        r = self.rmid
+        for i in range(3):
+            r[i] = X[i] + 0.5 * X[3 + i]
+        rn = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+        field_dipole(self.b, r, t - 0.5)
+        return ((r[0] / rn, r[1] / rn, r[2] / rn), 3.0 * MU_EARTH / (rn * rn * rn), self.b)
+
+    def _apkf(self, t):
+        st_ok = self.st_got and self.st_valid
+        if self.apkf is None:
+            if st_ok and self.st_prev_ok:
+                q, p = self.qst, self.qst_prev       # w0 = rotvec(q (x) p^-1) / 1 s
+                pc = (-p[0], -p[1], -p[2], p[3])
+                dq = linalg.zeros(4)
+                control.quat_mul(dq, q, pc)
+                s = 2.0 if dq[3] >= 0 else -2.0
+                self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp)
+            self.st_prev_ok = st_ok
+            if st_ok:
+                for i in range(4):
+                    self.qst_prev[i] = self.qst[i]
+            return
+        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t))
+
+    def _attitude(self):
+        """(q, P_att 3 x 3): the APKF's, or the star tracker's before it starts."""
+        if self.apkf is not None:
+            P = self.apkf.P
+            for i in range(3):
+                for j in range(3):
+                    self.Patt[i * 3 + j] = 4.0 * P[i * 9 + j]
+            return self.apkf.x
+        for i in range(9):
+            self.Patt[i] = 0.0
+        for i, s in enumerate((20.0, 20.0, 60.0)):
+            self.Patt[i * 4] = (s * ARCSEC) ** 2
+        return self.qst
+
+    def _stkf(self, t, q):
+        f = self.stkf
+        if t > f.now + 1e-9:
+            f.predict(t)
+        if self.gnss_got:
+            f.update_gnss(self.zg, self.Rg, 0)
+        if self.bc_got and self.bc_valid and (self.apkf is not None or self.st_valid):
+            dcm(self.A, q)
+            update_beacon(f, self.yb, self.A, self.sigma_b, self.Patt, self.bw)
+        for j in range(self.nb):
+            if self.satb:
+                try:
+                    f.update_gnss(self.zb[j], self.Rg, 1, t=self.tb[j])
+                    self.n_gnss_b += 1
+                    self.last_ok["gnss_b"] = t
+                except ValueError:                   # older than the smoother's lag
+                    self.n_gnss_b_drop += 1
+        self.nb = 0
+
+    def _command_rate(self):
+        """q_c (Eq. 6.3-6.4) at the STKF state and w_c by a central difference over +-0.5 s."""
+        X, xo, w = self.stkf.X, self.xo, self.ow
+        control.attitude_command(self.qc, X, (X[3], X[4], X[5]), (X[6], X[7], X[8]), self.cw)
+        for sgn, qq in ((-1.0, self.qm_), (1.0, self.qp_)):
+            for i in range(12):
+                xo[i] = X[i]
+            stkf_lean.f(xo, 0, 0.5 * sgn, w)
+            control.attitude_command(qq, xo, (xo[3], xo[4], xo[5]), (xo[6], xo[7], xo[8]), self.cw)
+        dq = self.cw.q1
+        qm = self.qm_
+        control.quat_mul(dq, self.qp_, (-qm[0], -qm[1], -qm[2], qm[3]))
+        s = 2.0 if dq[3] >= 0 else -2.0
+        for i in range(3):
+            self.wc[i] = s * dq[i]        # rotvec / (2 h), 2 h = 1 s
+
+    def _control(self, t):
+        u = self.u
+        for i in range(4):
+            u[i] = 0.0
+        if self.apkf is None:
+            return u
+        x = self.apkf.x
+        q, w = x, (x[4], x[5], x[6])
+        hold = t < self.hold_s
+        if hold:                              # rate damping: q_c = q, w_c = 0
+            for i in range(4):
+                self.qc[i] = q[i]
+            for i in range(3):
+                self.wc[i] = 0.0
+        else:
+            self._command_rate()
+        J, sc, H = self.J, self.scale, self.H
+        for i in range(3):
+            s = J[i * 3] * w[0] + J[i * 3 + 1] * w[1] + J[i * 3 + 2] * w[2]
+            for k in range(4):
+                s += self.C[i * 4 + k] * self.jrw[k] * self.wp[k]
+            H[i] = s
+        # feed-forward: gravity gradient (J), m x b, tau_d (the APKF's model, Eq. 4.68-4.75)
+        dcm(self.A, q)
+        A, X = self.A, self.stkf.X
+        rn = math.sqrt(X[0] * X[0] + X[1] * X[1] + X[2] * X[2])
+        rb = [(A[i * 3] * X[0] + A[i * 3 + 1] * X[1] + A[i * 3 + 2] * X[2]) / rn for i in range(3)]
+        Jr = [J[i * 3] * rb[0] + J[i * 3 + 1] * rb[1] + J[i * 3 + 2] * rb[2] for i in range(3)]
+        g = 3.0 * MU_EARTH / (rn * rn * rn)
+        field_dipole(self.b, X, t)
+        bb = [A[i * 3] * self.b[0] + A[i * 3 + 1] * self.b[1] + A[i * 3 + 2] * self.b[2] for i in range(3)]
+        mm = self.model.m
+        m0, m1, m2 = mm[0] / sc, mm[1] / sc, mm[2] / sc
+        tff = self.tff
+        tff[0] = g * (rb[1] * Jr[2] - rb[2] * Jr[1]) + m1 * bb[2] - m2 * bb[1] + x[7] / sc
+        tff[1] = g * (rb[2] * Jr[0] - rb[0] * Jr[2]) + m2 * bb[0] - m0 * bb[2] + x[8] / sc
+        tff[2] = g * (rb[0] * Jr[1] - rb[1] * Jr[0]) + m0 * bb[1] - m1 * bb[0] + x[9] / sc
+        control.pd_torque(self.tau, q, w, self.qc, self.wc, self.K, self.D, H, tff)
+        control.saturate(self.tau, self.Cu, self.torque_max)
+        control.wheel_torques(u, self.tau, self.Cu)
+        c, v, sm = self.fric
+        for i in range(4):
+            if self.failed & (1 << i):
+                u[i] = 0.0
+            else:
+                wi = self.wp[i]
+                u[i] = u[i] + v * wi + c * math.tanh(wi / sm)
+        return u
+
+    def cycle(self, tick, t):
+        """One 1 Hz cycle at time t (s) on the readings received since the last one; returns u (4, N m)."""
+        self.t = t
+        self._wheels_in()
+        st_ok = self.st_got and self.st_valid
+        if not self.st_got:
+            self.miss_st += 1
+        elif not self.st_valid:
+            self.n_st_invalid += 1
+        if not self.gnss_got:
+            self.miss_gnss += 1
+        if not self.bc_got:
+            self.miss_beacon += 1
+        elif not self.bc_valid:
+            self.n_beacon_invalid += 1
+        self._apkf(t)
+        q = self._attitude()
+        self._stkf(t, q)
+        if st_ok:
+            self.last_ok["st"] = t
+        if self.gnss_got:
+            self.last_ok["gnss"] = t
+            self.gnss_t = t
+        if self.bc_got and self.bc_valid:
+            self.last_ok["beacon"] = t
+        u = self._control(t)
+        # stale bits and mode
+        stale = 0
+        if not st_ok:
+            stale |= 1 << STALE["STARTRACKER"]
+        if not self.gnss_got:
+            stale |= 1 << STALE["GNSS_A"]
+        if self.satb and t - self.last_ok["gnss_b"] > self.stale_s:
+            stale |= 1 << STALE["GNSS_B"]
+        if not (self.bc_got and self.bc_valid):
+            stale |= 1 << STALE["BEACON"]
+        for i in range(NW):
+            if not self.rw_got[i]:
+                stale |= 1 << (STALE["RW0"] + i)
+        self.stale = stale
+        long_gap = False
+        keys = ("st", "gnss", "beacon", "gnss_b") if self.satb else ("st", "gnss", "beacon")
+        for k in keys:
+            if t - self.last_ok[k] >= self.stale_s:
+                long_gap = True
+        if self.apkf is None:
+            self.mode = MODE["INIT"]
+        elif self.failed or long_gap:
+            self.mode = MODE["DEGRADED"]
+        elif t < self.hold_s:
+            self.mode = MODE["HOLD"]
+        else:
+            self.mode = MODE["POINT"]
+        # the next cycle's inputs
+        for i in range(NW):
+            self.rw_got[i] = False
+        self.st_got = self.gnss_got = self.bc_got = False
+        return u
+
+    def status_payload(self, tick, cycle_us=0, n_rx_drop=0):
+        x = self.apkf.x if self.apkf is not None else self.qst
+        w = (x[4], x[5], x[6]) if self.apkf is not None else (0.0, 0.0, 0.0)
+        X = self.stkf.X
+        sig = 0.0
+        if self.apkf is not None:
+            P = self.apkf.P
+            sig = math.sqrt(max(0.0, 4.0 * (P[0] + P[10] + P[20])))
+        age = NEVER if self.gnss_t < 0 else min(NEVER - 1, int(self.t - self.gnss_t))
+        m = self.miss_rw
+        return struct.pack(_FMT[P_STATUS], tick & 0xFFFFFFFF, self.mode, self.stale, self.failed,
+                           m[0] & 0xFFFF, m[1] & 0xFFFF, m[2] & 0xFFFF, m[3] & 0xFFFF,
+                           self.miss_st & 0xFFFF, self.miss_gnss & 0xFFFF, self.miss_beacon & 0xFFFF,
+                           self.n_st_invalid & 0xFFFF, self.n_beacon_invalid & 0xFFFF, self.n_gnss_b & 0xFFFF,
+                           n_rx_drop & 0xFFFF, age, x[0], x[1], x[2], x[3], w[0], w[1], w[2],
+                           X[0], X[1], X[2], X[6], X[7], X[8], sig, cycle_us & 0xFFFFFFFF)
+
+    def commands(self, u):
+        """[(dst, RW_CMD payload)]: a torque to each wheel in use, coast (enable 0) to a failed one. Every
+        wheel is expected to answer by the next tick (a failed one too: it may come back)."""
+        out = []
+        for i in range(NW):
+            en = 0 if self.failed & (1 << i) else 1
+            out.append((RW0 + i, struct.pack(_FMT[P_RW_CMD], u[i] if en else 0.0, en)))
+            self.rw_expect[i] = True
+        return out
+
+
+def _drops(port):
+    d = port.counters()
+    return sum(d.get(k, 0) for k in core.DROP_REASONS) + d.get("isotp_timeouts", 0) + d.get("bad_length", 0)
+
+
+def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
+    """The ADCS on a CAN port until the host leaves: HELLO once the channel is open, then per ADCS_TICK one
+    cycle on what arrived before it, RW_CMD x4 and ADCS_STATUS to the tick's sender. A resent tick (same
+    number) is answered again without a second cycle. ``heap``: callable(tick, bytes) measuring the cycle's
+    heap (gc.mem_alloc deltas, under MicroPython)."""
+    me = port.node
+    hello = core.encode_payload(core.PACKET_ID["HELLO"], node=me, fw_major=1, fw_minor=0)
+    ad = getattr(port, "ad", None)
+    while ad is not None and not ad.is_open and not port.closed:
+        port.recv_ms(100)             # the host opens the channel (O) before any frame can go out
+    port.send_raw(core.PACKET_ID["HELLO"], me, 0xFF, hello)
+    last = -1
+    status = None
+    cmds = ()
+    mem = None
+    if heap is not None:
+        import gc
+        mem = gc
+    while not port.closed:
+        for pid, src, dst, seq, payload in port.recv_ms(poll_ms):
+            if pid != P_TICK:
+                app.on_packet(pid, src, payload)
+                continue
+            tick, t_ms = struct.unpack(_FMT[P_TICK], payload)
+            if tick != last:
+                if tick < last:
+                    continue
+                t0 = ticks_us() if ticks_us else 0
+                if mem is not None:
+                    mem.collect()
+                    mem.disable()
+                    m0 = mem.mem_alloc()
+                u = app.cycle(tick, t_ms / 1000.0)
+                cmds = app.commands(u)
+                if mem is not None:
+                    heap(tick, mem.mem_alloc() - m0)
+                    mem.enable()
+                dt = (ticks_us() - t0) if ticks_us else 0
+                last = tick
+                status = app.status_payload(tick, dt, _drops(port))
+            for dst_w, pl in cmds:
+                port.send_raw(P_RW_CMD, me, dst_w, pl)
+            port.send_raw(P_STATUS, me, src, status)
+    port.close()

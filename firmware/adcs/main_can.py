@@ -1,0 +1,46 @@
+"""Entry point of the ADCS flight software on CAN (MicroPython unix port or CPython):
+
+    micropython firmware/adcs/main_can.py DEVICE CONFIG.json [HEAP_OUT.json]
+
+DEVICE: the slcan adapter's side, a file descriptor number (a non-blocking pty master inherited from the
+emulator) or a path. CONFIG: the parameter file and settings (emulator/adcs_session.py writes it).
+HEAP_OUT: when given, the heap bytes allocated per cycle (gc.mem_alloc deltas) are written there at exit.
+"""
+
+import json
+import sys
+
+from firmware.adcs.app import App, serve
+from firmware.hal.slcan import CanPort, SlcanAdapter
+
+try:
+    from time import ticks_us
+except ImportError:  # CPython
+    import time
+
+    def ticks_us():
+        return int(time.perf_counter() * 1e6)
+
+
+def main(argv):
+    dev = argv[1]
+    dev = int(dev) if dev.isdigit() else dev
+    with open(argv[2]) as fh:
+        cfg = json.load(fh)
+    app = App(cfg)
+    port = CanPort(SlcanAdapter(dev), "ADCS")
+    heap = None
+    samples = []
+    if len(argv) > 3 and sys.implementation.name == "micropython":
+        def heap(tick, n):
+            samples.append(n)
+    try:
+        serve(app, port, ticks_us, heap=heap)
+    except KeyboardInterrupt:
+        pass
+    if len(argv) > 3:
+        with open(argv[3], "w") as fh:
+            json.dump({"heap_bytes": samples}, fh)
+
+
+main(sys.argv)

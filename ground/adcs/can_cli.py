@@ -1,0 +1,151 @@
+"""``fps adcs can``: the ADCS flight software (its own micropython or CPython process) steering the emulated
+spacecraft over CAN (Lawicel over a pty, python-can's slcan on the emulator side), with optional faults.
+
+Run folder (``-o DIR``, atomic writes): ``summary.json`` (written at the start with ``complete`` false; the
+session's counters, the fault log, the ADCS's last status and the body pointing figures after the hold and
+4 t_s, arcsec and arcsec/s), ``history.npz`` (10 Hz truth t, q, w and the pointing error dtheta/domega in arcsec;
+1 Hz status fields), ``pointing.png`` (the pointing error with the ADCS mode). Ctrl-C leaves a valid folder
+with ``complete`` false.
+"""
+
+import io
+import os
+import sys
+
+import numpy as np
+
+from ground.fileio import write_atomic, write_json
+
+STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_gnss", "miss_beacon", "n_gnss_b",
+               "att_sigma", "cycle_us")
+
+
+def _window(text, name):
+    try:
+        a, b = text.split(":")
+        return [float(a), float(b)]
+    except ValueError:
+        raise ValueError("--%s %r: expected T0:T1 in seconds" % (name, text)) from None
+
+
+def faults_from_args(a):
+    f = {}
+    if a.wheel_silent:
+        try:
+            i, t0 = a.wheel_silent.split(":")
+            f["wheel_silent"] = [int(i), float(t0)]
+        except ValueError:
+            raise ValueError("--wheel-silent %r: expected WHEEL:T0 (wheel 0-3, seconds)" % a.wheel_silent) from None
+    if a.startracker_blind:
+        f["startracker_blind"] = _window(a.startracker_blind, "startracker-blind")
+    if a.gnss_outage:
+        f["gnss_outage"] = _window(a.gnss_outage, "gnss-outage")
+    if a.beacon_lost is not None:
+        f["beacon_lost"] = a.beacon_lost
+    return f or None
+
+
+def register(sub):
+    p = sub.add_parser("can", help="the ADCS firmware on CAN against the emulated spacecraft (issue 13)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--duration", type=float, default=600.0, help="virtual seconds (default 600)")
+    p.add_argument("--runtime", default="micropython", choices=("micropython", "cpython"),
+                   help="the firmware's interpreter (default micropython)")
+    p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed 2-3 s late (default off)")
+    p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s (default 33)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--params", default=None, help="parameter file (fps adcs bps format; default: a perfect "
+                                                  "calibration of the emulated spacecraft)")
+    p.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I stops answering at T0 s")
+    p.add_argument("--startracker-blind", default=None, metavar="T0:T1", help="star tracker blind from T0 to T1 s")
+    p.add_argument("--gnss-outage", default=None, metavar="T0:T1", help="no GNSS fix from T0 to T1 s")
+    p.add_argument("--beacon-lost", type=float, default=None, metavar="T0", help="beacon out of view from T0 s")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or messages")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("-o", "--output", required=True, help="run folder")
+    p.set_defaults(func=run)
+
+
+def run(a):
+    from emulator.adcs_session import HOLD_S, AdcsSession
+    from ground.adcs import bps
+    if not (np.isfinite(a.duration) and a.duration >= 1):
+        raise ValueError("--duration must be >= 1 s, got %r" % a.duration)
+    faults = faults_from_args(a)
+    log = None if a.quiet else (lambda m: print(m, file=sys.stderr))
+    session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
+                          params=a.params, faults=faults, log=log)
+    out = a.output
+    os.makedirs(out, exist_ok=True)
+    write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}})
+    hist = {k: [] for k in ("t", "q", "w", "ra", "va", "rb", "vb")}
+    stat = {k: [] for k in STATUS_KEYS}
+    interrupted = False
+    bar = None
+    try:
+        with session:
+            if not a.quiet:
+                from tqdm import tqdm
+                bar = tqdm(total=session.K, desc="ADCS on CAN (%s)" % a.runtime, unit="s", leave=False)
+            for _ in range(session.K):
+                c = session.cycle()
+                for k in hist:
+                    hist[k].append(c[k])
+                for k in STATUS_KEYS:
+                    stat[k].append(c["status"].get(k, -1))
+                if bar is not None:
+                    bar.update(1)
+            summary = session.summary()
+    except KeyboardInterrupt:
+        interrupted = True
+        summary = session.summary()
+    finally:
+        if bar is not None:
+            bar.close()
+    summary["complete"] = bool(summary["complete"] and not interrupted)
+    h = {k: np.concatenate(v) if v else np.zeros((0, 3)) for k, v in hist.items()}
+    settle = HOLD_S + 4 * a.ts
+    summary["settle_s"] = settle
+    if len(h["t"]):
+        dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"])
+        h["dtheta_arcsec"], h["domega_arcsec_s"] = dth / bps.ARCSEC, dom / bps.ARCSEC
+        sel = h["t"] >= settle
+        if sel.sum() >= 2:
+            summary["pointing"] = bps.statistics(dth[sel], dom[sel])
+            summary["budget"] = {"pointing_3sigma_arcsec": bps.BUDGET_POINTING_3SIGMA,
+                                 "stability_3sigma_arcsec_s": bps.BUDGET_STABILITY_3SIGMA}
+    h.update(("status_" + k, np.asarray(v)) for k, v in stat.items())
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **h)
+    write_atomic(os.path.join(out, "history.npz"), buf.getvalue())
+    if not a.no_plots and "dtheta_arcsec" in h:
+        _plot(os.path.join(out, "pointing.png"), h)
+    write_json(os.path.join(out, "summary.json"), summary)
+    p = summary.get("pointing")
+    print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s; %s" % (
+        a.runtime, summary["cycles"], "" if summary["complete"] else " (interrupted)", summary["last_mode"],
+        summary["late_cycles"], summary["firmware_missed"],
+        ("pointing 3σ %.1f″ (budget %.0f″), stability 3σ %.1f″/s (budget %.0f″/s)" % (
+            p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
+            bps.BUDGET_STABILITY_3SIGMA)) if p else "too short for pointing figures"))
+    return 130 if interrupted else 0
+
+
+def _plot(path, h):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    ax[0].plot(h["t"], h["dtheta_arcsec"][:, 0], lw=0.6, label="δθ1")
+    ax[0].plot(h["t"], h["dtheta_arcsec"][:, 1], lw=0.6, label="δθ2")
+    ax[0].set_ylabel("pointing error (arcsec)")
+    ax[0].set_yscale("symlog", linthresh=100)
+    ax[0].legend(loc="upper right")
+    ax[1].step(np.arange(len(h["status_adcs_mode"])), h["status_adcs_mode"], where="post")
+    ax[1].set_yticks([0, 1, 2, 3], ["INIT", "HOLD", "POINT", "DEGRADED"])
+    ax[1].set_xlabel("t (s)")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    write_atomic(path, buf.getvalue())

@@ -317,7 +317,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
 
 def jitter_harmonics(distfile_path, rec, t0_us, rig):
     """For a jitter distfile (its F.jitter.json sidecar): each wheel harmonic's amplitude in the file, as
-    played (x sinc^2 of the player), after the FSM loop (the truth at the Q2 instants) and the loop model's
+    played (x the player kernel's gain, ``resample.player_gain``), after the FSM loop (the truth at the Q2 instants) and the loop model's
     prediction (played x |S|, ground.response.LoopModel). None for other distfiles."""
     side = distfile_path + ".jitter.json"
     if not os.path.exists(side) or rig is None:

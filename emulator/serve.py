@@ -23,7 +23,7 @@ import numpy as np
 from emulator.bench import Bench
 from emulator.config import load_config, write_json_atomic
 from emulator.lockstep import HoldPlayer, Lockstep, RemoteController
-from protocol import core
+from protocol import core, distfile
 
 
 class DistfilePlayer:
@@ -34,7 +34,6 @@ class DistfilePlayer:
     asked)."""
 
     def __init__(self, dist, pfsm_hz=10600.0):
-        from firmware import ad660
         from firmware.player import Player
         rate = int(round(pfsm_hz))
         if abs(rate - pfsm_hz) > 1e-9:
@@ -42,13 +41,8 @@ class DistfilePlayer:
         p = Player(rate_hz=rate)
         p.set_rate(rate, dist.period_us)
         self._inc, self._cell, self._s, self._div = p._inc, p._cell, p._shift, p._div
-        cv = ad660.Q2Converter(dist.kind, dist.scale)
         n = dist.count
-        q = np.empty((n, 2), np.int64)
-        for i in range(n):
-            o = dist.sample_offset(i)
-            q[i, 0] = cv.code(dist.raw, o)
-            q[i, 1] = cv.code(dist.raw, o + 4)
+        q = self._q2(dist, n)
         w = q[np.clip(np.arange(n - 1)[:, None] + np.arange(-2, 4), 0, n - 1)]     # segments x 6 x 2
         a, b, q0, d, e, g = (w[:, j] for j in range(6))
         self.c3 = (a - 7 * b + 16 * q0 - 16 * d + 7 * e - g + 6) // 12
@@ -60,6 +54,25 @@ class DistfilePlayer:
         self.i = 0
         self.n_play = -(-(n - 1) * self._cell // self._inc)        # outputs before the one-shot's end
         self.n_total = self.n_play + 1
+
+    @staticmethod
+    def _q2(dist, n):
+        """The samples' Q2 codes (n x 2): ``ad660.arcsec_to_code_q2`` in numpy (the same double operations),
+        and ``ad660.Q2Converter`` (the firmware's exact integers) for the values within 1e-6 of a rounding tie,
+        where the two could differ."""
+        from firmware import ad660
+        raw = np.frombuffer(dist.raw, "<f4" if dist.kind == distfile.KIND_FLOAT32 else "<i4", 2 * n,
+                            distfile.HEADER_SIZE).reshape(n, 2).astype(float)
+        x = raw if dist.kind == distfile.KIND_FLOAT32 else raw * dist.scale
+        c = (ad660.ZERO_CODE + x * (ad660.V_PER_ARCSEC * ad660.CODES_PER_VOLT)) * 4.0
+        top = ad660.CODE_MAX * 4
+        q = np.where(c <= 0.0, 0.0, np.where(c >= top, top, np.floor(c + 0.5))).astype(np.int64)
+        tie = np.argwhere((np.abs(c - np.floor(c) - 0.5) < 1e-6) & (c > 0.0) & (c < top))
+        if len(tie):
+            cv = ad660.Q2Converter(dist.kind, dist.scale)
+            for i, ax in tie.tolist():
+                q[i, ax] = cv.code(dist.raw, dist.sample_offset(i) + 4 * ax)
+        return q
 
     def codes(self, k):
         """Codes (len(k) x 2, int64) of outputs k (k < n_play)."""
@@ -89,7 +102,6 @@ def serve(args):
     duration = 10.0 if args.duration is None else args.duration
     bench = Bench(load_config(args.config), seed=args.seed)
     if args.distfile:
-        from protocol import distfile
         with open(args.distfile, "rb") as f:
             player = DistfilePlayer(distfile.parse(f.read()))
     else:

@@ -168,3 +168,22 @@ def test_distfile_player_refuses_a_fractional_rate():
     with pytest.raises(ValueError, match="whole number"):
         DistfilePlayer(d, pfsm_hz=10600.5)
     assert math.isclose(DistfilePlayer(d).pfsm_hz, 10600.0)
+
+
+def test_emulator_q2_codes_equal_the_firmwares_at_rounding_ties():
+    """The numpy player's sample codes (doubles, the exact integers near a tie) equal ad660.Q2Converter's for
+    float32 values on both sides of every tie of a code range, and for int32 samples."""
+    import struct
+    from firmware import ad660
+    k4 = 4 * ad660.V_PER_ARCSEC * ad660.CODES_PER_VOLT
+    xs = []
+    for m in range(-131072, 131072, 251):
+        b = struct.unpack("<I", struct.pack("<f", (m + 0.5) / k4))[0]
+        xs += [struct.unpack("<f", struct.pack("<I", b + e))[0] for e in (-1, 0, 1)]
+    for kind, scale in ((1, 1.0), (0, 0.00037)):
+        vals = xs
+        d = distfile.parse(distfile.pack(vals, vals[::-1], kind=kind, scale=scale))
+        q = DistfilePlayer._q2(d, d.count)
+        cv = ad660.Q2Converter(d.kind, d.scale)
+        want = [[cv.code(d.raw, d.sample_offset(i) + 4 * a) for a in (0, 1)] for i in range(d.count)]
+        assert q.tolist() == want

@@ -248,24 +248,29 @@ class Bench:
         self._blk_i = 0
 
     def _pfsm_at(self, taus, counts, inv, offs, ux, uy, zxa, zya, w_part, powers):
-        """P-FSM tilts (x list, y list per tick of the block) at each offset tau (s) after the tick starts:
-        the modal state at the last code change before tau, then exactly over the rest with that code held."""
+        """P-FSM tilts times Q1's geometry gain gp (x list, y list per tick of the block; the loop adds them as
+        they are) at each offset tau (s) after the tick starts: the modal state at the last code change before
+        tau, then exactly over the rest with that code held."""
         (lam,), (b,) = self.pfsm.modal.lam, self.pfsm.modal.b
         cp, nmax = self._cp, w_part.shape[2]
+        gp = self._g1[0]
+        dt = self.T / counts
+        idx = offs[:-1, None] + np.arange(nmax)
+        uxi, uyi = ux[idx], uy[idx]
+        zx0, zy0 = zxa[:-1], zya[:-1]
         out = []
         for tau in taus:
-            dt = self.T / counts
             js = np.minimum((tau / dt + 1e-9).astype(np.int64), counts - 1)
             delta = tau - js * dt
             ph = np.exp(lam * delta)
             ga = (ph - 1.0) / lam * b
             rows = w_part[inv, js]
             f = powers[inv, js]
-            idx = offs[:-1, None] + np.arange(nmax)
             ucur = offs[:-1] + js
-            zx = f * zxa[:-1] + (ux[idx] * rows).sum(axis=1)
-            zy = f * zya[:-1] + (uy[idx] * rows).sum(axis=1)
-            out.append(((cp * (ph * zx + ga * ux[ucur])).real.tolist(), (cp * (ph * zy + ga * uy[ucur])).real.tolist()))
+            zx = f * zx0 + (uxi * rows).sum(axis=1)
+            zy = f * zy0 + (uyi * rows).sum(axis=1)
+            out.append(((gp * (cp * (ph * zx + ga * ux[ucur])).real).tolist(),
+                        (gp * (cp * (ph * zy + ga * uy[ucur])).real).tolist()))
         return out
 
     # --- MEMS FSM input ------------------------------------------------------------------------------
@@ -401,6 +406,12 @@ class Bench:
         ksky, ang = self._sky, self._ang_mag2
         borex, borey = self.bore
         missed = done = 0
+        erfc_, sqrt_, round_ = erfc, sqrt, round        # locals: the loop calls them ~10 times a tick
+        lim1, hq1, kx1, ky1, v1 = f1 if f1 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
+        lim2, hq2, kx2, ky2, v2 = f2 if f2 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
+        dac = self.dac
+        last_words, last_unknown = self._last_words, self._last_unknown
+        same_words = same_unknown = 0                   # repeated words, counted as spi_words counts them
         try:
             for k in range(k0, k0 + n):
                 if on_tick is not None:
@@ -410,36 +421,41 @@ class Bench:
                     xd = co1 * xb + si1 * yb - ox1
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
-                    if f1 is not None and r2 <= f1[0]:
-                        _, h, kx, ky, v = f1
-                        fxp = erfc(kx * (h - xd))
-                        fxn = erfc(kx * (h + xd))
-                        fyp = erfc(ky * (h - yd))
-                        fyn = erfc(ky * (h + yd))
+                    if r2 <= lim1:
+                        fxp = erfc_(kx1 * (hq1 - xd))
+                        fxn = erfc_(kx1 * (hq1 + xd))
+                        fyp = erfc_(ky1 * (hq1 - yd))
+                        fyn = erfc_(ky1 * (hq1 + yd))
                         sx, sy = fxp + fxn, fyp + fyn
-                        vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+                        vx, vy, vs = v1 * (fxn - fxp) * sy, v1 * (fyp - fyn) * sx, v1 * sx * sy
                     else:
                         vx, vy, vs = self._fast1(xd, yd)
                     if noise:
                         if n1_i + 3 > len(n1):
                             n1 = self._n1 = self._refill()
                             n1_i = 0
-                        sv = k1 * (s01 + pn1 * sqrt(r2))
-                        sd = sqrt(sv * sv + nc21)
-                        cx = round(mid - k1 * vx + sd * n1[n1_i])
-                        cy = round(mid - k1 * vy + sd * n1[n1_i + 1])
-                        cs = round(k1 * vs + sd * n1[n1_i + 2])
+                        sv = k1 * (s01 + pn1 * sqrt_(r2))
+                        sd = sqrt_(sv * sv + nc21)
+                        cx = round_(mid - k1 * vx + sd * n1[n1_i])
+                        cy = round_(mid - k1 * vy + sd * n1[n1_i + 1])
+                        cs = round_(k1 * vs + sd * n1[n1_i + 2])
                         n1_i += 3
                     else:
-                        cx, cy, cs = round(mid - k1 * vx), round(mid - k1 * vy), round(k1 * vs)
+                        cx, cy, cs = round_(mid - k1 * vx), round_(mid - k1 * vy), round_(k1 * vs)
                     if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
                         self.adc1.n_clip += 1
                         cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
                     # --- the controller's answer ---
                     words = on_tick(k, int(k * us_per_tick + 0.5), cx, cy, cs)
                     if words:
-                        self.spi_words(words)
-                        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                        words = tuple(words)
+                        if words == last_words:                 # as spi_words: the MEMS input is unchanged
+                            same_words += len(words)
+                            same_unknown += last_unknown
+                        else:
+                            self.spi_words(words)
+                            last_words, last_unknown = self._last_words, self._last_unknown
+                            umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
                     else:
                         missed += 1
                     if q1_rows is not None:
@@ -456,14 +472,13 @@ class Bench:
                     xd = co2 * xb + si2 * yb - ox2
                     yd = co2 * yb - si2 * xb - oy2
                     r2 = xd * xd + yd * yd
-                    if f2 is not None and r2 <= f2[0]:
-                        _, h, kx, ky, v = f2
-                        fxp = erfc(kx * (h - xd))
-                        fxn = erfc(kx * (h + xd))
-                        fyp = erfc(ky * (h - yd))
-                        fyn = erfc(ky * (h + yd))
+                    if r2 <= lim2:
+                        fxp = erfc_(kx2 * (hq2 - xd))
+                        fxn = erfc_(kx2 * (hq2 + xd))
+                        fyp = erfc_(ky2 * (hq2 - yd))
+                        fyn = erfc_(ky2 * (hq2 + yd))
                         sx, sy = fxp + fxn, fyp + fyn
-                        vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+                        vx, vy, vs = v2 * (fxn - fxp) * sy, v2 * (fyp - fyn) * sx, v2 * sx * sy
                     else:
                         vx, vy, vs = self._fast2(xd, yd)
                     ex = (ang * qx - 2.0 * tfx - borex) * ksky       # true sky error (Eq. 7.5)
@@ -472,14 +487,14 @@ class Bench:
                         if n2_i + 3 > len(n2):
                             n2 = self._n2 = self._refill()
                             n2_i = 0
-                        sv = k2 * (s02 + pn2 * sqrt(r2))
-                        sd = sqrt(sv * sv + nc22)
-                        cx = round(k2 * vx + sd * n2[n2_i])
-                        cy = round(k2 * vy + sd * n2[n2_i + 1])
-                        cs = round(k2 * vs + sd * n2[n2_i + 2])
+                        sv = k2 * (s02 + pn2 * sqrt_(r2))
+                        sd = sqrt_(sv * sv + nc22)
+                        cx = round_(k2 * vx + sd * n2[n2_i])
+                        cy = round_(k2 * vy + sd * n2[n2_i + 1])
+                        cs = round_(k2 * vs + sd * n2[n2_i + 2])
                         n2_i += 3
                     else:
-                        cx, cy, cs = round(k2 * vx), round(k2 * vy), round(k2 * vs)
+                        cx, cy, cs = round_(k2 * vx), round_(k2 * vy), round_(k2 * vs)
                     if cx < lo or cx > hi or cy < lo or cy > hi or cs < lo or cs > hi:
                         self.adc2.n_clip += 1
                         cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
@@ -495,6 +510,8 @@ class Bench:
                     self.n_mems_clip_ticks += 1
                 done += 1
         finally:
+            dac.n_words += same_words
+            dac.n_unknown += same_unknown
             self.zmx1, self.zmx2, self.zmy1, self.zmy2 = zmx1, zmx2, zmy1, zmy2
             self.tpx, self.tpy = tpx, tpy
             self._blk_i = i
@@ -566,8 +583,8 @@ class Bench:
                         n1_i = 0
                     ux0, uy0 = umx - dux, umy - duy
                     # X at its instant (MEMS: modal part + the held inputs' real gains, see set_rate)
-                    xb = gp1 * tpx0[i] + gf1 * ((ae1 * zmx1 + ae2 * zmx2).real + ah0 * ux0 + al0 * dux)
-                    yb = gp1 * tpy0[i] + gf1 * ((ae1 * zmy1 + ae2 * zmy2).real + ah0 * uy0 + al0 * duy)
+                    xb = tpx0[i] + gf1 * ((ae1 * zmx1 + ae2 * zmx2).real + ah0 * ux0 + al0 * dux)
+                    yb = tpy0[i] + gf1 * ((ae1 * zmy1 + ae2 * zmy2).real + ah0 * uy0 + al0 * duy)
                     xd = co1 * xb + si1 * yb - ox1
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
@@ -581,8 +598,8 @@ class Bench:
                     else:
                         cx = round_(mid - k1 * val)
                     # Y
-                    xb = gp1 * tpx1[i] + gf1 * ((be1 * zmx1 + be2 * zmx2).real + bh0 * ux0 + bl0 * dux)
-                    yb = gp1 * tpy1[i] + gf1 * ((be1 * zmy1 + be2 * zmy2).real + bh0 * uy0 + bl0 * duy)
+                    xb = tpx1[i] + gf1 * ((be1 * zmx1 + be2 * zmx2).real + bh0 * ux0 + bl0 * dux)
+                    yb = tpy1[i] + gf1 * ((be1 * zmy1 + be2 * zmy2).real + bh0 * uy0 + bl0 * duy)
                     xd = co1 * xb + si1 * yb - ox1
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
@@ -596,8 +613,8 @@ class Bench:
                     else:
                         cy = round_(mid - k1 * val)
                     # SUM
-                    xb = gp1 * tpx2[i] + gf1 * ((ce1 * zmx1 + ce2 * zmx2).real + ch0 * ux0 + cl0 * dux)
-                    yb = gp1 * tpy2[i] + gf1 * ((ce1 * zmy1 + ce2 * zmy2).real + ch0 * uy0 + cl0 * duy)
+                    xb = tpx2[i] + gf1 * ((ce1 * zmx1 + ce2 * zmx2).real + ch0 * ux0 + cl0 * dux)
+                    yb = tpy2[i] + gf1 * ((ce1 * zmy1 + ce2 * zmy2).real + ch0 * uy0 + cl0 * duy)
                     xd = co1 * xb + si1 * yb - ox1
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd

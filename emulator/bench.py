@@ -241,29 +241,32 @@ class Bench:
             # the MEMS tilt's real gain on (u_new - u_old) at each Q2 instant of a tick whose words landed
             self._q2_land = np.where(tau >= self._land_f, lg.real, 0.0).tolist()
             self._q1_tp = self._pfsm_at(self.timing.sample_s, counts, inv, offs, ux, uy, zxa, zya,
-                                        w_part, powers)
+                                        w_part, powers, ns)
         self._q2_p = 0
         self._q2_m0 = m0
         self._blk_n = n_ticks
         self._blk_i = 0
 
-    def _pfsm_at(self, taus, counts, inv, offs, ux, uy, zxa, zya, w_part, powers):
+    def _pfsm_at(self, taus, counts, inv, offs, ux, uy, zxa, zya, w_part, powers, ns):
         """P-FSM tilts times Q1's geometry gain gp (x list, y list per tick of the block; the loop adds them as
         they are) at each offset tau (s) after the tick starts: the modal state at the last code change before
-        tau, then exactly over the rest with that code held."""
+        tau, then exactly over the rest with that code held. The sub-step, its offset and the hold's
+        propagation depend only on the tick's code count: computed once per count in ``ns`` (inv: each
+        tick's), the same numbers as tick by tick."""
         (lam,), (b,) = self.pfsm.modal.lam, self.pfsm.modal.b
         cp, nmax = self._cp, w_part.shape[2]
         gp = self._g1[0]
-        dt = self.T / counts
+        nsa = np.asarray(ns, np.int64)
+        dt = self.T / nsa
         idx = offs[:-1, None] + np.arange(nmax)
         uxi, uyi = ux[idx], uy[idx]
         zx0, zy0 = zxa[:-1], zya[:-1]
         out = []
         for tau in taus:
-            js = np.minimum((tau / dt + 1e-9).astype(np.int64), counts - 1)
-            delta = tau - js * dt
-            ph = np.exp(lam * delta)
-            ga = (ph - 1.0) / lam * b
+            jsu = np.minimum((tau / dt + 1e-9).astype(np.int64), nsa - 1)
+            phu = np.exp(lam * (tau - jsu * dt))
+            gau = (phu - 1.0) / lam * b
+            js, ph, ga = jsu[inv], phu[inv], gau[inv]
             rows = w_part[inv, js]
             f = powers[inv, js]
             ucur = offs[:-1] + js

@@ -204,12 +204,8 @@ class Bench:
         self._sync_pfsm()
         phi, cp = self._phi_p, self._cp
         zx, zy = self.zpx, self.zpy
-        zxs, zys = [zx], [zy]
-        for a, b in zip(sx.tolist(), sy.tolist()):
-            zx = phi * zx + a
-            zy = phi * zy + b
-            zxs.append(zx)
-            zys.append(zy)
+        zxs = [zx] + [zx := phi * zx + a for a in sx.tolist()]
+        zys = [zy] + [zy := phi * zy + b for b in sy.tolist()]
         zxa, zya = np.array(zxs), np.array(zys)
         self._zx, self._zy = zxs, zys
         self._tpx = (cp * zxa).real.tolist()

@@ -5,7 +5,7 @@ default, any whole us from 95); the player interpolates between them and convert
 (``firmware.ad660``) at ``rate_hz`` (10.6 kHz by default) for the P-FSM. The thesis's SimArduino interpolated
 linearly (Sec. 7.3.1), which plays a tone f at sinc^2(f Ts): x0.875 at 200 Hz for a 1 ms step. This player uses
 Keys's 6-point cubic convolution kernel (R. G. Keys, "Cubic convolution interpolation for digital image
-processing", IEEE Trans. ASSP 29(6), 1981, Sec. V), with u = |t| / Ts:
+processing", IEEE Trans. ASSP 29(6), 1981: its 6-point kernel), with u = |t| / Ts:
 
     W(u) = 4/3 u^3 - 7/3 u^2 + 1                   0 <= u < 1
            -7/12 u^3 + 3 u^2 - 59/12 u + 5/2       1 <= u < 2

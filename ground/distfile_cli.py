@@ -182,8 +182,9 @@ def bandwidth_lines(d):
         out.append("anti-alias none needed: the source was no faster than the file (or a sine checked against "
                    "its Nyquist)")
     out.append("player     Keys 6-point cubic interpolation (firmware/player.py) plays a tone f at G(f x %d us) and "
-               "adds images at %.3f Hz -+ f (then the AD660 holds each code for 1/10.6 kHz; the thesis's linear "
-               "interpolation played sinc^2):" % (ts, fs))
+               "adds images" % ts)
+    out.append("           at %.3f Hz -+ f (then the AD660 holds each code for 1/10.6 kHz; the thesis's linear "
+               "interpolation played sinc^2):" % fs)
     out.append("           %10s %10s %12s %10s %12s %10s" % ("f (Hz)", "gain", "image (Hz)", "gain", "image (Hz)",
                                                              "gain"))
     for k in (0.05, 0.25, 0.5, 0.75, 0.9):

@@ -187,3 +187,22 @@ def test_emulator_q2_codes_equal_the_firmwares_at_rounding_ties():
         cv = ad660.Q2Converter(d.kind, d.scale)
         want = [[cv.code(d.raw, d.sample_offset(i) + 4 * a) for a in (0, 1)] for i in range(d.count)]
         assert q.tolist() == want
+
+
+@pytest.mark.parametrize("step, kind", [(1000, 1), (95, 0)])
+def test_micropython_plays_the_same_codes_as_the_emulator(tmp_path, step, kind):
+    """Under micropython the firmware player streams the file (clipped samples, overshooting steps) into the
+    codes the emulator's numpy player computes (count and CRC-32 of every code pair)."""
+    import struct
+    import zlib
+    from tests.test_firmware_mp import run_mp
+    path = _file(tmp_path, "m.bin", step, kind, n=300)
+    res = run_mp("firmware_player.py", path)
+    with open(path, "rb") as fh:
+        emu = DistfilePlayer(distfile.parse(fh.read()))
+    bx, by = array("H", bytes(2 * emu.n_total)), array("H", bytes(2 * emu.n_total))
+    n = emu.fill(bx, by, emu.n_total)
+    crc = 0
+    for x, y in zip(bx, by):
+        crc = zlib.crc32(struct.pack("<HH", x, y), crc)
+    assert res == {"n": n, "crc": crc}

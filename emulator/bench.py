@@ -588,7 +588,8 @@ class Bench:
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
                     if r2 <= lim1:
-                        val = v1 * (erfc_(kx1 * (hq1 + xd)) - erfc_(kx1 * (hq1 - xd))) * (erfc_(ky1 * (hq1 - yd)) + erfc_(ky1 * (hq1 + yd)))
+                        val = (v1 * (erfc_(kx1 * (hq1 + xd)) - erfc_(kx1 * (hq1 - xd))) *
+                               (erfc_(ky1 * (hq1 - yd)) + erfc_(ky1 * (hq1 + yd))))
                     else:
                         val = fast1(xd, yd)[0]
                     if noise:
@@ -603,7 +604,8 @@ class Bench:
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
                     if r2 <= lim1:
-                        val = v1 * (erfc_(ky1 * (hq1 - yd)) - erfc_(ky1 * (hq1 + yd))) * (erfc_(kx1 * (hq1 - xd)) + erfc_(kx1 * (hq1 + xd)))
+                        val = (v1 * (erfc_(ky1 * (hq1 - yd)) - erfc_(ky1 * (hq1 + yd))) *
+                               (erfc_(kx1 * (hq1 - xd)) + erfc_(kx1 * (hq1 + xd))))
                     else:
                         val = fast1(xd, yd)[1]
                     if noise:
@@ -618,7 +620,8 @@ class Bench:
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
                     if r2 <= lim1:
-                        val = v1 * (erfc_(kx1 * (hq1 - xd)) + erfc_(kx1 * (hq1 + xd))) * (erfc_(ky1 * (hq1 - yd)) + erfc_(ky1 * (hq1 + yd)))
+                        val = (v1 * (erfc_(kx1 * (hq1 - xd)) + erfc_(kx1 * (hq1 + xd))) *
+                               (erfc_(ky1 * (hq1 - yd)) + erfc_(ky1 * (hq1 + yd))))
                     else:
                         val = fast1(xd, yd)[2]
                     if noise:

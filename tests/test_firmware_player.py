@@ -1,4 +1,5 @@
-"""The disturbance player (firmware/player.py): Keys 6-point interpolation, Eq. 7.8 codes, actions, uploads, MicroPython."""
+"""The disturbance player (firmware/player.py): Keys 6-point interpolation, Eq. 7.8 codes, actions, uploads,
+MicroPython."""
 
 import math
 import struct
@@ -132,7 +133,8 @@ def _per_sample(f, rate_hz, loop, m):
     return out[:m]
 
 
-@pytest.mark.parametrize("rate, loop", [(10600, False), (10600, True), (4097, False), (7001, True), (2049, True), (777, False)])
+@pytest.mark.parametrize("rate, loop", [(10600, False), (10600, True), (4097, False), (7001, True), (2049, True),
+                                        (777, False)])
 def test_fill_equals_the_per_sample_arithmetic(rate, loop):
     """fill's segment-wise fast path (s = 0) and general path (s > 0: 4097, 7001 Hz) give exactly the codes of
     the per-sample formula, in blocks of any size."""

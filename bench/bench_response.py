@@ -4,7 +4,8 @@ Prints, per timing, the measured |S| and phase beside the model (ground.response
 loop's Nyquist frequency, the margins and bandwidth, and the wall time of 30 tones in-process (goal <= 60 s);
 the HIL's tone test (12/35/55 Hz distfiles at a 1 ms step through ``fps hil`` in-process) beside the model with
 the delay; the thesis-bench table (600 s, ``fps hil`` in-process) at the default timing beside zero latency;
-a jitter distfile's wheel harmonics as played at 1 ms and 250 us; the emulator's cost per tick by timing."""
+a jitter distfile's wheel harmonics and 1 ms sine tones to 200 Hz as the player plays them (Keys 6-point kernel);
+the emulator's cost per tick by timing. ``--only jitter|cost`` runs one part."""
 
 import json
 import os
@@ -68,7 +69,8 @@ def _cal(tmp, cfg):
 
 def hil_tones(tmp):
     """12/35/55 Hz through fps hil (1 ms distfiles, 2" X sine): residual amplitude on the truth over the played
-    input (file amplitude x sinc^2 of the player; the P-FSM's own response taken as 1, |G| > 0.997 below 60 Hz)."""
+    input (file amplitude x the player kernel's gain, resample.player_gain; the P-FSM's own response taken as 1,
+    |G| > 0.997 below 60 Hz)."""
     from ground.jitter import harmonic_amplitudes
     print("| HIL tone (fps hil in-process, 1 ms distfile) | model with delay abs(S) | measured | error | goal |")
     print("|---|---|---|---|---|")
@@ -117,35 +119,56 @@ def thesis_table(tmp, duration_s=600.0):
     print()
 
 
-def jitter_played(tmp):
-    """A jitter distfile's wheel harmonics, played by the firmware player, against the file (goal: within 2 %
-    below 200 Hz at 1 ms)."""
+def _played_ratio(path, freqs, n=12000):
+    """Amplitudes at ``freqs`` of the firmware player's codes (10.6 kHz, one-shot) over the file's, X axis."""
     from array import array
     from firmware.player import Player
     from ground.jitter import harmonic_amplitudes
-    print("| jitter harmonic (scale 100) | played / file at 1 ms | at 250 us | goal |")
-    print("|---|---|---|---|")
+    dd, x, y = distfile_cli.load(path)
+    t = np.arange(dd.count) * dd.period_us * 1e-6
+    amp_file = harmonic_amplitudes(t, np.column_stack([x, y]), freqs)
+    p = Player()
+    p.open_file(path)
+    p.oneshot()
+    xb, yb = array("H", bytes(2 * n)), array("H", bytes(2 * n))
+    p.fill(xb, yb, n)
+    k = distfile_cli.V_PER_ARCSEC * 65536 / 20.0
+    tp = np.arange(n) / 10600.0
+    keep = (tp > 0.05) & (tp < 1.15)
+    xy = np.column_stack([(np.array(xb, float) - 0x8000) / k, (np.array(yb, float) - 0x8000) / k])[keep]
+    return harmonic_amplitudes(tp[keep], xy, freqs)[:, 0] / amp_file[:, 0]
+
+
+def jitter_played(tmp):
+    """A jitter distfile's wheel harmonics, and sine files' tones to 200 Hz, played by the firmware player
+    (Keys 6-point kernel) against the file (goal: within 2 % below 200 Hz at 1 ms); beside the kernel's
+    response and linear interpolation's sinc^2 (the player before)."""
+    print("| jitter harmonic (scale 100) | played / file at 1 ms | kernel G(f Ts) | linear (before) | at 250 us "
+          "| goal |")
+    print("|---|---|---|---|---|---|")
     ratios = {}
     for step in (1000, 250):
         src = sources.WheelJitter((3000.0, 4200.0, 6000.0, 9000.0), 5e-4, 100.0)
         d = os.path.join(tmp, "jit%d.dist" % step)
         write_atomic(d, distfile_cli.generate(src, 1.2, 1, "jitter", period_us=step))
-        dd, x, y = distfile_cli.load(d)
-        t = np.arange(dd.count) * step * 1e-6
-        amp_file = harmonic_amplitudes(t, np.column_stack([x, y]), src.wheel_hz)
-        p = Player()
-        p.open_file(d)
-        p.oneshot()
-        n = 12000
-        xb, yb = array("H", bytes(2 * n)), array("H", bytes(2 * n))
-        p.fill(xb, yb, n)
-        k = distfile_cli.V_PER_ARCSEC * 65536 / 20.0
-        tp = np.arange(n) / 10600.0
-        keep = (tp > 0.05) & (tp < 1.15)
-        xy = np.column_stack([(np.array(xb, float) - 0x8000) / k, (np.array(yb, float) - 0x8000) / k])[keep]
-        ratios[step] = harmonic_amplitudes(tp[keep], xy, src.wheel_hz)[:, 0] / amp_file[:, 0]
+        ratios[step] = _played_ratio(d, src.wheel_hz)
     for i, f in enumerate(src.wheel_hz):
-        print("| %g Hz | %.4f | %.4f | within 2 %% below 200 Hz |" % (f, ratios[1000][i], ratios[250][i]))
+        print("| %g Hz | %.4f | %.4f | %.4f | %.4f | within 2 %% below 200 Hz |"
+              % (f, ratios[1000][i], resample.player_gain(f, 1000), resample.player_gain(f, 1000, "linear"),
+                 ratios[250][i]))
+    print()
+    print("| tone, 1 ms sine distfile (40\") | played / file | kernel G(f Ts) | linear (before) | goal |")
+    print("|---|---|---|---|---|")
+    worst = 0.0
+    for f in (50.0, 100.0, 150.0, 180.0, 200.0):
+        d = os.path.join(tmp, "sine%g.dist" % f)
+        write_atomic(d, distfile_cli.generate(sources.Sine((40.0, 40.0), (f, f), (0.0, 90.0)), 1.2, 1, "sine",
+                                              period_us=1000))
+        r = _played_ratio(d, [f])[0]
+        worst = max(worst, abs(r - 1))
+        print("| %g Hz | %.4f | %.4f | %.4f | within 2 %% |" % (f, r, resample.player_gain(f, 1000),
+                                                               resample.player_gain(f, 1000, "linear")))
+    print("| worst, 50-200 Hz | %.2f %% | | 12.5 %% | within 2 %% |" % (100 * worst))
     print()
 
 
@@ -180,4 +203,11 @@ def extras():
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+    if sys.argv[1:3] == ["--only", "jitter"]:
+        with tempfile.TemporaryDirectory() as d:
+            jitter_played(d)
+    elif sys.argv[1:3] == ["--only", "cost"]:
+        emulator_cost()
+    else:
+        main()

@@ -204,12 +204,8 @@ class Bench:
         self._sync_pfsm()
         phi, cp = self._phi_p, self._cp
         zx, zy = self.zpx, self.zpy
-        zxs, zys = [zx], [zy]
-        for a, b in zip(sx.tolist(), sy.tolist()):
-            zx = phi * zx + a
-            zy = phi * zy + b
-            zxs.append(zx)
-            zys.append(zy)
+        zxs = [zx] + [zx := phi * zx + a for a in sx.tolist()]
+        zys = [zy] + [zy := phi * zy + b for b in sy.tolist()]
         zxa, zya = np.array(zxs), np.array(zys)
         self._zx, self._zy = zxs, zys
         self._tpx = (cp * zxa).real.tolist()
@@ -241,31 +237,39 @@ class Bench:
             # the MEMS tilt's real gain on (u_new - u_old) at each Q2 instant of a tick whose words landed
             self._q2_land = np.where(tau >= self._land_f, lg.real, 0.0).tolist()
             self._q1_tp = self._pfsm_at(self.timing.sample_s, counts, inv, offs, ux, uy, zxa, zya,
-                                        w_part, powers)
+                                        w_part, powers, ns)
         self._q2_p = 0
         self._q2_m0 = m0
         self._blk_n = n_ticks
         self._blk_i = 0
 
-    def _pfsm_at(self, taus, counts, inv, offs, ux, uy, zxa, zya, w_part, powers):
-        """P-FSM tilts (x list, y list per tick of the block) at each offset tau (s) after the tick starts:
-        the modal state at the last code change before tau, then exactly over the rest with that code held."""
+    def _pfsm_at(self, taus, counts, inv, offs, ux, uy, zxa, zya, w_part, powers, ns):
+        """P-FSM tilts times Q1's geometry gain gp (x list, y list per tick of the block; the loop adds them as
+        they are) at each offset tau (s) after the tick starts: the modal state at the last code change before
+        tau, then exactly over the rest with that code held. The sub-step, its offset and the hold's
+        propagation depend only on the tick's code count: computed once per count in ``ns`` (inv: each
+        tick's), the same numbers as tick by tick."""
         (lam,), (b,) = self.pfsm.modal.lam, self.pfsm.modal.b
         cp, nmax = self._cp, w_part.shape[2]
+        gp = self._g1[0]
+        nsa = np.asarray(ns, np.int64)
+        dt = self.T / nsa
+        idx = offs[:-1, None] + np.arange(nmax)
+        uxi, uyi = ux[idx], uy[idx]
+        zx0, zy0 = zxa[:-1], zya[:-1]
         out = []
         for tau in taus:
-            dt = self.T / counts
-            js = np.minimum((tau / dt + 1e-9).astype(np.int64), counts - 1)
-            delta = tau - js * dt
-            ph = np.exp(lam * delta)
-            ga = (ph - 1.0) / lam * b
+            jsu = np.minimum((tau / dt + 1e-9).astype(np.int64), nsa - 1)
+            phu = np.exp(lam * (tau - jsu * dt))
+            gau = (phu - 1.0) / lam * b
+            js, ph, ga = jsu[inv], phu[inv], gau[inv]
             rows = w_part[inv, js]
             f = powers[inv, js]
-            idx = offs[:-1, None] + np.arange(nmax)
             ucur = offs[:-1] + js
-            zx = f * zxa[:-1] + (ux[idx] * rows).sum(axis=1)
-            zy = f * zya[:-1] + (uy[idx] * rows).sum(axis=1)
-            out.append(((cp * (ph * zx + ga * ux[ucur])).real.tolist(), (cp * (ph * zy + ga * uy[ucur])).real.tolist()))
+            zx = f * zx0 + (uxi * rows).sum(axis=1)
+            zy = f * zy0 + (uyi * rows).sum(axis=1)
+            out.append(((gp * (cp * (ph * zx + ga * ux[ucur])).real).tolist(),
+                        (gp * (cp * (ph * zy + ga * uy[ucur])).real).tolist()))
         return out
 
     # --- MEMS FSM input ------------------------------------------------------------------------------
@@ -401,6 +405,12 @@ class Bench:
         ksky, ang = self._sky, self._ang_mag2
         borex, borey = self.bore
         missed = done = 0
+        erfc_, sqrt_, round_ = erfc, sqrt, round        # locals: the loop calls them ~10 times a tick
+        lim1, hq1, kx1, ky1, v1 = f1 if f1 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
+        lim2, hq2, kx2, ky2, v2 = f2 if f2 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
+        dac = self.dac
+        last_words, last_unknown = self._last_words, self._last_unknown
+        same_words = same_unknown = 0                   # repeated words, counted as spi_words counts them
         try:
             for k in range(k0, k0 + n):
                 if on_tick is not None:
@@ -410,36 +420,41 @@ class Bench:
                     xd = co1 * xb + si1 * yb - ox1
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
-                    if f1 is not None and r2 <= f1[0]:
-                        _, h, kx, ky, v = f1
-                        fxp = erfc(kx * (h - xd))
-                        fxn = erfc(kx * (h + xd))
-                        fyp = erfc(ky * (h - yd))
-                        fyn = erfc(ky * (h + yd))
+                    if r2 <= lim1:
+                        fxp = erfc_(kx1 * (hq1 - xd))
+                        fxn = erfc_(kx1 * (hq1 + xd))
+                        fyp = erfc_(ky1 * (hq1 - yd))
+                        fyn = erfc_(ky1 * (hq1 + yd))
                         sx, sy = fxp + fxn, fyp + fyn
-                        vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+                        vx, vy, vs = v1 * (fxn - fxp) * sy, v1 * (fyp - fyn) * sx, v1 * sx * sy
                     else:
                         vx, vy, vs = self._fast1(xd, yd)
                     if noise:
                         if n1_i + 3 > len(n1):
                             n1 = self._n1 = self._refill()
                             n1_i = 0
-                        sv = k1 * (s01 + pn1 * sqrt(r2))
-                        sd = sqrt(sv * sv + nc21)
-                        cx = round(mid - k1 * vx + sd * n1[n1_i])
-                        cy = round(mid - k1 * vy + sd * n1[n1_i + 1])
-                        cs = round(k1 * vs + sd * n1[n1_i + 2])
+                        sv = k1 * (s01 + pn1 * sqrt_(r2))
+                        sd = sqrt_(sv * sv + nc21)
+                        cx = round_(mid - k1 * vx + sd * n1[n1_i])
+                        cy = round_(mid - k1 * vy + sd * n1[n1_i + 1])
+                        cs = round_(k1 * vs + sd * n1[n1_i + 2])
                         n1_i += 3
                     else:
-                        cx, cy, cs = round(mid - k1 * vx), round(mid - k1 * vy), round(k1 * vs)
+                        cx, cy, cs = round_(mid - k1 * vx), round_(mid - k1 * vy), round_(k1 * vs)
                     if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
                         self.adc1.n_clip += 1
                         cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
                     # --- the controller's answer ---
                     words = on_tick(k, int(k * us_per_tick + 0.5), cx, cy, cs)
                     if words:
-                        self.spi_words(words)
-                        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                        words = tuple(words)
+                        if words == last_words:                 # as spi_words: the MEMS input is unchanged
+                            same_words += len(words)
+                            same_unknown += last_unknown
+                        else:
+                            self.spi_words(words)
+                            last_words, last_unknown = self._last_words, self._last_unknown
+                            umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
                     else:
                         missed += 1
                     if q1_rows is not None:
@@ -456,14 +471,13 @@ class Bench:
                     xd = co2 * xb + si2 * yb - ox2
                     yd = co2 * yb - si2 * xb - oy2
                     r2 = xd * xd + yd * yd
-                    if f2 is not None and r2 <= f2[0]:
-                        _, h, kx, ky, v = f2
-                        fxp = erfc(kx * (h - xd))
-                        fxn = erfc(kx * (h + xd))
-                        fyp = erfc(ky * (h - yd))
-                        fyn = erfc(ky * (h + yd))
+                    if r2 <= lim2:
+                        fxp = erfc_(kx2 * (hq2 - xd))
+                        fxn = erfc_(kx2 * (hq2 + xd))
+                        fyp = erfc_(ky2 * (hq2 - yd))
+                        fyn = erfc_(ky2 * (hq2 + yd))
                         sx, sy = fxp + fxn, fyp + fyn
-                        vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+                        vx, vy, vs = v2 * (fxn - fxp) * sy, v2 * (fyp - fyn) * sx, v2 * sx * sy
                     else:
                         vx, vy, vs = self._fast2(xd, yd)
                     ex = (ang * qx - 2.0 * tfx - borex) * ksky       # true sky error (Eq. 7.5)
@@ -472,14 +486,14 @@ class Bench:
                         if n2_i + 3 > len(n2):
                             n2 = self._n2 = self._refill()
                             n2_i = 0
-                        sv = k2 * (s02 + pn2 * sqrt(r2))
-                        sd = sqrt(sv * sv + nc22)
-                        cx = round(k2 * vx + sd * n2[n2_i])
-                        cy = round(k2 * vy + sd * n2[n2_i + 1])
-                        cs = round(k2 * vs + sd * n2[n2_i + 2])
+                        sv = k2 * (s02 + pn2 * sqrt_(r2))
+                        sd = sqrt_(sv * sv + nc22)
+                        cx = round_(k2 * vx + sd * n2[n2_i])
+                        cy = round_(k2 * vy + sd * n2[n2_i + 1])
+                        cs = round_(k2 * vs + sd * n2[n2_i + 2])
                         n2_i += 3
                     else:
-                        cx, cy, cs = round(k2 * vx), round(k2 * vy), round(k2 * vs)
+                        cx, cy, cs = round_(k2 * vx), round_(k2 * vy), round_(k2 * vs)
                     if cx < lo or cx > hi or cy < lo or cy > hi or cs < lo or cs > hi:
                         self.adc2.n_clip += 1
                         cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
@@ -495,6 +509,8 @@ class Bench:
                     self.n_mems_clip_ticks += 1
                 done += 1
         finally:
+            dac.n_words += same_words
+            dac.n_unknown += same_unknown
             self.zmx1, self.zmx2, self.zmy1, self.zmy2 = zmx1, zmx2, zmy1, zmy2
             self.tpx, self.tpy = tpx, tpy
             self._blk_i = i
@@ -539,67 +555,81 @@ class Bench:
         borex, borey = self.bore
         missed = done = 0
         bt = self.tick
+        erfc_, sqrt_, round_ = erfc, sqrt, round        # locals: the loop calls them ~20 times a tick
+        dac = self.dac
+        last_words, last_unknown = self._last_words, self._last_unknown
+        same_words = same_unknown = 0                   # repeated words, counted as spi_words counts them
+        lim2, hq2, kx2, ky2, v2 = f2 if f2 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
         try:
             for k in range(k0, k0 + n):
                 dux = duy = 0.0
                 land = False
                 if d and pending and pending[0][0] <= bt:        # words of tick bt - d land at fl
                     words = pending.pop(0)[1]
-                    ux0, uy0 = umx, umy
-                    self.spi_words(words)
-                    umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
-                    dux, duy, land = umx - ux0, umy - uy0, True
+                    if words == last_words:                     # as spi_words: the MEMS input is unchanged
+                        same_words += len(words)
+                        same_unknown += last_unknown
+                    else:
+                        ux0, uy0 = umx, umy
+                        self.spi_words(words)
+                        last_words, last_unknown = self._last_words, self._last_unknown
+                        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                        dux, duy = umx - ux0, umy - uy0
+                        land = dux != 0.0 or duy != 0.0         # a change of input (none: the same sums)
                 if on_tick is not None:
                     if noise and n1_i + 3 > len(n1):
                         n1 = self._n1 = self._refill()
                         n1_i = 0
                     ux0, uy0 = umx - dux, umy - duy
                     # X at its instant (MEMS: modal part + the held inputs' real gains, see set_rate)
-                    xb = gp1 * tpx0[i] + gf1 * ((ae1 * zmx1 + ae2 * zmx2).real + ah0 * ux0 + al0 * dux)
-                    yb = gp1 * tpy0[i] + gf1 * ((ae1 * zmy1 + ae2 * zmy2).real + ah0 * uy0 + al0 * duy)
+                    xb = tpx0[i] + gf1 * ((ae1 * zmx1 + ae2 * zmx2).real + ah0 * ux0 + al0 * dux)
+                    yb = tpy0[i] + gf1 * ((ae1 * zmy1 + ae2 * zmy2).real + ah0 * uy0 + al0 * duy)
                     xd = co1 * xb + si1 * yb - ox1
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
                     if r2 <= lim1:
-                        val = v1 * (erfc(kx1 * (hq1 + xd)) - erfc(kx1 * (hq1 - xd))) * (erfc(ky1 * (hq1 - yd)) + erfc(ky1 * (hq1 + yd)))
+                        val = (v1 * (erfc_(kx1 * (hq1 + xd)) - erfc_(kx1 * (hq1 - xd))) *
+                               (erfc_(ky1 * (hq1 - yd)) + erfc_(ky1 * (hq1 + yd))))
                     else:
                         val = fast1(xd, yd)[0]
                     if noise:
-                        sv = k1 * (s01 + pn1 * sqrt(r2))
-                        cx = round(mid - k1 * val - sqrt(sv * sv + nc21) * n1[n1_i])
+                        sv = k1 * (s01 + pn1 * sqrt_(r2))
+                        cx = round_(mid - k1 * val - sqrt_(sv * sv + nc21) * n1[n1_i])
                     else:
-                        cx = round(mid - k1 * val)
+                        cx = round_(mid - k1 * val)
                     # Y
-                    xb = gp1 * tpx1[i] + gf1 * ((be1 * zmx1 + be2 * zmx2).real + bh0 * ux0 + bl0 * dux)
-                    yb = gp1 * tpy1[i] + gf1 * ((be1 * zmy1 + be2 * zmy2).real + bh0 * uy0 + bl0 * duy)
+                    xb = tpx1[i] + gf1 * ((be1 * zmx1 + be2 * zmx2).real + bh0 * ux0 + bl0 * dux)
+                    yb = tpy1[i] + gf1 * ((be1 * zmy1 + be2 * zmy2).real + bh0 * uy0 + bl0 * duy)
                     xd = co1 * xb + si1 * yb - ox1
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
                     if r2 <= lim1:
-                        val = v1 * (erfc(ky1 * (hq1 - yd)) - erfc(ky1 * (hq1 + yd))) * (erfc(kx1 * (hq1 - xd)) + erfc(kx1 * (hq1 + xd)))
+                        val = (v1 * (erfc_(ky1 * (hq1 - yd)) - erfc_(ky1 * (hq1 + yd))) *
+                               (erfc_(kx1 * (hq1 - xd)) + erfc_(kx1 * (hq1 + xd))))
                     else:
                         val = fast1(xd, yd)[1]
                     if noise:
-                        sv = k1 * (s01 + pn1 * sqrt(r2))
-                        cy = round(mid - k1 * val - sqrt(sv * sv + nc21) * n1[n1_i + 1])
+                        sv = k1 * (s01 + pn1 * sqrt_(r2))
+                        cy = round_(mid - k1 * val - sqrt_(sv * sv + nc21) * n1[n1_i + 1])
                     else:
-                        cy = round(mid - k1 * val)
+                        cy = round_(mid - k1 * val)
                     # SUM
-                    xb = gp1 * tpx2[i] + gf1 * ((ce1 * zmx1 + ce2 * zmx2).real + ch0 * ux0 + cl0 * dux)
-                    yb = gp1 * tpy2[i] + gf1 * ((ce1 * zmy1 + ce2 * zmy2).real + ch0 * uy0 + cl0 * duy)
+                    xb = tpx2[i] + gf1 * ((ce1 * zmx1 + ce2 * zmx2).real + ch0 * ux0 + cl0 * dux)
+                    yb = tpy2[i] + gf1 * ((ce1 * zmy1 + ce2 * zmy2).real + ch0 * uy0 + cl0 * duy)
                     xd = co1 * xb + si1 * yb - ox1
                     yd = co1 * yb - si1 * xb - oy1
                     r2 = xd * xd + yd * yd
                     if r2 <= lim1:
-                        val = v1 * (erfc(kx1 * (hq1 - xd)) + erfc(kx1 * (hq1 + xd))) * (erfc(ky1 * (hq1 - yd)) + erfc(ky1 * (hq1 + yd)))
+                        val = (v1 * (erfc_(kx1 * (hq1 - xd)) + erfc_(kx1 * (hq1 + xd))) *
+                               (erfc_(ky1 * (hq1 - yd)) + erfc_(ky1 * (hq1 + yd))))
                     else:
                         val = fast1(xd, yd)[2]
                     if noise:
-                        sv = k1 * (s01 + pn1 * sqrt(r2))
-                        cs = round(k1 * val + sqrt(sv * sv + nc21) * n1[n1_i + 2])
+                        sv = k1 * (s01 + pn1 * sqrt_(r2))
+                        cs = round_(k1 * val + sqrt_(sv * sv + nc21) * n1[n1_i + 2])
                         n1_i += 3
                     else:
-                        cs = round(k1 * val)
+                        cs = round_(k1 * val)
                     if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
                         self.adc1.n_clip += 1
                         cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
@@ -610,8 +640,10 @@ class Bench:
                         else:                                   # lands in this tick, after the samples
                             ux0, uy0 = umx, umy
                             self.spi_words(words)
+                            last_words, last_unknown = self._last_words, self._last_unknown
                             umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
-                            dux, duy, land = umx - ux0, umy - uy0, True
+                            dux, duy = umx - ux0, umy - uy0
+                            land = dux != 0.0 or duy != 0.0
                     else:
                         missed += 1
                     if q1_rows is not None:
@@ -632,14 +664,13 @@ class Bench:
                     xd = co2 * xb + si2 * yb - ox2
                     yd = co2 * yb - si2 * xb - oy2
                     r2 = xd * xd + yd * yd
-                    if f2 is not None and r2 <= f2[0]:
-                        _, h, kx, ky, v = f2
-                        fxp = erfc(kx * (h - xd))
-                        fxn = erfc(kx * (h + xd))
-                        fyp = erfc(ky * (h - yd))
-                        fyn = erfc(ky * (h + yd))
+                    if r2 <= lim2:
+                        fxp = erfc_(kx2 * (hq2 - xd))
+                        fxn = erfc_(kx2 * (hq2 + xd))
+                        fyp = erfc_(ky2 * (hq2 - yd))
+                        fyn = erfc_(ky2 * (hq2 + yd))
                         sx, sy = fxp + fxn, fyp + fyn
-                        vx, vy, vs = v * (fxn - fxp) * sy, v * (fyp - fyn) * sx, v * sx * sy
+                        vx, vy, vs = v2 * (fxn - fxp) * sy, v2 * (fyp - fyn) * sx, v2 * sx * sy
                     else:
                         vx, vy, vs = fast2(xd, yd)
                     ex = (ang * qx - 2.0 * tfx - borex) * ksky       # true sky error (Eq. 7.5)
@@ -648,14 +679,14 @@ class Bench:
                         if n2_i + 3 > len(n2):
                             n2 = self._n2 = self._refill()
                             n2_i = 0
-                        sv = k2 * (s02 + pn2 * sqrt(r2))
-                        sd = sqrt(sv * sv + nc22)
-                        cx = round(k2 * vx + sd * n2[n2_i])
-                        cy = round(k2 * vy + sd * n2[n2_i + 1])
-                        cs = round(k2 * vs + sd * n2[n2_i + 2])
+                        sv = k2 * (s02 + pn2 * sqrt_(r2))
+                        sd = sqrt_(sv * sv + nc22)
+                        cx = round_(k2 * vx + sd * n2[n2_i])
+                        cy = round_(k2 * vy + sd * n2[n2_i + 1])
+                        cs = round_(k2 * vs + sd * n2[n2_i + 2])
                         n2_i += 3
                     else:
-                        cx, cy, cs = round(k2 * vx), round(k2 * vy), round(k2 * vs)
+                        cx, cy, cs = round_(k2 * vx), round_(k2 * vy), round_(k2 * vs)
                     if cx < lo or cx > hi or cy < lo or cy > hi or cs < lo or cs > hi:
                         self.adc2.n_clip += 1
                         cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
@@ -676,6 +707,8 @@ class Bench:
                 done += 1
                 bt += 1
         finally:
+            dac.n_words += same_words
+            dac.n_unknown += same_unknown
             self.zmx1, self.zmx2, self.zmy1, self.zmy2 = zmx1, zmx2, zmy1, zmy2
             self.tpx, self.tpy = tpxs[i], tpys[i]
             self._blk_i = i

@@ -4,7 +4,7 @@ Creates the device end of a link (a pseudo-terminal pair for serial, an slcan de
 prints the path the controller firmware should open, waits for its first packet (HELLO), and runs the
 lockstep clock: each tick a TICK packet
 carries the Q1 sample, the controller answers with FSM_SPI (``emulator.lockstep.RemoteController``). The
-P-FSM holds fixed volts or plays a distfile (linear interpolation between its samples, Eq. 7.7-7.8).
+P-FSM holds fixed volts or plays a distfile (the firmware player's 6-point kernel, Eq. 7.7-7.8).
 At the end a summary (counters, true sky error statistics, packets received from the controller) is printed
 and optionally written as JSON.
 
@@ -23,32 +23,75 @@ import numpy as np
 from emulator.bench import Bench
 from emulator.config import load_config, write_json_atomic
 from emulator.lockstep import HoldPlayer, Lockstep, RemoteController
-from protocol import core
+from protocol import core, distfile
 
 
 class DistfilePlayer:
-    """Plays a distfile's error angles into AD660 codes (into ``array("H")`` buffers) at ``pfsm_hz``: linear interpolation between samples,
-    V = 0.012343 V/arcsec x theta_e (Eq. 7.8) through ``bench.pfsm_v_for_error``; holds the last sample at
-    the end (``fill`` then returns fewer codes than asked)."""
+    """The disturbance player's codes computed with numpy: the same integer arithmetic as
+    ``firmware.player.Player`` played once (ONESHOT) at ``pfsm_hz`` (Keys's 6-point kernel over the distfile's
+    Q2 codes, Eq. 7.7-7.8; see firmware/player.py), whole blocks at a time; tests/test_player_kernel.py checks
+    the two give the same codes. Holds the last sample at the end (``fill`` then returns fewer codes than
+    asked)."""
 
-    def __init__(self, dist, bench, pfsm_hz=10600.0):
-        xs, ys = zip(*(dist.sample(i) for i in range(dist.count)))
-        self.t = np.arange(dist.count) * (dist.period_us * 1e-6)
-        self.vx = np.array([bench.pfsm_v_for_error(v) for v in xs])
-        self.vy = np.array([bench.pfsm_v_for_error(v) for v in ys])
+    def __init__(self, dist, pfsm_hz=10600.0):
+        from firmware.player import Player
+        rate = int(round(pfsm_hz))
+        if abs(rate - pfsm_hz) > 1e-9:
+            raise ValueError("the player runs at a whole number of Hz, got %r" % pfsm_hz)
+        p = Player(rate_hz=rate)
+        p.set_rate(rate, dist.period_us)
+        self._inc, self._cell, self._s, self._div = p._inc, p._cell, p._shift, p._div
+        n = dist.count
+        q = self._q2(dist, n)
+        w = q[np.clip(np.arange(n - 1)[:, None] + np.arange(-2, 4), 0, n - 1)]     # segments x 6 x 2
+        a, b, q0, d, e, g = (w[:, j] for j in range(6))
+        self.c3 = (a - 7 * b + 16 * q0 - 16 * d + 7 * e - g + 6) // 12
+        self.d2 = (((-2 * a + 15 * b - 28 * q0 + 20 * d - 6 * e + g + 6) // 12) << 10) + 512
+        self.d1 = (((a - 8 * b + 8 * d - e + 6) // 12) << 10) + 512
+        self.d0 = ((q0 + 2) << 10) + 512
+        self.hold = (q[-1] + 2) >> 2
         self.pfsm_hz = pfsm_hz
-        self.range_v = bench.pfsm.range_v
         self.i = 0
-        self.n_total = int(self.t[-1] * pfsm_hz) + 1
+        self.n_play = -(-(n - 1) * self._cell // self._inc)        # outputs before the one-shot's end
+        self.n_total = self.n_play + 1
 
-    def _codes(self, v):
-        return np.clip(np.round(v / self.range_v * 32768.0) + 0x8000, 0, 0xFFFF).astype(np.uint16)
+    @staticmethod
+    def _q2(dist, n):
+        """The samples' Q2 codes (n x 2): ``ad660.arcsec_to_code_q2`` in numpy (the same double operations),
+        and ``ad660.Q2Converter`` (the firmware's exact integers) for the values within 1e-6 of a rounding tie,
+        where the two could differ."""
+        from firmware import ad660
+        raw = np.frombuffer(dist.raw, "<f4" if dist.kind == distfile.KIND_FLOAT32 else "<i4", 2 * n,
+                            distfile.HEADER_SIZE).reshape(n, 2).astype(float)
+        x = raw if dist.kind == distfile.KIND_FLOAT32 else raw * dist.scale
+        c = (ad660.ZERO_CODE + x * (ad660.V_PER_ARCSEC * ad660.CODES_PER_VOLT)) * 4.0
+        top = ad660.CODE_MAX * 4
+        q = np.where(c <= 0.0, 0.0, np.where(c >= top, top, np.floor(c + 0.5))).astype(np.int64)
+        tie = np.argwhere((np.abs(c - np.floor(c) - 0.5) < 1e-6) & (c > 0.0) & (c < top))
+        if len(tie):
+            cv = ad660.Q2Converter(dist.kind, dist.scale)
+            for i, ax in tie.tolist():
+                q[i, ax] = cv.code(dist.raw, dist.sample_offset(i) + 4 * ax)
+        return q
+
+    def codes(self, k):
+        """Codes (len(k) x 2, int64) of outputs k (k < n_play)."""
+        seg, ph = np.divmod(np.asarray(k, np.int64) * self._inc, self._cell)
+        div = self._div
+        f = ((((ph >> self._s) << 10) + (div >> 1)) // div)[:, None]
+        h = (self.c3[seg] * f + self.d2[seg]) >> 10
+        h = (h * f + self.d1[seg]) >> 10
+        return np.clip((h * f + self.d0[seg]) >> 12, 0, 0xFFFF)
 
     def fill(self, xbuf, ybuf, n):
         n = max(0, min(n, self.n_total - self.i))
-        t = (self.i + np.arange(n)) / self.pfsm_hz
-        xbuf[:n] = array("H", self._codes(np.interp(t, self.t, self.vx)).tobytes())
-        ybuf[:n] = array("H", self._codes(np.interp(t, self.t, self.vy)).tobytes())
+        k = self.i + np.arange(n)
+        out = np.empty((n, 2), np.int64)
+        play = k < self.n_play
+        out[play] = self.codes(k[play])
+        out[~play] = self.hold
+        xbuf[:n] = array("H", out[:, 0].astype(np.uint16).tobytes())
+        ybuf[:n] = array("H", out[:, 1].astype(np.uint16).tobytes())
         self.i += n
         return n
 
@@ -59,9 +102,8 @@ def serve(args):
     duration = 10.0 if args.duration is None else args.duration
     bench = Bench(load_config(args.config), seed=args.seed)
     if args.distfile:
-        from protocol import distfile
         with open(args.distfile, "rb") as f:
-            player = DistfilePlayer(distfile.parse(f.read()), bench)
+            player = DistfilePlayer(distfile.parse(f.read()))
     else:
         player = HoldPlayer(*(bench.pfsm.v_to_code(v) for v in args.pfsm_v))
     link = open_link("pty" if args.link == "serial" else "slcan-pty", "BENCH")

@@ -1,26 +1,59 @@
-"""Disturbance player (the thesis's SimArduino): distfile -> linear interpolation -> AD660 codes for the P-FSM.
+"""Disturbance player (the thesis's SimArduino): distfile -> 6-point cubic interpolation -> AD660 codes.
 
-The distfile (``protocol.distfile``) holds body pointing error angles every ``period_us`` (8.192 ms); the player
-interpolates linearly between them (Sec. 7.3.1) and converts to AD660 codes by Eq. 7.7-7.8
-(``firmware.ad660``) at ``rate_hz`` (10.6 kHz by default). ``fill(xbuf, ybuf, n)`` is integer arithmetic:
+The distfile (``protocol.distfile``) holds body pointing error angles every ``period_us`` = Ts (8.192 ms by
+default, any whole us from 95); the player interpolates between them and converts to AD660 codes by Eq. 7.7-7.8
+(``firmware.ad660``) at ``rate_hz`` (10.6 kHz by default) for the P-FSM. The thesis's SimArduino interpolated
+linearly (Sec. 7.3.1), which plays a tone f at sinc^2(f Ts): x0.875 at 200 Hz for a 1 ms step. This player uses
+Keys's 6-point cubic convolution kernel (R. G. Keys, "Cubic convolution interpolation for digital image
+processing", IEEE Trans. ASSP 29(6), 1981: its 6-point kernel), with u = |t| / Ts:
 
-- segment ends c0, c1: AD660 codes Q2 (code x 4, 0 .. 262140), converted once per distfile sample from its
-  raw bytes by ``ad660.Q2Converter`` (integer limbs, the same codes as ``ad660.arcsec_to_code_q2``);
+    W(u) = 4/3 u^3 - 7/3 u^2 + 1                   0 <= u < 1
+           -7/12 u^3 + 3 u^2 - 59/12 u + 5/2       1 <= u < 2
+           1/12 u^3 - 2/3 u^2 + 7/4 u - 3/2        2 <= u < 3,    0 beyond.
+
+It interpolates (W(0) = 1, W(k) = 0), is C1 and reproduces cubics. Its frequency response (derived here; the
+paper gives none; tests/test_player_kernel.py checks it against quadrature and against the played codes):
+W is even, C1 and piecewise cubic with knots at the integers, so its 4th derivative is
+sum_k J3(k) delta(u - k) + J2(k) delta_prime(u - k), J2 and J3 the jumps of W's 2nd and 3rd derivatives at k
+(J3 = 16, -23/2, 4, -1/2 at k = 0, 1, 2, 3, even in k; J2 = 0, -5/6, 2/3, -1/6, odd in k). Transforming, with
+w = 2 pi f Ts: w^4 G = J3(0) + 2 sum_{k>=1} (J3(k) cos kw + w J2(k) sin kw), i.e.
+
+    G(f) = [48 - 69 cos w + 24 cos 2w - 3 cos 3w - w (5 sin w - 4 sin 2w + sin 3w)] / (3 w^4)
+
+G = 1 - O(w^4): 0.9997 at 0.1/Ts, 0.990 at 0.2/Ts, 0.929 at 0.3/Ts, 0.493 at 0.5/Ts; the images at k/Ts -+ f
+play at G(k -+ f Ts). ``ground.resample.player_gain`` evaluates it (``kernel="linear"``: sinc^2, the thesis's).
+
+Integer arithmetic (``fill``), every intermediate below 2^30 (a small int on a 32-bit MicroPython board):
+
+- samples: AD660 codes in Q2 (code x 4, 0 .. 262140), converted once per distfile sample from its raw bytes by
+  ``ad660.Q2Converter`` (the codes of ``ad660.arcsec_to_code_q2``); a window of six, q[-2] .. q[3], around the
+  segment from sample i (q0) to i + 1 (q1); indices are clamped to the file (its end samples repeat);
+- per segment: y(x) = q0 + c1 x + c2 x^2 + c3 x^3 for 0 <= x <= 1 (W's pieces summed per tap), with
+  12 c1 = q[-2] - 8 q[-1] + 8 q1 - q2, 12 c2 = -2 q[-2] + 15 q[-1] - 28 q0 + 20 q1 - 6 q2 + q3,
+  12 c3 = q[-2] - 7 q[-1] + 16 q0 - 16 q1 + 7 q2 - q3, each rounded to an integer C = (12 c + 6) // 12;
 - time: a phase accumulator in units of 1/(rate_hz x period_us) s reduced by their gcd with 10^6: each output
-  adds ``_inc``; a segment lasts ``_cell`` (10.6 kHz and 8.192 ms: 625 and 54272); the fraction
-  f = ((phase >> s) << 12) // (cell >> s) is Q12 (s keeps cell >> s below 2^18, so phase << 12 < 2^30);
-- output: (c0 + ((c1 - c0) f + 2048) >> 12 + 2) >> 2, each product <= 262140 x 4096 < 2^30, computed as
-  (4096 c0 + 10240 + (c1 - c0) f) >> 14 (the same floor; < 2^30, as it lies between c0 and c1 in Q12);
-- speed: with s = 0 the quotient f and remainder of phase << 12 by cell advance by fixed steps, so within a
-  segment each output costs two additions and a compare instead of a division (bit-identical codes).
-- allocation: none per update, crossings into the next sample included (the sample's bytes are read into
-  the reader's preallocated buffer, or indexed in memory): the 10.6 kHz timer path of Sec. 7.3.1 can run
-  with the heap locked (tests/mp/firmware_player_alloc.py).
+  adds ``_inc``; a segment lasts ``_cell`` (10.6 kHz at 8.192 ms: 625 and 54272; at 1 ms: 5 and 53); the
+  fraction x = f / 1024, f = (((phase >> s) << 10) + div // 2) // div (Q10, rounded; div = cell >> s < 2^19);
+  with s = 0, f and its remainder advance by fixed steps (two additions and a compare, no division);
+- output (Horner, each stage rounded): h = (C3 f + (C2 << 10) + 512) >> 10, h = (h f + (C1 << 10) + 512) >> 10,
+  code = (h f + ((q0 + 2) << 10) + 512) >> 12, clipped to 0 .. 65535 (the kernel overshoots a step by 9.3 %).
+  Bounds, M = 131070 (half the Q2 range; the weights of c1 .. c3 sum to 0): |c3| <= 4 M, |c2 + c3 x| <= 6 M,
+  |c1 + c2 x + c3 x^2| <= 2.44 M for 0 <= x <= 1, so every product and sum is below 6 M 2^10 + 2^11 < 2^30.
+  A code is within one of the exact kernel's at the Q10 instant (coefficient and stage roundings < 0.63 code
+  before the last rounding); the Q10 instant is within Ts / 2048 of the true one (4 us at 8.192 ms).
+- cost: per output and axis three multiplies, three adds, three shifts and a range test (linear interpolation
+  took one add and one shift); per segment one new sample and six divisions by 12. ``bench/bench_firmware.py``
+  reports the rate.
+- allocation: none per update, crossings into the next sample included (the sample's bytes are read into the
+  reader's preallocated buffer, or indexed in memory; the window is a preallocated list): the 10.6 kHz timer
+  path of Sec. 7.3.1 can run with the heap locked (tests/mp/firmware_player_alloc.py).
+
+``emulator.serve.DistfilePlayer`` computes the same codes with numpy (tests/test_player_kernel.py).
 
 Actions (PLAYER_CTRL, ``protocol.table.PLAYER_ACTIONS``): STOP pauses (the DAC holds its last code); START
-resumes from where it stopped; LOOP rewinds and plays repeatedly; ONESHOT rewinds and plays once, then stops
-at the last sample. ``fill`` returns how many codes it wrote: fewer than n (0 when stopped) means the DAC
-holds the last one.
+resumes from where it stopped; LOOP rewinds and plays repeatedly (each pass interpolates its own samples, the
+window clamped at both ends); ONESHOT rewinds and plays once, then stops at the last sample. ``fill`` returns how
+many codes it wrote: fewer than n (0 when stopped) means the DAC holds the last one.
 """
 
 import os
@@ -60,6 +93,21 @@ def _gcd(a, b):
     return a
 
 
+def _coefs(w, out):
+    """The segment's Horner terms from its window w (six Q2 codes, q[-2] .. q[3]) into ``out`` (see the module
+    doc): C3, (C2 << 10) + 512, (C1 << 10) + 512, ((q0 + 2) << 10) + 512. Small ints only."""
+    a = w[0]
+    b = w[1]
+    q0 = w[2]
+    d = w[3]
+    e = w[4]
+    g = w[5]
+    out[0] = (a - 7 * b + 16 * q0 - 16 * d + 7 * e - g + 6) // 12
+    out[1] = (((-2 * a + 15 * b - 28 * q0 + 20 * d - 6 * e + g + 6) // 12) << 10) + 512
+    out[2] = (((a - 8 * b + 8 * d - e + 6) // 12) << 10) + 512
+    out[3] = ((q0 + 2) << 10) + 512
+
+
 class Player:
     """Plays a distfile (a ``protocol.distfile.Distfile`` or streaming ``Reader``) into AD660 codes.
 
@@ -76,7 +124,10 @@ class Player:
         self.x_code = ad660.ZERO_CODE   # last codes written
         self.y_code = ad660.ZERO_CODE
         self._phase = 0
-        self._c0x = self._c1x = self._c0y = self._c1y = ad660.ZERO_CODE << 2
+        self._wx = [ad660.ZERO_CODE << 2] * 6     # Q2 codes of samples index - 2 .. index + 3
+        self._wy = [ad660.ZERO_CODE << 2] * 6
+        self._kx = [0, 0, 0, 0]                   # the segment's C3, (C2 << 10) + 512, (C1 << 10) + 512, base
+        self._ky = [0, 0, 0, 0]
         self._upload = Upload(_MAX_DIST_BYTES if store_path else _MAX_RAM_BYTES,
                               None if store_path is None else store_path + ".part")
         self.set_rate(rate_hz)
@@ -96,7 +147,7 @@ class Player:
             raise ValueError("player rate %d Hz is slower than the distfile's samples (%d us)" % (rate_hz,
                                                                                               period_us))
         s = 0
-        while (cell >> s) >= (1 << 18):
+        while (cell >> s) >= (1 << 19):
             s += 1
         # keep the phase's position within the segment when the rate changes
         old = getattr(self, "_cell", 0)
@@ -106,8 +157,8 @@ class Player:
         self._cell = cell
         self._shift = s
         self._div = cell >> s
-        self._fq = (inc << 12) // cell if s == 0 else 0     # per-output step of f and its remainder
-        self._fr = (inc << 12) - self._fq * cell if s == 0 else 0
+        self._fq = (inc << 10) // cell if s == 0 else 0     # per-output step of f and its remainder
+        self._fr = (inc << 10) - self._fq * cell if s == 0 else 0
 
     def load(self, reader):
         """Play ``reader`` (stopped, rewound). Needs at least 2 samples (the distfile format ensures it)."""
@@ -129,20 +180,31 @@ class Player:
         self._segment(0)
 
     def _segment(self, i, follow=False):
-        """Load segment i (samples i and i + 1); ``follow``: it follows the loaded one, whose end it starts at."""
+        """Load segment i (samples i and i + 1, window i - 2 .. i + 3 clamped to the file); ``follow``: it
+        follows the loaded one (one new sample)."""
         self.index = i
         r = self.reader
         cv = self._conv
+        wx = self._wx
+        wy = self._wy
+        last = r.count - 1
         if follow:
-            self._c0x = self._c1x
-            self._c0y = self._c1y
+            for j in range(5):
+                wx[j] = wx[j + 1]
+                wy[j] = wy[j + 1]
+            j = i + 3 if i + 3 < last else last
+            o = r.sample_offset(j)
+            wx[5] = cv.code(r.raw, o)
+            wy[5] = cv.code(r.raw, o + 4)
         else:
-            o = r.sample_offset(i)
-            self._c0x = cv.code(r.raw, o)
-            self._c0y = cv.code(r.raw, o + 4)
-        o = r.sample_offset(i + 1)
-        self._c1x = cv.code(r.raw, o)
-        self._c1y = cv.code(r.raw, o + 4)
+            for j in range(6):
+                k = i + j - 2
+                k = 0 if k < 0 else (last if k > last else k)
+                o = r.sample_offset(k)
+                wx[j] = cv.code(r.raw, o)
+                wy[j] = cv.code(r.raw, o + 4)
+        _coefs(wx, self._kx)
+        _coefs(wy, self._ky)
 
     # --- actions -----------------------------------------------------------------------------------
     def start(self):
@@ -174,49 +236,63 @@ class Player:
         cell = self._cell
         s = self._shift
         div = self._div
+        half = div >> 1
         fq = self._fq
         fr = self._fr
+        kx = self._kx
+        ky = self._ky
         last = self.reader.count - 2
         k = 0
         while k < n:
             m = (cell - 1 - ph) // inc + 1               # outputs left in this segment
             if m > n - k:
                 m = n - k
-            c0x = self._c0x
-            c0y = self._c0y
-            dx = self._c1x - c0x
-            dy = self._c1y - c0y
-            bx = (c0x << 12) + 10240                     # c0 Q12 plus both roundings (2048 and 2 << 12)
-            by = (c0y << 12) + 10240
+            x3 = kx[0]
+            x2 = kx[1]
+            x1 = kx[2]
+            x0 = kx[3]
+            y3 = ky[0]
+            y2 = ky[1]
+            y1 = ky[2]
+            y0 = ky[3]
             if s:
                 for j in range(k, k + m):
-                    f = ((ph >> s) << 12) // div         # Q12 fraction of the segment
-                    xbuf[j] = (bx + dx * f) >> 14
-                    ybuf[j] = (by + dy * f) >> 14
+                    f = (((ph >> s) << 10) + half) // div        # Q10 fraction of the segment
+                    h = (x3 * f + x2) >> 10
+                    h = (h * f + x1) >> 10
+                    c = (h * f + x0) >> 12
+                    if c >> 16:
+                        c = 0 if c < 0 else 65535
+                    xbuf[j] = c
+                    h = (y3 * f + y2) >> 10
+                    h = (h * f + y1) >> 10
+                    c = (h * f + y0) >> 12
+                    if c >> 16:
+                        c = 0 if c < 0 else 65535
+                    ybuf[j] = c
                     ph += inc
             else:
-                f = (ph << 12) // div                    # phase << 12 = f div + r, 0 <= r < div
-                r = (ph << 12) - f * div
-                ax = bx + dx * f
-                ay = by + dy * f
-                xbuf[k] = ax >> 14
-                ybuf[k] = ay >> 14
-                if m > 1:                                # so inc < cell, fq < 4096: |dx| (fq + 1) < 2^30
-                    sx = dx * fq                         # f advances by fq or fq + 1 per output
-                    sy = dy * fq
-                    sx1 = sx + dx
-                    sy1 = sy + dy
-                    for j in range(k + 1, k + m):
-                        r += fr
-                        if r >= div:
-                            r -= div
-                            ax += sx1
-                            ay += sy1
-                        else:
-                            ax += sx
-                            ay += sy
-                        xbuf[j] = ax >> 14
-                        ybuf[j] = ay >> 14
+                t = (ph << 10) + half                    # = f div + r, 0 <= r < div
+                f = t // div
+                r = t - f * div
+                for j in range(k, k + m):
+                    h = (x3 * f + x2) >> 10
+                    h = (h * f + x1) >> 10
+                    c = (h * f + x0) >> 12
+                    if c >> 16:
+                        c = 0 if c < 0 else 65535
+                    xbuf[j] = c
+                    h = (y3 * f + y2) >> 10
+                    h = (h * f + y1) >> 10
+                    c = (h * f + y0) >> 12
+                    if c >> 16:
+                        c = 0 if c < 0 else 65535
+                    ybuf[j] = c
+                    r += fr                              # f advances by fq or fq + 1 per output
+                    f += fq
+                    if r >= div:
+                        r -= div
+                        f += 1
                 ph += m * inc
             k += m
             if ph >= cell:
@@ -225,8 +301,8 @@ class Player:
                 if i > last:
                     if not self.loop:                    # one-shot: hold the last sample and stop
                         if k < n:
-                            xbuf[k] = (self._c1x + 2) >> 2
-                            ybuf[k] = (self._c1y + 2) >> 2
+                            xbuf[k] = (self._wx[3] + 2) >> 2
+                            ybuf[k] = (self._wy[3] + 2) >> 2
                             k += 1
                         self.state = STOP
                         self.index = last + 1

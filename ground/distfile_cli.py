@@ -133,7 +133,7 @@ def _cmd_generate(a):
 
 def write_jitter_sidecar(path, src, d, x, y):
     """The wheel harmonics of a jitter distfile (``path`` = F.jitter.json): frequencies, amplitudes in the file
-    and as the player plays them (sinc^2); printed too."""
+    and the player's gain on each (``resample.player_gain``, Keys's 6-point kernel); printed too."""
     import json
     t = np.arange(d.count) * d.period_us * 1e-6
     amp = src.harmonics(t, x, y)
@@ -141,7 +141,7 @@ def write_jitter_sidecar(path, src, d, x, y):
             "player_gain": resample.player_gain(src.wheel_hz, d.period_us).tolist(), "period_us": d.period_us,
             "jitter_scale": src.scale}
     write_atomic(path, (json.dumps(side, indent=2) + "\n").encode())
-    print("wheel harmonics (arcsec in the file, X / Y; the player plays them x sinc^2):")
+    print("wheel harmonics (arcsec in the file, X / Y; the player plays them x its kernel's gain):")
     for f, (ax, ay), g in zip(side["wheel_hz"], amp, side["player_gain"]):
         print("  %8.3f Hz  %.4f / %.4f  x%.4f" % (f, ax, ay, g))
     print("wrote %s" % path)
@@ -181,8 +181,10 @@ def bandwidth_lines(d):
     else:
         out.append("anti-alias none needed: the source was no faster than the file (or a sine checked against "
                    "its Nyquist)")
-    out.append("player     linear interpolation plays a tone f at sinc^2(f x %d us) and adds images at "
-               "%.3f Hz -+ f (then the AD660 holds each code for 1/10.6 kHz):" % (ts, fs))
+    out.append("player     Keys 6-point cubic interpolation (firmware/player.py) plays a tone f at G(f x %d us) and "
+               "adds images" % ts)
+    out.append("           at %.3f Hz -+ f (then the AD660 holds each code for 1/10.6 kHz; the thesis's linear "
+               "interpolation played sinc^2):" % fs)
     out.append("           %10s %10s %12s %10s %12s %10s" % ("f (Hz)", "gain", "image (Hz)", "gain", "image (Hz)",
                                                              "gain"))
     for k in (0.05, 0.25, 0.5, 0.75, 0.9):

@@ -1,6 +1,7 @@
 """``fps hil``: the emulated hardware-in-the-loop run of Sec. 7.5.
 
-Starts the emulated bench, the disturbance player (firmware, in-process beside the bench: the SimArduino)
+Starts the emulated bench, the disturbance player (in-process beside the bench: the SimArduino; the firmware
+player's codes computed with numpy, ``emulator.serve.DistfilePlayer``)
 and the controller firmware (in-process, or a CPython/MicroPython subprocess over a serial pty or CAN slcan),
 uploads the H calibration (HTABLE_*), calibrates Q2 against the P-FSM, then plays the distfile with the
 controller in TRACK mode and records Q2 at 630 Hz through the ADS1256 model beside the emulator's truth.
@@ -181,8 +182,9 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     Bad input raises ValueError before anything is written. Once the folder exists it always ends with a
     ``summary.json`` holding ``complete``, ``error``, ``requirement_met``, ``mode_changes`` and both sides'
     link counters; a failure then raises ``RunFailed``, an interruption ``Interrupted``."""
-    from firmware.player import Player
+    from emulator.serve import DistfilePlayer
     from ground import runtime
+    from protocol import distfile
 
     link_opts = dict(link_opts or {})
     runtime.check_options(runtime_name, link_name, **link_opts)
@@ -215,9 +217,8 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
                 "distfile_count": d.count, "distfile_period_us": d.period_us,
                 "calibration": os.path.abspath(calibration_path)}, **run_config(rig, duration_s, seed, link_opts)))
             q2cal = prepare_play(rig, rec, cal, q2_dvp, (dx[0], dy[0]))
-            player = Player()
-            player.open_file(os.path.abspath(distfile_path))
-            player.oneshot()
+            with open(distfile_path, "rb") as f:      # firmware.player.Player's codes, whole blocks at a time
+                player = DistfilePlayer(distfile.parse(f.read()), pfsm_hz=rig.lockstep.pfsm_hz)
             play(rig, rec, player, duration_s, summary, quiet)
     finish_summary(rec, run, summary, q2cal, plots)
     n_played = min(len(dx), int(round(rec.virtual_s * 1e6 / d.period_us)) + 1)
@@ -374,8 +375,9 @@ def finish_summary(rec, run, summary, q2cal, plots):
 
 def jitter_harmonics(distfile_path, rec, t0_us, rig):
     """For a jitter distfile (its F.jitter.json sidecar): each wheel harmonic's amplitude in the file, as
-    played (x sinc^2 of the player), after the FSM loop (the truth at the Q2 instants) and the loop model's
-    prediction (played x |S|, ground.response.LoopModel). None for other distfiles."""
+    played (x the player kernel's gain, ``resample.player_gain``), after the FSM loop (the truth at the Q2
+    instants) and the loop model's prediction (played x |S|, ground.response.LoopModel). None for other
+    distfiles."""
     side = distfile_path + ".jitter.json"
     if not os.path.exists(side) or rig is None:
         return None

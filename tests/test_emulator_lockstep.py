@@ -375,16 +375,21 @@ def test_bad_timing_and_codes_are_refused_or_counted():
 
 
 def test_distfile_player_interpolates_and_converts_by_eq_7_8():
+    """The emulator's player: the Keys 6-point kernel (firmware/player.py) within one code of the float
+    kernel, Eq. 7.8 codes, a one-shot that holds the last sample."""
     from emulator.serve import DistfilePlayer
     from protocol import distfile
+    from tests.test_firmware_player import _reference
     d = distfile.parse(distfile.pack([0.0, 40.0, -20.0], [10.0, 10.0, 10.0]))
     b = Bench(ZERO_LATENCY)
-    p = DistfilePlayer(d, b, pfsm_hz=10600.0)
+    p = DistfilePlayer(d, pfsm_hz=10600.0)
     n = p.n_total + 50
     xb, yb = array("H", bytes(2 * n)), array("H", bytes(2 * n))
     got = p.fill(xb, yb, n)
     assert got == p.n_total < n                          # one-shot: fewer codes at the end
-    t = np.arange(got) / 10600.0
-    want_x = np.interp(t, [0.0, 0.008192, 0.016384], [0.0, 40.0, -20.0]) * 0.012343
-    assert np.max(np.abs(b.pfsm.code_to_v(np.array(xb[:got], float)) - want_x)) < 20.0 / 65536 + 4e-4
-    assert set(yb[:got]) == {b.pfsm.v_to_code(b.pfsm_v_for_error(10.0))}
+    ref = _reference([0.0, 40.0, -20.0], [10.0] * 3, 10600, got - 1)
+    assert max(abs(xb[k] - r[0]) for k, r in enumerate(ref)) <= 1
+    from firmware import ad660                       # the firmware's codes: Q2 rounded, then the code
+    assert xb[got - 1] == ad660.arcsec_to_code(-20.0)
+    assert set(yb[:got]) == {ad660.arcsec_to_code(10.0)}
+    assert abs(ad660.arcsec_to_code(10.0) - b.pfsm.v_to_code(b.pfsm_v_for_error(10.0))) <= 1

@@ -1,4 +1,5 @@
-"""The disturbance player (firmware/player.py): interpolation, Eq. 7.8 codes, actions, uploads, MicroPython."""
+"""The disturbance player (firmware/player.py): Keys 6-point interpolation, Eq. 7.8 codes, actions, uploads,
+MicroPython."""
 
 import math
 import struct
@@ -20,16 +21,41 @@ def _file(n=62, kind=1, amp=300.0):
     return xs, ys, distfile.pack(xs, ys, kind=kind, scale=0.001, source="test", seed=1)
 
 
-def _reference(xs, ys, rate_hz, m, period_s=0.008192):
-    """Float truth: linear interpolation in time, then Eq. 7.8 and offset binary, rounded and clipped."""
+def keys6(u):
+    """Keys's 6-point cubic convolution kernel (firmware/player.py's doc), floats."""
+    u = abs(u)
+    if u < 1:
+        return (4 / 3 * u - 7 / 3) * u * u + 1
+    if u < 2:
+        return ((-7 / 12 * u + 3) * u - 59 / 12) * u + 2.5
+    if u < 3:
+        return ((u / 12 - 2 / 3) * u + 7 / 4) * u - 1.5
+    return 0.0
+
+
+def _q10(k, rate_hz, period_us):
+    """Output k's segment and its Q10 fraction, as the player's phase accumulator gives them."""
+    g = math.gcd(1000000, rate_hz * period_us)
+    inc, cell = 1000000 // g, rate_hz * period_us // g
+    s = 0
+    while (cell >> s) >= (1 << 19):
+        s += 1
+    i, ph = divmod(k * inc, cell)
+    div = cell >> s
+    return i, ((((ph >> s) << 10) + (div >> 1)) // div) / 1024.0
+
+
+def _reference(xs, ys, rate_hz, m, period_us=8192):
+    """Float truth: the Keys 6-point kernel over the file's samples (ends clamped) at each output's Q10 instant,
+    then Eq. 7.8 and offset binary, rounded and clipped."""
     out = []
+    n = len(xs)
     for k in range(m):
-        u = k / rate_hz / period_s
-        i = min(int(u), len(xs) - 2)
-        f = u - i
+        i, x = _q10(k, rate_hz, period_us)
+        i = min(i, n - 2)
         codes = []
         for s in (xs, ys):
-            th = s[i] + (s[i + 1] - s[i]) * f
+            th = sum(s[min(max(i + j, 0), n - 1)] * keys6(x - j) for j in range(-2, 4))
             c = 0x8000 + ad660.V_PER_ARCSEC * th * 65536 / 20.0
             codes.append(max(0, min(65535, int(math.floor(c + 0.5)))))
         out.append(tuple(codes))
@@ -56,7 +82,7 @@ def test_eq_7_8_codes():
 
 
 @pytest.mark.parametrize("kind, rate", [(1, 10600), (0, 10600), (1, 4000)])
-def test_oneshot_matches_float_interpolation_within_one_code(kind, rate):
+def test_oneshot_matches_the_float_kernel_within_one_code(kind, rate):
     xs, ys, b = _file(kind=kind)
     f = distfile.parse(b)
     p = Player(f, rate_hz=rate)
@@ -74,38 +100,48 @@ def test_oneshot_matches_float_interpolation_within_one_code(kind, rate):
 
 
 def _per_sample(f, rate_hz, loop, m):
-    """The module doc's arithmetic one output at a time (phase accumulator, Q12 fraction, Q2 codes)."""
+    """The module doc's arithmetic one output at a time (phase accumulator, Q10 fraction, Horner in Q2)."""
     period = f.period_us
+    q2 = [(ad660.arcsec_to_code_q2(x), ad660.arcsec_to_code_q2(y)) for x, y in (f.sample(i) for i in range(f.count))]
+    n = len(q2)
     g = math.gcd(1000000, rate_hz * period)
     inc, cell = 1000000 // g, rate_hz * period // g
     s = 0
-    while (cell >> s) >= (1 << 18):
+    while (cell >> s) >= (1 << 19):
         s += 1
-    q2 = [(ad660.arcsec_to_code_q2(x), ad660.arcsec_to_code_q2(y)) for x, y in (f.sample(i) for i in range(f.count))]
-    out, ph, i = [], 0, 0
+    out, k = [], 0
     while len(out) < m:
-        fr = ((ph >> s) << 12) // (cell >> s)
-        out.append(tuple((a + (((b - a) * fr + 2048) >> 12) + 2) >> 2 for a, b in zip(q2[i], q2[i + 1])))
-        ph += inc
-        if ph >= cell:
-            ph -= cell
-            i += 1
-            if i > f.count - 2:
-                if not loop:
-                    out.append(tuple((c + 2) >> 2 for c in q2[-1]))
-                    break
-                i = 0
+        i, ph = divmod(k * inc, cell)         # the phase runs on across segments and loop passes
+        if i > n - 2:
+            if not loop:
+                out.append(tuple((c + 2) >> 2 for c in q2[-1]))
+                break
+            i %= n - 1
+        fr = ((((ph >> s) << 10) + ((cell >> s) >> 1)) // (cell >> s))
+        codes = []
+        for ax in (0, 1):
+            a, b, q0, d, e, g6 = (q2[min(max(i + j, 0), n - 1)][ax] for j in range(-2, 4))
+            c1 = (a - 8 * b + 8 * d - e + 6) // 12
+            c2 = (-2 * a + 15 * b - 28 * q0 + 20 * d - 6 * e + g6 + 6) // 12
+            c3 = (a - 7 * b + 16 * q0 - 16 * d + 7 * e - g6 + 6) // 12
+            h = c2 + ((c3 * fr + 512) >> 10)
+            h = c1 + ((h * fr + 512) >> 10)
+            y = q0 + ((h * fr + 512) >> 10)
+            codes.append(min(65535, max(0, (y + 2) >> 2)))
+        out.append(tuple(codes))
+        k += 1
     return out[:m]
 
 
-@pytest.mark.parametrize("rate, loop", [(10600, False), (10600, True), (4001, False), (2049, True), (777, False)])
+@pytest.mark.parametrize("rate, loop", [(10600, False), (10600, True), (4097, False), (7001, True), (2049, True),
+                                        (777, False)])
 def test_fill_equals_the_per_sample_arithmetic(rate, loop):
-    """fill's segment-wise fast path (s = 0) and general path (s > 0: 4001, 2049 Hz) give exactly the codes of
+    """fill's segment-wise fast path (s = 0) and general path (s > 0: 4097, 7001 Hz) give exactly the codes of
     the per-sample formula, in blocks of any size."""
     xs, ys, b = _file(n=23, amp=2000.0)
     f = distfile.parse(b)
     p = Player(f, rate_hz=rate)
-    assert (p._shift > 0) == (rate in (4001, 2049))
+    assert (p._shift > 0) == (rate in (4097, 7001))
     p.play_loop() if loop else p.oneshot()
     m = int(3.2 * (f.count - 1) * 0.008192 * rate)
     got = []

@@ -78,7 +78,8 @@ def interpolation(X, n, ia, ic, dt_a, dt_b, f, Phi, Q):
     Li = chol_inv(FQ @ Fb.T + Q(dt_b))             # Qca = L L^T
     B = (FQ.T @ Li.T) @ Li                         # Qa Fb^T Qca^-1 (Qa symmetric)
     BF = B @ Fb
-    IBF = np.eye(n) - BF
+    IBF = -BF
+    IBF.flat[::n + 1] += 1.0
     xb = xb_pred + BF @ (f(xc, -dt_b) - xb_pred)
     return xb, IBF @ Fa, B, IBF @ Qa
 

@@ -197,17 +197,24 @@ def Hb(x):
 
 def gnss_beacon(x, A):
     """(h, H) of SatA's GNSS and the beacon stacked (Eq. 5.12, 5.13, 5.16): h = [rA, vA, y_b] (9),
-    H = [[I6, 0], [A Hb,A, 0, A Hb,B, 0]] (9 x 12), from one line-of-sight evaluation."""
-    u, rho = los(x)
+    H = [[I6, 0], [A Hb,A, 0, A Hb,B, 0]] (9 x 12), from one line-of-sight evaluation (A Hb,A = (y u^T - A)/rho
+    with y = A u: one 3 x 3 product)."""
+    d = x[6:9] - x[0:3]
+    rho = sqrt(d @ d)
+    u = d / rho
+    y = A @ u
+    hb = (y[:, None] * u - A) / rho
     h = np.empty(9)
     h[0:6] = x[0:6]
-    h[6:9] = A @ u
-    H = np.zeros((9, N))
-    H[0:6, 0:6] = I6
-    hb = A @ ((u[:, None] * u - I3) / rho)
+    h[6:9] = y
+    H = _H_GB.copy()
     H[6:9, IA] = hb
     H[6:9, IB] = -hb
     return h, H
+
+
+_H_GB = np.zeros((9, N))
+_H_GB[0:6, 0:6] = I6
 
 
 def h_beacon(x, A):
@@ -227,7 +234,9 @@ def H_beacon(x, A):
 def R_beacon(y, sigma_b, P_att):
     """Beacon noise plus attitude knowledge (Eq. 5.15-5.16): sigma_b^2 I + [y x] P_att [y x]^T."""
     sy = skew(y)
-    return sigma_b ** 2 * I3 + sy @ P_att @ sy.T
+    R = sy @ P_att @ sy.T
+    R.flat[::4] += sigma_b * sigma_b
+    return R
 
 
 # ---- pointing vector (Eq. 5.54-5.60) ----

@@ -131,9 +131,9 @@ class Afls:
     ``keep_generated``: keep a node generated for an OOSM in the list after its update (Fig. 5-2, default);
     False generates, applies and drops it in one (``_update_between``: the same algebra, with only the
     measured part of node b formed; exact for the nodes kept), so the joint covariance keeps only the
-    regular nodes (the STKF with SatB's relay: 6 nodes, 72 rows, instead of up to 8). A later OOSM in the same interval is then interpolated from the interval's ends without the dropped
-    node, which loses what the first measurement told about the process noise inside the interval; with one
-    OOSM per interval (SatB's relayed solutions: one per second, on SatB's own clock) the linear AFLS gives the
+    regular nodes (the STKF with SatB's relay: 6 nodes, 72 rows, instead of up to 8). A later OOSM in the same
+    interval is then interpolated from the interval's ends without the dropped node, which loses what the first
+    measurement told about the process noise inside the interval; with one OOSM per interval (SatB's relayed solutions: one per second, on SatB's own clock) the linear AFLS gives the
     same kept nodes either way, and the in-order Kalman filter's result (tested to 1e-9).
     """
 

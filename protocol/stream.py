@@ -39,6 +39,17 @@ _VMIN = 6
 _VTIME = 5
 
 
+def poll_events(ipoll, poll, wait):
+    """The read handle's poll events after waiting up to ``wait`` ms (-1: forever), 0 if none: through
+    MicroPython's allocation-free ``ipoll`` when the port has it, else ``poll``."""
+    if ipoll is not None:
+        for e in ipoll(wait):
+            return e[1]
+        return 0
+    ev = poll.poll(wait)
+    return ev[0][1] if ev else 0
+
+
 def set_raw(fd):
     """cfmakeraw() with VMIN = VTIME = 0 (read returns what is waiting), applied with TCSANOW so that
     bytes already queued are kept (tty.setraw and MicroPython's termios.setraw flush them)."""
@@ -137,13 +148,7 @@ class StreamLink:
         return []
 
     def _events(self, wait):
-        """The read handle's poll events after waiting up to ``wait`` ms (-1: forever), 0 if none."""
-        if self._ipoll is not None:
-            for e in self._ipoll(wait):
-                return e[1]
-            return 0
-        ev = self._poll.poll(wait)
-        return ev[0][1] if ev else 0
+        return poll_events(self._ipoll, self._poll, wait)
 
     def counters(self):
         """Drops by reason, frames received, sequence gaps and duplicates, frames sent."""

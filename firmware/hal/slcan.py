@@ -19,17 +19,7 @@ import select
 
 from protocol import can as canmap
 from protocol import core, isotp
-
-try:
-    from time import ticks_diff, ticks_ms
-except ImportError:  # CPython
-    import time
-
-    def ticks_ms():
-        return int(time.monotonic() * 1000)
-
-    def ticks_diff(a, b):
-        return a - b
+from protocol.stream import poll_events, ticks_diff, ticks_ms
 
 _HEX = b"0123456789ABCDEF"
 _OK = b"\r"
@@ -114,12 +104,7 @@ class SlcanAdapter:
         self.n_tx += 1
 
     def _events(self, wait):
-        if self._ipoll is not None:
-            for e in self._ipoll(wait):
-                return e[1]
-            return 0
-        ev = self._poll.poll(wait)
-        return ev[0][1] if ev else 0
+        return poll_events(self._ipoll, self._poll, wait)
 
     def poll(self, timeout_ms):
         """Frames the host sent, waiting up to ``timeout_ms`` (-1 forever) for the first bytes."""

@@ -72,3 +72,12 @@ def test_app_estimate_is_the_filters(satb):
     x, s = A.stkf_lean.zeros_d(12), A.stkf_lean.zeros_d(12)
     app.stkf.get(x, s)
     assert list(app.xs) == list(x) and app.stkf.now == 2.0
+
+
+def test_a_gap_in_the_ticks_is_propagated_in_steps():
+    app = A.App(_cfg(False))
+    app.cycle(0, 0.0)
+    app.cycle(1, 1500.0)                                 # longer than one prediction step (600 s)
+    assert app.stkf.now == 1500.0 and app.n_refused == 0
+    r = math.sqrt(sum(v * v for v in app.xs[0:3]))
+    assert 6.0e6 < r < 8.0e6                             # still on its orbit

@@ -277,6 +277,8 @@ class App:
         f = self.stkf
         if t > f.now + 1e-9:
             try:
+                while t - f.now > stkf_lean.MAX_STEP_S:       # a gap in the ticks: propagate in steps
+                    f.predict(f.now + stkf_lean.MAX_STEP_S)
                 f.predict(t)
             except ValueError:
                 self.n_refused += 1

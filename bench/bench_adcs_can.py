@@ -14,6 +14,11 @@ pointing the lean flight filters leave on a 600 s session beside the ground filt
 - Instructions: the session's sensor bursts replayed through ``firmware/adcs/app.py`` (tests/mp/
   firmware_adcs_app.py) under ``valgrind --tool=callgrind``, cycles [0, 190) and [0, 210) differenced:
   20 steady pointing cycles (goal <= 10 M per cycle). Heap: gc.mem_alloc deltas per cycle, gc off in the cycle.
+- Split: the same bursts through the app and its CAN HAL (tests/mp/firmware_adcs_split.py) under micropython,
+  ticks_us per part over the pointing cycles; each part's share of the cycle's time applied to the callgrind
+  count (an estimate: time shares, not counted instructions). The HAL (slcan ASCII, CAN/ISO-TP, payload
+  unpacking, RW_CMD and ADCS_STATUS out) is outside the callgrind figure; it is scaled the same way.
+- The same cycle with SatB's GNSS relayed (the STKF's 4 s lag): a 210 s session recorded, callgrind and split.
 """
 
 import json
@@ -78,6 +83,34 @@ def _replay(cfg, rec, n, callgrind, heap=False):
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+def _split(cfg, rec, k0, k1):
+    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
+    cmd = [MICROPYTHON, "-X", "heapsize=64M", os.path.join(ROOT, "tests", "mp", "firmware_adcs_split.py"), cfg, rec,
+           str(k0), str(k1)]
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
+    if p.returncode != 0:
+        raise RuntimeError("split replay failed: %s" % p.stderr[-500:])
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def _satb_cycle(params, d):
+    """The same cycle with SatB's GNSS relayed (lag 4 s, 6 nodes): a 210 s session recorded, then callgrind
+    and the split as above over cycles 190-210 / 162-210."""
+    with AdcsSession(runtime="micropython", duration_s=CG[1], ts=TS, hold_s=HOLD, record=True, params=params,
+                     satb_gnss=True) as s:
+        for _ in range(CG[1]):
+            s.cycle()
+        cfg, rec, summ = s.config(), s.recorded, s.summary()
+    cfg_f, rec_f = os.path.join(d, "cfg_b.json"), os.path.join(d, "rec_b.json")
+    with open(cfg_f, "w") as fh:
+        json.dump(cfg, fh)
+    with open(rec_f, "w") as fh:
+        json.dump(rec, fh)
+    instr = (_replay(cfg_f, rec_f, CG[1], True) - _replay(cfg_f, rec_f, CG[0], True)) / (CG[1] - CG[0])
+    heap = _replay(cfg_f, rec_f, CG[1], False, heap=True)["heap"][int(HOLD + 4 * TS):]
+    return instr, heap, _split(cfg_f, rec_f, int(HOLD + 4 * TS), CG[1]), summ["firmware_missed"]["gnss_b_fused"]
+
+
 def main():
     from ground.adcs import bps_cli
     t0 = time.perf_counter()
@@ -99,6 +132,8 @@ def main():
         instr = ((_replay(cfg, rec, CG[1], True) - _replay(cfg, rec, CG[0], True)) / (CG[1] - CG[0])
                  if have_vg else float("nan"))
         heap = _replay(cfg, rec, SECONDS, False, heap=True)["heap"]
+        split = _split(cfg, rec, int(HOLD + 4 * TS), SECONDS)
+        satb = _satb_cycle(params, d) if have_vg else None
     t0 = time.perf_counter()
     g, _ = bps.simulate(ts=TS, duration_s=SECONDS - HOLD - 4 * TS, seed=0, params=params, truth="two-body")
     g_wall = time.perf_counter() - t0
@@ -112,6 +147,40 @@ def main():
     print("| heap bytes per cycle, pointing (max / mean) | measured, bounded | %d / %d |" % (hs.max(), hs.mean()))
     print("| heap bytes per cycle in the CAN session (max over %d cycles, incl. status) | measured | %d |"
           % (len(heap_session), max(heap_session)))
+    n, cyc = split["cycles"], split["cycle"]
+    other = cyc - split["apkf"] - split["stkf"] - split["control"]
+    print("\nWhere the cycle goes (micropython, ticks_us over the %d pointing cycles %d-%d; M instructions = the "
+          "part's share of the cycle's time x the callgrind figure above, an estimate)\n" % (n, SECONDS - n, SECONDS))
+    print("| part | us per cycle | share of the cycle | ~M x86-64 instructions |")
+    print("|---|---|---|---|")
+    rows = (("lean APKF (step, attitude covariance)", split["apkf"]),
+            ("lean STKF (predict, GNSS, get)", split["stkf"] - split["beacon"]),
+            ("beacon update (Afls.update_beacon)", split["beacon"]),
+            ("control (command, rate, PD, allocation)", split["control"]),
+            ("rest of the cycle (wheels, modes, commands)", other))
+    for name, us in rows:
+        print("| %s | %.0f | %.0f %% | %.2f |" % (name, us / n, 100.0 * us / cyc, instr * us / cyc / 1e6))
+    print("| **cycle (callgrind)** | %.0f | 100 %% | %.2f |" % (cyc / n, instr / 1e6))
+    print("| CAN HAL, outside the cycle (slcan, ISO-TP, unpack, RW_CMD + status out) | %.0f | %.0f %% of the "
+          "cycle | %.2f |" % (split["hal"] / n, 100.0 * split["hal"] / cyc, instr * split["hal"] / cyc / 1e6))
+    if satb is not None:
+        ib, hb, sb, fused = satb
+        n, cyc = sb["cycles"], sb["cycle"]
+        print("\nThe same cycle with SatB's GNSS relayed 2-3 s late (STKF lag 4 s, 6 nodes; a %d s session, %s SatB "
+              "fixes fused; callgrind cycles %d-%d, time shares over %d-%d)\n" % (CG[1], fused, CG[0], CG[1],
+                                                                                 CG[1] - n, CG[1]))
+        print("| part | share of the cycle | ~M x86-64 instructions |")
+        print("|---|---|---|")
+        for name, us in (("lean APKF", sb["apkf"]),
+                         ("lean STKF (predict, GNSS A and B, get)", sb["stkf"] - sb["beacon"]),
+                         ("beacon update", sb["beacon"]), ("control", sb["control"]),
+                         ("rest of the cycle", cyc - sb["apkf"] - sb["stkf"] - sb["control"])):
+            print("| %s | %.0f %% | %.2f |" % (name, 100.0 * us / cyc, ib * us / cyc / 1e6))
+        print("| **cycle (callgrind; goal <= %.0f M)** | 100 %% | %.2f%s |" % (
+            GOAL_INSTR / 1e6, ib / 1e6, "" if ib <= GOAL_INSTR else " (missed)"))
+        print("| CAN HAL, outside the cycle | %.0f %% of the cycle | %.2f |" % (100.0 * sb["hal"] / cyc,
+                                                                               ib * sb["hal"] / cyc / 1e6))
+        print("| heap bytes per cycle, pointing (max / mean) | | %d / %d |" % (max(hb), sum(hb) / len(hb)))
     print("\nSpeed of the %d s CAN session (ADCS loop alone; issue: the whole `fps system` run >= %gx)\n" % (
         SECONDS, GOAL_SPEED))
     print("| firmware runtime | wall | virtual s per wall s | late cycles | missed replies (fw) | modes (cycles) |")

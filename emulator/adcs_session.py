@@ -166,7 +166,7 @@ class AdcsSession:
     def _config(self):
         wp = self.wheels.p
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
-                "stkf_x0": self.stkf_x0, "stkf_P0": P0_DIAG, "lag_s": LAG_S, "cap": 8,
+                "stkf_x0": self.stkf_x0, "stkf_P0": P0_DIAG, "lag_s": LAG_S,
                 "torque_max": wp.torque_max,
                 "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
                 "beacon_sigma_arcsec": self.beacon.sigma / orbits_arcsec(), "gnss_sigma": [30.0, 1.0]}
@@ -382,6 +382,7 @@ class AdcsSession:
                                     "startracker": st.get("miss_st"), "gnss": st.get("miss_gnss"),
                                     "beacon": st.get("miss_beacon"), "st_invalid": st.get("n_st_invalid"),
                                     "beacon_invalid": st.get("n_beacon_invalid"), "gnss_b_fused": st.get("n_gnss_b"),
+                                    "stkf_refused": st.get("n_refused"),
                                     "rx_drops": st.get("n_rx_drop")},
                 "wheels_failed": st.get("wheels_failed"), "last_mode": st.get("adcs_mode_name"),
                 "link": self.link.counters() if self.link is not None else {},

@@ -228,6 +228,7 @@ PACKETS = (
         ("n_st_invalid", "H", "", 1, None, None, 0, "STARTRACKER packets flagged invalid (wraps)"),
         ("n_beacon_invalid", "H", "", 1, None, None, 0, "BEACON packets flagged invalid (wraps)"),
         ("n_gnss_b", "H", "", 1, None, None, 0, "SatB GNSS fixes fused (wraps)"),
+        ("n_refused", "H", "", 1, None, None, 0, "STKF measurements refused (NaN, out of order, too old; wraps)"),
         ("n_rx_drop", "H", "", 1, None, None, 0, "CAN frames or ISO-TP transfers dropped (wraps)"),
         ("gnss_age_s", "H", "s", 1, None, None, 0, "age of SatA's newest GNSS fix (65535 = never)"),
         ("q0", "f", "", 1, None, None, 0.0, "estimated attitude, quaternion x"),

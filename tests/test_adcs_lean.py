@@ -385,7 +385,7 @@ def test_lean_stkf_smoother_covariance_in_float32_loses_positive_definiteness():
 def test_lean_stkf_refuses_bad_input_and_keeps_its_state():
     """Delay beyond the lag, NaN, infinite or future time tags, SatB's solutions repeated or out of order,
     SatA's GNSS late, a bad satellite index,
-    a NaN beacon or a non-positive beacon sigma: ValueError, the filter unchanged, the refusal counted."""
+    a NaN beacon, a non-positive beacon sigma or a zero attitude quaternion: ValueError, the filter unchanged, the refusal counted."""
     from firmware.adcs import stkf_lean as S
     sc = stkf_scenario(12, case=2)
     _, _, f, _ = run_stkf_lean(sc, **_f64())
@@ -404,7 +404,8 @@ def test_lean_stkf_refuses_bad_input_and_keeps_its_state():
            (lambda: f.update_gnss(z, R, 2), "sat must be"),
            (lambda: f.update_beacon([float("nan"), 0.0, 1.0], [0, 0, 0, 1.0], sc["P_att"], 3e-4), "NaN"),
            (lambda: f.update_beacon([0.0, 0.0, 1.0], [0, 0, 0, 1.0], sc["P_att"], 0.0), "sigma"),
-           (lambda: f.update_beacon([0.0, 0.0, 1.0], [0, 0, 0, 1.0], sc["P_att"], 3e-4, f.now - 1), "now")]
+           (lambda: f.update_beacon([0.0, 0.0, 1.0], [0, 0, 0, 1.0], sc["P_att"], 3e-4, f.now - 1), "now"),
+           (lambda: f.update_beacon([0.0, 0.0, 1.0], [0, 0, 0, 0.0], sc["P_att"], 3e-4), "unit quaternion")]
     for call, msg in bad:
         with pytest.raises(ValueError, match=msg):
             call()

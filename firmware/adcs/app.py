@@ -19,8 +19,11 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
    (Eq. 6.11) plus friction compensation;
 5. RW_CMD to each wheel, then ADCS_STATUS (mode, stale sensors, missed replies, estimates).
 
-The smoother's lag (4 s, ``lag_s``) is kept only with SatB's GNSS: without it no measurement arrives late, so
-the AFLS holds two nodes (lag 0), which keeps its joint covariance at 24 x 24.
+The STKF is firmware/adcs/stkf_lean.py's ``Afls`` through its public calls only (predict, update_gnss,
+update_beacon, get). Its lag (4 s, ``lag_s``) is kept only with SatB's GNSS: without it no measurement arrives
+late, so SatB's smoother holds two nodes of 6 states (lag 0, capacity 3, the minimum), which keeps its joint
+covariance at 12 x 12 instead of 30 x 30. The capacity follows from the lag (``stkf_cap``: the lag's nodes at
+1 Hz plus two). A measurement the filter refuses is counted (ADCS_STATUS.n_refused) and the cycle goes on.
 
 Degraded operation: a sensor that misses its cycle is counted and the filters propagate without it; a wheel
 whose RW_TLM is missed 3 cycles in a row is declared failed, its column leaves the torque allocation (the other
@@ -85,98 +88,11 @@ def dcm(A, q):
     A[8] = q4 * q4 - e1 * e1 - e2 * e2 + e3 * e3
 
 
-def _inv3(M, S):
-    """M = S^-1 for a 3 x 3 (flat); False if singular."""
-    a, b, c, d, e, f, g, h, i = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8]
-    c00, c01, c02 = e * i - f * h, c * h - b * i, b * f - c * e
-    det = a * c00 + b * (f * g - d * i) + c * (d * h - e * g)
-    if not abs(det) > 0.0:
-        return False
-    M[0], M[1], M[2] = c00 / det, c01 / det, c02 / det
-    M[3], M[4], M[5] = (f * g - d * i) / det, (a * i - c * g) / det, (c * d - a * f) / det
-    M[6], M[7], M[8] = (d * h - e * g) / det, (b * g - a * h) / det, (a * e - b * d) / det
-    return True
-
-
-class BeaconWork:
-    def __init__(self, ld):
-        z = stkf_lean.zeros_d
-        self.hb = z(9)
-        self.PHt = z(ld * 3)
-        self.S = z(9)
-        self.Si = z(9)
-        self.K = z(ld * 3)
-        self.r = z(3)
-
-
-def update_beacon(afls, y, A, sigma_b, P_att, w):
-    """The beacon update (Eq. 5.13-5.17) on the AFLS's joint state, at the current node:
-    h = A u, u = (rB - rA)/rho, H = [A Hb,A, 0, -A Hb,A, 0] on the node, Hb,A = (u u^T - I)/rho,
-    R = sigma_b^2 I + [y x] P_att [y x]^T (Eq. 5.15-5.16), K = P H^T S^-1, x += K (y - h), P -= K S K^T.
-    (Thin on purpose: the AFLS's own ``update_beacon`` replaces it once it has one.) False if S is singular."""
-    X, P, ld = afls.X, afls.P, afls.ld
-    m = afls.k * 12
-    dx, dy, dz = X[6] - X[0], X[7] - X[1], X[8] - X[2]
-    rho = math.sqrt(dx * dx + dy * dy + dz * dz)
-    u = (dx / rho, dy / rho, dz / rho)
-    hb = w.hb
-    for i in range(3):                       # hb = A (u u^T - I)/rho
-        for j in range(3):
-            s = 0.0
-            for a in range(3):
-                s += A[i * 3 + a] * (u[a] * u[j] - (1.0 if a == j else 0.0))
-            hb[i * 3 + j] = s / rho
-    PHt = w.PHt                              # PHt[i, a] = sum_j P[i, j] H[a, j]
-    for i in range(m):
-        row = i * ld
-        for a in range(3):
-            s = 0.0
-            for j in range(3):
-                s += (P[row + j] - P[row + 6 + j]) * hb[a * 3 + j]
-            PHt[i * 3 + a] = s
-    S = w.S
-    y0, y1, y2 = y[0], y[1], y[2]
-    sy = (0.0, -y2, y1, y2, 0.0, -y0, -y1, y0, 0.0)
-    for a in range(3):                       # S = H PHt + R
-        for b in range(3):
-            s = 0.0
-            for j in range(3):
-                s += hb[a * 3 + j] * (PHt[j * 3 + b] - PHt[(6 + j) * 3 + b])
-            r = 0.0
-            for i in range(3):
-                for j in range(3):
-                    r += sy[a * 3 + i] * P_att[i * 3 + j] * sy[b * 3 + j]
-            S[a * 3 + b] = s + r + (sigma_b * sigma_b if a == b else 0.0)
-    for a in range(3):
-        for b in range(a + 1, 3):
-            v = 0.5 * (S[a * 3 + b] + S[b * 3 + a])
-            S[a * 3 + b] = S[b * 3 + a] = v
-    if not _inv3(w.Si, S):
-        return False
-    Si, K, r = w.Si, w.K, w.r
-    for a in range(3):
-        r[a] = y[a] - (A[a * 3] * u[0] + A[a * 3 + 1] * u[1] + A[a * 3 + 2] * u[2])
-    for i in range(m):
-        for b in range(3):
-            s = 0.0
-            for a in range(3):
-                s += PHt[i * 3 + a] * Si[a * 3 + b]
-            K[i * 3 + b] = s
-    for i in range(m):
-        X[i] = X[i] + K[i * 3] * r[0] + K[i * 3 + 1] * r[1] + K[i * 3 + 2] * r[2]
-    for i in range(m):                        # P -= K PHt^T (= K S K^T), symmetric
-        k0, k1, k2 = K[i * 3], K[i * 3 + 1], K[i * 3 + 2]
-        for j in range(i, m):
-            v = P[i * ld + j] - (k0 * PHt[j * 3] + k1 * PHt[j * 3 + 1] + k2 * PHt[j * 3 + 2])
-            P[i * ld + j] = v
-            P[j * ld + i] = v
-    return True
-
-
-class _OrbitWork:
-    def __init__(self):
-        self.k = stkf_lean.zeros_d(48)
-        self.y = stkf_lean.zeros_d(12)
+def stkf_cap(lag_s, rate_hz=1.0):
+    """The lean STKF's node capacity for a lag at the 1 Hz predict rate: the nodes within the lag plus two
+    (the anchor and the new node; stkf_lean.Afls's docstring: 6 at 1 Hz with the 4 s lag), at least 3."""
+    n = int(math.ceil(lag_s * rate_hz - 1e-9)) + 2
+    return n if n > 3 else 3
 
 
 class App:
@@ -197,10 +113,11 @@ class App:
         self.Rg = stkf_lean.zeros_d(36)
         for i in range(6):
             self.Rg[i * 7] = (sg[0] if i < 3 else sg[1]) ** 2
-        lag = float(cfg.get("lag_s", 4.0)) if self.satb else 0.0
-        self.stkf = stkf_lean.Afls(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=int(cfg.get("cap", 8)))
-        self.bw = BeaconWork(self.stkf.ld)
-        self.ow = _OrbitWork()
+        lag = float(cfg.get("lag_s", stkf_lean.LAG_S)) if self.satb else 0.0
+        self.stkf = stkf_lean.Afls(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=stkf_cap(lag))
+        self.xs = stkf_lean.zeros_d(12)     # the STKF's estimate [rA, vA, rB, vB] and its 1 sigma (get())
+        self.sig = stkf_lean.zeros_d(12)
+        self.stkf.get(self.xs, self.sig)
         self.apkf = None
         self.model = apkf_lean.Model(self.params)      # J, C Jrw for the controller before the APKF starts
         zeros = linalg.zeros
@@ -254,6 +171,7 @@ class App:
         self.miss_rw = [0] * NW
         self.miss_st = self.miss_gnss = self.miss_beacon = 0
         self.n_st_invalid = self.n_beacon_invalid = self.n_gnss_b = self.n_gnss_b_drop = 0
+        self.n_refused = 0                  # STKF measurements (or predictions) refused with ValueError
         self.last_ok = {"st": 0.0, "gnss": 0.0, "beacon": 0.0, "gnss_b": 0.0}
         self.stale = 0
         self.mode = MODE["INIT"]
@@ -313,7 +231,7 @@ class App:
 
     def _env(self, t):
         """(r unit, 3 mu/r^3, b_i) at mid-step t - 0.5 from the STKF's rA, vA at t - 1."""
-        X = self.stkf.X
+        X = self.xs
         r = self.rmid
         for i in range(3):
             r[i] = X[i] + 0.5 * X[3 + i]
@@ -353,32 +271,47 @@ class App:
         return self.qst
 
     def _stkf(self, t, q):
+        """Predict to t, then SatA's GNSS, the beacon and SatB's delayed GNSS. A measurement the filter
+        refuses (ValueError: NaN, out of order, older than the lag, S not positive definite; the filter is left
+        as it was) is counted in ``n_refused`` and the cycle goes on; so is a refused prediction."""
         f = self.stkf
         if t > f.now + 1e-9:
-            f.predict(t)
+            try:
+                while t - f.now > stkf_lean.MAX_STEP_S:       # a gap in the ticks: propagate in steps
+                    f.predict(f.now + stkf_lean.MAX_STEP_S)
+                f.predict(t)
+            except ValueError:
+                self.n_refused += 1
         if self.gnss_got:
-            f.update_gnss(self.zg, self.Rg, 0)
+            try:
+                f.update_gnss(self.zg, self.Rg, 0)
+            except ValueError:
+                self.n_refused += 1
         if self.bc_got and self.bc_valid and (self.apkf is not None or self.st_valid):
-            dcm(self.A, q)
-            update_beacon(f, self.yb, self.A, self.sigma_b, self.Patt, self.bw)
-        for j in range(self.nb):
-            if self.satb:
+            try:
+                f.update_beacon(self.yb, q, self.Patt, self.sigma_b)
+            except ValueError:
+                self.n_refused += 1
+        if self.satb:
+            for j in range(self.nb):
                 try:
                     f.update_gnss(self.zb[j], self.Rg, 1, t=self.tb[j])
                     self.n_gnss_b += 1
                     self.last_ok["gnss_b"] = t
-                except ValueError:                   # older than the smoother's lag
-                    self.n_gnss_b_drop += 1
+                except ValueError:                   # older than the lag, out of order, repeated, NaN
+                    self.n_refused += 1
         self.nb = 0
+        f.get(self.xs, self.sig)
 
     def _command_rate(self):
         """q_c (Eq. 6.3-6.4) at the STKF state and w_c by a central difference over +-0.5 s."""
-        X, xo, w = self.stkf.X, self.xo, self.ow
+        X, xo = self.xs, self.xo
         control.attitude_command(self.qc, X, (X[3], X[4], X[5]), (X[6], X[7], X[8]), self.cw)
         for sgn, qq in ((-1.0, self.qm_), (1.0, self.qp_)):
             for i in range(12):
                 xo[i] = X[i]
-            stkf_lean.f(xo, 0, 0.5 * sgn, w)
+            stkf_lean.f(xo, 0, 0.5 * sgn)
+            stkf_lean.f(xo, 6, 0.5 * sgn)
             control.attitude_command(qq, xo, (xo[3], xo[4], xo[5]), (xo[6], xo[7], xo[8]), self.cw)
         dq = self.cw.q1
         qm = self.qm_
@@ -411,7 +344,7 @@ class App:
             H[i] = s
         # feed-forward: gravity gradient (J), m x b, tau_d (the APKF's model, Eq. 4.68-4.75)
         dcm(self.A, q)
-        A, X = self.A, self.stkf.X
+        A, X = self.A, self.xs
         rn = math.sqrt(X[0] * X[0] + X[1] * X[1] + X[2] * X[2])
         rb = [(A[i * 3] * X[0] + A[i * 3 + 1] * X[1] + A[i * 3 + 2] * X[2]) / rn for i in range(3)]
         Jr = [J[i * 3] * rb[0] + J[i * 3 + 1] * rb[1] + J[i * 3 + 2] * rb[2] for i in range(3)]
@@ -498,7 +431,7 @@ class App:
     def status_payload(self, tick, cycle_us=0, n_rx_drop=0):
         x = self.apkf.x if self.apkf is not None else self.qst
         w = (x[4], x[5], x[6]) if self.apkf is not None else (0.0, 0.0, 0.0)
-        X = self.stkf.X
+        X = self.xs
         sig = 0.0
         if self.apkf is not None:
             P = self.apkf.P
@@ -509,6 +442,7 @@ class App:
                            m[0] & 0xFFFF, m[1] & 0xFFFF, m[2] & 0xFFFF, m[3] & 0xFFFF,
                            self.miss_st & 0xFFFF, self.miss_gnss & 0xFFFF, self.miss_beacon & 0xFFFF,
                            self.n_st_invalid & 0xFFFF, self.n_beacon_invalid & 0xFFFF, self.n_gnss_b & 0xFFFF,
+                           self.n_refused & 0xFFFF,
                            n_rx_drop & 0xFFFF, age, x[0], x[1], x[2], x[3], w[0], w[1], w[2],
                            X[0], X[1], X[2], X[6], X[7], X[8], sig, cycle_us & 0xFFFFFFFF)
 

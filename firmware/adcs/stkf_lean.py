@@ -435,6 +435,7 @@ class Afls:
             A[i] = A[i] + Qb[i]
         linalg.symmetrize(A, N)
         if not linalg.cholesky(L, A, N):
+            self.refused += 1
             raise ValueError("Qca is not positive definite")
         for i in range(N):                                # B rows: Qca^-1 (Fb Qa)^T rows
             for j in range(N):
@@ -545,11 +546,13 @@ class Afls:
             d[i] = self.X[i] - self.xa[i]
         rho = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         if not rho > 0:
+            self.refused += 1
             raise ValueError("SatA and SatB estimates coincide")
         u0, u1, u2 = d[0] / rho, d[1] / rho, d[2] / rho
         e1, e2, e3, q4 = q[0], q[1], q[2], q[3]
         nq = math.sqrt(e1 * e1 + e2 * e2 + e3 * e3 + q4 * q4)
         if not nq > 0.5:
+            self.refused += 1
             raise ValueError("attitude quaternion is not a unit quaternion")
         e1, e2, e3, q4 = e1 / nq, e2 / nq, e3 / nq, q4 / nq
         Am = w.A                                              # A(q), Eq. 4.7 (emulator dynamics.dcm)

@@ -17,7 +17,7 @@ import numpy as np
 from ground.fileio import write_atomic, write_json
 
 STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_gnss", "miss_beacon", "n_gnss_b",
-               "att_sigma", "cycle_us")
+               "n_refused", "att_sigma", "cycle_us")
 
 
 def _window(text, name):

@@ -1,0 +1,83 @@
+"""The ADCS application (firmware/adcs/app.py) on the lean STKF's public API: the capacity it picks from the
+lag, and a refused measurement counted in the status without stopping the cycle."""
+
+import math
+import struct
+
+import numpy as np
+import pytest
+
+from emulator.adcs_session import AdcsSession
+from firmware.adcs import app as A
+from protocol import core
+
+P = core.PACKET_ID
+
+
+def _cfg(satb):
+    return AdcsSession(runtime="cpython", satb_gnss=satb, duration_s=30.0).config()
+
+
+def _gnss(sat, t_s, x):
+    return struct.pack(core.PACKET[P["GNSS"]].fmt, int(round(t_s * 1000)), sat,
+                       *[int(round(v / 0.01)) for v in x[0:3]], *[int(round(v / 1e-4)) for v in x[3:6]])
+
+
+def _status(app, tick):
+    return core.payload_dict(P["ADCS_STATUS"], app.status_payload(tick))
+
+
+def test_stkf_capacity_follows_the_lag():
+    assert A.stkf_cap(4.0) == 6 and A.stkf_cap(0.0) == 3 and A.stkf_cap(2.5) == 5
+    assert A.App(_cfg(True)).stkf.cap == 6 and A.App(_cfg(True)).stkf.lag == 4.0
+    a = A.App(_cfg(False))
+    assert a.stkf.cap == 3 and a.stkf.lag == 0.0
+
+
+def test_refused_measurements_are_counted_and_the_cycle_goes_on():
+    cfg = _cfg(True)
+    app = A.App(cfg)
+    xb = cfg["stkf_x0"][6:12]
+    x_before = list(app.xs)
+    app.cycle(0, 0.0)
+    # a SatB fix, the same fix again (repeated tag) and one older than the 4 s lag
+    for t in (0.4, 0.4):
+        app.on_packet(P["GNSS"], core.NODE["GNSS"], _gnss(1, t, xb))
+    app.cycle(1, 1.0)
+    st = _status(app, 1)
+    assert st["n_gnss_b"] == 1 and st["n_refused"] == 1
+    for k in range(2, 10):
+        app.cycle(k, float(k))
+    app.on_packet(P["GNSS"], core.NODE["GNSS"], _gnss(1, 3.0, xb))     # 7 s old at t = 10 s
+    # a beacon with a NaN in it (floats on the bus), the star tracker valid so that it would be used
+    app.on_packet(P["STARTRACKER"], core.NODE["STARTRACKER"],
+                  struct.pack(core.PACKET[P["STARTRACKER"]].fmt, 10000, 0.0, 0.0, 0.0, 1.0, 1))
+    app.on_packet(P["BEACON"], core.NODE["BEACON"],
+                  struct.pack(core.PACKET[P["BEACON"]].fmt, 10000, float("nan"), 0.0, 1.0, 1))
+    u = app.cycle(10, 10.0)
+    st = _status(app, 10)
+    assert st["n_refused"] == 3 and st["n_gnss_b"] == 1
+    assert all(math.isfinite(v) for v in u) and np.all(np.isfinite(list(app.xs)))
+    assert app.xs[0] != x_before[0]                      # the estimate is read from the filter every cycle
+    assert np.isfinite([st[k] for k in ("rax", "ray", "raz", "rbx", "rby", "rbz")]).all()
+    app.cycle(11, 11.0)                                  # and the next cycle runs as usual
+    assert _status(app, 11)["n_refused"] == 3
+
+
+@pytest.mark.parametrize("satb", [False, True])
+def test_app_estimate_is_the_filters(satb):
+    app = A.App(_cfg(satb))
+    for k in range(3):
+        app.cycle(k, float(k))
+    x, s = A.stkf_lean.zeros_d(12), A.stkf_lean.zeros_d(12)
+    app.stkf.get(x, s)
+    assert list(app.xs) == list(x) and app.stkf.now == 2.0
+
+
+def test_a_gap_in_the_ticks_is_propagated_in_steps():
+    app = A.App(_cfg(False))
+    app.cycle(0, 0.0)
+    app.cycle(1, 1500.0)                                 # longer than one prediction step (600 s)
+    assert app.stkf.now == 1500.0 and app.n_refused == 0
+    r = math.sqrt(sum(v * v for v in app.xs[0:3]))
+    assert 6.0e6 < r < 8.0e6                             # still on its orbit

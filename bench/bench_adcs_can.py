@@ -201,7 +201,9 @@ def main():
     ratio = st["pointing_3sigma_arcsec"] / g["pointing_3sigma_arcsec"]
     print("| lean flight (CAN session, micropython) | %.1f / %.1f | %.1f | %.1f | %.1f | %.2f%s |" % (
         *st["pointing_sigma_arcsec"], st["pointing_3sigma_arcsec"], st["pointing_max_arcsec"],
-        st["stability_3sigma_arcsec_s"], ratio, " (met)" if ratio <= GOAL_RATIO else " (missed)"))
+        st["stability_3sigma_arcsec_s"], ratio, " (missed: worse than the ground's)" if ratio > GOAL_RATIO else
+        " (missed: better than the ground's, not like for like: the flight loop damps the rate in the hold, "
+        "bps.py idles)" if ratio < 1 / GOAL_RATIO else " (met)"))
     print("| ground (bps.simulate, 41-state APKF, %.0f s wall) | %.1f / %.1f | %.1f | %.1f | %.1f | 1 |" % (
         g_wall, *g["pointing_sigma_arcsec"], g["pointing_3sigma_arcsec"], g["pointing_max_arcsec"],
         g["stability_3sigma_arcsec_s"]))

@@ -30,6 +30,8 @@ import time
 
 import numpy as np
 
+from bench import mp
+
 from emulator.adcs_session import AdcsSession
 from ground.adcs import bps
 
@@ -67,30 +69,15 @@ def session(runtime, params, record=False, heap_out=None):
 
 
 def _replay(cfg, rec, n, callgrind, heap=False):
-    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
-    cmd = [MICROPYTHON, "-X", "heapsize=64M", os.path.join(ROOT, "tests", "mp", "firmware_adcs_app.py"), cfg, rec,
-           str(n)] + (["heap"] if heap else [])
-    if callgrind:
-        cmd = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd
-    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
-    if p.returncode != 0:
-        raise RuntimeError("replay failed: %s" % p.stderr[-500:])
-    if callgrind:
-        for line in p.stderr.splitlines():
-            if "I   refs:" in line or "I refs:" in line:
-                return int(line.split(":")[1].strip().replace(",", ""))
-        raise RuntimeError("no instruction count in callgrind output")
-    return json.loads(p.stdout.strip().splitlines()[-1])
+    out = mp.run(os.path.join(ROOT, "tests", "mp", "firmware_adcs_app.py"), [cfg, rec, n] + (["heap"] if heap else []),
+                 callgrind=callgrind, heap="64M", timeout=1800)
+    return out if callgrind else json.loads(out.strip().splitlines()[-1])
 
 
 def _split(cfg, rec, k0, k1):
-    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
-    cmd = [MICROPYTHON, "-X", "heapsize=64M", os.path.join(ROOT, "tests", "mp", "firmware_adcs_split.py"), cfg, rec,
-           str(k0), str(k1)]
-    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
-    if p.returncode != 0:
-        raise RuntimeError("split replay failed: %s" % p.stderr[-500:])
-    return json.loads(p.stdout.strip().splitlines()[-1])
+    out = mp.run(os.path.join(ROOT, "tests", "mp", "firmware_adcs_split.py"), [cfg, rec, k0, k1], heap="64M",
+                 timeout=1800)
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def _satb_cycle(params, d):

@@ -38,6 +38,8 @@ import time
 
 import numpy as np
 
+from bench import mp
+
 from firmware.adcs import apkf_lean as L
 from firmware.adcs import linalg
 from ground.adcs import apkf, quat
@@ -103,20 +105,9 @@ def figures(ea, ew):
 
 
 def _mp(args, callgrind=False, script="firmware_adcs.py"):
-    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
-    heap = ["-X", "heapsize=64M"] if script == "firmware_stkf.py" and not callgrind else []   # gc off per cycle
-    cmd = [MICROPYTHON] + heap + [os.path.join(ROOT, "tests", "mp", script)] + [str(a) for a in args]
-    if callgrind:
-        cmd = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd
-    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
-    if p.returncode != 0:
-        raise RuntimeError("micropython firmware_adcs.py failed: %s" % p.stderr[-500:])
-    if callgrind:
-        for line in p.stderr.splitlines():
-            if "I   refs:" in line or "I refs:" in line:
-                return int(line.split(":")[1].strip().replace(",", ""))
-        raise RuntimeError("no instruction count in callgrind output")
-    return json.loads([ln for ln in p.stdout.splitlines() if ln.startswith("{")][-1])
+    heap = "64M" if script == "firmware_stkf.py" and not callgrind else None   # gc off per cycle
+    out = mp.run(os.path.join(ROOT, "tests", "mp", script), args, callgrind=callgrind, heap=heap)
+    return out if callgrind else json.loads([ln for ln in out.splitlines() if ln.startswith("{")][-1])
 
 
 def main():

@@ -22,6 +22,8 @@ import sys
 import tempfile
 import time
 
+from bench import mp
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MICROPYTHON = os.path.join(os.path.dirname(sys.executable), "micropython")
 RATE_HZ = 637.8
@@ -199,19 +201,8 @@ def _cpython_step(blob, flat, n, worst):
 
 
 def _mp(script, args, callgrind=False):
-    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
-    cmd = [MICROPYTHON, script] + [str(a) for a in args]
-    if callgrind:
-        cmd = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd
-    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    if p.returncode != 0:
-        raise RuntimeError("micropython %s failed: %s" % (script, p.stderr[-500:]))
-    if callgrind:
-        for line in p.stderr.splitlines():
-            if "I   refs:" in line or "I refs:" in line:
-                return int(line.split(":")[1].strip().replace(",", ""))
-        raise RuntimeError("no instruction count in callgrind output")
-    return p.stdout.split()
+    out = mp.run(script, args, callgrind=callgrind, timeout=600)
+    return out if callgrind else out.split()
 
 
 def _instructions(script, extra, n1=2000, n2=12000):

@@ -23,8 +23,7 @@ pointing the lean flight filters leave on a 600 s session beside the ground filt
 
 import json
 import os
-import subprocess
-import sys
+import shutil
 import tempfile
 import time
 
@@ -35,8 +34,7 @@ from bench import mp
 from emulator.adcs_session import AdcsSession
 from ground.adcs import bps
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-MICROPYTHON = os.path.join(os.path.dirname(sys.executable), "micropython")
+ROOT = mp.ROOT
 SECONDS = 600
 TS = 33.0
 HOLD = 30.0
@@ -115,7 +113,7 @@ def main():
             json.dump(runs["micropython"]["cfg"], fh)
         with open(rec, "w") as fh:
             json.dump(runs["micropython"]["rec"], fh)
-        have_vg = subprocess.run(["which", "valgrind"], capture_output=True).returncode == 0
+        have_vg = shutil.which("valgrind") is not None
         instr = ((_replay(cfg, rec, CG[1], True) - _replay(cfg, rec, CG[0], True)) / (CG[1] - CG[0])
                  if have_vg else float("nan"))
         heap = _replay(cfg, rec, SECONDS, False, heap=True)["heap"]

@@ -31,8 +31,7 @@ through the relay 2-3 s late, so nearly every second generates a node; stated at
 
 import json
 import os
-import subprocess
-import sys
+import shutil
 import tempfile
 import time
 
@@ -45,8 +44,7 @@ from firmware.adcs import linalg
 from ground.adcs import apkf, quat
 from tests.adcs_lean_scenario import run_stkf_ground, run_stkf_lean, scenario, stkf_scenario
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-MICROPYTHON = os.path.join(os.path.dirname(sys.executable), "micropython")
+ROOT = mp.ROOT
 SECONDS = 4000
 T0 = 300
 GOAL_INSTR = 10e6
@@ -151,7 +149,7 @@ def main():
         with open(p, "w") as fh:
             json.dump(short, fh)
         res = _mp([p])
-        have_vg = subprocess.run(["which", "valgrind"], capture_output=True).returncode == 0
+        have_vg = shutil.which("valgrind") is not None
         instr = (_mp([p, 25], True) - _mp([p, 5], True)) / 20.0 if have_vg else float("nan")
         ins = []
         for n in (10, 20, 30):

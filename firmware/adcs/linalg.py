@@ -81,15 +81,7 @@ def sandwich(P, Phi, T, n):
 def sandwich_ident(P, Phi, T, n, r):
     """P = Phi P Phi^T for a Phi whose rows r .. n-1 are those of the identity (the parameter rows of an
     error-state transition): only rows 0 .. r-1 of Phi P and the blocks they touch are computed. T: n x n work."""
-    for i in range(r):                           # T[0:r] = Phi[0:r] P
-        ia = i * n
-        for j in range(n):
-            s = 0.0
-            k2 = j
-            for k in range(ia, ia + n):
-                s += Phi[k] * P[k2]
-                k2 += n
-            T[ia + j] = s
+    matmul(T, Phi, P, r, n, n)                   # T[0:r] = Phi[0:r] P
     for i in range(r):                           # P[0:r, 0:r] = T[0:r] Phi[0:r]^T; P[0:r, r:] = T[0:r, r:]
         it = i * n
         for j in range(i, r):

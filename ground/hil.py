@@ -14,7 +14,8 @@ absolute (zero at Q2's own centre), so Q1/Q2 misalignment shows as a mean error,
 
 Run folder (every file written atomically): ``config.json``, ``calibration.json`` (as uploaded),
 ``q2_calibration.json``, ``telemetry.csv`` (CTRL_STATUS), ``samples.npz`` (Q2 counts, Q2 and truth error
-angles at the Q2 instants), ``summary.json`` (``complete`` false until the run ends), ``report.md`` and the
+angles at the Q2 instants: 630 Hz, so the loop's ripple near 637.8 Hz folds to lines at 4-60 Hz there, as the
+thesis's recorder folded it), ``summary.json`` (``complete`` false until the run ends), ``report.md`` and the
 plots ``fig7-18_scatter.png``, ``fig7-19_time.png``. Ctrl-C or SIGTERM stops the run and leaves the folder
 valid with what was recorded and ``complete: false``.
 """

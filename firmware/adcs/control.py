@@ -8,7 +8,7 @@ into a destination the caller allocated (firmware/adcs/linalg.zeros).
 - ``attitude_command``: the minimum rotation putting the laser axis on the line of sight (Eq. 6.3), composed
   with the Orbit Frame (Eq. 6.4).
 - ``gains`` / ``pd_torque``: quaternion feedback PD (Eq. 6.5-6.7), K = 2 wn^2 J, D = 2 zeta wn J,
-  wn = 8 / (2 zeta t_s) (Eq. 6.7 as read in ground/adcs/control.py), with the command rate, the gyroscopic
+  wn = 8 / t_s (Eq. 6.7 as printed; see ground/adcs/control.py), with the command rate, the gyroscopic
   term w x H and the external-torque feed-forward as the ground version adds them.
 - ``wheel_torques``: minimum-norm motor torques u = -C^T (C C^T)^-1 tau_c (Eq. 6.11; the body feels -C u).
 - ``saturate``: tau_c scaled down, direction kept, so that no motor torque passes its limit.
@@ -107,16 +107,16 @@ def attitude_command(qc, ra, va, rb, work, laser_axis=LASER_AXIS):
     quat_mul(qc, work.q1, work.q2)
 
 
-def natural_frequency(ts, zeta=ZETA):
-    """wn of Eq. 6.7 as read: 8 / (2 zeta t_s), rad/s."""
+def natural_frequency(ts):
+    """wn of Eq. 6.7: 8 / t_s, rad/s."""
     if not ts > 0:
         raise ValueError("settling time ts must be > 0 s, got %r" % (ts,))
-    return 8.0 / (2.0 * zeta * ts)
+    return 8.0 / ts
 
 
 def gains(K, D, J, ts, zeta=ZETA):
     """K = 2 wn^2 J, D = 2 zeta wn J (Eq. 6.6), 3 x 3 flat."""
-    wn = natural_frequency(ts, zeta)
+    wn = natural_frequency(ts)
     for i in range(9):
         K[i] = 2.0 * wn * wn * J[i]
         D[i] = 2.0 * zeta * wn * J[i]

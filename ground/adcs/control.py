@@ -39,9 +39,9 @@ ZETA = 1.0
 def orbit_frame(r_a, v_a):
     """T_o<-j2k (Eq. 6.1-6.2): rows x_o = v/|v|, y_o = r x v/|r x v|, z_o = x_o x y_o."""
     x = v_a / np.linalg.norm(v_a)
-    y = np.cross(r_a, v_a)
+    y = env.cross3(r_a, v_a)
     y = y / np.linalg.norm(y)
-    return np.vstack([x, y, np.cross(x, y)])
+    return np.vstack([x, y, env.cross3(x, y)])
 
 
 def dcm_to_quat(T):
@@ -72,7 +72,7 @@ def min_rotation(a, b):
     if c < -1 + 1e-12:
         raise ValueError("laser axis and line of sight are opposite: the minimum rotation is not unique")
     q4 = np.sqrt(0.5 * (1.0 + c))
-    v = np.cross(a, b) / (2 * q4)
+    v = env.cross3(a, b) / (2 * q4)
     return np.array([v[0], v[1], v[2], q4])
 
 

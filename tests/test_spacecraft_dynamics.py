@@ -239,3 +239,32 @@ def test_wheel_speed_relative_to_body_everywhere():
     w.command_all([1e-5, -1e-5, 2e-5, 0.0])
     sc.run(20.0)
     assert np.allclose(sc.momentum_inertial(), h0, rtol=0, atol=1e-12 + 1e-9 * np.linalg.norm(h0))
+
+
+def test_derivative_on_floats_equals_the_matrix_form():
+    """``derivative`` works on Python floats; check it against Eq. 4.10, 4.16, 4.55-4.56 written with numpy,
+    with the field, a disturbance callable and wheel jitter all on, at random states."""
+    rng = np.random.default_rng(7)
+    dist = lambda t, q, w: np.array([1e-6 * np.sin(t), 2e-6 * q[0], -3e-6 * w[2]])   # noqa: E731
+    w = Wheels(WheelParams(jitter=True, speed_max_rpm=10000.0))
+    sc = Spacecraft(wheels=w, dt=1e-4, disturbance=dist)
+    for _ in range(5):
+        q = rng.standard_normal(4)
+        x = np.concatenate([q / np.linalg.norm(q), 1e-2 * rng.standard_normal(3), 300 * rng.standard_normal(4),
+                            rng.uniform(0, 6, 4)])
+        t, u = float(rng.uniform(0, 5000)), 1e-4 * rng.standard_normal(4)
+        qq, om, W = x[0:4], x[4:7], x[7:11]
+        wrel = W - w.c.T @ om
+        net = u - w.friction(wrel)
+        a = dcm(qq)
+        r_i = sc.orbit.position(t)
+        tau = (env.gravity_gradient_torque(sc.j, a @ r_i) + np.cross(sc.dipole, a @ sc.field.field(r_i, t))
+               + dist(t, qq, om) + w.jitter(wrel, x[11:15])[1])
+        h = sc.j @ om + w.cj @ W
+        w_dot = np.linalg.solve(sc.j, tau - np.cross(om, h) - w.c @ net)
+        e, q4 = qq[0:3], qq[3]
+        q_dot = 0.5 * np.concatenate([q4 * om - np.cross(om, e), [-(om @ e)]])
+        expect = np.concatenate([q_dot, w_dot, net / w.j, wrel])
+        got = sc.derivative(t, x, u)
+        assert np.allclose(got, expect, rtol=1e-12, atol=1e-14 * np.abs(expect).max())
+        assert np.allclose(sc.external_torque(t, x), tau, rtol=1e-12, atol=0)

@@ -18,10 +18,12 @@ torque. tau_ext = gravity gradient + residual dipole (Eq. 4.68-4.75) + a pluggab
 The motor torque is held over each fixed RK4 step (zero-order hold, as a 1 Hz-10 Hz flight computer drives it).
 """
 
+import math
+
 import numpy as np
 
 from emulator.spacecraft import environment as env
-from emulator.spacecraft.wheels import N_WHEELS, Wheels
+from emulator.spacecraft.wheels import N_WHEELS, RPM as _RPM, Wheels
 
 # [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], kg m^2 (Sec. 4.8): nominal and true error; products are matrix entries.
 J0_THESIS = (12e-3, 47e-3, 45e-3, 1e-3, 2e-3, 3e-3)
@@ -59,6 +61,19 @@ def dcm(q):
         [2*(e1*e3 + q4*e2), 2*(e2*e3 - q4*e1), q4*q4 - e1*e1 - e2*e2 + e3*e3]])
 
 
+def _dcm_rows(q):
+    """A(q) (Eq. 4.7) as three row tuples of Python floats."""
+    e1, e2, e3, q4 = q
+    return ((q4*q4 + e1*e1 - e2*e2 - e3*e3, 2*(e1*e2 + q4*e3), 2*(e1*e3 - q4*e2)),
+            (2*(e1*e2 - q4*e3), q4*q4 - e1*e1 + e2*e2 - e3*e3, 2*(e2*e3 + q4*e1)),
+            (2*(e1*e3 + q4*e2), 2*(e2*e3 - q4*e1), q4*q4 - e1*e1 - e2*e2 + e3*e3))
+
+
+def _rows_dot(a, v):
+    """a v for a 3 x 3 given as rows and a 3-list."""
+    return tuple(r[0] * v[0] + r[1] * v[1] + r[2] * v[2] for r in a)
+
+
 def quat_mul(q, p):
     """q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.2, scalar last)."""
     qv, q4, pv, p4 = q[:3], q[3], p[:3], p[3]
@@ -85,6 +100,10 @@ class Spacecraft:
             inertia = np.add(J0_THESIS, DJ_THESIS)
         self.j = inertia_matrix(inertia)
         self.j_inv = np.linalg.inv(self.j)
+        # the same as Python floats for ``derivative`` (the wheels' C and Jrw are fixed at their construction)
+        self._j_rows, self._jinv_rows = self.j.tolist(), self.j_inv.tolist()
+        self._c_rows, self._cj_rows = self.wheels.c.tolist(), self.wheels.cj.tolist()
+        self._jrw = self.wheels.j.tolist()
         self.dt = float(dt)
         if self.wheels.p.jitter:
             dt_max = 0.1 * 2 * np.pi / self.wheels.speed_max
@@ -94,6 +113,7 @@ class Spacecraft:
         self.orbit = env.CircularOrbit() if orbit is _DEFAULT else orbit
         self.field = env.TiltedDipoleField() if field is _DEFAULT else field
         self.dipole = None if dipole is None else np.array(dipole, dtype=float)
+        self._dipole = None if dipole is None else self.dipole.tolist()
         self.gravity_gradient = gravity_gradient
         self.disturbance = disturbance
         qa = _finite("q", q, 4)
@@ -142,32 +162,69 @@ class Spacecraft:
     def external_torque(self, t, x):
         """tau_ext (body frame, N m) at time t and state x: gravity gradient, residual dipole, the callable,
         jitter (its force moves the centre of mass, which this model does not follow)."""
-        q, w = x[0:4], x[4:7]
-        tau = np.zeros(3)
+        q, w = x[0:4].tolist(), x[4:7].tolist()
+        return np.array(self._tau_ext(t, x, q, w))
+
+    def _tau_ext(self, t, x, q, w):
+        """``external_torque`` on Python floats (q, w lists): 3-vectors cost numpy ~1 us an operation."""
+        tx = ty = tz = 0.0
         if self.orbit is not None and (self.gravity_gradient or self.dipole is not None):
-            a = dcm(q)
+            a = _dcm_rows(q)
             r_i = self.orbit.position(t)
-            if self.gravity_gradient:
-                tau += env.gravity_gradient_torque(self.j, a @ r_i)                   # Eq. 4.69-4.75
-            if self.dipole is not None and self.field is not None:
-                tau += env.magnetic_torque(self.dipole, a @ self.field.field(r_i, t))  # Eq. 4.71, 4.73
+            if self.gravity_gradient:                                              # Eq. 4.69-4.75
+                x0, x1, x2 = _rows_dot(a, r_i.tolist())
+                rn = (x0 * x0 + x1 * x1 + x2 * x2) ** 0.5
+                x0, x1, x2 = x0 / rn, x1 / rn, x2 / rn
+                (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._j_rows
+                y0 = j00 * x0 + j01 * x1 + j02 * x2
+                y1 = j10 * x0 + j11 * x1 + j12 * x2
+                y2 = j20 * x0 + j21 * x1 + j22 * x2
+                k = 3.0 * env.MU_EARTH / rn ** 3
+                tx += k * (x1 * y2 - x2 * y1)
+                ty += k * (x2 * y0 - x0 * y2)
+                tz += k * (x0 * y1 - x1 * y0)
+            if self.dipole is not None and self.field is not None:                 # Eq. 4.71, 4.73
+                b0, b1, b2 = _rows_dot(a, self.field.field(r_i, t).tolist())
+                m0, m1, m2 = self._dipole
+                tx += m1 * b2 - m2 * b1
+                ty += m2 * b0 - m0 * b2
+                tz += m0 * b1 - m1 * b0
         if self.disturbance is not None:
-            tau += np.asarray(self.disturbance(t, q, w), dtype=float)
+            d = np.asarray(self.disturbance(t, x[0:4], x[4:7]), dtype=float)
+            tx, ty, tz = tx + float(d[0]), ty + float(d[1]), tz + float(d[2])
         if self.wheels.p.jitter:
-            tau += self.wheels.jitter(x[7:11] - self.wheels.c.T @ x[4:7], x[11:15])[1]
-        return tau
+            d = self.wheels.jitter(x[7:11] - self.wheels.c.T @ x[4:7], x[11:15])[1]
+            tx, ty, tz = tx + float(d[0]), ty + float(d[1]), tz + float(d[2])
+        return tx, ty, tz
 
     def derivative(self, t, x, tau_motor):
-        q, w, wr = x[0:4], x[4:7], x[7:11]
-        wrel = wr - self.wheels.c.T @ w                             # speed relative to the body
-        net = tau_motor - self.wheels.friction(wrel)                # torque on each rotor
-        wr_dot = net / self.wheels.j
-        h = self.j @ w + self.wheels.cj @ wr
-        tau = self.external_torque(t, x)
-        w_dot = self.j_inv @ (tau - env.cross3(w, h) - self.wheels.c @ net)        # Eq. 4.16
-        e, q4 = q[0:3], q[3]
-        q_dot = 0.5 * np.concatenate([q4 * w - env.cross3(w, e), [-(w @ e)]])     # Eq. 4.10
-        return np.concatenate([q_dot, w_dot, wr_dot, wrel])
+        """dx/dt (Eq. 4.10, 4.16, 4.55-4.56) on Python floats; ``tau_motor`` the 4 motor torques held."""
+        q = x[0:4].tolist()
+        w0, w1, w2 = w = x[4:7].tolist()
+        W = x[7:11].tolist()
+        c0, c1, c2 = self._c_rows
+        p = self.wheels.p
+        fv, fc, fs = p.friction_viscous, p.friction_coulomb, 1.0 / (p.friction_smooth_rpm * _RPM)
+        wrel = [W[i] - (c0[i] * w0 + c1[i] * w1 + c2[i] * w2) for i in range(N_WHEELS)]   # relative speed
+        net = [u - (fv * v + fc * math.tanh(v * fs)) for u, v in zip(tau_motor.tolist(), wrel)]  # Wheels.friction
+        jrw = self._jrw
+        (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._j_rows
+        cj0, cj1, cj2 = self._cj_rows
+        h0 = j00 * w0 + j01 * w1 + j02 * w2 + sum(a * b for a, b in zip(cj0, W))
+        h1 = j10 * w0 + j11 * w1 + j12 * w2 + sum(a * b for a, b in zip(cj1, W))
+        h2 = j20 * w0 + j21 * w1 + j22 * w2 + sum(a * b for a, b in zip(cj2, W))
+        tx, ty, tz = self._tau_ext(t, x, q, w)
+        r0 = tx - (w1 * h2 - w2 * h1) - sum(a * b for a, b in zip(c0, net))     # Eq. 4.16
+        r1 = ty - (w2 * h0 - w0 * h2) - sum(a * b for a, b in zip(c1, net))
+        r2 = tz - (w0 * h1 - w1 * h0) - sum(a * b for a, b in zip(c2, net))
+        (i00, i01, i02), (i10, i11, i12), (i20, i21, i22) = self._jinv_rows
+        e0, e1, e2, q4 = q
+        return np.array([                                                        # Eq. 4.10
+            0.5 * (q4 * w0 - (w1 * e2 - w2 * e1)), 0.5 * (q4 * w1 - (w2 * e0 - w0 * e2)),
+            0.5 * (q4 * w2 - (w0 * e1 - w1 * e0)), -0.5 * (w0 * e0 + w1 * e1 + w2 * e2),
+            i00 * r0 + i01 * r1 + i02 * r2, i10 * r0 + i11 * r1 + i12 * r2, i20 * r0 + i21 * r1 + i22 * r2,
+            net[0] / jrw[0], net[1] / jrw[1], net[2] / jrw[2], net[3] / jrw[3],
+            wrel[0], wrel[1], wrel[2], wrel[3]])
 
     def step(self):
         """One RK4 step of dt with the wheels' limited motor torques held; the quaternion is renormalised."""

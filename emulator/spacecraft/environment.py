@@ -7,6 +7,8 @@ this is the standard form (restoring for the minimum-inertia axis on the local v
 Magnetic torque (Eq. 4.71, 4.73): tau_m = m x b_b, b_b = A(q) b_i.
 """
 
+import math
+
 import numpy as np
 
 MU_EARTH = 3.986004418e14      # m^3/s^2
@@ -52,16 +54,20 @@ class TiltedDipoleField:
     def __init__(self, gmst0_rad=0.0, coeffs_nt=IGRF2020_DIPOLE_NT):
         g10, g11, h11 = coeffs_nt
         self.m_ecef = 1e-9 * np.array([g11, h11, g10])
+        self._m = self.m_ecef.tolist()
         self.gmst0 = gmst0_rad
 
     def field(self, r_i, t):
         th = self.gmst0 + OMEGA_EARTH * t
-        c, s = np.cos(th), np.sin(th)
-        mx, my, mz = self.m_ecef
-        m = np.array([c * mx - s * my, s * mx + c * my, mz])
-        rn = np.sqrt(r_i @ r_i)
-        rh = r_i / rn
-        return (R_EARTH / rn) ** 3 * (3.0 * (m @ rh) * rh - m)
+        c, s = math.cos(th), math.sin(th)
+        mx, my, mz = self._m
+        m0, m1, m2 = c * mx - s * my, s * mx + c * my, mz
+        x, y, z = r_i.tolist() if isinstance(r_i, np.ndarray) else r_i
+        rn = math.sqrt(x * x + y * y + z * z)
+        x, y, z = x / rn, y / rn, z / rn
+        k = (R_EARTH / rn) ** 3
+        d = 3.0 * (m0 * x + m1 * y + m2 * z)
+        return np.array([k * (d * x - m0), k * (d * y - m1), k * (d * z - m2)])
 
 
 def cross3(a, b):

@@ -145,7 +145,7 @@ def main():
             name, *r["att"], *r["rate"], r["pointing_rms"], r["pointing_rms"] / g0["pointing_rms"]))
     with tempfile.TemporaryDirectory() as d:
         p = os.path.join(d, "sc.json")
-        short = {k: sc[k][:31] if isinstance(sc[k], list) else sc[k] for k in ("params", "wp", "qm", "env")}
+        short = {k: sc[k][:31] if isinstance(sc[k], list) else sc[k] for k in ("params", "wp", "qm", "u", "env")}
         with open(p, "w") as fh:
             json.dump(short, fh)
         res = _mp([p])

@@ -9,19 +9,36 @@ pointing phase. The full 41-state filter is ``ground/adcs/apkf.py``; this one ke
 and takes J (Jxx reference + J5), C = C0 + C1 D(d1) + C2 D(d2) (Eq. 4.60), Jrw and the dipole m from the
 parameter file of ``ground/adcs/bps.py`` ("fps-bps-params/1"), all in the file's (filter-scaled) units.
 
-Dynamics (Eq. 4.67, 4.83), RK4 over the step with W(s) = W- + s (W+ - W-)/dt (Eq. 4.95):
-    J w_dot = -w x (J w + C Jrw W) - C Jrw (W+ - W-)/dt + 3 mu/r^3 r x J r + m x b + tau_d
-The tachometer read-outs W-, W+ (start and end of the step) are inputs here, not states: their noise R_rw enters
-as process noise on w through the momentum exchange, Q_ww += G (2 R_rw) G^T with G = J^-1 C D(Jrw) (the
-Eq. 4.135 construction for the F2a/F2b columns; it ignores that consecutive steps share a read-out, so it is
-conservative). The orbit direction r, 3 mu/r^3 and the field b (inertial) are inputs (from the STKF and the
-field model).
+Dynamics (Eq. 4.67, 4.83), RK4 over the step with the wheel momentum C Jrw W(s) = hw + s hd (Eq. 4.95's
+linear W(s); hw = C Jrw W- from the read-out at the step's start):
+    Jm w_dot = -w x (J w + hw + s hd) - hd + 3 mu/r^3 r x J r + m x b + tau_d
+The momentum rate hd (``momentum_rate``) comes by default from the flight software's own commands: the rotor
+equation Jrw W_dot = tau_motor - tau_f (absolute W; the thesis has the reaction torque -C Jrw W_dot, Eq. 4.56,
+but no rotor equation: derived, as the emulator integrates it) gives hd = s C (sat(u) - f(W-)), with u the motor
+torques commanded over the step, sat the datasheet torque limit, f the friction model (viscous + Coulomb,
+tanh-smoothed; the same datasheet figures the controller compensates with), s the file's torque scale and C
+the unit axes (Eq. 4.54). The read-outs' W_rel = W - C^T w turns Eq. 4.67's J into Jm = J - C D(Jrw) C^T
+(derived: C Jrw W_rel_dot = C (u - f) - C Jrw C^T w_dot). The 10 rpm read-outs then enter only hw (the
+gyroscopic term), where their noise is negligible. Differencing two read-outs per step instead (Eq. 4.62,
+Jm = J, hd = C Jrw (W+ - W-)/dt; ``momentum="tach"``, the ground filter's input) is a white torque of
+sqrt(2) 10 rpm Jrw per wheel, ~4x the disturbance torque, and costs ~1.8x in pointing (bench_adcs_lean).
+What the commands cannot tell is taken from the read-outs, with its noise (Q_ww += G r G^T, the Eq. 4.135
+construction for a white input, G = Jm^-1 times the wheel's column):
+- a wheel near zero speed (|W-| < 3 sigma_tach + dt s (|u| + f_c)/Jrw), where the friction's sign is unknown
+  and the rotor sticks while |u| < f_c: its read-out difference, r = 2 R_rw (conservative: consecutive steps
+  share a read-out);
+- a wheel whose u is NaN (the caller did not hear it, so what it did is unknown): nothing, and r = (s f_c dt)^2,
+  a coasting rotor's friction (derived).
+Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's
+wheels then hold the previous one); motor-torque errors beyond friction are absent in the emulator, and a slow
+friction drift is tau_d's (its random walk q_d). The orbit direction r, 3 mu/r^3 and the field b (inertial)
+are inputs (from the STKF and the field model).
 
-F (Eq. 4.98-4.101, the 9 x 9 corner of ground/adcs/apkf.py's derivation):
-    F11 = -[w x], F12 = I/2, F21 = J^-1 {3 mu/r^3 ([r x] J - [(J r) x]) 2[r x] + [m x] 2[b x]},
-    F22 = J^-1 (-[w x] J + [H x]), F23 = J^-1, the tau_d rows zero.
+F (Eq. 4.98-4.101, the 9 x 9 corner of ground/adcs/apkf.py's derivation, Jm^-1 for its J^-1):
+    F11 = -[w x], F12 = I/2, F21 = Jm^-1 {3 mu/r^3 ([r x] J - [(J r) x]) 2[r x] + [m x] 2[b x]},
+    F22 = Jm^-1 (-[w x] J + [H x]), H = J w + hw, F23 = Jm^-1, the tau_d rows zero.
 Phi = sum_{n<=4} (F dt)^n / n! (App. A.2's series; |F dt| ~ 0.03). Q (Eq. 4.135-4.136) for q_d:
-    Q_tt = q_d dt I, Q_wt = J^-1 q_d dt^2/2, Q_ww = J^-1 J^-T q_d dt^3/3 (+ the tachometer term).
+    Q_tt = q_d dt I, Q_wt = Jm^-1 q_d dt^2/2, Q_ww = Jm^-1 Jm^-T q_d dt^3/3 (+ the read-out terms above).
 Star-tracker update (Eq. 4.139-4.142): z = vec(q_meas (x) q_hat^-1), H = [I3 0 0], R = diag(sigma^2)/4, Joseph
 form, P kept symmetric (linalg.joseph_select). Every buffer is allocated once, in ``Lean``.
 """
@@ -130,19 +147,19 @@ class Model:
             for r in range(3):
                 self.C[r * 4 + i] = self.CJ[r * 4 + i] / n
         # the rate equation's inertia: J itself with the read-out difference (Eq. 4.67); with the torques,
-        # Jb = J - C D(Jrw) C^T (the rotors' axial share moves with them, see the module docstring)
-        Jb = linalg.zeros(9)
+        # Jm = J - C D(Jrw) C^T (see the module docstring)
+        Jm = linalg.zeros(9)
         for i in range(9):
-            Jb[i] = self.J[i]
+            Jm[i] = self.J[i]
         if self.torque:
             for r in range(3):
                 for c in range(3):
                     s = 0.0
                     for k in range(4):
                         s += self.CJ[r * 4 + k] * self.C[c * 4 + k]
-                    Jb[r * 3 + c] -= s
+                    Jm[r * 3 + c] -= s
         self.Ji = linalg.zeros(9)
-        if not _inv3(self.Ji, Jb):
+        if not _inv3(self.Ji, Jm):
             raise ValueError("parameter file: inertia is not positive definite")
         self.m = linalg.zeros(3)
         for i in range(3):
@@ -266,7 +283,7 @@ def momentum_rate(hw, hd, Qw, model, wm, wp, u):
     step hd (3 each, the file's torque units); Qw (3 x 3) the rate noise the read-out differences add. Returns
     whether Qw is non-zero.
 
-    "tach" (Eq. 4.62, 4.95): hd = C Jrw (W+ - W-)/dt for every wheel, Qw = G (2 R_rw) G^T with G = J^-1 C
+    "tach" (Eq. 4.62, 4.95): hd = C Jrw (W+ - W-)/dt for every wheel, Qw = G (2 R_rw) G^T with G = Jm^-1 C
     D(Jrw) (the Eq. 4.135 construction; conservative: consecutive steps share a read-out).
     "torque" (Eq. 4.56 with the rotor equation Jrw W_dot = tau_motor - tau_f, derived): wheel k adds
     s c_k (sat(u_k) - f(W-_k)), u the motor torques commanded over the step (N m, sat: the datasheet limit),
@@ -304,7 +321,7 @@ def momentum_rate(hw, hd, Qw, model, wm, wp, u):
         if not noisy:
             linalg.fill(Qw, 9, 0.0)
             noisy = True
-        g0 = Ji[0] * M[k] + Ji[1] * M[4 + k] + Ji[2] * M[8 + k]        # J^-1 times column k of M
+        g0 = Ji[0] * M[k] + Ji[1] * M[4 + k] + Ji[2] * M[8 + k]        # Jm^-1 times column k of M
         g1 = Ji[3] * M[k] + Ji[4] * M[4 + k] + Ji[5] * M[8 + k]
         g2 = Ji[6] * M[k] + Ji[7] * M[4 + k] + Ji[8] * M[8 + k]
         Qw[0] += r * g0 * g0

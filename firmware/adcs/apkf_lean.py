@@ -22,14 +22,21 @@ the unit axes (Eq. 4.54). The read-outs' W_rel = W - C^T w turns Eq. 4.67's J in
 gyroscopic term), where their noise is negligible. Differencing two read-outs per step instead (Eq. 4.62,
 Jm = J, hd = C Jrw (W+ - W-)/dt; ``momentum="tach"``, the ground filter's input) is a white torque of
 sqrt(2) 10 rpm Jrw per wheel, ~4x the disturbance torque, and costs ~1.8x in pointing (bench_adcs_lean).
-What the commands cannot tell is taken from the read-outs, with its noise (Q_ww += G r G^T, the Eq. 4.135
-construction for a white input, G = Jm^-1 times the wheel's column):
+The commanded torque's own error, a fraction torque_rel (assumed 5 %: the wheel's torque constant and the
+file's torque scale; measured over CAN with a calibrated file: ~2 % between s C (u - f) and the read-outs'
+momentum change) gives r = (torque_rel s u dt)^2. Each wheel takes whichever input has the smaller variance,
+so a slew's large torques (|u| > ~1e-4 N m) take the read-out difference. What the commands cannot tell is
+taken from the read-outs too, with its noise (Q_ww += G r G^T, the Eq. 4.135 construction for a white input,
+G = Jm^-1 times the wheel's column):
 - a wheel near zero speed (|W-| < 3 sigma_tach + dt s (|u| + f_c)/Jrw), where the friction's sign is unknown
   and the rotor sticks while |u| < f_c: its read-out difference, r = 2 R_rw (conservative: consecutive steps
   share a read-out);
 - a wheel whose u is NaN (the caller did not hear it, so what it did is unknown): nothing, and r = (s f_c dt)^2,
   a coasting rotor's friction (derived).
-Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's
+The ADCS application (app.py) still runs this filter with the read-out difference: with the commanded
+torques its 600 s CAN session (bench_adcs_can, calibrated file) lost the star tracker at the first slew, as it
+does with the read-out difference, but then never regained it (the rate estimate stayed ~400"/s off; the
+read-out run regains it). Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's
 wheels then hold the previous one); motor-torque errors beyond friction are absent in the emulator, and a slow
 friction drift is tau_d's (its random walk q_d). The orbit direction r, 3 mu/r^3 and the field b (inertial)
 are inputs (from the STKF and the field model).
@@ -56,6 +63,7 @@ FORMAT = "fps-bps-params/1"
 NW = 4
 FRICTION = (2e-6, 2e-10, 1.0 * RPM)        # wheel datasheet: Coulomb N m, viscous N m s/rad, smoothing rad/s
 TORQUE_MAX = 1e-3                          # wheel datasheet: motor torque limit, N m
+TORQUE_REL = 0.05                          # realised / commanded torque in the file's units, 1 sigma (assumed)
 
 
 def pyramid():
@@ -118,7 +126,7 @@ class Model:
     tachometer read-outs (Eq. 4.62, 4.95; the 41-state filter's input, kept for comparison)."""
 
     def __init__(self, params, dt=1.0, sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, qd=QD_CASE1,
-                 momentum="torque", friction=FRICTION, torque_max=TORQUE_MAX):
+                 momentum="torque", friction=FRICTION, torque_max=TORQUE_MAX, torque_rel=TORQUE_REL):
         check_params(params)
         if momentum not in ("torque", "tach"):
             raise ValueError("momentum must be 'torque' or 'tach', got %r" % (momentum,))
@@ -130,6 +138,7 @@ class Model:
         self.scale = float(params.get("torque_scale", 1.0))
         self.friction = (float(friction[0]), float(friction[1]), float(friction[2]))
         self.torque_max = float(torque_max)
+        self.torque_rel = float(torque_rel)
         self.J = linalg.zeros(9)
         for i, v in enumerate((jxx, j5[2], j5[3], j5[2], j5[0], j5[4], j5[3], j5[4], j5[1])):
             self.J[i] = v
@@ -289,8 +298,9 @@ def momentum_rate(hw, hd, Qw, model, wm, wp, u):
     s c_k (sat(u_k) - f(W-_k)), u the motor torques commanded over the step (N m, sat: the datasheet limit),
     f the friction model, s the file's torque scale. Near zero speed the friction's sign is not known from a
     10 rpm read-out (and the rotor sticks while |u| < the Coulomb torque): a wheel with |W-| < 3 sigma_tach +
-    dt s (|u| + f_c)/Jrw (it may reach zero within the step) adds the read-out difference instead, and its
-    share of the tachometer noise to Qw. A wheel whose u is NaN (its read-out missed: what it did is not
+    dt s (|u| + f_c)/Jrw (it may reach zero within the step), or one whose torque error (torque_rel s u dt)^2
+    exceeds its read-out difference's 2 R_rw Jrw^2, adds the read-out difference instead, and its share of the
+    tachometer noise to Qw; the others add their torque error to Qw. A wheel whose u is NaN (its read-out missed: what it did is not
     known) adds nothing, and as noise the Coulomb torque a coasting rotor exerts, (s f_c dt)^2 (derived)."""
     CJ, Ji = model.CJ, model.Ji
     for i in range(3):
@@ -309,11 +319,13 @@ def momentum_rate(hw, hd, Qw, model, wm, wp, u):
                 M, r = C, (sc * model.friction[0] * dt) ** 2           # friction as the noise
             else:
                 uk = tm if uk > tm else (-tm if uk < -tm else uk)
-                if abs(wm[k]) >= model.tach_3sigma + dt * sc * (abs(uk) + model.friction[0]) / model.jrw[k]:
+                rt = (model.torque_rel * sc * uk * dt) ** 2          # the torque's error over the step
+                if (abs(wm[k]) >= model.tach_3sigma + dt * sc * (abs(uk) + model.friction[0]) / model.jrw[k]
+                        and rt < r * model.jrw[k] ** 2):
                     t = sc * (uk - friction(model, wm[k]))
                     for i in range(3):
                         hd[i] += C[i * 4 + k] * t
-                    continue
+                    M, r = C, rt
         if M is CJ:
             a = (wp[k] - wm[k]) / dt
             for i in range(3):

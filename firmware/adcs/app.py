@@ -250,8 +250,10 @@ class App:
                 dq = linalg.zeros(4)
                 control.quat_mul(dq, q, pc)
                 s = 2.0 if dq[3] >= 0 else -2.0
+                # the read-out difference: with the commanded torques (the lean filter's default) the 600 s
+                # CAN session did not regain the star tracker after its first slew (see apkf_lean)
                 self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
-                                           friction=self.fric, torque_max=self.torque_max)
+                                           friction=self.fric, torque_max=self.torque_max, momentum="tach")
             self.st_prev_ok = st_ok
             if st_ok:
                 for i in range(4):

@@ -149,7 +149,8 @@ def main():
     g0 = diag["ground 41-state"]
     print("\nDiagnostic: the same truth with noise-free tachometer read-outs. Differencing two 10 rpm read-outs per "
           "second (Eq. 4.95) is a white torque of sqrt(2) 10 rpm Jrw per wheel; the lean filter takes the commanded "
-          "torques instead, and the read-out difference only for a wheel near zero speed:\n")
+          "torques instead (their error taken as 5 %), and the read-out difference for a wheel near zero speed or "
+          "with a torque large enough that 5 % of it exceeds the read-out noise:\n")
     print("| filter (tachometer noise-free) | attitude 1σ x / y / z | rate 1σ x / y / z | pointing RMS | "
           "vs ground on these inputs |")
     print("|---|---|---|---|---|")

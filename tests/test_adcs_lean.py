@@ -131,7 +131,7 @@ def test_torque_input_equals_the_realised_momentum_change():
 
 def test_torque_input_beats_the_readout_difference():
     """The same 600 s (10 rpm read-outs): the lean filter with the commanded torques points better than with
-    the read-out difference (measured: 0.55x its pointing RMS), and its P stays symmetric PD."""
+    the read-out difference (measured: 0.60x its pointing RMS), and its P stays symmetric PD."""
     sc = scenario(600, seed=5)
     z = lambda n: [0.0] * n                                   # noqa: E731
     rms = {}

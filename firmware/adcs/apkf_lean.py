@@ -21,7 +21,7 @@ the unit axes (Eq. 4.54). The read-outs' W_rel = W - C^T w turns Eq. 4.67's J in
 (derived: C Jrw W_rel_dot = C (u - f) - C Jrw C^T w_dot). The 10 rpm read-outs then enter only hw (the
 gyroscopic term), where their noise is negligible. Differencing two read-outs per step instead (Eq. 4.62,
 Jm = J, hd = C Jrw (W+ - W-)/dt; ``momentum="tach"``, the ground filter's input) is a white torque of
-sqrt(2) 10 rpm Jrw per wheel, ~4x the disturbance torque, and costs ~1.8x in pointing (bench_adcs_lean).
+sqrt(2) 10 rpm Jrw per wheel, ~4x the disturbance torque, and costs ~1.7x in pointing (bench_adcs_lean).
 The commanded torque's own error, a fraction torque_rel (assumed 5 %: the wheel's torque constant and the
 file's torque scale; measured over CAN with a calibrated file: ~2 % between s C (u - f) and the read-outs'
 momentum change) gives r = (torque_rel s u dt)^2. Each wheel takes whichever input has the smaller variance,

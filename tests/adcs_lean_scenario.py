@@ -5,7 +5,7 @@ inertial hold, the rate then passes the star tracker's 0.1 deg/s and it goes bli
 with the star tracker (20/20/60 arcsec) and tachometers (10 rpm) sampled at 1 Hz.
 
 ``scenario(seconds, seed)`` returns a dict of per-second lists: ``wp`` (tachometer read-outs, rad/s),
-``qm`` (star-tracker quaternion or None), ``env`` ((r_i unit, 3 mu/r^3, b_i) at mid-step), ``q``, ``w`` (truth),
+``qm`` (star-tracker quaternion or None), ``u`` (the wheel torques commanded over [k, k + 1], N m), ``env`` ((r_i unit, 3 mu/r^3, b_i) at mid-step), ``q``, ``w`` (truth),
 and ``params`` (the parameter file a perfect calibration would write, ground/adcs/bps.py format)."""
 
 import numpy as np
@@ -33,7 +33,7 @@ def scenario(seconds, seed=0, dt_truth=0.25, ts=33.0, tach_rpm=None):
     wn = 4.0 / ts
     K, D = 2 * wn * wn * sc.j, 2 * wn * sc.j
     c = sc.wheels.c
-    out = {"wp": [], "qm": [], "env": [], "q": [], "w": [], "params": truth_params(sc)}
+    out = {"wp": [], "qm": [], "u": [], "env": [], "q": [], "w": [], "params": truth_params(sc)}
     n_sub = int(round(1.0 / dt_truth))
     for k in range(int(seconds) + 1):
         t = float(k)
@@ -52,6 +52,7 @@ def scenario(seconds, seed=0, dt_truth=0.25, ts=33.0, tach_rpm=None):
         tau = -K @ e - D @ sc.omega
         u = -c.T @ np.linalg.solve(c @ c.T, tau)
         wheels.command_all(u)
+        out["u"].append(u.tolist())
         for _ in range(n_sub):
             sc.step()
     return out

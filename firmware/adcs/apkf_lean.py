@@ -9,19 +9,43 @@ pointing phase. The full 41-state filter is ``ground/adcs/apkf.py``; this one ke
 and takes J (Jxx reference + J5), C = C0 + C1 D(d1) + C2 D(d2) (Eq. 4.60), Jrw and the dipole m from the
 parameter file of ``ground/adcs/bps.py`` ("fps-bps-params/1"), all in the file's (filter-scaled) units.
 
-Dynamics (Eq. 4.67, 4.83), RK4 over the step with W(s) = W- + s (W+ - W-)/dt (Eq. 4.95):
-    J w_dot = -w x (J w + C Jrw W) - C Jrw (W+ - W-)/dt + 3 mu/r^3 r x J r + m x b + tau_d
-The tachometer read-outs W-, W+ (start and end of the step) are inputs here, not states: their noise R_rw enters
-as process noise on w through the momentum exchange, Q_ww += G (2 R_rw) G^T with G = J^-1 C D(Jrw) (the
-Eq. 4.135 construction for the F2a/F2b columns; it ignores that consecutive steps share a read-out, so it is
-conservative). The orbit direction r, 3 mu/r^3 and the field b (inertial) are inputs (from the STKF and the
-field model).
+Dynamics (Eq. 4.67, 4.83), RK4 over the step with the wheel momentum C Jrw W(s) = hw + s hd (Eq. 4.95's
+linear W(s); hw = C Jrw W- from the read-out at the step's start):
+    Jm w_dot = -w x (J w + hw + s hd) - hd + 3 mu/r^3 r x J r + m x b + tau_d
+The momentum rate hd (``momentum_rate``) comes by default from the flight software's own commands: the rotor
+equation Jrw W_dot = tau_motor - tau_f (absolute W; the thesis has the reaction torque -C Jrw W_dot, Eq. 4.56,
+but no rotor equation: derived, as the emulator integrates it) gives hd = s C (sat(u) - f(W-)), with u the motor
+torques commanded over the step, sat the datasheet torque limit, f the friction model (viscous + Coulomb,
+tanh-smoothed; the same datasheet figures the controller compensates with), s the file's torque scale and C
+the unit axes (Eq. 4.54). The read-outs' W_rel = W - C^T w turns Eq. 4.67's J into Jm = J - C D(Jrw) C^T
+(derived: C Jrw W_rel_dot = C (u - f) - C Jrw C^T w_dot). The 10 rpm read-outs then enter only hw (the
+gyroscopic term), where their noise is negligible. Differencing two read-outs per step instead (Eq. 4.62,
+Jm = J, hd = C Jrw (W+ - W-)/dt; ``momentum="tach"``, the ground filter's input) is a white torque of
+sqrt(2) 10 rpm Jrw per wheel, ~4x the disturbance torque, and costs ~1.7x in pointing (bench_adcs_lean).
+The commanded torque's own error, a fraction torque_rel (assumed 5 %: the wheel's torque constant and the
+file's torque scale; measured over CAN with a calibrated file: ~2 % between s C (u - f) and the read-outs'
+momentum change) gives r = (torque_rel s u dt)^2. Each wheel takes whichever input has the smaller variance,
+so a slew's large torques (|u| > ~1e-4 N m) take the read-out difference. What the commands cannot tell is
+taken from the read-outs too, with its noise (Q_ww += G r G^T, the Eq. 4.135 construction for a white input,
+G = Jm^-1 times the wheel's column):
+- a wheel near zero speed (|W-| < 3 sigma_tach + dt s (|u| + f_c)/Jrw), where the friction's sign is unknown
+  and the rotor sticks while |u| < f_c: its read-out difference, r = 2 R_rw (conservative: consecutive steps
+  share a read-out);
+- a wheel whose u is NaN (the caller did not hear it, so what it did is unknown): nothing, and r = (s f_c dt)^2,
+  a coasting rotor's friction (derived).
+The ADCS application (app.py) still runs this filter with the read-out difference: with the commanded
+torques its 600 s CAN session (bench_adcs_can, calibrated file) lost the star tracker at the first slew, as it
+does with the read-out difference, but then never regained it (the rate estimate stayed ~400"/s off; the
+read-out run regains it). Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's
+wheels then hold the previous one); motor-torque errors beyond friction are absent in the emulator, and a slow
+friction drift is tau_d's (its random walk q_d). The orbit direction r, 3 mu/r^3 and the field b (inertial)
+are inputs (from the STKF and the field model).
 
-F (Eq. 4.98-4.101, the 9 x 9 corner of ground/adcs/apkf.py's derivation):
-    F11 = -[w x], F12 = I/2, F21 = J^-1 {3 mu/r^3 ([r x] J - [(J r) x]) 2[r x] + [m x] 2[b x]},
-    F22 = J^-1 (-[w x] J + [H x]), F23 = J^-1, the tau_d rows zero.
+F (Eq. 4.98-4.101, the 9 x 9 corner of ground/adcs/apkf.py's derivation, Jm^-1 for its J^-1):
+    F11 = -[w x], F12 = I/2, F21 = Jm^-1 {3 mu/r^3 ([r x] J - [(J r) x]) 2[r x] + [m x] 2[b x]},
+    F22 = Jm^-1 (-[w x] J + [H x]), H = J w + hw, F23 = Jm^-1, the tau_d rows zero.
 Phi = sum_{n<=4} (F dt)^n / n! (App. A.2's series; |F dt| ~ 0.03). Q (Eq. 4.135-4.136) for q_d:
-    Q_tt = q_d dt I, Q_wt = J^-1 q_d dt^2/2, Q_ww = J^-1 J^-T q_d dt^3/3 (+ the tachometer term).
+    Q_tt = q_d dt I, Q_wt = Jm^-1 q_d dt^2/2, Q_ww = Jm^-1 Jm^-T q_d dt^3/3 (+ the read-out terms above).
 Star-tracker update (Eq. 4.139-4.142): z = vec(q_meas (x) q_hat^-1), H = [I3 0 0], R = diag(sigma^2)/4, Joseph
 form, P kept symmetric (linalg.joseph_select). Every buffer is allocated once, in ``Lean``.
 """
@@ -37,6 +61,9 @@ RPM = 2.0 * math.pi / 60.0
 QD_CASE1 = (2.0e-7) ** 2 / HOUR            # Sec. 4.8, Case 1, (N m)^2/s
 FORMAT = "fps-bps-params/1"
 NW = 4
+FRICTION = (2e-6, 2e-10, 1.0 * RPM)        # wheel datasheet: Coulomb N m, viscous N m s/rad, smoothing rad/s
+TORQUE_MAX = 1e-3                          # wheel datasheet: motor torque limit, N m
+TORQUE_REL = 0.05                          # realised / commanded torque in the file's units, 1 sigma (assumed)
 
 
 def pyramid():
@@ -91,26 +118,58 @@ def check_params(d):
 
 
 class Model:
-    """What the lean filter holds fixed: J, J^-1, C Jrw (3 x 4), m, noise levels; flat float buffers."""
+    """What the lean filter holds fixed: J, the inverse inertia of the rate equation, C Jrw (3 x 4), the unit
+    axes C (3 x 4), m, noise levels; flat float buffers.
 
-    def __init__(self, params, dt=1.0, sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, qd=QD_CASE1):
+    ``momentum``: where each step's wheel momentum change comes from. "torque" (the default): the motor torques
+    the flight software commanded over the step, less its friction model; "tach": the difference of the two
+    tachometer read-outs (Eq. 4.62, 4.95; the 41-state filter's input, kept for comparison)."""
+
+    def __init__(self, params, dt=1.0, sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, qd=QD_CASE1,
+                 momentum="torque", friction=FRICTION, torque_max=TORQUE_MAX, torque_rel=TORQUE_REL):
         check_params(params)
+        if momentum not in ("torque", "tach"):
+            raise ValueError("momentum must be 'torque' or 'tach', got %r" % (momentum,))
         x = params["x"]
         j5 = x["J5_kgm2"]
         jxx = float(params["jxx_ref_kgm2"])
         self.dt = float(dt)
+        self.torque = momentum == "torque"
+        self.scale = float(params.get("torque_scale", 1.0))
+        self.friction = (float(friction[0]), float(friction[1]), float(friction[2]))
+        self.torque_max = float(torque_max)
+        self.torque_rel = float(torque_rel)
         self.J = linalg.zeros(9)
         for i, v in enumerate((jxx, j5[2], j5[3], j5[2], j5[0], j5[4], j5[3], j5[4], j5[1])):
             self.J[i] = v
-        self.Ji = linalg.zeros(9)
-        if not _inv3(self.Ji, self.J):
-            raise ValueError("parameter file: inertia is not positive definite")
         c0, c1, c2 = pyramid()
         self.CJ = linalg.zeros(12)
+        self.C = linalg.zeros(12)
+        self.jrw = linalg.zeros(4)
         d1, d2, jrw = x["delta1_rad"], x["delta2_rad"], x["jrw_kgm2"]
         for r in range(3):
             for i in range(4):
                 self.CJ[r * 4 + i] = (c0[r][i] + c1[r][i] * d1[i] + c2[r][i] * d2[i]) * jrw[i]
+        for i in range(4):      # unit axes (Eq. 4.54) and the rotor inertias: C Jrw's column norms
+            n = math.sqrt(self.CJ[i] ** 2 + self.CJ[4 + i] ** 2 + self.CJ[8 + i] ** 2)
+            self.jrw[i] = n
+            for r in range(3):
+                self.C[r * 4 + i] = self.CJ[r * 4 + i] / n
+        # the rate equation's inertia: J itself with the read-out difference (Eq. 4.67); with the torques,
+        # Jm = J - C D(Jrw) C^T (see the module docstring)
+        Jm = linalg.zeros(9)
+        for i in range(9):
+            Jm[i] = self.J[i]
+        if self.torque:
+            for r in range(3):
+                for c in range(3):
+                    s = 0.0
+                    for k in range(4):
+                        s += self.CJ[r * 4 + k] * self.C[c * 4 + k]
+                    Jm[r * 3 + c] -= s
+        self.Ji = linalg.zeros(9)
+        if not _inv3(self.Ji, Jm):
+            raise ValueError("parameter file: inertia is not positive definite")
         self.m = linalg.zeros(3)
         for i in range(3):
             self.m[i] = x["dipole_am2"][i]
@@ -119,22 +178,18 @@ class Model:
         for i in range(3):
             self.R[i * 4] = (sigma_st_arcsec[i] * ARCSEC) ** 2 / 4.0
         self.R_rw = (tach_rpm * RPM) ** 2
+        self.tach_3sigma = 3.0 * tach_rpm * RPM
         self.qd = qd
-        # the constant parts of Q: tau_d and the tachometer term (G (2 R_rw) G^T, G = J^-1 C D(Jrw))
-        G = linalg.zeros(12)
-        linalg.matmul(G, self.Ji, self.CJ, 3, 3, 4)
+        # the constant part of Q: tau_d's (Eq. 4.135-4.136); the read-out differences add theirs per step
         self.Q = linalg.zeros(81)
         dt = self.dt
         for i in range(3):
             self.Q[(6 + i) * 9 + 6 + i] = qd * dt
             for j in range(3):
-                s = 0.0
-                for k in range(4):
-                    s += G[i * 4 + k] * G[j * 4 + k]
                 jj = 0.0
                 for k in range(3):
                     jj += self.Ji[i * 3 + k] * self.Ji[j * 3 + k]
-                self.Q[(3 + i) * 9 + 3 + j] = 2.0 * self.R_rw * s + qd * jj * dt ** 3 / 3.0
+                self.Q[(3 + i) * 9 + 3 + j] = qd * jj * dt ** 3 / 3.0
                 v = self.Ji[i * 3 + j] * qd * dt * dt / 2.0
                 self.Q[(3 + i) * 9 + 6 + j] = v
                 self.Q[(6 + j) * 9 + 3 + i] = v
@@ -181,6 +236,9 @@ class Work:
         self.k = z(7 * 4)       # RK4 slopes (q 4 + w 3) x 4
         self.y = z(7)           # RK4 stage state
         self.v = z(24)          # small vectors: r_b, b_b, h, J w, J r, torque, ...
+        self.hw = z(3)          # C Jrw W at the step's start
+        self.hd = z(3)          # its rate over the step
+        self.Qw = z(9)          # the rate noise of the read-out differences (3 x 3)
 
 
 def _dcm_apply(out, o, q, v):
@@ -195,30 +253,24 @@ def _dcm_apply(out, o, q, v):
         + (-q1 * q1 - q2 * q2 + q3 * q3 + q4 * q4) * z
 
 
-def _slope(ks, o, y, x, model, wm, acc, s, env, v):
-    """RK4 slope at stage state y = [q, w] and s seconds into the step into ks[o:o+7] (Eq. 4.10, 4.83)."""
-    J, CJ, m = model.J, model.CJ, model.m
+def _slope(ks, o, y, x, model, hw, hd, s, env, v):
+    """RK4 slope at stage state y = [q, w] and s seconds into the step into ks[o:o+7] (Eq. 4.10, 4.83):
+    the wheel momentum C Jrw W(s) = hw + hd s, its rate hd (3 each, from ``momentum_rate``)."""
+    J, m = model.J, model.m
     r_i, kgg, b_i = env
     _dcm_apply(v, 0, y, r_i)                      # r_b in v[0:3]
     _dcm_apply(v, 3, y, b_i)                      # b_b in v[3:6]
     w0, w1, w2 = y[4], y[5], y[6]
     for i in range(3):
-        h = J[i * 3] * w0 + J[i * 3 + 1] * w1 + J[i * 3 + 2] * w2
-        ha = 0.0
-        for k in range(4):
-            c = CJ[i * 4 + k]
-            h += c * (wm[k] + acc[k] * s)
-            ha += c * acc[k]
-        v[6 + i] = h                              # H
-        v[9 + i] = ha                             # C Jrw a
+        v[6 + i] = J[i * 3] * w0 + J[i * 3 + 1] * w1 + J[i * 3 + 2] * w2 + hw[i] + hd[i] * s     # H
         v[12 + i] = J[i * 3] * v[0] + J[i * 3 + 1] * v[1] + J[i * 3 + 2] * v[2]   # J r
     h0, h1, h2 = v[6], v[7], v[8]
     r0, r1, r2 = v[0], v[1], v[2]
     jr0, jr1, jr2 = v[12], v[13], v[14]
     b0, b1, b2 = v[3], v[4], v[5]
-    t0 = -(w1 * h2 - w2 * h1) - v[9] + kgg * (r1 * jr2 - r2 * jr1) + (m[1] * b2 - m[2] * b1) + x[7]
-    t1 = -(w2 * h0 - w0 * h2) - v[10] + kgg * (r2 * jr0 - r0 * jr2) + (m[2] * b0 - m[0] * b2) + x[8]
-    t2 = -(w0 * h1 - w1 * h0) - v[11] + kgg * (r0 * jr1 - r1 * jr0) + (m[0] * b1 - m[1] * b0) + x[9]
+    t0 = -(w1 * h2 - w2 * h1) - hd[0] + kgg * (r1 * jr2 - r2 * jr1) + (m[1] * b2 - m[2] * b1) + x[7]
+    t1 = -(w2 * h0 - w0 * h2) - hd[1] + kgg * (r2 * jr0 - r0 * jr2) + (m[2] * b0 - m[0] * b2) + x[8]
+    t2 = -(w0 * h1 - w1 * h0) - hd[2] + kgg * (r0 * jr1 - r1 * jr0) + (m[0] * b1 - m[1] * b0) + x[9]
     e0, e1, e2, q4 = y[0], y[1], y[2], y[3]
     ks[o] = 0.5 * (q4 * w0 - (w1 * e2 - w2 * e1))
     ks[o + 1] = 0.5 * (q4 * w1 - (w2 * e0 - w0 * e2))
@@ -229,22 +281,85 @@ def _slope(ks, o, y, x, model, wm, acc, s, env, v):
         ks[o + 4 + i] = Ji[i * 3] * t0 + Ji[i * 3 + 1] * t1 + Ji[i * 3 + 2] * t2
 
 
-def propagate(x, model, wm, wp, env, work):
-    """x over one step (RK4, Eq. 4.95) with the tachometer read-outs wm (start) and wp (end), rad/s."""
-    dt = model.dt
-    a = work.dx                                    # a = (W+ - W-)/dt in dx[0:4], free during propagation
+def friction(model, W):
+    """The friction model's torque on a rotor at relative speed W (rad/s), N m (opposes the spin)."""
+    c, vis, sm = model.friction
+    return vis * W + c * math.tanh(W / sm)
+
+
+def momentum_rate(hw, hd, Qw, model, wm, wp, u):
+    """The wheel momentum at the step's start hw = C Jrw W- (Eq. 4.55, from the read-out) and its rate over the
+    step hd (3 each, the file's torque units); Qw (3 x 3) the rate noise the read-out differences add. Returns
+    whether Qw is non-zero.
+
+    "tach" (Eq. 4.62, 4.95): hd = C Jrw (W+ - W-)/dt for every wheel, Qw = G (2 R_rw) G^T with G = Jm^-1 C
+    D(Jrw) (the Eq. 4.135 construction; conservative: consecutive steps share a read-out).
+    "torque" (Eq. 4.56 with the rotor equation Jrw W_dot = tau_motor - tau_f, derived): wheel k adds
+    s c_k (sat(u_k) - f(W-_k)), u the motor torques commanded over the step (N m, sat: the datasheet limit),
+    f the friction model, s the file's torque scale. Near zero speed the friction's sign is not known from a
+    10 rpm read-out (and the rotor sticks while |u| < the Coulomb torque): a wheel with |W-| < 3 sigma_tach +
+    dt s (|u| + f_c)/Jrw (it may reach zero within the step), or one whose torque error (torque_rel s u dt)^2
+    exceeds its read-out difference's 2 R_rw Jrw^2, adds the read-out difference instead, and its share of the
+    tachometer noise to Qw; the others add their torque error to Qw. A wheel whose u is NaN (its read-out missed: what it did is not
+    known) adds nothing, and as noise the Coulomb torque a coasting rotor exerts, (s f_c dt)^2 (derived)."""
+    CJ, Ji = model.CJ, model.Ji
+    for i in range(3):
+        h = 0.0
+        for k in range(4):
+            h += CJ[i * 4 + k] * wm[k]
+        hw[i] = h
+        hd[i] = 0.0
+    C, sc, tm, dt = model.C, model.scale, model.torque_max, model.dt
+    noisy = False
     for k in range(4):
-        a[k] = (wp[k] - wm[k]) / dt
+        M, r = CJ, 2.0 * model.R_rw                # the read-out difference and its noise
+        if model.torque:
+            uk = u[k]
+            if uk != uk:                           # not known (no read-out): nothing added, a coasting rotor's
+                M, r = C, (sc * model.friction[0] * dt) ** 2           # friction as the noise
+            else:
+                uk = tm if uk > tm else (-tm if uk < -tm else uk)
+                rt = (model.torque_rel * sc * uk * dt) ** 2          # the torque's error over the step
+                if (abs(wm[k]) >= model.tach_3sigma + dt * sc * (abs(uk) + model.friction[0]) / model.jrw[k]
+                        and rt < r * model.jrw[k] ** 2):
+                    t = sc * (uk - friction(model, wm[k]))
+                    for i in range(3):
+                        hd[i] += C[i * 4 + k] * t
+                    M, r = C, rt
+        if M is CJ:
+            a = (wp[k] - wm[k]) / dt
+            for i in range(3):
+                hd[i] += CJ[i * 4 + k] * a
+        if not noisy:
+            linalg.fill(Qw, 9, 0.0)
+            noisy = True
+        g0 = Ji[0] * M[k] + Ji[1] * M[4 + k] + Ji[2] * M[8 + k]        # Jm^-1 times column k of M
+        g1 = Ji[3] * M[k] + Ji[4] * M[4 + k] + Ji[5] * M[8 + k]
+        g2 = Ji[6] * M[k] + Ji[7] * M[4 + k] + Ji[8] * M[8 + k]
+        Qw[0] += r * g0 * g0
+        Qw[1] += r * g0 * g1
+        Qw[2] += r * g0 * g2
+        Qw[4] += r * g1 * g1
+        Qw[5] += r * g1 * g2
+        Qw[8] += r * g2 * g2
+    if noisy:
+        Qw[3], Qw[6], Qw[7] = Qw[1], Qw[2], Qw[5]
+    return noisy
+
+
+def propagate(x, model, hw, hd, env, work):
+    """x over one step (RK4, Eq. 4.95) with the wheel momentum hw + hd s (``momentum_rate``)."""
+    dt = model.dt
     ks, y, v = work.k, work.y, work.v
     for i in range(7):
         y[i] = x[i]
-    _slope(ks, 0, y, x, model, wm, a, 0.0, env, v)
+    _slope(ks, 0, y, x, model, hw, hd, 0.0, env, v)
     for st in range(1, 4):
         h = dt if st == 3 else 0.5 * dt
         o = (st - 1) * 7
         for i in range(7):
             y[i] = x[i] + h * ks[o + i]
-        _slope(ks, st * 7, y, x, model, wm, a, h, env, v)
+        _slope(ks, st * 7, y, x, model, hw, hd, h, env, v)
     for i in range(7):
         x[i] = x[i] + dt / 6.0 * (ks[i] + 2.0 * (ks[7 + i] + ks[14 + i]) + ks[21 + i])
     n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
@@ -252,19 +367,16 @@ def propagate(x, model, wm, wp, env, work):
         x[i] = x[i] / n
 
 
-def jacobian(F, x, model, wm, env, work):
-    """F (9 x 9) of Eq. 4.98-4.101 at x (see the module docstring), with W = wm."""
-    J, Ji, CJ, m = model.J, model.Ji, model.CJ, model.m
+def jacobian(F, x, model, hw, env, work):
+    """F (9 x 9) of Eq. 4.98-4.101 at x (see the module docstring), with C Jrw W = hw."""
+    J, Ji, m = model.J, model.Ji, model.m
     v = work.v
     r_i, kgg, b_i = env
     _dcm_apply(v, 0, x, r_i)
     _dcm_apply(v, 3, x, b_i)
     w = (x[4], x[5], x[6])
     for i in range(3):
-        h = J[i * 3] * w[0] + J[i * 3 + 1] * w[1] + J[i * 3 + 2] * w[2]
-        for k in range(4):
-            h += CJ[i * 4 + k] * wm[k]
-        v[6 + i] = h
+        v[6 + i] = J[i * 3] * w[0] + J[i * 3 + 1] * w[1] + J[i * 3 + 2] * w[2] + hw[i]
         v[9 + i] = J[i * 3] * v[0] + J[i * 3 + 1] * v[1] + J[i * 3 + 2] * v[2]
     linalg.fill(F, 81, 0.0)
     F[1], F[2], F[9], F[11], F[18], F[19] = w[2], -w[1], -w[2], w[0], w[1], -w[0]     # -[w x]
@@ -334,16 +446,24 @@ def phi(Phi, F, dt, work, order=4):
             Phi[i] += t
 
 
-def predict(x, P, wm, wp, env, model, work):
+def predict(x, P, wm, wp, u, env, model, work):
     """(x, P) from t to t + dt (Eq. 4.95-4.136, cut to 9 states): F and Phi at the step's start, RK4 for x,
-    P = Phi P Phi^T + Q (symmetric by construction; Phi's tau_d rows are the identity's). env = (r_i unit (3), 3 mu/r^3, b_i (3)), mid-step."""
-    jacobian(work.F, x, model, wm, env, work)
+    P = Phi P Phi^T + Q (symmetric by construction; Phi's tau_d rows are the identity's). wm, wp: the
+    read-outs at the step's start and end (rad/s); u: the motor torques commanded over it (N m; unused with
+    the read-out difference); env = (r_i unit (3), 3 mu/r^3, b_i (3)), mid-step."""
+    hw, hd, Qw = work.hw, work.hd, work.Qw
+    noisy = momentum_rate(hw, hd, Qw, model, wm, wp, u)
+    jacobian(work.F, x, model, hw, env, work)
     phi(work.Phi, work.F, model.dt, work)
-    propagate(x, model, wm, wp, env, work)
+    propagate(x, model, hw, hd, env, work)
     linalg.sandwich_ident(P, work.Phi, work.T1, N, 6)      # Phi's tau_d rows are [0 I]
     Q = model.Q
     for i in range(81):
         P[i] += Q[i]
+    if noisy:
+        for i in range(3):
+            for j in range(3):
+                P[(3 + i) * 9 + 3 + j] += Qw[i * 3 + j]
 
 
 def error_vec(out, qm, q):
@@ -389,7 +509,8 @@ def correct(x, dx):
 
 
 class Lean:
-    """The lean APKF at 1 Hz: ``step(wp, q_meas or None, env)`` per dt, the read-out wp at the step's end."""
+    """The lean APKF at 1 Hz: ``step(wp, q_meas or None, env, u)`` per dt, the read-out wp at the step's end,
+    u the motor torques commanded over the step (N m; needed unless ``momentum="tach"``)."""
 
     def __init__(self, params, q0, w0, w_rw0, dt=1.0, **kw):
         self.model = Model(params, dt=dt, **kw)
@@ -407,8 +528,10 @@ class Lean:
         self.work = Work()
         self.skipped = 0           # star-tracker updates refused (S not positive definite)
 
-    def step(self, wp, q_meas, env):
-        predict(self.x, self.P, self.wm, wp, env, self.model, self.work)
+    def step(self, wp, q_meas, env, u=None):
+        if u is None and self.model.torque:
+            raise ValueError("the lean APKF needs the wheel torques commanded over the step (momentum='torque')")
+        predict(self.x, self.P, self.wm, wp, u, env, self.model, self.work)
         for i in range(4):
             self.wm[i] = wp[i]
         if q_meas is not None and not update(self.x, self.P, q_meas, self.model, self.work):

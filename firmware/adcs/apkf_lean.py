@@ -33,10 +33,12 @@ G = Jm^-1 times the wheel's column):
   share a read-out);
 - a wheel whose u is NaN (the caller did not hear it, so what it did is unknown): nothing, and r = (s f_c dt)^2,
   a coasting rotor's friction (derived).
-The ADCS application (app.py) still runs this filter with the read-out difference: with the commanded
-torques its 600 s CAN session (bench_adcs_can, calibrated file) lost the star tracker at the first slew, as it
-does with the read-out difference, but then never regained it (the rate estimate stayed ~400"/s off; the
-read-out run regains it). Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's
+The ADCS application (app.py) runs this filter on the commanded torques while the star tracker answers and
+on the read-out difference while it is blind (``Model.use``): the read-outs are relative to the body, so their
+difference follows the body's rate through the momentum exchange when nothing else anchors it. On the torques
+alone a 110 s CAN session with a 5 s hold lost the star tracker in the first slew and had not regained it by
+the end; with the switch it does (tests/test_adcs_can.py).
+Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's
 wheels then hold the previous one); motor-torque errors beyond friction are absent in the emulator, and a slow
 friction drift is tau_d's (its random walk q_d). The orbit direction r, 3 mu/r^3 and the field b (inertial)
 are inputs (from the STKF and the field model).
@@ -128,13 +130,10 @@ class Model:
     def __init__(self, params, dt=1.0, sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, qd=QD_CASE1,
                  momentum="torque", friction=FRICTION, torque_max=TORQUE_MAX, torque_rel=TORQUE_REL):
         check_params(params)
-        if momentum not in ("torque", "tach"):
-            raise ValueError("momentum must be 'torque' or 'tach', got %r" % (momentum,))
         x = params["x"]
         j5 = x["J5_kgm2"]
         jxx = float(params["jxx_ref_kgm2"])
         self.dt = float(dt)
-        self.torque = momentum == "torque"
         self.scale = float(params.get("torque_scale", 1.0))
         self.friction = (float(friction[0]), float(friction[1]), float(friction[2]))
         self.torque_max = float(torque_max)
@@ -156,19 +155,18 @@ class Model:
             for r in range(3):
                 self.C[r * 4 + i] = self.CJ[r * 4 + i] / n
         # the rate equation's inertia: J itself with the read-out difference (Eq. 4.67); with the torques,
-        # Jm = J - C D(Jrw) C^T (see the module docstring)
+        # Jm = J - C D(Jrw) C^T (see the module docstring). Both inverses are kept: ``use`` switches input.
         Jm = linalg.zeros(9)
         for i in range(9):
             Jm[i] = self.J[i]
-        if self.torque:
-            for r in range(3):
-                for c in range(3):
-                    s = 0.0
-                    for k in range(4):
-                        s += self.CJ[r * 4 + k] * self.C[c * 4 + k]
-                    Jm[r * 3 + c] -= s
-        self.Ji = linalg.zeros(9)
-        if not _inv3(self.Ji, Jm):
+        for r in range(3):
+            for c in range(3):
+                s = 0.0
+                for k in range(4):
+                    s += self.CJ[r * 4 + k] * self.C[c * 4 + k]
+                Jm[r * 3 + c] -= s
+        self.Ji_tach, self.Ji_torque = linalg.zeros(9), linalg.zeros(9)
+        if not (_inv3(self.Ji_tach, self.J) and _inv3(self.Ji_torque, Jm)):
             raise ValueError("parameter file: inertia is not positive definite")
         self.m = linalg.zeros(3)
         for i in range(3):
@@ -180,17 +178,25 @@ class Model:
         self.R_rw = (tach_rpm * RPM) ** 2
         self.tach_3sigma = 3.0 * tach_rpm * RPM
         self.qd = qd
-        # the constant part of Q: tau_d's (Eq. 4.135-4.136); the read-out differences add theirs per step
         self.Q = linalg.zeros(81)
-        dt = self.dt
+        self.use(momentum)
+
+    def use(self, momentum):
+        """Take the wheel momentum change from "torque" or "tach" (see the class docstring) from now on."""
+        if momentum not in ("torque", "tach"):
+            raise ValueError("momentum must be 'torque' or 'tach', got %r" % (momentum,))
+        self.torque = momentum == "torque"
+        self.Ji = self.Ji_torque if self.torque else self.Ji_tach
+        # the constant part of Q: tau_d's (Eq. 4.135-4.136); the read-out differences add theirs per step
+        dt, qd, Ji = self.dt, self.qd, self.Ji
         for i in range(3):
             self.Q[(6 + i) * 9 + 6 + i] = qd * dt
             for j in range(3):
                 jj = 0.0
                 for k in range(3):
-                    jj += self.Ji[i * 3 + k] * self.Ji[j * 3 + k]
+                    jj += Ji[i * 3 + k] * Ji[j * 3 + k]
                 self.Q[(3 + i) * 9 + 3 + j] = qd * jj * dt ** 3 / 3.0
-                v = self.Ji[i * 3 + j] * qd * dt * dt / 2.0
+                v = Ji[i * 3 + j] * qd * dt * dt / 2.0
                 self.Q[(3 + i) * 9 + 6 + j] = v
                 self.Q[(6 + j) * 9 + 3 + i] = v
 

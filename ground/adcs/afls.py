@@ -15,6 +15,8 @@ The model is given as callables: ``f(x, dt)`` propagation (negative dt = backwar
 Phi(dt) x and the EAFLS reduces to the AFLS exactly.
 """
 
+from math import isfinite
+
 import numpy as np
 from scipy.linalg.lapack import dpotrf, dtrtri
 
@@ -60,28 +62,33 @@ def update(X, P, n, idx, z, R, H, hx):
     return X + W @ (Li @ (z - hx)), np.subtract(P, WWt, out=WWt)
 
 
-def interpolation(X, n, ia, ic, dt_a, dt_b, f, Phi, Q):
-    """(x_b, A, B, N) of node b between a (index ia, older) and c (index ic, newer), dt_a = t_b - t_a,
-    dt_b = t_c - t_b: x_b ~ A x_a + B x_c + w, cov(w) = N = (I - B Fb) Qa.
+def _eye(n, _cache={}):
+    if n not in _cache:
+        e = np.eye(n)
+        e.flags.writeable = False
+        _cache[n] = e
+    return _cache[n]
+
+
+def interpolation(xa, xc, dt_a, dt_b, f, Phi, Qa, Qb):
+    """(x_b, A, B, N) of node b between a (state xa, older) and c (xc, newer), dt_a = t_b - t_a,
+    dt_b = t_c - t_b, Qa = Q(dt_a), Qb = Q(dt_b): x_b ~ A x_a + B x_c + w, cov(w) = N = (I - B Fb) Qa.
 
     Eq. 5.46-5.48: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
     B = Qa Fb^T Qca^-1, A = (I - B Fb) Fa.
     State (Eq. 5.49-5.52): x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)); for a linear f this
-    is A x_a + B x_c (Eq. 5.40).
+    is A x_a + B x_c (Eq. 5.40). xa and xc may be one part of the node state where the model separates.
     """
-    xa, xc = X[ia * n:(ia + 1) * n], X[ic * n:(ic + 1) * n]
     xb_pred = f(xa, dt_a)
     Fa = Phi(xa, dt_a)
     Fb = Phi(xb_pred, dt_b)
-    Qa = Q(dt_a)
-    FQ = Fb @ Qa
-    Li = chol_inv(FQ @ Fb.T + Q(dt_b))             # Qca = L L^T
-    B = (FQ.T @ Li.T) @ Li                         # Qa Fb^T Qca^-1 (Qa symmetric)
-    BF = B @ Fb
-    IBF = -BF
-    IBF.flat[::n + 1] += 1.0
-    xb = xb_pred + BF @ (f(xc, -dt_b) - xb_pred)
-    return xb, IBF @ Fa, B, IBF @ Qa
+    FQ = Fb.dot(Qa)                                # (.dot: half the call cost of @ on these small matrices)
+    Li = chol_inv(FQ.dot(Fb.T) + Qb)               # Qca = L L^T
+    B = Li.dot(FQ).T.dot(Li)                       # Qa Fb^T Qca^-1 = (L^-1 Fb Qa)^T L^-1 (Qa symmetric)
+    BF = B.dot(Fb)
+    IBF = np.subtract(_eye(BF.shape[0]), BF)
+    xb = xb_pred + BF.dot(f(xc, -dt_b) - xb_pred)
+    return xb, IBF.dot(Fa), B, IBF.dot(Qa)
 
 
 def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
@@ -93,7 +100,7 @@ def generate_node(X, P, n, ia, ic, dt_a, dt_b, f, Phi, Q):
     """
     sa = slice(ia * n, (ia + 1) * n)
     sc = slice(ic * n, (ic + 1) * n)
-    xb, A, B, N = interpolation(X, n, ia, ic, dt_a, dt_b, f, Phi, Q)
+    xb, A, B, N = interpolation(X[sa], X[sc], dt_a, dt_b, f, Phi, Q(dt_a), Q(dt_b))
     if ia == ic + 1:                               # c just before a in the node list: one product (Eq. 5.42)
         BA = np.empty((n, 2 * n))
         BA[:, :n], BA[:, n:] = B, A
@@ -133,11 +140,18 @@ class Afls:
     measured part of node b formed; exact for the nodes kept), so the joint covariance keeps only the
     regular nodes (the STKF with SatB's relay: 6 nodes, 72 rows, instead of up to 8). A later OOSM in the same
     interval is then interpolated from the interval's ends without the dropped node, which loses what the first
-    measurement told about the process noise inside the interval; with one OOSM per interval (SatB's relayed solutions: one per second, on SatB's own clock) the linear AFLS gives the
-    same kept nodes either way, and the in-order Kalman filter's result (tested to 1e-9).
+    measurement told about the process noise inside the interval; with one OOSM per interval (SatB's relayed
+    solutions: one per second, on SatB's own clock) the linear AFLS gives the same kept nodes either way, and
+    the in-order Kalman filter's result (tested to 1e-9).
+    ``parts``: optional slices of the node state along which the model separates: Phi and Q block-diagonal,
+    and f of one part independent of the others (the STKF's two satellites, Eq. 5.9). ``f(x_p, dt)`` and
+    ``Phi(x_p, dt)`` must then also take one part's state alone, and ``Q(dt)[p, p]`` is its noise. A
+    measurement of one part (``update(..., part=p)``) touches only that part's columns of P, and its OOSM node
+    (with ``keep_generated=False``) is interpolated for that part alone: A, B and N are block-diagonal too, so
+    the other parts of node b never enter the update.
     """
 
-    def __init__(self, x0, P0, t0, lag_s, f, Phi, Q, tol=1e-9, keep_generated=True):
+    def __init__(self, x0, P0, t0, lag_s, f, Phi, Q, tol=1e-9, keep_generated=True, parts=None):
         x0 = np.asarray(x0, dtype=float)
         P0 = np.asarray(P0, dtype=float)
         if not (np.isfinite(lag_s) and lag_s >= 0):
@@ -152,6 +166,15 @@ class Afls:
         self.tol = tol
         self.generated = 0
         self.keep_generated = bool(keep_generated)
+        self.parts = tuple(parts or ())
+        used = np.zeros(self.n, dtype=int)
+        for p in self.parts:
+            if not (isinstance(p, slice) and p.step in (None, 1) and p.start is not None
+                    and 0 <= p.start < p.stop <= self.n):
+                raise ValueError("model parts must be slices inside the %d node states, got %r" % (self.n, p))
+            used[p] += 1
+        if used.max(initial=0) > 1:
+            raise ValueError("model parts overlap: %r" % (self.parts,))
 
     # The nodes live in a preallocated buffer, newest first, in the window [o, o + m) of its rows and columns;
     # a prediction writes the new node just before the window (the old joint covariance is not copied),
@@ -245,91 +268,112 @@ class Afls:
             self.t = self.t[:keep]
             self._m = keep * self.n
 
-    def update(self, z, R, h, H=None, t=None):
+    def update(self, z, R, h, H=None, t=None, part=None):
         """Measurement z = h(x(t)) + v, v ~ N(0, R); ``h(x)`` and ``H(x)`` callables of the node state, or
         ``H`` None and ``h(x)`` returning (h, H) from one evaluation.
 
         ``t`` None means now. A time between nodes creates a node (Eq. 5.40-5.42 / 5.49-5.52). The update
-        is the module's ``update`` (Eq. 5.24), done in place in the buffer.
+        is the module's ``update`` (Eq. 5.24), done in place in the buffer. ``part``: one of the model's
+        ``parts`` when z depends on that part of the state alone; h and H then take that part's state, and H
+        has that part's columns only (C = [0 .. H .. 0] of Eq. 5.24 is never formed).
         """
         z = np.asarray(z, dtype=float)
-        if not np.all(np.isfinite(z)):
+        if not np.isfinite(z).all():
             raise ValueError("measurement has a NaN or infinite value: %s" % z.tolist())
-        t = self.now if t is None else float(t)
-        if not np.isfinite(t):
+        now = self.t[0]
+        t = now if t is None else float(t)
+        if not isfinite(t):
             raise ValueError("measurement time tag is not finite: %r" % (t,))
-        if t > self.now + self.tol:
+        if t > now + self.tol:
             raise ValueError("measurement time-tagged %.3f s in the future (tag %.3f s, filter at %.3f s)"
-                             % (t - self.now, t, self.now))
-        if t < self.now - self.lag - self.tol:
+                             % (t - now, t, now))
+        if t < now - self.lag - self.tol:
             raise ValueError("measurement delayed %.3f s, longer than the smoother's lag of %.3f s"
-                             % (self.now - t, self.lag))
-        if not self.keep_generated:
-            i = self._between(t)
-            if i is not None:
-                self._update_between(i, t, z, R, h, H)
+                             % (now - t, self.lag))
+        if part is None:
+            lo, hi = 0, self.n
+        elif part in self.parts:
+            lo, hi = part.start, part.stop
+        else:
+            raise ValueError("measurement part %r is not one of the model's parts %r" % (part, self.parts))
+        idx, at = self._locate(t)
+        if not at:
+            if not self.keep_generated:
+                self._update_between(idx, t, z, R, h, H, lo, hi)
                 return
-        idx = self._node_at(t)
+            self._generate(idx, t)
         n = self.n
         X, P = self.X, self.P
-        s = slice(idx * n, (idx + 1) * n)
+        s = slice(idx * n + lo, idx * n + hi)
         xi = X[s]
         if H is None:
             hx, Hi = h(xi)
         else:
             hx, Hi = h(xi), H(xi)
-        r = z - hx
         PCt = P[:, s] @ Hi.T
-        Li = chol_inv(Hi @ PCt[s, :] + R)
+        Li = chol_inv(Hi.dot(PCt[s, :]) + R)
         W = PCt @ Li.T
-        X += W @ (Li @ r)
+        X += W @ Li.dot(z - hx)
         np.subtract(P, W @ np.ascontiguousarray(W.T), out=P)
 
-    def _between(self, t):
-        """Index a of the older neighbour when t lies strictly between two nodes; None at a node."""
+    def _locate(self, t):
+        """(i, True) when t is at node i; (i, False) when it lies between node i - 1 (c) and i (a)."""
         for i, ti in enumerate(self.t):
             if abs(ti - t) <= self.tol:
-                return None
-            if ti < t:
-                return i
+                return i, True
+            if ti < t:  # nodes are newest first: c = i - 1 is newer, a = i older
+                return i, False
         raise ValueError("measurement time %.3f s is before the oldest node %.3f s" % (t, self.t[-1]))
 
-    def _update_between(self, ia, t, z, R, h, H):
+    def _update_between(self, ia, t, z, R, h, H, lo=0, hi=None):
         """Generate node b between c = ia - 1 and a = ia, update every node with z = h(x_b) + v and drop b,
         in one: with C the measurement's Jacobian at x_b, cov(z, X) = C [B A] P[c:a, :] (Eq. 5.42) and
         cov(z) = that times [B A]^T C^T + C (I - B Fb) Qa C^T + R (Eq. 5.41), then Eq. 5.24 on the kept
-        nodes. Node b's own n x m row and n x n block are never formed."""
+        nodes. Node b's own n x m row and n x n block are never formed. For a measurement of one model part
+        [lo, hi) only that part of node b is interpolated (A, B, N are block-diagonal with the model), and
+        [B A] is written with zeros in the other parts' columns."""
         n = self.n
+        hi = n if hi is None else hi
         X, P = self.X, self.P
         ic = ia - 1
-        xb, A, B, N = interpolation(X, n, ia, ic, t - self.t[ia], self.t[ic] - t, self.f, self.Phi, self.Q)
+        dt_a, dt_b = t - self.t[ia], self.t[ic] - t
+        Qa, Qb = self.Q(dt_a), self.Q(dt_b)
+        if hi - lo < n:
+            Qa, Qb = Qa[lo:hi, lo:hi], Qb[lo:hi, lo:hi]
+        a0, c0 = ia * n, ic * n
+        xb, A, B, N = interpolation(X[a0 + lo:a0 + hi], X[c0 + lo:c0 + hi], dt_a, dt_b,
+                                    self.f, self.Phi, Qa, Qb)
         if H is None:
             hx, Hi = h(xb)
         else:
             hx, Hi = h(xb), H(xb)
-        CBA = np.hstack([Hi @ B, Hi @ A])
-        s = slice(ic * n, (ia + 1) * n)
+        CBA = np.zeros((Hi.shape[0], 2 * n)) if hi - lo < n else np.empty((Hi.shape[0], 2 * n))
+        CBA[:, lo:hi] = Hi.dot(B)
+        CBA[:, n + lo:n + hi] = Hi.dot(A)
+        s = slice(c0, a0 + n)
         row = CBA @ P[s, :]
-        S = row[:, s] @ CBA.T + Hi @ N @ Hi.T + R
+        S = row[:, s].dot(CBA.T) + Hi.dot(N).dot(Hi.T) + R
         Li = chol_inv(0.5 * (S + S.T))
         W = row.T @ Li.T
-        X += W @ (Li @ (z - hx))
+        X += W @ Li.dot(z - hx)
         np.subtract(P, W @ np.ascontiguousarray(W.T), out=P)
         self.generated += 1
 
+    def _generate(self, i, t):
+        """Generate node b between c = i - 1 and a = i and plug it in at index i (Eq. 5.40-5.42 / 5.49-5.52)."""
+        ic = i - 1
+        xb, Pbb, row = generate_node(self.X, self.P, self.n, i, ic, t - self.t[i], self.t[ic] - t,
+                                     self.f, self.Phi, self.Q)
+        self._insert(i, xb, Pbb, row)
+        self.t.insert(i, t)
+        self.generated += 1
+
     def _node_at(self, t):
-        for i, ti in enumerate(self.t):
-            if abs(ti - t) <= self.tol:
-                return i
-            if ti < t:  # nodes are newest first: c = i - 1 is newer, a = i older
-                ic, ia = i - 1, i
-                xb, Pbb, row = generate_node(self.X, self.P, self.n, ia, ic, t - ti, self.t[ic] - t,
-                                             self.f, self.Phi, self.Q)
-                self._insert(i, xb, Pbb, row)
-                self.t.insert(i, t)
-                self.generated += 1
-                return i
-        raise ValueError("measurement time %.3f s is before the oldest node %.3f s" % (t, self.t[-1]))
+        """Index of the node at time t, generated (and kept) when t lies between nodes."""
+        i, at = self._locate(t)
+        if not at:
+            self._generate(i, t)
+        return i
 
     def _insert(self, pos, xb, Pbb, row):
         """``insert_node`` in the buffer: the nodes newer than b move up by one node (Fig. 5-2)."""

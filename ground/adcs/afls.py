@@ -265,12 +265,12 @@ class Afls:
         ``H`` None and ``h(x)`` returning (h, H) from one evaluation.
 
         ``t`` None means now. A time between nodes creates a node (Eq. 5.40-5.42 / 5.49-5.52). The update
-        is the module's ``update`` (Eq. 5.24), done in place in the buffer. ``part``: one of the model's
+        is the module's ``update`` (Eq. 5.24), done in place. ``part``: one of the model's
         ``parts`` when z depends on that part of the state alone; h and H then take that part's state, and H
         has that part's columns only (C = [0 .. H .. 0] of Eq. 5.24 is never formed).
         """
         z = np.asarray(z, dtype=float)
-        if not np.isfinite(z).all():
+        if not isfinite(z.dot(z)) and not np.isfinite(z).all():   # z.z finite => every z_i finite (a cheap test)
             raise ValueError("measurement has a NaN or infinite value: %s" % z.tolist())
         now = self.t[0]
         t = now if t is None else float(t)

@@ -240,6 +240,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
            "final_error_vb_m_s": float(np.linalg.norm(hist["err"][-1, 9:12])),
            "final_error_pointing_arcsec": float(np.hypot(*hist["perr"][-1])),
            "oosm_nodes_generated": flt.generated, "step_us_mean": 1e6 * float(np.mean(step_s[1:] or step_s)),
+           "step_us_median": 1e6 * float(np.median(step_s[1:] or step_s)),
            "outages": outage_list, "log": log}
     return res, hist
 
@@ -271,6 +272,8 @@ def aggregate(results, runs_requested, complete):
               "final_error_pointing_arcsec"):
         s["rms_" + k] = float(np.sqrt(np.mean([r[k] ** 2 for r in good]))) if good else None
     s["step_us_mean"] = float(np.mean([r["step_us_mean"] for r in good])) if good else None
+    med = [r["step_us_median"] for r in good if "step_us_median" in r]
+    s["step_us_median"] = float(np.mean(med)) if med and len(med) == len(good) else None   # mean of run medians
     s["outages"] = {str(r["seed"]): r["outages"] for r in good if r["outages"]}
     return s
 

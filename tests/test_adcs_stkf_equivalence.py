@@ -39,14 +39,15 @@ def test_simulation_equals_the_recorded_run_of_the_code_before(name, monkeypatch
     with np.load(REF) as ref:
         ref = {k[len(name) + 1:]: ref[k] for k in ref.files if k.startswith(name + "_")}
     assert flt.t == ref["t"].tolist()
-    # the joint covariance of nodes 1 s apart is ill-conditioned (~1e11), so 1e-16 rounding grows to ~1e-9
+    # measured: Case 1 equal to the last bit; Case 2 (a different but equal algebra for the OOSM) within 1e-8 m,
+    # 1e-9 relative on the sigmas and 3e-12 of sqrt(P_ii P_jj) on the joint P: the tolerances leave ~100x margin
     np.testing.assert_allclose(h["err"], ref["err"], rtol=0, atol=1e-6)            # m, m/s
     np.testing.assert_allclose(h["sig"], ref["sig"], rtol=1e-7, atol=0)
     np.testing.assert_allclose(h["perr"], ref["perr"], rtol=0, atol=1e-6)          # arcsec
     np.testing.assert_allclose(h["psig"], ref["psig"], rtol=1e-7, atol=0)
     np.testing.assert_allclose(flt.X, ref["X"], rtol=0, atol=1e-6)
     d = np.sqrt(np.diag(ref["P"]))
-    assert np.all(np.abs(flt.P - ref["P"]) <= 1e-7 * np.outer(d, d))
+    assert np.all(np.abs(flt.P - ref["P"]) <= 1e-9 * np.outer(d, d))
     assert r["oosm_nodes_generated"] == (0 if name == "c1" else 52)
 
 

@@ -19,7 +19,7 @@ from math import isfinite
 
 import numpy as np
 from scipy.linalg.blas import dgemm
-from scipy.linalg.lapack import dpotrf, dtrtri
+from scipy.linalg.lapack import dposv, dpotrf, dtrtri
 
 
 def predict(X, P, n, x0_new, Phi, Q):
@@ -85,7 +85,7 @@ def interpolation(xa, xc, dt_a, dt_b, f, Phi, Qa, Qb):
     dt_b = t_c - t_b, Qa = Q(dt_a), Qb = Q(dt_b): x_b ~ A x_a + B x_c + w, cov(w) = N = (I - B Fb) Qa.
 
     Eq. 5.46-5.48: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
-    B = Qa Fb^T Qca^-1, A = (I - B Fb) Fa.
+    B = Qa Fb^T Qca^-1 (solved with LAPACK dposv), A = (I - B Fb) Fa.
     State (Eq. 5.49-5.52): x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)); for a linear f this
     is A x_a + B x_c (Eq. 5.40). xa and xc may be one part of the node state where the model separates.
     """
@@ -93,8 +93,10 @@ def interpolation(xa, xc, dt_a, dt_b, f, Phi, Qa, Qb):
     Fa = Phi(xa, dt_a)
     Fb = Phi(xb_pred, dt_b)
     FQ = Fb.dot(Qa)                                # (.dot: half the call cost of @ on these small matrices)
-    Li = chol_inv(FQ.dot(Fb.T) + Qb)               # Qca = L L^T
-    B = Li.dot(FQ).T.dot(Li)                       # Qa Fb^T Qca^-1 = (L^-1 Fb Qa)^T L^-1 (Qa symmetric)
+    _, BT, info = dposv(FQ.dot(Fb.T) + Qb, FQ, lower=1)   # Qca B^T = Fb Qa (Qa symmetric), by Cholesky
+    if info != 0:
+        raise np.linalg.LinAlgError("Qca is not positive definite (LAPACK info %d)" % info)
+    B = BT.T
     BF = B.dot(Fb)
     IBF = np.subtract(_eye(BF.shape[0]), BF)
     xb = xb_pred + BF.dot(f(xc, -dt_b) - xb_pred)

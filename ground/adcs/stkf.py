@@ -215,7 +215,7 @@ def gnss_beacon(x, A):
     hb = (y[:, None] * u - A) / rho
     H = _H_GB.copy()
     H[6:9, IA] = hb
-    np.negative(hb, out=H[6:9, IB])
+    H[6:9, IB] = -hb
     return np.concatenate((x[0:6], y)), H
 
 

@@ -41,7 +41,7 @@ def main():
                 walls.setdefault(case, []).append(time.perf_counter() - t0)
                 res.append(r)
             s = stkf_sim.aggregate(res, RUNS, True)
-            steps[case] = s["step_us_mean"]
+            steps[case] = s["step_us_mean"], s["step_us_median"]
             means[case] = s["final_sigma_pointing_arcsec"]
             ra, ha = stkf_sim.simulate(case, 1200.0, seed=0, truth="hpop", cache_dir=cache, attitude="apkf")
             apkf_rows[case] = (ra, _nees(ha))
@@ -68,8 +68,10 @@ def main():
     print("| item | goal | ours |")
     print("|---|---|---|")
     print("| brahe truth, SatA + SatB, 1200 s at 1 s | <= 1 s | %.3f s |" % truth_s)
-    print("| STKF step with the EAFLS (Case 2, mean) | <= 200 us | %.0f us |" % steps[2])
-    print("| STKF step (Case 1, no delayed data, mean) | — | %.0f us |" % steps[1])
+    print("| STKF step with the EAFLS (Case 2, mean) | <= 200 us | %.0f us |" % steps[2][0])
+    print("| STKF step with the EAFLS (Case 2, median: less sensitive to other jobs on the cores) | — | %.0f us |"
+          % steps[2][1])
+    print("| STKF step (Case 1, no delayed data, mean / median) | — | %.0f / %.0f us |" % steps[1])
     print("| one 1200 s case (Case 2, truth cached, incl. sensors and records) | <= 2 s | %.2f s |"
           % float(np.min(walls[2])))
     print("| one 1200 s case (Case 1) | <= 2 s | %.2f s |" % float(np.min(walls[1])))

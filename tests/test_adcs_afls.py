@@ -157,7 +157,7 @@ def test_prune_keeps_lag_plus_one_node():
 
 
 def test_module_functions_equal_the_buffered_class():
-    """The class keeps its nodes in a preallocated buffer and updates in place; the module's functions
+    """The class keeps its nodes in its own arrays and updates in place; the module's functions
     (``predict``, ``generate_node``, ``insert_node``, ``update``: the textbook form a flight version follows)
     must give the same nodes, to 1e-12, through predictions, updates, generated nodes and pruning."""
     in_seq, oosm = scenario(3)

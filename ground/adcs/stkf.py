@@ -10,7 +10,7 @@ Attitude errors: the true attitude is A(q) = A(dq) A(q_hat) with the small rotat
 (Eq. 4.77); ``P_att`` is the covariance of d_alpha (rad^2), so 4 Pqq of Eq. 5.59 is ``P_att``.
 """
 
-from math import sqrt
+from math import ceil, sqrt
 
 import numpy as np
 
@@ -21,6 +21,9 @@ IA = slice(0, 3)
 VA = slice(3, 6)
 IB = slice(6, 9)
 VB = slice(9, 12)
+SAT_A = slice(0, 6)
+SAT_B = slice(6, 12)
+PARTS = (SAT_A, SAT_B)   # the model separates per satellite (Eq. 5.9): f, Phi, Q act on each on its own
 
 
 I3 = np.eye(3)
@@ -61,15 +64,18 @@ def _rk4_sat(rx, ry, rz, vx, vy, vz, h):
 
 
 def f(x, dt):
-    """Two-body propagation of both satellites over ``dt`` (s; negative runs backward, Eq. 5.51): one RK4
-    step for |dt| <= 1 s (local error ~1e-8 m in LEO), more for longer spans."""
-    n = max(1, int(np.ceil(abs(dt) - 1e-9)))
+    """Two-body propagation over ``dt`` (s; negative runs backward, Eq. 5.51) of both satellites (x of 12) or
+    of one (x of 6, ``SAT_A`` or ``SAT_B`` of the state: each satellite propagates on its own): one RK4 step
+    for |dt| <= 1 s (local error ~1e-8 m in LEO), more for longer spans."""
+    n = max(1, ceil(abs(dt) - 1e-9))
     h = float(dt) / n
-    a, b = x[0:6].tolist(), x[6:12].tolist()
-    for _ in range(n):
-        a = _rk4_sat(*a, h)
-        b = _rk4_sat(*b, h)
-    return np.array(a + b)
+    out = []
+    for k in range(0, x.shape[0], 6):
+        s = x[k:k + 6].tolist()
+        for _ in range(n):
+            s = _rk4_sat(*s, h)
+        out += s
+    return np.array(out)
 
 
 def gravity_gradient(r):
@@ -88,10 +94,11 @@ def F(x):
 
 
 def _phi_entries(x, dt):
-    """The nonzero entries of Phi (Eq. 3.30 with Eq. 5.4) in the order of ``_PHI_IDX``, on Python floats."""
+    """The entries of Phi (Eq. 3.30 with Eq. 5.4) of each satellite in x (12 or 6 states), on Python floats,
+    in the order of ``_PHI_IDX``: per satellite the 3x3 blocks rr, rv, vr, vv, each row-major."""
     h2, h3 = 0.5 * dt * dt, dt ** 3 / 6.0
     vals = []
-    for k in (0, 6):
+    for k in range(0, x.shape[0], 6):
         rx, ry, rz = x[k:k + 3].tolist()
         r2 = rx * rx + ry * ry + rz * rz
         c = -MU / r2 ** 1.5
@@ -109,27 +116,29 @@ def _phi_entries(x, dt):
     return vals
 
 
-def _phi_index():
+def _phi_index(n):
     idx = []
-    for k in (0, 6):
+    for k in range(0, n, 6):
         for r0, c0 in ((k, k), (k, k + 3), (k + 3, k), (k + 3, k + 3)):
-            idx += [(r0 + i) * N + c0 + j for i in range(3) for j in range(3)]
+            idx += [(r0 + i) * n + c0 + j for i in range(3) for j in range(3)]
     return np.array(idx)
 
 
-_PHI_IDX = _phi_index()
+_PHI_IDX = {12: _phi_index(12), 6: _phi_index(6)}
 
 
 def Phi(x, dt):
-    """State transition over ``dt`` from F at x (Eq. 3.30): I + F dt + (F dt)^2/2 + (F dt)^3/6.
+    """State transition over ``dt`` from F at x (Eq. 3.30): I + F dt + (F dt)^2/2 + (F dt)^3/6, of both
+    satellites (x of 12) or of one (x of 6).
 
     With F = [[0, I], [G, 0]] per satellite: [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]]; the
     dropped terms (G^2 dt^3/6 and beyond) are ~(n dt)^4 ~ 1e-12 at dt = 1 s in LEO. Block-diagonal (the two
-    satellites propagate independently): its 144 entries are filled in one indexed assignment.
+    satellites propagate independently): its nonzero entries are filled in one indexed assignment.
     """
-    out = np.zeros(N * N)
-    out[_PHI_IDX] = _phi_entries(x, float(dt))
-    return out.reshape(N, N)
+    n = x.shape[0]
+    out = np.zeros(n * n)
+    out[_PHI_IDX[n]] = _phi_entries(x, float(dt))
+    return out.reshape(n, n)
 
 
 def Q(dt, qa=QA_THESIS):
@@ -185,7 +194,7 @@ def h_gnss(x, sat):
 def los(x):
     """(u, rho): unit vector rA->rB (J2000) and the range (Eq. 5.14)."""
     d = x[6:9] - x[0:3]
-    rho = sqrt(d @ d)
+    rho = sqrt(d.dot(d))
     return d / rho, rho
 
 
@@ -200,17 +209,14 @@ def gnss_beacon(x, A):
     H = [[I6, 0], [A Hb,A, 0, A Hb,B, 0]] (9 x 12), from one line-of-sight evaluation (A Hb,A = (y u^T - A)/rho
     with y = A u: one 3 x 3 product)."""
     d = x[6:9] - x[0:3]
-    rho = sqrt(d @ d)
+    rho = sqrt(d.dot(d))
     u = d / rho
-    y = A @ u
+    y = A.dot(u)
     hb = (y[:, None] * u - A) / rho
-    h = np.empty(9)
-    h[0:6] = x[0:6]
-    h[6:9] = y
     H = _H_GB.copy()
     H[6:9, IA] = hb
     H[6:9, IB] = -hb
-    return h, H
+    return np.concatenate((x[0:6], y)), H
 
 
 _H_GB = np.zeros((9, N))
@@ -219,7 +225,7 @@ _H_GB[0:6, 0:6] = I6
 
 def h_beacon(x, A):
     """y_b = A(q) (rB - rA)/rho (Eq. 5.13)."""
-    return A @ los(x)[0]
+    return A.dot(los(x)[0])
 
 
 def H_beacon(x, A):
@@ -233,9 +239,9 @@ def H_beacon(x, A):
 
 def R_beacon(y, sigma_b, P_att):
     """Beacon noise plus attitude knowledge (Eq. 5.15-5.16): sigma_b^2 I + [y x] P_att [y x]^T."""
-    sy = skew(y)
-    R = sy @ P_att @ sy.T
-    R.flat[::4] += sigma_b * sigma_b
+    sy = skew(np.asarray(y, dtype=float).tolist())
+    R = sy.dot(P_att).dot(sy.T)
+    R += (sigma_b * sigma_b) * I3
     return R
 
 

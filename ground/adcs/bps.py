@@ -275,7 +275,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     # flight software state
     model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb)
     f_stkf = Afls(xg[0].ravel() + np.sqrt(P0_DIAG) * r_init.standard_normal(12), np.diag(P0_DIAG), 0.0, LAG_S,
-                  stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False)
+                  stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)
+    I6 = np.eye(6)
     flt = None
     q_prev = None
     u = np.zeros(N_WHEELS)
@@ -333,11 +334,9 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             if k > 0:
                 f_stkf.predict(t)
             Rb = stkf.R_beacon(stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
-            f_stkf.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb),
-                          lambda x: np.concatenate([x[0:6], stkf.h_beacon(x, A_hat)]),
-                          lambda x: np.vstack([stkf.H_gnss("A"), stkf.H_beacon(x, A_hat)]))
-            for tm, z in due:
-                f_stkf.update(z, relay.gnss.R, lambda x: x[6:12], lambda x: stkf.H_gnss("B"), t=tm)
+            f_stkf.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb), lambda x: stkf.gnss_beacon(x, A_hat))
+            for tm, z in due:                           # SatB's GNSS: H = I on SatB's part (Eq. 5.12)
+                f_stkf.update(z, relay.gnss.R, lambda x: (x, I6), t=tm, part=stkf.SAT_B)
             xh = f_stkf.x
             if not np.all(np.isfinite(xh)):
                 raise FloatingPointError("STKF diverged at t = %.0f s" % t)

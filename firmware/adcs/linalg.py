@@ -161,20 +161,31 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
         for j in range(n):
             Kt[i * n + j] = P[(r0 + i) * n + j]
     _solve_cols(Kt, L, n, m)
+    # Buffers read many times are read once into lists (each buffer read makes a new float on MicroPython);
+    # a list holds what the buffer holds, so every product below is the one the buffers gave.
+    K = list(Kt)
+    Hp = list(P[r0 * n:(r0 + m) * n])             # H P = P[r0:r0+m, :]
     # A = (I - K H) P = P - K P[r0:, :]  into W
     for i in range(n):
         for j in range(n):
             s = P[i * n + j]
             for k in range(m):
-                s -= Kt[k * n + i] * P[(r0 + k) * n + j]
+                s -= K[k * n + i] * Hp[k * n + j]
             W[i * n + j] = s
-    matmul(RK, R, Kt, m, m, n)                   # R K^T
+    Rl = list(R)                                 # R K^T into RK (as matmul(RK, R, Kt, m, m, n))
+    for i in range(m):
+        for j in range(n):
+            s = 0.0
+            for k in range(m):
+                s += Rl[i * m + k] * K[k * n + j]
+            RK[i * n + j] = s
+    Wl, RKl = list(W), list(RK)
     # P+ = A (I - K H)^T + K R K^T = A - A[:, r0:] K^T + K R K^T, upper triangle mirrored
     for i in range(n):
         for j in range(i, n):
-            s = W[i * n + j]
+            s = Wl[i * n + j]
             for k in range(m):
-                s += Kt[k * n + i] * RK[k * n + j] - W[i * n + r0 + k] * Kt[k * n + j]
+                s += K[k * n + i] * RKl[k * n + j] - Wl[i * n + r0 + k] * K[k * n + j]
             P[i * n + j] = s
             P[j * n + i] = s
     return True

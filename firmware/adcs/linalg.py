@@ -38,6 +38,7 @@ def eye(A, n):
 
 def matmul(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B (m x p); C must not alias A or B."""
+    A, B = list(A[0:n * m]), list(B[0:m * p])    # read once (a buffer read is a new float on MicroPython)
     for i in range(n):
         ia = i * m
         ic = i * p
@@ -52,6 +53,7 @@ def matmul(C, A, B, n, m, p):
 
 def matmul_bt(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B^T, B being p x m; C must not alias A or B."""
+    A, B = list(A[0:n * m]), list(B[0:p * m])
     for i in range(n):
         ia = i * m
         ic = i * p
@@ -67,6 +69,7 @@ def sandwich(P, Phi, T, n):
     """P = Phi P Phi^T (n x n), symmetric by construction: only the upper triangle is computed and mirrored.
     T is an n x n work buffer."""
     matmul(T, Phi, P, n, n, n)                   # T = Phi P
+    T, Phi = list(T[0:n * n]), list(Phi[0:n * n])
     for i in range(n):
         it = i * n
         for j in range(i, n):
@@ -82,6 +85,7 @@ def sandwich_ident(P, Phi, T, n, r):
     """P = Phi P Phi^T for a Phi whose rows r .. n-1 are those of the identity (the parameter rows of an
     error-state transition): only rows 0 .. r-1 of Phi P and the blocks they touch are computed. T: n x n work."""
     matmul(T, Phi, P, r, n, n)                   # T[0:r] = Phi[0:r] P
+    T, Phi = list(T[0:r * n]), list(Phi[0:r * n])
     for i in range(r):                           # P[0:r, 0:r] = T[0:r] Phi[0:r]^T; P[0:r, r:] = T[0:r, r:]
         it = i * n
         for j in range(i, r):
@@ -130,6 +134,7 @@ def cholesky(L, A, n):
 def chol_solve_rows(X, L, B, n, m):
     """X (m x n) = B (m x n) S^-1 for S = L L^T (n x n): each row b of B solves S x = b (S symmetric).
     X may alias B."""
+    L = list(L[0:n * n])
     for r in range(m):
         o = r * n
         for i in range(n):                       # forward: L y = b
@@ -193,6 +198,7 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
 
 def _solve_cols(X, L, n, m):
     """X (m x n) = S^-1 X for S = L L^T (m x m), column by column."""
+    L = list(L[0:m * m])
     for c in range(n):
         for i in range(m):
             s = X[i * n + c]

@@ -317,8 +317,7 @@ class App:
         X, xo = self.xs, self.xo
         control.attitude_command(self.qc, X, (X[3], X[4], X[5]), (X[6], X[7], X[8]), self.cw)
         for sgn, qq in ((-1.0, self.qm_), (1.0, self.qp_)):
-            for i in range(12):
-                xo[i] = X[i]
+            xo[0:12] = X[0:12]
             stkf_lean.f(xo, 0, 0.5 * sgn)
             stkf_lean.f(xo, 6, 0.5 * sgn)
             control.attitude_command(qq, xo, (xo[3], xo[4], xo[5]), (xo[6], xo[7], xo[8]), self.cw)

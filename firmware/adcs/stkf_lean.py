@@ -121,10 +121,11 @@ def process_noise(Q, dt, qa=QA_THESIS):
     """Q of Eq. 5.8-5.9 for one satellite: per axis [[qa dt^3/3, qa dt^2/2], [qa dt^2/2, qa dt]]."""
     dt = abs(dt)
     linalg.fill(Q, 36, 0.0)
+    q3, q2, q1 = qa * dt * dt * dt / 3.0, qa * dt * dt / 2.0, qa * dt
     for i in range(3):
-        Q[i * 6 + i] = qa * dt * dt * dt / 3.0
-        Q[i * 6 + 3 + i] = Q[(3 + i) * 6 + i] = qa * dt * dt / 2.0
-        Q[(3 + i) * 6 + 3 + i] = qa * dt
+        Q[i * 6 + i] = q3
+        Q[i * 6 + 3 + i] = Q[(3 + i) * 6 + i] = q2
+        Q[(3 + i) * 6 + 3 + i] = q1
 
 
 def left_mul(P, ld, r0, c_lo, c_hi, F):
@@ -180,10 +181,12 @@ def sandwich(P, ld, r0, F, Q, T, src=None):
             P[(r0 + j) * ld + r0 + i] = s
 
 
+_INF = float("inf")
+
+
 def _finite(v, n):
     for i in range(n):
-        e = v[i]
-        if not (e - e == 0.0):                 # NaN and +-inf fail
+        if not -_INF < v[i] < _INF:             # NaN and +-inf fail (a comparison makes no new float)
             return False
     return True
 
@@ -506,8 +509,9 @@ class Afls:
         definite."""
         w, ld, P, X = self.work, self.ld, self.P, self.X
         S, L, d, r = w.S, w.L, w.d, w.r
-        for i in range(36):
-            S[i] = S[i] + R[i]
+        for i in range(6):                                # S0 + R, lower triangle: all cholesky reads
+            for j in range(i * 6, i * 7 + 1):
+                S[j] = S[j] + R[j]
         if not linalg.cholesky(L, S, 6):
             return False
         for j in range(6):

@@ -2,8 +2,10 @@
 
 A matrix is a flat buffer (``array('f')`` on the flight computer) with its dimensions passed alongside:
 element (i, j) of an n x m matrix A is ``A[i * m + j]``. Every routine writes into a destination the caller
-allocated once; none builds a list or an array. Floats are still boxed objects on most MicroPython ports, so the
-arithmetic itself allocates a bounded amount per call (measured per 1 Hz cycle by tests/mp/firmware_adcs.py).
+allocated once. Floats are still boxed objects on most MicroPython ports, so the arithmetic itself allocates a
+bounded amount per call (measured per 1 Hz cycle by tests/mp/firmware_adcs.py); so does every read of a float
+from an array, which is why an input read many times is read once into a short list (same values, the same
+products in the same order: results equal to the element-by-element form, bit for bit).
 
 ``zeros(n)`` is the only constructor; a test may replace it (``linalg.zeros = ...``) with a buffer of
 numpy.float32 scalars to run the same code in float32 arithmetic under CPython.

@@ -28,7 +28,10 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    nodes (Eq. 5.24) and marginalising b out again gives the other nodes exactly what one update with
    H = [.. A .. B ..] and R + (I - B Fb) Qa gives, which is what this form does; b is not kept (no later tag
    falls between a and c). At 1 Hz: 4-5 nodes of 6 states (24-30), where the ground form keeps 12 states per
-   node and every generated node. Equal to the ground smoother without the beacon (tested).
+   node and every generated node. Equal to the ground smoother without the beacon (tested). The update
+   touches nodes 0 .. a only: the nodes older than a are pruned right after it (a is then the anchor), and
+   marginalising them out first changes nothing in the others' update (tests/test_adcs_lean_reference.py
+   checks every call against the dense update of the whole node list).
 4. Floats. States and times are float64 (``zeros_d``, array('d')): a LEO position is ~7e6 m, which float32
    holds to 0.5 m only. SatA's covariance and its work buffers are float32 (``linalg.zeros``, array('f')):
    stored full, written symmetric (upper triangle computed and mirrored), GNSS update in the Joseph form
@@ -42,9 +45,11 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    with float64 floats (the unix port; STM32 builds with double floats). On a float32-only port (SAMD21)
    array('d') reads back float32: not supported by this design.
 
-Cost (bench/bench_adcs_lean.py, micropython unix x64 port, a cycle with SatA's GNSS, the beacon and SatB's
-delayed GNSS): ~30 M x86-64 instructions and ~1.3 MB of boxed floats per 1 Hz cycle (2.1 MB when two SatB
-solutions arrive in one second); the previous 12-state-per-node port of the ground smoother took 515 M / 15.5 MB.
+Cost. On MicroPython every float result, and every float read from a buffer, is a new heap object (~400-600
+x86-64 instructions each), so the loops read a buffer that is used many times once into a list, write
+symmetric blocks by computing one triangle, move nodes by row slices (no float is boxed), and update only the
+nodes a measurement reaches; every product is the one of the plain form (bitwise equal results, checked on
+recorded sessions). Measured in bench/bench_adcs_can.py (micropython unix x64 port, callgrind).
 """
 
 from array import array
@@ -355,7 +360,7 @@ class Afls:
 
     def update_gnss(self, z, R, sat, t=None):
         """GNSS position and velocity of SatA (sat 0, time-tagged now) or SatB (sat 1, at time t within the
-        lag: between nodes a node is generated first, Eq. 5.46-5.52; then Eq. 5.24 updates every node).
+        lag: between nodes a node is generated first, Eq. 5.46-5.52; then Eq. 5.24 updates every node kept).
         R: 6 x 6 flat, symmetric positive definite."""
         t = self.t[0] if t is None else t
         if sat not in (0, 1):

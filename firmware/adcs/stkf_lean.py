@@ -648,16 +648,59 @@ class Afls:
                 if j < 3:
                     v -= k0 * Hl[j] + k1 * Hl[3 + j] + k2 * Hl[6 + j]
                 IKH[6 * i + j] = v
-        KRK = w.Q                                              # K R K^T
+        RK = [0.0] * 18                                        # R K^T (3 x 6), then K R K^T
+        for a in range(3):
+            ra0, ra1, ra2 = Rl[3 * a], Rl[3 * a + 1], Rl[3 * a + 2]
+            for j in range(6):
+                RK[6 * a + j] = ra0 * K[j] + ra1 * K[6 + j] + ra2 * K[12 + j]
+        KRK = w.Q
         for i in range(6):
+            k0, k1, k2 = K[i], K[6 + i], K[12 + i]
             for j in range(i, 6):
                 s = 0.0
-                kj0, kj1, kj2 = K[j], K[6 + j], K[12 + j]
-                for a in range(3):
-                    s += K[a * 6 + i] * (Rl[3 * a] * kj0 + Rl[3 * a + 1] * kj1 + Rl[3 * a + 2] * kj2)
+                s += k0 * RK[j]
+                s += k1 * RK[6 + j]
+                s += k2 * RK[12 + j]
                 KRK[6 * i + j] = KRK[6 * j + i] = s
-        rows_mul_mirror(P, ld, 0, N, self.k * N, IKH)         # P_0j = (I - K H) P_0j
-        sandwich(P, ld, 0, IKH, KRK, w.T)                    # Joseph form (Eq. 4.142)
+        G = [IKH[6 * i + j] for i in range(6) for j in range(3)]   # I - K H = [G | I's columns 3 .. 5]
+        _ikh_rows(P, ld, N, self.k * N, G)                  # P_0j = (I - K H) P_0j
+        _ikh_sandwich(P, ld, G, KRK, w.T)                    # Joseph form (Eq. 4.142)
+
+
+def _ikh_rows(P, ld, c_lo, c_hi, G, mirror=True):
+    """rows_mul_mirror(P, ld, 0, c_lo, c_hi, F) for F = I - K H whose columns 3 .. 5 are the identity's
+    (H = [H_r 0] on the position): F's first three columns G (6 x 3 list) are multiplied, the rest adds p_i.
+    The terms left out are exact zeros, so the sums are the full product's. ``mirror``: also P[c, 0:6]."""
+    for c in range(c_lo, c_hi):
+        cl = c * ld
+        p0, p1, p2 = P[c], P[ld + c], P[2 * ld + c]
+        for i in range(6):
+            o = 3 * i
+            v = G[o] * p0 + G[o + 1] * p1 + G[o + 2] * p2
+            if i >= 3:
+                v = v + P[i * ld + c]
+            P[i * ld + c] = v
+            if mirror:
+                P[cl + i] = v
+
+
+def _ikh_sandwich(P, ld, G, Q, T):
+    """sandwich(P, ld, 0, F, Q, T) for F = I - K H as in ``_ikh_rows``: P00 = F P00 F^T + Q, upper triangle
+    mirrored; T (6 x 6) work."""
+    for i in range(6):
+        for j in range(6):
+            T[i * 6 + j] = P[i * ld + j]
+    _ikh_rows(T, 6, 0, 6, G, False)                      # T = F P00
+    for i in range(6):
+        o = 6 * i
+        t0, t1, t2 = T[o], T[o + 1], T[o + 2]
+        for j in range(i, 6):
+            q = 3 * j
+            s = Q[o + j] + t0 * G[q] + t1 * G[q + 1] + t2 * G[q + 2]
+            if j >= 3:
+                s = s + T[o + j]
+            P[i * ld + j] = s
+            P[j * ld + i] = s
 
 
 def _add_gain(x, n, Kt, r, m):

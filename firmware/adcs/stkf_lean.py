@@ -51,8 +51,9 @@ symmetric blocks by computing one triangle, move nodes by row slices (no float i
 nodes a measurement reaches; every product is the one of the plain form (bitwise equal results, checked on
 recorded sessions). Measured with callgrind on the unix x64 port over cycles 40-60 of a recorded CAN session
 (the STKF's calls alone): 5.9 M instructions per 1 Hz cycle without SatB's GNSS (was 7.4 M), 17.4 M with it
-(was 29.5 M), of which SatB's smoother update ~10 M: its Hp = C P (6 x m) and P -= V^T V over m = 24-30 states
-are ~7,000 float operations at their floor in this form. bench/bench_adcs_can.py measures the whole cycle.
+(was 29.5 M), of which 12.8 M are the predict and SatB's smoother update (beacon 2.1 M, SatA's GNSS 2.5 M): the
+update's Hp = C P (6 x m) and P -= V^T V over m = 24-30 states alone are ~7,000 float operations, their floor
+in this form. bench/bench_adcs_can.py measures the whole cycle.
 """
 
 from array import array

@@ -133,6 +133,9 @@ class App:
             self.jrw[i] = n / self.scale
             for r in range(3):
                 self.C[r * 4 + i] = m.CJ[r * 4 + i] / n
+        self.cjrw = [self.C[i] * self.jrw[i % 4] for i in range(12)]   # C Jrw (3 x 4), for H = J w + C Jrw w_rw
+        self.cof_failed = -1                # the failed set self.Cu and self.cof were made for
+        self.cof = None
         self.K = zeros(9)
         self.D = zeros(9)
         control.gains(self.K, self.D, self.J, self.ts)
@@ -227,9 +230,15 @@ class App:
                 self.rw_miss_run[i] += 1
                 if self.rw_miss_run[i] >= FAIL_AFTER:
                     self.failed |= 1 << i
-        for r in range(3):
-            for i in range(4):
-                self.Cu[r * 4 + i] = 0.0 if self.failed & (1 << i) else self.C[r * 4 + i]
+        if self.failed != self.cof_failed:           # the axes in use and their (C C^T)^-1 cofactors
+            for r in range(3):
+                for i in range(4):
+                    self.Cu[r * 4 + i] = 0.0 if self.failed & (1 << i) else self.C[r * 4 + i]
+            try:
+                self.cof = control.cct_cofactors(self.Cu)
+            except ValueError:              # the axes left do not span: saturate() says so in the cycle
+                self.cof = None
+            self.cof_failed = self.failed
 
     def _env(self, t):
         """(r unit, 3 mu/r^3, b_i) at mid-step t - 0.5 from the STKF's rA, vA at t - 1."""
@@ -317,8 +326,7 @@ class App:
         X, xo = self.xs, self.xo
         control.attitude_command(self.qc, X, (X[3], X[4], X[5]), (X[6], X[7], X[8]), self.cw)
         for sgn, qq in ((-1.0, self.qm_), (1.0, self.qp_)):
-            for i in range(12):
-                xo[i] = X[i]
+            xo[0:12] = X[0:12]
             stkf_lean.f(xo, 0, 0.5 * sgn)
             stkf_lean.f(xo, 6, 0.5 * sgn)
             control.attitude_command(qq, xo, (xo[3], xo[4], xo[5]), (xo[6], xo[7], xo[8]), self.cw)
@@ -345,11 +353,15 @@ class App:
                 self.wc[i] = 0.0
         else:
             self._command_rate()
-        J, sc, H = self.J, self.scale, self.H
+        J, sc, H, cj = self.J, self.scale, self.H, self.cjrw
+        w0, w1, w2 = w
+        wp0, wp1, wp2, wp3 = self.wp
         for i in range(3):
-            s = J[i * 3] * w[0] + J[i * 3 + 1] * w[1] + J[i * 3 + 2] * w[2]
-            for k in range(4):
-                s += self.C[i * 4 + k] * self.jrw[k] * self.wp[k]
+            s = J[i * 3] * w0 + J[i * 3 + 1] * w1 + J[i * 3 + 2] * w2
+            s += cj[i * 4] * wp0
+            s += cj[i * 4 + 1] * wp1
+            s += cj[i * 4 + 2] * wp2
+            s += cj[i * 4 + 3] * wp3
             H[i] = s
         # feed-forward: gravity gradient (J), m x b, tau_d (the APKF's model, Eq. 4.68-4.75)
         dcm(self.A, q)
@@ -367,8 +379,8 @@ class App:
         tff[1] = g * (rb[2] * Jr[0] - rb[0] * Jr[2]) + m2 * bb[0] - m0 * bb[2] + x[8] / sc
         tff[2] = g * (rb[0] * Jr[1] - rb[1] * Jr[0]) + m0 * bb[1] - m1 * bb[0] + x[9] / sc
         control.pd_torque(self.tau, q, w, self.qc, self.wc, self.K, self.D, H, tff)
-        control.saturate(self.tau, self.Cu, self.torque_max)
-        control.wheel_torques(u, self.tau, self.Cu)
+        control.saturate(self.tau, self.Cu, self.torque_max, self.cof)
+        control.wheel_torques(u, self.tau, self.Cu, self.cof)
         c, v, sm = self.fric
         for i in range(4):
             if self.failed & (1 << i):

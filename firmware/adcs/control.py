@@ -151,8 +151,10 @@ def pd_torque(tau, q, w, qc, wc, K, D, H=None, tau_ff=None):
             tau[i] = tau[i] - tau_ff[i]
 
 
-def _solve_cct(C, tau):
-    """(y0, y1, y2) = (C C^T)^-1 tau for C 3 x 4 (flat), by Cramer's rule on the symmetric 3 x 3."""
+def cct_cofactors(C):
+    """(c00, c01, c02, c11, c12, c22, det): the cofactors and determinant of the symmetric C C^T (C 3 x 4,
+    flat), for (C C^T)^-1 = cofactors / det (Cramer's rule). They depend on the axes only: a caller may
+    compute them once per set of axes and pass them to ``wheel_torques`` and ``saturate``."""
     m00 = C[0] * C[0] + C[1] * C[1] + C[2] * C[2] + C[3] * C[3]
     m01 = C[0] * C[4] + C[1] * C[5] + C[2] * C[6] + C[3] * C[7]
     m02 = C[0] * C[8] + C[1] * C[9] + C[2] * C[10] + C[3] * C[11]
@@ -168,21 +170,29 @@ def _solve_cct(C, tau):
     c11 = m00 * m22 - m02 * m02
     c12 = m01 * m02 - m00 * m12
     c22 = m00 * m11 - m01 * m01
+    return (c00, c01, c02, c11, c12, c22, det)
+
+
+def _solve_cct(C, tau, cof=None):
+    """(y0, y1, y2) = (C C^T)^-1 tau for C 3 x 4 (flat), by Cramer's rule on the symmetric 3 x 3 (``cof``:
+    ``cct_cofactors(C)`` if the caller has them)."""
+    c00, c01, c02, c11, c12, c22, det = cct_cofactors(C) if cof is None else cof
     t0, t1, t2 = tau[0], tau[1], tau[2]
     return ((c00 * t0 + c01 * t1 + c02 * t2) / det, (c01 * t0 + c11 * t1 + c12 * t2) / det,
             (c02 * t0 + c12 * t1 + c22 * t2) / det)
 
 
-def wheel_torques(u, tau_c, C):
-    """Minimum-norm motor torques (Eq. 6.11): u = -C^T (C C^T)^-1 tau_c, C the 3 x 4 axes (flat)."""
-    y0, y1, y2 = _solve_cct(C, tau_c)
+def wheel_torques(u, tau_c, C, cof=None):
+    """Minimum-norm motor torques (Eq. 6.11): u = -C^T (C C^T)^-1 tau_c, C the 3 x 4 axes (flat); ``cof``:
+    ``cct_cofactors(C)``, computed here if not given."""
+    y0, y1, y2 = _solve_cct(C, tau_c, cof)
     for i in range(4):
         u[i] = -(C[i] * y0 + C[4 + i] * y1 + C[8 + i] * y2)
 
 
-def saturate(tau_c, C, torque_max):
-    """Scale tau_c (in place) so that max |u_i| <= torque_max, direction kept."""
-    y0, y1, y2 = _solve_cct(C, tau_c)
+def saturate(tau_c, C, torque_max, cof=None):
+    """Scale tau_c (in place) so that max |u_i| <= torque_max, direction kept (``cof`` as wheel_torques)."""
+    y0, y1, y2 = _solve_cct(C, tau_c, cof)
     peak = 0.0
     for i in range(4):
         v = abs(C[i] * y0 + C[4 + i] * y1 + C[8 + i] * y2)

@@ -2,8 +2,10 @@
 
 A matrix is a flat buffer (``array('f')`` on the flight computer) with its dimensions passed alongside:
 element (i, j) of an n x m matrix A is ``A[i * m + j]``. Every routine writes into a destination the caller
-allocated once; none builds a list or an array. Floats are still boxed objects on most MicroPython ports, so the
-arithmetic itself allocates a bounded amount per call (measured per 1 Hz cycle by tests/mp/firmware_adcs.py).
+allocated once. Floats are still boxed objects on most MicroPython ports, so the arithmetic itself allocates a
+bounded amount per call (measured per 1 Hz cycle by tests/mp/firmware_adcs.py); so does every read of a float
+from an array, which is why an input read many times is read once into a short list (same values, the same
+products in the same order: results equal to the element-by-element form, bit for bit).
 
 ``zeros(n)`` is the only constructor; a test may replace it (``linalg.zeros = ...``) with a buffer of
 numpy.float32 scalars to run the same code in float32 arithmetic under CPython.
@@ -38,6 +40,7 @@ def eye(A, n):
 
 def matmul(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B (m x p); C must not alias A or B."""
+    A, B = list(A[0:n * m]), list(B[0:m * p])    # read once (a buffer read is a new float on MicroPython)
     for i in range(n):
         ia = i * m
         ic = i * p
@@ -52,6 +55,7 @@ def matmul(C, A, B, n, m, p):
 
 def matmul_bt(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B^T, B being p x m; C must not alias A or B."""
+    A, B = list(A[0:n * m]), list(B[0:p * m])
     for i in range(n):
         ia = i * m
         ic = i * p
@@ -67,6 +71,7 @@ def sandwich(P, Phi, T, n):
     """P = Phi P Phi^T (n x n), symmetric by construction: only the upper triangle is computed and mirrored.
     T is an n x n work buffer."""
     matmul(T, Phi, P, n, n, n)                   # T = Phi P
+    T, Phi = list(T[0:n * n]), list(Phi[0:n * n])
     for i in range(n):
         it = i * n
         for j in range(i, n):
@@ -82,6 +87,7 @@ def sandwich_ident(P, Phi, T, n, r):
     """P = Phi P Phi^T for a Phi whose rows r .. n-1 are those of the identity (the parameter rows of an
     error-state transition): only rows 0 .. r-1 of Phi P and the blocks they touch are computed. T: n x n work."""
     matmul(T, Phi, P, r, n, n)                   # T[0:r] = Phi[0:r] P
+    T, Phi = list(T[0:r * n]), list(Phi[0:r * n])
     for i in range(r):                           # P[0:r, 0:r] = T[0:r] Phi[0:r]^T; P[0:r, r:] = T[0:r, r:]
         it = i * n
         for j in range(i, r):
@@ -130,6 +136,7 @@ def cholesky(L, A, n):
 def chol_solve_rows(X, L, B, n, m):
     """X (m x n) = B (m x n) S^-1 for S = L L^T (n x n): each row b of B solves S x = b (S symmetric).
     X may alias B."""
+    L = list(L[0:n * n])
     for r in range(m):
         o = r * n
         for i in range(n):                       # forward: L y = b
@@ -161,20 +168,31 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
         for j in range(n):
             Kt[i * n + j] = P[(r0 + i) * n + j]
     _solve_cols(Kt, L, n, m)
+    # Buffers read many times are read once into lists (each buffer read makes a new float on MicroPython);
+    # a list holds what the buffer holds, so every product below is the one the buffers gave.
+    K = list(Kt)
+    Hp = list(P[r0 * n:(r0 + m) * n])             # H P = P[r0:r0+m, :]
     # A = (I - K H) P = P - K P[r0:, :]  into W
     for i in range(n):
         for j in range(n):
             s = P[i * n + j]
             for k in range(m):
-                s -= Kt[k * n + i] * P[(r0 + k) * n + j]
+                s -= K[k * n + i] * Hp[k * n + j]
             W[i * n + j] = s
-    matmul(RK, R, Kt, m, m, n)                   # R K^T
+    Rl = list(R)                                 # R K^T into RK (as matmul(RK, R, Kt, m, m, n))
+    for i in range(m):
+        for j in range(n):
+            s = 0.0
+            for k in range(m):
+                s += Rl[i * m + k] * K[k * n + j]
+            RK[i * n + j] = s
+    Wl, RKl = list(W), list(RK)
     # P+ = A (I - K H)^T + K R K^T = A - A[:, r0:] K^T + K R K^T, upper triangle mirrored
     for i in range(n):
         for j in range(i, n):
-            s = W[i * n + j]
+            s = Wl[i * n + j]
             for k in range(m):
-                s += Kt[k * n + i] * RK[k * n + j] - W[i * n + r0 + k] * Kt[k * n + j]
+                s += K[k * n + i] * RKl[k * n + j] - Wl[i * n + r0 + k] * K[k * n + j]
             P[i * n + j] = s
             P[j * n + i] = s
     return True
@@ -182,6 +200,7 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
 
 def _solve_cols(X, L, n, m):
     """X (m x n) = S^-1 X for S = L L^T (m x m), column by column."""
+    L = list(L[0:m * m])
     for c in range(n):
         for i in range(m):
             s = X[i * n + c]

@@ -28,7 +28,10 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    nodes (Eq. 5.24) and marginalising b out again gives the other nodes exactly what one update with
    H = [.. A .. B ..] and R + (I - B Fb) Qa gives, which is what this form does; b is not kept (no later tag
    falls between a and c). At 1 Hz: 4-5 nodes of 6 states (24-30), where the ground form keeps 12 states per
-   node and every generated node. Equal to the ground smoother without the beacon (tested).
+   node and every generated node. Equal to the ground smoother without the beacon (tested). The update
+   touches nodes 0 .. a only: the nodes older than a are pruned right after it (a is then the anchor), and
+   marginalising them out first changes nothing in the others' update (tests/test_adcs_lean_reference.py
+   checks every call against the dense update of the whole node list).
 4. Floats. States and times are float64 (``zeros_d``, array('d')): a LEO position is ~7e6 m, which float32
    holds to 0.5 m only. SatA's covariance and its work buffers are float32 (``linalg.zeros``, array('f')):
    stored full, written symmetric (upper triangle computed and mirrored), GNSS update in the Joseph form
@@ -42,9 +45,15 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    with float64 floats (the unix port; STM32 builds with double floats). On a float32-only port (SAMD21)
    array('d') reads back float32: not supported by this design.
 
-Cost (bench/bench_adcs_lean.py, micropython unix x64 port, a cycle with SatA's GNSS, the beacon and SatB's
-delayed GNSS): ~30 M x86-64 instructions and ~1.3 MB of boxed floats per 1 Hz cycle (2.1 MB when two SatB
-solutions arrive in one second); the previous 12-state-per-node port of the ground smoother took 515 M / 15.5 MB.
+Cost. On MicroPython every float result, and every float read from a buffer, is a new heap object (~400-600
+x86-64 instructions each), so the loops read a buffer that is used many times once into a list, write
+symmetric blocks by computing one triangle, move nodes by row slices (no float is boxed), and update only the
+nodes a measurement reaches; every product is the one of the plain form (bitwise equal results, checked on
+recorded sessions). Measured with callgrind on the unix x64 port over cycles 40-60 of a recorded CAN session
+(the STKF's calls alone): 5.9 M instructions per 1 Hz cycle without SatB's GNSS (was 7.4 M), 17.4 M with it
+(was 29.5 M), of which 12.8 M are the predict and SatB's smoother update (beacon 2.1 M, SatA's GNSS 2.5 M): the
+update's Hp = C P (6 x m) and P -= V^T V over m = 24-30 states alone are ~7,000 float operations, their floor
+in this form. bench/bench_adcs_can.py measures the whole cycle.
 """
 
 from array import array
@@ -121,14 +130,16 @@ def process_noise(Q, dt, qa=QA_THESIS):
     """Q of Eq. 5.8-5.9 for one satellite: per axis [[qa dt^3/3, qa dt^2/2], [qa dt^2/2, qa dt]]."""
     dt = abs(dt)
     linalg.fill(Q, 36, 0.0)
+    q3, q2, q1 = qa * dt * dt * dt / 3.0, qa * dt * dt / 2.0, qa * dt
     for i in range(3):
-        Q[i * 6 + i] = qa * dt * dt * dt / 3.0
-        Q[i * 6 + 3 + i] = Q[(3 + i) * 6 + i] = qa * dt * dt / 2.0
-        Q[(3 + i) * 6 + 3 + i] = qa * dt
+        Q[i * 6 + i] = q3
+        Q[i * 6 + 3 + i] = Q[(3 + i) * 6 + i] = q2
+        Q[(3 + i) * 6 + 3 + i] = q1
 
 
 def left_mul(P, ld, r0, c_lo, c_hi, F):
     """P[r0:r0+6, c] = F P[r0:r0+6, c] for c_lo <= c < c_hi (F 6 x 6), in place, column by column."""
+    F = list(F)                             # read once: every buffer read is a new float object
     for c in range(c_lo, c_hi):
         b = r0 * ld + c
         p0, p1, p2 = P[b], P[b + ld], P[b + 2 * ld]
@@ -140,13 +151,34 @@ def left_mul(P, ld, r0, c_lo, c_hi, F):
     return P
 
 
-def sandwich(P, ld, r0, F, Q, T):
-    """P[r0:r0+6, r0:r0+6] = F P F^T + Q (Eq. 3.31), symmetric: T = F P (work, 6 x 6), then the upper
-    triangle of T F^T + Q, mirrored."""
+def rows_mul_mirror(P, ld, src, c_lo, c_hi, F):
+    """P[0:6, c] = F P[src:src+6, c] and P[c, 0:6] = its transpose for c_lo <= c < c_hi (F 6 x 6): the cross
+    covariance of the current node with the older ones after a transition F (Eq. 5.21's P0j = Phi P0j, or the
+    beacon's (I - K H) P0j), written symmetric. src = 0 works in place (column by column)."""
+    F = list(F)
+    for c in range(c_lo, c_hi):
+        b = src * ld + c
+        p0, p1, p2 = P[b], P[b + ld], P[b + 2 * ld]
+        p3, p4, p5 = P[b + 3 * ld], P[b + 4 * ld], P[b + 5 * ld]
+        cl = c * ld
+        for i in range(6):
+            o = 6 * i
+            v = F[o] * p0 + F[o + 1] * p1 + F[o + 2] * p2 + F[o + 3] * p3 + F[o + 4] * p4 + F[o + 5] * p5
+            P[i * ld + c] = v
+            P[cl + i] = v
+
+
+def sandwich(P, ld, r0, F, Q, T, src=None):
+    """P[r0:r0+6, r0:r0+6] = F P[src:src+6, src:src+6] F^T + Q (Eq. 3.31; src defaults to r0), symmetric:
+    T = F P (work, 6 x 6), then the upper triangle of T F^T + Q, mirrored."""
+    if src is None:
+        src = r0
     for i in range(6):
+        o = (src + i) * ld + src
         for j in range(6):
-            T[i * 6 + j] = P[(r0 + i) * ld + r0 + j]
+            T[i * 6 + j] = P[o + j]
     left_mul(T, 6, 0, 0, 6, F)
+    F = list(F)
     for i in range(6):
         o = 6 * i
         t0, t1, t2, t3, t4, t5 = T[o], T[o + 1], T[o + 2], T[o + 3], T[o + 4], T[o + 5]
@@ -158,10 +190,12 @@ def sandwich(P, ld, r0, F, Q, T):
             P[(r0 + j) * ld + r0 + i] = s
 
 
+_INF = float("inf")
+
+
 def _finite(v, n):
     for i in range(n):
-        e = v[i]
-        if not (e - e == 0.0):                 # NaN and +-inf fail
+        if not -_INF < v[i] < _INF:             # NaN and +-inf fail (a comparison makes no new float)
             return False
     return True
 
@@ -191,8 +225,8 @@ class Work:
         self.W = z(36)
         self.RK = z(36)
         self.Kt = z(6 * m)
-        self.PCt = z(m * 6)
-        self.row = z(6 * m)
+        self.hp = [[0.0] * m for _ in range(N)]     # Hp = C P (6 x m) by rows, then V = L^-1 Hp: plain lists,
+        self.l36 = [[0.0] * 36 for _ in range(4)]    # read without a new float per read; A, B, T, Qa as lists
         self.S = z(36)
         self.xb = zeros_d(N)
         self.xc = zeros_d(N)
@@ -277,16 +311,15 @@ class Afls:
         if k == self.cap:
             k -= 1
         m, p = k * N, pos * N
-        for i in range(m - 1, p - 1, -1):
-            X[i + N] = X[i]
+        X[p + N:m + N] = X[p:m]
         for i in range(k - 1, pos - 1, -1):
             t[i + 1] = t[i]
-        for i in range(m - 1, -1, -1):          # bottom-right first: nothing is overwritten before it moves
-            ni = i + N if i >= p else i
-            for j in range(m - 1, -1, -1):
-                nj = j + N if j >= p else j
-                if ni != i or nj != j:
-                    P[ni * ld + nj] = P[i * ld + j]
+        for i in range(m - 1, -1, -1):          # bottom row first: nothing is overwritten before it moves
+            a = i * ld                           # (row slices: no float is read one by one)
+            b = a + N * ld if i >= p else a
+            if b != a and p:
+                P[b:b + p] = P[a:a + p]
+            P[b + p + N:b + m + N] = P[a + p:a + m]
         self.k = k + 1
 
     def _prune(self, t_ref):
@@ -320,28 +353,18 @@ class Afls:
         self._prune(t_new)                      # before the products: dropped nodes cost nothing
         self._shift(0)
         X, P, ld = self.X, self.P, self.ld
-        for i in range(N):
-            X[i] = X[N + i]
+        X[0:N] = X[N:2 * N]
         f(X, 0, dt)
         self.t[0] = t_new
         m = self.k * N
-        for i in range(N):                      # rows 0..5 <- old node 0's rows (then Phi applied)
-            for j in range(N, m):
-                P[i * ld + j] = P[(N + i) * ld + j]
-        left_mul(P, ld, 0, N, m, w.Phi)
-        for i in range(N):
-            for j in range(N, m):
-                P[j * ld + i] = P[i * ld + j]
-        for i in range(N):
-            for j in range(N):
-                P[i * ld + j] = P[(N + i) * ld + N + j]
-        sandwich(P, ld, 0, w.Phi, w.Q, w.T)
+        rows_mul_mirror(P, ld, N, N, m, w.Phi)   # P0j = Phi P0j from the old node 0's rows (now N .. 2N-1)
+        sandwich(P, ld, 0, w.Phi, w.Q, w.T, N)   # P00 = Phi P00 Phi^T + Q from the old P00 (now at N, N)
 
     # ---- GNSS (Eq. 5.10-5.12, 5.24) ----
 
     def update_gnss(self, z, R, sat, t=None):
         """GNSS position and velocity of SatA (sat 0, time-tagged now) or SatB (sat 1, at time t within the
-        lag: between nodes a node is generated first, Eq. 5.46-5.52; then Eq. 5.24 updates every node).
+        lag: between nodes a node is generated first, Eq. 5.46-5.52; then Eq. 5.24 updates every node kept).
         R: 6 x 6 flat, symmetric positive definite."""
         t = self.t[0] if t is None else t
         if sat not in (0, 1):
@@ -376,16 +399,21 @@ class Afls:
         for i in range(self.k):
             ti = self.t[i]
             if abs(ti - t) <= self.tol:                 # at a node: Eq. 5.24 with C = [0 .. I6 .. 0]
-                self._hp_node(i)
+                m = (i + 1) * N
+                self._hp_node(i, m)
                 break
             if ti < t:                                  # between nodes c = i - 1 and a = i
-                self._hp_between(i - 1, i, t - ti, self.t[i - 1] - t)
+                m = (i + 1) * N
+                self._hp_between(i - 1, i, t - ti, self.t[i - 1] - t, m)
                 between = True
                 break
         else:
             self.refused += 1
             raise ValueError("measurement time %.3f s is before the oldest node %.3f s" % (t, self.t[self.k - 1]))
-        if not self._update_rows(z, R):
+        # Only nodes 0 .. i take part (m states): the older ones are pruned below once the update is applied
+        # (the anchor is node i or newer), and marginalising them out first leaves the update of the others
+        # exactly as it is. A refused update changes nothing.
+        if not self._update_rows(z, R, m):
             self.refused += 1
             raise ValueError("innovation covariance is not positive definite")
         if between:
@@ -393,31 +421,30 @@ class Afls:
         self.t_last = t
         self._prune(self.t[0])
 
-    def _hp_node(self, i):
-        """Hp = C P = P[6 i: 6 i + 6, :] (6 x m), its block S0 = P_ii, h = x_i (Eq. 5.24)."""
+    def _hp_node(self, i, m):
+        """Hp = C P = P[6 i: 6 i + 6, 0:m] (6 x m), its block S0 = P_ii, h = x_i (Eq. 5.24)."""
         w, ld, P, X = self.work, self.ld, self.P, self.X
-        m, c0 = self.k * N, i * N
-        Hp, S, d = w.row, w.S, w.d
+        c0 = i * N
+        Hp, S, d = w.hp, w.S, w.d
         for a in range(6):
+            h, o = Hp[a], (c0 + a) * ld
             for j in range(m):
-                Hp[a * m + j] = P[(c0 + a) * ld + j]
-        for a in range(6):
+                h[j] = P[o + j]
             for b in range(6):
-                S[a * 6 + b] = Hp[a * m + c0 + b]
+                S[a * 6 + b] = h[c0 + b]
             d[N + a] = X[c0 + a]
 
-    def _hp_between(self, ic, ia, dt_a, dt_b):
+    def _hp_between(self, ic, ia, dt_a, dt_b, m):
         """The generated node b between a (older, index ia) and c (newer, ic) of Eq. 5.46-5.52, as a
         measurement of a and c: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
         B = Qa Fb^T Qca^-1, A = (I - B Fb) Fa; x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)),
-        P_bj = A P_aj + B P_cj (Hp, 6 x m), P_bb = P_ba A^T + P_bc B^T + (I - B Fb) Qa (S0).
+        P_bj = A P_aj + B P_cj (Hp, 6 x m, nodes 0 .. ia), P_bb = P_ba A^T + P_bc B^T + (I - B Fb) Qa (S0).
 
         A measurement of b is then a measurement of a and c with H = [A .. B], noise R + (I - B Fb) Qa. The
         update of Eq. 5.24 with node b plugged in (Fig. 5-2) and then marginalised out is the same update of
         the other nodes (exact); b is not kept: with in-order tags 1 s apart no later tag falls between a and
         c, and the pruning keeps a as the anchor."""
         w, ld, P, X = self.work, self.ld, self.P, self.X
-        m = self.k * N
         xb, xc = w.xb, w.xc
         for i in range(N):
             xb[i] = X[ia * N + i]
@@ -458,37 +485,42 @@ class Afls:
             for j in range(N):
                 s += B[i * N + j] * d[j]
             d[N + i] = s
-        Hp = w.row
-        sa, sc = ia * N, ic * N
-        for j in range(m):                                # Hp = A P[sa, :] + B P[sc, :]  (6 x m)
-            a0, a1, a2 = P[sa * ld + j], P[(sa + 1) * ld + j], P[(sa + 2) * ld + j]
-            a3, a4, a5 = P[(sa + 3) * ld + j], P[(sa + 4) * ld + j], P[(sa + 5) * ld + j]
-            c0, c1, c2 = P[sc * ld + j], P[(sc + 1) * ld + j], P[(sc + 2) * ld + j]
-            c3, c4, c5 = P[(sc + 3) * ld + j], P[(sc + 4) * ld + j], P[(sc + 5) * ld + j]
+        Al, Bl, Tl, Ql = w.l36                            # A, B, I - B Fb, Qa read once
+        for i in range(36):
+            Al[i], Bl[i], Tl[i], Ql[i] = A[i], B[i], T[i], Qa[i]
+        Hp = w.hp
+        sa, sc = ia * N * ld, ic * N * ld
+        for j in range(m):                                # Hp = A P[a rows, :] + B P[c rows, :]  (6 x m)
+            a0, a1, a2 = P[sa + j], P[sa + ld + j], P[sa + 2 * ld + j]
+            a3, a4, a5 = P[sa + 3 * ld + j], P[sa + 4 * ld + j], P[sa + 5 * ld + j]
+            c0, c1, c2 = P[sc + j], P[sc + ld + j], P[sc + 2 * ld + j]
+            c3, c4, c5 = P[sc + 3 * ld + j], P[sc + 4 * ld + j], P[sc + 5 * ld + j]
             for i in range(N):
                 o = 6 * i
-                Hp[i * m + j] = A[o] * a0 + A[o + 1] * a1 + A[o + 2] * a2 + A[o + 3] * a3 + A[o + 4] * a4 \
-                    + A[o + 5] * a5 + B[o] * c0 + B[o + 1] * c1 + B[o + 2] * c2 + B[o + 3] * c3 \
-                    + B[o + 4] * c4 + B[o + 5] * c5
+                Hp[i][j] = Al[o] * a0 + Al[o + 1] * a1 + Al[o + 2] * a2 + Al[o + 3] * a3 + Al[o + 4] * a4 \
+                    + Al[o + 5] * a5 + Bl[o] * c0 + Bl[o + 1] * c1 + Bl[o + 2] * c2 + Bl[o + 3] * c3 \
+                    + Bl[o + 4] * c4 + Bl[o + 5] * c5
         S = w.S
+        sa, sc = ia * N, ic * N
         for i in range(N):                                # S0 = P_bb, upper triangle mirrored
+            h = Hp[i]
             for j in range(i, N):
                 s = 0.0
                 for a in range(N):
-                    s += Hp[i * m + sa + a] * A[j * N + a] + Hp[i * m + sc + a] * B[j * N + a] \
-                        + T[i * N + a] * Qa[a * N + j]
+                    s += h[sa + a] * Al[j * N + a] + h[sc + a] * Bl[j * N + a] + Tl[i * N + a] * Ql[a * N + j]
                 S[i * N + j] = s
                 S[j * N + i] = s
 
-    def _update_rows(self, z, R):
-        """Eq. 5.24 from Hp = C P (6 x m, in ``work.row``), S0 = C P C^T (``work.S``) and h (``work.d[6:12]``):
-        S = S0 + R = L L^T, V = L^-1 Hp, X += V^T L^-1 (z - h), P -= V^T V (= K S K^T; upper triangle,
-        mirrored). False (nothing changed) unless S is positive definite."""
+    def _update_rows(self, z, R, m):
+        """Eq. 5.24 over the first m states from Hp = C P (6 x m, rows in ``work.hp``), S0 = C P C^T
+        (``work.S``) and h (``work.d[6:12]``): S = S0 + R = L L^T, V = L^-1 Hp, X += V^T L^-1 (z - h),
+        P -= V^T V (= K S K^T; upper triangle, mirrored). False (nothing changed) unless S is positive
+        definite."""
         w, ld, P, X = self.work, self.ld, self.P, self.X
-        m = self.k * N
-        V, S, L, d, r = w.row, w.S, w.L, w.d, w.r
-        for i in range(36):
-            S[i] = S[i] + R[i]
+        S, L, d, r = w.S, w.L, w.d, w.r
+        for i in range(6):                                # S0 + R, lower triangle: all cholesky reads
+            for j in range(i * 6, i * 7 + 1):
+                S[j] = S[j] + R[j]
         if not linalg.cholesky(L, S, 6):
             return False
         for j in range(6):
@@ -502,23 +534,25 @@ class Afls:
         r3 = (r[3] - l30 * r0 - l31 * r1 - l32 * r2) / l33
         r4 = (r[4] - l40 * r0 - l41 * r1 - l42 * r2 - l43 * r3) / l44
         r5 = (r[5] - l50 * r0 - l51 * r1 - l52 * r2 - l53 * r3 - l54 * r4) / l55
+        V0, V1, V2, V3, V4, V5 = w.hp
         for j in range(m):                                # V = L^-1 Hp, column by column, in place
-            v0 = V[j] / l00
-            v1 = (V[m + j] - l10 * v0) / l11
-            v2 = (V[2 * m + j] - l20 * v0 - l21 * v1) / l22
-            v3 = (V[3 * m + j] - l30 * v0 - l31 * v1 - l32 * v2) / l33
-            v4 = (V[4 * m + j] - l40 * v0 - l41 * v1 - l42 * v2 - l43 * v3) / l44
-            v5 = (V[5 * m + j] - l50 * v0 - l51 * v1 - l52 * v2 - l53 * v3 - l54 * v4) / l55
-            V[j], V[m + j], V[2 * m + j], V[3 * m + j], V[4 * m + j], V[5 * m + j] = v0, v1, v2, v3, v4, v5
+            v0 = V0[j] / l00
+            v1 = (V1[j] - l10 * v0) / l11
+            v2 = (V2[j] - l20 * v0 - l21 * v1) / l22
+            v3 = (V3[j] - l30 * v0 - l31 * v1 - l32 * v2) / l33
+            v4 = (V4[j] - l40 * v0 - l41 * v1 - l42 * v2 - l43 * v3) / l44
+            v5 = (V5[j] - l50 * v0 - l51 * v1 - l52 * v2 - l53 * v3 - l54 * v4) / l55
+            V0[j], V1[j], V2[j], V3[j], V4[j], V5[j] = v0, v1, v2, v3, v4, v5
             X[j] = X[j] + v0 * r0 + v1 * r1 + v2 * r2 + v3 * r3 + v4 * r4 + v5 * r5
-        m2, m3, m4, m5 = 2 * m, 3 * m, 4 * m, 5 * m
         for i in range(m):
-            v0, v1, v2, v3, v4, v5 = V[i], V[m + i], V[m2 + i], V[m3 + i], V[m4 + i], V[m5 + i]
+            v0, v1, v2, v3, v4, v5 = V0[i], V1[i], V2[i], V3[i], V4[i], V5[i]
+            a = i * ld
+            b = a + i                                     # P[j, i], j = i, i + 1, ..
             for j in range(i, m):
-                v = P[i * ld + j] - (v0 * V[j] + v1 * V[m + j] + v2 * V[m2 + j] + v3 * V[m3 + j]
-                                     + v4 * V[m4 + j] + v5 * V[m5 + j])
-                P[i * ld + j] = v
-                P[j * ld + i] = v
+                v = P[a + j] - (v0 * V0[j] + v1 * V1[j] + v2 * V2[j] + v3 * V3[j] + v4 * V4[j] + v5 * V5[j])
+                P[a + j] = v
+                P[b] = v
+                b += ld
         return True
 
     # ---- beacon (Eq. 5.13-5.17, Sec. 5.3.3) ----
@@ -583,15 +617,17 @@ class Afls:
                     v += sigma_b * sigma_b
                 R3[3 * i + j] = R3[3 * j + i] = v
         Wm, Pa = w.W, self.Pa                                  # Wm = H P[0:3, 0:6] (B's current node)
+        Hl, P0 = list(H), list(P[0:6])                         # (buffers read once into lists)
+        P1, P2 = list(P[ld:ld + 6]), list(P[2 * ld:2 * ld + 6])
         for i in range(3):
-            h0, h1, h2 = H[3 * i], H[3 * i + 1], H[3 * i + 2]
+            h0, h1, h2 = Hl[3 * i], Hl[3 * i + 1], Hl[3 * i + 2]
             for j in range(6):
-                Wm[6 * i + j] = h0 * P[j] + h1 * P[ld + j] + h2 * P[2 * ld + j]
+                Wm[6 * i + j] = h0 * P0[j] + h1 * P1[j] + h2 * P2[j]
             for j in range(3):                                 # T = H P_rA
                 T[3 * i + j] = h0 * Pa[j] + h1 * Pa[6 + j] + h2 * Pa[12 + j]
         for i in range(3):                                     # R += H P_rA H^T; S = R + H P_rB H^T
             for j in range(i, 3):
-                h0, h1, h2 = H[3 * j], H[3 * j + 1], H[3 * j + 2]
+                h0, h1, h2 = Hl[3 * j], Hl[3 * j + 1], Hl[3 * j + 2]
                 v = R3[3 * i + j] + T[3 * i] * h0 + T[3 * i + 1] * h1 + T[3 * i + 2] * h2
                 R3[3 * i + j] = R3[3 * j + i] = v
                 v += Wm[6 * i] * h0 + Wm[6 * i + 1] * h1 + Wm[6 * i + 2] * h2
@@ -600,33 +636,75 @@ class Afls:
             self.refused += 1
             raise ValueError("beacon innovation covariance is not positive definite")
         Kt = w.Kt                                              # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
-        for i in range(3):
-            for j in range(6):
-                Kt[6 * i + j] = Wm[6 * i + j]
+        for i in range(18):
+            Kt[i] = Wm[i]
         linalg._solve_cols(Kt, w.L, 6, 3)
+        K, Rl = list(Kt[0:18]), list(R3)
         X = self.X
+        r0, r1, r2 = r[0], r[1], r[2]
         for i in range(6):
-            X[i] = X[i] + Kt[i] * r[0] + Kt[6 + i] * r[1] + Kt[12 + i] * r[2]
+            X[i] = X[i] + K[i] * r0 + K[6 + i] * r1 + K[12 + i] * r2
         IKH = w.B                                              # I - K H (6 x 6; H is 3 x 6 = [H 0])
         for i in range(6):
+            k0, k1, k2 = K[i], K[6 + i], K[12 + i]
             for j in range(6):
                 v = 1.0 if i == j else 0.0
                 if j < 3:
-                    v -= Kt[i] * H[j] + Kt[6 + i] * H[3 + j] + Kt[12 + i] * H[6 + j]
+                    v -= k0 * Hl[j] + k1 * Hl[3 + j] + k2 * Hl[6 + j]
                 IKH[6 * i + j] = v
-        KRK = w.Q                                              # K R K^T
+        RK = [0.0] * 18                                        # R K^T (3 x 6), then K R K^T
+        for a in range(3):
+            ra0, ra1, ra2 = Rl[3 * a], Rl[3 * a + 1], Rl[3 * a + 2]
+            for j in range(6):
+                RK[6 * a + j] = ra0 * K[j] + ra1 * K[6 + j] + ra2 * K[12 + j]
+        KRK = w.Q
         for i in range(6):
+            k0, k1, k2 = K[i], K[6 + i], K[12 + i]
             for j in range(i, 6):
                 s = 0.0
-                for a in range(3):
-                    s += Kt[a * 6 + i] * (R3[3 * a] * Kt[j] + R3[3 * a + 1] * Kt[6 + j] + R3[3 * a + 2] * Kt[12 + j])
+                s += k0 * RK[j]
+                s += k1 * RK[6 + j]
+                s += k2 * RK[12 + j]
                 KRK[6 * i + j] = KRK[6 * j + i] = s
-        m = self.k * N
-        left_mul(P, ld, 0, N, m, IKH)                         # P_0j = (I - K H) P_0j
-        for i in range(N):
-            for j in range(N, m):
-                P[j * ld + i] = P[i * ld + j]
-        sandwich(P, ld, 0, IKH, KRK, w.T)                    # Joseph form (Eq. 4.142)
+        G = [IKH[6 * i + j] for i in range(6) for j in range(3)]   # I - K H = [G | I's columns 3 .. 5]
+        _ikh_rows(P, ld, N, self.k * N, G)                  # P_0j = (I - K H) P_0j
+        _ikh_sandwich(P, ld, G, KRK, w.T)                    # Joseph form (Eq. 4.142)
+
+
+def _ikh_rows(P, ld, c_lo, c_hi, G, mirror=True):
+    """rows_mul_mirror(P, ld, 0, c_lo, c_hi, F) for F = I - K H whose columns 3 .. 5 are the identity's
+    (H = [H_r 0] on the position): F's first three columns G (6 x 3 list) are multiplied, the rest adds p_i.
+    The terms left out are exact zeros, so the sums are the full product's. ``mirror``: also P[c, 0:6]."""
+    for c in range(c_lo, c_hi):
+        cl = c * ld
+        p0, p1, p2 = P[c], P[ld + c], P[2 * ld + c]
+        for i in range(6):
+            o = 3 * i
+            v = G[o] * p0 + G[o + 1] * p1 + G[o + 2] * p2
+            if i >= 3:
+                v = v + P[i * ld + c]
+            P[i * ld + c] = v
+            if mirror:
+                P[cl + i] = v
+
+
+def _ikh_sandwich(P, ld, G, Q, T):
+    """sandwich(P, ld, 0, F, Q, T) for F = I - K H as in ``_ikh_rows``: P00 = F P00 F^T + Q, upper triangle
+    mirrored; T (6 x 6) work."""
+    for i in range(6):
+        for j in range(6):
+            T[i * 6 + j] = P[i * ld + j]
+    _ikh_rows(T, 6, 0, 6, G, False)                      # T = F P00
+    for i in range(6):
+        o = 6 * i
+        t0, t1, t2 = T[o], T[o + 1], T[o + 2]
+        for j in range(i, 6):
+            q = 3 * j
+            s = Q[o + j] + t0 * G[q] + t1 * G[q + 1] + t2 * G[q + 2]
+            if j >= 3:
+                s = s + T[o + j]
+            P[i * ld + j] = s
+            P[j * ld + i] = s
 
 
 def _add_gain(x, n, Kt, r, m):

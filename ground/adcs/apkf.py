@@ -45,6 +45,7 @@ Variable fictitious noise (Sec. 4.7.4): Q and R_st x100 until the first maneuver
 ends, then nominal. Adaptive q_d (Eq. 4.152, Case 3): q_d,i = q_d0 + q_d1 |w_i| + q_d2 sum_{j != i} |w_j|.
 """
 
+from functools import lru_cache
 from math import sqrt
 
 import numpy as np
@@ -67,6 +68,10 @@ ID1, ID2, IJR, IWR, IWM, IWP = (slice(17, 21), slice(21, 25), slice(25, 29), sli
 PARAMS = slice(6, 29)            # tau_d .. Jrw (constant)
 EYE3, EYE6, EYE_N = np.eye(3), np.eye(6), np.eye(N)
 EYE_W = np.eye(NW)
+# P.take(_SHIFT) copies W+'s rows and columns into W-'s (``shift_tach``); _DIAG_PARAMS: PARAMS' diagonal in P.ravel()
+_SHIFT_ROWS = np.r_[0:33, 37:41, 37:41]
+_SHIFT = (_SHIFT_ROWS[:, None] * N + _SHIFT_ROWS[None, :]).ravel()
+_DIAG_PARAMS = np.arange(PARAMS.start, PARAMS.stop) * (N + 1)
 # the symmetric basis E_k of J5 = [Jyy, Jzz, Jxy, Jxz, Jyz]
 _E = np.zeros((5, 3, 3))
 for _k, (_i, _j) in enumerate(((1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
@@ -83,6 +88,8 @@ QD_CASE = {1: (2.0e-7) ** 2 / HOUR, 2: (4.0e-6) ** 2 / HOUR, 3: (2.0e-7) ** 2 / 
 # 1.4 deg/s rotation comparable with Case 2's q_d (the thesis's stated intent); q_d2 = 0.1 q_d1.
 QD1 = (2.0e-5) ** 2 / HOUR
 QD2 = 0.1 * QD1
+_QP_FIXED = np.array([Q_NOMINAL["qJm"]] * 2 + [Q_NOMINAL["qJp"]] * 3 + [Q_NOMINAL["qm"]] * 3
+                     + [Q_NOMINAL["qdelta"]] * 8 + [Q_NOMINAL["qJrw"]] * 4)
 
 
 class Model:
@@ -108,18 +115,23 @@ class Model:
 
 # --- state helpers ---------------------------------------------------------------------------------------
 def inertia(x, model):
-    j5 = x[10:15]
+    j5 = x[10:15].tolist()
     return np.array([[model.jxx, j5[2], j5[3]], [j5[2], j5[0], j5[4]], [j5[3], j5[4], j5[1]]])
+
+
+def _inv3_f(a, b, c, d, e, f):
+    """Inverse of the symmetric [[a, b, c], [b, d, e], [c, e, f]] by cofactors, as nested lists."""
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    r = 1.0 / (a * A + b * B + c * C)
+    return [[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]]
 
 
 def inv3(J):
     """Inverse of a symmetric 3 x 3 (the inertia) by cofactors, on Python floats (np.linalg.inv costs
     ~10 us a call here in per-call overhead)."""
     (a, b, c), (_, d, e), (_, _, f) = J.tolist()
-    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
-    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
-    r = 1.0 / (a * A + b * B + c * C)
-    return np.array([[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]])
+    return np.array(_inv3_f(a, b, c, d, e, f))
 
 
 def c_rw(x, model):
@@ -153,20 +165,38 @@ def initial_covariance(model):
 
 
 # --- dynamics ------------------------------------------------------------------------------------------
-def omega5(v):
-    """[E_k v] for the J5 basis (the Omega_5 of Eq. 4.111): d(J v)/dJ5, 3 x 5."""
-    return np.array([[0.0, 0.0, v[1], v[2], 0.0], [v[1], 0.0, v[0], 0.0, v[2]], [0.0, v[2], 0.0, v[0], v[1]]])
-
-
 def terms(x, model, t):
-    """What one step's model needs, computed once: J, J^-1, C, Jrw, W, a = (W+ - W-)/dt, orbit and field."""
-    J = inertia(x, model)
-    C = c_rw(x, model)
-    r_i, k, b_i = model.env_inertial(t)
-    m = {"J": J, "Ji": inv3(J), "C": C, "jrw": x[26:30], "W": x[30:34],
-         "acc": (x[38:42] - x[34:38]) / model.dt, "r_i": r_i, "k": k, "b_i": b_i}
-    _wheel_terms(m)
-    return m
+    """What one step's model needs, computed once: J, J^-1, C, Jrw, W, a = (W+ - W-)/dt, orbit and field
+    (``_terms_f`` as numpy arrays)."""
+    c, (C, _, _, acc), env_i = _terms_f(x, model, t)
+    J, Ji, cjW, cja = c[0:4]
+    return {"J": np.array(J), "Ji": np.array(Ji), "C": np.array(C).T, "jrw": x[26:30], "W": x[30:34],
+            "acc": np.array(acc), "r_i": env_i[0], "k": c[6], "b_i": env_i[2], "cjW": np.array(cjW),
+            "cja": np.array(cja)}
+
+
+def _terms_f(x, model, t):
+    """``terms`` on Python floats: (c, (C, Jrw, W, a), env_i) with c = (J, J^-1, C Jrw W, C Jrw a, r_i, b_i,
+    3 mu/r^3, m, tau_d) the constants of ``_rates_f``, C (Eq. 4.60) as 4 wheel columns and env_i the numpy
+    (r_i, 3 mu/r^3, b_i) of ``Model.env_inertial``."""
+    dt = model.dt
+    xl = x.tolist()
+    jyy, jzz, jxy, jxz, jyz = xl[10:15]
+    jxx = model.jxx
+    J = [[jxx, jxy, jxz], [jxy, jyy, jyz], [jxz, jyz, jzz]]
+    jrw, W, acc = xl[26:30], xl[30:34], [(p - q) / dt for p, q in zip(xl[38:42], xl[34:38])]
+    C = []
+    cjW1 = cjW2 = cjW3 = cja1 = cja2 = cja3 = 0.0
+    for (a1, a2, a3), (b1, b2, b3), (e1, e2, e3), d1, d2, jr, wr, ac in zip(
+            model.c0.T.tolist(), model.c1.T.tolist(), model.c2.T.tolist(), xl[18:22], xl[22:26], jrw, W, acc):
+        c1, c2, c3 = a1 + b1 * d1 + e1 * d2, a2 + b2 * d1 + e2 * d2, a3 + b3 * d1 + e3 * d2
+        C.append((c1, c2, c3))
+        cjW1, cjW2, cjW3 = cjW1 + c1 * jr * wr, cjW2 + c2 * jr * wr, cjW3 + c3 * jr * wr
+        cja1, cja2, cja3 = cja1 + c1 * jr * ac, cja2 + c2 * jr * ac, cja3 + c3 * jr * ac
+    env_i = model.env_inertial(t)
+    c = (J, _inv3_f(jxx, jxy, jxz, jyy, jyz, jzz), [cjW1, cjW2, cjW3], [cja1, cja2, cja3], env_i[0].tolist(),
+         env_i[2].tolist(), float(env_i[1]), xl[15:18], xl[7:10])
+    return c, (C, jrw, W, acc), env_i
 
 
 def _wheel_terms(m):
@@ -233,88 +263,156 @@ def _rates_f(q, w, s, c):
 
 
 def _consts(x, m):
-    """The per-step constants of ``_rates_f`` as Python floats."""
+    """The per-step constants of ``_rates_f`` as Python floats, from ``terms``."""
     return (m["J"].tolist(), m["Ji"].tolist(), m["cjW"].tolist(), m["cja"].tolist(), m["r_i"].tolist(),
             m["b_i"].tolist(), float(m["k"]), x[15:18].tolist(), x[7:10].tolist())
+
+
+def _wheels(m):
+    """(C as 4 wheel columns, Jrw, W, a) as Python floats, from ``terms``."""
+    return m["C"].T.tolist(), m["jrw"].tolist(), m["W"].tolist(), m["acc"].tolist()
 
 
 def propagate(x, model, t, m=None):
     """x from t to t + dt: RK4 of q and w with W(s) linear from W to W + (W+ - W-) (Eq. 4.95); the wheel speed
     state moves by W+ - W-; parameters constant. The orbit and field are taken at mid-step (``m``) unless given:
     they turn by < 0.1 deg over a step."""
-    dt = model.dt
     if m is None:
-        m = terms(x, model, t + 0.5 * dt)
+        m = terms(x, model, t + 0.5 * model.dt)
     c = _consts(x, m)
     q, w = x[0:4].tolist(), x[4:7].tolist()
+    return _propagate(x.copy(), q, w, model.dt, c, _wheels(m), _rates_f(q, w, 0.0, c)[:2])
+
+
+def _propagate(out, q, w, dt, c, wheels, k1):
+    """``propagate`` into ``out`` (a copy of x) from q, w (lists), the constants ``c``, the wheel terms and the
+    first RK4 stage ``k1``."""
     h = 0.5 * dt
-
-    def add(a, b, f):
-        return [u + f * v for u, v in zip(a, b)]
-
-    k1q, k1w = _rates_f(q, w, 0.0, c)[:2]
-    k2q, k2w = _rates_f(add(q, k1q, h), add(w, k1w, h), h, c)[:2]
-    k3q, k3w = _rates_f(add(q, k2q, h), add(w, k2w, h), h, c)[:2]
-    k4q, k4w = _rates_f(add(q, k3q, dt), add(w, k3w, dt), dt, c)[:2]
+    k1q, k1w = k1
+    k2q, k2w = _rates_f([a + h * b for a, b in zip(q, k1q)], [a + h * b for a, b in zip(w, k1w)], h, c)[:2]
+    k3q, k3w = _rates_f([a + h * b for a, b in zip(q, k2q)], [a + h * b for a, b in zip(w, k2w)], h, c)[:2]
+    k4q, k4w = _rates_f([a + dt * b for a, b in zip(q, k3q)], [a + dt * b for a, b in zip(w, k3w)], dt, c)[:2]
     f = dt / 6.0
     qn = [q[i] + f * (k1q[i] + 2 * (k2q[i] + k3q[i]) + k4q[i]) for i in range(4)]
     nq = sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
-    out = x.copy()
-    out[0:4] = [v / nq for v in qn]
-    out[4:7] = [w[i] + f * (k1w[i] + 2 * (k2w[i] + k3w[i]) + k4w[i]) for i in range(3)]
-    out[30:34] = m["W"] + m["acc"] * dt
+    _, _, W, acc = wheels
+    out[0:34] = ([v / nq for v in qn] + [w[i] + f * (k1w[i] + 2 * (k2w[i] + k3w[i]) + k4w[i]) for i in range(3)]
+                 + out[7:30].tolist() + [a + b * dt for a, b in zip(W, acc)])
     return out
 
 
+def _cross(a1, a2, a3, b1, b2, b3):
+    return a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1
+
+
+def _j_f2(w, c, wheels, r0, model):
+    """J F2. (J times rows 3:6 of F, the blocks of the module docstring) on Python floats, as a flat list of
+    41 columns of 3. w = the rate, ``c`` and ``wheels`` from ``_terms_f``, ``r0`` = ``_rates_f`` at s = 0.
+    Written out with [a x] B = (columns a x B_j), A [a x] = (rows A_i x a), [m x][b x] = b m^T - (m . b) I."""
+    J, _, _, _, _, _, k, (m1, m2, m3), _ = c
+    _, (d1, d2, d3), (r1, r2, r3), (b1, b2, b3), (h1, h2, h3) = r0          # d = w_dot, h = H
+    w1, w2, w3 = w
+    (j11, j12, j13), (j21, j22, j23), (j31, j32, j33) = J
+    # F21: k ([r x] J - [(J r) x]) 2 [r x] + [m x] 2 [b x];  A = [r x] J - [(J r) x]
+    u1, u2, u3 = j11 * r1 + j12 * r2 + j13 * r3, j21 * r1 + j22 * r2 + j23 * r3, j31 * r1 + j32 * r2 + j33 * r3
+    a11, a21, a31 = r2 * j31 - r3 * j21, r3 * j11 - r1 * j31 - u3, r1 * j21 - r2 * j11 + u2
+    a12, a22, a32 = r2 * j32 - r3 * j22 + u3, r3 * j12 - r1 * j32, r1 * j22 - r2 * j12 - u1
+    a13, a23, a33 = r2 * j33 - r3 * j23 - u2, r3 * j13 - r1 * j33 + u1, r1 * j23 - r2 * j13
+    k2 = 2.0 * k
+    mb2 = 2.0 * (m1 * b1 + m2 * b2 + m3 * b3)
+    c1, c2, c3 = 2.0 * b1, 2.0 * b2, 2.0 * b3
+    out = [k2 * (a12 * r3 - a13 * r2) + c1 * m1 - mb2, k2 * (a22 * r3 - a23 * r2) + c2 * m1,
+           k2 * (a32 * r3 - a33 * r2) + c3 * m1,
+           k2 * (a13 * r1 - a11 * r3) + c1 * m2, k2 * (a23 * r1 - a21 * r3) + c2 * m2 - mb2,
+           k2 * (a33 * r1 - a31 * r3) + c3 * m2,
+           k2 * (a11 * r2 - a12 * r1) + c1 * m3, k2 * (a21 * r2 - a22 * r1) + c2 * m3,
+           k2 * (a31 * r2 - a32 * r1) + c3 * m3 - mb2,
+           # F22: [H x] - [w x] J
+           -(w2 * j31 - w3 * j21), h3 - (w3 * j11 - w1 * j31), -h2 - (w1 * j21 - w2 * j11),
+           -h3 - (w2 * j32 - w3 * j22), -(w3 * j12 - w1 * j32), h1 - (w1 * j22 - w2 * j12),
+           h2 - (w2 * j33 - w3 * j23), -h1 - (w3 * j13 - w1 * j33), -(w1 * j23 - w2 * j13),
+           # F23: I
+           1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    # F24, column k: k r x (E_k r) - E_k w_dot - w x (E_k w), E_k v = (0,v2,0), (0,0,v3), (v2,v1,0), (v3,0,v1),
+    # (0,v3,v2) for Jyy, Jzz, Jxy, Jxz, Jyz
+    r12, r13, r23, r11, r22, r33 = r1 * r2, r1 * r3, r2 * r3, r1 * r1, r2 * r2, r3 * r3
+    w12, w13, w23, w11, w22, w33 = w1 * w2, w1 * w3, w2 * w3, w1 * w1, w2 * w2, w3 * w3
+    out += [-k * r23 + w23, -d2, k * r12 - w12,
+            k * r23 - w23, -k * r13 + w13, -d3,
+            -k * r13 - d2 + w13, k * r23 - d1 - w23, k * (r11 - r22) - (w11 - w22),
+            k * r12 - d3 - w12, k * (r33 - r11) - (w33 - w11), -k * r23 - d1 + w23,
+            k * (r22 - r33) - (w22 - w33), -k * r12 - d3 + w12, k * r13 - d2 - w13,
+            # F25: -[b x]
+            0.0, -b3, b2, b3, 0.0, -b1, -b2, b1, 0.0]
+    # F26 .. F2b, wheel by wheel (i): -(Jrw W [w x] c + Jrw a c) for c = C1_i, C2_i; -(W [w x] C_i + a C_i);
+    # -Jrw [w x] C_i; C_i Jrw/dt; -C_i Jrw/dt
+    C, jrw, W, acc = wheels
+    f26, f27, f28, f29, f2a, f2b = [], [], [], [], [], []
+    for (p1, p2, p3), (q1, q2, q3), (c1, c2, c3), jr, wr, ac in zip(model.c1.T.tolist(), model.c2.T.tolist(),
+                                                                     C, jrw, W, acc):
+        jw, ja = jr * wr, jr * ac
+        f26 += [-(jw * (w2 * p3 - w3 * p2) + ja * p1), -(jw * (w3 * p1 - w1 * p3) + ja * p2),
+                -(jw * (w1 * p2 - w2 * p1) + ja * p3)]
+        f27 += [-(jw * (w2 * q3 - w3 * q2) + ja * q1), -(jw * (w3 * q1 - w1 * q3) + ja * q2),
+                -(jw * (w1 * q2 - w2 * q1) + ja * q3)]
+        v1, v2, v3 = w2 * c3 - w3 * c2, w3 * c1 - w1 * c3, w1 * c2 - w2 * c1
+        f28 += [-(wr * v1 + ac * c1), -(wr * v2 + ac * c2), -(wr * v3 + ac * c3)]
+        f29 += [-jr * v1, -jr * v2, -jr * v3]
+        jd = jr / model.dt
+        f2a += [c1 * jd, c2 * jd, c3 * jd]
+        f2b += [-c1 * jd, -c2 * jd, -c3 * jd]
+    return out + f26 + f27 + f28 + f29 + f2a + f2b
+
+
+def _f2(w, c, wheels, r0, model):
+    """Rows 3:6 of F (F21 .. F2b, Eq. 4.99-4.110), 3 x 41: J^-1 (``_j_f2``)."""
+    return np.array(c[1]) @ np.array(_j_f2(w, c, wheels, r0, model)).reshape(N, 3).T
+
+
 def jacobian(x, model, t, m=None):
-    """F (41 x 41) of Eq. 4.98 at x (see the module docstring for each block)."""
+    """F (41 x 41) of Eq. 4.98 at x (see the module docstring for each block). Only the attitude rows (F11 =
+    -[w x], F12 = I/2), the rate rows (``_f2``) and the wheel-speed rows (F9a, F9b) are nonzero."""
     dt = model.dt
     if m is None:
         m = terms(x, model, t)
-    w = x[4:7]
-    _, w_dot, r, b, h = _rates_f(x[0:4].tolist(), w.tolist(), 0.0, _consts(x, m))
-    J, Ji, C, jrw, wr, acc, k = m["J"], m["Ji"], m["C"], m["jrw"], m["W"], m["acc"], m["k"]
-    wx, rx, bx = skew(w.tolist()), skew(r), skew(b)
-    jw, ja = jrw * wr, jrw * acc
-    # J F2. = [...]: the -[w x] terms of every block in one product, then J^-1 once
-    B = np.empty((3, 24))
-    B[:, 0:3], B[:, 3:8], B[:, 8:12], B[:, 12:16] = J, omega5(w.tolist()), model.c1 * jw, model.c2 * jw
-    B[:, 16:20], B[:, 20:24] = C * wr, C * jrw
-    WB = wx @ B
-    M = np.empty((3, N))
-    M[:, 0:3] = k * (rx @ J - skew((J @ r).tolist())) @ (2 * rx) + skew(x[15:18].tolist()) @ (2 * bx)
-    M[:, 3:6] = skew(h) - WB[:, 0:3]
-    M[:, 6:9] = EYE3
-    M[:, 9:14] = k * rx @ omega5(r) - omega5(w_dot) - WB[:, 3:8]
-    M[:, 14:17] = -bx
-    M[:, 17:21] = -(WB[:, 8:12] + model.c1 * ja)
-    M[:, 21:25] = -(WB[:, 12:16] + model.c2 * ja)
-    M[:, 25:29] = -(WB[:, 16:20] + C * acc)
-    M[:, 29:33] = -WB[:, 20:24]
-    M[:, 33:37] = C * (jrw / dt)
-    M[:, 37:41] = -M[:, 33:37]
+    c = _consts(x, m)
+    w = x[4:7].tolist()
     F = np.zeros((N, N))
-    F[0:3, 0:3] = -wx
+    F[0:3, 0:3] = -skew(w)
     F[0:3, 3:6] = 0.5 * EYE3
-    F[3:6, :] = Ji @ M
+    F[3:6, :] = _f2(w, c, _wheels(m), _rates_f(x[0:4].tolist(), w, 0.0, c), model)
     F[29:33, 33:37] = EYE_W * (-1.0 / dt)
     F[29:33, 37:41] = EYE_W * (1.0 / dt)
     return F
 
 
+@lru_cache(maxsize=16)
+def _series_coefficients(dt, order):
+    """Rows: the coefficients of (A dt)^n, n = 0..order, in e^{A dt}, G1 and G2 (see ``phi``)."""
+    c = np.zeros((3, order + 1))
+    fact = 1.0
+    for n in range(order + 1):
+        fact *= max(n, 1)
+        c[:, n] = 1.0 / fact, dt / (fact * (n + 1)), dt * dt / (fact * (n + 1) * (n + 2))
+    c.flags.writeable = False
+    return c
+
+
+def _series(Ad, dt, order):
+    """(e^{A dt}, G1, G2) of ``phi`` for the 6 x 6 Ad = A dt, summed to (A dt)^order."""
+    powers = np.empty((order + 1, 6, 6))
+    powers[0] = EYE6
+    powers[1] = Ad
+    for n in range(2, order + 1):
+        np.matmul(powers[n - 1], Ad, out=powers[n])
+    E, G1, G2 = (_series_coefficients(dt, order) @ powers.reshape(order + 1, 36)).reshape(3, 6, 6)
+    return E, G1, G2
+
+
 def phi(F, dt, order=4):
     """Closed-form Phi (App. A.2 construction; see the module docstring). Phi = I except in the attitude
-    and rate rows (0:6) and the wheel-speed rows (29:33, columns W-, W+): ``propagate_covariance`` uses that."""
-    Ad = F[0:6, 0:6] * dt
-    E, G1, G2 = EYE6 + Ad, EYE6 * dt + Ad * (dt / 2), EYE6 * (dt * dt / 2) + Ad * (dt * dt / 6)
-    term = Ad
-    fact = 1.0
-    for n in range(2, order + 1):
-        term = term @ Ad
-        fact *= n
-        E += term * (1.0 / fact)
-        G1 += term * (dt / (fact * (n + 1)))
-        G2 += term * (dt * dt / (fact * (n + 1) * (n + 2)))
+    and rate rows (0:6) and the wheel-speed rows (29:33, columns W-, W+): ``predict`` uses that."""
+    E, G1, G2 = _series(F[0:6, 0:6] * dt, dt, order)
     Phi = EYE_N.copy()
     Phi[0:6, 0:6] = E
     Phi[0:6, 6:] = G1 @ F[0:6, 6:]
@@ -323,29 +421,76 @@ def phi(F, dt, order=4):
     return Phi
 
 
-def propagate_covariance(Phi, P, Q):
-    """Phi P Phi^T + Q (Eq. 4.128) using Phi's structure (see ``phi``): only rows and columns 0:6 and 29:33
-    change, ~6x fewer flops than the dense 41 x 41 products. Symmetrised."""
-    T = P.copy()
-    T[0:6] = Phi[0:6] @ P
-    T[IWR] += Phi[IWR, 33:41] @ P[33:41]
-    out = T.copy()
-    out[:, 0:6] = T @ Phi[0:6].T
-    out[:, IWR] += T[:, 33:41] @ Phi[IWR, 33:41].T
-    out += Q
-    return 0.5 * (out + out.T)
+@lru_cache(maxsize=16)
+def _phi_wheel_rows(dt):
+    """Rows 29:33 of ``phi``: W + F9a dt W- + F9b dt W+ (Eq. 4.109-4.110)."""
+    R = np.zeros((NW, N))
+    R[:, IWR] = EYE_W
+    R[:, IWM] = EYE_W * (-1.0 / dt) * dt
+    R[:, IWP] = EYE_W * (1.0 / dt) * dt
+    R.flags.writeable = False
+    return R
+
+
+def _phi_rows(w, F2, dt, order=4):
+    """The rows of ``phi`` that differ from I, 10 x 41: rows 0:6 (attitude, rate) from w (F11 = -[w x],
+    F12 = I/2) and the rate rows F2 = F[3:6] alone (F's attitude rows are zero beyond column 6, and
+    F[0:6, W] F[W, W-:W+] = [-F2W, F2W]/dt), then the wheel-speed rows 29:33."""
+    w1, w2, w3 = (v * dt for v in w)
+    h = 0.5 * dt
+    Ad = np.empty((6, 6))
+    Ad[0:3] = [[0.0, w3, -w2, h, 0.0, 0.0], [-w3, 0.0, w1, 0.0, h, 0.0], [w2, -w1, 0.0, 0.0, 0.0, h]]
+    np.multiply(F2[:, 0:6], dt, out=Ad[3:6])
+    E, G1, G2 = _series(Ad, dt, order)
+    PhiR = np.empty((10, N))
+    PhiR[0:6, 0:6] = E
+    np.matmul(G1[:, 3:6], F2[:, 6:], out=PhiR[0:6, 6:])
+    Y = G2[:, 3:6] @ (F2[:, IWR] * (1.0 / dt))
+    PhiR[0:6, 33:37] -= Y
+    PhiR[0:6, 37:41] += Y
+    PhiR[6:10] = _phi_wheel_rows(dt)
+    return PhiR
+
+
+def _predict_covariance(P, PhiR, F2, qp, dt, R_rw):
+    """``shift_tach`` on P, then Phi P Phi^T + Q (Eq. 4.128, 4.135-4.136) from the rows of Phi that differ from
+    I (``_phi_rows``), the rate rows F2 of F and the noise densities qp: only rows and columns 0:6 and 29:33
+    of P change, and Q's nonzero blocks are (w, w), (w, p), (p, w) and diag(p). Symmetrised."""
+    Pn = P.take(_SHIFT).reshape(N, N)        # W- <- W+ (W+'s correlations kept)
+    Pn[IWP] = 0.0
+    Pn[:, IWP] = 0.0
+    Pn[IWP, IWP] = EYE_W * R_rw              # W+ <- the new read-out
+    T = PhiR @ Pn                            # the changed rows of Phi P
+    Pn[0:6] = T[0:6]
+    Pn[IWR] = T[6:10]
+    T = Pn @ PhiR.T                          # the changed columns of (Phi P) Phi^T
+    Pn[:, 0:6] = T[:, 0:6]
+    Pn[:, IWR] = T[:, 6:10]
+    F2p = F2[:, PARAMS]                      # + Q, as ``process_noise``
+    Qwp = F2p * (qp * dt * dt / 2)
+    Pn[IW, PARAMS] += Qwp
+    Pn[PARAMS, IW] += Qwp.T
+    Pn[IW, IW] += (F2p * qp) @ F2p.T * (dt ** 3 / 3)
+    Pn.ravel()[_DIAG_PARAMS] += qp * dt
+    out = Pn + Pn.T
+    out *= 0.5
+    return out
 
 
 def noise_density(x, case, scale=1.0):
     """Diagonal q (per second) of the parameter noises: tau_d (3), J5 (5), m (3), d1/d2 (8), Jrw (4)."""
+    q = np.empty(23)
     if case == 3:
-        aw = np.abs(x[4:7])
-        qd = Q_NOMINAL["qd"] + QD1 * aw + QD2 * (aw.sum() - aw)          # Eq. 4.152
+        a1, a2, a3 = (abs(v) for v in x[4:7].tolist())
+        s = a1 + a2 + a3
+        q0 = Q_NOMINAL["qd"]
+        q[0:3] = [q0 + QD1 * a1 + QD2 * (s - a1), q0 + QD1 * a2 + QD2 * (s - a2),
+                  q0 + QD1 * a3 + QD2 * (s - a3)]                           # Eq. 4.152
     else:
-        qd = np.full(3, QD_CASE.get(case, Q_NOMINAL["qd"]))
-    q = Q_NOMINAL
-    return scale * np.concatenate([qd, [q["qJm"]] * 2 + [q["qJp"]] * 3, [q["qm"]] * 3, [q["qdelta"]] * 8,
-                                   [q["qJrw"]] * 4])
+        q[0:3] = QD_CASE.get(case, Q_NOMINAL["qd"])
+    q[3:] = _QP_FIXED
+    q *= scale
+    return q
 
 
 def process_noise(F, qp, dt):
@@ -375,26 +520,55 @@ def shift_tach(x, P, w_plus, R_rw):
 
 
 def predict(x, P, w_plus, model, t, case=1, scale=1.0):
-    """(x, P) at t + dt from t, with the tachometer read-out w_plus at t + dt (rad/s)."""
-    x, P = shift_tach(x, P, w_plus, model.R_rw)
-    m = terms(x, model, t + 0.5 * model.dt)           # orbit and field at mid-step for F and the propagation
-    F = jacobian(x, model, t, m)
-    Phi = phi(F, model.dt)
-    Q = process_noise(F, noise_density(x, case, scale), model.dt)
-    x = propagate(x, model, t, m)
-    return x, propagate_covariance(Phi, P, Q)
+    """(x, P) at t + dt from t, with the tachometer read-out w_plus at t + dt (rad/s): ``shift_tach``, then
+    x by ``propagate`` and P = Phi P Phi^T + Q (Eq. 4.128) with Phi of ``phi`` (Eq. 4.114-4.127) and Q of
+    ``process_noise`` (Eq. 4.135-4.136), computed from the nonzero rows of F and Phi only."""
+    dt = model.dt
+    x = x.copy()
+    x[34:38] = x[38:42]                               # shift_tach on x
+    x[38:42] = w_plus
+    c, wheels, _ = _terms_f(x, model, t + 0.5 * dt)   # orbit and field at mid-step for F and the propagation
+    q, w = x[0:4].tolist(), x[4:7].tolist()
+    r0 = _rates_f(q, w, 0.0, c)                       # the model at s = 0: F's point and RK4's first stage
+    F2 = _f2(w, c, wheels, r0, model)                 # rows 3:6 of F (``jacobian``)
+    PhiR = _phi_rows(w, F2, dt)                       # the rows of Phi (``phi``) that differ from I
+    P = _predict_covariance(P, PhiR, F2, noise_density(x, case, scale), dt, model.R_rw)
+    return _propagate(x, q, w, dt, c, wheels, r0[:2]), P
+
+
+def _qmul(q, p):
+    """``quat.quat_mul`` on 4 Python floats."""
+    q1, q2, q3, q4 = q
+    p1, p2, p3, p4 = p
+    c1, c2, c3 = _cross(q1, q2, q3, p1, p2, p3)
+    return (q4 * p1 + p4 * q1 - c1, q4 * p2 + p4 * q2 - c2, q4 * p3 + p4 * q3 - c3,
+            q4 * p4 - (q1 * p1 + q2 * p2 + q3 * p3))
+
+
+def _inv33(S):
+    """Inverse of a 3 x 3 (nested list) by cofactors."""
+    (a, b, c), (d, e, f), (g, h, i) = S
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+    r = 1.0 / (a * A + b * B + c * C)
+    return [[A * r, (c * h - b * i) * r, (b * f - c * e) * r],
+            [B * r, (a * i - c * g) * r, (c * d - a * f) * r],
+            [C * r, (b * g - a * h) * r, (a * e - b * d) * r]]
 
 
 def update(x, P, q_meas, R):
-    """Star-tracker update, Eq. 4.139-4.142, Joseph form."""
-    z = quat.error_vec(q_meas, x[0:4])
-    S = P[IQ, IQ] + R                                    # H P H^T + R, H = [I3 0]
-    K = np.linalg.solve(S, P[IQ, :]).T                   # P H^T S^-1 (Eq. 4.140)
-    dx = K @ z                                           # Eq. 4.141
-    # Eq. 4.142 with H = [I3 0]: (I - K H) P (I - K H)^T + K R K^T, without forming the 41 x 41 I - K H
+    """Star-tracker update, Eq. 4.139-4.142, Joseph form, with H = [I3 0 ...] as slicing."""
+    e1, e2, e3, e4 = x[0:4].tolist()
+    d = _qmul(q_meas.tolist() if hasattr(q_meas, "tolist") else q_meas, (-e1, -e2, -e3, e4))
+    z = d[0:3] if d[3] >= 0 else (-d[0], -d[1], -d[2])                      # quat.error_vec (Eq. 4.139)
+    Si = np.array(_inv33((P[IQ, IQ] + R).tolist()))                           # (H P H^T + R)^-1
+    K = P[:, IQ] @ Si                                                        # P H^T S^-1 (Eq. 4.140)
+    dx = K @ z                                                               # Eq. 4.141
+    # Eq. 4.142: (I - K H) P (I - K H)^T + K R K^T = A P - (A P H^T - K R) K^T with A P = P - K H P
     AP = P - K @ P[IQ, :]
-    P = AP - AP[:, IQ] @ K.T + K @ R @ K.T
-    return correct(x, dx), 0.5 * (P + P.T)
+    P = AP - (AP[:, IQ] - K @ R) @ K.T
+    out = P + P.T
+    out *= 0.5
+    return correct(x, dx), out
 
 
 def update_standard(x, P, q_meas, R):
@@ -407,10 +581,14 @@ def update_standard(x, P, q_meas, R):
 
 
 def correct(x, dx):
-    """Apply an error-state correction: q = dq (x) q_hat, the rest additive."""
-    out = x.copy()
-    out[0:4] = quat.from_small(dx[0:3], x[0:4])
-    out[4:] = x[4:] + dx[3:]
+    """Apply an error-state correction: q = dq (x) q_hat (``quat.from_small``, Eq. 4.51), the rest additive."""
+    out = np.empty_like(x)
+    np.add(x[4:], dx[3:], out=out[4:])
+    d1, d2, d3 = dx[0:3].tolist()
+    n2 = d1 * d1 + d2 * d2 + d3 * d3
+    q = _qmul((d1, d2, d3, sqrt(1.0 - n2) if n2 < 1.0 else 0.0), x[0:4].tolist())
+    nq = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    out[0:4] = [v / nq for v in q]
     return out
 
 

@@ -177,6 +177,19 @@ def test_unknown_wheel_torque_adds_noise_and_none_is_refused():
         linalg.zeros = old
 
 
+def test_model_use_switches_input_inertia_and_q_as_a_fresh_model():
+    params = scenario(1)["params"]
+    m = L.Model(params)                                   # "torque"
+    t = L.Model(params, momentum="tach")
+    assert list(m.Ji) != list(t.Ji) and list(m.Q) != list(t.Q)   # Jm = J - C D(Jrw) C^T differs from J
+    m.use("tach")
+    assert not m.torque and list(m.Ji) == list(t.Ji) and list(m.Q) == list(t.Q)
+    m.use("torque")
+    assert m.torque and list(m.Ji) == list(L.Model(params).Ji) and list(m.Q) == list(L.Model(params).Q)
+    with pytest.raises(ValueError, match="momentum"):
+        m.use("gyro")
+
+
 def test_bad_parameter_file_is_refused():
     sc = scenario(1)
     d = json.loads(json.dumps(sc["params"]))

@@ -259,8 +259,9 @@ class App:
                 dq = linalg.zeros(4)
                 control.quat_mul(dq, q, pc)
                 s = 2.0 if dq[3] >= 0 else -2.0
+                # the read-out difference, not the commanded torques: see apkf_lean's docstring
                 self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
-                                           friction=self.fric, torque_max=self.torque_max)
+                                           friction=self.fric, torque_max=self.torque_max, momentum="tach")
             self.st_prev_ok = st_ok
             if st_ok:
                 for i in range(4):
@@ -268,10 +269,6 @@ class App:
             return
         for i in range(NW):      # the last cycle's command, known to be realised if its wheel answered before and after
             self.u_apkf[i] = self.u[i] if self.rw_got[i] and self.rw_got_prev[i] else math.nan
-        # the wheel momentum change from the commanded torques while the star tracker holds the attitude; while
-        # it is blind (a slew), from the read-outs, which follow the body's rate through the momentum exchange
-        if st_ok != self.apkf.model.torque:
-            self.apkf.model.use("torque" if st_ok else "tach")
         self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t), self.u_apkf)
 
     def _attitude(self):

@@ -54,11 +54,7 @@ def _finite(name, v, n):
 
 def dcm(q):
     """A(q), inertial to body (Eq. 4.7)."""
-    e1, e2, e3, q4 = q
-    return np.array([
-        [q4*q4 + e1*e1 - e2*e2 - e3*e3, 2*(e1*e2 + q4*e3), 2*(e1*e3 - q4*e2)],
-        [2*(e1*e2 - q4*e3), q4*q4 - e1*e1 + e2*e2 - e3*e3, 2*(e2*e3 + q4*e1)],
-        [2*(e1*e3 + q4*e2), 2*(e2*e3 - q4*e1), q4*q4 - e1*e1 - e2*e2 + e3*e3]])
+    return np.array(_dcm_rows(q))
 
 
 def _dcm_rows(q):

@@ -127,13 +127,6 @@ def _inv3_f(a, b, c, d, e, f):
     return [[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]]
 
 
-def inv3(J):
-    """Inverse of a symmetric 3 x 3 (the inertia) by cofactors, on Python floats (np.linalg.inv costs
-    ~10 us a call here in per-call overhead)."""
-    (a, b, c), (_, d, e), (_, _, f) = J.tolist()
-    return np.array(_inv3_f(a, b, c, d, e, f))
-
-
 def c_rw(x, model):
     """C = C0 + C1 D(d1) + C2 D(d2) (Eq. 4.60)."""
     return model.c0 + model.c1 * x[18:22] + model.c2 * x[22:26]
@@ -545,22 +538,13 @@ def _qmul(q, p):
             q4 * p4 - (q1 * p1 + q2 * p2 + q3 * p3))
 
 
-def _inv33(S):
-    """Inverse of a 3 x 3 (nested list) by cofactors."""
-    (a, b, c), (d, e, f), (g, h, i) = S
-    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
-    r = 1.0 / (a * A + b * B + c * C)
-    return [[A * r, (c * h - b * i) * r, (b * f - c * e) * r],
-            [B * r, (a * i - c * g) * r, (c * d - a * f) * r],
-            [C * r, (b * g - a * h) * r, (a * e - b * d) * r]]
-
-
 def update(x, P, q_meas, R):
     """Star-tracker update, Eq. 4.139-4.142, Joseph form, with H = [I3 0 ...] as slicing."""
     e1, e2, e3, e4 = x[0:4].tolist()
     d = _qmul(q_meas.tolist() if hasattr(q_meas, "tolist") else q_meas, (-e1, -e2, -e3, e4))
     z = d[0:3] if d[3] >= 0 else (-d[0], -d[1], -d[2])                      # quat.error_vec (Eq. 4.139)
-    Si = np.array(_inv33((P[IQ, IQ] + R).tolist()))                           # (H P H^T + R)^-1
+    (a, b, c), (_, d, e), (_, _, f) = (P[IQ, IQ] + R).tolist()
+    Si = np.array(_inv3_f(a, b, c, d, e, f))                                 # (H P H^T + R)^-1, symmetric
     K = P[:, IQ] @ Si                                                        # P H^T S^-1 (Eq. 4.140)
     dx = K @ z                                                               # Eq. 4.141
     # Eq. 4.142: (I - K H) P (I - K H)^T + K R K^T = A P - (A P H^T - K R) K^T with A P = P - K H P

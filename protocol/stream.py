@@ -18,12 +18,15 @@ import termios
 from protocol import core
 
 try:
-    from time import ticks_diff, ticks_ms
+    from time import ticks_diff, ticks_ms, ticks_us
 except ImportError:  # CPython
     import time
 
     def ticks_ms():
         return int(time.monotonic() * 1000)
+
+    def ticks_us():
+        return int(time.monotonic() * 1e6)
 
     def ticks_diff(a, b):
         return a - b

@@ -12,14 +12,7 @@ import sys
 
 from firmware.adcs.app import App, serve
 from firmware.hal.slcan import CanPort, SlcanAdapter
-
-try:
-    from time import ticks_us
-except ImportError:  # CPython
-    import time
-
-    def ticks_us():
-        return int(time.perf_counter() * 1e6)
+from protocol.stream import ticks_us
 
 
 def main(argv):

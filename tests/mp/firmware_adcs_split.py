@@ -12,17 +12,7 @@ from firmware.adcs.app import App, P_STATUS
 from firmware.hal.slcan import CanPort, SlcanAdapter
 from protocol import can as canmap
 from protocol import core
-
-try:
-    from time import ticks_diff, ticks_us
-except ImportError:  # CPython
-    import time
-
-    def ticks_us():
-        return int(time.perf_counter() * 1e6)
-
-    def ticks_diff(a, b):
-        return a - b
+from protocol.stream import ticks_diff, ticks_us
 
 with open(sys.argv[1]) as fh:
     cfg = json.load(fh)

@@ -81,3 +81,17 @@ def test_a_gap_in_the_ticks_is_propagated_in_steps():
     assert app.stkf.now == 1500.0 and app.n_refused == 0
     r = math.sqrt(sum(v * v for v in app.xs[0:3]))
     assert 6.0e6 < r < 8.0e6                             # still on its orbit
+
+
+def test_rx_drops_count_each_can_reason_once():
+    """ADCS_STATUS.n_rx_drop: every reason the CAN decoder counts (protocol.can.DROP_REASONS, bad_length once,
+    it is one counter) and the ISO-TP timeouts; the serial link's reasons are not a CAN port's."""
+    from protocol import can as canmap
+
+    class Port:
+        def counters(self):
+            d = {k: 1 for k in canmap.DROP_REASONS}
+            d.update(isotp_timeouts=1, other_dst=5, tx_packets=9, bad_cobs=7)
+            return d
+
+    assert A._drops(Port()) == len(set(canmap.DROP_REASONS)) + 1

@@ -36,6 +36,7 @@ import math
 import struct
 
 from firmware.adcs import apkf_lean, control, linalg, stkf_lean
+from protocol import can as canmap
 from protocol import core, table
 
 MU_EARTH = 3.986004418e14
@@ -476,9 +477,13 @@ class App:
         return out
 
 
+_CAN_DROPS = tuple(set(canmap.DROP_REASONS)) + ("isotp_timeouts",)   # bad_length: one counter for both
+
+
 def _drops(port):
+    """Frames and payloads the CAN port dropped: each of the CAN decoder's reasons once, and ISO-TP timeouts."""
     d = port.counters()
-    return sum(d.get(k, 0) for k in core.DROP_REASONS) + d.get("isotp_timeouts", 0) + d.get("bad_length", 0)
+    return sum(d.get(k, 0) for k in _CAN_DROPS)
 
 
 def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):

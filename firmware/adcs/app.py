@@ -148,7 +148,6 @@ class App:
         self.tff = zeros(3)
         self.H = zeros(3)
         self.u = zeros(4)
-        self.u_apkf = zeros(4)             # the torques the APKF takes as realised over the last step (NaN: not known)
         self.A = zeros(9)
         self.b = zeros(3)
         self.rmid = zeros(3)
@@ -157,7 +156,6 @@ class App:
         # sensor inputs of the cycle
         self.wp = zeros(4)
         self.rw_got = [False] * NW
-        self.rw_got_prev = [False] * NW
         self.rw_seen = [False] * NW        # any read-out yet
         self.rw_miss_run = [0] * NW
         self.rw_expect = [True] * NW       # a reply is due (initial read-out, or a command was sent)
@@ -262,15 +260,13 @@ class App:
                 s = 2.0 if dq[3] >= 0 else -2.0
                 # the read-out difference, not the commanded torques: see apkf_lean's docstring
                 self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
-                                           friction=self.fric, torque_max=self.torque_max, momentum="tach")
+                                           momentum="tach")
             self.st_prev_ok = st_ok
             if st_ok:
                 for i in range(4):
                     self.qst_prev[i] = self.qst[i]
             return
-        for i in range(NW):      # the last cycle's command, known to be realised if its wheel answered before and after
-            self.u_apkf[i] = self.u[i] if self.rw_got[i] and self.rw_got_prev[i] else math.nan
-        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t), self.u_apkf)
+        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t))
 
     def _attitude(self):
         """(q, P_att 3 x 3): the APKF's, or the star tracker's before it starts."""
@@ -443,7 +439,6 @@ class App:
             self.mode = MODE["POINT"]
         # the next cycle's inputs
         for i in range(NW):
-            self.rw_got_prev[i] = self.rw_got[i]
             self.rw_got[i] = False
         self.st_got = self.gnss_got = self.bc_got = False
         return u

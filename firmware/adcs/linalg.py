@@ -179,13 +179,7 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
             for k in range(m):
                 s -= K[k * n + i] * Hp[k * n + j]
             W[i * n + j] = s
-    Rl = list(R)                                 # R K^T into RK (as matmul(RK, R, Kt, m, m, n))
-    for i in range(m):
-        for j in range(n):
-            s = 0.0
-            for k in range(m):
-                s += Rl[i * m + k] * K[k * n + j]
-            RK[i * n + j] = s
+    matmul(RK, R, K, m, m, n)                    # R K^T into RK (K holds Kt, m x n)
     Wl, RKl = list(W), list(RK)
     # P+ = A (I - K H)^T + K R K^T = A - A[:, r0:] K^T + K R K^T, upper triangle mirrored
     for i in range(n):

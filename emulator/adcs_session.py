@@ -42,7 +42,7 @@ import tty
 import numpy as np
 
 from emulator import orbits
-from emulator.navsensors import Beacon, Gnss, Relay
+from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
 from emulator.spacecraft import scenario
 from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import Spacecraft, dcm
@@ -169,7 +169,7 @@ class AdcsSession:
                 "stkf_x0": self.stkf_x0, "stkf_P0": P0_DIAG, "lag_s": LAG_S,
                 "torque_max": wp.torque_max,
                 "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
-                "beacon_sigma_arcsec": self.beacon.sigma / orbits_arcsec(), "gnss_sigma": [30.0, 1.0]}
+                "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC, "gnss_sigma": [30.0, 1.0]}
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""
@@ -420,8 +420,6 @@ class AdcsSession:
         return False
 
 
-def orbits_arcsec():
-    return np.pi / (180.0 * 3600.0)
 
 
 def _gnss_payload(t_ms, sat, z):

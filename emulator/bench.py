@@ -236,14 +236,14 @@ class Bench:
             lg = sum(c * (np.exp(lam * dt) - 1.0) / lam * bb for c, lam, bb in zip(mm.c, mm.lam, mm.b))
             # the MEMS tilt's real gain on (u_new - u_old) at each Q2 instant of a tick whose words landed
             self._q2_land = np.where(tau >= self._land_f, lg.real, 0.0).tolist()
-            self._q1_tp = self._pfsm_at(self.timing.sample_s, counts, inv, offs, ux, uy, zxa, zya,
+            self._q1_tp = self._pfsm_at(self.timing.sample_s, inv, offs, ux, uy, zxa, zya,
                                         w_part, powers, ns)
         self._q2_p = 0
         self._q2_m0 = m0
         self._blk_n = n_ticks
         self._blk_i = 0
 
-    def _pfsm_at(self, taus, counts, inv, offs, ux, uy, zxa, zya, w_part, powers, ns):
+    def _pfsm_at(self, taus, inv, offs, ux, uy, zxa, zya, w_part, powers, ns):
         """P-FSM tilts times Q1's geometry gain gp (x list, y list per tick of the block; the loop adds them as
         they are) at each offset tau (s) after the tick starts: the modal state at the last code change before
         tau, then exactly over the rest with that code held. The sub-step, its offset and the hold's

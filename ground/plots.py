@@ -123,3 +123,19 @@ def system_time_history(series, path, requirement_arcsec=11.98):
     axs[0, 0].set_title("Body pointing error (ADCS) and fine pointing error (Q2), one time axis")
     fig.tight_layout()
     _save(fig, path)
+
+
+def adcs_can_pointing(h, path):
+    """``fps adcs can``: the body pointing error (delta theta 1, 2, Eq. 6.12-6.16) and the ADCS mode per cycle."""
+    from protocol.table import ADCS_MODES
+    fig, ax = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    ax[0].plot(h["t"], h["dtheta_arcsec"][:, 0], lw=0.6, label="δθ1")
+    ax[0].plot(h["t"], h["dtheta_arcsec"][:, 1], lw=0.6, label="δθ2")
+    ax[0].set_ylabel("pointing error (arcsec)")
+    ax[0].set_yscale("symlog", linthresh=100)
+    ax[0].legend(loc="upper right")
+    ax[1].step(np.arange(len(h["status_adcs_mode"])), h["status_adcs_mode"], where="post")
+    ax[1].set_yticks([v for _, v in ADCS_MODES], [k for k, _ in ADCS_MODES])
+    ax[1].set_xlabel("t (s)")
+    fig.tight_layout()
+    _save(fig, path)

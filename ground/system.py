@@ -245,14 +245,13 @@ def _send_ground(spec, params, q, stop):
 def _send_firmware(spec, params, q, stop):
     """The session's cycles (``duration_s`` = its number of 1 s cycles: the settling, the play and the lead);
     the orbit truth and its cache as the ground reference's, where the session takes them."""
-    import inspect
     from emulator.adcs_session import AdcsSession
     from ground.adcs import bps
     n = int(np.ceil(settle_s(spec["ts"]) + spec["adcs_duration_s"]))
     q.put(("info", {"settle_s": settle_s(spec["ts"])}))
-    extra = {k: spec[k] for k in ("truth", "cache_dir") if k in inspect.signature(AdcsSession).parameters}
     s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"], duration_s=float(n),
-                    ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), **extra)
+                    ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), truth=spec["truth"],
+                    cache_dir=spec["cache_dir"])
     try:
         s.start()
         prev = None          # the truth at the end of the previous cycle: the instant of this cycle's estimate

@@ -8,13 +8,12 @@ session's counters, the fault log, the ADCS's last status and the body pointing 
 with ``complete`` false.
 """
 
-import io
 import os
 import sys
 
 import numpy as np
 
-from ground.fileio import write_atomic, write_json
+from ground.fileio import write_json
 
 STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_gnss", "miss_beacon", "n_gnss_b",
                "n_refused", "att_sigma", "cycle_us")
@@ -115,11 +114,10 @@ def run(a):
             summary["budget"] = {"pointing_3sigma_arcsec": bps.BUDGET_POINTING_3SIGMA,
                                  "stability_3sigma_arcsec_s": bps.BUDGET_STABILITY_3SIGMA}
     h.update(("status_" + k, np.asarray(v)) for k, v in stat.items())
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **h)
-    write_atomic(os.path.join(out, "history.npz"), buf.getvalue())
+    bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:
-        _plot(os.path.join(out, "pointing.png"), h)
+        from ground import plots
+        plots.adcs_can_pointing(h, os.path.join(out, "pointing.png"))
     write_json(os.path.join(out, "summary.json"), summary)
     p = summary.get("pointing")
     print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s; %s" % (
@@ -129,23 +127,3 @@ def run(a):
             p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
             bps.BUDGET_STABILITY_3SIGMA)) if p else "too short for pointing figures"))
     return 130 if interrupted else 0
-
-
-def _plot(path, h):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    ax[0].plot(h["t"], h["dtheta_arcsec"][:, 0], lw=0.6, label="δθ1")
-    ax[0].plot(h["t"], h["dtheta_arcsec"][:, 1], lw=0.6, label="δθ2")
-    ax[0].set_ylabel("pointing error (arcsec)")
-    ax[0].set_yscale("symlog", linthresh=100)
-    ax[0].legend(loc="upper right")
-    ax[1].step(np.arange(len(h["status_adcs_mode"])), h["status_adcs_mode"], where="post")
-    ax[1].set_yticks([0, 1, 2, 3], ["INIT", "HOLD", "POINT", "DEGRADED"])
-    ax[1].set_xlabel("t (s)")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    write_atomic(path, buf.getvalue())

@@ -194,8 +194,7 @@ def main():
         g_wall, *g["pointing_sigma_arcsec"], g["pointing_3sigma_arcsec"], g["pointing_max_arcsec"],
         g["stability_3sigma_arcsec_s"]))
     print("| thesis Sec. 6.4.4 (t_s = 33 s, 4000 s) | %.1f / %.1f | %.1f | | %.1f | |" % (
-        th["theta"][0][1], th["theta"][1][1], 3 * np.hypot(th["theta"][0][1], th["theta"][1][1]),
-        3 * np.hypot(th["omega"][0][1], th["omega"][1][1])))
+        th["theta"][0][1], th["theta"][1][1], *bps.thesis_3sigma(False)))
     print("| budget | | <= %.0f | | <= %.0f | |" % (bps.BUDGET_POINTING_3SIGMA, bps.BUDGET_STABILITY_3SIGMA))
     print("\nBoth from the parameter file of the nine calibration sets (seed 0, %.1f s, `fps adcs bps`'s cache). "
           "Not the same loop in every respect: the flight side damps the rate during the 30 s hold where bps.py "

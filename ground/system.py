@@ -562,8 +562,8 @@ def thesis_body():
            "stability_3sigma_arcsec_s": bps.BUDGET_STABILITY_3SIGMA}
     for satb, key in ((False, "sec644_no_satb_gnss"), (True, "sec644_satb_gnss")):
         th = bps.THESIS[satb]
-        out[key] = {"pointing_3sigma_arcsec": 3 * math.hypot(th["theta"][0][1], th["theta"][1][1]),
-                    "stability_3sigma_arcsec_s": 3 * math.hypot(th["omega"][0][1], th["omega"][1][1]),
+        p3, w3 = bps.thesis_3sigma(satb)
+        out[key] = {"pointing_3sigma_arcsec": p3, "stability_3sigma_arcsec_s": w3,
                     "pointing_sigma_arcsec": [th["theta"][0][1], th["theta"][1][1]]}
     return out
 

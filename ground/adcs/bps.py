@@ -65,6 +65,7 @@ THESIS = {  # Sec. 6.4.4, ts = 33 s: (mean, 1 sigma)
 TS_THESIS = 33.0
 BUDGET_POINTING_3SIGMA = 150.0
 BUDGET_STABILITY_3SIGMA = 35.0
+SLOW_S = 60       # the error budget's moving average for the tracking part's slow share (s)
 HOLD_S = 30.0      # wheels idle while the APKF converges on the star tracker (as the 30 s hold of Sec. 4.7.1)
 SUMMARY_KEYS = ("pointing_mean_arcsec", "pointing_sigma_arcsec", "stability_mean_arcsec_s",
                 "stability_sigma_arcsec_s", "pointing_3sigma_arcsec", "stability_3sigma_arcsec_s", "complete")
@@ -219,6 +220,14 @@ def objective(dtheta, domega):
     """J = E[eps^T W eps] (Eq. 6.22-6.24), eps in rad and rad/s."""
     e = np.column_stack([dtheta, domega])
     return float(np.mean(e ** 2 @ W_OBJ))
+
+
+def thesis_3sigma(satb_gnss):
+    """Sec. 6.4.4's figures as 3 sigma of the two axes in total, (pointing arcsec, stability arcsec/s), as
+    ``statistics`` gives ours."""
+    th = THESIS[bool(satb_gnss)]
+    return (float(3 * np.hypot(th["theta"][0][1], th["theta"][1][1])),
+            float(3 * np.hypot(th["omega"][0][1], th["omega"][1][1])))
 
 
 def statistics(dtheta, domega):
@@ -410,7 +419,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     return res, hist
 
 
-def error_budget(hist, x1, t_settle, slow_s=60):
+def error_budget(hist, x1, t_settle, slow_s=SLOW_S):
     """Where the pointing error comes from, at the 1 Hz flight-software instants after settling (arcsec, 1σ per
     axis): with e(q) the Eq. 6.12-6.16 pointing error of attitude q against the true line of sight,
     ``estimation`` = e(q) - e(q_hat), ``tracking`` = e(q_hat) - e(q_c) (the controller's), ``command`` = e(q_c)

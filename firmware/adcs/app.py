@@ -75,20 +75,6 @@ def field_dipole(b, r, t, gmst0=0.0):
     b[0], b[1], b[2] = k * (d * rx - mx), k * (d * ry - my), k * (d * rz - mz)
 
 
-def dcm(A, q):
-    """A(q) (3 x 3 flat), inertial to body (Eq. 4.7)."""
-    e1, e2, e3, q4 = q[0], q[1], q[2], q[3]
-    A[0] = q4 * q4 + e1 * e1 - e2 * e2 - e3 * e3
-    A[1] = 2 * (e1 * e2 + q4 * e3)
-    A[2] = 2 * (e1 * e3 - q4 * e2)
-    A[3] = 2 * (e1 * e2 - q4 * e3)
-    A[4] = q4 * q4 - e1 * e1 + e2 * e2 - e3 * e3
-    A[5] = 2 * (e2 * e3 + q4 * e1)
-    A[6] = 2 * (e1 * e3 + q4 * e2)
-    A[7] = 2 * (e2 * e3 - q4 * e1)
-    A[8] = q4 * q4 - e1 * e1 - e2 * e2 + e3 * e3
-
-
 def stkf_cap(lag_s, rate_hz=1.0):
     """The lean STKF's node capacity for a lag at the 1 Hz predict rate: the nodes within the lag plus two
     (the anchor and the new node; stkf_lean.Afls's docstring: 6 at 1 Hz with the 4 s lag), at least 3."""
@@ -358,7 +344,7 @@ class App:
             s += cj[i * 4 + 3] * wp3
             H[i] = s
         # feed-forward: gravity gradient (J), m x b, tau_d (the APKF's model, Eq. 4.68-4.75)
-        dcm(self.A, q)
+        control.dcm(self.A, q)
         A, X = self.A, self.xs
         rn = math.sqrt(X[0] * X[0] + X[1] * X[1] + X[2] * X[2])
         rb = [(A[i * 3] * X[0] + A[i * 3 + 1] * X[1] + A[i * 3 + 2] * X[2]) / rn for i in range(3)]

@@ -63,6 +63,20 @@ def dcm_to_quat(q, T):
         q[m] = q[m] * s
 
 
+def dcm(A, q):
+    """A(q) (3 x 3 flat), inertial to body (Eq. 4.7)."""
+    e1, e2, e3, q4 = q[0], q[1], q[2], q[3]
+    A[0] = q4 * q4 + e1 * e1 - e2 * e2 - e3 * e3
+    A[1] = 2 * (e1 * e2 + q4 * e3)
+    A[2] = 2 * (e1 * e3 - q4 * e2)
+    A[3] = 2 * (e1 * e2 - q4 * e3)
+    A[4] = q4 * q4 - e1 * e1 + e2 * e2 - e3 * e3
+    A[5] = 2 * (e2 * e3 + q4 * e1)
+    A[6] = 2 * (e1 * e3 + q4 * e2)
+    A[7] = 2 * (e2 * e3 - q4 * e1)
+    A[8] = q4 * q4 - e1 * e1 - e2 * e2 + e3 * e3
+
+
 def quat_mul(out, q, p):
     """out = q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.2); out must not alias q or p."""
     q1, q2, q3, q4 = q[0], q[1], q[2], q[3]

@@ -59,7 +59,7 @@ in this form. bench/bench_adcs_can.py measures the whole cycle.
 from array import array
 import math
 
-from firmware.adcs import linalg
+from firmware.adcs import control, linalg
 
 MU = 398600.4415e9
 QA_THESIS = 0.1 ** 2
@@ -588,11 +588,8 @@ class Afls:
         if not nq > 0.5:
             self.refused += 1
             raise ValueError("attitude quaternion is not a unit quaternion")
-        e1, e2, e3, q4 = e1 / nq, e2 / nq, e3 / nq, q4 / nq
-        Am = w.A                                              # A(q), Eq. 4.7 (emulator dynamics.dcm)
-        Am[0], Am[1], Am[2] = q4 * q4 + e1 * e1 - e2 * e2 - e3 * e3, 2 * (e1 * e2 + q4 * e3), 2 * (e1 * e3 - q4 * e2)
-        Am[3], Am[4], Am[5] = 2 * (e1 * e2 - q4 * e3), q4 * q4 - e1 * e1 + e2 * e2 - e3 * e3, 2 * (e2 * e3 + q4 * e1)
-        Am[6], Am[7], Am[8] = 2 * (e1 * e3 + q4 * e2), 2 * (e2 * e3 - q4 * e1), q4 * q4 - e1 * e1 - e2 * e2 + e3 * e3
+        Am = w.A
+        control.dcm(Am, (e1 / nq, e2 / nq, e3 / nq, q4 / nq))      # A(q), Eq. 4.7
         H, u = w.H, (u0, u1, u2)
         for i in range(3):                                     # H_B = A (I - u u^T) / rho  (3 x 3 on rB)
             a0, a1, a2 = Am[3 * i], Am[3 * i + 1], Am[3 * i + 2]

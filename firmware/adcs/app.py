@@ -115,11 +115,10 @@ class App:
         self.C = zeros(12)                  # normalised axes (3 x 4) and their Jrw
         self.Cu = zeros(12)                 # the axes in use (failed wheels' columns zero)
         self.jrw = zeros(4)
+        for i in range(12):
+            self.C[i] = m.C[i]
         for i in range(4):
-            n = math.sqrt(sum(m.CJ[r * 4 + i] ** 2 for r in range(3)))
-            self.jrw[i] = n / self.scale
-            for r in range(3):
-                self.C[r * 4 + i] = m.CJ[r * 4 + i] / n
+            self.jrw[i] = m.jrw[i] / self.scale
         self.cjrw = [self.C[i] * self.jrw[i % 4] for i in range(12)]   # C Jrw (3 x 4), for H = J w + C Jrw w_rw
         self.cof_failed = -1                # the failed set self.Cu and self.cof were made for
         self.cof = None

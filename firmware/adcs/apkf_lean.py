@@ -247,16 +247,23 @@ class Work:
         self.Qw = z(9)          # the rate noise of the read-out differences (3 x 3)
 
 
-def _dcm_apply(out, o, q, v):
-    """out[o:o+3] = A(q) v (inertial to body, scalar-last q, Eq. 4.4)."""
+def _dcm_apply2(out, q, a, b):
+    """out[0:3] = A(q) a, out[3:6] = A(q) b (inertial to body, scalar-last q, Eq. 4.4), A formed once."""
     q1, q2, q3, q4 = q[0], q[1], q[2], q[3]
-    x, y, z = v[0], v[1], v[2]
-    out[o] = (q1 * q1 - q2 * q2 - q3 * q3 + q4 * q4) * x + 2.0 * (q1 * q2 + q3 * q4) * y \
-        + 2.0 * (q1 * q3 - q2 * q4) * z
-    out[o + 1] = 2.0 * (q1 * q2 - q3 * q4) * x + (-q1 * q1 + q2 * q2 - q3 * q3 + q4 * q4) * y \
-        + 2.0 * (q2 * q3 + q1 * q4) * z
-    out[o + 2] = 2.0 * (q1 * q3 + q2 * q4) * x + 2.0 * (q2 * q3 - q1 * q4) * y \
-        + (-q1 * q1 - q2 * q2 + q3 * q3 + q4 * q4) * z
+    a00 = q1 * q1 - q2 * q2 - q3 * q3 + q4 * q4
+    a01 = 2.0 * (q1 * q2 + q3 * q4)
+    a02 = 2.0 * (q1 * q3 - q2 * q4)
+    a10 = 2.0 * (q1 * q2 - q3 * q4)
+    a11 = -q1 * q1 + q2 * q2 - q3 * q3 + q4 * q4
+    a12 = 2.0 * (q2 * q3 + q1 * q4)
+    a20 = 2.0 * (q1 * q3 + q2 * q4)
+    a21 = 2.0 * (q2 * q3 - q1 * q4)
+    a22 = -q1 * q1 - q2 * q2 + q3 * q3 + q4 * q4
+    for o, v in ((0, a), (3, b)):
+        x, y, z = v[0], v[1], v[2]
+        out[o] = a00 * x + a01 * y + a02 * z
+        out[o + 1] = a10 * x + a11 * y + a12 * z
+        out[o + 2] = a20 * x + a21 * y + a22 * z
 
 
 def _slope(ks, o, y, x, model, hw, hd, s, env, v):
@@ -264,8 +271,7 @@ def _slope(ks, o, y, x, model, hw, hd, s, env, v):
     the wheel momentum C Jrw W(s) = hw + hd s, its rate hd (3 each, from ``momentum_rate``)."""
     J, m = model.J, model.m
     r_i, kgg, b_i = env
-    _dcm_apply(v, 0, y, r_i)                      # r_b in v[0:3]
-    _dcm_apply(v, 3, y, b_i)                      # b_b in v[3:6]
+    _dcm_apply2(v, y, r_i, b_i)                   # r_b in v[0:3], b_b in v[3:6]
     w0, w1, w2 = y[4], y[5], y[6]
     for i in range(3):
         v[6 + i] = J[i * 3] * w0 + J[i * 3 + 1] * w1 + J[i * 3 + 2] * w2 + hw[i] + hd[i] * s     # H
@@ -378,8 +384,7 @@ def jacobian(F, x, model, hw, env, work):
     J, Ji, m = model.J, model.Ji, model.m
     v = work.v
     r_i, kgg, b_i = env
-    _dcm_apply(v, 0, x, r_i)
-    _dcm_apply(v, 3, x, b_i)
+    _dcm_apply2(v, x, r_i, b_i)
     w = (x[4], x[5], x[6])
     for i in range(3):
         v[6 + i] = J[i * 3] * w[0] + J[i * 3 + 1] * w[1] + J[i * 3 + 2] * w[2] + hw[i]
@@ -396,60 +401,91 @@ def jacobian(F, x, model, hw, env, work):
     bx = (0.0, -b2, b1, b2, 0.0, -b0, -b1, b0, 0.0)
     mx = (0.0, -m[2], m[1], m[2], 0.0, -m[0], -m[1], m[0], 0.0)
     jrx = (0.0, -jr[2], jr[1], jr[2], 0.0, -jr[0], -jr[1], jr[0], 0.0)
+    # the sums over k are written out (same operations, same order); T (float32) holds each product
+    J0, J1, J2 = list(J[0:3]), list(J[3:6]), list(J[6:9])
     for i in range(3):
+        a0, a1, a2 = rx[i * 3:i * 3 + 3]
         for j in range(3):
-            a = 0.0
-            for k in range(3):
-                a += rx[i * 3 + k] * J[k * 3 + j]
-            T[9 + i * 3 + j] = a - jrx[i * 3 + j]          # [r x] J - [(J r) x]
+            T[9 + i * 3 + j] = a0 * J0[j] + a1 * J1[j] + a2 * J2[j] - jrx[i * 3 + j]   # [r x] J - [(J r) x]
+    M1 = list(T[9:18])
     for i in range(3):
+        t0, t1, t2 = M1[i * 3:i * 3 + 3]
+        m0, m1, m2 = mx[i * 3:i * 3 + 3]
         for j in range(3):
-            s = 0.0
-            for k in range(3):
-                s += kgg * T[9 + i * 3 + k] * 2.0 * rx[k * 3 + j] + mx[i * 3 + k] * 2.0 * bx[k * 3 + j]
-            T[i * 3 + j] = s
+            T[i * 3 + j] = ((kgg * t0 * 2.0 * rx[j] + m0 * 2.0 * bx[j])
+                            + (kgg * t1 * 2.0 * rx[3 + j] + m1 * 2.0 * bx[3 + j])
+                            + (kgg * t2 * 2.0 * rx[6 + j] + m2 * 2.0 * bx[6 + j]))
     wx = (0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0)
     hh = (v[6], v[7], v[8])
     hx = (0.0, -hh[2], hh[1], hh[2], 0.0, -hh[0], -hh[1], hh[0], 0.0)
     for i in range(3):
+        a0, a1, a2 = wx[i * 3:i * 3 + 3]
         for j in range(3):
-            a = hx[i * 3 + j]
-            for k in range(3):
-                a -= wx[i * 3 + k] * J[k * 3 + j]
-            T[18 + i * 3 + j] = a
+            T[18 + i * 3 + j] = hx[i * 3 + j] - a0 * J0[j] - a1 * J1[j] - a2 * J2[j]
+    M, G, Jil = list(T[0:9]), list(T[18:27]), list(Ji[0:9])
     for i in range(3):
+        j0, j1, j2 = Jil[i * 3:i * 3 + 3]
+        o = (3 + i) * 9
         for j in range(3):
-            s21 = 0.0
-            s22 = 0.0
-            for k in range(3):
-                s21 += Ji[i * 3 + k] * T[k * 3 + j]
-                s22 += Ji[i * 3 + k] * T[18 + k * 3 + j]
-            F[(3 + i) * 9 + j] = s21
-            F[(3 + i) * 9 + 3 + j] = s22
-            F[(3 + i) * 9 + 6 + j] = Ji[i * 3 + j]
+            F[o + j] = j0 * M[j] + j1 * M[3 + j] + j2 * M[6 + j]
+            F[o + 3 + j] = j0 * G[j] + j1 * G[3 + j] + j2 * G[6 + j]
+            F[o + 6 + j] = Jil[i * 3 + j]
 
 
 def phi(Phi, F, dt, work, order=4):
-    """Phi = sum_{n <= order} (F dt)^n / n! (App. A.2's series). F's tau_d rows are zero, so every power's
-    rows 6-8 are zero and row i of F^n is sum over k < 6 of F^(n-1)[i, k] F[k, :]: 6 x 6 x 9 per power."""
-    term, nxt = work.T1, work.T2
+    """Phi = sum_{n<=order} (F dt)^n / n! (App. A.2's series). F's tau_d rows are zero, so every power's
+    rows 6-8 are zero and row i of F^n is sum over k < 6 of F^(n-1)[i, k] F[k, :]; of rows 0-2 of F only
+    -[w x]'s off-diagonal and F12 = I/2 are non-zero (Eq. 4.98), and their zeros are skipped (adding an exact
+    zero changes no sum). Each power is stored in T1 (float32) and read once."""
+    term = work.T1
     linalg.eye(Phi, N)
+    Fl = list(F[0:54])
     for i in range(54):
-        t = F[i] * dt
+        t = Fl[i] * dt
         term[i] = t
         Phi[i] += t
+    f01, f02, f10, f12, f20, f21 = Fl[1], Fl[2], Fl[9], Fl[11], Fl[18], Fl[19]
+    F3, F4, F5 = Fl[27:36], Fl[36:45], Fl[45:54]
+    tl = list(term[0:54])
     for n in range(2, order + 1):
         c = dt / n
-        for i in range(6):
-            for j in range(N):
-                s = 0.0
-                for k in range(6):
-                    s += term[i * N + k] * F[k * N + j]
-                nxt[i * N + j] = s * c
+        for o in range(0, 54, 9):
+            t0, t1, t2, t3, t4, t5 = tl[o:o + 6]
+            term[o] = (t1 * f10 + t2 * f20 + t3 * F3[0] + t4 * F4[0] + t5 * F5[0]) * c
+            term[o + 1] = (t0 * f01 + t2 * f21 + t3 * F3[1] + t4 * F4[1] + t5 * F5[1]) * c
+            term[o + 2] = (t0 * f02 + t1 * f12 + t3 * F3[2] + t4 * F4[2] + t5 * F5[2]) * c
+            for j in range(3):
+                term[o + 3 + j] = (tl[o + j] * 0.5 + t3 * F3[3 + j] + t4 * F4[3 + j] + t5 * F5[3 + j]) * c
+                term[o + 6 + j] = (t3 * F3[6 + j] + t4 * F4[6 + j] + t5 * F5[6 + j]) * c
+        tl = list(term[0:54])
         for i in range(54):
-            t = nxt[i]
-            term[i] = t
-            Phi[i] += t
+            Phi[i] += tl[i]
+
+
+def covariance_predict(P, Phi, T):
+    """P = Phi P Phi^T (Eq. 4.134 without Q) for the lean Phi, whose tau_d rows 6-8 are [0 I]: only rows 0-5
+    of Phi P (into T, float32) and the blocks they touch are computed; the upper triangle is mirrored. P is
+    symmetric, so column j of P is its row j. The 9-term dot products are written out (a loop iteration
+    costs MicroPython as much as a float operation)."""
+    Pr = [list(P[k:k + 9]) for k in range(0, 81, 9)]
+    for o in range(0, 54, 9):               # T[0:6] = Phi[0:6] P
+        a0, a1, a2, a3, a4, a5, a6, a7, a8 = Phi[o:o + 9]
+        for j in range(9):
+            b0, b1, b2, b3, b4, b5, b6, b7, b8 = Pr[j]
+            T[o + j] = (a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5 + a6 * b6 + a7 * b7
+                        + a8 * b8)
+    Tr = [list(T[k:k + 9]) for k in range(0, 54, 9)]
+    Phr = [list(Phi[k:k + 9]) for k in range(0, 54, 9)]
+    for i in range(6):                      # P[0:6, 0:6] = T[0:6] Phi[0:6]^T; P[0:6, 6:] = T[0:6, 6:]
+        a0, a1, a2, a3, a4, a5, a6, a7, a8 = Tr[i]
+        for j in range(i, 6):
+            b0, b1, b2, b3, b4, b5, b6, b7, b8 = Phr[j]
+            v = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5 + a6 * b6 + a7 * b7 + a8 * b8
+            P[i * 9 + j] = v
+            P[j * 9 + i] = v
+        for j, v in ((6, a6), (7, a7), (8, a8)):
+            P[i * 9 + j] = v
+            P[j * 9 + i] = v
 
 
 def predict(x, P, wm, wp, u, env, model, work):
@@ -462,10 +498,11 @@ def predict(x, P, wm, wp, u, env, model, work):
     jacobian(work.F, x, model, hw, env, work)
     phi(work.Phi, work.F, model.dt, work)
     propagate(x, model, hw, hd, env, work)
-    linalg.sandwich_ident(P, work.Phi, work.T1, N, 6)      # Phi's tau_d rows are [0 I]
+    covariance_predict(P, work.Phi, work.T1)
     Q = model.Q
-    for i in range(81):
-        P[i] += Q[i]
+    for o in range(27, 81, 9):              # Q is zero outside rows and columns 3-8
+        for i in range(o + 3, o + 9):
+            P[i] += Q[i]
     if noisy:
         for i in range(3):
             for j in range(3):

@@ -67,42 +67,6 @@ def matmul_bt(C, A, B, n, m, p):
             C[ic + j] = s
 
 
-def sandwich(P, Phi, T, n):
-    """P = Phi P Phi^T (n x n), symmetric by construction: only the upper triangle is computed and mirrored.
-    T is an n x n work buffer."""
-    matmul(T, Phi, P, n, n, n)                   # T = Phi P
-    T, Phi = list(T[0:n * n]), list(Phi[0:n * n])
-    for i in range(n):
-        it = i * n
-        for j in range(i, n):
-            s = 0.0
-            jp = j * n
-            for k in range(n):
-                s += T[it + k] * Phi[jp + k]
-            P[it + j] = s
-            P[jp + i] = s
-
-
-def sandwich_ident(P, Phi, T, n, r):
-    """P = Phi P Phi^T for a Phi whose rows r .. n-1 are those of the identity (the parameter rows of an
-    error-state transition): only rows 0 .. r-1 of Phi P and the blocks they touch are computed. T: n x n work."""
-    matmul(T, Phi, P, r, n, n)                   # T[0:r] = Phi[0:r] P
-    T, Phi = list(T[0:r * n]), list(Phi[0:r * n])
-    for i in range(r):                           # P[0:r, 0:r] = T[0:r] Phi[0:r]^T; P[0:r, r:] = T[0:r, r:]
-        it = i * n
-        for j in range(i, r):
-            s = 0.0
-            jp = j * n
-            for k in range(n):
-                s += T[it + k] * Phi[jp + k]
-            P[it + j] = s
-            P[jp + i] = s
-        for j in range(r, n):
-            v = T[it + j]
-            P[it + j] = v
-            P[j * n + i] = v
-
-
 def symmetrize(P, n):
     """P = (P + P^T) / 2."""
     for i in range(n):
@@ -170,6 +134,9 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
     _solve_cols(Kt, L, n, m)
     # Buffers read many times are read once into lists (each buffer read makes a new float on MicroPython);
     # a list holds what the buffer holds, so every product below is the one the buffers gave.
+    if m == 3:
+        _joseph3(P, n, r0, R, Kt, W, RK)
+        return True
     K = list(Kt)
     Hp = list(P[r0 * n:(r0 + m) * n])             # H P = P[r0:r0+m, :]
     # A = (I - K H) P = P - K P[r0:, :]  into W
@@ -192,9 +159,44 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
     return True
 
 
+def _joseph3(P, n, r0, R, Kt, W, RK):
+    """joseph_select's last two steps for m = 3 (the star tracker, the beacon), the sums over k written out:
+    the same operations in the same order (a loop iteration costs MicroPython as much as a float operation)."""
+    K0, K1, K2 = list(Kt[0:n]), list(Kt[n:2 * n]), list(Kt[2 * n:3 * n])
+    H0, H1, H2 = list(P[r0 * n:(r0 + 1) * n]), list(P[(r0 + 1) * n:(r0 + 2) * n]), list(P[(r0 + 2) * n:(r0 + 3) * n])
+    for i in range(n):                           # A = (I - K H) P = P - K P[r0:, :]  into W
+        k0, k1, k2 = K0[i], K1[i], K2[i]
+        o = i * n
+        row = list(P[o:o + n])
+        for j in range(n):
+            W[o + j] = row[j] - k0 * H0[j] - k1 * H1[j] - k2 * H2[j]
+    matmul(RK, R, Kt, 3, 3, n)                   # R K^T into RK
+    R0, R1, R2 = list(RK[0:n]), list(RK[n:2 * n]), list(RK[2 * n:3 * n])
+    Wl = list(W[0:n * n])
+    for i in range(n):                           # P+ = A - A[:, r0:] K^T + K R K^T, upper triangle mirrored
+        k0, k1, k2 = K0[i], K1[i], K2[i]
+        o = i * n
+        w0, w1, w2 = Wl[o + r0], Wl[o + r0 + 1], Wl[o + r0 + 2]
+        for j in range(i, n):
+            s = Wl[o + j] + (k0 * R0[j] - w0 * K0[j]) + (k1 * R1[j] - w1 * K1[j]) + (k2 * R2[j] - w2 * K2[j])
+            P[o + j] = s
+            P[j * n + i] = s
+
+
 def _solve_cols(X, L, n, m):
     """X (m x n) = S^-1 X for S = L L^T (m x m), column by column."""
     L = list(L[0:m * m])
+    if m == 3:                                   # the same operations and float32 stores, written out
+        l00, _, _, l10, l11, _, l20, l21, l22 = L
+        n2 = 2 * n
+        for c in range(n):
+            X[c] = X[c] / l00
+            X[n + c] = (X[n + c] - l10 * X[c]) / l11
+            X[n2 + c] = (X[n2 + c] - l20 * X[c] - l21 * X[n + c]) / l22
+            X[n2 + c] = X[n2 + c] / l22
+            X[n + c] = (X[n + c] - l21 * X[n2 + c]) / l11
+            X[c] = (X[c] - l10 * X[n + c] - l20 * X[n2 + c]) / l00
+        return
     for c in range(n):
         for i in range(m):
             s = X[i * n + c]

@@ -445,18 +445,23 @@ def phi(Phi, F, dt, work, order=4):
         term[i] = t
         Phi[i] += t
     f01, f02, f10, f12, f20, f21 = Fl[1], Fl[2], Fl[9], Fl[11], Fl[18], Fl[19]
-    F3, F4, F5 = Fl[27:36], Fl[36:45], Fl[45:54]
+    f30, f31, f32, f33, f34, f35, f36, f37, f38 = Fl[27:36]       # rows 3-5 (F21 F22 F23) in locals:
+    f40, f41, f42, f43, f44, f45, f46, f47, f48 = Fl[36:45]       # the inner sums below are written out
+    f50, f51, f52, f53, f54, f55, f56, f57, f58 = Fl[45:54]
     tl = list(term[0:54])
     for n in range(2, order + 1):
         c = dt / n
         for o in range(0, 54, 9):
             t0, t1, t2, t3, t4, t5 = tl[o:o + 6]
-            term[o] = (t1 * f10 + t2 * f20 + t3 * F3[0] + t4 * F4[0] + t5 * F5[0]) * c
-            term[o + 1] = (t0 * f01 + t2 * f21 + t3 * F3[1] + t4 * F4[1] + t5 * F5[1]) * c
-            term[o + 2] = (t0 * f02 + t1 * f12 + t3 * F3[2] + t4 * F4[2] + t5 * F5[2]) * c
-            for j in range(3):
-                term[o + 3 + j] = (tl[o + j] * 0.5 + t3 * F3[3 + j] + t4 * F4[3 + j] + t5 * F5[3 + j]) * c
-                term[o + 6 + j] = (t3 * F3[6 + j] + t4 * F4[6 + j] + t5 * F5[6 + j]) * c
+            term[o] = (t1 * f10 + t2 * f20 + t3 * f30 + t4 * f40 + t5 * f50) * c
+            term[o + 1] = (t0 * f01 + t2 * f21 + t3 * f31 + t4 * f41 + t5 * f51) * c
+            term[o + 2] = (t0 * f02 + t1 * f12 + t3 * f32 + t4 * f42 + t5 * f52) * c
+            term[o + 3] = (t0 * 0.5 + t3 * f33 + t4 * f43 + t5 * f53) * c
+            term[o + 4] = (t1 * 0.5 + t3 * f34 + t4 * f44 + t5 * f54) * c
+            term[o + 5] = (t2 * 0.5 + t3 * f35 + t4 * f45 + t5 * f55) * c
+            term[o + 6] = (t3 * f36 + t4 * f46 + t5 * f56) * c
+            term[o + 7] = (t3 * f37 + t4 * f47 + t5 * f57) * c
+            term[o + 8] = (t3 * f38 + t4 * f48 + t5 * f58) * c
         tl = list(term[0:54])
         for i in range(54):
             Phi[i] += tl[i]
@@ -468,14 +473,15 @@ def covariance_predict(P, Phi, T):
     symmetric, so column j of P is its row j. The 9-term dot products are written out (a loop iteration
     costs MicroPython as much as a float operation)."""
     Pr = [list(P[k:k + 9]) for k in range(0, 81, 9)]
-    for o in range(0, 54, 9):               # T[0:6] = Phi[0:6] P
-        a0, a1, a2, a3, a4, a5, a6, a7, a8 = Phi[o:o + 9]
+    Phr = [list(Phi[k:k + 9]) for k in range(0, 54, 9)]
+    for i in range(6):                      # T[0:6] = Phi[0:6] P
+        a0, a1, a2, a3, a4, a5, a6, a7, a8 = Phr[i]
+        o = i * 9
         for j in range(9):
             b0, b1, b2, b3, b4, b5, b6, b7, b8 = Pr[j]
             T[o + j] = (a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5 + a6 * b6 + a7 * b7
                         + a8 * b8)
     Tr = [list(T[k:k + 9]) for k in range(0, 54, 9)]
-    Phr = [list(Phi[k:k + 9]) for k in range(0, 54, 9)]
     for i in range(6):                      # P[0:6, 0:6] = T[0:6] Phi[0:6]^T; P[0:6, 6:] = T[0:6, 6:]
         a0, a1, a2, a3, a4, a5, a6, a7, a8 = Tr[i]
         for j in range(i, 6):

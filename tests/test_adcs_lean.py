@@ -90,7 +90,9 @@ def test_jacobian_and_propagation_equal_the_ground_filters():
         f = L.Lean(params, q, w, W, momentum="tach")
         env = (m["r_i"].tolist(), m["k"], m["b_i"].tolist())
         F, hw, hd, Qw = [0.0] * 81, [0.0] * 3, [0.0] * 3, [0.0] * 9
-        assert L.momentum_rate(hw, hd, Qw, f.model, f.wm, wp, None)
+        Qw = np.reshape(list(L.momentum_rate(hw, hd, Qw, f.model, f.wm, wp, None)), (3, 3))
+        G = np.linalg.inv(np.reshape(list(f.model.J), (3, 3))) @ np.reshape(list(f.model.CJ), (3, 4))
+        assert np.allclose(Qw, 2 * f.model.R_rw * G @ G.T, rtol=1e-12, atol=0)    # Eq. 4.135 for the read-outs
         L.jacobian(F, f.x, f.model, hw, env, f.work)
         Fg = apkf.jacobian(x, model, 100.0, m)[:9, :9]
         assert np.allclose(np.reshape(F, (9, 9)), Fg, rtol=1e-12, atol=1e-12 * np.abs(Fg).max())

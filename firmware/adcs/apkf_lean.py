@@ -187,6 +187,11 @@ class Model:
             raise ValueError("momentum must be 'torque' or 'tach', got %r" % (momentum,))
         self.torque = momentum == "torque"
         self.Ji = self.Ji_torque if self.torque else self.Ji_tach
+        if not self.torque:      # the read-out differences' rate noise is then constant (momentum_rate)
+            self.Qw_tach = linalg.zeros(9)
+            for k in range(4):
+                _add_rate_noise(self.Qw_tach, self.Ji, self.CJ, k, 2.0 * self.R_rw)
+            _mirror3(self.Qw_tach)
         # the constant part of Q: tau_d's (Eq. 4.135-4.136); the read-out differences add theirs per step
         dt, qd, Ji = self.dt, self.qd, self.Ji
         for i in range(3):
@@ -301,8 +306,8 @@ def friction(model, W):
 
 def momentum_rate(hw, hd, Qw, model, wm, wp, u):
     """The wheel momentum at the step's start hw = C Jrw W- (Eq. 4.55, from the read-out) and its rate over the
-    step hd (3 each, the file's torque units); Qw (3 x 3) the rate noise the read-out differences add. Returns
-    whether Qw is non-zero.
+    step hd (3 each, the file's torque units). Returns the rate noise (3 x 3) the inputs add: with "tach" the
+    constant ``model.Qw_tach`` (formed once in ``Model.use``), with "torque" the buffer Qw, filled here.
 
     "tach" (Eq. 4.62, 4.95): hd = C Jrw (W+ - W-)/dt for every wheel, Qw = G (2 R_rw) G^T with G = Jm^-1 C
     D(Jrw) (the Eq. 4.135 construction; conservative: consecutive steps share a read-out).
@@ -322,41 +327,52 @@ def momentum_rate(hw, hd, Qw, model, wm, wp, u):
         hw[i] = h
         hd[i] = 0.0
     C, sc, tm, dt = model.C, model.scale, model.torque_max, model.dt
-    noisy = False
+    if not model.torque:                           # every wheel on its read-out difference: Qw is constant
+        for k in range(4):
+            a = (wp[k] - wm[k]) / dt
+            for i in range(3):
+                hd[i] += CJ[i * 4 + k] * a
+        return model.Qw_tach
+    linalg.fill(Qw, 9, 0.0)
     for k in range(4):
         M, r = CJ, 2.0 * model.R_rw                # the read-out difference and its noise
-        if model.torque:
-            uk = u[k]
-            if uk != uk:                           # not known (no read-out): nothing added, a coasting rotor's
-                M, r = C, (sc * model.friction[0] * dt) ** 2           # friction as the noise
-            else:
-                uk = tm if uk > tm else (-tm if uk < -tm else uk)
-                rt = (model.torque_rel * sc * uk * dt) ** 2          # the torque's error over the step
-                if (abs(wm[k]) >= model.tach_3sigma + dt * sc * (abs(uk) + model.friction[0]) / model.jrw[k]
-                        and rt < r * model.jrw[k] ** 2):
-                    t = sc * (uk - friction(model, wm[k]))
-                    for i in range(3):
-                        hd[i] += C[i * 4 + k] * t
-                    M, r = C, rt
+        uk = u[k]
+        if uk != uk:                               # not known (no read-out): nothing added, a coasting rotor's
+            M, r = C, (sc * model.friction[0] * dt) ** 2           # friction as the noise
+        else:
+            uk = tm if uk > tm else (-tm if uk < -tm else uk)
+            rt = (model.torque_rel * sc * uk * dt) ** 2          # the torque's error over the step
+            if (abs(wm[k]) >= model.tach_3sigma + dt * sc * (abs(uk) + model.friction[0]) / model.jrw[k]
+                    and rt < r * model.jrw[k] ** 2):
+                t = sc * (uk - friction(model, wm[k]))
+                for i in range(3):
+                    hd[i] += C[i * 4 + k] * t
+                M, r = C, rt
         if M is CJ:
             a = (wp[k] - wm[k]) / dt
             for i in range(3):
                 hd[i] += CJ[i * 4 + k] * a
-        if not noisy:
-            linalg.fill(Qw, 9, 0.0)
-            noisy = True
-        g0 = Ji[0] * M[k] + Ji[1] * M[4 + k] + Ji[2] * M[8 + k]        # Jm^-1 times column k of M
-        g1 = Ji[3] * M[k] + Ji[4] * M[4 + k] + Ji[5] * M[8 + k]
-        g2 = Ji[6] * M[k] + Ji[7] * M[4 + k] + Ji[8] * M[8 + k]
-        Qw[0] += r * g0 * g0
-        Qw[1] += r * g0 * g1
-        Qw[2] += r * g0 * g2
-        Qw[4] += r * g1 * g1
-        Qw[5] += r * g1 * g2
-        Qw[8] += r * g2 * g2
-    if noisy:
-        Qw[3], Qw[6], Qw[7] = Qw[1], Qw[2], Qw[5]
-    return noisy
+        _add_rate_noise(Qw, Ji, M, k, r)
+    _mirror3(Qw)
+    return Qw
+
+
+def _add_rate_noise(Qw, Ji, M, k, r):
+    """Qw (upper triangle) += r g g^T, g = Jm^-1 times column k of M (3 x 4): a white input's rate noise
+    (the Eq. 4.135 construction)."""
+    g0 = Ji[0] * M[k] + Ji[1] * M[4 + k] + Ji[2] * M[8 + k]
+    g1 = Ji[3] * M[k] + Ji[4] * M[4 + k] + Ji[5] * M[8 + k]
+    g2 = Ji[6] * M[k] + Ji[7] * M[4 + k] + Ji[8] * M[8 + k]
+    Qw[0] += r * g0 * g0
+    Qw[1] += r * g0 * g1
+    Qw[2] += r * g0 * g2
+    Qw[4] += r * g1 * g1
+    Qw[5] += r * g1 * g2
+    Qw[8] += r * g2 * g2
+
+
+def _mirror3(Qw):
+    Qw[3], Qw[6], Qw[7] = Qw[1], Qw[2], Qw[5]
 
 
 def propagate(x, model, hw, hd, env, work):
@@ -499,8 +515,8 @@ def predict(x, P, wm, wp, u, env, model, work):
     P = Phi P Phi^T + Q (symmetric by construction; Phi's tau_d rows are the identity's). wm, wp: the
     read-outs at the step's start and end (rad/s); u: the motor torques commanded over it (N m; unused with
     the read-out difference); env = (r_i unit (3), 3 mu/r^3, b_i (3)), mid-step."""
-    hw, hd, Qw = work.hw, work.hd, work.Qw
-    noisy = momentum_rate(hw, hd, Qw, model, wm, wp, u)
+    hw, hd = work.hw, work.hd
+    Qw = momentum_rate(hw, hd, work.Qw, model, wm, wp, u)
     jacobian(work.F, x, model, hw, env, work)
     phi(work.Phi, work.F, model.dt, work)
     propagate(x, model, hw, hd, env, work)
@@ -509,10 +525,9 @@ def predict(x, P, wm, wp, u, env, model, work):
     for o in range(27, 81, 9):              # Q is zero outside rows and columns 3-8
         for i in range(o + 3, o + 9):
             P[i] += Q[i]
-    if noisy:
-        for i in range(3):
-            for j in range(3):
-                P[(3 + i) * 9 + 3 + j] += Qw[i * 3 + j]
+    for i in range(3):
+        for j in range(3):
+            P[(3 + i) * 9 + 3 + j] += Qw[i * 3 + j]
 
 
 def error_vec(out, qm, q):

@@ -16,6 +16,7 @@ from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import Spacecraft, quat_mul
 from emulator.spacecraft.scenario import SCENARIO_WHEELS, truth_params  # noqa: F401 (used by the tests)
 from emulator.spacecraft.wheels import Wheels, WheelParams
+from ground.adcs.control import natural_frequency
 
 RPM = 2 * np.pi / 60
 
@@ -30,7 +31,7 @@ def scenario(seconds, seed=0, dt_truth=0.25, ts=33.0, tach_rpm=None):
     sc = Spacecraft(wheels=wheels, dt=dt_truth, q=q0, omega=(0.0, 0.0, 0.0), dipole=np.asarray(M_DIPOLE_THESIS) / 20,
                     omega_rw=(800 * RPM, -600 * RPM, 700 * RPM, -900 * RPM))
     st = StarTracker(np.random.default_rng(seed + 2))
-    wn = 4.0 / ts
+    wn = natural_frequency(ts)                   # Eq. 6.7, as the flight and ground controllers read it
     K, D = 2 * wn * wn * sc.j, 2 * wn * sc.j
     c = sc.wheels.c
     out = {"wp": [], "qm": [], "u": [], "env": [], "q": [], "w": [], "params": truth_params(sc)}

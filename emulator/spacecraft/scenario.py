@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from emulator.navsensors import Beacon, Gnss, Relay
 from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import J0_THESIS, Spacecraft, dcm, inertia_matrix, quat_mul
 from emulator.spacecraft.wheels import J_RW_NOMINAL, Wheels, WheelParams, pyramid_c0
@@ -319,11 +320,10 @@ def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, s
 
     Truth: ``truth_grid(K, truth, cache_dir, span_margin_s)`` at ``WORLD_RATE_HZ``. Random streams: the seven
     children of ``SeedSequence(seed)``, in order: wheels, star tracker, STKF start, SatA's GNSS, SatB's GNSS,
-    beacon, relay (delays, then SatB's clock phase). ``n_tags``: SatB's GNSS epochs (default K), at
+    beacon, relay (SatB's clock phase, then each fix's delay). ``n_tags``: SatB's GNSS epochs (default K), at
     U(0, 1) + 0, 1, ... s. The caller's own margin and tag count keep its results (and its truth cache) as
     they were: ground/adcs/bps.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1.
     """
-    from emulator.navsensors import Beacon, Gnss, Relay
     from ground.resample import lagrange
     t_s, xs, tg, xg = truth_grid(K, truth, cache_dir, span_margin_s)
     orbit = GridOrbit(0.0, WORLD_RATE_HZ, xg[:, 0, 0:3])

@@ -24,10 +24,11 @@ that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``). Faults (``fau
 ``startracker_blind`` [t0, t1]: the star tracker answers "no solution" (valid 0); ``gnss_outage`` [t0, t1]:
 no GNSS fix of SatA (SatB's relay too); ``beacon_lost`` t0: the beacon answers "not in view" (valid 0).
 
-Truth (as ground/adcs/bps.py): orbits of ``emulator.orbits`` (two-body by default, brahe ``hpop`` on request)
-on a 20 Hz grid by 10th-order Lagrange, the spacecraft of ``emulator.spacecraft`` (RK4 at 0.1 s) from
-q = [0, 0, 0, 1] at rest, the star tracker, GNSS, beacon and relay of ``emulator.navsensors``; the parameter
-file of a perfect calibration (``emulator.spacecraft.scenario.truth_params``) unless one is given.
+Truth: the world ground/adcs/bps.py runs, built by the same ``emulator.spacecraft.scenario.pointing_world``
+(orbits of ``emulator.orbits``, two-body by default, brahe ``hpop`` on request, on a 20 Hz grid by 10th-order
+Lagrange; the spacecraft of ``emulator.spacecraft`` (RK4 at 0.1 s) from q = [0, 0, 0, 1] at rest; the star
+tracker, GNSS, beacon and relay of ``emulator.navsensors``; the STKF's start); the parameter file of a perfect
+calibration (``emulator.spacecraft.scenario.truth_params``) unless one is given.
 """
 
 import json
@@ -42,21 +43,21 @@ import tty
 import numpy as np
 
 from emulator import orbits
-from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
+from emulator.navsensors import ARCSEC
 from emulator.spacecraft import scenario
-from emulator.spacecraft.devices import StarTracker
-from emulator.spacecraft.dynamics import Spacecraft, dcm
-from emulator.spacecraft.wheels import N_WHEELS, Wheels, WheelParams
+from emulator.spacecraft.dynamics import dcm
+from emulator.spacecraft.wheels import N_WHEELS
 from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
 RUNTIMES = ("micropython", "cpython")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
-P0_DIAG = [4e3 ** 2] * 3 + [100.0 ** 2] * 3 + [4e3 ** 2] * 3 + [100.0 ** 2] * 3   # Sec. 5.5.1
+P0_DIAG = scenario.STKF_P0_DIAG      # Sec. 5.5.1
 LAG_S = 4.0
 HOLD_S = 30.0
-RATE = 20            # Hz, the orbit grid (RK4 mid-steps at 0.05 s)
+RATE = scenario.WORLD_RATE_HZ        # Hz, the orbit grid (RK4 mid-steps at 0.05 s)
+SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
 MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
 
@@ -119,26 +120,13 @@ class AdcsSession:
         self.heap_out = heap_out
         self.recorded = [] if record else None     # per tick: [tick, t_ms, [[pid, src, payload hex], ...]]
         self.K = int(np.ceil(self.duration_s))
-        span = float(np.ceil((self.K + 8) / 1000.0) * 1000.0)
-        t_s, xs = orbits.truth_samples(truth, span, cache_dir=cache_dir)
-        from ground.resample import lagrange      # the interpolation of Sec. 6.4.1 (numpy)
-        tg = np.arange(0, (self.K + 1) * RATE + 1) / RATE
-        self.xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)
-        ss = np.random.SeedSequence(self.seed)
-        r_rw, r_st, r_init, r_ga, r_gb, r_bc, r_rel = [np.random.default_rng(s) for s in ss.spawn(7)]
-        from emulator.spacecraft.scenario import GridOrbit
-        self.wheels = Wheels(WheelParams(**scenario.SCENARIO_WHEELS), rng=r_rw)
-        self.sc = Spacecraft(wheels=self.wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0),
-                             orbit=GridOrbit(0.0, RATE, self.xg[:, 0, 0:3]))
-        self.st = StarTracker(r_st)
-        self.gnss_a, self.beacon = Gnss(r_ga), Beacon(r_bc)
-        self.relay = Relay(r_rel, Gnss(r_gb)) if self.satb else None
-        if self.satb:
-            self.tb = r_rel.uniform(0.0, 1.0) + np.arange(self.K + 1)
-            self.xb_tb = lagrange(t_s, xs[:, 1, :], self.tb, order=10)
+        self.world = w = scenario.pointing_world(self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S,
+                                                 n_tags=self.K + 1)
+        self.xg, self.wheels, self.sc, self.st = w.xg, w.wheels, w.sc, w.st
+        self.gnss_a, self.beacon, self.relay, self.tb, self.xb_tb = w.gnss_a, w.beacon, w.relay, w.tb, w.xb_tb
         self.jb = 0
         self.params = scenario.truth_params(self.sc) if params is None else _load_params(params)
-        self.stkf_x0 = (self.xg[0].ravel() + np.sqrt(P0_DIAG) * r_init.standard_normal(12)).tolist()
+        self.stkf_x0 = w.stkf_x0.tolist()
         self.k = 0
         self.proc = None
         self.link = None

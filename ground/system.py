@@ -187,13 +187,11 @@ def _ground_run(spec, params, on_cycle=None, stop=None):
     """``bps.simulate`` for the spec; returns (result, history, estimate errors (K+1, 8)). ``on_cycle(msg)``
     gets each second as the simulation makes it (the body pointing error of its ten steps, Eq. 6.12-6.21, and the
     estimate errors at its start)."""
-    from emulator import orbits
+    from emulator.spacecraft import scenario
     from ground.adcs import bps
-    from ground.resample import lagrange
     n = int(np.ceil(settle_s(spec["ts"]) + spec["adcs_duration_s"]))
-    t_s, xs = orbits.truth_samples(spec["truth"], bps.truth_span(n), cache_dir=spec["cache_dir"])
-    t10 = np.arange(10 * n + 1) / 10.0
-    x10 = lagrange(t_s, xs.reshape(len(t_s), -1), t10, order=10).reshape(len(t10), 2, 6)   # as simulate's grid
+    x10 = scenario.truth_grid(n, spec["truth"], spec["cache_dir"], bps.SPAN_MARGIN_S, rate_hz=10)[3][:10 * n + 1]
+    # (simulate's truth at 10 Hz: its pointing_world, whose 20 Hz grid has these samples at its even indices)
 
     done = {}            # est_err by second: the rows it reads are final when on_second(k) comes
 

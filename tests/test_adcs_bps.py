@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from emulator import orbits
+from emulator.spacecraft.dynamics import Spacecraft
 from emulator.spacecraft.wheels import pyramid_c0
 from ground import cli
 from ground.adcs import bps, bps_cli, control, quat
@@ -173,14 +174,14 @@ def test_error_budget_is_taken_at_the_right_instants(params):
 
 def test_interrupted_run_is_marked_incomplete(params, monkeypatch):
     calls = {"n": 0}
-    real = bps.Spacecraft.step
+    real = Spacecraft.step
 
     def step(self):
         calls["n"] += 1
         if calls["n"] == 1500:
             raise KeyboardInterrupt
         return real(self)
-    monkeypatch.setattr(bps.Spacecraft, "step", step)
+    monkeypatch.setattr(Spacecraft, "step", step)
     res, hist = bps.simulate(ts=20, duration_s=100, seed=1, params=params, truth="two-body")
     assert not res["complete"] and res["simulated_s"] < 150
     assert len(hist["t"]) == int(res["simulated_s"]) * 10 + 1
@@ -230,7 +231,7 @@ def test_bps_distfile_source_caches_whole_runs_only(params_file, tmp_path, monke
     src2 = BpsSource(ts=33, params_path=params_file, truth="two-body", cache_dir=cache, quiet=True)
     assert distfile_cli.generate(src2, 5.0, 4) == data and src2.from_cache
     # an interrupted run leaves nothing in the cache
-    real = bps.Spacecraft.step
+    real = Spacecraft.step
     calls = {"n": 0}
 
     def step(self):
@@ -238,7 +239,7 @@ def test_bps_distfile_source_caches_whole_runs_only(params_file, tmp_path, monke
         if calls["n"] == 100:
             raise KeyboardInterrupt
         return real(self)
-    monkeypatch.setattr(bps.Spacecraft, "step", step)
+    monkeypatch.setattr(Spacecraft, "step", step)
     src3 = BpsSource(ts=20, params_path=params_file, truth="two-body", cache_dir=cache, quiet=True)
     with pytest.raises(KeyboardInterrupt):
         distfile_cli.generate(src3, 5.0, 4)

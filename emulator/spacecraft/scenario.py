@@ -17,12 +17,17 @@
   wheels within the 930 s (measured: up to 11 800 rpm without the null torque).
 - Sensors: star tracker (``devices.StarTracker``, 20/20/60 arcsec, 1 Hz, none at |w| >= 0.1 deg/s); tachometers
   10 rpm 1 sigma on W - c_i.w; a MEMS gyro for the MEKF baseline (model in ``MemsGyro``).
+
+Also here: ``pointing_world``, the world of the body-pointing scenario (Sec. 6.4) that ground/adcs/bps.py's
+``simulate`` and emulator/adcs_session.py's ``AdcsSession`` both run, built in one place so that the "same
+scenario" they are compared on stays the same.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 
+from emulator.navsensors import Beacon, Gnss, Relay
 from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import J0_THESIS, Spacecraft, dcm, inertia_matrix, quat_mul
 from emulator.spacecraft.wheels import J_RW_NOMINAL, Wheels, WheelParams, pyramid_c0
@@ -35,6 +40,8 @@ CASE2_PERIODS = (80.0, 72.7, 82.47)              # s
 CASE2_PHASES_DEG = (90.0, 0.0, 135.0)
 CASES = (1, 2, 3)
 SCENARIO_WHEELS = dict(speed_max_rpm=20000.0)
+STKF_P0_DIAG = [4e3 ** 2] * 3 + [100.0 ** 2] * 3 + [4e3 ** 2] * 3 + [100.0 ** 2] * 3   # Sec. 5.5.1 (m^2, (m/s)^2)
+WORLD_RATE_HZ = 20                               # the orbit grid of pointing_world (RK4 mid-steps at 0.05 s)
 
 
 def tau_d_case(case, t, q):
@@ -242,7 +249,6 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
 
 
 
-
 class GridOrbit:
     """An orbit given on a uniform time grid (rate_hz samples from t0): ``position(t)`` is the nearest
     sample (the caller interpolated the grid finely enough, as ground/adcs/bps.py does at 20 Hz)."""
@@ -271,3 +277,64 @@ def truth_params(sc):
                   "dipole_am2": [float(v) for v in sc.dipole], "delta1_rad": d1.tolist(), "delta2_rad": d2.tolist(),
                   "jrw_kgm2": jrw.tolist()},
             "P": np.diag(np.full(23, 1e-12)).tolist(), "calibration": {"seed": -1, "sets": 0, "duration_s": 0}}
+
+
+# --- the body-pointing scenario's world (Sec. 6.4) ----------------------------------------------------------
+def truth_span(seconds, margin_s):
+    """The orbit truth's span for a run of ``seconds`` (+ ``margin_s`` for the interpolation's stencil), rounded
+    up to 1000 s so that runs of similar length share one (cached) truth."""
+    return float(np.ceil((seconds + margin_s) / 1000.0) * 1000.0)
+
+
+def truth_grid(K, truth="two-body", cache_dir=None, span_margin_s=2.0, rate_hz=WORLD_RATE_HZ):
+    """SatA's and SatB's orbits for a run of K s: the 1 s truth samples (``emulator.orbits.truth_samples``) and
+    their 10th-order Lagrange interpolation (Sec. 6.4.1) on a ``rate_hz`` grid over [0, K + 1] s.
+
+    Returns (t_s, xs, tg, xg): t_s (n,) s, xs (n, 2, 6) and xg (len(tg), 2, 6) [r (m), v (m/s)] of SatA, SatB."""
+    from emulator import orbits
+    from ground.resample import lagrange        # the interpolation of Sec. 6.4.1 (numpy)
+    t_s, xs = orbits.truth_samples(truth, truth_span(K, span_margin_s), cache_dir=cache_dir)
+    tg = np.arange(0, (K + 1) * rate_hz + 1) / rate_hz
+    xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)
+    return t_s, xs, tg, xg
+
+
+class PointingWorld:
+    """The world of one body-pointing run (see ``pointing_world``). Members:
+
+    - ``K`` (s, the run's length), ``rate`` (Hz, of the grid), ``t_s``, ``xs`` (1 s truth samples), ``tg``,
+      ``xg`` (the grid, ``truth_grid``), ``orbit`` (``GridOrbit`` of SatA's position on it);
+    - ``wheels``, ``sc`` (the ``Spacecraft``: RK4 at 0.1 s from q = [0, 0, 0, 1] at rest), ``st`` (star
+      tracker), ``gnss_a`` (SatA's GNSS), ``beacon``, ``relay`` (SatB's GNSS relayed, or None);
+    - ``tb`` (SatB's GNSS epochs on its own clock; empty without the relay), ``xb_tb`` (SatB's truth at ``tb``,
+      or None);
+    - ``stkf_x0`` (12,): the STKF's initial estimate, the truth at t = 0 off by N(0, ``STKF_P0_DIAG``).
+    """
+
+    def __init__(self, **members):
+        self.__dict__.update(members)
+
+
+def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, span_margin_s=2.0, n_tags=None):
+    """The world of a body-pointing run of K s (Sec. 6.4.1-6.4.2), as a ``PointingWorld``.
+
+    Truth: ``truth_grid(K, truth, cache_dir, span_margin_s)`` at ``WORLD_RATE_HZ``. Random streams: the seven
+    children of ``SeedSequence(seed)``, in order: wheels, star tracker, STKF start, SatA's GNSS, SatB's GNSS,
+    beacon, relay (SatB's clock phase, then each fix's delay). ``n_tags``: SatB's GNSS epochs (default K), at
+    U(0, 1) + 0, 1, ... s. The caller's own margin and tag count keep its results (and its truth cache) as
+    they were: ground/adcs/bps.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1.
+    """
+    from ground.resample import lagrange
+    t_s, xs, tg, xg = truth_grid(K, truth, cache_dir, span_margin_s)
+    orbit = GridOrbit(0.0, WORLD_RATE_HZ, xg[:, 0, 0:3])
+    ss = np.random.SeedSequence(seed)
+    r_rw, r_st, r_init, r_ga, r_gb, r_bc, r_rel = [np.random.default_rng(s) for s in ss.spawn(7)]
+    wheels = Wheels(WheelParams(**SCENARIO_WHEELS), rng=r_rw)
+    sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orbit)
+    relay = Relay(r_rel, Gnss(r_gb)) if satb_gnss else None
+    tb = (r_rel.uniform(0.0, 1.0) + np.arange(K if n_tags is None else n_tags)) if satb_gnss else np.zeros(0)
+    return PointingWorld(
+        K=K, rate=WORLD_RATE_HZ, t_s=t_s, xs=xs, tg=tg, xg=xg, orbit=orbit, wheels=wheels, sc=sc,
+        st=StarTracker(r_st), gnss_a=Gnss(r_ga), beacon=Beacon(r_bc), relay=relay, tb=tb,
+        xb_tb=lagrange(t_s, xs[:, 1, :], tb, order=10) if satb_gnss else None,
+        stkf_x0=xg[0].ravel() + np.sqrt(STKF_P0_DIAG) * r_init.standard_normal(12))

@@ -42,17 +42,13 @@ import time
 
 import numpy as np
 
-from emulator import orbits
-from emulator.navsensors import Beacon, Gnss, Relay
 from emulator.spacecraft import scenario
-from emulator.spacecraft.devices import StarTracker
-from emulator.spacecraft.dynamics import Spacecraft, dcm
-from emulator.spacecraft.wheels import N_WHEELS, Wheels, WheelParams
+from emulator.spacecraft.dynamics import dcm
+from emulator.spacecraft.wheels import N_WHEELS
 from ground.adcs import apkf, control, quat, stkf
 from ground.adcs.afls import Afls
 from ground.adcs.stkf_sim import LAG_S, P0_DIAG, _blockdiag
 from ground.fileio import write_atomic, write_json
-from ground.resample import lagrange
 
 ARCSEC = quat.ARCSEC
 FORMAT = "fps-bps-params/1"
@@ -66,20 +62,10 @@ TS_THESIS = 33.0
 BUDGET_POINTING_3SIGMA = 150.0
 BUDGET_STABILITY_3SIGMA = 35.0
 SLOW_S = 60       # the error budget's moving average for the tracking part's slow share (s)
+SPAN_MARGIN_S = 2.0   # the orbit truth's span beyond the run (``truth_span``; part of the truth cache's key)
 HOLD_S = 30.0      # wheels idle while the APKF converges on the star tracker (as the 30 s hold of Sec. 4.7.1)
 SUMMARY_KEYS = ("pointing_mean_arcsec", "pointing_sigma_arcsec", "stability_mean_arcsec_s",
                 "stability_sigma_arcsec_s", "pointing_3sigma_arcsec", "stability_3sigma_arcsec_s", "complete")
-
-
-class GridOrbit:
-    """SatA's position on a fine time grid (the 10th-order Lagrange interpolation done once, vectorised)."""
-
-    def __init__(self, t0, rate_hz, r):
-        self.t0, self.rate, self.r = float(t0), float(rate_hz), r
-
-    def position(self, t):
-        i = int(round((t - self.t0) * self.rate))
-        return self.r[min(max(i, 0), len(self.r) - 1)]
 
 
 # --- parameter file ------------------------------------------------------------------------------------------
@@ -244,8 +230,8 @@ def statistics(dtheta, domega):
 
 # --- 3. pointing and tracking -------------------------------------------------------------------------------
 def truth_span(seconds):
-    """The truth's span for a run of ``seconds``: rounded up to 1000 s so runs of similar length share it."""
-    return float(np.ceil((seconds + 2) / 1000.0) * 1000.0)
+    """The truth's span for a run of ``seconds`` (``simulate``'s: ``scenario.truth_span`` with ``SPAN_MARGIN_S``)."""
+    return scenario.truth_span(seconds, SPAN_MARGIN_S)
 
 
 def check_ts(ts):
@@ -267,23 +253,12 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
     t_settle = hold_s + settle_ts * ts
     K = int(np.ceil(t_settle + duration_s))
-    t_s, xs = orbits.truth_samples(truth, truth_span(K), cache_dir=cache_dir)
-    rate = 20
-    tg = np.arange(0, (K + 1) * rate + 1) / rate
-    xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)   # Sec. 6.4.1
-    orb = GridOrbit(0.0, rate, xg[:, 0, 0:3])
-    ss = np.random.SeedSequence(seed)
-    r_rw, r_st, r_init, r_ga, r_gb, r_bc, r_rel = [np.random.default_rng(s) for s in ss.spawn(7)]
-    wheels = Wheels(WheelParams(**scenario.SCENARIO_WHEELS), rng=r_rw)
-    sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orb)
-    st = StarTracker(r_st)
-    gnss_a, beacon = Gnss(r_ga), Beacon(r_bc)
-    relay = Relay(r_rel, Gnss(r_gb)) if satb_gnss else None
-    tb = (r_rel.uniform(0.0, 1.0) + np.arange(K)) if satb_gnss else np.zeros(0)
-    xb_tb = lagrange(t_s, xs[:, 1, :], tb, order=10) if satb_gnss else None
+    world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K)   # Sec. 6.4.1
+    rate, xg, orb, wheels, sc, st = world.rate, world.xg, world.orbit, world.wheels, world.sc, world.st
+    gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
     model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb)
-    f_stkf = Afls(xg[0].ravel() + np.sqrt(P0_DIAG) * r_init.standard_normal(12), np.diag(P0_DIAG), 0.0, LAG_S,
+    f_stkf = Afls(world.stkf_x0, np.diag(P0_DIAG), 0.0, LAG_S,
                   stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)
     I6 = np.eye(6)
     flt = None

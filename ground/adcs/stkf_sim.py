@@ -28,14 +28,14 @@ import numpy as np
 from emulator import orbits
 from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
 from emulator.spacecraft.dynamics import dcm
+from emulator.spacecraft.scenario import STKF_P0_DIAG
 from ground.adcs import stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
 from ground.resample import lagrange
 
 ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
-P0_DIAG = np.array([4e3 ** 2] * 3 + [100.0 ** 2] * 3)
-P0_DIAG = np.concatenate([P0_DIAG, P0_DIAG])   # (4 km)^2, (0.1 km/s)^2 (Sec. 5.5.1)
+P0_DIAG = np.array(STKF_P0_DIAG)               # (4 km)^2, (0.1 km/s)^2 per satellite (Sec. 5.5.1)
 LAG_S = 4.0
 SENSORS = ("gnss_a", "beacon", "relay")
 GAP_S = {"gnss_a": 2.0, "beacon": 2.0, "relay": 5.0}   # silence longer than this is logged as an outage

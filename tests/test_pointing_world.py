@@ -1,0 +1,132 @@
+"""The body-pointing scenario's world (``emulator.spacecraft.scenario.pointing_world``): ground/adcs/bps.py's
+``simulate`` and emulator/adcs_session.py's ``AdcsSession`` build it through the one builder and get the same
+world for the same seed and length (the "same scenario" the benches and ``fps system`` compare on)."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from emulator import adcs_session
+from emulator.spacecraft import scenario
+from ground.adcs import bps
+
+TS, DURATION, SEED = 33.0, 1.0, 4
+K = int(np.ceil(bps.HOLD_S + 4 * TS + DURATION))     # simulate's run length for TS, DURATION
+
+
+def first_outputs(w):
+    """The first outputs of a world's sensors and relay, drawn on a copy (the world is left as it was)."""
+    w = copy.deepcopy(w)
+    x = w.xg[0].ravel()
+    q, ok = w.st.measure(w.sc.q, w.sc.omega)
+    out = {"st": q, "st_ok": ok, "gnss_a": w.gnss_a.measure(x[0:6]), "beacon": w.beacon.measure_dcm(x[0:3], x[6:9], np.eye(3)),
+           "tach": w.wheels.read_speed_rpm(w.sc.omega_rw_rel), "relay": None}
+    if w.relay is not None:
+        for tb, xb in zip(w.tb[:5], w.xb_tb[:5]):
+            w.relay.sample(tb, xb)
+        out["relay"] = [(tm, z) for tm, z in w.relay.due(10.0)]
+    return out
+
+
+def assert_same_outputs(a, b):
+    for key in ("st", "gnss_a", "beacon", "tach"):
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert a["st_ok"] == b["st_ok"]
+    assert (a["relay"] is None) == (b["relay"] is None)
+    if a["relay"] is not None:
+        assert len(a["relay"]) == len(b["relay"]) == 5
+        for (ta, za), (tb, zb) in zip(a["relay"], b["relay"]):
+            assert ta == tb
+            np.testing.assert_array_equal(za, zb)
+
+
+@pytest.fixture
+def built(monkeypatch):
+    """Every world the builder makes, as built (a deep copy taken before its caller draws from it)."""
+    worlds = []
+    real = scenario.pointing_world
+
+    def spy(*args, **kw):
+        w = real(*args, **kw)
+        worlds.append(copy.deepcopy(w))
+        return w
+    monkeypatch.setattr(scenario, "pointing_world", spy)
+    return worlds
+
+
+@pytest.mark.parametrize("satb", [False, True])
+def test_bps_and_the_session_build_the_same_world(built, satb, monkeypatch):
+    params = scenario.truth_params(scenario.pointing_world(K, 0).sc)
+    built.clear()
+    x0_used = []
+    real_afls = bps.Afls
+
+    def afls(x0, *args, **kw):
+        x0_used.append(np.array(x0, copy=True))
+        return real_afls(x0, *args, **kw)
+    monkeypatch.setattr(bps, "Afls", afls)
+    res, hist = bps.simulate(ts=TS, duration_s=DURATION, seed=SEED, params=params, truth="two-body",
+                             satb_gnss=satb)
+    assert res["simulated_s"] == K and len(built) == 1
+    s = adcs_session.AdcsSession(runtime="cpython", duration_s=float(K), seed=SEED, ts=TS, params=params,
+                                 satb_gnss=satb)                      # not started: the world only
+    assert len(built) == 2
+    g, e = built                                                      # ground, emulator
+    assert g.K == e.K == K and g.rate == e.rate == scenario.WORLD_RATE_HZ
+    np.testing.assert_array_equal(g.xg, e.xg)                         # same truth grid (same 1000 s span here)
+    np.testing.assert_array_equal(g.stkf_x0, e.stkf_x0)
+    np.testing.assert_array_equal(x0_used[0], g.stkf_x0)               # what bps's STKF started from
+    assert s.config()["stkf_x0"] == g.stkf_x0.tolist() and s.config()["stkf_P0"] == scenario.STKF_P0_DIAG
+    np.testing.assert_array_equal(s.xg, g.xg)
+    np.testing.assert_array_equal(hist["q"][0], g.sc.q)              # bps's truth starts where its world does
+    assert_same_outputs(first_outputs(g), first_outputs(e))
+    # SatB's epochs: bps takes K of them, the session K + 1; the shared ones agree
+    assert (g.tb.size, e.tb.size) == ((K, K + 1) if satb else (0, 0))
+    np.testing.assert_array_equal(e.tb[:g.tb.size], g.tb)
+    if satb:
+        np.testing.assert_array_equal(e.xb_tb[:K], g.xb_tb)
+        assert 0.0 <= g.tb[0] < 1.0 and np.allclose(g.tb - g.tb[0], np.arange(K))
+    else:
+        assert g.relay is None and e.relay is None and g.xb_tb is None
+
+
+def test_the_world_depends_on_its_inputs():
+    a, b = scenario.pointing_world(40, 1, True), scenario.pointing_world(40, 1, True)
+    np.testing.assert_array_equal(a.stkf_x0, b.stkf_x0)
+    assert_same_outputs(first_outputs(a), first_outputs(b))
+    # SatB's GNSS draws from its own streams: the rest of the world is the same with it or without it
+    c = scenario.pointing_world(40, 1, False)
+    np.testing.assert_array_equal(c.stkf_x0, a.stkf_x0)
+    oa, oc = first_outputs(a), first_outputs(c)
+    for key in ("st", "gnss_a", "beacon", "tach"):
+        np.testing.assert_array_equal(oa[key], oc[key])
+    x = a.xg[0].ravel()
+    for tb, xb in zip(a.tb[:5], a.xb_tb[:5]):                     # SatB's fixes taken, then SatA's: as without
+        a.relay.sample(tb, xb)
+    np.testing.assert_array_equal(a.gnss_a.measure(x[0:6]), c.gnss_a.measure(x[0:6]))
+    # another seed, another world (same truth)
+    d = scenario.pointing_world(40, 2, True)
+    np.testing.assert_array_equal(d.xg, a.xg)
+    assert not np.array_equal(d.stkf_x0, a.stkf_x0) and not np.array_equal(d.tb, a.tb)
+    assert not np.array_equal(first_outputs(d)["gnss_a"], oa["gnss_a"])
+    # the STKF starts off the truth by its P0: 4 km and 0.1 km/s 1 sigma (12 draws: well inside 6 sigma)
+    dx = (a.stkf_x0 - a.xg[0].ravel()) / np.sqrt(scenario.STKF_P0_DIAG)
+    assert np.all(np.abs(dx) < 6) and np.all(dx != 0)
+    # the grid: 20 Hz over [0, K + 1] s, SatA's position on it as the spacecraft's orbit
+    assert a.xg.shape == (41 * 20 + 1, 2, 6) and a.tg[-1] == 41.0
+    assert a.sc.orbit is a.orbit and np.array_equal(a.orbit.position(12.35), a.xg[247, 0, 0:3])
+
+
+def test_the_10hz_truth_is_the_worlds_grid_at_even_indices():
+    """``fps system``'s ground reference reads the truth at 10 Hz from ``truth_grid``: the same samples as
+    bps.simulate's world (its pointing errors use xg[::2])."""
+    w = scenario.pointing_world(60, 0, span_margin_s=bps.SPAN_MARGIN_S)
+    x10 = scenario.truth_grid(60, "two-body", None, bps.SPAN_MARGIN_S, rate_hz=10)[3]
+    np.testing.assert_array_equal(x10, w.xg[::2])
+
+
+def test_truth_span_keeps_each_callers_cache_key():
+    assert bps.truth_span(998) == 1000.0 and bps.truth_span(999) == 2000.0
+    assert scenario.truth_span(992, adcs_session.SPAN_MARGIN_S) == 1000.0
+    assert scenario.truth_span(993, adcs_session.SPAN_MARGIN_S) == 2000.0

@@ -79,9 +79,10 @@ def _simulate(case, seed, params, gyro):
                              dipole=p.get("dipole_am2"))
 
 
-def _start_apkf(o, case, start_at_truth=False):
+def _start_apkf(o, case, start_at_truth=False, model=None):
     """(first step, APKF) for a simulated run: attitude from the star tracker, rate differentiated from it
-    (Sec. 4.8); ``start_at_truth`` puts the parameters at their true values (a diagnostic), same P0."""
+    (Sec. 4.8); ``start_at_truth`` puts the parameters at their true values (a diagnostic), same P0;
+    ``model``: an ``apkf.Model`` other than the default (a diagnostic)."""
     k0 = _start(o)
     q0 = o["st_q"][k0]
     w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
@@ -90,7 +91,7 @@ def _start_apkf(o, case, start_at_truth=False):
         tr = o["truth"]
         x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
                                                                   tr["jrw"])
-    return k0, apkf.APKF(x0, case=case, set_ends=o["set_ends"])
+    return k0, apkf.APKF(x0, model=model, case=case, set_ends=o["set_ends"])
 
 
 def _start(o):

@@ -93,6 +93,10 @@ def check_faults(faults, duration_s):
         if not ok:
             raise ValueError("fault %s = %r: expected %s" % (k, v, {
                 "wheel_silent": "[wheel 0-3, t0_s >= 0]", "beacon_lost": "t0_s >= 0"}.get(k, "[t0_s, t1_s], 0 <= t0 < t1")))
+        t0 = out[k] if k == "beacon_lost" else out[k][1 if k == "wheel_silent" else 0]
+        if t0 >= duration_s:
+            raise ValueError("fault %s starts at %g s, not before the run's end (%g s): it would never happen"
+                             % (k, t0, duration_s))
     return out
 
 
@@ -149,9 +153,6 @@ class AdcsSession:
 
     def config(self):
         """The firmware's configuration (written to its config.json): parameter file, gains, STKF start."""
-        return self._config()
-
-    def _config(self):
         wp = self.wheels.p
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
                 "stkf_x0": self.stkf_x0, "stkf_P0": P0_DIAG, "lag_s": LAG_S,
@@ -166,7 +167,7 @@ class AdcsSession:
         self._tmp = tempfile.mkdtemp(prefix="fps-adcs-")
         cfg = os.path.join(self._tmp, "config.json")
         with open(cfg, "w") as fh:
-            json.dump(self._config(), fh)
+            json.dump(self.config(), fh)
         m, s = os.openpty()
         tty.setraw(s)
         os.set_blocking(m, False)

@@ -104,6 +104,10 @@ def test_bad_fault_specs_are_refused():
         with pytest.raises(ValueError):
             check_faults(bad, 100)
     assert check_faults({"wheel_silent": [1, 5]}, 100) == {"wheel_silent": [1, 5.0]}
+    for late in ({"wheel_silent": [1, 100]}, {"startracker_blind": [120, 180]}, {"beacon_lost": 100.5}):
+        with pytest.raises(ValueError, match="never happen"):
+            check_faults(late, 100)
+    assert check_faults({"gnss_outage": [99, 400]}, 100) == {"gnss_outage": [99.0, 400.0]}
     with pytest.raises(ValueError, match="runtime"):
         AdcsSession(runtime="java")
 

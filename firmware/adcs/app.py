@@ -120,6 +120,7 @@ class App:
         for i in range(4):
             self.jrw[i] = m.jrw[i] / self.scale
         self.cjrw = [self.C[i] * self.jrw[i % 4] for i in range(12)]   # C Jrw (3 x 4), for H = J w + C Jrw w_rw
+        self.m_ff = (m.m[0] / self.scale, m.m[1] / self.scale, m.m[2] / self.scale)   # dipole, N m / T
         self.cof_failed = -1                # the failed set self.Cu and self.cof were made for
         self.cof = None
         self.K = zeros(9)
@@ -351,8 +352,7 @@ class App:
         g = 3.0 * MU_EARTH / (rn * rn * rn)
         field_dipole(self.b, X, t)
         bb = [A[i * 3] * self.b[0] + A[i * 3 + 1] * self.b[1] + A[i * 3 + 2] * self.b[2] for i in range(3)]
-        mm = self.model.m
-        m0, m1, m2 = mm[0] / sc, mm[1] / sc, mm[2] / sc
+        m0, m1, m2 = self.m_ff
         tff = self.tff
         tff[0] = g * (rb[1] * Jr[2] - rb[2] * Jr[1]) + m1 * bb[2] - m2 * bb[1] + x[7] / sc
         tff[1] = g * (rb[2] * Jr[0] - rb[0] * Jr[2]) + m2 * bb[0] - m0 * bb[2] + x[8] / sc

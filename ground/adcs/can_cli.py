@@ -111,8 +111,8 @@ def run(a):
         sel = h["t"] >= settle
         if sel.sum() >= 2:
             summary["pointing"] = bps.statistics(dth[sel], dom[sel])
-            summary["budget"] = {"pointing_3sigma_arcsec": bps.BUDGET_POINTING_3SIGMA,
-                                 "stability_3sigma_arcsec_s": bps.BUDGET_STABILITY_3SIGMA}
+            summary["requirement"] = {"pointing_3sigma_arcsec": bps.BUDGET_POINTING_3SIGMA,
+                                      "stability_3sigma_arcsec_s": bps.BUDGET_STABILITY_3SIGMA}
     h.update(("status_" + k, np.asarray(v)) for k, v in stat.items())
     bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:

@@ -226,7 +226,9 @@ class Work:
         self.RK = z(36)
         self.Kt = z(6 * m)
         self.hp = [[0.0] * m for _ in range(N)]     # Hp = C P (6 x m) by rows, then V = L^-1 Hp: plain lists,
-        self.l36 = [[0.0] * 36 for _ in range(4)]    # read without a new float per read; A, B, T, Qa as lists
+        self.ar = [[0.0] * N for _ in range(N)]      # read without a new float per read; A, B by rows
+        self.br = [[0.0] * N for _ in range(N)]
+        self.l6 = [0.0] * N
         self.S = z(36)
         self.xb = zeros_d(N)
         self.xc = zeros_d(N)
@@ -456,18 +458,27 @@ class Afls:
         f(xc, 0, -dt_b)
         process_noise(Qa, dt_a, self.qa)
         process_noise(Qb, dt_b, self.qa)
-        linalg.matmul(T, Fb, Qa, N, N, N)                 # T = Fb Qa
+        q3, q2, q1 = Qa[0], Qa[3], Qa[21]                 # Qa per axis [[q3, q2], [q2, q1]], zeros elsewhere
+        for i in range(N):                                # T = Fb Qa, B = T^T (Qa's zero terms left out)
+            o = 6 * i
+            f0, f1, f2, f3, f4, f5 = Fb[o], Fb[o + 1], Fb[o + 2], Fb[o + 3], Fb[o + 4], Fb[o + 5]
+            T[o] = B[i] = f0 * q3 + f3 * q2
+            T[o + 1] = B[6 + i] = f1 * q3 + f4 * q2
+            T[o + 2] = B[12 + i] = f2 * q3 + f5 * q2
+            T[o + 3] = B[18 + i] = f0 * q2 + f3 * q1
+            T[o + 4] = B[24 + i] = f1 * q2 + f4 * q1
+            T[o + 5] = B[30 + i] = f2 * q2 + f5 * q1
         linalg.matmul_bt(A, T, Fb, N, N, N)               # A = Fb Qa Fb^T + Qb = Qca (work)
-        for i in range(36):
+        for i in range(0, 21, 7):                         # (Qb's nonzeros)
             A[i] = A[i] + Qb[i]
+            A[i + 3] = A[i + 3] + Qb[i + 3]
+            A[i + 18] = A[i + 18] + Qb[i + 18]
+            A[i + 21] = A[i + 21] + Qb[i + 21]
         linalg.symmetrize(A, N)
         if not linalg.cholesky(L, A, N):
             self.refused += 1
             raise ValueError("Qca is not positive definite")
-        for i in range(N):                                # B rows: Qca^-1 (Fb Qa)^T rows
-            for j in range(N):
-                B[j * N + i] = T[i * N + j]
-        linalg.chol_solve_rows(B, L, B, N, N)
+        linalg.chol_solve_rows(B, L, B, N, N)             # B rows: Qca^-1 (Fb Qa)^T rows
         linalg.matmul(T, B, Fb, N, N, N)                  # T = I - B Fb
         for i in range(36):
             T[i] = -T[i]
@@ -475,40 +486,71 @@ class Afls:
             T[i * 7] = T[i * 7] + 1.0
         linalg.matmul(A, T, Fa, N, N, N)                  # A = (I - B Fb) Fa
         d = w.d
+        e0, e1, e2 = xc[0] - xb[0], xc[1] - xb[1], xc[2] - xb[2]     # f(x_c, -dt_b) - f(x_a, dt_a)
+        e3, e4, e5 = xc[3] - xb[3], xc[4] - xb[4], xc[5] - xb[5]
+        for i in range(N):                                # d = Fb e, then x_b = f(x_a, dt_a) + B d
+            o = 6 * i
+            d[i] = Fb[o] * e0 + Fb[o + 1] * e1 + Fb[o + 2] * e2 + Fb[o + 3] * e3 + Fb[o + 4] * e4 + Fb[o + 5] * e5
+        e0, e1, e2, e3, e4, e5 = d[0], d[1], d[2], d[3], d[4], d[5]
         for i in range(N):
-            s = 0.0
-            for j in range(N):
-                s += Fb[i * N + j] * (xc[j] - xb[j])
-            d[i] = s
+            o = 6 * i
+            d[N + i] = xb[i] + B[o] * e0 + B[o + 1] * e1 + B[o + 2] * e2 + B[o + 3] * e3 + B[o + 4] * e4 \
+                + B[o + 5] * e5
+        Ar, Br = w.ar, w.br                               # A, B by rows (each read once)
         for i in range(N):
-            s = xb[i]
-            for j in range(N):
-                s += B[i * N + j] * d[j]
-            d[N + i] = s
-        Al, Bl, Tl, Ql = w.l36                            # A, B, I - B Fb, Qa read once
-        for i in range(36):
-            Al[i], Bl[i], Tl[i], Ql[i] = A[i], B[i], T[i], Qa[i]
-        Hp = w.hp
+            ra, rb, o = Ar[i], Br[i], 6 * i
+            for k in range(N):
+                ra[k], rb[k] = A[o + k], B[o + k]
+        a00, a01, a02, a03, a04, a05 = Ar[0]
+        a10, a11, a12, a13, a14, a15 = Ar[1]
+        a20, a21, a22, a23, a24, a25 = Ar[2]
+        a30, a31, a32, a33, a34, a35 = Ar[3]
+        a40, a41, a42, a43, a44, a45 = Ar[4]
+        a50, a51, a52, a53, a54, a55 = Ar[5]
+        b00, b01, b02, b03, b04, b05 = Br[0]
+        b10, b11, b12, b13, b14, b15 = Br[1]
+        b20, b21, b22, b23, b24, b25 = Br[2]
+        b30, b31, b32, b33, b34, b35 = Br[3]
+        b40, b41, b42, b43, b44, b45 = Br[4]
+        b50, b51, b52, b53, b54, b55 = Br[5]
+        H0, H1, H2, H3, H4, H5 = Hp = w.hp
+        l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
         sa, sc = ia * N * ld, ic * N * ld
         for j in range(m):                                # Hp = A P[a rows, :] + B P[c rows, :]  (6 x m)
-            a0, a1, a2 = P[sa + j], P[sa + ld + j], P[sa + 2 * ld + j]
-            a3, a4, a5 = P[sa + 3 * ld + j], P[sa + 4 * ld + j], P[sa + 5 * ld + j]
-            c0, c1, c2 = P[sc + j], P[sc + ld + j], P[sc + 2 * ld + j]
-            c3, c4, c5 = P[sc + 3 * ld + j], P[sc + 4 * ld + j], P[sc + 5 * ld + j]
-            for i in range(N):
-                o = 6 * i
-                Hp[i][j] = Al[o] * a0 + Al[o + 1] * a1 + Al[o + 2] * a2 + Al[o + 3] * a3 + Al[o + 4] * a4 \
-                    + Al[o + 5] * a5 + Bl[o] * c0 + Bl[o + 1] * c1 + Bl[o + 2] * c2 + Bl[o + 3] * c3 \
-                    + Bl[o + 4] * c4 + Bl[o + 5] * c5
-        S = w.S
+            o, q = sa + j, sc + j
+            p0, p1, p2, p3, p4, p5 = P[o], P[o + ld], P[o + l2], P[o + l3], P[o + l4], P[o + l5]
+            c0, c1, c2, c3, c4, c5 = P[q], P[q + ld], P[q + l2], P[q + l3], P[q + l4], P[q + l5]
+            H0[j] = a00 * p0 + a01 * p1 + a02 * p2 + a03 * p3 + a04 * p4 + a05 * p5 \
+                + b00 * c0 + b01 * c1 + b02 * c2 + b03 * c3 + b04 * c4 + b05 * c5
+            H1[j] = a10 * p0 + a11 * p1 + a12 * p2 + a13 * p3 + a14 * p4 + a15 * p5 \
+                + b10 * c0 + b11 * c1 + b12 * c2 + b13 * c3 + b14 * c4 + b15 * c5
+            H2[j] = a20 * p0 + a21 * p1 + a22 * p2 + a23 * p3 + a24 * p4 + a25 * p5 \
+                + b20 * c0 + b21 * c1 + b22 * c2 + b23 * c3 + b24 * c4 + b25 * c5
+            H3[j] = a30 * p0 + a31 * p1 + a32 * p2 + a33 * p3 + a34 * p4 + a35 * p5 \
+                + b30 * c0 + b31 * c1 + b32 * c2 + b33 * c3 + b34 * c4 + b35 * c5
+            H4[j] = a40 * p0 + a41 * p1 + a42 * p2 + a43 * p3 + a44 * p4 + a45 * p5 \
+                + b40 * c0 + b41 * c1 + b42 * c2 + b43 * c3 + b44 * c4 + b45 * c5
+            H5[j] = a50 * p0 + a51 * p1 + a52 * p2 + a53 * p3 + a54 * p4 + a55 * p5 \
+                + b50 * c0 + b51 * c1 + b52 * c2 + b53 * c3 + b54 * c4 + b55 * c5
+        S, W = w.S, w.l6
         sa, sc = ia * N, ic * N
         for i in range(N):                                # S0 = P_bb, upper triangle mirrored
-            h = Hp[i]
+            h, o = Hp[i], 6 * i
+            p0, p1, p2, p3, p4, p5 = h[sa], h[sa + 1], h[sa + 2], h[sa + 3], h[sa + 4], h[sa + 5]
+            c0, c1, c2, c3, c4, c5 = h[sc], h[sc + 1], h[sc + 2], h[sc + 3], h[sc + 4], h[sc + 5]
             for j in range(i, N):
-                s = 0.0
-                for a in range(N):
-                    s += h[sa + a] * Al[j * N + a] + h[sc + a] * Bl[j * N + a] + Tl[i * N + a] * Ql[a * N + j]
-                S[i * N + j] = s
+                a, b = Ar[j], Br[j]
+                W[0] = p0 * a[0] + c0 * b[0]
+                W[1] = p1 * a[1] + c1 * b[1]
+                W[2] = p2 * a[2] + c2 * b[2]
+                W[3] = p3 * a[3] + c3 * b[3]
+                W[4] = p4 * a[4] + c4 * b[4]
+                W[5] = p5 * a[5] + c5 * b[5]
+                g, qg, qh = (j, q3, q2) if j < 3 else (j - 3, q2, q1)    # + (I - B Fb) Qa: Qa's column j
+                W[g] = W[g] + T[o + g] * qg                               # has rows g and g + 3 only
+                W[g + 3] = W[g + 3] + T[o + g + 3] * qh
+                s = W[0] + W[1] + W[2] + W[3] + W[4] + W[5]
+                S[o + j] = s
                 S[j * N + i] = s
 
     def _update_rows(self, z, R, m):

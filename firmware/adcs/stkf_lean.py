@@ -116,14 +116,17 @@ def phi(Phi, x, o, dt):
     h2, h3 = 0.5 * dt * dt, dt * dt * dt / 6.0
     r = (r0, r1, r2)
     for i in range(3):
+        di, o = d * r[i], 6 * i
         for j in range(3):
-            g = d * r[i] * r[j]
+            g = di * r[j]
             if i == j:
                 g += c
-            e = 1.0 if i == j else 0.0
-            Phi[i * 6 + j] = Phi[(3 + i) * 6 + 3 + j] = e + h2 * g
-            Phi[i * 6 + 3 + j] = e * dt + h3 * g
-            Phi[(3 + i) * 6 + j] = dt * g
+                Phi[o + j] = Phi[o + 21 + j] = 1.0 + h2 * g
+                Phi[o + 3 + j] = dt + h3 * g
+            else:
+                Phi[o + j] = Phi[o + 21 + j] = h2 * g
+                Phi[o + 3 + j] = h3 * g
+            Phi[o + 18 + j] = dt * g
 
 
 def process_noise(Q, dt, qa=QA_THESIS):
@@ -137,57 +140,69 @@ def process_noise(Q, dt, qa=QA_THESIS):
         Q[(3 + i) * 6 + 3 + i] = q1
 
 
-def left_mul(P, ld, r0, c_lo, c_hi, F):
-    """P[r0:r0+6, c] = F P[r0:r0+6, c] for c_lo <= c < c_hi (F 6 x 6), in place, column by column."""
-    F = list(F)                             # read once: every buffer read is a new float object
-    for c in range(c_lo, c_hi):
-        b = r0 * ld + c
-        p0, p1, p2 = P[b], P[b + ld], P[b + 2 * ld]
-        p3, p4, p5 = P[b + 3 * ld], P[b + 4 * ld], P[b + 5 * ld]
-        for i in range(6):
-            o = 6 * i
-            P[b + i * ld] = F[o] * p0 + F[o + 1] * p1 + F[o + 2] * p2 + F[o + 3] * p3 + F[o + 4] * p4 \
-                + F[o + 5] * p5
-    return P
-
-
 def rows_mul_mirror(P, ld, src, c_lo, c_hi, F):
     """P[0:6, c] = F P[src:src+6, c] and P[c, 0:6] = its transpose for c_lo <= c < c_hi (F 6 x 6): the cross
     covariance of the current node with the older ones after a transition F (Eq. 5.21's P0j = Phi P0j, or the
     beacon's (I - K H) P0j), written symmetric. src = 0 works in place (column by column)."""
-    F = list(F)
+    f00, f01, f02, f03, f04, f05, f10, f11, f12, f13, f14, f15, f20, f21, f22, f23, f24, f25, \
+        f30, f31, f32, f33, f34, f35, f40, f41, f42, f43, f44, f45, f50, f51, f52, f53, f54, f55 = F
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld      # (F read once, into locals)
+    s = src * ld
     for c in range(c_lo, c_hi):
-        b = src * ld + c
-        p0, p1, p2 = P[b], P[b + ld], P[b + 2 * ld]
-        p3, p4, p5 = P[b + 3 * ld], P[b + 4 * ld], P[b + 5 * ld]
-        cl = c * ld
-        for i in range(6):
-            o = 6 * i
-            v = F[o] * p0 + F[o + 1] * p1 + F[o + 2] * p2 + F[o + 3] * p3 + F[o + 4] * p4 + F[o + 5] * p5
-            P[i * ld + c] = v
-            P[cl + i] = v
+        b = s + c
+        p0, p1, p2, p3, p4, p5 = P[b], P[b + ld], P[b + l2], P[b + l3], P[b + l4], P[b + l5]
+        v0 = f00 * p0 + f01 * p1 + f02 * p2 + f03 * p3 + f04 * p4 + f05 * p5
+        v1 = f10 * p0 + f11 * p1 + f12 * p2 + f13 * p3 + f14 * p4 + f15 * p5
+        v2 = f20 * p0 + f21 * p1 + f22 * p2 + f23 * p3 + f24 * p4 + f25 * p5
+        v3 = f30 * p0 + f31 * p1 + f32 * p2 + f33 * p3 + f34 * p4 + f35 * p5
+        v4 = f40 * p0 + f41 * p1 + f42 * p2 + f43 * p3 + f44 * p4 + f45 * p5
+        v5 = f50 * p0 + f51 * p1 + f52 * p2 + f53 * p3 + f54 * p4 + f55 * p5
+        P[c] = v0
+        P[ld + c] = v1
+        P[l2 + c] = v2
+        P[l3 + c] = v3
+        P[l4 + c] = v4
+        P[l5 + c] = v5
+        b = c * ld
+        P[b] = v0
+        P[b + 1] = v1
+        P[b + 2] = v2
+        P[b + 3] = v3
+        P[b + 4] = v4
+        P[b + 5] = v5
 
 
 def sandwich(P, ld, r0, F, Q, T, src=None):
     """P[r0:r0+6, r0:r0+6] = F P[src:src+6, src:src+6] F^T + Q (Eq. 3.31; src defaults to r0), symmetric:
-    T = F P (work, 6 x 6), then the upper triangle of T F^T + Q, mirrored."""
+    T = F P (work, 6 x 6, in T's precision), then the upper triangle of T F^T + Q, mirrored."""
     if src is None:
         src = r0
-    for i in range(6):
-        o = (src + i) * ld + src
-        for j in range(6):
-            T[i * 6 + j] = P[o + j]
-    left_mul(T, 6, 0, 0, 6, F)
-    F = list(F)
+    f00, f01, f02, f03, f04, f05, f10, f11, f12, f13, f14, f15, f20, f21, f22, f23, f24, f25, \
+        f30, f31, f32, f33, f34, f35, f40, f41, f42, f43, f44, f45, f50, f51, f52, f53, f54, f55 = F
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
+    s = src * ld + src
+    for c in range(6):                                   # T = F P, column by column
+        b = s + c
+        p0, p1, p2, p3, p4, p5 = P[b], P[b + ld], P[b + l2], P[b + l3], P[b + l4], P[b + l5]
+        T[c] = f00 * p0 + f01 * p1 + f02 * p2 + f03 * p3 + f04 * p4 + f05 * p5
+        T[6 + c] = f10 * p0 + f11 * p1 + f12 * p2 + f13 * p3 + f14 * p4 + f15 * p5
+        T[12 + c] = f20 * p0 + f21 * p1 + f22 * p2 + f23 * p3 + f24 * p4 + f25 * p5
+        T[18 + c] = f30 * p0 + f31 * p1 + f32 * p2 + f33 * p3 + f34 * p4 + f35 * p5
+        T[24 + c] = f40 * p0 + f41 * p1 + f42 * p2 + f43 * p3 + f44 * p4 + f45 * p5
+        T[30 + c] = f50 * p0 + f51 * p1 + f52 * p2 + f53 * p3 + f54 * p4 + f55 * p5
+    Fr = ((f00, f01, f02, f03, f04, f05), (f10, f11, f12, f13, f14, f15), (f20, f21, f22, f23, f24, f25),
+          (f30, f31, f32, f33, f34, f35), (f40, f41, f42, f43, f44, f45), (f50, f51, f52, f53, f54, f55))
     for i in range(6):
         o = 6 * i
         t0, t1, t2, t3, t4, t5 = T[o], T[o + 1], T[o + 2], T[o + 3], T[o + 4], T[o + 5]
+        a = (r0 + i) * ld + r0
+        b = a                                            # P[j, i] = P[b + i], j = i, i + 1, ..
         for j in range(i, 6):
-            q = 6 * j
-            s = Q[o + j] + t0 * F[q] + t1 * F[q + 1] + t2 * F[q + 2] + t3 * F[q + 3] + t4 * F[q + 4] \
-                + t5 * F[q + 5]
-            P[(r0 + i) * ld + r0 + j] = s
-            P[(r0 + j) * ld + r0 + i] = s
+            g0, g1, g2, g3, g4, g5 = Fr[j]
+            s = Q[o + j] + t0 * g0 + t1 * g1 + t2 * g2 + t3 * g3 + t4 * g4 + t5 * g5
+            P[a + j] = s
+            P[b + i] = s
+            b += ld
 
 
 _INF = float("inf")

@@ -237,9 +237,6 @@ class Work:
         self.B = z(36)
         self.T = z(36)
         self.L = z(36)
-        self.W = z(36)
-        self.RK = z(36)
-        self.Kt = z(6 * m)
         self.hp = [[0.0] * m for _ in range(N)]     # Hp = C P (6 x m) by rows, then V = L^-1 Hp: plain lists,
         self.ar = [[0.0] * N for _ in range(N)]      # read without a new float per read; A, B by rows
         self.br = [[0.0] * N for _ in range(N)]
@@ -249,8 +246,13 @@ class Work:
         self.xc = zeros_d(N)
         self.r = zeros_d(6)
         self.d = zeros_d(12)
-        self.H = z(9)
-        self.R3 = z(9)
+        self.H = [0.0] * 9            # the beacon's: H_B, R, K^T, I - K H's columns 0 .. 2, R K^T, K R K^T, T
+        self.R3 = [0.0] * 9
+        self.Kt = [0.0] * 18
+        self.G = [0.0] * 18
+        self.RK = [0.0] * 18
+        self.KRK = [0.0] * 36
+        self.t36 = [0.0] * 36
 
 
 class Afls:
@@ -631,15 +633,13 @@ class Afls:
         if t is not None and abs(t - self.t[0]) > self.tol:
             self.refused += 1
             raise ValueError("the beacon must be time-tagged now (%.3f s off)" % (t - self.t[0]))
-        w, P, ld = self.work, self.P, self.ld
-        d = w.d
-        for i in range(3):
-            d[i] = self.X[i] - self.xa[i]
-        rho = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        w, P, ld, X, xa = self.work, self.P, self.ld, self.X, self.xa
+        d0, d1, d2 = X[0] - xa[0], X[1] - xa[1], X[2] - xa[2]
+        rho = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if not rho > 0:
             self.refused += 1
             raise ValueError("SatA and SatB estimates coincide")
-        u0, u1, u2 = d[0] / rho, d[1] / rho, d[2] / rho
+        u0, u1, u2 = d0 / rho, d1 / rho, d2 / rho
         e1, e2, e3, q4 = q[0], q[1], q[2], q[3]
         nq = math.sqrt(e1 * e1 + e2 * e2 + e3 * e3 + q4 * q4)
         if not nq > 0.5:
@@ -647,118 +647,130 @@ class Afls:
             raise ValueError("attitude quaternion is not a unit quaternion")
         Am = w.A
         control.dcm(Am, (e1 / nq, e2 / nq, e3 / nq, q4 / nq))      # A(q), Eq. 4.7
-        H, u = w.H, (u0, u1, u2)
-        for i in range(3):                                     # H_B = A (I - u u^T) / rho  (3 x 3 on rB)
-            a0, a1, a2 = Am[3 * i], Am[3 * i + 1], Am[3 * i + 2]
-            au = a0 * u0 + a1 * u1 + a2 * u2
-            d[3 + i] = au                                      # h = A u
-            for j in range(3):
-                H[3 * i + j] = (Am[3 * i + j] - au * u[j]) / rho
-        r = w.r
-        for i in range(3):
-            r[i] = y[i] - d[3 + i]
-        R3, T, S = w.R3, w.T, w.S
-        # R = sigma^2 I + [y x] P_att [y x]^T + H P_rA H^T, then S = R + H P_rB H^T
+        H, r, d = w.H, w.r, w.d                                # (small buffers as lists: read without a new
+        for i in range(3):                                     # float per read)
+            o = 3 * i                                          # H_B = A (I - u u^T) / rho  (3 x 3 on rB)
+            a0, a1, a2 = Am[o], Am[o + 1], Am[o + 2]
+            au = d[3 + i] = a0 * u0 + a1 * u1 + a2 * u2        # h = A u
+            H[o] = (a0 - au * u0) / rho
+            H[o + 1] = (a1 - au * u1) / rho
+            H[o + 2] = (a2 - au * u2) / rho
+            r[i] = y[i] - au
+        # R = sigma^2 I + [y x] P_att [y x]^T + H P_rA H^T, then S = R + H P_rB H^T ([y x]'s zeros left out)
         y0, y1, y2 = y[0], y[1], y[2]
-        sy = (0.0, -y2, y1, y2, 0.0, -y0, -y1, y0, 0.0)
+        n0, n1, n2, sb2 = -y0, -y1, -y2, sigma_b * sigma_b
+        p00, p01, p02, p10, p11, p12 = P_att[0], P_att[1], P_att[2], P_att[3], P_att[4], P_att[5]
+        p20, p21, p22 = P_att[6], P_att[7], P_att[8]
+        t00, t01, t02 = n2 * p10 + y1 * p20, n2 * p11 + y1 * p21, n2 * p12 + y1 * p22     # [y x] P_att
+        t10, t11, t12 = y2 * p00 + n0 * p20, y2 * p01 + n0 * p21, y2 * p02 + n0 * p22
+        t20, t21 = n1 * p00 + y0 * p10, n1 * p01 + y0 * p11
+        R3 = w.R3
+        R3[0] = t01 * n2 + t02 * y1 + sb2
+        R3[1] = R3[3] = t00 * y2 + t02 * n0
+        R3[2] = R3[6] = t00 * n1 + t01 * y0
+        R3[4] = t10 * y2 + t12 * n0 + sb2
+        R3[5] = R3[7] = t10 * n1 + t11 * y0
+        R3[8] = t20 * n1 + t21 * y0 + sb2
+        Kt, T, S, Pa = w.Kt, w.t36, w.S, self.Pa               # Kt = H P[0:3, 0:6] (B's current node), then
+        P0, P1, P2 = list(P[0:6]), list(P[ld:ld + 6]), list(P[2 * ld:2 * ld + 6])    # K^T below
+        p00, p01, p02, p10, p11, p12 = Pa[0], Pa[1], Pa[2], Pa[6], Pa[7], Pa[8]
+        p20, p21, p22 = Pa[12], Pa[13], Pa[14]
         for i in range(3):
-            for j in range(3):
-                T[3 * i + j] = sy[3 * i] * P_att[j] + sy[3 * i + 1] * P_att[3 + j] + sy[3 * i + 2] * P_att[6 + j]
-        for i in range(3):
-            for j in range(i, 3):
-                v = T[3 * i] * sy[3 * j] + T[3 * i + 1] * sy[3 * j + 1] + T[3 * i + 2] * sy[3 * j + 2]
-                if i == j:
-                    v += sigma_b * sigma_b
-                R3[3 * i + j] = R3[3 * j + i] = v
-        Wm, Pa = w.W, self.Pa                                  # Wm = H P[0:3, 0:6] (B's current node)
-        Hl, P0 = list(H), list(P[0:6])                         # (buffers read once into lists)
-        P1, P2 = list(P[ld:ld + 6]), list(P[2 * ld:2 * ld + 6])
-        for i in range(3):
-            h0, h1, h2 = Hl[3 * i], Hl[3 * i + 1], Hl[3 * i + 2]
+            h0, h1, h2 = H[3 * i], H[3 * i + 1], H[3 * i + 2]
             for j in range(6):
-                Wm[6 * i + j] = h0 * P0[j] + h1 * P1[j] + h2 * P2[j]
-            for j in range(3):                                 # T = H P_rA
-                T[3 * i + j] = h0 * Pa[j] + h1 * Pa[6 + j] + h2 * Pa[12 + j]
+                Kt[6 * i + j] = h0 * P0[j] + h1 * P1[j] + h2 * P2[j]
+            o = 3 * i                                          # T = H P_rA
+            T[o] = h0 * p00 + h1 * p10 + h2 * p20
+            T[o + 1] = h0 * p01 + h1 * p11 + h2 * p21
+            T[o + 2] = h0 * p02 + h1 * p12 + h2 * p22
         for i in range(3):                                     # R += H P_rA H^T; S = R + H P_rB H^T
             for j in range(i, 3):
-                h0, h1, h2 = Hl[3 * j], Hl[3 * j + 1], Hl[3 * j + 2]
+                h0, h1, h2 = H[3 * j], H[3 * j + 1], H[3 * j + 2]
                 v = R3[3 * i + j] + T[3 * i] * h0 + T[3 * i + 1] * h1 + T[3 * i + 2] * h2
                 R3[3 * i + j] = R3[3 * j + i] = v
-                v += Wm[6 * i] * h0 + Wm[6 * i + 1] * h1 + Wm[6 * i + 2] * h2
+                v += Kt[6 * i] * h0 + Kt[6 * i + 1] * h1 + Kt[6 * i + 2] * h2
                 S[3 * i + j] = S[3 * j + i] = v
         if not linalg.cholesky(w.L, S, 3):
             self.refused += 1
             raise ValueError("beacon innovation covariance is not positive definite")
-        Kt = w.Kt                                              # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
-        for i in range(18):
-            Kt[i] = Wm[i]
-        linalg._solve_cols(Kt, w.L, 6, 3)
-        K, Rl = list(Kt[0:18]), list(R3)
-        X = self.X
+        linalg._solve_cols(Kt, w.L, 6, 3)                     # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
+        K, Rl = Kt, R3
         r0, r1, r2 = r[0], r[1], r[2]
         for i in range(6):
             X[i] = X[i] + K[i] * r0 + K[6 + i] * r1 + K[12 + i] * r2
-        IKH = w.B                                              # I - K H (6 x 6; H is 3 x 6 = [H 0])
-        for i in range(6):
+        G = w.G                                                # I - K H = [G | I's columns 3 .. 5]
+        for i in range(6):                                     # (H is 3 x 6 = [H 0])
             k0, k1, k2 = K[i], K[6 + i], K[12 + i]
-            for j in range(6):
-                v = 1.0 if i == j else 0.0
-                if j < 3:
-                    v -= k0 * Hl[j] + k1 * Hl[3 + j] + k2 * Hl[6 + j]
-                IKH[6 * i + j] = v
-        RK = [0.0] * 18                                        # R K^T (3 x 6), then K R K^T
+            for j in range(3):
+                G[3 * i + j] = (1.0 if i == j else 0.0) - (k0 * H[j] + k1 * H[3 + j] + k2 * H[6 + j])
+        RK = w.RK                                              # R K^T (3 x 6), then K R K^T (upper triangle)
         for a in range(3):
             ra0, ra1, ra2 = Rl[3 * a], Rl[3 * a + 1], Rl[3 * a + 2]
             for j in range(6):
                 RK[6 * a + j] = ra0 * K[j] + ra1 * K[6 + j] + ra2 * K[12 + j]
-        KRK = w.Q
+        KRK = w.KRK
         for i in range(6):
             k0, k1, k2 = K[i], K[6 + i], K[12 + i]
             for j in range(i, 6):
-                s = 0.0
-                s += k0 * RK[j]
-                s += k1 * RK[6 + j]
-                s += k2 * RK[12 + j]
-                KRK[6 * i + j] = KRK[6 * j + i] = s
-        G = [IKH[6 * i + j] for i in range(6) for j in range(3)]   # I - K H = [G | I's columns 3 .. 5]
+                KRK[6 * i + j] = k0 * RK[j] + k1 * RK[6 + j] + k2 * RK[12 + j]
         _ikh_rows(P, ld, N, self.k * N, G)                  # P_0j = (I - K H) P_0j
-        _ikh_sandwich(P, ld, G, KRK, w.T)                    # Joseph form (Eq. 4.142)
+        _ikh_sandwich(P, ld, G, KRK, T)                      # Joseph form (Eq. 4.142)
 
 
-def _ikh_rows(P, ld, c_lo, c_hi, G, mirror=True):
+def _ikh_rows(P, ld, c_lo, c_hi, G):
     """rows_mul_mirror(P, ld, 0, c_lo, c_hi, F) for F = I - K H whose columns 3 .. 5 are the identity's
-    (H = [H_r 0] on the position): F's first three columns G (6 x 3 list) are multiplied, the rest adds p_i.
-    The terms left out are exact zeros, so the sums are the full product's. ``mirror``: also P[c, 0:6]."""
+    (H = [H_r 0] on the position): F's first three columns G (6 x 3) are multiplied, the rest adds p_i.
+    The terms left out are exact zeros, so the sums are the full product's."""
+    g00, g01, g02, g10, g11, g12, g20, g21, g22, g30, g31, g32, g40, g41, g42, g50, g51, g52 = G
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
     for c in range(c_lo, c_hi):
-        cl = c * ld
-        p0, p1, p2 = P[c], P[ld + c], P[2 * ld + c]
-        for i in range(6):
-            o = 3 * i
-            v = G[o] * p0 + G[o + 1] * p1 + G[o + 2] * p2
-            if i >= 3:
-                v = v + P[i * ld + c]
-            P[i * ld + c] = v
-            if mirror:
-                P[cl + i] = v
+        p0, p1, p2 = P[c], P[ld + c], P[l2 + c]
+        v0 = g00 * p0 + g01 * p1 + g02 * p2
+        v1 = g10 * p0 + g11 * p1 + g12 * p2
+        v2 = g20 * p0 + g21 * p1 + g22 * p2
+        v3 = g30 * p0 + g31 * p1 + g32 * p2 + P[l3 + c]
+        v4 = g40 * p0 + g41 * p1 + g42 * p2 + P[l4 + c]
+        v5 = g50 * p0 + g51 * p1 + g52 * p2 + P[l5 + c]
+        P[c] = v0
+        P[ld + c] = v1
+        P[l2 + c] = v2
+        P[l3 + c] = v3
+        P[l4 + c] = v4
+        P[l5 + c] = v5
+        b = c * ld
+        P[b] = v0
+        P[b + 1] = v1
+        P[b + 2] = v2
+        P[b + 3] = v3
+        P[b + 4] = v4
+        P[b + 5] = v5
 
 
 def _ikh_sandwich(P, ld, G, Q, T):
-    """sandwich(P, ld, 0, F, Q, T) for F = I - K H as in ``_ikh_rows``: P00 = F P00 F^T + Q, upper triangle
-    mirrored; T (6 x 6) work."""
-    for i in range(6):
-        for j in range(6):
-            T[i * 6 + j] = P[i * ld + j]
-    _ikh_rows(T, 6, 0, 6, G, False)                      # T = F P00
+    """sandwich(P, ld, 0, F, Q, T) for F = I - K H as in ``_ikh_rows``: P00 = F P00 F^T + Q (Q's upper
+    triangle read), upper triangle mirrored; T (36, a list) work."""
+    g00, g01, g02, g10, g11, g12, g20, g21, g22, g30, g31, g32, g40, g41, g42, g50, g51, g52 = G
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
+    for c in range(6):                                   # T = F P00, column by column
+        p0, p1, p2 = P[c], P[ld + c], P[l2 + c]
+        T[c] = g00 * p0 + g01 * p1 + g02 * p2
+        T[6 + c] = g10 * p0 + g11 * p1 + g12 * p2
+        T[12 + c] = g20 * p0 + g21 * p1 + g22 * p2
+        T[18 + c] = g30 * p0 + g31 * p1 + g32 * p2 + P[l3 + c]
+        T[24 + c] = g40 * p0 + g41 * p1 + g42 * p2 + P[l4 + c]
+        T[30 + c] = g50 * p0 + g51 * p1 + g52 * p2 + P[l5 + c]
     for i in range(6):
         o = 6 * i
         t0, t1, t2 = T[o], T[o + 1], T[o + 2]
+        a = b = i * ld                                   # P[i, j] = P[a + j], P[j, i] = P[b + i]
         for j in range(i, 6):
             q = 3 * j
             s = Q[o + j] + t0 * G[q] + t1 * G[q + 1] + t2 * G[q + 2]
             if j >= 3:
                 s = s + T[o + j]
-            P[i * ld + j] = s
-            P[j * ld + i] = s
+            P[a + j] = s
+            P[b + i] = s
+            b += ld
 
 
 def _add_gain(x, n, Kt, r, m):

@@ -61,6 +61,12 @@ import math
 
 from firmware.adcs import control, linalg
 
+try:
+    import micropython
+except ImportError:                     # CPython: no native emitter
+    class micropython:
+        native = staticmethod(lambda fn: fn)
+
 MU = 398600.4415e9
 QA_THESIS = 0.1 ** 2
 N = 6                  # states per satellite
@@ -72,6 +78,7 @@ def zeros_d(n):
     return array("d", bytes(8 * n))
 
 
+@micropython.native
 def f(x, o, dt):
     """Two-body propagation (Eq. 5.4, 5.7) of one satellite's state x[o:o+6] by dt (negative: backward,
     Eq. 5.51), in place: RK4 steps of at most 1 s."""
@@ -106,6 +113,7 @@ def f(x, o, dt):
     x[o], x[o + 1], x[o + 2], x[o + 3], x[o + 4], x[o + 5] = rx, ry, rz, vx, vy, vz
 
 
+@micropython.native
 def phi(Phi, x, o, dt):
     """Phi (6 x 6) of one satellite over dt at x[o:o+3] (Eq. 3.30 with F of Eq. 5.4):
     [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]], G = -mu/|r|^3 (I - 3 r r^T/|r|^2)."""
@@ -140,6 +148,7 @@ def process_noise(Q, dt, qa=QA_THESIS):
         Q[(3 + i) * 6 + 3 + i] = q1
 
 
+@micropython.native
 def rows_mul_mirror(P, ld, src, c_lo, c_hi, F):
     """P[0:6, c] = F P[src:src+6, c] and P[c, 0:6] = its transpose for c_lo <= c < c_hi (F 6 x 6): the cross
     covariance of the current node with the older ones after a transition F (Eq. 5.21's P0j = Phi P0j, or the
@@ -172,6 +181,7 @@ def rows_mul_mirror(P, ld, src, c_lo, c_hi, F):
         P[b + 5] = v5
 
 
+@micropython.native
 def sandwich(P, ld, r0, F, Q, T, src=None):
     """P[r0:r0+6, r0:r0+6] = F P[src:src+6, src:src+6] F^T + Q (Eq. 3.31; src defaults to r0), symmetric:
     T = F P (work, 6 x 6, in T's precision), then the upper triangle of T F^T + Q, mirrored."""
@@ -453,6 +463,7 @@ class Afls:
                 S[a * 6 + b] = h[c0 + b]
             d[N + a] = X[c0 + a]
 
+    @micropython.native
     def _hp_between(self, ic, ia, dt_a, dt_b, m):
         """The generated node b between a (older, index ia) and c (newer, ic) of Eq. 5.46-5.52, as a
         measurement of a and c: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
@@ -570,6 +581,7 @@ class Afls:
                 S[o + j] = s
                 S[j * N + i] = s
 
+    @micropython.native
     def _update_rows(self, z, R, m):
         """Eq. 5.24 over the first m states from Hp = C P (6 x m, rows in ``work.hp``), S0 = C P C^T
         (``work.S``) and h (``work.d[6:12]``): S = S0 + R = L L^T, V = L^-1 Hp, X += V^T L^-1 (z - h),
@@ -616,6 +628,7 @@ class Afls:
 
     # ---- beacon (Eq. 5.13-5.17, Sec. 5.3.3) ----
 
+    @micropython.native
     def update_beacon(self, y, q, P_att, sigma_b, t=None):
         """The beacon's unit vector y (SatA body frame) of rB - rA (Eq. 5.13-5.14), with the attitude
         estimate q (x, y, z, w; A(q) inertial to body, Eq. 4.7), P_att (3 x 3 flat, rad^2) the covariance of
@@ -717,6 +730,7 @@ class Afls:
         _ikh_sandwich(P, ld, G, KRK, T)                      # Joseph form (Eq. 4.142)
 
 
+@micropython.native
 def _ikh_rows(P, ld, c_lo, c_hi, G):
     """rows_mul_mirror(P, ld, 0, c_lo, c_hi, F) for F = I - K H whose columns 3 .. 5 are the identity's
     (H = [H_r 0] on the position): F's first three columns G (6 x 3) are multiplied, the rest adds p_i.
@@ -746,6 +760,7 @@ def _ikh_rows(P, ld, c_lo, c_hi, G):
         P[b + 5] = v5
 
 
+@micropython.native
 def _ikh_sandwich(P, ld, G, Q, T):
     """sandwich(P, ld, 0, F, Q, T) for F = I - K H as in ``_ikh_rows``: P00 = F P00 F^T + Q (Q's upper
     triangle read), upper triangle mirrored; T (36, a list) work."""

@@ -334,7 +334,8 @@ class Afls:
 
     def _shift(self, pos):
         """Open an empty node slot at pos: nodes pos .. k-1 move one place older (a full list drops its
-        oldest node: marginalising is exact). The caller fills the slot."""
+        oldest node: marginalising is exact). The caller fills the slot (at pos 0 its rows and columns hold
+        stale values until then)."""
         ld, P, X, t = self.ld, self.P, self.X, self.t
         k = self.k
         if k == self.cap:
@@ -343,6 +344,11 @@ class Afls:
         X[p + N:m + N] = X[p:m]
         for i in range(k - 1, pos - 1, -1):
             t[i + 1] = t[i]
+        if pos == 0:                             # one slice: (i, j) -> (i + N, j + N) for the whole block (what
+            n = (m - 1) * ld + m                 # lies between its rows lands in the slot's columns or past
+            P[N * ld + N:N * ld + N + n] = P[0:n]    # the block)
+            self.k = k + 1
+            return
         for i in range(m - 1, -1, -1):          # bottom row first: nothing is overwritten before it moves
             a = i * ld                           # (row slices: no float is read one by one)
             b = a + N * ld if i >= p else a

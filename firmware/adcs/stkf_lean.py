@@ -219,8 +219,9 @@ _INF = float("inf")
 
 
 def _finite(v, n):
+    lo, hi = -_INF, _INF
     for i in range(n):
-        if not -_INF < v[i] < _INF:             # NaN and +-inf fail (a comparison makes no new float)
+        if not lo < v[i] < hi:                  # NaN and +-inf fail (a comparison makes no new float)
             return False
     return True
 

@@ -137,6 +137,7 @@ def phi(Phi, x, o, dt):
             Phi[o + 18 + j] = dt * g
 
 
+@micropython.native
 def process_noise(Q, dt, qa=QA_THESIS):
     """Q of Eq. 5.8-5.9 for one satellite: per axis [[qa dt^3/3, qa dt^2/2], [qa dt^2/2, qa dt]]."""
     dt = abs(dt)
@@ -218,6 +219,7 @@ def sandwich(P, ld, r0, F, Q, T, src=None):
 _INF = float("inf")
 
 
+@micropython.native
 def _finite(v, n):
     lo, hi = -_INF, _INF
     for i in range(n):
@@ -358,6 +360,7 @@ class Afls:
             P[b + p + N:b + m + N] = P[a + p:a + m]
         self.k = k + 1
 
+    @micropython.native
     def _prune(self, t_ref):
         """Keep the nodes within the lag of t_ref and the anchor: the newest node at least ``lag`` older than
         t_ref (node a for the oldest admissible time tag). Older nodes are marginalised out (exact)."""
@@ -371,6 +374,7 @@ class Afls:
 
     # ---- prediction (Eq. 3.29-3.31, 5.20-5.22) ----
 
+    @micropython.native
     def predict(self, t_new):
         """A: x = f(x), P = Phi P Phi^T + Q. B: prepend f(x_0) as the new current node (Eq. 5.21):
         P00 = Phi P00 Phi^T + Q, P0j = Phi P0j, the older block unchanged."""
@@ -398,6 +402,7 @@ class Afls:
 
     # ---- GNSS (Eq. 5.10-5.12, 5.24) ----
 
+    @micropython.native
     def update_gnss(self, z, R, sat, t=None):
         """GNSS position and velocity of SatA (sat 0, time-tagged now) or SatB (sat 1, at time t within the
         lag: between nodes a node is generated first, Eq. 5.46-5.52; then Eq. 5.24 updates every node kept).
@@ -457,6 +462,7 @@ class Afls:
         self.t_last = t
         self._prune(self.t[0])
 
+    @micropython.native
     def _hp_node(self, i, m):
         """Hp = C P = P[6 i: 6 i + 6, 0:m] (6 x m), its block S0 = P_ii, h = x_i (Eq. 5.24)."""
         w, ld, P, X = self.work, self.ld, self.P, self.X

@@ -45,15 +45,21 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    with float64 floats (the unix port; STM32 builds with double floats). On a float32-only port (SAMD21)
    array('d') reads back float32: not supported by this design.
 
-Cost. On MicroPython every float result, and every float read from a buffer, is a new heap object (~400-600
-x86-64 instructions each), so the loops read a buffer that is used many times once into a list, write
-symmetric blocks by computing one triangle, move nodes by row slices (no float is boxed), and update only the
-nodes a measurement reaches; every product is the one of the plain form (bitwise equal results, checked on
-recorded sessions). Measured with callgrind on the unix x64 port over cycles 40-60 of a recorded CAN session
-(the STKF's calls alone): 5.9 M instructions per 1 Hz cycle without SatB's GNSS (was 7.4 M), 17.4 M with it
-(was 29.5 M), of which 12.8 M are the predict and SatB's smoother update (beacon 2.1 M, SatA's GNSS 2.5 M): the
-update's Hp = C P (6 x m) and P -= V^T V over m = 24-30 states alone are ~7,000 float operations, their floor
-in this form. bench/bench_adcs_can.py measures the whole cycle.
+Cost. On MicroPython every float result, and every float read from a buffer, is a new heap object (~400-500
+x86-64 instructions each on the unix x64 port, its allocation and collection included), and a loop iteration, an
+index sum or a global lookup costs about as much. So the loops read a buffer that is used many times once (into a
+list or locals), the 6 x 6 kernels hold the small matrix in locals and write its sums out, terms that are exact
+zeros by structure are left out (Qa, Qb, [y x], I - K H's identity columns: an exact zero term changes no nonzero
+sum), symmetric blocks are computed as one triangle, nodes move by slices (no float is boxed), only the nodes a
+measurement reaches are updated, and the hot kernels are compiled with @micropython.native (~10 % fewer
+instructions; a no-op under CPython). Every product is the one of the plain form in the same order (bitwise equal
+results, checked on recorded sessions). Measured with callgrind (the STKF's calls alone, at cycle 150 of recorded
+sessions): 4.6 M instructions per 1 Hz cycle without SatB's GNSS (predict 1.25 M, SatA's GNSS 2.40 M, beacon
+0.96 M; was 5.9 M), 12.9 M with it (predict 1.88 M, SatA's GNSS 2.41 M, beacon 1.31 M, SatB's smoother update
+7.30 M; was 16.9 M). SatA's GNSS is linalg.joseph_select's; the smoother update spends ~2.2 M in linalg's 6 x 6
+products and solves (the generated node's Qca, B, A) and the rest on its ~8,000 float operations (Hp = C P,
+6 x m, and P -= V^T V over m = 24-30 states), their floor in this form. bench/bench_adcs_can.py measures the
+whole cycle.
 """
 
 from array import array
@@ -347,9 +353,9 @@ class Afls:
         X[p + N:m + N] = X[p:m]
         for i in range(k - 1, pos - 1, -1):
             t[i + 1] = t[i]
-        if pos == 0:                             # one slice: (i, j) -> (i + N, j + N) for the whole block (what
-            n = (m - 1) * ld + m                 # lies between its rows lands in the slot's columns or past
-            P[N * ld + N:N * ld + N + n] = P[0:n]    # the block)
+        if pos == 0:                             # the block moves by one slice, (i, j) -> (i + N, j + N); the
+            n = (m - 1) * ld + m                 # columns between its rows land in the slot or past the block
+            P[N * ld + N:N * ld + N + n] = P[0:n]
             self.k = k + 1
             return
         for i in range(m - 1, -1, -1):          # bottom row first: nothing is overwritten before it moves

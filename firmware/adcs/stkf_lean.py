@@ -45,21 +45,33 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    with float64 floats (the unix port; STM32 builds with double floats). On a float32-only port (SAMD21)
    array('d') reads back float32: not supported by this design.
 
-Cost. On MicroPython every float result, and every float read from a buffer, is a new heap object (~400-600
-x86-64 instructions each), so the loops read a buffer that is used many times once into a list, write
-symmetric blocks by computing one triangle, move nodes by row slices (no float is boxed), and update only the
-nodes a measurement reaches; every product is the one of the plain form (bitwise equal results, checked on
-recorded sessions). Measured with callgrind on the unix x64 port over cycles 40-60 of a recorded CAN session
-(the STKF's calls alone): 5.9 M instructions per 1 Hz cycle without SatB's GNSS (was 7.4 M), 17.4 M with it
-(was 29.5 M), of which 12.8 M are the predict and SatB's smoother update (beacon 2.1 M, SatA's GNSS 2.5 M): the
-update's Hp = C P (6 x m) and P -= V^T V over m = 24-30 states alone are ~7,000 float operations, their floor
-in this form. bench/bench_adcs_can.py measures the whole cycle.
+Cost. On MicroPython every float result, and every float read from a buffer, is a new heap object (~400-500
+x86-64 instructions each on the unix x64 port, its allocation and collection included), and a loop iteration, an
+index sum or a global lookup costs about as much. So the loops read a buffer that is used many times once (into a
+list or locals), the 6 x 6 kernels hold the small matrix in locals and write its sums out, terms that are exact
+zeros by structure are left out (Qa, Qb, [y x], I - K H's identity columns: an exact zero term changes no nonzero
+sum), symmetric blocks are computed as one triangle, nodes move by slices (no float is boxed), only the nodes a
+measurement reaches are updated, and the hot kernels are compiled with @micropython.native (~10 % fewer
+instructions; a no-op under CPython). Every product is the one of the plain form in the same order (bitwise equal
+results, checked on recorded sessions). Measured with callgrind (the STKF's calls alone, at cycle 150 of recorded
+sessions): 4.6 M instructions per 1 Hz cycle without SatB's GNSS (predict 1.25 M, SatA's GNSS 2.40 M, beacon
+0.96 M; was 5.9 M), 12.9 M with it (predict 1.88 M, SatA's GNSS 2.41 M, beacon 1.31 M, SatB's smoother update
+7.30 M; was 16.9 M). SatA's GNSS is linalg.joseph_select's; the smoother update spends ~2.2 M in linalg's 6 x 6
+products and solves (the generated node's Qca, B, A) and the rest on its ~8,000 float operations (Hp = C P,
+6 x m, and P -= V^T V over m = 24-30 states), their floor in this form. bench/bench_adcs_can.py measures the
+whole cycle.
 """
 
 from array import array
 import math
 
 from firmware.adcs import control, linalg
+
+try:
+    import micropython
+except ImportError:                     # CPython: no native emitter
+    class micropython:
+        native = staticmethod(lambda fn: fn)
 
 MU = 398600.4415e9
 QA_THESIS = 0.1 ** 2
@@ -72,6 +84,7 @@ def zeros_d(n):
     return array("d", bytes(8 * n))
 
 
+@micropython.native
 def f(x, o, dt):
     """Two-body propagation (Eq. 5.4, 5.7) of one satellite's state x[o:o+6] by dt (negative: backward,
     Eq. 5.51), in place: RK4 steps of at most 1 s."""
@@ -106,6 +119,7 @@ def f(x, o, dt):
     x[o], x[o + 1], x[o + 2], x[o + 3], x[o + 4], x[o + 5] = rx, ry, rz, vx, vy, vz
 
 
+@micropython.native
 def phi(Phi, x, o, dt):
     """Phi (6 x 6) of one satellite over dt at x[o:o+3] (Eq. 3.30 with F of Eq. 5.4):
     [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]], G = -mu/|r|^3 (I - 3 r r^T/|r|^2)."""
@@ -116,16 +130,20 @@ def phi(Phi, x, o, dt):
     h2, h3 = 0.5 * dt * dt, dt * dt * dt / 6.0
     r = (r0, r1, r2)
     for i in range(3):
+        di, o = d * r[i], 6 * i
         for j in range(3):
-            g = d * r[i] * r[j]
+            g = di * r[j]
             if i == j:
                 g += c
-            e = 1.0 if i == j else 0.0
-            Phi[i * 6 + j] = Phi[(3 + i) * 6 + 3 + j] = e + h2 * g
-            Phi[i * 6 + 3 + j] = e * dt + h3 * g
-            Phi[(3 + i) * 6 + j] = dt * g
+                Phi[o + j] = Phi[o + 21 + j] = 1.0 + h2 * g
+                Phi[o + 3 + j] = dt + h3 * g
+            else:
+                Phi[o + j] = Phi[o + 21 + j] = h2 * g
+                Phi[o + 3 + j] = h3 * g
+            Phi[o + 18 + j] = dt * g
 
 
+@micropython.native
 def process_noise(Q, dt, qa=QA_THESIS):
     """Q of Eq. 5.8-5.9 for one satellite: per axis [[qa dt^3/3, qa dt^2/2], [qa dt^2/2, qa dt]]."""
     dt = abs(dt)
@@ -137,65 +155,81 @@ def process_noise(Q, dt, qa=QA_THESIS):
         Q[(3 + i) * 6 + 3 + i] = q1
 
 
-def left_mul(P, ld, r0, c_lo, c_hi, F):
-    """P[r0:r0+6, c] = F P[r0:r0+6, c] for c_lo <= c < c_hi (F 6 x 6), in place, column by column."""
-    F = list(F)                             # read once: every buffer read is a new float object
-    for c in range(c_lo, c_hi):
-        b = r0 * ld + c
-        p0, p1, p2 = P[b], P[b + ld], P[b + 2 * ld]
-        p3, p4, p5 = P[b + 3 * ld], P[b + 4 * ld], P[b + 5 * ld]
-        for i in range(6):
-            o = 6 * i
-            P[b + i * ld] = F[o] * p0 + F[o + 1] * p1 + F[o + 2] * p2 + F[o + 3] * p3 + F[o + 4] * p4 \
-                + F[o + 5] * p5
-    return P
-
-
+@micropython.native
 def rows_mul_mirror(P, ld, src, c_lo, c_hi, F):
     """P[0:6, c] = F P[src:src+6, c] and P[c, 0:6] = its transpose for c_lo <= c < c_hi (F 6 x 6): the cross
     covariance of the current node with the older ones after a transition F (Eq. 5.21's P0j = Phi P0j, or the
     beacon's (I - K H) P0j), written symmetric. src = 0 works in place (column by column)."""
-    F = list(F)
+    f00, f01, f02, f03, f04, f05, f10, f11, f12, f13, f14, f15, f20, f21, f22, f23, f24, f25, \
+        f30, f31, f32, f33, f34, f35, f40, f41, f42, f43, f44, f45, f50, f51, f52, f53, f54, f55 = F
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld      # (F read once, into locals)
+    s = src * ld
     for c in range(c_lo, c_hi):
-        b = src * ld + c
-        p0, p1, p2 = P[b], P[b + ld], P[b + 2 * ld]
-        p3, p4, p5 = P[b + 3 * ld], P[b + 4 * ld], P[b + 5 * ld]
-        cl = c * ld
-        for i in range(6):
-            o = 6 * i
-            v = F[o] * p0 + F[o + 1] * p1 + F[o + 2] * p2 + F[o + 3] * p3 + F[o + 4] * p4 + F[o + 5] * p5
-            P[i * ld + c] = v
-            P[cl + i] = v
+        b = s + c
+        p0, p1, p2, p3, p4, p5 = P[b], P[b + ld], P[b + l2], P[b + l3], P[b + l4], P[b + l5]
+        v0 = f00 * p0 + f01 * p1 + f02 * p2 + f03 * p3 + f04 * p4 + f05 * p5
+        v1 = f10 * p0 + f11 * p1 + f12 * p2 + f13 * p3 + f14 * p4 + f15 * p5
+        v2 = f20 * p0 + f21 * p1 + f22 * p2 + f23 * p3 + f24 * p4 + f25 * p5
+        v3 = f30 * p0 + f31 * p1 + f32 * p2 + f33 * p3 + f34 * p4 + f35 * p5
+        v4 = f40 * p0 + f41 * p1 + f42 * p2 + f43 * p3 + f44 * p4 + f45 * p5
+        v5 = f50 * p0 + f51 * p1 + f52 * p2 + f53 * p3 + f54 * p4 + f55 * p5
+        P[c] = v0
+        P[ld + c] = v1
+        P[l2 + c] = v2
+        P[l3 + c] = v3
+        P[l4 + c] = v4
+        P[l5 + c] = v5
+        b = c * ld
+        P[b] = v0
+        P[b + 1] = v1
+        P[b + 2] = v2
+        P[b + 3] = v3
+        P[b + 4] = v4
+        P[b + 5] = v5
 
 
+@micropython.native
 def sandwich(P, ld, r0, F, Q, T, src=None):
     """P[r0:r0+6, r0:r0+6] = F P[src:src+6, src:src+6] F^T + Q (Eq. 3.31; src defaults to r0), symmetric:
-    T = F P (work, 6 x 6), then the upper triangle of T F^T + Q, mirrored."""
+    T = F P (work, 6 x 6, in T's precision), then the upper triangle of T F^T + Q, mirrored."""
     if src is None:
         src = r0
-    for i in range(6):
-        o = (src + i) * ld + src
-        for j in range(6):
-            T[i * 6 + j] = P[o + j]
-    left_mul(T, 6, 0, 0, 6, F)
-    F = list(F)
+    f00, f01, f02, f03, f04, f05, f10, f11, f12, f13, f14, f15, f20, f21, f22, f23, f24, f25, \
+        f30, f31, f32, f33, f34, f35, f40, f41, f42, f43, f44, f45, f50, f51, f52, f53, f54, f55 = F
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
+    s = src * ld + src
+    for c in range(6):                                   # T = F P, column by column
+        b = s + c
+        p0, p1, p2, p3, p4, p5 = P[b], P[b + ld], P[b + l2], P[b + l3], P[b + l4], P[b + l5]
+        T[c] = f00 * p0 + f01 * p1 + f02 * p2 + f03 * p3 + f04 * p4 + f05 * p5
+        T[6 + c] = f10 * p0 + f11 * p1 + f12 * p2 + f13 * p3 + f14 * p4 + f15 * p5
+        T[12 + c] = f20 * p0 + f21 * p1 + f22 * p2 + f23 * p3 + f24 * p4 + f25 * p5
+        T[18 + c] = f30 * p0 + f31 * p1 + f32 * p2 + f33 * p3 + f34 * p4 + f35 * p5
+        T[24 + c] = f40 * p0 + f41 * p1 + f42 * p2 + f43 * p3 + f44 * p4 + f45 * p5
+        T[30 + c] = f50 * p0 + f51 * p1 + f52 * p2 + f53 * p3 + f54 * p4 + f55 * p5
+    Fr = ((f00, f01, f02, f03, f04, f05), (f10, f11, f12, f13, f14, f15), (f20, f21, f22, f23, f24, f25),
+          (f30, f31, f32, f33, f34, f35), (f40, f41, f42, f43, f44, f45), (f50, f51, f52, f53, f54, f55))
     for i in range(6):
         o = 6 * i
         t0, t1, t2, t3, t4, t5 = T[o], T[o + 1], T[o + 2], T[o + 3], T[o + 4], T[o + 5]
+        a = (r0 + i) * ld + r0
+        b = a                                            # P[j, i] = P[b + i], j = i, i + 1, ..
         for j in range(i, 6):
-            q = 6 * j
-            s = Q[o + j] + t0 * F[q] + t1 * F[q + 1] + t2 * F[q + 2] + t3 * F[q + 3] + t4 * F[q + 4] \
-                + t5 * F[q + 5]
-            P[(r0 + i) * ld + r0 + j] = s
-            P[(r0 + j) * ld + r0 + i] = s
+            g0, g1, g2, g3, g4, g5 = Fr[j]
+            s = Q[o + j] + t0 * g0 + t1 * g1 + t2 * g2 + t3 * g3 + t4 * g4 + t5 * g5
+            P[a + j] = s
+            P[b + i] = s
+            b += ld
 
 
 _INF = float("inf")
 
 
+@micropython.native
 def _finite(v, n):
+    lo, hi = -_INF, _INF
     for i in range(n):
-        if not -_INF < v[i] < _INF:             # NaN and +-inf fail (a comparison makes no new float)
+        if not lo < v[i] < hi:                  # NaN and +-inf fail (a comparison makes no new float)
             return False
     return True
 
@@ -222,18 +256,22 @@ class Work:
         self.B = z(36)
         self.T = z(36)
         self.L = z(36)
-        self.W = z(36)
-        self.RK = z(36)
-        self.Kt = z(6 * m)
         self.hp = [[0.0] * m for _ in range(N)]     # Hp = C P (6 x m) by rows, then V = L^-1 Hp: plain lists,
-        self.l36 = [[0.0] * 36 for _ in range(4)]    # read without a new float per read; A, B, T, Qa as lists
+        self.ar = [[0.0] * N for _ in range(N)]      # read without a new float per read; A, B by rows
+        self.br = [[0.0] * N for _ in range(N)]
+        self.l6 = [0.0] * N
         self.S = z(36)
         self.xb = zeros_d(N)
         self.xc = zeros_d(N)
         self.r = zeros_d(6)
         self.d = zeros_d(12)
-        self.H = z(9)
-        self.R3 = z(9)
+        self.H = [0.0] * 9            # the beacon's: H_B, R, K^T, I - K H's columns 0 .. 2, R K^T, K R K^T, T
+        self.R3 = [0.0] * 9
+        self.Kt = [0.0] * 18
+        self.G = [0.0] * 18
+        self.RK = [0.0] * 18
+        self.KRK = [0.0] * 36
+        self.t36 = [0.0] * 36
 
 
 class Afls:
@@ -305,7 +343,8 @@ class Afls:
 
     def _shift(self, pos):
         """Open an empty node slot at pos: nodes pos .. k-1 move one place older (a full list drops its
-        oldest node: marginalising is exact). The caller fills the slot."""
+        oldest node: marginalising is exact). The caller fills the slot (at pos 0 its rows and columns hold
+        stale values until then)."""
         ld, P, X, t = self.ld, self.P, self.X, self.t
         k = self.k
         if k == self.cap:
@@ -314,6 +353,11 @@ class Afls:
         X[p + N:m + N] = X[p:m]
         for i in range(k - 1, pos - 1, -1):
             t[i + 1] = t[i]
+        if pos == 0:                             # the block moves by one slice, (i, j) -> (i + N, j + N); the
+            n = (m - 1) * ld + m                 # columns between its rows land in the slot or past the block
+            P[N * ld + N:N * ld + N + n] = P[0:n]
+            self.k = k + 1
+            return
         for i in range(m - 1, -1, -1):          # bottom row first: nothing is overwritten before it moves
             a = i * ld                           # (row slices: no float is read one by one)
             b = a + N * ld if i >= p else a
@@ -322,6 +366,7 @@ class Afls:
             P[b + p + N:b + m + N] = P[a + p:a + m]
         self.k = k + 1
 
+    @micropython.native
     def _prune(self, t_ref):
         """Keep the nodes within the lag of t_ref and the anchor: the newest node at least ``lag`` older than
         t_ref (node a for the oldest admissible time tag). Older nodes are marginalised out (exact)."""
@@ -335,6 +380,7 @@ class Afls:
 
     # ---- prediction (Eq. 3.29-3.31, 5.20-5.22) ----
 
+    @micropython.native
     def predict(self, t_new):
         """A: x = f(x), P = Phi P Phi^T + Q. B: prepend f(x_0) as the new current node (Eq. 5.21):
         P00 = Phi P00 Phi^T + Q, P0j = Phi P0j, the older block unchanged."""
@@ -362,6 +408,7 @@ class Afls:
 
     # ---- GNSS (Eq. 5.10-5.12, 5.24) ----
 
+    @micropython.native
     def update_gnss(self, z, R, sat, t=None):
         """GNSS position and velocity of SatA (sat 0, time-tagged now) or SatB (sat 1, at time t within the
         lag: between nodes a node is generated first, Eq. 5.46-5.52; then Eq. 5.24 updates every node kept).
@@ -421,6 +468,7 @@ class Afls:
         self.t_last = t
         self._prune(self.t[0])
 
+    @micropython.native
     def _hp_node(self, i, m):
         """Hp = C P = P[6 i: 6 i + 6, 0:m] (6 x m), its block S0 = P_ii, h = x_i (Eq. 5.24)."""
         w, ld, P, X = self.work, self.ld, self.P, self.X
@@ -434,6 +482,7 @@ class Afls:
                 S[a * 6 + b] = h[c0 + b]
             d[N + a] = X[c0 + a]
 
+    @micropython.native
     def _hp_between(self, ic, ia, dt_a, dt_b, m):
         """The generated node b between a (older, index ia) and c (newer, ic) of Eq. 5.46-5.52, as a
         measurement of a and c: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
@@ -456,18 +505,27 @@ class Afls:
         f(xc, 0, -dt_b)
         process_noise(Qa, dt_a, self.qa)
         process_noise(Qb, dt_b, self.qa)
-        linalg.matmul(T, Fb, Qa, N, N, N)                 # T = Fb Qa
+        q3, q2, q1 = Qa[0], Qa[3], Qa[21]                 # Qa per axis [[q3, q2], [q2, q1]], zeros elsewhere
+        for i in range(N):                                # T = Fb Qa, B = T^T (Qa's zero terms left out)
+            o = 6 * i
+            f0, f1, f2, f3, f4, f5 = Fb[o], Fb[o + 1], Fb[o + 2], Fb[o + 3], Fb[o + 4], Fb[o + 5]
+            T[o] = B[i] = f0 * q3 + f3 * q2
+            T[o + 1] = B[6 + i] = f1 * q3 + f4 * q2
+            T[o + 2] = B[12 + i] = f2 * q3 + f5 * q2
+            T[o + 3] = B[18 + i] = f0 * q2 + f3 * q1
+            T[o + 4] = B[24 + i] = f1 * q2 + f4 * q1
+            T[o + 5] = B[30 + i] = f2 * q2 + f5 * q1
         linalg.matmul_bt(A, T, Fb, N, N, N)               # A = Fb Qa Fb^T + Qb = Qca (work)
-        for i in range(36):
+        for i in range(0, 21, 7):                         # (Qb's nonzeros)
             A[i] = A[i] + Qb[i]
+            A[i + 3] = A[i + 3] + Qb[i + 3]
+            A[i + 18] = A[i + 18] + Qb[i + 18]
+            A[i + 21] = A[i + 21] + Qb[i + 21]
         linalg.symmetrize(A, N)
         if not linalg.cholesky(L, A, N):
             self.refused += 1
             raise ValueError("Qca is not positive definite")
-        for i in range(N):                                # B rows: Qca^-1 (Fb Qa)^T rows
-            for j in range(N):
-                B[j * N + i] = T[i * N + j]
-        linalg.chol_solve_rows(B, L, B, N, N)
+        linalg.chol_solve_rows(B, L, B, N, N)             # B rows: Qca^-1 (Fb Qa)^T rows
         linalg.matmul(T, B, Fb, N, N, N)                  # T = I - B Fb
         for i in range(36):
             T[i] = -T[i]
@@ -475,42 +533,74 @@ class Afls:
             T[i * 7] = T[i * 7] + 1.0
         linalg.matmul(A, T, Fa, N, N, N)                  # A = (I - B Fb) Fa
         d = w.d
+        e0, e1, e2 = xc[0] - xb[0], xc[1] - xb[1], xc[2] - xb[2]     # f(x_c, -dt_b) - f(x_a, dt_a)
+        e3, e4, e5 = xc[3] - xb[3], xc[4] - xb[4], xc[5] - xb[5]
+        for i in range(N):                                # d = Fb e, then x_b = f(x_a, dt_a) + B d
+            o = 6 * i
+            d[i] = Fb[o] * e0 + Fb[o + 1] * e1 + Fb[o + 2] * e2 + Fb[o + 3] * e3 + Fb[o + 4] * e4 + Fb[o + 5] * e5
+        e0, e1, e2, e3, e4, e5 = d[0], d[1], d[2], d[3], d[4], d[5]
         for i in range(N):
-            s = 0.0
-            for j in range(N):
-                s += Fb[i * N + j] * (xc[j] - xb[j])
-            d[i] = s
+            o = 6 * i
+            d[N + i] = xb[i] + B[o] * e0 + B[o + 1] * e1 + B[o + 2] * e2 + B[o + 3] * e3 + B[o + 4] * e4 \
+                + B[o + 5] * e5
+        Ar, Br = w.ar, w.br                               # A, B by rows (each read once)
         for i in range(N):
-            s = xb[i]
-            for j in range(N):
-                s += B[i * N + j] * d[j]
-            d[N + i] = s
-        Al, Bl, Tl, Ql = w.l36                            # A, B, I - B Fb, Qa read once
-        for i in range(36):
-            Al[i], Bl[i], Tl[i], Ql[i] = A[i], B[i], T[i], Qa[i]
-        Hp = w.hp
+            ra, rb, o = Ar[i], Br[i], 6 * i
+            for k in range(N):
+                ra[k], rb[k] = A[o + k], B[o + k]
+        a00, a01, a02, a03, a04, a05 = Ar[0]
+        a10, a11, a12, a13, a14, a15 = Ar[1]
+        a20, a21, a22, a23, a24, a25 = Ar[2]
+        a30, a31, a32, a33, a34, a35 = Ar[3]
+        a40, a41, a42, a43, a44, a45 = Ar[4]
+        a50, a51, a52, a53, a54, a55 = Ar[5]
+        b00, b01, b02, b03, b04, b05 = Br[0]
+        b10, b11, b12, b13, b14, b15 = Br[1]
+        b20, b21, b22, b23, b24, b25 = Br[2]
+        b30, b31, b32, b33, b34, b35 = Br[3]
+        b40, b41, b42, b43, b44, b45 = Br[4]
+        b50, b51, b52, b53, b54, b55 = Br[5]
+        H0, H1, H2, H3, H4, H5 = Hp = w.hp
+        l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
         sa, sc = ia * N * ld, ic * N * ld
         for j in range(m):                                # Hp = A P[a rows, :] + B P[c rows, :]  (6 x m)
-            a0, a1, a2 = P[sa + j], P[sa + ld + j], P[sa + 2 * ld + j]
-            a3, a4, a5 = P[sa + 3 * ld + j], P[sa + 4 * ld + j], P[sa + 5 * ld + j]
-            c0, c1, c2 = P[sc + j], P[sc + ld + j], P[sc + 2 * ld + j]
-            c3, c4, c5 = P[sc + 3 * ld + j], P[sc + 4 * ld + j], P[sc + 5 * ld + j]
-            for i in range(N):
-                o = 6 * i
-                Hp[i][j] = Al[o] * a0 + Al[o + 1] * a1 + Al[o + 2] * a2 + Al[o + 3] * a3 + Al[o + 4] * a4 \
-                    + Al[o + 5] * a5 + Bl[o] * c0 + Bl[o + 1] * c1 + Bl[o + 2] * c2 + Bl[o + 3] * c3 \
-                    + Bl[o + 4] * c4 + Bl[o + 5] * c5
-        S = w.S
+            o, q = sa + j, sc + j
+            p0, p1, p2, p3, p4, p5 = P[o], P[o + ld], P[o + l2], P[o + l3], P[o + l4], P[o + l5]
+            c0, c1, c2, c3, c4, c5 = P[q], P[q + ld], P[q + l2], P[q + l3], P[q + l4], P[q + l5]
+            H0[j] = a00 * p0 + a01 * p1 + a02 * p2 + a03 * p3 + a04 * p4 + a05 * p5 \
+                + b00 * c0 + b01 * c1 + b02 * c2 + b03 * c3 + b04 * c4 + b05 * c5
+            H1[j] = a10 * p0 + a11 * p1 + a12 * p2 + a13 * p3 + a14 * p4 + a15 * p5 \
+                + b10 * c0 + b11 * c1 + b12 * c2 + b13 * c3 + b14 * c4 + b15 * c5
+            H2[j] = a20 * p0 + a21 * p1 + a22 * p2 + a23 * p3 + a24 * p4 + a25 * p5 \
+                + b20 * c0 + b21 * c1 + b22 * c2 + b23 * c3 + b24 * c4 + b25 * c5
+            H3[j] = a30 * p0 + a31 * p1 + a32 * p2 + a33 * p3 + a34 * p4 + a35 * p5 \
+                + b30 * c0 + b31 * c1 + b32 * c2 + b33 * c3 + b34 * c4 + b35 * c5
+            H4[j] = a40 * p0 + a41 * p1 + a42 * p2 + a43 * p3 + a44 * p4 + a45 * p5 \
+                + b40 * c0 + b41 * c1 + b42 * c2 + b43 * c3 + b44 * c4 + b45 * c5
+            H5[j] = a50 * p0 + a51 * p1 + a52 * p2 + a53 * p3 + a54 * p4 + a55 * p5 \
+                + b50 * c0 + b51 * c1 + b52 * c2 + b53 * c3 + b54 * c4 + b55 * c5
+        S, W = w.S, w.l6
         sa, sc = ia * N, ic * N
         for i in range(N):                                # S0 = P_bb, upper triangle mirrored
-            h = Hp[i]
+            h, o = Hp[i], 6 * i
+            p0, p1, p2, p3, p4, p5 = h[sa], h[sa + 1], h[sa + 2], h[sa + 3], h[sa + 4], h[sa + 5]
+            c0, c1, c2, c3, c4, c5 = h[sc], h[sc + 1], h[sc + 2], h[sc + 3], h[sc + 4], h[sc + 5]
             for j in range(i, N):
-                s = 0.0
-                for a in range(N):
-                    s += h[sa + a] * Al[j * N + a] + h[sc + a] * Bl[j * N + a] + Tl[i * N + a] * Ql[a * N + j]
-                S[i * N + j] = s
+                a, b = Ar[j], Br[j]
+                W[0] = p0 * a[0] + c0 * b[0]
+                W[1] = p1 * a[1] + c1 * b[1]
+                W[2] = p2 * a[2] + c2 * b[2]
+                W[3] = p3 * a[3] + c3 * b[3]
+                W[4] = p4 * a[4] + c4 * b[4]
+                W[5] = p5 * a[5] + c5 * b[5]
+                g, qg, qh = (j, q3, q2) if j < 3 else (j - 3, q2, q1)    # + (I - B Fb) Qa: Qa's column j
+                W[g] = W[g] + T[o + g] * qg                               # has rows g and g + 3 only
+                W[g + 3] = W[g + 3] + T[o + g + 3] * qh
+                s = W[0] + W[1] + W[2] + W[3] + W[4] + W[5]
+                S[o + j] = s
                 S[j * N + i] = s
 
+    @micropython.native
     def _update_rows(self, z, R, m):
         """Eq. 5.24 over the first m states from Hp = C P (6 x m, rows in ``work.hp``), S0 = C P C^T
         (``work.S``) and h (``work.d[6:12]``): S = S0 + R = L L^T, V = L^-1 Hp, X += V^T L^-1 (z - h),
@@ -557,6 +647,7 @@ class Afls:
 
     # ---- beacon (Eq. 5.13-5.17, Sec. 5.3.3) ----
 
+    @micropython.native
     def update_beacon(self, y, q, P_att, sigma_b, t=None):
         """The beacon's unit vector y (SatA body frame) of rB - rA (Eq. 5.13-5.14), with the attitude
         estimate q (x, y, z, w; A(q) inertial to body, Eq. 4.7), P_att (3 x 3 flat, rad^2) the covariance of
@@ -574,15 +665,13 @@ class Afls:
         if t is not None and abs(t - self.t[0]) > self.tol:
             self.refused += 1
             raise ValueError("the beacon must be time-tagged now (%.3f s off)" % (t - self.t[0]))
-        w, P, ld = self.work, self.P, self.ld
-        d = w.d
-        for i in range(3):
-            d[i] = self.X[i] - self.xa[i]
-        rho = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        w, P, ld, X, xa = self.work, self.P, self.ld, self.X, self.xa
+        d0, d1, d2 = X[0] - xa[0], X[1] - xa[1], X[2] - xa[2]
+        rho = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if not rho > 0:
             self.refused += 1
             raise ValueError("SatA and SatB estimates coincide")
-        u0, u1, u2 = d[0] / rho, d[1] / rho, d[2] / rho
+        u0, u1, u2 = d0 / rho, d1 / rho, d2 / rho
         e1, e2, e3, q4 = q[0], q[1], q[2], q[3]
         nq = math.sqrt(e1 * e1 + e2 * e2 + e3 * e3 + q4 * q4)
         if not nq > 0.5:
@@ -590,118 +679,132 @@ class Afls:
             raise ValueError("attitude quaternion is not a unit quaternion")
         Am = w.A
         control.dcm(Am, (e1 / nq, e2 / nq, e3 / nq, q4 / nq))      # A(q), Eq. 4.7
-        H, u = w.H, (u0, u1, u2)
-        for i in range(3):                                     # H_B = A (I - u u^T) / rho  (3 x 3 on rB)
-            a0, a1, a2 = Am[3 * i], Am[3 * i + 1], Am[3 * i + 2]
-            au = a0 * u0 + a1 * u1 + a2 * u2
-            d[3 + i] = au                                      # h = A u
-            for j in range(3):
-                H[3 * i + j] = (Am[3 * i + j] - au * u[j]) / rho
-        r = w.r
-        for i in range(3):
-            r[i] = y[i] - d[3 + i]
-        R3, T, S = w.R3, w.T, w.S
-        # R = sigma^2 I + [y x] P_att [y x]^T + H P_rA H^T, then S = R + H P_rB H^T
+        H, r, d = w.H, w.r, w.d                                # (small buffers as lists: read without a new
+        for i in range(3):                                     # float per read)
+            o = 3 * i                                          # H_B = A (I - u u^T) / rho  (3 x 3 on rB)
+            a0, a1, a2 = Am[o], Am[o + 1], Am[o + 2]
+            au = d[3 + i] = a0 * u0 + a1 * u1 + a2 * u2        # h = A u
+            H[o] = (a0 - au * u0) / rho
+            H[o + 1] = (a1 - au * u1) / rho
+            H[o + 2] = (a2 - au * u2) / rho
+            r[i] = y[i] - au
+        # R = sigma^2 I + [y x] P_att [y x]^T + H P_rA H^T, then S = R + H P_rB H^T ([y x]'s zeros left out)
         y0, y1, y2 = y[0], y[1], y[2]
-        sy = (0.0, -y2, y1, y2, 0.0, -y0, -y1, y0, 0.0)
+        n0, n1, n2, sb2 = -y0, -y1, -y2, sigma_b * sigma_b
+        p00, p01, p02, p10, p11, p12 = P_att[0], P_att[1], P_att[2], P_att[3], P_att[4], P_att[5]
+        p20, p21, p22 = P_att[6], P_att[7], P_att[8]
+        t00, t01, t02 = n2 * p10 + y1 * p20, n2 * p11 + y1 * p21, n2 * p12 + y1 * p22     # [y x] P_att
+        t10, t11, t12 = y2 * p00 + n0 * p20, y2 * p01 + n0 * p21, y2 * p02 + n0 * p22
+        t20, t21 = n1 * p00 + y0 * p10, n1 * p01 + y0 * p11
+        R3 = w.R3
+        R3[0] = t01 * n2 + t02 * y1 + sb2
+        R3[1] = R3[3] = t00 * y2 + t02 * n0
+        R3[2] = R3[6] = t00 * n1 + t01 * y0
+        R3[4] = t10 * y2 + t12 * n0 + sb2
+        R3[5] = R3[7] = t10 * n1 + t11 * y0
+        R3[8] = t20 * n1 + t21 * y0 + sb2
+        Kt, T, S, Pa = w.Kt, w.t36, w.S, self.Pa               # Kt = H P[0:3, 0:6] (B's current node), then
+        P0, P1, P2 = list(P[0:6]), list(P[ld:ld + 6]), list(P[2 * ld:2 * ld + 6])    # K^T below
+        p00, p01, p02, p10, p11, p12 = Pa[0], Pa[1], Pa[2], Pa[6], Pa[7], Pa[8]
+        p20, p21, p22 = Pa[12], Pa[13], Pa[14]
         for i in range(3):
-            for j in range(3):
-                T[3 * i + j] = sy[3 * i] * P_att[j] + sy[3 * i + 1] * P_att[3 + j] + sy[3 * i + 2] * P_att[6 + j]
-        for i in range(3):
-            for j in range(i, 3):
-                v = T[3 * i] * sy[3 * j] + T[3 * i + 1] * sy[3 * j + 1] + T[3 * i + 2] * sy[3 * j + 2]
-                if i == j:
-                    v += sigma_b * sigma_b
-                R3[3 * i + j] = R3[3 * j + i] = v
-        Wm, Pa = w.W, self.Pa                                  # Wm = H P[0:3, 0:6] (B's current node)
-        Hl, P0 = list(H), list(P[0:6])                         # (buffers read once into lists)
-        P1, P2 = list(P[ld:ld + 6]), list(P[2 * ld:2 * ld + 6])
-        for i in range(3):
-            h0, h1, h2 = Hl[3 * i], Hl[3 * i + 1], Hl[3 * i + 2]
+            h0, h1, h2 = H[3 * i], H[3 * i + 1], H[3 * i + 2]
             for j in range(6):
-                Wm[6 * i + j] = h0 * P0[j] + h1 * P1[j] + h2 * P2[j]
-            for j in range(3):                                 # T = H P_rA
-                T[3 * i + j] = h0 * Pa[j] + h1 * Pa[6 + j] + h2 * Pa[12 + j]
+                Kt[6 * i + j] = h0 * P0[j] + h1 * P1[j] + h2 * P2[j]
+            o = 3 * i                                          # T = H P_rA
+            T[o] = h0 * p00 + h1 * p10 + h2 * p20
+            T[o + 1] = h0 * p01 + h1 * p11 + h2 * p21
+            T[o + 2] = h0 * p02 + h1 * p12 + h2 * p22
         for i in range(3):                                     # R += H P_rA H^T; S = R + H P_rB H^T
             for j in range(i, 3):
-                h0, h1, h2 = Hl[3 * j], Hl[3 * j + 1], Hl[3 * j + 2]
+                h0, h1, h2 = H[3 * j], H[3 * j + 1], H[3 * j + 2]
                 v = R3[3 * i + j] + T[3 * i] * h0 + T[3 * i + 1] * h1 + T[3 * i + 2] * h2
                 R3[3 * i + j] = R3[3 * j + i] = v
-                v += Wm[6 * i] * h0 + Wm[6 * i + 1] * h1 + Wm[6 * i + 2] * h2
+                v += Kt[6 * i] * h0 + Kt[6 * i + 1] * h1 + Kt[6 * i + 2] * h2
                 S[3 * i + j] = S[3 * j + i] = v
         if not linalg.cholesky(w.L, S, 3):
             self.refused += 1
             raise ValueError("beacon innovation covariance is not positive definite")
-        Kt = w.Kt                                              # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
-        for i in range(18):
-            Kt[i] = Wm[i]
-        linalg._solve_cols(Kt, w.L, 6, 3)
-        K, Rl = list(Kt[0:18]), list(R3)
-        X = self.X
+        linalg._solve_cols(Kt, w.L, 6, 3)                     # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
+        K, Rl = Kt, R3
         r0, r1, r2 = r[0], r[1], r[2]
         for i in range(6):
             X[i] = X[i] + K[i] * r0 + K[6 + i] * r1 + K[12 + i] * r2
-        IKH = w.B                                              # I - K H (6 x 6; H is 3 x 6 = [H 0])
-        for i in range(6):
+        G = w.G                                                # I - K H = [G | I's columns 3 .. 5]
+        for i in range(6):                                     # (H is 3 x 6 = [H 0])
             k0, k1, k2 = K[i], K[6 + i], K[12 + i]
-            for j in range(6):
-                v = 1.0 if i == j else 0.0
-                if j < 3:
-                    v -= k0 * Hl[j] + k1 * Hl[3 + j] + k2 * Hl[6 + j]
-                IKH[6 * i + j] = v
-        RK = [0.0] * 18                                        # R K^T (3 x 6), then K R K^T
+            for j in range(3):
+                G[3 * i + j] = (1.0 if i == j else 0.0) - (k0 * H[j] + k1 * H[3 + j] + k2 * H[6 + j])
+        RK = w.RK                                              # R K^T (3 x 6), then K R K^T (upper triangle)
         for a in range(3):
             ra0, ra1, ra2 = Rl[3 * a], Rl[3 * a + 1], Rl[3 * a + 2]
             for j in range(6):
                 RK[6 * a + j] = ra0 * K[j] + ra1 * K[6 + j] + ra2 * K[12 + j]
-        KRK = w.Q
+        KRK = w.KRK
         for i in range(6):
             k0, k1, k2 = K[i], K[6 + i], K[12 + i]
             for j in range(i, 6):
-                s = 0.0
-                s += k0 * RK[j]
-                s += k1 * RK[6 + j]
-                s += k2 * RK[12 + j]
-                KRK[6 * i + j] = KRK[6 * j + i] = s
-        G = [IKH[6 * i + j] for i in range(6) for j in range(3)]   # I - K H = [G | I's columns 3 .. 5]
+                KRK[6 * i + j] = k0 * RK[j] + k1 * RK[6 + j] + k2 * RK[12 + j]
         _ikh_rows(P, ld, N, self.k * N, G)                  # P_0j = (I - K H) P_0j
-        _ikh_sandwich(P, ld, G, KRK, w.T)                    # Joseph form (Eq. 4.142)
+        _ikh_sandwich(P, ld, G, KRK, T)                      # Joseph form (Eq. 4.142)
 
 
-def _ikh_rows(P, ld, c_lo, c_hi, G, mirror=True):
+@micropython.native
+def _ikh_rows(P, ld, c_lo, c_hi, G):
     """rows_mul_mirror(P, ld, 0, c_lo, c_hi, F) for F = I - K H whose columns 3 .. 5 are the identity's
-    (H = [H_r 0] on the position): F's first three columns G (6 x 3 list) are multiplied, the rest adds p_i.
-    The terms left out are exact zeros, so the sums are the full product's. ``mirror``: also P[c, 0:6]."""
+    (H = [H_r 0] on the position): F's first three columns G (6 x 3) are multiplied, the rest adds p_i.
+    The terms left out are exact zeros, so the sums are the full product's."""
+    g00, g01, g02, g10, g11, g12, g20, g21, g22, g30, g31, g32, g40, g41, g42, g50, g51, g52 = G
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
     for c in range(c_lo, c_hi):
-        cl = c * ld
-        p0, p1, p2 = P[c], P[ld + c], P[2 * ld + c]
-        for i in range(6):
-            o = 3 * i
-            v = G[o] * p0 + G[o + 1] * p1 + G[o + 2] * p2
-            if i >= 3:
-                v = v + P[i * ld + c]
-            P[i * ld + c] = v
-            if mirror:
-                P[cl + i] = v
+        p0, p1, p2 = P[c], P[ld + c], P[l2 + c]
+        v0 = g00 * p0 + g01 * p1 + g02 * p2
+        v1 = g10 * p0 + g11 * p1 + g12 * p2
+        v2 = g20 * p0 + g21 * p1 + g22 * p2
+        v3 = g30 * p0 + g31 * p1 + g32 * p2 + P[l3 + c]
+        v4 = g40 * p0 + g41 * p1 + g42 * p2 + P[l4 + c]
+        v5 = g50 * p0 + g51 * p1 + g52 * p2 + P[l5 + c]
+        P[c] = v0
+        P[ld + c] = v1
+        P[l2 + c] = v2
+        P[l3 + c] = v3
+        P[l4 + c] = v4
+        P[l5 + c] = v5
+        b = c * ld
+        P[b] = v0
+        P[b + 1] = v1
+        P[b + 2] = v2
+        P[b + 3] = v3
+        P[b + 4] = v4
+        P[b + 5] = v5
 
 
+@micropython.native
 def _ikh_sandwich(P, ld, G, Q, T):
-    """sandwich(P, ld, 0, F, Q, T) for F = I - K H as in ``_ikh_rows``: P00 = F P00 F^T + Q, upper triangle
-    mirrored; T (6 x 6) work."""
-    for i in range(6):
-        for j in range(6):
-            T[i * 6 + j] = P[i * ld + j]
-    _ikh_rows(T, 6, 0, 6, G, False)                      # T = F P00
+    """sandwich(P, ld, 0, F, Q, T) for F = I - K H as in ``_ikh_rows``: P00 = F P00 F^T + Q (Q's upper
+    triangle read), upper triangle mirrored; T (36, a list) work."""
+    g00, g01, g02, g10, g11, g12, g20, g21, g22, g30, g31, g32, g40, g41, g42, g50, g51, g52 = G
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
+    for c in range(6):                                   # T = F P00, column by column
+        p0, p1, p2 = P[c], P[ld + c], P[l2 + c]
+        T[c] = g00 * p0 + g01 * p1 + g02 * p2
+        T[6 + c] = g10 * p0 + g11 * p1 + g12 * p2
+        T[12 + c] = g20 * p0 + g21 * p1 + g22 * p2
+        T[18 + c] = g30 * p0 + g31 * p1 + g32 * p2 + P[l3 + c]
+        T[24 + c] = g40 * p0 + g41 * p1 + g42 * p2 + P[l4 + c]
+        T[30 + c] = g50 * p0 + g51 * p1 + g52 * p2 + P[l5 + c]
     for i in range(6):
         o = 6 * i
         t0, t1, t2 = T[o], T[o + 1], T[o + 2]
+        a = b = i * ld                                   # P[i, j] = P[a + j], P[j, i] = P[b + i]
         for j in range(i, 6):
             q = 3 * j
             s = Q[o + j] + t0 * G[q] + t1 * G[q + 1] + t2 * G[q + 2]
             if j >= 3:
                 s = s + T[o + j]
-            P[i * ld + j] = s
-            P[j * ld + i] = s
+            P[a + j] = s
+            P[b + i] = s
+            b += ld
 
 
 def _add_gain(x, n, Kt, r, m):

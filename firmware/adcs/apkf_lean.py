@@ -55,6 +55,7 @@ form, P kept symmetric (linalg.joseph_select). Every buffer is allocated once, i
 import math
 
 from firmware.adcs import linalg
+from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 
 N = 9
 ARCSEC = math.pi / 180.0 / 3600.0
@@ -121,7 +122,7 @@ def check_params(d):
 
 class Model:
     """What the lean filter holds fixed: J, the inverse inertia of the rate equation, C Jrw (3 x 4), the unit
-    axes C (3 x 4), m, noise levels; flat float buffers.
+    axes C (3 x 4), m, noise levels; flat lists of float32 values.
 
     ``momentum``: where each step's wheel momentum change comes from. "torque" (the default): the motor torques
     the flight software commanded over the step, less its friction model; "tach": the difference of the two
@@ -178,7 +179,10 @@ class Model:
         self.R_rw = (tach_rpm * RPM) ** 2
         self.tach_3sigma = 3.0 * tach_rpm * RPM
         self.qd = qd
-        self.Q = linalg.zeros(81)
+        # read every step: kept as lists of their float32 values (a list read makes no new float on MicroPython)
+        self.J, self.CJ, self.C, self.jrw = list(self.J), list(self.CJ), list(self.C), list(self.jrw)
+        self.Ji_tach, self.Ji_torque, self.m, self.R = list(self.Ji_tach), list(self.Ji_torque), list(self.m), \
+            list(self.R)
         self.use(momentum)
 
     def use(self, momentum):
@@ -188,22 +192,25 @@ class Model:
         self.torque = momentum == "torque"
         self.Ji = self.Ji_torque if self.torque else self.Ji_tach
         if not self.torque:      # the read-out differences' rate noise is then constant (momentum_rate)
-            self.Qw_tach = linalg.zeros(9)
+            Qw = linalg.zeros(9)
             for k in range(4):
-                _add_rate_noise(self.Qw_tach, self.Ji, self.CJ, k, 2.0 * self.R_rw)
-            _mirror3(self.Qw_tach)
+                _add_rate_noise(Qw, self.Ji, self.CJ, k, 2.0 * self.R_rw)
+            _mirror3(Qw)
+            self.Qw_tach = list(Qw)
         # the constant part of Q: tau_d's (Eq. 4.135-4.136); the read-out differences add theirs per step
         dt, qd, Ji = self.dt, self.qd, self.Ji
+        Q = linalg.zeros(81)
         for i in range(3):
-            self.Q[(6 + i) * 9 + 6 + i] = qd * dt
+            Q[(6 + i) * 9 + 6 + i] = qd * dt
             for j in range(3):
                 jj = 0.0
                 for k in range(3):
                     jj += Ji[i * 3 + k] * Ji[j * 3 + k]
-                self.Q[(3 + i) * 9 + 3 + j] = qd * jj * dt ** 3 / 3.0
+                Q[(3 + i) * 9 + 3 + j] = qd * jj * dt ** 3 / 3.0
                 v = Ji[i * 3 + j] * qd * dt * dt / 2.0
-                self.Q[(3 + i) * 9 + 6 + j] = v
-                self.Q[(6 + j) * 9 + 3 + i] = v
+                Q[(3 + i) * 9 + 6 + j] = v
+                Q[(6 + j) * 9 + 3 + i] = v
+        self.Q = list(Q)
 
 
 def _inv3(D, A):
@@ -252,6 +259,7 @@ class Work:
         self.Qw = z(9)          # the rate noise of the read-out differences (3 x 3)
 
 
+@micropython.native
 def _dcm_apply2(out, q, a, b):
     """out[0:3] = A(q) a, out[3:6] = A(q) b (inertial to body, scalar-last q, Eq. 4.4), A formed once."""
     q1, q2, q3, q4 = q[0], q[1], q[2], q[3]
@@ -271,6 +279,7 @@ def _dcm_apply2(out, q, a, b):
         out[o + 2] = a20 * x + a21 * y + a22 * z
 
 
+@micropython.native
 def _slope(ks, o, y, x, model, hw, hd, s, env, v):
     """RK4 slope at stage state y = [q, w] and s seconds into the step into ks[o:o+7] (Eq. 4.10, 4.83):
     the wheel momentum C Jrw W(s) = hw + hd s, its rate hd (3 each, from ``momentum_rate``)."""
@@ -304,6 +313,7 @@ def friction(model, W):
     return vis * W + c * math.tanh(W / sm)
 
 
+@micropython.native
 def momentum_rate(hw, hd, Qw, model, wm, wp, u):
     """The wheel momentum at the step's start hw = C Jrw W- (Eq. 4.55, from the read-out) and its rate over the
     step hd (3 each, the file's torque units). Returns the rate noise (3 x 3) the inputs add: with "tach" the
@@ -375,6 +385,7 @@ def _mirror3(Qw):
     Qw[3], Qw[6], Qw[7] = Qw[1], Qw[2], Qw[5]
 
 
+@micropython.native
 def propagate(x, model, hw, hd, env, work):
     """x over one step (RK4, Eq. 4.95) with the wheel momentum hw + hd s (``momentum_rate``)."""
     dt = model.dt
@@ -395,6 +406,7 @@ def propagate(x, model, hw, hd, env, work):
         x[i] = x[i] / n
 
 
+@micropython.native
 def jacobian(F, x, model, hw, env, work):
     """F (9 x 9) of Eq. 4.98-4.101 at x (see the module docstring), with C Jrw W = hw."""
     J, Ji, m = model.J, model.Ji, model.m
@@ -448,18 +460,20 @@ def jacobian(F, x, model, hw, env, work):
             F[o + 6 + j] = Jil[i * 3 + j]
 
 
+@micropython.native
 def phi(Phi, F, dt, work, order=4):
     """Phi = sum_{n<=order} (F dt)^n / n! (App. A.2's series). F's tau_d rows are zero, so every power's
     rows 6-8 are zero and row i of F^n is sum over k < 6 of F^(n-1)[i, k] F[k, :]; of rows 0-2 of F only
     -[w x]'s off-diagonal and F12 = I/2 are non-zero (Eq. 4.98), and their zeros are skipped (adding an exact
     zero changes no sum). Each power is stored in T1 (float32) and read once."""
     term = work.T1
-    linalg.eye(Phi, N)
     Fl = list(F[0:54])
-    for i in range(54):
+    for i in range(54):                     # Phi = I + F dt (rows 0-5; the diagonal is i = 0, 10, .., 50)
         t = Fl[i] * dt
         term[i] = t
-        Phi[i] += t
+        Phi[i] = 1.0 + t if i % 10 == 0 else t
+    for i in range(54, 81):                 # rows 6-8: the identity's
+        Phi[i] = 1.0 if i % 10 == 0 else 0.0
     f01, f02, f10, f12, f20, f21 = Fl[1], Fl[2], Fl[9], Fl[11], Fl[18], Fl[19]
     f30, f31, f32, f33, f34, f35, f36, f37, f38 = Fl[27:36]       # rows 3-5 (F21 F22 F23) in locals:
     f40, f41, f42, f43, f44, f45, f46, f47, f48 = Fl[36:45]       # the inner sums below are written out
@@ -483,6 +497,7 @@ def phi(Phi, F, dt, work, order=4):
             Phi[i] += tl[i]
 
 
+@micropython.native
 def covariance_predict(P, Phi, T):
     """P = Phi P Phi^T (Eq. 4.134 without Q) for the lean Phi, whose tau_d rows 6-8 are [0 I]: only rows 0-5
     of Phi P (into T, float32) and the blocks they touch are computed; the upper triangle is mirrored. P is
@@ -510,6 +525,7 @@ def covariance_predict(P, Phi, T):
             P[j * 9 + i] = v
 
 
+@micropython.native
 def predict(x, P, wm, wp, u, env, model, work):
     """(x, P) from t to t + dt (Eq. 4.95-4.136, cut to 9 states): F and Phi at the step's start, RK4 for x,
     P = Phi P Phi^T + Q (symmetric by construction; Phi's tau_d rows are the identity's). wm, wp: the
@@ -530,6 +546,7 @@ def predict(x, P, wm, wp, u, env, model, work):
             P[(3 + i) * 9 + 3 + j] += Qw[i * 3 + j]
 
 
+@micropython.native
 def error_vec(out, qm, q):
     """out[0:3] = vector part of q_meas (x) q_hat^-1, sign so that dq4 >= 0 (Eq. 4.25, 4.139)."""
     a1, a2, a3, a4 = qm[0], qm[1], qm[2], qm[3]
@@ -542,6 +559,7 @@ def error_vec(out, qm, q):
     out[0], out[1], out[2] = s * d1, s * d2, s * d3
 
 
+@micropython.native
 def update(x, P, q_meas, model, work):
     """Star-tracker update (Eq. 4.139-4.142), Joseph form; returns False (x, P untouched) if S is not PD."""
     z = work.y
@@ -556,6 +574,7 @@ def update(x, P, q_meas, model, work):
     return True
 
 
+@micropython.native
 def correct(x, dx):
     """q = dq (x) q_hat with dq = [dx0:3, sqrt(1 - |.|^2)] (Eq. 4.51), normalised; w, tau_d additive."""
     a1, a2, a3 = dx[0], dx[1], dx[2]

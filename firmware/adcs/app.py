@@ -36,6 +36,7 @@ import math
 import struct
 
 from firmware.adcs import apkf_lean, control, linalg, stkf_lean
+from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol import can as canmap
 from protocol import core, table
 
@@ -62,6 +63,7 @@ STALE = dict(table.ADCS_STALE)
 _FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_TICK, P_STATUS, P_RW_CMD))
 
 
+@micropython.native
 def field_dipole(b, r, t, gmst0=0.0):
     """b (3) = the tilted-dipole field (T, inertial) at r (m) and time t (s): (R/|r|)^3 (3 (m.r^) r^ - m)."""
     th = gmst0 + OMEGA_EARTH * t
@@ -204,6 +206,7 @@ class App:
             self.yb[0], self.yb[1], self.yb[2] = ux, uy, uz
 
     # --- the cycle -------------------------------------------------------------------------------
+    @micropython.native
     def _wheels_in(self):
         for i in range(NW):
             if self.rw_got[i]:
@@ -225,6 +228,7 @@ class App:
                 self.cof = None
             self.cof_failed = self.failed
 
+    @micropython.native
     def _env(self, t):
         """(r unit, 3 mu/r^3, b_i) at mid-step t - 0.5 from the STKF's rA, vA at t - 1."""
         X = self.xs
@@ -254,6 +258,7 @@ class App:
             return
         self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t))
 
+    @micropython.native
     def _attitude(self):
         """(q, P_att 3 x 3): the APKF's, or the star tracker's before it starts."""
         if self.apkf is not None:
@@ -301,6 +306,7 @@ class App:
         self.nb = 0
         f.get(self.xs, self.sig)
 
+    @micropython.native
     def _command_rate(self):
         """q_c (Eq. 6.3-6.4) at the STKF state and w_c by a central difference over +-0.5 s."""
         X, xo = self.xs, self.xo
@@ -317,6 +323,7 @@ class App:
         for i in range(3):
             self.wc[i] = s * dq[i]        # rotvec / (2 h), 2 h = 1 s
 
+    @micropython.native
     def _control(self, t):
         u = self.u
         for i in range(4):
@@ -369,6 +376,7 @@ class App:
                 u[i] = u[i] + v * wi + c * math.tanh(wi / sm)
         return u
 
+    @micropython.native
     def cycle(self, tick, t):
         """One 1 Hz cycle at time t (s) on the readings received since the last one; returns u (4, N m)."""
         self.t = t

@@ -16,10 +16,13 @@ into a destination the caller allocated (firmware/adcs/linalg.zeros).
 
 import math
 
+from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
+
 LASER_AXIS = (1.0, 0.0, 0.0)
 ZETA = 1.0
 
 
+@micropython.native
 def _unit(out, o, x, y, z):
     n = math.sqrt(x * x + y * y + z * z)
     if not n > 0.0:
@@ -27,6 +30,7 @@ def _unit(out, o, x, y, z):
     out[o], out[o + 1], out[o + 2] = x / n, y / n, z / n
 
 
+@micropython.native
 def orbit_frame(T, r, v):
     """T (3 x 3) = T_o<-j2k (Eq. 6.1-6.2)."""
     _unit(T, 0, v[0], v[1], v[2])
@@ -36,6 +40,7 @@ def orbit_frame(T, r, v):
     T[8] = T[0] * T[4] - T[1] * T[3]
 
 
+@micropython.native
 def dcm_to_quat(q, T):
     """q (q4 >= 0) with A(q) = T, Shepperd's method (as ground/adcs/control.py)."""
     tr = T[0] + T[4] + T[8]
@@ -63,6 +68,7 @@ def dcm_to_quat(q, T):
         q[m] = q[m] * s
 
 
+@micropython.native
 def dcm(A, q):
     """A(q) (3 x 3 flat), inertial to body (Eq. 4.7)."""
     e1, e2, e3, q4 = q[0], q[1], q[2], q[3]
@@ -77,6 +83,7 @@ def dcm(A, q):
     A[8] = q4 * q4 - e1 * e1 - e2 * e2 + e3 * e3
 
 
+@micropython.native
 def quat_mul(out, q, p):
     """out = q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.2); out must not alias q or p."""
     q1, q2, q3, q4 = q[0], q[1], q[2], q[3]
@@ -87,6 +94,7 @@ def quat_mul(out, q, p):
     out[3] = q4 * p4 - (q1 * p1 + q2 * p2 + q3 * p3)
 
 
+@micropython.native
 def min_rotation(q, a, b):
     """q with A(q) b = a for unit a, b (Eq. 6.3): q4 = sqrt((1 + a.b)/2), q_vec = a x b / (2 q4)."""
     c = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -108,6 +116,7 @@ class Work:
         self.q2 = zeros(4)
 
 
+@micropython.native
 def attitude_command(qc, ra, va, rb, work, laser_axis=LASER_AXIS):
     """q_c (Eq. 6.3-6.4): p_o = T_o (rB - rA)/|rB - rA|, Pq = min_rotation(l_b, p_o), q_c = Pq (x) q(T_o)."""
     T, p = work.T, work.p
@@ -136,6 +145,7 @@ def gains(K, D, J, ts, zeta=ZETA):
         D[i] = 2.0 * zeta * wn * J[i]
 
 
+@micropython.native
 def pd_torque(tau, q, w, qc, wc, K, D, H=None, tau_ff=None):
     """tau = -K q_e,vec - D (w - A(q_e) w_c) (Eq. 6.5) + w x H - tau_ff (None leaves a term out);
     q_e = q (x) q_c^-1 with q_e4 >= 0."""
@@ -187,6 +197,7 @@ def cct_cofactors(C):
     return (c00, c01, c02, c11, c12, c22, det)
 
 
+@micropython.native
 def _solve_cct(C, tau, cof=None):
     """(y0, y1, y2) = (C C^T)^-1 tau for C 3 x 4 (flat), by Cramer's rule on the symmetric 3 x 3 (``cof``:
     ``cct_cofactors(C)`` if the caller has them)."""
@@ -196,6 +207,7 @@ def _solve_cct(C, tau, cof=None):
             (c02 * t0 + c12 * t1 + c22 * t2) / det)
 
 
+@micropython.native
 def wheel_torques(u, tau_c, C, cof=None):
     """Minimum-norm motor torques (Eq. 6.11): u = -C^T (C C^T)^-1 tau_c, C the 3 x 4 axes (flat); ``cof``:
     ``cct_cofactors(C)``, computed here if not given."""
@@ -204,6 +216,7 @@ def wheel_torques(u, tau_c, C, cof=None):
         u[i] = -(C[i] * y0 + C[4 + i] * y1 + C[8 + i] * y2)
 
 
+@micropython.native
 def saturate(tau_c, C, torque_max, cof=None):
     """Scale tau_c (in place) so that max |u_i| <= torque_max, direction kept (``cof`` as wheel_torques)."""
     y0, y1, y2 = _solve_cct(C, tau_c, cof)

@@ -14,6 +14,12 @@ numpy.float32 scalars to run the same code in float32 arithmetic under CPython.
 from array import array
 import math
 
+try:
+    import micropython
+except ImportError:                     # CPython: no native emitter
+    class micropython:
+        native = staticmethod(lambda fn: fn)
+
 
 def zeros(n):
     """A float32 buffer of n zeros (the storage the flight code uses)."""
@@ -38,9 +44,19 @@ def eye(A, n):
         A[i * n + i] = 1.0
 
 
+@micropython.native
 def matmul(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B (m x p); C must not alias A or B."""
     A, B = list(A[0:n * m]), list(B[0:m * p])    # read once (a buffer read is a new float on MicroPython)
+    if m == 6:                                   # the STKF's 6 x 6 blocks: the inner sum written out
+        cols = [B[j::p] for j in range(p)]
+        for i in range(n):
+            a0, a1, a2, a3, a4, a5 = A[i * 6:i * 6 + 6]
+            ic = i * p
+            for j in range(p):
+                b0, b1, b2, b3, b4, b5 = cols[j]
+                C[ic + j] = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5
+        return
     for i in range(n):
         ia = i * m
         ic = i * p
@@ -53,9 +69,18 @@ def matmul(C, A, B, n, m, p):
             C[ic + j] = s
 
 
+@micropython.native
 def matmul_bt(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B^T, B being p x m; C must not alias A or B."""
     A, B = list(A[0:n * m]), list(B[0:p * m])
+    if m == 6:                                   # the inner sum written out
+        for i in range(n):
+            a0, a1, a2, a3, a4, a5 = A[i * 6:i * 6 + 6]
+            ic = i * p
+            for j in range(p):
+                b0, b1, b2, b3, b4, b5 = B[j * 6:j * 6 + 6]
+                C[ic + j] = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5
+        return
     for i in range(n):
         ia = i * m
         ic = i * p
@@ -67,6 +92,7 @@ def matmul_bt(C, A, B, n, m, p):
             C[ic + j] = s
 
 
+@micropython.native
 def symmetrize(P, n):
     """P = (P + P^T) / 2."""
     for i in range(n):
@@ -76,9 +102,32 @@ def symmetrize(P, n):
             P[j * n + i] = v
 
 
+@micropython.native
 def cholesky(L, A, n):
     """Lower Cholesky factor L (n x n) of the symmetric A; returns False (L undefined) unless A is positive
     definite. L may alias nothing."""
+    if n == 3:                                   # written out: the same operations, stored values read back
+        a00, _, _, a10, a11, _, a20, a21, a22 = A[0:9]
+        if not a00 > 0.0:                        # also catches NaN
+            return False
+        d = math.sqrt(a00)
+        L[0] = d
+        L[1] = L[2] = L[5] = 0.0
+        L[3] = a10 / d
+        L[6] = a20 / d
+        l10, l20 = L[3], L[6]
+        s = a11 - l10 * l10
+        if not s > 0.0:
+            return False
+        d = math.sqrt(s)
+        L[4] = d
+        L[7] = (a21 - l20 * l10) / d
+        l21 = L[7]
+        s = a22 - l20 * l20 - l21 * l21
+        if not s > 0.0:
+            return False
+        L[8] = math.sqrt(s)
+        return True
     for i in range(n * n):
         L[i] = 0.0
     for j in range(n):
@@ -97,6 +146,7 @@ def cholesky(L, A, n):
     return True
 
 
+@micropython.native
 def chol_solve_rows(X, L, B, n, m):
     """X (m x n) = B (m x n) S^-1 for S = L L^T (n x n): each row b of B solves S x = b (S symmetric).
     X may alias B."""
@@ -115,6 +165,7 @@ def chol_solve_rows(X, L, B, n, m):
             X[o + i] = s / L[i * n + i]
 
 
+@micropython.native
 def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
     """Kalman gain and Joseph-form covariance update for a measurement of the error states r0 .. r0+m-1,
     H = [0 I_m 0] (the star tracker's H of Eq. 4.139, the GNSS's of Eq. 5.31):
@@ -136,6 +187,9 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
     # a list holds what the buffer holds, so every product below is the one the buffers gave.
     if m == 3:
         _joseph3(P, n, r0, R, Kt, W, RK)
+        return True
+    if m == 6:
+        _joseph6(P, n, r0, R, Kt, W, RK)
         return True
     K = list(Kt)
     Hp = list(P[r0 * n:(r0 + m) * n])             # H P = P[r0:r0+m, :]
@@ -159,6 +213,7 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
     return True
 
 
+@micropython.native
 def _joseph3(P, n, r0, R, Kt, W, RK):
     """joseph_select's last two steps for m = 3 (the star tracker, the beacon), the sums over k written out:
     the same operations in the same order (a loop iteration costs MicroPython as much as a float operation)."""
@@ -183,6 +238,33 @@ def _joseph3(P, n, r0, R, Kt, W, RK):
             P[j * n + i] = s
 
 
+@micropython.native
+def _joseph6(P, n, r0, R, Kt, W, RK):
+    """joseph_select's last two steps for m = 6 (SatA's GNSS), written out as ``_joseph3``."""
+    K0, K1, K2, K3, K4, K5 = [list(Kt[k * n:(k + 1) * n]) for k in range(6)]
+    H0, H1, H2, H3, H4, H5 = [list(P[(r0 + k) * n:(r0 + k + 1) * n]) for k in range(6)]
+    for i in range(n):                           # A = (I - K H) P = P - K P[r0:, :]  into W
+        k0, k1, k2, k3, k4, k5 = K0[i], K1[i], K2[i], K3[i], K4[i], K5[i]
+        o = i * n
+        row = list(P[o:o + n])
+        for j in range(n):
+            W[o + j] = (row[j] - k0 * H0[j] - k1 * H1[j] - k2 * H2[j] - k3 * H3[j] - k4 * H4[j]
+                        - k5 * H5[j])
+    matmul(RK, R, Kt, 6, 6, n)                   # R K^T into RK
+    R0, R1, R2, R3, R4, R5 = [list(RK[k * n:(k + 1) * n]) for k in range(6)]
+    Wl = list(W[0:n * n])
+    for i in range(n):                           # P+ = A - A[:, r0:] K^T + K R K^T, upper triangle mirrored
+        k0, k1, k2, k3, k4, k5 = K0[i], K1[i], K2[i], K3[i], K4[i], K5[i]
+        o = i * n
+        w0, w1, w2, w3, w4, w5 = Wl[o + r0:o + r0 + 6]
+        for j in range(i, n):
+            s = (Wl[o + j] + (k0 * R0[j] - w0 * K0[j]) + (k1 * R1[j] - w1 * K1[j]) + (k2 * R2[j] - w2 * K2[j])
+                 + (k3 * R3[j] - w3 * K3[j]) + (k4 * R4[j] - w4 * K4[j]) + (k5 * R5[j] - w5 * K5[j]))
+            P[o + j] = s
+            P[j * n + i] = s
+
+
+@micropython.native
 def _solve_cols(X, L, n, m):
     """X (m x n) = S^-1 X for S = L L^T (m x m), column by column."""
     L = list(L[0:m * m])
@@ -196,6 +278,35 @@ def _solve_cols(X, L, n, m):
             X[n2 + c] = X[n2 + c] / l22
             X[n + c] = (X[n + c] - l21 * X[n2 + c]) / l11
             X[c] = (X[c] - l10 * X[n + c] - l20 * X[n2 + c]) / l00
+        return
+    if m == 6:                                   # the same, each stored (float32) value read back once
+        l00, _, _, _, _, _, l10, l11, _, _, _, _, l20, l21, l22, _, _, _ = L[0:18]
+        l30, l31, l32, l33, _, _, l40, l41, l42, l43, l44, _, l50, l51, l52, l53, l54, l55 = L[18:36]
+        for c in range(n):
+            i1, i2, i3, i4, i5 = n + c, 2 * n + c, 3 * n + c, 4 * n + c, 5 * n + c
+            X[c] = X[c] / l00
+            x0 = X[c]
+            X[i1] = (X[i1] - l10 * x0) / l11
+            x1 = X[i1]
+            X[i2] = (X[i2] - l20 * x0 - l21 * x1) / l22
+            x2 = X[i2]
+            X[i3] = (X[i3] - l30 * x0 - l31 * x1 - l32 * x2) / l33
+            x3 = X[i3]
+            X[i4] = (X[i4] - l40 * x0 - l41 * x1 - l42 * x2 - l43 * x3) / l44
+            x4 = X[i4]
+            X[i5] = (X[i5] - l50 * x0 - l51 * x1 - l52 * x2 - l53 * x3 - l54 * x4) / l55
+            x5 = X[i5]
+            X[i5] = x5 / l55
+            x5 = X[i5]
+            X[i4] = (x4 - l54 * x5) / l44
+            x4 = X[i4]
+            X[i3] = (x3 - l43 * x4 - l53 * x5) / l33
+            x3 = X[i3]
+            X[i2] = (x2 - l32 * x3 - l42 * x4 - l52 * x5) / l22
+            x2 = X[i2]
+            X[i1] = (x1 - l21 * x2 - l31 * x3 - l41 * x4 - l51 * x5) / l11
+            x1 = X[i1]
+            X[c] = (x0 - l10 * x1 - l20 * x2 - l30 * x3 - l40 * x4 - l50 * x5) / l00
         return
     for c in range(n):
         for i in range(m):

@@ -66,12 +66,7 @@ from array import array
 import math
 
 from firmware.adcs import control, linalg
-
-try:
-    import micropython
-except ImportError:                     # CPython: no native emitter
-    class micropython:
-        native = staticmethod(lambda fn: fn)
+from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 
 MU = 398600.4415e9
 QA_THESIS = 0.1 ** 2

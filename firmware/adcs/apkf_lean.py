@@ -408,7 +408,8 @@ def propagate(x, model, hw, hd, env, work):
 
 @micropython.native
 def jacobian(F, x, model, hw, env, work):
-    """F (9 x 9) of Eq. 4.98-4.101 at x (see the module docstring), with C Jrw W = hw."""
+    """F (9 x 9) of Eq. 4.98-4.101 at x (see the module docstring), with C Jrw W = hw. Only the entries that
+    can be non-zero are written: F's structural zeros must be zero on entry (``Work.F`` is, and stays so)."""
     J, Ji, m = model.J, model.Ji, model.m
     v = work.v
     r_i, kgg, b_i = env
@@ -417,7 +418,6 @@ def jacobian(F, x, model, hw, env, work):
     for i in range(3):
         v[6 + i] = J[i * 3] * w[0] + J[i * 3 + 1] * w[1] + J[i * 3 + 2] * w[2] + hw[i]
         v[9 + i] = J[i * 3] * v[0] + J[i * 3 + 1] * v[1] + J[i * 3 + 2] * v[2]
-    linalg.fill(F, 81, 0.0)
     F[1], F[2], F[9], F[11], F[18], F[19] = w[2], -w[1], -w[2], w[0], w[1], -w[0]     # -[w x]
     F[3], F[13], F[23] = 0.5, 0.5, 0.5
     # M = kgg ([r x] J - [(J r) x]) 2[r x] + [m x] 2[b x]  (3 x 3) into T1[0:9], then F21 = Ji M

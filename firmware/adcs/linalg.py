@@ -179,9 +179,7 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
             W[i * m + j] = P[(r0 + i) * n + r0 + j] + R[i * m + j]
     if not cholesky(L, W, m):
         return False
-    for i in range(m):                           # Kt = S^-1 H P = S^-1 P[r0:r0+m, :]
-        for j in range(n):
-            Kt[i * n + j] = P[(r0 + i) * n + j]
+    Kt[0:m * n] = P[r0 * n:(r0 + m) * n]         # Kt = S^-1 H P = S^-1 P[r0:r0+m, :]
     _solve_cols(Kt, L, n, m)
     # Buffers read many times are read once into lists (each buffer read makes a new float on MicroPython);
     # a list holds what the buffer holds, so every product below is the one the buffers gave.

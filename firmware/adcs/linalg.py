@@ -5,7 +5,11 @@ element (i, j) of an n x m matrix A is ``A[i * m + j]``. Every routine writes in
 allocated once. Floats are still boxed objects on most MicroPython ports, so the arithmetic itself allocates a
 bounded amount per call (measured per 1 Hz cycle by tests/mp/firmware_adcs.py); so does every read of a float
 from an array, which is why an input read many times is read once into a short list (same values, the same
-products in the same order: results equal to the element-by-element form, bit for bit).
+products in the same order: results equal to the element-by-element form, bit for bit). A loop iteration costs
+MicroPython about as much as a float operation, so the sizes the filters use (3 and 6) have their inner sums
+written out, and the routines are compiled by the native emitter (``@micropython.native``; ``micropython`` here
+is CPython's no-op stand-in for the other flight modules too). Native code is larger than bytecode: frozen into
+flash on a board (bench/bench_adcs_can.py reports both sizes).
 
 ``zeros(n)`` is the only constructor; a test may replace it (``linalg.zeros = ...``) with a buffer of
 numpy.float32 scalars to run the same code in float32 arithmetic under CPython.

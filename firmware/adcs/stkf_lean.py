@@ -53,13 +53,10 @@ zeros by structure are left out (Qa, Qb, [y x], I - K H's identity columns: an e
 sum), symmetric blocks are computed as one triangle, nodes move by slices (no float is boxed), only the nodes a
 measurement reaches are updated, and the hot kernels are compiled with @micropython.native (~10 % fewer
 instructions; a no-op under CPython). Every product is the one of the plain form in the same order (bitwise equal
-results, checked on recorded sessions). Measured with callgrind (the STKF's calls alone, at cycle 150 of recorded
-sessions): 4.6 M instructions per 1 Hz cycle without SatB's GNSS (predict 1.25 M, SatA's GNSS 2.40 M, beacon
-0.96 M; was 5.9 M), 12.9 M with it (predict 1.88 M, SatA's GNSS 2.41 M, beacon 1.31 M, SatB's smoother update
-7.30 M; was 16.9 M). SatA's GNSS is linalg.joseph_select's; the smoother update spends ~2.2 M in linalg's 6 x 6
-products and solves (the generated node's Qca, B, A) and the rest on its ~8,000 float operations (Hp = C P,
-6 x m, and P -= V^T V over m = 24-30 states), their floor in this form. bench/bench_adcs_can.py measures the
-whole cycle.
+results, checked on recorded sessions). With SatB's GNSS the smoother update dominates: ~8,000 float operations
+(Hp = C P, 6 x m, and P -= V^T V over m = 24-30 states), their floor in this form, besides linalg's 6 x 6
+products and solves for the generated node's Qca, B, A. bench/bench_adcs_can.py measures the whole cycle and
+splits it by part.
 """
 
 from array import array

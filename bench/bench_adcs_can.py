@@ -14,7 +14,9 @@ pointing the lean flight filters leave on a 600 s session beside the ground filt
 - Instructions: the session's sensor bursts replayed through ``firmware/adcs/app.py`` (tests/mp/
   firmware_adcs_app.py) under ``valgrind --tool=callgrind``, cycles [0, 110) and [0, 210) differenced:
   100 pointing cycles (goal <= 10 M per cycle; a 20-cycle window catches or misses a full collection of the
-  64 MB heap by chance). Heap: gc.mem_alloc deltas per cycle, gc off in the cycle.
+  64 MB heap by chance). The per-cycle functions are compiled by the native emitter; the same count with
+  the ADCS modules as bytecode only, and the modules' .mpy sizes both ways (x64, Cortex-M4F), beside it.
+  Heap: gc.mem_alloc deltas per cycle, gc off in the cycle.
 - Split: the same bursts through the app and its CAN HAL (tests/mp/firmware_adcs_split.py) under micropython,
   ticks_us per part over the pointing cycles; each part's share of the cycle's time applied to the callgrind
   count (an estimate: time shares, not counted instructions). The HAL (slcan ASCII, CAN/ISO-TP, payload
@@ -25,6 +27,7 @@ pointing the lean flight filters leave on a 600 s session beside the ground filt
 import json
 import os
 import shutil
+import subprocess
 import tempfile
 import time
 
@@ -67,10 +70,26 @@ def session(runtime, params, record=False, heap_out=None):
             "cfg": cfg, "rec": rec}
 
 
-def _replay(cfg, rec, n, callgrind, heap=False):
+def _replay(cfg, rec, n, callgrind, heap=False, path=None):
     out = mp.run(os.path.join(ROOT, "tests", "mp", "firmware_adcs_app.py"), [cfg, rec, n] + (["heap"] if heap else []),
-                 callgrind=callgrind, heap="64M", timeout=1800)
+                 callgrind=callgrind, heap="64M", timeout=1800, path=path)
     return out if callgrind else json.loads(out.strip().splitlines()[-1])
+
+
+def _bytecode_tree(d):
+    """A copy of firmware/ and protocol/ in d with the ADCS modules' @micropython.native lines dropped (the
+    same code as bytecode, for the instruction count without the native emitter)."""
+    for pkg in ("firmware", "protocol"):
+        shutil.copytree(os.path.join(ROOT, pkg), os.path.join(d, pkg),
+                        ignore=shutil.ignore_patterns("__pycache__", "*.mpy"))
+    adcs = os.path.join(d, "firmware", "adcs")
+    for f in os.listdir(adcs):
+        if f.endswith(".py"):
+            with open(os.path.join(adcs, f)) as fh:
+                src = "".join(ln for ln in fh if ln.strip() != "@micropython.native")
+            with open(os.path.join(adcs, f), "w") as fh:
+                fh.write(src)
+    return d
 
 
 def _split(cfg, rec, k0, k1):
@@ -97,6 +116,35 @@ def _satb_cycle(params, d):
     return instr, heap, _split(cfg_f, rec_f, int(HOLD + 4 * TS), CG[1]), summ["firmware_missed"]["gnss_b_fused"]
 
 
+def code_size():
+    """The ADCS modules' .mpy bytes (mpy-cross): native code for x64 (what the figures above ran) and for a
+    Cortex-M4F (armv7emsp), beside the same modules compiled as bytecode only (the native decorators dropped)."""
+    from ground import mpy_build
+    sizes = {}
+    with tempfile.TemporaryDirectory() as d:
+        for march in ("host", "armv7emsp"):
+            rows = mpy_build.build(os.path.join(d, march), march)
+            sizes[march] = {r[0]: r[3] for r in rows if r[0].startswith(os.path.join("firmware", "adcs"))}
+        exe = mpy_build.mpy_cross()
+        plain = {}
+        for rel in sizes["host"]:
+            with open(os.path.join(ROOT, rel)) as fh:
+                src = "".join(ln for ln in fh if ln.strip() != "@micropython.native")
+            tmp, out = os.path.join(d, "plain.py"), os.path.join(d, "plain.mpy")
+            with open(tmp, "w") as fh:
+                fh.write(src)
+            subprocess.run([exe, "-o", out, tmp], check=True, capture_output=True)
+            plain[rel] = os.path.getsize(out)
+    lines = ["\nCode size of the ADCS modules (.mpy bytes; native code runs from flash when frozen into the "
+             "firmware, from RAM when loaded from a file)\n", "| module | bytecode only | native, x64 | "
+             "native, Cortex-M4F (armv7emsp) |", "|---|---|---|---|"]
+    for rel in sorted(plain):
+        lines.append("| %s | %d | %d | %d |" % (rel, plain[rel], sizes["host"][rel], sizes["armv7emsp"][rel]))
+    lines.append("| **total** | %d | %d | %d |" % (sum(plain.values()), sum(sizes["host"].values()),
+                                                    sum(sizes["armv7emsp"].values())))
+    return "\n".join(lines)
+
+
 def main():
     from ground.adcs import bps_cli
     t0 = time.perf_counter()
@@ -117,6 +165,12 @@ def main():
         have_vg = shutil.which("valgrind") is not None
         instr = ((_replay(cfg, rec, CG[1], True) - _replay(cfg, rec, CG[0], True)) / (CG[1] - CG[0])
                  if have_vg else float("nan"))
+        if have_vg:
+            bc = _bytecode_tree(os.path.join(d, "bytecode"))
+            instr_bc = (_replay(cfg, rec, CG[1], True, path=bc) - _replay(cfg, rec, CG[0], True, path=bc)) / (
+                CG[1] - CG[0])
+        else:
+            instr_bc = float("nan")
         heap = _replay(cfg, rec, SECONDS, False, heap=True)["heap"]
         split = _split(cfg, rec, int(HOLD + 4 * TS), SECONDS)
         satb = _satb_cycle(params, d) if have_vg else None
@@ -130,6 +184,7 @@ def main():
     print("|---|---|---|")
     print("| x86-64 instructions per cycle, pointing (callgrind, cycles %d-%d) | <= %.0f M | %.2f M%s |"
           % (CG[0], CG[1], GOAL_INSTR / 1e6, instr / 1e6, "" if instr <= GOAL_INSTR else " (missed)"))
+    print("| the same, the ADCS modules as bytecode only (no native emitter) | — | %.2f M |" % (instr_bc / 1e6))
     print("| heap bytes per cycle, pointing (max / mean) | measured, bounded | %d / %d |" % (hs.max(), hs.mean()))
     print("| heap bytes per cycle in the CAN session (max over %d cycles, incl. status) | measured | %d |"
           % (len(heap_session), max(heap_session)))
@@ -167,6 +222,7 @@ def main():
         print("| CAN HAL, outside the cycle | %.0f %% of the cycle | %.2f |" % (100.0 * sb["hal"] / cyc,
                                                                                ib * sb["hal"] / cyc / 1e6))
         print("| heap bytes per cycle, pointing (max / mean) | | %d / %d |" % (max(hb), sum(hb) / len(hb)))
+    print(code_size())
     print("\nSpeed of the %d s CAN session (ADCS loop alone; issue: the whole `fps system` run >= %gx)\n" % (
         SECONDS, GOAL_SPEED))
     print("| firmware runtime | wall | virtual s per wall s | late cycles | missed replies (fw) | modes (cycles) |")

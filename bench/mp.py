@@ -9,11 +9,11 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MICROPYTHON = os.path.join(os.path.dirname(sys.executable), "micropython")
 
 
-def run(script, args=(), callgrind=False, heap=None, timeout=900):
-    """stdout of ``micropython [-X heapsize=HEAP] script args`` (MICROPYPATH: the repo and its frozen
-    modules), or with ``callgrind`` the instructions it executed (int). RuntimeError with its stderr's tail
-    if it fails."""
-    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
+def run(script, args=(), callgrind=False, heap=None, timeout=900, path=None):
+    """stdout of ``micropython [-X heapsize=HEAP] script args`` (MICROPYPATH: the repo, or ``path``, and the
+    frozen modules), or with ``callgrind`` the instructions it executed (int). RuntimeError with its stderr's
+    tail if it fails."""
+    env = dict(os.environ, MICROPYPATH=(path or ROOT) + ":.frozen")
     cmd = [MICROPYTHON] + (["-X", "heapsize=%s" % heap] if heap else []) + [script] + [str(a) for a in args]
     if callgrind:
         cmd = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"] + cmd

@@ -9,7 +9,8 @@ products in the same order: results equal to the element-by-element form, bit fo
 MicroPython about as much as a float operation, so the sizes the filters use (3 and 6) have their inner sums
 written out, and the routines are compiled by the native emitter (``@micropython.native``; ``micropython`` here
 is CPython's no-op stand-in for the other flight modules too). Native code is larger than bytecode: frozen into
-flash on a board (bench/bench_adcs_can.py reports both sizes).
+flash on a board (bench/bench_adcs_can.py reports both sizes). A port built without the native emitter refuses
+the decorator at compile time; there the decorator lines are dropped (bench_adcs_can's bytecode-only figure).
 
 ``zeros(n)`` is the only constructor; a test may replace it (``linalg.zeros = ...``) with a buffer of
 numpy.float32 scalars to run the same code in float32 arithmetic under CPython.

@@ -48,18 +48,28 @@ GOAL_RATIO = 1.25
 CG = (110, 210)
 
 
-def session(runtime, params, record=False, heap_out=None):
+def session(runtime, params, record=False, heap_out=None, apkf_momentum="tach"):
     hist = {k: [] for k in ("q", "w", "ra", "va", "rb", "vb", "t")}
     modes = {}
+    blind = []                  # cycles without a valid star-tracker output (the stale bit)
+    werr, prev = [], None       # the APKF's rate error per cycle (rad/s)
     t0 = time.perf_counter()
     with AdcsSession(runtime=runtime, duration_s=SECONDS, ts=TS, hold_s=HOLD, record=record,
-                     heap_out=heap_out, params=params) as s:
-        for _ in range(SECONDS):
+                     heap_out=heap_out, params=params, apkf_momentum=apkf_momentum) as s:
+        for k in range(SECONDS):
             c = s.cycle()
-            for k in hist:
-                hist[k].append(c[k])
+            for key in hist:
+                hist[key].append(c[key])
             m = c["status"].get("adcs_mode_name", "late")
             modes[m] = modes.get(m, 0) + 1
+            if c["status"].get("stale", 0) & 1:
+                blind.append(k)
+            e = c.get("est") or {}
+            if "w" in e and prev is not None:       # the estimate is of the previous cycle's end
+                werr.append(np.subtract(e["w"], prev))
+            else:
+                werr.append(np.full(3, np.nan))
+            prev = c["w"][-1]
         wall = time.perf_counter() - t0
         summ = s.summary()
         cfg, rec = s.config(), s.recorded
@@ -67,7 +77,26 @@ def session(runtime, params, record=False, heap_out=None):
     dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"])
     sel = h["t"] >= HOLD + 4 * TS
     return {"stats": bps.statistics(dth[sel], dom[sel]), "wall": wall, "summary": summ, "modes": modes,
-            "cfg": cfg, "rec": rec}
+            "cfg": cfg, "rec": rec, "blind": blind, "w_err": np.array(werr)}
+
+
+def apkf_input(params):
+    """The lean APKF's momentum input in the closed loop: the read-out difference (flown) and the commanded
+    torques, each with the calibrated parameter file and with the true parameters (CPython sessions)."""
+    lines = ["\nThe lean APKF's momentum input in the closed loop (CPython sessions, %d s, seed 0; body pointing "
+             "after %.0f s)\n" % (SECONDS, HOLD + 4 * TS), "| input | parameter file | pointing 3σ (arcsec) | "
+             "stability 3σ (arcsec/s) | star tracker blind (cycles) | its last blind cycle | APKF rate error, x, mean over "
+             "70-100 s (arcsec/s) |", "|---|---|---|---|---|---|---|"]
+    for name, p in (("calibrated (nine sets, seed 0)", params), ("true parameters", None)):
+        for mom, label in (("tach", "read-out difference (flown)"), ("torque", "commanded torques")):
+            r = session("cpython", p, apkf_momentum=mom)
+            st = r["stats"]
+            lines.append("| %s | %s | %.1f | %.1f | %d | %s | %.0f |" % (
+                label, name, st["pointing_3sigma_arcsec"], st["stability_3sigma_arcsec_s"], len(r["blind"]),
+                r["blind"][-1] if r["blind"] else "—", np.nanmean(r["w_err"][70:100, 0]) / bps.ARCSEC))
+    lines.append("Budget: 3σ <= %.0f arcsec and <= %.0f arcsec/s." % (bps.BUDGET_POINTING_3SIGMA,
+                                                                    bps.BUDGET_STABILITY_3SIGMA))
+    return "\n".join(lines)
 
 
 def _replay(cfg, rec, n, callgrind, heap=False, path=None):
@@ -223,6 +252,7 @@ def main():
                                                                                ib * sb["hal"] / cyc / 1e6))
         print("| heap bytes per cycle, pointing (max / mean) | | %d / %d |" % (max(hb), sum(hb) / len(hb)))
     print(code_size())
+    print(apkf_input(params))
     print("\nSpeed of the %d s CAN session (ADCS loop alone; issue: the whole `fps system` run >= %gx)\n" % (
         SECONDS, GOAL_SPEED))
     print("| firmware runtime | wall | virtual s per wall s | late cycles | missed replies (fw) | modes (cycles) |")

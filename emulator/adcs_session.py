@@ -103,11 +103,13 @@ def check_faults(faults, duration_s):
 class AdcsSession:
     """See the module docstring and ADCS_SESSION_API.md. Extra keywords: ``truth`` ("two-body" or "hpop"),
     ``cache_dir`` (orbit truth cache), ``hold_s``, ``reply_timeout_s`` (wall seconds a cycle may take),
-    ``heap_out`` (micropython: a JSON file of the heap bytes per cycle, written when the firmware exits)."""
+    ``heap_out`` (micropython: a JSON file of the heap bytes per cycle, written when the firmware exits),
+    ``apkf_momentum`` (the lean APKF's momentum input: "tach", the read-out difference, flown; "torque", the
+    commanded torques, a diagnostic)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=HOLD_S,
-                 reply_timeout_s=30.0, heap_out=None, record=False):
+                 reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="tach"):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
         if not (np.isfinite(duration_s) and duration_s >= 1):
@@ -116,6 +118,9 @@ class AdcsSession:
             raise ValueError("settling time ts must be > 0 s, got %r" % (ts,))
         if truth not in orbits.TRUTHS:
             raise ValueError("truth %r not one of %s" % (truth, ", ".join(orbits.TRUTHS)))
+        if apkf_momentum not in ("tach", "torque"):
+            raise ValueError("apkf_momentum must be 'tach' or 'torque', got %r" % (apkf_momentum,))
+        self.apkf_momentum = apkf_momentum
         self.runtime, self.satb, self.seed = runtime, bool(satb_gnss), int(seed)
         self.duration_s, self.ts, self.hold_s = float(duration_s), float(ts), float(hold_s)
         self.faults = check_faults(faults, duration_s)
@@ -158,7 +163,8 @@ class AdcsSession:
                 "stkf_x0": self.stkf_x0, "stkf_P0": P0_DIAG, "lag_s": LAG_S,
                 "torque_max": wp.torque_max,
                 "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
-                "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC, "gnss_sigma": [30.0, 1.0]}
+                "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC, "gnss_sigma": [30.0, 1.0],
+                "apkf_momentum": self.apkf_momentum}
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""

@@ -95,3 +95,23 @@ def test_rx_drops_count_each_can_reason_once():
             return d
 
     assert A._drops(Port()) == len(set(canmap.DROP_REASONS)) + 1
+
+
+def test_the_apkf_input_is_a_checked_option():
+    """apkf_momentum chooses the lean APKF's momentum input; the commanded torques reach the filter."""
+    with pytest.raises(ValueError, match="apkf_momentum"):
+        AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum="gyro")
+    with pytest.raises(ValueError, match="apkf_momentum"):
+        A.App(dict(_cfg(False), apkf_momentum="gyro"))
+    cfg = AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum="torque").config()
+    app = A.App(cfg)
+    app.apkf = A.apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0] * 4,
+                                momentum=app.momentum)
+    seen = []
+    step = app.apkf.step
+    app.apkf.step = lambda wp, q, env, u=None: (seen.append(None if u is None else list(u)), step(wp, q, env, u))
+    for i in range(4):
+        app.u[i] = 1e-5 * (i + 1)
+    app.st_got = app.st_valid = False
+    app._apkf(1.0)
+    assert app.apkf.model.torque and seen == [[pytest.approx(1e-5 * (i + 1)) for i in range(4)]]

@@ -33,11 +33,11 @@ G = Jm^-1 times the wheel's column):
   share a read-out);
 - a wheel whose u is NaN (the caller did not hear it, so what it did is unknown): nothing, and r = (s f_c dt)^2,
   a coasting rotor's friction (derived).
-The ADCS application (app.py) runs this filter on the read-out difference. On the commanded torques, 600 s
-CAN sessions (t_s = 33 s, wn = 8/t_s) lost the star tracker in the first slew and, with the calibrated parameter
-file, never regained it; switching to the read-out difference while the star tracker is blind (``Model.use``)
-did not cure that (seed 0: lost again 10 s after regaining it), while the read-out difference alone regains it.
-Why the closed loop does worse on the torques after a slew is not found.
+The ADCS application (app.py) runs this filter on the read-out difference by default. On the commanded
+torques, 600 s CAN sessions (t_s = 33 s, wn = 8/t_s) with the calibrated parameter file lose the star tracker
+in the first slew for good: the file's parameter errors leave a rate error (~0.08 deg/s about x) that
+nothing but the modelled torques carries while the tracker is blind, and the body rate stays above its 0.1 deg/s
+limit; with the true parameters they regain it and beat the read-out difference (bench_adcs_can).
 Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's
 wheels then hold the previous one); motor-torque errors beyond friction are absent in the emulator, and a slow
 friction drift is tau_d's (its random walk q_d). The orbit direction r, 3 mu/r^3 and the field b (inertial)

@@ -136,6 +136,11 @@ class App:
         self.tff = zeros(3)
         self.H = zeros(3)
         self.u = zeros(4)
+        # the lean APKF's momentum input (apkf_lean.Model): the read-out difference (flown) or the torques
+        # this app commanded over the step (see the README's "Lean flight software" on why it is not flown)
+        self.momentum = cfg.get("apkf_momentum", "tach")
+        if self.momentum not in ("tach", "torque"):
+            raise ValueError("apkf_momentum must be 'tach' or 'torque', got %r" % (self.momentum,))
         self.A = zeros(9)
         self.b = zeros(3)
         self.rmid = zeros(3)
@@ -248,15 +253,15 @@ class App:
                 dq = linalg.zeros(4)
                 control.quat_mul(dq, q, pc)
                 s = 2.0 if dq[3] >= 0 else -2.0
-                # the read-out difference, not the commanded torques: see apkf_lean's docstring
                 self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
-                                           momentum="tach")
+                                           momentum=self.momentum)
             self.st_prev_ok = st_ok
             if st_ok:
                 for i in range(4):
                     self.qst_prev[i] = self.qst[i]
             return
-        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t))
+        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t),
+                       self.u if self.momentum == "torque" else None)
 
     @micropython.native
     def _attitude(self):

@@ -36,19 +36,6 @@ def fill(A, n, v=0.0):
         A[i] = v
 
 
-def copy(D, S, n):
-    for i in range(n):
-        D[i] = S[i]
-
-
-def eye(A, n):
-    """A = I (n x n)."""
-    for i in range(n * n):
-        A[i] = 0.0
-    for i in range(n):
-        A[i * n + i] = 1.0
-
-
 @micropython.native
 def matmul(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B (m x p); C must not alias A or B."""
@@ -218,7 +205,7 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
 
 @micropython.native
 def _joseph3(P, n, r0, R, Kt, W, RK):
-    """joseph_select's last two steps for m = 3 (the star tracker, the beacon), the sums over k written out:
+    """joseph_select's last two steps for m = 3 (the star tracker), the sums over k written out:
     the same operations in the same order (a loop iteration costs MicroPython as much as a float operation)."""
     K0, K1, K2 = list(Kt[0:n]), list(Kt[n:2 * n]), list(Kt[2 * n:3 * n])
     H0, H1, H2 = list(P[r0 * n:(r0 + 1) * n]), list(P[(r0 + 1) * n:(r0 + 2) * n]), list(P[(r0 + 2) * n:(r0 + 3) * n])

@@ -96,6 +96,14 @@ def apkf_input(params):
                 r["blind"][-1] if r["blind"] else "—", np.nanmean(r["w_err"][70:100, 0]) / bps.ARCSEC))
     lines.append("Budget: 3σ <= %.0f arcsec and <= %.0f arcsec/s." % (bps.BUDGET_POINTING_3SIGMA,
                                                                     bps.BUDGET_STABILITY_3SIGMA))
+    tru = AdcsSession(runtime="cpython", duration_s=10.0).params          # what a perfect calibration writes
+    rel = [np.abs(np.divide(params["x"]["J5_kgm2"], params["jxx_ref_kgm2"]) /
+                  np.divide(tru["x"]["J5_kgm2"], tru["jxx_ref_kgm2"]) - 1)]
+    dd = np.degrees(np.abs(np.subtract(params["x"]["delta1_rad"] + params["x"]["delta2_rad"],
+                                       tru["x"]["delta1_rad"] + tru["x"]["delta2_rad"])))
+    lines.append("The calibrated file against the truth: inertia relative to Jxx (Jyy, Jzz, Jxy, Jxz, Jyz) off by "
+                 "%s %%; wheel misalignments off by up to %.1f deg." % (
+                     ", ".join("%.1f" % (100 * v) for v in rel[0]), dd.max()))
     return "\n".join(lines)
 
 

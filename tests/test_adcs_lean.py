@@ -515,3 +515,50 @@ def test_lean_stkf_refuses_bad_input_and_keeps_its_state():
         f.predict(float("nan"))
     with pytest.raises(ValueError, match="NaN"):
         S.Afls([float("nan")] * 12, sc["P0"], 0.0)
+
+
+def test_phi_and_the_covariance_prediction_equal_the_plain_products_bit_for_bit(monkeypatch):
+    """The written-out Phi series (F's structural zeros skipped) and P = Phi P Phi^T (rows 6-8 the identity's,
+    columns read as rows of the symmetric P) give exactly what the full 9 x 9 loops give, on float64 buffers
+    where any reordering would show in the last bit. F and Phi are random with the lean filter's structure
+    (F: -[w x]-like rows 0-2 with a zero diagonal, F12 = I/2, F13 = 0, rows 6-8 zero; Phi: rows 6-8 the
+    identity's), so that no term is negligible beside another."""
+    monkeypatch.setattr(linalg, "zeros", lambda n: [0.0] * n)
+    rng = np.random.default_rng(5)
+    Fm = np.zeros((9, 9))
+    Fm[0:3, 0:3] = rng.normal(size=(3, 3)) * 0.3
+    np.fill_diagonal(Fm[0:3, 0:3], 0.0)
+    Fm[0:3, 3:6] = 0.5 * np.eye(3)
+    Fm[3:6] = rng.normal(size=(3, 9)) * 0.3
+    F, dt = Fm.ravel().tolist(), 0.9
+    w = L.Work()
+    Phi = [0.0] * 81
+    L.phi(Phi, F, dt, w)
+    term = [v * dt for v in F]
+    ref = [(1.0 if i % 10 == 0 else 0.0) + term[i] for i in range(81)]
+    for n in (2, 3, 4):                                  # term = term F dt / n, full loops
+        term = [sum_ordered([term[i * 9 + k] * F[k * 9 + j] for k in range(9)]) * (dt / n)
+                for i in range(9) for j in range(9)]
+        ref = [ref[i] + term[i] for i in range(81)]
+    assert Phi == ref
+    Phm = np.eye(9)
+    Phm[0:6] = rng.normal(size=(6, 9))
+    Ph = Phm.ravel().tolist()
+    A = rng.normal(size=(9, 9))
+    P0 = (A @ A.T).ravel().tolist()
+    P = list(P0)
+    L.covariance_predict(P, Ph, w.T1)
+    T = [sum_ordered([Ph[i * 9 + k] * P0[k * 9 + j] for k in range(9)]) for i in range(9) for j in range(9)]
+    ref = [sum_ordered([T[i * 9 + k] * Ph[j * 9 + k] for k in range(9)]) for i in range(9) for j in range(9)]
+    for i in range(9):
+        for j in range(i):
+            ref[i * 9 + j] = ref[j * 9 + i]              # the upper triangle, mirrored
+    assert P == ref
+
+
+def sum_ordered(terms):
+    """Left-to-right float sum (what a loop with s += t does; Python's sum starts at 0 the same way)."""
+    s = 0.0
+    for t in terms:
+        s += t
+    return s

@@ -210,75 +210,17 @@ def test_lean_stkf_calls_equal_dense_references_with_satb_and_the_beacon(monkeyp
     assert n_b > 30 and f.generated == n_b
 
 
-# --- the written-out sums (m = 3, 6) against the element-by-element loops, bit for bit -------------------
-def _plain_cholesky(L, A, n):
-    for i in range(n * n):
-        L[i] = 0.0
-    for j in range(n):
-        s = A[j * n + j]
-        for k in range(j):
-            s -= L[j * n + k] * L[j * n + k]
-        if not s > 0.0:
-            return False
-        d = float(np.sqrt(s))
-        L[j * n + j] = d
-        for i in range(j + 1, n):
-            s = A[i * n + j]
-            for k in range(j):
-                s -= L[i * n + k] * L[j * n + k]
-            L[i * n + j] = s / d
-    return True
-
-
-def _plain_solve_cols(X, L, n, m):
-    for c in range(n):
-        for i in range(m):
-            s = X[i * n + c]
-            for k in range(i):
-                s -= L[i * m + k] * X[k * n + c]
-            X[i * n + c] = s / L[i * m + i]
-        for i in range(m - 1, -1, -1):
-            s = X[i * n + c]
-            for k in range(i + 1, m):
-                s -= L[k * m + i] * X[k * n + c]
-            X[i * n + c] = s / L[i * m + i]
-
-
-def _plain_matmul(C, A, B, n, m, p, bt=False):
-    for i in range(n):
-        for j in range(p):
-            s = 0.0
-            for k in range(m):
-                s += A[i * m + k] * (B[j * m + k] if bt else B[k * p + j])
-            C[i * p + j] = s
-
-
+# --- the written-out sums (m = 3, 6) against linalg's element-by-element loops, bit for bit --------------
 def _plain_joseph(P, n, r0, m, R, Kt, L, W, RK):
+    """joseph_select with the loop forms throughout."""
     for i in range(m):
         for j in range(m):
             W[i * m + j] = P[(r0 + i) * n + r0 + j] + R[i * m + j]
-    if not _plain_cholesky(L, W, m):
+    if not linalg._cholesky_loops(L, W, m):
         return False
-    for i in range(m):
-        for j in range(n):
-            Kt[i * n + j] = P[(r0 + i) * n + j]
-    _plain_solve_cols(Kt, L, n, m)
-    K, Hp = list(Kt), list(P[r0 * n:(r0 + m) * n])
-    for i in range(n):
-        for j in range(n):
-            s = P[i * n + j]
-            for k in range(m):
-                s -= K[k * n + i] * Hp[k * n + j]
-            W[i * n + j] = s
-    _plain_matmul(RK, R, K, m, m, n)
-    Wl, RKl = list(W), list(RK)
-    for i in range(n):
-        for j in range(i, n):
-            s = Wl[i * n + j]
-            for k in range(m):
-                s += K[k * n + i] * RKl[k * n + j] - Wl[i * n + r0 + k] * K[k * n + j]
-            P[i * n + j] = s
-            P[j * n + i] = s
+    Kt[0:m * n] = P[r0 * n:(r0 + m) * n]
+    linalg._solve_cols_loops(Kt, list(L), n, m)
+    linalg._joseph_loops(P, n, r0, m, R, Kt, W, RK)
     return True
 
 
@@ -305,15 +247,15 @@ def test_written_out_sums_equal_the_plain_loops_bit_for_bit(n, r0, m):
         out.append((P, Kt))
     assert out[0] == out[1]
     L1, L2 = _zeros(m * m), _zeros(m * m)
-    assert linalg.cholesky(L1, _buf(R0.ravel()), m) and _plain_cholesky(L2, _buf(R0.ravel()), m)
+    assert linalg.cholesky(L1, _buf(R0.ravel()), m) and linalg._cholesky_loops(L2, _buf(R0.ravel()), m)
     assert L1 == L2
     X1, X2 = _buf(A[:m].ravel()), _buf(A[:m].ravel())
     linalg._solve_cols(X1, L1, n, m)
-    _plain_solve_cols(X2, L2, n, m)
+    linalg._solve_cols_loops(X2, L2, n, m)
     assert X1 == X2
     C1, C2 = _zeros(n * n), _zeros(n * n)
     G = _buf(rng.normal(size=m * n))
     for bt in (False, True):
         (linalg.matmul_bt if bt else linalg.matmul)(C1, _buf(A[:, :m].ravel()), G, n, m, n)
-        _plain_matmul(C2, _buf(A[:, :m].ravel()), G, n, m, n, bt)
+        (linalg._matmul_bt_loops if bt else linalg._matmul_loops)(C2, _buf(A[:, :m].ravel()), G, n, m, n)
         assert C1 == C2

@@ -11,6 +11,8 @@ written out, and the routines are compiled by the native emitter (``@micropython
 is CPython's no-op stand-in for the other flight modules too). Native code is larger than bytecode: frozen into
 flash on a board (bench/bench_adcs_can.py reports both sizes). A port built without the native emitter refuses
 the decorator at compile time; there the decorator lines are dropped (bench_adcs_can's bytecode-only figure).
+The element-by-element forms (``_*_loops``) serve the other sizes and are what the written-out paths equal,
+bit for bit (tests/test_adcs_lean_reference.py).
 
 ``zeros(n)`` is the only constructor; a test may replace it (``linalg.zeros = ...``) with a buffer of
 numpy.float32 scalars to run the same code in float32 arithmetic under CPython.
@@ -49,6 +51,12 @@ def matmul(C, A, B, n, m, p):
                 b0, b1, b2, b3, b4, b5 = cols[j]
                 C[ic + j] = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5
         return
+    _matmul_loops(C, A, B, n, m, p)
+
+
+@micropython.native
+def _matmul_loops(C, A, B, n, m, p):
+    """matmul element by element (any m; the written-out paths give exactly this)."""
     for i in range(n):
         ia = i * m
         ic = i * p
@@ -73,6 +81,12 @@ def matmul_bt(C, A, B, n, m, p):
                 b0, b1, b2, b3, b4, b5 = B[j * 6:j * 6 + 6]
                 C[ic + j] = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5
         return
+    _matmul_bt_loops(C, A, B, n, m, p)
+
+
+@micropython.native
+def _matmul_bt_loops(C, A, B, n, m, p):
+    """matmul_bt element by element."""
     for i in range(n):
         ia = i * m
         ic = i * p
@@ -120,6 +134,12 @@ def cholesky(L, A, n):
             return False
         L[8] = math.sqrt(s)
         return True
+    return _cholesky_loops(L, A, n)
+
+
+@micropython.native
+def _cholesky_loops(L, A, n):
+    """cholesky element by element."""
     for i in range(n * n):
         L[i] = 0.0
     for j in range(n):
@@ -181,6 +201,13 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
     if m == 6:
         _joseph6(P, n, r0, R, Kt, W, RK)
         return True
+    _joseph_loops(P, n, r0, m, R, Kt, W, RK)
+    return True
+
+
+@micropython.native
+def _joseph_loops(P, n, r0, m, R, Kt, W, RK):
+    """joseph_select's last two steps element by element (any m)."""
     K = list(Kt)
     Hp = list(P[r0 * n:(r0 + m) * n])             # H P = P[r0:r0+m, :]
     # A = (I - K H) P = P - K P[r0:, :]  into W
@@ -200,7 +227,6 @@ def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
                 s += K[k * n + i] * RKl[k * n + j] - Wl[i * n + r0 + k] * K[k * n + j]
             P[i * n + j] = s
             P[j * n + i] = s
-    return True
 
 
 @micropython.native
@@ -298,6 +324,12 @@ def _solve_cols(X, L, n, m):
             x1 = X[i1]
             X[c] = (x0 - l10 * x1 - l20 * x2 - l30 * x3 - l40 * x4 - l50 * x5) / l00
         return
+    _solve_cols_loops(X, L, n, m)
+
+
+@micropython.native
+def _solve_cols_loops(X, L, n, m):
+    """_solve_cols element by element (L a list)."""
     for c in range(n):
         for i in range(m):
             s = X[i * n + c]

@@ -245,7 +245,6 @@ class Work:
         self.F = z(81)
         self.Phi = z(81)
         self.T1 = z(81)
-        self.T2 = z(81)
         self.W = z(81)
         self.Kt = z(27)
         self.RK = z(27)
@@ -256,7 +255,7 @@ class Work:
         self.v = z(24)          # small vectors: r_b, b_b, h, J w, J r, torque, ...
         self.hw = z(3)          # C Jrw W at the step's start
         self.hd = z(3)          # its rate over the step
-        self.Qw = z(9)          # the rate noise of the read-out differences (3 x 3)
+        self.Qw = z(9)          # the inputs' rate noise per step, torque input (3 x 3; tach: model.Qw_tach)
 
 
 @micropython.native
@@ -336,13 +335,14 @@ def momentum_rate(hw, hd, Qw, model, wm, wp, u):
             h += CJ[i * 4 + k] * wm[k]
         hw[i] = h
         hd[i] = 0.0
-    C, sc, tm, dt = model.C, model.scale, model.torque_max, model.dt
+    dt = model.dt
     if not model.torque:                           # every wheel on its read-out difference: Qw is constant
         for k in range(4):
             a = (wp[k] - wm[k]) / dt
             for i in range(3):
                 hd[i] += CJ[i * 4 + k] * a
         return model.Qw_tach
+    C, sc, tm = model.C, model.scale, model.torque_max
     linalg.fill(Qw, 9, 0.0)
     for k in range(4):
         M, r = CJ, 2.0 * model.R_rw                # the read-out difference and its noise
@@ -430,7 +430,7 @@ def jacobian(F, x, model, hw, env, work):
     mx = (0.0, -m[2], m[1], m[2], 0.0, -m[0], -m[1], m[0], 0.0)
     jrx = (0.0, -jr[2], jr[1], jr[2], 0.0, -jr[0], -jr[1], jr[0], 0.0)
     # the sums over k are written out (same operations, same order); T (float32) holds each product
-    J0, J1, J2 = list(J[0:3]), list(J[3:6]), list(J[6:9])
+    J0, J1, J2 = J[0:3], J[3:6], J[6:9]               # (model constants: lists)
     for i in range(3):
         a0, a1, a2 = rx[i * 3:i * 3 + 3]
         for j in range(3):
@@ -450,7 +450,7 @@ def jacobian(F, x, model, hw, env, work):
         a0, a1, a2 = wx[i * 3:i * 3 + 3]
         for j in range(3):
             T[18 + i * 3 + j] = hx[i * 3 + j] - a0 * J0[j] - a1 * J1[j] - a2 * J2[j]
-    M, G, Jil = list(T[0:9]), list(T[18:27]), list(Ji[0:9])
+    M, G, Jil = list(T[0:9]), list(T[18:27]), Ji
     for i in range(3):
         j0, j1, j2 = Jil[i * 3:i * 3 + 3]
         o = (3 + i) * 9

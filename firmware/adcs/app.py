@@ -95,8 +95,8 @@ class App:
         self.hold_s = float(cfg.get("hold_s", 30.0))
         self.stale_s = float(cfg.get("stale_s", 10.0))
         self.satb = bool(cfg.get("satb_gnss", False))
-        self.torque_max = float(cfg.get("torque_max", 1e-3))
-        self.fric = cfg.get("friction", (2e-6, 2e-10, 1.0 * RPM))   # coulomb, viscous, smoothing rad/s
+        self.torque_max = float(cfg.get("torque_max", apkf_lean.TORQUE_MAX))
+        self.fric = cfg.get("friction", apkf_lean.FRICTION)        # coulomb, viscous, smoothing rad/s
         self.sigma_b = float(cfg.get("beacon_sigma_arcsec", 60.0)) * ARCSEC
         sg = cfg.get("gnss_sigma", (30.0, 1.0))
         self.Rg = stkf_lean.zeros_d(36)
@@ -116,12 +116,12 @@ class App:
             self.J[i] = m.J[i] / self.scale
         self.C = zeros(12)                  # normalised axes (3 x 4) and their Jrw
         self.Cu = zeros(12)                 # the axes in use (failed wheels' columns zero)
-        self.jrw = zeros(4)
+        jrw = zeros(4)
         for i in range(12):
             self.C[i] = m.C[i]
         for i in range(4):
-            self.jrw[i] = m.jrw[i] / self.scale
-        self.cjrw = [self.C[i] * self.jrw[i % 4] for i in range(12)]   # C Jrw (3 x 4), for H = J w + C Jrw w_rw
+            jrw[i] = m.jrw[i] / self.scale
+        self.cjrw = [self.C[i] * jrw[i % 4] for i in range(12)]   # C Jrw (3 x 4), for H = J w + C Jrw w_rw
         self.m_ff = (m.m[0] / self.scale, m.m[1] / self.scale, m.m[2] / self.scale)   # dipole, N m / T
         self.cof_failed = -1                # the failed set self.Cu and self.cof were made for
         self.cof = None
@@ -254,14 +254,13 @@ class App:
                 control.quat_mul(dq, q, pc)
                 s = 2.0 if dq[3] >= 0 else -2.0
                 self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
-                                           momentum=self.momentum)
+                                           momentum=self.momentum, friction=self.fric, torque_max=self.torque_max)
             self.st_prev_ok = st_ok
             if st_ok:
                 for i in range(4):
                     self.qst_prev[i] = self.qst[i]
             return
-        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t),
-                       self.u if self.momentum == "torque" else None)
+        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t), self.u)
 
     @micropython.native
     def _attitude(self):

@@ -6,8 +6,9 @@ allocated once. Floats are still boxed objects on most MicroPython ports, so the
 bounded amount per call (measured per 1 Hz cycle by tests/mp/firmware_adcs.py); so does every read of a float
 from an array, which is why an input read many times is read once into a short list (same values, the same
 products in the same order: results equal to the element-by-element form, bit for bit). A loop iteration costs
-MicroPython about as much as a float operation, so the sizes the filters use (3 and 6) have their inner sums
-written out, and the routines are compiled by the native emitter (``@micropython.native``; ``micropython`` here
+MicroPython about as much as a float operation, so the hot sizes have their inner sums written out (the Joseph
+update and the column solve for m = 3 and 6, the Cholesky factor for n = 3, the products with an inner size of
+6), and the routines are compiled by the native emitter (``@micropython.native``; ``micropython`` here
 is CPython's no-op stand-in for the other flight modules too). Native code is larger than bytecode: frozen into
 flash on a board (bench/bench_adcs_can.py reports both sizes). A port built without the native emitter refuses
 the decorator at compile time; there the decorator lines are dropped (bench_adcs_can's bytecode-only figure).

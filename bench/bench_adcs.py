@@ -103,6 +103,14 @@ def attitude_bound(seeds=range(6)):
     return "\n".join(lines)
 
 
+def _final_parameters(o, model=None):
+    """The APKF (case 1) over a simulated run ``o``: its final 1 sigma and |error| per state."""
+    k0, f = runs._start_apkf(o, 1, model=model)
+    for k in range(k0 + 1, len(o["t"])):
+        f.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
+    return np.sqrt(np.diag(f.P)), np.abs(runs.apkf_error(o, len(o["t"]) - 1, f.x, 1))
+
+
 def parameters_vs_tach(seeds=range(4), rpms=(10.0, 3.0, 1.0)):
     """Why the parameter 1 sigma miss (case 1): the final 1 sigma and error of the parameters with the
     tachometer read-out noise cut, truth and filter alike (a diagnostic; the scenario's is 10 rpm)."""
@@ -116,11 +124,7 @@ def parameters_vs_tach(seeds=range(4), rpms=(10.0, 3.0, 1.0)):
         for seed in seeds:
             o = scenario.simulate(case=1, seed=seed,
                                   wheel_params=WheelParams(**dict(scenario.SCENARIO_WHEELS, noise_rpm=rpm)))
-            k0, f = runs._start_apkf(o, 1, model=apkf.Model(tach_rpm=rpm))
-            for k in range(k0 + 1, len(o["t"])):
-                f.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
-            s = np.sqrt(np.diag(f.P))
-            e = np.abs(runs.apkf_error(o, len(o["t"]) - 1, f.x, 1))
+            s, e = _final_parameters(o, apkf.Model(tach_rpm=rpm))
             rows.append((np.degrees(s[17:25].max()), 1e8 * s[25:29].max(), 1e3 * s[9:11].max(),
                          np.degrees(e[17:25].max()), 1e8 * e[25:29].max()))
         lines.append("| %g | %.3f | %.2f | %.3f | %.2f | %.1f |" % ((rpm,) + tuple(np.mean(rows, axis=0))))
@@ -143,11 +147,7 @@ def parameters_vs_misalignment(seeds=range(4), scales=(1.0, 0.3, 0.1)):
             wp = dict(scenario.SCENARIO_WHEELS, delta1_deg=tuple(k * d for d in base.delta1_deg),
                       delta2_deg=tuple(k * d for d in base.delta2_deg))
             o = scenario.simulate(case=1, seed=seed, wheel_params=WheelParams(**wp))
-            k0, f = runs._start_apkf(o, 1)
-            for i in range(k0 + 1, len(o["t"])):
-                f.step(o["t"][i - 1], o["tach"][i], o["st_q"][i] if o["st_valid"][i] else None)
-            s = np.sqrt(np.diag(f.P))
-            e = np.abs(runs.apkf_error(o, len(o["t"]) - 1, f.x, 1))
+            s, e = _final_parameters(o)
             rows.append((np.degrees(e[17:25].max()), np.degrees(s[17:25].max()), (e[17:25] / s[17:25]).max(),
                          (e[25:29] / s[25:29]).max(), (e[9:14] / s[9:14]).max()))
         r = np.mean(rows, axis=0)

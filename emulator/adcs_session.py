@@ -78,8 +78,8 @@ def check_faults(faults, duration_s):
             raise ValueError("unknown fault %r (known: %s)" % (k, ", ".join(FAULTS)))
         try:
             if k == "beacon_lost":
-                out[k] = float(v)
-                ok = np.isfinite(out[k]) and out[k] >= 0
+                out[k] = t0 = float(v)
+                ok = np.isfinite(t0) and t0 >= 0
             elif k == "wheel_silent":
                 i, t0 = int(v[0]), float(v[1])
                 out[k] = [i, t0]
@@ -93,8 +93,7 @@ def check_faults(faults, duration_s):
         if not ok:
             raise ValueError("fault %s = %r: expected %s" % (k, v, {
                 "wheel_silent": "[wheel 0-3, t0_s >= 0]", "beacon_lost": "t0_s >= 0"}.get(k, "[t0_s, t1_s], 0 <= t0 < t1")))
-        t0 = out[k] if k == "beacon_lost" else out[k][1 if k == "wheel_silent" else 0]
-        if t0 >= duration_s:
+        if t0 >= duration_s:                     # t0: the fault's start, set by its branch above
             raise ValueError("fault %s starts at %g s, not before the run's end (%g s): it would never happen"
                              % (k, t0, duration_s))
     return out

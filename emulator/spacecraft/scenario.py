@@ -251,7 +251,7 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
 
 class GridOrbit:
     """An orbit given on a uniform time grid (rate_hz samples from t0): ``position(t)`` is the nearest
-    sample (the caller interpolated the grid finely enough, as ground/adcs/bps.py does at 20 Hz)."""
+    sample (the caller interpolated the grid finely enough, as ``pointing_world`` does at 20 Hz)."""
 
     def __init__(self, t0, rate_hz, r):
         self.t0, self.rate, self.r = float(t0), float(rate_hz), r

@@ -9,7 +9,8 @@ identity and no noise). A measurement at the current time, or at an existing nod
 interpolated from a and c (Eq. 5.40-5.42; nonlinear Eq. 5.49-5.52), plugged in between them (Fig. 5-2),
 and is then applied with Eq. 5.24. Nodes older than the lag are dropped (marginalised: exact).
 
-Functions (``predict``, ``update``, ``generate_node``) carry the algebra; ``Afls`` keeps the node list.
+Functions (``predict``, ``update``, ``generate_node``) state the algebra; ``Afls`` keeps the node list and
+runs its own faster forms of the first two (pruning as it predicts, the update as a downdate), tested against them.
 The model is given as callables: ``f(x, dt)`` propagation (negative dt = backward, Eq. 5.51),
 ``Phi(x, dt)`` its Jacobian at x, ``Q(dt)`` the discrete process noise. For a linear system f(x, dt) is
 Phi(dt) x and the EAFLS reduces to the AFLS exactly.

@@ -404,7 +404,8 @@ def _series(Ad, dt, order):
 
 def phi(F, dt, order=4):
     """Closed-form Phi (App. A.2 construction; see the module docstring). Phi = I except in the attitude
-    and rate rows (0:6) and the wheel-speed rows (29:33, columns W-, W+): ``predict`` uses that."""
+    and rate rows (0:6) and the wheel-speed rows (29:33, columns W-, W+); ``predict`` builds only those rows
+    (``_phi_rows``)."""
     E, G1, G2 = _series(F[0:6, 0:6] * dt, dt, order)
     Phi = EYE_N.copy()
     Phi[0:6, 0:6] = E

@@ -150,24 +150,12 @@ def settle_s(ts):
     return bps.HOLD_S + 4.0 * ts
 
 
-def estimate_errors(q_hat, w_hat, ra_hat, rb_hat, q, w, ra, rb):
-    """Estimate minus truth: attitude (arcsec, 3 axes: 2 x the vector part of q_hat (x) q^-1, Eq. 4.25), rate (arcsec/s) and the
-    orbit position errors |rA_hat - rA|, |rB_hat - rB| (m) of one flight-software estimate."""
-    from ground.adcs import quat
-    att = 2.0 * quat.error_vec(np.asarray(q_hat, float), np.asarray(q, float)) / ARCSEC
-    return np.concatenate([att, (np.asarray(w_hat, float) - w) / ARCSEC,
-                           [np.linalg.norm(np.asarray(ra_hat, float) - ra),
-                            np.linalg.norm(np.asarray(rb_hat, float) - rb)]])
-
-
-EST_COLS = ("att_x", "att_y", "att_z", "rate_x", "rate_y", "rate_z", "ra_m", "rb_m")
-
-
 def estimation_accuracy(t, err, t_from, t_to):
-    """The filters' accuracy over [t_from, t_to]: attitude and rate 1 sigma per axis and 3 sigma (of the norm,
-    as the pointing budget), rA and rB position RMS (m)."""
+    """The filters' accuracy over [t_from, t_to] from rows of ``bps.estimate_errors``: attitude and rate 1 sigma
+    per axis and 3 sigma (of the norm, as the pointing budget), rA and rB position RMS (m)."""
+    from ground.adcs import bps
     t = np.asarray(t, float)
-    err = np.asarray(err, float).reshape(-1, len(EST_COLS))
+    err = np.asarray(err, float).reshape(-1, len(bps.EST_COLS))
     sel = (t >= t_from - 1e-9) & (t <= t_to + 1e-9) & np.all(np.isfinite(err), axis=1)
     if sel.sum() < 2:
         return None
@@ -185,42 +173,23 @@ class _Stopped(Exception):
 
 def _ground_run(spec, params, on_cycle=None, stop=None):
     """``bps.simulate`` for the spec; returns (result, history, estimate errors (K+1, 8)). ``on_cycle(msg)``
-    gets each second as the simulation makes it (the body pointing error of its ten steps, Eq. 6.12-6.21, and the
-    estimate errors at its start)."""
-    from emulator.spacecraft import scenario
+    gets each second as the simulation makes it (the body pointing error of its ten steps, Eq. 6.12-6.21, on the
+    truth ``simulate`` hands over, and the estimate errors at its start)."""
     from ground.adcs import bps
-    n = int(np.ceil(settle_s(spec["ts"]) + spec["adcs_duration_s"]))
-    x10 = scenario.truth_grid(n, spec["truth"], spec["cache_dir"], bps.SPAN_MARGIN_S, rate_hz=10)[3][:10 * n + 1]
-    # (simulate's truth at 10 Hz: its pointing_world, whose 20 Hz grid has these samples at its even indices)
 
-    done = {}            # est_err by second: the rows it reads are final when on_second(k) comes
-
-    def est_err(k, hist, fsw):
-        if k not in done:
-            xh, i = fsw["x_stkf"][k], 10 * k
-            if not (np.all(np.isfinite(fsw["q_hat"][k])) and np.all(np.isfinite(xh))):
-                done[k] = np.full(len(EST_COLS), np.nan)
-            else:
-                done[k] = estimate_errors(fsw["q_hat"][k], fsw["w_hat"][k], xh[0:3], xh[6:9], hist["q"][i],
-                                          hist["w"][i], x10[i, 0, 0:3], x10[i, 1, 0:3])
-        return done[k]
-
-    def second(k, hist, fsw):
+    def second(k, hist, fsw, x):
         if stop is not None and stop.is_set():
             raise _Stopped
         sl = slice(10 * k + 1, 10 * k + 11)
-        x = x10[sl]
         dth, dom = bps.pointing_errors(hist["q"][sl], hist["w"][sl], x[:, 0, 0:3], x[:, 0, 3:6], x[:, 1, 0:3],
                                        x[:, 1, 3:6])
         on_cycle({"t": hist["t"][sl].copy(), "dtheta": dth / ARCSEC, "domega": dom / ARCSEC, "t_est": float(k),
-                  "est_err": est_err(k, hist, fsw)})
+                  "est_err": fsw["est_err"][k].copy()})
 
     res, hist = bps.simulate(ts=spec["ts"], satb_gnss=spec["satb_gnss"], duration_s=spec["adcs_duration_s"],
                              seed=spec["seed"], params=params, truth=spec["truth"], cache_dir=spec["cache_dir"],
                              on_second=second if on_cycle is not None else None)
-    fsw = {k[4:]: v for k, v in hist.items() if k.startswith("fsw_")}
-    err = np.array([est_err(k, hist, fsw) for k in range(int(res["simulated_s"]) + 1)])
-    return res, hist, err
+    return res, hist, hist["fsw_est_err"]
 
 
 def _reference(res, hist, err, spec):
@@ -264,9 +233,9 @@ def _send_firmware(spec, params, q, stop):
             c = s.cycle()
             dth, dom = bps.pointing_errors(c["q"], c["w"], c["ra"], c["va"], c["rb"], c["vb"])
             e = c.get("est") or {}
-            err = np.full(len(EST_COLS), np.nan)
+            err = np.full(len(bps.EST_COLS), np.nan)
             if prev is not None and all(k in e for k in ("q", "w", "ra", "rb")):
-                err = estimate_errors(e["q"], e["w"], e["ra"], e["rb"], *prev)
+                err = bps.estimate_errors(e["q"], e["w"], e["ra"], e["rb"], *prev)
             prev = (c["q"][-1], c["w"][-1], c["ra"][-1], c["rb"][-1])
             t = np.round(np.asarray(c["t"], float) * 10.0) / 10.0      # the 0.1 s steps, without summing drift
             q.put(("cycle", {"t": t, "dtheta": dth / ARCSEC, "domega": dom / ARCSEC,
@@ -394,9 +363,10 @@ class AdcsFeed:
                 self._handle(*m)
 
     def arrays(self):
+        from ground.adcs import bps
         cat = (lambda v, shape: np.concatenate(v) if v else np.zeros(shape))
         return (cat(self.t, (0,)), cat(self.dth, (0, 2)), cat(self.dom, (0, 2)), np.array(self.t_est),
-                np.array(self.est_err).reshape(-1, len(EST_COLS)))
+                np.array(self.est_err).reshape(-1, len(bps.EST_COLS)))
 
     def close(self):
         self.stop.set()
@@ -543,7 +513,7 @@ def _body_summary(feed, live, rec, t_settle):
     t, dth, dom, t_est, err = feed.arrays()
     buf = io.BytesIO()
     np.savez_compressed(buf, t_s=t - t_settle, t_adcs_s=t, dtheta_arcsec=dth, domega_arcsec_s=dom,
-                        t_est_s=t_est, est_err=err, est_cols=np.array(EST_COLS))
+                        t_est_s=t_est, est_err=err, est_cols=np.array(bps.EST_COLS))
     write_atomic(rec.path("body.npz"), buf.getvalue())
     sel = (t >= t_settle - 1e-9) & (t <= t_settle + rec.virtual_s + 1e-9)
     body = bps.statistics(dth[sel] * ARCSEC, dom[sel] * ARCSEC) if sel.sum() >= 2 else None

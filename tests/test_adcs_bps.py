@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from emulator import orbits
+from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import Spacecraft
 from emulator.spacecraft.wheels import pyramid_c0
 from ground import cli
@@ -170,6 +171,34 @@ def test_error_budget_is_taken_at_the_right_instants(params):
     assert 0.0 < min(b["command_sigma_arcsec"])
     assert max(b["tracking_slow_sigma_arcsec"]) <= max(b["tracking_sigma_arcsec"]) + 1e-9
     assert "error budget" in bps_cli.report_md(dict(res, budgets_met=False, wheel_speed_clips={}), "x")
+
+
+def test_on_second_hands_over_each_seconds_truth_and_estimate_errors(params):
+    """``fps system`` follows a run through ``on_second``: the truth it gets is the world's at the history's ten
+    steps of that second, and the estimate errors are taken against the truth at the second's start."""
+    got = []
+    res, hist = bps.simulate(ts=10, duration_s=2, seed=1, params=params, truth="two-body",
+                             on_second=lambda k, h, f, x: got.append((k, x.copy(), f["est_err"][k].copy())))
+    K = int(res["simulated_s"])
+    assert res["complete"] and K == 72 and [g[0] for g in got] == list(range(K))
+    w = scenario.pointing_world(K, 1, span_margin_s=bps.SPAN_MARGIN_S)          # simulate's world: its truth
+    e_all = hist["fsw_est_err"]
+    assert e_all.shape == (K + 1, len(bps.EST_COLS)) and np.all(np.isfinite(e_all))
+    for k, x, e in got:
+        sl = slice(10 * k + 1, 10 * k + 11)
+        np.testing.assert_array_equal(x, w.xg[np.round(hist["t"][sl] * w.rate).astype(int)])
+        dth, _ = bps.pointing_errors(hist["q"][sl], hist["w"][sl], x[:, 0, 0:3], x[:, 0, 3:6], x[:, 1, 0:3],
+                                     x[:, 1, 3:6])
+        np.testing.assert_array_equal(dth / ARC, hist["dtheta_arcsec"][sl])   # the live slice = the whole run's
+        np.testing.assert_array_equal(e, e_all[k])
+    for k in (0, 40, K):                                        # the truth at t = k (the last second too)
+        xt, xh = w.xg[k * w.rate], hist["fsw_x_stkf"][k]
+        att = 2 * quat.error_vec(hist["fsw_q_hat"][k], hist["q"][10 * k]) / ARC
+        np.testing.assert_allclose(e_all[k, 0:3], att, rtol=1e-12)
+        np.testing.assert_allclose(e_all[k, 3:6], (hist["fsw_w_hat"][k] - hist["w"][10 * k]) / ARC, rtol=1e-12)
+        assert e_all[k, 6] == pytest.approx(np.linalg.norm(xh[0:3] - xt[0, 0:3]), rel=1e-12)
+        assert e_all[k, 7] == pytest.approx(np.linalg.norm(xh[6:9] - xt[1, 0:3]), rel=1e-12)
+    assert e_all[K, 6] < e_all[0, 6]                            # rA converges on SatA's GNSS
 
 
 def test_interrupted_run_is_marked_incomplete(params, monkeypatch):

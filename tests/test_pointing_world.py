@@ -118,14 +118,6 @@ def test_the_world_depends_on_its_inputs():
     assert a.sc.orbit is a.orbit and np.array_equal(a.orbit.position(12.35), a.xg[247, 0, 0:3])
 
 
-def test_the_10hz_truth_is_the_worlds_grid_at_even_indices():
-    """``fps system``'s ground reference reads the truth at 10 Hz from ``truth_grid``: the same samples as
-    bps.simulate's world (its pointing errors use xg[::2])."""
-    w = scenario.pointing_world(60, 0, span_margin_s=bps.SPAN_MARGIN_S)
-    x10 = scenario.truth_grid(60, "two-body", None, bps.SPAN_MARGIN_S, rate_hz=10)[3]
-    np.testing.assert_array_equal(x10, w.xg[::2])
-
-
 def test_truth_span_keeps_each_callers_cache_key():
     assert bps.truth_span(998) == 1000.0 and bps.truth_span(999) == 2000.0
     assert scenario.truth_span(992, adcs_session.SPAN_MARGIN_S) == 1000.0

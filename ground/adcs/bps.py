@@ -202,6 +202,18 @@ def pointing_errors(q, w, ra, va, rb, vb, laser_axis=control.LASER_AXIS):
     return np.arcsin(np.clip(pl[:, 0:2], -1, 1)), vl[:, 0:2]
 
 
+def estimate_errors(q_hat, w_hat, ra_hat, rb_hat, q, w, ra, rb):
+    """Estimate minus truth: attitude (arcsec, 3 axes: 2 x the vector part of q_hat (x) q^-1, Eq. 4.25), rate (arcsec/s) and the
+    orbit position errors |rA_hat - rA|, |rB_hat - rB| (m) of one flight-software estimate (``EST_COLS``)."""
+    att = 2.0 * quat.error_vec(np.asarray(q_hat, float), np.asarray(q, float)) / ARCSEC
+    return np.concatenate([att, (np.asarray(w_hat, float) - w) / ARCSEC,
+                           [np.linalg.norm(np.asarray(ra_hat, float) - ra),
+                            np.linalg.norm(np.asarray(rb_hat, float) - rb)]])
+
+
+EST_COLS = ("att_x", "att_y", "att_z", "rate_x", "rate_y", "rate_z", "ra_m", "rb_m")
+
+
 def objective(dtheta, domega):
     """J = E[eps^T W eps] (Eq. 6.22-6.24), eps in rad and rad/s."""
     e = np.column_stack([dtheta, domega])
@@ -242,9 +254,11 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection
     time after the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict of 10 Hz arrays).
-    A KeyboardInterrupt returns what was collected so far with ``complete`` false. ``on_second(k, hist, fsw)``,
-    if given, is called after each second's ten truth steps (rows up to 10 (k + 1) of ``hist``, k of ``fsw``,
-    are final; it must only read them): a live consumer (``fps system``) follows the run as it goes."""
+    A KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
+    ``fsw_est_err``) holds each second's ``estimate_errors`` against the truth at that second. ``on_second(k,
+    hist, fsw, x)``, if given, is called after each second's ten truth steps (rows up to 10 (k + 1) of ``hist``,
+    k of ``fsw``, are final; it must only read them), ``x`` (10, 2, 6) being the orbit truth (SatA, SatB [r, v])
+    at ``hist`` rows 10 k + 1 .. 10 k + 10: a live consumer (``fps system``) follows the run as it goes."""
     ts = check_ts(ts)
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
@@ -269,7 +283,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             "w_rel": np.zeros((n10, 4))}
     fsw = {k: np.full((K + 1, m), np.nan) for k, m in (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3),
                                                         ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
-                                                        ("wc", 3), ("x_stkf", 12))}
+                                                        ("wc", 3), ("x_stkf", 12), ("est_err", len(EST_COLS)))}
+    sub = rate // 10                                 # the grid's rows at the 10 Hz truth steps
     hist["q"][0], hist["w"][0], hist["w_rel"][0] = sc.q, sc.omega, sc.omega_rw_rel
     jb = 0
     complete = True
@@ -348,6 +363,9 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             fsw["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)        # truth, for the record only
             fsw["q_hat"][k], fsw["w_hat"][k], fsw["u"][k] = q_hat, w_hat, u
             fsw["x_stkf"][k] = xh                                          # rA, vA, rB, vB estimated
+            if np.all(np.isfinite(q_hat)):
+                fsw["est_err"][k] = estimate_errors(q_hat, w_hat, xh[0:3], xh[6:9], hist["q"][10 * k],
+                                                    hist["w"][10 * k], x_true[0:3], x_true[6:9])
             if k == K:
                 k_done = k
                 break
@@ -360,7 +378,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 raise FloatingPointError("truth diverged at t = %.0f s" % sc.t)
             k_done = k + 1
             if on_second is not None:
-                on_second(k, hist, fsw)
+                on_second(k, hist, fsw, xg[(10 * k + 1) * sub:(10 * k + 10) * sub + 1:sub])
             if bar is not None:
                 bar.update(1)
     except KeyboardInterrupt:
@@ -373,7 +391,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         hist[key] = hist[key][:n_ok]
     for key in fsw:
         fsw[key] = fsw[key][:k_done + 1]
-    xs10 = xg[:n_ok * 2:2]
+    xs10 = xg[:n_ok * sub:sub]
     dth, dom = pointing_errors(hist["q"], hist["w"], xs10[:, 0, 0:3], xs10[:, 0, 3:6], xs10[:, 1, 0:3],
                                xs10[:, 1, 3:6])
     hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / ARCSEC, dom / ARCSEC

@@ -53,10 +53,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
 RUNTIMES = ("micropython", "cpython")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
-P0_DIAG = scenario.STKF_P0_DIAG      # Sec. 5.5.1
 LAG_S = 4.0
 HOLD_S = 30.0
-RATE = scenario.WORLD_RATE_HZ        # Hz, the orbit grid (RK4 mid-steps at 0.05 s)
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
 MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
@@ -159,7 +157,7 @@ class AdcsSession:
         """The firmware's configuration (written to its config.json): parameter file, gains, STKF start."""
         wp = self.wheels.p
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
-                "stkf_x0": self.stkf_x0, "stkf_P0": P0_DIAG, "lag_s": LAG_S,
+                "stkf_x0": self.stkf_x0, "stkf_P0": scenario.STKF_P0_DIAG, "lag_s": LAG_S,
                 "torque_max": wp.torque_max,
                 "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
                 "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC, "gnss_sigma": [30.0, 1.0],
@@ -266,7 +264,7 @@ class AdcsSession:
         self._send(P["STARTRACKER"], N["STARTRACKER"], core.encode_payload(
             P["STARTRACKER"], t_ms=t_ms, q0=float(qm[0]), q1=float(qm[1]), q2=float(qm[2]), q3=float(qm[3]),
             valid=int(ok)))
-        x = self.xg[k * RATE].ravel()
+        x = self.xg[k * scenario.WORLD_RATE_HZ].ravel()
         outage = self._fault("gnss_outage", t)
         zg = self.gnss_a.measure(x[0:6])                      # drawn always: streams stay aligned
         if not outage:
@@ -336,7 +334,7 @@ class AdcsSession:
         out["t"] = np.zeros(10)
         for j in range(10):
             self.sc.step()
-            g = self.xg[(self.k * 10 + j + 1) * (RATE // 10)]
+            g = self.xg[(self.k * 10 + j + 1) * (scenario.WORLD_RATE_HZ // 10)]
             out["t"][j] = self.sc.t
             out["q"][j], out["w"][j] = self.sc.q, self.sc.omega
             out["ra"][j], out["va"][j], out["rb"][j], out["vb"][j] = g[0, 0:3], g[0, 3:6], g[1, 0:3], g[1, 3:6]

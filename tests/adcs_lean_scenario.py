@@ -67,18 +67,19 @@ def stkf_scenario(seconds, case=2, seed=0, delay_s=(2.0, 3.0), att_sigma_arcsec=
     (initial estimate), ``P0``, ``R`` (GNSS, 6 x 6 flat), ``P_att`` (3 x 3 flat, rad^2), ``sigma_b`` (rad)."""
     from emulator import orbits
     from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
-    from ground.adcs.stkf_sim import P0_DIAG, small_rotation
+    from emulator.spacecraft.scenario import STKF_P0_DIAG
+    from ground.adcs.stkf_sim import small_rotation
     from ground.resample import lagrange
     K = int(seconds)
     t_s, xs = orbits.truth_samples("two-body", float(K))
     r_init, r_ga, r_gb, r_bc, r_att, r_rel = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]
-    x0 = xs[0].ravel() + np.sqrt(P0_DIAG) * r_init.standard_normal(12)
+    x0 = xs[0].ravel() + np.sqrt(STKF_P0_DIAG) * r_init.standard_normal(12)
     gnss_a, beacon = Gnss(r_ga), Beacon(r_bc)
     relay = Relay(r_rel, Gnss(r_gb), delay_s)
     tb = r_rel.uniform(0.0, 1.0) + np.arange(0, K)
     xb_at = lagrange(t_s, xs[:, 1, :], tb, order=10)
     sd = np.asarray(att_sigma_arcsec, float) * ARCSEC
-    out = {"x0": x0.tolist(), "P0": P0_DIAG.tolist(), "R": gnss_a.R.ravel().tolist(),
+    out = {"x0": x0.tolist(), "P0": list(STKF_P0_DIAG), "R": gnss_a.R.ravel().tolist(),
            "P_att": np.diag(sd ** 2).ravel().tolist(), "sigma_b": float(beacon.sigma), "steps": []}
     jb = 0
     for k in range(K + 1):

@@ -47,7 +47,7 @@ from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
 from ground.adcs import apkf, control, quat, stkf
 from ground.adcs.afls import Afls
-from ground.adcs.stkf_sim import LAG_S, P0_DIAG, _blockdiag
+from ground.adcs.stkf_sim import LAG_S, _blockdiag
 from ground.fileio import write_atomic, write_json
 
 ARCSEC = quat.ARCSEC
@@ -272,7 +272,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
     model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb)
-    f_stkf = Afls(world.stkf_x0, np.diag(P0_DIAG), 0.0, LAG_S,
+    f_stkf = Afls(world.stkf_x0, np.diag(scenario.STKF_P0_DIAG), 0.0, LAG_S,
                   stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)
     I6 = np.eye(6)
     flt = None

@@ -35,7 +35,6 @@ from ground.fileio import write_atomic, write_json
 from ground.resample import lagrange
 
 ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
-P0_DIAG = np.array(STKF_P0_DIAG)               # (4 km)^2, (0.1 km/s)^2 per satellite (Sec. 5.5.1)
 LAG_S = 4.0
 SENSORS = ("gnss_a", "beacon", "relay")
 GAP_S = {"gnss_a": 2.0, "beacon": 2.0, "relay": 5.0}   # silence longer than this is logged as an outage
@@ -145,9 +144,9 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     t_s, xs = orbits.truth_samples(truth, duration_s, cache_dir=cache_dir)
     K = int(np.floor(duration_s + 1e-9))
     r_init, r_ga, r_gb, r_bc, r_att, r_rel = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]
-    P0 = np.diag(P0_DIAG)
+    P0 = np.diag(STKF_P0_DIAG)                    # (4 km)^2, (0.1 km/s)^2 per satellite (Sec. 5.5.1)
     x_true0 = xs[0].ravel()
-    x0 = x_true0 + np.sqrt(P0_DIAG) * r_init.standard_normal(12)
+    x0 = x_true0 + np.sqrt(STKF_P0_DIAG) * r_init.standard_normal(12)
     flt = Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa), keep_generated=False,
                parts=stkf.PARTS)
     gnss_a, beacon = Gnss(r_ga), Beacon(r_bc)

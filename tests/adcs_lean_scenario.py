@@ -151,7 +151,6 @@ def run_stkf_ground(sc, lag_s=4.0):
     from emulator.spacecraft.dynamics import dcm
     from ground.adcs import stkf
     from ground.adcs.afls import Afls
-    from ground.adcs.stkf_sim import _blockdiag
     flt = Afls(np.array(sc["x0"]), np.diag(sc["P0"]), 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt))
     R = np.reshape(sc["R"], (6, 6))
     P_att = np.reshape(sc["P_att"], (3, 3))
@@ -160,8 +159,8 @@ def run_stkf_ground(sc, lag_s=4.0):
         if k > 0:
             flt.predict(st["t"])
         A_hat = dcm(np.array(st["q"]))
-        Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), sc["sigma_b"], P_att)
-        flt.update(np.concatenate([st["za"], st["y"]]), _blockdiag(R, Rb),
+        flt.update(np.concatenate([st["za"], st["y"]]),
+                   stkf.R_gnss_beacon(R, stkf.h_beacon(flt.x, A_hat), sc["sigma_b"], P_att),
                    lambda x: stkf.gnss_beacon(x, A_hat)[0], lambda x: stkf.gnss_beacon(x, A_hat)[1])
         for tm, z in st["zb"]:
             flt.update(np.array(z), R, lambda x: x[6:12], lambda x: stkf.H_gnss("B"), t=tm)

@@ -90,6 +90,29 @@ def test_beacon_jacobian_matches_finite_difference():
     np.testing.assert_allclose(H, J, atol=1e-12)
 
 
+def test_gnss_and_beacon_stacked_measurement():
+    """The stacked update of SatA's GNSS and the beacon (stkf_sim and bps): h, H of each part stacked, R block
+    diagonal (independent noises); the attitude term of the beacon's R (Eq. 5.15-5.16) lies across the line
+    of sight only: y^T R_b y = sigma_b^2, across it the attitude covariance adds."""
+    x = np.concatenate([orbits.X0_A, orbits.X0_B])
+    A = stkf_sim.small_rotation(np.array([0.3, -0.2, 0.5]))
+    h, H = stkf.gnss_beacon(x, A)
+    np.testing.assert_allclose(h, np.concatenate([x[0:6], stkf.h_beacon(x, A)]), rtol=1e-12)
+    np.testing.assert_array_equal(H[0:6], np.hstack([np.eye(6), np.zeros((6, 6))]))
+    np.testing.assert_allclose(H[6:9], stkf.H_beacon(x, A), rtol=1e-12, atol=1e-20)
+    R_g = Gnss(np.random.default_rng(0)).R
+    sb, P_att = 60 * ARCSEC, np.diag((np.array([9.81, 8.01, 19.70]) * ARCSEC) ** 2)
+    y = stkf.h_beacon(x, A)
+    R = stkf.R_gnss_beacon(R_g, y, sb, P_att)
+    assert R.shape == (9, 9) and np.all(R[0:6, 6:9] == 0) and np.all(R[6:9, 0:6] == 0)
+    np.testing.assert_array_equal(R[0:6, 0:6], R_g)
+    np.testing.assert_array_equal(R[6:9, 6:9], stkf.R_beacon(y, sb, P_att))
+    assert y @ R[6:9, 6:9] @ y == pytest.approx(sb ** 2, rel=1e-9)
+    e = np.cross(y, [0.0, 0.0, 1.0])
+    e /= np.linalg.norm(e)
+    assert e @ R[6:9, 6:9] @ e > 1.01 * sb ** 2
+
+
 def test_pointing_covariance_matches_sampled_errors():
     """Eq. 5.59 against the sample covariance of Eq. 5.58 errors drawn from P and P_att."""
     rng = np.random.default_rng(3)

@@ -47,7 +47,7 @@ from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
 from ground.adcs import apkf, control, quat, stkf
 from ground.adcs.afls import Afls
-from ground.adcs.stkf_sim import LAG_S, _blockdiag
+from ground.adcs.stkf_sim import LAG_S
 from ground.fileio import write_atomic, write_json
 
 ARCSEC = quat.ARCSEC
@@ -332,8 +332,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             A_hat = dcm(q_hat)
             if k > 0:
                 f_stkf.predict(t)
-            Rb = stkf.R_beacon(stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
-            f_stkf.update(np.concatenate([zg, y]), _blockdiag(gnss_a.R, Rb), lambda x: stkf.gnss_beacon(x, A_hat))
+            R_gb = stkf.R_gnss_beacon(gnss_a.R, stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
+            f_stkf.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
             for tm, z in due:                           # SatB's GNSS: H = I on SatB's part (Eq. 5.12)
                 f_stkf.update(z, relay.gnss.R, lambda x: (x, I6), t=tm, part=stkf.SAT_B)
             xh = f_stkf.x

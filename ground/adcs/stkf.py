@@ -245,6 +245,15 @@ def R_beacon(y, sigma_b, P_att):
     return R
 
 
+def R_gnss_beacon(R_gnss, y, sigma_b, P_att):
+    """R of SatA's GNSS and the beacon stacked (``gnss_beacon``'s h and H): the two noises independent, so
+    blockdiag(R_gnss, ``R_beacon(y, sigma_b, P_att)``) (Eq. 5.12, 5.15-5.16), 9 x 9."""
+    R = np.zeros((9, 9))
+    R[0:6, 0:6] = R_gnss
+    R[6:9, 6:9] = R_beacon(y, sigma_b, P_att)
+    return R
+
+
 # ---- pointing vector (Eq. 5.54-5.60) ----
 
 def T_b2z(p):

@@ -59,13 +59,6 @@ def parse_outage(text):
     return parts[0], t0, t1
 
 
-def _blockdiag(a, b):
-    out = np.zeros((a.shape[0] + b.shape[0],) * 2)
-    out[:a.shape[0], :a.shape[0]] = a
-    out[a.shape[0]:, a.shape[0]:] = b
-    return out
-
-
 def small_rotation(alpha):
     """A(dq) of the rotation vector alpha (dq = [alpha/2, 1] normalised, Eq. 4.77)."""
     q = np.array([0.5 * alpha[0], 0.5 * alpha[1], 0.5 * alpha[2], 1.0])
@@ -162,8 +155,6 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     I6 = np.eye(6)
     h_sat = lambda x: (x, I6)                     # noqa: E731  (GNSS of one satellite, Eq. 5.12: H = I on its part)
     R_g, R_relay = gnss_a.R, relay.gnss.R
-    R_gb = np.zeros((9, 9))                       # SatA's GNSS and the beacon: independent noises
-    R_gb[:6, :6] = R_g
 
     def out(sensor, t):
         return any(s == sensor and t0 <= t < t1 for s, t0, t1 in outages)
@@ -197,14 +188,13 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
         t0 = time.perf_counter()
         if k > 0:
             flt.predict(t)
-        if have_b:
-            Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
         if have_g and have_b:  # one stacked update: the two noises are independent
-            R_gb[6:, 6:] = Rb
+            R_gb = stkf.R_gnss_beacon(R_g, stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
             flt.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
         elif have_g:
             flt.update(zg, R_g, h_sat, part=stkf.SAT_A)
         elif have_b:
+            Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
             flt.update(y, Rb, lambda x: stkf.h_beacon(x, A_hat), lambda x: stkf.H_beacon(x, A_hat))
         for tm, z in due:
             flt.update(z, R_relay, h_sat, t=tm, part=stkf.SAT_B)

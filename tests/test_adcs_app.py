@@ -97,21 +97,27 @@ def test_rx_drops_count_each_can_reason_once():
     assert A._drops(Port()) == len(set(canmap.DROP_REASONS)) + 1
 
 
-def test_the_apkf_input_is_a_checked_option():
-    """apkf_momentum chooses the lean APKF's momentum input; the commanded torques reach the filter."""
+@pytest.mark.parametrize("momentum", ["torque", "filtered"])
+def test_the_apkf_input_is_a_checked_option(momentum):
+    """apkf_momentum chooses the lean APKF's momentum input (filtered by default); the commanded torques and
+    which wheels were heard reach the filter."""
     with pytest.raises(ValueError, match="apkf_momentum"):
         AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum="gyro")
     with pytest.raises(ValueError, match="apkf_momentum"):
         A.App(dict(_cfg(False), apkf_momentum="gyro"))
-    cfg = AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum="torque").config()
+    assert A.App(_cfg(False)).momentum == "filtered"
+    cfg = AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum=momentum).config()
     app = A.App(cfg)
     app.apkf = A.apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0] * 4,
                                 momentum=app.momentum)
     seen = []
     step = app.apkf.step
-    app.apkf.step = lambda wp, q, env, u=None: (seen.append(None if u is None else list(u)), step(wp, q, env, u))
+    app.apkf.step = lambda wp, q, env, u=None, got=None: (seen.append((list(u), list(got))),
+                                                          step(wp, q, env, u, got))
     for i in range(4):
         app.u[i] = 1e-5 * (i + 1)
+    app.rw_got[:] = [True, False, True, True]
     app.st_got = app.st_valid = False
     app._apkf(1.0)
-    assert app.apkf.model.torque and seen == [[pytest.approx(1e-5 * (i + 1)) for i in range(4)]]
+    assert (app.apkf.model.torque, app.apkf.model.filtered) == (momentum == "torque", momentum == "filtered")
+    assert seen == [([pytest.approx(1e-5 * (i + 1)) for i in range(4)], [True, False, True, True])]

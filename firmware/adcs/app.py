@@ -136,11 +136,13 @@ class App:
         self.tff = zeros(3)
         self.H = zeros(3)
         self.u = zeros(4)
-        # the lean APKF's momentum input (apkf_lean.Model): the read-out difference (flown) or the torques
-        # this app commanded over the step (see the README's "Lean flight software" on why it is not flown)
-        self.momentum = cfg.get("apkf_momentum", "tach")
-        if self.momentum not in ("tach", "torque"):
-            raise ValueError("apkf_momentum must be 'tach' or 'torque', got %r" % (self.momentum,))
+        # the lean APKF's momentum input (apkf_lean.Model): the read-outs filtered on the torques this app
+        # commanded (flown), or, for comparison, the raw read-out difference or the torques alone (see the
+        # README's "Lean flight software")
+        self.momentum = cfg.get("apkf_momentum", "filtered")
+        if self.momentum not in apkf_lean.MOMENTUM:
+            raise ValueError("apkf_momentum must be one of %s, got %r" % (", ".join(apkf_lean.MOMENTUM),
+                                                                          self.momentum))
         self.A = zeros(9)
         self.b = zeros(3)
         self.rmid = zeros(3)
@@ -260,7 +262,7 @@ class App:
                 for i in range(4):
                     self.qst_prev[i] = self.qst[i]
             return
-        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t), self.u)
+        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t), self.u, self.rw_got)
 
     @micropython.native
     def _attitude(self):

@@ -48,7 +48,7 @@ GOAL_RATIO = 1.25
 CG = (110, 210)
 
 
-def session(runtime, params, record=False, heap_out=None, apkf_momentum="tach"):
+def session(runtime, params, record=False, heap_out=None, apkf_momentum="filtered"):
     hist = {k: [] for k in ("q", "w", "ra", "va", "rb", "vb", "t")}
     modes = {}
     blind = []                  # cycles without a valid star-tracker output (the stale bit)
@@ -81,14 +81,16 @@ def session(runtime, params, record=False, heap_out=None, apkf_momentum="tach"):
 
 
 def apkf_input(params):
-    """The lean APKF's momentum input in the closed loop: the read-out difference (flown) and the commanded
-    torques, each with the calibrated parameter file and with the true parameters (CPython sessions)."""
+    """The lean APKF's momentum input in the closed loop: the filtered wheel speeds (flown), the raw read-out
+    difference and the commanded torques, each with the calibrated parameter file and with the true parameters
+    (CPython sessions)."""
     lines = ["\nThe lean APKF's momentum input in the closed loop (CPython sessions, %d s, seed 0; body pointing "
              "after %.0f s)\n" % (SECONDS, HOLD + 4 * TS), "| input | parameter file | pointing 3σ (arcsec) | "
              "stability 3σ (arcsec/s) | star tracker blind (cycles) | its last blind cycle | APKF rate error, x, mean over "
              "70-100 s (arcsec/s) |", "|---|---|---|---|---|---|---|"]
     for name, p in (("calibrated (nine sets, seed 0)", params), ("true parameters", None)):
-        for mom, label in (("tach", "read-out difference (flown)"), ("torque", "commanded torques")):
+        for mom, label in (("filtered", "wheel speeds filtered on the commands (flown)"),
+                           ("tach", "read-out difference"), ("torque", "commanded torques")):
             r = session("cpython", p, apkf_momentum=mom)
             if p is None:
                 tru = r["cfg"]["params"]          # what a perfect calibration writes

@@ -201,6 +201,13 @@ class Model:
         self.torque = momentum == "torque"
         self.filtered = momentum == "filtered"
         self.Ji = self.Ji_torque if self.torque else self.Ji_tach
+        if self.filtered:        # each wheel's G g^T (upper triangle), g = J^-1 times its column of C Jrw,
+            self.GG = []         # and s dt/Jrw: what wheel_speeds and momentum_rate take per step
+            for k in range(4):
+                Qw = linalg.zeros(9)
+                _add_rate_noise(Qw, self.Ji, self.CJ, k, 1.0)
+                self.GG.append((Qw[0], Qw[1], Qw[2], Qw[4], Qw[5], Qw[8]))
+            self.g_rw = [self.scale * self.dt / self.jrw[k] for k in range(4)]
         if momentum == "tach":   # the read-out differences' rate noise is then constant (momentum_rate)
             Qw = linalg.zeros(9)
             for k in range(4):
@@ -358,11 +365,14 @@ def momentum_rate(hw, hd, Qw, model, wm, wp, u, var=None):
                 hd[i] += CJ[i * 4 + k] * a
         if not model.filtered:                     # the read-outs': Qw is constant
             return model.Qw_tach
-        linalg.fill(Qw, 9, 0.0)
-        Ji = model.Ji
-        for k in range(4):
-            _add_rate_noise(Qw, Ji, CJ, k, var[k])
-        _mirror3(Qw)
+        v0, v1, v2, v3 = var
+        a, b, c, d = model.GG
+        Qw[0] = v0 * a[0] + v1 * b[0] + v2 * c[0] + v3 * d[0]
+        Qw[1] = Qw[3] = v0 * a[1] + v1 * b[1] + v2 * c[1] + v3 * d[1]
+        Qw[2] = Qw[6] = v0 * a[2] + v1 * b[2] + v2 * c[2] + v3 * d[2]
+        Qw[4] = v0 * a[3] + v1 * b[3] + v2 * c[3] + v3 * d[3]
+        Qw[5] = Qw[7] = v0 * a[4] + v1 * b[4] + v2 * c[4] + v3 * d[4]
+        Qw[8] = v0 * a[5] + v1 * b[5] + v2 * c[5] + v3 * d[5]
         return Qw
     C, sc, tm = model.C, model.scale, model.torque_max
     linalg.fill(Qw, 9, 0.0)
@@ -564,26 +574,30 @@ def wheel_speeds(W, Pw, var, z, got, u, model):
     -K e - (1 - K) w + K v: var = K^2 P + (1 - K)^2 Q + K^2 R (derived); not heard: var = Q.
     Not modelled: the read-out's speed is relative, W - c^T w, so it also moves by c^T dw (<= 2e-3 rad/s
     per step in a slew, beside 1.05 rad/s of read-out noise). u NaN (not known) is taken as zero torque."""
-    sc, tm, fc, dt, R = model.scale, model.torque_max, model.friction[0], model.dt, model.R_rw
-    near = model.tach_3sigma
+    tm, R, near, rel, gs = model.torque_max, model.R_rw, model.tach_3sigma, model.torque_rel, model.g_rw
+    fc, fv, sm = model.friction
     for k in range(4):
         uk = u[k]
         if uk != uk:
             uk = 0.0
-        uk = tm if uk > tm else (-tm if uk < -tm else uk)
-        x, P = W[k], Pw[k]
-        g = sc * dt / model.jrw[k]
-        a = g * (uk - friction(model, x))
-        x = x + a                                   # predict
-        Q = (model.torque_rel * a) ** 2
-        if abs(x - a) < near + g * (abs(uk) + fc):
+        elif uk > tm:
+            uk = tm
+        elif uk < -tm:
+            uk = -tm
+        x, P, g = W[k], Pw[k], gs[k]
+        a = g * (uk - (fv * x + fc * math.tanh(x / sm)))
+        Q = rel * a
+        Q = Q * Q
+        if abs(x) < near + g * (abs(uk) + fc):
             Q += (g * fc) ** 2
+        x += a                                      # predict
         if got[k]:
             M = P + Q
             K = M / (M + R)
             W[k] = x + K * (z[k] - x)               # update
             Pw[k] = (1.0 - K) * M
-            var[k] = K * K * (P + R) + (1.0 - K) * (1.0 - K) * Q
+            L = 1.0 - K
+            var[k] = K * K * (P + R) + L * L * Q
         else:
             Q += (g * (abs(uk) + fc)) ** 2
             W[k] = x

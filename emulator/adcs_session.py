@@ -47,6 +47,7 @@ from emulator.navsensors import ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
+from firmware.adcs.apkf_lean import MOMENTUM
 from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -101,12 +102,12 @@ class AdcsSession:
     """See the module docstring and ADCS_SESSION_API.md. Extra keywords: ``truth`` ("two-body" or "hpop"),
     ``cache_dir`` (orbit truth cache), ``hold_s``, ``reply_timeout_s`` (wall seconds a cycle may take),
     ``heap_out`` (micropython: a JSON file of the heap bytes per cycle, written when the firmware exits),
-    ``apkf_momentum`` (the lean APKF's momentum input: "tach", the read-out difference, flown; "torque", the
-    commanded torques, a diagnostic)."""
+    ``apkf_momentum`` (the lean APKF's momentum input: "filtered", the read-outs filtered on the commanded
+    torques, flown; "tach", the read-out difference, and "torque", the commanded torques, for comparison)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=HOLD_S,
-                 reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="tach"):
+                 reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered"):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
         if not (np.isfinite(duration_s) and duration_s >= 1):
@@ -115,8 +116,8 @@ class AdcsSession:
             raise ValueError("settling time ts must be > 0 s, got %r" % (ts,))
         if truth not in orbits.TRUTHS:
             raise ValueError("truth %r not one of %s" % (truth, ", ".join(orbits.TRUTHS)))
-        if apkf_momentum not in ("tach", "torque"):
-            raise ValueError("apkf_momentum must be 'tach' or 'torque', got %r" % (apkf_momentum,))
+        if apkf_momentum not in MOMENTUM:
+            raise ValueError("apkf_momentum must be one of %s, got %r" % (", ".join(MOMENTUM), apkf_momentum))
         self.apkf_momentum = apkf_momentum
         self.runtime, self.satb, self.seed = runtime, bool(satb_gnss), int(seed)
         self.duration_s, self.ts, self.hold_s = float(duration_s), float(ts), float(hold_s)

@@ -97,21 +97,67 @@ def test_rx_drops_count_each_can_reason_once():
     assert A._drops(Port()) == len(set(canmap.DROP_REASONS)) + 1
 
 
-def test_the_apkf_input_is_a_checked_option():
-    """apkf_momentum chooses the lean APKF's momentum input; the commanded torques reach the filter."""
+@pytest.mark.parametrize("momentum", ["torque", "filtered"])
+def test_the_apkf_input_is_a_checked_option(momentum):
+    """apkf_momentum chooses the lean APKF's momentum input (filtered by default); the commanded torques and
+    which wheels were heard reach the filter."""
     with pytest.raises(ValueError, match="apkf_momentum"):
         AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum="gyro")
     with pytest.raises(ValueError, match="apkf_momentum"):
         A.App(dict(_cfg(False), apkf_momentum="gyro"))
-    cfg = AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum="torque").config()
+    assert A.App(_cfg(False)).momentum == "filtered"
+    cfg = AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum=momentum).config()
     app = A.App(cfg)
     app.apkf = A.apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0] * 4,
                                 momentum=app.momentum)
     seen = []
     step = app.apkf.step
-    app.apkf.step = lambda wp, q, env, u=None: (seen.append(None if u is None else list(u)), step(wp, q, env, u))
+    app.apkf.step = lambda wp, q, env, u=None, got=None: (seen.append((list(u), list(got))),
+                                                          step(wp, q, env, u, got))
     for i in range(4):
         app.u[i] = 1e-5 * (i + 1)
+    app.rw_got[:] = [True, False, True, True]
     app.st_got = app.st_valid = False
     app._apkf(1.0)
-    assert app.apkf.model.torque and seen == [[pytest.approx(1e-5 * (i + 1)) for i in range(4)]]
+    assert (app.apkf.model.torque, app.apkf.model.filtered) == (momentum == "torque", momentum == "filtered")
+    assert seen == [([pytest.approx(1e-5 * (i + 1)) for i in range(4)], [True, False, True, True])]
+
+
+def test_first_acquisition_damps_the_rate_until_the_star_tracker_answers():
+    """After the hold, once the estimate is within acquire_deg (1 deg) of the command and the star tracker has
+    not answered, the app damps the rate (q_c = q, w_c = 0) and says HOLD; the first valid fix ends that for
+    good, and a far command (the slew itself) is flown as commanded."""
+    import math
+    app = A.App(_cfg(False))
+    app._wheels_in()
+    app.apkf = A.apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], [1e-3, 0.0, 0.0], [0.0] * 4)
+    target = [0.0, 0.0, 0.0, 1.0]
+
+    def command():
+        for i in range(4):
+            app.qc[i] = target[i]
+        for i in range(3):
+            app.wc[i] = 1e-3
+    app._command_rate = command
+    t = app.hold_s + 10.0
+
+    def rot(deg):
+        return [math.sin(math.radians(deg) / 2), 0.0, 0.0, math.cos(math.radians(deg) / 2)]
+    app.st_got, app.st_valid = True, False
+    target[:] = rot(5.0)                       # slewing: flown as commanded
+    app._control(t)
+    assert not app.acquiring and list(app.wc) == pytest.approx([1e-3] * 3)
+    target[:] = rot(0.5)                       # done by the estimate, tracker not back: rate damping
+    app._control(t)
+    assert app.acquiring and list(app.wc) == [0.0] * 3 and list(app.qc) == list(app.apkf.x[0:4])
+    app.rw_got[:] = [True] * 4
+    for k in app.last_ok:                      # no sensor silent for long (that would say DEGRADED)
+        app.last_ok[k] = t
+    app.cycle(0, t)
+    assert app.mode == A.MODE["HOLD"]
+    app.st_got = app.st_valid = True           # a valid fix: acquired, the pointing command from then on
+    app._control(t)
+    assert app.acquired and not app.acquiring and list(app.wc) == pytest.approx([1e-3] * 3)
+    app.st_got = app.st_valid = False
+    app._control(t)
+    assert not app.acquiring and list(app.wc) == pytest.approx([1e-3] * 3)

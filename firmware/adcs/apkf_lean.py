@@ -12,32 +12,37 @@ parameter file of ``ground/adcs/bps.py`` ("fps-bps-params/1"), all in the file's
 Dynamics (Eq. 4.67, 4.83), RK4 over the step with the wheel momentum C Jrw W(s) = hw + s hd (Eq. 4.95's
 linear W(s); hw = C Jrw W- from the read-out at the step's start):
     Jm w_dot = -w x (J w + hw + s hd) - hd + 3 mu/r^3 r x J r + m x b + tau_d
-The momentum rate hd (``momentum_rate``) comes by default from the flight software's own commands: the rotor
-equation Jrw W_dot = tau_motor - tau_f (absolute W; the thesis has the reaction torque -C Jrw W_dot, Eq. 4.56,
-but no rotor equation: derived, as the emulator integrates it) gives hd = s C (sat(u) - f(W-)), with u the motor
-torques commanded over the step, sat the datasheet torque limit, f the friction model (viscous + Coulomb,
-tanh-smoothed; the same datasheet figures the controller compensates with), s the file's torque scale and C
-the unit axes (Eq. 4.54). The read-outs' W_rel = W - C^T w turns Eq. 4.67's J into Jm = J - C D(Jrw) C^T
-(derived: C Jrw W_rel_dot = C (u - f) - C Jrw C^T w_dot). The 10 rpm read-outs then enter only hw (the
-gyroscopic term), where their noise is negligible. Differencing two read-outs per step instead (Eq. 4.62,
-Jm = J, hd = C Jrw (W+ - W-)/dt; ``momentum="tach"``, the ground filter's input) is a white torque of
-sqrt(2) 10 rpm Jrw per wheel, ~4x the disturbance torque, and costs ~1.7x in pointing (bench_adcs_lean).
-The commanded torque's own error, a fraction torque_rel (assumed 5 %: the wheel's torque constant and the
-file's torque scale; measured over CAN with a calibrated file: ~2 % between s C (u - f) and the read-outs'
-momentum change) gives r = (torque_rel s u dt)^2. Each wheel takes whichever input has the smaller variance,
-so a slew's large torques (|u| > ~1e-4 N m) take the read-out difference. What the commands cannot tell is
-taken from the read-outs too, with its noise (Q_ww += G r G^T, the Eq. 4.135 construction for a white input,
-G = Jm^-1 times the wheel's column):
-- a wheel near zero speed (|W-| < 3 sigma_tach + dt s (|u| + f_c)/Jrw), where the friction's sign is unknown
-  and the rotor sticks while |u| < f_c: its read-out difference, r = 2 R_rw (conservative: consecutive steps
-  share a read-out);
-- a wheel whose u is NaN (the caller did not hear it, so what it did is unknown): nothing, and r = (s f_c dt)^2,
-  a coasting rotor's friction (derived).
-The ADCS application (app.py) runs this filter on the read-out difference by default. On the commanded
-torques, 600 s CAN sessions (t_s = 33 s, wn = 8/t_s) with the calibrated parameter file lose the star tracker
-in the first slew for good: the file's parameter errors leave a rate error (~0.08 deg/s about x) that
-nothing but the modelled torques carries while the tracker is blind, and the body rate stays above its 0.1 deg/s
-limit; with the true parameters they regain it and beat the read-out difference (bench_adcs_can).
+The momentum rate hd (``momentum_rate``) comes by default ("filtered", what app.py flies) from the difference
+of two wheel speeds that each wheel's own scalar Kalman filter (``wheel_speeds``) estimates from its 10 rpm
+read-outs and the torques the flight software commanded, through the rotor equation Jrw W_dot = tau_motor -
+tau_f (absolute W; the thesis has the reaction torque -C Jrw W_dot, Eq. 4.56, but no rotor equation: derived,
+as the emulator integrates it). This is what the 41-state filter does with its wheel-speed states (Eq. 4.78,
+4.98), kept outside the 9 states: Jm = J, hd = C Jrw (W+ - W-)/dt with the filtered speeds, and the rate noise
+G var G^T with var the variance of each speed change's error. It keeps the read-outs' hold on the momentum the
+wheels really exchanged (a slew's large torques, whose 5 % error exceeds the read-out noise, follow the
+read-outs) and smooths their noise where the commands are well known (pointing). Over 600 s CAN sessions with
+the calibrated parameter file it gives stability 3 sigma ~14 arcsec/s where the raw read-out difference gives
+~47 and the commands alone lose the star tracker (bench_adcs_can). The two other inputs are kept for that
+comparison:
+- "torque": hd = s C (sat(u) - f(W-)), with u the motor torques commanded over the step, sat the datasheet
+  torque limit, f the friction model (viscous + Coulomb, tanh-smoothed; the same datasheet figures the
+  controller compensates with), s the file's torque scale and C the unit axes (Eq. 4.54). The read-outs'
+  W_rel = W - C^T w turns Eq. 4.67's J into Jm = J - C D(Jrw) C^T (derived: C Jrw W_rel_dot = C (u - f) -
+  C Jrw C^T w_dot). The 10 rpm read-outs then enter only hw (the gyroscopic term), where their noise is
+  negligible. The commanded torque's own error, a fraction torque_rel (assumed 5 %: the wheel's torque
+  constant and the file's torque scale; measured over CAN with a calibrated file: ~2 % between s C (u - f)
+  and the read-outs' momentum change) gives r = (torque_rel s u dt)^2. Each wheel takes whichever input has
+  the smaller variance, so a slew's large torques (|u| > ~1e-4 N m) take the read-out difference. What the
+  commands cannot tell is taken from the read-outs too, with its noise (Q_ww += G r G^T, the Eq. 4.135
+  construction for a white input, G = Jm^-1 times the wheel's column): a wheel near zero speed (|W-| <
+  3 sigma_tach + dt s (|u| + f_c)/Jrw), where the friction's sign is unknown and the rotor sticks while
+  |u| < f_c: its read-out difference, r = 2 R_rw (conservative: consecutive steps share a read-out); a wheel
+  whose u is NaN (the caller did not hear it, so what it did is unknown): nothing, and r = (s f_c dt)^2, a
+  coasting rotor's friction (derived). With the calibrated parameter file it loses the star tracker in the
+  first slew for good: the file's parameter errors leave a rate error (~0.08 deg/s about x) that nothing but
+  the modelled torques carries while the tracker is blind, and the body rate stays above its 0.1 deg/s limit.
+- "tach": differencing two read-outs per step (Eq. 4.62, Jm = J, hd = C Jrw (W+ - W-)/dt, the ground
+  filter's input) is a white torque of sqrt(2) 10 rpm Jrw per wheel, ~4x the disturbance torque.
 Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's
 wheels then hold the previous one); motor-torque errors beyond friction are absent in the emulator, and a slow
 friction drift is tau_d's (its random walk q_d). The orbit direction r, 3 mu/r^3 and the field b (inertial)
@@ -67,6 +72,8 @@ NW = 4
 FRICTION = (2e-6, 2e-10, 1.0 * RPM)        # wheel datasheet: Coulomb N m, viscous N m s/rad, smoothing rad/s
 TORQUE_MAX = 1e-3                          # wheel datasheet: motor torque limit, N m
 TORQUE_REL = 0.05                          # realised / commanded torque in the file's units, 1 sigma (assumed)
+MOMENTUM = ("torque", "tach", "filtered")   # the momentum inputs (Model)
+ALL = (True, True, True, True)              # every wheel heard
 
 
 def pyramid():
@@ -124,12 +131,14 @@ class Model:
     """What the lean filter holds fixed: J, the inverse inertia of the rate equation, C Jrw (3 x 4), the unit
     axes C (3 x 4), m, noise levels; flat lists of float32 values.
 
-    ``momentum``: where each step's wheel momentum change comes from. "torque" (the default): the motor torques
-    the flight software commanded over the step, less its friction model; "tach": the difference of the two
-    tachometer read-outs (Eq. 4.62, 4.95; the 41-state filter's input, kept for comparison)."""
+    ``momentum``: where each step's wheel momentum change comes from. "filtered" (the default, flown): the
+    difference of two wheel speeds from ``wheel_speeds``, the read-outs filtered on the commanded torques;
+    for comparison, "torque": the motor torques the flight software commanded over the step, less its
+    friction model, and "tach": the difference of the two tachometer read-outs (Eq. 4.62, 4.95; the
+    41-state filter's input)."""
 
     def __init__(self, params, dt=1.0, sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, qd=QD_CASE1,
-                 momentum="torque", friction=FRICTION, torque_max=TORQUE_MAX, torque_rel=TORQUE_REL):
+                 momentum="filtered", friction=FRICTION, torque_max=TORQUE_MAX, torque_rel=TORQUE_REL):
         check_params(params)
         x = params["x"]
         j5 = x["J5_kgm2"]
@@ -186,12 +195,20 @@ class Model:
         self.use(momentum)
 
     def use(self, momentum):
-        """Take the wheel momentum change from "torque" or "tach" (see the class docstring) from now on."""
-        if momentum not in ("torque", "tach"):
-            raise ValueError("momentum must be 'torque' or 'tach', got %r" % (momentum,))
+        """Take the wheel momentum change from one of MOMENTUM (see the class docstring) from now on."""
+        if momentum not in MOMENTUM:
+            raise ValueError("momentum must be one of %s, got %r" % (", ".join(MOMENTUM), momentum))
         self.torque = momentum == "torque"
+        self.filtered = momentum == "filtered"
         self.Ji = self.Ji_torque if self.torque else self.Ji_tach
-        if not self.torque:      # the read-out differences' rate noise is then constant (momentum_rate)
+        if self.filtered:        # each wheel's G g^T (upper triangle), g = J^-1 times its column of C Jrw,
+            self.GG = []         # and s dt/Jrw: what wheel_speeds and momentum_rate take per step
+            for k in range(4):
+                Qw = linalg.zeros(9)
+                _add_rate_noise(Qw, self.Ji, self.CJ, k, 1.0)
+                self.GG.append((Qw[0], Qw[1], Qw[2], Qw[4], Qw[5], Qw[8]))
+            self.g_rw = [self.scale * self.dt / self.jrw[k] for k in range(4)]
+        if momentum == "tach":   # the read-out differences' rate noise is then constant (momentum_rate)
             Qw = linalg.zeros(9)
             for k in range(4):
                 _add_rate_noise(Qw, self.Ji, self.CJ, k, 2.0 * self.R_rw)
@@ -255,7 +272,8 @@ class Work:
         self.v = z(24)          # small vectors: r_b, b_b, h, J w, J r, torque, ...
         self.hw = z(3)          # C Jrw W at the step's start
         self.hd = z(3)          # its rate over the step
-        self.Qw = z(9)          # the inputs' rate noise per step, torque input (3 x 3; tach: model.Qw_tach)
+        self.Qw = z(9)          # the inputs' rate noise per step (3 x 3; "tach": model.Qw_tach instead)
+        self.var = z(4)         # "filtered": the variance of each wheel's filtered speed change (wheel_speeds)
 
 
 @micropython.native
@@ -313,21 +331,25 @@ def friction(model, W):
 
 
 @micropython.native
-def momentum_rate(hw, hd, Qw, model, wm, wp, u):
+def momentum_rate(hw, hd, Qw, model, wm, wp, u, var=None):
     """The wheel momentum at the step's start hw = C Jrw W- (Eq. 4.55, from the read-out) and its rate over the
     step hd (3 each, the file's torque units). Returns the rate noise (3 x 3) the inputs add: with "tach" the
-    constant ``model.Qw_tach`` (formed once in ``Model.use``), with "torque" the buffer Qw, filled here.
+    constant ``model.Qw_tach`` (formed once in ``Model.use``), with "torque" and "filtered" the buffer Qw, filled
+    here.
 
     "tach" (Eq. 4.62, 4.95): hd = C Jrw (W+ - W-)/dt for every wheel, Qw = G (2 R_rw) G^T with G = Jm^-1 C
     D(Jrw) (the Eq. 4.135 construction; conservative: consecutive steps share a read-out).
+    "filtered": the same with wm, wp the filtered speeds of ``wheel_speeds`` and, per wheel, the variance var[k]
+    of their difference's error in place of 2 R_rw (conservative over more steps in the same way).
     "torque" (Eq. 4.56 with the rotor equation Jrw W_dot = tau_motor - tau_f, derived): wheel k adds
     s c_k (sat(u_k) - f(W-_k)), u the motor torques commanded over the step (N m, sat: the datasheet limit),
     f the friction model, s the file's torque scale. Near zero speed the friction's sign is not known from a
     10 rpm read-out (and the rotor sticks while |u| < the Coulomb torque): a wheel with |W-| < 3 sigma_tach +
     dt s (|u| + f_c)/Jrw (it may reach zero within the step), or one whose torque error (torque_rel s u dt)^2
     exceeds its read-out difference's 2 R_rw Jrw^2, adds the read-out difference instead, and its share of the
-    tachometer noise to Qw; the others add their torque error to Qw. A wheel whose u is NaN (its read-out missed: what it did is not
-    known) adds nothing, and as noise the Coulomb torque a coasting rotor exerts, (s f_c dt)^2 (derived)."""
+    tachometer noise to Qw; the others add their torque error to Qw. A wheel whose u is NaN (its read-out
+    missed: what it did is not known) adds nothing, and as noise the Coulomb torque a coasting rotor exerts,
+    (s f_c dt)^2 (derived)."""
     CJ, Ji = model.CJ, model.Ji
     for i in range(3):
         h = 0.0
@@ -336,12 +358,22 @@ def momentum_rate(hw, hd, Qw, model, wm, wp, u):
         hw[i] = h
         hd[i] = 0.0
     dt = model.dt
-    if not model.torque:                           # every wheel on its read-out difference: Qw is constant
+    if not model.torque:                           # every wheel on its speed difference
         for k in range(4):
             a = (wp[k] - wm[k]) / dt
             for i in range(3):
                 hd[i] += CJ[i * 4 + k] * a
-        return model.Qw_tach
+        if not model.filtered:                     # the read-outs': Qw is constant
+            return model.Qw_tach
+        v0, v1, v2, v3 = var
+        a, b, c, d = model.GG
+        Qw[0] = v0 * a[0] + v1 * b[0] + v2 * c[0] + v3 * d[0]
+        Qw[1] = Qw[3] = v0 * a[1] + v1 * b[1] + v2 * c[1] + v3 * d[1]
+        Qw[2] = Qw[6] = v0 * a[2] + v1 * b[2] + v2 * c[2] + v3 * d[2]
+        Qw[4] = v0 * a[3] + v1 * b[3] + v2 * c[3] + v3 * d[3]
+        Qw[5] = Qw[7] = v0 * a[4] + v1 * b[4] + v2 * c[4] + v3 * d[4]
+        Qw[8] = v0 * a[5] + v1 * b[5] + v2 * c[5] + v3 * d[5]
+        return Qw
     C, sc, tm = model.C, model.scale, model.torque_max
     linalg.fill(Qw, 9, 0.0)
     for k in range(4):
@@ -526,13 +558,62 @@ def covariance_predict(P, Phi, T):
 
 
 @micropython.native
+def wheel_speeds(W, Pw, var, z, got, u, model):
+    """One step of each wheel's own Kalman filter (x = W[k], P = Pw[k], rad/s, relative speeds): the read-out z
+    smoothed on the torques the flight software commanded, which the 9-state filter has no room for (the
+    41-state filter carries the wheel speeds as states, Eq. 4.78, 4.98). In place; var[k] gets the variance
+    of the step's speed change error, what ``momentum_rate`` adds as rate noise.
+
+    Predict: the rotor equation Jrw W_dot = s (sat(u) - f(W)) (``momentum_rate``'s "torque", Euler over the
+    step), x- = x + s (sat(u) - f(x)) dt/Jrw, P- = P + Q with
+        Q = (torque_rel s (sat(u) - f(x)) dt/Jrw)^2        the net torque's error (5 %, as "torque"),
+          + (s f_c dt/Jrw)^2    when |x| < 3 sigma_tach + dt s (|u| + f_c)/Jrw: the friction's sign unknown,
+          + (s (|u| + f_c) dt/Jrw)^2   when got[k] is false: not heard, so whether it took u is unknown.
+    Update (got[k]): K = P-/(P- + R), R = R_rw (the 10 rpm read-out), x = x- + K (z - x-), P = (1 - K) P-.
+    With e the error before the step and w, v the model's and the read-out's errors, the change's error is
+    -K e - (1 - K) w + K v: var = K^2 P + (1 - K)^2 Q + K^2 R (derived); not heard: var = Q.
+    Not modelled: the read-out's speed is relative, W - c^T w, so it also moves by c^T dw (<= 2e-3 rad/s
+    per step in a slew, beside 1.05 rad/s of read-out noise). u NaN (not known) is taken as zero torque."""
+    tm, R, near, rel, gs = model.torque_max, model.R_rw, model.tach_3sigma, model.torque_rel, model.g_rw
+    fc, fv, sm = model.friction
+    for k in range(4):
+        uk = u[k]
+        if uk != uk:
+            uk = 0.0
+        elif uk > tm:
+            uk = tm
+        elif uk < -tm:
+            uk = -tm
+        x, P, g = W[k], Pw[k], gs[k]
+        a = g * (uk - (fv * x + fc * math.tanh(x / sm)))
+        Q = rel * a
+        Q = Q * Q
+        if abs(x) < near + g * (abs(uk) + fc):
+            Q += (g * fc) ** 2
+        x += a                                      # predict
+        if got[k]:
+            M = P + Q
+            K = M / (M + R)
+            W[k] = x + K * (z[k] - x)               # update
+            Pw[k] = (1.0 - K) * M
+            L = 1.0 - K
+            var[k] = K * K * (P + R) + L * L * Q
+        else:
+            Q += (g * (abs(uk) + fc)) ** 2
+            W[k] = x
+            Pw[k] = P + Q
+            var[k] = Q
+
+
+@micropython.native
 def predict(x, P, wm, wp, u, env, model, work):
     """(x, P) from t to t + dt (Eq. 4.95-4.136, cut to 9 states): F and Phi at the step's start, RK4 for x,
     P = Phi P Phi^T + Q (symmetric by construction; Phi's tau_d rows are the identity's). wm, wp: the
-    read-outs at the step's start and end (rad/s); u: the motor torques commanded over it (N m; unused with
-    the read-out difference); env = (r_i unit (3), 3 mu/r^3, b_i (3)), mid-step."""
+    read-outs (with "filtered": ``wheel_speeds``'s speeds) at the step's start and end (rad/s); u: the motor
+    torques commanded over it (N m; unused with the read-out difference); env = (r_i unit (3), 3 mu/r^3,
+    b_i (3)), mid-step."""
     hw, hd = work.hw, work.hd
-    Qw = momentum_rate(hw, hd, work.Qw, model, wm, wp, u)
+    Qw = momentum_rate(hw, hd, work.Qw, model, wm, wp, u, work.var)
     jacobian(work.F, x, model, hw, env, work)
     phi(work.Phi, work.F, model.dt, work)
     propagate(x, model, hw, hd, env, work)
@@ -592,8 +673,9 @@ def correct(x, dx):
 
 
 class Lean:
-    """The lean APKF at 1 Hz: ``step(wp, q_meas or None, env, u)`` per dt, the read-out wp at the step's end,
-    u the motor torques commanded over the step (N m; needed unless ``momentum="tach"``)."""
+    """The lean APKF at 1 Hz: ``step(wp, q_meas or None, env, u, got)`` per dt, the read-out wp at the step's
+    end, u the motor torques commanded over the step (N m; needed unless ``momentum="tach"``), got which
+    wheels were heard (None: all; used by "filtered", whose speeds are ``W`` with variances ``Pw``)."""
 
     def __init__(self, params, q0, w0, w_rw0, dt=1.0, **kw):
         self.model = Model(params, dt=dt, **kw)
@@ -606,14 +688,20 @@ class Lean:
         self.P = linalg.zeros(81)
         initial_covariance(self.P, self.model)
         self.wm = linalg.zeros(4)
+        self.W, self.Pw = linalg.zeros(4), linalg.zeros(4)
         for i in range(4):
-            self.wm[i] = w_rw0[i]
+            self.wm[i] = self.W[i] = w_rw0[i]
+            self.Pw[i] = self.model.R_rw
         self.work = Work()
         self.skipped = 0           # star-tracker updates refused (S not positive definite)
 
-    def step(self, wp, q_meas, env, u=None):
-        if u is None and self.model.torque:
-            raise ValueError("the lean APKF needs the wheel torques commanded over the step (momentum='torque')")
+    def step(self, wp, q_meas, env, u=None, got=ALL):
+        if u is None and (self.model.torque or self.model.filtered):
+            raise ValueError("the lean APKF needs the wheel torques commanded over the step (momentum=%r)"
+                             % ("torque" if self.model.torque else "filtered"))
+        if self.model.filtered:
+            wheel_speeds(self.W, self.Pw, self.work.var, wp, got, u, self.model)
+            wp = self.W
         predict(self.x, self.P, self.wm, wp, u, env, self.model, self.work)
         for i in range(4):
             self.wm[i] = wp[i]

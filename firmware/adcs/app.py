@@ -21,9 +21,9 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
    rate damping again (q_c = q, w_c = 0) until a valid fix comes, then the pointing command for good. The
    slew leaves a rate error of ~0.05 deg/s from the calibrated parameters (and ~5 arcsec/s per s more while
    blind, from the modelled torques' errors), which beside SatB's ~0.06 deg/s keeps the true rate at the
-   tracker's 0.1 deg/s limit: with the filtered momentum input, 600 s CAN sessions on the calibration files
-   of seed 1 (hpop truth) lost the tracker for good without this, and 14 of 14 sessions (seeds 0-5 hpop,
-   0-7 two-body) regained it within ~50 s of the slew with it (measured in this change's development);
+   tracker's 0.1 deg/s limit: with the filtered momentum input, a 600 s CAN session on the calibration file
+   of seed 1 (hpop truth) lost the tracker for good without this, and 14 of 14 sessions (the files of seeds
+   0-5 with hpop truth, bench_adcs_can; 0-7 with two-body truth) regain it within ~50 s of the slew with it;
 5. RW_CMD to each wheel, then ADCS_STATUS (mode, stale sensors, missed replies, estimates).
 
 The STKF is firmware/adcs/stkf_lean.py's ``Afls`` through its public calls only (predict, update_gnss,

@@ -625,3 +625,23 @@ def test_wheel_speed_filter_predicts_an_unheard_wheel_and_takes_it_back():
     for k in range(120, 199):
         L.wheel_speeds(W, Pw, var, [z[k + 1]] * 4, L.ALL, [u[k]] * 4, m)
     assert abs(W[0] - Wt[199]) < 3 * np.sqrt(Pw[0]) and Pw[0] < 0.5 * m.R_rw
+
+
+def test_filtered_input_rate_noise_is_g_var_g_transpose():
+    """With "filtered", momentum_rate's hd is C Jrw (W+ - W-)/dt of the filtered speeds and Qw = G D(var) G^T
+    (G = J^-1 C D(Jrw), Eq. 4.135's construction), for the variances wheel_speeds left."""
+    params = scenario(1)["params"]
+    old = linalg.zeros
+    linalg.zeros = lambda n: [0.0] * n
+    try:
+        m = L.Model(params)
+        hw, hd, Qw = [0.0] * 3, [0.0] * 3, [0.0] * 9
+        wm, wp, var = [100.0, -50.0, 20.0, 300.0], [101.0, -52.0, 20.5, 298.0], [0.3, 0.05, 1.1, 0.0]
+        out = L.momentum_rate(hw, hd, Qw, m, wm, wp, [0.0] * 4, var)
+    finally:
+        linalg.zeros = old
+    CJ = np.reshape(list(m.CJ), (3, 4))
+    G = np.linalg.inv(np.reshape(list(m.J), (3, 3))) @ CJ
+    assert np.allclose(np.reshape(out, (3, 3)), G @ np.diag(var) @ G.T, rtol=1e-12, atol=0)
+    assert np.allclose(hd, CJ @ (np.subtract(wp, wm) / m.dt), rtol=1e-12, atol=0)
+    assert np.allclose(hw, CJ @ np.array(wm), rtol=1e-12, atol=0)

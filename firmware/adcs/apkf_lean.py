@@ -201,8 +201,8 @@ class Model:
         self.torque = momentum == "torque"
         self.filtered = momentum == "filtered"
         self.Ji = self.Ji_torque if self.torque else self.Ji_tach
-        if self.filtered:        # each wheel's G g^T (upper triangle), g = J^-1 times its column of C Jrw,
-            self.GG = []         # and s dt/Jrw: what wheel_speeds and momentum_rate take per step
+        if self.filtered:        # each wheel's g g^T (upper triangle), g = J^-1 times its column of C Jrw,
+            self.GG = []         # and s dt/Jrw: what momentum_rate and wheel_speeds take per step
             for k in range(4):
                 Qw = linalg.zeros(9)
                 _add_rate_noise(Qw, self.Ji, self.CJ, k, 1.0)

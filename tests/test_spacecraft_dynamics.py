@@ -153,6 +153,9 @@ def test_dipole_field_magnitudes():
     day = 2 * np.pi / env.OMEGA_EARTH
     assert np.allclose(f.field(r * eq, day), f.field(r * eq, 0.0), atol=1e-15)
     assert not np.allclose(f.field(r * eq, day / 4), f.field(r * eq, 0.0), atol=1e-7)
+    # the derivative's float form is the same field, from an array or a list
+    r_i = r * (eq + 0.3 * m_hat)
+    assert f.field_floats(r_i, 77.0) == f.field_floats(r_i.tolist(), 77.0) == tuple(f.field(r_i, 77.0).tolist())
 
 
 def test_external_torque_is_gravity_gradient_plus_dipole():

@@ -83,7 +83,8 @@ class Spacecraft:
     State ``x`` = [q (4), w (3) rad/s, W (4) rad/s absolute, wheel angles relative to the body (4) rad].
     ``omega_rw`` (constructor) is the wheels' speed relative to the body, W_rel = W - C^T w.
     ``orbit=None`` turns off the gravity gradient and the magnetic torque; ``disturbance(t, q, w) -> (3,) N m``
-    adds any other torque (body frame).
+    adds any other torque (body frame). ``orbit.position(t)`` returns an array (m, inertial); ``field`` needs
+    ``field_floats(r_i, t)`` (``environment.TiltedDipoleField``).
     """
 
     def __init__(self, wheels=None, inertia=None, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0),
@@ -166,9 +167,9 @@ class Spacecraft:
         tx = ty = tz = 0.0
         if self.orbit is not None and (self.gravity_gradient or self.dipole is not None):
             a = _dcm_rows(q)
-            r_i = self.orbit.position(t)
+            r_i = self.orbit.position(t).tolist()
             if self.gravity_gradient:                                              # Eq. 4.69-4.75
-                x0, x1, x2 = _rows_dot(a, r_i.tolist())
+                x0, x1, x2 = _rows_dot(a, r_i)
                 rn = (x0 * x0 + x1 * x1 + x2 * x2) ** 0.5
                 x0, x1, x2 = x0 / rn, x1 / rn, x2 / rn
                 (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._j_rows
@@ -180,7 +181,7 @@ class Spacecraft:
                 ty += k * (x2 * y0 - x0 * y2)
                 tz += k * (x0 * y1 - x1 * y0)
             if self.dipole is not None and self.field is not None:                 # Eq. 4.71, 4.73
-                b0, b1, b2 = _rows_dot(a, self.field.field(r_i, t).tolist())
+                b0, b1, b2 = _rows_dot(a, self.field.field_floats(r_i, t))
                 m0, m1, m2 = self._dipole
                 tx += m1 * b2 - m2 * b1
                 ty += m2 * b0 - m0 * b2

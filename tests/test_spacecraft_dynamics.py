@@ -169,6 +169,18 @@ def test_external_torque_is_gravity_gradient_plus_dipole():
     assert np.linalg.norm(expect) > 1e-7
 
 
+def test_dipole_is_one_value_the_torque_follows():
+    """``Spacecraft.dipole`` read and set goes to the value the derivative uses (Eq. 4.71)."""
+    sc = Spacecraft(q=(0.1, -0.2, 0.3, 0.9), gravity_gradient=False)
+    t, x = 123.0, sc.x.copy()
+    tau = sc.external_torque(t, x)
+    assert np.array_equal(sc.dipole, env.M_DIPOLE_THESIS) and np.linalg.norm(tau) > 1e-7
+    sc.dipole = -2.0 * sc.dipole
+    assert np.allclose(sc.external_torque(t, x), -2.0 * tau, rtol=1e-14, atol=0)
+    sc.dipole = None
+    assert sc.dipole is None and not sc.external_torque(t, x).any()
+
+
 def test_circular_orbit_radius_and_speed():
     o = env.CircularOrbit(altitude=400e3, inclination_deg=51.65)
     for t in (0.0, 1000.0, 3000.0):

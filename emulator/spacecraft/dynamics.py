@@ -109,8 +109,7 @@ class Spacecraft:
                                  % (dt_max, dt))
         self.orbit = env.CircularOrbit() if orbit is _DEFAULT else orbit
         self.field = env.TiltedDipoleField() if field is _DEFAULT else field
-        self.dipole = None if dipole is None else np.array(dipole, dtype=float)
-        self._dipole = None if dipole is None else self.dipole.tolist()
+        self.dipole = dipole
         self.gravity_gradient = gravity_gradient
         self.disturbance = disturbance
         qa = _finite("q", q, 4)
@@ -146,6 +145,15 @@ class Spacecraft:
     def angle_rw(self):
         return self.x[11:15]
 
+    @property
+    def dipole(self):
+        """Residual dipole m (A m^2, body frame) as a new array, or None; held as floats for ``derivative``."""
+        return None if self._dipole is None else np.array(self._dipole)
+
+    @dipole.setter
+    def dipole(self, m):
+        self._dipole = None if m is None else tuple(np.array(m, dtype=float).tolist())
+
     def momentum_body(self, x=None):
         """H = J w + C Jrw W, body frame (Eq. 4.11-4.13, 4.55)."""
         x = self.x if x is None else x
@@ -165,7 +173,7 @@ class Spacecraft:
     def _tau_ext(self, t, x, q, w):
         """``external_torque`` on Python floats (q, w lists): 3-vectors cost numpy ~1 us an operation."""
         tx = ty = tz = 0.0
-        if self.orbit is not None and (self.gravity_gradient or self.dipole is not None):
+        if self.orbit is not None and (self.gravity_gradient or self._dipole is not None):
             a = _dcm_rows(q)
             r_i = self.orbit.position(t).tolist()
             if self.gravity_gradient:                                              # Eq. 4.69-4.75
@@ -180,7 +188,7 @@ class Spacecraft:
                 tx += k * (x1 * y2 - x2 * y1)
                 ty += k * (x2 * y0 - x0 * y2)
                 tz += k * (x0 * y1 - x1 * y0)
-            if self.dipole is not None and self.field is not None:                 # Eq. 4.71, 4.73
+            if self._dipole is not None and self.field is not None:                # Eq. 4.71, 4.73
                 b0, b1, b2 = _rows_dot(a, self.field.field_floats(r_i, t))
                 m0, m1, m2 = self._dipole
                 tx += m1 * b2 - m2 * b1

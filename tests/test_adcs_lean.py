@@ -562,3 +562,12 @@ def sum_ordered(terms):
     for t in terms:
         s += t
     return s
+
+
+def test_lean_stkf_lag_is_the_ground_and_emulator_lag():
+    """The firmware keeps its own copy of the smoother's lag (it imports neither ground nor emulator); it is
+    the one the ground's STKF, the body-pointing run and the session's config use."""
+    from emulator.spacecraft import scenario as world
+    from firmware.adcs import stkf_lean as S
+    from ground.adcs import bps, stkf_sim
+    assert S.LAG_S == world.LAG_S == stkf_sim.LAG_S == bps.LAG_S

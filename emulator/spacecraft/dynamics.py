@@ -167,11 +167,12 @@ class Spacecraft:
     def external_torque(self, t, x):
         """tau_ext (body frame, N m) at time t and state x: gravity gradient, residual dipole, the callable,
         jitter (its force moves the centre of mass, which this model does not follow)."""
-        q, w = x[0:4].tolist(), x[4:7].tolist()
-        return np.array(self._tau_ext(t, x, q, w))
+        wrel = x[7:11] - self.wheels.c.T @ x[4:7] if self.wheels.p.jitter else None
+        return np.array(self._tau_ext(t, x, x[0:4].tolist(), wrel))
 
-    def _tau_ext(self, t, x, q, w):
-        """``external_torque`` on Python floats (q, w lists): 3-vectors cost numpy ~1 us an operation."""
+    def _tau_ext(self, t, x, q, wrel):
+        """``external_torque`` on Python floats (q a list; ``wrel`` the relative wheel speeds W - C^T w as an
+        array, used only with jitter): 3-vectors cost numpy ~1 us an operation."""
         tx = ty = tz = 0.0
         if self.orbit is not None and (self.gravity_gradient or self._dipole is not None):
             a = _dcm_rows(q)
@@ -198,14 +199,14 @@ class Spacecraft:
             d = np.asarray(self.disturbance(t, x[0:4], x[4:7]), dtype=float)
             tx, ty, tz = tx + float(d[0]), ty + float(d[1]), tz + float(d[2])
         if self.wheels.p.jitter:
-            d = self.wheels.jitter(x[7:11] - self.wheels.c.T @ x[4:7], x[11:15])[1]
+            d = self.wheels.jitter(wrel, x[11:15])[1]
             tx, ty, tz = tx + float(d[0]), ty + float(d[1]), tz + float(d[2])
         return tx, ty, tz
 
     def derivative(self, t, x, tau_motor):
         """dx/dt (Eq. 4.10, 4.16, 4.55-4.56) on Python floats; ``tau_motor`` the 4 motor torques held."""
         q = x[0:4].tolist()
-        w0, w1, w2 = w = x[4:7].tolist()
+        w0, w1, w2 = x[4:7].tolist()
         W = x[7:11].tolist()
         c0, c1, c2 = self._c_rows
         p = self.wheels.p
@@ -218,7 +219,7 @@ class Spacecraft:
         h0 = j00 * w0 + j01 * w1 + j02 * w2 + sum(a * b for a, b in zip(cj0, W))
         h1 = j10 * w0 + j11 * w1 + j12 * w2 + sum(a * b for a, b in zip(cj1, W))
         h2 = j20 * w0 + j21 * w1 + j22 * w2 + sum(a * b for a, b in zip(cj2, W))
-        tx, ty, tz = self._tau_ext(t, x, q, w)
+        tx, ty, tz = self._tau_ext(t, x, q, np.array(wrel) if p.jitter else None)
         r0 = tx - (w1 * h2 - w2 * h1) - sum(a * b for a, b in zip(c0, net))     # Eq. 4.16
         r1 = ty - (w2 * h0 - w0 * h2) - sum(a * b for a, b in zip(c1, net))
         r2 = tz - (w0 * h1 - w1 * h0) - sum(a * b for a, b in zip(c2, net))

@@ -54,8 +54,6 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
 RUNTIMES = ("micropython", "cpython")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
-LAG_S = 4.0
-HOLD_S = 30.0
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
 MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
@@ -106,7 +104,7 @@ class AdcsSession:
     torques, flown; "tach", the read-out difference, and "torque", the commanded torques, for comparison)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
-                 params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=HOLD_S,
+                 params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered"):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
@@ -158,7 +156,7 @@ class AdcsSession:
         """The firmware's configuration (written to its config.json): parameter file, gains, STKF start."""
         wp = self.wheels.p
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
-                "stkf_x0": self.stkf_x0, "stkf_P0": scenario.STKF_P0_DIAG, "lag_s": LAG_S,
+                "stkf_x0": self.stkf_x0, "stkf_P0": scenario.STKF_P0_DIAG, "lag_s": scenario.LAG_S,
                 "torque_max": wp.torque_max,
                 "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
                 "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC, "gnss_sigma": [30.0, 1.0],

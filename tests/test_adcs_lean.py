@@ -645,3 +645,12 @@ def test_filtered_input_rate_noise_is_g_var_g_transpose():
     assert np.allclose(np.reshape(out, (3, 3)), G @ np.diag(var) @ G.T, rtol=1e-12, atol=0)
     assert np.allclose(hd, CJ @ (np.subtract(wp, wm) / m.dt), rtol=1e-12, atol=0)
     assert np.allclose(hw, CJ @ np.array(wm), rtol=1e-12, atol=0)
+
+
+def test_lean_stkf_lag_is_the_ground_and_emulator_lag():
+    """The firmware keeps its own copy of the smoother's lag (it imports neither ground nor emulator); it is
+    the one the ground's STKF, the body-pointing run and the session's config use."""
+    from emulator.spacecraft import scenario as world
+    from firmware.adcs import stkf_lean as S
+    from ground.adcs import bps, stkf_sim
+    assert S.LAG_S == world.LAG_S == stkf_sim.LAG_S == bps.LAG_S

@@ -153,6 +153,9 @@ def test_dipole_field_magnitudes():
     day = 2 * np.pi / env.OMEGA_EARTH
     assert np.allclose(f.field(r * eq, day), f.field(r * eq, 0.0), atol=1e-15)
     assert not np.allclose(f.field(r * eq, day / 4), f.field(r * eq, 0.0), atol=1e-7)
+    # the derivative's float form is the same field, from an array or a list
+    r_i = r * (eq + 0.3 * m_hat)
+    assert f.field_floats(r_i, 77.0) == f.field_floats(r_i.tolist(), 77.0) == tuple(f.field(r_i, 77.0).tolist())
 
 
 def test_external_torque_is_gravity_gradient_plus_dipole():
@@ -164,6 +167,18 @@ def test_external_torque_is_gravity_gradient_plus_dipole():
               + np.cross(env.M_DIPOLE_THESIS, a @ sc.field.field(r_i, t)))
     assert np.allclose(sc.external_torque(t, sc.x), expect, rtol=1e-14, atol=0)
     assert np.linalg.norm(expect) > 1e-7
+
+
+def test_dipole_is_one_value_the_torque_follows():
+    """``Spacecraft.dipole`` read and set goes to the value the derivative uses (Eq. 4.71)."""
+    sc = Spacecraft(q=(0.1, -0.2, 0.3, 0.9), gravity_gradient=False)
+    t, x = 123.0, sc.x.copy()
+    tau = sc.external_torque(t, x)
+    assert np.array_equal(sc.dipole, env.M_DIPOLE_THESIS) and np.linalg.norm(tau) > 1e-7
+    sc.dipole = -2.0 * sc.dipole
+    assert np.allclose(sc.external_torque(t, x), -2.0 * tau, rtol=1e-14, atol=0)
+    sc.dipole = None
+    assert sc.dipole is None and not sc.external_torque(t, x).any()
 
 
 def test_circular_orbit_radius_and_speed():

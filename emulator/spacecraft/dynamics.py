@@ -83,7 +83,8 @@ class Spacecraft:
     State ``x`` = [q (4), w (3) rad/s, W (4) rad/s absolute, wheel angles relative to the body (4) rad].
     ``omega_rw`` (constructor) is the wheels' speed relative to the body, W_rel = W - C^T w.
     ``orbit=None`` turns off the gravity gradient and the magnetic torque; ``disturbance(t, q, w) -> (3,) N m``
-    adds any other torque (body frame).
+    adds any other torque (body frame). ``orbit.position(t)`` returns an array (m, inertial); ``field`` needs
+    ``field_floats(r_i, t)`` (``environment.TiltedDipoleField``).
     """
 
     def __init__(self, wheels=None, inertia=None, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0),
@@ -108,8 +109,7 @@ class Spacecraft:
                                  % (dt_max, dt))
         self.orbit = env.CircularOrbit() if orbit is _DEFAULT else orbit
         self.field = env.TiltedDipoleField() if field is _DEFAULT else field
-        self.dipole = None if dipole is None else np.array(dipole, dtype=float)
-        self._dipole = None if dipole is None else self.dipole.tolist()
+        self.dipole = dipole
         self.gravity_gradient = gravity_gradient
         self.disturbance = disturbance
         qa = _finite("q", q, 4)
@@ -145,6 +145,15 @@ class Spacecraft:
     def angle_rw(self):
         return self.x[11:15]
 
+    @property
+    def dipole(self):
+        """Residual dipole m (A m^2, body frame) as a new array, or None; held as floats for ``derivative``."""
+        return None if self._dipole is None else np.array(self._dipole)
+
+    @dipole.setter
+    def dipole(self, m):
+        self._dipole = None if m is None else tuple(np.array(m, dtype=float).tolist())
+
     def momentum_body(self, x=None):
         """H = J w + C Jrw W, body frame (Eq. 4.11-4.13, 4.55)."""
         x = self.x if x is None else x
@@ -158,17 +167,18 @@ class Spacecraft:
     def external_torque(self, t, x):
         """tau_ext (body frame, N m) at time t and state x: gravity gradient, residual dipole, the callable,
         jitter (its force moves the centre of mass, which this model does not follow)."""
-        q, w = x[0:4].tolist(), x[4:7].tolist()
-        return np.array(self._tau_ext(t, x, q, w))
+        wrel = x[7:11] - self.wheels.c.T @ x[4:7] if self.wheels.p.jitter else None
+        return np.array(self._tau_ext(t, x, x[0:4].tolist(), wrel))
 
-    def _tau_ext(self, t, x, q, w):
-        """``external_torque`` on Python floats (q, w lists): 3-vectors cost numpy ~1 us an operation."""
+    def _tau_ext(self, t, x, q, wrel):
+        """``external_torque`` on Python floats (q a list; ``wrel`` the relative wheel speeds W - C^T w as an
+        array, used only with jitter): 3-vectors cost numpy ~1 us an operation."""
         tx = ty = tz = 0.0
-        if self.orbit is not None and (self.gravity_gradient or self.dipole is not None):
+        if self.orbit is not None and (self.gravity_gradient or self._dipole is not None):
             a = _dcm_rows(q)
-            r_i = self.orbit.position(t)
+            r_i = self.orbit.position(t).tolist()
             if self.gravity_gradient:                                              # Eq. 4.69-4.75
-                x0, x1, x2 = _rows_dot(a, r_i.tolist())
+                x0, x1, x2 = _rows_dot(a, r_i)
                 rn = (x0 * x0 + x1 * x1 + x2 * x2) ** 0.5
                 x0, x1, x2 = x0 / rn, x1 / rn, x2 / rn
                 (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._j_rows
@@ -179,8 +189,8 @@ class Spacecraft:
                 tx += k * (x1 * y2 - x2 * y1)
                 ty += k * (x2 * y0 - x0 * y2)
                 tz += k * (x0 * y1 - x1 * y0)
-            if self.dipole is not None and self.field is not None:                 # Eq. 4.71, 4.73
-                b0, b1, b2 = _rows_dot(a, self.field.field(r_i, t).tolist())
+            if self._dipole is not None and self.field is not None:                # Eq. 4.71, 4.73
+                b0, b1, b2 = _rows_dot(a, self.field.field_floats(r_i, t))
                 m0, m1, m2 = self._dipole
                 tx += m1 * b2 - m2 * b1
                 ty += m2 * b0 - m0 * b2
@@ -189,14 +199,14 @@ class Spacecraft:
             d = np.asarray(self.disturbance(t, x[0:4], x[4:7]), dtype=float)
             tx, ty, tz = tx + float(d[0]), ty + float(d[1]), tz + float(d[2])
         if self.wheels.p.jitter:
-            d = self.wheels.jitter(x[7:11] - self.wheels.c.T @ x[4:7], x[11:15])[1]
+            d = self.wheels.jitter(wrel, x[11:15])[1]
             tx, ty, tz = tx + float(d[0]), ty + float(d[1]), tz + float(d[2])
         return tx, ty, tz
 
     def derivative(self, t, x, tau_motor):
         """dx/dt (Eq. 4.10, 4.16, 4.55-4.56) on Python floats; ``tau_motor`` the 4 motor torques held."""
         q = x[0:4].tolist()
-        w0, w1, w2 = w = x[4:7].tolist()
+        w0, w1, w2 = x[4:7].tolist()
         W = x[7:11].tolist()
         c0, c1, c2 = self._c_rows
         p = self.wheels.p
@@ -209,7 +219,7 @@ class Spacecraft:
         h0 = j00 * w0 + j01 * w1 + j02 * w2 + sum(a * b for a, b in zip(cj0, W))
         h1 = j10 * w0 + j11 * w1 + j12 * w2 + sum(a * b for a, b in zip(cj1, W))
         h2 = j20 * w0 + j21 * w1 + j22 * w2 + sum(a * b for a, b in zip(cj2, W))
-        tx, ty, tz = self._tau_ext(t, x, q, w)
+        tx, ty, tz = self._tau_ext(t, x, q, np.array(wrel) if p.jitter else None)
         r0 = tx - (w1 * h2 - w2 * h1) - sum(a * b for a, b in zip(c0, net))     # Eq. 4.16
         r1 = ty - (w2 * h0 - w0 * h2) - sum(a * b for a, b in zip(c1, net))
         r2 = tz - (w0 * h1 - w1 * h0) - sum(a * b for a, b in zip(c2, net))

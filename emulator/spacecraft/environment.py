@@ -58,6 +58,11 @@ class TiltedDipoleField:
         self.gmst0 = gmst0_rad
 
     def field(self, r_i, t):
+        """b_i (T, inertial) at position r_i (m, inertial) and time t (s)."""
+        return np.array(self.field_floats(r_i, t))
+
+    def field_floats(self, r_i, t):
+        """``field`` as a tuple of Python floats (``r_i`` an array or a 3-sequence), for the truth's derivative."""
         th = self.gmst0 + OMEGA_EARTH * t
         c, s = math.cos(th), math.sin(th)
         mx, my, mz = self._m
@@ -67,7 +72,7 @@ class TiltedDipoleField:
         x, y, z = x / rn, y / rn, z / rn
         k = (R_EARTH / rn) ** 3
         d = 3.0 * (m0 * x + m1 * y + m2 * z)
-        return np.array([k * (d * x - m0), k * (d * y - m1), k * (d * z - m2)])
+        return k * (d * x - m0), k * (d * y - m1), k * (d * z - m2)
 
 
 def cross3(a, b):

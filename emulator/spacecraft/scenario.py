@@ -42,6 +42,8 @@ CASES = (1, 2, 3)
 SCENARIO_WHEELS = dict(speed_max_rpm=20000.0)
 STKF_P0_DIAG = [4e3 ** 2] * 3 + [100.0 ** 2] * 3 + [4e3 ** 2] * 3 + [100.0 ** 2] * 3   # Sec. 5.5.1 (m^2, (m/s)^2)
 WORLD_RATE_HZ = 20                               # the orbit grid of pointing_world (RK4 mid-steps at 0.05 s)
+HOLD_S = 30.0      # wheels idle while the APKF converges on the star tracker (as the 30 s hold of Sec. 4.7.1)
+LAG_S = 4.0        # the STKF smoother's lag: relay delay U(2, 3) s (Sec. 5.5.1) + up to 1 s to the next cycle
 
 
 def tau_d_case(case, t, q):

@@ -44,10 +44,10 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
+from emulator.spacecraft.scenario import HOLD_S, LAG_S
 from emulator.spacecraft.wheels import N_WHEELS
 from ground.adcs import apkf, control, quat, stkf
 from ground.adcs.afls import Afls
-from ground.adcs.stkf_sim import LAG_S
 from ground.fileio import write_atomic, write_json
 
 ARCSEC = quat.ARCSEC
@@ -63,7 +63,6 @@ BUDGET_POINTING_3SIGMA = 150.0
 BUDGET_STABILITY_3SIGMA = 35.0
 SLOW_S = 60       # the error budget's moving average for the tracking part's slow share (s)
 SPAN_MARGIN_S = 2.0   # the orbit truth's span beyond the run (``truth_span``; part of the truth cache's key)
-HOLD_S = 30.0      # wheels idle while the APKF converges on the star tracker (as the 30 s hold of Sec. 4.7.1)
 SUMMARY_KEYS = ("pointing_mean_arcsec", "pointing_sigma_arcsec", "stability_mean_arcsec_s",
                 "stability_sigma_arcsec_s", "pointing_3sigma_arcsec", "stability_3sigma_arcsec_s", "complete")
 

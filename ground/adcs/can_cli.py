@@ -66,7 +66,8 @@ def register(sub):
 
 
 def run(a):
-    from emulator.adcs_session import HOLD_S, AdcsSession
+    from emulator.adcs_session import AdcsSession
+    from emulator.spacecraft.scenario import HOLD_S
     from ground.adcs import bps
     if not (np.isfinite(a.duration) and a.duration >= 1):
         raise ValueError("--duration must be >= 1 s, got %r" % a.duration)

@@ -28,14 +28,13 @@ import numpy as np
 from emulator import orbits
 from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
 from emulator.spacecraft.dynamics import dcm
-from emulator.spacecraft.scenario import STKF_P0_DIAG
+from emulator.spacecraft.scenario import LAG_S, STKF_P0_DIAG
 from ground.adcs import stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
 from ground.resample import lagrange
 
 ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
-LAG_S = 4.0
 SENSORS = ("gnss_a", "beacon", "relay")
 GAP_S = {"gnss_a": 2.0, "beacon": 2.0, "relay": 5.0}   # silence longer than this is logged as an outage
 THESIS = {1: {"final_sigma_ra_m": 9.22, "final_sigma_va_m_s": 0.5252, "final_sigma_rb_m": 3264.2,

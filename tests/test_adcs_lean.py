@@ -4,7 +4,6 @@ against CPython, and in float32 arithmetic against float64 on a 4000 s emulated 
 import json
 from array import array
 import os
-import sys
 
 import numpy as np
 import pytest

@@ -288,15 +288,15 @@ def truth_span(seconds, margin_s):
     return float(np.ceil((seconds + margin_s) / 1000.0) * 1000.0)
 
 
-def truth_grid(K, truth="two-body", cache_dir=None, span_margin_s=2.0, rate_hz=WORLD_RATE_HZ):
+def truth_grid(K, truth="two-body", cache_dir=None, span_margin_s=2.0):
     """SatA's and SatB's orbits for a run of K s: the 1 s truth samples (``emulator.orbits.truth_samples``) and
-    their 10th-order Lagrange interpolation (Sec. 6.4.1) on a ``rate_hz`` grid over [0, K + 1] s.
+    their 10th-order Lagrange interpolation (Sec. 6.4.1) on the ``WORLD_RATE_HZ`` grid over [0, K + 1] s.
 
     Returns (t_s, xs, tg, xg): t_s (n,) s, xs (n, 2, 6) and xg (len(tg), 2, 6) [r (m), v (m/s)] of SatA, SatB."""
     from emulator import orbits
     from ground.resample import lagrange        # the interpolation of Sec. 6.4.1 (numpy)
     t_s, xs = orbits.truth_samples(truth, truth_span(K, span_margin_s), cache_dir=cache_dir)
-    tg = np.arange(0, (K + 1) * rate_hz + 1) / rate_hz
+    tg = np.arange(0, (K + 1) * WORLD_RATE_HZ + 1) / WORLD_RATE_HZ
     xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)
     return t_s, xs, tg, xg
 

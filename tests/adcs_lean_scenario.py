@@ -69,7 +69,7 @@ def stkf_scenario(seconds, case=2, seed=0, delay_s=(2.0, 3.0), att_sigma_arcsec=
     from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
     from emulator.spacecraft.scenario import STKF_P0_DIAG
     from ground.adcs.stkf_sim import small_rotation
-    from ground.resample import lagrange
+    from emulator.interp import lagrange
     K = int(seconds)
     t_s, xs = orbits.truth_samples("two-body", float(K))
     r_init, r_ga, r_gb, r_bc, r_att, r_rel = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]

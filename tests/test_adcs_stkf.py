@@ -9,7 +9,7 @@ import pytest
 from emulator import orbits
 from emulator.navsensors import ARCSEC, Gnss
 from ground.adcs import afls, stkf, stkf_sim
-from ground.resample import lagrange
+from emulator.interp import lagrange
 
 
 def test_kepler_truth_conserves_energy_and_matches_rk4():

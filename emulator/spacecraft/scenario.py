@@ -294,7 +294,7 @@ def truth_grid(K, truth="two-body", cache_dir=None, span_margin_s=2.0):
 
     Returns (t_s, xs, tg, xg): t_s (n,) s, xs (n, 2, 6) and xg (len(tg), 2, 6) [r (m), v (m/s)] of SatA, SatB."""
     from emulator import orbits
-    from ground.resample import lagrange        # the interpolation of Sec. 6.4.1 (numpy)
+    from emulator.interp import lagrange        # the interpolation of Sec. 6.4.1 (numpy)
     t_s, xs = orbits.truth_samples(truth, truth_span(K, span_margin_s), cache_dir=cache_dir)
     tg = np.arange(0, (K + 1) * WORLD_RATE_HZ + 1) / WORLD_RATE_HZ
     xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)
@@ -326,7 +326,7 @@ def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, s
     U(0, 1) + 0, 1, ... s. The caller's own margin and tag count keep its results (and its truth cache) as
     they were: ground/adcs/bps.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1.
     """
-    from ground.resample import lagrange
+    from emulator.interp import lagrange
     t_s, xs, tg, xg = truth_grid(K, truth, cache_dir, span_margin_s)
     orbit = GridOrbit(0.0, WORLD_RATE_HZ, xg[:, 0, 0:3])
     ss = np.random.SeedSequence(seed)

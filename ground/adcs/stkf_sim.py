@@ -32,7 +32,7 @@ from emulator.spacecraft.scenario import LAG_S, STKF_P0_DIAG
 from ground.adcs import stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
-from ground.resample import lagrange
+from emulator.interp import lagrange
 
 ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
 SENSORS = ("gnss_a", "beacon", "relay")

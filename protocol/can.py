@@ -85,16 +85,18 @@ class CanDecoder:
     """Frames in, packets out; never raises on frame contents. Drops counted in ``drops[reason]``.
 
     ``feed(can_id, data, extended=True)`` returns ``(pid, src, dst, None, payload)`` or None.
-    ISO-TP transfers are reassembled passively (listen only) per id, so a ``candump`` log decodes
-    without flow control frames.
+    ISO-TP transfers are reassembled per id, by default passively (listen only), so a ``candump`` log
+    decodes without flow control frames; ``channel(can_id)``, if given, makes the id's ``isotp.IsoTp``
+    instead (a node that answers with flow control, and whose own transfers' flow control comes back).
     """
 
-    def __init__(self):
+    def __init__(self, channel=None):
         self.drops = {}
         for r in DROP_REASONS:
             self.drops[r] = 0
         self.frames = 0
         self._iso = {}
+        self._channel = channel
 
     def feed(self, cid, data, extended=True):
         if not extended:
@@ -107,7 +109,7 @@ class CanDecoder:
         if cid & ISOTP_BIT:
             ch = self._iso.get(cid)
             if ch is None:
-                ch = self._iso[cid] = isotp.IsoTp()
+                ch = self._iso[cid] = isotp.IsoTp() if self._channel is None else self._channel(cid)
             before = sum(ch.errors.values())
             payload = ch.feed(data)
             if sum(ch.errors.values()) != before:

@@ -75,6 +75,10 @@ class IsoTp:
     def sending(self):
         return self._tx_frames is not None
 
+    def abort(self):
+        """Give up the transfer being sent (its receiver's flow control did not come)."""
+        self._tx_frames = None
+
     def _error(self, reason):
         self.errors[reason] += 1
         self._rx = None

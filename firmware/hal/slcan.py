@@ -229,8 +229,8 @@ class CanPort:
         self.node = core.node_id(node)
         self.accept = [self.node, 0xFF] + [core.node_id(a) for a in accept]
         self.timeout_ms = isotp_timeout_ms
-        self._dec = canmap.CanDecoder()
         self._chan = {}
+        self._dec = canmap.CanDecoder(self._channel)     # its ISO-TP channels answer with flow control
         self._q = []
         self.other_dst = 0
         self.isotp_timeouts = 0
@@ -254,25 +254,12 @@ class CanPort:
 
     def _frames(self, frames):
         for cid, ext, data in frames:
-            dst = cid & 0xFF
-            if ext and dst not in self.accept:
+            if ext and (cid & 0xFF) not in self.accept:
                 self.other_dst += 1
                 continue
-            if ext and cid & canmap.ISOTP_BIT and not cid & canmap.RESERVED_BIT and cid <= canmap.EFF_MASK:
-                ch = self._channel(cid)
-                payload = ch.feed(data)
-                for r in isotp.ERRORS:
-                    if ch.errors[r]:
-                        self._dec.drops[r] += ch.errors[r]
-                        ch.errors[r] = 0
-                if payload is not None:
-                    p = self._dec.packet((cid >> 17) & 0xFF, (cid >> 8) & 0xFF, dst, payload)
-                    if p is not None:
-                        self._q.append(p)
-            else:
-                p = self._dec.feed(cid, data, ext)
-                if p is not None:
-                    self._q.append(p)
+            p = self._dec.feed(cid, data, ext)
+            if p is not None:
+                self._q.append(p)
 
     def send_raw(self, pid, src, dst, payload):
         if len(payload) <= canmap.SINGLE_MAX:
@@ -284,7 +271,7 @@ class CanPort:
             while ch.sending and not self.ad.closed:
                 left = self.timeout_ms - ticks_diff(ticks_ms(), t0)
                 if left <= 0:
-                    ch._tx_frames = None
+                    ch.abort()
                     self.isotp_timeouts += 1
                     return False
                 self._frames(self.ad.poll(left))

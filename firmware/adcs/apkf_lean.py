@@ -575,7 +575,7 @@ def wheel_speeds(W, Pw, var, z, got, u, model):
     Not modelled: the read-out's speed is relative, W - c^T w, so it also moves by c^T dw (<= 2e-3 rad/s
     per step in a slew, beside 1.05 rad/s of read-out noise). u NaN (not known) is taken as zero torque."""
     tm, R, near, rel, gs = model.torque_max, model.R_rw, model.tach_3sigma, model.torque_rel, model.g_rw
-    fc, fv, sm = model.friction
+    fc = model.friction[0]
     for k in range(4):
         uk = u[k]
         if uk != uk:
@@ -585,7 +585,7 @@ def wheel_speeds(W, Pw, var, z, got, u, model):
         elif uk < -tm:
             uk = -tm
         x, P, g = W[k], Pw[k], gs[k]
-        a = g * (uk - (fv * x + fc * math.tanh(x / sm)))
+        a = g * (uk - friction(model, x))
         Q = rel * a
         Q = Q * Q
         if abs(x) < near + g * (abs(uk) + fc):
@@ -594,9 +594,9 @@ def wheel_speeds(W, Pw, var, z, got, u, model):
         if got[k]:
             M = P + Q
             K = M / (M + R)
-            W[k] = x + K * (z[k] - x)               # update
-            Pw[k] = (1.0 - K) * M
             L = 1.0 - K
+            W[k] = x + K * (z[k] - x)               # update
+            Pw[k] = L * M
             var[k] = K * K * (P + R) + L * L * Q
         else:
             Q += (g * (abs(uk) + fc)) ** 2

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from emulator import orbits
+from emulator.interp import lagrange
 from emulator.navsensors import ARCSEC, Gnss
 from ground.adcs import afls, stkf, stkf_sim
-from emulator.interp import lagrange
 
 
 def test_kepler_truth_conserves_energy_and_matches_rk4():

@@ -26,13 +26,13 @@ import time
 import numpy as np
 
 from emulator import orbits
+from emulator.interp import lagrange
 from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.scenario import LAG_S, STKF_P0_DIAG
 from ground.adcs import stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
-from emulator.interp import lagrange
 
 ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
 SENSORS = ("gnss_a", "beacon", "relay")

@@ -127,7 +127,6 @@ def test_first_acquisition_damps_the_rate_until_the_star_tracker_answers():
     """After the hold, once the estimate is within acquire_deg (1 deg) of the command and the star tracker has
     not answered, the app damps the rate (q_c = q, w_c = 0) and says HOLD; the first valid fix ends that for
     good, and a far command (the slew itself) is flown as commanded."""
-    import math
     app = A.App(_cfg(False))
     app._wheels_in()
     app.apkf = A.apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], [1e-3, 0.0, 0.0], [0.0] * 4)

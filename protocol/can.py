@@ -85,18 +85,25 @@ class CanDecoder:
     """Frames in, packets out; never raises on frame contents. Drops counted in ``drops[reason]``.
 
     ``feed(can_id, data, extended=True)`` returns ``(pid, src, dst, None, payload)`` or None.
-    ISO-TP transfers are reassembled per id, by default passively (listen only), so a ``candump`` log
-    decodes without flow control frames; ``channel(can_id)``, if given, makes the id's ``isotp.IsoTp``
-    instead (a node that answers with flow control, and whose own transfers' flow control comes back).
+    ISO-TP transfers are reassembled per id (``channel``), by default passively (listen only), so a
+    ``candump`` log decodes without flow control frames; ``make_channel(can_id)``, if given, makes the id's
+    ``isotp.IsoTp`` instead (a node that answers with flow control, and sends its own transfers on it).
     """
 
-    def __init__(self, channel=None):
+    def __init__(self, make_channel=None):
         self.drops = {}
         for r in DROP_REASONS:
             self.drops[r] = 0
         self.frames = 0
         self._iso = {}
-        self._channel = channel
+        self._make = make_channel
+
+    def channel(self, cid):
+        """The ISO-TP channel of id ``cid``, made on first use."""
+        ch = self._iso.get(cid)
+        if ch is None:
+            ch = self._iso[cid] = isotp.IsoTp() if self._make is None else self._make(cid)
+        return ch
 
     def feed(self, cid, data, extended=True):
         if not extended:
@@ -107,9 +114,7 @@ class CanDecoder:
             return None
         pid = (cid >> 17) & 0xFF
         if cid & ISOTP_BIT:
-            ch = self._iso.get(cid)
-            if ch is None:
-                ch = self._iso[cid] = isotp.IsoTp() if self._channel is None else self._channel(cid)
+            ch = self.channel(cid)
             before = sum(ch.errors.values())
             payload = ch.feed(data)
             if sum(ch.errors.values()) != before:

@@ -229,8 +229,7 @@ class CanPort:
         self.node = core.node_id(node)
         self.accept = [self.node, 0xFF] + [core.node_id(a) for a in accept]
         self.timeout_ms = isotp_timeout_ms
-        self._chan = {}
-        self._dec = canmap.CanDecoder(self._channel)     # its ISO-TP channels answer with flow control
+        self._dec = canmap.CanDecoder(self._new_channel)   # its ISO-TP channels answer with flow control
         self._q = []
         self.other_dst = 0
         self.isotp_timeouts = 0
@@ -240,17 +239,14 @@ class CanPort:
     def closed(self):
         return self.ad.closed
 
-    def _channel(self, rxid):
-        ch = self._chan.get(rxid)
-        if ch is None:
-            txid = canmap.reply_id(rxid)
-            ad = self.ad
+    def _new_channel(self, rxid):
+        txid = canmap.reply_id(rxid)
+        ad = self.ad
 
-            def tx(data):
-                ad.send_frame(txid, data)
+        def tx(data):
+            ad.send_frame(txid, data)
 
-            ch = self._chan[rxid] = isotp.IsoTp(tx)
-        return ch
+        return isotp.IsoTp(tx)
 
     def _frames(self, frames):
         for cid, ext, data in frames:
@@ -265,7 +261,7 @@ class CanPort:
         if len(payload) <= canmap.SINGLE_MAX:
             self.ad.send_frame(canmap.can_id(pid, src, dst), payload)
         else:
-            ch = self._channel(canmap.can_id(pid, dst, src, True))    # flow control comes back on this id
+            ch = self._dec.channel(canmap.can_id(pid, dst, src, True))   # flow control comes back on this id
             ch.send(payload)
             t0 = ticks_ms()
             while ch.sending and not self.ad.closed:

@@ -285,16 +285,21 @@ def _joseph6(P, n, r0, R, Kt, W, RK):
 def _solve_cols(X, L, n, m):
     """X (m x n) = S^-1 X for S = L L^T (m x m), column by column."""
     L = list(L[0:m * m])
-    if m == 3:                                   # the same operations and float32 stores, written out
+    if m == 3:                                   # the same, each stored (float32) value read back once
         l00, _, _, l10, l11, _, l20, l21, l22 = L
         n2 = 2 * n
         for c in range(n):
+            i1, i2 = n + c, n2 + c
             X[c] = X[c] / l00
-            X[n + c] = (X[n + c] - l10 * X[c]) / l11
-            X[n2 + c] = (X[n2 + c] - l20 * X[c] - l21 * X[n + c]) / l22
-            X[n2 + c] = X[n2 + c] / l22
-            X[n + c] = (X[n + c] - l21 * X[n2 + c]) / l11
-            X[c] = (X[c] - l10 * X[n + c] - l20 * X[n2 + c]) / l00
+            x0 = X[c]
+            X[i1] = (X[i1] - l10 * x0) / l11
+            x1 = X[i1]
+            X[i2] = (X[i2] - l20 * x0 - l21 * x1) / l22
+            X[i2] = X[i2] / l22
+            x2 = X[i2]
+            X[i1] = (x1 - l21 * x2) / l11
+            x1 = X[i1]
+            X[c] = (x0 - l10 * x1 - l20 * x2) / l00
         return
     if m == 6:                                   # the same, each stored (float32) value read back once
         l00, _, _, _, _, _, l10, l11, _, _, _, _, l20, l21, l22, _, _, _ = L[0:18]

@@ -34,7 +34,9 @@ covariance at 12 x 12 instead of 30 x 30. The capacity follows from the lag (``s
 
 Degraded operation: a sensor that misses its cycle is counted and the filters propagate without it; a wheel
 whose RW_TLM is missed 3 cycles in a row is declared failed, its column leaves the torque allocation (the other
-three span the body axes) and its read-out is held for the APKF; the mode is DEGRADED while a wheel has
+three span the body axes) and its read-out is held for the APKF; with two or more failed the wheels left do not
+span the body axes: no torque is allocated, the working wheels get their friction compensation only (they keep
+their speed, so the body feels no torque from them); the mode is DEGRADED while a wheel has
 failed or the star tracker, SatA's GNSS or the beacon (or SatB's GNSS when used) has been silent or invalid
 for ``stale_s`` seconds.
 """
@@ -241,7 +243,7 @@ class App:
                     self.Cu[r * 4 + i] = 0.0 if self.failed & (1 << i) else self.C[r * 4 + i]
             try:
                 self.cof = control.cct_cofactors(self.Cu)
-            except ValueError:              # the axes left do not span: saturate() says so in the cycle
+            except ValueError:              # the axes left do not span: _control allocates nothing
                 self.cof = None
             self.cof_failed = self.failed
 
@@ -389,8 +391,9 @@ class App:
         tff[1] = g * (rb[2] * Jr[0] - rb[0] * Jr[2]) + m2 * bb[0] - m0 * bb[2] + x[8] / sc
         tff[2] = g * (rb[0] * Jr[1] - rb[1] * Jr[0]) + m0 * bb[1] - m1 * bb[0] + x[9] / sc
         control.pd_torque(self.tau, q, w, self.qc, self.wc, self.K, self.D, H, tff)
-        control.saturate(self.tau, self.Cu, self.torque_max, self.cof)
-        control.wheel_torques(u, self.tau, self.Cu, self.cof)
+        if self.cof is not None:             # else the wheels left do not span: no torque to allocate
+            control.saturate(self.tau, self.Cu, self.torque_max, self.cof)
+            control.wheel_torques(u, self.tau, self.Cu, self.cof)
         c, v, sm = self.fric
         for i in range(4):
             if self.failed & (1 << i):

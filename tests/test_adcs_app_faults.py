@@ -1,0 +1,48 @@
+"""The ADCS application's fault paths (firmware/adcs/app.py and what it calls), each under CPython and under
+micropython (tests/mp/firmware_adcs_faults.py holds the cases; the same code runs in both)."""
+
+import json
+import os
+import sys
+
+import pytest
+
+from emulator.adcs_session import AdcsSession
+from tests.test_firmware_mp import MICROPYTHON, ROOT, run_mp
+
+sys.path.insert(0, os.path.join(ROOT, "tests", "mp"))
+import firmware_adcs_faults as cases  # noqa: E402
+
+sys.path.pop(0)
+
+RUNTIMES = ["cpython"] + (["micropython"] if os.path.exists(MICROPYTHON) else [])
+
+
+@pytest.fixture(scope="module")
+def cfg_file(tmp_path_factory):
+    p = tmp_path_factory.mktemp("adcs") / "cfg.json"
+    p.write_text(json.dumps(AdcsSession(runtime="cpython", duration_s=30.0).config()))
+    return p
+
+
+def run_case(name, runtime, cfg_file):
+    if runtime == "micropython":
+        return run_mp("firmware_adcs_faults.py", cfg_file, name)[name]
+    with open(cfg_file) as fh:
+        return json.loads(json.dumps(cases.CASES[name](json.load(fh))))
+
+
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_wheels_left_that_do_not_span_get_no_torque_and_the_cycle_goes_on(runtime, cfg_file):
+    """Two wheels failed leave a rank-2 C C^T: its determinant is ~1e-17 by rounding (or exactly 0). The
+    allocation must not divide by it (torques at the limit in a meaningless direction) nor raise out of the
+    cycle; the wheels left keep their speed (friction compensation), the failed ones get nothing."""
+    res = run_case("wheels_left_do_not_span", runtime, cfg_file)
+    for mask, r in res.items():
+        mask = int(mask)
+        assert r["failed"] == mask
+        for u in r["u"]:
+            assert isinstance(u, list), "mask %s: %s" % (bin(mask), u)
+            for i in range(4):
+                want = 0.0 if mask >> i & 1 else r["friction"][i]
+                assert u[i] == pytest.approx(want, abs=1e-12), (bin(mask), u)

@@ -46,3 +46,30 @@ def test_wheels_left_that_do_not_span_get_no_torque_and_the_cycle_goes_on(runtim
             for i in range(4):
                 want = 0.0 if mask >> i & 1 else r["friction"][i]
                 assert u[i] == pytest.approx(want, abs=1e-12), (bin(mask), u)
+
+
+STATUS_COUNTERS = ("adcs_mode", "stale", "wheels_failed", "miss_rw0", "miss_rw1", "miss_rw2", "miss_rw3",
+                   "miss_st", "miss_gnss", "miss_beacon", "n_st_invalid", "n_beacon_invalid", "n_gnss_b",
+                   "n_refused", "n_rx_drop", "gnss_age_s")
+
+
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_out_of_range_payloads_are_not_fused(runtime, cfg_file):
+    """A star-tracker fix marked valid that is not a finite unit quaternion (NaN, all zeros) or whose valid
+    byte is out of range (2) counts as invalid, and so does a beacon vector that is not a unit vector; a NaN
+    wheel speed counts as no reply; a GNSS fix of a satellite other than 0 or 1 is refused. The filters end
+    exactly where the packet they stand for leaves them (before: NaN in the APKF for good, or the bad vector
+    fused)."""
+    res = run_case("bad_payloads", runtime, cfg_file)
+    for name, (bad, ref) in res.items():
+        for k in ("x", "P", "xs", "u"):
+            assert bad[k] == ref[k], (name, k)
+        sb, sr = dict(zip(STATUS_COUNTERS, bad["status"])), dict(zip(STATUS_COUNTERS, ref["status"]))
+        if name.startswith("st_"):
+            assert sb == sr and sb["n_st_invalid"] == 1, name
+        elif name == "rw_nan":
+            assert sb == sr and sb["miss_rw1"] == 1, name
+        elif name == "bc_zero":
+            assert sb == sr and sb["n_beacon_invalid"] == 1, name
+        else:
+            assert sb["n_refused"] == sr["n_refused"] + 1 and sb["n_gnss_b"] == sr["n_gnss_b"] == 0, name

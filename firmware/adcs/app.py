@@ -58,6 +58,8 @@ RPM = 2.0 * math.pi / 60.0
 NW = 4
 FAIL_AFTER = 3
 NEVER = 65535
+UNIT_TOL = 1e-3        # | |v|^2 - 1 | of a unit vector or quaternion off the bus (float32 rounding: ~1e-7)
+_INF = float("inf")
 
 P_RW_CMD = core.PACKET_ID["RW_CMD"]
 P_RW_TLM = core.PACKET_ID["RW_TLM"]
@@ -190,21 +192,31 @@ class App:
 
     # --- inputs -----------------------------------------------------------------------------------
     def on_packet(self, pid, src, payload):
+        """Store one sensor packet for the next cycle. Payloads outside the table's ranges are not used: a
+        non-finite wheel speed is no reply; a star-tracker fix is valid only with valid == 1 and a finite unit
+        quaternion, a beacon only with valid == 1 and a vector that is not off unit length (else each is
+        counted invalid; a NaN in the beacon goes to the STKF, which refuses it: n_refused); a GNSS fix of a
+        satellite other than 0 or 1 is refused (n_refused)."""
         if pid == P_RW_TLM:
             i = src - RW0
             if 0 <= i < NW:
                 speed, _ = struct.unpack(_FMT[P_RW_TLM], payload)
-                self.wp[i] = speed * RPM
-                self.rw_got[i] = True
-                self.rw_seen[i] = True
+                if -_INF < speed < _INF:
+                    self.wp[i] = speed * RPM
+                    self.rw_got[i] = True
+                    self.rw_seen[i] = True
         elif pid == P_ST:
             t_ms, q0, q1, q2, q3, valid = struct.unpack(_FMT[P_ST], payload)
             self.st_got = True
-            self.st_valid = bool(valid)
+            n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3      # NaN or inf fail the comparison
+            self.st_valid = valid == 1 and abs(n2 - 1.0) < UNIT_TOL
             q = self.qst
             q[0], q[1], q[2], q[3] = q0, q1, q2, q3
         elif pid == P_GNSS:
             v = struct.unpack(_FMT[P_GNSS], payload)
+            if v[1] > 1:
+                self.n_refused += 1
+                return
             if v[1] == 0:
                 z = self.zg
                 self.gnss_got = True
@@ -221,7 +233,7 @@ class App:
         elif pid == P_BEACON:
             t_ms, ux, uy, uz, valid = struct.unpack(_FMT[P_BEACON], payload)
             self.bc_got = True
-            self.bc_valid = bool(valid)
+            self.bc_valid = valid == 1 and not abs(ux * ux + uy * uy + uz * uz - 1.0) >= UNIT_TOL   # NaN: STKF
             self.yb[0], self.yb[1], self.yb[2] = ux, uy, uz
 
     # --- the cycle -------------------------------------------------------------------------------

@@ -48,6 +48,87 @@ def case_wheels_left_do_not_span(cfg):
     return out
 
 
+def _pk(pid, **kw):
+    return core.encode_payload(P[pid], **kw)
+
+
+def _st(t_ms, q, valid):
+    return struct.pack(core.PACKET[P["STARTRACKER"]].fmt, t_ms, q[0], q[1], q[2], q[3], valid)
+
+
+def _bc(t_ms, y, valid):
+    return struct.pack(core.PACKET[P["BEACON"]].fmt, t_ms, y[0], y[1], y[2], valid)
+
+
+def _gnss(t_ms, sat, x):
+    return struct.pack(core.PACKET[P["GNSS"]].fmt, t_ms, sat, int(round(x[0] * 100)), int(round(x[1] * 100)),
+                       int(round(x[2] * 100)), int(round(x[3] * 1e4)), int(round(x[4] * 1e4)),
+                       int(round(x[5] * 1e4)))
+
+
+def _burst(app, k, cfg, skip=(), extra=()):
+    """A nominal burst at t = k s (wheels at 100 rpm, identity attitude, SatA's start state, a beacon) with
+    the packets named in ``skip`` left out and ``extra`` [(pid, src, payload)] added."""
+    t_ms = 1000 * k
+    x0 = cfg["stkf_x0"]
+    for i in range(A.NW):
+        if "rw%d" % i not in skip:
+            app.on_packet(P["RW_TLM"], NODE["RW0"] + i, struct.pack(core.PACKET[P["RW_TLM"]].fmt, 100.0, 0.0))
+    if "st" not in skip:
+        app.on_packet(P["STARTRACKER"], NODE["STARTRACKER"], _st(t_ms, (0.0, 0.0, 0.0, 1.0), 1))
+    if "gnss" not in skip:
+        app.on_packet(P["GNSS"], NODE["GNSS"], _gnss(t_ms, 0, x0[0:6]))
+    if "bc" not in skip:
+        d = [x0[6 + i] - x0[i] for i in range(3)]
+        n = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        app.on_packet(P["BEACON"], NODE["BEACON"], _bc(t_ms, (d[0] / n, d[1] / n, d[2] / n), 1))
+    for pid, src, pl in extra:
+        app.on_packet(pid, src, pl)
+    u = app.cycle(k, k)
+    app.commands(u)
+
+
+def _state(app):
+    return {"x": [float(v) for v in app.apkf.x], "P": [float(v) for v in app.apkf.P],
+            "xs": [float(v) for v in app.xs], "u": [float(v) for v in app.u],
+            "status": [int(v) for v in struct.unpack(core.PACKET[P["ADCS_STATUS"]].fmt,
+                                                      app.status_payload(0))[1:17]]}
+
+
+def case_bad_payloads(cfg):
+    """Payloads the table's ranges exclude (a NaN or non-unit quaternion marked valid, valid = 2, a NaN wheel
+    speed, a zero beacon vector, a GNSS fix of satellite 2) against the packet they stand for (invalid,
+    or not sent), fed at t = 3 s of 6 cycles: the filters must end where the reference ends."""
+    nan = float("nan")
+    cfg_b = dict(cfg, satb_gnss=True)
+    variants = {
+        "st_nan": (cfg, [("STARTRACKER", "STARTRACKER", _st(3000, (nan, 0.0, 0.0, 1.0), 1))],
+                   [("STARTRACKER", "STARTRACKER", _st(3000, (0.0, 0.0, 0.0, 1.0), 0))], ("st",)),
+        "st_zero": (cfg, [("STARTRACKER", "STARTRACKER", _st(3000, (0.0, 0.0, 0.0, 0.0), 1))],
+                    [("STARTRACKER", "STARTRACKER", _st(3000, (0.0, 0.0, 0.0, 1.0), 0))], ("st",)),
+        "st_valid_2": (cfg, [("STARTRACKER", "STARTRACKER", _st(3000, (0.0, 0.0, 0.0, 1.0), 2))],
+                       [("STARTRACKER", "STARTRACKER", _st(3000, (0.0, 0.0, 0.0, 1.0), 0))], ("st",)),
+        "rw_nan": (cfg, [("RW_TLM", "RW1", struct.pack(core.PACKET[P["RW_TLM"]].fmt, nan, 0.0))], [],
+                   ("rw1",)),
+        "bc_zero": (cfg, [("BEACON", "BEACON", _bc(3000, (0.0, 0.0, 0.0), 1))],
+                    [("BEACON", "BEACON", _bc(3000, (0.0, 0.0, 1.0), 0))], ("bc",)),
+        "gnss_sat_2": (cfg_b, [("GNSS", "GNSS", _gnss(500, 2, [v + 5e3 for v in cfg["stkf_x0"][6:12]]))], [],
+                       ()),
+    }
+    out = {}
+    for name in variants:
+        c, bad, ref, skip = variants[name]
+        res = []
+        for pkts in (bad, ref):
+            app = A.App(c)
+            for k in range(6):
+                extra = [(P[p], NODE[s], pl) for p, s, pl in pkts] if k == 3 else ()
+                _burst(app, k, c, skip if k == 3 else (), extra)
+            res.append(_state(app))
+        out[name] = res
+    return out
+
+
 CASES = dict((k[5:], v) for k, v in globals().items() if k.startswith("case_"))
 
 if __name__ == "__main__":

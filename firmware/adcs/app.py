@@ -38,7 +38,10 @@ three span the body axes) and its read-out is held for the APKF; with two or mor
 span the body axes: no torque is allocated, the working wheels get their friction compensation only (they keep
 their speed, so the body feels no torque from them); the mode is DEGRADED while a wheel has
 failed or the star tracker, SatA's GNSS or the beacon (or SatB's GNSS when used) has been silent or invalid
-for ``stale_s`` seconds.
+for ``stale_s`` seconds. The ticks' times drive both filters: a tick later than one step after the last
+propagates the APKF over each second of the gap (and the STKF, in predictions of at most 600 s); a tick at the
+last one's time does not step the APKF; a tick earlier than it neither, and its SatA GNSS fix and beacon are
+refused (n_refused: the STKF is at the later time).
 """
 
 import math
@@ -58,6 +61,7 @@ RPM = 2.0 * math.pi / 60.0
 NW = 4
 FAIL_AFTER = 3
 NEVER = 65535
+NOT_HEARD = (False,) * NW
 UNIT_TOL = 1e-3        # | |v|^2 - 1 | of a unit vector or quaternion off the bus (float32 rounding: ~1e-7)
 _INF = float("inf")
 
@@ -86,6 +90,11 @@ def field_dipole(b, r, t, gmst0=0.0):
     k = (R_EARTH / rn) ** 3
     d = 3.0 * (mx * rx + my * ry + mz * rz)
     b[0], b[1], b[2] = k * (d * rx - mx), k * (d * ry - my), k * (d * rz - mz)
+
+
+def _steps(t, t0):
+    """Whole 1 s steps from t0 to t (the ticks' times are whole seconds)."""
+    return int(math.floor(t - t0 + 0.5))
 
 
 def stkf_cap(lag_s, rate_hz=1.0):
@@ -119,6 +128,7 @@ class App:
         self.sig = stkf_lean.zeros_d(12)
         self.stkf.get(self.xs, self.sig)
         self.apkf = None
+        self.t_apkf = 0.0                   # the APKF's time (s)
         self.model = apkf_lean.Model(self.params)      # J, C Jrw for the controller before the APKF starts
         zeros = linalg.zeros
         m = self.model
@@ -172,6 +182,7 @@ class App:
         self.qst = zeros(4)
         self.qst_prev = zeros(4)
         self.st_got = self.st_valid = self.st_prev_ok = False
+        self.t_st_prev = 0.0
         self.zg = stkf_lean.zeros_d(6)
         self.gnss_got = False
         self.gnss_t = -1.0
@@ -260,9 +271,11 @@ class App:
             self.cof_failed = self.failed
 
     @micropython.native
-    def _env(self, t):
-        """(r unit, 3 mu/r^3, b_i) at mid-step t - 0.5 from the STKF's rA, vA at t - 1."""
-        X = self.xs
+    def _env(self, t, X=None):
+        """(r unit, 3 mu/r^3, b_i) at mid-step t - 0.5 from rA, vA at t - 1: the STKF's (X None: self.xs,
+        the previous cycle's) or X's."""
+        if X is None:
+            X = self.xs
         r = self.rmid
         for i in range(3):
             r[i] = X[i] + 0.5 * X[3 + i]
@@ -271,9 +284,14 @@ class App:
         return ((r[0] / rn, r[1] / rn, r[2] / rn), 3.0 * MU_EARTH / (rn * rn * rn), self.b)
 
     def _apkf(self, t):
+        """Start the APKF from two valid star-tracker fixes one step (1 s) apart, or run it to t: one step per
+        second since its last (a gap in the ticks: the steps before the last without measurements, the wheels
+        on their last command, rA propagated for their field and orbit inputs; the momentum input's read-out
+        change falls in the last step). A tick whose time did not advance by a step (repeated or earlier)
+        leaves it as it is."""
         st_ok = self.st_got and self.st_valid
         if self.apkf is None:
-            if st_ok and self.st_prev_ok:
+            if st_ok and self.st_prev_ok and _steps(t, self.t_st_prev) == 1:
                 q, p = self.qst, self.qst_prev       # w0 = rotvec(q (x) p^-1) / 1 s
                 pc = (-p[0], -p[1], -p[2], p[3])
                 dq = linalg.zeros(4)
@@ -281,12 +299,27 @@ class App:
                 s = 2.0 if dq[3] >= 0 else -2.0
                 self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
                                            momentum=self.momentum, friction=self.fric, torque_max=self.torque_max)
+                self.t_apkf = t
             self.st_prev_ok = st_ok
             if st_ok:
+                self.t_st_prev = t
                 for i in range(4):
                     self.qst_prev[i] = self.qst[i]
             return
-        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t), self.u, self.rw_got)
+        n = _steps(t, self.t_apkf)
+        if n < 1:
+            return
+        if n > 1:
+            xo = self.xo
+            xo[0:6] = self.xs[0:6]
+            for j in range(n - 1):
+                self.apkf.step(self.apkf.wm, None, self._env(self.t_apkf + j + 1, xo), self.u, NOT_HEARD)
+                stkf_lean.f(xo, 0, 1.0)
+            env = self._env(t, xo)
+        else:
+            env = self._env(t)
+        self.apkf.step(self.wp, self.qst if st_ok else None, env, self.u, self.rw_got)
+        self.t_apkf += n
 
     @micropython.native
     def _attitude(self):
@@ -317,12 +350,12 @@ class App:
                 self.n_refused += 1
         if self.gnss_got:
             try:
-                f.update_gnss(self.zg, self.Rg, 0)
+                f.update_gnss(self.zg, self.Rg, 0, t=t)
             except ValueError:
                 self.n_refused += 1
         if self.bc_got and self.bc_valid and (self.apkf is not None or self.st_valid):
             try:
-                f.update_beacon(self.yb, q, self.Patt, self.sigma_b)
+                f.update_beacon(self.yb, q, self.Patt, self.sigma_b, t=t)
             except ValueError:
                 self.n_refused += 1
         if self.satb:
@@ -483,7 +516,7 @@ class App:
         if self.apkf is not None:
             P = self.apkf.P
             sig = math.sqrt(max(0.0, 4.0 * (P[0] + P[10] + P[20])))
-        age = NEVER if self.gnss_t < 0 else min(NEVER - 1, int(self.t - self.gnss_t))
+        age = NEVER if self.gnss_t < 0 else min(NEVER - 1, max(0, int(self.t - self.gnss_t)))
         m = self.miss_rw
         return struct.pack(_FMT[P_STATUS], tick & 0xFFFFFFFF, self.mode, self.stale, self.failed,
                            m[0] & 0xFFFF, m[1] & 0xFFFF, m[2] & 0xFFFF, m[3] & 0xFFFF,

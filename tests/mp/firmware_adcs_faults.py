@@ -6,7 +6,7 @@ import math
 import struct
 import sys
 
-from firmware.adcs import apkf_lean, app as A
+from firmware.adcs import apkf_lean, app as A, stkf_lean
 from protocol import core
 
 P = core.PACKET_ID
@@ -67,10 +67,15 @@ def _gnss(t_ms, sat, x):
 
 
 def _burst(app, k, cfg, skip=(), extra=()):
-    """A nominal burst at t = k s (wheels at 100 rpm, identity attitude, SatA's start state, a beacon) with
+    """A nominal burst at t = k s (wheels at 100 rpm, identity attitude, SatA's GNSS, a beacon) with
     the packets named in ``skip`` left out and ``extra`` [(pid, src, payload)] added."""
     t_ms = 1000 * k
-    x0 = cfg["stkf_x0"]
+    x0 = stkf_lean.zeros_d(12)                  # both satellites on their two-body orbits from the STKF's start
+    for i in range(12):
+        x0[i] = cfg["stkf_x0"][i]
+    if k:
+        stkf_lean.f(x0, 0, float(k))
+        stkf_lean.f(x0, 6, float(k))
     for i in range(A.NW):
         if "rw%d" % i not in skip:
             app.on_packet(P["RW_TLM"], NODE["RW0"] + i, struct.pack(core.PACKET[P["RW_TLM"]].fmt, 100.0, 0.0))
@@ -127,6 +132,77 @@ def case_bad_payloads(cfg):
             res.append(_state(app))
         out[name] = res
     return out
+
+
+def _quiet(app):
+    """Not the controller's torques (they would differ between runs of different tick spacing): each wheel
+    gets its friction at the bursts' 100 rpm, so that the read-outs' constant speed is what the wheels do."""
+    c, v, sm = app.fric
+    w = 100.0 * A.RPM
+    for i in range(A.NW):
+        app.u[i] = v * w + c * math.tanh(w / sm)
+
+    def control(t):
+        return app.u
+    app._control = control
+    return app
+
+
+def _ticks(cfg, times, st_from=2, skip_at=()):
+    """An App (torques off) cycled at ``times`` (tick numbers 0, 1, ..), nominal bursts, the star tracker
+    blind from ``st_from`` s on, nothing at all received before the ticks in ``skip_at``."""
+    app = _quiet(A.App(cfg))
+    for k, t in enumerate(times):
+        if k in skip_at:
+            app.cycle(k, t)
+            app.commands(app.u)
+            continue
+        t_ms = int(t * 1000)
+        _burst(app, t, cfg, ("st",) if t >= st_from else (),
+               [(P["STARTRACKER"], NODE["STARTRACKER"], _st(t_ms, (0.0, 0.0, 0.0, 1.0), 1 if t < st_from else 0))])
+    return app
+
+
+def case_tick_gap(cfg):
+    """Ticks every second to 12 s, against ticks to 4 s and then 12 s (an 8 s gap), star tracker blind from
+    2 s: the APKF's attitude, rate and time at 12 s."""
+    out = []
+    for times in (list(range(13)), [0, 1, 2, 3, 4, 12]):
+        app = _ticks(cfg, times)
+        out.append({"x": [float(v) for v in app.apkf.x], "Ptr": float(app.apkf.P[0] + app.apkf.P[10]
+                                                                      + app.apkf.P[20]),
+                    "t_stkf": float(app.stkf.now), "n_refused": app.n_refused})
+    return out
+
+
+def case_tick_repeat(cfg):
+    """A tick whose time repeats the last one's (t = 3 s twice, nothing received before the repeat), against
+    the same ticks without it: the filters end in the same state."""
+    out = []
+    for times, skip in (([0, 1, 2, 3, 4, 5], ()), ([0, 1, 2, 3, 3, 4, 5], (4,))):
+        app = _ticks(cfg, times, skip_at=skip)
+        out.append(_state(app))
+    return out
+
+
+def case_tick_backwards(cfg):
+    """A tick whose time goes back (t = 5 s after 6 s) with a full burst: the status still packs, nothing of
+    that burst is fused at the wrong time (SatA's GNSS and the beacon refused), and the filters go on."""
+    app = _ticks(cfg, [0, 1, 2, 3, 4, 5, 6])
+    x6 = [float(v) for v in app.apkf.x]
+    xs6 = [float(v) for v in app.xs]
+    err = None
+    try:
+        _burst(app, 5, cfg, (), ())
+        st = struct.unpack(core.PACKET[P["ADCS_STATUS"]].fmt, app.status_payload(7))
+    except Exception as exc:                         # noqa: BLE001 - reported to the test
+        err = "%s: %s" % (type(exc).__name__, exc)
+        st = None
+    res = {"err": err, "x_same": [float(v) for v in app.apkf.x] == x6, "xs_same": [float(v) for v in app.xs] == xs6,
+           "n_refused": app.n_refused, "age": None if st is None else st[16]}
+    _burst(app, 7, cfg, (), ())
+    res["t_apkf"], res["t_stkf"] = app.t_apkf, float(app.stkf.now)
+    return res
 
 
 CASES = dict((k[5:], v) for k, v in globals().items() if k.startswith("case_"))

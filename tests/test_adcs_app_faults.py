@@ -111,3 +111,22 @@ def test_a_tick_going_back_in_time_is_not_fused_and_the_status_packs(runtime, cf
     assert r["err"] is None
     assert r["age"] == 0 and r["x_same"] and r["xs_same"] and r["n_refused"] == 2
     assert r["t_apkf"] == r["t_stkf"] == 7.0
+
+
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_no_beacon_update_without_an_attitude_of_this_cycle(runtime, cfg_file):
+    """Before the APKF starts the beacon goes with the star tracker's fix of the same cycle. A cycle without a
+    star-tracker packet used the previous cycle's fix (st_valid is not reset between cycles): the beacon was
+    fused with a stale attitude (and with a tracker that died after one fix, at every cycle)."""
+    without_st, without_both = run_case("beacon_without_attitude", runtime, cfg_file)
+    assert not without_st["apkf"] and without_st["xs"] == without_both["xs"]
+
+
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_a_measurement_the_stkf_refuses_is_stale_in_the_status(runtime, cfg_file):
+    """ADCS_STALE: 'the sensor gave nothing usable this cycle'. A beacon the STKF refuses every cycle was
+    reported fresh and the mode never went DEGRADED; now it is as stale as an invalid one."""
+    nan_beacon, invalid = run_case("refused_measurements_are_stale", runtime, cfg_file)
+    assert nan_beacon["n_refused"] == 14 and invalid["n_refused"] == 0
+    assert nan_beacon["stale"] == invalid["stale"] and nan_beacon["stale"] & 1 << 3
+    assert nan_beacon["mode"] == invalid["mode"] == 3              # DEGRADED

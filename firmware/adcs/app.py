@@ -339,7 +339,9 @@ class App:
     def _stkf(self, t, q):
         """Predict to t, then SatA's GNSS, the beacon and SatB's delayed GNSS. A measurement the filter
         refuses (ValueError: NaN, out of order, older than the lag, S not positive definite; the filter is left
-        as it was) is counted in ``n_refused`` and the cycle goes on; so is a refused prediction."""
+        as it was) is counted in ``n_refused`` and the cycle goes on, its sensor stale as for a missed reading
+        (SatA's GNSS, the beacon); so is a refused prediction. Before the APKF starts the beacon needs the
+        star tracker's valid fix of this cycle."""
         f = self.stkf
         if t > f.now + 1e-9:
             try:
@@ -353,11 +355,13 @@ class App:
                 f.update_gnss(self.zg, self.Rg, 0, t=t)
             except ValueError:
                 self.n_refused += 1
-        if self.bc_got and self.bc_valid and (self.apkf is not None or self.st_valid):
+                self.gnss_got = False            # not usable (miss_gnss was counted: it came)
+        if self.bc_got and self.bc_valid and (self.apkf is not None or (self.st_got and self.st_valid)):
             try:
                 f.update_beacon(self.yb, q, self.Patt, self.sigma_b, t=t)
             except ValueError:
                 self.n_refused += 1
+                self.bc_valid = False
         if self.satb:
             for j in range(self.nb):
                 try:

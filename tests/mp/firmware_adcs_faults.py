@@ -205,6 +205,36 @@ def case_tick_backwards(cfg):
     return res
 
 
+def case_beacon_without_attitude(cfg):
+    """Before the APKF starts, a valid fix at 0 s, then a cycle at 1 s without a star-tracker packet but with
+    the beacon: the beacon has no attitude of this cycle to go with (the tracker's last is 1 s old). Against
+    the same cycle without the beacon packet: the STKF's estimate."""
+    out = []
+    for skip in (("st",), ("st", "bc")):
+        app = A.App(cfg)
+        _burst(app, 0, cfg)
+        _burst(app, 1, cfg, skip)
+        out.append({"xs": [float(v) for v in app.xs], "apkf": app.apkf is not None})
+    return out
+
+
+def case_refused_measurements_are_stale(cfg):
+    """From 2 s on the beacon says valid but carries a NaN (the STKF refuses it every cycle); against a beacon
+    that says invalid: the status's mode and stale bits at 15 s (stale_s 10 s)."""
+    nan = float("nan")
+    out = []
+    for y, valid in (((nan, 0.0, 1.0), 1), ((0.0, 0.0, 1.0), 0)):
+        app = A.App(cfg)
+        for k in range(16):
+            if k < 2:
+                _burst(app, k, cfg)
+            else:
+                _burst(app, k, cfg, ("bc",), [(P["BEACON"], NODE["BEACON"], _bc(1000 * k, y, valid))])
+        st = struct.unpack(core.PACKET[P["ADCS_STATUS"]].fmt, app.status_payload(15))
+        out.append({"mode": st[1], "stale": st[2], "n_refused": st[14]})
+    return out
+
+
 CASES = dict((k[5:], v) for k, v in globals().items() if k.startswith("case_"))
 
 if __name__ == "__main__":

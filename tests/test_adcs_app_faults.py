@@ -130,3 +130,12 @@ def test_a_measurement_the_stkf_refuses_is_stale_in_the_status(runtime, cfg_file
     assert nan_beacon["n_refused"] == 14 and invalid["n_refused"] == 0
     assert nan_beacon["stale"] == invalid["stale"] and nan_beacon["stale"] & 1 << 3
     assert nan_beacon["mode"] == invalid["mode"] == 3              # DEGRADED
+
+
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_gnss_b_stale_bit_and_degraded_mode_agree(runtime, cfg_file):
+    """SatB's GNSS silent for stale_s (10 s) makes the mode DEGRADED (t - last >= stale_s); its stale bit
+    used '>' and came one cycle later, so at 10 s the status said DEGRADED with no stale sensor to say why."""
+    res = run_case("gnss_b_silent", runtime, cfg_file)
+    for k, mode, bit in res:
+        assert (mode == 3) == (k >= 10) and bit == (k >= 10), (k, mode, bit)

@@ -485,7 +485,7 @@ class App:
             stale |= 1 << STALE["STARTRACKER"]
         if not self.gnss_got:
             stale |= 1 << STALE["GNSS_A"]
-        if self.satb and t - self.last_ok["gnss_b"] > self.stale_s:
+        if self.satb and t - self.last_ok["gnss_b"] >= self.stale_s:
             stale |= 1 << STALE["GNSS_B"]
         if not (self.bc_got and self.bc_valid):
             stale |= 1 << STALE["BEACON"]

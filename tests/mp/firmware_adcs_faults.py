@@ -235,6 +235,18 @@ def case_refused_measurements_are_stale(cfg):
     return out
 
 
+def case_gnss_b_silent(cfg):
+    """SatB's GNSS on, but no fix of SatB ever: per cycle from 8 to 12 s, the mode and the GNSS_B stale bit."""
+    app = A.App(dict(cfg, satb_gnss=True))
+    out = []
+    for k in range(13):
+        _burst(app, k, cfg)
+        if k >= 8:
+            st = struct.unpack(core.PACKET[P["ADCS_STATUS"]].fmt, app.status_payload(k))
+            out.append([k, st[1], st[2] >> 2 & 1])
+    return out
+
+
 CASES = dict((k[5:], v) for k, v in globals().items() if k.startswith("case_"))
 
 if __name__ == "__main__":

@@ -139,3 +139,13 @@ def test_gnss_b_stale_bit_and_degraded_mode_agree(runtime, cfg_file):
     res = run_case("gnss_b_silent", runtime, cfg_file)
     for k, mode, bit in res:
         assert (mode == 3) == (k >= 10) and bit == (k >= 10), (k, mode, bit)
+
+
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_a_singular_pointing_command_damps_the_rate_instead_of_raising(runtime, cfg_file):
+    """The command of Eq. 6.3 has no unique minimum rotation when the line of sight is opposite the laser axis
+    (control.min_rotation raises ValueError): that ValueError left the 1 Hz cycle and ended the firmware."""
+    r = run_case("command_singular", runtime, cfg_file)
+    assert r["err"] is None
+    assert r["qc_is_q"] and r["wc"] == [0.0, 0.0, 0.0] and r["no_command"]
+    assert any(abs(u) > 1e-7 for u in r["u"])                     # the rate (1e-3 rad/s) is damped

@@ -18,7 +18,9 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
    gyroscopic term and the modelled external torque fed forward, saturation, minimum-norm wheel torques
    (Eq. 6.11) plus friction compensation. The first acquisition: once the estimate says the slew to SatB is
    done (within ``acquire_deg``, 1 deg, of the command), rate damping again (q_c = q, w_c = 0, mode HOLD) for
-   as long as the star tracker gives no valid fix; the first valid fix there ends it for good. The
+   as long as the star tracker gives no valid fix; the first valid fix there ends it for good. Where the
+   command does not exist (line of sight opposite the laser axis: Eq. 6.3's rotation is not unique) rate
+   damping too, for that cycle (mode HOLD). The
    slew leaves a rate error of ~0.05 deg/s from the calibrated parameters (and ~5 arcsec/s per s more while
    blind, from the modelled torques' errors), which beside SatB's ~0.06 deg/s keeps the true rate at the
    tracker's 0.1 deg/s limit: with the filtered momentum input, a 600 s CAN session on the calibration file
@@ -151,6 +153,7 @@ class App:
         control.gains(self.K, self.D, self.J, self.ts)
         self.acquired = False               # a valid star-tracker fix after the slew to SatB (see _control)
         self.acquiring = False              # rate damping until then
+        self.no_command = False             # rate damping: no pointing command at this geometry
         self.cos_acq = math.cos(math.radians(float(cfg.get("acquire_deg", 1.0))) / 2.0)
         self.cw = control.Work(zeros)
         self.qc = zeros(4)
@@ -400,9 +403,13 @@ class App:
         x = self.apkf.x
         q, w = x, (x[4], x[5], x[6])
         hold = t < self.hold_s
-        self.acquiring = False
+        self.acquiring = self.no_command = False
         if not hold:
-            self._command_rate()
+            try:
+                self._command_rate()
+            except (ValueError, ZeroDivisionError):    # no command at this geometry (line of sight opposite
+                hold = self.no_command = True          # the laser axis, rA = rB): rate damping, mode HOLD
+        if not hold:
             if not self.acquired:           # the first acquisition (module docstring, step 4)
                 qc = self.qc
                 if abs(q[0] * qc[0] + q[1] * qc[1] + q[2] * qc[2] + q[3] * qc[3]) > self.cos_acq:
@@ -502,7 +509,7 @@ class App:
             self.mode = MODE["INIT"]
         elif self.failed or long_gap:
             self.mode = MODE["DEGRADED"]
-        elif t < self.hold_s or self.acquiring:
+        elif t < self.hold_s or self.acquiring or self.no_command:
             self.mode = MODE["HOLD"]
         else:
             self.mode = MODE["POINT"]

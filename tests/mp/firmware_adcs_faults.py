@@ -17,6 +17,9 @@ def _app(cfg, w=(1e-3, -5e-4, 2e-4)):
     """An App whose APKF runs (at rest attitude, rate w), past no cycle yet."""
     app = A.App(cfg)
     app.apkf = apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], list(w), [0.0] * 4, momentum=app.momentum)
+    for i in range(A.NW):
+        app.rw_got[i] = True
+    app._wheels_in()                                # the allocation's axes, as a cycle sets them first
     return app
 
 
@@ -245,6 +248,26 @@ def case_gnss_b_silent(cfg):
             st = struct.unpack(core.PACKET[P["ADCS_STATUS"]].fmt, app.status_payload(k))
             out.append([k, st[1], st[2] >> 2 & 1])
     return out
+
+
+def case_command_singular(cfg):
+    """SatB's estimate straight behind SatA (along -vA): the laser axis's minimum rotation onto the line of
+    sight is not unique (control.min_rotation raises). After the hold, the cycle must go on, damping the
+    rate (mode HOLD) instead of pointing."""
+    app = _app(cfg)
+    f = app.stkf
+    v = f.xa[3:6]
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    for i in range(3):
+        f.X[i] = f.xa[i] - 1e5 * v[i] / n
+    f.get(app.xs, app.sig)
+    t = app.hold_s + 10.0
+    try:
+        u = [float(x) for x in app._control(t)]
+    except Exception as exc:                         # noqa: BLE001 - reported to the test
+        return {"err": "%s: %s" % (type(exc).__name__, exc)}
+    return {"err": None, "u": u, "qc_is_q": [float(x) for x in app.qc] == [float(x) for x in app.apkf.x[0:4]],
+            "wc": [float(x) for x in app.wc], "no_command": app.no_command}
 
 
 CASES = dict((k[5:], v) for k, v in globals().items() if k.startswith("case_"))

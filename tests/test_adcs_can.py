@@ -286,7 +286,12 @@ for _ in range(25):                  # a frame, or 5 s
     if ad.closed or frames:
         break
     frames += ad.poll(200)
-print(json.dumps({"open": ad.is_open, "bad": ad.n_bad, "frames": [[c, e, list(d)] for c, e, d in frames]}))
+res = {"open": ad.is_open, "bad": ad.n_bad, "frames": [[c, e, list(d)] for c, e, d in frames]}
+for _ in range(25):                  # then the host's C (it has read the answers), or 5 s
+    if ad.closed or not ad.is_open:
+        break
+    ad.poll(200)
+print(json.dumps(res))
 """
 
 
@@ -313,6 +318,7 @@ def test_slcan_adapter_drops_an_overlong_line_whole(tmp_path, runtime):
         while len(answers) < 4 and time.monotonic() < t_end:
             if select.select([s], [], [], 0.2)[0]:
                 answers += os.read(s, 100)
+        os.write(s, b"C\r")
         out, _ = p.communicate(timeout=20)
     finally:
         if p.poll() is None:

@@ -149,3 +149,12 @@ def test_a_singular_pointing_command_damps_the_rate_instead_of_raising(runtime, 
     assert r["err"] is None
     assert r["qc_is_q"] and r["wc"] == [0.0, 0.0, 0.0] and r["no_command"]
     assert any(abs(u) > 1e-7 for u in r["u"])                     # the rate (1e-3 rad/s) is damped
+
+
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_a_backlog_of_satb_fixes_keeps_the_newest(runtime, cfg_file):
+    """The app holds 4 SatB fixes per cycle. It kept the first 4 of a backlog and dropped the newer ones into a
+    counter no status carries: the two oldest were then refused (older than the lag), the two newest lost.
+    Now the newest 4 are kept (all fused) and the dropped ones are counted as refused."""
+    r = run_case("satb_backlog", runtime, cfg_file)
+    assert r["n_gnss_b"] == 4 and r["n_refused"] == 2 and r["t_last"] == 9.5

@@ -210,7 +210,8 @@ class App:
         non-finite wheel speed is no reply; a star-tracker fix is valid only with valid == 1 and a finite unit
         quaternion, a beacon only with valid == 1 and a vector that is not off unit length (else each is
         counted invalid; a NaN in the beacon goes to the STKF, which refuses it: n_refused); a GNSS fix of a
-        satellite other than 0 or 1 is refused (n_refused)."""
+        satellite other than 0 or 1 is refused (n_refused). Of SatB's fixes (``satb_gnss``) the newest 4 of a
+        cycle are kept, an older one beyond them is refused (n_refused)."""
         if pid == P_RW_TLM:
             i = src - RW0
             if 0 <= i < NW:
@@ -234,13 +235,18 @@ class App:
             if v[1] == 0:
                 z = self.zg
                 self.gnss_got = True
-            elif self.nb < len(self.zb):
+            elif not self.satb:              # SatB's GNSS not used
+                return
+            else:                            # SatB's: the newest len(zb) of the cycle are kept (in order)
+                if self.nb == len(self.zb):       # full: the oldest is dropped (refused), its buffer reused
+                    self.zb.append(self.zb.pop(0))
+                    self.tb.append(self.tb.pop(0))
+                    self.nb -= 1
+                    self.n_gnss_b_drop += 1
+                    self.n_refused += 1
                 z = self.zb[self.nb]
                 self.tb[self.nb] = v[0] / 1000.0
                 self.nb += 1
-            else:
-                self.n_gnss_b_drop += 1
-                return
             for i in range(3):
                 z[i] = v[2 + i] * 0.01
                 z[3 + i] = v[5 + i] * 1e-4

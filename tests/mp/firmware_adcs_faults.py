@@ -270,6 +270,25 @@ def case_command_singular(cfg):
             "wc": [float(x) for x in app.wc], "no_command": app.no_command}
 
 
+def case_satb_backlog(cfg):
+    """After ticks 0 .. 9 without SatB's GNSS, six of its fixes arrive before the tick at 10 s (a backlog, as
+    after a gap in the ticks), tagged 4.5 .. 9.5 s: with the 4 s lag the four newest can be fused."""
+    c = dict(cfg, satb_gnss=True)
+    app = A.App(c)
+    for k in range(10):
+        _burst(app, k, cfg)
+    x = stkf_lean.zeros_d(12)
+    extra = []
+    for j in range(6):
+        tj = 4.5 + j
+        for i in range(12):
+            x[i] = cfg["stkf_x0"][i]
+        stkf_lean.f(x, 6, tj)
+        extra.append((P["GNSS"], NODE["GNSS"], _gnss(int(tj * 1000), 1, x[6:12])))
+    _burst(app, 10, cfg, (), extra)
+    return {"n_gnss_b": app.n_gnss_b, "n_refused": app.n_refused, "t_last": float(app.stkf.t_last)}
+
+
 CASES = dict((k[5:], v) for k, v in globals().items() if k.startswith("case_"))
 
 if __name__ == "__main__":

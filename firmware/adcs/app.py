@@ -39,8 +39,8 @@ whose RW_TLM is missed 3 cycles in a row is declared failed, its column leaves t
 three span the body axes) and its read-out is held for the APKF; with two or more failed the wheels left do not
 span the body axes: no torque is allocated, the working wheels get their friction compensation only (they keep
 their speed, so the body feels no torque from them); the mode is DEGRADED while a wheel has
-failed or the star tracker, SatA's GNSS or the beacon (or SatB's GNSS when used) has been silent or invalid
-for ``stale_s`` seconds. The ticks' times drive both filters: a tick later than one step after the last
+failed or the star tracker, SatA's GNSS or the beacon (or SatB's GNSS when used) has been silent, invalid or
+refused for ``stale_s`` seconds. The ticks' times drive both filters: a tick later than one step after the last
 propagates the APKF over each second of the gap (and the STKF, in predictions of at most 600 s); a tick at the
 last one's time does not step the APKF; a tick earlier than it neither, and its SatA GNSS fix and beacon are
 refused (n_refused: the STKF is at the later time).

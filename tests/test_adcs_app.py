@@ -152,6 +152,7 @@ def test_first_acquisition_damps_the_rate_until_the_star_tracker_answers():
     app.rw_got[:] = [True] * 4
     for k in app.last_ok:                      # no sensor silent for long (that would say DEGRADED)
         app.last_ok[k] = t
+    app.t_apkf = t - 1.0                       # the filter put in above is one step behind the cycle
     app.cycle(0, t)
     assert app.mode == A.MODE["HOLD"]
     app.st_got = app.st_valid = True           # a valid fix: acquired, the pointing command from then on

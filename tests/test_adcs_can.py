@@ -275,3 +275,58 @@ def test_fps_adcs_can_interrupted_leaves_a_valid_partial_folder(tmp_path, monkey
     s = json.loads((out / "summary.json").read_text())
     assert s["complete"] is False and s["cycles"] == 5
     assert np.load(out / "history.npz")["t"].shape == (50,)
+
+
+ADAPTER = r"""
+import json, sys
+from firmware.hal.slcan import SlcanAdapter
+ad = SlcanAdapter(int(sys.argv[1]))
+frames = []
+for _ in range(25):                  # a frame, or 5 s
+    if ad.closed or frames:
+        break
+    frames += ad.poll(200)
+res = {"open": ad.is_open, "bad": ad.n_bad, "frames": [[c, e, list(d)] for c, e, d in frames]}
+for _ in range(25):                  # then the host's C (it has read the answers), or 5 s
+    if ad.closed or not ad.is_open:
+        break
+    ad.poll(200)
+print(json.dumps(res))
+"""
+
+
+@pytest.mark.parametrize("runtime", _runtimes())
+def test_slcan_adapter_drops_an_overlong_line_whole(tmp_path, runtime):
+    """A line longer than the adapter's buffer is dropped up to its CR and answered BEL once. (Its tail used to
+    be parsed as a command of its own: 'C' there closed the channel, and every frame after it was refused.)"""
+    script = tmp_path / "adapter.py"
+    script.write_text(ADAPTER)
+    m, s = os.openpty()
+    tty.setraw(s)
+    os.set_blocking(m, False)
+    exe = MICROPYTHON if runtime == "micropython" else sys.executable
+    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen", PYTHONPATH=ROOT)
+    p = subprocess.Popen([exe, str(script), str(m)], pass_fds=(m,), cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                         text=True)
+    os.close(m)
+    try:
+        os.write(s, b"O\r")
+        os.write(s, b"x" * 65 + b"C\r")            # overlong, its tail a command letter
+        os.write(s, b"T0A8A603020102\r")
+        import select
+        answers, t_end = b"", time.monotonic() + 10.0
+        while len(answers) < 4 and time.monotonic() < t_end:
+            if select.select([s], [], [], 0.2)[0]:
+                answers += os.read(s, 100)
+        os.write(s, b"C\r")
+        out, _ = p.communicate(timeout=20)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+        os.close(s)
+    import json
+    r = json.loads(out.strip().splitlines()[-1])
+    assert r["open"] and r["bad"] == 1
+    assert r["frames"] == [[0x0A8A6030, True, [1, 2]]]
+    assert answers == b"\r\aZ\r"

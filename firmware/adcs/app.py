@@ -18,7 +18,9 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
    gyroscopic term and the modelled external torque fed forward, saturation, minimum-norm wheel torques
    (Eq. 6.11) plus friction compensation. The first acquisition: once the estimate says the slew to SatB is
    done (within ``acquire_deg``, 1 deg, of the command), rate damping again (q_c = q, w_c = 0, mode HOLD) for
-   as long as the star tracker gives no valid fix; the first valid fix there ends it for good. The
+   as long as the star tracker gives no valid fix; the first valid fix there ends it for good. Where the
+   command does not exist (line of sight opposite the laser axis: Eq. 6.3's rotation is not unique) rate
+   damping too, for that cycle (mode HOLD). The
    slew leaves a rate error of ~0.05 deg/s from the calibrated parameters (and ~5 arcsec/s per s more while
    blind, from the modelled torques' errors), which beside SatB's ~0.06 deg/s keeps the true rate at the
    tracker's 0.1 deg/s limit: with the filtered momentum input, a 600 s CAN session on the calibration file
@@ -34,9 +36,14 @@ covariance at 12 x 12 instead of 30 x 30. The capacity follows from the lag (``s
 
 Degraded operation: a sensor that misses its cycle is counted and the filters propagate without it; a wheel
 whose RW_TLM is missed 3 cycles in a row is declared failed, its column leaves the torque allocation (the other
-three span the body axes) and its read-out is held for the APKF; the mode is DEGRADED while a wheel has
-failed or the star tracker, SatA's GNSS or the beacon (or SatB's GNSS when used) has been silent or invalid
-for ``stale_s`` seconds.
+three span the body axes) and its read-out is held for the APKF; with two or more failed the wheels left do not
+span the body axes: no torque is allocated, the working wheels get their friction compensation only (they keep
+their speed, so the body feels no torque from them); the mode is DEGRADED while a wheel has
+failed or the star tracker, SatA's GNSS or the beacon (or SatB's GNSS when used) has been silent, invalid or
+refused for ``stale_s`` seconds. The ticks' times drive both filters: a tick later than one step after the last
+propagates the APKF over each second of the gap (and the STKF, in predictions of at most 600 s); a tick at the
+last one's time does not step the APKF; a tick earlier than it neither, and its SatA GNSS fix and beacon are
+refused (n_refused: the STKF is at the later time).
 """
 
 import math
@@ -56,6 +63,9 @@ RPM = 2.0 * math.pi / 60.0
 NW = 4
 FAIL_AFTER = 3
 NEVER = 65535
+NOT_HEARD = (False,) * NW
+UNIT_TOL = 1e-3        # | |v|^2 - 1 | of a unit vector or quaternion off the bus (float32 rounding: ~1e-7)
+_INF = float("inf")
 
 P_RW_CMD = core.PACKET_ID["RW_CMD"]
 P_RW_TLM = core.PACKET_ID["RW_TLM"]
@@ -82,6 +92,11 @@ def field_dipole(b, r, t, gmst0=0.0):
     k = (R_EARTH / rn) ** 3
     d = 3.0 * (mx * rx + my * ry + mz * rz)
     b[0], b[1], b[2] = k * (d * rx - mx), k * (d * ry - my), k * (d * rz - mz)
+
+
+def _steps(t, t0):
+    """Whole 1 s steps from t0 to t (the ticks' times are whole seconds)."""
+    return int(math.floor(t - t0 + 0.5))
 
 
 def stkf_cap(lag_s, rate_hz=1.0):
@@ -115,6 +130,7 @@ class App:
         self.sig = stkf_lean.zeros_d(12)
         self.stkf.get(self.xs, self.sig)
         self.apkf = None
+        self.t_apkf = 0.0                   # the APKF's time (s)
         self.model = apkf_lean.Model(self.params)      # J, C Jrw for the controller before the APKF starts
         zeros = linalg.zeros
         m = self.model
@@ -137,6 +153,7 @@ class App:
         control.gains(self.K, self.D, self.J, self.ts)
         self.acquired = False               # a valid star-tracker fix after the slew to SatB (see _control)
         self.acquiring = False              # rate damping until then
+        self.no_command = False             # rate damping: no pointing command at this geometry
         self.cos_acq = math.cos(math.radians(float(cfg.get("acquire_deg", 1.0))) / 2.0)
         self.cw = control.Work(zeros)
         self.qc = zeros(4)
@@ -168,6 +185,7 @@ class App:
         self.qst = zeros(4)
         self.qst_prev = zeros(4)
         self.st_got = self.st_valid = self.st_prev_ok = False
+        self.t_st_prev = 0.0
         self.zg = stkf_lean.zeros_d(6)
         self.gnss_got = False
         self.gnss_t = -1.0
@@ -188,38 +206,54 @@ class App:
 
     # --- inputs -----------------------------------------------------------------------------------
     def on_packet(self, pid, src, payload):
+        """Store one sensor packet for the next cycle. Payloads outside the table's ranges are not used: a
+        non-finite wheel speed is no reply; a star-tracker fix is valid only with valid == 1 and a finite unit
+        quaternion, a beacon only with valid == 1 and a vector that is not off unit length (else each is
+        counted invalid; a NaN in the beacon goes to the STKF, which refuses it: n_refused); a GNSS fix of a
+        satellite other than 0 or 1 is refused (n_refused). Of SatB's fixes (``satb_gnss``) the newest 4 of a
+        cycle are kept, an older one beyond them is refused (n_refused)."""
         if pid == P_RW_TLM:
             i = src - RW0
             if 0 <= i < NW:
                 speed, _ = struct.unpack(_FMT[P_RW_TLM], payload)
-                self.wp[i] = speed * RPM
-                self.rw_got[i] = True
-                self.rw_seen[i] = True
+                if -_INF < speed < _INF:
+                    self.wp[i] = speed * RPM
+                    self.rw_got[i] = True
+                    self.rw_seen[i] = True
         elif pid == P_ST:
             t_ms, q0, q1, q2, q3, valid = struct.unpack(_FMT[P_ST], payload)
             self.st_got = True
-            self.st_valid = bool(valid)
+            n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3      # NaN or inf fail the comparison
+            self.st_valid = valid == 1 and abs(n2 - 1.0) < UNIT_TOL
             q = self.qst
             q[0], q[1], q[2], q[3] = q0, q1, q2, q3
         elif pid == P_GNSS:
             v = struct.unpack(_FMT[P_GNSS], payload)
+            if v[1] > 1:
+                self.n_refused += 1
+                return
             if v[1] == 0:
                 z = self.zg
                 self.gnss_got = True
-            elif self.nb < len(self.zb):
+            elif not self.satb:              # SatB's GNSS not used
+                return
+            else:                            # SatB's: the newest len(zb) of the cycle are kept (in order)
+                if self.nb == len(self.zb):       # full: the oldest is dropped (refused), its buffer reused
+                    self.zb.append(self.zb.pop(0))
+                    self.tb.append(self.tb.pop(0))
+                    self.nb -= 1
+                    self.n_gnss_b_drop += 1
+                    self.n_refused += 1
                 z = self.zb[self.nb]
                 self.tb[self.nb] = v[0] / 1000.0
                 self.nb += 1
-            else:
-                self.n_gnss_b_drop += 1
-                return
             for i in range(3):
                 z[i] = v[2 + i] * 0.01
                 z[3 + i] = v[5 + i] * 1e-4
         elif pid == P_BEACON:
             t_ms, ux, uy, uz, valid = struct.unpack(_FMT[P_BEACON], payload)
             self.bc_got = True
-            self.bc_valid = bool(valid)
+            self.bc_valid = valid == 1 and not abs(ux * ux + uy * uy + uz * uz - 1.0) >= UNIT_TOL   # NaN: STKF
             self.yb[0], self.yb[1], self.yb[2] = ux, uy, uz
 
     # --- the cycle -------------------------------------------------------------------------------
@@ -241,14 +275,16 @@ class App:
                     self.Cu[r * 4 + i] = 0.0 if self.failed & (1 << i) else self.C[r * 4 + i]
             try:
                 self.cof = control.cct_cofactors(self.Cu)
-            except ValueError:              # the axes left do not span: saturate() says so in the cycle
+            except ValueError:              # the axes left do not span: _control allocates nothing
                 self.cof = None
             self.cof_failed = self.failed
 
     @micropython.native
-    def _env(self, t):
-        """(r unit, 3 mu/r^3, b_i) at mid-step t - 0.5 from the STKF's rA, vA at t - 1."""
-        X = self.xs
+    def _env(self, t, X=None):
+        """(r unit, 3 mu/r^3, b_i) at mid-step t - 0.5 from rA, vA at t - 1: the STKF's (X None: self.xs,
+        the previous cycle's) or X's."""
+        if X is None:
+            X = self.xs
         r = self.rmid
         for i in range(3):
             r[i] = X[i] + 0.5 * X[3 + i]
@@ -257,9 +293,14 @@ class App:
         return ((r[0] / rn, r[1] / rn, r[2] / rn), 3.0 * MU_EARTH / (rn * rn * rn), self.b)
 
     def _apkf(self, t):
+        """Start the APKF from two valid star-tracker fixes one step (1 s) apart, or run it to t: one step per
+        second since its last (a gap in the ticks: the steps before the last without measurements, the wheels
+        on their last command, rA propagated for their field and orbit inputs; the momentum input's read-out
+        change falls in the last step). A tick whose time did not advance by a step (repeated or earlier)
+        leaves it as it is."""
         st_ok = self.st_got and self.st_valid
         if self.apkf is None:
-            if st_ok and self.st_prev_ok:
+            if st_ok and self.st_prev_ok and _steps(t, self.t_st_prev) == 1:
                 q, p = self.qst, self.qst_prev       # w0 = rotvec(q (x) p^-1) / 1 s
                 pc = (-p[0], -p[1], -p[2], p[3])
                 dq = linalg.zeros(4)
@@ -267,12 +308,27 @@ class App:
                 s = 2.0 if dq[3] >= 0 else -2.0
                 self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
                                            momentum=self.momentum, friction=self.fric, torque_max=self.torque_max)
+                self.t_apkf = t
             self.st_prev_ok = st_ok
             if st_ok:
+                self.t_st_prev = t
                 for i in range(4):
                     self.qst_prev[i] = self.qst[i]
             return
-        self.apkf.step(self.wp, self.qst if st_ok else None, self._env(t), self.u, self.rw_got)
+        n = _steps(t, self.t_apkf)
+        if n < 1:
+            return
+        if n > 1:
+            xo = self.xo
+            xo[0:6] = self.xs[0:6]
+            for j in range(n - 1):
+                self.apkf.step(self.apkf.wm, None, self._env(self.t_apkf + j + 1, xo), self.u, NOT_HEARD)
+                stkf_lean.f(xo, 0, 1.0)
+            env = self._env(t, xo)
+        else:
+            env = self._env(t)
+        self.apkf.step(self.wp, self.qst if st_ok else None, env, self.u, self.rw_got)
+        self.t_apkf += n
 
     @micropython.native
     def _attitude(self):
@@ -292,7 +348,9 @@ class App:
     def _stkf(self, t, q):
         """Predict to t, then SatA's GNSS, the beacon and SatB's delayed GNSS. A measurement the filter
         refuses (ValueError: NaN, out of order, older than the lag, S not positive definite; the filter is left
-        as it was) is counted in ``n_refused`` and the cycle goes on; so is a refused prediction."""
+        as it was) is counted in ``n_refused`` and the cycle goes on, its sensor stale as for a missed reading
+        (SatA's GNSS, the beacon); so is a refused prediction. Before the APKF starts the beacon needs the
+        star tracker's valid fix of this cycle."""
         f = self.stkf
         if t > f.now + 1e-9:
             try:
@@ -303,14 +361,16 @@ class App:
                 self.n_refused += 1
         if self.gnss_got:
             try:
-                f.update_gnss(self.zg, self.Rg, 0)
+                f.update_gnss(self.zg, self.Rg, 0, t=t)
             except ValueError:
                 self.n_refused += 1
-        if self.bc_got and self.bc_valid and (self.apkf is not None or self.st_valid):
+                self.gnss_got = False            # not usable (miss_gnss was counted: it came)
+        if self.bc_got and self.bc_valid and (self.apkf is not None or (self.st_got and self.st_valid)):
             try:
-                f.update_beacon(self.yb, q, self.Patt, self.sigma_b)
+                f.update_beacon(self.yb, q, self.Patt, self.sigma_b, t=t)
             except ValueError:
                 self.n_refused += 1
+                self.bc_valid = False
         if self.satb:
             for j in range(self.nb):
                 try:
@@ -349,9 +409,13 @@ class App:
         x = self.apkf.x
         q, w = x, (x[4], x[5], x[6])
         hold = t < self.hold_s
-        self.acquiring = False
+        self.acquiring = self.no_command = False
         if not hold:
-            self._command_rate()
+            try:
+                self._command_rate()
+            except (ValueError, ZeroDivisionError):    # no command at this geometry (line of sight opposite
+                hold = self.no_command = True          # the laser axis, rA = rB): rate damping, mode HOLD
+        if not hold:
             if not self.acquired:           # the first acquisition (module docstring, step 4)
                 qc = self.qc
                 if abs(q[0] * qc[0] + q[1] * qc[1] + q[2] * qc[2] + q[3] * qc[3]) > self.cos_acq:
@@ -389,8 +453,9 @@ class App:
         tff[1] = g * (rb[2] * Jr[0] - rb[0] * Jr[2]) + m2 * bb[0] - m0 * bb[2] + x[8] / sc
         tff[2] = g * (rb[0] * Jr[1] - rb[1] * Jr[0]) + m0 * bb[1] - m1 * bb[0] + x[9] / sc
         control.pd_torque(self.tau, q, w, self.qc, self.wc, self.K, self.D, H, tff)
-        control.saturate(self.tau, self.Cu, self.torque_max, self.cof)
-        control.wheel_torques(u, self.tau, self.Cu, self.cof)
+        if self.cof is not None:             # else the wheels left do not span: no torque to allocate
+            control.saturate(self.tau, self.Cu, self.torque_max, self.cof)
+            control.wheel_torques(u, self.tau, self.Cu, self.cof)
         c, v, sm = self.fric
         for i in range(4):
             if self.failed & (1 << i):
@@ -433,7 +498,7 @@ class App:
             stale |= 1 << STALE["STARTRACKER"]
         if not self.gnss_got:
             stale |= 1 << STALE["GNSS_A"]
-        if self.satb and t - self.last_ok["gnss_b"] > self.stale_s:
+        if self.satb and t - self.last_ok["gnss_b"] >= self.stale_s:
             stale |= 1 << STALE["GNSS_B"]
         if not (self.bc_got and self.bc_valid):
             stale |= 1 << STALE["BEACON"]
@@ -450,7 +515,7 @@ class App:
             self.mode = MODE["INIT"]
         elif self.failed or long_gap:
             self.mode = MODE["DEGRADED"]
-        elif t < self.hold_s or self.acquiring:
+        elif t < self.hold_s or self.acquiring or self.no_command:
             self.mode = MODE["HOLD"]
         else:
             self.mode = MODE["POINT"]
@@ -468,7 +533,7 @@ class App:
         if self.apkf is not None:
             P = self.apkf.P
             sig = math.sqrt(max(0.0, 4.0 * (P[0] + P[10] + P[20])))
-        age = NEVER if self.gnss_t < 0 else min(NEVER - 1, int(self.t - self.gnss_t))
+        age = NEVER if self.gnss_t < 0 else min(NEVER - 1, max(0, int(self.t - self.gnss_t)))
         m = self.miss_rw
         return struct.pack(_FMT[P_STATUS], tick & 0xFFFFFFFF, self.mode, self.stale, self.failed,
                            m[0] & 0xFFFF, m[1] & 0xFFFF, m[2] & 0xFFFF, m[3] & 0xFFFF,

@@ -20,6 +20,7 @@ from firmware.adcs.linalg import micropython     # the module, or CPython's no-o
 
 LASER_AXIS = (1.0, 0.0, 0.0)
 ZETA = 1.0
+RANK_TOL = 1e-9        # C C^T singular to working precision below this fraction of its diagonal's product
 
 
 @micropython.native
@@ -178,7 +179,9 @@ def pd_torque(tau, q, w, qc, wc, K, D, H=None, tau_ff=None):
 def cct_cofactors(C):
     """(c00, c01, c02, c11, c12, c22, det): the cofactors and determinant of the symmetric C C^T (C 3 x 4,
     flat), for (C C^T)^-1 = cofactors / det (Cramer's rule). They depend on the axes only: a caller may
-    compute them once per set of axes and pass them to ``wheel_torques`` and ``saturate``."""
+    compute them once per set of axes and pass them to ``wheel_torques`` and ``saturate``.
+    ValueError when the axes do not span 3 axes: det <= RANK_TOL m00 m11 m22 (Hadamard: det <= the diagonal's
+    product; two wheels left of four give a rank-2 C C^T whose det is ~1e-17 by rounding, not 0)."""
     m00 = C[0] * C[0] + C[1] * C[1] + C[2] * C[2] + C[3] * C[3]
     m01 = C[0] * C[4] + C[1] * C[5] + C[2] * C[6] + C[3] * C[7]
     m02 = C[0] * C[8] + C[1] * C[9] + C[2] * C[10] + C[3] * C[11]
@@ -189,7 +192,7 @@ def cct_cofactors(C):
     c01 = m02 * m12 - m01 * m22
     c02 = m01 * m12 - m02 * m11
     det = m00 * c00 + m01 * c01 + m02 * c02
-    if not abs(det) > 0.0:
+    if not det > RANK_TOL * m00 * m11 * m22:
         raise ValueError("wheel axes do not span 3 axes")
     c11 = m00 * m22 - m02 * m02
     c12 = m01 * m02 - m00 * m12

@@ -138,16 +138,21 @@ class SlcanAdapter:
         for k in range(n):
             c = buf[k]
             if c == 13 or c == 10:
-                if self._n:
+                if self._n < 0:           # the end of an overlong line: answered as a malformed command
+                    self._n = 0
+                    self._write(_ERR)
+                elif self._n:
                     self._command(self._n, out)
                     self._n = 0
                 elif c == 13:
                     self._write(_OK)     # an empty command: the adapter answers OK (python-can flushes so)
+            elif self._n < 0:
+                pass                      # the rest of an overlong line
             elif self._n < len(line):
                 line[self._n] = c
                 self._n += 1
             else:
-                self._n = 0               # overlong line: drop it
+                self._n = -1              # overlong line: drop it, up to its end
                 self.n_bad += 1
 
     def _command(self, n, out):

@@ -77,6 +77,8 @@ def check_faults(faults, duration_s):
             if k == "beacon_lost":
                 out[k] = t0 = float(v)
                 ok = np.isfinite(t0) and t0 >= 0
+            elif isinstance(v, (str, bytes)):   # "12" would read as [1, 2]
+                ok = False
             elif k == "wheel_silent":
                 i, t0 = int(v[0]), float(v[1])
                 out[k] = [i, t0]

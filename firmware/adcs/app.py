@@ -49,6 +49,12 @@ refused (n_refused: the STKF is at the later time).
 import math
 import struct
 
+try:
+    from time import ticks_diff                   # MicroPython: ticks wrap (2^30 us on a 32-bit board)
+except ImportError:                               # CPython
+    def ticks_diff(a, b):
+        return a - b
+
 from firmware.adcs import apkf_lean, control, linalg, stkf_lean
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol import can as canmap
@@ -600,7 +606,7 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
                 if mem is not None:
                     heap(tick, mem.mem_alloc() - m0)
                     mem.enable()
-                dt = (ticks_us() - t0) if ticks_us else 0
+                dt = ticks_diff(ticks_us(), t0) if ticks_us else 0
                 last = tick
                 status = app.status_payload(tick, dt, _drops(port))
             for dst_w, pl in cmds:

@@ -184,9 +184,7 @@ class App:
         # sensor inputs of the cycle
         self.wp = zeros(4)
         self.rw_got = [False] * NW
-        self.rw_seen = [False] * NW        # any read-out yet
         self.rw_miss_run = [0] * NW
-        self.rw_expect = [True] * NW       # a reply is due (initial read-out, or a command was sent)
         self.failed = 0
         self.qst = zeros(4)
         self.qst_prev = zeros(4)
@@ -225,7 +223,6 @@ class App:
                 if -_INF < speed < _INF:
                     self.wp[i] = speed * RPM
                     self.rw_got[i] = True
-                    self.rw_seen[i] = True
         elif pid == P_ST:
             t_ms, q0, q1, q2, q3, valid = struct.unpack(_FMT[P_ST], payload)
             self.st_got = True
@@ -270,7 +267,7 @@ class App:
                 self.rw_miss_run[i] = 0
                 if self.failed & (1 << i):
                     self.failed &= ~(1 << i)        # it answers again: back into the allocation
-            elif self.rw_expect[i]:
+            else:                                   # every wheel answers each tick (commands())
                 self.miss_rw[i] += 1
                 self.rw_miss_run[i] += 1
                 if self.rw_miss_run[i] >= FAIL_AFTER:
@@ -556,7 +553,6 @@ class App:
         for i in range(NW):
             en = 0 if self.failed & (1 << i) else 1
             out.append((RW0 + i, struct.pack(_FMT[P_RW_CMD], u[i] if en else 0.0, en)))
-            self.rw_expect[i] = True
         return out
 
 

@@ -463,4 +463,6 @@ def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, **kw):
     if run_dir:
         os.makedirs(run_dir, exist_ok=True)
         write_json(os.path.join(run_dir, "result.json"), res)
+    if not res["complete"]:          # simulate caught a Ctrl-C: the sweep stops too (this t_s stays partial)
+        raise KeyboardInterrupt
     return res

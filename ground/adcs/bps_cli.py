@@ -290,6 +290,8 @@ def _cmd_sweep(a):
                 with open(p) as f:
                     r = json.load(f)
             results.append(r)
+    if any(r is not None and "error" not in r and not r.get("complete", True) for r in results):
+        complete = False                                # a t_s cut short by Ctrl-C (in a worker)
     s = sweep_summary(ts_list, results, complete, satb)
     s["wall_s"] = time.perf_counter() - t0
     s["duration_s"] = a.duration

@@ -10,7 +10,7 @@ import pytest
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import Spacecraft
 from ground import cli
-from ground.adcs import bps
+from ground.adcs import bps, runs
 
 
 @pytest.fixture(scope="module")
@@ -55,3 +55,35 @@ def test_ctrl_c_stops_an_in_process_sweep_and_leaves_it_incomplete(params_file, 
     assert not (out / "run_0002").exists()                           # t_s = 35 never started
     with open(out / "run_0001" / "result.json") as f:
         assert json.load(f)["complete"] is False                     # what was done is kept, marked partial
+
+
+def test_interrupted_campaign_counts_only_its_own_runs_in_a_reused_folder(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "apkf"
+    pf = tmp_path / "short.json"
+    pf.write_text('{"duration_s": 60}')
+    base = ["adcs", "apkf", "--runs", "2", "--workers", "1", "--params", pf, "--quiet", "--no-plots", "-o", out]
+    assert _fps(capsys, base + ["--case", "3"])[0] == 0
+    assert _summary(out)["runs"] == 2                                # an earlier case-3 campaign in the folder
+
+    def interrupted(**kw):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(runs, "run_apkf", interrupted)
+    rc, _, err = _fps(capsys, base + ["--case", "1"])
+    s = _summary(out)
+    assert rc == 130 and s["complete"] is False and s["case"] == 1
+    assert s["runs"] == 0 and s["per_run"] == []                     # not the case-3 runs left in run_000N/
+
+
+def test_stkf_interrupted_in_a_reused_folder_counts_only_its_own_runs(tmp_path, monkeypatch, capsys):
+    from ground.adcs import stkf_sim
+    out = tmp_path / "stkf"
+    base = ["adcs", "stkf", "--case", "1", "--duration", "5", "--truth", "two-body", "--workers", "1", "--quiet",
+            "--no-plots", "-o", out]
+    assert _fps(capsys, base)[0] == 0 and _summary(out)["runs"] == 1
+
+    def interrupted(**kw):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(stkf_sim, "run_one", interrupted)
+    rc, _, _ = _fps(capsys, base)
+    s = _summary(out)
+    assert rc == 130 and s["complete"] is False and s["runs"] == 0

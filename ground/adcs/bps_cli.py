@@ -269,6 +269,7 @@ def _cmd_sweep(a):
     os.makedirs(out, exist_ok=True)
     satb = not a.no_satb_gnss
     write_json(os.path.join(out, "summary.json"), sweep_summary(ts_list, [None] * len(ts_list), False, satb))
+    since = campaign.stamp(os.path.join(out, "summary.json"))
     t0 = time.perf_counter()
     complete = True
     try:
@@ -286,7 +287,7 @@ def _cmd_sweep(a):
         for i in range(len(ts_list)):
             p = os.path.join(campaign.run_dir_for(out, i), "result.json")
             r = None
-            if os.path.exists(p):
+            if campaign.written_since(p, since):        # this sweep's, not an earlier one's in the folder
                 with open(p) as f:
                     r = json.load(f)
             results.append(r)

@@ -43,6 +43,22 @@ def run_dir_for(out_dir, i):
     return os.path.join(str(out_dir), "run_%04d" % i)
 
 
+def stamp(path):
+    """The modification time (ns) of ``path``, a file the campaign has just written: runs written before it
+    belong to an earlier campaign in the same folder (``written_since``)."""
+    return os.stat(path).st_mtime_ns
+
+
+def written_since(path, since_ns):
+    """True if ``path`` exists and was written at or after ``since_ns`` (``stamp``): an interrupted campaign
+    counts only its own runs, never those an earlier campaign left in a reused folder."""
+    try:
+        t = os.stat(path).st_mtime_ns
+    except OSError:
+        return False
+    return since_ns is None or t >= since_ns
+
+
 def _call(fn, seed, run_dir, kwargs):
     """One run; an exception becomes an error record (the message, not a traceback)."""
     try:

@@ -46,6 +46,7 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     seeds = [a.seed + i for i in range(n)]
     summary = {"filter": name, "case": case, "runs": 0, "complete": False, "seeds": seeds}
     write_json(os.path.join(out, "summary.json"), summary)
+    since = campaign.stamp(os.path.join(out, "summary.json"))
     write_json(os.path.join(out, "config.json"), {"filter": name, "case": case, "runs": n, "seed": a.seed,
                                                   "workers": a.workers, "scheduler": a.scheduler, "params": params})
     interrupted = False
@@ -55,7 +56,7 @@ def run_filter_campaign(fn, name, case, a, dof=6):
                                         case=case, params=params)
     except KeyboardInterrupt:
         interrupted = True
-        results = [runs.load_run(campaign.run_dir_for(out, i)) for i in range(n)]
+        results = [runs.load_run(campaign.run_dir_for(out, i), since) for i in range(n)]
     summary = runs.aggregate(results, name, case, dof=dof)
     summary["complete"] = not interrupted
     summary["seeds"] = seeds

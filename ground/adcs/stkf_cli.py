@@ -35,6 +35,7 @@ def _cmd(a):
     summary = stkf_sim.aggregate([], runs, False)
     summary.update(case=a.case, truth=a.truth, duration_s=a.duration)
     write_json(os.path.join(out, "summary.json"), summary)
+    since = campaign.stamp(os.path.join(out, "summary.json"))
     t0 = time.perf_counter()
     if a.truth == "hpop":  # make the cache once, before the workers read it
         from emulator import orbits
@@ -49,13 +50,15 @@ def _cmd(a):
                                         lag_s=a.lag, outages=outages, attitude=a.attitude)
     except KeyboardInterrupt:
         complete = False
-        results = _collect(out, runs)
+        results = _collect(out, runs, since)
     summary = stkf_sim.aggregate(results, runs, complete)
     summary.update(case=a.case, truth=a.truth, attitude=a.attitude, duration_s=a.duration,
                    wall_s=time.perf_counter() - t0)
     plots = []
     if not a.no_plots and summary["runs"]:
-        plots = stkf_sim.plots(out, [campaign.run_dir_for(out, i) for i in range(runs)], a.case)
+        dirs = [campaign.run_dir_for(out, i) for i in range(runs)]
+        plots = stkf_sim.plots(out, [d for d in dirs if campaign.written_since(os.path.join(d, "history.npz"),
+                                                                               since)], a.case)
     summary["plots"] = plots
     write_atomic(os.path.join(out, "report.md"), stkf_sim.report_md(summary, a.case, args_text))
     write_json(os.path.join(out, "summary.json"), summary)
@@ -69,12 +72,13 @@ def _cmd(a):
     return 0
 
 
-def _collect(out, runs):
+def _collect(out, runs, since_ns=None):
+    """The runs this campaign finished (``since_ns``: not an earlier campaign's left in the folder)."""
     import json
     res = []
     for i in range(runs):
         p = os.path.join(campaign.run_dir_for(out, i), "result.json")
-        if os.path.exists(p):
+        if campaign.written_since(p, since_ns):
             with open(p) as f:
                 res.append(json.load(f))
     return res

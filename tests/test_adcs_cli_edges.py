@@ -87,3 +87,13 @@ def test_stkf_interrupted_in_a_reused_folder_counts_only_its_own_runs(tmp_path, 
     rc, _, _ = _fps(capsys, base)
     s = _summary(out)
     assert rc == 130 and s["complete"] is False and s["runs"] == 0
+
+
+def test_adcs_can_run_that_misses_its_budget_does_not_exit_0(tmp_path, capsys):
+    """t_s = 5 s is far too stiff for the 1 Hz loop: the pointing diverges; the summary and the exit agree."""
+    out = tmp_path / "can"
+    rc, _, err = _fps(capsys, ["adcs", "can", "--runtime", "cpython", "--duration", "80", "--ts", "5", "--quiet",
+                               "--no-plots", "-o", out])
+    s = _summary(out)
+    assert s["complete"] and s["pointing"]["pointing_3sigma_arcsec"] > bps.BUDGET_POINTING_3SIGMA
+    assert s["budgets_met"] is False and rc == 3 and "BUDGET MISSED" in err

@@ -5,7 +5,8 @@ Run folder (``-o DIR``, atomic writes): ``summary.json`` (written at the start w
 session's counters, the fault log, the ADCS's last status and the body pointing figures after the hold and
 4 t_s, arcsec and arcsec/s), ``history.npz`` (10 Hz truth t, q, w and the pointing error dtheta/domega in arcsec;
 1 Hz status fields), ``pointing.png`` (the pointing error with the ADCS mode). Ctrl-C leaves a valid folder
-with ``complete`` false.
+with ``complete`` false (exit 130). ``budgets_met``: the pointing figures against the 3σ budgets (150 arcsec,
+35 arcsec/s); a run that misses them exits 3, one too short to have them (null) exits 0.
 """
 
 import os
@@ -114,17 +115,27 @@ def run(a):
             summary["pointing"] = bps.statistics(dth[sel], dom[sel])
             summary["requirement"] = {"pointing_3sigma_arcsec": bps.BUDGET_POINTING_3SIGMA,
                                       "stability_3sigma_arcsec_s": bps.BUDGET_STABILITY_3SIGMA}
+    p = summary.get("pointing")
+    summary["budgets_met"] = None if p is None else bool(
+        summary["complete"] and p["pointing_3sigma_arcsec"] <= bps.BUDGET_POINTING_3SIGMA
+        and p["stability_3sigma_arcsec_s"] <= bps.BUDGET_STABILITY_3SIGMA)
     h.update(("status_" + k, np.asarray(v)) for k, v in stat.items())
     bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:
         from ground import plots
         plots.adcs_can_pointing(h, os.path.join(out, "pointing.png"))
     write_json(os.path.join(out, "summary.json"), summary)
-    p = summary.get("pointing")
     print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s; %s" % (
         a.runtime, summary["cycles"], "" if summary["complete"] else " (interrupted)", summary["last_mode"],
         summary["late_cycles"], summary["firmware_missed"],
         ("pointing 3σ %.1f″ (budget %.0f″), stability 3σ %.1f″/s (budget %.0f″/s)" % (
             p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
             bps.BUDGET_STABILITY_3SIGMA)) if p else "too short for pointing figures"))
-    return 130 if interrupted else 0
+    if interrupted:
+        return 130
+    if summary["budgets_met"] is False:
+        print("BUDGET MISSED: 3σ pointing %.1f arcsec (limit %g), stability %.1f arcsec/s (limit %g)"
+              % (p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
+                 bps.BUDGET_STABILITY_3SIGMA), file=sys.stderr)
+        return 3
+    return 0

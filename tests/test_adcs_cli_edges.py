@@ -97,3 +97,35 @@ def test_adcs_can_run_that_misses_its_budget_does_not_exit_0(tmp_path, capsys):
     s = _summary(out)
     assert s["complete"] and s["pointing"]["pointing_3sigma_arcsec"] > bps.BUDGET_POINTING_3SIGMA
     assert s["budgets_met"] is False and rc == 3 and "BUDGET MISSED" in err
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["adcs", "bps", "--ts", "1e9", "--duration", "5"], "--ts"),
+    (["adcs", "sweep", "--ts", "1e9", "--duration", "5", "--workers", "1"], "--ts"),
+    (["adcs", "sweep", "--ts", "10:100:1e-9", "--duration", "5", "--workers", "1"], "--ts"),
+    (["distfile", "generate", "--source", "bps", "--ts", "1e9", "--duration", "5", "--bps-truth", "two-body"],
+     "--ts"),
+    (["system", "--adcs", "ground", "--runtime", "cpython", "--truth", "two-body", "--ts", "1e9"], "--ts"),
+    (["system", "--adcs", "ground", "--runtime", "cpython", "--truth", "two-body", "--duration", "1e12"],
+     "--duration"),
+    (["adcs", "can", "--runtime", "cpython", "--ts", "1e9"], "--ts"),
+    (["adcs", "can", "--runtime", "cpython", "--duration", "1e12"], "--duration"),
+    (["adcs", "stkf", "--case", "1", "--truth", "two-body", "--duration", "1e9"], "--duration"),
+    (["adcs", "stkf", "--case", "1", "--truth", "two-body", "--duration", "inf"], "--duration"),
+    (["adcs", "stkf", "--case", "2", "--truth", "two-body", "--lag", "inf"], "--lag"),
+    (["adcs", "apkf", "--seed", "-1", "--workers", "1"], "--seed"),
+    (["adcs", "mekf", "--seed", "-1", "--workers", "1"], "--seed"),
+    (["adcs", "stkf", "--case", "1", "--truth", "two-body", "--seed", "-1", "--workers", "1"], "--seed"),
+    (["adcs", "can", "--runtime", "cpython", "--seed", "-1"], "--seed"),
+])
+def test_too_large_or_negative_inputs_are_refused_up_front(argv, flag, params_file, tmp_path, capsys):
+    """Refused as bad input (exit 2) with the flag named, before any run: not a MemoryError, an OOM kill or
+    a run that fails later with exit 1."""
+    o = tmp_path / ("x.dist" if argv[0] == "distfile" else "x")
+    extra = ["--params", params_file] if argv[:2] in (["adcs", "bps"], ["adcs", "sweep"]) or "--source" in argv \
+        or argv[0] == "system" else []
+    rc, _, err = _fps(capsys, argv + extra + ["-o", o])
+    assert rc == 2, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("fps ") and "error: " in last and flag in last, err
+    assert not (tmp_path / "x" / "run_0000").exists()

@@ -29,8 +29,12 @@ CACHE_DEFAULT = os.path.join("out", "bps_cache")
 VERSION = 2          # bump when the simulator's results change: old cache entries stop matching
 
 
+MAX_SWEEP_POINTS = 1000
+
+
 def parse_ts_range(text):
-    """'10:100:5' -> [10, 15, ..., 100]; a single number -> [x]. Every t_s must be > 0."""
+    """'10:100:5' -> [10, 15, ..., 100]; a single number -> [x]. Every t_s in (0, bps.MAX_TS_S], at most
+    ``MAX_SWEEP_POINTS`` of them."""
     parts = str(text).split(":")
     try:
         vals = [float(p) for p in parts]
@@ -39,6 +43,11 @@ def parse_ts_range(text):
     if len(vals) == 1:
         out = vals
     elif len(vals) == 3 and vals[2] > 0 and vals[1] >= vals[0]:
+        for v in vals[:2]:
+            bps.check_ts(v)
+        n = int(np.floor((vals[1] - vals[0]) / vals[2] + 1e-9)) + 1
+        if n > MAX_SWEEP_POINTS:
+            raise ValueError("--ts %r gives %d t_s values; at most %d (raise STEP)" % (text, n, MAX_SWEEP_POINTS))
         out = list(np.arange(vals[0], vals[1] + 1e-9 * max(1.0, vals[2]), vals[2]))
     else:
         raise ValueError("--ts must be START:STOP:STEP with STEP > 0 and STOP >= START, got %r" % (text,))
@@ -317,8 +326,10 @@ def _cmd_sweep(a):
 
 def _common(p):
     p.add_argument("--duration", type=float, default=4000.0,
-                   help="seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling (default 4000)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed, also the calibration's (default 0)")
+                   help="seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling, 1 to %g "
+                   "(default 4000)" % MAX_DURATION_S)
+    p.add_argument("--seed", type=int, default=0, help="noise seed, also the calibration's, 0 to "
+                   "2**32 - 1 (default 0)")
     p.add_argument("--params", default=None, help="parameter file (JSON) from an earlier run's params.json; "
                    "default: run the nine calibration sets (cached)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",
@@ -333,7 +344,8 @@ def _common(p):
 def register_bps(sub):
     p = sub.add_parser("bps", help="body pointing simulator: pointing and tracking (Sec. 6.4)",
                        description=__doc__.split("\n\n")[1])
-    p.add_argument("--ts", type=float, default=bps.TS_THESIS, help="settling time t_s in s, > 0 (default 33)")
+    p.add_argument("--ts", type=float, default=bps.TS_THESIS, help="settling time t_s in s, in (0, %g] "
+                   "(default 33)" % bps.MAX_TS_S)
     p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed to SatA (2-3 s late)")
     _common(p)
     p.set_defaults(func=_cmd_bps)
@@ -342,7 +354,8 @@ def register_bps(sub):
 def register_sweep(sub):
     p = sub.add_parser("sweep", help="settling-time sweep of the objective J (Sec. 6.4.3, Fig. 6-2)",
                        description=__doc__.split("\n\n")[2])
-    p.add_argument("--ts", default="10:100:5", help="START:STOP:STEP in s (default 10:100:5, 19 points)")
+    p.add_argument("--ts", default="10:100:5", help="START:STOP:STEP in s, each t_s in (0, %g], "
+                   "at most %d points (default 10:100:5, 19 points)" % (bps.MAX_TS_S, MAX_SWEEP_POINTS))
     p.add_argument("--no-satb-gnss", action="store_true", help="leave SatB's GNSS out (Sec. 6.4.3 uses it)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count; "

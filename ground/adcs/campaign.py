@@ -31,6 +31,13 @@ def check_runs(n):
     return k
 
 
+def check_seed(seed):
+    """``seed`` as a first seed >= 0 (numpy's generators refuse negative seeds); ValueError naming it otherwise."""
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise ValueError("--seed must be a whole number >= 0, got %r" % (seed,))
+    return int(seed)
+
+
 def check_workers(n):
     if n is None:
         return max(1, os.cpu_count() or 1)

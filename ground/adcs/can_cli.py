@@ -48,12 +48,12 @@ def faults_from_args(a):
 def register(sub):
     p = sub.add_parser("can", help="the ADCS firmware on CAN against the emulated spacecraft (issue 13)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--duration", type=float, default=600.0, help="virtual seconds (default 600)")
+    p.add_argument("--duration", type=float, default=600.0, help="virtual seconds, 1 to 86400 (default 600)")
     p.add_argument("--runtime", default="micropython", choices=("micropython", "cpython"),
                    help="the firmware's interpreter (default micropython)")
     p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed 2-3 s late (default off)")
-    p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s (default 33)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s, in (0, 21600] (default 33)")
+    p.add_argument("--seed", type=int, default=0, help="scenario seed, >= 0 (default 0)")
     p.add_argument("--params", default=None, help="parameter file (fps adcs bps format; default: a perfect "
                                                   "calibration of the emulated spacecraft)")
     p.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I stops answering at T0 s")
@@ -70,8 +70,12 @@ def run(a):
     from emulator.adcs_session import AdcsSession
     from emulator.spacecraft.scenario import HOLD_S
     from ground.adcs import bps
-    if not (np.isfinite(a.duration) and a.duration >= 1):
-        raise ValueError("--duration must be >= 1 s, got %r" % a.duration)
+    from ground.adcs.bps_cli import MAX_DURATION_S
+    from ground.adcs.campaign import check_seed
+    if not (np.isfinite(a.duration) and 1 <= a.duration <= MAX_DURATION_S):
+        raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, a.duration))
+    bps.check_ts(a.ts)
+    check_seed(a.seed)
     faults = faults_from_args(a)
     log = None if a.quiet else (lambda m: print(m, file=sys.stderr))
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,

@@ -24,7 +24,7 @@ def add_campaign_options(p, cases=True):
         p.add_argument("--case", type=int, default=1, choices=(1, 2, 3),
                        help="disturbance: 1 none, 2 sinusoidal (Eq. 4.150), 3 attitude-dependent (Eq. 4.151)")
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds), >= 1 (default 1; >= 20 for NEES)")
-    p.add_argument("--seed", type=int, default=0, help="first seed; run i uses seed + i (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="first seed, >= 0; run i uses seed + i (default 0)")
     p.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: all cores; 1 = in-process, no Dask)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port) instead of local")
@@ -38,6 +38,7 @@ def add_campaign_options(p, cases=True):
 def run_filter_campaign(fn, name, case, a, dof=6):
     """Run the campaign, write the folder, print the table; returns the exit code."""
     n = campaign.check_runs(a.runs)
+    campaign.check_seed(a.seed)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     params = runs.load_params(a.params) if a.params else None

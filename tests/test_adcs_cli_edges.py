@@ -129,3 +129,12 @@ def test_too_large_or_negative_inputs_are_refused_up_front(argv, flag, params_fi
     last = err.strip().splitlines()[-1]
     assert last.startswith("fps ") and "error: " in last and flag in last, err
     assert not (tmp_path / "x" / "run_0000").exists()
+
+
+@pytest.mark.parametrize("argv", [["adcs", "apkf", "--workers", "1"], ["adcs", "bps", "--truth", "two-body"],
+                                  ["adcs", "can", "--runtime", "cpython", "--duration", "2"]])
+def test_a_binary_parameter_file_is_named_in_the_error(argv, tmp_path, capsys):
+    p = tmp_path / "params.json"
+    p.write_bytes(b"\xff\xfe\x00{")
+    rc, _, err = _fps(capsys, argv + ["--params", p, "-o", tmp_path / "x"])
+    assert rc == 2 and str(p) in err.strip().splitlines()[-1] and "not valid JSON" in err, err

@@ -136,7 +136,7 @@ def load_params(path):
     try:
         with open(path) as f:
             d = json.load(f)
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:     # not JSON text at all
         raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
     return check_params(d, path) + (d,)
 

@@ -35,7 +35,7 @@ def load_params(path):
     try:
         with open(path) as f:
             d = json.load(f, parse_constant=lambda c: float("nan"))
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:     # not JSON text at all
         raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
     if not isinstance(d, dict):
         raise ValueError("%s: expected a JSON object with keys %s" % (path, ", ".join(sorted(PARAM_KEYS))))

@@ -138,3 +138,21 @@ def test_a_binary_parameter_file_is_named_in_the_error(argv, tmp_path, capsys):
     p.write_bytes(b"\xff\xfe\x00{")
     rc, _, err = _fps(capsys, argv + ["--params", p, "-o", tmp_path / "x"])
     assert rc == 2 and str(p) in err.strip().splitlines()[-1] and "not valid JSON" in err, err
+
+
+def test_stkf_plots_are_written_atomically(tmp_path, monkeypatch, capsys):
+    """A Ctrl-C while a figure is being written leaves no truncated PNG in the run folder."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+    out = tmp_path / "stkf"
+
+    def savefig(self, fname, **kw):
+        (fname.write if hasattr(fname, "write") else open(fname, "wb").write)(b"\x89PNG\r\n")   # half a file
+        raise KeyboardInterrupt
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    rc, _, _ = _fps(capsys, ["adcs", "stkf", "--case", "1", "--duration", "5", "--truth", "two-body", "--workers",
+                             "1", "--quiet", "-o", out])
+    assert rc == 130
+    assert not [f for f in os.listdir(out) if f.endswith(".png") or ".tmp" in f]
+    assert _summary(out)["complete"] is False

@@ -156,3 +156,16 @@ def test_stkf_plots_are_written_atomically(tmp_path, monkeypatch, capsys):
     assert rc == 130
     assert not [f for f in os.listdir(out) if f.endswith(".png") or ".tmp" in f]
     assert _summary(out)["complete"] is False
+
+
+def test_a_truth_step_that_does_not_divide_1_s_is_refused_up_front(tmp_path, capsys):
+    """dt_truth_s = 0.3 is in the checked range (0, 1] but the scenario needs 1/dt steps per second: refused as
+    bad input (exit 2, the key named), not run and failed seed by seed (exit 1)."""
+    p = tmp_path / "p.json"
+    p.write_text('{"dt_truth_s": 0.3, "duration_s": 20}')
+    rc, _, err = _fps(capsys, ["adcs", "mekf", "--workers", "1", "--params", p, "--quiet", "--no-plots", "-o",
+                               tmp_path / "x"])
+    assert rc == 2 and "dt_truth_s = 0.3" in err.strip().splitlines()[-1], err
+    assert not (tmp_path / "x").exists()
+    p.write_text('{"dt_truth_s": 0.5, "duration_s": 20}')
+    assert runs.load_params(str(p)) == {"dt_truth_s": 0.5, "duration_s": 20.0}

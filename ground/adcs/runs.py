@@ -69,6 +69,9 @@ def check_params(d, where="params"):
     for k, lo, hi in (("duration_s", 2.0, 930.0), ("dt_truth_s", 1e-6, 1.0)):
         if k in out and not (out[k].shape == () and lo <= out[k] <= hi):
             raise ValueError("%s: %s = %r out of range (%s)" % (where, k, d[k], PARAM_KEYS[k]))
+    if "dt_truth_s" in out and abs(1.0 / out["dt_truth_s"] - round(1.0 / out["dt_truth_s"])) >= 1e-9:
+        raise ValueError("%s: dt_truth_s = %r does not divide 1 s (%s; e.g. 1, 0.5, 0.1)"
+                         % (where, d["dt_truth_s"], PARAM_KEYS["dt_truth_s"]))      # as scenario.simulate
     return {k: (v.tolist() if v.shape else float(v)) for k, v in out.items()}
 
 

@@ -169,3 +169,21 @@ def test_a_truth_step_that_does_not_divide_1_s_is_refused_up_front(tmp_path, cap
     assert not (tmp_path / "x").exists()
     p.write_text('{"dt_truth_s": 0.5, "duration_s": 20}')
     assert runs.load_params(str(p)) == {"dt_truth_s": 0.5, "duration_s": 20.0}
+
+
+def test_bps_and_sweep_plots_leave_no_partial_file(params_file, tmp_path, monkeypatch, capsys):
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    def savefig(self, fname, **kw):
+        (fname.write if hasattr(fname, "write") else open(fname, "wb").write)(b"\x89PNG\r\n")   # half a file
+        raise KeyboardInterrupt
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    for cmd, ts in (("bps", "20"), ("sweep", "20")):
+        out = tmp_path / cmd
+        rc, _, _ = _fps(capsys, ["adcs", cmd, "--ts", ts, "--duration", "5", "--params", params_file, "--truth",
+                                 "two-body", "--quiet", "--cache-dir", tmp_path / "c", "-o", out]
+                        + (["--workers", "1"] if cmd == "sweep" else []))
+        assert rc == 130 and _summary(out)["complete"] is False
+        assert not [f for f in os.listdir(out) if f.endswith(".png") or ".tmp" in f], os.listdir(out)

@@ -176,9 +176,17 @@ def plot_history(path, hist, settle_s, title):
     ax[1, 1].set_xlabel("time (s)")
     fig.suptitle(title + " (dashed: collection starts)")
     fig.tight_layout()
-    fig.savefig(path + ".tmp.png", dpi=90)
+    _save_png(fig, path)
+
+
+def _save_png(fig, path):
+    """The figure as a PNG, written atomically (an interrupted plot leaves neither a truncated file nor a temp)."""
+    import io
+    import matplotlib.pyplot as plt
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
-    os.replace(path + ".tmp.png", path)
+    write_atomic(path, buf.getvalue())
 
 
 def _cmd_bps(a):
@@ -263,9 +271,7 @@ def plot_sweep(path, s):
     ax.legend()
     ax.set_title("Objective J for the settling time (Fig. 6-2)")
     fig.tight_layout()
-    fig.savefig(path + ".tmp.png", dpi=90)
-    plt.close(fig)
-    os.replace(path + ".tmp.png", path)
+    _save_png(fig, path)
 
 
 def _cmd_sweep(a):

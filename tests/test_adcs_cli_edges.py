@@ -187,3 +187,30 @@ def test_bps_and_sweep_plots_leave_no_partial_file(params_file, tmp_path, monkey
                         + (["--workers", "1"] if cmd == "sweep" else []))
         assert rc == 130 and _summary(out)["complete"] is False
         assert not [f for f in os.listdir(out) if f.endswith(".png") or ".tmp" in f], os.listdir(out)
+
+
+def test_terminal_ctrl_c_on_a_dask_campaign_prints_no_worker_tracebacks(tmp_path):
+    """A terminal's Ctrl-C goes to the whole process group, the local Dask workers included: the campaign ends
+    with its one-line message, complete=false, and no KeyboardInterrupt traceback from any worker."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    out = tmp_path / "apkf"
+    p = subprocess.Popen([sys.executable, "-m", "ground.cli", "adcs", "apkf", "--runs", "40", "--workers", "2",
+                          "--quiet", "--no-plots", "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True, start_new_session=True)
+    try:
+        t0 = time.monotonic()
+        while not (out / "run_0000" / "result.json").exists() and time.monotonic() - t0 < 120 and p.poll() is None:
+            time.sleep(0.05)
+        assert p.poll() is None, p.communicate()
+        os.killpg(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    assert p.returncode == 130 and "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    s = _summary(out)
+    assert s["complete"] is False and 1 <= s["runs"] < 40

@@ -14,6 +14,7 @@ others go on. Ctrl-C cancels the outstanding futures and re-raises KeyboardInter
 ``complete: false``).
 """
 
+import contextlib
 import os
 import sys
 
@@ -80,6 +81,25 @@ def _call(fn, seed, run_dir, kwargs):
     return res
 
 
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while the local workers start: they inherit it (an ignored signal survives exec), so a
+    terminal's Ctrl-C, which goes to the whole process group, reaches only this process, which cancels the runs
+    and closes the cluster, instead of every worker also dying with a KeyboardInterrupt traceback on stderr.
+    A Ctrl-C in that second is lost. Main thread only (signal's rule)."""
+    import signal
+    import threading
+    old = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or old is None:
+        yield
+        return
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def _bar(total, progress, desc):
     from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit="run", file=sys.stderr, disable=not progress, leave=False)
@@ -115,8 +135,9 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
         client, cluster = _connect(scheduler), None
     else:
         from distributed import Client, LocalCluster
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=40)
+        with _sigint_ignored():
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=40)
         client = Client(cluster)
     futures = []
     try:

@@ -214,3 +214,21 @@ def test_terminal_ctrl_c_on_a_dask_campaign_prints_no_worker_tracebacks(tmp_path
     assert p.returncode == 130 and "Traceback" not in err and "KeyboardInterrupt" not in err, err
     s = _summary(out)
     assert s["complete"] is False and 1 <= s["runs"] < 40
+
+
+@pytest.mark.parametrize("edit, words", [(lambda d: d["x"]["J5_kgm2"].__setitem__(0, -1.0), "positive definite"),
+                                         (lambda d: d["P"][0].__setitem__(0, -1.0), "P is not positive definite"),
+                                         (lambda d: d.pop("P"), "'P'")])
+def test_adcs_can_refuses_the_parameter_files_fps_adcs_bps_refuses(edit, words, params_file, tmp_path, capsys):
+    """--params is 'fps adcs bps format': a non-positive-definite inertia or P, or no P, is refused before the
+    flight software is started with it (the flight side's own check is lighter)."""
+    with open(params_file) as f:
+        d = json.load(f)
+    edit(d)
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(d))
+    rc, _, err = _fps(capsys, ["adcs", "can", "--runtime", "cpython", "--duration", "2", "--quiet", "--no-plots",
+                               "--params", p, "-o", tmp_path / "x"])
+    last = err.strip().splitlines()[-1] if err.strip() else ""
+    assert rc == 2 and str(p) in last and words in last, err
+    assert not (tmp_path / "x").exists()

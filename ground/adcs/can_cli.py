@@ -76,6 +76,8 @@ def run(a):
         raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, a.duration))
     bps.check_ts(a.ts)
     check_seed(a.seed)
+    if a.params:
+        bps.load_params(a.params)       # the bps format's own checks (inertia and P positive definite, 4 wheels)
     faults = faults_from_args(a)
     log = None if a.quiet else (lambda m: print(m, file=sys.stderr))
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,

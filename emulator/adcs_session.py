@@ -428,6 +428,6 @@ def _load_params(params):
         try:
             with open(params) as fh:
                 params = json.load(fh)
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:     # not JSON text at all
             raise ValueError("%s: not valid JSON (%s)" % (params, exc)) from None
     return apkf_lean.check_params(params)

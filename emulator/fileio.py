@@ -5,6 +5,30 @@ import os
 import tempfile
 
 
+def _mode(path):
+    """The permissions ``path`` gets: an existing file's own, else what ``open`` would give (0o666 less the
+    umask). ``mkstemp`` makes its file 0o600, which would leave every run folder unreadable to the group."""
+    try:
+        return os.stat(path).st_mode & 0o777
+    except OSError:
+        return 0o666 & ~_umask()
+
+
+def _umask():
+    """The process's umask, read without setting it where Linux tells it (os.umask is the fallback: it must set
+    one to read it, for an instant, which another thread could see)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_atomic(path, data):
     """Write ``data`` (bytes or str) to ``path`` atomically; creates the parent folder."""
     if isinstance(data, str):
@@ -14,6 +38,7 @@ def write_atomic(path, data):
     fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
     try:
         with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), _mode(path))
             f.write(data)
             f.flush()
             os.fsync(f.fileno())

@@ -48,6 +48,7 @@ RUNTIMES = ("micropython", "cpython")
 LEAD_S = 2.0              # ADCS seconds simulated beyond the play: the last chunk's interpolation stencil
 STENCIL_S = 0.25          # the 10 Hz samples needed beyond a distfile sample (two steps of 0.1 s, and a margin)
 WAIT_S = 600.0            # longest wait for one ADCS message before the run is declared failed
+MAX_DURATION_S = 86400.0  # the ADCS's run is held in memory (as fps adcs bps's --duration)
 GOAL_RTF = 5.0            # issue 13: the 600 s run >= 5x real time on 2 cores
 ARCSEC = math.pi / 180.0 / 3600.0
 
@@ -390,8 +391,8 @@ def check_inputs(duration_s, runtime_name, adcs, ts, truth, seed=0):
     from ground.adcs.bps_source import TRUTHS
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
         raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (seed,))
-    if not (isinstance(duration_s, (int, float)) and math.isfinite(duration_s) and duration_s > 0):
-        raise ValueError("--duration must be a finite number of seconds > 0, got %r" % (duration_s,))
+    if not (isinstance(duration_s, (int, float)) and math.isfinite(duration_s) and 0 < duration_s <= MAX_DURATION_S):
+        raise ValueError("--duration must be in (0, %g] s, got %r" % (MAX_DURATION_S, duration_s))
     if runtime_name not in RUNTIMES:
         raise ValueError("--runtime %r: the fine-pointing controller runs under one of %s"
                          % (runtime_name, ", ".join(RUNTIMES)))
@@ -677,8 +678,8 @@ def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--duration", type=float, default=600.0,
-                   help="virtual seconds of the collection window played to the P-FSM (default 600); the ADCS "
-                        "runs 30 s + 4 t_s of settling before it and %g s beyond" % LEAD_S)
+                   help="virtual seconds of the collection window played to the P-FSM, at most %g (default 600); "
+                        "the ADCS runs 30 s + 4 t_s of settling before it and %g s beyond" % (MAX_DURATION_S, LEAD_S))
     p.add_argument("--adcs", choices=ADCS_KINDS, default="firmware" if firmware_available() else "ground",
                    help="firmware: the ADCS flight software on CAN against the emulated spacecraft; ground: the "
                         "body pointing simulator of Sec. 6.4 (default: firmware when this build has it)")

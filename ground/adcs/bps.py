@@ -59,6 +59,7 @@ THESIS = {  # Sec. 6.4.4, ts = 33 s: (mean, 1 sigma)
     True: {"theta": ((0.955, 20.143), (12.795, 33.945)), "omega": ((-0.024, 7.054), (-0.128, 8.744))},
 }
 TS_THESIS = 33.0
+MAX_TS_S = 21600.0    # t_s at most 6 h: 4 t_s of settling at most a day (the run is held in memory at 10 Hz)
 BUDGET_POINTING_3SIGMA = 150.0
 BUDGET_STABILITY_3SIGMA = 35.0
 SLOW_S = 60       # the error budget's moving average for the tracking part's slow share (s)
@@ -135,7 +136,7 @@ def load_params(path):
     try:
         with open(path) as f:
             d = json.load(f)
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:     # not JSON text at all
         raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
     return check_params(d, path) + (d,)
 
@@ -246,7 +247,14 @@ def truth_span(seconds):
 
 
 def check_ts(ts):
-    return control.natural_frequency(ts) and float(ts)
+    """``ts`` (the settling time t_s of Eq. 6.7, s) as a float in (0, MAX_TS_S]; ValueError naming --ts."""
+    try:
+        v = float(ts)
+    except (TypeError, ValueError):
+        raise ValueError("--ts (settling time t_s) must be a number of seconds, got %r" % (ts,)) from None
+    if not 0 < v <= MAX_TS_S:
+        raise ValueError("--ts (settling time t_s) must be in (0, %g] s, got %r" % (MAX_TS_S, ts))
+    return control.natural_frequency(v) and v
 
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
@@ -463,4 +471,6 @@ def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, **kw):
     if run_dir:
         os.makedirs(run_dir, exist_ok=True)
         write_json(os.path.join(run_dir, "result.json"), res)
+    if not res["complete"]:          # simulate caught a Ctrl-C: the sweep stops too (this t_s stays partial)
+        raise KeyboardInterrupt
     return res

@@ -29,8 +29,12 @@ CACHE_DEFAULT = os.path.join("out", "bps_cache")
 VERSION = 2          # bump when the simulator's results change: old cache entries stop matching
 
 
+MAX_SWEEP_POINTS = 1000
+
+
 def parse_ts_range(text):
-    """'10:100:5' -> [10, 15, ..., 100]; a single number -> [x]. Every t_s must be > 0."""
+    """'10:100:5' -> [10, 15, ..., 100]; a single number -> [x]. Every t_s in (0, bps.MAX_TS_S], at most
+    ``MAX_SWEEP_POINTS`` of them."""
     parts = str(text).split(":")
     try:
         vals = [float(p) for p in parts]
@@ -39,6 +43,11 @@ def parse_ts_range(text):
     if len(vals) == 1:
         out = vals
     elif len(vals) == 3 and vals[2] > 0 and vals[1] >= vals[0]:
+        for v in vals[:2]:
+            bps.check_ts(v)
+        n = int(np.floor((vals[1] - vals[0]) / vals[2] + 1e-9)) + 1
+        if n > MAX_SWEEP_POINTS:
+            raise ValueError("--ts %r gives %d t_s values; at most %d (raise STEP)" % (text, n, MAX_SWEEP_POINTS))
         out = list(np.arange(vals[0], vals[1] + 1e-9 * max(1.0, vals[2]), vals[2]))
     else:
         raise ValueError("--ts must be START:STOP:STEP with STEP > 0 and STOP >= START, got %r" % (text,))
@@ -167,9 +176,17 @@ def plot_history(path, hist, settle_s, title):
     ax[1, 1].set_xlabel("time (s)")
     fig.suptitle(title + " (dashed: collection starts)")
     fig.tight_layout()
-    fig.savefig(path + ".tmp.png", dpi=90)
+    _save_png(fig, path)
+
+
+def _save_png(fig, path):
+    """The figure as a PNG, written atomically (an interrupted plot leaves neither a truncated file nor a temp)."""
+    import io
+    import matplotlib.pyplot as plt
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
-    os.replace(path + ".tmp.png", path)
+    write_atomic(path, buf.getvalue())
 
 
 def _cmd_bps(a):
@@ -254,9 +271,7 @@ def plot_sweep(path, s):
     ax.legend()
     ax.set_title("Objective J for the settling time (Fig. 6-2)")
     fig.tight_layout()
-    fig.savefig(path + ".tmp.png", dpi=90)
-    plt.close(fig)
-    os.replace(path + ".tmp.png", path)
+    _save_png(fig, path)
 
 
 def _cmd_sweep(a):
@@ -269,6 +284,7 @@ def _cmd_sweep(a):
     os.makedirs(out, exist_ok=True)
     satb = not a.no_satb_gnss
     write_json(os.path.join(out, "summary.json"), sweep_summary(ts_list, [None] * len(ts_list), False, satb))
+    since = campaign.stamp(os.path.join(out, "summary.json"))
     t0 = time.perf_counter()
     complete = True
     try:
@@ -286,10 +302,12 @@ def _cmd_sweep(a):
         for i in range(len(ts_list)):
             p = os.path.join(campaign.run_dir_for(out, i), "result.json")
             r = None
-            if os.path.exists(p):
+            if campaign.written_since(p, since):        # this sweep's, not an earlier one's in the folder
                 with open(p) as f:
                     r = json.load(f)
             results.append(r)
+    if any(r is not None and "error" not in r and not r.get("complete", True) for r in results):
+        complete = False                                # a t_s cut short by Ctrl-C (in a worker)
     s = sweep_summary(ts_list, results, complete, satb)
     s["wall_s"] = time.perf_counter() - t0
     s["duration_s"] = a.duration
@@ -314,8 +332,10 @@ def _cmd_sweep(a):
 
 def _common(p):
     p.add_argument("--duration", type=float, default=4000.0,
-                   help="seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling (default 4000)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed, also the calibration's (default 0)")
+                   help="seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling, 1 to %g "
+                   "(default 4000)" % MAX_DURATION_S)
+    p.add_argument("--seed", type=int, default=0, help="noise seed, also the calibration's, 0 to "
+                   "2**32 - 1 (default 0)")
     p.add_argument("--params", default=None, help="parameter file (JSON) from an earlier run's params.json; "
                    "default: run the nine calibration sets (cached)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",
@@ -330,7 +350,8 @@ def _common(p):
 def register_bps(sub):
     p = sub.add_parser("bps", help="body pointing simulator: pointing and tracking (Sec. 6.4)",
                        description=__doc__.split("\n\n")[1])
-    p.add_argument("--ts", type=float, default=bps.TS_THESIS, help="settling time t_s in s, > 0 (default 33)")
+    p.add_argument("--ts", type=float, default=bps.TS_THESIS, help="settling time t_s in s, in (0, %g] "
+                   "(default 33)" % bps.MAX_TS_S)
     p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed to SatA (2-3 s late)")
     _common(p)
     p.set_defaults(func=_cmd_bps)
@@ -339,7 +360,8 @@ def register_bps(sub):
 def register_sweep(sub):
     p = sub.add_parser("sweep", help="settling-time sweep of the objective J (Sec. 6.4.3, Fig. 6-2)",
                        description=__doc__.split("\n\n")[2])
-    p.add_argument("--ts", default="10:100:5", help="START:STOP:STEP in s (default 10:100:5, 19 points)")
+    p.add_argument("--ts", default="10:100:5", help="START:STOP:STEP in s, each t_s in (0, %g], "
+                   "at most %d points (default 10:100:5, 19 points)" % (bps.MAX_TS_S, MAX_SWEEP_POINTS))
     p.add_argument("--no-satb-gnss", action="store_true", help="leave SatB's GNSS out (Sec. 6.4.3 uses it)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count; "

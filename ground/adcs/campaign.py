@@ -14,6 +14,7 @@ others go on. Ctrl-C cancels the outstanding futures and re-raises KeyboardInter
 ``complete: false``).
 """
 
+import contextlib
 import os
 import sys
 
@@ -31,6 +32,13 @@ def check_runs(n):
     return k
 
 
+def check_seed(seed):
+    """``seed`` as a first seed >= 0 (numpy's generators refuse negative seeds); ValueError naming it otherwise."""
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise ValueError("--seed must be a whole number >= 0, got %r" % (seed,))
+    return int(seed)
+
+
 def check_workers(n):
     if n is None:
         return max(1, os.cpu_count() or 1)
@@ -41,6 +49,22 @@ def check_workers(n):
 
 def run_dir_for(out_dir, i):
     return os.path.join(str(out_dir), "run_%04d" % i)
+
+
+def stamp(path):
+    """The modification time (ns) of ``path``, a file the campaign has just written: runs written before it
+    belong to an earlier campaign in the same folder (``written_since``)."""
+    return os.stat(path).st_mtime_ns
+
+
+def written_since(path, since_ns):
+    """True if ``path`` exists and was written at or after ``since_ns`` (``stamp``): an interrupted campaign
+    counts only its own runs, never those an earlier campaign left in a reused folder."""
+    try:
+        t = os.stat(path).st_mtime_ns
+    except OSError:
+        return False
+    return since_ns is None or t >= since_ns
 
 
 def _call(fn, seed, run_dir, kwargs):
@@ -55,6 +79,25 @@ def _call(fn, seed, run_dir, kwargs):
         return {"seed": seed, "error": "run returned %s, not a dict" % type(res).__name__}
     res.setdefault("seed", seed)
     return res
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while the local workers start: they inherit it (an ignored signal survives exec), so a
+    terminal's Ctrl-C, which goes to the whole process group, reaches only this process, which cancels the runs
+    and closes the cluster, instead of every worker also dying with a KeyboardInterrupt traceback on stderr.
+    A Ctrl-C in that second is lost. Main thread only (signal's rule)."""
+    import signal
+    import threading
+    old = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or old is None:
+        yield
+        return
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _bar(total, progress, desc):
@@ -92,8 +135,9 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
         client, cluster = _connect(scheduler), None
     else:
         from distributed import Client, LocalCluster
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=40)
+        with _sigint_ignored():
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=40)
         client = Client(cluster)
     futures = []
     try:

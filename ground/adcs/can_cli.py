@@ -5,7 +5,8 @@ Run folder (``-o DIR``, atomic writes): ``summary.json`` (written at the start w
 session's counters, the fault log, the ADCS's last status and the body pointing figures after the hold and
 4 t_s, arcsec and arcsec/s), ``history.npz`` (10 Hz truth t, q, w and the pointing error dtheta/domega in arcsec;
 1 Hz status fields), ``pointing.png`` (the pointing error with the ADCS mode). Ctrl-C leaves a valid folder
-with ``complete`` false.
+with ``complete`` false (exit 130). ``budgets_met``: the pointing figures against the 3σ budgets (150 arcsec,
+35 arcsec/s); a run that misses them exits 3, one too short to have them (null) exits 0.
 """
 
 import os
@@ -47,12 +48,12 @@ def faults_from_args(a):
 def register(sub):
     p = sub.add_parser("can", help="the ADCS firmware on CAN against the emulated spacecraft (issue 13)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--duration", type=float, default=600.0, help="virtual seconds (default 600)")
+    p.add_argument("--duration", type=float, default=600.0, help="virtual seconds, 1 to 86400 (default 600)")
     p.add_argument("--runtime", default="micropython", choices=("micropython", "cpython"),
                    help="the firmware's interpreter (default micropython)")
     p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed 2-3 s late (default off)")
-    p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s (default 33)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s, in (0, 21600] (default 33)")
+    p.add_argument("--seed", type=int, default=0, help="scenario seed, >= 0 (default 0)")
     p.add_argument("--params", default=None, help="parameter file (fps adcs bps format; default: a perfect "
                                                   "calibration of the emulated spacecraft)")
     p.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I stops answering at T0 s")
@@ -69,8 +70,14 @@ def run(a):
     from emulator.adcs_session import AdcsSession
     from emulator.spacecraft.scenario import HOLD_S
     from ground.adcs import bps
-    if not (np.isfinite(a.duration) and a.duration >= 1):
-        raise ValueError("--duration must be >= 1 s, got %r" % a.duration)
+    from ground.adcs.bps_cli import MAX_DURATION_S
+    from ground.adcs.campaign import check_seed
+    if not (np.isfinite(a.duration) and 1 <= a.duration <= MAX_DURATION_S):
+        raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, a.duration))
+    bps.check_ts(a.ts)
+    check_seed(a.seed)
+    if a.params:
+        bps.load_params(a.params)       # the bps format's own checks (inertia and P positive definite, 4 wheels)
     faults = faults_from_args(a)
     log = None if a.quiet else (lambda m: print(m, file=sys.stderr))
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
@@ -114,17 +121,27 @@ def run(a):
             summary["pointing"] = bps.statistics(dth[sel], dom[sel])
             summary["requirement"] = {"pointing_3sigma_arcsec": bps.BUDGET_POINTING_3SIGMA,
                                       "stability_3sigma_arcsec_s": bps.BUDGET_STABILITY_3SIGMA}
+    p = summary.get("pointing")
+    summary["budgets_met"] = None if p is None else bool(
+        summary["complete"] and p["pointing_3sigma_arcsec"] <= bps.BUDGET_POINTING_3SIGMA
+        and p["stability_3sigma_arcsec_s"] <= bps.BUDGET_STABILITY_3SIGMA)
     h.update(("status_" + k, np.asarray(v)) for k, v in stat.items())
     bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:
         from ground import plots
         plots.adcs_can_pointing(h, os.path.join(out, "pointing.png"))
     write_json(os.path.join(out, "summary.json"), summary)
-    p = summary.get("pointing")
     print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s; %s" % (
         a.runtime, summary["cycles"], "" if summary["complete"] else " (interrupted)", summary["last_mode"],
         summary["late_cycles"], summary["firmware_missed"],
         ("pointing 3σ %.1f″ (budget %.0f″), stability 3σ %.1f″/s (budget %.0f″/s)" % (
             p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
             bps.BUDGET_STABILITY_3SIGMA)) if p else "too short for pointing figures"))
-    return 130 if interrupted else 0
+    if interrupted:
+        return 130
+    if summary["budgets_met"] is False:
+        print("BUDGET MISSED: 3σ pointing %.1f arcsec (limit %g), stability %.1f arcsec/s (limit %g)"
+              % (p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
+                 bps.BUDGET_STABILITY_3SIGMA), file=sys.stderr)
+        return 3
+    return 0

@@ -24,7 +24,7 @@ def add_campaign_options(p, cases=True):
         p.add_argument("--case", type=int, default=1, choices=(1, 2, 3),
                        help="disturbance: 1 none, 2 sinusoidal (Eq. 4.150), 3 attitude-dependent (Eq. 4.151)")
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds), >= 1 (default 1; >= 20 for NEES)")
-    p.add_argument("--seed", type=int, default=0, help="first seed; run i uses seed + i (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="first seed, >= 0; run i uses seed + i (default 0)")
     p.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: all cores; 1 = in-process, no Dask)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port) instead of local")
@@ -38,6 +38,7 @@ def add_campaign_options(p, cases=True):
 def run_filter_campaign(fn, name, case, a, dof=6):
     """Run the campaign, write the folder, print the table; returns the exit code."""
     n = campaign.check_runs(a.runs)
+    campaign.check_seed(a.seed)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     params = runs.load_params(a.params) if a.params else None
@@ -46,6 +47,7 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     seeds = [a.seed + i for i in range(n)]
     summary = {"filter": name, "case": case, "runs": 0, "complete": False, "seeds": seeds}
     write_json(os.path.join(out, "summary.json"), summary)
+    since = campaign.stamp(os.path.join(out, "summary.json"))
     write_json(os.path.join(out, "config.json"), {"filter": name, "case": case, "runs": n, "seed": a.seed,
                                                   "workers": a.workers, "scheduler": a.scheduler, "params": params})
     interrupted = False
@@ -55,7 +57,7 @@ def run_filter_campaign(fn, name, case, a, dof=6):
                                         case=case, params=params)
     except KeyboardInterrupt:
         interrupted = True
-        results = [runs.load_run(campaign.run_dir_for(out, i)) for i in range(n)]
+        results = [runs.load_run(campaign.run_dir_for(out, i), since) for i in range(n)]
     summary = runs.aggregate(results, name, case, dof=dof)
     summary["complete"] = not interrupted
     summary["seeds"] = seeds

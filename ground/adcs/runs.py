@@ -35,7 +35,7 @@ def load_params(path):
     try:
         with open(path) as f:
             d = json.load(f, parse_constant=lambda c: float("nan"))
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:     # not JSON text at all
         raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
     if not isinstance(d, dict):
         raise ValueError("%s: expected a JSON object with keys %s" % (path, ", ".join(sorted(PARAM_KEYS))))
@@ -69,6 +69,9 @@ def check_params(d, where="params"):
     for k, lo, hi in (("duration_s", 2.0, 930.0), ("dt_truth_s", 1e-6, 1.0)):
         if k in out and not (out[k].shape == () and lo <= out[k] <= hi):
             raise ValueError("%s: %s = %r out of range (%s)" % (where, k, d[k], PARAM_KEYS[k]))
+    if "dt_truth_s" in out and abs(1.0 / out["dt_truth_s"] - round(1.0 / out["dt_truth_s"])) >= 1e-9:
+        raise ValueError("%s: dt_truth_s = %r does not divide 1 s (%s; e.g. 1, 0.5, 0.1)"
+                         % (where, d["dt_truth_s"], PARAM_KEYS["dt_truth_s"]))      # as scenario.simulate
     return {k: (v.tolist() if v.shape else float(v)) for k, v in out.items()}
 
 
@@ -256,8 +259,12 @@ def aggregate(results, name, case, dof=6):
     return s
 
 
-def load_run(run_dir):
-    """A finished run back from its folder (result.json + series.npz), or None if it did not finish."""
+def load_run(run_dir, since_ns=None):
+    """A finished run back from its folder (result.json + series.npz), or None if it did not finish, or (with
+    ``since_ns``, ``campaign.stamp``) if its files are older: an earlier campaign's run in a reused folder."""
+    from ground.adcs.campaign import written_since
+    if not all(written_since(os.path.join(run_dir, f), since_ns) for f in ("result.json", "series.npz")):
+        return None
     try:
         with open(os.path.join(run_dir, "result.json")) as f:
             res = json.load(f)

@@ -14,18 +14,21 @@ import time
 from ground.adcs import campaign, stkf_sim
 from ground.fileio import write_atomic, write_json
 
+MAX_DURATION_S = 86400.0      # one day: the truth and each run's history are held in memory
+
 
 def _cmd(a):
     runs = campaign.check_runs(a.runs)
+    campaign.check_seed(a.seed)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     outages = [stkf_sim.parse_outage(o) for o in (a.outage or [])]
     if a.case == 1 and any(o[0] == "relay" for o in outages):
         raise ValueError("--outage relay:... was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
-    if not (a.duration >= 1):
-        raise ValueError("--duration must be >= 1 s, got %r" % a.duration)
-    if not (a.lag > 0):
-        raise ValueError("--lag must be > 0 s, got %r" % a.lag)
+    if not (1 <= a.duration <= MAX_DURATION_S):
+        raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, a.duration))
+    if not (0 < a.lag < float("inf")):
+        raise ValueError("--lag must be a finite number of seconds > 0, got %r" % a.lag)
     if a.case == 2 and a.lag < 3.0 + 1.0:
         raise ValueError("--lag %.2f s is shorter than the relay's longest delay (3 s) plus one filter step "
                          "(1 s): delayed measurements would be refused" % a.lag)
@@ -35,6 +38,7 @@ def _cmd(a):
     summary = stkf_sim.aggregate([], runs, False)
     summary.update(case=a.case, truth=a.truth, duration_s=a.duration)
     write_json(os.path.join(out, "summary.json"), summary)
+    since = campaign.stamp(os.path.join(out, "summary.json"))
     t0 = time.perf_counter()
     if a.truth == "hpop":  # make the cache once, before the workers read it
         from emulator import orbits
@@ -49,13 +53,15 @@ def _cmd(a):
                                         lag_s=a.lag, outages=outages, attitude=a.attitude)
     except KeyboardInterrupt:
         complete = False
-        results = _collect(out, runs)
+        results = _collect(out, runs, since)
     summary = stkf_sim.aggregate(results, runs, complete)
     summary.update(case=a.case, truth=a.truth, attitude=a.attitude, duration_s=a.duration,
                    wall_s=time.perf_counter() - t0)
     plots = []
     if not a.no_plots and summary["runs"]:
-        plots = stkf_sim.plots(out, [campaign.run_dir_for(out, i) for i in range(runs)], a.case)
+        dirs = [campaign.run_dir_for(out, i) for i in range(runs)]
+        plots = stkf_sim.plots(out, [d for d in dirs if campaign.written_since(os.path.join(d, "history.npz"),
+                                                                               since)], a.case)
     summary["plots"] = plots
     write_atomic(os.path.join(out, "report.md"), stkf_sim.report_md(summary, a.case, args_text))
     write_json(os.path.join(out, "summary.json"), summary)
@@ -69,12 +75,13 @@ def _cmd(a):
     return 0
 
 
-def _collect(out, runs):
+def _collect(out, runs, since_ns=None):
+    """The runs this campaign finished (``since_ns``: not an earlier campaign's left in the folder)."""
     import json
     res = []
     for i in range(runs):
         p = os.path.join(campaign.run_dir_for(out, i), "result.json")
-        if os.path.exists(p):
+        if campaign.written_since(p, since_ns):
             with open(p) as f:
                 res.append(json.load(f))
     return res
@@ -96,13 +103,14 @@ def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
     p.add_argument("--case", type=int, choices=(1, 2), required=True,
                    help="1: SatA GNSS + beacon; 2: plus SatB GNSS relayed with a U(2, 3) s delay")
-    p.add_argument("--duration", type=float, default=1200.0, help="simulated seconds (default 1200, as Sec. 5.5)")
+    p.add_argument("--duration", type=float, default=1200.0, help="simulated seconds, 1 to %g (default 1200, as "
+                   "Sec. 5.5)" % MAX_DURATION_S)
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds seed .. seed+runs-1)")
-    p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="first seed, >= 0 (default 0)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",
                    help="true orbits: brahe high-fidelity (default) or two-body (fast)")
     p.add_argument("--lag", type=float, default=stkf_sim.LAG_S,
-                   help="smoother lag in s: the longest delay accepted (default 4)")
+                   help="smoother lag in s, > 0: the longest delay accepted (default 4)")
     p.add_argument("--attitude", choices=stkf_sim.ATTITUDES, default="stated",
                    help="attitude knowledge in the beacon noise: stated covariance (9.81, 8.01, 19.70 arcsec 1 "
                    "sigma, body on J2000; default) or the APKF run in the same simulation")

@@ -340,8 +340,7 @@ def plots(out_dir, run_dirs, case):
     fig.suptitle("STKF Case %d: errors (first run blue, others grey), +-3 sigma dashed" % case)
     fig.tight_layout()
     name = "fig5-%d_states.png" % (4 if case == 1 else 6)
-    fig.savefig(os.path.join(out_dir, name), dpi=90)
-    plt.close(fig)
+    _save_png(fig, os.path.join(out_dir, name))
     files.append(name)
     fig, ax = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
     for j in range(2):
@@ -358,10 +357,19 @@ def plots(out_dir, run_dirs, case):
     fig.suptitle("STKF Case %d: pointing vector error in the body frame, +-3 sigma" % case)
     fig.tight_layout()
     name = "fig5-%d_pointing.png" % (5 if case == 1 else 7)
-    fig.savefig(os.path.join(out_dir, name), dpi=90)
-    plt.close(fig)
+    _save_png(fig, os.path.join(out_dir, name))
     files.append(name)
     return files
+
+
+def _save_png(fig, path):
+    """The figure as a PNG, written atomically (an interrupted plot leaves no truncated file)."""
+    import io
+    import matplotlib.pyplot as plt
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    write_atomic(path, buf.getvalue())
 
 
 def dumps(obj):

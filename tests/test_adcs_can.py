@@ -222,6 +222,15 @@ def test_replay_of_a_session_gives_its_status_under_micropython_and_cpython(tmp_
         assert st["adcs_mode"] == last["adcs_mode"] and st["stale"] == last["stale"]
         for k in ("q0", "q1", "q2", "q3", "rax", "rbx"):
             assert st[k] == pytest.approx(last[k], rel=1e-5, abs=1e-6), k
+    # the bench's split of the cycle (bench_adcs_can) runs on the same bursts through the app and its CAN HAL
+    split = os.path.join(ROOT, "tests", "mp", "firmware_adcs_split.py")
+    exe = MICROPYTHON if os.path.exists(MICROPYTHON) else sys.executable
+    p = subprocess.run([exe, split, str(tmp_path / "cfg.json"), str(tmp_path / "rec.json"), "30", "40"], cwd=ROOT,
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    acc = json.loads(p.stdout.strip().splitlines()[-1])
+    assert acc["cycles"] == 10 and acc["hal"] > 0 and acc["counters"]["frames"] > 0
+    assert 0 < acc["apkf"] + acc["stkf"] + acc["control"] <= acc["cycle"]
 
 
 def test_session_with_satb_relayed_gnss_fuses_the_late_fixes():

@@ -30,11 +30,11 @@ on = [False]
 
 
 def timed(name, fn):
-    def w(*a):
+    def w(*a, **kw):
         if not on[0]:
-            return fn(*a)
+            return fn(*a, **kw)
         t0 = ticks_us()
-        r = fn(*a)
+        r = fn(*a, **kw)
         acc[name] += ticks_diff(ticks_us(), t0)
         return r
     return w

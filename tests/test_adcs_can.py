@@ -36,17 +36,23 @@ def _runtimes():
     return out
 
 
-@pytest.mark.parametrize("runtime", _runtimes())
-def test_slcan_adapter_hal_echoes_single_frames_and_isotp_through_python_can(tmp_path, runtime):
-    script = tmp_path / "echo.py"
-    script.write_text(ECHO)
+def _adapter_on_pty(script, source, runtime, **popen):
+    """``source`` written to ``script`` and run (micropython or CPython) on the master of a raw pty, whose
+    path it gets as its argument: (process, the slave's fd, for the host side)."""
+    script.write_text(source)
     m, s = os.openpty()
     tty.setraw(s)
     os.set_blocking(m, False)
     exe = MICROPYTHON if runtime == "micropython" else sys.executable
     env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen", PYTHONPATH=ROOT)
-    p = subprocess.Popen([exe, str(script), str(m)], pass_fds=(m,), cwd=ROOT, env=env)
+    p = subprocess.Popen([exe, str(script), str(m)], pass_fds=(m,), cwd=ROOT, env=env, **popen)
     os.close(m)
+    return p, s
+
+
+@pytest.mark.parametrize("runtime", _runtimes())
+def test_slcan_adapter_hal_echoes_single_frames_and_isotp_through_python_can(tmp_path, runtime):
+    p, s = _adapter_on_pty(tmp_path / "echo.py", ECHO, runtime)
     link = hostlink.open_link("slcan:" + os.ttyname(s), "SPACECRAFT", bitrate=1000000, accept=("STARTRACKER",))
     os.close(s)
     try:
@@ -309,16 +315,7 @@ print(json.dumps(res))
 def test_slcan_adapter_drops_an_overlong_line_whole(tmp_path, runtime):
     """A line longer than the adapter's buffer is dropped up to its CR and answered BEL once. (Its tail used to
     be parsed as a command of its own: 'C' there closed the channel, and every frame after it was refused.)"""
-    script = tmp_path / "adapter.py"
-    script.write_text(ADAPTER)
-    m, s = os.openpty()
-    tty.setraw(s)
-    os.set_blocking(m, False)
-    exe = MICROPYTHON if runtime == "micropython" else sys.executable
-    env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen", PYTHONPATH=ROOT)
-    p = subprocess.Popen([exe, str(script), str(m)], pass_fds=(m,), cwd=ROOT, env=env, stdout=subprocess.PIPE,
-                         text=True)
-    os.close(m)
+    p, s = _adapter_on_pty(tmp_path / "adapter.py", ADAPTER, runtime, stdout=subprocess.PIPE, text=True)
     try:
         os.write(s, b"O\r")
         os.write(s, b"x" * 65 + b"C\r")            # overlong, its tail a command letter

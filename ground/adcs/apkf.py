@@ -586,14 +586,15 @@ def fictitious_scale(t, set_ends):
     return 1.0
 
 
-def check_covariance(P, t):
-    """Divergence check: FloatingPointError naming the time unless P is finite and positive definite."""
+def check_covariance(P, t, name="APKF"):
+    """Divergence check: FloatingPointError naming the filter and the time unless P is finite and positive
+    definite."""
     if not np.all(np.isfinite(P)):
-        raise FloatingPointError("APKF diverged at t = %.0f s: P is not finite" % t)
+        raise FloatingPointError("%s diverged at t = %.0f s: P is not finite" % (name, t))
     try:
         np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
-        raise FloatingPointError("APKF diverged at t = %.0f s: P is not positive definite" % t) from None
+        raise FloatingPointError("%s diverged at t = %.0f s: P is not positive definite" % (name, t)) from None
 
 
 class APKF:

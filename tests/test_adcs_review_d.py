@@ -44,3 +44,35 @@ def test_phi_series_truncation_at_the_scenarios_wheel_speeds():
     assert 0.3 < np.linalg.norm(A, 2) < 1.0
     E = apkf._series(A, 1.0, 4)[0]
     assert np.abs(E - expm(A)).max() < 1e-6
+
+
+def test_bps_flight_software_uses_the_wheel_datasheet_not_the_truth(monkeypatch):
+    """bps.simulate's flight software took the torque limit and the friction model for its compensation from
+    the emulated wheels' own parameters (the truth): a wheel whose friction differs from its datasheet was
+    compensated exactly. It must use the datasheet (WheelParams' defaults) only."""
+    from emulator.spacecraft import scenario
+    from emulator.spacecraft.dynamics import Spacecraft
+    from ground.adcs import bps
+
+    real_world = scenario.pointing_world
+
+    def world(*a, **kw):                                 # the truth's wheels: 5x the datasheet friction
+        w = real_world(*a, **kw)
+        w.wheels.p.friction_coulomb *= 5.0
+        w.wheels.p.friction_viscous *= 5.0
+        return w
+
+    seen = []
+    real_comp = control.friction_compensation
+
+    def comp(w_rw, coulomb, viscous, smooth):
+        seen.append((coulomb, viscous, smooth))
+        return real_comp(w_rw, coulomb, viscous, smooth)
+
+    monkeypatch.setattr(scenario, "pointing_world", world)
+    monkeypatch.setattr(control, "friction_compensation", comp)
+    sc = Spacecraft(wheels=Wheels(WheelParams(**scenario.SCENARIO_WHEELS)))
+    bps.simulate(ts=1.0, duration_s=1.0, seed=0, params=scenario.truth_params(sc), hold_s=2.0)
+    d = WheelParams()
+    assert seen and all(s == (d.friction_coulomb, d.friction_viscous, d.friction_smooth_rpm * 2 * np.pi / 60)
+                        for s in seen)

@@ -71,7 +71,7 @@ def _rows_dot(a, v):
 
 
 def quat_mul(q, p):
-    """q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.2, scalar last)."""
+    """q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.5, scalar last; q = [e, q4] of Eq. 4.2)."""
     qv, q4, pv, p4 = q[:3], q[3], p[:3], p[3]
     v = q4 * pv + p4 * qv - env.cross3(qv, pv)
     return np.array([v[0], v[1], v[2], q4 * p4 - qv @ pv])

@@ -279,6 +279,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
     model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb)
+    ds = control.WHEEL_DATASHEET                     # the wheels' torque limit and friction: datasheet, not truth
     f_stkf = Afls(world.stkf_x0, np.diag(scenario.STKF_P0_DIAG), 0.0, LAG_S,
                   stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)
     I6 = np.eye(6)
@@ -358,12 +359,11 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                     tff = control.external_torque(J, x[15:18] / scale, x[7:10] / scale, q_hat, orb.position(t),
                                                   model.field.field(orb.position(t), t))
                 tau_c = control.pd_torque(q_hat, w_hat, qc, wc, Kp, Dd, H, tff)
-                tau_c = control.saturate(tau_c, C, wheels.p.torque_max)
+                tau_c = control.saturate(tau_c, C, ds.torque_max)
                 u = control.wheel_torques(tau_c, C, null_fraction=0.0)        # Eq. 6.11 (no null torque)
                 if feedforward:
-                    wp = wheels.p
-                    u = u + control.friction_compensation(tach, wp.friction_coulomb, wp.friction_viscous,
-                                                          wp.friction_smooth_rpm * 2 * np.pi / 60)
+                    u = u + control.friction_compensation(tach, ds.friction_coulomb, ds.friction_viscous,
+                                                          ds.friction_smooth_rpm * 2 * np.pi / 60)
                 fsw["qc"][k], fsw["tau_c"][k], fsw["wc"][k] = qc, tau_c, wc
                 if tff is not None:
                     fsw["tau_ff"][k] = tff

@@ -28,10 +28,11 @@ A(q (x) p) = A(q) A(p).
 import numpy as np
 
 from emulator.spacecraft import environment as env
-from emulator.spacecraft.wheels import pyramid_c0  # noqa: F401
+from emulator.spacecraft.wheels import WheelParams, pyramid_c0  # noqa: F401
 from emulator.spacecraft.scenario import null_vector, wheel_torques  # noqa: F401  (Eq. 4.144-4.145, 6.11)
 from ground.adcs import quat
 
+WHEEL_DATASHEET = WheelParams()           # what the flight software knows of its wheels (datasheet)
 LASER_AXIS = np.array([1.0, 0.0, 0.0])    # l_b: the 3U's long axis (stated; the thesis does not give it)
 ZETA = 1.0
 
@@ -133,10 +134,12 @@ def external_torque(J, m, tau_d, q, r_i, b_i):
     return env.gravity_gradient_torque(J, A @ r_i) + env.cross3(m, A @ b_i) + tau_d
 
 
-def friction_compensation(w_rw, coulomb=2e-6, viscous=2e-10, smooth_rad_s=10 * 2 * np.pi / 60):
+def friction_compensation(w_rw, coulomb=WHEEL_DATASHEET.friction_coulomb,
+                          viscous=WHEEL_DATASHEET.friction_viscous,
+                          smooth_rad_s=WHEEL_DATASHEET.friction_smooth_rpm * 2 * np.pi / 60):
     """Motor torque that cancels the wheels' friction at the read-out speeds w_rw (rad/s): the datasheet
-    model (Coulomb + viscous, smoothed through zero). Our addition: without it the ~2 uN m per spinning wheel
-    reaches the body and the PD holds it with a steady error of ~10^3 arcsec."""
+    model (Coulomb + viscous, smoothed through zero; the defaults are ``WheelParams``'). Our addition: without
+    it the ~2 uN m per spinning wheel reaches the body and the PD holds it with a steady error of ~10^3 arcsec."""
     return viscous * w_rw + coulomb * np.tanh(w_rw / smooth_rad_s)
 
 

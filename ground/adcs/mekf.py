@@ -9,7 +9,8 @@ State x = [q (4), b (3)] (Eq. 4.23); error state dx = [dq (3, vector part of q (
   Q of Eq. 4.38 with sigma_v (ARW, rad/sqrt(s)) and sigma_u (rate random walk, rad/s/sqrt(s)).
 - update (Eq. 4.45-4.52): the star tracker gives a quaternion, so the measurement is the attitude error itself
   (as in the APKF's Eq. 4.139): z = vec(q_meas (x) q_hat^-1) = dq + v/2, H = [I 0], R = diag(sigma^2)/4;
-  K, Joseph-form P (Eq. 4.50); q = dq (x) q_hat (Eq. 4.51), b = b + db (Eq. 4.52).
+  K (Eq. 4.48); P in the Joseph form (the thesis's Eq. 4.50 is P = (I - K H) P; Joseph as its APKF update,
+  Eq. 4.142); q = dq (x) q_hat (Eq. 4.51), b = b + db (Eq. 4.52).
 """
 
 import numpy as np
@@ -57,7 +58,7 @@ def predict(x, P, w_meas, dt, sigma_v, sigma_u):
 
 
 def joseph(P, H, R, K):
-    """P+ = (I - K H) P (I - K H)^T + K R K^T (Eq. 4.50, 4.142)."""
+    """P+ = (I - K H) P (I - K H)^T + K R K^T (Eq. 4.142; the Joseph form of Eq. 4.50's (I - K H) P)."""
     A = np.eye(P.shape[0]) - K @ H
     P = A @ P @ A.T + K @ R @ K.T
     return 0.5 * (P + P.T)

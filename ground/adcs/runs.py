@@ -177,7 +177,7 @@ def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True):
     for k in range(k0, n):
         if k > k0:
             f.step(o["gyro"][k], o["st_q"][k] if o["st_valid"][k] else None)
-            apkf.check_covariance(f.P, o["t"][k])
+            apkf.check_covariance(f.P, o["t"][k], "MEKF")
         err[k, 0:3] = quat.error_vec(o["q"][k], f.x[0:4])
         err[k, 3:6] = o["gyro_bias"][max(k, 1)] - f.x[4:7]
         sig[k] = np.sqrt(np.diag(f.P))

@@ -46,7 +46,7 @@ from emulator import orbits
 from emulator.navsensors import ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
-from emulator.spacecraft.wheels import N_WHEELS
+from emulator.spacecraft.wheels import N_WHEELS, WheelParams
 from firmware.adcs.apkf_lean import MOMENTUM
 from protocol import core, table
 
@@ -155,8 +155,10 @@ class AdcsSession:
             self.log(msg)
 
     def config(self):
-        """The firmware's configuration (written to its config.json): parameter file, gains, STKF start."""
-        wp = self.wheels.p
+        """The firmware's configuration (written to its config.json): parameter file, gains, STKF start, and
+        its wheels' torque limit and friction model from the datasheet (``WheelParams()``), not from the
+        emulated wheels (the truth), as ground/adcs/bps.py's flight software."""
+        wp = WheelParams()
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
                 "stkf_x0": self.stkf_x0, "stkf_P0": scenario.STKF_P0_DIAG, "lag_s": scenario.LAG_S,
                 "torque_max": wp.torque_max,

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from emulator.adcs_session import AdcsSession, check_faults
+from emulator.spacecraft.wheels import WheelParams
 from protocol import core
 from protocol import link as hostlink
 from tests.test_firmware_mp import MICROPYTHON, ROOT
@@ -246,6 +247,19 @@ def test_session_with_satb_relayed_gnss_fuses_the_late_fixes():
     st = cycles[-1]["status"]
     assert st["n_gnss_b"] >= 15 and "GNSS_B" not in st["stale_names"] and st["adcs_mode_name"] == "HOLD"
     assert np.linalg.norm(cycles[-1]["est"]["rb"] - cycles[-2]["rb"][-1]) < 100.0   # from a 4 km prior
+
+
+def test_the_firmware_is_told_the_wheels_datasheet_not_the_truth():
+    """The friction compensation and torque limit the firmware gets are the datasheet's: a truth wheel with
+    5x the friction does not change them (it used to be compensated exactly)."""
+    s = AdcsSession(runtime="cpython", duration_s=5)
+    before = s.config()
+    s.wheels.p.friction_coulomb *= 5.0
+    s.wheels.p.friction_viscous *= 5.0
+    s.wheels.p.torque_max *= 2.0
+    after = s.config()
+    assert after["friction"] == before["friction"] and after["torque_max"] == before["torque_max"]
+    assert before["friction"][0] == WheelParams().friction_coulomb and before["torque_max"] == WheelParams().torque_max
 
 
 def test_session_refuses_to_cycle_before_start_and_close_is_idempotent():

@@ -281,6 +281,8 @@ class CalibrationFailed(OSError):
 def _cmd(a):
     from ground import plots, runtime
     grid_v = sec74_grid(a.grid, a.span)
+    if not 0 < a.dv <= 0.5:            # bad input (exit 2), refused before a rig or a process starts
+        raise ValueError("--dv %r V must be in (0, 0.5]" % a.dv)
     if a.seed < 0:
         raise ValueError("--seed %d must be >= 0" % a.seed)
     cfg = None

@@ -43,3 +43,14 @@ def test_a_late_duplicate_ack_is_not_taken_for_the_next_command():
     assert ctrl.mode == HOLD
     assert rig.n_cmd_retries == 2
     assert not [p for p in rig.replies if p[0] == P_ACK and p[4][0] == core.PACKET_ID["CTRL_SETTINGS"]]
+
+
+def test_calibrate_refuses_a_bad_dv_as_bad_input(tmp_path, capsys):
+    """--dv nan/0/-1/10 was refused only once the rig (and, for micropython, its process) ran, as a failed run
+    (exit 1, "calibration stopped"); the README and --help promise exit 2 for bad input."""
+    from ground.cli import main as fps
+    for v in ("nan", "0", "-1", "10"):
+        rc = fps(["calibrate", "-o", str(tmp_path / "cal.json"), "--grid", "2", "--dv", v, "--no-plots"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "--dv" in err and "calibration stopped" not in err, (v, rc, err)
+    assert not list(tmp_path.iterdir())

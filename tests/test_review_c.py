@@ -54,3 +54,49 @@ def test_calibrate_refuses_a_bad_dv_as_bad_input(tmp_path, capsys):
         err = capsys.readouterr().err
         assert rc == 2 and "--dv" in err and "calibration stopped" not in err, (v, rc, err)
     assert not list(tmp_path.iterdir())
+
+
+def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
+    """serve_controller stepped any TICK: vx = 65535 (damage the CRC-16 let through) made (2048 - vx) << 15
+    about -2^31, outside the +-2^30 the step's docstring promises: on a 32-bit board a heap allocation under
+    heap_lock (MemoryError, and the heap left locked) or, in viper, a wrapped ratio. It is now dropped and
+    counted; the bench's resend of the same tick is answered."""
+    import struct
+    import threading
+
+    from emulator.bench import Bench
+    from emulator.truth import true_h_field
+    from firmware.controller import TRACK
+    from firmware.hal.link import _Ms, serve_controller
+    from protocol import htable
+    from protocol.link import inproc_pair
+    a, b = inproc_pair("BENCH", "CONTROLLER")
+    ctl = Controller(table=htable.pack_calibration(true_h_field(Bench(noise=False), None, 0.01)), decim=2)
+    ctl.mode = TRACK
+    th = threading.Thread(target=serve_controller, args=(ctl, _Ms(b)), daemon=True)
+    th.start()
+    assert a.recv(timeout=5)[0][0] == core.PACKET_ID["HELLO"]
+    tick, spi, status = core.PACKET_ID["TICK"], core.PACKET_ID["FSM_SPI"], core.PACKET_ID["CTRL_STATUS"]
+    fmt = core.PACKET[tick].fmt
+
+    def answer(payload):               # every reply up to the FSM_SPI, or none within 0.3 s
+        a.send_raw(tick, a.node, core.NODE["CONTROLLER"], payload)
+        got = []
+        while not got or got[-1][0] != spi:
+            more = a.recv(timeout=0.3)
+            if not more:
+                break
+            got += more
+        return got
+
+    assert [p[0] for p in answer(struct.pack(fmt, 0, 0, 2048, 2048, 3000))] == [status, spi]   # init tick
+    assert answer(struct.pack(fmt, 1, 1568, 65535, 2048, 3000)) == []        # damaged: no answer, no step
+    assert answer(struct.pack(fmt, 1, 1568, 2048, 4096, 3000)) == []
+    assert ctl.ticks == 0
+    got = answer(struct.pack(fmt, 1, 1568, 1900, 2100, 3000))               # the resend, undamaged
+    assert [p[0] for p in got] == [spi] and ctl.ticks == 1 and ctl.n_dup == 0
+    got = answer(struct.pack(fmt, 2, 3136, 1900, 2100, 3000))
+    st = core.payload_dict(status, [p for p in got if p[0] == status][0][4])
+    assert st["n_rx_drop"] == 2
+    a.close()
+    th.join(5)

@@ -100,3 +100,24 @@ def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
     assert st["n_rx_drop"] == 2
     a.close()
     th.join(5)
+
+
+def test_a_calibration_grid_the_controller_cannot_hold_is_refused_up_front(tmp_path, capsys):
+    """--grid accepted up to 32 ("the controller's H table holds 32 per axis"), but the controller takes an
+    H-table blob of 8192 bytes: 23x23 (8660 B) to 32x32 (16652 B) passed check_calibration, and fps hil then
+    failed at the upload (HTABLE_BEGIN refused: TOO_LARGE, exit 1)."""
+    import pytest
+
+    from emulator.bench import Bench
+    from emulator.truth import true_h_field
+    from ground.calibrate import check_calibration
+    from ground.cli import main as fps
+    from protocol import htable
+    grid = [-5.0 + 10.0 * k / 22 for k in range(23)]
+    cal = true_h_field(Bench(noise=False), grid, 0.01)
+    assert len(htable.pack_calibration(cal)) > Controller()._upload.max_bytes
+    with pytest.raises(htable.HTableError, match="bytes"):
+        check_calibration(cal)
+    check_calibration(true_h_field(Bench(noise=False), grid[::2][:11] + [5.0], 0.01))   # 12x12: fine
+    rc = fps(["calibrate", "-o", str(tmp_path / "cal.json"), "--grid", "23"])
+    assert rc == 2 and "--grid" in capsys.readouterr().err and not list(tmp_path.iterdir())

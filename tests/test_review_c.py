@@ -121,3 +121,17 @@ def test_a_calibration_grid_the_controller_cannot_hold_is_refused_up_front(tmp_p
     check_calibration(true_h_field(Bench(noise=False), grid[::2][:11] + [5.0], 0.01))   # 12x12: fine
     rc = fps(["calibrate", "-o", str(tmp_path / "cal.json"), "--grid", "23"])
     assert rc == 2 and "--grid" in capsys.readouterr().err and not list(tmp_path.iterdir())
+
+
+def test_firmware_main_refuses_a_bad_rate():
+    """firmware.main took any float for --rate: inf raised OverflowError (a traceback, exit 1) once the link
+    was open, and a negative rate made each silent poll count negative ticks, so link silence never reached
+    SAFE. The module promises exit 2 with the option named."""
+    import pytest
+
+    from firmware.main import main, parse
+    for v in ("inf", "nan", "-5", "0", "x"):
+        with pytest.raises(ValueError, match="--rate"):
+            parse(["controller", "--link", "serial:/nonexistent", "--rate", v])
+        assert main(["controller", "--link", "serial:/nonexistent", "--rate", v]) == 2
+    assert parse(["controller", "--link", "serial:/x", "--rate", "637.8"])[1]["rate"] == 637.8

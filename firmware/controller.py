@@ -103,7 +103,7 @@ _FLAG_TABLE = const(4)
 WHY_BEAM = const(1)               # CTRL_STATUS.why (protocol.table.SAFE_REASONS)
 WHY_LINK = const(2)
 WHY_COMMANDED = const(3)
-_MAX_UPLOAD = const(8192)         # bytes of H-table blob the controller accepts (32x32 grid fits 16 kB; 11x11 is 2 kB)
+MAX_HTABLE_BYTES = const(8192)    # H-table blob the controller accepts: a 22x22 grid (7.9 kB; 11x11 is 2 kB)
 
 _P = core.PACKET_ID
 _E = core.ERROR
@@ -187,7 +187,7 @@ class Controller:
         self.words = self._words()     # this tick's AD5664R words
         self._h4 = [0] * 4             # scratch for the interpolated H^-1
         self._q1 = [0, 0, 0]
-        self._upload = Upload(_MAX_UPLOAD)
+        self._upload = Upload(MAX_HTABLE_BYTES)
         self.table = None
         if table is not None:
             self.set_table(table)

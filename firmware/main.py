@@ -47,7 +47,13 @@ def parse(argv):
         elif a == "--store":
             opts["store"] = v
         elif a == "--rate":
-            opts["rate"] = float(v)
+            try:
+                r = float(v)
+            except ValueError:
+                r = -1.0
+            if not 1.0 <= r <= 100000.0:      # NaN and inf fail too
+                raise ValueError("option --rate = %r: need a tick rate in Hz from 1 to 100000" % v)
+            opts["rate"] = r
         elif a in _CTRL_INT:
             try:
                 opts["ctl"][_CTRL_INT[a]] = int(v)

@@ -65,10 +65,22 @@ def grid_points(grid_v):
     return pts
 
 
+def max_grid():
+    """The largest n whose n x n H-table blob the controller accepts (firmware.controller.MAX_HTABLE_BYTES):
+    header 8 B, two float32 axes, 16 B of H per node, CRC-32."""
+    from firmware.controller import MAX_HTABLE_BYTES
+    n = 2
+    while n < htable.MAX_AXIS and htable.HEADER_SIZE + 8 * (n + 1) + 16 * (n + 1) ** 2 + 4 <= MAX_HTABLE_BYTES:
+        n += 1
+    return n
+
+
 def sec74_grid(n=11, half_span_v=5.0):
-    if not 2 <= n <= htable.MAX_AXIS:
-        raise ValueError("--grid %r must be in [2, %d] (the controller's H table holds %d per axis)"
-                         % (n, htable.MAX_AXIS, htable.MAX_AXIS))
+    from firmware.controller import MAX_HTABLE_BYTES
+    m = max_grid()
+    if not 2 <= n <= m:
+        raise ValueError("--grid %r must be in [2, %d] (the controller accepts an H table of %d bytes: %dx%d)"
+                         % (n, m, MAX_HTABLE_BYTES, m, m))
     if not 0 < half_span_v <= 10.0:
         raise ValueError("--span %r V must be in (0, 10] (the P-FSM's AD660 range)" % half_span_v)
     return [float(v) for v in np.round(np.linspace(-half_span_v, half_span_v, n), 12)]
@@ -224,10 +236,16 @@ def check_calibration(cal):
     the fixed-point H^-1 table (firmware.hinv.HinvTable) built from the very blob the controller would get
     (float32 H). A refused node is named by its calibration point: index, P-FSM volts, then the node, det H
     and condition number. Raises HTableError (a ValueError); returns the Grid."""
+    from firmware.controller import MAX_HTABLE_BYTES
     from firmware.hinv import HinvTable
     grid = htable.grid_from_calibration(cal)
+    blob = htable.pack(grid)
+    if len(blob) > MAX_HTABLE_BYTES:           # the upload would be refused (TOO_LARGE)
+        raise htable.HTableError("a %dx%d grid makes a %d-byte H table, above the %d bytes the controller "
+                                 "accepts (%dx%d at most)" % (grid.nx, grid.ny, len(blob), MAX_HTABLE_BYTES,
+                                                              max_grid(), max_grid()))
     try:
-        HinvTable(htable.parse(htable.pack(grid)))
+        HinvTable(htable.parse(blob))
     except htable.HTableError as exc:
         k = getattr(exc, "node", None)
         if k is None or grid.points is None:
@@ -281,6 +299,8 @@ class CalibrationFailed(OSError):
 def _cmd(a):
     from ground import plots, runtime
     grid_v = sec74_grid(a.grid, a.span)
+    if not 0 < a.dv <= 0.5:            # bad input (exit 2), refused before a rig or a process starts
+        raise ValueError("--dv %r V must be in (0, 0.5]" % a.dv)
     if a.seed < 0:
         raise ValueError("--seed %d must be >= 0" % a.seed)
     cfg = None

@@ -60,6 +60,7 @@ class InprocController:
             raise ValueError("in-process endpoint reaches the CONTROLLER only, not node 0x%02x" % dst)
         for rpid, _dst, rpayload in self.ctrl.handle(pid, GROUND, seq, payload):
             self._push(rpid, rpayload)
+        return seq & 0xFF
 
     def counters(self):
         return {}
@@ -107,6 +108,7 @@ class Rig:
         self.replies = deque()    # other packets (ACK, NACK, ...) not yet consumed
         self.n_status_total = 0
         self.n_cmd_retries = 0
+        self.n_stale_replies = 0
         self.last_status = None   # the latest CTRL_STATUS (decoded)
         self.mode_log = []        # (tick, mode, why) at each mode change seen in CTRL_STATUS
 
@@ -159,24 +161,36 @@ class Rig:
 
     def command(self, name, dst=CONTROLLER, **fields):
         """Send a command (to the controller by default) and wait for its ACK, resending it every
-        ``cmd_timeout_s`` until ACK or NACK. The clock does not advance meanwhile, so a command takes effect
+        ``cmd_timeout_s`` until ACK or NACK. A reply counts when its ref_seq is one of this command's copies
+        (the endpoint's ``send_ground`` returns the sequence number sent; None on CAN, which has none: then by
+        packet id): a late second ACK of an earlier command is dropped (``n_stale_replies``), not taken for
+        this one, whose frame may have been lost. The clock does not advance meanwhile, so a command takes effect
         before the same tick however many tries it took. Commands are idempotent (the firmware's contract), so
         a resend whose first copy was executed does no harm. A NACK raises CommandError naming the error code;
         ``cmd_tries`` unanswered sends raise NoAnswer."""
         pid = core.PACKET_ID[name]
         payload = core.encode_payload(pid, fields)
         clock = time.perf_counter
+        seqs = set()              # the sequence numbers this command's copies went out with
+        by_seq = True
         for attempt in range(self.cmd_tries):
             if attempt:
                 self.n_cmd_retries += 1
             seq = self._seq & 0xFF
             self._seq += 1
-            self.endpoint.send_ground(pid, payload, seq, dst)
+            sent = self.endpoint.send_ground(pid, payload, seq, dst)
+            if sent is None:      # a link without sequence numbers (CAN): replies match by packet id only
+                by_seq = False
+            else:
+                seqs.add(sent & 0xFF)
             end = clock() + self.cmd_timeout_s
             while True:
                 self._drain()
                 while self.replies:
                     rpid, src, _dst, _rseq, rp = self.replies.popleft()
+                    if (rpid == P_ACK or rpid == P_NACK) and by_seq and rp[0] == pid and rp[1] not in seqs:
+                        self.n_stale_replies += 1     # the answer to an earlier copy of an earlier command
+                        continue
                     if rpid == P_ACK and rp[0] == pid:
                         return
                     if rpid == P_NACK and rp[0] == pid:
@@ -236,6 +250,7 @@ class LiveRig(Rig):
         self.replies = deque()
         self.n_status_total = 0
         self.n_cmd_retries = 0
+        self.n_stale_replies = 0
         self.last_status = None   # the latest CTRL_STATUS (decoded)
         self.mode_log = []        # (tick, mode, why) at each mode change seen in CTRL_STATUS
         self.pfsm_at = None
@@ -278,7 +293,7 @@ class _LinkEndpoint:
         self.inbox = deque()
 
     def send_ground(self, pid, payload, seq, dst=CONTROLLER):
-        self.link.send_raw(pid, GROUND, dst, payload)
+        return self.link.send_raw(pid, GROUND, dst, payload)
 
     def poll(self, timeout_s):
         self.inbox.extend(self.link.recv(timeout=timeout_s))

@@ -109,7 +109,8 @@ class RemoteEndpoint:
         return self.rc.on_tick(tick, t_us, vx, vy, vs)
 
     def send_ground(self, pid, payload, seq, dst=None):
-        self.link.send_raw(pid, self._ground, self._ctrl if dst is None else dst, payload)
+        """Send from GROUND; the frame's sequence number (the link's own), None on CAN."""
+        return self.link.send_raw(pid, self._ground, self._ctrl if dst is None else dst, payload)
 
     def poll(self, timeout_s):
         self.rc.poll(timeout_s)

@@ -230,10 +230,12 @@ class SerialLink(Link):
         self.peer = None
 
     def send_raw(self, pid, src, dst, payload):
+        """Send one frame; returns its sequence number."""
         seq = self._seq
         self._seq = (seq + 1) & 0xFF
         self.write(host.encode_frame(pid, src, dst, seq, payload))
         self.tx_frames += 1
+        return seq
 
     def write(self, data):
         """Raw bytes onto the stream (tests use it to inject damage); sets ``closed`` if the peer left."""
@@ -371,7 +373,7 @@ class CanLink(Link):
 
     def send_raw(self, pid, src, dst, payload):
         """Send one packet; a long one blocks until its ISO-TP transfer is done (TimeoutError after
-        ``ISOTP_TIMEOUT`` s without flow control)."""
+        ``ISOTP_TIMEOUT`` s without flow control). Returns None: CAN frames carry no sequence number."""
         self._seq = (self._seq + 1) & 0xFF
         with self._cond:
             if len(payload) <= canmap.SINGLE_MAX:

@@ -79,13 +79,17 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     (a gap in the tick numbers) count as link silence toward SAFE (``n_gap``), as does a wait of ``poll_ms``
     without any packet. A HELLO from the bench starts a new session (tick numbers may start again).
     CTRL_STATUS is due on ticks k with k % decim == 0 (``status_due_at``), so the bench knows which ticks
-    carry one; it goes out before the FSM_SPI, to the TICK's sender.
+    carry one; it goes out before the FSM_SPI, to the TICK's sender. A TICK whose Q1 counts lie beyond the
+    12-bit ADC (the packet table's 0..4095: only damage the CRC-16 missed makes one) is dropped unanswered and
+    counted with the frames dropped (``n_rx_drop``); the step's integers stay within +-2^30 (on a 32-bit board
+    a larger count overflows: a heap allocation under ``heap_lock``, or a wrapped ratio in viper).
     """
     me = link.node
     out = bytearray(_SPI_SIZE)
     status = None
     status_tick = -1
     last = -1
+    bad_ticks = 0                             # TICKs dropped for counts beyond 0..4095
     w = ctl.words
     counters = getattr(link, "counters", None)
     link.send_raw(P_HELLO, me, BROADCAST, core.encode_payload(P_HELLO, node=me, fw_major=1, fw_minor=0))
@@ -100,6 +104,9 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 continue
             if pid == P_TICK:
                 tick, t_us, vx, vy, vs = struct.unpack(_TICK_FMT, payload)
+                if (vx | vy | vs) >> 12:      # beyond the 12-bit ADC (damage the CRC let through): drop it,
+                    bad_ticks += 1            # the bench resends; stepped, it would break the +-2^30 bound
+                    continue
                 if tick == last:              # a resend: the same answer, no second step
                     ctl.n_dup += 1
                     if status_tick == tick:
@@ -114,13 +121,15 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 last = tick
                 ctl.heard(True)
                 heap_lock()                   # the step allocates nothing; locked, its frame stays off the heap
-                n = ctl.step(vx, vy, vs)
-                heap_unlock()
+                try:
+                    n = ctl.step(vx, vy, vs)
+                finally:                      # never leave the heap locked behind an exception
+                    heap_unlock()
                 struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
                 if ctl.status_due_at(tick):   # to the HIL host that clocks us (on CAN, ISO-TP to an absent
                     if counters is not None:  # node would block)
                         d = counters()
-                        ctl.n_rx_drop = sum(d.get(k, 0) for k in _DROPS)
+                        ctl.n_rx_drop = sum(d.get(k, 0) for k in _DROPS) + bad_ticks
                     status = ctl.status_payload(tick)
                     status_tick = tick
                     link.send_raw(P_STATUS, me, src, status)

@@ -152,6 +152,7 @@ def link_counters(rig):
         return {"bench": {}, "controller": None}
     bench = dict(rig.lockstep.counters())
     bench["command_retries"] = rig.n_cmd_retries
+    bench["stale_replies"] = getattr(rig, "n_stale_replies", 0)   # late ACKs of an earlier copy, dropped
     bench["hello_tries"] = getattr(rig, "hello_tries", 0)
     st = rig.last_status
     ctl = None if st is None else {"at_tick": st["tick"], "resent_ticks_answered": st["n_dup"],

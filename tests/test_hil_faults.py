@@ -199,6 +199,7 @@ def test_faults_cost_time_not_correctness(tmp_path, inputs, clean):
     assert _control_telemetry(out) == _control_telemetry(out0)
     bench, ctl = s["link"]["bench"], s["link"]["controller"]
     assert bench["controller_resent"] > 100 and bench["overruns"] == 0 and bench["command_retries"] > 0
+    assert 0 <= bench["stale_replies"] <= bench["command_retries"]    # each from a resent command
     assert bench["controller_fault_tx_dropped"] > 0 and bench["controller_fault_rx_bits_flipped"] > 0
     assert ctl["resent_ticks_answered"] > 0 and ctl["rx_frames_dropped"] > 0 and ctl["gap_ticks"] == 0
     assert s["link_faults"]["bytes"] == 0.01 and s0["link_faults"] is None

@@ -130,7 +130,7 @@ _RANGES = {
     "mems.cubic_per_v2": (-0.2, 0.2),
     "mems.cross_coupling": (-0.2, 0.2),
     "splitter.q1_fraction": (0.01, 0.99),
-    "adc_q1.bits": (6, 16),
+    "adc_q1.bits": (12, 12),           # the controller firmware reads 12-bit counts (TICK Q1: 0..4095)
     "adc_q1.vref_v": (0.5, 10.0),
     "adc_q1.noise_counts": (0.0, 100.0),
     "adc_q2.vref_v": (0.5, 5.0),

@@ -323,6 +323,7 @@ def test_q2_counts_are_ads1256_twos_complement():
     ({"mems": {"gain_error": [0.1]}}, "mems.gain_error"),
     ({"pfsm": {"damping": 1.5}}, "pfsm.damping"),
     ({"adc_q1": {"bits": 12.5}}, "adc_q1.bits"),
+    ({"adc_q1": {"bits": 10}}, "adc_q1.bits"),      # the controller is 12-bit: another width cannot close the loop
     ({"bogus": 1}, "bogus"),
     ({"resizer": {"z1_m": 0.2}}, "resizer.z1_m"),
     ({"q1": {"noise_v": float("nan")}}, "q1.noise_v"),

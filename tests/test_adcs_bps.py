@@ -132,6 +132,10 @@ def test_parameter_file_is_checked_against_the_spacecraft(params, tmp_path):
     with pytest.raises(ValueError, match="not positive definite"):
         bps.check_params(bad)
     bad = json.loads(json.dumps(params))
+    bad["x"]["J5_kgm2"] = [jxx, 3.0 * jxx, 0, 0, 0]       # Jzz > Jxx + Jyy: positive definite, but no rigid body
+    with pytest.raises(ValueError, match="no rigid body"):
+        bps.check_params(bad)
+    bad = json.loads(json.dumps(params))
     bad["x"]["jrw_kgm2"] = [3e-6] * 3
     with pytest.raises(ValueError, match="4 finite numbers"):
         bps.check_params(bad)

@@ -135,6 +135,7 @@ def test_check_covariance_names_the_time():
     ([], {"duraton_s": 30}, "unknown key 'duraton_s'"),
     ([], '{"dipole_am2": [0.1, NaN, 0.2]}', "dipole_am2 = [0.1, nan, 0.2] is not finite"),
     ([], {"inertia_kgm2": [0.012, 0.047, 0.045, 0.05, 0.0, 0.0]}, "is not positive definite"),
+    ([], {"inertia_kgm2": [0.012, 0.012, 0.030, 0.0, 0.0, 0.0]}, "is no rigid body's"),
     ([], {"duration_s": 5000}, "duration_s = 5000 out of range"),
     (["--scheduler", "tcp://127.0.0.1:9"], None, "'tcp://127.0.0.1:9' is unreachable"),
 ])

@@ -283,3 +283,13 @@ def test_derivative_on_floats_equals_the_matrix_form():
         got = sc.derivative(t, x, u)
         assert np.allclose(got, expect, rtol=1e-12, atol=1e-14 * np.abs(expect).max())
         assert np.allclose(sc.external_torque(t, x), tau, rtol=1e-12, atol=0)
+
+
+def test_inertia_must_be_a_rigid_bodys():
+    """Positive definite is not enough: no principal moment may exceed the sum of the other two."""
+    inertia_matrix(np.add(J0_THESIS, DJ_THESIS))
+    with pytest.raises(ValueError, match="not positive definite"):
+        inertia_matrix([0.012, 0.047, 0.045, 0.05, 0.0, 0.0])
+    with pytest.raises(ValueError, match="no rigid body"):
+        inertia_matrix([0.012, 0.012, 0.030, 0.0, 0.0, 0.0])
+    inertia_matrix([0.012, 0.012, 0.024, 0.0, 0.0, 0.0])          # a flat plate: the limit, allowed

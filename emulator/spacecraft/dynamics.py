@@ -32,13 +32,18 @@ _DEFAULT = object()     # "use the thesis's orbit / field" (None turns them off)
 
 
 def inertia_matrix(j6):
-    """3 x 3 symmetric inertia from [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz]; ValueError unless positive definite."""
+    """3 x 3 symmetric inertia from [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz]; ValueError unless it is a rigid body's:
+    positive definite, and no principal moment larger than the sum of the other two (triangle inequality)."""
     a = np.array(j6, dtype=float).reshape(-1)
     if a.shape != (6,) or not np.all(np.isfinite(a)):
         raise ValueError("inertia must be 6 finite numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], got %r" % (j6,))
     j = np.array([[a[0], a[3], a[4]], [a[3], a[1], a[5]], [a[4], a[5], a[2]]])
-    if np.linalg.eigvalsh(j)[0] <= 0:
+    lam = np.linalg.eigvalsh(j)
+    if lam[0] <= 0:
         raise ValueError("inertia %r is not positive definite" % (j6,))
+    if lam[2] > (lam[0] + lam[1]) * (1.0 + 1e-9):
+        raise ValueError("inertia %r is no rigid body's: its largest principal moment %.6g exceeds the sum of the "
+                         "other two, %.6g" % (j6, lam[2], lam[0] + lam[1]))
     return j
 
 

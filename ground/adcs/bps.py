@@ -116,9 +116,13 @@ def check_params(d, where="parameter file"):
     xp = np.concatenate(parts)
     j5 = parts[1]
     J = np.array([[jxx, j5[2], j5[3]], [j5[2], j5[0], j5[4]], [j5[3], j5[4], j5[1]]])
-    if not (np.isfinite(jxx) and np.linalg.eigvalsh(J)[0] > 0):
+    lam = np.linalg.eigvalsh(J) if np.isfinite(jxx) else np.full(3, np.nan)
+    if not lam[0] > 0:
         raise ValueError("%s: the inertia [Jxx ref %g; J5 %s] is not positive definite"
                          % (where, jxx, j5.tolist()))
+    if lam[2] > (lam[0] + lam[1]) * (1.0 + 1e-9):
+        raise ValueError("%s: the inertia [Jxx ref %g; J5 %s] is no rigid body's: its largest principal moment "
+                         "exceeds the sum of the other two" % (where, jxx, j5.tolist()))
     if np.any(parts[5] <= 0):
         raise ValueError("%s: wheel inertias must be > 0, got %s" % (where, parts[5].tolist()))
     if P.shape != (23, 23) or not np.all(np.isfinite(P)) or np.abs(P - P.T).max() > 1e-9 * np.abs(P).max():

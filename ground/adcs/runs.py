@@ -23,7 +23,8 @@ from ground.fileio import write_atomic, write_json
 
 ARCSEC = quat.ARCSEC
 PARAM_KEYS = {
-    "inertia_kgm2": "6 numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], positive definite (the true spacecraft)",
+    "inertia_kgm2": "6 numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], a rigid body's: positive definite, triangle "
+                    "inequality (the true spacecraft)",
     "dipole_am2": "3 numbers (true residual dipole)",
     "duration_s": "scenario length, 2..930 s (default 930)",
     "dt_truth_s": "truth RK4 step dividing 1 s, (0, 1] (default 1)",
@@ -61,9 +62,11 @@ def check_params(d, where="params"):
         from emulator.spacecraft.dynamics import inertia_matrix
         try:
             inertia_matrix(a)
-        except ValueError:
-            raise ValueError("%s: inertia_kgm2 = %r is not positive definite (%s)"
-                             % (where, d["inertia_kgm2"], PARAM_KEYS["inertia_kgm2"])) from None
+        except ValueError as exc:
+            why = "is not positive definite" if "positive definite" in str(exc) else \
+                "is no rigid body's (a principal moment exceeds the sum of the other two)"
+            raise ValueError("%s: inertia_kgm2 = %r %s (%s)" % (where, d["inertia_kgm2"], why,
+                                                               PARAM_KEYS["inertia_kgm2"])) from None
     if "dipole_am2" in out and out["dipole_am2"].shape != (3,):
         raise ValueError("%s: dipole_am2 = %r must be %s" % (where, d["dipole_am2"], PARAM_KEYS["dipole_am2"]))
     for k, lo, hi in (("duration_s", 2.0, 930.0), ("dt_truth_s", 1e-6, 1.0)):

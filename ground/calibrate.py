@@ -66,11 +66,11 @@ def grid_points(grid_v):
 
 
 def max_grid():
-    """The largest n whose n x n H-table blob the controller accepts (firmware.controller.MAX_HTABLE_BYTES):
-    header 8 B, two float32 axes, 16 B of H per node, CRC-32."""
+    """The largest n whose n x n H-table blob (``htable.blob_size``) the controller accepts
+    (firmware.controller.MAX_HTABLE_BYTES)."""
     from firmware.controller import MAX_HTABLE_BYTES
     n = 2
-    while n < htable.MAX_AXIS and htable.HEADER_SIZE + 8 * (n + 1) + 16 * (n + 1) ** 2 + 4 <= MAX_HTABLE_BYTES:
+    while n < htable.MAX_AXIS and htable.blob_size(n + 1, n + 1) <= MAX_HTABLE_BYTES:
         n += 1
     return n
 

@@ -181,11 +181,16 @@ def grid_from_calibration(cal):
     return g
 
 
+def blob_size(nx, ny):
+    """Bytes of the blob of an nx x ny grid: header, the float32 axes, four float32 of H per node, CRC-32."""
+    return HEADER_SIZE + 4 * (nx + ny) + 16 * nx * ny + 4
+
+
 def pack(g):
     """The blob bytes of a ``Grid``."""
     g.validate()
     nx, ny = g.nx, g.ny
-    out = bytearray(HEADER_SIZE + 4 * (nx + ny) + 16 * nx * ny + 4)
+    out = bytearray(blob_size(nx, ny))
     struct.pack_into(HEADER_FMT, out, 0, MAGIC, VERSION, nx, ny)
     off = HEADER_SIZE
     for v in g.ax + g.ay:
@@ -208,7 +213,7 @@ def parse(data):
         raise HTableError("H table blob bad magic %r (expected %r)" % (bytes(magic), MAGIC))
     if ver != VERSION:
         raise HTableError("H table blob version %d not supported (expected %d)" % (ver, VERSION))
-    size = HEADER_SIZE + 4 * (nx + ny) + 16 * nx * ny + 4
+    size = blob_size(nx, ny)
     if len(mv) != size:
         raise HTableError("H table blob length %d != %d for a %dx%d grid" % (len(mv), size, nx, ny))
     want = struct.unpack_from("<I", mv, size - 4)[0]

@@ -41,6 +41,7 @@ import time
 import numpy as np
 
 from ground import hil, report
+from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
 from ground.fileio import write_atomic, write_json
 
 ADCS_KINDS = ("firmware", "ground")
@@ -48,7 +49,6 @@ RUNTIMES = ("micropython", "cpython")
 LEAD_S = 2.0              # ADCS seconds simulated beyond the play: the last chunk's interpolation stencil
 STENCIL_S = 0.25          # the 10 Hz samples needed beyond a distfile sample (two steps of 0.1 s, and a margin)
 WAIT_S = 600.0            # longest wait for one ADCS message before the run is declared failed
-MAX_DURATION_S = 86400.0  # the ADCS's run is held in memory (as fps adcs bps's --duration)
 GOAL_RTF = 5.0            # issue 13: the 600 s run >= 5x real time on 2 cores
 ARCSEC = math.pi / 180.0 / 3600.0
 

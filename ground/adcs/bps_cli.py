@@ -56,12 +56,8 @@ def parse_ts_range(text):
     return [float(v) for v in out]
 
 
-MAX_DURATION_S = 86400.0
-
-
 def check_run_args(a):
-    if not (1 <= a.duration <= MAX_DURATION_S):
-        raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, a.duration))
+    campaign.check_duration(a.duration)
     if not 0 <= a.seed < 2 ** 32:
         raise ValueError("--seed must be in [0, 2**32), got %r" % a.seed)
 
@@ -333,7 +329,7 @@ def _cmd_sweep(a):
 def _common(p):
     p.add_argument("--duration", type=float, default=4000.0,
                    help="seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling, 1 to %g "
-                   "(default 4000)" % MAX_DURATION_S)
+                   "(default 4000)" % campaign.MAX_DURATION_S)
     p.add_argument("--seed", type=int, default=0, help="noise seed, also the calibration's, 0 to "
                    "2**32 - 1 (default 0)")
     p.add_argument("--params", default=None, help="parameter file (JSON) from an earlier run's params.json; "

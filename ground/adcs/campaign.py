@@ -32,6 +32,16 @@ def check_runs(n):
     return k
 
 
+MAX_DURATION_S = 86400.0      # one day: the truth and each run's history are held in memory
+
+
+def check_duration(duration_s):
+    """``--duration`` (s) in [1, MAX_DURATION_S]; ValueError naming it otherwise (NaN included)."""
+    if not 1 <= duration_s <= MAX_DURATION_S:
+        raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, duration_s))
+    return duration_s
+
+
 def check_seed(seed):
     """``seed`` as a first seed >= 0 (numpy's generators refuse negative seeds); ValueError naming it otherwise."""
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:

@@ -14,6 +14,7 @@ import sys
 
 import numpy as np
 
+from ground.adcs import bps, campaign
 from ground.fileio import write_json
 
 STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_gnss", "miss_beacon", "n_gnss_b",
@@ -48,11 +49,13 @@ def faults_from_args(a):
 def register(sub):
     p = sub.add_parser("can", help="the ADCS firmware on CAN against the emulated spacecraft (issue 13)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--duration", type=float, default=600.0, help="virtual seconds, 1 to 86400 (default 600)")
+    p.add_argument("--duration", type=float, default=600.0,
+                   help="virtual seconds, 1 to %g (default 600)" % campaign.MAX_DURATION_S)
     p.add_argument("--runtime", default="micropython", choices=("micropython", "cpython"),
                    help="the firmware's interpreter (default micropython)")
     p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed 2-3 s late (default off)")
-    p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s, in (0, 21600] (default 33)")
+    p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s, in (0, %g] "
+                   "(default 33)" % bps.MAX_TS_S)
     p.add_argument("--seed", type=int, default=0, help="scenario seed, >= 0 (default 0)")
     p.add_argument("--params", default=None, help="parameter file (fps adcs bps format; default: a perfect "
                                                   "calibration of the emulated spacecraft)")
@@ -69,13 +72,9 @@ def register(sub):
 def run(a):
     from emulator.adcs_session import AdcsSession
     from emulator.spacecraft.scenario import HOLD_S
-    from ground.adcs import bps
-    from ground.adcs.bps_cli import MAX_DURATION_S
-    from ground.adcs.campaign import check_seed
-    if not (np.isfinite(a.duration) and 1 <= a.duration <= MAX_DURATION_S):
-        raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, a.duration))
+    campaign.check_duration(a.duration)
     bps.check_ts(a.ts)
-    check_seed(a.seed)
+    campaign.check_seed(a.seed)
     if a.params:
         bps.load_params(a.params)       # the bps format's own checks (inertia and P positive definite, 4 wheels)
     faults = faults_from_args(a)

@@ -14,8 +14,6 @@ import time
 from ground.adcs import campaign, stkf_sim
 from ground.fileio import write_atomic, write_json
 
-MAX_DURATION_S = 86400.0      # one day: the truth and each run's history are held in memory
-
 
 def _cmd(a):
     runs = campaign.check_runs(a.runs)
@@ -25,8 +23,7 @@ def _cmd(a):
     outages = [stkf_sim.parse_outage(o) for o in (a.outage or [])]
     if a.case == 1 and any(o[0] == "relay" for o in outages):
         raise ValueError("--outage relay:... was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
-    if not (1 <= a.duration <= MAX_DURATION_S):
-        raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, a.duration))
+    campaign.check_duration(a.duration)
     if not (0 < a.lag < float("inf")):
         raise ValueError("--lag must be a finite number of seconds > 0, got %r" % a.lag)
     if a.case == 2 and a.lag < 3.0 + 1.0:
@@ -104,7 +101,7 @@ def register(sub, name, help_):
     p.add_argument("--case", type=int, choices=(1, 2), required=True,
                    help="1: SatA GNSS + beacon; 2: plus SatB GNSS relayed with a U(2, 3) s delay")
     p.add_argument("--duration", type=float, default=1200.0, help="simulated seconds, 1 to %g (default 1200, as "
-                   "Sec. 5.5)" % MAX_DURATION_S)
+                   "Sec. 5.5)" % campaign.MAX_DURATION_S)
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds seed .. seed+runs-1)")
     p.add_argument("--seed", type=int, default=0, help="first seed, >= 0 (default 0)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",

@@ -294,14 +294,7 @@ def _cmd_sweep(a):
                                         noise_seed=a.seed, truth=a.truth, cache_dir=os.path.abspath(a.cache_dir))
     except KeyboardInterrupt:
         complete = False
-        results = []
-        for i in range(len(ts_list)):
-            p = os.path.join(campaign.run_dir_for(out, i), "result.json")
-            r = None
-            if campaign.written_since(p, since):        # this sweep's, not an earlier one's in the folder
-                with open(p) as f:
-                    r = json.load(f)
-            results.append(r)
+        results = campaign.finished_results(out, len(ts_list), since)   # not an earlier sweep's in the folder
     if any(r is not None and "error" not in r and not r.get("complete", True) for r in results):
         complete = False                                # a t_s cut short by Ctrl-C (in a worker)
     s = sweep_summary(ts_list, results, complete, satb)

@@ -77,6 +77,21 @@ def written_since(path, since_ns):
     return since_ns is None or t >= since_ns
 
 
+def finished_results(out_dir, n, since_ns=None):
+    """The ``result.json`` of runs 0 .. n-1 in ``out_dir`` that this campaign wrote (``written_since``), None
+    where there is none: what an interrupted campaign collects from its folder."""
+    import json
+    out = []
+    for i in range(n):
+        p = os.path.join(run_dir_for(out_dir, i), "result.json")
+        r = None
+        if written_since(p, since_ns):
+            with open(p) as f:
+                r = json.load(f)
+        out.append(r)
+    return out
+
+
 def _call(fn, seed, run_dir, kwargs):
     """One run; an exception becomes an error record (the message, not a traceback)."""
     try:

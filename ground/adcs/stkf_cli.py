@@ -50,7 +50,7 @@ def _cmd(a):
                                         lag_s=a.lag, outages=outages, attitude=a.attitude)
     except KeyboardInterrupt:
         complete = False
-        results = _collect(out, runs, since)
+        results = [r for r in campaign.finished_results(out, runs, since) if r is not None]
     summary = stkf_sim.aggregate(results, runs, complete)
     summary.update(case=a.case, truth=a.truth, attitude=a.attitude, duration_s=a.duration,
                    wall_s=time.perf_counter() - t0)
@@ -70,18 +70,6 @@ def _cmd(a):
         print("%d run(s) failed; see %s/summary.json" % (len(summary["failed_runs"]), out), file=sys.stderr)
         return 1
     return 0
-
-
-def _collect(out, runs, since_ns=None):
-    """The runs this campaign finished (``since_ns``: not an earlier campaign's left in the folder)."""
-    import json
-    res = []
-    for i in range(runs):
-        p = os.path.join(campaign.run_dir_for(out, i), "result.json")
-        if campaign.written_since(p, since_ns):
-            with open(p) as f:
-                res.append(json.load(f))
-    return res
 
 
 def _print(s, case):

@@ -1,4 +1,4 @@
-"""Review fixes (ADCS estimation and simulation): each test failed before its fix."""
+"""ADCS ground edge cases: the datasheet wheels in bps, a diverged MEKF named, friction defaults, Phi truncation."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Adversarial review of the fine-pointing half: each test failed on the code before its fix."""
+"""Fine-pointing edge cases: late duplicate ACKs, TICKs beyond the ADC, H-table size, --dv and --rate checks."""
 
 from collections import deque
 

@@ -15,6 +15,7 @@ others go on. Ctrl-C cancels the outstanding futures and re-raises KeyboardInter
 """
 
 import contextlib
+import logging
 import os
 import sys
 
@@ -161,8 +162,10 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
     else:
         from distributed import Client, LocalCluster
         with _sigint_ignored():
+            # CRITICAL, not ERROR: a worker whose heartbeat races the cluster's close (Ctrl-C) logs an ERROR
+            # with a traceback. A run's own failure still reaches the user, as that run's error record.
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
+                                   dashboard_address=None, silence_logs=logging.CRITICAL)
         client = Client(cluster)
     futures = []
     try:

@@ -133,6 +133,16 @@ def test_a_measurement_the_stkf_refuses_is_stale_in_the_status(runtime, cfg_file
 
 
 @pytest.mark.parametrize("runtime", RUNTIMES)
+def test_a_fix_the_apkf_refuses_is_stale_in_the_status(runtime, cfg_file):
+    """A star-tracker fix the APKF refuses (S not positive definite) was counted only in Lean.skipped: the
+    status said the tracker was fresh and the mode stayed POINT/HOLD while no fix was fused. Now it is stale,
+    and after stale_s (10 s) of it the mode is DEGRADED; n_st_invalid (the tracker's own flag) is untouched."""
+    r = run_case("apkf_refused_fix_is_stale", runtime, cfg_file)
+    assert r["skipped"] == 12
+    assert r["stale"] & 1 and r["mode"] == 3 and r["n_st_invalid"] == 0, r
+
+
+@pytest.mark.parametrize("runtime", RUNTIMES)
 def test_gnss_b_stale_bit_and_degraded_mode_agree(runtime, cfg_file):
     """SatB's GNSS silent for stale_s (10 s) makes the mode DEGRADED (t - last >= stale_s); its stale bit
     used '>' and came one cycle later, so at 10 s the status said DEGRADED with no stale sensor to say why."""

@@ -300,7 +300,7 @@ class App:
         second since its last (a gap in the ticks: the steps before the last without measurements, the wheels
         on their last command, rA propagated for their field and orbit inputs; the momentum input's read-out
         change falls in the last step). A tick whose time did not advance by a step (repeated or earlier)
-        leaves it as it is."""
+        leaves it as it is. A fix the APKF refuses (S not positive definite) is stale in the status."""
         st_ok = self.st_got and self.st_valid
         if self.apkf is None:
             if st_ok and self.st_prev_ok and _steps(t, self.t_st_prev) == 1:
@@ -330,7 +330,10 @@ class App:
             env = self._env(t, xo)
         else:
             env = self._env(t)
+        k = self.apkf.skipped
         self.apkf.step(self.wp, self.qst if st_ok else None, env, self.u, self.rw_got)
+        if self.apkf.skipped != k:
+            self.st_valid = False            # refused (S not positive definite): stale, as an invalid fix
         self.t_apkf += n
 
     @micropython.native
@@ -485,6 +488,7 @@ class App:
         elif not self.bc_valid:
             self.n_beacon_invalid += 1
         self._apkf(t)
+        st_ok = self.st_got and self.st_valid
         q = self._attitude()
         self._stkf(t, q)
         if st_ok:

@@ -238,6 +238,19 @@ def case_refused_measurements_are_stale(cfg):
     return out
 
 
+def case_apkf_refused_fix_is_stale(cfg):
+    """Valid star-tracker fixes throughout; from 4 s the APKF's attitude variance is made negative, so S is
+    not positive definite and every fix is refused: the status's stale bits, mode and n_st_invalid at 15 s."""
+    app = A.App(cfg)
+    for k in range(16):
+        if k == 4:
+            for i in range(3):
+                app.apkf.P[i * 9 + i] = -1.0
+        _burst(app, k, cfg)
+    st = struct.unpack(core.PACKET[P["ADCS_STATUS"]].fmt, app.status_payload(15))
+    return {"skipped": app.apkf.skipped, "mode": st[1], "stale": st[2], "n_st_invalid": st[11]}
+
+
 def case_gnss_b_silent(cfg):
     """SatB's GNSS on, but no fix of SatB ever: per cycle from 8 to 12 s, the mode and the GNSS_B stale bit."""
     app = A.App(dict(cfg, satb_gnss=True))

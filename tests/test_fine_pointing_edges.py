@@ -102,6 +102,56 @@ def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
     th.join(5)
 
 
+def test_a_damaged_tick_number_does_not_make_every_later_tick_stale():
+    """A TICK whose tick number the CRC-16 let through damaged (here 10^6 for 2) became serve_controller's
+    last: every real TICK after it was older, ignored unanswered, and the run ended as a dead link. Now a
+    stale TICK is dropped and counted, and the bench's resend of it (a second stale TICK, not older) is
+    stepped and answered; a lone stale TICK among good ones is only dropped."""
+    import struct
+    import threading
+
+    from emulator.bench import Bench
+    from emulator.truth import true_h_field
+    from firmware.controller import SAFE, TRACK, WHY_LINK
+    from firmware.hal.link import _Ms, serve_controller
+    from protocol import htable
+    from protocol.link import inproc_pair
+    a, b = inproc_pair("BENCH", "CONTROLLER")
+    ctl = Controller(table=htable.pack_calibration(true_h_field(Bench(noise=False), None, 0.01)), decim=2)
+    ctl.mode = TRACK
+    th = threading.Thread(target=serve_controller, args=(ctl, _Ms(b)), daemon=True)
+    th.start()
+    assert a.recv(timeout=5)[0][0] == core.PACKET_ID["HELLO"]
+    tick, spi, status = core.PACKET_ID["TICK"], core.PACKET_ID["FSM_SPI"], core.PACKET_ID["CTRL_STATUS"]
+    fmt = core.PACKET[tick].fmt
+
+    def answer(k):                     # the SPI answer's tick number (None: no answer within 0.3 s), status
+        a.send_raw(tick, a.node, core.NODE["CONTROLLER"], struct.pack(fmt, k, 1568 * k, 1900, 2100, 3000))
+        got = []
+        while not got or got[-1][0] != spi:
+            more = a.recv(timeout=0.3)
+            if not more:
+                return None, None
+            got += more
+        st = [core.payload_dict(status, p[4]) for p in got if p[0] == status]
+        return core.payload_dict(spi, got[-1][4])["tick"], (st[0] if st else None)
+
+    assert [answer(k)[0] for k in (0, 1, 10 ** 6)] == [0, 1, 10 ** 6]     # 10^6: tick 2, damaged
+    assert answer(2)[0] is None                      # stale: dropped unanswered
+    assert answer(2)[0] == 2                         # the bench's resend: the ticks go on from it
+    k3, st = answer(3)[0], answer(4)[1]
+    assert k3 == 3 and st["n_rx_drop"] == 1 and ctl.n_dup == 0
+    assert answer(2) == (None, None)                 # a lone stale TICK is only dropped ...
+    assert answer(5)[0] == 5 and ctl.n_gap == 0      # ... and the good ones go on
+    assert answer(9)[0] == 9 and ctl.n_gap == 0      # a real gap counts once the next tick confirms it
+    assert answer(10)[0] == 10 and ctl.n_gap == 3
+    big = 10 + ctl.safe_ticks + 1
+    assert answer(big)[0] == big and ctl.mode == TRACK
+    assert answer(big + 1)[0] == big + 1 and ctl.mode == SAFE and ctl.why == WHY_LINK
+    a.close()
+    th.join(5)
+
+
 def test_a_calibration_grid_the_controller_cannot_hold_is_refused_up_front(tmp_path, capsys):
     """--grid accepted up to 32 ("the controller's H table holds 32 per axis"), but the controller takes an
     H-table blob of 8192 bytes: 23x23 (8660 B) to 32x32 (16652 B) passed check_calibration, and fps hil then

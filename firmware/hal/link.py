@@ -75,9 +75,13 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
 
     Exactly-once ticks: the first copy of TICK k steps the controller; a resent TICK k (its answer was lost)
     is answered again with the FSM_SPI words, and the CTRL_STATUS if one was due, computed for k, without a
-    second step (``n_dup``). A TICK older than the last is stale and ignored. Ticks the bench ran without us
-    (a gap in the tick numbers) count as link silence toward SAFE (``n_gap``), as does a wait of ``poll_ms``
-    without any packet. A HELLO from the bench starts a new session (tick numbers may start again).
+    second step (``n_dup``). A TICK older than the last is stale: dropped unanswered and counted in
+    ``n_rx_drop``. A second stale TICK in a row, not older than the first, means the last tick number was
+    damage the CRC-16 let through (else every later TICK would be stale and the run would end as a dead
+    link): it is stepped and the ticks go on from it. Ticks the bench ran without us
+    (a gap in the tick numbers) count as link silence toward SAFE (``n_gap``) once the next TICK confirms the
+    jump (so a damaged tick number neither counts nor sends the controller to SAFE), as does a wait of
+    ``poll_ms`` without any packet. A HELLO from the bench starts a new session (tick numbers may start again).
     CTRL_STATUS is due on ticks k with k % decim == 0 (``status_due_at``), so the bench knows which ticks
     carry one; it goes out before the FSM_SPI, to the TICK's sender. A TICK whose Q1 counts lie beyond the
     12-bit ADC (the packet table's 0..4095: only damage the CRC-16 missed makes one) is dropped unanswered and
@@ -89,7 +93,9 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     status = None
     status_tick = -1
     last = -1
-    bad_ticks = 0                             # TICKs dropped for counts beyond 0..4095
+    bad_ticks = 0                             # TICKs dropped: counts beyond 0..4095, or older than the last
+    stale = -1                                # the last TICK older than ``last`` in a row (-1: none)
+    gap = 0                                   # ticks skipped by the jump to ``last``, until a TICK confirms it
     w = ctl.words
     counters = getattr(link, "counters", None)
     link.send_raw(P_HELLO, me, BROADCAST, core.encode_payload(P_HELLO, node=me, fw_major=1, fw_minor=0))
@@ -113,11 +119,20 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                         link.send_raw(P_STATUS, me, src, status)
                     link.send_raw(P_FSM_SPI, me, src, out)
                     continue
-                if tick < last:
-                    continue
+                if tick < last:               # stale, or our last came from a tick number the CRC let
+                    if stale < 0 or tick < stale:   # through damaged: two in a row going forward are the
+                        stale = tick          # bench's clock, and we take it up again
+                        bad_ticks += 1
+                        continue
+                    last = tick - 1
+                    gap = 0                   # the jump to it was that damage, not ticks run without us
+                stale = -1
+                if gap:                       # the jump before the last tick, confirmed by this one
+                    ctl.n_gap += gap
+                    ctl.link_silent(gap)
+                    gap = 0
                 if last >= 0 and tick > last + 1:
-                    ctl.n_gap += tick - last - 1
-                    ctl.link_silent(tick - last - 1)
+                    gap = tick - last - 1
                 last = tick
                 ctl.heard(True)
                 heap_lock()                   # the step allocates nothing; locked, its frame stays off the heap
@@ -136,7 +151,8 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 link.send_raw(P_FSM_SPI, me, src, out)
             else:
                 if pid == P_HELLO:
-                    last = -1
+                    last = stale = -1
+                    gap = 0
                     status_tick = -1
                 for rpid, rdst, rpayload in ctl.handle(pid, src, seq, payload):
                     link.send_raw(rpid, me, rdst, rpayload)

@@ -11,8 +11,8 @@ Parameters not given by the thesis or the datasheets are marked "assumed" below.
 import copy
 import json
 import math
-import os
-import tempfile
+
+from emulator.fileio import write_atomic
 
 PRESET = "thesis bench"
 
@@ -254,15 +254,5 @@ def dumps(cfg):
 
 
 def write_json_atomic(path, obj):
-    """Write JSON to ``path`` through a temporary file in the same directory and os.replace."""
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=d)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """``obj`` as indented JSON at ``path``, atomically (``emulator.fileio``: fsync, the umask's permissions)."""
+    write_atomic(path, json.dumps(obj, indent=2) + "\n")

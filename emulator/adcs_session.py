@@ -418,9 +418,10 @@ class AdcsSession:
 
 
 def _gnss_payload(t_ms, sat, z):
-    return core.encode_payload(P["GNSS"], t_ms=t_ms & 0xFFFFFFFF, sat=sat, x=int(round(z[0] * 100)),
-                               y=int(round(z[1] * 100)), z=int(round(z[2] * 100)), vx=int(round(z[3] * 1e4)),
-                               vy=int(round(z[4] * 1e4)), vz=int(round(z[5] * 1e4)))
+    """GNSS payload of a fix z = (x, y, z m, vx, vy, vz m/s): raw = round(value / the field's scale in the table)."""
+    scale = dict((f[0], f[3]) for f in core.PACKET[P["GNSS"]].fields)
+    raw = dict((n, int(round(z[i] * (1.0 / scale[n])))) for i, n in enumerate(("x", "y", "z", "vx", "vy", "vz")))
+    return core.encode_payload(P["GNSS"], raw, t_ms=t_ms & 0xFFFFFFFF, sat=sat)
 
 
 def _load_params(params):

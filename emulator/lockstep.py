@@ -298,6 +298,7 @@ class RemoteController:
         self._tick_id = core.PACKET_ID["TICK"]
         self._spi_id = core.PACKET_ID["FSM_SPI"]
         self._status_id = core.PACKET_ID["CTRL_STATUS"]
+        self._status_tick = core.PACKET[self._status_id].names.index("tick")
         self._tick_fmt = struct.Struct(core.PACKET[self._tick_id].fmt)   # ADC counts are already in range
         self._pending = deque()
 
@@ -329,18 +330,19 @@ class RemoteController:
             pkt = pending.popleft()
             self.n_rx += 1
             pid = pkt[0]
-            if pid == self._spi_id:
+            if pid == self._spi_id or pid == self._status_id:
                 try:
                     vals = core.decode_payload(pid, pkt[4])
-                except ValueError:
+                except (ValueError, struct.error):       # a payload of the wrong length
                     self.n_bad += 1
                     continue
+            if pid == self._spi_id:
                 if vals[0] != tick or words is not None:
                     self.n_late += 1
                     continue
                 words = list(vals[2:2 + vals[1]])
-            elif pid == self._status_id and len(pkt[4]) >= 4:
-                st = pkt[4][0] | pkt[4][1] << 8 | pkt[4][2] << 16 | pkt[4][3] << 24
+            elif pid == self._status_id:
+                st = vals[self._status_tick]
                 if st <= self.last_status_tick:
                     self.n_status_dup += 1
                     continue

@@ -34,3 +34,36 @@ def test_emulator_json_writer_fsyncs_before_the_rename(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         write_json_atomic(str(p), {"new": 2})
     assert json.loads(p.read_text()) == {"old": 1} and os.listdir(tmp_path) == ["truth.json"]
+
+
+# --- the packet table is the one contract ----------------------------------------------------------------
+def test_gnss_payload_takes_its_scales_from_the_table(monkeypatch):
+    from emulator import adcs_session
+    from protocol import core
+    pkt = core.PACKET[core.PACKET_ID["GNSS"]]
+    z = (6878137.255, -1234.5678, 42.0, 7612.3456, -0.12345, 0.0)
+    names = ("x", "y", "z", "vx", "vy", "vz")
+    d = core.payload_dict(pkt.id, adcs_session._gnss_payload(5, 1, z))
+    scale = dict((f[0], f[3]) for f in pkt.fields)
+    assert (d["t_ms"], d["sat"]) == (5, 1)
+    assert all(abs(d[n] * scale[n] - v) <= 0.5 * scale[n] for n, v in zip(names, z))
+    # a table with other scales (cm -> dm, 0.1 mm/s -> mm/s): the emulator follows it, it does not restate it
+    other = tuple(f[:3] + ({"m": 0.1, "m/s": 1e-3}[f[2]],) + f[4:] if f[0] in names else f for f in pkt.fields)
+    monkeypatch.setattr(pkt, "fields", other)
+    d = core.payload_dict(pkt.id, adcs_session._gnss_payload(5, 1, z))
+    assert [d[n] for n in names] == [68781373, -12346, 420, 7612346, -123, 0]
+
+
+def test_remote_controller_counts_wrong_length_answers_instead_of_raising():
+    """A link that does not check payload lengths (a test double, a new transport) hands over a short FSM_SPI
+    and CTRL_STATUS: counted as bad, neither applied nor passed to the ground."""
+    from emulator.lockstep import RemoteController
+    from protocol import core
+    rc = RemoteController(link=None)
+    spi, status = core.PACKET_ID["FSM_SPI"], core.PACKET_ID["CTRL_STATUS"]
+    good = core.encode_payload(spi, tick=7, n=1, w0=0x123456)
+    rc._pending.extend([(spi, 0x10, 0x20, 0, good[:-1]), (status, 0x10, 0x01, 1, bytes(8)),
+                        (spi, 0x10, 0x20, 2, good)])
+    words, got_status = rc._sort(7)
+    assert words == [0x123456] and not got_status
+    assert rc.n_bad == 2 and len(rc.inbox) == 0

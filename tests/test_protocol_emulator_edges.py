@@ -67,3 +67,22 @@ def test_remote_controller_counts_wrong_length_answers_instead_of_raising():
     words, got_status = rc._sort(7)
     assert words == [0x123456] and not got_status
     assert rc.n_bad == 2 and len(rc.inbox) == 0
+
+
+# --- distfile and H-table blobs: what float32 cannot hold is refused by name ------------------------------
+@pytest.mark.parametrize("kw, what", [
+    (dict(xs=[1e39, 0.0], ys=[0.0, 0.0]), "sample 0"),
+    (dict(xs=[0.0, 0.0], ys=[0.0, -1e39]), "sample 1"),
+    (dict(xs=[1.0, 0.0], ys=[0.0, 0.0], kind=0, scale=1e-50), "scale"),
+    (dict(xs=[1.0, 0.0], ys=[0.0, 0.0], kind=0, scale=1e39), "scale"),
+])
+def test_distfile_pack_refuses_what_float32_cannot_hold(kw, what):
+    from protocol import distfile
+    with pytest.raises(distfile.DistfileError, match=what):
+        distfile.pack(**kw)
+
+
+def test_htable_pack_refuses_an_h_beyond_float32():
+    from protocol import htable
+    with pytest.raises(htable.HTableError, match="float32"):
+        htable.pack(htable.Grid([0.0, 1.0], [0.0, 1.0], [(1e39, 0.0, 0.0, 1.0)] + [(1.0, 0.0, 0.0, 1.0)] * 3))

@@ -86,3 +86,12 @@ def test_htable_pack_refuses_an_h_beyond_float32():
     from protocol import htable
     with pytest.raises(htable.HTableError, match="float32"):
         htable.pack(htable.Grid([0.0, 1.0], [0.0, 1.0], [(1e39, 0.0, 0.0, 1.0)] + [(1.0, 0.0, 0.0, 1.0)] * 3))
+
+
+# --- bench config files --------------------------------------------------------------------------------------
+def test_bench_config_with_a_huge_integer_is_bad_input_not_an_internal_error(tmp_path, capsys):
+    p = tmp_path / "bench.json"
+    p.write_text('{"laser": {"power_w": 1%s}}' % ("0" * 400))       # valid JSON, an int no float can hold
+    assert fps(["emulator", "config", "--config", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "laser.power_w" in err and "internal error" not in err

@@ -480,6 +480,9 @@ def isotp_msg(msg):
                             extended_id=msg.is_extended_id)
 
 
+_HEX = b"0123456789ABCDEFabcdef"
+
+
 def _lawicel_bus_class():
     import can
 
@@ -515,16 +518,19 @@ def _lawicel_bus_class():
             c = line[:1]
             if c in (b"T", b"t", b"R", b"r"):
                 ext = c in (b"T", b"R")
+                remote = c in (b"R", b"r")
                 n = 8 if ext else 3
-                try:
-                    cid = int(line[1:1 + n], 16)
-                    dlc = int(line[1 + n:2 + n], 16)
-                    data = b"" if c in (b"R", b"r") else bytes.fromhex(line[2 + n:2 + n + 2 * dlc].decode())
-                except ValueError:
+                # exactly: n hex id digits (29 or 11 bits), one DLC digit 0-8, 2 x DLC hex data digits
+                dlc = line[1 + n:2 + n]
+                dlc = int(dlc) if dlc.isdigit() and dlc <= b"8" else -1
+                body = line[1:1 + n] + line[2 + n:]
+                if (dlc < 0 or len(line) != 2 + n + (0 if remote else 2 * dlc) or body.strip(_HEX)
+                        or int(line[1:1 + n], 16) > (0x1FFFFFFF if ext else 0x7FF)):
                     self._write(b"\a")
                     return
-                remote = c in (b"R", b"r")
-                if self.is_open and (remote or len(data) == dlc):
+                cid = int(line[1:1 + n], 16)
+                data = b"" if remote else bytes.fromhex(line[2 + n:].decode())
+                if self.is_open:
                     self._rx.append(can.Message(arbitration_id=cid, is_extended_id=ext, data=data, dlc=dlc,
                                                 is_remote_frame=remote, timestamp=time.time()))
                     self._write(b"Z\r" if ext else b"z\r")

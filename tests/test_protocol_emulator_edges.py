@@ -95,3 +95,45 @@ def test_bench_config_with_a_huge_integer_is_bad_input_not_an_internal_error(tmp
     assert fps(["emulator", "config", "--config", str(p)]) == 2
     err = capsys.readouterr().err
     assert "laser.power_w" in err and "internal error" not in err
+
+
+# --- slcan device (fps emulator serve --link can): Lawicel lines parsed exactly --------------------------------
+def test_slcan_device_refuses_malformed_lawicel_lines(tmp_path):
+    import select
+    import time
+    import tty
+    from protocol import can as canmap
+    from protocol import core, link
+    dev = link.open_slcan_device("SPACECRAFT")
+    fd = os.open(dev.peer_path, os.O_RDWR | os.O_NOCTTY)
+    tty.setraw(fd)
+
+    def line(text):
+        os.write(fd, text.encode() + b"\r")
+        out, end = b"", time.monotonic() + 2.0
+        while not out.endswith((b"\r", b"\a")) and time.monotonic() < end:
+            if select.select([fd], [], [], 0.05)[0]:
+                out += os.read(fd, 256)
+        return out
+
+    try:
+        assert line("O") == b"\r"
+        cid = canmap.can_id(core.PACKET_ID["ADCS_TICK"], core.NODE["ADCS"], core.NODE["SPACECRAFT"])
+        pl = core.encode_payload("ADCS_TICK", tick=3, t_ms=3000).hex().upper()
+        for bad in ("T%08X9%s00" % (cid, pl),            # DLC 9: not classic CAN
+                    "T%08XF%s" % (cid, pl + "00" * 7),    # DLC F
+                    "T%08X8%s00" % (cid, pl),             # a data byte beyond the DLC
+                    "T%08X8%s" % (cid, pl[:-2]),          # one short
+                    "T-%07X8%s" % (cid, pl),              # a sign in the id
+                    "T %07X8%s" % (cid, pl),              # a space in the id
+                    "T%08X8%s" % (0x3FFFFFFF, pl),        # beyond 29 bits
+                    "t8008" + pl):                        # beyond 11 bits
+            assert line(bad) == b"\a", bad
+        assert dev.recv(0.05) == []
+        assert line("T%08X8%s" % (cid, pl)) == b"Z\r"
+        assert dev.recv(2.0) == [(core.PACKET_ID["ADCS_TICK"], core.NODE["ADCS"], core.NODE["SPACECRAFT"], None,
+                                  bytes.fromhex(pl))]
+        assert dev.counters()["frames"] == 1 and dev.counters()["reserved_bit"] == 0
+    finally:
+        os.close(fd)
+        dev.close()

@@ -137,3 +137,23 @@ def test_slcan_device_refuses_malformed_lawicel_lines(tmp_path):
     finally:
         os.close(fd)
         dev.close()
+
+
+# --- the orbit truth cache -----------------------------------------------------------------------------------
+def test_a_damaged_orbit_truth_cache_is_computed_again_not_trusted_or_fatal(tmp_path):
+    import io
+
+    import numpy as np
+
+    from emulator import orbits
+    t, x = orbits.truth_samples("two-body", 20.0, cache_dir=str(tmp_path))
+    (path,) = [os.path.join(tmp_path, "truth_cache", n) for n in os.listdir(tmp_path / "truth_cache")]
+    short = io.BytesIO()
+    np.savez(short, t=t[:5], x=x[:5])
+    for damage in (b"", b"not a zip file", short.getvalue()):
+        with open(path, "wb") as f:
+            f.write(damage)
+        t2, x2 = orbits.truth_samples("two-body", 20.0, cache_dir=str(tmp_path))
+        assert np.array_equal(t2, t) and np.array_equal(x2, x)
+        with np.load(path) as z:                      # and the file is whole again
+            assert z["x"].shape == x.shape

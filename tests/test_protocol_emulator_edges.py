@@ -157,3 +157,16 @@ def test_a_damaged_orbit_truth_cache_is_computed_again_not_trusted_or_fatal(tmp_
         assert np.array_equal(t2, t) and np.array_equal(x2, x)
         with np.load(path) as z:                      # and the file is whole again
             assert z["x"].shape == x.shape
+
+
+def test_emulator_readme_names_every_module_and_the_default_board_timing():
+    import re
+    root = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "emulator")
+    text = open(os.path.join(root, "README.md")).read()
+    listed = set(re.findall(r"^\| `(\w+\.py)` \|", text, re.M))
+    assert {n for n in os.listdir(root) if n.endswith(".py") and n != "__init__.py"} <= listed
+    from emulator.config import default_config
+    from emulator.timing import board_timing
+    t = board_timing(default_config()).as_dict()
+    assert t["timing"] in text and "%.0f us" % t["land_us"] in text
+    assert "%.0f, %.0f and %.0f us" % tuple(t["sample_us"]) in text

@@ -273,8 +273,11 @@ def packet_json(p):
     pid, src, dst, seq, payload = p
     fields = core.payload_dict(pid, payload)
     for k in fields:
-        if isinstance(fields[k], bytes):
-            fields[k] = fields[k].hex()
+        v = fields[k]
+        if isinstance(v, bytes):
+            fields[k] = v.hex()
+        elif isinstance(v, float) and v - v != 0.0:     # NaN, +-inf: JSON has no such number; say it as text
+            fields[k] = repr(v)
     return json.dumps({"id": pid, "name": core.PACKET[pid].name, "src": core.NODE_NAME.get(src, src),
                        "dst": core.NODE_NAME.get(dst, dst), "seq": seq, "fields": fields})
 

@@ -170,3 +170,21 @@ def test_emulator_readme_names_every_module_and_the_default_board_timing():
     t = board_timing(default_config()).as_dict()
     assert t["timing"] in text and "%.0f us" % t["land_us"] in text
     assert "%.0f, %.0f and %.0f us" % tuple(t["sample_us"]) in text
+
+
+# --- fps protocol decode: one strict JSON line per packet ----------------------------------------------------
+def test_decode_writes_strict_json_for_non_finite_float_fields(tmp_path, capsys):
+    import struct
+
+    from protocol import core, host
+    pid = core.PACKET_ID["RW_TLM"]
+    cap = tmp_path / "cap.bin"
+    cap.write_bytes(host.encode_frame(pid, 0x40, 0x30, 0, struct.pack("<ff", float("nan"), float("-inf")))
+                    + host.encode_frame(pid, 0x40, 0x30, 1, struct.pack("<ff", 1.5, 0.0)))
+    assert fps(["protocol", "decode", "--serial", str(cap)]) == 0
+
+    def refuse(name):
+        raise ValueError("not JSON: %s" % name)
+    lines = [json.loads(ln, parse_constant=refuse) for ln in capsys.readouterr().out.splitlines()]
+    assert [ln["fields"] for ln in lines[:2]] == [{"speed": "nan", "torque": "-inf"}, {"speed": 1.5, "torque": 0.0}]
+    assert lines[2]["summary"]["frames"] == 2

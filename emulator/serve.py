@@ -6,7 +6,8 @@ lockstep clock: each tick a TICK packet
 carries the Q1 sample, the controller answers with FSM_SPI (``emulator.lockstep.RemoteController``). The
 P-FSM holds fixed volts or plays a distfile (the firmware player's 6-point kernel, Eq. 7.7-7.8).
 At the end a summary (counters, true sky error statistics, packets received from the controller) is printed
-and optionally written as JSON.
+and optionally written as JSON, ``"complete": true``; when Ctrl-C or a failed link ends the run early, the JSON
+still holds what ran, with ``"complete": false`` and the ``error``.
 
 ``--devices wheels`` serves the spacecraft instead (``serve_wheels``): RW0..RW3 and the star tracker of
 ``emulator.spacecraft``, paced by the wall clock.
@@ -115,20 +116,35 @@ def serve(args):
     try:
         if not ctrl.wait_peer(args.wait):
             raise OSError("no controller spoke on %s within %g s" % (link.peer_path, args.wait))
-        res = lock.run(duration)
+        try:
+            res = lock.run(duration)
+        except (KeyboardInterrupt, OSError) as exc:      # Ctrl-C, the link failed: keep what ran
+            if args.output and lock.partial is not None:
+                summary = _bench_summary(args, bench, ctrl, lock, lock.partial, duration)
+                summary.update({"complete": False, "error": "interrupted" if isinstance(exc, KeyboardInterrupt)
+                                else str(exc)})
+                write_json_atomic(args.output, summary)
+                print("bench: stopped after %d ticks; partial summary in %s" % (lock.tick, args.output),
+                      file=sys.stderr)
+            raise
     finally:
         link.close()
-    truth = res["truth_arcsec"]
-    seen = collections.Counter(core.PACKET[p[0]].name if p[0] in core.PACKET else str(p[0]) for p in ctrl.inbox)
-    summary = summarize(truth, lock.counters())
-    summary.update({"link": args.link, "seed": args.seed, "duration_s": duration, "rate_hz": args.rate,
-                    "packets_from_controller": dict(seen), "bench_config": bench.config})
+    summary = _bench_summary(args, bench, ctrl, lock, res, duration)
+    summary["complete"] = True
     print("bench: %d ticks, %d overruns; true error mean (%.3f, %.3f) arcsec, 1 sigma (%.3f, %.3f), max |e| %.3f"
           % (summary["counters"]["ticks"], summary["counters"]["overruns"], *summary["mean_arcsec"],
              *summary["std_arcsec"], summary["max_abs_arcsec"]), file=sys.stderr)
     if args.output:
         write_json_atomic(args.output, summary)
     return 0
+
+
+def _bench_summary(args, bench, ctrl, lock, res, duration):
+    seen = collections.Counter(core.PACKET[p[0]].name if p[0] in core.PACKET else str(p[0]) for p in ctrl.inbox)
+    summary = summarize(res["truth_arcsec"], lock.counters())
+    summary.update({"link": args.link, "seed": args.seed, "duration_s": duration, "rate_hz": args.rate,
+                    "packets_from_controller": dict(seen), "bench_config": bench.config})
+    return summary
 
 
 def summarize(truth_arcsec, counters):

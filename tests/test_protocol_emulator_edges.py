@@ -188,3 +188,42 @@ def test_decode_writes_strict_json_for_non_finite_float_fields(tmp_path, capsys)
     lines = [json.loads(ln, parse_constant=refuse) for ln in capsys.readouterr().out.splitlines()]
     assert [ln["fields"] for ln in lines[:2]] == [{"speed": "nan", "torque": "-inf"}, {"speed": 1.5, "torque": 0.0}]
     assert lines[2]["summary"]["frames"] == 2
+
+
+# --- fps emulator serve: a run ended early still leaves its summary ----------------------------------------
+def test_bench_serve_writes_a_partial_summary_when_the_controller_leaves(tmp_path, monkeypatch, capsys):
+    import threading
+
+    import protocol.link
+    from protocol import core
+    from protocol.stream import StreamLink
+    real_open = protocol.link.open_link
+    peers = []
+
+    def controller(path, n):
+        """HELLO, then answer n TICKs with an empty FSM_SPI (an overrun each), then leave."""
+        s = StreamLink(path, "CONTROLLER")
+        s.send("HELLO", "BENCH")
+        done = 0
+        while done < n and not s.closed:
+            for pid, src, dst, seq, payload in s.recv(2000):
+                if pid == core.PACKET_ID["TICK"]:
+                    s.send("FSM_SPI", "BENCH", tick=core.decode_payload(pid, payload)[0], n=0)
+                    done += 1
+        s.close()
+
+    def open_link(spec, node, **kw):
+        link = real_open(spec, node, **kw)
+        th = threading.Thread(target=controller, args=(link.peer_path, 20), daemon=True)
+        th.start()
+        peers.append(th)
+        return link
+    monkeypatch.setattr(protocol.link, "open_link", open_link)
+    out = tmp_path / "serve.json"
+    assert fps(["emulator", "serve", "--duration", "5", "--deadline", "2", "--wait", "5", "-o", str(out)]) == 1
+    peers[0].join(5)
+    assert "link closed" in capsys.readouterr().err
+    d = json.loads(out.read_text())
+    assert d["complete"] is False and "closed" in d["error"]
+    assert d["counters"]["ticks"] >= 20 and d["counters"]["overruns"] >= 20 and d["samples"] > 0
+    assert d["packets_from_controller"] == {"HELLO": 1}

@@ -591,7 +591,12 @@ def open_can(interface, channel, node, accept=(), **kw):
     import can
     if interface == "slcan":
         kw.setdefault("sleep_after_open", 0)
-    bus = can.Bus(interface=interface, channel=channel, **kw)
+    try:
+        bus = can.Bus(interface=interface, channel=channel, **kw)
+    except can.CanInterfaceNotImplementedError as exc:      # a typo in the spec: bad input
+        raise ValueError("CAN interface %r: %s" % (interface, exc)) from None
+    except can.CanInitializationError as exc:               # no such port or adapter: the link failed
+        raise OSError("CAN %s channel %r: %s" % (interface, channel, exc)) from None
     return CanLink(bus, node, accept)
 
 

@@ -227,3 +227,15 @@ def test_bench_serve_writes_a_partial_summary_when_the_controller_leaves(tmp_pat
     assert d["complete"] is False and "closed" in d["error"]
     assert d["counters"]["ticks"] >= 20 and d["counters"]["overruns"] >= 20 and d["samples"] > 0
     assert d["packets_from_controller"] == {"HELLO": 1}
+
+
+# --- link specs: python-can's errors become the project's ValueError / OSError ----------------------------
+def test_can_link_spec_errors_are_value_or_os_errors(tmp_path, capsys):
+    from firmware import main as fw_main
+    from protocol.link import open_link
+    with pytest.raises(ValueError, match="bogus"):
+        open_link("can:bogus:x", "GROUND")
+    with pytest.raises(OSError, match="nonexistent"):
+        open_link("slcan:%s" % (tmp_path / "nonexistent"), "GROUND")
+    assert fw_main.main(["controller", "--link", "slcan:%s" % (tmp_path / "nonexistent")]) == 2
+    assert "nonexistent" in capsys.readouterr().out

@@ -239,3 +239,12 @@ def test_can_link_spec_errors_are_value_or_os_errors(tmp_path, capsys):
         open_link("slcan:%s" % (tmp_path / "nonexistent"), "GROUND")
     assert fw_main.main(["controller", "--link", "slcan:%s" % (tmp_path / "nonexistent")]) == 2
     assert "nonexistent" in capsys.readouterr().out
+
+
+def test_wheels_serve_refuses_more_star_tracker_packets_than_physics_steps(capsys):
+    """At 20 Hz with 0.1 s steps the loop sent ~2 packets a step, repeating the same attitude and time, not 20."""
+    assert fps(["emulator", "serve", "--devices", "wheels", "--dt", "0.1", "--startracker-hz", "20",
+                "--wait", "0"]) == 2
+    assert "--startracker-hz 20" in capsys.readouterr().err
+    assert fps(["emulator", "serve", "--devices", "wheels", "--dt", "0.1", "--startracker-hz", "10",
+                "--wait", "0"]) == 1                  # allowed: it gets as far as waiting for the flight computer

@@ -68,8 +68,11 @@ class Lockstep:
 
     def __init__(self, bench, controller, player=None, rate_hz=637.8, pfsm_hz=10600.0, deadline_s=1.0,
                  realtime=False, block_ticks=256, record=False, on_q2=None):
-        if not 100.0 <= pfsm_hz <= 1e6 or pfsm_hz < rate_hz:
-            raise ValueError("pfsm_hz = %r must be in [100, 1e6] and >= rate_hz" % pfsm_hz)
+        if not 100.0 <= pfsm_hz <= 1e6:
+            raise ValueError("pfsm_hz = %r must be in [100, 1e6]" % pfsm_hz)
+        if pfsm_hz < rate_hz:
+            raise ValueError("the control rate %g Hz is above the P-FSM's update rate %g Hz (at least one P-FSM "
+                             "code per tick)" % (rate_hz, pfsm_hz))
         if deadline_s <= 0:
             raise ValueError("deadline_s = %r must be > 0" % deadline_s)
         if block_ticks < 1:

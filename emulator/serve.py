@@ -107,12 +107,13 @@ def serve(args):
             player = DistfilePlayer(distfile.parse(f.read()))
     else:
         player = HoldPlayer(*(bench.pfsm.v_to_code(v) for v in args.pfsm_v))
+    # the clock first: a rate the board or the P-FSM cannot run is refused before a path is printed
+    lock = Lockstep(bench, None, player, rate_hz=args.rate, deadline_s=args.deadline, realtime=args.realtime)
     link = open_link("pty" if args.link == "serial" else "slcan-pty", "BENCH")
     print(link.peer_path, flush=True)
     print("bench: waiting for the controller on %s (%s link)" % (link.peer_path, args.link),
           file=sys.stderr, flush=True)
-    ctrl = RemoteController(link, timeout_s=args.deadline)
-    lock = Lockstep(bench, ctrl, player, rate_hz=args.rate, deadline_s=args.deadline, realtime=args.realtime)
+    ctrl = lock.controller = RemoteController(link, timeout_s=args.deadline)
     try:
         if not ctrl.wait_peer(args.wait):
             raise OSError("no controller spoke on %s within %g s" % (link.peer_path, args.wait))

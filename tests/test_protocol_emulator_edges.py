@@ -248,3 +248,10 @@ def test_wheels_serve_refuses_more_star_tracker_packets_than_physics_steps(capsy
     assert "--startracker-hz 20" in capsys.readouterr().err
     assert fps(["emulator", "serve", "--devices", "wheels", "--dt", "0.1", "--startracker-hz", "10",
                 "--wait", "0"]) == 1                  # allowed: it gets as far as waiting for the flight computer
+
+
+@pytest.mark.parametrize("rate, says", [("1000", "1203.0 us"), ("20000", "P-FSM's update rate")])
+def test_bench_serve_refuses_a_rate_before_printing_a_device_path(rate, says, capsys):
+    assert fps(["emulator", "serve", "--rate", rate, "--wait", "0"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "waiting" not in err and says in err

@@ -255,3 +255,22 @@ def test_bench_serve_refuses_a_rate_before_printing_a_device_path(rate, says, ca
     assert fps(["emulator", "serve", "--rate", rate, "--wait", "0"]) == 2
     out, err = capsys.readouterr()
     assert out == "" and "waiting" not in err and says in err
+
+
+# --- --link-faults with a vanishing bit-flip probability -----------------------------------------------------
+@pytest.mark.parametrize("p", ["1e-17", "1e-320"])
+def test_link_faults_with_a_tiny_byte_probability_pass_frames_unharmed(p):
+    from protocol import host
+    from protocol.faults import FaultyPort, LinkFaults
+
+    class Port:
+        def __init__(self):
+            self.sent = b""
+
+        def write(self, data):
+            self.sent += data
+    port = Port()
+    fp = FaultyPort(port, LinkFaults.parse("bytes=%s,seed=3" % p))     # ZeroDivisionError before
+    frame = host.encode_packet("HELLO", 1, 0x10)
+    fp.write(frame * 3)
+    assert port.sent == frame * 3 and fp.counters()["fault_tx_bits_flipped"] == 0

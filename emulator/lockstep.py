@@ -430,7 +430,8 @@ class RemoteController:
         # consecutive overruns on a link that delivered nothing meanwhile: a late answer means slow, not down
         self.failed_run = 1 if self.n_rx != rx0 else self.failed_run + 1
         if link.closed:
-            raise LinkFailure("the controller's link closed at tick %d" % tick)
+            why = getattr(link, "closed_why", None)
+            raise LinkFailure("the controller's link closed at tick %d%s" % (tick, ": " + why if why else ""))
         if activity0 is not None and self._activity() != activity0 and words is None and tries > 1:
             raise LinkFailure("tick %d unanswered after %d tries in %.0f ms while the link kept delivering "
                               "damaged frames: too noisy to keep lockstep" % (tick, tries,

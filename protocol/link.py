@@ -37,6 +37,7 @@ class Link:
     def __init__(self, node):
         self.node = core.node_id(node)
         self.closed = False
+        self.closed_why = None    # what closed it, when more than the peer leaving (a serial link)
         self.tx_frames = 0
         self._seq = 0
 
@@ -84,15 +85,20 @@ class PeerGone(Exception):
 
 
 SPIN_S = 300e-6   # longest busy-poll before a blocking read on a pty or serial port
+STALL_S = 5.0     # a pty peer that reads nothing for this long while our writes wait is gone (hung)
 
 
 class _FdPort:
-    """A file descriptor (pty master, posix serial port): select + os.read, blocking writes."""
+    """A file descriptor (pty master, posix serial port): select + os.read; writes wait while the peer reads,
+    and a pty master we own is non-blocking so that a peer which stops reading (alive but hung, its pty buffer
+    full) ends the link after ``STALL_S`` instead of blocking the writer for ever."""
 
     def __init__(self, fd, hold_fd=None, owns=True):
         self.fd = fd
         self._hold = hold_fd   # our copy of a pty slave, closed once the peer has spoken
         self._owns = owns
+        if owns:
+            os.set_blocking(fd, False)
 
     def read(self, timeout):
         r = None
@@ -123,10 +129,23 @@ class _FdPort:
 
     def write(self, data):
         mv = memoryview(data)
+        end = None
         try:
             while mv:
-                n = os.write(self.fd, mv)
-                mv = mv[n:]
+                try:
+                    n = os.write(self.fd, mv)
+                except BlockingIOError:
+                    n = 0
+                if n:
+                    mv = mv[n:]
+                    end = None
+                    continue
+                now = time.monotonic()
+                if end is None:
+                    end = now + STALL_S
+                elif now >= end:
+                    raise PeerGone("the peer read nothing for %g s" % STALL_S)
+                select.select((), (self.fd,), (), end - now)
         except OSError as exc:
             if exc.errno == errno.EIO:
                 raise PeerGone() from None
@@ -243,8 +262,9 @@ class SerialLink(Link):
             return
         try:
             self._port.write(data)
-        except PeerGone:
+        except PeerGone as exc:
             self.closed = True
+            self.closed_why = str(exc) or None
 
     def recv(self, timeout=None):
         deadline = None if timeout is None else time.monotonic() + timeout

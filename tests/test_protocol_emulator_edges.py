@@ -274,3 +274,31 @@ def test_link_faults_with_a_tiny_byte_probability_pass_frames_unharmed(p):
     frame = host.encode_packet("HELLO", 1, 0x10)
     fp.write(frame * 3)
     assert port.sent == frame * 3 and fp.counters()["fault_tx_bits_flipped"] == 0
+
+
+# --- a pty peer that is alive but reads nothing (hung firmware) ---------------------------------------------
+def test_a_pty_peer_that_stops_reading_closes_the_link_instead_of_blocking_the_writer(monkeypatch):
+    import threading
+    import tty
+
+    from protocol import link as hostlink
+    monkeypatch.setattr(hostlink, "STALL_S", 0.3)
+    lk = hostlink.open_link("pty", "BENCH")
+    fd = os.open(lk.peer_path, os.O_RDWR | os.O_NOCTTY)      # the peer: open, says one byte, never reads
+    tty.setraw(fd)
+    try:
+        os.write(fd, b"\x00")
+        lk.recv(0.5)
+        sent = []
+
+        def writer():
+            while not lk.closed and len(sent) < 100000:
+                sent.append(lk.send("TICK", "CONTROLLER", tick=len(sent)))
+        th = threading.Thread(target=writer, daemon=True)
+        th.start()
+        th.join(10.0)
+        assert not th.is_alive(), "the writer blocked for ever on a full pty"
+        assert lk.closed and "read nothing" in lk.closed_why and 100 < len(sent) < 100000
+    finally:
+        os.close(fd)
+        lk.close()

@@ -19,7 +19,8 @@ Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s):
 4. k + 1: the next burst.
 
 A device reply the firmware misses by its tick is counted by the firmware (ADCS_STATUS counters); a wheel
-that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``). Faults (``faults`` dict):
+that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``), and one whose RW_CMD had a non-finite torque
+or an enable other than 0/1 (ignored: the wheel keeps its last command) too (``refused_rw_cmd``). Faults (``faults`` dict):
 ``wheel_silent`` [i, t0]: from t0 wheel i's node is dead (no RW_TLM, commands ignored, the rotor coasts);
 ``startracker_blind`` [t0, t1]: the star tracker answers "no solution" (valid 0); ``gnss_outage`` [t0, t1]:
 no GNSS fix of SatA (SatB's relay too); ``beacon_lost`` t0: the beacon answers "not in view" (valid 0).
@@ -142,6 +143,7 @@ class AdcsSession:
         self._commanded = [True] * N_WHEELS      # a reply (RW_TLM) is due in the next burst
         self.n_late = 0
         self.missed_rw_cmd = [0] * N_WHEELS
+        self.refused_rw_cmd = [0] * N_WHEELS     # RW_CMD with a non-finite torque or an enable other than 0/1
         self.fault_log = []
         self.last_status = None
         self._mode = None
@@ -332,6 +334,8 @@ class AdcsSession:
             d = core.payload_dict(P["RW_CMD"], pl)
             if np.isfinite(d["torque"]) and d["enable"] <= 1:
                 self.wheels.command(i, d["torque"], bool(d["enable"]))
+            else:                                  # the wheel keeps its last command; counted, not silent
+                self.refused_rw_cmd[i] += 1
             self._commanded[i] = True
         out = {k: np.zeros((10, n)) for k, n in (("q", 4), ("w", 3), ("ra", 3), ("va", 3), ("rb", 3), ("vb", 3))}
         out["t"] = np.zeros(10)
@@ -373,6 +377,7 @@ class AdcsSession:
                 "cycles": self.k, "virtual_s": float(self.k), "wall_s": self.wall_s,
                 "speed_x_realtime": (self.k / self.wall_s) if self.wall_s > 0 else None,
                 "late_cycles": self.n_late, "missed_rw_cmd": list(self.missed_rw_cmd),
+                "refused_rw_cmd": list(self.refused_rw_cmd),
                 "firmware_missed": {"rw": [st.get("miss_rw%d" % i) for i in range(N_WHEELS)],
                                     "startracker": st.get("miss_st"), "gnss": st.get("miss_gnss"),
                                     "beacon": st.get("miss_beacon"), "st_invalid": st.get("n_st_invalid"),

@@ -302,3 +302,47 @@ def test_a_pty_peer_that_stops_reading_closes_the_link_instead_of_blocking_the_w
     finally:
         os.close(fd)
         lk.close()
+
+
+# --- the ADCS session: what it refuses from the firmware is counted ------------------------------------------
+def test_adcs_session_counts_rw_cmds_it_refuses():
+    import struct
+    import time
+
+    from emulator.adcs_session import AdcsSession
+    from protocol import core
+    P, N = core.PACKET_ID, core.NODE
+
+    class Link:
+        node, closed = N["SPACECRAFT"], False
+
+        def __init__(self):
+            self.queue, self.sent = [], []
+
+        def recv(self, timeout=None):
+            out, self.queue = self.queue, []
+            return out
+
+        def send_raw(self, pid, src, dst, payload):
+            self.sent.append(pid)
+
+        def counters(self):
+            return {}
+
+    class Proc:
+        pid = 0
+
+        def poll(self):
+            return None
+
+    s = AdcsSession(runtime="cpython", duration_s=2)
+    s.link, s.proc, s._t_wall = Link(), Proc(), time.perf_counter()
+    s._burst()
+    fmt = core.PACKET[P["RW_CMD"]].fmt
+    cmds = [struct.pack(fmt, float("nan"), 1), struct.pack(fmt, 1e-4, 2), struct.pack(fmt, 2.0 ** -12, 1),
+            struct.pack(fmt, -2.0 ** -12, 0)]
+    s.link.queue = [(P["RW_CMD"], N["ADCS"], N["RW%d" % i], None, c) for i, c in enumerate(cmds)]
+    s.link.queue.append((P["ADCS_STATUS"], N["ADCS"], 0xFF, None, core.encode_payload("ADCS_STATUS", tick=0)))
+    s.cycle()
+    assert s.summary()["refused_rw_cmd"] == [1, 1, 0, 0] and s.summary()["missed_rw_cmd"] == [0, 0, 0, 0]
+    assert list(s.wheels.cmd) == [0.0, 0.0, 2.0 ** -12, -2.0 ** -12] and list(s.wheels.enable) == [True, True, True, False]

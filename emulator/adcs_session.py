@@ -15,7 +15,8 @@ Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s):
    read-out; STARTRACKER, GNSS A, due GNSS B, BEACON (ISO-TP); then ADCS_TICK(k, t_k) last;
 2. the firmware runs its cycle on what arrived before the tick and sends RW_CMD x4 and ADCS_STATUS(k);
 3. this side waits for ADCS_STATUS(k) (``reply_timeout_s`` of wall time; missing = a late cycle, the wheels
-   keep their last command as a driver would), applies the commands, steps the dynamics 10 x 0.1 s;
+   keep their last command as a driver would; ``MAX_LATE_CYCLES`` in a row end the session with OSError, the
+   firmware being hung), applies the commands, steps the dynamics 10 x 0.1 s;
 4. k + 1: the next burst.
 
 A device reply the firmware misses by its tick is counted by the firmware (ADCS_STATUS counters); a wheel
@@ -56,6 +57,7 @@ MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
 RUNTIMES = ("micropython", "cpython")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
+MAX_LATE_CYCLES = 3                  # late cycles in a row that end the session: the firmware is hung
 MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
 
@@ -142,6 +144,7 @@ class AdcsSession:
         self._cmd = [None] * N_WHEELS            # RW_CMD payload received this cycle
         self._commanded = [True] * N_WHEELS      # a reply (RW_TLM) is due in the next burst
         self.n_late = 0
+        self._late_run = 0                       # consecutive late cycles
         self.missed_rw_cmd = [0] * N_WHEELS
         self.refused_rw_cmd = [0] * N_WHEELS     # RW_CMD with a non-finite torque or an enable other than 0/1
         self.fault_log = []
@@ -322,8 +325,14 @@ class AdcsSession:
         dead = self.faults["wheel_silent"][0] if "wheel_silent" in self._active else -1
         if status is None:
             self.n_late += 1
+            self._late_run += 1
+            if self._late_run >= MAX_LATE_CYCLES:     # alive but hung: its pty would fill and block the bursts
+                raise OSError("ADCS firmware gave no ADCS_STATUS for %d cycles in a row (%g s each) at t = %d s: "
+                              "hung? %s" % (self._late_run, self.reply_timeout_s, self.k, self._stderr()))
             self._say("t = %.0f s: no ADCS_STATUS within %.0f s (late cycle; wheels hold)" % (t, self.reply_timeout_s))
             status = {}
+        else:
+            self._late_run = 0
         for i in range(N_WHEELS):
             pl = self._cmd[i]
             if i == dead:

@@ -346,3 +346,38 @@ def test_adcs_session_counts_rw_cmds_it_refuses():
     s.cycle()
     assert s.summary()["refused_rw_cmd"] == [1, 1, 0, 0] and s.summary()["missed_rw_cmd"] == [0, 0, 0, 0]
     assert list(s.wheels.cmd) == [0.0, 0.0, 2.0 ** -12, -2.0 ** -12] and list(s.wheels.enable) == [True, True, True, False]
+
+
+def test_adcs_session_ends_when_the_firmware_is_hung():
+    """Alive but silent: each cycle waited reply_timeout_s (30 s) for ever, and the unread bursts filled the pty."""
+    import time
+
+    from emulator import adcs_session
+    from protocol import core
+
+    class Link:
+        node, closed = core.NODE["SPACECRAFT"], False
+
+        def recv(self, timeout=None):
+            time.sleep(min(timeout or 0.0, 0.01))
+            return []
+
+        def send_raw(self, pid, src, dst, payload):
+            pass
+
+        def counters(self):
+            return {}
+
+    class Proc:
+        def poll(self):
+            return None
+
+    s = adcs_session.AdcsSession(runtime="cpython", duration_s=10, reply_timeout_s=0.03)
+    s.link, s.proc, s._t_wall, s._err = Link(), Proc(), time.perf_counter(), open(os.devnull)
+    s._burst()
+    for _ in range(adcs_session.MAX_LATE_CYCLES - 1):
+        s.cycle()                                                   # a late cycle or two: the wheels hold
+    with pytest.raises(OSError, match="%d cycles in a row" % adcs_session.MAX_LATE_CYCLES):
+        s.cycle()
+    assert s.summary()["late_cycles"] == adcs_session.MAX_LATE_CYCLES and s.k == adcs_session.MAX_LATE_CYCLES - 1
+    s._err.close()

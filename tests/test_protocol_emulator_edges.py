@@ -381,3 +381,15 @@ def test_adcs_session_ends_when_the_firmware_is_hung():
         s.cycle()
     assert s.summary()["late_cycles"] == adcs_session.MAX_LATE_CYCLES and s.k == adcs_session.MAX_LATE_CYCLES - 1
     s._err.close()
+
+
+# --- ISO-TP: every drop counted ------------------------------------------------------------------------------
+def test_isotp_counts_a_transfer_cut_short_by_a_new_first_frame():
+    from protocol import isotp
+    a, b = bytes(range(20)), bytes(range(100, 130))
+    fa, fb = isotp.segment(a), isotp.segment(b)
+    rx = isotp.IsoTp()
+    assert rx.feed(fa[0]) is None and rx.feed(fa[1]) is None          # a: FF and one CF, then cut off
+    got = [rx.feed(f) for f in fb]
+    assert got[-1] == b and rx.errors["unexpected_cf"] == 1           # a's loss is counted, as a SF's cut is
+    assert sum(rx.errors.values()) == 1

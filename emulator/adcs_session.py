@@ -21,7 +21,8 @@ Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s):
 
 A device reply the firmware misses by its tick is counted by the firmware (ADCS_STATUS counters); a wheel
 that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``), and one whose RW_CMD had a non-finite torque
-or an enable other than 0/1 (ignored: the wheel keeps its last command) too (``refused_rw_cmd``). Faults (``faults`` dict):
+or an enable other than 0/1 (ignored: the wheel keeps its last command) too (``refused_rw_cmd``).
+Faults (``faults`` dict):
 ``wheel_silent`` [i, t0]: from t0 wheel i's node is dead (no RW_TLM, commands ignored, the rotor coasts);
 ``startracker_blind`` [t0, t1]: the star tracker answers "no solution" (valid 0); ``gnss_outage`` [t0, t1]:
 no GNSS fix of SatA (SatB's relay too); ``beacon_lost`` t0: the beacon answers "not in view" (valid 0).

@@ -190,7 +190,8 @@ def _check_number(key, val, lo, hi):
     if key in _INTEGER and val != int(val):
         raise ValueError("config %s: expected an integer, got %r" % (key, val))
     if isinstance(val, int) and not -1e300 < val < 1e300:     # math.isfinite would raise OverflowError
-        raise ValueError("config %s = an integer of %d digits is out of range [%g, %g]" % (key, len(str(abs(val))), lo, hi))
+        raise ValueError("config %s = an integer of %d bits is out of range [%g, %g]" % (key, val.bit_length(), lo,
+                                                                                         hi))
     if not math.isfinite(val) or not lo <= val <= hi:
         raise ValueError("config %s = %r is out of range [%g, %g]" % (key, val, lo, hi))
 

@@ -345,7 +345,8 @@ def test_adcs_session_counts_rw_cmds_it_refuses():
     s.link.queue.append((P["ADCS_STATUS"], N["ADCS"], 0xFF, None, core.encode_payload("ADCS_STATUS", tick=0)))
     s.cycle()
     assert s.summary()["refused_rw_cmd"] == [1, 1, 0, 0] and s.summary()["missed_rw_cmd"] == [0, 0, 0, 0]
-    assert list(s.wheels.cmd) == [0.0, 0.0, 2.0 ** -12, -2.0 ** -12] and list(s.wheels.enable) == [True, True, True, False]
+    assert list(s.wheels.cmd) == [0.0, 0.0, 2.0 ** -12, -2.0 ** -12]
+    assert list(s.wheels.enable) == [True, True, True, False]
 
 
 def test_adcs_session_ends_when_the_firmware_is_hung():

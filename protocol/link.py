@@ -393,13 +393,15 @@ class CanLink(Link):
 
     def send_raw(self, pid, src, dst, payload):
         """Send one packet; a long one blocks until its ISO-TP transfer is done (TimeoutError after
-        ``ISOTP_TIMEOUT`` s without flow control). Returns None: CAN frames carry no sequence number."""
+        ``ISOTP_TIMEOUT`` s without flow control, ConnectionRefusedError if the receiver's flow control says
+        overflow). Returns None: CAN frames carry no sequence number."""
         self._seq = (self._seq + 1) & 0xFF
         with self._cond:
             if len(payload) <= canmap.SINGLE_MAX:
                 self._tx(canmap.can_id(pid, src, dst), payload)
             else:
                 st, _ = self._stack(canmap.can_id(pid, dst, src, True))
+                refused = self.isotp_errors["OverflowError"]
                 st.send(bytes(payload))
                 st.process()
                 deadline = time.monotonic() + self.ISOTP_TIMEOUT
@@ -411,6 +413,9 @@ class CanLink(Link):
                                            % (pid, dst))
                     self._cond.wait(min(left, 0.01))   # the receive thread takes the flow control
                     st.process()
+                if self.isotp_errors["OverflowError"] != refused:      # can-isotp stopped: nothing was delivered
+                    raise ConnectionRefusedError("ISO-TP send of packet 0x%02x to node 0x%02x: the receiver's flow "
+                                                 "control says overflow (%d bytes)" % (pid, dst, len(payload)))
         self.tx_frames += 1
 
     def _receive(self):

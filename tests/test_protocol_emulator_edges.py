@@ -394,3 +394,30 @@ def test_isotp_counts_a_transfer_cut_short_by_a_new_first_frame():
     got = [rx.feed(f) for f in fb]
     assert got[-1] == b and rx.errors["unexpected_cf"] == 1           # a's loss is counted, as a SF's cut is
     assert sum(rx.errors.values()) == 1
+
+
+# --- CAN: an ISO-TP send the receiver refuses is not reported as sent ----------------------------------------
+def test_can_isotp_send_refused_by_overflow_flow_control_raises():
+    import threading
+
+    import can
+
+    from protocol import can as canmap
+    from protocol.link import open_link
+    lk = open_link("can:virtual:fps-edges-overflow", "BENCH")
+    raw = can.Bus(interface="virtual", channel="fps-edges-overflow")
+
+    def receiver():                       # answers the first frame with FC overflow (status 2)
+        m = raw.recv(2.0)
+        raw.send(can.Message(arbitration_id=canmap.reply_id(m.arbitration_id), data=bytes((0x32, 0, 0)),
+                             is_extended_id=True))
+    th = threading.Thread(target=receiver)
+    th.start()
+    try:
+        with pytest.raises(ConnectionRefusedError, match="overflow"):
+            lk.send("TICK", "CONTROLLER", tick=1)          # 14 bytes: ISO-TP
+        assert lk.counters()["tx_frames"] == 0 and lk.counters()["isotp_OverflowError"] == 1
+    finally:
+        th.join(3)
+        raw.shutdown()
+        lk.close()

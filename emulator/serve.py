@@ -6,8 +6,8 @@ lockstep clock: each tick a TICK packet
 carries the Q1 sample, the controller answers with FSM_SPI (``emulator.lockstep.RemoteController``). The
 P-FSM holds fixed volts or plays a distfile (the firmware player's 6-point kernel, Eq. 7.7-7.8).
 At the end a summary (counters, true sky error statistics, packets received from the controller) is printed
-and optionally written as JSON, ``"complete": true``; when Ctrl-C or a failed link ends the run early, the JSON
-still holds what ran, with ``"complete": false`` and the ``error``.
+and optionally written as JSON, ``"complete": true``; when Ctrl-C, SIGTERM or a failed link ends the run early,
+the JSON still holds what ran, with ``"complete": false`` and the ``error``.
 
 ``--devices wheels`` serves the spacecraft instead (``serve_wheels``): RW0..RW3 and the star tracker of
 ``emulator.spacecraft``, paced by the wall clock.
@@ -16,6 +16,7 @@ still holds what ran, with ``"complete": false`` and the ``error``.
 import collections
 import signal
 import sys
+import threading
 import time
 from array import array
 
@@ -118,8 +119,9 @@ def serve(args):
         if not ctrl.wait_peer(args.wait):
             raise OSError("no controller spoke on %s within %g s" % (link.peer_path, args.wait))
         try:
-            res = lock.run(duration)
-        except (KeyboardInterrupt, OSError) as exc:      # Ctrl-C, the link failed: keep what ran
+            with _TermAsInterrupt():
+                res = lock.run(duration)
+        except (KeyboardInterrupt, OSError) as exc:      # Ctrl-C or SIGTERM, the link failed: keep what ran
             if args.output and lock.partial is not None:
                 summary = _bench_summary(args, bench, ctrl, lock, lock.partial, duration)
                 summary.update({"complete": False, "error": "interrupted" if isinstance(exc, KeyboardInterrupt)
@@ -157,6 +159,25 @@ def summarize(truth_arcsec, counters):
     return {"counters": counters, "samples": len(t), "mean_arcsec": t.mean(axis=0).tolist(),
             "std_arcsec": t.std(axis=0).tolist(), "max_abs_arcsec": float(np.hypot(t[:, 0], t[:, 1]).max()),
             "last_arcsec": t[-1].tolist()}
+
+
+class _TermAsInterrupt:
+    """SIGTERM raises KeyboardInterrupt (as Ctrl-C) while the bench runs, so that a process manager's stop still
+    leaves the partial summary; the old handler comes back on exit. Main thread only (signals live there)."""
+
+    def __enter__(self):
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGTERM, self._raise)
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise KeyboardInterrupt
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            signal.signal(signal.SIGTERM, self._old)
 
 
 # --- the spacecraft: reaction wheels and star tracker -----------------------------------------------------

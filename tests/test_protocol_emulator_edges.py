@@ -421,3 +421,36 @@ def test_can_isotp_send_refused_by_overflow_flow_control_raises():
         th.join(3)
         raw.shutdown()
         lk.close()
+
+
+def test_bench_serve_stopped_by_sigterm_leaves_its_partial_summary(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    from protocol import core
+    from protocol.stream import StreamLink
+    out = tmp_path / "serve.json"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.Popen([sys.executable, "-m", "ground.cli", "emulator", "serve", "--duration", "60",
+                             "--wait", "10", "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=root, env=dict(os.environ, PYTHONPATH=root))
+    try:
+        s = StreamLink(proc.stdout.readline().strip(), "CONTROLLER")
+        try:
+            s.send("HELLO", "BENCH")
+            done = 0
+            while done < 50:
+                for pid, src, dst, seq, payload in s.recv(5000):
+                    if pid == core.PACKET_ID["TICK"]:
+                        s.send("FSM_SPI", "BENCH", tick=core.decode_payload(pid, payload)[0], n=0)
+                        done += 1
+            proc.send_signal(signal.SIGTERM)          # a process manager stops the bench mid-run
+            _, err = proc.communicate(timeout=20)
+        finally:
+            s.close()
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    d = json.loads(out.read_text())
+    assert d["complete"] is False and d["error"] == "interrupted" and d["counters"]["ticks"] >= 40

@@ -15,11 +15,14 @@ Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s):
    read-out; STARTRACKER, GNSS A, due GNSS B, BEACON (ISO-TP); then ADCS_TICK(k, t_k) last;
 2. the firmware runs its cycle on what arrived before the tick and sends RW_CMD x4 and ADCS_STATUS(k);
 3. this side waits for ADCS_STATUS(k) (``reply_timeout_s`` of wall time; missing = a late cycle, the wheels
-   keep their last command as a driver would), applies the commands, steps the dynamics 10 x 0.1 s;
+   keep their last command as a driver would; ``MAX_LATE_CYCLES`` in a row end the session with OSError, the
+   firmware being hung), applies the commands, steps the dynamics 10 x 0.1 s;
 4. k + 1: the next burst.
 
 A device reply the firmware misses by its tick is counted by the firmware (ADCS_STATUS counters); a wheel
-that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``). Faults (``faults`` dict):
+that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``), and one whose RW_CMD had a non-finite torque
+or an enable other than 0/1 (ignored: the wheel keeps its last command) too (``refused_rw_cmd``).
+Faults (``faults`` dict):
 ``wheel_silent`` [i, t0]: from t0 wheel i's node is dead (no RW_TLM, commands ignored, the rotor coasts);
 ``startracker_blind`` [t0, t1]: the star tracker answers "no solution" (valid 0); ``gnss_outage`` [t0, t1]:
 no GNSS fix of SatA (SatB's relay too); ``beacon_lost`` t0: the beacon answers "not in view" (valid 0).
@@ -55,6 +58,7 @@ MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
 RUNTIMES = ("micropython", "cpython")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
+MAX_LATE_CYCLES = 3                  # late cycles in a row that end the session: the firmware is hung
 MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
 
@@ -141,7 +145,9 @@ class AdcsSession:
         self._cmd = [None] * N_WHEELS            # RW_CMD payload received this cycle
         self._commanded = [True] * N_WHEELS      # a reply (RW_TLM) is due in the next burst
         self.n_late = 0
+        self._late_run = 0                       # consecutive late cycles
         self.missed_rw_cmd = [0] * N_WHEELS
+        self.refused_rw_cmd = [0] * N_WHEELS     # RW_CMD with a non-finite torque or an enable other than 0/1
         self.fault_log = []
         self.last_status = None
         self._mode = None
@@ -320,8 +326,14 @@ class AdcsSession:
         dead = self.faults["wheel_silent"][0] if "wheel_silent" in self._active else -1
         if status is None:
             self.n_late += 1
+            self._late_run += 1
+            if self._late_run >= MAX_LATE_CYCLES:     # alive but hung: its pty would fill and block the bursts
+                raise OSError("ADCS firmware gave no ADCS_STATUS for %d cycles in a row (%g s each) at t = %d s: "
+                              "hung? %s" % (self._late_run, self.reply_timeout_s, self.k, self._stderr()))
             self._say("t = %.0f s: no ADCS_STATUS within %.0f s (late cycle; wheels hold)" % (t, self.reply_timeout_s))
             status = {}
+        else:
+            self._late_run = 0
         for i in range(N_WHEELS):
             pl = self._cmd[i]
             if i == dead:
@@ -332,6 +344,8 @@ class AdcsSession:
             d = core.payload_dict(P["RW_CMD"], pl)
             if np.isfinite(d["torque"]) and d["enable"] <= 1:
                 self.wheels.command(i, d["torque"], bool(d["enable"]))
+            else:                                  # the wheel keeps its last command; counted, not silent
+                self.refused_rw_cmd[i] += 1
             self._commanded[i] = True
         out = {k: np.zeros((10, n)) for k, n in (("q", 4), ("w", 3), ("ra", 3), ("va", 3), ("rb", 3), ("vb", 3))}
         out["t"] = np.zeros(10)
@@ -373,6 +387,7 @@ class AdcsSession:
                 "cycles": self.k, "virtual_s": float(self.k), "wall_s": self.wall_s,
                 "speed_x_realtime": (self.k / self.wall_s) if self.wall_s > 0 else None,
                 "late_cycles": self.n_late, "missed_rw_cmd": list(self.missed_rw_cmd),
+                "refused_rw_cmd": list(self.refused_rw_cmd),
                 "firmware_missed": {"rw": [st.get("miss_rw%d" % i) for i in range(N_WHEELS)],
                                     "startracker": st.get("miss_st"), "gnss": st.get("miss_gnss"),
                                     "beacon": st.get("miss_beacon"), "st_invalid": st.get("n_st_invalid"),
@@ -418,9 +433,10 @@ class AdcsSession:
 
 
 def _gnss_payload(t_ms, sat, z):
-    return core.encode_payload(P["GNSS"], t_ms=t_ms & 0xFFFFFFFF, sat=sat, x=int(round(z[0] * 100)),
-                               y=int(round(z[1] * 100)), z=int(round(z[2] * 100)), vx=int(round(z[3] * 1e4)),
-                               vy=int(round(z[4] * 1e4)), vz=int(round(z[5] * 1e4)))
+    """GNSS payload of a fix z = (x, y, z m, vx, vy, vz m/s): raw = round(value / the field's scale in the table)."""
+    scale = dict((f[0], f[3]) for f in core.PACKET[P["GNSS"]].fields)
+    raw = dict((n, int(round(z[i] * (1.0 / scale[n])))) for i, n in enumerate(("x", "y", "z", "vx", "vy", "vz")))
+    return core.encode_payload(P["GNSS"], raw, t_ms=t_ms & 0xFFFFFFFF, sat=sat)
 
 
 def _load_params(params):

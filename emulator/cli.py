@@ -47,7 +47,8 @@ def register(sub, name, help_):
     b.add_argument("--realtime", action="store_true", help="pace by the wall clock")
     w = s.add_argument_group("wheels (--devices wheels)")
     w.add_argument("--dt", type=float, default=0.1, help="physics step in s (default 0.1)")
-    w.add_argument("--startracker-hz", type=float, default=1.0, help="STARTRACKER packets to ADCS per s (default 1)")
+    w.add_argument("--startracker-hz", type=float, default=1.0,
+                   help="STARTRACKER packets to ADCS per s (default 1; at most one per --dt step)")
     s.set_defaults(func=_serve)
     p.set_defaults(func=lambda args: p.print_help() or 2)
 
@@ -93,6 +94,9 @@ def _check_serve_args(args):
     else:
         finite("--dt (s)", args.dt, 0.0, lo_open=True, hi=MAX_SECONDS)
         finite("--startracker-hz", args.startracker_hz, 0.0, lo_open=True, hi=1000.0)
+        if args.startracker_hz * args.dt > 1.0 + 1e-9:    # the attitude changes once a step: more would repeat it
+            raise ValueError("--startracker-hz %g is more than one packet per physics step of --dt %g s: at most %g"
+                             % (args.startracker_hz, args.dt, 1.0 / args.dt))
 
 
 def _serve(args):

@@ -9,10 +9,12 @@ Parameters not given by the thesis or the datasheets are marked "assumed" below.
 """
 
 import copy
+import errno
 import json
 import math
 import os
-import tempfile
+
+from emulator.fileio import write_atomic
 
 PRESET = "thesis bench"
 
@@ -187,6 +189,9 @@ def _check_number(key, val, lo, hi):
         raise ValueError("config %s: expected a number, got %r" % (key, val))
     if key in _INTEGER and val != int(val):
         raise ValueError("config %s: expected an integer, got %r" % (key, val))
+    if isinstance(val, int) and not -1e300 < val < 1e300:     # math.isfinite would raise OverflowError
+        raise ValueError("config %s = an integer of %d bits is out of range [%g, %g]" % (key, val.bit_length(), lo,
+                                                                                         hi))
     if not math.isfinite(val) or not lo <= val <= hi:
         raise ValueError("config %s = %r is out of range [%g, %g]" % (key, val, lo, hi))
 
@@ -254,15 +259,9 @@ def dumps(cfg):
 
 
 def write_json_atomic(path, obj):
-    """Write JSON to ``path`` through a temporary file in the same directory and os.replace."""
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=d)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """``obj`` as indented JSON at ``path``, atomically (``emulator.fileio``: fsync, the umask's permissions);
+    the folder must exist (an output file's, not a run folder)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(errno.ENOENT, "no such folder", folder)
+    write_atomic(path, json.dumps(obj, indent=2) + "\n")

@@ -68,8 +68,11 @@ class Lockstep:
 
     def __init__(self, bench, controller, player=None, rate_hz=637.8, pfsm_hz=10600.0, deadline_s=1.0,
                  realtime=False, block_ticks=256, record=False, on_q2=None):
-        if not 100.0 <= pfsm_hz <= 1e6 or pfsm_hz < rate_hz:
-            raise ValueError("pfsm_hz = %r must be in [100, 1e6] and >= rate_hz" % pfsm_hz)
+        if not 100.0 <= pfsm_hz <= 1e6:
+            raise ValueError("pfsm_hz = %r must be in [100, 1e6]" % pfsm_hz)
+        if pfsm_hz < rate_hz:
+            raise ValueError("the control rate %g Hz is above the P-FSM's update rate %g Hz (at least one P-FSM "
+                             "code per tick)" % (rate_hz, pfsm_hz))
         if deadline_s <= 0:
             raise ValueError("deadline_s = %r must be > 0" % deadline_s)
         if block_ticks < 1:
@@ -298,6 +301,7 @@ class RemoteController:
         self._tick_id = core.PACKET_ID["TICK"]
         self._spi_id = core.PACKET_ID["FSM_SPI"]
         self._status_id = core.PACKET_ID["CTRL_STATUS"]
+        self._status_tick = core.PACKET[self._status_id].names.index("tick")
         self._tick_fmt = struct.Struct(core.PACKET[self._tick_id].fmt)   # ADC counts are already in range
         self._pending = deque()
 
@@ -329,18 +333,19 @@ class RemoteController:
             pkt = pending.popleft()
             self.n_rx += 1
             pid = pkt[0]
-            if pid == self._spi_id:
+            if pid == self._spi_id or pid == self._status_id:
                 try:
                     vals = core.decode_payload(pid, pkt[4])
-                except ValueError:
+                except (ValueError, struct.error):       # a payload of the wrong length
                     self.n_bad += 1
                     continue
+            if pid == self._spi_id:
                 if vals[0] != tick or words is not None:
                     self.n_late += 1
                     continue
                 words = list(vals[2:2 + vals[1]])
-            elif pid == self._status_id and len(pkt[4]) >= 4:
-                st = pkt[4][0] | pkt[4][1] << 8 | pkt[4][2] << 16 | pkt[4][3] << 24
+            elif pid == self._status_id:
+                st = vals[self._status_tick]
                 if st <= self.last_status_tick:
                     self.n_status_dup += 1
                     continue
@@ -425,7 +430,8 @@ class RemoteController:
         # consecutive overruns on a link that delivered nothing meanwhile: a late answer means slow, not down
         self.failed_run = 1 if self.n_rx != rx0 else self.failed_run + 1
         if link.closed:
-            raise LinkFailure("the controller's link closed at tick %d" % tick)
+            why = getattr(link, "closed_why", None)
+            raise LinkFailure("the controller's link closed at tick %d%s" % (tick, ": " + why if why else ""))
         if activity0 is not None and self._activity() != activity0 and words is None and tries > 1:
             raise LinkFailure("tick %d unanswered after %d tries in %.0f ms while the link kept delivering "
                               "damaged frames: too noisy to keep lockstep" % (tick, tries,

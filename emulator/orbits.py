@@ -19,13 +19,14 @@ The 3U CubeSat (stated; the thesis gives none): mass 4.0 kg, drag and SRP area 0
 
 Samples are cached under ``<out>/truth_cache/<key>.npz``, the key a hash of every input (states, epoch,
 duration, step, truth kind, spacecraft, force model, brahe version); the file is written atomically, so
-a cache is complete or absent.
+a cache is complete or absent; a damaged one is computed again and replaced.
 """
 
 import hashlib
 import io
 import json
 import os
+import zipfile
 
 import numpy as np
 
@@ -182,10 +183,16 @@ def truth_samples(kind="hpop", duration_s=1200.0, x0s=(X0_A, X0_B), step_s=1.0, 
     span = float(np.ceil(duration_s / step_s) * step_s + 10 * step_s)
     key, inputs = cache_key(kind, x0s, span, step_s)
     path = os.path.join(cache_dir, "truth_cache", key + ".npz") if cache_dir else None
-    if path and os.path.exists(path):
-        with np.load(path) as z:
-            return z["t"], z["x"]
     n = int(round(span / step_s)) + 1
+    if path and os.path.exists(path):
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                t, x = z["t"], z["x"]
+            if t.shape == (n,) and x.shape == (n, len(x0s), 6) and np.all(np.isfinite(x)):
+                return t, x
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            pass
+        # a damaged cache file (not ours, truncated, the wrong shape) is computed again and replaced
     t = np.arange(n) * step_s
     if kind == "two-body":
         x = np.stack([kepler(x0, t) for x0 in x0s], axis=1)

@@ -6,7 +6,8 @@ lockstep clock: each tick a TICK packet
 carries the Q1 sample, the controller answers with FSM_SPI (``emulator.lockstep.RemoteController``). The
 P-FSM holds fixed volts or plays a distfile (the firmware player's 6-point kernel, Eq. 7.7-7.8).
 At the end a summary (counters, true sky error statistics, packets received from the controller) is printed
-and optionally written as JSON.
+and optionally written as JSON, ``"complete": true``; when Ctrl-C, SIGTERM or a failed link ends the run early,
+the JSON still holds what ran, with ``"complete": false`` and the ``error``.
 
 ``--devices wheels`` serves the spacecraft instead (``serve_wheels``): RW0..RW3 and the star tracker of
 ``emulator.spacecraft``, paced by the wall clock.
@@ -15,6 +16,7 @@ and optionally written as JSON.
 import collections
 import signal
 import sys
+import threading
 import time
 from array import array
 
@@ -106,29 +108,46 @@ def serve(args):
             player = DistfilePlayer(distfile.parse(f.read()))
     else:
         player = HoldPlayer(*(bench.pfsm.v_to_code(v) for v in args.pfsm_v))
+    # the clock first: a rate the board or the P-FSM cannot run is refused before a path is printed
+    lock = Lockstep(bench, None, player, rate_hz=args.rate, deadline_s=args.deadline, realtime=args.realtime)
     link = open_link("pty" if args.link == "serial" else "slcan-pty", "BENCH")
     print(link.peer_path, flush=True)
     print("bench: waiting for the controller on %s (%s link)" % (link.peer_path, args.link),
           file=sys.stderr, flush=True)
-    ctrl = RemoteController(link, timeout_s=args.deadline)
-    lock = Lockstep(bench, ctrl, player, rate_hz=args.rate, deadline_s=args.deadline, realtime=args.realtime)
+    ctrl = lock.controller = RemoteController(link, timeout_s=args.deadline)
     try:
         if not ctrl.wait_peer(args.wait):
             raise OSError("no controller spoke on %s within %g s" % (link.peer_path, args.wait))
-        res = lock.run(duration)
+        try:
+            with _TermAsInterrupt():
+                res = lock.run(duration)
+        except (KeyboardInterrupt, OSError) as exc:      # Ctrl-C or SIGTERM, the link failed: keep what ran
+            if args.output and lock.partial is not None:
+                summary = _bench_summary(args, bench, ctrl, lock, lock.partial, duration)
+                summary.update({"complete": False, "error": "interrupted" if isinstance(exc, KeyboardInterrupt)
+                                else str(exc)})
+                write_json_atomic(args.output, summary)
+                print("bench: stopped after %d ticks; partial summary in %s" % (lock.tick, args.output),
+                      file=sys.stderr)
+            raise
     finally:
         link.close()
-    truth = res["truth_arcsec"]
-    seen = collections.Counter(core.PACKET[p[0]].name if p[0] in core.PACKET else str(p[0]) for p in ctrl.inbox)
-    summary = summarize(truth, lock.counters())
-    summary.update({"link": args.link, "seed": args.seed, "duration_s": duration, "rate_hz": args.rate,
-                    "packets_from_controller": dict(seen), "bench_config": bench.config})
+    summary = _bench_summary(args, bench, ctrl, lock, res, duration)
+    summary["complete"] = True
     print("bench: %d ticks, %d overruns; true error mean (%.3f, %.3f) arcsec, 1 sigma (%.3f, %.3f), max |e| %.3f"
           % (summary["counters"]["ticks"], summary["counters"]["overruns"], *summary["mean_arcsec"],
              *summary["std_arcsec"], summary["max_abs_arcsec"]), file=sys.stderr)
     if args.output:
         write_json_atomic(args.output, summary)
     return 0
+
+
+def _bench_summary(args, bench, ctrl, lock, res, duration):
+    seen = collections.Counter(core.PACKET[p[0]].name if p[0] in core.PACKET else str(p[0]) for p in ctrl.inbox)
+    summary = summarize(res["truth_arcsec"], lock.counters())
+    summary.update({"link": args.link, "seed": args.seed, "duration_s": duration, "rate_hz": args.rate,
+                    "packets_from_controller": dict(seen), "bench_config": bench.config})
+    return summary
 
 
 def summarize(truth_arcsec, counters):
@@ -140,6 +159,25 @@ def summarize(truth_arcsec, counters):
     return {"counters": counters, "samples": len(t), "mean_arcsec": t.mean(axis=0).tolist(),
             "std_arcsec": t.std(axis=0).tolist(), "max_abs_arcsec": float(np.hypot(t[:, 0], t[:, 1]).max()),
             "last_arcsec": t[-1].tolist()}
+
+
+class _TermAsInterrupt:
+    """SIGTERM raises KeyboardInterrupt (as Ctrl-C) while the bench runs, so that a process manager's stop still
+    leaves the partial summary; the old handler comes back on exit. Main thread only (signals live there)."""
+
+    def __enter__(self):
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGTERM, self._raise)
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise KeyboardInterrupt
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            signal.signal(signal.SIGTERM, self._old)
 
 
 # --- the spacecraft: reaction wheels and star tracker -----------------------------------------------------

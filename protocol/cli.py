@@ -191,12 +191,23 @@ def cmd_table(args):
 
 # --- dbc --------------------------------------------------------------------------------------------------
 def write_atomic(path, text):
-    """Write ``text`` to ``path`` via a temp file in the same directory and os.replace."""
+    """Write ``text`` to ``path`` via a temp file in the same directory, fsync and os.replace. The file gets an
+    existing file's permissions, else what ``open`` would give (0o666 less the umask; ``mkstemp`` alone makes
+    it 0o600). Like ``emulator.fileio.write_atomic``, which protocol may not import (DESIGN.md)."""
+    try:
+        mode = os.stat(path).st_mode & 0o777
+    except OSError:
+        mask = os.umask(0o022)
+        os.umask(mask)
+        mode = 0o666 & ~mask
     d = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-")
     try:
         with os.fdopen(fd, "w") as f:
+            os.fchmod(f.fileno(), mode)
             f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)
@@ -262,8 +273,11 @@ def packet_json(p):
     pid, src, dst, seq, payload = p
     fields = core.payload_dict(pid, payload)
     for k in fields:
-        if isinstance(fields[k], bytes):
-            fields[k] = fields[k].hex()
+        v = fields[k]
+        if isinstance(v, bytes):
+            fields[k] = v.hex()
+        elif isinstance(v, float) and v - v != 0.0:     # NaN, +-inf: JSON has no such number; say it as text
+            fields[k] = repr(v)
     return json.dumps({"id": pid, "name": core.PACKET[pid].name, "src": core.NODE_NAME.get(src, src),
                        "dst": core.NODE_NAME.get(dst, dst), "seq": seq, "fields": fields})
 

@@ -31,6 +31,7 @@ KIND_FLOAT32 = 1
 UNITS_ARCSEC = 0
 DEFAULT_PERIOD_US = 8192
 MAX_COUNT = 1 << 26             # ~6.4 days at 8.192 ms; keeps sizes well inside 32 bits
+FLOAT32_MAX = 3.4028234663852886e38     # largest finite float32 (the scale, kind 1 samples)
 _SAMPLE_FMT = ("<ii", "<ff")    # by kind
 _CHUNK = 512                    # bytes per read while checking a file's CRC
 
@@ -64,7 +65,11 @@ def pack(xs, ys, period_us=DEFAULT_PERIOD_US, kind=KIND_FLOAT32, scale=1.0, sour
     if len(ys) != n:
         raise DistfileError("distfile xs and ys differ in length: %d != %d" % (n, len(ys)))
     _check_fields(kind, UNITS_ARCSEC, period_us, n, seed, scale)
+    if not scale <= FLOAT32_MAX:
+        raise DistfileError("distfile scale %r does not fit float32" % (scale,))
     scale = struct.unpack("<f", struct.pack("<f", scale))[0]   # the float32 the reader will see
+    if scale == 0.0:
+        raise DistfileError("distfile scale underflows float32 to 0")
     fmt = _SAMPLE_FMT[kind]
     out = bytearray(HEADER_SIZE + n * SAMPLE_SIZE + CRC_SIZE)
     struct.pack_into(HEADER_FMT, out, 0, MAGIC, VERSION, kind, UNITS_ARCSEC, period_us, n, seed, scale,
@@ -76,6 +81,8 @@ def pack(xs, ys, period_us=DEFAULT_PERIOD_US, kind=KIND_FLOAT32, scale=1.0, sour
             raise DistfileError("distfile sample %d is not finite: (%r, %r)" % (i, x, y))
         if kind == KIND_INT32:
             x, y = _to_int32(x / scale, i), _to_int32(y / scale, i)
+        elif abs(x) > FLOAT32_MAX or abs(y) > FLOAT32_MAX:
+            raise DistfileError("distfile sample %d = (%r, %r) arcsec does not fit float32" % (i, x, y))
         struct.pack_into(fmt, out, off, x, y)
         off += SAMPLE_SIZE
     struct.pack_into("<I", out, off, _crc32(memoryview(out)[:off]) & 0xFFFFFFFF)

@@ -93,7 +93,11 @@ class _Direction:
         p = self.f.p_byte
         if p <= 0:
             return -1
-        return int(math.log(1.0 - self.rng.random()) / math.log(1.0 - p))
+        d = math.log(1.0 - p)
+        if d == 0.0:            # p below 1.1e-16: 1 - p rounds to 1
+            d = math.log1p(-p)
+        g = math.log(1.0 - self.rng.random()) / d
+        return int(g) if g < 1e18 else 10 ** 18    # 1e-320 would overflow int(): as good as never
 
     def frame(self, data, silent):
         """The frame as it arrives (b"" if it is lost)."""

@@ -32,6 +32,7 @@ HEADER_FMT = "<4sHBB"
 HEADER_SIZE = 8
 MAX_AXIS = 32
 V_RANGE = 2.5        # FSM tilt voltage range, V
+FLOAT32_MAX = 3.4028234663852886e38     # the blob stores float32
 
 
 class HTableError(ValueError):
@@ -109,7 +110,8 @@ class Grid:
             if len(m) != 4:
                 raise HTableError("H table node %d has %d entries, need 4" % (k, len(m)))
             for e in range(4):
-                _num(m[e], "H[%d][%d]" % (k, e))
+                if abs(_num(m[e], "H[%d][%d]" % (k, e))) > FLOAT32_MAX:
+                    raise HTableError("H table node %d entry %d = %r does not fit the blob's float32" % (k, e, m[e]))
 
     @property
     def nx(self):

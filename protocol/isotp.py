@@ -113,6 +113,8 @@ class IsoTp:
             ln = ((data[0] & 0x0F) << 8) | data[1]
             if ln < 8:
                 return self._error("bad_length")
+            if self._rx is not None:
+                self.errors["unexpected_cf"] += 1     # a new transfer interrupts the old one (as for a SF)
             self._rx = bytearray(data[2:8])
             self._rx_len = ln
             self._rx_sn = 1

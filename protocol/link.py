@@ -37,6 +37,7 @@ class Link:
     def __init__(self, node):
         self.node = core.node_id(node)
         self.closed = False
+        self.closed_why = None    # what closed it, when more than the peer leaving (a serial link)
         self.tx_frames = 0
         self._seq = 0
 
@@ -84,15 +85,20 @@ class PeerGone(Exception):
 
 
 SPIN_S = 300e-6   # longest busy-poll before a blocking read on a pty or serial port
+STALL_S = 5.0     # a pty peer that reads nothing for this long while our writes wait is gone (hung)
 
 
 class _FdPort:
-    """A file descriptor (pty master, posix serial port): select + os.read, blocking writes."""
+    """A file descriptor (pty master, posix serial port): select + os.read; writes wait while the peer reads,
+    and a pty master we own is non-blocking so that a peer which stops reading (alive but hung, its pty buffer
+    full) ends the link after ``STALL_S`` instead of blocking the writer for ever."""
 
     def __init__(self, fd, hold_fd=None, owns=True):
         self.fd = fd
         self._hold = hold_fd   # our copy of a pty slave, closed once the peer has spoken
         self._owns = owns
+        if owns:
+            os.set_blocking(fd, False)
 
     def read(self, timeout):
         r = None
@@ -123,10 +129,23 @@ class _FdPort:
 
     def write(self, data):
         mv = memoryview(data)
+        end = None
         try:
             while mv:
-                n = os.write(self.fd, mv)
-                mv = mv[n:]
+                try:
+                    n = os.write(self.fd, mv)
+                except BlockingIOError:
+                    n = 0
+                if n:
+                    mv = mv[n:]
+                    end = None
+                    continue
+                now = time.monotonic()
+                if end is None:
+                    end = now + STALL_S
+                elif now >= end:
+                    raise PeerGone("the peer read nothing for %g s" % STALL_S)
+                select.select((), (self.fd,), (), end - now)
         except OSError as exc:
             if exc.errno == errno.EIO:
                 raise PeerGone() from None
@@ -243,8 +262,9 @@ class SerialLink(Link):
             return
         try:
             self._port.write(data)
-        except PeerGone:
+        except PeerGone as exc:
             self.closed = True
+            self.closed_why = str(exc) or None
 
     def recv(self, timeout=None):
         deadline = None if timeout is None else time.monotonic() + timeout
@@ -373,13 +393,15 @@ class CanLink(Link):
 
     def send_raw(self, pid, src, dst, payload):
         """Send one packet; a long one blocks until its ISO-TP transfer is done (TimeoutError after
-        ``ISOTP_TIMEOUT`` s without flow control). Returns None: CAN frames carry no sequence number."""
+        ``ISOTP_TIMEOUT`` s without flow control, ConnectionRefusedError if the receiver's flow control says
+        overflow). Returns None: CAN frames carry no sequence number."""
         self._seq = (self._seq + 1) & 0xFF
         with self._cond:
             if len(payload) <= canmap.SINGLE_MAX:
                 self._tx(canmap.can_id(pid, src, dst), payload)
             else:
                 st, _ = self._stack(canmap.can_id(pid, dst, src, True))
+                refused = self.isotp_errors["OverflowError"]
                 st.send(bytes(payload))
                 st.process()
                 deadline = time.monotonic() + self.ISOTP_TIMEOUT
@@ -391,6 +413,9 @@ class CanLink(Link):
                                            % (pid, dst))
                     self._cond.wait(min(left, 0.01))   # the receive thread takes the flow control
                     st.process()
+                if self.isotp_errors["OverflowError"] != refused:      # can-isotp stopped: nothing was delivered
+                    raise ConnectionRefusedError("ISO-TP send of packet 0x%02x to node 0x%02x: the receiver's flow "
+                                                 "control says overflow (%d bytes)" % (pid, dst, len(payload)))
         self.tx_frames += 1
 
     def _receive(self):
@@ -480,6 +505,9 @@ def isotp_msg(msg):
                             extended_id=msg.is_extended_id)
 
 
+_HEX = b"0123456789ABCDEFabcdef"
+
+
 def _lawicel_bus_class():
     import can
 
@@ -515,16 +543,19 @@ def _lawicel_bus_class():
             c = line[:1]
             if c in (b"T", b"t", b"R", b"r"):
                 ext = c in (b"T", b"R")
+                remote = c in (b"R", b"r")
                 n = 8 if ext else 3
-                try:
-                    cid = int(line[1:1 + n], 16)
-                    dlc = int(line[1 + n:2 + n], 16)
-                    data = b"" if c in (b"R", b"r") else bytes.fromhex(line[2 + n:2 + n + 2 * dlc].decode())
-                except ValueError:
+                # exactly: n hex id digits (29 or 11 bits), one DLC digit 0-8, 2 x DLC hex data digits
+                dlc = line[1 + n:2 + n]
+                dlc = int(dlc) if dlc.isdigit() and dlc <= b"8" else -1
+                body = line[1:1 + n] + line[2 + n:]
+                if (dlc < 0 or len(line) != 2 + n + (0 if remote else 2 * dlc) or body.strip(_HEX)
+                        or int(line[1:1 + n], 16) > (0x1FFFFFFF if ext else 0x7FF)):
                     self._write(b"\a")
                     return
-                remote = c in (b"R", b"r")
-                if self.is_open and (remote or len(data) == dlc):
+                cid = int(line[1:1 + n], 16)
+                data = b"" if remote else bytes.fromhex(line[2 + n:].decode())
+                if self.is_open:
                     self._rx.append(can.Message(arbitration_id=cid, is_extended_id=ext, data=data, dlc=dlc,
                                                 is_remote_frame=remote, timestamp=time.time()))
                     self._write(b"Z\r" if ext else b"z\r")
@@ -585,7 +616,12 @@ def open_can(interface, channel, node, accept=(), **kw):
     import can
     if interface == "slcan":
         kw.setdefault("sleep_after_open", 0)
-    bus = can.Bus(interface=interface, channel=channel, **kw)
+    try:
+        bus = can.Bus(interface=interface, channel=channel, **kw)
+    except can.CanInterfaceNotImplementedError as exc:      # a typo in the spec: bad input
+        raise ValueError("CAN interface %r: %s" % (interface, exc)) from None
+    except can.CanInitializationError as exc:               # no such port or adapter: the link failed
+        raise OSError("CAN %s channel %r: %s" % (interface, channel, exc)) from None
     return CanLink(bus, node, accept)
 
 

@@ -84,6 +84,8 @@ RW0 = core.NODE["RW0"]
 MODE = dict(table.ADCS_MODES)
 STALE = dict(table.ADCS_STALE)
 _FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_TICK, P_STATUS, P_RW_CMD))
+_SCALE = dict((f[0], f[3]) for f in core.PACKET[P_GNSS].fields)
+GNSS_M, GNSS_MS = _SCALE["x"], _SCALE["vx"]       # GNSS position (m) and velocity (m/s) per count, from the table
 
 
 @micropython.native
@@ -251,8 +253,8 @@ class App:
                 self.tb[self.nb] = v[0] / 1000.0
                 self.nb += 1
             for i in range(3):
-                z[i] = v[2 + i] * 0.01
-                z[3 + i] = v[5 + i] * 1e-4
+                z[i] = v[2 + i] * GNSS_M
+                z[3 + i] = v[5 + i] * GNSS_MS
         elif pid == P_BEACON:
             t_ms, ux, uy, uz, valid = struct.unpack(_FMT[P_BEACON], payload)
             self.bc_got = True

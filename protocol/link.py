@@ -506,6 +506,7 @@ def isotp_msg(msg):
 
 
 _HEX = b"0123456789ABCDEFabcdef"
+LAWICEL_LINE_MAX = 26    # the longest Lawicel line before its CR: 'T', 8 id digits, the DLC, 16 data digits
 
 
 def _lawicel_bus_class():
@@ -524,6 +525,7 @@ def _lawicel_bus_class():
             self.peer_path = os.ttyname(slave)
             self._port = _FdPort(self._master, hold_fd=slave)
             self._buf = bytearray()
+            self._skip = False               # in an overlong line: dropped up to its CR
             self._rx = collections.deque()
             self.is_open = False
             self.peer_gone = False
@@ -590,7 +592,15 @@ def _lawicel_bus_class():
                         break
                     line = bytes(self._buf[:i])
                     del self._buf[:i + 1]
-                    self._line(line)
+                    if self._skip:            # the end of an overlong line, already answered
+                        self._skip = False
+                    else:
+                        self._line(line)
+                if len(self._buf) > LAWICEL_LINE_MAX:     # no CR in sight: garbage, not a line; answered once
+                    del self._buf[:]
+                    if not self._skip:
+                        self._skip = True
+                        self._write(b"\a")
                 if deadline is not None and time.monotonic() >= deadline:
                     break
             if self._rx:

@@ -134,6 +134,14 @@ def test_slcan_device_refuses_malformed_lawicel_lines(tmp_path):
         assert dev.recv(2.0) == [(core.PACKET_ID["ADCS_TICK"], core.NODE["ADCS"], core.NODE["SPACECRAFT"], None,
                                   bytes.fromhex(pl))]
         assert dev.counters()["frames"] == 1 and dev.counters()["reserved_bit"] == 0
+        os.write(fd, b"T" * 100000)        # no CR: the buffer grew without bound, and no answer came
+        out, end = b"", time.monotonic() + 5.0
+        while time.monotonic() < end and not out:
+            if select.select([fd], [], [], 0.05)[0]:
+                out += os.read(fd, 256)
+        assert out == b"\a" and len(dev.bus._buf) <= link.LAWICEL_LINE_MAX
+        os.write(fd, b"%08X8%s\r" % (cid, pl.encode()))  # the overlong line's end: dropped, unanswered
+        assert line("T%08X8%s" % (cid, pl)) == b"Z\r" and len(dev.recv(2.0)) == 1
     finally:
         os.close(fd)
         dev.close()

@@ -48,3 +48,76 @@ def test_a_benchmark_that_exits_is_a_failure_not_the_end_of_the_run(monkeypatch,
     assert run.main(["protocol", "spacecraft"]) == 1
     out = capsys.readouterr().out
     assert "| ran |" in out and "benchmarks FAILED: protocol" in out
+
+
+# --- a benchmark whose runs fail prints its table and then raises, so bench.run names it as failed -----------
+def test_bench_hil_with_a_failed_run_raises_after_its_tables(monkeypatch, capsys):
+    from bench import bench_hil
+
+    def fail(*a, **k):
+        raise OSError("controller process exited")
+    monkeypatch.setattr(bench_hil, "_calibrate", lambda rt, link, path: (0.1, 121, 0))
+    monkeypatch.setattr(bench_hil, "run_hil", fail)
+    with pytest.raises(RuntimeError, match="fps hil inproc/inproc"):
+        bench_hil.main(duration_s=1.0)
+    assert capsys.readouterr().out.count("failed: controller process exited") == len(bench_hil.COMBOS)
+
+
+def test_bench_hil_counts_failed_calibration_points(monkeypatch, capsys):
+    from bench import bench_hil
+    monkeypatch.setattr(bench_hil, "_calibrate", lambda rt, link, path: (0.1, 118, 3))
+    monkeypatch.setattr(bench_hil, "run_hil", lambda *a, **k: {
+        "real_time_factor": 1.0, "real_time_factor_first_minute": 1.0, "real_time_factor_last_minute": 1.0,
+        "play_wall_s": 1.0, "overruns": 0})
+    with pytest.raises(RuntimeError, match="3 points failed"):
+        bench_hil.main(duration_s=1.0)
+
+
+def test_bench_system_with_a_failed_calibration_raises(monkeypatch, capsys):
+    from bench import bench_system
+
+    def fail(*a, **k):
+        raise OSError("link down")
+    monkeypatch.setattr(bench_system.system, "calibrate_inproc", fail)
+    with pytest.raises(RuntimeError, match="link down"):
+        bench_system.main(duration_s=1.0)
+    assert "nothing measured" in capsys.readouterr().out
+
+
+def test_bench_system_with_a_failed_run_raises_after_its_table(monkeypatch, tmp_path, capsys):
+    import json
+    import os
+    from bench import bench_system
+    monkeypatch.setattr(bench_system.system, "calibrate_inproc", lambda *a, **k: None)
+    monkeypatch.setattr(bench_system.bps_cli, "calibration", lambda *a, **k: None)
+
+    def run_system(duration_s, out, *a, **k):
+        os.makedirs(out)
+        with open(os.path.join(out, "summary.json"), "w") as f:
+            json.dump({"complete": False, "requirement_met": False}, f)
+        raise OSError("the ADCS process exited")
+    monkeypatch.setattr(bench_system.system, "run_system", run_system)
+    monkeypatch.setattr(bench_system, "run_hil", lambda *a, **k: {"real_time_factor": 15.0, "duration_s": 120.0})
+    with pytest.raises(RuntimeError, match="the ADCS process exited"):
+        bench_system.main(duration_s=1.0)
+    out = capsys.readouterr().out
+    assert "| real-time factor, whole run" in out and "failed: the ADCS process exited" in out
+
+
+def test_bench_firmware_with_a_failed_hil_run_raises_after_its_tables(monkeypatch, capsys):
+    from bench import bench_firmware
+    from ground import mpy_build
+
+    def fail(*a, **k):
+        raise RuntimeError("no HELLO")
+    monkeypatch.setattr(bench_firmware, "_prepare", lambda tmp: ("blob", "dist", "samples", [2048, 2048, 1000], 0.1))
+    monkeypatch.setattr(bench_firmware, "_cpython_step", lambda *a: 2.0)
+    monkeypatch.setattr(bench_firmware, "MICROPYTHON", "/nonexistent/micropython")
+    monkeypatch.setattr(bench_firmware, "_player", lambda *a: None)
+    monkeypatch.setattr(bench_firmware, "_hil_pty", fail)
+    monkeypatch.setattr(mpy_build, "build", lambda out: [])
+    monkeypatch.setattr(mpy_build, "table", lambda rows: "| sizes |")
+    with pytest.raises(RuntimeError, match="no HELLO"):
+        bench_firmware.main()
+    out = capsys.readouterr().out
+    assert "| cpython | failed:" in out and "| sizes |" in out

@@ -121,3 +121,24 @@ def test_bench_firmware_with_a_failed_hil_run_raises_after_its_tables(monkeypatc
         bench_firmware.main()
     out = capsys.readouterr().out
     assert "| cpython | failed:" in out and "| sizes |" in out
+
+
+@pytest.mark.parametrize("argv", [["--only", "jiter"], ["--only"], ["--cost"]])
+def test_bench_response_refuses_bad_args_instead_of_running_everything(monkeypatch, argv, capsys):
+    from bench import bench_response
+    ran = []
+    monkeypatch.setattr(bench_response, "main", lambda: ran.append("main"))
+    with pytest.raises(SystemExit) as e:
+        bench_response.cli(argv)
+    assert e.value.code == 2 and ran == []
+    assert "--only" in capsys.readouterr().err
+
+
+def test_bench_response_only_cost_runs_that_part(monkeypatch):
+    from bench import bench_response
+    ran = []
+    monkeypatch.setattr(bench_response, "main", lambda: ran.append("main"))
+    monkeypatch.setattr(bench_response, "emulator_cost", lambda: ran.append("cost"))
+    bench_response.cli(["--only", "cost"])
+    bench_response.cli([])
+    assert ran == ["cost", "main"]

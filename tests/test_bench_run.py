@@ -142,3 +142,34 @@ def test_bench_response_only_cost_runs_that_part(monkeypatch):
     bench_response.cli(["--only", "cost"])
     bench_response.cli([])
     assert ran == ["cost", "main"]
+
+
+def test_bench_bps_with_a_failed_sweep_raises_after_its_tables(monkeypatch, capsys):
+    """fps adcs sweep exits 1 when a t_s failed (its J is None, the minimum taken over the rest): the bench
+    printed "(rc 1)" and went on as a pass."""
+    import json
+    import os
+    import types
+    from bench import bench_bps
+    r = {"pointing_sigma_arcsec": [27.0, 37.0], "pointing_mean_arcsec": [0.0, 0.0],
+         "stability_sigma_arcsec_s": [6.8, 8.6], "stability_mean_arcsec_s": [0.0, 0.0], "budget": None,
+         "pointing_3sigma_arcsec": 139.0, "stability_3sigma_arcsec_s": 33.0}
+    monkeypatch.setattr(bench_bps.bps_cli, "calibration", lambda *a, **k: {})
+    monkeypatch.setattr(bench_bps.bps, "simulate", lambda **k: (r, None))
+    monkeypatch.setattr(bench_bps.bps, "write_params", lambda *a: None)
+    import emulator.orbits
+    monkeypatch.setattr(emulator.orbits, "truth_samples", lambda *a, **k: None)
+
+    def fps(args, cwd):
+        if args[:2] == ["adcs", "sweep"]:
+            out = args[args.index("-o") + 1]
+            os.makedirs(out)
+            with open(os.path.join(out, "summary.json"), "w") as f:
+                json.dump({"ts_s": [30, 35], "J": [None, 7.6e-8], "ts_best_s": 35}, f)
+            return 1, 1.0, types.SimpleNamespace(stderr="fps adcs sweep: t_s = 30 s failed: diverged")
+        return 0, 1.0, types.SimpleNamespace(stderr="")
+    monkeypatch.setattr(bench_bps, "_fps", fps)
+    with pytest.raises(RuntimeError, match="t_s = 30 s failed"):
+        bench_bps.main()
+    out = capsys.readouterr().out
+    assert "| minimum of J | 25-45 s (thesis 33 s) | 35 s" in out and "(rc 1)" in out

@@ -173,3 +173,49 @@ def test_bench_bps_with_a_failed_sweep_raises_after_its_tables(monkeypatch, caps
         bench_bps.main()
     out = capsys.readouterr().out
     assert "| minimum of J | 25-45 s (thesis 33 s) | 35 s" in out and "(rc 1)" in out
+
+
+def _fake_faults(monkeypatch, tmp_path, clean_rc=0, board_rc=0):
+    import json
+    import numpy as np
+    from bench import bench_faults
+
+    def hil(tmp, name, dist, cal, duration, *extra):
+        out = tmp_path / name
+        out.mkdir()
+        np.savez(out / "samples.npz", t_s=np.arange(10.0))
+        rc = clean_rc if name == "clean" else 0
+        s = {"complete": rc == 0, "error": None if rc == 0 else "the link is down", "overruns": 0,
+             "link": {"bench": {}, "controller": {}}}
+        return rc, 1.0, str(out), s
+
+    def fps(argv):
+        out = argv[argv.index("-o") + 1]
+        with open(out, "w") as f:
+            json.dump({"points": [1]}, f)
+        return 0
+    monkeypatch.setattr(bench_faults, "_hil", hil)
+    monkeypatch.setattr(bench_faults, "_identical", lambda a, b: True)
+    monkeypatch.setattr(bench_faults, "fps", fps)
+    monkeypatch.setattr(bench_faults, "_board_realtime", lambda tmp, dist, cal, rate: (
+        2000, 2000, False, rate > 1000, board_rc, None if board_rc == 0 else "the link is down"))
+    return bench_faults
+
+
+def test_bench_faults_with_a_failed_board_run_says_so_and_raises(monkeypatch, tmp_path, capsys):
+    bench_faults = _fake_faults(monkeypatch, tmp_path, board_rc=1)
+    with pytest.raises(RuntimeError, match="the board at 637.8 Hz"):
+        bench_faults.main(duration_s=1.0)
+    assert capsys.readouterr().out.count("failed (exit 1): the link is down") == 2
+
+
+def test_bench_faults_with_a_failed_clean_run_raises(monkeypatch, tmp_path, capsys):
+    bench_faults = _fake_faults(monkeypatch, tmp_path, clean_rc=1)
+    with pytest.raises(RuntimeError, match="the clean run"):
+        bench_faults.main(duration_s=1.0)
+
+
+def test_bench_faults_complete_runs_pass(monkeypatch, tmp_path, capsys):
+    bench_faults = _fake_faults(monkeypatch, tmp_path)
+    bench_faults.main(duration_s=1.0)
+    assert "| 637.8 Hz | arduino-zero | 2000 | 2000 | 100.00 % | False |" in capsys.readouterr().out

@@ -6,7 +6,8 @@
 
 Controller options: --table PATH (calibration JSON or H-table blob), --track (start in TRACK; needs a table),
 --gain Q15, --decim TICKS, --safe-ticks TICKS, --beam-threshold COUNTS, --rate HZ (for link-silence
-accounting). Exit status 0 when the peer leaves, 2 on bad arguments (a message names the option).
+accounting). Exit status 0 when the peer leaves, 2 on bad arguments (a message names the option), 1 when the link
+cannot be opened or fails (its error on stderr, where the HIL reports a controller's exit from).
 """
 
 import sys
@@ -16,9 +17,15 @@ _CTRL_INT = {"--gain": "gain_q15", "--decim": "decim", "--safe-ticks": "safe_tic
 
 
 def _usage(msg):
-    print("firmware.main: error: %s" % msg)
-    print("usage: firmware.main controller|player --link SPEC [options] (see the module docstring)")
+    print("firmware.main: error: %s" % msg, file=sys.stderr)
+    print("usage: firmware.main controller|player --link SPEC [options] (see the module docstring)", file=sys.stderr)
     return 2
+
+
+def _failed(exc):
+    """The link failed (cannot open, or no ISO-TP flow control, ...): not a usage error."""
+    print("firmware.main: error: %s" % exc, file=sys.stderr)
+    return 1
 
 
 def parse(argv):
@@ -92,8 +99,10 @@ def main(argv=None):
                 p.open_file(opts["distfile"])
             lk = hal_link.open_link(opts["link"], "PLAYER")
             hal_link.serve_player(p, lk)
-    except (ValueError, OSError) as exc:
+    except ValueError as exc:
         return _usage(exc)
+    except OSError as exc:
+        return _failed(exc)
     return 0
 
 

@@ -115,3 +115,26 @@ def test_backend_names_and_main_options():
                         (["controller", "--link", "x", "--bogus", "1"], "unknown option")):
         with pytest.raises(ValueError, match=match):
             parse(argv)
+
+
+def test_firmware_main_reports_a_link_failure_on_stderr_with_exit_1(capsys):
+    """A link that cannot be opened (or fails, e.g. ISO-TP without flow control) is not a usage error: it
+    printed the usage and exited 2, on stdout, which ground.runtime sends to /dev/null (it reports the
+    controller's stderr), so a HIL run said only that the controller exited."""
+    import os
+    import subprocess
+    import sys
+
+    from firmware.main import main
+    assert main(["controller", "--link", "serial:/nonexistent/tty"]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and "firmware.main: error:" in err and "/nonexistent/tty" in err and "usage" not in err
+    assert main(["controller", "--link", "serial:/nonexistent/tty", "--gain", "x"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "--gain" in err and "usage: firmware.main" in err
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    mp = os.path.join(os.path.dirname(sys.executable), "micropython")
+    p = subprocess.run([mp, "-m", "firmware.main", "controller", "--link", "serial:/nonexistent/tty"], cwd=root,
+                       env=dict(os.environ, MICROPYPATH=root + ":.frozen"), capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == 1 and p.stdout == "" and "firmware.main: error:" in p.stderr, (p.stdout, p.stderr)

@@ -152,4 +152,5 @@ def _board_realtime(tmp, dist, cal, rate, duration=10.0):
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

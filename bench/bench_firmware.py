@@ -339,4 +339,5 @@ def _main(tmp):
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

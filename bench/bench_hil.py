@@ -74,4 +74,5 @@ def _main(tmp, duration_s):
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

@@ -40,5 +40,16 @@ def main(argv=None):
     return 1 if failed else 0
 
 
+def standalone(bench_main, argv=None):
+    """``python -m bench.bench_X``: a benchmark takes no arguments; one given is refused (exit 2), not ignored
+    (``--runs 4`` ran the full 20 seeds)."""
+    argv = sys.argv[1:] if argv is None else argv
+    if argv:
+        print("%s: error: a benchmark takes no arguments, got %s (python -m bench.run NAME ... runs some)"
+              % (bench_main.__module__, " ".join(argv)), file=sys.stderr)
+        sys.exit(2)
+    bench_main()
+
+
 if __name__ == "__main__":
     sys.exit(main())

@@ -219,3 +219,17 @@ def test_bench_faults_complete_runs_pass(monkeypatch, tmp_path, capsys):
     bench_faults = _fake_faults(monkeypatch, tmp_path)
     bench_faults.main(duration_s=1.0)
     assert "| 637.8 Hz | arduino-zero | 2000 | 2000 | 100.00 % | False |" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name", ["adcs", "adcs_can", "adcs_lean", "bps", "emulator", "faults", "firmware", "hil",
+                                  "protocol", "spacecraft", "stkf", "system"])
+def test_a_benchmark_run_alone_refuses_arguments_instead_of_ignoring_them(monkeypatch, capsys, name):
+    import runpy
+    import sys
+    monkeypatch.setattr(sys, "argv", ["bench_%s.py" % name, "--runs", "4"])
+    monkeypatch.delitem(sys.modules, "bench.bench_" + name, raising=False)     # runpy warns if it is there
+    with pytest.raises(SystemExit) as e:
+        runpy.run_module("bench.bench_" + name, run_name="__main__")
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "takes no arguments, got --runs 4" in err

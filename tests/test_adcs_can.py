@@ -104,8 +104,10 @@ def test_slcan_adapter_answers_commands_like_an_adapter(tmp_path):
         assert ask(b"T0A8A6030ZZ\r")[0] == b"\a" and ad.n_bad == 1     # malformed dlc
         assert ask(b"S4\r")[0] == b"\a"                               # no bit rate change while open
         ad.send_frame(0x0A8A6030, b"\x01\x02")
-        time.sleep(0.02)
-        assert os.read(s, 100) == b"T0A8A603020102\r"
+        out, t_end = b"", time.monotonic() + 10.0
+        while not out.endswith(b"\r") and time.monotonic() < t_end:
+            out += os.read(s, 100)
+        assert out == b"T0A8A603020102\r"
     finally:
         ad.close()
         os.close(s)

@@ -259,4 +259,5 @@ def stkf_main():
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

@@ -104,8 +104,8 @@ def main():
         dcache = os.path.join(tmp, "dcache")
         args = ["distfile", "generate", "--source", "bps", "--duration", "600", "--seed", "1", "--bps-cache", dcache,
                 "-o", os.path.join(tmp, "b.dist")]
-        rc1, cold_s, _ = _fps(args, tmp)
-        rc2, warm_s, _ = _fps(args, tmp)
+        rc1, cold_s, p1 = _fps(args, tmp)
+        rc2, warm_s, p2 = _fps(args, tmp)
         print()
         print("| speed | goal | ours |")
         print("|---|---|---|")
@@ -119,7 +119,13 @@ def main():
         if REDUCED:
             print("\nREDUCED run (BPS_BENCH_REDUCED=1): %g s cases and a %s sweep; the goals name 4000 s and 19 "
                   "points." % (DURATION, SWEEP_TS))
+        failed = ["%s (exit %d): %s" % (what, code, p_.stderr.strip()[-300:])
+                  for what, code, p_ in (("fps adcs sweep", rc, p), ("distfile cold", rc1, p1),
+                                         ("distfile cached", rc2, p2)) if code != 0]
+        if failed:      # the tables are printed; make bench must still say the benchmark failed
+            raise RuntimeError("; ".join(failed))
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

@@ -79,8 +79,11 @@ def _main(tmp, duration_s):
     print("| run | exit | complete | wall (s) | TICKs resent | command retries | overruns | controller: "
           "resends answered | controller: frames dropped | bit-identical to clean |")
     print("|---|---|---|---|---|---|---|---|---|---|")
+    failed = []
     rc, wall, clean, s = _hil(tmp, "clean", dist, cal, duration_s)
     print(_row("clean", rc, wall, s), flush=True)
+    if rc != 0:
+        failed.append("the clean run (exit %d): %s" % (rc, s["error"]))
     rc, wall, out, s = _hil(tmp, "light", dist, cal, duration_s, "--link-faults", LIGHT)
     print(_row("`%s` (goal: completes, identical)" % LIGHT, rc, wall, s, _identical(clean, out)), flush=True)
     rc, wall, out, s = _hil(tmp, "heavy", dist, cal, duration_s, "--link-faults", HEAVY)
@@ -112,9 +115,14 @@ def _main(tmp, duration_s):
     print("| loop rate | board timing | overruns | ticks | share | requirement met |")
     print("|---|---|---|---|---|---|")
     for rate in (637.8, 2000.0):
-        ov, n, met, zl = _board_realtime(tmp, dist, cal, rate)
+        ov, n, met, zl, rc, err = _board_realtime(tmp, dist, cal, rate)
+        if rc not in (0, 3):        # the run did not complete: its counts are not the figure
+            failed.append("the board at %g Hz (exit %d): %s" % (rate, rc, err))
+            met = "failed (exit %d): %s" % (rc, (err or "")[:90])
         print("| %g Hz | %s | %d | %d | %.2f %% | %s |" % (rate, "zero-latency" if zl else "arduino-zero", ov, n,
                                                            100.0 * ov / max(n, 1), met), flush=True)
+    if failed:      # the tables are printed; make bench must still say the benchmark failed
+        raise RuntimeError("; ".join(failed))
 
 
 def _board_realtime(tmp, dist, cal, rate, duration=10.0):
@@ -131,16 +139,18 @@ def _board_realtime(tmp, dist, cal, rate, duration=10.0):
                 cfg = os.path.join(tmp, "zero_latency.json")
                 write_json(cfg, {"board": {"timing": "zero-latency"}})
                 extra = ["--config", cfg]
-            fps(["hil", "--distfile", dist, "--calibration", cal, "--duration", "%g" % duration, "--runtime",
-                 "board", "--port", host_path, "--realtime", "--rate-hz", repr(rate), "--no-plots", "--quiet",
-                 "-o", out] + extra)
+            rc = fps(["hil", "--distfile", dist, "--calibration", cal, "--duration", "%g" % duration,
+                      "--runtime", "board", "--port", host_path, "--realtime", "--rate-hz", repr(rate), "--no-plots",
+                      "--quiet", "-o", out] + extra)
             with open(os.path.join(out, "summary.json")) as f:
                 s = json.load(f)
-            return s["overruns"], int(round(s["duration_s"] * rate)), s["requirement_met"], bool(extra)
+            return (s["overruns"], int(round(s["duration_s"] * rate)), s["requirement_met"], bool(extra), rc,
+                    s["error"])
         finally:
             proc.terminate()
             proc.wait(5)
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

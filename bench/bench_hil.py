@@ -38,6 +38,7 @@ def main(duration_s=DURATION_S):
 
 
 def _main(tmp, duration_s):
+    failed = []
     dist = os.path.join(tmp, "stat.dist")
     write_atomic(dist, distfile_cli.generate(sources.GaussMarkov2(), duration_s, 1, "stat"))
     cal_path = os.path.join(tmp, "cal.json")
@@ -48,8 +49,11 @@ def _main(tmp, duration_s):
     for rt, link, goal, path in (("inproc", "inproc", "≤ 10 s", cal_path), ("micropython", "serial", "—", None)):
         try:
             wall, ok, bad = _calibrate(rt, link, path)
+            if bad:
+                failed.append("fps calibrate %s/%s (%d points failed)" % (rt, link, bad))
             print("| %s | %s | %s | %.2f | %d | %d |" % (rt, link, goal, wall, ok, bad), flush=True)
         except (OSError, ValueError) as exc:
+            failed.append("fps calibrate %s/%s" % (rt, link))
             print("| %s | %s | %s | failed: %s | | |" % (rt, link, goal, exc), flush=True)
 
     print("\n### fps hil, %g s virtual (Sec. 7.5)\n" % duration_s)
@@ -63,8 +67,12 @@ def _main(tmp, duration_s):
                   % (rt, link, goal, s["real_time_factor"], s["real_time_factor_first_minute"],
                      s["real_time_factor_last_minute"], s["play_wall_s"], s["overruns"]), flush=True)
         except (OSError, ValueError, RuntimeError) as exc:
+            failed.append("fps hil %s/%s" % (rt, link))
             print("| %s | %s | %s | failed: %s | | | | |" % (rt, link, goal, str(exc)[:120]), flush=True)
+    if failed:      # the tables are printed; make bench must still say the benchmark failed
+        raise RuntimeError("runs failed: %s" % ", ".join(failed))
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

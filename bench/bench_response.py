@@ -202,12 +202,21 @@ def extras():
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-if __name__ == "__main__":
-    import sys
-    if sys.argv[1:3] == ["--only", "jitter"]:
+def cli(argv=None):
+    """``python -m bench.bench_response [--only jitter|cost]``; anything else is refused (argparse, exit 2)."""
+    import argparse
+    ap = argparse.ArgumentParser(prog="python -m bench.bench_response", description=__doc__.split("\n")[0])
+    ap.add_argument("--only", choices=("jitter", "cost"), help="run one part: the player's jitter and tone table, "
+                    "or the emulator's cost per tick by timing")
+    args = ap.parse_args(argv)
+    if args.only == "jitter":
         with tempfile.TemporaryDirectory() as d:
             jitter_played(d)
-    elif sys.argv[1:3] == ["--only", "cost"]:
+    elif args.only == "cost":
         emulator_cost()
     else:
         main()
+
+
+if __name__ == "__main__":
+    cli()

@@ -78,4 +78,5 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

@@ -51,7 +51,7 @@ def _main(tmp, duration_s):
         system.calibrate_inproc(SEED, None, cal_path)
     except (OSError, ValueError) as exc:
         print("H calibration failed, nothing measured: %s" % exc)
-        return
+        raise RuntimeError("H calibration failed: %s" % exc) from exc
     cal_wall = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -75,6 +75,7 @@ def _main(tmp, duration_s):
     dist = os.path.join(tmp, "stat.dist")
     write_atomic(dist, distfile_cli.generate(sources.GaussMarkov2(), 120.0, SEED, "stat"))
     cpu0 = _cpu()
+    hil_err = None
     try:
         h = run_hil(dist, cal_path, 120.0, "micropython", "serial", os.path.join(tmp, "hil"), seed=SEED,
                     quiet=True, plots=False)
@@ -82,6 +83,7 @@ def _main(tmp, duration_s):
         cpu_hil = (_cpu() - cpu0) / h["duration_s"]
     except (OSError, ValueError) as exc:
         hil_rtf = cpu_hil = None
+        hil_err = str(exc)
         print("fps hil (fine loop alone) failed: %s" % exc)
 
     b = s.get("body_pointing") or {}
@@ -124,7 +126,11 @@ def _main(tmp, duration_s):
           "compare with the fine loop alone, measured just after). Complete %s, requirement met %s%s"
           % (cal_wall, params_wall, load0, load1, os.cpu_count(), s.get("complete"), s.get("requirement_met"),
              "" if err is None else "; failed: %s" % err))
+    if err is not None or hil_err is not None:    # the table is printed; make bench must still say it failed
+        raise RuntimeError("; ".join(e for e in ("fps system: %s" % err if err else None,
+                                                 "fps hil: %s" % hil_err if hil_err else None) if e))
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

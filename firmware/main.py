@@ -6,7 +6,8 @@
 
 Controller options: --table PATH (calibration JSON or H-table blob), --track (start in TRACK; needs a table),
 --gain Q15, --decim TICKS, --safe-ticks TICKS, --beam-threshold COUNTS, --rate HZ (for link-silence
-accounting). Exit status 0 when the peer leaves, 2 on bad arguments (a message names the option).
+accounting). Exit status 0 when the peer leaves, 2 on bad arguments (a message names the option), 1 when the link
+fails while serving (its error on stderr, which the HIL reports when a controller exits).
 """
 
 import sys
@@ -19,6 +20,13 @@ def _usage(msg):
     print("firmware.main: error: %s" % msg)
     print("usage: firmware.main controller|player --link SPEC [options] (see the module docstring)")
     return 2
+
+
+def _failed(exc):
+    """The link failed while serving (e.g. an ISO-TP send without flow control): not a usage error. On stderr,
+    which ground.runtime keeps (it sends the controller's stdout to /dev/null)."""
+    print("firmware.main: error: %s" % exc, file=sys.stderr)
+    return 1
 
 
 def parse(argv):
@@ -80,20 +88,27 @@ def main(argv=None):
                 from firmware.controller_viper import ViperController as Controller
             except ImportError:
                 pass
-            ctl = Controller(table=opts["table"], **opts["ctl"])
+            node = Controller(table=opts["table"], **opts["ctl"])
             if opts["track"]:
-                ctl.mode = TRACK
+                node.mode = TRACK
             lk = hal_link.open_link(opts["link"], "CONTROLLER")
-            hal_link.serve_controller(ctl, lk, rate_hz=opts["rate"])
         else:
             from firmware.player import Player
-            p = Player(store_path=opts["store"])
+            node = Player(store_path=opts["store"])
             if opts["distfile"]:
-                p.open_file(opts["distfile"])
+                node.open_file(opts["distfile"])
             lk = hal_link.open_link(opts["link"], "PLAYER")
-            hal_link.serve_player(p, lk)
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError) as exc:          # an option, a file or the link spec: bad input
         return _usage(exc)
+    try:
+        if role == "controller":
+            hal_link.serve_controller(node, lk, rate_hz=opts["rate"])
+        else:
+            hal_link.serve_player(node, lk)
+    except ValueError as exc:
+        return _usage(exc)
+    except OSError as exc:
+        return _failed(exc)
     return 0
 
 

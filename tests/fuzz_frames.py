@@ -176,10 +176,21 @@ def run(n, seed=1, decoder_cls=host.Decoder):
     return counts
 
 
+def _cases(text):
+    n = float(text)                 # "1e6" is accepted
+    if not (n >= 1 and n == int(n)):
+        raise ValueError(text)
+    return int(n)
+
+
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else argv
-    n = int(float(argv[0])) if argv else 100000
-    cls = core.Decoder if "--pure" in argv else host.Decoder
+    import argparse
+    ap = argparse.ArgumentParser(prog="python -m tests.fuzz_frames", description="fuzz the frame decoder")
+    ap.add_argument("n", nargs="?", type=_cases, default=100000, help="cases, a whole number >= 1 (default 100000)")
+    ap.add_argument("--pure", action="store_true", help="the pure core decoder (default: the host path)")
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    n = args.n
+    cls = core.Decoder if args.pure else host.Decoder
     t0 = time.perf_counter()
     counts = run(n, decoder_cls=cls)
     dt = time.perf_counter() - t0

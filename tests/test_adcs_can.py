@@ -84,10 +84,16 @@ def test_slcan_adapter_answers_commands_like_an_adapter(tmp_path):
     ad = SlcanAdapter(m)
     try:
         def ask(cmd):
+            # poll the adapter until its whole answer (ending in CR or BEL) is back: one 200 ms poll and a
+            # blocking read hung for good if the command reached the adapter late or in two pieces (load)
+            import select
             os.write(s, cmd)
-            frames = ad.poll(200)
-            time.sleep(0.02)
-            return os.read(s, 100), frames
+            frames, out, t_end = [], b"", time.monotonic() + 10.0
+            while not out.endswith((b"\r", b"\a")) and time.monotonic() < t_end:
+                frames += ad.poll(20)
+                if select.select([s], [], [], 0.01)[0]:
+                    out += os.read(s, 100)
+            return out, frames
         assert ask(b"V\r")[0] == b"V1013\r"
         assert ask(b"N\r")[0] == b"NFPS0\r"
         assert ask(b"S8\r")[0] == b"\r" and ad.bitrate == 8
@@ -98,8 +104,10 @@ def test_slcan_adapter_answers_commands_like_an_adapter(tmp_path):
         assert ask(b"T0A8A6030ZZ\r")[0] == b"\a" and ad.n_bad == 1     # malformed dlc
         assert ask(b"S4\r")[0] == b"\a"                               # no bit rate change while open
         ad.send_frame(0x0A8A6030, b"\x01\x02")
-        time.sleep(0.02)
-        assert os.read(s, 100) == b"T0A8A603020102\r"
+        out, t_end = b"", time.monotonic() + 10.0
+        while not out.endswith(b"\r") and time.monotonic() < t_end:
+            out += os.read(s, 100)
+        assert out == b"T0A8A603020102\r"
     finally:
         ad.close()
         os.close(s)

@@ -231,6 +231,7 @@ def test_remote_timeout_is_an_overrun_and_late_answers_are_dropped():
     assert lock.counters()["overruns"] == 1
     assert [p[0] for p in peer.recv(timeout=1.0)] == [core.PACKET_ID["TICK"]]
     peer.send("FSM_SPI", core.NODE["BENCH"], tick=0, n=1, w0=0x380001)   # too late
+    rc.timeout_s = 5.0      # the peer thread answers now: 50 ms would race its start on a loaded machine
     th = threading.Thread(target=_serve_controller,
                           args=(lambda: peer.recv(timeout=0.5), peer.send, Integral(b.config), 2))
     th.start()

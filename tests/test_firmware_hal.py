@@ -115,3 +115,24 @@ def test_backend_names_and_main_options():
                         (["controller", "--link", "x", "--bogus", "1"], "unknown option")):
         with pytest.raises(ValueError, match=match):
             parse(argv)
+
+
+def test_firmware_main_reports_a_link_failure_while_serving_on_stderr_with_exit_1(monkeypatch, capsys):
+    """An ISO-TP send without flow control (a CAN link under load) while serving is not a usage error: it
+    printed the usage and exited 2, on stdout, which ground.runtime sends to /dev/null (it reports the
+    controller's stderr), so a HIL run said only that the controller's link closed. A bad option or link
+    spec (before serving) is still exit 2 with the usage."""
+    from firmware.hal import link as hal_link
+    from firmware.main import main
+
+    def no_flow_control(*a, **k):
+        raise TimeoutError("ISO-TP send of packet 0x11 to node 0x20: no flow control")
+    monkeypatch.setattr(hal_link, "open_link", lambda spec, node: object())
+    monkeypatch.setattr(hal_link, "serve_controller", no_flow_control)
+    monkeypatch.setattr(hal_link, "serve_player", no_flow_control)
+    for role in ("controller", "player"):
+        assert main([role, "--link", "slcan:/dev/pts/99"]) == 1
+        out, err = capsys.readouterr()
+        assert out == "" and "firmware.main: error: ISO-TP send" in err and "usage" not in err
+    assert main(["controller", "--link", "slcan:/dev/pts/99", "--gain", "x"]) == 2
+    assert "usage: firmware.main" in capsys.readouterr().out

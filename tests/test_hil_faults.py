@@ -221,8 +221,14 @@ def test_heavy_faults_stop_with_a_clear_error(tmp_path, inputs, capsys):
 def test_a_silence_is_ridden_through_and_a_permanent_one_ends_the_run(tmp_path, inputs):
     rc, out, s = _hil(tmp_path, inputs, "silence", "--link-faults", "silence=1:2", duration="4")
     assert s["complete"] and s["error"] is None
-    assert s["overruns"] == 1276                       # 2 s at 637.8 Hz: the mirror held, the clock went on
+    # 2 s at 637.8 Hz: the mirror held, the clock went on; the controller never saw those 1276 ticks. Right after
+    # the silence the bench gives each tick one 3 ms try until the controller answers in time: on a loaded
+    # machine an answer can miss it (1277 overruns, 1 in 6 runs beside three busy loops), and that answer is
+    # then dropped as late; controller_late also counts the second answers to resent TICKs.
+    bench = s["link"]["bench"]
     assert s["link"]["controller"]["gap_ticks"] == 1276
+    assert s["overruns"] == bench["controller_timeouts"]
+    assert 1276 <= s["overruns"] <= 1276 + bench["controller_late"], (s["overruns"], bench["controller_late"])
     assert rc == (0 if s["requirement_met"] else 3)
     t0 = time.perf_counter()
     rc, out, s = _hil(tmp_path, inputs, "dead", "--link-faults", "silence=1:inf", "--max-failed-ticks", "500",

@@ -88,3 +88,19 @@ def test_unknown_packet_and_field_names():
         core.encode_payload("TICK", vz=1)
     with pytest.raises(ValueError, match="TICK.vx: expected an integer"):
         core.encode_payload("TICK", vx=1.5)
+
+
+@pytest.mark.parametrize("argv", [["abc"], ["0"], ["2.5"], ["10", "--fast"]])
+def test_make_fuzz_entry_point_refuses_bad_args_without_a_traceback(argv, capsys):
+    """``python -m tests.fuzz_frames N [--pure]``: a bad N or option is a usage error (exit 2), not a
+    ValueError traceback (or, for 0, a run of nothing reported as "no violations")."""
+    with pytest.raises(SystemExit) as e:
+        fuzz_frames.main(argv)
+    assert e.value.code == 2 and "usage:" in capsys.readouterr().err
+
+
+def test_make_fuzz_entry_point_takes_pure_before_or_after_n(capsys):
+    """``--pure`` first used to be read as N (a ValueError traceback)."""
+    assert fuzz_frames.main(["--pure", "20"]) == 0 and fuzz_frames.main(["1e1", "--pure"]) == 0
+    out = capsys.readouterr().out
+    assert "| pure fuzz, 20 cases" in out and "| pure fuzz, 10 cases" in out

@@ -56,12 +56,9 @@ def test_calibrate_refuses_a_bad_dv_as_bad_input(tmp_path, capsys):
     assert not list(tmp_path.iterdir())
 
 
-def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
-    """serve_controller stepped any TICK: vx = 65535 (damage the CRC-16 let through) made (2048 - vx) << 15
-    about -2^31, outside the +-2^30 the step's docstring promises: on a 32-bit board a heap allocation under
-    heap_lock (MemoryError, and the heap left locked) or, in viper, a wrapped ratio. It is now dropped and
-    counted; the bench's resend of the same tick is answered."""
-    import struct
+def _served_controller():
+    """A TRACK controller (true H, CTRL_STATUS every 2 ticks) served by serve_controller on a thread over an
+    in-process link: (the bench's end, the controller, the thread), its HELLO taken."""
     import threading
 
     from emulator.bench import Bench
@@ -76,6 +73,16 @@ def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
     th = threading.Thread(target=serve_controller, args=(ctl, _Ms(b)), daemon=True)
     th.start()
     assert a.recv(timeout=5)[0][0] == core.PACKET_ID["HELLO"]
+    return a, ctl, th
+
+
+def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
+    """serve_controller stepped any TICK: vx = 65535 (damage the CRC-16 let through) made (2048 - vx) << 15
+    about -2^31, outside the +-2^30 the step's docstring promises: on a 32-bit board a heap allocation under
+    heap_lock (MemoryError, and the heap left locked) or, in viper, a wrapped ratio. It is now dropped and
+    counted; the bench's resend of the same tick is answered."""
+    import struct
+    a, ctl, th = _served_controller()
     tick, spi, status = core.PACKET_ID["TICK"], core.PACKET_ID["FSM_SPI"], core.PACKET_ID["CTRL_STATUS"]
     fmt = core.PACKET[tick].fmt
 
@@ -110,20 +117,9 @@ def test_a_damaged_tick_number_does_not_make_every_later_tick_stale():
     stale TICK is dropped and counted, and the bench's resend of it (a second stale TICK, not older) is
     stepped and answered; a lone stale TICK among good ones is only dropped."""
     import struct
-    import threading
 
-    from emulator.bench import Bench
-    from emulator.truth import true_h_field
     from firmware.controller import SAFE, TRACK, WHY_LINK
-    from firmware.hal.link import _Ms, serve_controller
-    from protocol import htable
-    from protocol.link import inproc_pair
-    a, b = inproc_pair("BENCH", "CONTROLLER")
-    ctl = Controller(table=htable.pack_calibration(true_h_field(Bench(noise=False), None, 0.01)), decim=2)
-    ctl.mode = TRACK
-    th = threading.Thread(target=serve_controller, args=(ctl, _Ms(b)), daemon=True)
-    th.start()
-    assert a.recv(timeout=5)[0][0] == core.PACKET_ID["HELLO"]
+    a, ctl, th = _served_controller()
     tick, spi, status = core.PACKET_ID["TICK"], core.PACKET_ID["FSM_SPI"], core.PACKET_ID["CTRL_STATUS"]
     fmt = core.PACKET[tick].fmt
 

@@ -44,6 +44,9 @@ def register(sub, name, help_):
                    help="hold the P-FSM at these volts (when no --distfile)")
     b.add_argument("--distfile", help="play this distfile into the P-FSM (firmware player)")
     b.add_argument("--deadline", type=float, default=1.0, help="seconds to wait for each FSM command")
+    b.add_argument("--max-failed-ticks", type=int, default=MAX_FAILED_TICKS, metavar="N",
+                   help="consecutive ticks without the controller's FSM command (each waits --deadline) that end "
+                        "the run as a dead link, exit 1 (default %d)" % MAX_FAILED_TICKS)
     b.add_argument("--realtime", action="store_true", help="pace by the wall clock")
     w = s.add_argument_group("wheels (--devices wheels)")
     w.add_argument("--dt", type=float, default=0.1, help="physics step in s (default 0.1)")
@@ -75,6 +78,7 @@ def _truth_h(args):
 
 
 MAX_SECONDS = 1e6        # ~11.6 days: longer --duration or --wait is a typo (and overflows select's timeout)
+MAX_FAILED_TICKS = 10    # consecutive overruns that end a bench serve run (10 s at the default --deadline)
 
 
 def _check_serve_args(args):
@@ -88,6 +92,8 @@ def _check_serve_args(args):
     finite("--wait (s)", args.wait, 0.0, hi=MAX_SECONDS)
     if args.devices == "bench":
         finite("--deadline (s)", args.deadline, 0.0, lo_open=True, hi=MAX_SECONDS)
+        if args.max_failed_ticks < 1:
+            raise ValueError("--max-failed-ticks must be at least 1, got %d" % args.max_failed_ticks)
         finite("--rate (Hz)", args.rate, 0.0, lo_open=True)
         for v in args.pfsm_v:
             finite("--pfsm-v (V)", v, -10.0, hi=10.0)

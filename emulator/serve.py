@@ -114,7 +114,7 @@ def serve(args):
     print(link.peer_path, flush=True)
     print("bench: waiting for the controller on %s (%s link)" % (link.peer_path, args.link),
           file=sys.stderr, flush=True)
-    ctrl = lock.controller = RemoteController(link, timeout_s=args.deadline)
+    ctrl = lock.controller = RemoteController(link, timeout_s=args.deadline, max_failed_ticks=args.max_failed_ticks)
     try:
         if not ctrl.wait_peer(args.wait):
             raise OSError("no controller spoke on %s within %g s" % (link.peer_path, args.wait))

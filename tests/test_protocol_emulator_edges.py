@@ -237,6 +237,51 @@ def test_bench_serve_writes_a_partial_summary_when_the_controller_leaves(tmp_pat
     assert d["packets_from_controller"] == {"HELLO": 1}
 
 
+def test_bench_serve_ends_on_a_controller_that_stops_answering(tmp_path, monkeypatch, capsys):
+    """A controller that is alive but silent (hung) cost --deadline per tick for the whole run, ~15 min until
+    the pty filled; --max-failed-ticks consecutive overruns now end the run as a dead link (exit 1), with
+    the partial summary."""
+    import threading
+    import time
+
+    import protocol.link
+    from protocol import core
+    from protocol.stream import StreamLink
+    real_open = protocol.link.open_link
+    hang = threading.Event()
+
+    def controller(path):
+        """HELLO, answer 20 TICKs with an empty FSM_SPI, then read and answer nothing until the test ends."""
+        s = StreamLink(path, "CONTROLLER")
+        s.send("HELLO", "BENCH")
+        done = 0
+        while done < 20 and not s.closed:
+            for pid, src, dst, seq, payload in s.recv(2000):
+                if pid == core.PACKET_ID["TICK"]:
+                    s.send("FSM_SPI", "BENCH", tick=core.decode_payload(pid, payload)[0], n=0)
+                    done += 1
+        hang.wait(30)
+        s.close()
+
+    def open_link(spec, node, **kw):
+        link = real_open(spec, node, **kw)
+        threading.Thread(target=controller, args=(link.peer_path,), daemon=True).start()
+        return link
+    monkeypatch.setattr(protocol.link, "open_link", open_link)
+    out = tmp_path / "serve.json"
+    t0 = time.monotonic()
+    try:
+        rc = fps(["emulator", "serve", "--duration", "600", "--deadline", "0.2", "--max-failed-ticks", "5",
+                  "--wait", "5", "-o", str(out)])
+    finally:
+        hang.set()
+    assert rc == 1 and time.monotonic() - t0 < 20
+    assert "5 consecutive ticks" in capsys.readouterr().err
+    d = json.loads(out.read_text())
+    assert d["complete"] is False and "link is down" in d["error"] and d["counters"]["ticks"] >= 24
+    assert fps(["emulator", "serve", "--max-failed-ticks", "0"]) == 2
+
+
 # --- link specs: python-can's errors become the project's ValueError / OSError ----------------------------
 def test_can_link_spec_errors_are_value_or_os_errors(tmp_path, capsys):
     from firmware import main as fw_main

@@ -449,6 +449,9 @@ class CanLink(Link):
             self.other_dst += 1
             return None
         if msg.is_extended_id and cid & canmap.ISOTP_BIT and not cid & canmap.RESERVED_BIT:
+            if (cid >> 17) & 0xFF not in core.PACKET or (cid >> 8) & 0xFF not in core.NODE_NAME:
+                self._dec.drops["unknown_id"] += 1      # no ISO-TP stack for it: garbage ids would pile them up
+                return None
             st, q = self._stack(cid)
             q.append(isotp_msg(msg))
             st.process()

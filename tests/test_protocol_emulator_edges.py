@@ -476,6 +476,39 @@ def test_can_isotp_send_refused_by_overflow_flow_control_raises():
         lk.close()
 
 
+def test_can_link_makes_no_isotp_stack_for_ids_outside_the_table():
+    """CanLink made a can-isotp stack (kept for good) for every ISO-TP id addressed to it: a bus carrying
+    garbage ids (any packet id, any source) piled up to 65,536 of them per node. An id whose packet or source
+    the table does not name is now dropped as unknown_id; a real transfer still arrives."""
+    import can
+
+    from protocol import can as canmap
+    from protocol import core
+    from protocol.link import open_link
+    lk = open_link("can:virtual:fps-edges-stacks", "CONTROLLER")
+    raw = can.Bus(interface="virtual", channel="fps-edges-stacks")
+    try:
+        me = core.NODE["CONTROLLER"]
+        bad_pid = next(p for p in range(256) if p not in core.PACKET)
+        bad_src = next(n for n in range(256) if n not in core.NODE_NAME)
+        ids = [canmap.can_id(bad_pid, src, me, True) for src in range(200)]
+        ids += [canmap.can_id(core.PACKET_ID["TICK"], bad_src, me, True)]
+        for cid in ids:
+            raw.send(can.Message(arbitration_id=cid, data=bytes((0x10, 14, 0, 0, 0, 0, 0, 0)),
+                                 is_extended_id=True))           # an ISO-TP first frame
+        sender = open_link("can:virtual:fps-edges-stacks", "BENCH")
+        try:
+            sender.send("TICK", "CONTROLLER", tick=7)              # 14 bytes: ISO-TP
+        finally:
+            sender.close()
+        got = lk.recv(3.0)
+        assert [core.decode_payload(p[0], p[4])[0] for p in got] == [7]
+        assert lk.counters()["unknown_id"] == len(ids) and len(lk._stacks) == 1
+    finally:
+        raw.shutdown()
+        lk.close()
+
+
 def test_bench_serve_stopped_by_sigterm_leaves_its_partial_summary(tmp_path):
     import signal
     import subprocess

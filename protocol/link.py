@@ -21,6 +21,7 @@ nodes it serves (see ``CanLink``).
 
 import collections
 import errno
+import logging
 import os
 import select
 import threading
@@ -29,6 +30,10 @@ import tty
 
 from protocol import can as canmap
 from protocol import core, host
+
+# can-isotp logs each error it hands our error handler (counted: isotp_errors) as a WARNING too; with no logging
+# configured, Python's last-resort handler printed those on the user's stderr
+logging.getLogger("isotp").addHandler(logging.NullHandler())
 
 
 class Link:

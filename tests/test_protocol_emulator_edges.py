@@ -509,6 +509,39 @@ def test_can_link_makes_no_isotp_stack_for_ids_outside_the_table():
         lk.close()
 
 
+ISOTP_STRAY_CF = """
+import time
+import can
+from protocol import can as canmap
+from protocol import core
+from protocol.link import open_link
+lk = open_link("can:virtual:x", "CONTROLLER")
+raw = can.Bus(interface="virtual", channel="x")
+cid = canmap.can_id(core.PACKET_ID["TICK"], core.NODE["BENCH"], core.NODE["CONTROLLER"], True)
+raw.send(can.Message(arbitration_id=cid, data=bytes((0x21, 1, 2, 3, 4, 5, 6, 7)), is_extended_id=True))
+end = time.monotonic() + 5.0
+n = 0
+while not n and time.monotonic() < end:
+    time.sleep(0.01)
+    n = sum(v for k, v in lk.counters().items() if k.startswith("isotp_"))
+raw.shutdown()
+lk.close()
+print(n)
+"""
+
+
+def test_isotp_errors_are_counted_not_printed():
+    """A consecutive frame with no first frame before it: can-isotp's error is counted in the link's
+    isotp_* counters; it was also printed on stderr by Python's last-resort logging handler (a process that
+    configures no logging, as fps does not). Run in a subprocess: pytest's own log capture hides it."""
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-c", ISOTP_STRAY_CF], capture_output=True, text=True, timeout=60,
+                       cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert r.returncode == 0 and r.stdout.split() == ["1"], r.stderr
+    assert r.stderr == ""
+
+
 def test_bench_serve_stopped_by_sigterm_leaves_its_partial_summary(tmp_path):
     import signal
     import subprocess

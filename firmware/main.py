@@ -6,8 +6,9 @@
 
 Controller options: --table PATH (calibration JSON or H-table blob), --track (start in TRACK; needs a table),
 --gain Q15, --decim TICKS, --safe-ticks TICKS, --beam-threshold COUNTS, --rate HZ (for link-silence
-accounting). Exit status 0 when the peer leaves, 2 on bad arguments (a message names the option), 1 when the link
-fails while serving (its error on stderr, which the HIL reports when a controller exits).
+accounting). Exit status 0 when the peer leaves, 2 on bad arguments (the message, naming the option, and the
+usage, on stderr), 1 when the link fails while serving (its error on stderr, which the HIL reports when a
+controller exits).
 """
 
 import sys
@@ -17,8 +18,9 @@ _CTRL_INT = {"--gain": "gain_q15", "--decim": "decim", "--safe-ticks": "safe_tic
 
 
 def _usage(msg):
-    print("firmware.main: error: %s" % msg)
-    print("usage: firmware.main controller|player --link SPEC [options] (see the module docstring)")
+    """Bad arguments: on stderr, which ground.runtime keeps (it sends the controller's stdout to /dev/null)."""
+    print("firmware.main: error: %s" % msg, file=sys.stderr)
+    print("usage: firmware.main controller|player --link SPEC [options] (see the module docstring)", file=sys.stderr)
     return 2
 
 

@@ -7,6 +7,7 @@
 """
 
 import math
+import os
 import sys
 
 
@@ -33,7 +34,8 @@ def register(sub, name, help_):
                    help="serial: a pseudo-terminal pair (prints the slave path); can: slcan over a pty")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--duration", type=float,
-                   help="seconds to run (bench: virtual, default 10; wheels: wall = virtual, default until stopped)")
+                   help="seconds to run (bench: virtual, default 10, at most what 80 %% of this machine's memory "
+                        "holds at ~400 B a tick; wheels: wall = virtual, default until stopped)")
     s.add_argument("--wait", type=float, default=30.0,
                    help="seconds to wait for the peer's first packet (bench: HELLO; wheels: any)")
     s.add_argument("-o", "--output", help="write the run summary (JSON) here")
@@ -79,6 +81,15 @@ def _truth_h(args):
 
 MAX_SECONDS = 1e6        # ~11.6 days: longer --duration or --wait is a typo (and overflows select's timeout)
 MAX_FAILED_TICKS = 10    # consecutive overruns that end a bench serve run (10 s at the default --deadline)
+BYTES_PER_TICK = 400     # a bench run's samples held in memory until its summary (measured, tracemalloc peak)
+
+
+def _memory_bytes():
+    """This machine's physical memory in bytes (None where the OS does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
 
 
 def _check_serve_args(args):
@@ -94,6 +105,11 @@ def _check_serve_args(args):
         finite("--deadline (s)", args.deadline, 0.0, lo_open=True, hi=MAX_SECONDS)
         if args.max_failed_ticks < 1:
             raise ValueError("--max-failed-ticks must be at least 1, got %d" % args.max_failed_ticks)
+        need, have = (args.duration or 10.0) * args.rate * BYTES_PER_TICK, _memory_bytes()
+        if have and need > 0.8 * have:        # the run would end in MemoryError (or swap) hours in
+            raise ValueError("--duration %g s at %g Hz keeps ~%.1f GB of samples in memory; this machine has "
+                             "%.1f GB: at most %.0f s" % (args.duration, args.rate, need / 1e9, have / 1e9,
+                                                          0.8 * have / (args.rate * BYTES_PER_TICK)))
         finite("--rate (Hz)", args.rate, 0.0, lo_open=True)
         for v in args.pfsm_v:
             finite("--pfsm-v (V)", v, -10.0, hi=10.0)

@@ -282,6 +282,18 @@ def test_bench_serve_ends_on_a_controller_that_stops_answering(tmp_path, monkeyp
     assert fps(["emulator", "serve", "--max-failed-ticks", "0"]) == 2
 
 
+def test_bench_serve_refuses_a_duration_whose_samples_outgrow_the_memory(monkeypatch, capsys):
+    """--duration was accepted up to 1e6 s; the bench keeps ~400 B a tick until the summary (255 GB at
+    637.8 Hz), so a long soak ended hours in with MemoryError and nothing written. Refused up front now."""
+    from emulator import cli
+    monkeypatch.setattr(cli, "_memory_bytes", lambda: 1e9)       # a 1 GB machine: at most ~3,100 s
+    assert fps(["emulator", "serve", "--duration", "4000"]) == 2
+    err = capsys.readouterr().err
+    assert "--duration 4000 s" in err and "at most 3136 s" in err
+    assert fps(["emulator", "serve", "--duration", "3000", "--wait", "0"]) == 1   # within: on to the link
+    assert "no controller spoke" in capsys.readouterr().err
+
+
 # --- link specs: python-can's errors become the project's ValueError / OSError ----------------------------
 def test_can_link_spec_errors_are_value_or_os_errors(tmp_path, capsys):
     from firmware import main as fw_main

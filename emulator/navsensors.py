@@ -54,7 +54,10 @@ class Beacon:
     def measure_dcm(self, r_a, r_b, A):
         """The same with the attitude as its matrix A (inertial to body)."""
         d = np.asarray(r_b, dtype=float) - np.asarray(r_a, dtype=float)
-        return A @ (d / np.linalg.norm(d)) + self.sigma * self.rng.standard_normal(3)
+        rho = np.linalg.norm(d)
+        if not (np.isfinite(rho) and rho > 0):
+            raise ValueError("beacon: SatA and SatB coincide (or a position is not finite): |rB - rA| = %r m" % rho)
+        return A @ (d / rho) + self.sigma * self.rng.standard_normal(3)
 
 
 class Relay:

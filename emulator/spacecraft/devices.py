@@ -30,8 +30,10 @@ class StarTracker:
     def __init__(self, rng, sigma_arcsec=(20.0, 20.0, 60.0), rate_max_dps=0.1):
         self.rng = rng
         self.sigma = np.array(sigma_arcsec, dtype=float) * ARCSEC
-        if self.sigma.shape != (3,) or np.any(self.sigma < 0):
-            raise ValueError("sigma_arcsec must be 3 numbers >= 0, got %r" % (sigma_arcsec,))
+        if self.sigma.shape != (3,) or not np.all(np.isfinite(self.sigma)) or np.any(self.sigma < 0):
+            raise ValueError("sigma_arcsec must be 3 finite numbers >= 0, got %r" % (sigma_arcsec,))
+        if not (np.isfinite(rate_max_dps) and rate_max_dps >= 0):
+            raise ValueError("rate_max_dps must be a finite number >= 0 deg/s, got %r" % (rate_max_dps,))
         self.rate_max = np.radians(rate_max_dps)
 
     def measure(self, q, omega):

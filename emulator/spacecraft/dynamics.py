@@ -157,7 +157,7 @@ class Spacecraft:
 
     @dipole.setter
     def dipole(self, m):
-        self._dipole = None if m is None else tuple(np.array(m, dtype=float).tolist())
+        self._dipole = None if m is None else tuple(_finite("dipole (A m^2)", m, 3).tolist())
 
     def momentum_body(self, x=None):
         """H = J w + C Jrw W, body frame (Eq. 4.11-4.13, 4.55)."""
@@ -256,6 +256,8 @@ class Spacecraft:
 
     def run(self, duration):
         """Advance by ``duration`` seconds (rounded to whole steps); returns the number of steps."""
+        if not (np.isfinite(duration) and duration >= 0):
+            raise ValueError("duration must be a finite number >= 0 s, got %r" % (duration,))
         n = int(round(duration / self.dt))
         for _ in range(n):
             self.step()

@@ -28,6 +28,9 @@ class CircularOrbit:
     def __init__(self, altitude=400e3, inclination_deg=51.65, raan_deg=0.0, arg_lat_deg=0.0):
         if not (np.isfinite(altitude) and altitude > 0):
             raise ValueError("altitude must be > 0 m, got %r" % (altitude,))
+        for name, v in (("inclination_deg", inclination_deg), ("raan_deg", raan_deg), ("arg_lat_deg", arg_lat_deg)):
+            if not np.isfinite(v):
+                raise ValueError("%s must be a finite angle, got %r" % (name, v))
         self.a = R_EARTH + altitude
         self.n = np.sqrt(MU_EARTH / self.a ** 3)
         i, raan = np.radians(inclination_deg), np.radians(raan_deg)

@@ -133,8 +133,8 @@ class Wheels:
 
     def command(self, i, torque, enable=True):
         """Set wheel i's motor torque command (N m); ValueError on a bad index or non-finite torque."""
-        if not 0 <= i < N_WHEELS:
-            raise ValueError("wheel index %r out of range 0..%d" % (i, N_WHEELS - 1))
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < N_WHEELS:
+            raise ValueError("wheel index %r is not an integer in 0..%d" % (i, N_WHEELS - 1))
         if not np.isfinite(torque):
             raise ValueError("torque for wheel %d must be finite, got %r" % (i, torque))
         self.cmd[i] = torque

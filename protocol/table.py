@@ -189,7 +189,7 @@ PACKETS = (
         ("q1", "f", "", 1, -1.0, 1.0, 0.0, "quaternion y"),
         ("q2", "f", "", 1, -1.0, 1.0, 0.0, "quaternion z"),
         ("q3", "f", "", 1, -1.0, 1.0, 1.0, "quaternion scalar"),
-        ("valid", "B", "", 1, 0, 1, 1, "0 when |w| > 0.1 deg/s"),
+        ("valid", "B", "", 1, 0, 1, 1, "0 when |w| >= 0.1 deg/s (the thesis: output only below it)"),
     )),
     (0x43, "GNSS", "GNSS", "ADCS", "GNSS fix, J2000 (Eq. 5.10-5.12)", (
         ("t_ms", "I", "ms", 1, None, None, 0, "measurement time"),

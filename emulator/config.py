@@ -9,10 +9,8 @@ Parameters not given by the thesis or the datasheets are marked "assumed" below.
 """
 
 import copy
-import errno
 import json
 import math
-import os
 
 from emulator.fileio import write_atomic
 
@@ -261,7 +259,4 @@ def dumps(cfg):
 def write_json_atomic(path, obj):
     """``obj`` as indented JSON at ``path``, atomically (``emulator.fileio``: fsync, the umask's permissions);
     the folder must exist (an output file's, not a run folder)."""
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise FileNotFoundError(errno.ENOENT, "no such folder", folder)
-    write_atomic(path, json.dumps(obj, indent=2) + "\n")
+    write_atomic(path, json.dumps(obj, indent=2) + "\n", make_folder=False)

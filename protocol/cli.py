@@ -10,13 +10,12 @@ name for enum fields (mode=TRACK, action=START, code=BAD_VALUE). Nodes are names
 """
 
 import json
-import os
 import struct
 import sys
-import tempfile
 
 from protocol import can as canmap
 from protocol import core, host, table
+from protocol.fileio import write_atomic
 
 _ENUMS = {
     "mode": dict((m[0], m[1]) for m in table.MODES),
@@ -190,32 +189,8 @@ def cmd_table(args):
 
 
 # --- dbc --------------------------------------------------------------------------------------------------
-def write_atomic(path, text):
-    """Write ``text`` to ``path`` via a temp file in the same directory, fsync and os.replace. The file gets an
-    existing file's permissions, else what ``open`` would give (0o666 less the umask; ``mkstemp`` alone makes
-    it 0o600). Like ``emulator.fileio.write_atomic``, which protocol may not import (DESIGN.md)."""
-    try:
-        mode = os.stat(path).st_mode & 0o777
-    except OSError:
-        mask = os.umask(0o022)
-        os.umask(mask)
-        mode = 0o666 & ~mask
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-")
-    try:
-        with os.fdopen(fd, "w") as f:
-            os.fchmod(f.fileno(), mode)
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
 def cmd_dbc(args):
-    write_atomic(args.output, canmap.dbc_text())
+    write_atomic(args.output, canmap.dbc_text(), make_folder=False)
     return 0
 
 

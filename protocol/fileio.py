@@ -1,0 +1,60 @@
+"""Atomic file writes: a temp file in the same folder, fsync, then ``os.replace``. Here, the lowest layer, so
+that protocol's own tools use it too; ``emulator.fileio`` and ``ground.fileio`` re-export it (host only: not
+for MicroPython)."""
+
+import errno
+import json
+import os
+import tempfile
+
+
+def _mode(path):
+    """The permissions ``path`` gets: an existing file's own, else what ``open`` would give (0o666 less the
+    umask). ``mkstemp`` makes its file 0o600, which would leave every run folder unreadable to the group."""
+    try:
+        return os.stat(path).st_mode & 0o777
+    except OSError:
+        return 0o666 & ~_umask()
+
+
+def _umask():
+    """The process's umask, read without setting it where Linux tells it (os.umask is the fallback: it must set
+    one to read it, for an instant, which another thread could see)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def write_atomic(path, data, make_folder=True):
+    """Write ``data`` (bytes or str) to ``path`` atomically; creates the parent folder (a run folder's file),
+    or with ``make_folder=False`` refuses a missing one (FileNotFoundError: an output file's typo)."""
+    if isinstance(data, str):
+        data = data.encode()
+    folder = os.path.dirname(os.path.abspath(path))
+    if make_folder:
+        os.makedirs(folder, exist_ok=True)
+    elif not os.path.isdir(folder):
+        raise FileNotFoundError(errno.ENOENT, "no such folder", folder)
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), _mode(path))
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_json(path, obj):
+    write_atomic(path, json.dumps(obj, indent=1, sort_keys=False) + "\n")

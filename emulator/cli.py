@@ -80,6 +80,7 @@ def _truth_h(args):
 
 
 MAX_SECONDS = 1e6        # ~11.6 days: longer --duration or --wait is a typo (and overflows select's timeout)
+BENCH_DURATION_S = 10.0  # a bench serve run without --duration (virtual s)
 MAX_FAILED_TICKS = 10    # consecutive overruns that end a bench serve run (10 s at the default --deadline)
 BYTES_PER_TICK = 400     # a bench run's samples held in memory until its summary (measured, tracemalloc peak)
 
@@ -105,12 +106,13 @@ def _check_serve_args(args):
         finite("--deadline (s)", args.deadline, 0.0, lo_open=True, hi=MAX_SECONDS)
         if args.max_failed_ticks < 1:
             raise ValueError("--max-failed-ticks must be at least 1, got %d" % args.max_failed_ticks)
-        need, have = (args.duration or 10.0) * args.rate * BYTES_PER_TICK, _memory_bytes()
+        finite("--rate (Hz)", args.rate, 0.0, lo_open=True)
+        duration = BENCH_DURATION_S if args.duration is None else args.duration
+        need, have = duration * args.rate * BYTES_PER_TICK, _memory_bytes()
         if have and need > 0.8 * have:        # the run would end in MemoryError (or swap) hours in
             raise ValueError("--duration %g s at %g Hz keeps ~%.1f GB of samples in memory; this machine has "
-                             "%.1f GB: at most %.0f s" % (args.duration, args.rate, need / 1e9, have / 1e9,
+                             "%.1f GB: at most %.0f s" % (duration, args.rate, need / 1e9, have / 1e9,
                                                           0.8 * have / (args.rate * BYTES_PER_TICK)))
-        finite("--rate (Hz)", args.rate, 0.0, lo_open=True)
         for v in args.pfsm_v:
             finite("--pfsm-v (V)", v, -10.0, hi=10.0)
     else:

@@ -101,7 +101,8 @@ class DistfilePlayer:
 def serve(args):
     """Run the bench on a link for ``args.duration`` virtual seconds (see emulator/cli.py for the options)."""
     from protocol.link import open_link
-    duration = 10.0 if args.duration is None else args.duration
+    from emulator.cli import BENCH_DURATION_S
+    duration = BENCH_DURATION_S if args.duration is None else args.duration
     bench = Bench(load_config(args.config), seed=args.seed)
     if args.distfile:
         with open(args.distfile, "rb") as f:

@@ -292,6 +292,8 @@ def test_bench_serve_refuses_a_duration_whose_samples_outgrow_the_memory(monkeyp
     assert "--duration 4000 s" in err and "at most 3136 s" in err
     assert fps(["emulator", "serve", "--duration", "3000", "--wait", "0"]) == 1   # within: on to the link
     assert "no controller spoke" in capsys.readouterr().err
+    assert fps(["emulator", "serve", "--rate", "1e6"]) == 2      # no --duration: its 10 s (was a TypeError)
+    assert "--duration 10 s at 1e+06 Hz" in capsys.readouterr().err
 
 
 # --- link specs: python-can's errors become the project's ValueError / OSError ----------------------------

@@ -170,7 +170,7 @@ class AdcsSession:
                 "torque_max": wp.torque_max,
                 "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
                 "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC, "gnss_sigma": [30.0, 1.0],
-                "apkf_momentum": self.apkf_momentum}
+                "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0}
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""

@@ -115,6 +115,16 @@ def _brahe():
     return bh
 
 
+def epoch_gmst_rad(epoch_utc=EPOCH_UTC):
+    """Greenwich mean sidereal time (rad, in [0, 2 pi)) at ``epoch_utc``: the Earth's angle at t = 0 for the
+    tilted-dipole field of a run that starts at that epoch (``TiltedDipoleField(gmst0_rad=...)``). brahe's
+    ``Epoch.gmst`` with its packaged EOP (UT1 - UTC); 139.40 deg at Eq. 5.53's epoch. Precession and nutation
+    since J2000 (~0.2 deg in 2016) are left out, as the field is a dipole."""
+    bh = _brahe()
+    y, mo, d, h, mi, s = epoch_utc
+    return float(bh.Epoch(y, mo, d, h, mi, s, time_system=bh.UTC).gmst(bh.AngleFormat.RADIANS)) % (2 * np.pi)
+
+
 def force_model(bh, spacecraft=CUBESAT_3U):
     """brahe force model of the module docstring; parameters [mass, drag area, Cd, SRP area, Cr]."""
     ps = bh.ParameterSource

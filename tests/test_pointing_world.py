@@ -122,3 +122,62 @@ def test_truth_span_keeps_each_callers_cache_key():
     assert bps.truth_span(998) == 1000.0 and bps.truth_span(999) == 2000.0
     assert scenario.truth_span(992, adcs_session.SPAN_MARGIN_S) == 1000.0
     assert scenario.truth_span(993, adcs_session.SPAN_MARGIN_S) == 2000.0
+
+
+def gmst82_deg(y, mo, d, h, mi, s):
+    """GMST (deg) by the IAU-1982 formula (Vallado, Eq. 3-47) with UT1 = UTC: an independent check of brahe."""
+    a = (14 - mo) // 12
+    yy, mm = y + 4800 - a, mo + 12 * a - 3
+    jdn = d + (153 * mm + 2) // 5 + 365 * yy + yy // 4 - yy // 100 + yy // 400 - 32045
+    jd = jdn - 0.5 + (h + mi / 60.0 + s / 3600.0) / 24.0
+    t = (jd - 2451545.0) / 36525.0
+    sec = 67310.54841 + (876600.0 * 3600 + 8640184.812866) * t + 0.093104 * t * t - 6.2e-6 * t ** 3
+    return (sec / 240.0) % 360.0
+
+
+def test_the_field_turns_from_the_epochs_gmst():
+    """The body-pointing world's field starts at GMST of Eq. 5.53's epoch (139.40 deg), not at 0: the spacecraft,
+    bps's APKF model and the firmware's configuration all use it."""
+    from emulator import orbits
+    from emulator.spacecraft.environment import OMEGA_EARTH
+    g = orbits.epoch_gmst_rad()
+    # UT1 - UTC was -0.5 s then: 0.002 deg of Earth rotation; the two GMST models agree far closer than 0.01 deg
+    assert np.degrees(g) == pytest.approx(gmst82_deg(*orbits.EPOCH_UTC), abs=0.01)
+    assert np.degrees(g) == pytest.approx(139.40, abs=0.01)
+    w = scenario.pointing_world(40, 0)
+    assert w.field.gmst0 == g and w.sc.field is w.field
+    # at t the dipole has turned by gmst0 + w_E t: the field equals a zero-epoch field's at t + gmst0 / w_E
+    r = w.orbit.position(3.0)
+    zero = type(w.field)(gmst0_rad=0.0)
+    np.testing.assert_allclose(w.field.field(r, 3.0), zero.field(r, 3.0 + g / OMEGA_EARTH), rtol=1e-9, atol=1e-15)
+    assert np.degrees(np.arccos(w.field.field(r, 3.0) @ zero.field(r, 3.0)
+                                / np.linalg.norm(w.field.field(r, 3.0)) / np.linalg.norm(zero.field(r, 3.0)))) > 1.0
+    s = adcs_session.AdcsSession(runtime="cpython", duration_s=30.0)
+    assert s.config()["gmst0_rad"] == g
+    params = scenario.truth_params(w.sc)
+    models = []
+    real = bps.apkf.Model
+
+    class Spy(real):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            models.append(self)
+    import unittest.mock
+    with unittest.mock.patch.object(bps.apkf, "Model", Spy):
+        bps.simulate(ts=TS, duration_s=DURATION, seed=SEED, params=params, truth="two-body")
+    assert models and models[0].field.gmst0 == g
+
+
+def test_the_firmware_field_is_the_emulators():
+    """firmware/adcs/app.py's field_dipole (the flight model) equals environment.TiltedDipoleField at the
+    epoch's GMST, along an orbit and over hours (the Earth turns under it)."""
+    from emulator import orbits
+    from emulator.spacecraft.environment import TiltedDipoleField
+    from firmware.adcs.app import field_dipole
+    g = orbits.epoch_gmst_rad()
+    f = TiltedDipoleField(gmst0_rad=g)
+    b = [0.0, 0.0, 0.0]
+    for t in (0.0, 1.5, 600.0, 7200.0, 43000.0):
+        r = orbits.kepler(orbits.X0_A, np.array([t]))[0, 0:3]
+        field_dipole(b, r.tolist(), t, g)
+        np.testing.assert_allclose(b, f.field(r, t), rtol=1e-12, atol=1e-18)

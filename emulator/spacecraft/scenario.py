@@ -30,6 +30,7 @@ import numpy as np
 from emulator.navsensors import Beacon, Gnss, Relay
 from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import J0_THESIS, Spacecraft, dcm, inertia_matrix, quat_mul
+from emulator.spacecraft.environment import TiltedDipoleField
 from emulator.spacecraft.wheels import J_RW_NOMINAL, Wheels, WheelParams, pyramid_c0
 
 DEG = np.pi / 180.0
@@ -306,6 +307,7 @@ class PointingWorld:
 
     - ``K`` (s, the run's length), ``rate`` (Hz, of the grid), ``t_s``, ``xs`` (1 s truth samples), ``tg``,
       ``xg`` (the grid, ``truth_grid``), ``orbit`` (``GridOrbit`` of SatA's position on it);
+    - ``field`` (the tilted dipole turned to Eq. 5.53's epoch: ``gmst0`` = GMST then, ``orbits.epoch_gmst_rad``);
     - ``wheels``, ``sc`` (the ``Spacecraft``: RK4 at 0.1 s from q = [0, 0, 0, 1] at rest), ``st`` (star
       tracker), ``gnss_a`` (SatA's GNSS), ``beacon``, ``relay`` (SatB's GNSS relayed, or None);
     - ``tb`` (SatB's GNSS epochs on its own clock; empty without the relay), ``xb_tb`` (SatB's truth at ``tb``,
@@ -327,16 +329,18 @@ def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, s
     they were: ground/adcs/bps.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1.
     """
     from emulator.interp import lagrange
+    from emulator.orbits import epoch_gmst_rad
     t_s, xs, tg, xg = truth_grid(K, truth, cache_dir, span_margin_s)
     orbit = GridOrbit(0.0, WORLD_RATE_HZ, xg[:, 0, 0:3])
     ss = np.random.SeedSequence(seed)
     r_rw, r_st, r_init, r_ga, r_gb, r_bc, r_rel = [np.random.default_rng(s) for s in ss.spawn(7)]
     wheels = Wheels(WheelParams(**SCENARIO_WHEELS), rng=r_rw)
-    sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orbit)
+    field = TiltedDipoleField(gmst0_rad=epoch_gmst_rad())       # the orbits' epoch (t = 0) is Eq. 5.53's
+    sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orbit, field=field)
     relay = Relay(r_rel, Gnss(r_gb)) if satb_gnss else None
     tb = (r_rel.uniform(0.0, 1.0) + np.arange(K if n_tags is None else n_tags)) if satb_gnss else np.zeros(0)
     return PointingWorld(
-        K=K, rate=WORLD_RATE_HZ, t_s=t_s, xs=xs, tg=tg, xg=xg, orbit=orbit, wheels=wheels, sc=sc,
+        K=K, rate=WORLD_RATE_HZ, t_s=t_s, xs=xs, tg=tg, xg=xg, orbit=orbit, field=field, wheels=wheels, sc=sc,
         st=StarTracker(r_st), gnss_a=Gnss(r_ga), beacon=Beacon(r_bc), relay=relay, tb=tb,
         xb_tb=lagrange(t_s, xs[:, 1, :], tb, order=10) if satb_gnss else None,
         stkf_x0=xg[0].ravel() + np.sqrt(STKF_P0_DIAG) * r_init.standard_normal(12))

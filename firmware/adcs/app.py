@@ -7,7 +7,8 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
    beacon and SatB's relayed GNSS (time-tagged 2-3 s back) received since the last cycle;
 2. lean APKF (attitude, rate, disturbance torque; parameters from the calibration's parameter file), started
    from the first two valid star-tracker outputs; its orbit and field inputs from the STKF's rA and a tilted
-   dipole field model (the emulator's own model, IGRF-2020 degree 1);
+   dipole field model (the emulator's own model, IGRF-2020 degree 1, turned from ``gmst0_rad``, the GMST at
+   the epoch the ground loads in the configuration);
 3. lean STKF/AFLS: predict, SatA's GNSS, the beacon (Eq. 5.13-5.17) with the APKF's attitude covariance
    4 P_qq in its noise (Eq. 5.15-5.16, Sec. 5.3.3), SatB's GNSS at its time tag (EAFLS);
 4. during the hold (``hold_s``, while the APKF converges) rate damping: -D w plus the gyroscopic and
@@ -89,8 +90,9 @@ GNSS_M, GNSS_MS = _SCALE["x"], _SCALE["vx"]       # GNSS position (m) and veloci
 
 
 @micropython.native
-def field_dipole(b, r, t, gmst0=0.0):
-    """b (3) = the tilted-dipole field (T, inertial) at r (m) and time t (s): (R/|r|)^3 (3 (m.r^) r^ - m)."""
+def field_dipole(b, r, t, gmst0):
+    """b (3) = the tilted-dipole field (T, inertial) at r (m) and time t (s): (R/|r|)^3 (3 (m.r^) r^ - m), the
+    dipole turned by the Earth angle gmst0 + w_E t (gmst0, rad: GMST at t = 0)."""
     th = gmst0 + OMEGA_EARTH * t
     c, s = math.cos(th), math.sin(th)
     g10, g11, h11 = IGRF2020_DIPOLE_NT
@@ -123,6 +125,7 @@ class App:
         self.scale = float(self.params.get("torque_scale", 1.0))
         self.ts = float(cfg.get("ts", 33.0))
         self.hold_s = float(cfg.get("hold_s", 30.0))
+        self.gmst0 = float(cfg["gmst0_rad"])       # the field model's Earth angle at t = 0 (GMST at the epoch)
         self.stale_s = float(cfg.get("stale_s", 10.0))
         self.satb = bool(cfg.get("satb_gnss", False))
         self.torque_max = float(cfg.get("torque_max", apkf_lean.TORQUE_MAX))
@@ -294,7 +297,7 @@ class App:
         for i in range(3):
             r[i] = X[i] + 0.5 * X[3 + i]
         rn = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
-        field_dipole(self.b, r, t - 0.5)
+        field_dipole(self.b, r, t - 0.5, self.gmst0)
         return ((r[0] / rn, r[1] / rn, r[2] / rn), 3.0 * MU_EARTH / (rn * rn * rn), self.b)
 
     def _apkf(self, t):
@@ -453,7 +456,7 @@ class App:
         rb = [(A[i * 3] * X[0] + A[i * 3 + 1] * X[1] + A[i * 3 + 2] * X[2]) / rn for i in range(3)]
         Jr = [J[i * 3] * rb[0] + J[i * 3 + 1] * rb[1] + J[i * 3 + 2] * rb[2] for i in range(3)]
         g = 3.0 * MU_EARTH / (rn * rn * rn)
-        field_dipole(self.b, X, t)
+        field_dipole(self.b, X, t, self.gmst0)
         bb = [A[i * 3] * self.b[0] + A[i * 3 + 1] * self.b[1] + A[i * 3 + 2] * self.b[2] for i in range(3)]
         m0, m1, m2 = self.m_ff
         tff = self.tff

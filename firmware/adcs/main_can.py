@@ -16,11 +16,21 @@ from protocol.stream import ticks_us
 
 
 def main(argv):
+    if len(argv) < 3:
+        sys.stderr.write("usage: main_can.py DEVICE CONFIG.json [HEAP_OUT.json]\n")
+        return 2
     dev = argv[1]
     dev = int(dev) if dev.isdigit() else dev
-    with open(argv[2]) as fh:
-        cfg = json.load(fh)
-    app = App(cfg)
+    try:
+        with open(argv[2]) as fh:
+            cfg = json.load(fh)
+        app = App(cfg)
+    except KeyError as exc:                 # a setting the configuration lacks
+        sys.stderr.write("main_can: %s: missing key %s\n" % (argv[2], exc))
+        return 2
+    except (ValueError, TypeError, OSError) as exc:
+        sys.stderr.write("main_can: %s: %s\n" % (argv[2], exc))
+        return 2
     port = CanPort(SlcanAdapter(dev), "ADCS")
     heap = None
     samples = []
@@ -34,6 +44,7 @@ def main(argv):
     if len(argv) > 3:
         with open(argv[3], "w") as fh:
             json.dump({"heap_bytes": samples}, fh)
+    return 0
 
 
-main(sys.argv)
+sys.exit(main(sys.argv))

@@ -4,7 +4,8 @@ Truth (the spacecraft simulator of Fig. 6-1): ``emulator.spacecraft.Spacecraft``
 inertias and misalignments, residual dipole of Sec. 4.8) by RK4 at 0.1 s, sampled at 10 Hz. The orbits of SatA
 and SatB are the STKF issue's truth (``emulator.orbits.truth_samples``: brahe "hpop" or "two-body", 1 s samples)
 interpolated by 10th-order Lagrange (Sec. 6.4.1) onto a 20 Hz grid; the spacecraft's gravity gradient and
-magnetic field use SatA's interpolated position, and so does the APKF's model. Sensors (their own time tags): the
+magnetic field use SatA's interpolated position, and so does the APKF's model. The field's dipole turns with the
+Earth from GMST at Eq. 5.53's epoch (139.40 deg), the orbits' t = 0. Sensors (their own time tags): the
 star tracker (20/20/60 arcsec, none at |w| >= 0.1 deg/s) and the tachometers (10 rpm) at each 1 s tick, SatA's
 GNSS and the beacon (60 arcsec) at each tick, SatB's GNSS on SatB's clock (random phase) relayed 2-3 s late.
 
@@ -282,7 +283,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     rate, xg, orb, wheels, sc, st = world.rate, world.xg, world.orbit, world.wheels, world.sc, world.st
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
-    model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb)
+    model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb, field=world.field)
     ds = control.WHEEL_DATASHEET                     # the wheels' torque limit and friction: datasheet, not truth
     f_stkf = Afls(world.stkf_x0, np.diag(scenario.STKF_P0_DIAG), 0.0, LAG_S,
                   stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)

@@ -4,9 +4,10 @@ VENV    := .venv
 PY      := $(VENV)/bin/python
 MPY     := $(VENV)/bin/micropython
 STAMP   := $(VENV)/.installed-stamp
+NATMOD  := firmware/adcs/adcsk.mpy
 OUT     ?= out
 
-.PHONY: all install test bench fuzz mpy hil distfile calibrate protocol-doc clean system
+.PHONY: all install test bench fuzz mpy natmod hil distfile calibrate protocol-doc clean system
 
 all: test
 
@@ -18,11 +19,19 @@ $(STAMP): requirements.lock pyproject.toml
 
 install: $(STAMP)
 
-test: $(STAMP)
+test: $(STAMP) $(NATMOD)
 	$(PY) -m pytest
 
-bench: $(STAMP) mpy
+bench: $(STAMP) mpy $(NATMOD)
 	$(PY) -m bench.run
+
+# The ADCS kernels as a MicroPython native module (ground/natmod_build.py). The targets that run the ADCS
+# firmware build it when they can and run its Python forms when they cannot; `make natmod` insists.
+$(NATMOD): firmware/adcs/native/adcsk.c firmware/adcs/native/Makefile ground/natmod_build.py $(STAMP)
+	$(PY) -m ground.natmod_build --optional
+
+natmod: $(STAMP)
+	$(PY) -m ground.natmod_build
 
 fuzz: $(STAMP)
 	$(PY) -m tests.fuzz_frames 1000000
@@ -47,7 +56,7 @@ hil: $(STAMP)
 	$(VENV)/bin/fps hil --distfile $(OUT)/bps600.dist --calibration $(OUT)/calibration.json \
 	    --duration 600 --runtime micropython --link serial -o $(OUT)/hil
 
-system: $(STAMP)
+system: $(STAMP) $(NATMOD)
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
 	$(VENV)/bin/fps system --duration 600 --seed 1 --runtime micropython --calibration $(OUT)/calibration.json \
 	    --bps-cache $(OUT)/bps_cache -o $(OUT)/system

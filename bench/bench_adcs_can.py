@@ -14,8 +14,10 @@ pointing the lean flight filters leave on a 600 s session beside the ground filt
 - Instructions: the session's sensor bursts replayed through ``firmware/adcs/app.py`` (tests/mp/
   firmware_adcs_app.py) under ``valgrind --tool=callgrind``, cycles [0, 110) and [0, 210) differenced:
   100 pointing cycles (goal <= 10 M per cycle; a 20-cycle window catches or misses a full collection of the
-  64 MB heap by chance). The per-cycle functions are compiled by the native emitter; the same count with
-  the ADCS modules as bytecode only, and the modules' .mpy sizes both ways (x64, Cortex-M4F), beside it.
+  64 MB heap by chance). The filters' hot kernels run in C (firmware/adcs/adcsk.mpy, ``make natmod``) when
+  built, and the rest is compiled by the native emitter; beside it the same count with the filters' Python
+  forms (no native module: the same results bit for bit), and with those as bytecode only, and the modules'
+  .mpy sizes both ways (x64, Cortex-M4F).
   Heap: gc.mem_alloc deltas per cycle, gc off in the cycle.
 - Split: the same bursts through the app and its CAN HAL (tests/mp/firmware_adcs_split.py) under micropython,
   ticks_us per part over the pointing cycles; each part's share of the cycle's time applied to the callgrind
@@ -120,6 +122,22 @@ def _replay(cfg, rec, n, callgrind, heap=False, path=None):
     return out if callgrind else json.loads(out.strip().splitlines()[-1])
 
 
+MODULE = os.path.join(ROOT, "firmware", "adcs", "adcsk.mpy")     # the C kernels (make natmod), when built
+
+
+def _python_tree(d):
+    """A copy of firmware/ and protocol/ in d without the C kernels (the filters' Python forms run)."""
+    for pkg in ("firmware", "protocol"):
+        shutil.copytree(os.path.join(ROOT, pkg), os.path.join(d, pkg),
+                        ignore=shutil.ignore_patterns("__pycache__", "*.mpy"))
+    return d
+
+
+def _cycle_instr(cfg, rec, path=None):
+    """x86-64 instructions per pointing cycle (callgrind, cycles CG[0]..CG[1] differenced)."""
+    return (_replay(cfg, rec, CG[1], True, path=path) - _replay(cfg, rec, CG[0], True, path=path)) / (CG[1] - CG[0])
+
+
 def _bytecode_tree(d):
     """A copy of firmware/ and protocol/ in d with the ADCS modules' @micropython.native lines dropped (the
     same code as bytecode, for the instruction count without the native emitter)."""
@@ -155,9 +173,11 @@ def _satb_cycle(params, d):
         json.dump(cfg, fh)
     with open(rec_f, "w") as fh:
         json.dump(rec, fh)
-    instr = (_replay(cfg_f, rec_f, CG[1], True) - _replay(cfg_f, rec_f, CG[0], True)) / (CG[1] - CG[0])
+    instr = _cycle_instr(cfg_f, rec_f)
+    instr_py = _cycle_instr(cfg_f, rec_f, _python_tree(os.path.join(d, "py_b"))) if os.path.exists(MODULE) else instr
     heap = _replay(cfg_f, rec_f, CG[1], False, heap=True)["heap"][int(HOLD + 4 * TS):]
-    return instr, heap, _split(cfg_f, rec_f, int(HOLD + 4 * TS), CG[1]), summ["firmware_missed"]["gnss_b_fused"]
+    return (instr, heap, _split(cfg_f, rec_f, int(HOLD + 4 * TS), CG[1]), summ["firmware_missed"]["gnss_b_fused"],
+            instr_py)
 
 
 def code_size():
@@ -182,6 +202,10 @@ def code_size():
         lines.append("| %s | %d | %d | %d |" % (rel, plain[rel], sizes["host"][rel], sizes["armv7emsp"][rel]))
     lines.append("| **total** | %d | %d | %d |" % (sum(plain.values()), sum(sizes["host"].values()),
                                                     sum(sizes["armv7emsp"].values())))
+    if os.path.exists(MODULE):
+        lines.append("| firmware/adcs/adcsk.mpy (the C kernels, a native module; besides the above) | — | %d | "
+                     "not built here (`python -m ground.natmod_build --arch armv7emsp` with arm-none-eabi-gcc) |"
+                     % os.path.getsize(MODULE))
     return "\n".join(lines)
 
 
@@ -232,8 +256,10 @@ def main():
         with open(rec, "w") as fh:
             json.dump(runs["micropython"]["rec"], fh)
         have_vg = shutil.which("valgrind") is not None
-        instr = ((_replay(cfg, rec, CG[1], True) - _replay(cfg, rec, CG[0], True)) / (CG[1] - CG[0])
-                 if have_vg else float("nan"))
+        kern = os.path.exists(MODULE)
+        instr = _cycle_instr(cfg, rec) if have_vg else float("nan")
+        instr_py = (_cycle_instr(cfg, rec, _python_tree(os.path.join(d, "py"))) if have_vg and kern else
+                    instr)
         if have_vg:
             bc = _bytecode_tree(os.path.join(d, "bytecode"))
             instr_bc = (_replay(cfg, rec, CG[1], True, path=bc) - _replay(cfg, rec, CG[0], True, path=bc)) / (
@@ -248,12 +274,18 @@ def main():
     g_wall = time.perf_counter() - t0
     mp = runs["micropython"]
     hs = np.array(heap[int(HOLD + 4 * TS):])
-    print("Cost of one 1 Hz ADCS cycle (APKF + STKF + control, no CAN) under micropython (unix x64 port)\n")
+    print("Cost of one 1 Hz ADCS cycle (APKF + STKF + control, no CAN) under micropython (unix x64 port)%s\n"
+          % ("" if kern else "; the C kernels (firmware/adcs/adcsk.mpy) are not built: `make natmod` says why"))
     print("| item | goal | ours |")
     print("|---|---|---|")
-    print("| x86-64 instructions per cycle, pointing (callgrind, cycles %d-%d) | <= %.0f M | %.2f M%s |"
-          % (CG[0], CG[1], GOAL_INSTR / 1e6, instr / 1e6, "" if instr <= GOAL_INSTR else " (missed)"))
-    print("| the same, the ADCS modules as bytecode only (no native emitter) | — | %.2f M |" % (instr_bc / 1e6))
+    print("| x86-64 instructions per cycle, pointing (callgrind, cycles %d-%d)%s | <= %.0f M | %.2f M%s |"
+          % (CG[0], CG[1], ", with the C kernels (flown)" if kern else ", Python kernels", GOAL_INSTR / 1e6,
+             instr / 1e6, "" if instr <= GOAL_INSTR else " (missed)"))
+    if kern:
+        print("| the same, the filters' Python forms (no native module; same results bit for bit) | <= %.0f M | "
+              "%.2f M%s |" % (GOAL_INSTR / 1e6, instr_py / 1e6, "" if instr_py <= GOAL_INSTR else " (missed)"))
+    print("| the same, Python forms as bytecode only (no native module, no native emitter) | — | %.2f M |"
+          % (instr_bc / 1e6))
     print("| heap bytes per cycle, pointing (max / mean) | measured, bounded | %d / %d |" % (hs.max(), hs.mean()))
     print("| heap bytes per cycle in the CAN session (max over %d cycles, incl. status) | measured | %d |"
           % (len(heap_session), max(heap_session)))
@@ -274,7 +306,7 @@ def main():
     print("| CAN HAL, outside the cycle (slcan, ISO-TP, unpack, RW_CMD + status out) | %.0f | %.0f %% of the "
           "cycle | %.2f |" % (split["hal"] / n, 100.0 * split["hal"] / cyc, instr * split["hal"] / cyc / 1e6))
     if satb is not None:
-        ib, hb, sb, fused = satb
+        ib, hb, sb, fused, ib_py = satb
         n, cyc = sb["cycles"], sb["cycle"]
         print("\nThe same cycle with SatB's GNSS relayed 2-3 s late (STKF lag 4 s, 6 nodes; a %d s session, %s SatB "
               "fixes fused; callgrind cycles %d-%d, time shares over %d-%d)\n" % (CG[1], fused, CG[0], CG[1],
@@ -286,8 +318,11 @@ def main():
                          ("beacon update", sb["beacon"]), ("control", sb["control"]),
                          ("rest of the cycle", cyc - sb["apkf"] - sb["stkf"] - sb["control"])):
             print("| %s | %.0f %% | %.2f |" % (name, 100.0 * us / cyc, ib * us / cyc / 1e6))
-        print("| **cycle (callgrind; goal <= %.0f M)** | 100 %% | %.2f%s |" % (
-            GOAL_INSTR / 1e6, ib / 1e6, "" if ib <= GOAL_INSTR else " (missed)"))
+        print("| **cycle (callgrind%s; goal <= %.0f M)** | 100 %% | %.2f%s |" % (
+            ", C kernels" if kern else "", GOAL_INSTR / 1e6, ib / 1e6, "" if ib <= GOAL_INSTR else " (missed)"))
+        if kern:
+            print("| the same cycle, the filters' Python forms (no native module) | | %.2f%s |" % (
+                ib_py / 1e6, "" if ib_py <= GOAL_INSTR else " (missed)"))
         print("| CAN HAL, outside the cycle | %.0f %% of the cycle | %.2f |" % (100.0 * sb["hal"] / cyc,
                                                                                ib * sb["hal"] / cyc / 1e6))
         print("| heap bytes per cycle, pointing (max / mean) | | %d / %d |" % (max(hb), sum(hb) / len(hb)))

@@ -707,3 +707,11 @@ class Lean:
             self.wm[i] = wp[i]
         if q_meas is not None and not update(self.x, self.P, q_meas, self.model, self.work):
             self.skipped += 1
+
+
+if linalg.kernels is not None:          # the C kernels, when built (linalg's comment): the same results
+    def phi(Phi, F, dt, work, order=4):
+        """``phi`` above, in C (adcsk.phi9)."""
+        linalg.kernels.phi9(Phi, F, dt, work.T1, order)
+
+    covariance_predict = linalg.kernels.covariance_predict

@@ -347,3 +347,17 @@ def _solve_cols_loops(X, L, n, m):
             for k in range(i + 1, m):
                 s -= L[k * m + i] * X[k * n + c]
             X[i * n + c] = s / L[i * m + i]
+
+
+# The C kernels (firmware/adcs/native/adcsk.c, built by ``make natmod`` into firmware/adcs/adcsk.mpy): these
+# functions and the filters' hot loops, the same operations in the same order over the same buffers, so the
+# results are equal bit for bit (tests/test_adcs_natmod.py), and no float is boxed. Where the module is not
+# there (CPython, or MicroPython without it) the Python forms above run; so they do where it was built for
+# another arch or MicroPython version (the import raises ValueError: "incompatible .mpy"), the safe state.
+try:
+    from firmware.adcs import adcsk as kernels
+except (ImportError, ValueError):
+    kernels = None
+if kernels is not None:
+    matmul, matmul_bt, symmetrize = kernels.matmul, kernels.matmul_bt, kernels.symmetrize
+    cholesky, chol_solve_rows, joseph_select = kernels.cholesky, kernels.chol_solve_rows, kernels.joseph_select

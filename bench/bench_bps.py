@@ -60,6 +60,8 @@ def main():
             rows.append("| %s | 3σ pointing / stability | < 150″ / < 35″/s | %.1f″ / %.1f″/s | | %s |" % (
                 name, r["pointing_3sigma_arcsec"], r["stability_3sigma_arcsec_s"],
                 "yes" if r["pointing_3sigma_arcsec"] < 150 and r["stability_3sigma_arcsec_s"] < 35 else "NO"))
+            rows.append("| %s | largest wheel speed (no limit in effect, as the thesis) | — | %.0f rpm | | |"
+                        % (name, r["max_wheel_speed_rpm"]))
         # Eq. 6.7's other reading, wn = 4 / t_s at t_s = 33 s, is wn = 8 / t_s at t_s = 66 s (ground/adcs/control.py)
         r66, _ = bps.simulate(ts=66, satb_gnss=False, duration_s=DURATION, seed=0, params=params, truth="hpop",
                               cache_dir=os.path.abspath(cache))
@@ -72,6 +74,21 @@ def main():
                         r66["pointing_sigma_arcsec"][1] / th["theta"][1][1],
                         r66["stability_sigma_arcsec_s"][0] / th["omega"][0][1],
                         r66["stability_sigma_arcsec_s"][1] / th["omega"][1][1]))
+        # the same with the true wheels limited: the scenario's earlier 20,000 rpm and the datasheet's 10,000 rpm
+        for lim in (20000.0, 10000.0):
+            rl, _ = bps.simulate(ts=33, satb_gnss=False, duration_s=DURATION, seed=0, params=params, truth="hpop",
+                                 cache_dir=os.path.abspath(cache), wheel_speed_max_rpm=lim)
+            rows.append("| without SatB GNSS, wheels limited to %.0f rpm (the thesis's have no limit) | δθ / δω 1σ; "
+                        "3σ | (%.3f, %.3f) / (%.3f, %.3f) | (%.1f, %.1f) / (%.2f, %.2f); %.0f″ / %.1f″/s | "
+                        "%.2f, %.2f / %.2f, %.2f | %d speed clips (not the thesis's condition) |" % (
+                            lim, th["theta"][0][1], th["theta"][1][1], th["omega"][0][1], th["omega"][1][1],
+                            *rl["pointing_sigma_arcsec"], *rl["stability_sigma_arcsec_s"],
+                            rl["pointing_3sigma_arcsec"], rl["stability_3sigma_arcsec_s"],
+                            rl["pointing_sigma_arcsec"][0] / th["theta"][0][1],
+                            rl["pointing_sigma_arcsec"][1] / th["theta"][1][1],
+                            rl["stability_sigma_arcsec_s"][0] / th["omega"][0][1],
+                            rl["stability_sigma_arcsec_s"][1] / th["omega"][1][1],
+                            sum(rl["wheel_speed_clips"]["speed_clip"])))
         print("Accuracy, t_s = 33 s, %g s at 10 Hz, brahe truth, seed 0%s (goal: 1σ within 25 %% of the thesis)"
               % (DURATION, " — REDUCED run" if REDUCED else ""))
         print()

@@ -181,3 +181,19 @@ def test_the_firmware_field_is_the_emulators():
         r = orbits.kepler(orbits.X0_A, np.array([t]))[0, 0:3]
         field_dipole(b, r.tolist(), t, g)
         np.testing.assert_allclose(b, f.field(r, t), rtol=1e-12, atol=1e-18)
+
+
+def test_the_wheel_speed_limit_is_the_worlds_and_bps_reports_it():
+    """The body-pointing world's wheels have no speed limit in effect (the thesis's Eq. 4.56), unless one is
+    given; bps passes it on and reports the largest speed and the clips."""
+    w = scenario.pointing_world(40, 0)
+    assert w.wheels.speed_max == pytest.approx(scenario.POINTING_WHEEL_RPM * 2 * np.pi / 60)
+    assert scenario.pointing_world(40, 0, wheel_speed_max_rpm=900.0).wheels.speed_max == \
+        pytest.approx(900.0 * 2 * np.pi / 60)
+    params = scenario.truth_params(w.sc)
+    free, hf = bps.simulate(ts=TS, duration_s=DURATION, seed=SEED, params=params, truth="two-body")
+    capped, hc = bps.simulate(ts=TS, duration_s=DURATION, seed=SEED, params=params, truth="two-body",
+                              wheel_speed_max_rpm=300.0)
+    assert free["wheel_speed_max_rpm"] == scenario.POINTING_WHEEL_RPM and capped["wheel_speed_max_rpm"] == 300.0
+    assert free["max_wheel_speed_rpm"] > 300.0 and sum(free["wheel_speed_clips"]["speed_clip"]) == 0
+    assert capped["max_wheel_speed_rpm"] <= 300.0 + 1e-6 and sum(capped["wheel_speed_clips"]["speed_clip"]) > 0

@@ -120,10 +120,16 @@ def report_md(s, args_text):
                                                         "—" if p3 is None else "%.1f" % p3),
             "| stability (arcsec/s) | %g | %.1f | %s |" % (bps.BUDGET_STABILITY_3SIGMA, th3[1],
                                                            "—" if w3 is None else "%.1f" % w3), "",
-            "J = %s rad² (Eq. 6.22); largest pointing error %s arcsec; largest wheel speed %.0f rpm; "
+            "J = %s rad² (Eq. 6.22); largest pointing error %s arcsec; largest wheel speed %.0f rpm (the "
+            "emulated wheels' datasheet: 10,000 rpm; this run's limit %.0f rpm, reached %s times); "
             "wall %.1f s." % ("—" if s.get("J_rad2") is None else "%.3e" % s["J_rad2"],
                               "—" if s.get("pointing_max_arcsec") is None else "%.1f" % s["pointing_max_arcsec"],
-                              s["max_wheel_speed_rpm"], s["wall_s"]), "",
+                              s["max_wheel_speed_rpm"], s.get("wheel_speed_max_rpm", float("nan")),
+                              sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), s["wall_s"]), "",
+            "The thesis's wheels have no speed limit (Eq. 4.56), nor does this run in effect: the residual dipole's "
+            "secular torque builds up in the wheels, which a flight design must unload (magnetorquers); the thesis "
+            "does not model that (scenario.POINTING_WHEEL_RPM; bench_bps runs the same with 20,000 and 10,000 rpm "
+            "limits).", "",
             ] + budget_md(s.get("budget")) + [
             "Known differences from the thesis: the APKF misses the thesis's attitude 1σ by ~2x (README, issue 9); "
             "the controller adds the command rate, w x H, the APKF's external-torque estimate, the wheels' "

@@ -268,6 +268,16 @@ static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(joseph_select_obj, 9, 9, joseph_selec
 
 // ---- stkf_lean.py -----------------------------------------------------------------------------------------
 
+// column c of rows 0..5 of P, then row c of columns 0..5, set to v (the Python forms' order of stores)
+static void mirror6(vec_t *P, size_t ld, size_t c, const double *v) {
+    for (int i = 0; i < 6; i++) {
+        wr(P, i * ld + c, v[i]);
+    }
+    for (int i = 0; i < 6; i++) {
+        wr(P, c * ld + i, v[i]);
+    }
+}
+
 // rows_mul_mirror(P, ld, src, c_lo, c_hi, F)
 static mp_obj_t rows_mul_mirror(size_t n_args, const mp_obj_t *args) {
     size_t ld = sz(args[1]), src = sz(args[2]), c_lo = sz(args[3]), c_hi = sz(args[4]);
@@ -288,12 +298,7 @@ static mp_obj_t rows_mul_mirror(size_t n_args, const mp_obj_t *args) {
             const double *fi = f + 6 * i;
             v[i] = fi[0] * p[0] + fi[1] * p[1] + fi[2] * p[2] + fi[3] * p[3] + fi[4] * p[4] + fi[5] * p[5];
         }
-        for (int i = 0; i < 6; i++) {
-            wr(&P, i * ld + c, v[i]);
-        }
-        for (int i = 0; i < 6; i++) {
-            wr(&P, c * ld + i, v[i]);
-        }
+        mirror6(&P, ld, c, v);
     }
     return mp_const_none;
 }
@@ -356,12 +361,7 @@ static mp_obj_t ikh_rows(size_t n_args, const mp_obj_t *args) {
         v[3] = g[9] * p0 + g[10] * p1 + g[11] * p2 + rd(&P, 3 * ld + c);
         v[4] = g[12] * p0 + g[13] * p1 + g[14] * p2 + rd(&P, 4 * ld + c);
         v[5] = g[15] * p0 + g[16] * p1 + g[17] * p2 + rd(&P, 5 * ld + c);
-        for (int i = 0; i < 6; i++) {
-            wr(&P, i * ld + c, v[i]);
-        }
-        for (int i = 0; i < 6; i++) {
-            wr(&P, c * ld + i, v[i]);
-        }
+        mirror6(&P, ld, c, v);
     }
     return mp_const_none;
 }

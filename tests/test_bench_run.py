@@ -153,7 +153,8 @@ def test_bench_bps_with_a_failed_sweep_raises_after_its_tables(monkeypatch, caps
     from bench import bench_bps
     r = {"pointing_sigma_arcsec": [27.0, 37.0], "pointing_mean_arcsec": [0.0, 0.0],
          "stability_sigma_arcsec_s": [6.8, 8.6], "stability_mean_arcsec_s": [0.0, 0.0], "budget": None,
-         "pointing_3sigma_arcsec": 139.0, "stability_3sigma_arcsec_s": 33.0}
+         "pointing_3sigma_arcsec": 139.0, "stability_3sigma_arcsec_s": 33.0, "max_wheel_speed_rpm": 24000.0,
+         "wheel_speed_clips": {"torque_clip": [0] * 4, "speed_clip": [0] * 4}}     # as bps.simulate's result
     monkeypatch.setattr(bench_bps.bps_cli, "calibration", lambda *a, **k: {})
     monkeypatch.setattr(bench_bps.bps, "simulate", lambda **k: (r, None))
     monkeypatch.setattr(bench_bps.bps, "write_params", lambda *a: None)

@@ -220,7 +220,36 @@ def test_interrupted_run_is_marked_incomplete(params, monkeypatch):
     assert len(hist["t"]) == int(res["simulated_s"]) * 10 + 1
 
 
+def test_a_diverging_stkf_ends_the_run_with_its_time(params, monkeypatch):
+    """An STKF update whose innovation covariance is not positive definite (LinAlgError) is the filter's
+    divergence: FloatingPointError naming the filter and the time, as for a NaN estimate."""
+    calls = {"n": 0}
+    real = bps.Afls.update
+
+    def update(self, *a, **kw):
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise np.linalg.LinAlgError("innovation covariance is not positive definite (LAPACK info 3)")
+        return real(self, *a, **kw)
+    monkeypatch.setattr(bps.Afls, "update", update)
+    with pytest.raises(FloatingPointError, match=r"STKF diverged at t = \d+ s: innovation covariance"):
+        bps.simulate(ts=20, duration_s=100, seed=1, params=params, truth="two-body")
+
+
 # --- commands ---------------------------------------------------------------------------------------------------
+def test_bps_command_reports_a_diverged_run(params_file, tmp_path, monkeypatch, capsys):
+    def diverged(**kw):
+        raise FloatingPointError("STKF diverged at t = 412 s: innovation covariance is not positive definite")
+    monkeypatch.setattr(bps, "simulate", diverged)
+    out = tmp_path / "run"
+    rc = cli.main(["adcs", "bps", "--ts", "20", "--duration", "30", "--seed", "2", "--params", params_file,
+                   "--truth", "two-body", "--quiet", "--cache-dir", str(tmp_path / "c"), "-o", str(out)])
+    err = capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert rc == 1 and "the run failed: STKF diverged at t = 412 s" in err and "internal error" not in err
+    assert s["complete"] is False and "STKF diverged" in s["error"]
+
+
 def test_bps_command_writes_the_run_folder(params_file, tmp_path, capsys):
     out = tmp_path / "run"
     rc = cli.main(["adcs", "bps", "--ts", "20", "--duration", "30", "--seed", "2", "--params", params_file,

@@ -351,9 +351,12 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             if k > 0:
                 f_stkf.predict(t)
             R_gb = stkf.R_gnss_beacon(gnss_a.R, stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
-            f_stkf.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
-            for tm, z in due:                           # SatB's GNSS: H = I on SatB's part (Eq. 5.12)
-                f_stkf.update(z, relay.gnss.R, lambda x: (x, I6), t=tm, part=stkf.SAT_B)
+            try:
+                f_stkf.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
+                for tm, z in due:                       # SatB's GNSS: H = I on SatB's part (Eq. 5.12)
+                    f_stkf.update(z, relay.gnss.R, lambda x: (x, I6), t=tm, part=stkf.SAT_B)
+            except np.linalg.LinAlgError as exc:        # S not positive definite: the filter has diverged
+                raise FloatingPointError("STKF diverged at t = %.0f s: %s" % (t, exc))
             xh = f_stkf.x
             if not np.all(np.isfinite(xh)):
                 raise FloatingPointError("STKF diverged at t = %.0f s" % t)

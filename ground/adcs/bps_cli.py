@@ -209,8 +209,14 @@ def _cmd_bps(a):
     except KeyboardInterrupt:
         print("interrupted before the pointing run: %s has complete=false" % out, file=sys.stderr)
         return 130
-    res, hist = bps.simulate(ts=ts, satb_gnss=a.satb_gnss, duration_s=a.duration, seed=a.seed, params=params,
-                             truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet)
+    try:
+        res, hist = bps.simulate(ts=ts, satb_gnss=a.satb_gnss, duration_s=a.duration, seed=a.seed, params=params,
+                                 truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet)
+    except FloatingPointError as exc:              # a filter or the truth diverged: the run ends, the folder says so
+        summary["error"] = str(exc)
+        write_json(os.path.join(out, "summary.json"), summary)
+        print("fps adcs bps: the run failed: %s (%s has complete=false)" % (exc, out), file=sys.stderr)
+        return 1
     bps.save_history(os.path.join(out, "history.npz"), hist)
     s = dict(res)
     s["thesis"] = {"pointing_sigma_arcsec": [v[1] for v in bps.THESIS[a.satb_gnss]["theta"]],

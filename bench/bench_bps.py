@@ -11,7 +11,6 @@ import sys
 import tempfile
 import time
 
-
 from ground.adcs import bps, bps_cli
 
 REDUCED = os.environ.get("BPS_BENCH_REDUCED") == "1"

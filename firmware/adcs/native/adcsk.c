@@ -9,6 +9,15 @@
 
 #include "py/dynruntime.h"
 
+#if defined(__arm__)
+// newlib's sqrt wrapper pulls in data a native module cannot hold; its IEEE core is the same correctly
+// rounded square root (as every IEEE sqrt, x64's sqrtsd included)
+extern double __ieee754_sqrt(double);
+#define SQRT(x) __ieee754_sqrt(x)
+#else
+#define SQRT(x) __builtin_sqrt(x)
+#endif
+
 typedef struct {
     void *p;
     size_t n;
@@ -157,7 +166,7 @@ static bool k_cholesky(vec_t *L, const vec_t *A, size_t n) {
         if (!(s > 0.0)) {
             return false;
         }
-        double d = __builtin_sqrt(s);
+        double d = SQRT(s);
         wr(L, j * n + j, d);
         for (size_t i = j + 1; i < n; i++) {
             s = rd(A, i * n + j);

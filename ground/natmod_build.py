@@ -13,6 +13,10 @@ and pyelftools (requirements.lock); an ARM arch needs arm-none-eabi-gcc with new
 (requirements.lock: mpy_ld links libgcc's double arithmetic and newlib's square root for an FPU without double
 precision).
 
+Debian's pool keeps a version's tarball while a release carries it (1.25.0: trixie, sid); once it is gone the
+download fails with its URL, the Python kernels run, and MP_VERSION and SHA256 want bumping together (the
+new version's .mpy ABI checked against the venv's port: ``sys.implementation._mpy``).
+
 ``--optional`` (what ``make test`` uses): a build that cannot be done (no network, no gcc) says why in one line
 and exits 0; the Python forms then run and the tests that need the module are skipped with that reason.
 """

@@ -41,6 +41,7 @@ import numpy as np
 from bench import mp
 
 from emulator.adcs_session import AdcsSession
+from ground import natmod_build
 from ground.adcs import bps
 
 ROOT = mp.ROOT
@@ -124,7 +125,7 @@ def _replay(cfg, rec, n, callgrind, heap=False, path=None):
     return out if callgrind else json.loads(out.strip().splitlines()[-1])
 
 
-MODULE = os.path.join(ROOT, "firmware", "adcs", "adcsk.mpy")     # the C kernels (make natmod), when built
+MODULE = natmod_build.TARGET          # the C kernels (make natmod), when built
 
 
 def _python_tree(d):
@@ -141,11 +142,9 @@ def _cycle_instr(cfg, rec, path=None):
 
 
 def _bytecode_tree(d):
-    """A copy of firmware/ and protocol/ in d with the ADCS modules' @micropython.native lines dropped (the
-    same code as bytecode, for the instruction count without the native emitter)."""
-    for pkg in ("firmware", "protocol"):
-        shutil.copytree(os.path.join(ROOT, pkg), os.path.join(d, pkg),
-                        ignore=shutil.ignore_patterns("__pycache__", "*.mpy"))
+    """``_python_tree`` with the ADCS modules' @micropython.native lines dropped (the same code as bytecode, for
+    the instruction count without the native emitter)."""
+    _python_tree(d)
     adcs = os.path.join(d, "firmware", "adcs")
     for f in os.listdir(adcs):
         if f.endswith(".py"):
@@ -205,7 +204,7 @@ def code_size():
     lines.append("| **total** | %d | %d | %d |" % (sum(plain.values()), sum(sizes["host"].values()),
                                                     sum(sizes["armv7emsp"].values())))
     if os.path.exists(MODULE):
-        arm = os.path.join(ROOT, "build", "natmod", "armv7emsp", "adcsk.mpy")
+        arm = natmod_build.module_path("armv7emsp")
         lines.append("| firmware/adcs/adcsk.mpy (the C kernels, a native module; besides the above) | — | %d | %s |"
                      % (os.path.getsize(MODULE), os.path.getsize(arm) if os.path.exists(arm) else
                         "not built (`python -m ground.natmod_build --arch armv7emsp` with arm-none-eabi-gcc)"))

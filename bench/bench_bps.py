@@ -25,6 +25,14 @@ def _fps(args, cwd):
     return p.returncode, time.perf_counter() - t0, p
 
 
+def _sigma_cells(r, th):
+    """Table cells for a run's δθ / δω 1σ beside the thesis's: (thesis, ours, ours / thesis)."""
+    t = (th["theta"][0][1], th["theta"][1][1], th["omega"][0][1], th["omega"][1][1])
+    o = tuple(r["pointing_sigma_arcsec"]) + tuple(r["stability_sigma_arcsec_s"])
+    return ("(%.3f, %.3f) / (%.3f, %.3f)" % t, "(%.1f, %.1f) / (%.2f, %.2f)" % o,
+            "%.2f, %.2f / %.2f, %.2f" % tuple(a / b for a, b in zip(o, t)))
+
+
 def main():
     with tempfile.TemporaryDirectory() as tmp:
         cache = os.path.join(tmp, "cache")
@@ -66,14 +74,8 @@ def main():
         r66, _ = bps.simulate(ts=66, satb_gnss=False, duration_s=DURATION, seed=0, params=params, truth="hpop",
                               cache_dir=os.path.abspath(cache))
         th = bps.THESIS[False]
-        rows.append("| without SatB GNSS, Eq. 6.7 read as wn = 4/t_s (= t_s 66 s here) | δθ / δω 1σ | (%.3f, %.3f) / "
-                    "(%.3f, %.3f) | (%.1f, %.1f) / (%.2f, %.2f) | %.2f, %.2f / %.2f, %.2f | (not ours) |" % (
-                        th["theta"][0][1], th["theta"][1][1], th["omega"][0][1], th["omega"][1][1],
-                        *r66["pointing_sigma_arcsec"], *r66["stability_sigma_arcsec_s"],
-                        r66["pointing_sigma_arcsec"][0] / th["theta"][0][1],
-                        r66["pointing_sigma_arcsec"][1] / th["theta"][1][1],
-                        r66["stability_sigma_arcsec_s"][0] / th["omega"][0][1],
-                        r66["stability_sigma_arcsec_s"][1] / th["omega"][1][1]))
+        rows.append("| without SatB GNSS, Eq. 6.7 read as wn = 4/t_s (= t_s 66 s here) | δθ / δω 1σ | %s | %s | %s "
+                    "| (not ours) |" % _sigma_cells(r66, th))
         # the same with the true wheels limited: the scenario's earlier 20,000 rpm and the datasheet's 10,000 rpm
         for lim in (20000.0, 10000.0):
             try:
@@ -83,16 +85,10 @@ def main():
                 rows.append("| without SatB GNSS, wheels limited to %.0f rpm (the thesis's have no limit) | — | — | "
                             "the run ended: %s | | (not the thesis's condition) |" % (lim, exc))
                 continue
+            thesis, ours, ratios = _sigma_cells(rl, th)
             rows.append("| without SatB GNSS, wheels limited to %.0f rpm (the thesis's have no limit) | δθ / δω 1σ; "
-                        "3σ | (%.3f, %.3f) / (%.3f, %.3f) | (%.1f, %.1f) / (%.2f, %.2f); %.0f″ / %.1f″/s | "
-                        "%.2f, %.2f / %.2f, %.2f | %d speed clips (not the thesis's condition) |" % (
-                            lim, th["theta"][0][1], th["theta"][1][1], th["omega"][0][1], th["omega"][1][1],
-                            *rl["pointing_sigma_arcsec"], *rl["stability_sigma_arcsec_s"],
-                            rl["pointing_3sigma_arcsec"], rl["stability_3sigma_arcsec_s"],
-                            rl["pointing_sigma_arcsec"][0] / th["theta"][0][1],
-                            rl["pointing_sigma_arcsec"][1] / th["theta"][1][1],
-                            rl["stability_sigma_arcsec_s"][0] / th["omega"][0][1],
-                            rl["stability_sigma_arcsec_s"][1] / th["omega"][1][1],
+                        "3σ | %s | %s; %.0f″ / %.1f″/s | %s | %d speed clips (not the thesis's condition) |" % (
+                            lim, thesis, ours, rl["pointing_3sigma_arcsec"], rl["stability_3sigma_arcsec_s"], ratios,
                             sum(rl["wheel_speed_clips"]["speed_clip"])))
         print("Accuracy, t_s = 33 s, %g s at 10 Hz, brahe truth, seed 0%s (goal: 1σ within 25 %% of the thesis)"
               % (DURATION, " — REDUCED run" if REDUCED else ""))

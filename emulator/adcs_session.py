@@ -434,7 +434,7 @@ class AdcsSession:
 
 def _gnss_payload(t_ms, sat, z):
     """GNSS payload of a fix z = (x, y, z m, vx, vy, vz m/s): raw = round(value / the field's scale in the table)."""
-    scale = dict((f[0], f[3]) for f in core.PACKET[P["GNSS"]].fields)
+    scale = core.field_scales("GNSS")
     raw = dict((n, int(round(z[i] * (1.0 / scale[n])))) for i, n in enumerate(("x", "y", "z", "vx", "vy", "vz")))
     return core.encode_payload(P["GNSS"], raw, t_ms=t_ms & 0xFFFFFFFF, sat=sat)
 

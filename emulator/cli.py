@@ -80,7 +80,6 @@ def _truth_h(args):
 
 
 MAX_SECONDS = 1e6        # ~11.6 days: longer --duration or --wait is a typo (and overflows select's timeout)
-BENCH_DURATION_S = 10.0  # a bench serve run without --duration (virtual s)
 MAX_FAILED_TICKS = 10    # consecutive overruns that end a bench serve run (10 s at the default --deadline)
 BYTES_PER_TICK = 400     # a bench run's samples held in memory until its summary (measured, tracemalloc peak)
 
@@ -107,6 +106,7 @@ def _check_serve_args(args):
         if args.max_failed_ticks < 1:
             raise ValueError("--max-failed-ticks must be at least 1, got %d" % args.max_failed_ticks)
         finite("--rate (Hz)", args.rate, 0.0, lo_open=True)
+        from emulator.serve import BENCH_DURATION_S
         duration = BENCH_DURATION_S if args.duration is None else args.duration
         need, have = duration * args.rate * BYTES_PER_TICK, _memory_bytes()
         if have and need > 0.8 * have:        # the run would end in MemoryError (or swap) hours in

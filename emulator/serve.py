@@ -98,10 +98,12 @@ class DistfilePlayer:
         return n
 
 
+BENCH_DURATION_S = 10.0  # a bench serve run without --duration (virtual s)
+
+
 def serve(args):
     """Run the bench on a link for ``args.duration`` virtual seconds (see emulator/cli.py for the options)."""
     from protocol.link import open_link
-    from emulator.cli import BENCH_DURATION_S
     duration = BENCH_DURATION_S if args.duration is None else args.duration
     bench = Bench(load_config(args.config), seed=args.seed)
     if args.distfile:

@@ -17,18 +17,18 @@ _CTRL_INT = {"--gain": "gain_q15", "--decim": "decim", "--safe-ticks": "safe_tic
              "--beam-threshold": "beam_threshold"}
 
 
-def _usage(msg):
-    """Bad arguments: on stderr, which ground.runtime keeps (it sends the controller's stdout to /dev/null)."""
-    print("firmware.main: error: %s" % msg, file=sys.stderr)
-    print("usage: firmware.main controller|player --link SPEC [options] (see the module docstring)", file=sys.stderr)
-    return 2
-
-
 def _failed(exc):
-    """The link failed while serving (e.g. an ISO-TP send without flow control): not a usage error. On stderr,
-    which ground.runtime keeps (it sends the controller's stdout to /dev/null)."""
+    """The error on stderr, which ground.runtime keeps (it sends the controller's stdout to /dev/null); exit 1:
+    the link failed while serving (e.g. an ISO-TP send without flow control)."""
     print("firmware.main: error: %s" % exc, file=sys.stderr)
     return 1
+
+
+def _usage(msg):
+    """Bad arguments: the error and the usage on stderr; exit 2."""
+    _failed(msg)
+    print("usage: firmware.main controller|player --link SPEC [options] (see the module docstring)", file=sys.stderr)
+    return 2
 
 
 def parse(argv):

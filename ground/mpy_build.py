@@ -83,13 +83,12 @@ def main(argv=None):
         return 1
     print(table(rows))
     print("\n%d files compiled into %s" % (len(rows), args.out))
-    kern = os.path.join(ROOT, "firmware", "adcs", "adcsk.mpy")       # the C kernels (make natmod): x64 code
+    from ground.natmod_build import TARGET as kern       # the C kernels (make natmod): x64 code
     if args.march in ("host", "x64") and os.path.exists(kern):
-        import shutil
-        dst = os.path.join(args.out, "firmware", "adcs", "adcsk.mpy")
-        shutil.copyfile(kern, dst + ".tmp")
-        os.replace(dst + ".tmp", dst)
-        print("and the ADCS C kernels (native module, x64) copied beside them: %d bytes" % os.path.getsize(dst))
+        from protocol.fileio import write_atomic
+        with open(kern, "rb") as fh:
+            write_atomic(os.path.join(args.out, os.path.relpath(kern, ROOT)), fh.read())
+        print("and the ADCS C kernels (native module, x64) copied beside them: %d bytes" % os.path.getsize(kern))
     return 0
 
 

@@ -75,6 +75,12 @@ def fetch_source(dest=SRC_DIR, url=URL, sha256=SHA256):
     return dest
 
 
+def module_path(arch="x64"):
+    """Where the module for ``arch`` goes: beside the firmware for x64 (what the unix port loads), else under
+    build/natmod/<arch>/."""
+    return TARGET if arch == "x64" else os.path.join(ROOT, "build", "natmod", arch, "adcsk.mpy")
+
+
 def build(arch="x64", src=None):
     """Compile and link adcsk for ``arch``; returns the .mpy's path."""
     for tool in ("gcc" if arch in ("x64", "x86") else "arm-none-eabi-gcc", "make"):
@@ -95,14 +101,13 @@ def build(arch="x64", src=None):
     made = os.path.join(NATIVE, "adcsk.mpy")
     if p.returncode != 0 or not os.path.exists(made):
         raise BuildError("the native module did not build:\n%s" % (p.stderr or p.stdout).strip()[-2000:])
-    dst = TARGET if arch == "x64" else os.path.join(out, "adcsk.mpy")
+    dst = module_path(arch)
     os.replace(made, dst)                          # atomic: the firmware sees the old module or the new one
-    for junk in (".mpy_ld_cache",):
-        path = os.path.join(NATIVE, junk)
-        if os.path.isdir(path):
-            shutil.rmtree(path, ignore_errors=True)
-        elif os.path.exists(path):
-            os.remove(path)
+    cache = os.path.join(NATIVE, ".mpy_ld_cache")  # ar_util's (an ARM build's libgcc and libm)
+    if os.path.isdir(cache):
+        shutil.rmtree(cache, ignore_errors=True)
+    elif os.path.exists(cache):
+        os.remove(cache)
     return dst
 
 

@@ -101,6 +101,11 @@ def packet_def(name_or_id):
     return d
 
 
+def field_scales(name_or_id):
+    """{field name: scale} of a packet: the physical value of one raw count (the table's scale column)."""
+    return dict((f[0], f[3]) for f in packet_def(name_or_id).fields)
+
+
 def field_range(field):
     """(lo, hi) raw range of a field: its declared bounds, else its format's."""
     fmt = field[1]

@@ -15,6 +15,8 @@ Any bad magic, version, kind, units, period, scale, length, CRC or a non-finite 
 
 import struct
 
+from protocol.core import FLOAT32_MAX   # largest finite float32 (the scale, kind 1 samples)
+
 try:
     from binascii import crc32 as _crc32   # C implementation (CPython, MicroPython unix and most ports)
 except ImportError:  # pragma: no cover - ports without binascii.crc32
@@ -31,7 +33,6 @@ KIND_FLOAT32 = 1
 UNITS_ARCSEC = 0
 DEFAULT_PERIOD_US = 8192
 MAX_COUNT = 1 << 26             # ~6.4 days at 8.192 ms; keeps sizes well inside 32 bits
-FLOAT32_MAX = 3.4028234663852886e38     # largest finite float32 (the scale, kind 1 samples)
 _SAMPLE_FMT = ("<ii", "<ff")    # by kind
 _CHUNK = 512                    # bytes per read while checking a file's CRC
 

@@ -21,6 +21,8 @@ H = [[a, b], [c, d]] maps FSM tilt volts to quadcell ratios, R = H V (Eq. 7.10).
 
 import struct
 
+from protocol.core import FLOAT32_MAX   # the blob stores float32
+
 try:
     from binascii import crc32 as _crc32
 except ImportError:  # pragma: no cover
@@ -32,7 +34,6 @@ HEADER_FMT = "<4sHBB"
 HEADER_SIZE = 8
 MAX_AXIS = 32
 V_RANGE = 2.5        # FSM tilt voltage range, V
-FLOAT32_MAX = 3.4028234663852886e38     # the blob stores float32
 
 
 class HTableError(ValueError):

@@ -15,7 +15,7 @@ from emulator.adcs_session import AdcsSession
 from ground import natmod_build
 from tests.test_firmware_mp import MICROPYTHON, ROOT
 
-MODULE = os.path.join(ROOT, "firmware", "adcs", "adcsk.mpy")
+MODULE = natmod_build.TARGET
 
 
 def need_module():

@@ -85,7 +85,7 @@ RW0 = core.NODE["RW0"]
 MODE = dict(table.ADCS_MODES)
 STALE = dict(table.ADCS_STALE)
 _FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_TICK, P_STATUS, P_RW_CMD))
-_SCALE = dict((f[0], f[3]) for f in core.PACKET[P_GNSS].fields)
+_SCALE = core.field_scales(P_GNSS)
 GNSS_M, GNSS_MS = _SCALE["x"], _SCALE["vx"]       # GNSS position (m) and velocity (m/s) per count, from the table
 
 

@@ -98,7 +98,7 @@ for tc in ("f", "d"):                                    # the STKF's 6 x 6 bloc
 
 work = apkf_lean.Work()                                  # the APKF's Phi series and covariance predict
 for k in range(54):
-    if k % 9 < 9 and (k // 9 >= 3 or k in (1, 2, 9, 11, 18, 19)):
+    if k // 9 >= 3 or k in (1, 2, 9, 11, 18, 19):        # F's entries that can be non-zero (rows 0-5)
         work.F[k] = 0.01 * rnd()
 apkf_lean.phi(work.Phi, work.F, 1.0, work)
 P = spd("f", 9)

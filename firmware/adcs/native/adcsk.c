@@ -513,12 +513,7 @@ static mp_obj_t update_rows(size_t n_args, const mp_obj_t *args) {
     double rr[6];
     for (int i = 0; i < 6; i++) {                    // L^-1 (z - h)
         double s = rd(&r, i);
-        if (i == 0) {
-            rr[0] = s / l[0];
-            continue;
-        }
-        s = s - l[6 * i] * rr[0];
-        for (int k = 1; k < i; k++) {
+        for (int k = 0; k < i; k++) {
             s = s - l[6 * i + k] * rr[k];
         }
         rr[i] = s / l[7 * i];

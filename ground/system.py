@@ -224,7 +224,7 @@ def _send_firmware(spec, params, q, stop):
     q.put(("info", {"settle_s": settle_s(spec["ts"])}))
     s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"], duration_s=float(n),
                     ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), truth=spec["truth"],
-                    cache_dir=spec["cache_dir"])
+                    cache_dir=spec["cache_dir"], faults=spec.get("faults"))
     try:
         s.start()
         prev = None          # the truth at the end of the previous cycle: the instant of this cycle's estimate
@@ -421,10 +421,12 @@ def calibrate_inproc(seed, config, path):
 
 def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware", satb_gnss=False, seed=0, ts=33.0,
                truth="hpop", calibration_path=None, params_path=None, bps_cache=None, config=None, q2_dvp=0.05,
-               quiet=False, plots=True):
+               quiet=False, plots=True, faults=None):
     """The whole run; returns the summary (also in ``out_dir/summary.json``). Bad input raises ValueError before
     anything is written; afterwards the folder always ends valid, and a failure raises ``hil.RunFailed``, an
-    interruption ``hil.Interrupted``."""
+    interruption ``hil.Interrupted``. ``faults``: the ADCS session's (``emulator.adcs_session``: wheel_silent,
+    startracker_blind, gnss_outage, beacon_lost; times in the ADCS's seconds, the play starting after its
+    settling), firmware ADCS only; its fault log is in the summary's ``adcs_summary`` and the report."""
     from firmware.player import Player
     from ground import runtime
     from ground.adcs import bps, bps_cli
@@ -432,6 +434,11 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
 
     t_wall0 = time.perf_counter()
     ts = check_inputs(duration_s, runtime_name, adcs, ts, truth, seed)
+    if faults:
+        from emulator.adcs_session import check_faults
+        if adcs != "firmware":
+            raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
+        faults = check_faults(faults, settle_s(ts) + float(duration_s) + LEAD_S)
     if not 0 < q2_dvp <= 2.0:
         raise ValueError("--q2-dv must be in (0, 2] V, got %r" % q2_dvp)
     cal = load_calibration(calibration_path) if calibration_path else None
@@ -447,7 +454,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     spec = {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,
             "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
             "bps_cache": bps_cache or bps_cli.CACHE_DEFAULT,
-            "cache_dir": os.path.abspath(bps_cache or bps_cli.CACHE_DEFAULT)}
+            "cache_dir": os.path.abspath(bps_cache or bps_cli.CACHE_DEFAULT), "faults": faults or None}
     live = LiveDisturbance(t_settle)
     say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
@@ -461,7 +468,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 "adcs": adcs, "adcs_runtime": runtime_name if adcs == "firmware" else None, "satb_gnss": satb_gnss,
                 "ts_s": ts, "truth": truth, "settle_s": t_settle, "params": params_path and os.path.abspath(params_path),
                 "calibration": calibration_path and os.path.abspath(calibration_path), "seed": seed,
-                "duration_s": duration_s, "runtime": runtime_name, "link": "serial",
+                "duration_s": duration_s, "runtime": runtime_name, "link": "serial", "faults": faults or None,
                 "distfile_period_us": live.reader.period_us, "live_player": True}
             write_json(rec.path("config.json"), config_json)
             if cal is None:
@@ -634,6 +641,16 @@ def _x(v):
     return "—" if v is None else "%.1fx" % v
 
 
+def _faults_arg(text):
+    """--faults JSON text as a dict (ValueError naming the option when it is not JSON)."""
+    if text is None:
+        return None
+    try:
+        return json.loads(text)
+    except ValueError as exc:
+        raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}': %s" % exc)
+
+
 def _cmd(a):
     cfg = None
     if a.config is not None:
@@ -641,7 +658,7 @@ def _cmd(a):
         cfg = load_config(a.config)
     try:
         s = run_system(a.duration, a.output, a.runtime, a.adcs, a.satb_gnss, a.seed, a.ts, a.truth, a.calibration,
-                       a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots)
+                       a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, _faults_arg(a.faults))
     except hil.Interrupted:
         with open(os.path.join(a.output, "summary.json")) as f:
             s = json.load(f)
@@ -693,5 +710,10 @@ def register(sub, name, help_):
     p.add_argument("--bps-cache", default=None, help="calibration and truth cache folder (default out/bps_cache)")
     p.add_argument("--calibration", default=None, help="H calibration JSON (fps calibrate; default: calibrate "
                    "in-process first, 121 points, written to the run folder)")
+    p.add_argument("--faults", default=None, metavar="JSON",
+                   help="faults of the emulated spacecraft's devices (firmware ADCS), a JSON object: wheel_silent "
+                        "[wheel 0-3, t0 s], startracker_blind [t0, t1 s], gnss_outage [t0, t1 s], beacon_lost t0 s; "
+                        "times in the ADCS's seconds from its start (the play begins after 30 s + 4 t_s of "
+                        "settling: 162 s at t_s = 33 s)")
     hil.add_run_arguments(p, "seed of the ADCS scenario and the bench emulator")
     p.set_defaults(func=_cmd)

@@ -1,6 +1,6 @@
 """``fps system``: the ADCS and the fine-pointing loop in one run (issue 13). Short runs with ``--adcs ground``;
 the firmware code path's bookkeeping against a fake ADCS session defined here (the real one is
-``emulator.adcs_session``)."""
+``emulator.adcs_session``), and one short run of the real firmware session with the four device faults."""
 
 import json
 import os
@@ -270,3 +270,50 @@ def test_adcs_feed_keeps_the_session_counters_and_fails_on_an_adcs_error():
          "adcs_last_status": feed.last_status, "duration_s": 1.0}
     md = system.report_md(s)
     assert '"wheel2": 4' in md and '"stale": ["gnss"]' in md
+
+
+def test_system_with_the_four_device_faults_degrades_the_adcs_and_keeps_the_fine_loop(tmp_path, params_file, inputs):
+    """The whole terminal (firmware ADCS over CAN, fine loop over serial) with a wheel that stops answering, the
+    star tracker blinded, a GNSS outage and the beacon lost during the play: the ADCS says so (mode, stale
+    sensors, fault log in the summary and the report), every 0.1 s of the body record is there, and the fine
+    loop holds (every Q2 sample within 11.98 arcsec) or enters SAFE by its own rules (its mode changes)."""
+    if not system.firmware_available():
+        pytest.skip("no ADCS-on-CAN session in this build")
+    out = tmp_path / "run"
+    faults = {"wheel_silent": [1, 168], "startracker_blind": [165, 225], "gnss_outage": [164, 200],
+              "beacon_lost": 166}
+    args = _args(out, params_file, inputs[1], "12", "--runtime", "cpython", "--faults", json.dumps(faults))
+    args[args.index("ground")] = "firmware"
+    rc = fps(args)
+    s = json.loads((out / "summary.json").read_text())
+    assert s["complete"] is True and s["error"] is None, s["error"]
+    events = [e["event"] for e in s["adcs_summary"]["fault_log"]]
+    for begins in ("wheel_silent begins (wheel 1)", "startracker_blind begins", "gnss_outage begins",
+                   "beacon_lost begins"):
+        assert any(e.startswith(begins) for e in events), (begins, events)
+    st = s["adcs_last_status"]
+    assert st["adcs_mode_name"] == "DEGRADED" and st["wheels_failed"] == 1 << 1
+    assert {"RW1", "STARTRACKER", "GNSS_A", "BEACON"} <= set(st["stale_names"])
+    assert s["body_pointing"]["samples"] == 121                          # 10 Hz over the 12 s played: none lost
+    held = s["q2"]["within_requirement"] == 1.0
+    assert (rc == 0) == held and (held or any(m["to"] == "SAFE" for m in s["mode_changes"]))
+    assert json.loads((out / "config.json").read_text())["faults"] == {
+        "wheel_silent": [1, 168.0], "startracker_blind": [165.0, 225.0], "gnss_outage": [164.0, 200.0],
+        "beacon_lost": 166.0}
+    md = (out / "report.md").read_text()
+    assert "wheel_silent begins" in md and "startracker_blind begins" in md
+
+
+def test_system_faults_are_refused_with_the_ground_adcs_or_when_malformed(tmp_path, params_file, inputs, capsys):
+    for extra, needle in ((["--faults", '{"beacon_lost": 170}'], "needs --adcs firmware"),
+                          (["--faults", "{beacon"], "--faults must be a JSON object"),
+                          (["--faults", '{"meteor": 3}'], "unknown fault")):
+        args = _args(tmp_path / "r", params_file, inputs[1], "6", *extra)
+        if "meteor" in extra[1]:
+            if not system.firmware_available():
+                continue
+            args[args.index("ground")] = "firmware"
+        assert fps(args) == 2
+        err = capsys.readouterr().err
+        assert needle in err and "Traceback" not in err
+        assert not (tmp_path / "r").exists()

@@ -368,9 +368,10 @@ def main():
         th["theta"][0][1], th["theta"][1][1], *bps.thesis_3sigma(False)))
     print("| budget | | <= %.0f | | <= %.0f | |" % (bps.BUDGET_POINTING_3SIGMA, bps.BUDGET_STABILITY_3SIGMA))
     print("\nBoth from the parameter file of the nine calibration sets (seed 0, %.1f s, `fps adcs bps`'s cache). "
-          "Not the same loop in every respect: the flight side damps the rate during the 30 s hold where bps.py "
-          "leaves the wheels idle, holds the calibrated parameters (9 states) where the ground APKF estimates them "
-          "on (41), and takes its orbit inputs from its own STKF; the figures are over %d s, not the thesis's "
+          "Not the same loop in every respect: the flight side holds the calibrated parameters (9 states) where the "
+          "ground APKF estimates them "
+          "on (41), damps the rate after the slew until the star tracker's first fix (bps.py has no such rule), and "
+          "takes its orbit inputs from its own STKF; the figures are over %d s, not the thesis's "
           "4000 s." % (t_cal, SECONDS - HOLD - 4 * TS))
 
 

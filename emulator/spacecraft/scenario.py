@@ -51,7 +51,7 @@ WORLD_RATE_HZ = 20                               # the orbit grid of pointing_wo
 # bench_bps the runs with those limits: a real design must limit the slew's rate and unload the wheels
 # (magnetorquers), neither of which the thesis models.
 POINTING_WHEEL_RPM = 1e5
-HOLD_S = 30.0      # wheels idle while the APKF converges on the star tracker (as the 30 s hold of Sec. 4.7.1)
+HOLD_S = 30.0      # rate damping while the APKF converges on the star tracker (as the 30 s hold of Sec. 4.7.1)
 LAG_S = 4.0        # the STKF smoother's lag: relay delay U(2, 3) s (Sec. 5.5.1) + up to 1 s to the next cycle
 
 
@@ -272,10 +272,16 @@ class GridOrbit:
         return self.r[min(max(i, 0), len(self.r) - 1)]
 
 
+# truth_params' 1σ, in the file's order: tau_d (3), J5 (5), m (3), delta1, delta2 (4 + 4), Jrw (4)
+TRUTH_PARAMS_SIGMA = [1e-8] * 3 + [0.078e-3] * 5 + [0.002] * 3 + [0.061 * DEG] * 8 + [0.61e-8] * 4
+
+
 def truth_params(sc):
     """The parameter file a perfect calibration would write for spacecraft ``sc`` (ground/adcs/bps.py format):
     its own J, wheel misalignment (the thesis's deltas) and dipole; Jrw scaled so that the filter's
-    unnormalised C Jrw (Eq. 4.60) equals the true normalised axes times the true Jrw."""
+    unnormalised C Jrw (Eq. 4.60) equals the true normalised axes times the true Jrw. P: the 1σ of a
+    calibration as good as the thesis's (Sec. 4.8, Case 1 final): J 0.078e-3 kg m^2 (all five), m 0.002 A m^2,
+    delta 0.061 deg, Jrw 0.61e-8 kg m^2, and tau_d 1e-8 N m (1 % of its Case 2 size; the thesis gives none)."""
     from emulator.spacecraft.wheels import DELTA1_DEG_THESIS, DELTA2_DEG_THESIS, misalignment_axes, pyramid_c0
     j = sc.j
     d1, d2 = np.radians(DELTA1_DEG_THESIS), np.radians(DELTA2_DEG_THESIS)
@@ -287,7 +293,8 @@ def truth_params(sc):
             "x": {"tau_d_nm": [0.0, 0.0, 0.0], "J5_kgm2": [float(v) for v in (j[1, 1], j[2, 2], j[0, 1], j[0, 2], j[1, 2])],
                   "dipole_am2": [float(v) for v in sc.dipole], "delta1_rad": d1.tolist(), "delta2_rad": d2.tolist(),
                   "jrw_kgm2": jrw.tolist()},
-            "P": np.diag(np.full(23, 1e-12)).tolist(), "calibration": {"seed": -1, "sets": 0, "duration_s": 0}}
+            "P": np.diag(np.array(TRUTH_PARAMS_SIGMA) ** 2).tolist(),
+            "calibration": {"seed": -1, "sets": 0, "duration_s": 0}}
 
 
 # --- the body-pointing scenario's world (Sec. 6.4) ----------------------------------------------------------

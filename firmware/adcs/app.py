@@ -12,8 +12,8 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
 3. lean STKF/AFLS: predict, SatA's GNSS, the beacon (Eq. 5.13-5.17) with the APKF's attitude covariance
    4 P_qq in its noise (Eq. 5.15-5.16, Sec. 5.3.3), SatB's GNSS at its time tag (EAFLS);
 4. during the hold (``hold_s``, while the APKF converges) rate damping: -D w plus the gyroscopic and
-   modelled external torques fed forward (not bps.py's idle wheels: with the thesis's residual dipole the body
-   passes the star tracker's 0.1 deg/s within ~6 s of idle wheels, measured, and the filter goes blind);
+   modelled external torques fed forward, as bps.py's hold (with idle wheels the thesis's residual dipole takes
+   the body past the star tracker's 0.1 deg/s within ~6-9 s, measured, and the filter goes blind);
    after it the command at SatB (Eq. 6.3-6.4) and
    its rate (central difference over +-0.5 s of the orbit propagator), quaternion PD (Eq. 6.5-6.7) with the
    gyroscopic term and the modelled external torque fed forward, saturation, minimum-norm wheel torques

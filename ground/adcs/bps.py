@@ -20,10 +20,14 @@ Sequence (Sec. 6.4.2):
    (Stated: the calibration is not closed through the APKF here; Sec. 6.4.2 does not say it is.)
 2. The APKF's final parameters and covariances go to a parameter file (``write_params``; format below).
 3. ``simulate``: the pointing-and-tracking run from q = [0, 0, 0, 1] at rest, the APKF started from that
-   file (attitude and rate from the first two star-tracker outputs). The wheels stay idle for a 30 s hold while
-   the APKF's rate converges on the star tracker (stated: without it the slew starts with the rate still at its
-   (10 deg/s)^2 prior, the star tracker goes blind above 0.1 deg/s, and the filter never regains it; measured:
-   errors of ~10^4 arcsec). After the hold and 4 t_s of settling the pointing error
+   file (attitude and rate from the first two star-tracker outputs). A 30 s hold while the APKF's rate
+   converges on the star tracker (stated: without it the slew starts with the rate still at its (10 deg/s)^2
+   prior, the star tracker goes blind above 0.1 deg/s, and the filter never regains it; measured: errors of
+   ~10^4 arcsec). In the hold the controller damps the rate on the estimate (q_c = q_hat, w_c = 0, with the
+   same gyroscopic, external-torque and friction feed-forward as after it), as the flight app's step 4: with
+   idle wheels the residual dipole's torque took the body past the star tracker's 0.1 deg/s ~9 s into the hold
+   (measured), and the slew started from a blind, drifting estimate. After the hold and 4 t_s of settling the
+   pointing error
    (dtheta1, dtheta2, Eq. 6.12-6.17) and the stability (domega1, domega2, Eq. 6.18-6.21) are collected at 10 Hz.
 
 Parameter file (JSON): ``format`` "fps-bps-params/1"; ``wheels`` 4; ``jxx_ref_kgm2`` (the APKF's fixed
@@ -360,11 +364,14 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             xh = f_stkf.x
             if not np.all(np.isfinite(xh)):
                 raise FloatingPointError("STKF diverged at t = %.0f s" % t)
-            if flt is not None and t >= hold_s:
+            if flt is not None:
                 x = flt.x
                 J = apkf.inertia(x, model) / scale          # physical units (see ``absolute_jrw``)
                 C = apkf.c_rw(x, model)
-                qc, wc = control.command_rate(xh, stkf.f)
+                if t >= hold_s:
+                    qc, wc = control.command_rate(xh, stkf.f)
+                else:                                       # the hold: rate damping (q_c = q_hat, w_c = 0)
+                    qc, wc = q_hat, np.zeros(3)
                 Kp, Dd = control.gains(J, ts)
                 H = J @ w_hat + (C * x[26:30] / scale) @ x[38:42] if feedforward else None
                 tff = None

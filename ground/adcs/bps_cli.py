@@ -26,7 +26,7 @@ from ground.adcs import bps, campaign
 from ground.fileio import write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
-VERSION = 3          # bump when the simulator's results change: old cache entries stop matching
+VERSION = 4          # bump when the simulator's results change: old cache entries stop matching
 
 
 MAX_SWEEP_POINTS = 1000

@@ -11,6 +11,8 @@ import sys
 import tempfile
 import time
 
+import numpy as np
+
 from emulator.spacecraft import scenario
 from ground.adcs import bps, bps_cli
 
@@ -78,11 +80,12 @@ def main():
             rt, _ = bps.simulate(ts=33, satb_gnss=gnss, duration_s=DURATION, seed=0, params=scenario.truth_params(w.sc),
                                  truth="hpop", cache_dir=os.path.abspath(cache))
             thesis, ours, ratios = _sigma_cells(rt, bps.THESIS[gnss])
+            b = rt.get("budget") or {}
             rows.append("| %s, the true parameters in the file (a perfect calibration; diagnostic) | δθ / δω 1σ; "
                         "tracking 1σ (its 60 s mean) | %s | %s; (%.1f, %.1f) ((%.1f, %.1f)) | %s | (not the thesis's "
                         "sequence) |" % ("with SatB GNSS" if gnss else "without SatB GNSS", thesis, ours,
-                                         *rt["budget"]["tracking_sigma_arcsec"],
-                                         *rt["budget"]["tracking_slow_sigma_arcsec"], ratios))
+                                         *b.get("tracking_sigma_arcsec", [np.nan] * 2),
+                                         *b.get("tracking_slow_sigma_arcsec", [np.nan] * 2), ratios))
         # Eq. 6.7's other reading, wn = 4 / t_s at t_s = 33 s, is wn = 8 / t_s at t_s = 66 s (ground/adcs/control.py)
         r66, _ = bps.simulate(ts=66, satb_gnss=False, duration_s=DURATION, seed=0, params=params, truth="hpop",
                               cache_dir=os.path.abspath(cache))
@@ -93,7 +96,7 @@ def main():
         for lim in (20000.0, 10000.0):
             try:
                 rl, _ = bps.simulate(ts=33, satb_gnss=False, duration_s=DURATION, seed=0, params=params,
-                                     truth="hpop", cache_dir=os.path.abspath(cache), wheel_speed_max_rpm=lim)
+                                     truth="hpop", cache_dir=os.path.abspath(cache), wheel_speed_limit_rpm=lim)
             except FloatingPointError as exc:                      # the run's filter diverged: say so
                 rows.append("| without SatB GNSS, wheels limited to %.0f rpm (the thesis's have no limit) | — | — | "
                             "the run ended: %s | | (not the thesis's condition) |" % (lim, exc))

@@ -160,6 +160,8 @@ def test_bench_bps_with_a_failed_sweep_raises_after_its_tables(monkeypatch, caps
     monkeypatch.setattr(bench_bps.bps, "write_params", lambda *a: None)
     import emulator.orbits
     monkeypatch.setattr(emulator.orbits, "truth_samples", lambda *a, **k: None)
+    monkeypatch.setattr(bench_bps.scenario, "pointing_world", lambda *a, **k: types.SimpleNamespace(sc=None))
+    monkeypatch.setattr(bench_bps.scenario, "truth_params", lambda sc: {})
 
     def fps(args, cwd):
         if args[:2] == ["adcs", "sweep"]:

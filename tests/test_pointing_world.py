@@ -188,12 +188,12 @@ def test_the_wheel_speed_limit_is_the_worlds_and_bps_reports_it():
     given; bps passes it on and reports the largest speed and the clips."""
     w = scenario.pointing_world(40, 0)
     assert w.wheels.speed_max == pytest.approx(scenario.POINTING_WHEEL_RPM * 2 * np.pi / 60)
-    assert scenario.pointing_world(40, 0, wheel_speed_max_rpm=900.0).wheels.speed_max == \
+    assert scenario.pointing_world(40, 0, wheel_speed_limit_rpm=900.0).wheels.speed_max == \
         pytest.approx(900.0 * 2 * np.pi / 60)
     params = scenario.truth_params(w.sc)
     free, hf = bps.simulate(ts=TS, duration_s=DURATION, seed=SEED, params=params, truth="two-body")
     capped, hc = bps.simulate(ts=TS, duration_s=DURATION, seed=SEED, params=params, truth="two-body",
-                              wheel_speed_max_rpm=300.0)
-    assert free["wheel_speed_max_rpm"] == scenario.POINTING_WHEEL_RPM and capped["wheel_speed_max_rpm"] == 300.0
+                              wheel_speed_limit_rpm=300.0)
+    assert free["wheel_speed_limit_rpm"] == scenario.POINTING_WHEEL_RPM and capped["wheel_speed_limit_rpm"] == 300.0
     assert free["max_wheel_speed_rpm"] > 300.0 and sum(free["wheel_speed_clips"]["speed_clip"]) == 0
     assert capped["max_wheel_speed_rpm"] <= 300.0 + 1e-6 and sum(capped["wheel_speed_clips"]["speed_clip"]) > 0

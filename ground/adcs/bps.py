@@ -268,7 +268,7 @@ def check_ts(ts):
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
-             wheel_speed_max_rpm=scenario.POINTING_WHEEL_RPM):
+             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection
     time after the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict of 10 Hz arrays).
     A KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
@@ -276,7 +276,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     hist, fsw, x)``, if given, is called after each second's ten truth steps (rows up to 10 (k + 1) of ``hist``,
     k of ``fsw``, are final; it must only read them), ``x`` (10, 2, 6) being the orbit truth (SatA, SatB [r, v])
     at ``hist`` rows 10 k + 1 .. 10 k + 10: a live consumer (``fps system``) follows the run as it goes.
-    ``wheel_speed_max_rpm``: the true wheels' speed limit (default: none in effect, as the thesis; see
+    ``wheel_speed_limit_rpm``: the true wheels' speed limit (default: none in effect, as the thesis; see
     ``scenario.POINTING_WHEEL_RPM``); the result's ``max_wheel_speed_rpm`` and ``wheel_speed_clips`` say
     whether a limit was reached."""
     ts = check_ts(ts)
@@ -288,7 +288,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     t_settle = hold_s + settle_ts * ts
     K = int(np.ceil(t_settle + duration_s))
     world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K,   # Sec. 6.4.1
-                                    wheel_speed_max_rpm=wheel_speed_max_rpm)
+                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm)
     rate, xg, orb, wheels, sc, st = world.rate, world.xg, world.orbit, world.wheels, world.sc, world.st
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
@@ -430,7 +430,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
            "complete": bool(complete and k_done == K), "feedforward": bool(feedforward),
            "wall_s": time.perf_counter() - t_wall, "wheel_speed_clips": wheels.counters(),
            "max_wheel_speed_rpm": float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi)),
-           "wheel_speed_max_rpm": float(wheel_speed_max_rpm)}
+           "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm)}
     if sel.sum() >= 2:
         res.update(statistics(dth[sel], dom[sel]))
     else:

@@ -124,7 +124,7 @@ def report_md(s, args_text):
             "emulated wheels' datasheet: 10,000 rpm; this run's limit %.0f rpm, reached %s times); "
             "wall %.1f s." % ("—" if s.get("J_rad2") is None else "%.3e" % s["J_rad2"],
                               "—" if s.get("pointing_max_arcsec") is None else "%.1f" % s["pointing_max_arcsec"],
-                              s["max_wheel_speed_rpm"], s.get("wheel_speed_max_rpm", float("nan")),
+                              s["max_wheel_speed_rpm"], s.get("wheel_speed_limit_rpm", float("nan")),
                               sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), s["wall_s"]), "",
             "The thesis's wheels have no speed limit (Eq. 4.56), nor does this run in effect: the residual dipole's "
             "secular torque builds up in the wheels, which a flight design must unload (magnetorquers); the thesis "

@@ -165,3 +165,16 @@ def test_apkf_attitude_consistent_in_holds_and_at_its_information_bound():
     att_sigma, rate_sigma = sig[:, 0:3].mean(axis=0), sig[:, 3:6].mean(axis=0)
     np.testing.assert_allclose(att_sigma, random_walk_bound(rate_sigma), rtol=0.1)
     np.testing.assert_allclose(np.sqrt((err[:, 0:3] ** 2).mean(axis=0)), att_sigma, rtol=0.35)
+
+
+def test_the_star_trackers_rate_limit_is_a_diagnostic_knob_with_the_same_noise():
+    """``scenario.simulate(st_rate_max_dps=...)``: at the scenario's 0.1 deg/s the tracker is blind through most
+    of each rotation; raised, it answers there too, with the same noise draws (the APKF's blind-stretch
+    diagnostic in bench_adcs compares the two)."""
+    a = scenario.simulate(case=1, seed=2, duration=300)
+    b = scenario.simulate(case=1, seed=2, duration=300, st_rate_max_dps=1e3)
+    assert b["st_valid"].all() and 0 < a["st_valid"].sum() < len(a["st_valid"]) - 60
+    np.testing.assert_array_equal(a["st_q"], b["st_q"])
+    np.testing.assert_array_equal(a["q"], b["q"])
+    with pytest.raises(ValueError, match="rate_max_dps"):
+        scenario.simulate(case=1, seed=2, duration=10, st_rate_max_dps=float("nan"))

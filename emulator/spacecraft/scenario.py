@@ -197,12 +197,14 @@ def filter_truth(sc):
 
 
 def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.1, duration=None,
-             wheel_params=None, inertia=None, dipole=None):
+             wheel_params=None, inertia=None, dipole=None, st_rate_max_dps=0.1):
     """Run the scenario; returns a dict of 1 Hz arrays (index k is t = k s) and the truth parameters.
 
     Keys: t, q, w, w_rel (true), tach (measured W - c.w, rad/s), st_q, st_valid, gyro (index k: over k-1..k),
     gyro_bias (true bias in gyro[k]), tau_d (true, N m), truth (``filter_truth``), set_ends (s).
     ``inertia`` [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz] and ``dipole`` (A m^2) replace the thesis's true values.
+    ``st_rate_max_dps``: the star tracker's rate limit (Sec. 4.8's 0.1 deg/s; raised only as a diagnostic: the
+    noise draws are the same at any limit).
     """
     if case not in CASES:
         raise ValueError("case must be 1, 2 or 3, got %r" % (case,))
@@ -219,7 +221,7 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
     kw = {} if dipole is None else {"dipole": dipole}
     sc = Spacecraft(wheels=wheels, dt=dt, q=q0, omega=np.radians([1.0, 0.0, 0.0]), inertia=inertia,
                     disturbance=lambda t, q, w: tau_d_case(case, t, q), **kw)
-    st = StarTracker(r_st)
+    st = StarTracker(r_st, rate_max_dps=st_rate_max_dps)
     gy = MemsGyro(r_g) if gyro else None
     pd = PD()
     n = int(round(T))

@@ -134,7 +134,7 @@ def report_md(s, args_text):
             "Known differences from the thesis: the APKF misses the thesis's attitude 1σ by ~2x (README, issue 9); "
             "the controller adds the command rate, w x H, the APKF's external-torque estimate, the wheels' "
             "datasheet friction and the absolute torque scale to Eq. 6.5 (see ground/adcs/control.py); a 30 s "
-            "hold precedes the slew; Eq. 6.7 as printed, wn = 8/t_s.", ""]
+            "hold with rate damping on the estimate precedes the slew; Eq. 6.7 as printed, wn = 8/t_s.", ""]
     return "\n".join(out)
 
 

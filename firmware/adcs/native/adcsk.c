@@ -287,6 +287,12 @@ static void mirror6(vec_t *P, size_t ld, size_t c, const double *v) {
     }
 }
 
+// P[r][c] = P[c][r] = x (row r's entry first, as the Python forms write them)
+static inline void wr_sym(vec_t *P, size_t ld, size_t r, size_t c, double x) {
+    wr(P, r * ld + c, x);
+    wr(P, c * ld + r, x);
+}
+
 // rows_mul_mirror(P, ld, src, c_lo, c_hi, F)
 static mp_obj_t rows_mul_mirror(size_t n_args, const mp_obj_t *args) {
     size_t ld = sz(args[1]), src = sz(args[2]), c_lo = sz(args[3]), c_hi = sz(args[4]);
@@ -340,18 +346,26 @@ static mp_obj_t sandwich(size_t n_args, const mp_obj_t *args) {
         for (int k = 0; k < 6; k++) {
             t[k] = rd(&T, o + k);
         }
-        size_t a = (r0 + i) * ld + r0, b = a;
         for (size_t j = i; j < 6; j++) {
             const double *g = f + 6 * j;
             double v = q[o + j] + t[0] * g[0] + t[1] * g[1] + t[2] * g[2] + t[3] * g[3] + t[4] * g[4] + t[5] * g[5];
-            wr(&P, a + j, v);
-            wr(&P, b + i, v);
-            b += ld;
+            wr_sym(&P, ld, r0 + i, r0 + j, v);
         }
     }
     return mp_const_none;
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(sandwich_obj, 6, 7, sandwich);
+
+// column c of [G | 0; 0 I] P[0:6, :] (G 6 x 3 on the first three rows; rows 3-5 add P's own), into v
+static void ikh_col(const vec_t *P, size_t ld, size_t c, const double *g, double *v) {
+    double p0 = rd(P, c), p1 = rd(P, ld + c), p2 = rd(P, 2 * ld + c);
+    v[0] = g[0] * p0 + g[1] * p1 + g[2] * p2;
+    v[1] = g[3] * p0 + g[4] * p1 + g[5] * p2;
+    v[2] = g[6] * p0 + g[7] * p1 + g[8] * p2;
+    v[3] = g[9] * p0 + g[10] * p1 + g[11] * p2 + rd(P, 3 * ld + c);
+    v[4] = g[12] * p0 + g[13] * p1 + g[14] * p2 + rd(P, 4 * ld + c);
+    v[5] = g[15] * p0 + g[16] * p1 + g[17] * p2 + rd(P, 5 * ld + c);
+}
 
 // _ikh_rows(P, ld, c_lo, c_hi, G)
 static mp_obj_t ikh_rows(size_t n_args, const mp_obj_t *args) {
@@ -363,13 +377,8 @@ static mp_obj_t ikh_rows(size_t n_args, const mp_obj_t *args) {
     }
     vec_t P = vec(args[0], 6 * ld);
     for (size_t c = c_lo; c < c_hi; c++) {
-        double p0 = rd(&P, c), p1 = rd(&P, ld + c), p2 = rd(&P, 2 * ld + c), v[6];
-        v[0] = g[0] * p0 + g[1] * p1 + g[2] * p2;
-        v[1] = g[3] * p0 + g[4] * p1 + g[5] * p2;
-        v[2] = g[6] * p0 + g[7] * p1 + g[8] * p2;
-        v[3] = g[9] * p0 + g[10] * p1 + g[11] * p2 + rd(&P, 3 * ld + c);
-        v[4] = g[12] * p0 + g[13] * p1 + g[14] * p2 + rd(&P, 4 * ld + c);
-        v[5] = g[15] * p0 + g[16] * p1 + g[17] * p2 + rd(&P, 5 * ld + c);
+        double v[6];
+        ikh_col(&P, ld, c, g, v);
         mirror6(&P, ld, c, v);
     }
     return mp_const_none;
@@ -384,16 +393,14 @@ static mp_obj_t ikh_sandwich(size_t n_args, const mp_obj_t *args) {
     vals(args[3], q, 36);
     vec_t P = vec(args[0], 6 * ld);
     for (size_t c = 0; c < 6; c++) {
-        double p0 = rd(&P, c), p1 = rd(&P, ld + c), p2 = rd(&P, 2 * ld + c);
-        t[c] = g[0] * p0 + g[1] * p1 + g[2] * p2;
-        t[6 + c] = g[3] * p0 + g[4] * p1 + g[5] * p2;
-        t[12 + c] = g[6] * p0 + g[7] * p1 + g[8] * p2;
-        t[18 + c] = g[9] * p0 + g[10] * p1 + g[11] * p2 + rd(&P, 3 * ld + c);
-        t[24 + c] = g[12] * p0 + g[13] * p1 + g[14] * p2 + rd(&P, 4 * ld + c);
-        t[30 + c] = g[15] * p0 + g[16] * p1 + g[17] * p2 + rd(&P, 5 * ld + c);
+        double v[6];
+        ikh_col(&P, ld, c, g, v);
+        for (int k = 0; k < 6; k++) {
+            t[6 * k + c] = v[k];
+        }
     }
     for (size_t i = 0; i < 6; i++) {
-        size_t o = 6 * i, a = i * ld, b = i * ld;
+        size_t o = 6 * i;
         double t0 = t[o], t1 = t[o + 1], t2 = t[o + 2];
         for (size_t j = i; j < 6; j++) {
             size_t k = 3 * j;
@@ -401,9 +408,7 @@ static mp_obj_t ikh_sandwich(size_t n_args, const mp_obj_t *args) {
             if (j >= 3) {
                 s = s + t[o + j];
             }
-            wr(&P, a + j, s);
-            wr(&P, b + i, s);
-            b += ld;
+            wr_sym(&P, ld, i, j, s);
         }
     }
     return mp_const_none;

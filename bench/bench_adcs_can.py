@@ -264,8 +264,7 @@ def main():
                     instr)
         if have_vg:
             bc = _bytecode_tree(os.path.join(d, "bytecode"))
-            instr_bc = (_replay(cfg, rec, CG[1], True, path=bc) - _replay(cfg, rec, CG[0], True, path=bc)) / (
-                CG[1] - CG[0])
+            instr_bc = _cycle_instr(cfg, rec, bc)
         else:
             instr_bc = float("nan")
         heap = _replay(cfg, rec, SECONDS, False, heap=True)["heap"]

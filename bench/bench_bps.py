@@ -86,6 +86,18 @@ def main():
                         "sequence) |" % ("with SatB GNSS" if gnss else "without SatB GNSS", thesis, ours,
                                          *b.get("tracking_sigma_arcsec", [np.nan] * 2),
                                          *b.get("tracking_slow_sigma_arcsec", [np.nan] * 2), ratios))
+        # diagnostic: the same perfect calibration with the tachometers' read-out noise cut (truth and APKF alike):
+        # how much of the pointing error the 10 rpm read-out sets
+        tp = scenario.truth_params(scenario.pointing_world(10, 0, False).sc)
+        for rpm in (3.0, 1.0):
+            rn, _ = bps.simulate(ts=33, satb_gnss=False, duration_s=DURATION, seed=0, params=tp, truth="hpop",
+                                 cache_dir=os.path.abspath(cache), tach_noise_rpm=rpm)
+            thesis, ours, ratios = _sigma_cells(rn, bps.THESIS[False])
+            b = rn.get("budget") or {}
+            rows.append("| without SatB GNSS, the true parameters in the file, tachometers %g rpm 1σ (truth and APKF; "
+                        "the thesis's 10; diagnostic) | δθ / δω 1σ; tracking 1σ | %s | %s; (%.1f, %.1f) | %s | (not the "
+                        "thesis's condition) |" % (rpm, thesis, ours, *b.get("tracking_sigma_arcsec", [np.nan] * 2),
+                                                   ratios))
         # Eq. 6.7's other reading, wn = 4 / t_s at t_s = 33 s, is wn = 8 / t_s at t_s = 66 s (ground/adcs/control.py)
         r66, _ = bps.simulate(ts=66, satb_gnss=False, duration_s=DURATION, seed=0, params=params, truth="hpop",
                               cache_dir=os.path.abspath(cache))

@@ -193,6 +193,30 @@ def test_a_perfect_calibration_file_tracks_satb():
     assert max(res["budget"]["estimation_sigma_arcsec"]) < 100
 
 
+def test_tachometer_noise_knob_reaches_the_truth_and_the_filter(monkeypatch):
+    """``tach_noise_rpm`` (a diagnostic) sets the truth's read-out noise and the APKF's R alike; the stability,
+    set by the read-out noise through the rate estimate, drops with it; a value the APKF cannot take is refused."""
+    from ground.adcs import apkf
+    seen = []
+    real_model = apkf.Model
+
+    def model(*a, **kw):
+        m = real_model(*a, **kw)
+        seen.append(m.R_rw)
+        return m
+    monkeypatch.setattr(bps.apkf, "Model", model)
+    w = scenario.pointing_world(10, 1, tach_noise_rpm=2.5)
+    assert w.wheels.p.noise_rpm == 2.5 and scenario.pointing_world(10, 1).wheels.p.noise_rpm == 10.0
+    tp = scenario.truth_params(w.sc)
+    res = {rpm: bps.simulate(ts=33, duration_s=150, seed=1, params=tp, truth="two-body", tach_noise_rpm=rpm)[0]
+           for rpm in (10.0, 1.0)}
+    assert seen == pytest.approx([(rpm * 2 * np.pi / 60) ** 2 for rpm in (10.0, 1.0)])
+    assert max(res[1.0]["stability_sigma_arcsec_s"]) < 0.5 * min(res[10.0]["stability_sigma_arcsec_s"])
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="tach_noise_rpm"):
+            bps.simulate(ts=33, duration_s=10, params=tp, tach_noise_rpm=bad)
+
+
 def test_error_budget_is_taken_at_the_right_instants(params):
     res, hist = bps.simulate(ts=40, duration_s=150, seed=3, params=params, truth="two-body")
     assert max(res["pointing_sigma_arcsec"]) < 300

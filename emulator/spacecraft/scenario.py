@@ -337,7 +337,7 @@ class PointingWorld:
 
 
 def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, span_margin_s=2.0, n_tags=None,
-                   wheel_speed_limit_rpm=POINTING_WHEEL_RPM):
+                   wheel_speed_limit_rpm=POINTING_WHEEL_RPM, tach_noise_rpm=None):
     """The world of a body-pointing run of K s (Sec. 6.4.1-6.4.2), as a ``PointingWorld``.
 
     Truth: ``truth_grid(K, truth, cache_dir, span_margin_s)`` at ``WORLD_RATE_HZ``. Random streams: the seven
@@ -345,7 +345,9 @@ def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, s
     beacon, relay (SatB's clock phase, then each fix's delay). ``n_tags``: SatB's GNSS epochs (default K), at
     U(0, 1) + 0, 1, ... s. The caller's own margin and tag count keep its results (and its truth cache) as
     they were: ground/adcs/bps.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1. The wheels are
-    ``SCENARIO_WHEELS``' with the speed limit ``wheel_speed_limit_rpm`` (``POINTING_WHEEL_RPM``: none in effect).
+    ``SCENARIO_WHEELS``' with the speed limit ``wheel_speed_limit_rpm`` (``POINTING_WHEEL_RPM``: none in effect)
+    and, if ``tach_noise_rpm`` is given, that read-out noise (1 sigma, rpm) instead of the scenario's 10 rpm (a
+    diagnostic; the noise draws are the same, scaled).
     """
     from emulator.interp import lagrange
     from emulator.orbits import epoch_gmst_rad
@@ -353,7 +355,10 @@ def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, s
     orbit = GridOrbit(0.0, WORLD_RATE_HZ, xg[:, 0, 0:3])
     ss = np.random.SeedSequence(seed)
     r_rw, r_st, r_init, r_ga, r_gb, r_bc, r_rel = [np.random.default_rng(s) for s in ss.spawn(7)]
-    wheels = Wheels(WheelParams(**dict(SCENARIO_WHEELS, speed_max_rpm=wheel_speed_limit_rpm)), rng=r_rw)
+    wp = dict(SCENARIO_WHEELS, speed_max_rpm=wheel_speed_limit_rpm)
+    if tach_noise_rpm is not None:
+        wp["noise_rpm"] = float(tach_noise_rpm)
+    wheels = Wheels(WheelParams(**wp), rng=r_rw)
     field = TiltedDipoleField(gmst0_rad=epoch_gmst_rad())       # the orbits' epoch (t = 0) is Eq. 5.53's
     sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orbit, field=field)
     relay = Relay(r_rel, Gnss(r_gb)) if satb_gnss else None

@@ -50,7 +50,7 @@ import numpy as np
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.scenario import HOLD_S, LAG_S
-from emulator.spacecraft.wheels import N_WHEELS
+from emulator.spacecraft.wheels import N_WHEELS, WheelParams
 from ground.adcs import apkf, control, quat, stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
@@ -68,6 +68,7 @@ MAX_TS_S = 21600.0    # t_s at most 6 h: 4 t_s of settling at most a day (the ru
 BUDGET_POINTING_3SIGMA = 150.0
 BUDGET_STABILITY_3SIGMA = 35.0
 SLOW_S = 60       # the error budget's moving average for the tracking part's slow share (s)
+TACH_NOISE_RPM = WheelParams.noise_rpm   # the tachometers' 10 rpm 1 sigma (Sec. 4.8)
 SPAN_MARGIN_S = 2.0   # the orbit truth's span beyond the run (``truth_span``; part of the truth cache's key)
 SUMMARY_KEYS = ("pointing_mean_arcsec", "pointing_sigma_arcsec", "stability_mean_arcsec_s",
                 "stability_sigma_arcsec_s", "pointing_3sigma_arcsec", "stability_3sigma_arcsec_s", "complete")
@@ -268,7 +269,7 @@ def check_ts(ts):
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
-             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM):
+             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=TACH_NOISE_RPM):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection
     time after the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict of 10 Hz arrays).
     A KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
@@ -278,7 +279,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     at ``hist`` rows 10 k + 1 .. 10 k + 10: a live consumer (``fps system``) follows the run as it goes.
     ``wheel_speed_limit_rpm``: the true wheels' speed limit (default: none in effect, as the thesis; see
     ``scenario.POINTING_WHEEL_RPM``); the result's ``max_wheel_speed_rpm`` and ``wheel_speed_clips`` say
-    whether a limit was reached."""
+    whether a limit was reached. ``tach_noise_rpm``: the tachometers' read-out noise (1 sigma), in the truth and
+    in the APKF's model alike; other than the scenario's 10 rpm only as a diagnostic."""
     ts = check_ts(ts)
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
@@ -287,12 +289,14 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
     t_settle = hold_s + settle_ts * ts
     K = int(np.ceil(t_settle + duration_s))
+    if not (np.isfinite(tach_noise_rpm) and tach_noise_rpm > 0):
+        raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
     world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K,   # Sec. 6.4.1
-                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm)
+                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm, tach_noise_rpm=tach_noise_rpm)
     rate, xg, orb, wheels, sc, st = world.rate, world.xg, world.orbit, world.wheels, world.sc, world.st
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
-    model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb, field=world.field)
+    model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb, field=world.field, tach_rpm=tach_noise_rpm)
     ds = control.WHEEL_DATASHEET                     # the wheels' torque limit and friction: datasheet, not truth
     f_stkf = Afls(world.stkf_x0, np.diag(scenario.STKF_P0_DIAG), 0.0, LAG_S,
                   stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)

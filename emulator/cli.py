@@ -67,11 +67,12 @@ def _config(args):
 
 def _truth_h(args):
     from emulator.bench import Bench
-    from emulator.config import load_config, write_json_atomic
+    from emulator.config import load_config
+    from emulator.fileio import write_json
     from emulator.truth import sec74_grid, true_h_field
     bench = Bench(load_config(args.config), noise=False)
     out = true_h_field(bench, sec74_grid(args.grid), args.dv)
-    write_json_atomic(args.output, out)
+    write_json(args.output, out, make_folder=False)
     c = next(p for p in out["points"] if p["pfsm_v"] == [0.0, 0.0]) if args.grid % 2 else out["points"][0]
     from emulator.truth import format_h
     print("wrote %s: %d points; at P-FSM %s V: V0 = (%.4f, %.4f) V, %s"

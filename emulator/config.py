@@ -12,7 +12,6 @@ import copy
 import json
 import math
 
-from emulator.fileio import write_atomic
 
 PRESET = "thesis bench"
 
@@ -255,8 +254,3 @@ def load_config(path=None):
 def dumps(cfg):
     return json.dumps(cfg, indent=2, sort_keys=False) + "\n"
 
-
-def write_json_atomic(path, obj):
-    """``obj`` as indented JSON at ``path``, atomically (``emulator.fileio``: fsync, the umask's permissions);
-    the folder must exist (an output file's, not a run folder)."""
-    write_atomic(path, json.dumps(obj, indent=2) + "\n", make_folder=False)

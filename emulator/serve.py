@@ -22,7 +22,8 @@ from array import array
 import numpy as np
 
 from emulator.bench import Bench
-from emulator.config import load_config, write_json_atomic
+from emulator.config import load_config
+from emulator.fileio import write_json
 from emulator.lockstep import HoldPlayer, Lockstep, RemoteController
 from emulator.runtime import sigterm_as_interrupt
 from protocol import core, distfile
@@ -129,7 +130,7 @@ def serve(args):
                 summary = _bench_summary(args, bench, ctrl, lock, lock.partial, duration)
                 summary.update({"complete": False, "error": "interrupted" if isinstance(exc, KeyboardInterrupt)
                                 else str(exc)})
-                write_json_atomic(args.output, summary)
+                write_json(args.output, summary, make_folder=False)
                 print("bench: stopped after %d ticks; partial summary in %s" % (lock.tick, args.output),
                       file=sys.stderr)
             raise
@@ -141,7 +142,7 @@ def serve(args):
           % (summary["counters"]["ticks"], summary["counters"]["overruns"], *summary["mean_arcsec"],
              *summary["std_arcsec"], summary["max_abs_arcsec"]), file=sys.stderr)
     if args.output:
-        write_json_atomic(args.output, summary)
+        write_json(args.output, summary, make_folder=False)
     return 0
 
 
@@ -279,5 +280,5 @@ def serve_wheels(args):
           % (stopped_by, sc.t, sc.steps, late, dict(rx), dict(tx), dict(nacks), drops,
              summary["clips"]["torque_clip"], summary["clips"]["speed_clip"]), file=sys.stderr, flush=True)
     if args.output:
-        write_json_atomic(args.output, summary)
+        write_json(args.output, summary, make_folder=False)
     return 0

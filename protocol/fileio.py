@@ -56,5 +56,6 @@ def write_atomic(path, data, make_folder=True):
         raise
 
 
-def write_json(path, obj):
-    write_atomic(path, json.dumps(obj, indent=1, sort_keys=False) + "\n")
+def write_json(path, obj, make_folder=True):
+    """``obj`` as indented JSON at ``path``, through ``write_atomic`` (``make_folder`` as there)."""
+    write_atomic(path, json.dumps(obj, indent=1, sort_keys=False) + "\n", make_folder=make_folder)

@@ -6,7 +6,7 @@ import stat
 
 import pytest
 
-from emulator.config import write_json_atomic
+from emulator.fileio import write_json
 from ground.cli import main as fps
 
 
@@ -15,7 +15,7 @@ def test_dbc_and_emulator_json_get_the_umask_not_mkstemps_0600(tmp_path):
     old = os.umask(0o022)
     try:
         assert fps(["protocol", "dbc", "-o", str(tmp_path / "fps.dbc")]) == 0
-        write_json_atomic(str(tmp_path / "summary.json"), {"complete": True})
+        write_json(str(tmp_path / "summary.json"), {"complete": True}, make_folder=False)
     finally:
         os.umask(old)
     for name in ("fps.dbc", "summary.json"):
@@ -26,13 +26,13 @@ def test_dbc_and_emulator_json_get_the_umask_not_mkstemps_0600(tmp_path):
 
 def test_emulator_json_writer_fsyncs_before_the_rename(tmp_path, monkeypatch):
     p = tmp_path / "truth.json"
-    write_json_atomic(str(p), {"old": 1})
+    write_json(str(p), {"old": 1}, make_folder=False)
 
     def fsync(fd):
         raise KeyboardInterrupt       # the machine stops between write and rename
     monkeypatch.setattr(os, "fsync", fsync)
     with pytest.raises(KeyboardInterrupt):
-        write_json_atomic(str(p), {"new": 2})
+        write_json(str(p), {"new": 2}, make_folder=False)
     assert json.loads(p.read_text()) == {"old": 1} and os.listdir(tmp_path) == ["truth.json"]
 
 

@@ -212,6 +212,7 @@ def test_tachometer_noise_knob_reaches_the_truth_and_the_filter(monkeypatch):
            for rpm in (10.0, 1.0)}
     assert seen == pytest.approx([(rpm * 2 * np.pi / 60) ** 2 for rpm in (10.0, 1.0)])
     assert max(res[1.0]["stability_sigma_arcsec_s"]) < 0.5 * min(res[10.0]["stability_sigma_arcsec_s"])
+    assert res[1.0]["tach_noise_rpm"] == 1.0 and res[10.0]["tach_noise_rpm"] == 10.0
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ValueError, match="tach_noise_rpm"):
             bps.simulate(ts=33, duration_s=10, params=tp, tach_noise_rpm=bad)

@@ -434,7 +434,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
            "complete": bool(complete and k_done == K), "feedforward": bool(feedforward),
            "wall_s": time.perf_counter() - t_wall, "wheel_speed_clips": wheels.counters(),
            "max_wheel_speed_rpm": float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi)),
-           "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm)}
+           "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm), "tach_noise_rpm": float(tach_noise_rpm)}
     if sel.sum() >= 2:
         res.update(statistics(dth[sel], dom[sel]))
     else:

@@ -218,6 +218,29 @@ def test_tachometer_noise_knob_reaches_the_truth_and_the_filter(monkeypatch):
             bps.simulate(ts=33, duration_s=10, params=tp, tach_noise_rpm=bad)
 
 
+def test_rate_noise_yardstick_against_the_loop_it_describes():
+    """``rate_noise_pointing`` (discrete Lyapunov) against the loop simulated tick by tick: white rate error
+    through the PD at 1 Hz with the torque held, theta read at the 10 instants of each tick; and its continuous
+    limit sigma sqrt(dt / wn) when wn dt is small."""
+    ts, sig = 33.0, 10.0
+    wn = control.natural_frequency(ts)
+    rng = np.random.default_rng(7)
+    n = rng.standard_normal(100000) * sig
+    th = np.zeros(n.size)
+    om = np.zeros(n.size)
+    u = np.zeros(n.size)
+    a, b = 0.0, 0.0
+    for k in range(n.size):
+        th[k], om[k] = a, b
+        u[k] = c = -wn * wn * a - 2 * wn * (b + n[k])
+        a, b = a + b + c / 2, b + c
+    tau = np.arange(10) / 10.0
+    theta = th[1000:, None] + om[1000:, None] * tau + u[1000:, None] * tau ** 2 / 2
+    assert bps.rate_noise_pointing(sig, ts) == pytest.approx(theta.std(), rel=0.03)
+    assert bps.rate_noise_pointing(sig, 3300.0) == pytest.approx(sig * np.sqrt(3300.0 / 8), rel=1e-3)
+    assert bps.rate_noise_pointing(sig, ts) > 1.02 * sig / np.sqrt(wn)      # the held torque costs a little
+
+
 def test_error_budget_is_taken_at_the_right_instants(params):
     res, hist = bps.simulate(ts=40, duration_s=150, seed=3, params=params, truth="two-body")
     assert max(res["pointing_sigma_arcsec"]) < 300

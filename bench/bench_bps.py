@@ -37,6 +37,29 @@ def _sigma_cells(r, th):
             "%.2f, %.2f / %.2f, %.2f" % tuple(a / b for a, b in zip(o, t)))
 
 
+def _loop_model_row(name, r, hist, th):
+    """The PD's response to the run's own estimate errors about body y and z (δθ1, δθ2 with the laser on +X;
+    ``bps.loop_response``) beside the run's total, and the same errors scaled to the thesis's Ch. 4 Case 1 final
+    attitude and rate 1σ per axis (same spectra) beside the thesis's δθ."""
+    err = hist["fsw_est_err"]
+    k = np.arange(len(err))
+    keep = np.all(np.isfinite(err[:, 0:6]), axis=1)
+    k, err = k[keep], err[keep]
+    after = np.repeat(k, 10) >= r["settle_s"]
+    t_att = THESIS_APKF[("apkf", 1)]["final_sigma_attitude_arcsec"]
+    t_rate = THESIS_APKF[("apkf", 1)]["final_sigma_rate_arcsec_s"]
+    ours, scaled = [], []
+    for ax in (1, 2):
+        d, n = err[:, ax], err[:, 3 + ax]
+        ours.append(bps.loop_response(d, n)[after].std())
+        s_d, s_n = d[k >= r["settle_s"]].std(), n[k >= r["settle_s"]].std()
+        scaled.append(bps.loop_response(d * t_att[ax] / s_d, n * t_rate[ax] / s_n)[after].std())
+    return ("| %s | linear model: the PD's response to the estimate's own errors alone (`bps.loop_response`); "
+            "ours scaled to the thesis's Ch. 4 attitude and rate 1σ about y, z | δθ (%.3f, %.3f); scaled model "
+            "(%.1f, %.1f) | total (%.1f, %.1f); model (%.1f, %.1f) | | |" % (
+                name, th["theta"][0][1], th["theta"][1][1], *scaled, *r["pointing_sigma_arcsec"], *ours))
+
+
 def main():
     with tempfile.TemporaryDirectory() as tmp:
         cache = os.path.join(tmp, "cache")
@@ -70,18 +93,7 @@ def main():
                                 *b["tracking_sigma_arcsec"], *b["tracking_slow_sigma_arcsec"],
                                 *b["command_sigma_arcsec"], *b["tracking_mean_arcsec"]))
             if b and hist is not None:
-                # yardstick: a white rate error of the thesis's own (Ch. 4 Case 1) and of our run's rate 1σ about
-                # body y and z (δθ1 and δθ2 with the laser on +X) through the PD alone
-                k = np.arange(len(hist["fsw_est_err"]))
-                sig_w = np.nanstd(hist["fsw_est_err"][k >= r["settle_s"], 4:6], axis=0)
-                th_w = THESIS_APKF[("apkf", 1)]["final_sigma_rate_arcsec_s"][1:3]
-                rows.append("| %s | yardstick: white rate error about y, z through the PD alone (1 Hz, held; "
-                            "`bps.rate_noise_pointing`) | the thesis's rate 1σ (%.2f, %.2f)″/s → δθ (%.1f, %.1f), "
-                            "beside its δθ (%.3f, %.3f) | our run's rate error 1σ (%.1f, %.1f)″/s → (%.1f, %.1f), "
-                            "beside our tracking part (%.1f, %.1f) | | |" % (
-                                name, *th_w, *(bps.rate_noise_pointing(v) for v in th_w), th["theta"][0][1],
-                                th["theta"][1][1], *sig_w, *(bps.rate_noise_pointing(v) for v in sig_w),
-                                *b["tracking_sigma_arcsec"]))
+                rows.append(_loop_model_row(name, r, hist, th))
             rows.append("| %s | 3σ pointing / stability | < 150″ / < 35″/s | %.1f″ / %.1f″/s | | %s |" % (
                 name, r["pointing_3sigma_arcsec"], r["stability_3sigma_arcsec_s"],
                 "yes" if r["pointing_3sigma_arcsec"] < 150 and r["stability_3sigma_arcsec_s"] < 35 else "NO"))

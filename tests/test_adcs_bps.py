@@ -218,27 +218,28 @@ def test_tachometer_noise_knob_reaches_the_truth_and_the_filter(monkeypatch):
             bps.simulate(ts=33, duration_s=10, params=tp, tach_noise_rpm=bad)
 
 
-def test_rate_noise_yardstick_against_the_loop_it_describes():
-    """``rate_noise_pointing`` (discrete Lyapunov) against the loop simulated tick by tick: white rate error
-    through the PD at 1 Hz with the torque held, theta read at the 10 instants of each tick; and its continuous
-    limit sigma sqrt(dt / wn) when wn dt is small."""
-    ts, sig = 33.0, 10.0
+def test_loop_response_follows_the_estimate_and_its_noise():
+    """``loop_response``: a constant attitude error d is followed (theta -> -d: the PD nulls the estimate); a
+    constant rate error n leaves theta = -2 zeta n / wn (K theta = -D n); white rate noise gives the steady
+    variance of the discrete Lyapunov equation of the same held-torque loop, and nearly the continuous loop's
+    sigma^2 / wn for a slow loop."""
+    from scipy.linalg import solve_discrete_lyapunov
+    ts = 33.0
     wn = control.natural_frequency(ts)
-    rng = np.random.default_rng(7)
-    n = rng.standard_normal(100000) * sig
-    th = np.zeros(n.size)
-    om = np.zeros(n.size)
-    u = np.zeros(n.size)
-    a, b = 0.0, 0.0
-    for k in range(n.size):
-        th[k], om[k] = a, b
-        u[k] = c = -wn * wn * a - 2 * wn * (b + n[k])
-        a, b = a + b + c / 2, b + c
-    tau = np.arange(10) / 10.0
-    theta = th[1000:, None] + om[1000:, None] * tau + u[1000:, None] * tau ** 2 / 2
-    assert bps.rate_noise_pointing(sig, ts) == pytest.approx(theta.std(), rel=0.03)
-    assert bps.rate_noise_pointing(sig, 3300.0) == pytest.approx(sig * np.sqrt(3300.0 / 8), rel=1e-3)
-    assert bps.rate_noise_pointing(sig, ts) > 1.02 * sig / np.sqrt(wn)      # the held torque costs a little
+    z = np.zeros(2000)
+    assert bps.loop_response(z + 10.0, z, ts)[-1] == pytest.approx(-10.0, rel=1e-6)
+    assert bps.loop_response(z, z + 3.0, ts)[-1] == pytest.approx(-2 * 3.0 / wn, rel=1e-6)
+    sig = 10.0
+    n = np.random.default_rng(7).standard_normal(100000) * sig
+    g = np.array([[0.5], [1.0]])
+    A = np.array([[1.0, 1.0], [0.0, 1.0]]) - g @ np.array([[wn * wn, 2 * wn]])
+    X = solve_discrete_lyapunov(A, sig ** 2 * 4 * wn * wn * (g @ g.T))
+    theta = bps.loop_response(np.zeros(n.size), n, ts)[10000::10]          # at the ticks, after the start
+    assert theta.std() == pytest.approx(np.sqrt(X[0, 0]), rel=0.03)
+    slow = bps.loop_response(np.zeros(n.size), n, 3300.0)[100000:]
+    assert slow.std() == pytest.approx(sig * np.sqrt(3300.0 / 8), rel=0.1)
+    with pytest.raises(ValueError, match="finite"):
+        bps.loop_response([0.0, np.nan], [0.0, 0.0])
 
 
 def test_error_budget_is_taken_at_the_right_instants(params):

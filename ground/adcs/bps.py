@@ -224,29 +224,31 @@ def estimate_errors(q_hat, w_hat, ra_hat, rb_hat, q, w, ra, rb):
 EST_COLS = ("att_x", "att_y", "att_z", "rate_x", "rate_y", "rate_z", "ra_m", "rb_m")
 
 
-def rate_noise_pointing(sigma_rate, ts=TS_THESIS, zeta=control.ZETA, dt=1.0, sub=10):
-    """1 sigma of one axis's pointing error (same unit as ``sigma_rate`` x s) that a white rate-estimate error of
-    1 sigma ``sigma_rate`` leaves through the PD of Eq. 6.5-6.7 alone: a yardstick, not part of the simulator.
+def loop_response(att_err, rate_err, ts=TS_THESIS, zeta=control.ZETA, dt=1.0, sub=10):
+    """The pointing error one body axis's PD (Eq. 6.5-6.7) leaves from its estimate's errors alone: a linear
+    model to explain a run by, not part of the simulator.
 
-    Derived (the thesis gives no such figure): per axis, small angles, K = 2 wn^2 J on the half-angle vector
-    part, so theta'' = -wn^2 theta - 2 zeta wn (theta' + n), the torque computed at each dt tick from that tick's
-    estimate and held (zero-order hold); with x = (theta, theta'), x(t_k + tau) = A(tau) x_k + B(tau) n_k, A(tau)
-    = Phi(tau) - Gamma(tau) [wn^2, 2 zeta wn], B(tau) = -2 zeta wn Gamma(tau), Phi(tau) = [[1, tau], [0, 1]],
-    Gamma(tau) = [tau^2 / 2, tau]. The steady covariance X at the ticks solves X = A X A^T + sigma^2 B B^T
-    (discrete Lyapunov); the figure is the RMS of theta over the ``sub`` instants of a tick (the 10 Hz history).
-    For wn dt -> 0 it tends to sigma_rate sqrt(dt / wn), the continuous loop's."""
-    from scipy.linalg import solve_discrete_lyapunov
+    ``att_err``, ``rate_err``: the estimate's errors about that axis at the dt ticks (estimate minus truth, e.g.
+    ``fsw_est_err`` columns; any unit, the result has the attitude's). Derived (the thesis gives no such model):
+    small angles, the torque in units of J, K = 2 wn^2 J on the half-angle vector part; the controller sees
+    theta + d_k and theta' + n_k and holds its torque over the tick, so with x = (theta, theta'):
+    u_k = -wn^2 (theta_k + d_k) - 2 zeta wn (theta'_k + n_k), theta(t_k + tau) = theta_k + theta'_k tau +
+    u_k tau^2 / 2. Returns theta at the ``sub`` instants of each tick (the 10 Hz history's), from rest."""
+    d = np.asarray(att_err, float)
+    n = np.asarray(rate_err, float)
+    if d.shape != n.shape or d.ndim != 1 or not (np.all(np.isfinite(d)) and np.all(np.isfinite(n))):
+        raise ValueError("att_err and rate_err must be finite 1-d series of one length")
     wn = control.natural_frequency(ts)
-    k = np.array([[wn * wn, 2 * zeta * wn]])
-
-    def ab(tau):
-        gamma = np.array([[tau * tau / 2], [tau]])
-        return np.array([[1.0, tau], [0.0, 1.0]]) - gamma @ k, -2 * zeta * wn * gamma
-
-    A, B = ab(dt)
-    X = solve_discrete_lyapunov(A, sigma_rate ** 2 * (B @ B.T))
-    var = [(a @ X @ a.T + sigma_rate ** 2 * (b @ b.T))[0, 0] for a, b in (ab(j * dt / sub) for j in range(sub))]
-    return float(np.sqrt(np.mean(var)))
+    tau = np.arange(sub) * (dt / sub)
+    th = np.empty(d.size)
+    om = np.empty(d.size)
+    u = np.empty(d.size)
+    a = b = 0.0
+    for k in range(d.size):
+        th[k], om[k] = a, b
+        u[k] = c = -wn * wn * (a + d[k]) - 2 * zeta * wn * (b + n[k])
+        a, b = a + b * dt + c * dt * dt / 2, b + c * dt
+    return (th[:, None] + om[:, None] * tau + u[:, None] * tau ** 2 / 2).ravel()
 
 
 def objective(dtheta, domega):

@@ -534,7 +534,7 @@ class Bench:
         p1, g1, p2, g2 = self._mems_step
         t1, t2 = self._mem_tail
         c1, c2 = self._cm1, self._cm2
-        d, fl = self._land_d, self._land_f
+        d = self._land_d
         pending = self._pending
         (tpx0, tpy0), (tpx1, tpy1), (tpx2, tpy2) = self._q1_tp
         (ae1, ae2, ah0, al0), (be1, be2, bh0, bl0), (ce1, ce2, ch0, cl0) = self._q1_gains
@@ -692,7 +692,7 @@ class Bench:
                         cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
                     rows.append((q2_m0 + p, q2_t_us[p], cx, cy, cs, ex, ey))
                     p += 1
-                # --- advance: the old input up to fl, the new one after it (exact, modal form) ---
+                # --- advance: the old input up to the landing (_land_f), the new one after it (exact, modal form) ---
                 i += 1
                 if land:
                     zmx1 = p1 * zmx1 + g1 * ux0 + t1 * dux

@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from emulator.spacecraft import scenario
 from ground.adcs import apkf, mekf, quat
 
 DEG = np.pi / 180
@@ -114,7 +113,6 @@ def test_propagate_matches_phi_for_small_errors():
 
 
 def test_joseph_equals_standard_update_when_well_conditioned():
-    model = apkf.Model()
     x = _state(6)
     rng = np.random.default_rng(7)
     L = rng.normal(size=(apkf.N, apkf.N)) * 1e-2

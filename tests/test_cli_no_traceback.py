@@ -8,7 +8,6 @@ An exception escaping ``main`` fails the test with its traceback (what a user wo
 """
 
 import json
-import math
 import os
 import string
 import sys

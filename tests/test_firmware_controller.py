@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from firmware import ad5664r
-from firmware.controller import CALIBRATE, HOLD, IDLE, SAFE, TRACK, Controller
+from firmware.controller import CALIBRATE, HOLD, SAFE, TRACK, Controller
 from firmware.hinv import HINV_MAX, HinvTable
 from protocol import core, htable
 from tests.mp import firmware_plant as fp

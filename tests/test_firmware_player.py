@@ -8,7 +8,7 @@ import zlib
 import pytest
 
 from firmware import ad660
-from firmware.player import LOOP, ONESHOT, START, STOP, Player
+from firmware.player import ONESHOT, START, STOP, Player
 from protocol import core, distfile
 from tests.test_firmware_mp import run_mp
 

@@ -3,7 +3,6 @@ point) is refused when the file is loaded, naming the grid point, by the control
 (firmware.hinv): load_calibration refuses exactly the tables the controller NACKs after an upload."""
 
 import json
-import math
 import os
 import sys
 import zlib

@@ -1,7 +1,6 @@
 """Board timing (emulator.timing) and the loop's frequency response (ground.response, ``fps response``)."""
 
 import json
-import sys
 
 import numpy as np
 import pytest

@@ -1,7 +1,6 @@
 # Runs under micropython: the controller's unit checks on this runtime, and a 10 s closed-loop run whose
 # AD5664R word stream (CRC-32 over the 24-bit words) the CPython side recomputes and compares.
 import json
-import struct
 import sys
 from binascii import crc32
 

@@ -99,31 +99,23 @@ def main():
                 "yes" if r["pointing_3sigma_arcsec"] < 150 and r["stability_3sigma_arcsec_s"] < 35 else "NO"))
             rows.append("| %s | largest wheel speed (no limit in effect, as the thesis) | — | %.0f rpm | | |"
                         % (name, r["max_wheel_speed_rpm"]))
-        # diagnostic: the spacecraft's true parameters in the file (scenario.truth_params, P as tight as the
-        # thesis's Case 1 calibration): what the calibration's own errors cost
-        for gnss in (False, True):
-            w = scenario.pointing_world(10, 0, gnss)
-            rt, _ = bps.simulate(ts=33, satb_gnss=gnss, duration_s=DURATION, seed=0, params=scenario.truth_params(w.sc),
-                                 truth="hpop", cache_dir=os.path.abspath(cache))
+        # diagnostics, the spacecraft's true parameters in the file (scenario.truth_params, P as tight as the
+        # thesis's Case 1 calibration): what the calibration's own errors cost; then with the tachometers'
+        # read-out noise cut (truth and APKF alike): how much of the pointing error the 10 rpm read-out sets
+        tp = scenario.truth_params(scenario.pointing_world(10, 0).sc)      # the same spacecraft in every run
+        for gnss, rpm in ((False, 10.0), (True, 10.0), (False, 3.0), (False, 1.0)):
+            rt, _ = bps.simulate(ts=33, satb_gnss=gnss, duration_s=DURATION, seed=0, params=tp, truth="hpop",
+                                 cache_dir=os.path.abspath(cache), tach_noise_rpm=rpm)
             thesis, ours, ratios = _sigma_cells(rt, bps.THESIS[gnss])
             b = rt.get("budget") or {}
-            rows.append("| %s, the true parameters in the file (a perfect calibration; diagnostic) | δθ / δω 1σ; "
+            tach = "" if rpm == bps.TACH_NOISE_RPM else (", tachometers %g rpm 1σ (truth and APKF; the thesis's "
+                                                         "%g)" % (rpm, bps.TACH_NOISE_RPM))
+            rows.append("| %s, the true parameters in the file (a perfect calibration%s; diagnostic) | δθ / δω 1σ; "
                         "tracking 1σ (its 60 s mean) | %s | %s; (%.1f, %.1f) ((%.1f, %.1f)) | %s | (not the thesis's "
-                        "sequence) |" % ("with SatB GNSS" if gnss else "without SatB GNSS", thesis, ours,
-                                         *b.get("tracking_sigma_arcsec", [np.nan] * 2),
-                                         *b.get("tracking_slow_sigma_arcsec", [np.nan] * 2), ratios))
-        # diagnostic: the same perfect calibration with the tachometers' read-out noise cut (truth and APKF alike):
-        # how much of the pointing error the 10 rpm read-out sets
-        tp = scenario.truth_params(scenario.pointing_world(10, 0, False).sc)
-        for rpm in (3.0, 1.0):
-            rn, _ = bps.simulate(ts=33, satb_gnss=False, duration_s=DURATION, seed=0, params=tp, truth="hpop",
-                                 cache_dir=os.path.abspath(cache), tach_noise_rpm=rpm)
-            thesis, ours, ratios = _sigma_cells(rn, bps.THESIS[False])
-            b = rn.get("budget") or {}
-            rows.append("| without SatB GNSS, the true parameters in the file, tachometers %g rpm 1σ (truth and APKF; "
-                        "the thesis's 10; diagnostic) | δθ / δω 1σ; tracking 1σ | %s | %s; (%.1f, %.1f) | %s | (not the "
-                        "thesis's condition) |" % (rpm, thesis, ours, *b.get("tracking_sigma_arcsec", [np.nan] * 2),
-                                                   ratios))
+                        "%s) |" % ("with SatB GNSS" if gnss else "without SatB GNSS", tach, thesis, ours,
+                                   *b.get("tracking_sigma_arcsec", [np.nan] * 2),
+                                   *b.get("tracking_slow_sigma_arcsec", [np.nan] * 2), ratios,
+                                   "condition" if tach else "sequence"))
         # Eq. 6.7's other reading, wn = 4 / t_s at t_s = 33 s, is wn = 8 / t_s at t_s = 66 s (ground/adcs/control.py)
         r66, _ = bps.simulate(ts=66, satb_gnss=False, duration_s=DURATION, seed=0, params=params, truth="hpop",
                               cache_dir=os.path.abspath(cache))

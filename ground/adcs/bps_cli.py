@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from ground.adcs import bps, campaign
+from ground.adcs import bps, campaign, control
 from ground.fileio import write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
@@ -121,10 +121,11 @@ def report_md(s, args_text):
             "| stability (arcsec/s) | %g | %.1f | %s |" % (bps.BUDGET_STABILITY_3SIGMA, th3[1],
                                                            "—" if w3 is None else "%.1f" % w3), "",
             "J = %s rad² (Eq. 6.22); largest pointing error %s arcsec; largest wheel speed %.0f rpm (the "
-            "emulated wheels' datasheet: 10,000 rpm; this run's limit %.0f rpm, reached %s times); "
+            "emulated wheels' datasheet: %s rpm; this run's limit %.0f rpm, reached %s times); "
             "wall %.1f s." % ("—" if s.get("J_rad2") is None else "%.3e" % s["J_rad2"],
                               "—" if s.get("pointing_max_arcsec") is None else "%.1f" % s["pointing_max_arcsec"],
-                              s["max_wheel_speed_rpm"], s.get("wheel_speed_limit_rpm", float("nan")),
+                              s["max_wheel_speed_rpm"], "{:,.0f}".format(control.WHEEL_DATASHEET.speed_max_rpm),
+                              s.get("wheel_speed_limit_rpm", float("nan")),
                               sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), s["wall_s"]), "",
             "The thesis's wheels have no speed limit (Eq. 4.56), nor does this run in effect: the residual dipole's "
             "secular torque builds up in the wheels, which a flight design must unload (magnetorquers); the thesis "

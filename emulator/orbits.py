@@ -142,6 +142,9 @@ def force_model(bh, spacecraft=CUBESAT_3U):
     return fm, params
 
 
+HPOP_MIN_SPAN_S = 64.0
+
+
 def hpop(x0, duration_s, step_s=1.0, epoch_utc=EPOCH_UTC, spacecraft=CUBESAT_3U):
     """brahe numerical propagation of one EME2000 state; samples (n, 6) in EME2000 every ``step_s``.
 
@@ -155,11 +158,13 @@ def hpop(x0, duration_s, step_s=1.0, epoch_utc=EPOCH_UTC, spacecraft=CUBESAT_3U)
     fm, params = force_model(bh, spacecraft)
     x_gcrf = np.array(bh.state_eme2000_to_gcrf(np.asarray(x0, dtype=float)))
     n = int(round(duration_s / step_s)) + 1
-    # at least 16 integrator steps over the span, so the 9-point interpolation has its stencil
-    cfg = bh.NumericalPropagationConfig.default().with_max_step(min(60.0, (n - 1) * step_s / 16.0))
+    # at least 16 integrator steps over at least HPOP_MIN_SPAN_S, so the 9-point interpolation has its stencil
+    # (brahe refuses samples of a span under ~40 s, measured)
+    span = max((n - 1) * step_s, HPOP_MIN_SPAN_S)
+    cfg = bh.NumericalPropagationConfig.default().with_max_step(min(60.0, span / 16.0))
     prop = bh.NumericalOrbitPropagator(ep, x_gcrf, cfg, fm, params)
     prop.set_interpolation_method(bh.InterpolationMethod.lagrange(8))
-    prop.propagate_to(ep + float((n - 1) * step_s))
+    prop.propagate_to(ep + float(span))
     out = np.array(prop.states_eme2000([ep + float(k * step_s) for k in range(n)]))
     out[0] = x0
     return out

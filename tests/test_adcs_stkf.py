@@ -55,6 +55,16 @@ def test_hpop_truth_is_cached_atomically(tmp_path):
     assert 1.0 < d < 5e3  # perturbations act (J2 alone: hundreds of m in a minute), but no blow-up
 
 
+def test_short_hpop_truth_matches_the_start_of_a_longer_one():
+    """brahe refused samples over spans under ~40 s ("outside propagator time range"), so ``fps adcs stkf
+    --duration 10`` failed; a short truth now propagates over at least orbits.HPOP_MIN_SPAN_S."""
+    _, x_long = orbits.truth_samples("hpop", 60.0)
+    for d in (1.0, 20.0):
+        t, x = orbits.truth_samples("hpop", d)
+        assert x.shape == (len(t), 2, 6) and t[-1] == d + 10
+        assert np.abs(x[:, :, :3] - x_long[:len(t), :, :3]).max() < 1e-3     # m
+
+
 def test_orbit_under_the_surface_refused():
     bad = orbits.X0_A.copy()
     bad[:3] *= 0.9

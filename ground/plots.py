@@ -11,9 +11,10 @@ import numpy as np  # noqa: E402
 from ground.fileio import write_atomic  # noqa: E402
 
 
-def _save(fig, path):
+def save_png(fig, path, dpi=110):
+    """Write ``fig`` as a PNG atomically (no half-written file after an interruption) and close it."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
+    fig.savefig(buf, format="png", dpi=dpi)
     plt.close(fig)
     write_atomic(path, buf.getvalue())
 
@@ -38,7 +39,7 @@ def calibration_quivers(cal, path):
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     ax.set_aspect("equal", adjustable="datalim")
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def calibration_difference(cal, path):
@@ -59,7 +60,7 @@ def calibration_difference(cal, path):
     axs[0].set_ylabel("V0y (V)")
     fig.suptitle("Δh pattern over (V0x, V0y), cf. Fig. 7-17")
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def hil_scatter(series, path, requirement_arcsec=11.98):
@@ -86,7 +87,7 @@ def hil_scatter(series, path, requirement_arcsec=11.98):
     ax.set_ylabel("Y error (arcsec)")
     ax.set_title("Pointing errors in the X-Y plane, cf. Fig. 7-18")
     ax.legend(loc="upper right", fontsize=8, markerscale=6)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def hil_time_history(series, path):
@@ -102,7 +103,7 @@ def hil_time_history(series, path):
     axs[0].legend(loc="upper right", fontsize=8)
     axs[0].set_title("Pointing error time history, cf. Fig. 7-19")
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def system_time_history(series, path, requirement_arcsec=11.98):
@@ -122,7 +123,7 @@ def system_time_history(series, path, requirement_arcsec=11.98):
     axs[-1, 0].set_xlabel("time from the start of the collection window (s)")
     axs[0, 0].set_title("Body pointing error (ADCS) and fine pointing error (Q2), one time axis")
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def adcs_can_pointing(h, path):
@@ -138,4 +139,4 @@ def adcs_can_pointing(h, path):
     ax[1].set_yticks([v for _, v in ADCS_MODES], [k for k, _ in ADCS_MODES])
     ax[1].set_xlabel("t (s)")
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)

@@ -146,6 +146,37 @@ def test_parameter_file_is_checked_against_the_spacecraft(params, tmp_path):
     p = tmp_path / "p.json"
     bps.write_params(str(p), params)
     assert bps.load_params(str(p))[3] == pytest.approx(scale)
+    # finite numbers that are not this spacecraft's, and a calibration record that is not an object
+    for key, i, v, msg in (("jrw_kgm2", 0, 1e300, "from 3e-07 to 3e-05 kg m"), ("jrw_kgm2", 0, 1e-2, "jrw_kgm2"),
+                           ("delta1_rad", 0, 1e300, r"delta1_rad .* within \+-0.785398 rad"),
+                           ("dipole_am2", 1, 50.0, "dipole_am2"), ("tau_d_nm", 2, -1.0, "tau_d_nm")):
+        bad = json.loads(json.dumps(params))
+        bad["x"][key][i] = v
+        with pytest.raises(ValueError, match=msg):
+            bps.check_params(bad)
+    bad = json.loads(json.dumps(params))
+    bad["calibration"] = 5
+    with pytest.raises(ValueError, match="'calibration' must be an object"):
+        bps.check_params(bad)
+
+
+def test_a_damaged_calibration_cache_is_computed_again(params, tmp_path, monkeypatch, capsys):
+    """A truncated or edited cache entry is not an input error: it is recomputed and replaced."""
+    from ground.adcs import bps_cli
+    calls = []
+    monkeypatch.setattr(bps, "calibrate", lambda seed, progress: calls.append(seed) or params)
+    cache = str(tmp_path)
+    assert bps_cli.calibration(3, cache, progress=False) == params and calls == [3]
+    (path,) = [os.path.join(cache, f) for f in os.listdir(cache)]
+    assert bps_cli.calibration(3, cache, progress=False) == params and calls == [3]      # from the cache
+    text = open(path).read()
+    for damaged in (text[:len(text) // 2], "", text.replace('"wheels": 4', '"wheels": 3')):
+        with open(path, "w") as f:
+            f.write(damaged)
+        n = len(calls)
+        assert bps_cli.calibration(3, cache, progress=False) == params and len(calls) == n + 1
+        assert "is damaged" in capsys.readouterr().err
+        assert open(path).read() == text
 
 
 # --- the simulator ---------------------------------------------------------------------------------------------
@@ -388,6 +419,17 @@ def test_bps_distfile_source_caches_whole_runs_only(params_file, tmp_path, monke
         distfile_cli.generate(src3, 5.0, 4)
     assert len([f for f in os.listdir(cache) if f.startswith("run_")]) == 1
     assert not [f for f in os.listdir(cache) if ".tmp" in f or f.startswith(".")]
+    # a damaged entry (truncated, random bytes) is simulated again and replaced, not an error
+    monkeypatch.setattr(Spacecraft, "step", real)
+    (run,) = [os.path.join(cache, f) for f in os.listdir(cache) if f.startswith("run_")]
+    good = open(run, "rb").read()
+    for damaged in (good[:len(good) // 2], bytes(range(256))):
+        with open(run, "wb") as f:
+            f.write(damaged)
+        src4 = BpsSource(ts=33, params_path=params_file, truth="two-body", cache_dir=cache, quiet=True)
+        assert distfile_cli.generate(src4, 5.0, 4) == data and not src4.from_cache
+        src5 = BpsSource(ts=33, params_path=params_file, truth="two-body", cache_dir=cache, quiet=True)
+        assert distfile_cli.generate(src5, 5.0, 4) == data and src5.from_cache
 
 
 def test_distfile_beyond_the_pfsm_says_by_how_much():

@@ -98,12 +98,22 @@ def params_from_apkf(x, P, jxx, meta, scale=1.0):
             "P": P[apkf.PARAMS, apkf.PARAMS].tolist(), "calibration": meta}
 
 
+# What a parameter file may hold and still describe this spacecraft: (part, low (None: |v| <= high), high, unit).
+# The wheels' inertia within 10x of the datasheet's 3e-6 kg m^2 (the thesis's errors are 25 %), misalignments
+# below 45 deg (the thesis's are 7-12 deg), a dipole under 10 A m^2 and tau_d under the wheels' 1 mN m.
+PARAM_RANGES = ((0, None, 1e-3, "N m"), (2, None, 10.0, "A m^2"), (3, None, np.pi / 4, "rad"),
+                (4, None, np.pi / 4, "rad"), (5, 3e-7, 3e-5, "kg m^2"))
+
+
 def check_params(d, where="parameter file"):
     """Validate a parameter file dict against the spacecraft; returns (x_params (23), P (23 x 23), jxx)."""
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         raise ValueError("%s: not a BPS parameter file (format must be %r)" % (where, FORMAT))
     if d.get("wheels") != N_WHEELS:
         raise ValueError("%s: %r wheels, but the spacecraft has %d" % (where, d.get("wheels"), N_WHEELS))
+    if not isinstance(d.get("calibration", {}), dict):
+        raise ValueError("%s: 'calibration' must be an object (the calibration's seed and sets), got %r"
+                         % (where, d["calibration"]))
     try:
         xd = d["x"]
         parts = [np.array(xd[k], dtype=float) for k in ("tau_d_nm", "J5_kgm2", "dipole_am2", "delta1_rad",
@@ -129,8 +139,12 @@ def check_params(d, where="parameter file"):
     if lam[2] > (lam[0] + lam[1]) * (1.0 + 1e-9):
         raise ValueError("%s: the inertia [Jxx ref %g; J5 %s] is no rigid body's: its largest principal moment "
                          "exceeds the sum of the other two" % (where, jxx, j5.tolist()))
-    if np.any(parts[5] <= 0):
-        raise ValueError("%s: wheel inertias must be > 0, got %s" % (where, parts[5].tolist()))
+    for k, lo, hi, unit in PARAM_RANGES:
+        v = parts[k]
+        if np.any((np.abs(v) if lo is None else v) > hi) or (lo is not None and np.any(v < lo)):
+            raise ValueError("%s: x.%s = %s is not this spacecraft's: must be %s %s" % (
+                where, ("tau_d_nm", "J5_kgm2", "dipole_am2", "delta1_rad", "delta2_rad", "jrw_kgm2")[k],
+                v.tolist(), "within +-%g" % hi if lo is None else "from %g to %g" % (lo, hi), unit))
     if P.shape != (23, 23) or not np.all(np.isfinite(P)) or np.abs(P - P.T).max() > 1e-9 * np.abs(P).max():
         raise ValueError("%s: P must be a symmetric 23 x 23 matrix" % where)
     try:

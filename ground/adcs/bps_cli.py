@@ -68,12 +68,18 @@ def _key(d):
 
 def calibration(seed, cache_dir, progress=True):
     """The parameter-file dict of the nine calibration sets for ``seed``, from ``cache_dir`` when present
-    (written atomically: the cache holds whole entries only)."""
+    (written atomically: the cache holds whole entries only; a damaged entry, not ours or edited, is computed
+    again and replaced)."""
     key = _key({"kind": "calibration", "seed": int(seed), "sets": bps.CAL_SETS, "version": VERSION})
     path = os.path.join(cache_dir, "calibration_%s.json" % key) if cache_dir else None
     if path and os.path.exists(path):
-        with open(path) as f:
-            return json.load(f)
+        try:
+            with open(path) as f:
+                d = json.load(f)
+            bps.check_params(d, path)
+            return d
+        except (OSError, ValueError) as exc:      # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            print("calibration cache %s is damaged (%s): computing it again" % (path, exc), file=sys.stderr)
     if progress:
         print("calibration: %d maneuver sets through the APKF (seed %d) ..." % (bps.CAL_SETS, seed),
               file=sys.stderr)
@@ -184,12 +190,8 @@ def plot_history(path, hist, settle_s, title):
 
 def _save_png(fig, path):
     """The figure as a PNG, written atomically (an interrupted plot leaves neither a truncated file nor a temp)."""
-    import io
-    import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    write_atomic(path, buf.getvalue())
+    from ground.plots import save_png
+    save_png(fig, path, dpi=90)
 
 
 def _cmd_bps(a):

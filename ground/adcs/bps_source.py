@@ -13,6 +13,7 @@ import io
 import json
 import os
 import sys
+import zipfile
 
 import numpy as np
 
@@ -68,9 +69,16 @@ class BpsSource:
         self.cache_key = self.key(span, seed, params)
         path = os.path.join(self.cache_dir, "run_%s.npz" % self.cache_key)
         if os.path.exists(path):
-            with np.load(path) as z:
+            try:
+                with np.load(path, allow_pickle=False) as z:
+                    t, x, y = z["t"], z["x"], z["y"]
+                if not (t.ndim == 1 and x.shape == y.shape == t.shape and len(t) >= 2
+                        and np.all(np.isfinite(np.concatenate([t, x, y])))):
+                    raise ValueError("arrays of the wrong shape or not finite")
                 self.from_cache = True
-                return z["t"], z["x"], z["y"]
+                return t, x, y
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+                print("bps: cached run %s is damaged (%s): simulating it again" % (path, exc), file=sys.stderr)
         if not self.quiet:
             print("bps: simulating t_s = %g s, %s SatB's GNSS, %g s (+%g s settling) ..."
                   % (self.ts, "with" if self.satb_gnss else "without", span, 30 + 4 * self.ts), file=sys.stderr)

@@ -1,6 +1,5 @@
 """report.md (the thesis's Sec. 4.8 table beside ours) and plots like Fig. 4-5 for an ``fps adcs`` campaign."""
 
-import io
 import os
 import warnings
 
@@ -94,11 +93,8 @@ def markdown(summary):
 
 
 def _save(fig, path):
-    import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    write_atomic(path, buf.getvalue())
+    from ground.plots import save_png
+    save_png(fig, path, dpi=100)
 
 
 APKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600)),

@@ -364,12 +364,8 @@ def plots(out_dir, run_dirs, case):
 
 def _save_png(fig, path):
     """The figure as a PNG, written atomically (an interrupted plot leaves no truncated file)."""
-    import io
-    import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    write_atomic(path, buf.getvalue())
+    from ground.plots import save_png
+    save_png(fig, path, dpi=90)
 
 
 def dumps(obj):

@@ -50,7 +50,9 @@ def test_bad_inputs(tmp_path):
         campaign.check_runs(0)
     with pytest.raises(ValueError, match="--runs"):
         campaign.run_campaign(draw, [], tmp_path)
-    with pytest.raises(ValueError, match="--workers must be >= 1, got 0"):
+    with pytest.raises(ValueError, match="--workers must be a whole number from 1 to 64 .* got 0"):
         campaign.run_campaign(draw, [1], tmp_path, workers=0)
+    with pytest.raises(ValueError, match="--scheduler ADDRESS.*got 100000"):    # not 100,000 local processes
+        campaign.run_campaign(draw, [1], tmp_path, workers=100000)
     with pytest.raises(ValueError, match="127.0.0.1:9"):
         campaign.run_campaign(draw, [1], tmp_path, scheduler="tcp://127.0.0.1:9", progress=False)

@@ -131,12 +131,14 @@ def test_check_covariance_names_the_time():
 
 @pytest.mark.parametrize("args, params, msg", [
     (["--runs", "0"], None, "--runs must be >= 1, got 0"),
-    (["--workers", "0"], None, "--workers must be >= 1, got 0"),
+    (["--workers", "0"], None, "--workers must be a whole number from 1 to 64 local processes"),
+    (["--workers", "100000"], None, "got 100000"),
     ([], {"duraton_s": 30}, "unknown key 'duraton_s'"),
     ([], '{"dipole_am2": [0.1, NaN, 0.2]}', "dipole_am2 = [0.1, nan, 0.2] is not finite"),
     ([], {"inertia_kgm2": [0.012, 0.047, 0.045, 0.05, 0.0, 0.0]}, "is not positive definite"),
     ([], {"inertia_kgm2": [0.012, 0.012, 0.030, 0.0, 0.0, 0.0]}, "is no rigid body's"),
     ([], {"duration_s": 5000}, "duration_s = 5000 out of range"),
+    ([], {"duration_s": 3}, "duration_s = 3 out of range"),           # the filters could not start
     (["--scheduler", "tcp://127.0.0.1:9"], None, "'tcp://127.0.0.1:9' is unreachable"),
 ])
 def test_cli_bad_input(tmp_path, capsys, args, params, msg):

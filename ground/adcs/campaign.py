@@ -50,11 +50,17 @@ def check_seed(seed):
     return int(seed)
 
 
+MAX_LOCAL_WORKERS = 64      # local processes, ~0.1 GB each; a bigger campaign goes on a cluster (--scheduler)
+
+
 def check_workers(n):
+    """``--workers`` (local processes) in 1..MAX_LOCAL_WORKERS, default the machine's cores; ValueError naming
+    it otherwise."""
     if n is None:
-        return max(1, os.cpu_count() or 1)
-    if int(n) != n or n < 1:
-        raise ValueError("--workers must be >= 1, got %r" % (n,))
+        return max(1, min(os.cpu_count() or 1, MAX_LOCAL_WORKERS))
+    if isinstance(n, bool) or int(n) != n or not 1 <= n <= MAX_LOCAL_WORKERS:
+        raise ValueError("--workers must be a whole number from 1 to %d local processes (a bigger campaign runs on "
+                         "a Dask cluster: --scheduler ADDRESS), got %r" % (MAX_LOCAL_WORKERS, n))
     return int(n)
 
 

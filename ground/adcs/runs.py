@@ -22,11 +22,13 @@ from ground.adcs import apkf, mekf, quat
 from ground.fileio import write_atomic, write_json
 
 ARCSEC = quat.ARCSEC
+MIN_DURATION_S = 10.0     # below ~5 s no two consecutive star-tracker outputs exist to start the filters
 PARAM_KEYS = {
     "inertia_kgm2": "6 numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], a rigid body's: positive definite, triangle "
                     "inequality (the true spacecraft)",
     "dipole_am2": "3 numbers (true residual dipole)",
-    "duration_s": "scenario length, 2..930 s (default 930)",
+    "duration_s": "scenario length, 10..930 s (default 930; the star tracker answers once the 1 deg/s "
+                  "initial rate is damped below 0.1 deg/s, after ~4 s)",
     "dt_truth_s": "truth RK4 step dividing 1 s, (0, 1] (default 1)",
 }
 
@@ -69,7 +71,7 @@ def check_params(d, where="params"):
                                                                PARAM_KEYS["inertia_kgm2"])) from None
     if "dipole_am2" in out and out["dipole_am2"].shape != (3,):
         raise ValueError("%s: dipole_am2 = %r must be %s" % (where, d["dipole_am2"], PARAM_KEYS["dipole_am2"]))
-    for k, lo, hi in (("duration_s", 2.0, 930.0), ("dt_truth_s", 1e-6, 1.0)):
+    for k, lo, hi in (("duration_s", MIN_DURATION_S, 930.0), ("dt_truth_s", 1e-6, 1.0)):
         if k in out and not (out[k].shape == () and lo <= out[k] <= hi):
             raise ValueError("%s: %s = %r out of range (%s)" % (where, k, d[k], PARAM_KEYS[k]))
     if "dt_truth_s" in out and abs(1.0 / out["dt_truth_s"] - round(1.0 / out["dt_truth_s"])) >= 1e-9:

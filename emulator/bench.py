@@ -30,6 +30,7 @@ from emulator.timing import board_timing
 
 ARCSEC = 180.0 / math.pi * 3600.0     # arcsec per radian
 _NOISE_BLOCK = 3 * 4096
+RATE_HZ_MAX = 1e5                     # control tick rate limit (Hz)
 
 
 class Bench:
@@ -97,8 +98,8 @@ class Bench:
     # --- timing ------------------------------------------------------------------------------------
     def set_rate(self, rate_hz):
         """Set the control tick rate; precompute the exact per-tick and per-sub-step transitions."""
-        if not 1.0 <= rate_hz <= 1e5:
-            raise ValueError("rate_hz = %r is out of range [1, 1e5]" % rate_hz)
+        if not 1.0 <= rate_hz <= RATE_HZ_MAX:
+            raise ValueError("rate_hz = %r is out of range [1, %g]" % (rate_hz, RATE_HZ_MAX))
         self._sync_pfsm()
         self.rate_hz = float(rate_hz)
         self.T = 1.0 / self.rate_hz

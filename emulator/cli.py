@@ -68,8 +68,9 @@ def _config(args):
 def _truth_h(args):
     from emulator.bench import Bench
     from emulator.config import load_config
-    from emulator.fileio import write_json
+    from emulator.fileio import check_not_input, write_json
     from emulator.truth import sec74_grid, true_h_field
+    check_not_input(args.output, [("--config", args.config)])
     bench = Bench(load_config(args.config), noise=False)
     out = true_h_field(bench, sec74_grid(args.grid), args.dv)
     write_json(args.output, out, make_folder=False)
@@ -99,6 +100,8 @@ def _check_serve_args(args):
         if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
             raise ValueError("%s must be a finite number %s %g%s, got %r"
                              % (name, ">" if lo_open else ">=", lo, "" if hi == math.inf else " and <= %g" % hi, v))
+    if not 0 <= args.seed < 2 ** 32:
+        raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (args.seed,))
     if args.duration is not None:
         finite("--duration (s)", args.duration, 0.0, lo_open=True, hi=MAX_SECONDS)
     finite("--wait (s)", args.wait, 0.0, hi=MAX_SECONDS)

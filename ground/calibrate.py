@@ -301,8 +301,7 @@ def _cmd(a):
     grid_v = sec74_grid(a.grid, a.span)
     if not 0 < a.dv <= 0.5:            # bad input (exit 2), refused before a rig or a process starts
         raise ValueError("--dv %r V must be in (0, 0.5]" % a.dv)
-    if a.seed < 0:
-        raise ValueError("--seed %d must be >= 0" % a.seed)
+    runtime.check_seed(a.seed)
     cfg = None
     if a.config is not None:
         from emulator.config import load_config

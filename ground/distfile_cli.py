@@ -13,7 +13,7 @@ import sys
 import numpy as np
 
 from ground import resample, sources
-from ground.fileio import write_atomic
+from ground.fileio import check_not_input, write_atomic
 from protocol import distfile
 
 MAG_PFSM = 13.33                   # theta_P-FSM / theta_e, Eq. 7.7
@@ -33,28 +33,34 @@ def check_playable(x, y, period_us=resample.DIST_PERIOD_US):
         with np.errstate(invalid="ignore"):
             peak = float(np.nanmax(np.abs(np.concatenate([x, y]))))
         excess = peak - MAX_THETA_E_ARCSEC
-        raise ValueError("sample %d (t = %.3f s) = (%.2f, %.2f) arcsec is beyond the P-FSM's range: "
+        raise ValueError("sample %d (t = %.3f s) = (%s, %s) arcsec is beyond the P-FSM's range: "
                          "|theta_e| <= %.1f arcsec (+-%g deg mechanical / %.2f, Eq. 7.7); %d samples out of "
-                         "range, the largest |theta_e| %.1f arcsec passes the limit by %.1f arcsec (the P-FSM "
-                         "would need %.3f deg, %.3f deg beyond its +-%g deg); not clipped"
-                         % (i, i * period_us * 1e-6, x[i], y[i], MAX_THETA_E_ARCSEC, PFSM_MAX_DEG, MAG_PFSM,
-                            bad.size, peak, excess, peak * MAG_PFSM / 3600.0, excess * MAG_PFSM / 3600.0,
-                            PFSM_MAX_DEG))
+                         "range, the largest |theta_e| %s arcsec passes the limit by %s arcsec (the P-FSM "
+                         "would need %s deg, %s deg beyond its +-%g deg); not clipped"
+                         % (i, i * period_us * 1e-6, _fx(x[i], 2), _fx(y[i], 2), MAX_THETA_E_ARCSEC, PFSM_MAX_DEG,
+                            MAG_PFSM, bad.size, _fx(peak, 1), _fx(excess, 1), _fx(peak * MAG_PFSM / 3600.0, 3),
+                            _fx(excess * MAG_PFSM / 3600.0, 3), PFSM_MAX_DEG))
 
 
 def check_step(step_us):
     """The distfile step: a whole number of us (the format's period_us), not below the P-FSM period."""
-    if step_us != int(step_us) or not resample.PFSM_PERIOD_US <= step_us <= 10_000_000:
+    if not (math.isfinite(step_us) and step_us == int(step_us) and resample.PFSM_PERIOD_US <= step_us <= 10_000_000):
         raise ValueError("--step-us %s: need a whole number of us from %d (the first at or above the P-FSM's "
                          "%.2f us period, 10.6 kHz) to 10000000" % (_num(step_us), math.ceil(resample.PFSM_PERIOD_US),
                                                                    resample.PFSM_PERIOD_US))
     return int(step_us)
 
 
-def _num(v):
-    """A number for a message: 110 or 110.5, never np.float64(110.0)."""
+def _fx(v, decimals):
+    """``v`` with ``decimals`` decimals, or in %g form when it is huge or not finite (a message stays short)."""
     v = float(v)
-    return "%d" % v if v == int(v) else "%g" % v
+    return "%.*f" % (decimals, v) if abs(v) < 1e9 else "%.4g" % v
+
+
+def _num(v):
+    """A number for a message: 110, 110.5, inf or nan, never np.float64(110.0)."""
+    v = float(v)
+    return "%d" % v if math.isfinite(v) and v == int(v) and abs(v) < 1e15 else "%g" % v
 
 
 def generate(source, duration_s, seed, source_name=None, period_us=resample.DIST_PERIOD_US):
@@ -107,6 +113,9 @@ def stats(x, y):
 
 
 def _cmd_generate(a):
+    check_not_input(a.output, [("--csv", getattr(a, "csv_path", None)), ("--params", getattr(a, "params", None))])
+    check_not_input(a.output + ".json", [("--csv", getattr(a, "csv_path", None)),
+                                         ("--params", getattr(a, "params", None))])
     src = sources.get_source(a.source).from_args(a)
     if a.source == "csv" and a.seed_given:
         raise ValueError("--seed: the csv source takes no seed (its samples are the file's); leave --seed out")
@@ -196,6 +205,7 @@ def bandwidth_lines(d):
 
 
 def _cmd_csv(a):
+    check_not_input(a.output, [("the distfile", a.file)])
     d, x, y = load(a.file)
     t = np.arange(d.count) * (d.period_us * 1e-6)
     lines = ["t_s,x_arcsec,y_arcsec"] + ["%.6f,%.6f,%.6f" % r for r in zip(t, x, y)]

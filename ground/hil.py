@@ -34,6 +34,7 @@ from ground import report
 from ground.calibrate import STEPS, fit_h, load_calibration
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
 from ground.fileio import write_atomic, write_json
+from ground.rig import AD660_CODES_PER_VOLT
 from protocol import htable
 
 CHUNK_S = 1.0     # virtual seconds per lockstep call (progress and interruption granularity)
@@ -41,6 +42,20 @@ CHUNK_S = 1.0     # virtual seconds per lockstep call (progress and interruption
 
 class Interrupted(Exception):
     pass
+
+
+MIN_PLAY_S = 0.01          # the shortest play: six Q2 samples at 630 Hz (shorter ones recorded none)
+Q2_DV_MIN_CODES = 4       # the Q2 calibration's P-FSM step spans at least this many AD660 codes
+
+
+def check_q2_dv(dvp):
+    """``--q2-dv`` (V) in [Q2_DV_MIN_CODES AD660 codes, 2 V]: a smaller step rounds to too few DAC codes (at
+    1e-4 V, none: G2 singular); ValueError naming it otherwise."""
+    lo = Q2_DV_MIN_CODES / AD660_CODES_PER_VOLT
+    if isinstance(dvp, bool) or not isinstance(dvp, (int, float)) or not lo <= dvp <= 2.0:
+        raise ValueError("--q2-dv must be in [%.2g, 2] V (at least %d codes of the P-FSM's AD660 DAC, %.3g mV "
+                         "each), got %r" % (lo, Q2_DV_MIN_CODES, 1e3 / AD660_CODES_PER_VOLT, dvp))
+    return float(dvp)
 
 
 def calibrate_q2(rig, dvp=0.05, settle_ticks=16, avg_samples=48):
@@ -177,10 +192,10 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     cal = load_calibration(calibration_path)
     d, dx, dy = load_distfile(distfile_path)
     check_playable(dx, dy, d.period_us)
-    if not duration_s > 0:
-        raise ValueError("--duration must be > 0 s, got %r" % duration_s)
-    if not 0 < q2_dvp <= 2.0:
-        raise ValueError("--q2-dv must be in (0, 2] V, got %r" % q2_dvp)
+    if not duration_s >= MIN_PLAY_S:
+        raise ValueError("--duration must be >= %g s (a few Q2 samples at 630 Hz), got %r" % (MIN_PLAY_S, duration_s))
+    check_q2_dv(q2_dvp)
+    runtime.check_seed(seed)
     play_s = d.duration_us() * 1e-6
     if duration_s > play_s + 1e-6:
         raise ValueError("--duration %g s is longer than the distfile (%g s)" % (duration_s, play_s))
@@ -544,7 +559,8 @@ def add_run_arguments(p, seed_help="emulator seed"):
     """The run flags ``fps hil`` and ``fps system`` share: bench config, seed, Q2 calibration, output."""
     p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
     p.add_argument("--seed", type=int, default=0, help=seed_help)
-    p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration (V)")
+    p.add_argument("--q2-dv", type=float, default=0.05, help="P-FSM perturbation for the Q2 calibration, V "
+                   "(default 0.05; at least 4 codes of the P-FSM's DAC, 1.2 mV, up to 2 V)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, help="run folder")

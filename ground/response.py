@@ -131,7 +131,13 @@ def fit_tone(t, y, f_hz, others=()):
     return sol[0] - 1j * sol[1]
 
 
-def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=4, min_s=0.25, progress=None, model=None):
+MIN_FROM_HZ = 0.1        # lowest tone: 4 cycles of it take 40 s of virtual time
+MAX_POINTS = 200
+MIN_CYCLES = 4
+MIN_AMP_ARCSEC = 0.1     # 4 codes of the P-FSM's AD660 (0.025 arcsec on the sky each); 1e-3 rounded to none
+
+
+def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=MIN_CYCLES, min_s=0.25, progress=None, model=None):
     """Play each tone through the P-FSM with the loop in TRACK; return per frequency the complex S of X and
     Y (residual / input from the truth at the Q2 instants): (frequencies played, S). The rig's player is
     restored after.
@@ -213,15 +219,18 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
     link_opts = dict(link_opts or {})
     rate = link_opts.get("rate_hz", 637.8)
     nyq = rate / 2
-    if not 0 < f_from < f_to:
-        raise ValueError("--from %g and --to %g: need 0 < from < to" % (f_from, f_to))
+    if not MIN_FROM_HZ <= f_from < f_to:
+        raise ValueError("--from %g and --to %g: need %g <= from < to Hz (each tone plays %d cycles)"
+                         % (f_from, f_to, MIN_FROM_HZ, MIN_CYCLES))
     if f_to >= nyq:
         raise ValueError("--to %g Hz is at or above the loop's Nyquist frequency %g Hz" % (f_to, nyq))
-    if points < 2:
-        raise ValueError("--points %d: need >= 2" % points)
-    if not 0 < amp_arcsec <= 10:
-        raise ValueError("--amp %g: need 0 < amp <= 10 arcsec (scheduled up to 3x where |S| is small; the "
-                         "residual must stay in the quadcell's linear range)" % amp_arcsec)
+    if not 2 <= points <= MAX_POINTS:
+        raise ValueError("--points %d: need 2 to %d" % (points, MAX_POINTS))
+    if not MIN_AMP_ARCSEC <= amp_arcsec <= 10:
+        raise ValueError("--amp %g: need %g <= amp <= 10 arcsec (at least 4 codes of the P-FSM's DAC; scheduled "
+                         "up to 3x where |S| is small, the residual must stay in the quadcell's linear range)"
+                         % (amp_arcsec, MIN_AMP_ARCSEC))
+    runtime.check_seed(seed)
     freqs = np.geomspace(f_from, f_to, points)
     models = [LoopModel(cfg, rate, 0.5, ax) for ax in (0, 1)]     # refuses a board too slow for the rate
     cal = truth_calibration(cfg) if calibration is None else calibration
@@ -268,6 +277,7 @@ def _plot(out_dir, freqs, s_meas, model, summary):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from ground.plots import save_png
     f = np.geomspace(freqs[0], freqs[-1], 400)
     sm = model.s_truth(f)
     fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(7, 6))
@@ -284,13 +294,12 @@ def _plot(out_dir, freqs, s_meas, model, summary):
     a2.set_ylabel("phase (deg)")
     a2.set_xlabel("frequency (Hz)")
     fig.tight_layout()
-    fig.savefig(os.path.join(out_dir, "bode_sensitivity.png"), dpi=100)
-    plt.close(fig)
+    save_png(fig, os.path.join(out_dir, "bode_sensitivity.png"), dpi=100)
     w = 2 * np.pi * np.geomspace(0.5, 0.499 / model.T, 400)
     fig = plt.figure(figsize=(7, 6))
     model.control.bode_plot(model.L, w, dB=True, Hz=True, display_margins=True,
                             title="Loop C(z) P(z), X axis, g = %g" % model.gain)
-    plt.savefig(os.path.join(out_dir, "bode_loop.png"), dpi=100)
+    save_png(plt.gcf(), os.path.join(out_dir, "bode_loop.png"), dpi=100)
     plt.close("all")
 
 

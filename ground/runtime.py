@@ -19,6 +19,7 @@ import sys
 import tempfile
 import time
 
+from emulator.bench import RATE_HZ_MAX
 from emulator.runtime import micropython_binary
 from ground.rig import InprocController, Rig
 
@@ -174,14 +175,22 @@ def _stop(link, proc):
     proc.errlog.close()
 
 
+def check_seed(seed):
+    """``--seed`` as the emulator takes it (numpy's generators): a whole number from 0 to 2^32 - 1."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
+        raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (seed,))
+    return seed
+
+
 def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=TICK_TIMEOUT_MS,
                   tick_tries=TICK_TRIES, max_failed_ticks=MAX_FAILED_TICKS, rate_hz=637.8, **_):
     """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse."""
     check(runtime, link)
-    for name, v, lo in (("--tick-timeout-ms", tick_timeout_ms, 0.05), ("--tick-tries", tick_tries, 1),
-                        ("--max-failed-ticks", max_failed_ticks, 1), ("--rate-hz", rate_hz, 100.0)):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v < 1e9:
-            raise ValueError("%s = %r: must be a number >= %g" % (name, v, lo))
+    for name, v, lo, hi in (("--tick-timeout-ms", tick_timeout_ms, 0.05, 1e7), ("--tick-tries", tick_tries, 1, 1e6),
+                            ("--max-failed-ticks", max_failed_ticks, 1, 1e9),
+                            ("--rate-hz", rate_hz, 100.0, RATE_HZ_MAX)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+            raise ValueError("%s = %r: must be a number from %g to %g" % (name, v, lo, hi))
     if runtime == "board" and not port:
         raise ValueError("--runtime board needs --port (the board's serial port, e.g. /dev/ttyACM0)")
     if runtime != "board" and port:

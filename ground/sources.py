@@ -7,6 +7,7 @@ name) and ``from_args(args)`` returning an object with ``generate(duration_s, se
 """
 
 import csv
+import math
 
 import numpy as np
 
@@ -69,8 +70,8 @@ class GaussMarkov2:
             raise ValueError("stat case %r unknown (known: %s)" % (case, ", ".join(BODY_POINTING)))
         if not rate_hz > 0:
             raise ValueError("stat rate_hz must be > 0, got %r" % rate_hz)
-        if not 0 <= scale < np.inf:
-            raise ValueError("stat scale must be finite and >= 0, got %r" % scale)
+        if not 1e-6 <= scale < np.inf:
+            raise ValueError("stat scale must be finite and >= 1e-6 (at 0 the process is undefined), got %r" % scale)
         if not zeta > 0:
             raise ValueError("stat zeta must be > 0, got %r" % zeta)
         self.case, self.rate_hz, self.scale, self.zeta = case, float(rate_hz), float(scale), float(zeta)
@@ -85,7 +86,7 @@ class GaussMarkov2:
         p.add_argument("--stat-case", default="gnss", choices=sorted(BODY_POINTING),
                        help="Ch. 6 body pointing case, ts = 33 s (default: with SatB GNSS)")
         p.add_argument("--stat-rate-hz", type=float, default=10.0, help="source rate (default 10 Hz, as the BPS)")
-        p.add_argument("--stat-scale", type=float, default=1.0, help="multiply mean and 1-sigma by this")
+        p.add_argument("--stat-scale", type=float, default=1.0, help="multiply mean and 1-sigma by this (>= 1e-6)")
 
     @classmethod
     def from_args(cls, a):
@@ -173,9 +174,13 @@ class Sine:
         nyq = 0.5e6 / period_us
         top = float(self.freq.max())
         if top >= nyq:
+            need = int(0.5e6 / top / 1.25)
+            from ground.resample import PFSM_PERIOD_US
+            finest = math.ceil(PFSM_PERIOD_US)
+            hint = ("use --step-us %d or finer" % need if need >= finest else
+                    "the finest step, %d us, plays tones below %g Hz" % (finest, 0.5e6 / finest))
             raise ValueError("sine %g Hz is at or above the distfile's Nyquist frequency %g Hz (step %d us): it "
-                             "would alias; use --step-us %d or finer" % (top, nyq, period_us,
-                                                                       int(0.5e6 / top / 1.25)))
+                             "would alias; %s" % (top, nyq, period_us, hint))
         if self.rate_hz is None:
             self._file_rate = 1e6 / period_us
 

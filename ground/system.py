@@ -389,10 +389,11 @@ class AdcsFeed:
 def check_inputs(duration_s, runtime_name, adcs, ts, truth, seed=0):
     from ground.adcs import bps
     from ground.adcs.bps_source import TRUTHS
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
-        raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (seed,))
-    if not (isinstance(duration_s, (int, float)) and math.isfinite(duration_s) and 0 < duration_s <= MAX_DURATION_S):
-        raise ValueError("--duration must be in (0, %g] s, got %r" % (MAX_DURATION_S, duration_s))
+    from ground import runtime
+    runtime.check_seed(seed)
+    if not (isinstance(duration_s, (int, float)) and math.isfinite(duration_s)
+            and hil.MIN_PLAY_S <= duration_s <= MAX_DURATION_S):
+        raise ValueError("--duration must be in [%g, %g] s, got %r" % (hil.MIN_PLAY_S, MAX_DURATION_S, duration_s))
     if runtime_name not in RUNTIMES:
         raise ValueError("--runtime %r: the fine-pointing controller runs under one of %s"
                          % (runtime_name, ", ".join(RUNTIMES)))
@@ -439,8 +440,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
         if adcs != "firmware":
             raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
         faults = check_faults(faults, settle_s(ts) + float(duration_s) + LEAD_S)
-    if not 0 < q2_dvp <= 2.0:
-        raise ValueError("--q2-dv must be in (0, 2] V, got %r" % q2_dvp)
+    hil.check_q2_dv(q2_dvp)
     cal = load_calibration(calibration_path) if calibration_path else None
     params = bps.load_params(params_path)[-1] if params_path else None
     duration_s = float(duration_s)

@@ -56,6 +56,23 @@ def write_atomic(path, data, make_folder=True):
         raise
 
 
+def check_not_input(output, inputs, option="-o"):
+    """ValueError if the output path names one of the input files (given as (option, path) pairs; None skipped):
+    the atomic write would replace the input the command is reading."""
+    if output in (None, "-"):
+        return
+    for opt, path in inputs:
+        if path in (None, "-"):
+            continue
+        try:
+            same = os.path.samefile(output, path)
+        except OSError:                                    # one of them does not exist (yet)
+            same = os.path.realpath(output) == os.path.realpath(path)
+        if same:
+            raise ValueError("%s %s is the input file of %s: writing it would destroy the input; choose another "
+                             "output" % (option, output, opt))
+
+
 def write_json(path, obj, make_folder=True):
     """``obj`` as indented JSON at ``path``, through ``write_atomic`` (``make_folder`` as there)."""
     write_atomic(path, json.dumps(obj, indent=1, sort_keys=False) + "\n", make_folder=make_folder)

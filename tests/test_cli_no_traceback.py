@@ -240,6 +240,40 @@ def test_bad_inputs_give_a_clear_error_never_a_traceback(capsys, files):
         assert "np.float" not in err and "np.int" not in err, (argv, err)   # numbers as people write them
 
 
+def test_audited_inputs_are_refused_up_front_by_name(capsys, files, tmp_path):
+    """Inputs a bad-input audit found ending in an internal error, a mid-run failure with a partial folder, a
+    message naming nothing, or a destroyed input: each now exits 2 before anything is written, naming it."""
+    o = str(tmp_path / "run")
+    hil = ["hil", "-o", o, "--distfile", files["dist"], "--calibration", files["cal"], "--duration", "0.01"]
+    gen = ["distfile", "generate", "-o", str(tmp_path / "x.dist")]
+    for argv, msg in ((hil + ["--seed", "-1"], "--seed must be a whole number from 0 to 2^32 - 1"),
+                      (hil + ["--q2-dv", "1e-4"], "--q2-dv must be in [0.0012, 2] V"),
+                      (hil[:-1] + ["1e-9"], "--duration must be >= 0.01 s"),
+                      (hil + ["--rate-hz", "150000"], "--rate-hz = 150000.0: must be a number from 100 to 100000"),
+                      (["response", "-o", o, "--from", "1e-9"], "need 0.1 <= from < to"),
+                      (["response", "-o", o, "--points", "1001"], "--points 1001: need 2 to 200"),
+                      (["response", "-o", o, "--amp", "1e-3"], "need 0.1 <= amp <= 10 arcsec"),
+                      (["response", "-o", o, "--seed", "-1"], "--seed must be"),
+                      (["calibrate", "-o", o + ".json", "--grid", "2", "--seed", "4294967296"], "--seed must be"),
+                      (["emulator", "serve", "--seed", "-1", "--wait", "0"], "--seed must be"),
+                      (gen + ["--source", "sine", "--duration", "inf"], "duration must be > 0 s and finite, got inf"),
+                      (gen + ["--source", "sine", "--duration", "nan"], "got nan"),
+                      (gen + ["--source", "sine", "--step-us", "inf"], "--step-us inf: need a whole number"),
+                      (gen + ["--source", "sine", "--step-us", "nan"], "--step-us nan"),
+                      (gen + ["--source", "sine", "--freq-hz", "6000,1"], "the finest step, 95 us, plays tones below"),
+                      (gen + ["--source", "stat", "--stat-scale", "0"], "stat scale must be finite and >= 1e-6"),
+                      (["distfile", "csv", files["dist"], "-o", files["dist"]], "is the input file of the distfile"),
+                      (["emulator", "truth-h", "--grid", "2", "--config", files["cal"], "-o", files["cal"]],
+                       "is the input file of --config")):
+        before = {p: open(p, "rb").read() for p in (files["dist"], files["cal"])}
+        rc, out, err = run(capsys, argv)
+        assert rc == 2 and msg in err, (argv, rc, err)
+        assert not os.path.exists(o) and not os.path.exists(o + ".json"), argv
+        assert {p: open(p, "rb").read() for p in before} == before, argv
+    rc, out, err = run(capsys, gen + ["--source", "sine", "--offset-arcsec", "1e300,1"])
+    assert rc == 2 and "1e+300 arcsec passes the limit" in err and len(err) < 600, err
+
+
 def test_fine_inputs_exit_0(capsys, files):
     o = os.path.join(files["out"], "fine")
     for argv in (["protocol", "table"], ["protocol", "table", "--json"], ["protocol", "encode", "RW_CMD", "torque=0.5"],

@@ -241,13 +241,11 @@ def load_config(path=None):
     """Load and validate a JSON config file (None = the default preset), merged over the preset."""
     if path is None:
         return default_config()
-    with open(path) as f:
-        try:
-            data = json.load(f)
-        except json.JSONDecodeError as exc:
-            raise ValueError("config %s: not valid JSON: %s" % (path, exc)) from None
-        except UnicodeDecodeError as exc:
-            raise ValueError("config %s: not a text (JSON) file: %s" % (path, exc)) from None
+    from emulator.fileio import read_input
+    try:
+        data = json.loads(read_input(path, "config"))
+    except json.JSONDecodeError as exc:
+        raise ValueError("config %s: not valid JSON: %s" % (path, exc)) from None
     return validate(data)
 
 

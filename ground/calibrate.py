@@ -261,13 +261,11 @@ def load_calibration(path):
     """Read and validate a calibration JSON (the controller's own check, ``check_calibration``); returns the
     dict. A singular or fixed-point non-invertible H is refused here, naming its grid point, not after the
     upload."""
+    from ground.fileio import read_input
     try:
-        with open(path) as f:
-            cal = json.load(f)
+        cal = json.loads(read_input(path, "calibration"))
     except json.JSONDecodeError as exc:
         raise ValueError("calibration %s: not valid JSON: %s" % (path, exc)) from None
-    except UnicodeDecodeError as exc:
-        raise ValueError("calibration %s: not a text (JSON) file: %s" % (path, exc)) from None
     try:
         check_calibration(cal)
     except htable.HTableError as exc:
@@ -316,6 +314,7 @@ def _cmd(a):
     else:
         opts = runtime.link_options(a)
         runtime.check_options(a.runtime, a.link, **opts)
+        runtime.check_board(cfg, opts.get("rate_hz", 637.8))
         rig_cm = runtime.open_rig(a.runtime, a.link, config=cfg, seed=a.seed, **opts)
     try:
         with rig_cm as rig:

@@ -13,7 +13,7 @@ import sys
 import numpy as np
 
 from ground import resample, sources
-from ground.fileio import check_not_input, write_atomic
+from ground.fileio import check_not_input, read_input, write_atomic
 from protocol import distfile
 
 MAG_PFSM = 13.33                   # theta_P-FSM / theta_e, Eq. 7.7
@@ -91,8 +91,7 @@ def generate(source, duration_s, seed, source_name=None, period_us=resample.DIST
 
 def load(path):
     """Read and validate a distfile: (Distfile, x, y) with x, y numpy arrays in arcsec."""
-    with open(path, "rb") as f:
-        data = f.read()
+    data = read_input(path, "distfile", distfile.HEADER_SIZE + 8 * distfile.MAX_COUNT + 4096, text=False)
     try:
         d = distfile.parse(data)
     except distfile.DistfileError as exc:

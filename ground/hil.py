@@ -196,6 +196,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
         raise ValueError("--duration must be >= %g s (a few Q2 samples at 630 Hz), got %r" % (MIN_PLAY_S, duration_s))
     check_q2_dv(q2_dvp)
     runtime.check_seed(seed)
+    runtime.check_board(config, link_opts.get("rate_hz", 637.8))
     play_s = d.duration_us() * 1e-6
     if duration_s > play_s + 1e-6:
         raise ValueError("--duration %g s is longer than the distfile (%g s)" % (duration_s, play_s))

@@ -182,6 +182,14 @@ def check_seed(seed):
     return seed
 
 
+def check_board(config, rate_hz=637.8):
+    """ValueError (naming board.adc_read_us) if the config's board cannot sample its channels within one tick at
+    ``rate_hz``: refused before a run starts, not at its first tick."""
+    from emulator.config import default_config
+    from emulator.timing import board_timing
+    board_timing(config if config is not None else default_config()).split(1.0 / rate_hz)
+
+
 def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=TICK_TIMEOUT_MS,
                   tick_tries=TICK_TRIES, max_failed_ticks=MAX_FAILED_TICKS, rate_hz=637.8, **_):
     """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse."""

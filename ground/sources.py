@@ -208,6 +208,10 @@ class Sine:
         return t, xy[0], xy[1]
 
 
+CSV_MAX_BYTES = 1 << 30
+CSV_MAX_GAP = 10.0        # largest spacing, in median spacings, a CSV may have (uneven times are fine below it)
+
+
 class CsvSource:
     """A user's own history: CSV with columns t_s, x_arcsec, y_arcsec (header optional), any rate,
     strictly increasing times (not necessarily uniform)."""
@@ -234,8 +238,10 @@ class CsvSource:
 
 def read_csv(path):
     """Read (t_s, x_arcsec, y_arcsec) columns; a non-numeric first row is a header."""
+    import io
+    from ground.fileio import read_input
     rows = []
-    with open(path, newline="") as f:
+    with io.StringIO(read_input(path, "csv", CSV_MAX_BYTES), newline="") as f:
         for lineno, row in enumerate(csv.reader(f), 1):
             if not row or row[0].lstrip().startswith("#"):
                 continue
@@ -258,6 +264,13 @@ def read_csv(path):
     if not np.all(np.diff(a[:, 0]) > 0):
         bad = int(np.argmax(np.diff(a[:, 0]) <= 0)) + 1
         raise ValueError("%s: times must be strictly increasing (sample %d, t_s=%g)" % (path, bad, a[bad, 0]))
+    dt = np.diff(a[:, 0])
+    med = float(np.median(dt))
+    if dt.max() > CSV_MAX_GAP * med:
+        k = int(np.argmax(dt))
+        raise ValueError("%s: a gap of %g s after sample %d (t_s=%g), %.0f times the median spacing %g s: the "
+                         "3rd-order interpolation would invent the samples across it; fill the gap or split the "
+                         "file" % (path, dt[k], k, a[k, 0], dt[k] / med, med))
     return a[:, 0], a[:, 1], a[:, 2]
 
 

@@ -441,6 +441,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
             raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
         faults = check_faults(faults, settle_s(ts) + float(duration_s) + LEAD_S)
     hil.check_q2_dv(q2_dvp)
+    runtime.check_board(config)
     cal = load_calibration(calibration_path) if calibration_path else None
     params = bps.load_params(params_path)[-1] if params_path else None
     duration_s = float(duration_s)

@@ -56,6 +56,28 @@ def write_atomic(path, data, make_folder=True):
         raise
 
 
+JSON_MAX_BYTES = 64 << 20
+
+
+def read_input(path, what, max_bytes=JSON_MAX_BYTES, text=True):
+    """An input file's content (str, or bytes with ``text=False``). A file that cannot be read (missing, a
+    folder, no permission), is larger than ``max_bytes`` (``/dev/zero`` included) or, as text, is not UTF-8 is
+    a ValueError naming ``what`` and the path: bad input, not a failed run."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read(max_bytes + 1)
+    except OSError as exc:
+        raise ValueError("%s %s: cannot read it (%s)" % (what, path, exc.strerror or exc)) from None
+    if len(data) > max_bytes:
+        raise ValueError("%s %s: larger than %d bytes, not such a file" % (what, path, max_bytes))
+    if not text:
+        return data
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError("%s %s: not a text file (%s)" % (what, path, exc)) from None
+
+
 def check_not_input(output, inputs, option="-o"):
     """ValueError if the output path names one of the input files (given as (option, path) pairs; None skipped):
     the atomic write would replace the input the command is reading."""

@@ -137,7 +137,7 @@ def test_a_binary_parameter_file_is_named_in_the_error(argv, tmp_path, capsys):
     p = tmp_path / "params.json"
     p.write_bytes(b"\xff\xfe\x00{")
     rc, _, err = _fps(capsys, argv + ["--params", p, "-o", tmp_path / "x"])
-    assert rc == 2 and str(p) in err.strip().splitlines()[-1] and "not valid JSON" in err, err
+    assert rc == 2 and str(p) in err.strip().splitlines()[-1] and "not a text file" in err, err
 
 
 def test_stkf_plots_are_written_atomically(tmp_path, monkeypatch, capsys):

@@ -139,6 +139,9 @@ def test_check_covariance_names_the_time():
     ([], {"inertia_kgm2": [0.012, 0.012, 0.030, 0.0, 0.0, 0.0]}, "is no rigid body's"),
     ([], {"duration_s": 5000}, "duration_s = 5000 out of range"),
     ([], {"duration_s": 3}, "duration_s = 3 out of range"),           # the filters could not start
+    ([], {"duration_s": "10"}, "duration_s = '10' is not numeric"),
+    ([], {"inertia_kgm2": [1e-30, 1e-30, 1e-30, 0.0, 0.0, 0.0]}, "Jxx, Jyy, Jzz must be from 1e-4 to 1 kg m"),
+    ([], {"dipole_am2": [1e30, 0.0, 0.0]}, "must be 3 numbers within +-10 A m^2"),
     (["--scheduler", "tcp://127.0.0.1:9"], None, "'tcp://127.0.0.1:9' is unreachable"),
 ])
 def test_cli_bad_input(tmp_path, capsys, args, params, msg):
@@ -147,6 +150,7 @@ def test_cli_bad_input(tmp_path, capsys, args, params, msg):
     err = capsys.readouterr().err
     assert rc == 2 and msg in err and err.startswith("fps adcs: error:")
     assert "Traceback" not in err
+    assert not (tmp_path / "o").exists()          # refused before the folder (an unreachable scheduler too)
 
 
 def test_apkf_attitude_consistent_in_holds_and_at_its_information_bound():

@@ -270,6 +270,18 @@ def test_audited_inputs_are_refused_up_front_by_name(capsys, files, tmp_path):
         assert rc == 2 and msg in err, (argv, rc, err)
         assert not os.path.exists(o) and not os.path.exists(o + ".json"), argv
         assert {p: open(p, "rb").read() for p in before} == before, argv
+    slow = tmp_path / "slow.json"
+    slow.write_text('{"board": {"adc_read_us": 5000}}')                # failed at the first tick, folder left
+    gap = tmp_path / "gap.csv"
+    gap.write_text("0,1,2\n1,1,2\n2,3,4\n3,1,1\n50,1,1\n")         # cubic interpolation overshot to 860 arcsec
+    for argv, msg in ((["distfile", "info", "/dev/zero"], "larger than"),
+                      (hil[:4] + [files["missing"]] + hil[5:], "distfile %s: cannot read it" % files["missing"]),
+                      (hil[:6] + [files["dir"]] + hil[7:], "calibration %s: cannot read it" % files["dir"]),
+                      (gen + ["--source", "csv", "--csv", str(gap), "--duration", "40"], "a gap of 47 s after sample 3"),
+                      (hil + ["--config", str(slow)], "use a faster board (board.adc_read_us)"),
+                      (["calibrate", "-o", o, "--grid", "2", "--config", str(slow)], "use a faster board")):
+        rc, out, err = run(capsys, argv)
+        assert rc == 2 and msg in err and not os.path.exists(o), (argv, rc, err)
     rc, out, err = run(capsys, gen + ["--source", "sine", "--offset-arcsec", "1e300,1"])
     assert rc == 2 and "1e+300 arcsec passes the limit" in err and len(err) < 600, err
 

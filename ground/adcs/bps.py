@@ -157,10 +157,10 @@ def check_params(d, where="parameter file"):
 
 
 def load_params(path):
+    from ground.fileio import read_input
     try:
-        with open(path) as f:
-            d = json.load(f)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:     # not JSON text at all
+        d = json.loads(read_input(path, "parameter file"))
+    except json.JSONDecodeError as exc:                           # not JSON text at all
         raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
     return check_params(d, path) + (d,)
 

@@ -292,6 +292,7 @@ def _cmd_sweep(a):
         campaign.check_workers(a.workers)
     params = bps.load_params(a.params)[-1] if a.params else None
     out = a.output
+    campaign.check_scheduler(a.scheduler)
     os.makedirs(out, exist_ok=True)
     satb = not a.no_satb_gnss
     write_json(os.path.join(out, "summary.json"), sweep_summary(ts_list, [None] * len(ts_list), False, satb))

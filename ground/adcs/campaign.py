@@ -148,6 +148,13 @@ def _connect(scheduler):
         raise ValueError("scheduler %r: cannot connect (%s: %s)" % (scheduler, type(exc).__name__, exc)) from None
 
 
+def check_scheduler(scheduler):
+    """Connect to ``scheduler`` once and close: an unreachable address is a ValueError naming it, before the
+    command writes its folder (None: a local campaign, nothing to check)."""
+    if scheduler is not None:
+        _connect(scheduler).close()
+
+
 def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=True, desc="runs", **kwargs):
     """Run ``fn`` once per seed (see the module docstring); returns the list of result dicts in seed order."""
     seeds = [int(s) for s in seeds]

@@ -43,6 +43,7 @@ def run_filter_campaign(fn, name, case, a, dof=6):
         campaign.check_workers(a.workers)
     params = runs.load_params(a.params) if a.params else None
     out = a.output
+    campaign.check_scheduler(a.scheduler)
     os.makedirs(out, exist_ok=True)
     seeds = [a.seed + i for i in range(n)]
     summary = {"filter": name, "case": case, "runs": 0, "complete": False, "seeds": seeds}

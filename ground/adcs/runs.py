@@ -19,14 +19,14 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from ground.adcs import apkf, mekf, quat
-from ground.fileio import write_atomic, write_json
+from ground.fileio import read_input, write_atomic, write_json
 
 ARCSEC = quat.ARCSEC
 MIN_DURATION_S = 10.0     # below ~5 s no two consecutive star-tracker outputs exist to start the filters
 PARAM_KEYS = {
     "inertia_kgm2": "6 numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], a rigid body's: positive definite, triangle "
                     "inequality (the true spacecraft)",
-    "dipole_am2": "3 numbers (true residual dipole)",
+    "dipole_am2": "3 numbers within +-10 A m^2 (true residual dipole; the thesis's is 0.28 A m^2)",
     "duration_s": "scenario length, 10..930 s (default 930; the star tracker answers once the 1 deg/s "
                   "initial rate is damped below 0.1 deg/s, after ~4 s)",
     "dt_truth_s": "truth RK4 step dividing 1 s, (0, 1] (default 1)",
@@ -36,9 +36,8 @@ PARAM_KEYS = {
 def load_params(path):
     """A scenario/parameter JSON file, checked: unknown keys, NaN and a non-PD inertia are ValueErrors."""
     try:
-        with open(path) as f:
-            d = json.load(f, parse_constant=lambda c: float("nan"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:     # not JSON text at all
+        d = json.loads(read_input(path, "params"), parse_constant=lambda c: float("nan"))
+    except json.JSONDecodeError as exc:                           # not JSON text at all
         raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
     if not isinstance(d, dict):
         raise ValueError("%s: expected a JSON object with keys %s" % (path, ", ".join(sorted(PARAM_KEYS))))
@@ -51,6 +50,8 @@ def check_params(d, where="params"):
         if k not in PARAM_KEYS:
             raise ValueError("%s: unknown key %r (allowed: %s)" % (where, k, ", ".join(sorted(PARAM_KEYS))))
         try:
+            if any(isinstance(e, (str, bool)) for e in (v if isinstance(v, list) else [v])):
+                raise TypeError("a string or boolean")                # JSON numbers only, not "10" or true
             a = np.array(v, dtype=float)
         except (TypeError, ValueError):
             raise ValueError("%s: %s = %r is not numeric (%s)" % (where, k, v, PARAM_KEYS[k])) from None
@@ -69,7 +70,10 @@ def check_params(d, where="params"):
                 "is no rigid body's (a principal moment exceeds the sum of the other two)"
             raise ValueError("%s: inertia_kgm2 = %r %s (%s)" % (where, d["inertia_kgm2"], why,
                                                                PARAM_KEYS["inertia_kgm2"])) from None
-    if "dipole_am2" in out and out["dipole_am2"].shape != (3,):
+        if not np.all((1e-4 <= a[:3]) & (a[:3] <= 1.0)):
+            raise ValueError("%s: inertia_kgm2 = %r: Jxx, Jyy, Jzz must be from 1e-4 to 1 kg m^2 (a "
+                             "CubeSat's; the thesis's 3U has 0.012-0.047)" % (where, d["inertia_kgm2"]))
+    if "dipole_am2" in out and (out["dipole_am2"].shape != (3,) or np.abs(out["dipole_am2"]).max() > 10.0):
         raise ValueError("%s: dipole_am2 = %r must be %s" % (where, d["dipole_am2"], PARAM_KEYS["dipole_am2"]))
     for k, lo, hi in (("duration_s", MIN_DURATION_S, 930.0), ("dt_truth_s", 1e-6, 1.0)):
         if k in out and not (out[k].shape == () and lo <= out[k] <= hi):

@@ -30,6 +30,7 @@ def _cmd(a):
         raise ValueError("--lag %.2f s is shorter than the relay's longest delay (3 s) plus one filter step "
                          "(1 s): delayed measurements would be refused" % a.lag)
     out = a.output
+    campaign.check_scheduler(a.scheduler)
     os.makedirs(out, exist_ok=True)
     args_text = "fps adcs stkf " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "fps adcs stkf"
     summary = stkf_sim.aggregate([], runs, False)

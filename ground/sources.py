@@ -214,7 +214,7 @@ CSV_MAX_GAP = 10.0        # largest spacing, in median spacings, a CSV may have 
 
 class CsvSource:
     """A user's own history: CSV with columns t_s, x_arcsec, y_arcsec (header optional), any rate,
-    strictly increasing times (not necessarily uniform)."""
+    strictly increasing times (not necessarily uniform, but no gap over CSV_MAX_GAP median spacings)."""
 
     name = "csv"
 

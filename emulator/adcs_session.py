@@ -78,6 +78,8 @@ def check_faults(faults, duration_s):
         if k not in FAULTS:
             raise ValueError("unknown fault %r (known: %s)" % (k, ", ".join(FAULTS)))
         try:
+            if isinstance(v, bool) or (isinstance(v, (list, tuple)) and any(isinstance(e, bool) for e in v)):
+                raise TypeError("true/false is not a number")          # JSON true would read as 1
             if k == "beacon_lost":
                 out[k] = t0 = float(v)
                 ok = np.isfinite(t0) and t0 >= 0

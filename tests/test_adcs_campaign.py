@@ -54,5 +54,7 @@ def test_bad_inputs(tmp_path):
         campaign.run_campaign(draw, [1], tmp_path, workers=0)
     with pytest.raises(ValueError, match="--scheduler ADDRESS.*got 100000"):    # not 100,000 local processes
         campaign.run_campaign(draw, [1], tmp_path, workers=100000)
+    with pytest.raises(ValueError, match="--seed must be a whole number from 0 to 2\\^32 - 1, got 4294967296"):
+        campaign.check_seed(2 ** 32)                    # the range the other fps commands take
     with pytest.raises(ValueError, match="127.0.0.1:9"):
         campaign.run_campaign(draw, [1], tmp_path, scheduler="tcp://127.0.0.1:9", progress=False)

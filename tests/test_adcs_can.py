@@ -116,7 +116,7 @@ def test_slcan_adapter_answers_commands_like_an_adapter(tmp_path):
 def test_bad_fault_specs_are_refused():
     for bad in ({"wheel_silent": [4, 10]}, {"startracker_blind": [50, 10]}, {"gnss_outage": "x"},
                 {"beacon_lost": -1}, {"meteor": 3}, [1, 2], {"wheel_silent": "12"},
-                {"startracker_blind": "19"}):
+                {"startracker_blind": "19"}, {"beacon_lost": True}, {"wheel_silent": [True, 1]}):
         with pytest.raises(ValueError):
             check_faults(bad, 100)
     assert check_faults({"wheel_silent": [1, 5]}, 100) == {"wheel_silent": [1, 5.0]}

@@ -44,9 +44,10 @@ def check_duration(duration_s):
 
 
 def check_seed(seed):
-    """``seed`` as a first seed >= 0 (numpy's generators refuse negative seeds); ValueError naming it otherwise."""
-    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
-        raise ValueError("--seed must be a whole number >= 0, got %r" % (seed,))
+    """``seed`` as a first seed from 0 to 2^32 - 1 (numpy's generators refuse negative seeds; the other ``fps``
+    commands take the same range); ValueError naming it otherwise."""
+    if isinstance(seed, bool) or int(seed) != seed or not 0 <= seed < 2 ** 32:
+        raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (seed,))
     return int(seed)
 
 

@@ -115,6 +115,9 @@ def _cmd_generate(a):
     check_not_input(a.output, [("--csv", getattr(a, "csv_path", None)), ("--params", getattr(a, "params", None))])
     check_not_input(a.output + ".json", [("--csv", getattr(a, "csv_path", None)),
                                          ("--params", getattr(a, "params", None))])
+    for path in (a.output, a.output + ".json", a.output + ".jitter.json"):     # the file and its sidecars
+        if os.path.isdir(path):
+            raise ValueError("-o %s: %s is a folder, where the distfile or its sidecar goes" % (a.output, path))
     src = sources.get_source(a.source).from_args(a)
     if a.source == "csv" and a.seed_given:
         raise ValueError("--seed: the csv source takes no seed (its samples are the file's); leave --seed out")

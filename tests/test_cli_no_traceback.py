@@ -270,6 +270,10 @@ def test_audited_inputs_are_refused_up_front_by_name(capsys, files, tmp_path):
         assert rc == 2 and msg in err, (argv, rc, err)
         assert not os.path.exists(o) and not os.path.exists(o + ".json"), argv
         assert {p: open(p, "rb").read() for p in before} == before, argv
+    (tmp_path / "j.dist.jitter.json").mkdir()                         # the distfile was written, then exit 1
+    rc, out, err = run(capsys, ["distfile", "generate", "--source", "jitter", "--duration", "0.2", "--step-us", "1000",
+                                "-o", str(tmp_path / "j.dist")])
+    assert rc == 2 and "is a folder" in err and not (tmp_path / "j.dist").exists(), err
     slow = tmp_path / "slow.json"
     slow.write_text('{"board": {"adc_read_us": 5000}}')                # failed at the first tick, folder left
     gap = tmp_path / "gap.csv"

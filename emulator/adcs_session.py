@@ -445,9 +445,6 @@ def _load_params(params):
     """A parameter-file dict or path (ground/adcs/bps.py format), checked by the flight side's rules."""
     from firmware.adcs import apkf_lean
     if isinstance(params, (str, os.PathLike)):
-        try:
-            with open(params) as fh:
-                params = json.load(fh)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:     # not JSON text at all
-            raise ValueError("%s: not valid JSON (%s)" % (params, exc)) from None
+        from emulator.fileio import read_json
+        params = read_json(params, "parameter file")
     return apkf_lean.check_params(params)

@@ -10,6 +10,8 @@ import math
 import os
 import sys
 
+from emulator.runtime import check_seed
+
 
 def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
@@ -100,8 +102,7 @@ def _check_serve_args(args):
         if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
             raise ValueError("%s must be a finite number %s %g%s, got %r"
                              % (name, ">" if lo_open else ">=", lo, "" if hi == math.inf else " and <= %g" % hi, v))
-    if not 0 <= args.seed < 2 ** 32:
-        raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (args.seed,))
+    check_seed(args.seed)
     if args.duration is not None:
         finite("--duration (s)", args.duration, 0.0, lo_open=True, hi=MAX_SECONDS)
     finite("--wait (s)", args.wait, 0.0, hi=MAX_SECONDS)

@@ -241,12 +241,8 @@ def load_config(path=None):
     """Load and validate a JSON config file (None = the default preset), merged over the preset."""
     if path is None:
         return default_config()
-    from emulator.fileio import read_input
-    try:
-        data = json.loads(read_input(path, "config"))
-    except json.JSONDecodeError as exc:
-        raise ValueError("config %s: not valid JSON: %s" % (path, exc)) from None
-    return validate(data)
+    from emulator.fileio import read_json
+    return validate(read_json(path, "config"))
 
 
 def dumps(cfg):

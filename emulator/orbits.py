@@ -26,9 +26,10 @@ import hashlib
 import io
 import json
 import os
-import zipfile
 
 import numpy as np
+
+from emulator.fileio import load_npz, write_atomic
 
 MU = 398600.4415e9          # m^3/s^2 (Eq. 5.7)
 R_EARTH = 6378136.3         # m (EGM2008)
@@ -201,11 +202,10 @@ def truth_samples(kind="hpop", duration_s=1200.0, x0s=(X0_A, X0_B), step_s=1.0, 
     n = int(round(span / step_s)) + 1
     if path and os.path.exists(path):
         try:
-            with np.load(path, allow_pickle=False) as z:
-                t, x = z["t"], z["x"]
+            t, x = load_npz(path, ("t", "x"))
             if t.shape == (n,) and x.shape == (n, len(x0s), 6) and np.all(np.isfinite(x)):
                 return t, x
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        except ValueError:
             pass
         # a damaged cache file (not ours, truncated, the wrong shape) is computed again and replaced
     t = np.arange(n) * step_s
@@ -217,7 +217,6 @@ def truth_samples(kind="hpop", duration_s=1200.0, x0s=(X0_A, X0_B), step_s=1.0, 
     if not np.all(np.isfinite(x)) or r.min() < R_EARTH:
         raise ValueError("the %s truth left the valid range (min |r| %.1f km)" % (kind, np.nanmin(r) / 1e3))
     if path:
-        from emulator.fileio import write_atomic  # the project's one atomic writer
         buf = io.BytesIO()
         np.savez(buf, t=t, x=x, inputs=json.dumps(inputs))
         write_atomic(path, buf.getvalue())

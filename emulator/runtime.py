@@ -10,6 +10,20 @@ import signal
 import sys
 
 
+SEED_MAX = 2 ** 32 - 1     # numpy's legacy seeds and the distfile header's field: 32 bits
+
+
+def check_seed(seed, name="--seed"):
+    """A run's seed as a whole number from 0 to SEED_MAX (an integral float is taken); ValueError naming it."""
+    try:
+        ok = not isinstance(seed, bool) and int(seed) == seed and 0 <= seed <= SEED_MAX
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise ValueError("%s must be a whole number from 0 to 2^32 - 1, got %r" % (name, seed))
+    return int(seed)
+
+
 @contextlib.contextmanager
 def sigterm_as_interrupt():
     """SIGTERM raises KeyboardInterrupt (like Ctrl-C) while the run is on, so that a process manager's stop

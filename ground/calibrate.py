@@ -19,7 +19,6 @@ lost, the FSM saturates or the null does not converge is reported with the point
 """
 
 import contextlib
-import json
 import os
 import sys
 import time
@@ -261,11 +260,8 @@ def load_calibration(path):
     """Read and validate a calibration JSON (the controller's own check, ``check_calibration``); returns the
     dict. A singular or fixed-point non-invertible H is refused here, naming its grid point, not after the
     upload."""
-    from ground.fileio import read_input
-    try:
-        cal = json.loads(read_input(path, "calibration"))
-    except json.JSONDecodeError as exc:
-        raise ValueError("calibration %s: not valid JSON: %s" % (path, exc)) from None
+    from ground.fileio import read_json
+    cal = read_json(path, "calibration")
     try:
         check_calibration(cal)
     except htable.HTableError as exc:

@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 
+from emulator.runtime import check_seed
 from ground import resample, sources
 from ground.fileio import check_not_input, read_input, write_atomic
 from protocol import distfile
@@ -44,9 +45,9 @@ def check_playable(x, y, period_us=resample.DIST_PERIOD_US):
 
 def check_step(step_us):
     """The distfile step: a whole number of us (the format's period_us), not below the P-FSM period."""
-    if not (math.isfinite(step_us) and step_us == int(step_us) and resample.PFSM_PERIOD_US <= step_us <= 10_000_000):
+    if not (math.isfinite(step_us) and step_us == int(step_us) and resample.MIN_STEP_US <= step_us <= 10_000_000):
         raise ValueError("--step-us %s: need a whole number of us from %d (the first at or above the P-FSM's "
-                         "%.2f us period, 10.6 kHz) to 10000000" % (_num(step_us), math.ceil(resample.PFSM_PERIOD_US),
+                         "%.2f us period, 10.6 kHz) to 10000000" % (_num(step_us), resample.MIN_STEP_US,
                                                                    resample.PFSM_PERIOD_US))
     return int(step_us)
 
@@ -73,8 +74,7 @@ def generate(source, duration_s, seed, source_name=None, period_us=resample.DIST
     if duration_s > longest:
         raise ValueError("duration %s s is longer than a distfile holds (%d samples of %d us: %.0f s)"
                          % (_num(duration_s), distfile.MAX_COUNT, period_us, longest))
-    if not 0 <= seed <= 0xFFFFFFFF:
-        raise ValueError("seed %s out of range [0, 2**32-1]" % _num(seed))
+    check_seed(seed)
     if hasattr(source, "check_rate"):
         source.check_rate(period_us)
     name = source_name or getattr(source, "name", "user")
@@ -91,7 +91,8 @@ def generate(source, duration_s, seed, source_name=None, period_us=resample.DIST
 
 def load(path):
     """Read and validate a distfile: (Distfile, x, y) with x, y numpy arrays in arcsec."""
-    data = read_input(path, "distfile", distfile.HEADER_SIZE + 8 * distfile.MAX_COUNT + 4096, text=False)
+    data = read_input(path, "distfile", distfile.HEADER_SIZE + distfile.SAMPLE_SIZE * distfile.MAX_COUNT
+                      + distfile.CRC_SIZE, text=False)
     try:
         d = distfile.parse(data)
     except distfile.DistfileError as exc:
@@ -112,10 +113,9 @@ def stats(x, y):
 
 
 def _cmd_generate(a):
-    check_not_input(a.output, [("--csv", getattr(a, "csv_path", None)), ("--params", getattr(a, "params", None))])
-    check_not_input(a.output + ".json", [("--csv", getattr(a, "csv_path", None)),
-                                         ("--params", getattr(a, "params", None))])
+    inputs = [("--csv", getattr(a, "csv_path", None)), ("--params", getattr(a, "params", None))]
     for path in (a.output, a.output + ".json", a.output + ".jitter.json"):     # the file and its sidecars
+        check_not_input(path, inputs)
         if os.path.isdir(path):
             raise ValueError("-o %s: %s is a folder, where the distfile or its sidecar goes" % (a.output, path))
     src = sources.get_source(a.source).from_args(a)

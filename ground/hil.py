@@ -71,7 +71,8 @@ def calibrate_q2(rig, dvp=0.05, settle_ticks=16, avg_samples=48):
         if len(q2) == 0 or np.any(q2[:, 4] <= 0):
             raise ValueError("Q2 calibration: no beam on Q2 at P-FSM (%g, %g) V" % (sx * dvp, sy * dvp))
         rs.append([np.mean(q2[:, 2] / q2[:, 4]), np.mean(q2[:, 3] / q2[:, 4])])
-        dvs.append([(rig.hold.x_code - 0x8000) / 3276.8, (rig.hold.y_code - 0x8000) / 3276.8])
+        dvs.append([(rig.hold.x_code - 0x8000) / AD660_CODES_PER_VOLT,
+                    (rig.hold.y_code - 0x8000) / AD660_CODES_PER_VOLT])
     rig.pfsm_v(0.0, 0.0)
     dvs = np.array(dvs)
     g2, off, resid = fit_h(dvs - dvs.mean(axis=0), rs)

@@ -35,6 +35,7 @@ def to_dist_step(t_s, x, y, duration_s=None, period_us=DIST_PERIOD_US):
 
 # --- bandwidth: what a distfile step can hold and what the player plays -------------------------------------
 PFSM_PERIOD_US = 1e6 / 10600.0    # the P-FSM update period (94.34 us): no distfile step below it plays
+MIN_STEP_US = int(np.ceil(PFSM_PERIOD_US))   # the finest distfile step, a whole number of us (95)
 AA_ORDER = 8                      # anti-aliasing filter: Butterworth, applied forward and backward (zero phase)
 AA_FRACTION = 0.8                 # its cutoff, as a fraction of the file's Nyquist frequency
 AA_TAG = "+aa"                    # appended to the distfile's source name when the filter was applied

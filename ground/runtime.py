@@ -20,7 +20,7 @@ import tempfile
 import time
 
 from emulator.bench import RATE_HZ_MAX
-from emulator.runtime import micropython_binary
+from emulator.runtime import check_seed, micropython_binary  # noqa: F401  (check_seed: ground's tools use it)
 from ground.rig import InprocController, Rig
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -173,13 +173,6 @@ def _stop(link, proc):
             proc.kill()
             proc.wait(2.0)
     proc.errlog.close()
-
-
-def check_seed(seed):
-    """``--seed`` as the emulator takes it (numpy's generators): a whole number from 0 to 2^32 - 1."""
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
-        raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (seed,))
-    return seed
 
 
 def check_board(config, rate_hz=637.8):

@@ -7,7 +7,6 @@ name) and ``from_args(args)`` returning an object with ``generate(duration_s, se
 """
 
 import csv
-import math
 
 import numpy as np
 
@@ -175,8 +174,7 @@ class Sine:
         top = float(self.freq.max())
         if top >= nyq:
             need = int(0.5e6 / top / 1.25)
-            from ground.resample import PFSM_PERIOD_US
-            finest = math.ceil(PFSM_PERIOD_US)
+            from ground.resample import MIN_STEP_US as finest
             hint = ("use --step-us %d or finer" % need if need >= finest else
                     "the finest step, %d us, plays tones below %g Hz" % (finest, 0.5e6 / finest))
             raise ValueError("sine %g Hz is at or above the distfile's Nyquist frequency %g Hz (step %d us): it "

@@ -78,6 +78,15 @@ def read_input(path, what, max_bytes=JSON_MAX_BYTES, text=True):
         raise ValueError("%s %s: not a text file (%s)" % (what, path, exc)) from None
 
 
+def read_json(path, what, **kw):
+    """An input JSON file, through ``read_input`` (``kw`` go to ``json.loads``); text that is not JSON is a
+    ValueError naming ``what`` and the path."""
+    try:
+        return json.loads(read_input(path, what), **kw)
+    except json.JSONDecodeError as exc:
+        raise ValueError("%s %s: not valid JSON (%s)" % (what, path, exc)) from None
+
+
 def check_not_input(output, inputs, option="-o"):
     """ValueError if the output path names one of the input files (given as (option, path) pairs; None skipped):
     the atomic write would replace the input the command is reading."""

@@ -41,7 +41,6 @@ Units in the outputs: arcsec and arcsec/s; J (Eq. 6.22) in rad^2, like Fig. 6-2'
 """
 
 import io
-import json
 import os
 import time
 
@@ -91,18 +90,21 @@ def torque_scale(x, jrw_abs, model):
     return float(np.mean(x[26:30] * cn / jrw_abs))
 
 
-def params_from_apkf(x, P, jxx, meta, scale=1.0):
-    return {"format": FORMAT, "wheels": N_WHEELS, "jxx_ref_kgm2": float(jxx), "torque_scale": float(scale),
-            "x": {"tau_d_nm": x[7:10].tolist(), "J5_kgm2": x[10:15].tolist(), "dipole_am2": x[15:18].tolist(),
-                  "delta1_rad": x[18:22].tolist(), "delta2_rad": x[22:26].tolist(), "jrw_kgm2": x[26:30].tolist()},
-            "P": P[apkf.PARAMS, apkf.PARAMS].tolist(), "calibration": meta}
-
-
-# What a parameter file may hold and still describe this spacecraft: (part, low (None: |v| <= high), high, unit).
+# The parameter file's "x": its parts, in order, and where each sits in the APKF's state x (in P, one row lower)
+X_PARTS = (("tau_d_nm", slice(7, 10)), ("J5_kgm2", slice(10, 15)), ("dipole_am2", slice(15, 18)),
+           ("delta1_rad", slice(18, 22)), ("delta2_rad", slice(22, 26)), ("jrw_kgm2", slice(26, 30)))
+# What a parameter file may hold and still describe this spacecraft: part: (low (None: |v| <= high), high, unit).
 # The wheels' inertia within 10x of the datasheet's 3e-6 kg m^2 (the thesis's errors are 25 %), misalignments
 # below 45 deg (the thesis's are 7-12 deg), a dipole under 10 A m^2 and tau_d under the wheels' 1 mN m.
-PARAM_RANGES = ((0, None, 1e-3, "N m"), (2, None, 10.0, "A m^2"), (3, None, np.pi / 4, "rad"),
-                (4, None, np.pi / 4, "rad"), (5, 3e-7, 3e-5, "kg m^2"))
+PARAM_RANGES = {"tau_d_nm": (None, 1e-3, "N m"), "dipole_am2": (None, 10.0, "A m^2"),
+                "delta1_rad": (None, np.pi / 4, "rad"), "delta2_rad": (None, np.pi / 4, "rad"),
+                "jrw_kgm2": (3e-7, 3e-5, "kg m^2")}
+
+
+def params_from_apkf(x, P, jxx, meta, scale=1.0):
+    return {"format": FORMAT, "wheels": N_WHEELS, "jxx_ref_kgm2": float(jxx), "torque_scale": float(scale),
+            "x": {k: x[s].tolist() for k, s in X_PARTS},
+            "P": P[apkf.PARAMS, apkf.PARAMS].tolist(), "calibration": meta}
 
 
 def check_params(d, where="parameter file"):
@@ -116,16 +118,14 @@ def check_params(d, where="parameter file"):
                          % (where, d["calibration"]))
     try:
         xd = d["x"]
-        parts = [np.array(xd[k], dtype=float) for k in ("tau_d_nm", "J5_kgm2", "dipole_am2", "delta1_rad",
-                                                         "delta2_rad", "jrw_kgm2")]
+        parts = [np.array(xd[k], dtype=float) for k, _ in X_PARTS]
         P = np.array(d["P"], dtype=float)
         jxx = float(d["jxx_ref_kgm2"])
         scale = float(d.get("torque_scale", 1.0))
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError("%s: missing or non-numeric entry (%s)" % (where, exc)) from None
-    sizes = [3, 5, 3, N_WHEELS, N_WHEELS, N_WHEELS]
-    for p, n, k in zip(parts, sizes, ("tau_d_nm", "J5_kgm2", "dipole_am2", "delta1_rad", "delta2_rad",
-                                      "jrw_kgm2")):
+    for p, (k, s) in zip(parts, X_PARTS):
+        n = s.stop - s.start
         if p.shape != (n,) or not np.all(np.isfinite(p)):
             raise ValueError("%s: x.%s must be %d finite numbers (the spacecraft has %d wheels), got %r"
                              % (where, k, n, N_WHEELS, xd[k]))
@@ -139,12 +139,11 @@ def check_params(d, where="parameter file"):
     if lam[2] > (lam[0] + lam[1]) * (1.0 + 1e-9):
         raise ValueError("%s: the inertia [Jxx ref %g; J5 %s] is no rigid body's: its largest principal moment "
                          "exceeds the sum of the other two" % (where, jxx, j5.tolist()))
-    for k, lo, hi, unit in PARAM_RANGES:
-        v = parts[k]
+    for v, (k, _) in zip(parts, X_PARTS):
+        lo, hi, unit = PARAM_RANGES.get(k, (None, np.inf, ""))
         if np.any((np.abs(v) if lo is None else v) > hi) or (lo is not None and np.any(v < lo)):
             raise ValueError("%s: x.%s = %s is not this spacecraft's: must be %s %s" % (
-                where, ("tau_d_nm", "J5_kgm2", "dipole_am2", "delta1_rad", "delta2_rad", "jrw_kgm2")[k],
-                v.tolist(), "within +-%g" % hi if lo is None else "from %g to %g" % (lo, hi), unit))
+                where, k, v.tolist(), "within +-%g" % hi if lo is None else "from %g to %g" % (lo, hi), unit))
     if P.shape != (23, 23) or not np.all(np.isfinite(P)) or np.abs(P - P.T).max() > 1e-9 * np.abs(P).max():
         raise ValueError("%s: P must be a symmetric 23 x 23 matrix" % where)
     try:
@@ -157,11 +156,8 @@ def check_params(d, where="parameter file"):
 
 
 def load_params(path):
-    from ground.fileio import read_input
-    try:
-        d = json.loads(read_input(path, "parameter file"))
-    except json.JSONDecodeError as exc:                           # not JSON text at all
-        raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
+    from ground.fileio import read_json
+    d = read_json(path, "parameter file")
     return check_params(d, path) + (d,)
 
 

@@ -58,8 +58,7 @@ def parse_ts_range(text):
 
 def check_run_args(a):
     campaign.check_duration(a.duration)
-    if not 0 <= a.seed < 2 ** 32:
-        raise ValueError("--seed must be in [0, 2**32), got %r" % a.seed)
+    campaign.check_seed(a.seed)
 
 
 def _key(d):
@@ -74,11 +73,8 @@ def calibration(seed, cache_dir, progress=True):
     path = os.path.join(cache_dir, "calibration_%s.json" % key) if cache_dir else None
     if path and os.path.exists(path):
         try:
-            with open(path) as f:
-                d = json.load(f)
-            bps.check_params(d, path)
-            return d
-        except (OSError, ValueError) as exc:      # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            return bps.load_params(path)[-1]
+        except ValueError as exc:                 # unreadable, not JSON, or not a parameter file
             print("calibration cache %s is damaged (%s): computing it again" % (path, exc), file=sys.stderr)
     if progress:
         print("calibration: %d maneuver sets through the APKF (seed %d) ..." % (bps.CAL_SETS, seed),
@@ -166,6 +162,7 @@ def plot_history(path, hist, settle_s, title):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from ground.plots import save_png
     t = hist["t"]
     fig, ax = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
     for i in range(2):
@@ -185,12 +182,6 @@ def plot_history(path, hist, settle_s, title):
     ax[1, 1].set_xlabel("time (s)")
     fig.suptitle(title + " (dashed: collection starts)")
     fig.tight_layout()
-    _save_png(fig, path)
-
-
-def _save_png(fig, path):
-    """The figure as a PNG, written atomically (an interrupted plot leaves neither a truncated file nor a temp)."""
-    from ground.plots import save_png
     save_png(fig, path, dpi=90)
 
 
@@ -269,6 +260,7 @@ def plot_sweep(path, s):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from ground.plots import save_png
     pts = [(t, j) for t, j in zip(s["ts_s"], s["J"]) if j is not None]
     fig, ax = plt.subplots(figsize=(7, 4))
     if pts:
@@ -282,7 +274,7 @@ def plot_sweep(path, s):
     ax.legend()
     ax.set_title("Objective J for the settling time (Fig. 6-2)")
     fig.tight_layout()
-    _save_png(fig, path)
+    save_png(fig, path, dpi=90)
 
 
 def _cmd_sweep(a):

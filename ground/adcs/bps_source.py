@@ -13,11 +13,10 @@ import io
 import json
 import os
 import sys
-import zipfile
 
 import numpy as np
 
-from emulator.fileio import write_atomic
+from emulator.fileio import load_npz, write_atomic
 
 TRUTHS = ("hpop", "two-body")
 
@@ -70,14 +69,13 @@ class BpsSource:
         path = os.path.join(self.cache_dir, "run_%s.npz" % self.cache_key)
         if os.path.exists(path):
             try:
-                with np.load(path, allow_pickle=False) as z:
-                    t, x, y = z["t"], z["x"], z["y"]
+                t, x, y = load_npz(path, ("t", "x", "y"))
                 if not (t.ndim == 1 and x.shape == y.shape == t.shape and len(t) >= 2
                         and np.all(np.isfinite(np.concatenate([t, x, y])))):
                     raise ValueError("arrays of the wrong shape or not finite")
                 self.from_cache = True
                 return t, x, y
-            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            except ValueError as exc:
                 print("bps: cached run %s is damaged (%s): simulating it again" % (path, exc), file=sys.stderr)
         if not self.quiet:
             print("bps: simulating t_s = %g s, %s SatB's GNSS, %g s (+%g s settling) ..."

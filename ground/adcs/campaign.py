@@ -19,6 +19,8 @@ import logging
 import os
 import sys
 
+from emulator.runtime import check_seed  # noqa: F401  (the campaigns' first seed, as every fps command's)
+
 CONNECT_TIMEOUT_S = 3.0
 
 
@@ -41,14 +43,6 @@ def check_duration(duration_s):
     if not 1 <= duration_s <= MAX_DURATION_S:
         raise ValueError("--duration must be in [1, %g] s, got %r" % (MAX_DURATION_S, duration_s))
     return duration_s
-
-
-def check_seed(seed):
-    """``seed`` as a first seed from 0 to 2^32 - 1 (numpy's generators refuse negative seeds; the other ``fps``
-    commands take the same range); ValueError naming it otherwise."""
-    if isinstance(seed, bool) or int(seed) != seed or not 0 <= seed < 2 ** 32:
-        raise ValueError("--seed must be a whole number from 0 to 2^32 - 1, got %r" % (seed,))
-    return int(seed)
 
 
 MAX_LOCAL_WORKERS = 64      # local processes, ~0.1 GB each; a bigger campaign goes on a cluster (--scheduler)

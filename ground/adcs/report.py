@@ -92,11 +92,6 @@ def markdown(summary):
     return "\n".join(lines) + "\n"
 
 
-def _save(fig, path):
-    from ground.plots import save_png
-    save_png(fig, path, dpi=100)
-
-
 APKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600)),
                ("rate (arcsec/s)", slice(3, 6), 1 / (np.pi / 180 / 3600)),
                ("tau_d (1e-6 N m)", slice(6, 9), 1e6), ("Jyy, Jzz (1e-3 kg m^2)", slice(9, 11), 1e3),
@@ -112,6 +107,7 @@ def plot_run(series_npz, name, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from ground.plots import save_png
     d = np.load(series_npz)
     t, e, s = d["t"], d["error"], d["sigma"]
     groups = APKF_GROUPS if name == "apkf" else MEKF_GROUPS
@@ -134,7 +130,7 @@ def plot_run(series_npz, name, path):
     fig.suptitle("%s: estimation error (solid) and +-3 sigma (dashed), cf. Fig. 4-%s" % (name.upper(),
                                                                                      "5" if name == "apkf" else "1"))
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path, dpi=100)
 
 
 def plot_spread(results, summary, path):
@@ -148,6 +144,7 @@ def _plot_spread(results, summary, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from ground.plots import save_png
     ok = [r for r in results if r and "series" in r]
     if not ok:
         return
@@ -179,7 +176,7 @@ def _plot_spread(results, summary, path):
     fig.suptitle("Monte Carlo spread: %s%s" % (summary["filter"].upper(),
                                                 "" if summary["filter"] == "mekf" else ", case %d" % summary["case"]))
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path, dpi=100)
 
 
 def write_all(out_dir, results, summary, plots=True):

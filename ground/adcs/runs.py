@@ -19,7 +19,7 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from ground.adcs import apkf, mekf, quat
-from ground.fileio import read_input, write_atomic, write_json
+from ground.fileio import read_json, write_atomic, write_json
 
 ARCSEC = quat.ARCSEC
 MIN_DURATION_S = 10.0     # below ~5 s no two consecutive star-tracker outputs exist to start the filters
@@ -35,10 +35,7 @@ PARAM_KEYS = {
 
 def load_params(path):
     """A scenario/parameter JSON file, checked: unknown keys, NaN and a non-PD inertia are ValueErrors."""
-    try:
-        d = json.loads(read_input(path, "params"), parse_constant=lambda c: float("nan"))
-    except json.JSONDecodeError as exc:                           # not JSON text at all
-        raise ValueError("%s: not valid JSON (%s)" % (path, exc)) from None
+    d = read_json(path, "params", parse_constant=lambda c: float("nan"))
     if not isinstance(d, dict):
         raise ValueError("%s: expected a JSON object with keys %s" % (path, ", ".join(sorted(PARAM_KEYS))))
     return check_params(d, path)

@@ -310,6 +310,7 @@ def plots(out_dir, run_dirs, case):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from ground.plots import save_png
     hs = []
     for d in run_dirs:
         p = os.path.join(d, "history.npz")
@@ -340,7 +341,7 @@ def plots(out_dir, run_dirs, case):
     fig.suptitle("STKF Case %d: errors (first run blue, others grey), +-3 sigma dashed" % case)
     fig.tight_layout()
     name = "fig5-%d_states.png" % (4 if case == 1 else 6)
-    _save_png(fig, os.path.join(out_dir, name))
+    save_png(fig, os.path.join(out_dir, name), dpi=90)
     files.append(name)
     fig, ax = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
     for j in range(2):
@@ -357,15 +358,9 @@ def plots(out_dir, run_dirs, case):
     fig.suptitle("STKF Case %d: pointing vector error in the body frame, +-3 sigma" % case)
     fig.tight_layout()
     name = "fig5-%d_pointing.png" % (5 if case == 1 else 7)
-    _save_png(fig, os.path.join(out_dir, name))
+    save_png(fig, os.path.join(out_dir, name), dpi=90)
     files.append(name)
     return files
-
-
-def _save_png(fig, path):
-    """The figure as a PNG, written atomically (an interrupted plot leaves no truncated file)."""
-    from ground.plots import save_png
-    save_png(fig, path, dpi=90)
 
 
 def dumps(obj):

@@ -1,4 +1,5 @@
-"""ground/adcs/campaign.py: in-process and Dask (in-process LocalCluster) paths, errors, reproducibility."""
+"""ground/adcs/campaign.py: in-process, local-process and Dask (in-process LocalCluster) paths, errors,
+reproducibility."""
 
 import json
 import os
@@ -9,10 +10,12 @@ import pytest
 from ground.adcs import campaign
 
 
-def draw(seed, run_dir, n=3, fail_on=None):
-    """A run: random numbers from its seed only; writes its own folder; fails on request."""
+def draw(seed, run_dir, n=3, fail_on=None, die_on=None):
+    """A run: random numbers from its seed only; writes its own folder; fails, or kills its process, on request."""
     if seed == fail_on:
         raise FloatingPointError("filter diverged at t = 12 s")
+    if seed == die_on:
+        os._exit(9)                                     # as a worker killed by the OOM killer
     os.makedirs(run_dir, exist_ok=True)
     x = np.random.default_rng(seed).normal(size=n).tolist()
     with open(os.path.join(run_dir, "x.json"), "w") as f:
@@ -28,7 +31,7 @@ def test_in_process_seed_order_and_error_record(tmp_path):
     assert os.path.exists(tmp_path / "run_0002" / "x.json") and not os.path.exists(tmp_path / "run_0001")
 
 
-def test_dask_local_cluster_matches_in_process(tmp_path):
+def test_local_processes_match_in_process(tmp_path):
     seeds = [11, 12, 13, 14, 15]
     ref = campaign.run_campaign(draw, seeds, tmp_path / "a", workers=1, progress=False, fail_on=13)
     res = campaign.run_campaign(draw, seeds, tmp_path / "b", workers=2, progress=False, fail_on=13)
@@ -36,6 +39,17 @@ def test_dask_local_cluster_matches_in_process(tmp_path):
     assert [r.get("x") for r in res] == [r.get("x") for r in ref]     # same result whichever worker ran it
     assert "diverged" in res[2]["error"]
     assert os.getpid() not in {r["pid"] for r in res if "pid" in r}    # ran in worker processes
+
+
+def test_a_dead_local_worker_ends_the_campaign_with_error_records_not_a_hang(tmp_path):
+    """A worker process that dies breaks the pool: the runs not finished become error records naming it, the
+    finished ones are kept, and the campaign returns."""
+    res = campaign.run_campaign(draw, [1, 2, 3, 4], tmp_path, workers=2, progress=False, die_on=1)
+    assert [r["seed"] for r in res] == [1, 2, 3, 4]
+    assert "BrokenProcessPool" in res[0]["error"]
+    for r in res[1:]:
+        assert ("x" in r and r["x"] == np.random.default_rng(r["seed"]).normal(size=3).tolist()) or \
+            "BrokenProcessPool" in r["error"]
 
 
 def test_dask_scheduler_address(tmp_path):

@@ -3,7 +3,7 @@
 Each sub-command is registered by one small function in ``SUBCOMMANDS`` (add yours there).
 
 A campaign runs
-``--runs`` seeds (``--seed``, ``--seed``+1, ...) of the Sec. 4.8 scenario over local Dask worker processes
+``--runs`` seeds (``--seed``, ``--seed``+1, ...) of the Sec. 4.8 scenario over local worker processes
 (``--workers``, default all cores; 1 = in-process) or an existing Dask cluster (``--scheduler tcp://host:port``),
 and writes to ``-o DIR``: ``run_NNNN/`` per seed (series.npz, result.json), ``summary.json`` (arcsec for angles,
 SI otherwise; ``complete`` is false until the campaign ends, and stays false after Ctrl-C), ``report.md`` with
@@ -26,8 +26,8 @@ def add_campaign_options(p, cases=True):
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds), >= 1 (default 1; >= 20 for NEES)")
     p.add_argument("--seed", type=int, default=0, help="first seed, >= 0; run i uses seed + i (default 0)")
     p.add_argument("--workers", type=int, default=None,
-                   help="local worker processes (default: all cores; 1 = in-process, no Dask)")
-    p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port) instead of local")
+                   help="local worker processes (default: all cores; 1 = in-process)")
+    p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port): run on that cluster instead of locally")
     p.add_argument("--params", default=None,
                    help="JSON of scenario overrides: %s" % "; ".join("%s: %s" % kv for kv in runs.PARAM_KEYS.items()))
     p.add_argument("--quiet", action="store_true", help="no progress bar")

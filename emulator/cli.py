@@ -11,6 +11,7 @@ import os
 import sys
 
 from emulator.runtime import check_seed
+from protocol.fileio import output_file
 
 
 def register(sub, name, help_):
@@ -25,7 +26,7 @@ def register(sub, name, help_):
     t.add_argument("--grid", type=int, default=11, help="grid points per axis over -5..+5 V (default 11)")
     t.add_argument("--dv", type=float, default=0.01, help="FSM perturbation in V (default 0.01)")
     t.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
-    t.add_argument("-o", "--output", required=True, help="output JSON file")
+    t.add_argument("-o", "--output", required=True, type=output_file, help="output JSON file")
     t.set_defaults(func=_truth_h)
 
     s = cmds.add_parser("serve", help="serve the bench or the wheels on a link; the flight software connects to it")
@@ -40,7 +41,7 @@ def register(sub, name, help_):
                         "holds at ~400 B a tick; wheels: wall = virtual, default until stopped)")
     s.add_argument("--wait", type=float, default=30.0,
                    help="seconds to wait for the peer's first packet (bench: HELLO; wheels: any)")
-    s.add_argument("-o", "--output", help="write the run summary (JSON) here")
+    s.add_argument("-o", "--output", type=output_file, help="write the run summary (JSON) here")
     b = s.add_argument_group("bench (--devices bench)")
     b.add_argument("--config", help="bench config JSON")
     b.add_argument("--rate", type=float, default=637.8, help="control tick rate in Hz (default 637.8)")

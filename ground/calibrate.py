@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from ground.fileio import write_json
+from ground.fileio import output_file, write_json
 from protocol import htable
 
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1))   # Sec. 7.4, 8 points
@@ -370,7 +370,7 @@ def register(sub, name, help_):
                        epilog="--port without --runtime board: a real, free-running bench (the controller and the player "
                               "answer there,\ntime is the wall clock).\nexit status: 0 calibration written; 1 the run failed (grid points failed, link "
                               "down): nothing written\nbut NAME.failed.json for failed points; 2 bad input.")
-    p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
+    p.add_argument("-o", "--output", required=True, type=output_file, help="calibration JSON to write")
     p.add_argument("--grid", type=int, default=11, help="grid points per axis (default 11: 121 points)")
     p.add_argument("--span", type=float, default=5.0, help="P-FSM grid half span in V (default 5: -5..+5 V)")
     p.add_argument("--dv", type=float, default=0.01, help="FSM perturbation in V (default 0.01)")

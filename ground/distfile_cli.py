@@ -14,7 +14,7 @@ import numpy as np
 
 from emulator.runtime import check_seed
 from ground import resample, sources
-from ground.fileio import check_not_input, read_input, write_atomic
+from ground.fileio import check_not_input, output_file, read_input, write_atomic
 from protocol import distfile
 
 MAG_PFSM = 13.33                   # theta_P-FSM / theta_e, Eq. 7.7
@@ -239,7 +239,7 @@ def register(sub, name, help_):
     g.add_argument("--step-us", type=float, default=resample.DIST_PERIOD_US,
                    help="distfile step in whole us, from 95 (the P-FSM's 94.3 us period) up (default %d, the "
                         "thesis's 8.192 ms: Nyquist 61 Hz)" % resample.DIST_PERIOD_US)
-    g.add_argument("-o", "--output", required=True, help="distfile to write")
+    g.add_argument("-o", "--output", required=True, type=output_file, help="distfile to write")
     for cls in sources.SOURCES.values():
         cls.add_arguments(g)
     g.set_defaults(func=_seeded(_cmd_generate))
@@ -248,6 +248,6 @@ def register(sub, name, help_):
     i.set_defaults(func=_cmd_info)
     c = s.add_parser("csv", help="export to CSV (t_s, x_arcsec, y_arcsec)")
     c.add_argument("file")
-    c.add_argument("-o", "--output", help="CSV to write (default stdout)")
+    c.add_argument("-o", "--output", type=output_file, help="CSV to write (default stdout)")
     c.set_defaults(func=_cmd_csv)
     p.set_defaults(func=lambda a: p.print_help() or 2)

@@ -33,7 +33,7 @@ from emulator.runtime import sigterm_as_interrupt
 from ground import report
 from ground.calibrate import STEPS, fit_h, load_calibration
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
-from ground.fileio import write_atomic, write_json
+from ground.fileio import output_folder, write_atomic, write_json
 from ground.rig import AD660_CODES_PER_VOLT
 from protocol import htable
 
@@ -565,7 +565,7 @@ def add_run_arguments(p, seed_help="emulator seed"):
                    "(default 0.05; at least 4 codes of the P-FSM's DAC, 1.2 mV, up to 2 V)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="run folder")
+    p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")
 
 
 def register(sub, name, help_):

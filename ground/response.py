@@ -332,6 +332,7 @@ def _cmd(a):
 
 def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
+    from ground.fileio import output_folder
     from ground.runtime import add_link_arguments
     add_link_arguments(p)
     p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
@@ -345,7 +346,7 @@ def register(sub, name, help_):
     p.add_argument("--seed", type=int, default=0, help="emulator seed")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="run folder")
+    p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")
 
     def func(a):
         from ground.runtime import default_link

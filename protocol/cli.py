@@ -15,7 +15,7 @@ import sys
 
 from protocol import can as canmap
 from protocol import core, host, table
-from protocol.fileio import write_atomic
+from protocol.fileio import output_file, write_atomic
 
 _ENUMS = {
     "mode": dict((m[0], m[1]) for m in table.MODES),
@@ -37,7 +37,7 @@ def register(sub, name, help_):
     t.set_defaults(func=cmd_table)
 
     d = s.add_parser("dbc", help="write a DBC file for the single-frame CAN packets")
-    d.add_argument("-o", "--output", required=True, metavar="FILE")
+    d.add_argument("-o", "--output", required=True, metavar="FILE", type=output_file)
     d.set_defaults(func=cmd_dbc)
 
     e = s.add_parser("encode", help="encode one packet as a serial frame (hex) or candump -L lines")

@@ -104,6 +104,38 @@ def check_not_input(output, inputs, option="-o"):
                              "output" % (option, output, opt))
 
 
+def _output_path(path, folder):
+    """``path`` if a command can write its output there (a folder when ``folder``, else a file); an
+    argparse.ArgumentTypeError saying why not, so a bad ``-o`` is refused (exit 2) before any work is done: the
+    path, or the nearest part of it that exists, is a file where a folder must be (or a folder where the file
+    goes), or the folder that would be written is not writable (an atomic write makes its temp file there)."""
+    import argparse
+    p = os.path.abspath(path)
+    if os.path.isdir(p) and not folder:
+        raise argparse.ArgumentTypeError("%s is a folder; the output file goes there" % path)
+    if os.path.exists(p) and folder and not os.path.isdir(p):
+        raise argparse.ArgumentTypeError("%s is a file; the run folder goes there" % path)
+    a = p if folder else os.path.dirname(p)
+    while not os.path.exists(a):
+        a = os.path.dirname(a)
+    if not os.path.isdir(a):
+        raise argparse.ArgumentTypeError("%s: %s is a file, so no folder can be made under it" % (path, a))
+    if not os.access(a, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError("%s: %s is not writable" % (path, a))
+    return path
+
+
+def output_folder(path):
+    """argparse ``type`` of a run folder option (``-o DIR``); see ``_output_path``."""
+    return _output_path(path, True)
+
+
+def output_file(path):
+    """argparse ``type`` of an output file option (``-o FILE``; ``-``, standard output, passes); see
+    ``_output_path``."""
+    return path if path == "-" else _output_path(path, False)
+
+
 def write_json(path, obj, make_folder=True):
     """``obj`` as indented JSON at ``path``, through ``write_atomic`` (``make_folder`` as there)."""
     write_atomic(path, json.dumps(obj, indent=1, sort_keys=False) + "\n", make_folder=make_folder)

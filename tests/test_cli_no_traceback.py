@@ -290,6 +290,33 @@ def test_audited_inputs_are_refused_up_front_by_name(capsys, files, tmp_path):
     assert rc == 2 and "1e+300 arcsec passes the limit" in err and len(err) < 600, err
 
 
+def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(capsys, files, tmp_path):
+    """-o under a file, a folder where a file goes, or a file where the run folder goes: exit 2 naming the
+    path, from argparse, before the command runs (a bps distfile used to run its simulation, then exit 1)."""
+    f = tmp_path / "a_file"
+    f.write_text("keep")
+    under = str(f / "x")
+    cases = [(["adcs", cmd, "-o", under] + extra, "is a file, so no folder can be made under it")
+             for cmd, extra in (("apkf", []), ("mekf", []), ("stkf", ["--case", "1"]), ("bps", []), ("sweep", []),
+                                ("can", ["--duration", "2"]))]
+    cases += [([cmd, "-o", under] + extra, "is a file, so no folder can be made under it")
+              for cmd, extra in (("hil", ["--distfile", files["dist"], "--calibration", files["cal"]]),
+                                 ("response", []), ("system", []), ("calibrate", []))]
+    cases += [(["distfile", "generate", "--source", "bps", "--duration", "600", "-o", str(tmp_path)],
+               "is a folder; the output file goes there"),
+              (["distfile", "csv", files["dist"], "-o", str(tmp_path)], "is a folder; the output file goes there"),
+              (["emulator", "truth-h", "-o", str(tmp_path)], "is a folder"),
+              (["emulator", "serve", "--wait", "0", "-o", str(tmp_path)], "is a folder"),
+              (["protocol", "dbc", "-o", str(tmp_path)], "is a folder"),
+              (["adcs", "apkf", "-o", str(f)], "is a file; the run folder goes there"),
+              (["hil", "--distfile", files["dist"], "--calibration", files["cal"], "-o", str(f)], "is a file")]
+    for argv, msg in cases:
+        rc, out, err = run(capsys, argv)
+        last = err.strip().splitlines()[-1] if err.strip() else ""
+        assert rc == 2 and "argument -o/--output" in last and msg in last, (argv, rc, err)
+    assert f.read_text() == "keep" and sorted(os.listdir(tmp_path)) == ["a_file"]
+
+
 def test_fine_inputs_exit_0(capsys, files):
     o = os.path.join(files["out"], "fine")
     for argv in (["protocol", "table"], ["protocol", "table", "--json"], ["protocol", "encode", "RW_CMD", "torque=0.5"],

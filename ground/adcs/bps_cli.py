@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from ground.adcs import bps, campaign, control
-from ground.fileio import write_atomic, write_json
+from ground.fileio import output_folder, write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
 VERSION = 4          # bump when the simulator's results change: old cache entries stop matching
@@ -341,7 +341,7 @@ def _common(p):
                    % CACHE_DEFAULT)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="run folder")
+    p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")
 
 
 def register_bps(sub):

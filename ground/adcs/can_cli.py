@@ -15,7 +15,7 @@ import sys
 import numpy as np
 
 from ground.adcs import bps, campaign
-from ground.fileio import write_json
+from ground.fileio import output_folder, write_json
 
 STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_gnss", "miss_beacon", "n_gnss_b",
                "n_refused", "att_sigma", "cycle_us")
@@ -65,7 +65,7 @@ def register(sub):
     p.add_argument("--beacon-lost", type=float, default=None, metavar="T0", help="beacon out of view from T0 s")
     p.add_argument("--quiet", action="store_true", help="no progress bar or messages")
     p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="run folder")
+    p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")
     p.set_defaults(func=run)
 
 

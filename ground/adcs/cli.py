@@ -15,7 +15,7 @@ import os
 import sys
 
 from ground.adcs import campaign, runs
-from ground.fileio import write_json
+from ground.fileio import output_folder, write_json
 
 
 def add_campaign_options(p, cases=True):
@@ -32,7 +32,7 @@ def add_campaign_options(p, cases=True):
                    help="JSON of scenario overrides: %s" % "; ".join("%s: %s" % kv for kv in runs.PARAM_KEYS.items()))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="campaign folder")
+    p.add_argument("-o", "--output", required=True, type=output_folder, help="campaign folder")
 
 
 def run_filter_campaign(fn, name, case, a, dof=6):

@@ -12,7 +12,7 @@ import sys
 import time
 
 from ground.adcs import campaign, stkf_sim
-from ground.fileio import write_atomic, write_json
+from ground.fileio import output_folder, write_atomic, write_json
 
 
 def _cmd(a):
@@ -108,5 +108,5 @@ def register(sub, name, help_):
     g.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler address (tcp://host:port)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
-    p.add_argument("-o", "--output", required=True, help="run folder")
+    p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")
     p.set_defaults(func=_cmd)

@@ -9,8 +9,7 @@ import shutil
 import signal
 import sys
 
-
-SEED_MAX = 2 ** 32 - 1     # numpy's legacy seeds and the distfile header's field: 32 bits
+from protocol.distfile import SEED_MAX
 
 
 def check_seed(seed, name="--seed"):

@@ -32,6 +32,7 @@ KIND_INT32 = 0
 KIND_FLOAT32 = 1
 UNITS_ARCSEC = 0
 DEFAULT_PERIOD_US = 8192
+SEED_MAX = 0xFFFFFFFF           # the header's u32 seed: every fps seed's range (numpy's legacy seeds too)
 MAX_COUNT = 1 << 26             # ~6.4 days at 8.192 ms; keeps sizes well inside 32 bits
 _SAMPLE_FMT = ("<ii", "<ff")    # by kind
 _CHUNK = 512                    # bytes per read while checking a file's CRC
@@ -106,7 +107,7 @@ def _check_fields(kind, units, period_us, count, seed, scale):
         raise DistfileError("distfile period_us %r out of range [1, 10000000]" % (period_us,))
     if count < 2 or count > MAX_COUNT:
         raise DistfileError("distfile count %r out of range [2, %d]" % (count, MAX_COUNT))
-    if not isinstance(seed, int) or seed < 0 or seed > 0xFFFFFFFF:
+    if not isinstance(seed, int) or seed < 0 or seed > SEED_MAX:
         raise DistfileError("distfile seed %r out of range [0, 2**32-1]" % (seed,))
     if not (_finite(scale) and scale > 0.0):
         raise DistfileError("distfile scale %r must be finite and > 0" % (scale,))

@@ -19,6 +19,8 @@ traffic itself depends on timing (resends), so two runs see different faults, by
 import math
 import random
 
+from protocol.distfile import SEED_MAX
+
 KEYS = ("bytes", "frames", "seed", "silence")
 
 
@@ -33,6 +35,9 @@ class LinkFaults:
             if not (math.isfinite(start) and start >= 0 and length > 0):
                 raise ValueError("--link-faults silence=%r:%r: START_S >= 0 and LENGTH_S > 0 seconds "
                                  "(LENGTH_S may be inf)" % (start, length))
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= SEED_MAX:
+            raise ValueError("--link-faults seed=%r: a whole number from 0 to 2^32 - 1, as every fps seed "
+                             "(random.Random would take -1 as 1)" % (seed,))
         self.p_byte = float(p_byte)
         self.p_frame = float(p_frame)
         self.seed = int(seed)

@@ -7,6 +7,7 @@ telemetry, bit for bit, as the same run without.
 
 import json
 import os
+import re
 import subprocess
 import threading
 import time
@@ -80,6 +81,16 @@ def test_faulty_port_drops_flips_and_silences_whole_frames():
     for t[0] in (0.5, 1.0, 2.9, 3.0):
         fp.write(frame)
     assert fp.counters()["fault_tx_silenced"] == 2 and len(fp.port.sent) == 2
+
+
+@pytest.mark.parametrize("spec, words", [("seed=-1", "seed=-1: a whole number from 0 to 2^32 - 1"),
+                                          ("seed=4294967296", "seed=4294967296"), ("seed=1.5", "bad value"),
+                                          ("bytes=1", "a probability in [0, 1)"), ("silence=-1:2", "START_S >= 0")])
+def test_link_fault_specs_out_of_range_are_refused_naming_the_item(spec, words):
+    """A negative seed was taken (random.Random uses its absolute value: seed=-1 was seed=1)."""
+    with pytest.raises(ValueError, match=re.escape(words)):
+        LinkFaults.parse(spec)
+    assert LinkFaults.parse("seed=4294967295").seed == 4294967295
 
 
 # --- exactly once, in the firmware ---------------------------------------------------------------------------

@@ -267,8 +267,10 @@ def load_calibration(path):
     except htable.HTableError as exc:
         raise ValueError("calibration %s: %s" % (path, exc)) from None
     for i, p in enumerate(cal["points"]):
-        if not isinstance(p.get("residual"), (int, float)):
-            raise ValueError("calibration %s: points[%d].residual missing or not a number" % (path, i))
+        r = p.get("residual")
+        if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0 <= r < float("inf"):
+            raise ValueError("calibration %s: points[%d].residual must be a finite number >= 0 (the fit's RMS), "
+                             "got %r" % (path, i, r))
     return cal
 
 

@@ -58,6 +58,15 @@ def test_good_calibration_loads_and_uploads(tmp_path):
     assert _upload(cal) == (P["ACK"], 0)
 
 
+@pytest.mark.parametrize("residual", [float("nan"), float("inf"), -0.1, True, "0.01", None])
+def test_a_residual_that_is_not_a_fit_rms_is_refused_naming_it(tmp_path, residual):
+    """The report prints each point's residual: NaN, infinite, negative, a boolean or a string is refused."""
+    cal = json.loads(json.dumps(fp.calibration(5)))
+    cal["points"][3]["residual"] = residual
+    with pytest.raises(ValueError, match=r"points\[3\]\.residual must be a finite number >= 0"):
+        calibrate.load_calibration(_write(tmp_path, cal))
+
+
 def test_singular_h_refused_at_load_naming_the_point(tmp_path):
     cal = fp.calibration(5)
     k = 7

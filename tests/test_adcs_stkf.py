@@ -260,6 +260,10 @@ def test_cli_bad_input_and_interrupt(tmp_path, capsys, monkeypatch):
     assert main(["adcs", "stkf", "--case", "1", "--outage", "sun:1:2", "-o", str(tmp_path / "c")]) == 2
     assert main(["adcs", "stkf", "--case", "1", "--outage", "relay:1:2", "-o", str(tmp_path / "c")]) == 2
     assert "no relay" in capsys.readouterr().err
+    assert main(["adcs", "stkf", "--case", "1", "--duration", "100", "--outage", "beacon:100:200", "-o",
+                 str(tmp_path / "d")]) == 2
+    assert "starts at or after the run's end (--duration 100 s)" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt

@@ -24,6 +24,10 @@ def _cmd(a):
     if a.case == 1 and any(o[0] == "relay" for o in outages):
         raise ValueError("--outage relay:... was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
     campaign.check_duration(a.duration)
+    for sensor, t0, t1 in outages:
+        if t0 >= a.duration:
+            raise ValueError("--outage %s:%g:%g starts at or after the run's end (--duration %g s): it would "
+                             "silence nothing" % (sensor, t0, t1, a.duration))
     if not (0 < a.lag < float("inf")):
         raise ValueError("--lag must be a finite number of seconds > 0, got %r" % a.lag)
     if a.case == 2 and a.lag < 3.0 + 1.0:

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from ground.fileio import output_file, write_json
+from ground.fileio import output_file, remove_stale, write_json
 from protocol import htable
 
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1))   # Sec. 7.4, 8 points
@@ -341,6 +341,9 @@ def _cmd(a):
         raise CalibrationFailed("the measured H table would be refused by the controller: %s (details in "
                                 "%s.failed.json); no calibration written" % (exc, base)) from None
     write_json(a.output, cal)
+    # the earlier calibration's figures and an earlier failure's details no longer describe this file
+    remove_stale(os.path.dirname(os.path.abspath(a.output)),
+                 [os.path.basename(base) + s for s in ("_fig7-16.png", "_fig7-17.png", ".failed.json")])
     print("wrote %s: %d points, dv %g V, %.2f s wall (%s, %s)" % (a.output, len(cal["points"]), a.dv, wall,
                                                                 cal["runtime"], cal["link"]))
     c = next(p for p in cal["points"] if p["pfsm_v"] == [0.0, 0.0]) if 0.0 in grid_v else cal["points"][0]

@@ -1,5 +1,21 @@
 """Atomic file writes for the ground tools (the writer lives in ``emulator.fileio``: ground depends on the
 emulator, never the other way)."""
 
+import os
+
 from emulator.fileio import (check_not_input, load_npz, output_file, output_folder, read_input,  # noqa: F401
                              read_json, write_atomic, write_json)
+
+
+def remove_stale(folder, names):
+    """Remove the files ``names`` in ``folder`` that an earlier run left (its figures): in a reused folder every
+    figure is then this run's, or absent (``--no-plots``, an interrupted run), never an older run's beside a new
+    summary. Returns the names removed."""
+    gone = []
+    for n in names:
+        try:
+            os.remove(os.path.join(str(folder), n))
+        except FileNotFoundError:
+            continue
+        gone.append(n)
+    return gone

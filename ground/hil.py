@@ -33,7 +33,7 @@ from emulator.runtime import sigterm_as_interrupt
 from ground import report
 from ground.calibrate import STEPS, fit_h, load_calibration
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
-from ground.fileio import output_folder, write_atomic, write_json
+from ground.fileio import output_folder, remove_stale, write_atomic, write_json
 from ground.rig import AD660_CODES_PER_VOLT
 from protocol import htable
 
@@ -88,6 +88,9 @@ def q2_error_arcsec(q2, q2cal):
     ginv = np.linalg.inv(np.array(q2cal["G2"]))
     v = r @ ginv.T
     return v * q2cal["arcsec_per_v"]
+
+
+FIGURES = ("fig7-18_scatter.png", "fig7-19_time.png")
 
 
 class Recorder:
@@ -202,6 +205,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     if duration_s > play_s + 1e-6:
         raise ValueError("--duration %g s is longer than the distfile (%g s)" % (duration_s, play_s))
     os.makedirs(out_dir, exist_ok=True)
+    remove_stale(out_dir, FIGURES)
     rec = Recorder(out_dir)
     faults = link_opts.get("link_faults")
     summary = new_summary(duration_s, faults)
@@ -496,9 +500,9 @@ def _finish(rec, q2cal, t0_us, complete, plots):
     if plots and len(q2):
         t = (q2[:, 1] - t0_us) * 1e-6
         plt_mod.hil_scatter({"Q2": (q2_err[ok, 0], q2_err[ok, 1]), "truth": (truth[:, 0], truth[:, 1])},
-                            rec.path("fig7-18_scatter.png"), report.REQUIREMENT_ARCSEC)
+                            rec.path(FIGURES[0]), report.REQUIREMENT_ARCSEC)
         plt_mod.hil_time_history({"Q2": (t[ok], q2_err[ok, 0], q2_err[ok, 1]),
-                                  "truth": (t, truth[:, 0], truth[:, 1])}, rec.path("fig7-19_time.png"))
+                                  "truth": (t, truth[:, 0], truth[:, 1])}, rec.path(FIGURES[1]))
     return res
 
 

@@ -28,6 +28,7 @@ from emulator.mirrors import MEMS
 from emulator.timing import board_timing
 
 AXES = ("x", "y")
+FIGURES = ("bode_sensitivity.png", "bode_loop.png")
 
 
 class LoopModel:
@@ -235,6 +236,8 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
     models = [LoopModel(cfg, rate, 0.5, ax) for ax in (0, 1)]     # refuses a board too slow for the rate
     cal = truth_calibration(cfg) if calibration is None else calibration
     os.makedirs(out_dir, exist_ok=True)
+    from ground.fileio import remove_stale
+    remove_stale(out_dir, FIGURES)
     timing = board_timing(cfg).as_dict()
     summary = {"complete": False, "timing": timing, "rate_hz": rate, "gain": 0.5, "runtime": runtime_name,
                "link": link_name, "amp_arcsec": amp_arcsec}
@@ -294,12 +297,12 @@ def _plot(out_dir, freqs, s_meas, model, summary):
     a2.set_ylabel("phase (deg)")
     a2.set_xlabel("frequency (Hz)")
     fig.tight_layout()
-    save_png(fig, os.path.join(out_dir, "bode_sensitivity.png"), dpi=100)
+    save_png(fig, os.path.join(out_dir, FIGURES[0]), dpi=100)
     w = 2 * np.pi * np.geomspace(0.5, 0.499 / model.T, 400)
     fig = plt.figure(figsize=(7, 6))
     model.control.bode_plot(model.L, w, dB=True, Hz=True, display_margins=True,
                             title="Loop C(z) P(z), X axis, g = %g" % model.gain)
-    save_png(plt.gcf(), os.path.join(out_dir, "bode_loop.png"), dpi=100)
+    save_png(plt.gcf(), os.path.join(out_dir, FIGURES[1]), dpi=100)
     plt.close("all")
 
 
@@ -324,7 +327,7 @@ def _cmd(a):
           "%.1f deg, -3 dB rejection bandwidth %.1f Hz; %d tones in %.1f s wall"
           % (s["timing"]["timing"], s["timing"]["sample_us"], s["timing"]["land_us"], s["gain_margin_db"],
              s["phase_margin_deg"], s["bandwidth_hz"], len(s["freq_hz"]), s["wall_s"]))
-    files = "summary.json" + ("" if a.no_plots else ", bode_sensitivity.png, bode_loop.png")
+    files = ", ".join(("summary.json",) + (() if a.no_plots else FIGURES))
     print("run folder %s: %s" % (a.output, files))
     sys.stdout.flush()
     return 0

@@ -42,9 +42,10 @@ import numpy as np
 
 from ground import hil, report
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
-from ground.fileio import write_atomic, write_json
+from ground.fileio import remove_stale, write_atomic, write_json
 
 ADCS_KINDS = ("firmware", "ground")
+FIGURE = "system_pointing.png"
 RUNTIMES = ("micropython", "cpython")
 LEAD_S = 2.0              # ADCS seconds simulated beyond the play: the last chunk's interpolation stencil
 STENCIL_S = 0.25          # the 10 Hz samples needed beyond a distfile sample (two steps of 0.1 s, and a margin)
@@ -447,6 +448,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     duration_s = float(duration_s)
     t_settle = settle_s(ts)
     os.makedirs(out_dir, exist_ok=True)
+    remove_stale(out_dir, (FIGURE,))
     rec = hil.Recorder(out_dir)
     summary = hil.new_summary(duration_s)
     summary.update({"adcs": adcs, "runtime": runtime_name, "goal_real_time_factor": GOAL_RTF,
@@ -563,7 +565,7 @@ def _plot(rec, feed, q2cal, t_settle):
         ok = np.all(np.isfinite(e), axis=1)
         series["fine error (Q2)"] = ((q2[ok, 1] - rec.t0_us) * 1e-6, e[ok, 0], e[ok, 1])
     if series:
-        plt_mod.system_time_history(series, rec.path("system_pointing.png"), report.REQUIREMENT_ARCSEC)
+        plt_mod.system_time_history(series, rec.path(FIGURE), report.REQUIREMENT_ARCSEC)
 
 
 def _f(v, fmt="%.2f"):
@@ -679,7 +681,7 @@ def _cmd(a):
           % (a.adcs, a.runtime, s["duration_s"], s["wall_s"], _x(s["real_time_factor"]),
              _x(s["real_time_factor_play"])))
     print("run folder %s: summary.json, report.md, samples.npz, body.npz, telemetry.csv%s"
-          % (a.output, ", system_pointing.png" if not a.no_plots else ""))
+          % (a.output, ", " + FIGURE if not a.no_plots else ""))
     for line in hil.verdict_lines(s):
         print(line)
     return 0 if s["requirement_met"] else 3

@@ -23,9 +23,11 @@ import time
 import numpy as np
 
 from ground.adcs import bps, campaign, control
-from ground.fileio import output_folder, write_atomic, write_json
+from ground.fileio import output_folder, remove_stale, write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
+FIGURES_BPS = ("fig6-3_pointing.png", "fig6-4_pointing.png")    # without / with SatB's GNSS, as the thesis's
+FIGURE_SWEEP = "fig6-2_sweep.png"
 VERSION = 4          # bump when the simulator's results change: old cache entries stop matching
 
 
@@ -191,6 +193,7 @@ def _cmd_bps(a):
     params = bps.load_params(a.params)[-1] if a.params else None
     out = a.output
     os.makedirs(out, exist_ok=True)
+    remove_stale(out, FIGURES_BPS)
     args_text = "fps adcs bps " + " ".join(sys.argv[3:])
     summary = {k: None for k in bps.SUMMARY_KEYS}
     summary.update(complete=False, ts_s=ts, satb_gnss=a.satb_gnss)
@@ -221,7 +224,7 @@ def _cmd_bps(a):
     s["budgets_met"] = bool(met and s["complete"])
     plots = []
     if not a.no_plots and len(hist["t"]) > 1:
-        name = "fig6-4_pointing.png" if a.satb_gnss else "fig6-3_pointing.png"     # as the thesis's figures
+        name = FIGURES_BPS[1 if a.satb_gnss else 0]
         plot_history(os.path.join(out, name), hist, s["settle_s"],
                      "Pointing error and stability, t_s = %g s, %s SatB's GNSS"
                      % (ts, "with" if a.satb_gnss else "without"))
@@ -286,6 +289,7 @@ def _cmd_sweep(a):
     out = a.output
     campaign.check_scheduler(a.scheduler)
     os.makedirs(out, exist_ok=True)
+    remove_stale(out, (FIGURE_SWEEP,))
     satb = not a.no_satb_gnss
     write_json(os.path.join(out, "summary.json"), sweep_summary(ts_list, [None] * len(ts_list), False, satb))
     since = campaign.stamp(os.path.join(out, "summary.json"))
@@ -309,7 +313,7 @@ def _cmd_sweep(a):
     s["wall_s"] = time.perf_counter() - t0
     s["duration_s"] = a.duration
     if not a.no_plots:
-        plot_sweep(os.path.join(out, "fig6-2_sweep.png"), s)
+        plot_sweep(os.path.join(out, FIGURE_SWEEP), s)
     lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "| t_s (s) | J (rad²) |", "|---|---|"]
     lines += ["| %g | %s |" % (t, "—" if j is None else "%.4e" % j) for t, j in zip(s["ts_s"], s["J"])]
     lines += ["", "minimum at t_s = %s s (thesis: 33 s); %g s collected per t_s, %s SatB's GNSS; complete: %s"

@@ -15,8 +15,9 @@ import sys
 import numpy as np
 
 from ground.adcs import bps, campaign
-from ground.fileio import output_folder, write_json
+from ground.fileio import output_folder, remove_stale, write_json
 
+FIGURE = "pointing.png"
 STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_gnss", "miss_beacon", "n_gnss_b",
                "n_refused", "att_sigma", "cycle_us")
 
@@ -83,6 +84,7 @@ def run(a):
                           params=a.params, faults=faults, log=log)
     out = a.output
     os.makedirs(out, exist_ok=True)
+    remove_stale(out, (FIGURE,))
     write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}})
     hist = {k: [] for k in ("t", "q", "w", "ra", "va", "rb", "vb")}
     stat = {k: [] for k in STATUS_KEYS}
@@ -128,7 +130,7 @@ def run(a):
     bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:
         from ground import plots
-        plots.adcs_can_pointing(h, os.path.join(out, "pointing.png"))
+        plots.adcs_can_pointing(h, os.path.join(out, FIGURE))
     write_json(os.path.join(out, "summary.json"), summary)
     print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s; %s" % (
         a.runtime, summary["cycles"], "" if summary["complete"] else " (interrupted)", summary["last_mode"],

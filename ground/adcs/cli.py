@@ -15,7 +15,7 @@ import os
 import sys
 
 from ground.adcs import campaign, runs
-from ground.fileio import output_folder, write_json
+from ground.fileio import output_folder, remove_stale, write_json
 
 
 def add_campaign_options(p, cases=True):
@@ -27,7 +27,8 @@ def add_campaign_options(p, cases=True):
     p.add_argument("--seed", type=int, default=0, help="first seed, >= 0; run i uses seed + i (default 0)")
     p.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: all cores; 1 = in-process)")
-    p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port): run on that cluster instead of locally")
+    p.add_argument("--scheduler", default=None,
+                   help="Dask scheduler address (tcp://host:port): run on that cluster instead of locally")
     p.add_argument("--params", default=None,
                    help="JSON of scenario overrides: %s" % "; ".join("%s: %s" % kv for kv in runs.PARAM_KEYS.items()))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -45,6 +46,8 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     out = a.output
     campaign.check_scheduler(a.scheduler)
     os.makedirs(out, exist_ok=True)
+    from ground.adcs import report
+    remove_stale(out, report.FIGURES)
     seeds = [a.seed + i for i in range(n)]
     summary = {"filter": name, "case": case, "runs": 0, "complete": False, "seeds": seeds}
     write_json(os.path.join(out, "summary.json"), summary)
@@ -65,7 +68,6 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     summary["runs_requested"] = n
     summary["per_run"] = [{k: v for k, v in r.items() if k != "series"} for r in results if r]
     write_json(os.path.join(out, "summary.json"), summary)
-    from ground.adcs import report
     plots = report.write_all(out, results, summary, plots=not a.no_plots)
     if interrupted:
         print("interrupted: %d of %d runs done, partial campaign in %s (summary complete=false)"

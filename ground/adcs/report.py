@@ -179,6 +179,9 @@ def _plot_spread(results, summary, path):
     save_png(fig, path, dpi=100)
 
 
+FIGURES = ("fig4-5_errors.png", "monte_carlo.png")
+
+
 def write_all(out_dir, results, summary, plots=True):
     write_atomic(os.path.join(out_dir, "report.md"), markdown(summary))
     if not plots:
@@ -188,8 +191,8 @@ def write_all(out_dir, results, summary, plots=True):
     if first is not None:
         npz = os.path.join(out_dir, "run_%04d" % first, "series.npz")
         if os.path.exists(npz):
-            plot_run(npz, summary["filter"], os.path.join(out_dir, "fig4-5_errors.png"))
-            made.append("fig4-5_errors.png")
-    plot_spread(results, summary, os.path.join(out_dir, "monte_carlo.png"))
-    made.append("monte_carlo.png")
+            plot_run(npz, summary["filter"], os.path.join(out_dir, FIGURES[0]))
+            made.append(FIGURES[0])
+    plot_spread(results, summary, os.path.join(out_dir, FIGURES[1]))
+    made.append(FIGURES[1])
     return made

@@ -36,6 +36,7 @@ from ground.fileio import write_atomic, write_json
 
 ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
 SENSORS = ("gnss_a", "beacon", "relay")
+FIGURES = ("fig5-4_states.png", "fig5-5_pointing.png", "fig5-6_states.png", "fig5-7_pointing.png")  # as the thesis's
 GAP_S = {"gnss_a": 2.0, "beacon": 2.0, "relay": 5.0}   # silence longer than this is logged as an outage
 THESIS = {1: {"final_sigma_ra_m": 9.22, "final_sigma_va_m_s": 0.5252, "final_sigma_rb_m": 3264.2,
               "final_sigma_vb_m_s": 4.52, "final_sigma_pointing_arcsec": 23.0},
@@ -340,7 +341,7 @@ def plots(out_dir, run_dirs, case):
         ax[2, c].set_xlabel("time (s)")
     fig.suptitle("STKF Case %d: errors (first run blue, others grey), +-3 sigma dashed" % case)
     fig.tight_layout()
-    name = "fig5-%d_states.png" % (4 if case == 1 else 6)
+    name = FIGURES[0 if case == 1 else 2]
     save_png(fig, os.path.join(out_dir, name), dpi=90)
     files.append(name)
     fig, ax = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
@@ -357,7 +358,7 @@ def plots(out_dir, run_dirs, case):
     ax[1].set_xlabel("time (s)")
     fig.suptitle("STKF Case %d: pointing vector error in the body frame, +-3 sigma" % case)
     fig.tight_layout()
-    name = "fig5-%d_pointing.png" % (5 if case == 1 else 7)
+    name = FIGURES[1 if case == 1 else 3]
     save_png(fig, os.path.join(out_dir, name), dpi=90)
     files.append(name)
     return files

@@ -1,4 +1,4 @@
-"""Monte Carlo campaigns over seeds, on ``dask.distributed``.
+"""Monte Carlo campaigns over seeds: in-process, on local worker processes, or on a ``dask.distributed`` cluster.
 
 ``run_campaign(fn, seeds, out_dir, ...)`` calls ``fn(seed=s, run_dir=out_dir/'run_%04d' % i, **kwargs)`` for each
 seed and returns the result dicts in seed order:
@@ -177,7 +177,7 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
     local = []
     try:
         futures = [pool.submit(_call, fn, s, d, kwargs) for s, d in zip(seeds, dirs)]
-        if client is None:      # the pool has started its processes by now
+        if client is None:      # the pool started its processes on these submits
             local = [p for p in multiprocessing.active_children() if p not in before]
         index = {f: i for i, f in enumerate(futures)}
         out = [None] * len(seeds)

@@ -110,6 +110,8 @@ def _output_path(path, folder):
     path, or the nearest part of it that exists, is a file where a folder must be (or a folder where the file
     goes), or the folder that would be written is not writable (an atomic write makes its temp file there)."""
     import argparse
+    if not path.strip():
+        raise argparse.ArgumentTypeError("an empty path; name the %s" % ("run folder" if folder else "output file"))
     p = os.path.abspath(path)
     if os.path.isdir(p) and not folder:
         raise argparse.ArgumentTypeError("%s is a folder; the output file goes there" % path)

@@ -309,6 +309,8 @@ def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(capsys
               (["emulator", "serve", "--wait", "0", "-o", str(tmp_path)], "is a folder"),
               (["protocol", "dbc", "-o", str(tmp_path)], "is a folder"),
               (["adcs", "apkf", "-o", str(f)], "is a file; the run folder goes there"),
+              (["adcs", "apkf", "-o", ""], "an empty path; name the run folder"),
+              (["distfile", "generate", "--source", "stat", "-o", " "], "an empty path; name the output file"),
               (["hil", "--distfile", files["dist"], "--calibration", files["cal"], "-o", str(f)], "is a file")]
     for argv, msg in cases:
         rc, out, err = run(capsys, argv)

@@ -19,3 +19,11 @@ def remove_stale(folder, names):
             continue
         gone.append(n)
     return gone
+
+
+def run_folder(path, figures=()):
+    """Make the run folder ``path`` (or reuse it) without the ``figures`` an earlier run left there
+    (``remove_stale``); returns ``path``."""
+    os.makedirs(str(path), exist_ok=True)
+    remove_stale(path, figures)
+    return path

@@ -33,7 +33,7 @@ from emulator.runtime import sigterm_as_interrupt
 from ground import report
 from ground.calibrate import STEPS, fit_h, load_calibration
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
-from ground.fileio import output_folder, remove_stale, write_atomic, write_json
+from ground.fileio import output_folder, run_folder, write_atomic, write_json
 from ground.rig import AD660_CODES_PER_VOLT
 from protocol import htable
 
@@ -204,8 +204,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     play_s = d.duration_us() * 1e-6
     if duration_s > play_s + 1e-6:
         raise ValueError("--duration %g s is longer than the distfile (%g s)" % (duration_s, play_s))
-    os.makedirs(out_dir, exist_ok=True)
-    remove_stale(out_dir, FIGURES)
+    run_folder(out_dir, FIGURES)
     rec = Recorder(out_dir)
     faults = link_opts.get("link_faults")
     summary = new_summary(duration_s, faults)

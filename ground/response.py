@@ -235,9 +235,8 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
     freqs = np.geomspace(f_from, f_to, points)
     models = [LoopModel(cfg, rate, 0.5, ax) for ax in (0, 1)]     # refuses a board too slow for the rate
     cal = truth_calibration(cfg) if calibration is None else calibration
-    os.makedirs(out_dir, exist_ok=True)
-    from ground.fileio import remove_stale
-    remove_stale(out_dir, FIGURES)
+    from ground.fileio import run_folder
+    run_folder(out_dir, FIGURES)
     timing = board_timing(cfg).as_dict()
     summary = {"complete": False, "timing": timing, "rate_hz": rate, "gain": 0.5, "runtime": runtime_name,
                "link": link_name, "amp_arcsec": amp_arcsec}

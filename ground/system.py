@@ -42,7 +42,7 @@ import numpy as np
 
 from ground import hil, report
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
-from ground.fileio import remove_stale, write_atomic, write_json
+from ground.fileio import run_folder, write_atomic, write_json
 
 ADCS_KINDS = ("firmware", "ground")
 FIGURE = "system_pointing.png"
@@ -447,8 +447,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     params = bps.load_params(params_path)[-1] if params_path else None
     duration_s = float(duration_s)
     t_settle = settle_s(ts)
-    os.makedirs(out_dir, exist_ok=True)
-    remove_stale(out_dir, (FIGURE,))
+    run_folder(out_dir, (FIGURE,))
     rec = hil.Recorder(out_dir)
     summary = hil.new_summary(duration_s)
     summary.update({"adcs": adcs, "runtime": runtime_name, "goal_real_time_factor": GOAL_RTF,

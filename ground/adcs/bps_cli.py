@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from ground.adcs import bps, campaign, control
-from ground.fileio import output_folder, remove_stale, write_atomic, write_json
+from ground.fileio import output_folder, run_folder, write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
 FIGURES_BPS = ("fig6-3_pointing.png", "fig6-4_pointing.png")    # without / with SatB's GNSS, as the thesis's
@@ -192,8 +192,7 @@ def _cmd_bps(a):
     check_run_args(a)
     params = bps.load_params(a.params)[-1] if a.params else None
     out = a.output
-    os.makedirs(out, exist_ok=True)
-    remove_stale(out, FIGURES_BPS)
+    run_folder(out, FIGURES_BPS)
     args_text = "fps adcs bps " + " ".join(sys.argv[3:])
     summary = {k: None for k in bps.SUMMARY_KEYS}
     summary.update(complete=False, ts_s=ts, satb_gnss=a.satb_gnss)
@@ -288,8 +287,7 @@ def _cmd_sweep(a):
     params = bps.load_params(a.params)[-1] if a.params else None
     out = a.output
     campaign.check_scheduler(a.scheduler)
-    os.makedirs(out, exist_ok=True)
-    remove_stale(out, (FIGURE_SWEEP,))
+    run_folder(out, (FIGURE_SWEEP,))
     satb = not a.no_satb_gnss
     write_json(os.path.join(out, "summary.json"), sweep_summary(ts_list, [None] * len(ts_list), False, satb))
     since = campaign.stamp(os.path.join(out, "summary.json"))

@@ -15,7 +15,7 @@ import sys
 import numpy as np
 
 from ground.adcs import bps, campaign
-from ground.fileio import output_folder, remove_stale, write_json
+from ground.fileio import output_folder, run_folder, write_json
 
 FIGURE = "pointing.png"
 STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_gnss", "miss_beacon", "n_gnss_b",
@@ -83,8 +83,7 @@ def run(a):
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
                           params=a.params, faults=faults, log=log)
     out = a.output
-    os.makedirs(out, exist_ok=True)
-    remove_stale(out, (FIGURE,))
+    run_folder(out, (FIGURE,))
     write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}})
     hist = {k: [] for k in ("t", "q", "w", "ra", "va", "rb", "vb")}
     stat = {k: [] for k in STATUS_KEYS}

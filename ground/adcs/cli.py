@@ -15,7 +15,7 @@ import os
 import sys
 
 from ground.adcs import campaign, runs
-from ground.fileio import output_folder, remove_stale, write_json
+from ground.fileio import output_folder, run_folder, write_json
 
 
 def add_campaign_options(p, cases=True):
@@ -45,9 +45,8 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     params = runs.load_params(a.params) if a.params else None
     out = a.output
     campaign.check_scheduler(a.scheduler)
-    os.makedirs(out, exist_ok=True)
     from ground.adcs import report
-    remove_stale(out, report.FIGURES)
+    run_folder(out, report.FIGURES)
     seeds = [a.seed + i for i in range(n)]
     summary = {"filter": name, "case": case, "runs": 0, "complete": False, "seeds": seeds}
     write_json(os.path.join(out, "summary.json"), summary)

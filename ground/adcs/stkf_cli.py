@@ -12,7 +12,7 @@ import sys
 import time
 
 from ground.adcs import campaign, stkf_sim
-from ground.fileio import output_folder, remove_stale, write_atomic, write_json
+from ground.fileio import output_folder, run_folder, write_atomic, write_json
 
 
 def _cmd(a):
@@ -35,8 +35,7 @@ def _cmd(a):
                          "(1 s): delayed measurements would be refused" % a.lag)
     out = a.output
     campaign.check_scheduler(a.scheduler)
-    os.makedirs(out, exist_ok=True)
-    remove_stale(out, stkf_sim.FIGURES)
+    run_folder(out, stkf_sim.FIGURES)
     args_text = "fps adcs stkf " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "fps adcs stkf"
     summary = stkf_sim.aggregate([], runs, False)
     summary.update(case=a.case, truth=a.truth, duration_s=a.duration)

@@ -74,6 +74,33 @@ def test_interrupted_campaign_counts_only_its_own_runs_in_a_reused_folder(tmp_pa
     assert s["runs"] == 0 and s["per_run"] == []                     # not the case-3 runs left in run_000N/
 
 
+def test_a_reused_campaign_folder_keeps_no_earlier_campaigns_runs(tmp_path, capsys):
+    """Three runs, then one in the same folder: run_0001/ and run_0002/ would sit beside a one-run summary as if
+    they were its. The user's own files stay."""
+    out = tmp_path / "apkf"
+    pf = tmp_path / "short.json"
+    pf.write_text('{"duration_s": 30}')
+    base = ["adcs", "apkf", "--workers", "1", "--params", pf, "--quiet", "--no-plots", "-o", out]
+    assert _fps(capsys, base + ["--runs", "3"])[0] == 0 and (out / "run_0002" / "result.json").exists()
+    (out / "notes.txt").write_text("mine")
+    (out / "run_notes").mkdir()
+    assert _fps(capsys, base + ["--runs", "1", "--seed", "7"])[0] == 0
+    assert sorted(os.listdir(out)) == ["config.json", "notes.txt", "report.md", "run_0000", "run_notes",
+                                       "summary.json"]
+    with open(out / "run_0000" / "result.json") as f:
+        assert json.load(f)["seed"] == 7
+
+
+@pytest.mark.parametrize("command", ["apkf", "mekf", "stkf", "sweep"])
+def test_workers_and_scheduler_together_are_refused(tmp_path, capsys, command):
+    """--workers W | --scheduler ADDR (issue 9): one of them, not both (--workers was ignored)."""
+    with pytest.raises(SystemExit) as e:
+        cli.main(["adcs", command, "--workers", "2", "--scheduler", "tcp://127.0.0.1:9", "-o", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "not allowed with argument --workers" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_stkf_interrupted_in_a_reused_folder_counts_only_its_own_runs(tmp_path, monkeypatch, capsys):
     from ground.adcs import stkf_sim
     out = tmp_path / "stkf"

@@ -287,10 +287,9 @@ def _cmd_sweep(a):
     params = bps.load_params(a.params)[-1] if a.params else None
     out = a.output
     campaign.check_scheduler(a.scheduler)
-    run_folder(out, (FIGURE_SWEEP,))
+    campaign.campaign_folder(out, (FIGURE_SWEEP,))
     satb = not a.no_satb_gnss
     write_json(os.path.join(out, "summary.json"), sweep_summary(ts_list, [None] * len(ts_list), False, satb))
-    since = campaign.stamp(os.path.join(out, "summary.json"))
     t0 = time.perf_counter()
     complete = True
     try:
@@ -304,7 +303,7 @@ def _cmd_sweep(a):
                                         noise_seed=a.seed, truth=a.truth, cache_dir=os.path.abspath(a.cache_dir))
     except KeyboardInterrupt:
         complete = False
-        results = campaign.finished_results(out, len(ts_list), since)   # not an earlier sweep's in the folder
+        results = campaign.finished_results(out, len(ts_list))
     if any(r is not None and "error" not in r and not r.get("complete", True) for r in results):
         complete = False                                # a t_s cut short by Ctrl-C (in a worker)
     s = sweep_summary(ts_list, results, complete, satb)

@@ -21,9 +21,12 @@ that finished have their folders) and re-raises KeyboardInterrupt (the caller wr
 """
 
 import os
+import re
+import shutil
 import sys
 
 from emulator.runtime import check_seed  # noqa: F401  (the campaigns' first seed, as every fps command's)
+from ground.fileio import run_folder
 
 CONNECT_TIMEOUT_S = 3.0
 
@@ -67,31 +70,31 @@ def run_dir_for(out_dir, i):
     return os.path.join(str(out_dir), "run_%04d" % i)
 
 
-def stamp(path):
-    """The modification time (ns) of ``path``, a file the campaign has just written: runs written before it
-    belong to an earlier campaign in the same folder (``written_since``)."""
-    return os.stat(path).st_mtime_ns
+RUN_DIR = re.compile(r"run_[0-9]{4}$")
 
 
-def written_since(path, since_ns):
-    """True if ``path`` exists and was written at or after ``since_ns`` (``stamp``): an interrupted campaign
-    counts only its own runs, never those an earlier campaign left in a reused folder."""
-    try:
-        t = os.stat(path).st_mtime_ns
-    except OSError:
-        return False
-    return since_ns is None or t >= since_ns
+def campaign_folder(path, figures=()):
+    """Make the campaign folder ``path``, or reuse it without what an earlier campaign left there: its
+    ``figures`` (``ground.fileio.run_folder``) and its ``run_NNNN`` folders. Every run in the folder is then this
+    campaign's, so an interrupted campaign collects only its own, and no run beyond ``--runs`` stays beside the
+    new summary. Returns ``path``."""
+    run_folder(path, figures)
+    for name in os.listdir(str(path)):
+        p = os.path.join(str(path), name)
+        if RUN_DIR.match(name) and os.path.isdir(p) and not os.path.islink(p):
+            shutil.rmtree(p)
+    return path
 
 
-def finished_results(out_dir, n, since_ns=None):
-    """The ``result.json`` of runs 0 .. n-1 in ``out_dir`` that this campaign wrote (``written_since``), None
-    where there is none: what an interrupted campaign collects from its folder."""
+def finished_results(out_dir, n):
+    """The ``result.json`` of runs 0 .. n-1 in ``out_dir``, None where there is none: what an interrupted
+    campaign collects from its folder (``campaign_folder`` left no earlier campaign's runs there)."""
     import json
     out = []
     for i in range(n):
         p = os.path.join(run_dir_for(out_dir, i), "result.json")
         r = None
-        if written_since(p, since_ns):
+        if os.path.exists(p):
             with open(p) as f:
                 r = json.load(f)
         out.append(r)

@@ -15,7 +15,7 @@ import os
 import sys
 
 from ground.adcs import campaign, runs
-from ground.fileio import output_folder, run_folder, write_json
+from ground.fileio import output_folder, write_json
 
 
 def add_campaign_options(p, cases=True):
@@ -25,9 +25,10 @@ def add_campaign_options(p, cases=True):
                        help="disturbance: 1 none, 2 sinusoidal (Eq. 4.150), 3 attitude-dependent (Eq. 4.151)")
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds), >= 1 (default 1; >= 20 for NEES)")
     p.add_argument("--seed", type=int, default=0, help="first seed, >= 0; run i uses seed + i (default 0)")
-    p.add_argument("--workers", type=int, default=None,
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: all cores; 1 = in-process)")
-    p.add_argument("--scheduler", default=None,
+    g.add_argument("--scheduler", default=None,
                    help="Dask scheduler address (tcp://host:port): run on that cluster instead of locally")
     p.add_argument("--params", default=None,
                    help="JSON of scenario overrides: %s" % "; ".join("%s: %s" % kv for kv in runs.PARAM_KEYS.items()))
@@ -46,11 +47,10 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     out = a.output
     campaign.check_scheduler(a.scheduler)
     from ground.adcs import report
-    run_folder(out, report.FIGURES)
+    campaign.campaign_folder(out, report.FIGURES)
     seeds = [a.seed + i for i in range(n)]
     summary = {"filter": name, "case": case, "runs": 0, "complete": False, "seeds": seeds}
     write_json(os.path.join(out, "summary.json"), summary)
-    since = campaign.stamp(os.path.join(out, "summary.json"))
     write_json(os.path.join(out, "config.json"), {"filter": name, "case": case, "runs": n, "seed": a.seed,
                                                   "workers": a.workers, "scheduler": a.scheduler, "params": params})
     interrupted = False
@@ -60,7 +60,7 @@ def run_filter_campaign(fn, name, case, a, dof=6):
                                         case=case, params=params)
     except KeyboardInterrupt:
         interrupted = True
-        results = [runs.load_run(campaign.run_dir_for(out, i), since) for i in range(n)]
+        results = [runs.load_run(campaign.run_dir_for(out, i)) for i in range(n)]
     summary = runs.aggregate(results, name, case, dof=dof)
     summary["complete"] = not interrupted
     summary["seeds"] = seeds

@@ -265,12 +265,8 @@ def aggregate(results, name, case, dof=6):
     return s
 
 
-def load_run(run_dir, since_ns=None):
-    """A finished run back from its folder (result.json + series.npz), or None if it did not finish, or (with
-    ``since_ns``, ``campaign.stamp``) if its files are older: an earlier campaign's run in a reused folder."""
-    from ground.adcs.campaign import written_since
-    if not all(written_since(os.path.join(run_dir, f), since_ns) for f in ("result.json", "series.npz")):
-        return None
+def load_run(run_dir):
+    """A finished run back from its folder (result.json + series.npz), or None if it did not finish."""
     try:
         with open(os.path.join(run_dir, "result.json")) as f:
             res = json.load(f)

@@ -12,7 +12,7 @@ import sys
 import time
 
 from ground.adcs import campaign, stkf_sim
-from ground.fileio import output_folder, run_folder, write_atomic, write_json
+from ground.fileio import output_folder, write_atomic, write_json
 
 
 def _cmd(a):
@@ -35,12 +35,11 @@ def _cmd(a):
                          "(1 s): delayed measurements would be refused" % a.lag)
     out = a.output
     campaign.check_scheduler(a.scheduler)
-    run_folder(out, stkf_sim.FIGURES)
+    campaign.campaign_folder(out, stkf_sim.FIGURES)
     args_text = "fps adcs stkf " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "fps adcs stkf"
     summary = stkf_sim.aggregate([], runs, False)
     summary.update(case=a.case, truth=a.truth, duration_s=a.duration)
     write_json(os.path.join(out, "summary.json"), summary)
-    since = campaign.stamp(os.path.join(out, "summary.json"))
     t0 = time.perf_counter()
     if a.truth == "hpop":  # make the cache once, before the workers read it
         from emulator import orbits
@@ -55,15 +54,14 @@ def _cmd(a):
                                         lag_s=a.lag, outages=outages, attitude=a.attitude)
     except KeyboardInterrupt:
         complete = False
-        results = [r for r in campaign.finished_results(out, runs, since) if r is not None]
+        results = [r for r in campaign.finished_results(out, runs) if r is not None]
     summary = stkf_sim.aggregate(results, runs, complete)
     summary.update(case=a.case, truth=a.truth, attitude=a.attitude, duration_s=a.duration,
                    wall_s=time.perf_counter() - t0)
     plots = []
     if not a.no_plots and summary["runs"]:
         dirs = [campaign.run_dir_for(out, i) for i in range(runs)]
-        plots = stkf_sim.plots(out, [d for d in dirs if campaign.written_since(os.path.join(d, "history.npz"),
-                                                                               since)], a.case)
+        plots = stkf_sim.plots(out, [d for d in dirs if os.path.exists(os.path.join(d, "history.npz"))], a.case)
     summary["plots"] = plots
     write_atomic(os.path.join(out, "report.md"), stkf_sim.report_md(summary, a.case, args_text))
     write_json(os.path.join(out, "summary.json"), summary)

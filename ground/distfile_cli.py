@@ -118,6 +118,7 @@ def _cmd_generate(a):
         check_not_input(path, inputs)
         if os.path.isdir(path):
             raise ValueError("-o %s: %s is a folder, where the distfile or its sidecar goes" % (a.output, path))
+    check_source_options(a)
     src = sources.get_source(a.source).from_args(a)
     if a.source == "csv" and a.seed_given:
         raise ValueError("--seed: the csv source takes no seed (its samples are the file's); leave --seed out")
@@ -219,6 +220,43 @@ def _cmd_csv(a):
     return 0
 
 
+class _Group:
+    """An argument group that keeps the options a source adds to it."""
+
+    def __init__(self, group):
+        self.group, self.actions = group, []
+
+    def add_argument(self, *args, **kw):
+        act = self.group.add_argument(*args, **kw)
+        self.actions.append(act)
+        return act
+
+
+def source_options(parser):
+    """Add each source's options to ``parser``, one --help group per source; returns {source: [(flag, dest,
+    default)]} for ``check_source_options``."""
+    out = {}
+    for name, cls in sources.SOURCES.items():
+        grp = _Group(parser.add_argument_group("--source %s" % name))
+        cls.add_arguments(grp)
+        out[name] = [(act.option_strings[-1], act.dest, act.default) for act in grp.actions]
+    return out
+
+
+def check_source_options(a):
+    """A source's option given with another source (``--ts 40`` without ``--source bps``: a stat file would be
+    written, as if --ts had been taken) is a ValueError naming it. A source's ``bases(a)`` names the other
+    sources whose options it uses (the jitter's --jitter-base)."""
+    cls = sources.get_source(a.source)
+    used = {a.source} | set(cls.bases(a) if hasattr(cls, "bases") else ())
+    for name, opts in a.source_options.items():
+        for flag, dest, default in opts:
+            if name not in used and getattr(a, dest, default) != default:
+                raise ValueError("%s is an option of --source %s, which this run does not use (--source %s%s): "
+                                 "leave it out, or give --source %s" % (flag, name, a.source, "".join(
+                                     " --jitter-base %s" % b for b in sorted(used - {a.source})), name))
+
+
 def _seeded(fn):
     def run(a):
         a.seed_given = a.seed is not None
@@ -240,9 +278,7 @@ def register(sub, name, help_):
                    help="distfile step in whole us, from 95 (the P-FSM's 94.3 us period) up (default %d, the "
                         "thesis's 8.192 ms: Nyquist 61 Hz)" % resample.DIST_PERIOD_US)
     g.add_argument("-o", "--output", required=True, type=output_file, help="distfile to write")
-    for cls in sources.SOURCES.values():
-        cls.add_arguments(g)
-    g.set_defaults(func=_seeded(_cmd_generate))
+    g.set_defaults(func=_seeded(_cmd_generate), source_options=source_options(g))
     i = s.add_parser("info", help="print the header and statistics")
     i.add_argument("file")
     i.set_defaults(func=_cmd_info)

@@ -54,6 +54,11 @@ class WheelJitter:
         p.add_argument("--jitter-base", default="none",
                        help="another source to add under the jitter: stat, sine, csv or none (its options apply)")
 
+    @staticmethod
+    def bases(a):
+        """The source under the jitter (``--jitter-base``), whose options this run uses."""
+        return [] if a.jitter_base in ("none", "") else [a.jitter_base]
+
     @classmethod
     def from_args(cls, a):
         from ground import sources

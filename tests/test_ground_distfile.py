@@ -126,6 +126,28 @@ def test_refuses_malformed_distfiles(tmp_path, capsys):
         assert str(p) in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("args, flag, owner", [
+    (["--ts", "40"], "--ts", "bps"),                              # --source bps forgotten: a stat file was written
+    (["--satb-gnss"], "--satb-gnss", "bps"),
+    (["--source", "sine", "--stat-scale", "2"], "--stat-scale", "stat"),
+    (["--source", "jitter", "--stat-scale", "2"], "--stat-scale", "stat"),   # without --jitter-base stat
+    (["--source", "csv", "--amp-arcsec", "3,3"], "--amp-arcsec", "sine"),
+    (["--jitter-rpm", "1,2,3,4"], "--jitter-rpm", "jitter")])
+def test_an_option_of_another_source_is_refused_not_ignored(tmp_path, capsys, args, flag, owner):
+    out = tmp_path / "x.dist"
+    assert fps(["distfile", "generate", "--duration", "1", "-o", str(out)] + args) == 2 and not out.exists()
+    err = capsys.readouterr().err
+    assert "%s is an option of --source %s" % (flag, owner) in err and "Traceback" not in err
+
+
+def test_the_jitter_takes_its_base_sources_options(tmp_path):
+    out = tmp_path / "j.dist"
+    assert fps(["distfile", "generate", "--source", "jitter", "--jitter-base", "sine", "--amp-arcsec", "7,7",
+                "--freq-hz", "0.5,0.5", "--duration", "0.5", "--step-us", "1000", "-o", str(out)]) == 0
+    d, x, _ = distfile_cli.load(str(out))
+    assert 5 < np.abs(x).max() < 9                                 # the 7 arcsec sine under the jitter
+
+
 def test_csv_source_errors_name_the_line(tmp_path):
     p = tmp_path / "bad.csv"
     p.write_text("t_s,x,y\n0,1,2\n1,1,2\n0.5,1,2\n2,1,2\n3,1,2\n")

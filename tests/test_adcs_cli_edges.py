@@ -216,9 +216,9 @@ def test_bps_and_sweep_plots_leave_no_partial_file(params_file, tmp_path, monkey
         assert not [f for f in os.listdir(out) if f.endswith(".png") or ".tmp" in f], os.listdir(out)
 
 
-def test_terminal_ctrl_c_on_a_dask_campaign_prints_no_worker_tracebacks(tmp_path):
-    """A terminal's Ctrl-C goes to the whole process group, the local Dask workers included: the campaign ends
-    with its one-line message, complete=false, and no KeyboardInterrupt traceback from any worker."""
+def test_terminal_ctrl_c_on_a_local_campaign_prints_no_worker_tracebacks(tmp_path):
+    """A terminal's Ctrl-C goes to the whole process group, the local worker processes included: the campaign
+    ends with its one-line message, complete=false, and no KeyboardInterrupt traceback from any worker."""
     import signal
     import subprocess
     import sys

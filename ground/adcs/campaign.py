@@ -16,8 +16,12 @@ workers at 1.4x the in-process time where two plain processes gave 2x.
 
 A run is a pure function of its seed (``fn`` must draw all its randomness from ``seed``), so it gives the same
 result whichever worker runs it. A run that raises is returned as ``{"seed": s, "error": "message"}`` and the
-others go on. Ctrl-C cancels the outstanding futures, stops the local workers (a run they were in is lost; those
-that finished have their folders) and re-raises KeyboardInterrupt (the caller writes ``complete: false``).
+others go on. A local worker process that dies (the out-of-memory killer, a crash) breaks its pool, which fails
+every run it holds: those in the workers or queued for them then run again one at a time, each in a fresh
+process, so that only a run that kills its process again becomes an error record, and the others go on in a new
+pool. (A Dask cluster reschedules a dead worker's runs itself.) Ctrl-C cancels the outstanding futures, stops
+the local workers (a run they were in is lost; those that finished have their folders) and re-raises
+KeyboardInterrupt (the caller writes ``complete: false``).
 """
 
 import os
@@ -156,56 +160,75 @@ def _local_pool(workers):
 
 def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=True, desc="runs", **kwargs):
     """Run ``fn`` once per seed (see the module docstring); returns the list of result dicts in seed order."""
-    import multiprocessing
-    from concurrent.futures import as_completed
     seeds = [int(s) for s in seeds]
     check_runs(len(seeds))
     dirs = [run_dir_for(out_dir, i) for i in range(len(seeds))]
     os.makedirs(str(out_dir), exist_ok=True)
-    client = None
-    if scheduler is None:
+    out = [None] * len(seeds)
+    with _bar(len(seeds), progress, desc) as bar:
+        if scheduler is not None:
+            client = _connect(scheduler)
+            try:
+                _drain(client.get_executor(pure=False), range(len(seeds)), out, fn, seeds, dirs, kwargs, bar)
+            finally:
+                client.close()
+            return out
         workers = check_workers(workers)
         if workers == 1:
-            out = []
-            with _bar(len(seeds), progress, desc) as bar:
-                for s, d in zip(seeds, dirs):
-                    out.append(_call(fn, s, d, kwargs))
-                    bar.update(1)
-            return out
-        before = set(multiprocessing.active_children())
-        pool = _local_pool(workers)
-    else:
-        client = _connect(scheduler)
-        pool = client.get_executor(pure=False)
-    local = []
-    try:
-        futures = [pool.submit(_call, fn, s, d, kwargs) for s, d in zip(seeds, dirs)]
-        if client is None:      # the pool started its processes on these submits
-            local = [p for p in multiprocessing.active_children() if p not in before]
-        index = {f: i for i, f in enumerate(futures)}
-        out = [None] * len(seeds)
-        with _bar(len(seeds), progress, desc) as bar:
-            for f in as_completed(futures):
-                i = index[f]
-                try:
-                    out[i] = f.result()
-                except KeyboardInterrupt:
-                    raise
-                except Exception as exc:  # noqa: BLE001 - a lost worker etc.: that run is an error record
-                    out[i] = {"seed": seeds[i], "error": "%s: %s" % (type(exc).__name__, exc)}
+            for i, (s, d) in enumerate(zip(seeds, dirs)):
+                out[i] = _call(fn, s, d, kwargs)
                 bar.update(1)
+            return out
+        todo = list(range(len(seeds)))
+        while todo:
+            lost = _drain(_local_pool(workers), todo, out, fn, seeds, dirs, kwargs, bar, local=True)
+            # The pool hands out runs in submission order and queues workers + 1 beyond those running, so the
+            # dead worker's run is among the first 2 workers + 2 lost (if not, the next pool breaks: each round
+            # settles at least one run). Each of those runs alone.
+            for i in lost[:2 * workers + 2]:
+                if _drain(_local_pool(1), [i], out, fn, seeds, dirs, kwargs, bar, local=True):
+                    out[i] = {"seed": seeds[i], "error": "its worker process died running it (killed, e.g. by the "
+                                                         "out-of-memory killer, or crashed)"}
+                    bar.update(1)
+            todo = [i for i in lost if out[i] is None]
+    return out
+
+
+def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False):
+    """Submit runs ``todo`` to ``pool``, put their results in ``out`` as they come and shut the pool down.
+    Returns, in submission order, the runs a local pool lost when one of its worker processes died (the
+    pool breaks and fails every run it holds). Ctrl-C cancels the rest, stops a local pool's workers (a run they
+    were in is lost; those that finished have their folders) and re-raises."""
+    import multiprocessing
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
+    before = set(multiprocessing.active_children())
+    children, lost = [], []
+    try:
+        futures = {pool.submit(_call, fn, seeds[i], dirs[i], kwargs): i for i in todo}
+        if local:                        # the pool started its processes on these submits
+            children = [p for p in multiprocessing.active_children() if p not in before]
+        for f in as_completed(futures):
+            i = futures[f]
+            try:
+                out[i] = f.result()
+            except KeyboardInterrupt:
+                raise
+            except BrokenProcessPool:
+                lost.append(i)
+                continue
+            except Exception as exc:     # noqa: BLE001 - a lost cluster worker etc.: that run is an error record
+                out[i] = {"seed": seeds[i], "error": "%s: %s" % (type(exc).__name__, exc)}
+            bar.update(1)
         pool.shutdown(wait=True)
-        return out
+        return sorted(lost)
     except BaseException:
-        if client is None:
+        if local:
             pool.shutdown(wait=False, cancel_futures=True)    # not f.cancel(): the pool sets errors on them
         else:
             pool.shutdown(wait=False)                         # cancels them on the cluster
-        for p in local:         # runs in progress are abandoned, not waited for (a bps case takes ~20 s)
+        for p in children:      # runs in progress are abandoned, not waited for (a bps case takes ~20 s)
             p.terminate()
-        for p in local:
+        for p in children:
             p.join()
         raise
-    finally:
-        if client is not None:
-            client.close()

@@ -1,6 +1,6 @@
 """A pointing scenario for the lean flight ADCS tests and bench: the emulator's spacecraft (true inertia, wheel
 misalignment and inertias, gravity gradient; RK4; the residual dipole at 1/20 of Sec. 4.8's: with no
-magnetorquer to dump momentum the thesis's 0.28 A m^2 saturates the wheels at 20 000 rpm within ~800 s of
+magnetorquer to dump momentum the thesis's 0.27 A m^2 saturates the wheels at 20 000 rpm within ~800 s of
 inertial hold, the rate then passes the star tracker's 0.1 deg/s and it goes blind) held in an inertial attitude by a PD on the truth,
 with the star tracker (20/20/60 arcsec) and tachometers (10 rpm) sampled at 1 Hz.
 

@@ -13,7 +13,7 @@
   (the OCR shows "1 - q3" and "- q2"; no square is visible; Fig. 4-7's 0.2-1.2e-6 N m range fits).
 - Wheels: the thesis's true Jrw, misalignments (Eq. 4.149) and 10 rpm read-out, with the speed limit raised to
   20 000 rpm (``SCENARIO_WHEELS``): the thesis models no limit, and with the emulator's 10 000 rpm default the
-  residual dipole's secular torque (~2e-6 N m, 0.28 A m^2 in ~25 uT) plus the maneuver momentum saturate two
+  residual dipole's secular torque (~2e-6 N m, 0.27 A m^2 in ~25 uT) plus the maneuver momentum saturate two
   wheels within the 930 s (measured: up to 11 800 rpm without the null torque).
 - Sensors: star tracker (``devices.StarTracker``, 20/20/60 arcsec, 1 Hz, none at |w| >= 0.1 deg/s); tachometers
   10 rpm 1 sigma on W - c_i.w; a MEMS gyro for the MEKF baseline (model in ``MemsGyro``).

@@ -7,7 +7,8 @@ the propagated current node (the augmented transition of Eq. 5.21: the old nodes
 identity and no noise). A measurement at the current time, or at an existing node, updates every node
 (Eq. 5.24). A measurement time-tagged between two nodes a (older) and c (newer) first gets its own node b,
 interpolated from a and c (Eq. 5.40-5.42; nonlinear Eq. 5.49-5.52), plugged in between them (Fig. 5-2),
-and is then applied with Eq. 5.24. Nodes older than the lag are dropped (marginalised: exact).
+and is then applied with Eq. 5.24. Nodes older than the lag are dropped (marginalised: exact), but for the
+newest of them (node a for an OOSM at the lag's edge).
 
 Functions (``predict``, ``update``, ``generate_node``) state the algebra; ``Afls`` keeps the node list and
 runs its own faster forms of the first two (pruning as it predicts, the update as a downdate), tested against them.
@@ -145,7 +146,8 @@ def insert_node(X, P, n, pos, xb, Pbb, row):
 
 
 class Afls:
-    """Node list of the (E)AFLS. ``t`` holds node times newest first; ``x``/``P`` the current node.
+    """Node list of the (E)AFLS. ``t`` holds node times newest first; ``x``/``Pk`` the current node,
+    ``X``/``P`` all nodes.
 
     ``lag_s``: the longest delay accepted; a measurement older than that is refused (ValueError).
     ``keep_generated``: keep a node generated for an OOSM in the list after its update (Fig. 5-2, default);

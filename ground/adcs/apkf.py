@@ -359,7 +359,7 @@ def _j_f2(w, c, wheels, r0, model):
 
 
 def _f2(w, c, wheels, r0, model):
-    """Rows 3:6 of F (F21 .. F2b, Eq. 4.99-4.110), 3 x 41: J^-1 (``_j_f2``)."""
+    """Rows 3:6 of F (F21 .. F2b, Eq. 4.99-4.108), 3 x 41: J^-1 (``_j_f2``)."""
     return np.array(c[1]) @ np.array(_j_f2(w, c, wheels, r0, model)).reshape(N, 3).T
 
 

@@ -108,7 +108,8 @@ def params_from_apkf(x, P, jxx, meta, scale=1.0):
 
 
 def check_params(d, where="parameter file"):
-    """Validate a parameter file dict against the spacecraft; returns (x_params (23), P (23 x 23), jxx)."""
+    """Validate a parameter file dict against the spacecraft; returns (x_params (23), P (23 x 23), jxx,
+    torque_scale)."""
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         raise ValueError("%s: not a BPS parameter file (format must be %r)" % (where, FORMAT))
     if d.get("wheels") != N_WHEELS:
@@ -307,17 +308,17 @@ def check_ts(ts):
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
              wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=TACH_NOISE_RPM):
-    """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection
-    time after the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict of 10 Hz arrays).
-    A KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
-    ``fsw_est_err``) holds each second's ``estimate_errors`` against the truth at that second. ``on_second(k,
-    hist, fsw, x)``, if given, is called after each second's ten truth steps (rows up to 10 (k + 1) of ``hist``,
-    k of ``fsw``, are final; it must only read them), ``x`` (10, 2, 6) being the orbit truth (SatA, SatB [r, v])
-    at ``hist`` rows 10 k + 1 .. 10 k + 10: a live consumer (``fps system``) follows the run as it goes.
+    """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection time after
+    the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict: 10 Hz arrays, fsw_* at 1 Hz). A
+    KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
+    ``fsw_est_err``) holds each second's ``estimate_errors`` against the truth at that second. ``on_second(k, hist,
+    fsw, x)``, if given, is called after each second's ten truth steps (rows up to 10 (k + 1) of ``hist``, k of
+    ``fsw``, are final; it must only read them), ``x`` (10, 2, 6) being the orbit truth (SatA, SatB [r, v]) at
+    ``hist`` rows 10 k + 1 .. 10 k + 10: a live consumer (``fps system``) follows the run as it goes.
     ``wheel_speed_limit_rpm``: the true wheels' speed limit (default: none in effect, as the thesis; see
-    ``scenario.POINTING_WHEEL_RPM``); the result's ``max_wheel_speed_rpm`` and ``wheel_speed_clips`` say
-    whether a limit was reached. ``tach_noise_rpm``: the tachometers' read-out noise (1 sigma), in the truth and
-    in the APKF's model alike; other than the scenario's 10 rpm only as a diagnostic."""
+    ``scenario.POINTING_WHEEL_RPM``); the result's ``max_wheel_speed_rpm`` and ``wheel_speed_clips`` say whether a
+    limit was reached. ``tach_noise_rpm``: the tachometers' read-out noise (1 sigma), in the truth and in the APKF's
+    model alike; other than the scenario's 10 rpm only as a diagnostic."""
     ts = check_ts(ts)
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")

@@ -5,10 +5,10 @@ Each sub-command is registered by one small function in ``SUBCOMMANDS`` (add you
 A campaign runs
 ``--runs`` seeds (``--seed``, ``--seed``+1, ...) of the Sec. 4.8 scenario over local worker processes
 (``--workers``, default all cores; 1 = in-process) or an existing Dask cluster (``--scheduler tcp://host:port``),
-and writes to ``-o DIR``: ``run_NNNN/`` per seed (series.npz, result.json), ``summary.json`` (arcsec for angles,
-SI otherwise; ``complete`` is false until the campaign ends, and stays false after Ctrl-C), ``report.md`` with
-the thesis's table beside ours, ``fig4-5_errors.png`` (one run's errors with +-3 sigma) and ``monte_carlo.png``
-(spread over runs and the NEES against its 95 % band).
+and writes to ``-o DIR``: ``run_NNNN/`` per seed (series.npz, result.json), ``summary.json`` (arcsec for
+angles, deg where a key says _deg, SI otherwise; ``complete`` is false until the campaign ends, and stays false
+after Ctrl-C), ``report.md`` with the thesis's table beside ours, ``fig4-5_errors.png`` (one run's errors with
++-3 sigma) and ``monte_carlo.png`` (spread over runs and the NEES against its 95 % band).
 """
 
 import os

@@ -116,7 +116,8 @@ def attitude_error(q, qc):
 
 
 def pd_torque(q, w, qc, wc, K, D, H=None, tau_ff=None):
-    """tau_c = -K q_e,vec - D (w - A(q_e) w_c) (Eq. 6.5) + w x H + tau_ff (our additions; None leaves out).
+    """tau_c = -K q_e,vec - D (w - A(q_e) w_c) (Eq. 6.5) + w x H - tau_ff (our additions; None leaves out;
+    tau_ff is the known external torque, cancelled).
     w_c is in the command frame; A(q_e) brings it to the body frame."""
     qe = attitude_error(q, qc)
     we = w - quat.dcm(qe) @ wc

@@ -1,4 +1,4 @@
-"""Quaternion helpers for the filters (Yoon 2017, Sec. 4.3): q = [e, q4], scalar last, inertial to body,
+"""Quaternion helpers for the filters (Yoon 2017, Sec. 4.2-4.3): q = [e, q4], scalar last, inertial to body,
 q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.5). Re-exported from the spacecraft model so truth and filters agree."""
 
 import numpy as np

@@ -1,12 +1,15 @@
 """One Monte Carlo run of the Sec. 4.8 scenario through the APKF or the MEKF, and the campaign's aggregate.
 
 ``run_apkf(seed, run_dir, case, ...)`` and ``run_mekf(seed, run_dir, ...)`` are top-level (picklable for Dask):
-each simulates the truth from its seed, runs the filter from its initialisation (the first two consecutive
-star-tracker outputs, Sec. 4.8), checks P (finite, symmetric positive definite) at every step, writes
+each simulates the truth from its seed, runs the filter from its initialisation (the APKF at the first two
+consecutive star-tracker outputs, Sec. 4.8; the MEKF at the first), checks P (finite, positive definite) at
+every step, writes
 ``run_dir/series.npz`` (t, error, sigma, nees) and ``run_dir/result.json``, and returns the result dict.
 A diverged filter raises FloatingPointError (the campaign records it as that run's error).
 
-Units: attitude errors are the full small angles 2 dq (arcsec), rates arcsec/s, the rest SI.
+Units in result.json and the summary: attitude errors are the full small angles 2 dq (arcsec), rates arcsec/s,
+misalignments deg, the gyro bias deg/h, the rest SI; series.npz holds the error state as the filter has it
+(dq, half angles, rad; rad/s).
 NEES (attitude and rate, 6 dof; MEKF: attitude and gyro bias): e^T P^-1 e per step; over N runs the mean is
 compared with the 95 % band chi2(6N) / N (Bar-Shalom), after the first maneuver set.
 """
@@ -26,7 +29,7 @@ MIN_DURATION_S = 10.0     # below ~5 s no two consecutive star-tracker outputs e
 PARAM_KEYS = {
     "inertia_kgm2": "6 numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], a rigid body's: positive definite, triangle "
                     "inequality (the true spacecraft)",
-    "dipole_am2": "3 numbers within +-10 A m^2 (true residual dipole; the thesis's is 0.28 A m^2)",
+    "dipole_am2": "3 numbers within +-10 A m^2 (true residual dipole; the thesis's is 0.27 A m^2)",
     "duration_s": "scenario length, 10..930 s (default 930; the star tracker answers once the 1 deg/s "
                   "initial rate is damped below 0.1 deg/s, after ~4 s)",
     "dt_truth_s": "truth RK4 step dividing 1 s, (0, 1] (default 1)",

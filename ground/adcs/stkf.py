@@ -128,8 +128,8 @@ _PHI_IDX = {12: _phi_index(12), 6: _phi_index(6)}
 
 
 def Phi(x, dt):
-    """State transition over ``dt`` from F at x (Eq. 3.30): I + F dt + (F dt)^2/2 + (F dt)^3/6, of both
-    satellites (x of 12) or of one (x of 6).
+    """State transition over ``dt`` from F at x (Eq. 3.30): the series I + F dt + (F dt)^2/2 + (F dt)^3/6
+    without its G^2 dt^3/6 term, of both satellites (x of 12) or of one (x of 6).
 
     With F = [[0, I], [G, 0]] per satellite: [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]]; the
     dropped terms (G^2 dt^3/6 and beyond) are ~(n dt)^4 ~ 1e-12 at dt = 1 s in LEO. Block-diagonal (the two

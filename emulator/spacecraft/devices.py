@@ -3,7 +3,8 @@
 ``SpacecraftDevices.handle(pid, src, dst, payload)`` takes one received packet and returns the replies as
 ``[(pid, src, dst, payload), ...]``; a link (or a test) carries them. RW_CMD to RW<i> sets wheel i's torque and
 enable and is answered by RW_TLM (noisy speed read-out, Eq. 4.57, and the torque the driver applies after its
-limits). ``startracker(t)`` makes a STARTRACKER payload from the true attitude (Eq. 4.63-4.66).
+limits). ``startracker(dst)`` makes a STARTRACKER packet (pid, src, dst, payload) from the true attitude now
+(Eq. 4.63-4.66).
 """
 
 import numpy as np

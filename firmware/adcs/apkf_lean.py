@@ -278,7 +278,7 @@ class Work:
 
 @micropython.native
 def _dcm_apply2(out, q, a, b):
-    """out[0:3] = A(q) a, out[3:6] = A(q) b (inertial to body, scalar-last q, Eq. 4.4), A formed once."""
+    """out[0:3] = A(q) a, out[3:6] = A(q) b (inertial to body, scalar-last q, Eq. 4.7), A formed once."""
     q1, q2, q3, q4 = q[0], q[1], q[2], q[3]
     a00 = q1 * q1 - q2 * q2 - q3 * q3 + q4 * q4
     a01 = 2.0 * (q1 * q2 + q3 * q4)
@@ -531,7 +531,7 @@ def phi(Phi, F, dt, work, order=4):
 
 @micropython.native
 def covariance_predict(P, Phi, T):
-    """P = Phi P Phi^T (Eq. 4.134 without Q) for the lean Phi, whose tau_d rows 6-8 are [0 I]: only rows 0-5
+    """P = Phi P Phi^T (Eq. 4.128 without Q) for the lean Phi, whose tau_d rows 6-8 are [0 I]: only rows 0-5
     of Phi P (into T, float32) and the blocks they touch are computed; the upper triangle is mirrored. P is
     symmetric, so column j of P is its row j. The 9-term dot products are written out (a loop iteration
     costs MicroPython as much as a float operation)."""
@@ -675,7 +675,8 @@ def correct(x, dx):
 class Lean:
     """The lean APKF at 1 Hz: ``step(wp, q_meas or None, env, u, got)`` per dt, the read-out wp at the step's
     end, u the motor torques commanded over the step (N m; needed unless ``momentum="tach"``), got which
-    wheels were heard (None: all; used by "filtered", whose speeds are ``W`` with variances ``Pw``)."""
+    wheels were heard (4 booleans, default ``ALL``; used by "filtered", whose speeds are ``W`` with variances
+    ``Pw``)."""
 
     def __init__(self, params, q0, w0, w_rw0, dt=1.0, **kw):
         self.model = Model(params, dt=dt, **kw)

@@ -176,7 +176,7 @@ class App:
         self.u = zeros(4)
         # the lean APKF's momentum input (apkf_lean.Model): the read-outs filtered on the torques this app
         # commanded (flown), or, for comparison, the raw read-out difference or the torques alone (see the
-        # README's "Lean flight software")
+        # README's "Lean flight ADCS under MicroPython")
         self.momentum = cfg.get("apkf_momentum", "filtered")
         if self.momentum not in apkf_lean.MOMENTUM:
             raise ValueError("apkf_momentum must be one of %s, got %r" % (", ".join(apkf_lean.MOMENTUM),

@@ -1,8 +1,9 @@
 """Attitude control for pointing and tracking, flight version (MicroPython) of ground/adcs/control.py.
 
 Conventions as the APKF (Sec. 4.2): q = [q1, q2, q3, q4] scalar last, A(q) maps inertial to body,
-A(q (x) p) = A(q) A(p). Vectors and matrices are flat float buffers (3 x 3 row-major); every function writes
-into a destination the caller allocated (firmware/adcs/linalg.zeros).
+A(q (x) p) = A(q) A(p). Vectors and matrices are flat float buffers (3 x 3 row-major); the vector and matrix
+functions write into a destination the caller allocated (firmware/adcs/linalg.zeros); ``natural_frequency``,
+``cct_cofactors`` and ``_solve_cct`` return numbers.
 
 - ``orbit_frame``: T_o<-j2k of Eq. 6.1-6.2 (rows: v/|v|, r x v/|r x v|, their cross product).
 - ``attitude_command``: the minimum rotation putting the laser axis on the line of sight (Eq. 6.3), composed
@@ -86,7 +87,7 @@ def dcm(A, q):
 
 @micropython.native
 def quat_mul(out, q, p):
-    """out = q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.2); out must not alias q or p."""
+    """out = q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.5); out must not alias q or p."""
     q1, q2, q3, q4 = q[0], q[1], q[2], q[3]
     p1, p2, p3, p4 = p[0], p[1], p[2], p[3]
     out[0] = q4 * p1 + p4 * q1 - (q2 * p3 - q3 * p2)
@@ -158,7 +159,7 @@ def pd_torque(tau, q, w, qc, wc, K, D, H=None, tau_ff=None):
     e4 = q4 * c4 - (q1 * c1 + q2 * c2 + q3 * c3)
     if e4 < 0:
         e1, e2, e3, e4 = -e1, -e2, -e3, -e4
-    x, y, z = wc[0], wc[1], wc[2]                   # A(q_e) w_c (Eq. 4.4)
+    x, y, z = wc[0], wc[1], wc[2]                   # A(q_e) w_c (Eq. 4.7)
     a0 = (e1 * e1 - e2 * e2 - e3 * e3 + e4 * e4) * x + 2.0 * (e1 * e2 + e3 * e4) * y + 2.0 * (e1 * e3 - e2 * e4) * z
     a1 = 2.0 * (e1 * e2 - e3 * e4) * x + (-e1 * e1 + e2 * e2 - e3 * e3 + e4 * e4) * y + 2.0 * (e2 * e3 + e1 * e4) * z
     a2 = 2.0 * (e1 * e3 + e2 * e4) * x + 2.0 * (e2 * e3 - e1 * e4) * y + (-e1 * e1 - e2 * e2 + e3 * e3 + e4 * e4) * z

@@ -181,7 +181,7 @@ def chol_solve_rows(X, L, B, n, m):
 @micropython.native
 def joseph_select(P, n, r0, m, R, Kt, L, W, RK):
     """Kalman gain and Joseph-form covariance update for a measurement of the error states r0 .. r0+m-1,
-    H = [0 I_m 0] (the star tracker's H of Eq. 4.139, the GNSS's of Eq. 5.31):
+    H = [0 I_m 0] (the star tracker's H of Eq. 4.139, the GNSS's of Eq. 5.12):
 
         S = H P H^T + R,  K = P H^T S^-1,  P+ = (I - K H) P (I - K H)^T + K R K^T     (Eq. 4.140, 4.142)
 

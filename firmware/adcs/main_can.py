@@ -4,7 +4,8 @@
 
 DEVICE: the slcan adapter's side, a file descriptor number (a non-blocking pty master inherited from the
 emulator) or a path. CONFIG: the parameter file and settings (emulator/adcs_session.py writes it).
-HEAP_OUT: when given, the heap bytes allocated per cycle (gc.mem_alloc deltas) are written there at exit.
+HEAP_OUT: when given, the heap bytes allocated per cycle (gc.mem_alloc deltas) are written there at exit
+(MicroPython only: under CPython the list is empty).
 """
 
 import json

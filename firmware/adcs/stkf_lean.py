@@ -1,9 +1,10 @@
 """The lean STKF with the AFLS (flight code, MicroPython): thesis Sec. 5.3-5.4 over preallocated flat buffers.
 
 State [rA, vA, rB, vB] (12, m and m/s, J2000; Eq. 5.6); two-body dynamics with white acceleration noise qa
-(Eq. 5.7-5.9), Phi to third order (Eq. 3.30 with F of Eq. 5.4), GNSS updates (Eq. 5.10-5.12), the beacon
-(Eq. 5.13-5.17, the attitude error as measurement noise as in Sec. 5.3.3), SatB's delayed GNSS through the
-augmented fixed-lag smoother (AFLS, Eq. 5.18-5.24) with node generation between nodes (EAFLS, Eq. 5.46-5.52).
+(Eq. 5.7-5.9), Phi to third order but its G^2 dt^3/6 term (Eq. 3.30 with F of Eq. 5.4), GNSS updates
+(Eq. 5.10-5.12), the beacon (Eq. 5.13-5.17, the attitude error as measurement noise as in Sec. 5.3.3), SatB's
+delayed GNSS through the augmented fixed-lag smoother (AFLS, Eq. 5.18-5.24) with node generation between nodes
+(EAFLS, Eq. 5.46-5.52).
 
 What this flight form chooses, and why (the ground form is ground/adcs/stkf.py + afls.py, 12 states per node):
 
@@ -32,18 +33,17 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    touches nodes 0 .. a only: the nodes older than a are pruned right after it (a is then the anchor), and
    marginalising them out first changes nothing in the others' update (tests/test_adcs_lean_reference.py
    checks every call against the dense update of the whole node list).
-4. Floats. States and times are float64 (``zeros_d``, array('d')): a LEO position is ~7e6 m, which float32
-   holds to 0.5 m only. SatA's covariance and its work buffers are float32 (``linalg.zeros``, array('f')):
-   stored full, written symmetric (upper triangle computed and mirrored), GNSS update in the Joseph form
-   (Eq. 4.142 via ``linalg.joseph_select``); its condition number stays below 1e3. SatB's smoother is float64:
-   its joint covariance over nodes 1 s apart is nearly singular (consecutive nodes differ by 1 s of process
-   noise): its condition number reaches 1e11-1e12 in Case 1 and 3e7-3e11 in Case 2 (measured over 600 s),
-   beyond float32's 1/eps = 1.7e7. Rounding the exact (float64) P to float32 alone makes it indefinite in 596
-   of 601 steps of Case 1, so no update form (Joseph included) keeps a float32 P of it positive definite
-   (measured, tests/test_adcs_lean.py). A square-root (QR) form would hold it but costs
-   O(m^3), ~3e4 multiply-adds per step at m = 30, tens of times this whole filter. So the design needs a port
-   with float64 floats (the unix port; STM32 builds with double floats). On a float32-only port (SAMD21)
-   array('d') reads back float32: not supported by this design.
+4. Floats. States and times are float64 (``zeros_d``, array('d')): a LEO position is ~7e6 m, which float32 holds to
+   0.5 m only. SatA's covariance and its work buffers (but the innovation) are float32 (``linalg.zeros``,
+   array('f')): stored full, written symmetric (upper triangle computed and mirrored), GNSS update in the Joseph form
+   (Eq. 4.142 via ``linalg.joseph_select``); its condition number stays below 1e3. SatB's smoother is float64: its
+   joint covariance over nodes 1 s apart is nearly singular (consecutive nodes differ by 1 s of process noise): its
+   condition number reaches 1e11-1e12 in Case 1 and 3e7-3e11 in Case 2 (measured over 600 s), beyond float32's 1/eps
+   = 1.7e7. Rounding the exact (float64) P to float32 alone makes it indefinite in 596 of 601 steps of Case 1, so no
+   update form (Joseph included) keeps a float32 P of it positive definite (measured, tests/test_adcs_lean.py). A
+   square-root (QR) form would hold it but costs O(m^3), ~3e4 multiply-adds per step at m = 30, tens of times this
+   whole filter. So the design needs a port with float64 floats (the unix port; STM32 builds with double floats). On
+   a float32-only port (SAMD21) array('d') reads back float32: not supported by this design.
 
 Cost. On MicroPython every float result, and every float read from a buffer, is a new heap object (~400-500
 x86-64 instructions each on the unix x64 port, its allocation and collection included), and a loop iteration, an
@@ -229,7 +229,8 @@ def _finite(v, n):
 
 
 class WorkA:
-    """SatA's EKF work buffers: float32 (``linalg.zeros``), like its covariance."""
+    """SatA's EKF work buffers: float32 (``linalg.zeros``), like its covariance, but for the innovation r
+    (float64, like the states)."""
 
     def __init__(self):
         z = linalg.zeros

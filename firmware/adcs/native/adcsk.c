@@ -1,8 +1,9 @@
 // adcsk: the lean ADCS filters' hot kernels as a MicroPython native module (natmod, `make natmod`).
 //
-// Each function here is the Python function of the same name in firmware/adcs/linalg.py, stkf_lean.py or
-// apkf_lean.py, over the same buffers: the same operations in the same order, each value stored to a buffer
-// rounded to that buffer's type (array 'f' or 'd') and read back where the Python reads it back, so the
+// Each function here is the Python function of the same name (less a leading underscore; phi9 is apkf_lean.phi,
+// update_rows Afls._update_rows, between the last loops of Afls._hp_between) in firmware/adcs/linalg.py,
+// stkf_lean.py or apkf_lean.py, over the same buffers: the same operations in the same order, each value stored
+// to a buffer rounded to that buffer's type (array 'f' or 'd') and read back where the Python reads it back, so the
 // results are equal bit for bit (tests/test_adcs_natmod.py; built with -ffp-contract=off: no fused
 // multiply-add). The Python forms stay the reference and run wherever the module is not built (CPython, or a
 // port without native modules). Only the arithmetic moves: no float is boxed, so a call allocates nothing.
@@ -557,7 +558,7 @@ static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(update_rows_obj, 11, 11, update_rows)
 
 // ---- apkf_lean.py -----------------------------------------------------------------------------------------
 
-// phi(Phi, F, dt, T, order): apkf_lean.phi with work.T1 = T
+// phi9(Phi, F, dt, T, order): apkf_lean.phi with work.T1 = T
 static mp_obj_t phi9(size_t n_args, const mp_obj_t *args) {
     double dt = mp_obj_get_float_to_d(args[2]);
     mp_int_t order = mp_obj_get_int(args[4]);

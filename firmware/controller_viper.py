@@ -1,11 +1,13 @@
-"""The controller with its common tick (TRACK, beam present, command in the cached g H^-1 bin, no saturation)
-compiled by MicroPython's viper emitter to machine code. MicroPython only; the .mpy needs ``mpy-cross -march``.
+"""The controller with its common tick (TRACK, beam present, no saturation; a command that leaves the cached
+g H^-1 bin included) compiled by MicroPython's viper emitter to machine code. MicroPython only; the .mpy needs ``mpy-cross -march``.
 
 Same law, same integers, same order of operations as ``Controller.step`` (firmware/controller.py, Eq. 7.4,
 7.12, 7.13), so the codes are identical (tests/mp/firmware_viper.py checks it over long runs). The state is
 an ``array('i')`` (int32, every slot within +-2^30) with the slots and Q-formats of ``firmware.controller``;
-the words an ``array('i')``. Any other case (init tick, other modes, beam lost, a new bin, saturation) is
-detected before anything is stored and handed whole to the bytecode ``Controller.step``.
+the words an ``array('i')``. A new bin recomputes the cached g H^-1 here (in viper). Any other case (init tick,
+other modes, beam lost, saturation) is detected before the loop's state is stored and handed whole to the
+bytecode ``Controller.step`` (on saturation the g H^-1 cache may already hold the new bin's, the same values
+the bytecode step computes for it).
 """
 
 import micropython

@@ -35,6 +35,18 @@ CHUNK_PRIORITY = 6     # *_CHUNK upload packets
 DEFAULT_PRIORITY = 5
 
 DROP_REASONS = ("not_extended", "reserved_bit", "unknown_id", "bad_length") + isotp.ERRORS
+RX_DROPS = tuple(set(DROP_REASONS))     # bad_length is a frame's and an ISO-TP transfer's reason: one counter
+
+
+def rx_drops(counters, reasons=RX_DROPS):
+    """What a port dropped on receive, from its ``counters()``: each of ``reasons`` once (default the CAN
+    decoder's), and every ISO-TP error or timeout the port counts (``isotp_*``: can-isotp's, the slcan port's
+    timeouts). Frames for other nodes and sent frames are not drops."""
+    n = 0
+    for k, v in counters.items():
+        if k in reasons or k.startswith("isotp_"):
+            n += v
+    return n
 
 
 def priority(pid):

@@ -156,7 +156,7 @@ PACKETS = (
         ("why", "B", "", 1, 0, 3, 0, "why the controller last entered SAFE, see SAFE_REASONS"),
         ("n_dup", "H", "", 1, None, None, 0, "resent TICKs answered again without a step (wraps)"),
         ("n_gap", "H", "", 1, None, None, 0, "ticks the bench ran without this controller (wraps)"),
-        ("n_rx_drop", "H", "", 1, None, None, 0, "frames this controller's decoder dropped (wraps)"),
+        ("n_rx_drop", "H", "", 1, None, None, 0, "frames or transfers its link dropped, and TICKs dropped as stale or out of range (wraps)"),
     )),
     (0x23, "HTABLE_BEGIN", "GROUND", "CONTROLLER", "begin an H-table upload", _BEGIN),
     (0x24, "HTABLE_CHUNK", "GROUND", "CONTROLLER", "one chunk of an H-table upload", _CHUNK),

@@ -111,6 +111,20 @@ def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
     th.join(5)
 
 
+def test_the_controllers_rx_drop_counts_what_a_serial_or_a_can_link_dropped():
+    """CTRL_STATUS.n_rx_drop summed only the serial decoder's reasons: on a CAN link (python-can's, with
+    can-isotp) frames that were not extended, had the reserved bit, or broke an ISO-TP transfer were not
+    counted. Frames for other nodes, sent frames and sequence gaps are not drops."""
+    from firmware.hal.link import _DROPS
+    from protocol import can
+    serial = {k: 1 for k in core.DROP_REASONS}
+    serial.update(frames=100, seq_gaps=3, seq_dups=2)
+    assert can.rx_drops(serial, _DROPS) == len(core.DROP_REASONS)
+    bus = {k: 1 for k in can.DROP_REASONS}
+    bus.update(other_dst=5, tx_frames=9, isotp_timeouts=2, isotp_unexpected_frame=1)
+    assert can.rx_drops(bus, _DROPS) == len(set(can.DROP_REASONS)) + 3
+
+
 def test_a_damaged_tick_number_does_not_make_every_later_tick_stale():
     """A TICK whose tick number the CRC-16 let through damaged (here 10^6 for 2) became serve_controller's
     last: every real TICK after it was older, ignored unanswered, and the run ended as a dead link. Now a

@@ -565,13 +565,9 @@ class App:
         return out
 
 
-_CAN_DROPS = tuple(set(canmap.DROP_REASONS)) + ("isotp_timeouts",)   # bad_length: one counter for both
-
-
 def _drops(port):
-    """Frames and payloads the CAN port dropped: each of the CAN decoder's reasons once, and ISO-TP timeouts."""
-    d = port.counters()
-    return sum(d.get(k, 0) for k in _CAN_DROPS)
+    """Frames and payloads the CAN port dropped (``protocol.can.rx_drops``)."""
+    return canmap.rx_drops(port.counters())
 
 
 def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):

@@ -12,7 +12,7 @@ import struct
 import sys
 
 from firmware.controller import heap_lock, heap_unlock
-from protocol import core
+from protocol import can, core
 
 P_TICK = core.PACKET_ID["TICK"]
 P_FSM_SPI = core.PACKET_ID["FSM_SPI"]
@@ -23,7 +23,7 @@ _TICK_FMT = core.PACKET[P_TICK].fmt
 _SPI_FMT = core.PACKET[P_FSM_SPI].fmt
 _SPI_SIZE = core.PACKET[P_FSM_SPI].size
 _MICROPYTHON = sys.implementation.name == "micropython"
-_DROPS = core.DROP_REASONS
+_DROPS = tuple(set(core.DROP_REASONS + can.RX_DROPS))   # a serial link's decoder or a CAN link's, each once
 
 
 class _Ms:
@@ -144,7 +144,7 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 if ctl.status_due_at(tick):   # to the HIL host that clocks us (on CAN, ISO-TP to an absent
                     if counters is not None:  # node would block)
                         d = counters()
-                        ctl.n_rx_drop = sum(d.get(k, 0) for k in _DROPS) + bad_ticks
+                        ctl.n_rx_drop = can.rx_drops(d, _DROPS) + bad_ticks
                     status = ctl.status_payload(tick)
                     status_tick = tick
                     link.send_raw(P_STATUS, me, src, status)

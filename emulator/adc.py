@@ -9,7 +9,8 @@ inverted, so Rx = vx / vs.
 
 
 class SAMD21:
-    """12-bit (configurable) unipolar ADC behind the inverting amplifier; counts clipped samples."""
+    """12-bit unipolar ADC (the config holds adc_q1.bits at 12) behind the inverting amplifier; counts clipped
+    samples."""
 
     def __init__(self, cfg, amp_gain):
         a = cfg["adc_q1"]

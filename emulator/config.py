@@ -218,7 +218,7 @@ def _validate(cfg, ref, path=""):
 
 
 def validate(cfg):
-    """Check a complete config against the preset's keys, types and ranges; return it."""
+    """Merge a (partial) config over the preset, check its keys, types and ranges; return the merged config."""
     merged = default_config()
     _merge(merged, cfg, "")
     _validate(merged, _DEFAULT)

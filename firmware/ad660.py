@@ -2,7 +2,8 @@
 
 Eq. 7.7-7.8: theta_P-FSM = 13.33 theta_e, and +-3 deg of P-FSM maps to +-10 V, so
 V = 0.012343 V/arcsec x theta_e (arcsec). The AD660's bipolar output is offset binary over +-10 V:
-code = 0x8000 + V x 65536 / 20 V, clipped to 0..65535 (the packet table's PFSM_DAC scale is 20/65536 V).
+code = 0x8000 + V x 65536 / 20 V, clipped to 0..65535 (the packet table's PFSM_DAC carries the raw codes,
+scale 1; its text gives the volts, V = (code - 32768) x 20 / 65536).
 """
 
 V_PER_ARCSEC = 0.012343          # Eq. 7.8

@@ -16,7 +16,8 @@ on a 32-bit MCU, so the tick allocates nothing and is bit-identical under CPytho
    bytes' share, Q(15 + hq), shifted by 7 + hq to Q8 and rounded;
 6. saturation with anti-windup: the state itself is clamped to +-limit_code (Q8), so the integrator never
    runs past the mirror's range; the output codes are (V + 128) >> 8, always within +-limit_code;
-7. the four AD5664R words (layout in ``firmware.ad5664r``), preceded on the first tick by the init sequence.
+7. the four AD5664R words (layout in ``firmware.ad5664r``); the first tick sends the AD5664R's init sequence
+   instead.
 
 Default gain g = 0.5 (Q15 16384, the table default). The loop per axis (H^-1 H = I) is the integral law
 C(z) = g z / (z - 1) around the MEMS drive as the bench config has it: a 2nd-order Butterworth at 800 Hz, then

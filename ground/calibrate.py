@@ -14,8 +14,9 @@ Procedure, through the protocol only (CTRL_SETTINGS, CTRL_SET_FSM, HTABLE_*, CTR
 
 The output JSON has the shape of ``fps emulator truth-h`` (docs/INTERFACES.md) plus the bench config,
 timestamps and the runtime used; the controller loads exactly this file. A grid point where the beam is
-lost, the FSM saturates or the null does not converge is reported with the point and left out of the file
-(which is then refused by the controller as incomplete): the tool exits 1 naming every such point.
+lost, the FSM saturates or the null does not converge is reported with the point; no calibration is written
+then, only NAME.failed.json (the points that did calibrate and a ``failed`` list), and the tool exits 1
+naming every such point.
 """
 
 import contextlib
@@ -119,7 +120,7 @@ class Calibrator:
         return r, v
 
     def measure(self, v0, what):
-        """The 8 perturbations around v0 in CALIBRATE mode; returns (H, offset, residual, r)."""
+        """The 8 perturbations around v0 in CALIBRATE mode; returns (H, offset, residual)."""
         dvs, rs = [], []
         for sx, sy in STEPS:
             self.rig.set_fsm(v0[0] + sx * self.dv, v0[1] + sy * self.dv)

@@ -1,5 +1,5 @@
-"""Atomic file writes for the ground tools (the writer lives in ``emulator.fileio``: ground depends on the
-emulator, never the other way)."""
+"""Atomic file writes for the ground tools (the writer lives in ``protocol.fileio``, re-exported by
+``emulator.fileio``: ground depends on the emulator, never the other way)."""
 
 import os
 

@@ -59,7 +59,7 @@ def check_q2_dv(dvp):
 
 
 def calibrate_q2(rig, dvp=0.05, settle_ticks=16, avg_samples=48):
-    """G2 (Q2 ratio per P-FSM volt) around the current operating point, FSM held (HOLD mode)."""
+    """G2 (Q2 ratio per P-FSM volt) around P-FSM (0, 0) V, FSM held (HOLD mode); leaves the P-FSM at 0 V."""
     rig.settings("HOLD", decim=0)
     dvs, rs = [], []
     per_tick = rig.bench.q2_hz / rig.rate_hz

@@ -52,7 +52,7 @@ class WheelJitter:
         p.add_argument("--jitter-scale", type=float, default=1.0,
                        help="multiply the wheels' static and dynamic imbalances (default 1: ISO G2.5)")
         p.add_argument("--jitter-base", default="none",
-                       help="another source to add under the jitter: stat, sine, csv or none (its options apply)")
+                       help="another source to add under the jitter: stat, sine, csv, bps or none (its options apply)")
 
     @staticmethod
     def bases(a):

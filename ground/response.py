@@ -16,7 +16,8 @@ The model (``LoopModel``), per axis with H^-1 H = I (the controller uses the tru
 - S_d(z) = 1 / (1 + C P) at the samples; the residual's component at f on the continuous truth is
   S(f) = 1 - C S_d Gm(j w) ZOH(w) exp(-j w D), ZOH(w) = (1 - exp(-j w T)) / (j w T) (the fundamental of the
   held, filtered command; derived here, no thesis equation).
-python-control gives the Bode data, the gain and phase margins of the loop C P, and S_d's -3 dB bandwidth.
+python-control gives the Bode data and the phase margin of the loop C P; the gain margin is the largest stable
+gain scale (bisection on the closed-loop poles) and S_d's -3 dB bandwidth a scan of |S_d|.
 """
 
 import math

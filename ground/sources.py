@@ -1,9 +1,10 @@
 """Disturbance sources: body-pointing error histories (X, Y in arcsec) for the distfile.
 
 Each source produces samples at its own rate; ``ground.resample`` brings them to the 8.192 ms distfile step
-(Sec. 7.3.1). Sources register by name in ``SOURCES`` so a new one (the body pointing simulator of Ch. 6)
-plugs in with ``register_source``: it needs ``add_arguments(parser)`` (its CLI options, prefixed by its
-name) and ``from_args(args)`` returning an object with ``generate(duration_s, seed) -> (t_s, x, y)``.
+(Sec. 7.3.1). Sources register by name in ``SOURCES`` (stat, sine, csv; bps, the body pointing simulator of
+Ch. 6; jitter) so a new one plugs in with ``register_source``: it needs ``add_arguments(parser)`` (its CLI
+options, in a --help group of its own; ``fps distfile generate`` refuses them with another source) and
+``from_args(args)`` returning an object with ``generate(duration_s, seed) -> (t_s, x, y)``.
 """
 
 import csv

@@ -14,7 +14,7 @@
   30 s hold and 4 t_s of settling, t = 0 of the play) the 10 Hz dtheta are resampled to the 8.192 ms distfile
   step by 3rd-order Lagrange interpolation (Sec. 7.3.1, ``ground.resample``: the same samples ``fps distfile
   generate --source bps`` would write) and appended to an in-memory distfile that ``firmware.player.Player``
-  plays (linear interpolation, Eq. 7.7-7.8 to AD660 codes at 10.6 kHz). A sample beyond the P-FSM's
+  plays (Keys's 6-point cubic interpolation, Eq. 7.7-7.8 to AD660 codes at 10.6 kHz). A sample beyond the P-FSM's
   +-3 deg / 13.33 is refused (the run fails, as ``ground.distfile_cli.check_playable`` refuses a distfile).
 - Coupling and timing: before each 1 s chunk of the fine loop the main process takes ADCS messages until the
   disturbance is known to the chunk's end (plus the interpolation stencil); the ADCS process is ahead, so the

@@ -161,7 +161,7 @@ class CanDecoder:
 
 # --- candump -L log lines ----------------------------------------------------------------------------
 def candump_line(cid, data, t=0.0, channel="can0"):
-    """One ``candump -L`` line: ``(1700000000.000000) can0 0A2A1001#0102``."""
+    """One ``candump -L`` line: ``(1700000000.000000) can0 08041001#0000`` (an ACK from CONTROLLER to GROUND)."""
     return "(%.6f) %s %08X#%s" % (t, channel, cid, "".join("%02X" % b for b in data))
 
 

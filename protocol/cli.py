@@ -37,7 +37,8 @@ def register(sub, name, help_):
     t.set_defaults(func=cmd_table)
 
     d = s.add_parser("dbc", help="write a DBC file for the single-frame CAN packets")
-    d.add_argument("-o", "--output", required=True, metavar="FILE", type=output_file)
+    d.add_argument("-o", "--output", required=True, metavar="FILE", type=output_file,
+                   help="DBC file to write (- for standard output)")
     d.set_defaults(func=cmd_dbc)
 
     e = s.add_parser("encode", help="encode one packet as a serial frame (hex) or candump -L lines")
@@ -190,7 +191,10 @@ def cmd_table(args):
 
 # --- dbc --------------------------------------------------------------------------------------------------
 def cmd_dbc(args):
-    write_atomic(args.output, canmap.dbc_text(), make_folder=False)
+    if args.output == "-":
+        sys.stdout.write(canmap.dbc_text())
+    else:
+        write_atomic(args.output, canmap.dbc_text(), make_folder=False)
     return 0
 
 

@@ -177,6 +177,16 @@ def test_an_interrupted_lockstep_call_keeps_every_sample_it_played():
     assert ref["q2"][n, 1] >= 700 * 1e6 / 637.8 - 1e-6               # the next sample is past the stop
 
 
+def test_realtime_answers_are_due_within_one_period_in_process_too():
+    """--realtime: an answer later than one period is an overrun, as --help says; the in-process controller
+    kept Lockstep's default deadline of 1 s."""
+    from ground import runtime
+    with runtime.open_rig("inproc", "inproc", realtime=True, rate_hz=500.0) as rig:
+        assert rig.lockstep.realtime and rig.lockstep.deadline_s == pytest.approx(0.002)
+    with runtime.open_rig("inproc", "inproc") as rig:
+        assert not rig.lockstep.realtime
+
+
 def test_remote_controller_resends_and_gives_up_on_a_dead_link():
     from protocol.link import inproc_pair
     a, b = inproc_pair("BENCH", "CONTROLLER")

@@ -47,12 +47,16 @@ def test_table_json_lists_every_packet_and_field(capsys):
     assert {n["name"]: n["address"] for n in doc["nodes"]} == core.NODE
 
 
-def test_dbc_file_written_and_loadable(capsys, tmp_path):
+def test_dbc_file_written_and_loadable(capsys, tmp_path, monkeypatch):
     path = tmp_path / "p.dbc"
     rc, _, _ = fps(capsys, "dbc", "-o", str(path))
     assert rc == 0 and [p.name for p in tmp_path.iterdir()] == ["p.dbc"]   # no temp file left behind
     db = cantools.database.load_file(str(path))
     assert len(db.messages) == sum(1 for p in core.PACKET if canmap.is_single(p))
+    monkeypatch.chdir(tmp_path)
+    rc, out, _ = fps(capsys, "dbc", "-o", "-")            # standard output, not a file named '-'
+    assert rc == 0 and not os.path.exists("-")
+    assert len(cantools.database.load_string(out, "dbc").messages) == len(db.messages)
 
 
 def test_encode_serial_matches_library_and_decodes_back(capsys, tmp_path):

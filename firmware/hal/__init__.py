@@ -20,7 +20,7 @@ Backends, imported lazily by name so a missing module breaks only its own backen
 
 
 def backend(name):
-    """The backend module ``firmware.hal.<name>`` (board, link, inproc)."""
+    """The backend module ``firmware.hal.<name>`` (board, link, inproc, slcan)."""
     if name == "board":
         from firmware.hal import board as m
     elif name == "link":

@@ -12,7 +12,8 @@ Adapter side of Lawicel, as a CANable/USBtin answers (``\\r`` = OK, ``\\a`` = er
 transmit (answered ``Z``/``z``, or ``\\a`` when closed or malformed). Received frames go out as ``T`` lines.
 
 The fd (a pty master, non-blocking) is read with ``select.poll`` and ``readinto`` into a preallocated buffer;
-lines are parsed in place (hex digits decoded by table), T lines are written from one preallocated buffer.
+lines are parsed in place (hex digits decoded arithmetically, ``_hexval``), T lines are written from one
+preallocated buffer.
 """
 
 import select

@@ -16,10 +16,9 @@ workers at 1.4x the in-process time where two plain processes gave 2x.
 
 A run is a pure function of its seed (``fn`` must draw all its randomness from ``seed``), so it gives the same
 result whichever worker runs it. A run that raises is returned as ``{"seed": s, "error": "message"}`` and the
-others go on. A local worker process that dies (the out-of-memory killer, a crash) breaks its pool, which fails
-every run it holds: those in the workers or queued for them then run again one at a time, each in a fresh
-process, so that only a run that kills its process again becomes an error record, and the others go on in a new
-pool. (A Dask cluster reschedules a dead worker's runs itself.) Ctrl-C cancels the outstanding futures, stops
+others go on. A local worker process that dies (the out-of-memory killer, a crash) breaks the pool: the runs
+not finished become error records (``LOST_RUN``), the finished ones are kept, and the campaign returns. Local
+runs are not retried; a Dask cluster retries a dead worker's runs itself. Ctrl-C cancels the outstanding futures, stops
 the local workers (a run they were in is lost; those that finished have their folders) and re-raises
 KeyboardInterrupt (the caller writes ``complete: false``).
 """
@@ -158,6 +157,11 @@ def _local_pool(workers):
     return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(method), initializer=_ignore_sigint)
 
 
+LOST_RUN = ("BrokenProcessPool: a local worker process died (killed, e.g. by the out-of-memory killer, or crashed) "
+            "before this run ended; local runs are not retried: run the seed again, or on a Dask cluster "
+            "(--scheduler), which retries a dead worker's runs")
+
+
 def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=True, desc="runs", **kwargs):
     """Run ``fn`` once per seed (see the module docstring); returns the list of result dicts in seed order."""
     seeds = [int(s) for s in seeds]
@@ -179,25 +183,16 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
                 out[i] = _call(fn, s, d, kwargs)
                 bar.update(1)
             return out
-        todo = list(range(len(seeds)))
-        while todo:
-            lost = _drain(_local_pool(workers), todo, out, fn, seeds, dirs, kwargs, bar, local=True)
-            # The pool hands out runs in submission order and queues workers + 1 beyond those running, so the
-            # dead worker's run is among the first 2 workers + 2 lost (if not, the next pool breaks: each round
-            # settles at least one run). Each of those runs alone.
-            for i in lost[:2 * workers + 2]:
-                if _drain(_local_pool(1), [i], out, fn, seeds, dirs, kwargs, bar, local=True):
-                    out[i] = {"seed": seeds[i], "error": "its worker process died running it (killed, e.g. by the "
-                                                         "out-of-memory killer, or crashed)"}
-                    bar.update(1)
-            todo = [i for i in lost if out[i] is None]
+        for i in _drain(_local_pool(workers), range(len(seeds)), out, fn, seeds, dirs, kwargs, bar, local=True):
+            out[i] = {"seed": seeds[i], "error": LOST_RUN}
+            bar.update(1)
     return out
 
 
 def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False):
     """Submit runs ``todo`` to ``pool``, put their results in ``out`` as they come and shut the pool down.
     Returns, in submission order, the runs a local pool lost when one of its worker processes died (the
-    pool breaks and fails every run it holds). Ctrl-C cancels the rest, stops a local pool's workers (a run they
+    pool breaks and fails every run not finished). Ctrl-C cancels the rest, stops a local pool's workers (a run they
     were in is lost; those that finished have their folders) and re-raises."""
     import multiprocessing
     from concurrent.futures import as_completed

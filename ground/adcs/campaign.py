@@ -192,8 +192,8 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
 def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False):
     """Submit runs ``todo`` to ``pool``, put their results in ``out`` as they come and shut the pool down.
     Returns, in submission order, the runs a local pool lost when one of its worker processes died (the
-    pool breaks and fails every run not finished). Ctrl-C cancels the rest, stops a local pool's workers (a run they
-    were in is lost; those that finished have their folders) and re-raises."""
+    pool breaks and fails every run not finished). Ctrl-C cancels the rest, stops a local pool's workers (a
+    run they were in is lost; those that finished have their folders) and re-raises."""
     import multiprocessing
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool

@@ -27,7 +27,7 @@ from collections import deque
 
 import numpy as np
 
-from protocol import core
+from protocol import can, core
 
 
 class HoldPlayer:
@@ -362,7 +362,7 @@ class RemoteController:
             c = self.link.counters()
         except AttributeError:
             return 0
-        return sum(c.get(r, 0) for r in core.DROP_REASONS)
+        return can.rx_drops(c, can.LINK_DROPS)
 
     def _activity(self):
         try:

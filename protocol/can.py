@@ -36,6 +36,7 @@ DEFAULT_PRIORITY = 5
 
 DROP_REASONS = ("not_extended", "reserved_bit", "unknown_id", "bad_length") + isotp.ERRORS
 RX_DROPS = tuple(set(DROP_REASONS))     # bad_length is a frame's and an ISO-TP transfer's reason: one counter
+LINK_DROPS = tuple(set(core.DROP_REASONS + RX_DROPS))   # a serial link's decoder or a CAN link's, each once
 
 
 def rx_drops(counters, reasons=RX_DROPS):

@@ -126,11 +126,16 @@ def test_player_running_short_holds_the_last_code():
             ybuf[:m] = array("H", [30000] * m)
             return m
     b = Bench(ZERO_LATENCY, noise=False)
+    loaded, load = [], b.load_pfsm
+
+    def load_pfsm(xa, ya, counts):          # what the P-FSM is given to play: the player's 30, then held
+        loaded.append((np.array(xa), np.array(ya)))
+        return load(xa, ya, counts)
+    b.load_pfsm = load_pfsm
     lock = Lockstep(b, Integral(b.config), Short(), block_ticks=4)
     lock.run(n_ticks=400)
-    assert lock.counters()["player_short_blocks"] == 100
-    b.settle((b.pfsm.code_to_v(40000), b.pfsm.code_to_v(30000)))   # rest value equals the held codes
-    assert b.counters()["pfsm_code_clips"] == 0
+    assert lock.counters()["player_short_blocks"] == 100 and len(loaded) == 100
+    assert all(len(x) > 30 and set(x.tolist()) == {40000} and set(y.tolist()) == {30000} for x, y in loaded)
 
 
 def test_realtime_slow_controller_overruns():

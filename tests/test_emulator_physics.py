@@ -105,8 +105,13 @@ def test_ad5664r_words_voltage_angle():
         ax, ay, clipped = mems.static_angle(tvx, tvy)
         assert not clipped
         assert ax == pytest.approx(0.5 * DEG * tvx) and ay == pytest.approx(0.5 * DEG * tvy)
-    # one differential code is the thesis's 0.137 arcsec resolution
-    assert 0.5 * 2.5 / 32768 * 3600 == pytest.approx(2.5 * 3600 / 65536)
+    # one differential code (X+ up one, X- down one) is the thesis's 0.137 arcsec resolution (2.5 deg / 2^16)
+    angles = []
+    for vx in (0.0, 2.5 / 32768, 2 * 2.5 / 32768):
+        for w in fsm_words(vx, 0.0, cfg):
+            dac.write(w)
+        angles.append(mems.static_angle(*mems.tilt_v(dac.outputs()))[0] / DEG * 3600)
+    assert np.diff(angles) == pytest.approx([0.137, 0.137], abs=5e-4)
 
 
 def test_ad5664r_matches_the_firmware_mapping():

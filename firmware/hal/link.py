@@ -23,7 +23,6 @@ _TICK_FMT = core.PACKET[P_TICK].fmt
 _SPI_FMT = core.PACKET[P_FSM_SPI].fmt
 _SPI_SIZE = core.PACKET[P_FSM_SPI].size
 _MICROPYTHON = sys.implementation.name == "micropython"
-_DROPS = tuple(set(core.DROP_REASONS + can.RX_DROPS))   # a serial link's decoder or a CAN link's, each once
 
 
 class _Ms:
@@ -144,7 +143,7 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 if ctl.status_due_at(tick):   # to the HIL host that clocks us (on CAN, ISO-TP to an absent
                     if counters is not None:  # node would block)
                         d = counters()
-                        ctl.n_rx_drop = can.rx_drops(d, _DROPS) + bad_ticks
+                        ctl.n_rx_drop = can.rx_drops(d, can.LINK_DROPS) + bad_ticks
                     status = ctl.status_payload(tick)
                     status_tick = tick
                     link.send_raw(P_STATUS, me, src, status)

@@ -6,6 +6,7 @@ format of ``protocol.distfile``. Samples the P-FSM cannot play are refused: the 
 13.33 theta_e (Eq. 7.7) within +-3 deg mechanical (+-10 V, Eq. 7.8), so |theta_e| <= 810.2 arcsec.
 """
 
+import argparse
 import math
 import os
 import sys
@@ -113,12 +114,12 @@ def stats(x, y):
 
 
 def _cmd_generate(a):
+    check_source_options(a)
     inputs = [("--csv", getattr(a, "csv_path", None)), ("--params", getattr(a, "params", None))]
     for path in (a.output, a.output + ".json", a.output + ".jitter.json"):     # the file and its sidecars
         check_not_input(path, inputs)
         if os.path.isdir(path):
             raise ValueError("-o %s: %s is a folder, where the distfile or its sidecar goes" % (a.output, path))
-    check_source_options(a)
     src = sources.get_source(a.source).from_args(a)
     if a.source == "csv" and a.seed_given:
         raise ValueError("--seed: the csv source takes no seed (its samples are the file's); leave --seed out")
@@ -221,14 +222,17 @@ def _cmd_csv(a):
 
 
 class _Group:
-    """An argument group that keeps the options a source adds to it."""
+    """An argument group that keeps the options a source adds to it, each without a parsed default, so that
+    ``check_source_options`` sees which were given (it then puts the defaults in)."""
 
     def __init__(self, group):
         self.group, self.actions = group, []
 
     def add_argument(self, *args, **kw):
+        default = kw.get("default", {"store_true": False, "store_false": True}.get(kw.get("action")))
+        kw["default"] = argparse.SUPPRESS
         act = self.group.add_argument(*args, **kw)
-        self.actions.append(act)
+        self.actions.append((act, default))
         return act
 
 
@@ -239,19 +243,25 @@ def source_options(parser):
     for name, cls in sources.SOURCES.items():
         grp = _Group(parser.add_argument_group("--source %s" % name))
         cls.add_arguments(grp)
-        out[name] = [(act.option_strings[-1], act.dest, act.default) for act in grp.actions]
+        out[name] = [(act.option_strings[-1], act.dest, default) for act, default in grp.actions]
     return out
 
 
 def check_source_options(a):
-    """A source's option given with another source (``--ts 40`` without ``--source bps``: a stat file would be
-    written, as if --ts had been taken) is a ValueError naming it. A source's ``bases(a)`` names the other
-    sources whose options it uses (the jitter's --jitter-base)."""
+    """Put in the defaults of the sources' options not given, and refuse (ValueError naming it) one given with
+    another source (``--ts 33`` without ``--source bps``: a stat file would be written, as if --ts had been
+    taken). A source's ``bases(a)`` names the other sources whose options it uses (the jitter's
+    --jitter-base)."""
+    given = set(vars(a))
+    for opts in a.source_options.values():
+        for flag, dest, default in opts:
+            if dest not in given:
+                setattr(a, dest, default)
     cls = sources.get_source(a.source)
     used = {a.source} | set(cls.bases(a) if hasattr(cls, "bases") else ())
     for name, opts in a.source_options.items():
         for flag, dest, default in opts:
-            if name not in used and getattr(a, dest, default) != default:
+            if name not in used and dest in given:
                 raise ValueError("%s is an option of --source %s, which this run does not use (--source %s%s): "
                                  "leave it out, or give --source %s" % (flag, name, a.source, "".join(
                                      " --jitter-base %s" % b for b in sorted(used - {a.source})), name))

@@ -447,7 +447,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     params = bps.load_params(params_path)[-1] if params_path else None
     duration_s = float(duration_s)
     t_settle = settle_s(ts)
-    run_folder(out_dir, (FIGURE,))
+    run_folder(out_dir, hil.FIGURES + (FIGURE,))           # the fine loop's figures are hil's
     rec = hil.Recorder(out_dir)
     summary = hil.new_summary(duration_s)
     summary.update({"adcs": adcs, "runtime": runtime_name, "goal_real_time_factor": GOAL_RTF,

@@ -44,12 +44,13 @@ def test_local_processes_match_in_process(tmp_path):
 def test_a_dead_local_worker_ends_the_campaign_with_error_records_not_a_hang(tmp_path):
     """A worker process that dies breaks the pool: the runs not finished become error records saying so (and
     what to do), the finished ones are kept, and the campaign returns."""
-    res = campaign.run_campaign(draw, [1, 2, 3, 4], tmp_path, workers=2, progress=False, die_on=1)
-    assert [r["seed"] for r in res] == [1, 2, 3, 4]
-    assert res[0]["error"] == campaign.LOST_RUN and "--scheduler" in res[0]["error"]
-    for r in res[1:]:
-        assert ("x" in r and r["x"] == np.random.default_rng(r["seed"]).normal(size=3).tolist()) or \
-            r["error"] == campaign.LOST_RUN
+    seeds = [1, 2, 3, 4, 5, 6]
+    res = campaign.run_campaign(draw, seeds, tmp_path, workers=2, progress=False, die_on=6)
+    assert [r["seed"] for r in res] == seeds
+    assert res[5]["error"] == campaign.LOST_RUN and "--scheduler" in res[5]["error"]
+    kept = [r for r in res if "x" in r]
+    assert kept and all(r["x"] == np.random.default_rng(r["seed"]).normal(size=3).tolist() for r in kept)
+    assert all("x" in r or r["error"] == campaign.LOST_RUN for r in res)
 
 
 def test_dask_scheduler_address(tmp_path):

@@ -48,7 +48,12 @@ def test_hpop_truth_is_cached_atomically(tmp_path):
     t1, x1 = orbits.truth_samples("hpop", 60.0, cache_dir=str(tmp_path))
     files = os.listdir(tmp_path / "truth_cache")
     assert len(files) == 1 and files[0].endswith(".npz")
-    t2, x2 = orbits.truth_samples("hpop", 60.0, cache_dir=str(tmp_path))
+    real = orbits.hpop
+    orbits.hpop = None                                  # the second call must read the cache, not propagate
+    try:
+        t2, x2 = orbits.truth_samples("hpop", 60.0, cache_dir=str(tmp_path))
+    finally:
+        orbits.hpop = real
     np.testing.assert_array_equal(x1, x2)
     _, xk = orbits.truth_samples("two-body", 60.0)
     d = np.linalg.norm(x1[-1, 0, :3] - xk[-1, 0, :3])

@@ -191,7 +191,6 @@ def _remote_run(link, peer_recv, peer_send, ticks):
 
 
 def test_physics_does_not_depend_on_the_transport():
-    pytest.importorskip("protocol.link")
     from protocol.link import inproc_pair, open_link
     from protocol.stream import StreamLink
     ticks = 150
@@ -226,7 +225,6 @@ def test_physics_does_not_depend_on_the_transport():
 
 
 def test_remote_timeout_is_an_overrun_and_late_answers_are_dropped():
-    pytest.importorskip("protocol.link")
     from protocol.link import inproc_pair
     a, peer = inproc_pair("BENCH", "CONTROLLER")
     b = Bench(ZERO_LATENCY, seed=1)
@@ -248,7 +246,6 @@ def test_remote_timeout_is_an_overrun_and_late_answers_are_dropped():
 
 @pytest.mark.parametrize("link", ["serial", "can"])
 def test_serve_cli_over_a_pty(tmp_path, link):
-    pytest.importorskip("protocol.link")
     from protocol.link import open_link
     from protocol.stream import StreamLink
     env = dict(os.environ, PYTHONPATH=os.getcwd())

@@ -15,8 +15,7 @@ import pytest
 
 from protocol import core
 
-pytest.importorskip("serial")
-link_mod = pytest.importorskip("protocol.link")
+from protocol import link as link_mod
 
 ADCS = core.NODE["ADCS"]
 RW = [core.NODE["RW%d" % i] for i in range(4)]

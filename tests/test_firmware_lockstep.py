@@ -9,15 +9,13 @@ import sys
 
 import pytest
 
-lockstep = pytest.importorskip("emulator.lockstep")
-bench_mod = pytest.importorskip("emulator.bench")
-truth = pytest.importorskip("emulator.truth")
-hostlink = pytest.importorskip("protocol.link")
-
-from firmware.controller import TRACK, Controller  # noqa: E402
-from firmware.player import Player  # noqa: E402
-from protocol import core, distfile, htable  # noqa: E402
-from tests.test_firmware_mp import MICROPYTHON, ROOT  # noqa: E402
+from emulator import bench as bench_mod
+from emulator import lockstep, truth
+from firmware.controller import TRACK, Controller
+from firmware.player import Player
+from protocol import core, distfile, htable
+from protocol import link as hostlink
+from tests.test_firmware_mp import MICROPYTHON, ROOT
 
 SECONDS = 10.0
 SEED = 11
@@ -137,9 +135,6 @@ def test_micropython_subprocess_over_pty_bit_identical(setup, reference):
 
 def test_cpython_subprocess_over_slcan_bit_identical(setup, reference):
     """CAN: python-can's slcan adapter on a pty, ISO-TP for the multi-frame packets (about 18 s of wall time)."""
-    try:
-        link = hostlink.open_link("slcan-pty", "BENCH")
-    except (ImportError, OSError, ValueError) as exc:
-        pytest.skip("slcan device side unavailable: %s" % exc)
+    link = hostlink.open_link("slcan-pty", "BENCH")
     rec, res, statuses = _remote(setup, [sys.executable], link, scheme="slcan")
     _check_remote(reference, rec, statuses)

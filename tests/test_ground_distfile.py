@@ -128,6 +128,7 @@ def test_refuses_malformed_distfiles(tmp_path, capsys):
 
 @pytest.mark.parametrize("args, flag, owner", [
     (["--ts", "40"], "--ts", "bps"),                              # --source bps forgotten: a stat file was written
+    (["--source", "stat", "--ts", "33"], "--ts", "bps"),          # given, though at bps's default
     (["--satb-gnss"], "--satb-gnss", "bps"),
     (["--source", "sine", "--stat-scale", "2"], "--stat-scale", "stat"),
     (["--source", "jitter", "--stat-scale", "2"], "--stat-scale", "stat"),   # without --jitter-base stat

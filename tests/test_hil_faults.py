@@ -10,7 +10,6 @@ import os
 import re
 import subprocess
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -190,13 +189,18 @@ def test_realtime_answers_are_due_within_one_period_in_process_too():
 def test_remote_controller_resends_and_gives_up_on_a_dead_link():
     from protocol.link import inproc_pair
     a, b = inproc_pair("BENCH", "CONTROLLER")
+    waits, recv = [], a.recv
+
+    def timed_recv(timeout=None):            # the waits asked of the link: the tries', not the 10 s bound
+        waits.append(timeout)
+        return recv(timeout=timeout)
+    a.recv = timed_recv
     rc = RemoteController(a, timeout_s=10.0, try_timeout_s=0.001, tries=4, max_failed_ticks=3)
     lock = Lockstep(Bench(seed=1), rc)
     from emulator.lockstep import LinkFailure
-    t0 = time.perf_counter()
     with pytest.raises(LinkFailure, match="3 consecutive ticks"):
         lock.run(n_ticks=10)
-    assert time.perf_counter() - t0 < 2.0
+    assert waits and max(waits) <= 0.008 + 1e-9                 # 1, 2, 4, 8 ms: doubled at each resend
     assert rc.n_timeout == 3 and rc.n_resent == 3                # 4 sends on the first tick, 1 on each next
     assert len([p for p in b.recv(timeout=0.5) if p[0] == core.PACKET_ID["TICK"]]) == 6
     a.close()
@@ -227,13 +231,11 @@ def test_faults_cost_time_not_correctness(tmp_path, inputs, clean):
 
 
 def test_heavy_faults_stop_with_a_clear_error(tmp_path, inputs, capsys):
-    t0 = time.perf_counter()
     rc, out, s = _hil(tmp_path, inputs, "heavy", "--link-faults", "bytes=0.05,frames=0.20,seed=1")
     err = capsys.readouterr().err
-    assert time.perf_counter() - t0 < 60.0
     if rc == 0:                            # it may complete: then it must be exact (not with this seed today)
         pytest.fail("completed under heavy faults: compare it bit for bit before accepting")
-    assert rc == 1 and s["complete"] is False and s["requirement_met"] is False
+    assert rc == 1 and s["complete"] is False and s["requirement_met"] is False and s["duration_s"] < 3.0
     assert "micropython over serial" in s["error"] and "bench counters" in s["error"]
     assert "Traceback" not in err and "fps hil: error:" in err
     assert s["link"]["bench"]["command_retries"] > 0 or s["link"]["bench"].get("controller_resent", 0) > 0
@@ -251,14 +253,12 @@ def test_a_silence_is_ridden_through_and_a_permanent_one_ends_the_run(tmp_path, 
     assert s["overruns"] == bench["controller_timeouts"]
     assert 1276 <= s["overruns"] <= 1276 + bench["controller_late"], (s["overruns"], bench["controller_late"])
     assert rc == (0 if s["requirement_met"] else 3)
-    t0 = time.perf_counter()
     rc, out, s = _hil(tmp_path, inputs, "dead", "--link-faults", "silence=1:inf", "--max-failed-ticks", "500",
                       duration="4")
-    assert time.perf_counter() - t0 < 60.0
     assert rc == 1 and not s["complete"] and "500 consecutive ticks" in s["error"]
     z = np.load(out / "samples.npz")
     assert len(z["t_s"]) >= 630 and z["t_s"][-1] >= 1.0        # what was played before the stop is kept
-    assert s["duration_s"] > 1.0
+    assert 1.0 < s["duration_s"] < 1.0 + 600 / 637.8              # stopped at the 500th failed tick, not at 4 s
 
 
 def test_calibration_under_faults_gives_the_same_h(tmp_path):
@@ -298,6 +298,7 @@ def test_a_board_on_a_serial_port_in_lockstep_and_in_real_time(tmp_path, inputs,
     # the same board again (a new session: its tick numbers start over), paced by the wall clock
     rc = fps(base + ["--duration", "1", "--realtime", "-o", str(tmp_path / "rt")])
     s = json.loads((tmp_path / "rt" / "summary.json").read_text())
-    assert s["complete"] and rc in (0, 3) and s["overruns"] >= 0 and s["duration_s"] == pytest.approx(1.0, abs=0.01)
+    assert s["complete"] and rc == (0 if s["requirement_met"] else 3)
+    assert s["duration_s"] == pytest.approx(1.0, abs=0.01) and s["overruns"] < 638     # 638 ticks in 1 s
     assert fps(["hil", "--distfile", dist, "--calibration", cal, "--runtime", "board", "-o",
                 str(tmp_path / "x")]) == 2                                   # no --port: bad input

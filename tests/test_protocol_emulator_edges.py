@@ -242,7 +242,6 @@ def test_bench_serve_ends_on_a_controller_that_stops_answering(tmp_path, monkeyp
     the pty filled; --max-failed-ticks consecutive overruns now end the run as a dead link (exit 1), with
     the partial summary."""
     import threading
-    import time
 
     import protocol.link
     from protocol import core
@@ -269,16 +268,15 @@ def test_bench_serve_ends_on_a_controller_that_stops_answering(tmp_path, monkeyp
         return link
     monkeypatch.setattr(protocol.link, "open_link", open_link)
     out = tmp_path / "serve.json"
-    t0 = time.monotonic()
     try:
         rc = fps(["emulator", "serve", "--duration", "600", "--deadline", "0.2", "--max-failed-ticks", "5",
                   "--wait", "5", "-o", str(out)])
     finally:
         hang.set()
-    assert rc == 1 and time.monotonic() - t0 < 20
+    assert rc == 1
     assert "5 consecutive ticks" in capsys.readouterr().err
     d = json.loads(out.read_text())
-    assert d["complete"] is False and "link is down" in d["error"] and d["counters"]["ticks"] >= 24
+    assert d["complete"] is False and "link is down" in d["error"] and 24 <= d["counters"]["ticks"] <= 30   # 20 answered, 5 failed
     assert fps(["emulator", "serve", "--max-failed-ticks", "0"]) == 2
 
 

@@ -152,7 +152,7 @@ def _collect(link, n, timeout=2.0):
 
 
 def test_rw_devices_over_inproc_link():
-    link = pytest.importorskip("protocol.link")
+    from protocol import link
     ground, device = link.inproc_pair("ADCS", "SPACECRAFT")
     sc, dev = _devices()
     for i in range(4):
@@ -172,8 +172,7 @@ def test_rw_devices_over_inproc_link():
 
 
 def test_rw_devices_over_virtual_can():
-    pytest.importorskip("can")
-    link = pytest.importorskip("protocol.link")
+    from protocol import link
     chan = "fps-rw-%d" % os.getpid()
     adcs = link.open_link("can:virtual:" + chan, "ADCS")
     wheels = [link.open_link("can:virtual:" + chan, "RW%d" % i) for i in range(4)]   # one node per wheel

@@ -48,8 +48,7 @@ def test_system_ground_run_writes_a_complete_folder(tmp_path, params_file, input
     assert s["body_pointing"]["samples"] == 61                           # 10 Hz over [settle, settle + 6 s]
     for k in ("std_arcsec", "max_radial_arcsec", "within_requirement", "pointing_loss_db"):
         assert s["q2"][k] is not None
-    assert 0.0 <= s["q2"]["within_requirement"] <= 1.0
-    assert s["real_time_factor"] > 0 and s["wall_s"] > 0
+    assert s["requirement_met"] == (s["q2"]["within_requirement"] == 1.0)
     # --adcs ground: the live slices reproduce bps.simulate's own figures over the same window
     ref = s["ground_reference"]
     for k in ("pointing_3sigma_arcsec", "stability_3sigma_arcsec_s"):

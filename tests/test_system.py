@@ -37,6 +37,18 @@ def _args(out, params_file, cal, duration="6", *extra):
             "-o", str(out)] + list(extra)
 
 
+def test_a_reused_system_folder_keeps_no_earlier_figures(tmp_path, params_file, inputs):
+    """fps system writes fps hil's figures beside its own: a --no-plots run in the folder removes all three."""
+    from ground import hil
+    out = tmp_path / "run"
+    out.mkdir()
+    names = list(hil.FIGURES) + [system.FIGURE]
+    for n in names:
+        (out / n).write_bytes(b"an earlier run's")
+    assert fps(_args(out, params_file, inputs[1], "2", "--no-plots")) in (0, 3)
+    assert not [n for n in names if (out / n).exists()]
+
+
 def test_system_ground_run_writes_a_complete_folder(tmp_path, params_file, inputs, capsys):
     out = tmp_path / "run"
     rc = fps(_args(out, params_file, inputs[1]))

@@ -1,5 +1,6 @@
 """The controller with its common tick (TRACK, beam present, no saturation; a command that leaves the cached
-g H^-1 bin included) compiled by MicroPython's viper emitter to machine code. MicroPython only; the .mpy needs ``mpy-cross -march``.
+g H^-1 bin included) compiled by MicroPython's viper emitter to machine code. MicroPython only; the .mpy needs
+``mpy-cross -march``.
 
 Same law, same integers, same order of operations as ``Controller.step`` (firmware/controller.py, Eq. 7.4,
 7.12, 7.13), so the codes are identical (tests/mp/firmware_viper.py checks it over long runs). The state is

@@ -91,6 +91,24 @@ def test_a_reused_campaign_folder_keeps_no_earlier_campaigns_runs(tmp_path, caps
         assert json.load(f)["seed"] == 7
 
 
+def test_interrupted_while_clearing_an_earlier_campaign_the_folder_says_incomplete(tmp_path, monkeypatch):
+    """Ctrl-C while the earlier campaign's runs are being removed: its summary (complete) is already replaced
+    by this campaign's (complete false), so the folder never claims a campaign it no longer holds."""
+    import shutil
+
+    from ground.adcs import campaign
+    out = tmp_path / "c"
+    (out / "run_0000").mkdir(parents=True)
+    (out / "summary.json").write_text('{"complete": true, "runs": 20}')
+
+    def interrupted(path):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(shutil, "rmtree", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        campaign.campaign_folder(str(out), (), {"complete": False, "runs": 0})
+    assert _summary(out) == {"complete": False, "runs": 0}
+
+
 @pytest.mark.parametrize("command", ["apkf", "mekf", "stkf", "sweep"])
 def test_workers_and_scheduler_together_are_refused(tmp_path, capsys, command):
     """--workers W | --scheduler ADDR (issue 9): one of them, not both (--workers was ignored)."""

@@ -287,9 +287,8 @@ def _cmd_sweep(a):
     params = bps.load_params(a.params)[-1] if a.params else None
     out = a.output
     campaign.check_scheduler(a.scheduler)
-    campaign.campaign_folder(out, (FIGURE_SWEEP,))
     satb = not a.no_satb_gnss
-    write_json(os.path.join(out, "summary.json"), sweep_summary(ts_list, [None] * len(ts_list), False, satb))
+    campaign.campaign_folder(out, (FIGURE_SWEEP,), sweep_summary(ts_list, [None] * len(ts_list), False, satb))
     t0 = time.perf_counter()
     complete = True
     try:

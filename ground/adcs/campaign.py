@@ -29,7 +29,7 @@ import shutil
 import sys
 
 from emulator.runtime import check_seed  # noqa: F401  (the campaigns' first seed, as every fps command's)
-from ground.fileio import run_folder
+from ground.fileio import run_folder, write_json
 
 CONNECT_TIMEOUT_S = 3.0
 
@@ -76,12 +76,14 @@ def run_dir_for(out_dir, i):
 RUN_DIR = re.compile(r"run_[0-9]{4}$")
 
 
-def campaign_folder(path, figures=()):
+def campaign_folder(path, figures, summary):
     """Make the campaign folder ``path``, or reuse it without what an earlier campaign left there: its
     ``figures`` (``ground.fileio.run_folder``) and its ``run_NNNN`` folders. Every run in the folder is then this
     campaign's, so an interrupted campaign collects only its own, and no run beyond ``--runs`` stays beside the
-    new summary. Returns ``path``."""
+    new summary. ``summary`` (this campaign's, ``complete`` false) is written first, so a folder interrupted
+    while the old runs go says so. Returns ``path``."""
     run_folder(path, figures)
+    write_json(os.path.join(str(path), "summary.json"), summary)
     for name in os.listdir(str(path)):
         p = os.path.join(str(path), name)
         if RUN_DIR.match(name) and os.path.isdir(p) and not os.path.islink(p):

@@ -47,10 +47,9 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     out = a.output
     campaign.check_scheduler(a.scheduler)
     from ground.adcs import report
-    campaign.campaign_folder(out, report.FIGURES)
     seeds = [a.seed + i for i in range(n)]
-    summary = {"filter": name, "case": case, "runs": 0, "complete": False, "seeds": seeds}
-    write_json(os.path.join(out, "summary.json"), summary)
+    campaign.campaign_folder(out, report.FIGURES, {"filter": name, "case": case, "runs": 0, "complete": False,
+                                                   "seeds": seeds})
     write_json(os.path.join(out, "config.json"), {"filter": name, "case": case, "runs": n, "seed": a.seed,
                                                   "workers": a.workers, "scheduler": a.scheduler, "params": params})
     interrupted = False

@@ -35,11 +35,10 @@ def _cmd(a):
                          "(1 s): delayed measurements would be refused" % a.lag)
     out = a.output
     campaign.check_scheduler(a.scheduler)
-    campaign.campaign_folder(out, stkf_sim.FIGURES)
     args_text = "fps adcs stkf " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "fps adcs stkf"
     summary = stkf_sim.aggregate([], runs, False)
     summary.update(case=a.case, truth=a.truth, duration_s=a.duration)
-    write_json(os.path.join(out, "summary.json"), summary)
+    campaign.campaign_folder(out, stkf_sim.FIGURES, summary)
     t0 = time.perf_counter()
     if a.truth == "hpop":  # make the cache once, before the workers read it
         from emulator import orbits

@@ -8,9 +8,7 @@ pointing the lean flight filters leave on a 600 s session beside the ground filt
 - Pointing: ``ground.adcs.bps.pointing_errors`` on the session's 10 Hz truth after 30 s + 4 t_s (Eq. 6.12-6.21),
   beside ``ground.adcs.bps.simulate`` (41-state APKF, full STKF/EAFLS, numpy) on the same spacecraft, sensors
   and seed for the same span (the issue's goal: lean within 25 %), both from the parameter file of the nine
-  calibration sets (``fps adcs bps``'s calibration, cached in out/bps_cache). (The perfect-calibration file,
-  ``truth_params``, has P = 1e-12 on every parameter, a 1σ of 1e-6 kg m² on Jrw ~ 3e-6: the ground run on
-  it loses the attitude, 3σ ~5×10⁵″; with the calibrated P it does not.)
+  calibration sets (``fps adcs bps``'s calibration, cached in out/bps_cache).
 - Instructions: the session's sensor bursts replayed through ``firmware/adcs/app.py`` (tests/mp/
   firmware_adcs_app.py) under ``valgrind --tool=callgrind``, cycles [0, 110) and [0, 210) differenced:
   100 pointing cycles (goal <= 10 M per cycle; a 20-cycle window catches or misses a full collection of the

@@ -12,9 +12,10 @@ output, rate zero:
 - ground: ground/adcs/apkf.py (41 states, the parameters estimated on, wheel speeds as states).
 The pointing RMS on three more seeds; a diagnostic table runs them on the same truth with noise-free
 tachometer read-outs.
-Figures over t >= 300 s: attitude and rate error 1 sigma per axis (truth minus estimate), and the pointing
-error of the laser axis (body x): the angle about the two axes perpendicular to it, sqrt(e_y^2 + e_z^2), RMS
-and 3 sigma (RMS x 3). The issue's goal: the lean filter within 25 % of the ground filter's pointing figures.
+Figures over t >= 300 s: attitude (truth minus estimate) and rate (estimate minus truth) error 1 sigma per axis,
+and the pointing error of the laser axis (body x): the angle about the two axes perpendicular to it,
+sqrt(e_y^2 + e_z^2), RMS and 3 sigma (RMS x 3). The issue's goal: the lean filter within 25 % of the ground
+filter's pointing figures.
 
 Heap: gc.mem_alloc() before and after each cycle under micropython (gc off in the cycle), 30 s.
 Instructions: ``valgrind --tool=callgrind`` on micropython over 5 and 25 cycles, differenced (includes the

@@ -2,9 +2,11 @@
 the player's cost per P-FSM update, the HIL round trip over a pty, and the .mpy sizes.
 
 The Q1 samples come from a 10 s in-process lockstep run of the controller against the emulated bench (the
-truth H field as calibration, a disturbance with the thesis's body-pointing rates, ~8 arcsec/s 1 sigma);
-replaying them through a fresh controller reproduces that run's commands exactly (the law is deterministic),
-so the timed loop does the work of a closed loop. "Worst case" re-evaluates g H^-1 every tick (the command
+truth H field as calibration, a disturbance of slow swings at about the thesis's body-pointing rates, 7-13
+arcsec/s 1 sigma, plus 17 and 23 Hz jitter: 60-100 arcsec/s 1 sigma in all);
+replaying them through a fresh controller (row 0 its init tick, as in the run) reproduces that run's commands
+exactly (the law is deterministic), so the timed loop does the work of a closed loop; a loop longer than the
+6378 samples starts over at row 0, as a control step. "Worst case" re-evaluates g H^-1 every tick (the command
 changing its 64-code bin every tick); the realistic stream changes bin on the share of ticks printed. "Heap locked"
 is how the firmware runs the step (Controller.tick, the link HAL): MicroPython then keeps the step's large call
 frame on the C stack; unlocked, the unix port borrows a heap block for it on every call (freed on return).
@@ -22,7 +24,7 @@ import sys
 import tempfile
 import time
 
-from bench import mp
+from bench import mp, verdict
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MICROPYTHON = os.path.join(os.path.dirname(sys.executable), "micropython")
@@ -43,7 +45,7 @@ class Harness(Controller):
 def run(c, src, n, worst):
     # the firmware's own calling pattern (ctl.step inside a function: no bound-method object per call)
     m = len(src)
-    i = 0
+    i = 3                       # row 0 was the init tick (main)
     if worst:
         for k in range(n):
             c._s[S_BXQ] = 1 << 29
@@ -71,8 +73,8 @@ def main():
     elif sys.argv[6] == "harness":
         cls = Harness
     c = cls(table=sys.argv[4], safe_ticks=65535)
-    c.step(2048, 2048, 0)
     c.mode = TRACK
+    c.step(src[0], src[1], src[2])      # the recorded run's init tick
     locked = sys.argv[5] == "locked"
     if locked:                  # as Controller.tick and the link HAL run it
         micropython.heap_lock()
@@ -131,7 +133,8 @@ main()
 
 
 def _disturbance(seconds):
-    """Body-pointing-like error: slow swings (~30 arcsec, ~8 arcsec/s 1 sigma) plus 1 arcsec of 23 Hz jitter."""
+    """Body-pointing-like error: slow swings (~30 arcsec, 7-13 arcsec/s 1 sigma) plus ~1 arcsec of 17 and 23 Hz
+    jitter (with it, 60-100 arcsec/s 1 sigma)."""
     from protocol import distfile
     n = int(seconds / 0.008192) + 2
     xs, ys = [], []
@@ -168,8 +171,7 @@ def _prepare(tmp):
     with open(samples, "wb") as f:
         f.write(struct.pack("<%dH" % len(flat), *flat))
     bins = 0
-    c2 = Controller(table=blob)
-    c2.step(2048, 2048, 0)
+    c2 = Controller(table=blob)          # the recorded run again: row 0 is its init tick
     c2.mode = TRACK
     last = None
     for row in q1:
@@ -184,11 +186,11 @@ def _prepare(tmp):
 def _cpython_step(blob, flat, n, worst):
     from firmware.controller import S_BXQ, TRACK, Controller
     c = Controller(table=blob, safe_ticks=65535)
-    c.step(2048, 2048, 0)
     c.mode = TRACK
+    c.step(flat[0], flat[1], flat[2])       # the recorded run's init tick
     m = len(flat)
     step = c.step
-    i = 0
+    i = 3
     t0 = time.perf_counter()
     for _ in range(n):
         if worst:
@@ -306,7 +308,9 @@ def _main(tmp):
             out = _mp(step_py, [20000] + args)
             us = int(out[0]) / 20000
             last[path, case] = out[1:]
-            instr = "%.0f" % _instructions(step_py, args) if have_vg else "valgrind missing"
+            n_instr = _instructions(step_py, args) if have_vg else None
+            instr = "valgrind missing" if n_instr is None else "%.0f%s" % (
+                n_instr, verdict(n_instr, GOAL_INSTR) if path != "harness" else "")
             label = ("harness alone (replay loop and a step that returns at once)" if path == "harness"
                      else "%s, heap %s" % (path, lock))
             print("| MicroPython (unix), %s | %s | %.2f | %.0f | %s | <= %d instructions |"

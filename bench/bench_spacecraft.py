@@ -4,6 +4,7 @@ import time
 
 import numpy as np
 
+from bench import verdict
 from protocol import core
 from emulator.spacecraft import Spacecraft, SpacecraftDevices, WheelParams, Wheels
 from emulator.spacecraft.wheels import RPM
@@ -50,7 +51,9 @@ def main():
     print("| case | step (s) | wall (s) | us per step | real-time factor | goal |")
     print("|---|---|---|---|---|---|")
     for name, dt, wall, n, goal in rows:
-        print("| %s | %g | %.2f | %.0f | %.1fx | %s |" % (name, dt, wall, 1e6 * wall / n, n * dt / wall, goal))
+        rtf = n * dt / wall
+        print("| %s | %g | %.2f | %.0f | %.1fx | %s%s |" % (name, dt, wall, 1e6 * wall / n, rtf, goal,
+                                                            verdict(rtf, 10.0, at_most=False) if goal == GOAL else ""))
 
 
 if __name__ == "__main__":

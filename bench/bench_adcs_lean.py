@@ -40,7 +40,7 @@ import time
 
 import numpy as np
 
-from bench import mp
+from bench import mp, verdict
 
 from firmware.adcs import apkf_lean as L
 from firmware.adcs import linalg
@@ -134,7 +134,7 @@ def main():
         ratio = r["pointing_rms"] / g["pointing_rms"]
         print("| %s | %.1f / %.1f / %.1f | %.1f / %.1f / %.1f | %.1f | %.1f | %.2f%s | %.1f s |" % (
             name, *r["att"], *r["rate"], r["pointing_rms"], r["pointing_3sigma"], ratio,
-            "" if name.startswith("ground") else (" (met)" if ratio <= GOAL_RATIO else " (missed)"), r["wall"]))
+            "" if name.startswith("ground") else verdict(ratio, GOAL_RATIO), r["wall"]))
     print("\nOther seeds (the same scenario, its random draws changed): pointing RMS, arcsec\n")
     print("| seed | ground 41-state | lean | lean/ground | lean, commanded torques | its ratio | "
           "lean, read-out difference | its ratio |")
@@ -145,7 +145,7 @@ def main():
                           figures(*run_lean(sk, momentum="torque"))["pointing_rms"],
                           figures(*run_lean(sk, momentum="tach"))["pointing_rms"])
         print("| %d | %.1f | %.1f | %.2f%s | %.1f | %.2f | %.1f | %.2f |" % (
-            seed, gk, lk, lk / gk, " (met)" if lk / gk <= GOAL_RATIO else " (missed)", uk, uk / gk, tk, tk / gk))
+            seed, gk, lk, lk / gk, verdict(lk / gk, GOAL_RATIO), uk, uk / gk, tk, tk / gk))
     sc0 = scenario(SECONDS, tach_rpm=0.0)
     diag = {"ground 41-state": figures(*run_ground(sc0)),
             "lean": figures(*run_lean(sc0)),

@@ -262,9 +262,8 @@ def check_source_options(a):
     for name, opts in a.source_options.items():
         for flag, dest, default in opts:
             if name not in used and dest in given:
-                raise ValueError("%s is an option of --source %s, which this run does not use (--source %s%s): "
-                                 "leave it out, or give --source %s" % (flag, name, a.source, "".join(
-                                     " --jitter-base %s" % b for b in sorted(used - {a.source})), name))
+                raise ValueError("%s is an option of --source %s, which this run does not use (its sources: %s): "
+                                 "leave it out, or give --source %s" % (flag, name, ", ".join(sorted(used)), name))
 
 
 def _seeded(fn):

@@ -203,7 +203,7 @@ def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=TI
                          "retransmitted by the CAN controller itself")
 
 
-def _pace(rig, realtime, rate_hz):
+def _set_realtime(rig, realtime, rate_hz):
     """``realtime``: ticks paced by the wall clock, each answer due within one period."""
     if realtime:
         rig.lockstep.realtime = True
@@ -229,7 +229,7 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
         rig.runtime_name, rig.link_name = "inproc", "inproc"
         rig.process = None
         rig.faults = None
-        _pace(rig, realtime, rate_hz)
+        _set_realtime(rig, realtime, rate_hz)
         yield rig
         return
     try_s = tick_timeout_ms / 1000.0
@@ -261,7 +261,7 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
         except OSError as exc:
             exc.rig = rig          # the caller reports the link counters of a failed start
             raise
-        _pace(rig, realtime, rate_hz)
+        _set_realtime(rig, realtime, rate_hz)
         yield rig
     finally:
         if proc is not None:

@@ -167,6 +167,8 @@ def _cmd_info(a):
     print("file       %s (%d bytes)" % (a.file, os.path.getsize(a.file)))
     print("version    %d" % d.version)
     print("source     %s, seed %d" % (d.source, d.seed))
+    for line in source_input_lines(a.file, d):
+        print(line)
     print("samples    %d x (x, y) %s, theta_e in arcsec" % (d.count, kind))
     print("period     %d us (%.3f Hz), duration %.3f s" % (d.period_us, 1e6 / d.period_us, d.duration_us() * 1e-6))
     print("           %12s %12s" % ("X", "Y"))
@@ -177,6 +179,27 @@ def _cmd_info(a):
     for line in bandwidth_lines(d):
         print(line)
     return 0
+
+
+def source_input_lines(path, d):
+    """The source's inputs in full from the sidecar ``path``.json that ``generate`` writes beside a bps distfile
+    (the 16-byte header holds ``bps<ts><g|n>`` and the inputs' hash), when the sidecar is this file's; a line
+    saying so when it is missing, unreadable or another file's."""
+    if not d.source.startswith("bps"):
+        return []
+    import json
+    from ground.adcs.bps_source import BpsSource
+    side = path + ".json"
+    try:
+        with open(side) as f:
+            inputs = json.load(f)
+    except FileNotFoundError:
+        return ["inputs     %s is missing: the header's hash names the inputs, not shown here" % side]
+    except (OSError, ValueError) as exc:
+        return ["inputs     %s unreadable (%s): not shown" % (side, exc)]
+    if not BpsSource.describes(d.source, d.seed, inputs):
+        return ["inputs     %s is another file's (its hash is not this header's): not shown" % side]
+    return ["inputs     " + ", ".join("%s %s" % (k, json.dumps(v)) for k, v in inputs.items() if k != "source")]
 
 
 def bandwidth_lines(d):

@@ -3,8 +3,8 @@
 
 import os
 
-from emulator.fileio import (check_not_input, load_npz, output_file, output_folder, read_input,  # noqa: F401
-                             read_json, write_atomic, write_json)
+from emulator.fileio import (cache_folder, check_not_input, load_npz, output_file, output_folder,  # noqa: F401
+                             read_input, read_json, write_atomic, write_json)
 
 
 def remove_stale(folder, names):

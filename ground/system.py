@@ -42,7 +42,7 @@ import numpy as np
 
 from ground import hil, report
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
-from ground.fileio import run_folder, write_atomic, write_json
+from ground.fileio import cache_folder, run_folder, write_atomic, write_json
 
 ADCS_KINDS = ("firmware", "ground")
 FIGURE = "system_pointing.png"
@@ -709,7 +709,8 @@ def register(sub, name, help_):
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop", help="true orbits (default hpop)")
     p.add_argument("--params", default=None, help="ADCS parameter file (fps adcs bps format; default: the cached "
                    "nine calibration sets of --seed)")
-    p.add_argument("--bps-cache", default=None, help="calibration and truth cache folder (default out/bps_cache)")
+    p.add_argument("--bps-cache", default=None, type=cache_folder,
+                   help="calibration and truth cache folder (default out/bps_cache)")
     p.add_argument("--calibration", default=None, help="H calibration JSON (fps calibrate; default: calibrate "
                    "in-process first, 121 points, written to the run folder)")
     p.add_argument("--faults", default=None, metavar="JSON",

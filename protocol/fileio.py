@@ -104,19 +104,19 @@ def check_not_input(output, inputs, option="-o"):
                              "output" % (option, output, opt))
 
 
-def _output_path(path, folder):
+def _output_path(path, folder, what="run folder"):
     """``path`` if a command can write its output there (a folder when ``folder``, else a file); an
     argparse.ArgumentTypeError saying why not, so a bad ``-o`` is refused (exit 2) before any work is done: the
     path, or the nearest part of it that exists, is a file where a folder must be (or a folder where the file
     goes), or the folder that would be written is not writable (an atomic write makes its temp file there)."""
     import argparse
     if not path.strip():
-        raise argparse.ArgumentTypeError("an empty path; name the %s" % ("run folder" if folder else "output file"))
+        raise argparse.ArgumentTypeError("an empty path; name the %s" % (what if folder else "output file"))
     p = os.path.abspath(path)
     if os.path.isdir(p) and not folder:
         raise argparse.ArgumentTypeError("%s is a folder; the output file goes there" % path)
     if os.path.exists(p) and folder and not os.path.isdir(p):
-        raise argparse.ArgumentTypeError("%s is a file; the run folder goes there" % path)
+        raise argparse.ArgumentTypeError("%s is a file; the %s goes there" % (path, what))
     a = p if folder else os.path.dirname(p)
     while not os.path.exists(a):
         a = os.path.dirname(a)
@@ -130,6 +130,11 @@ def _output_path(path, folder):
 def output_folder(path):
     """argparse ``type`` of a run folder option (``-o DIR``); see ``_output_path``."""
     return _output_path(path, True)
+
+
+def cache_folder(path):
+    """argparse ``type`` of a cache folder option (``--cache-dir``, ``--bps-cache``); see ``_output_path``."""
+    return _output_path(path, True, "cache folder")
 
 
 def output_file(path):

@@ -192,6 +192,42 @@ def test_short_pointing_run_tracks_satb(params):
     assert hist["dtheta_arcsec"].shape == (len(hist["t"]), 2)
 
 
+def test_flight_software_takes_its_orbit_from_the_stkf_not_the_truth(params, monkeypatch):
+    """The APKF's model and the feed-forward take SatA's position from the STKF's rA (``EstimatedOrbit``): a
+    world whose truth orbit cannot be read by anything but the spacecraft it was built into still runs, and the
+    APKF's model orbit is the STKF's estimate, within a few of its 30 m 1 sigma of the truth."""
+    real_world = scenario.pointing_world
+    worlds = []
+
+    class Sealed:
+        def position(self, t):
+            raise AssertionError("the flight software read the truth orbit at t = %g s" % t)
+
+    def world(*a, **kw):
+        w = real_world(*a, **kw)
+        worlds.append(w.orbit)
+        w.orbit = Sealed()            # the truth spacecraft keeps its own reference to the real one
+        return w
+    models = []
+    real_model = bps.apkf.Model
+
+    def model(*a, **kw):
+        models.append(real_model(*a, **kw))
+        return models[-1]
+    monkeypatch.setattr(bps.scenario, "pointing_world", world)
+    monkeypatch.setattr(bps.apkf, "Model", model)
+    res, hist = bps.simulate(ts=33, duration_s=30, seed=1, params=params, truth="two-body")
+    assert res["complete"]
+    orb = models[0].orbit
+    assert isinstance(orb, bps.EstimatedOrbit)
+    truth = worlds[0]
+    k = int(hist["t"][-1])                         # the last second: orb holds the STKF's rA, vA at k - 1
+    assert orb.t0 == k - 1
+    assert np.array_equal(orb.r, hist["fsw_x_stkf"][k - 1][0:3])
+    err = np.linalg.norm(orb.position(k - 0.5) - truth.position(k - 0.5))
+    assert 0 < err < 150.0
+
+
 def test_the_hold_damps_the_rate_and_keeps_the_star_tracker(params):
     """During the hold the flight software damps the body rate on its estimate (q_c = q_hat, w_c = 0, as the
     flight app's step 4): the star tracker (blind above 0.1 deg/s) answers through the whole hold. With idle
@@ -330,6 +366,11 @@ def test_interrupted_run_is_marked_incomplete(params, monkeypatch):
     res, hist = bps.simulate(ts=20, duration_s=100, seed=1, params=params, truth="two-body")
     assert not res["complete"] and res["simulated_s"] < 150
     assert len(hist["t"]) == int(res["simulated_s"]) * 10 + 1
+    # the report says how much was collected, not the duration asked for
+    text = bps_cli.report_md(res, "fps adcs bps")
+    got = res["simulated_s"] - res["settle_s"]
+    assert 0 < got < 100 and "%g s of 100 s collected (interrupted at t = %g s)" % (got, res["simulated_s"]) in text
+    assert "100 s collected" in bps_cli.report_md(dict(res, complete=True), "fps adcs bps")
 
 
 def test_a_diverging_stkf_ends_the_run_with_its_time(params, monkeypatch):
@@ -430,6 +471,29 @@ def test_bps_distfile_source_caches_whole_runs_only(params_file, tmp_path, monke
         assert distfile_cli.generate(src4, 5.0, 4) == data and not src4.from_cache
         src5 = BpsSource(ts=33, params_path=params_file, truth="two-body", cache_dir=cache, quiet=True)
         assert distfile_cli.generate(src5, 5.0, 4) == data and src5.from_cache
+
+
+def test_distfile_info_shows_the_bps_inputs_of_its_own_sidecar_only(params_file, tmp_path, capsys):
+    """The header holds ``bps<ts><g|n>``, the inputs' hash and the seed; ``fps distfile info`` prints the inputs
+    in full from the sidecar ``generate`` wrote, and only when the sidecar's hash and seed are the header's."""
+    f = str(tmp_path / "b.dist")
+    argv = ["distfile", "generate", "--source", "bps", "--params", params_file, "--bps-truth", "two-body",
+            "--bps-cache", str(tmp_path / "cache"), "--duration", "3", "--seed", "5", "-o", f]
+    assert cli.main(argv) == 0
+    capsys.readouterr()
+    assert cli.main(["distfile", "info", f]) == 0
+    (line,) = [x for x in capsys.readouterr().out.splitlines() if x.startswith("inputs")]
+    assert 'ts_s 33.0' in line and 'truth "two-body"' in line and "seed 5" in line and params_file in line
+    side = json.load(open(f + ".json"))
+    for change in ({"seed": 6}, {"ts_s": 34.0}, {"truth": "hpop"}, {"duration_s": 9.0}):
+        with open(f + ".json", "w") as g:
+            json.dump(dict(side, **change), g)
+        assert cli.main(["distfile", "info", f]) == 0
+        (line,) = [x for x in capsys.readouterr().out.splitlines() if x.startswith("inputs")]
+        assert "another file's" in line and "ts_s" not in line
+    os.unlink(f + ".json")
+    assert cli.main(["distfile", "info", f]) == 0
+    assert "is missing" in capsys.readouterr().out
 
 
 def test_distfile_beyond_the_pfsm_says_by_how_much():

@@ -319,6 +319,25 @@ def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(capsys
     assert f.read_text() == "keep" and sorted(os.listdir(tmp_path)) == ["a_file"]
 
 
+def test_a_cache_folder_that_cannot_be_one_is_refused_first(capsys, tmp_path):
+    """``--cache-dir`` / ``--bps-cache`` on a file, under a file or empty: exit 2 naming the option, before the
+    calibration runs (it once ran for seconds and then failed on the cache)."""
+    f = tmp_path / "a_file"
+    f.write_text("keep")
+    out = str(tmp_path / "o")
+    for bad, msg in ((str(f), "is a file; the cache folder goes there"), (str(f / "x"), "is a file, so no folder"),
+                     ("", "an empty path; name the cache folder")):
+        for argv, opt in ((["adcs", "bps", "--cache-dir", bad, "--duration", "10", "-o", out], "--cache-dir"),
+                          (["adcs", "sweep", "--cache-dir", bad, "--duration", "10", "-o", out], "--cache-dir"),
+                          (["distfile", "generate", "--source", "bps", "--bps-cache", bad, "--duration", "10",
+                            "-o", out + ".dist"], "--bps-cache"),
+                          (["system", "--bps-cache", bad, "-o", out], "--bps-cache")):
+            rc, _, err = run(capsys, argv)
+            last = err.strip().splitlines()[-1]
+            assert rc == 2 and "argument %s" % opt in last and msg in last, (argv, rc, err)
+    assert f.read_text() == "keep" and sorted(os.listdir(tmp_path)) == ["a_file"]
+
+
 def test_fine_inputs_exit_0(capsys, files):
     o = os.path.join(files["out"], "fine")
     for argv in (["protocol", "table"], ["protocol", "table", "--json"], ["protocol", "encode", "RW_CMD", "torque=0.5"],

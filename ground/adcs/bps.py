@@ -4,15 +4,17 @@ Truth (the spacecraft simulator of Fig. 6-1): ``emulator.spacecraft.Spacecraft``
 inertias and misalignments, residual dipole of Sec. 4.8) by RK4 at 0.1 s, sampled at 10 Hz. The orbits of SatA
 and SatB are the STKF issue's truth (``emulator.orbits.truth_samples``: brahe "hpop" or "two-body", 1 s samples)
 interpolated by 10th-order Lagrange (Sec. 6.4.1) onto a 20 Hz grid; the spacecraft's gravity gradient and
-magnetic field use SatA's interpolated position, and so does the APKF's model. The field's dipole turns with the
-Earth from GMST at Eq. 5.53's epoch (139.40 deg), the orbits' t = 0. Sensors (their own time tags): the
+magnetic field use SatA's interpolated position. The field's dipole turns with the Earth from GMST at Eq. 5.53's
+epoch (139.40 deg), the orbits' t = 0. Sensors (their own time tags): the
 star tracker (20/20/60 arcsec, none at |w| >= 0.1 deg/s) and the tachometers (10 rpm) at each 1 s tick, SatA's
 GNSS and the beacon (60 arcsec) at each tick, SatB's GNSS on SatB's clock (random phase) relayed 2-3 s late.
 
 Flight software at 1 Hz, from the sensor outputs and wheel read-outs only: the APKF (``ground.adcs.apkf``,
 started from the parameter file), the STKF with the EAFLS (``ground.adcs.stkf``/``afls``, the attitude
 covariance 4 P_qq from the APKF as in Sec. 5.3.3) and the controller of ``ground.adcs.control`` (command
-from the STKF's rA, vA, rB; PD on the APKF's q, w; its J, C, Jrw; minimum-norm wheel torques, held 1 s).
+from the STKF's rA, vA, rB; PD on the APKF's q, w; its J, C, Jrw; minimum-norm wheel torques, held 1 s). The
+orbit and field inputs of the APKF's model and of the external-torque feed-forward come from the STKF's rA
+(``EstimatedOrbit``), not from the truth.
 
 Sequence (Sec. 6.4.2):
 1. ``calibrate``: nine sets of the Sec. 4.7.1 calibration maneuver (the ``emulator.spacecraft.scenario``
@@ -305,6 +307,21 @@ def check_ts(ts):
     return control.natural_frequency(v) and v
 
 
+class EstimatedOrbit:
+    """SatA's orbit as the flight software knows it, for the APKF's model (``apkf.Model.orbit``): the STKF's
+    latest rA, vA (at ``t0``) carried along vA, ``position(t)`` = rA + (t - t0) vA. The APKF asks for the
+    mid-step, half a second on, where the orbit's curvature leaves ~1 m (as the flight app's ``_env``)."""
+
+    def __init__(self, t0, x):
+        self.set(t0, x)
+
+    def set(self, t0, x):
+        self.t0, self.r, self.v = float(t0), np.array(x[0:3], dtype=float), np.array(x[3:6], dtype=float)
+
+    def position(self, t):
+        return self.r + (t - self.t0) * self.v
+
+
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
              wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=TACH_NOISE_RPM):
@@ -331,9 +348,10 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
     world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K,   # Sec. 6.4.1
                                     wheel_speed_limit_rpm=wheel_speed_limit_rpm, tach_noise_rpm=tach_noise_rpm)
-    rate, xg, orb, wheels, sc, st = world.rate, world.xg, world.orbit, world.wheels, world.sc, world.st
+    rate, xg, wheels, sc, st = world.rate, world.xg, world.wheels, world.sc, world.st
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
+    orb = EstimatedOrbit(0.0, world.stkf_x0)
     model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb, field=world.field, tach_rpm=tach_noise_rpm)
     ds = control.WHEEL_DATASHEET                     # the wheels' torque limit and friction: datasheet, not truth
     f_stkf = Afls(world.stkf_x0, np.diag(scenario.STKF_P0_DIAG), 0.0, LAG_S,
@@ -385,6 +403,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                     flt.P[apkf.PARAMS, apkf.PARAMS] = Pp
                 q_prev = q_st if st_ok else None
             else:
+                orb.set(t - 1.0, f_stkf.x)                 # the STKF's rA, vA at t - 1 (not yet predicted to t)
                 flt.step(t - 1.0, tach, q_st if st_ok else None)
                 if not np.all(np.isfinite(flt.x)):
                     raise FloatingPointError("APKF diverged at t = %.0f s" % t)
@@ -418,8 +437,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 H = J @ w_hat + (C * x[26:30] / scale) @ x[38:42] if feedforward else None
                 tff = None
                 if feedforward:
-                    tff = control.external_torque(J, x[15:18] / scale, x[7:10] / scale, q_hat, orb.position(t),
-                                                  model.field.field(orb.position(t), t))
+                    tff = control.external_torque(J, x[15:18] / scale, x[7:10] / scale, q_hat, xh[0:3],
+                                                  model.field.field(xh[0:3], t))
                 tau_c = control.pd_torque(q_hat, w_hat, qc, wc, Kp, Dd, H, tff)
                 tau_c = control.saturate(tau_c, C, ds.torque_max)
                 u = control.wheel_torques(tau_c, C, null_fraction=0.0)        # Eq. 6.11 (no null torque)

@@ -23,12 +23,12 @@ import time
 import numpy as np
 
 from ground.adcs import bps, campaign, control
-from ground.fileio import output_folder, run_folder, write_atomic, write_json
+from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
 FIGURES_BPS = ("fig6-3_pointing.png", "fig6-4_pointing.png")    # without / with SatB's GNSS, as the thesis's
 FIGURE_SWEEP = "fig6-2_sweep.png"
-VERSION = 4          # bump when the simulator's results change: old cache entries stop matching
+VERSION = 5          # bump when the simulator's results change: old cache entries stop matching
 
 
 MAX_SWEEP_POINTS = 1000
@@ -100,6 +100,14 @@ def _truth(a, duration, out):
         orbits.truth_samples("hpop", bps.truth_span(int(np.ceil(duration))), cache_dir=out)   # once, before workers
 
 
+def _collected(s):
+    """What the run collected: its duration, or for an interrupted run how much of it."""
+    if s["complete"] or s.get("simulated_s") is None:
+        return "%g s collected" % s["duration_s"]
+    got = max(0.0, s["simulated_s"] - s["settle_s"])
+    return "%g s of %g s collected (interrupted at t = %g s)" % (got, s["duration_s"], s["simulated_s"])
+
+
 def report_md(s, args_text):
     th = bps.THESIS[s["satb_gnss"]]
     rows = [("δθ1 (arcsec)", th["theta"][0], s["pointing_mean_arcsec"], s["pointing_sigma_arcsec"], 0),
@@ -107,8 +115,8 @@ def report_md(s, args_text):
             ("δω1 (arcsec/s)", th["omega"][0], s["stability_mean_arcsec_s"], s["stability_sigma_arcsec_s"], 0),
             ("δω2 (arcsec/s)", th["omega"][1], s["stability_mean_arcsec_s"], s["stability_sigma_arcsec_s"], 1)]
     out = ["# Body pointing simulation (Sec. 6.4.4)", "", "`%s`" % args_text, "",
-           "t_s = %g s, %s SatB's GNSS, %g s collected at 10 Hz after %g s (30 s hold + 4 t_s), truth %s, "
-           "seed %d. complete: %s" % (s["ts_s"], "with" if s["satb_gnss"] else "without", s["duration_s"],
+           "t_s = %g s, %s SatB's GNSS, %s at 10 Hz after %g s (30 s hold + 4 t_s), truth %s, "
+           "seed %d. complete: %s" % (s["ts_s"], "with" if s["satb_gnss"] else "without", _collected(s),
                                       s["settle_s"], s["truth"], s["seed"], s["complete"]), "",
            "| figure | thesis (mean, 1σ) | ours (mean, 1σ) | 1σ ratio |", "|---|---|---|---|"]
     for label, t, m, sd, i in rows:
@@ -337,8 +345,8 @@ def _common(p):
                    "default: run the nine calibration sets (cached)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",
                    help="true orbits: brahe high-fidelity (default) or two-body (fast)")
-    p.add_argument("--cache-dir", default=CACHE_DEFAULT, help="calibration and truth cache (default %s)"
-                   % CACHE_DEFAULT)
+    p.add_argument("--cache-dir", default=CACHE_DEFAULT, type=cache_folder,
+                   help="calibration and truth cache (default %s)" % CACHE_DEFAULT)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")

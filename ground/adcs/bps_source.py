@@ -16,7 +16,7 @@ import sys
 
 import numpy as np
 
-from emulator.fileio import load_npz, write_atomic
+from emulator.fileio import cache_folder, load_npz, write_atomic
 
 TRUTHS = ("hpop", "two-body")
 
@@ -43,7 +43,8 @@ class BpsSource:
         p.add_argument("--params", default=None, help="bps: parameter file (default: the cached calibration "
                        "of --seed)")
         p.add_argument("--bps-truth", choices=TRUTHS, default="hpop", help="bps: true orbits (default hpop)")
-        p.add_argument("--bps-cache", default=None, help="bps: run cache folder (default out/bps_cache)")
+        p.add_argument("--bps-cache", default=None, type=cache_folder,
+                       help="bps: run cache folder (default out/bps_cache)")
 
     @classmethod
     def from_args(cls, a):
@@ -57,6 +58,17 @@ class BpsSource:
                        "calibration_seed": params.get("calibration", {}).get("seed")}
         k = {x: v for x, v in self.inputs.items() if x != "params_file"}
         return bps_cli._key(k)
+
+    @staticmethod
+    def describes(header_source, header_seed, inputs):
+        """Whether ``inputs`` (a distfile's sidecar) are the inputs of the file whose header carries
+        ``header_source`` and ``header_seed``: their hash is the header's key and the seeds agree."""
+        from ground.adcs import bps_cli
+        if not isinstance(inputs, dict) or inputs.get("source") != "bps" or " " not in header_source:
+            return False
+        k = {x: v for x, v in inputs.items() if x not in ("params_file", "from_cache")}
+        tag = header_source.split(" ", 1)[1]
+        return bool(tag) and bps_cli._key(k).startswith(tag) and inputs.get("seed") == header_seed
 
     def header_source(self):
         return ("bps%g%s %s" % (self.ts, "g" if self.satb_gnss else "n", self.cache_key))[:16]

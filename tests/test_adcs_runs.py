@@ -56,11 +56,18 @@ def test_run_reproducible_from_seed_in_process_and_on_dask(tmp_path):
     c = runs.run_apkf(8, None, case=2, params=params)
     assert a["final_error_attitude_arcsec"] == b["final_error_attitude_arcsec"]
     assert a["final_error_attitude_arcsec"] != c["final_error_attitude_arcsec"]
-    res = campaign.run_campaign(runs.run_apkf, [8, 7], tmp_path, workers=2, progress=False, case=2,
+    res = campaign.run_campaign(runs.run_apkf, [8, 7], tmp_path / "local", workers=2, progress=False, case=2,
                                 params=params)
     assert res[1]["final_error_attitude_arcsec"] == a["final_error_attitude_arcsec"]
     assert res[0]["final_error_attitude_arcsec"] == c["final_error_attitude_arcsec"]
-    assert os.path.exists(tmp_path / "run_0001" / "series.npz")
+    assert os.path.exists(tmp_path / "local" / "run_0001" / "series.npz")
+    from distributed import LocalCluster
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cl:
+        res = campaign.run_campaign(runs.run_apkf, [8, 7], tmp_path / "dask", scheduler=cl.scheduler_address,
+                                    progress=False, case=2, params=params)
+    assert res[1]["final_error_attitude_arcsec"] == a["final_error_attitude_arcsec"]
+    assert res[0]["final_error_attitude_arcsec"] == c["final_error_attitude_arcsec"]
+    assert os.path.exists(tmp_path / "dask" / "run_0001" / "series.npz")
 
 
 def _params(tmp_path, d, name="p.json"):
@@ -134,7 +141,11 @@ def test_check_covariance_names_the_time():
     (["--workers", "0"], None, "--workers must be a whole number from 1 to 64 local processes"),
     (["--workers", "100000"], None, "got 100000"),
     ([], {"duraton_s": 30}, "unknown key 'duraton_s'"),
+    (["--runs", "100001"], None, "--runs must be at most 100000"),
+    (["--runs", "99999999999"], None, "got 99999999999"),           # refused before any seed list is made
+    (["--seed", "4294967295", "--runs", "2"], None, "would run seeds up to 4294967296, past 2^32 - 1"),
     ([], '{"dipole_am2": [0.1, NaN, 0.2]}', "dipole_am2 = [0.1, nan, 0.2] is not finite"),
+    ([], '{"duration_s": Infinity}', "duration_s = inf is not finite"),
     ([], {"inertia_kgm2": [0.012, 0.047, 0.045, 0.05, 0.0, 0.0]}, "is not positive definite"),
     ([], {"inertia_kgm2": [0.012, 0.012, 0.030, 0.0, 0.0, 0.0]}, "is no rigid body's"),
     ([], {"duration_s": 5000}, "duration_s = 5000 out of range"),

@@ -256,6 +256,42 @@ def test_wheel_speed_relative_to_body_everywhere():
     assert np.allclose(sc.momentum_inertial(), h0, rtol=0, atol=1e-12 + 1e-9 * np.linalg.norm(h0))
 
 
+def test_read_outs_and_speed_limit_use_the_relative_speed_on_a_turning_body():
+    """With the body turning (so W and W - c_i.w differ by more than the tolerances), the wheel device's
+    telemetry, the Sec. 4.8 scenario's tachometers (noise off) and the speed limit inside ``step`` all act on
+    W - c_i.w."""
+    from emulator.spacecraft import SpacecraftDevices, scenario
+    from protocol import core
+    omega = np.radians([5.0, -4.0, 3.0])
+    rel0 = np.array([1000.0, -1500.0, 500.0, 1990.0]) * RPM
+    sc = Spacecraft(wheels=Wheels(WheelParams.ideal(speed_max_rpm=2000.0)), orbit=None, dt=0.1, omega=omega,
+                    omega_rw=rel0)
+    cw = sc.wheels.c.T @ sc.omega
+    assert np.all(np.abs(cw) > 0.01)                       # rad/s: ~0.1 rpm and more between W and W - c.w
+    dev = SpacecraftDevices(sc)
+    for i in range(4):
+        (reply,) = dev.handle(core.PACKET_ID["RW_CMD"], core.NODE["ADCS"], core.NODE["RW%d" % i],
+                              core.encode_payload("RW_CMD", torque=0.0, enable=1))
+        speed = core.payload_dict(reply[0], reply[3])["speed"]
+        assert speed == pytest.approx(sc.omega_rw_rel[i] / RPM, abs=1e-3)
+        assert abs(speed - sc.omega_rw[i] / RPM) > 0.05
+    # the speed limit: wheel 3 pushed toward +2000 rpm stops there, relative to the body
+    sc.wheels.command_all([0.0, 0.0, 0.0, sc.wheels.p.torque_max])
+    rel = []
+    for _ in range(30):
+        sc.step()
+        rel.append(sc.omega_rw_rel[3])
+    top = 2000.0 * RPM        # the motor stops at the limit; the body's nutation then moves c.w by a few 1e-3
+    assert max(rel) <= top + 5e-3 and abs(rel[-1] - top) < 5e-3
+    assert abs(sc.omega_rw[3] - top) > 0.1                 # rad/s: the absolute speed is not what stopped
+    # the scenario's tachometers: without noise they read W - c.w exactly
+    noiseless = WheelParams(**dict(scenario.SCENARIO_WHEELS, noise_rpm=0.0))
+    o = scenario.simulate(case=1, seed=0, duration=20, wheel_params=noiseless)
+    assert np.allclose(o["tach"], o["w_rel"], rtol=1e-12, atol=1e-12)
+    w = Wheels(noiseless)
+    assert np.abs(o["w"] @ w.c).max() > 1e-3               # rad/s: c.w is far above the tolerance above
+
+
 def test_derivative_on_floats_equals_the_matrix_form():
     """``derivative`` works on Python floats; check it against Eq. 4.10, 4.16, 4.55-4.56 written with numpy,
     with the field, a disturbance callable and wheel jitter all on, at random states."""

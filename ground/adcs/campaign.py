@@ -20,7 +20,9 @@ others go on. A local worker process that dies (the out-of-memory killer, a cras
 not finished become error records (``LOST_RUN``), the finished ones are kept, and the campaign returns. Local
 runs are not retried; a Dask cluster retries a dead worker's runs itself. Ctrl-C cancels the outstanding futures, stops
 the local workers (a run they were in is lost; those that finished have their folders) and re-raises
-KeyboardInterrupt (the caller writes ``complete: false``).
+KeyboardInterrupt (the caller writes ``complete: false``). On a Dask cluster a run already executing cannot be
+stopped: it finishes on its worker and may write its ``run_NNNN`` folder after the interrupted summary, which
+does not count it.
 """
 
 import os
@@ -28,21 +30,37 @@ import re
 import shutil
 import sys
 
-from emulator.runtime import check_seed  # noqa: F401  (the campaigns' first seed, as every fps command's)
+from emulator.runtime import SEED_MAX, check_seed  # noqa: F401  (the campaigns' first seed, as every fps command's)
 from ground.fileio import run_folder, write_json
 
 CONNECT_TIMEOUT_S = 3.0
 
 
+MAX_RUNS = 100000     # a campaign's seeds, folders and results are listed up front
+
+
 def check_runs(n):
-    """``n`` as a run count >= 1; ValueError naming the value otherwise."""
+    """``n`` as a run count from 1 to MAX_RUNS; ValueError naming the value otherwise."""
     try:
         k = int(n)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError("--runs must be an integer >= 1, got %r" % (n,)) from None
     if k != n or k < 1:
         raise ValueError("--runs must be >= 1, got %r" % (n,))
+    if k > MAX_RUNS:
+        raise ValueError("--runs must be at most %d (a bigger study is several campaigns with other --seed), got "
+                         "%r" % (MAX_RUNS, n))
     return k
+
+
+def seeds_for(seed, runs):
+    """The campaign's seeds ``seed`` .. ``seed`` + ``runs`` - 1, each a valid ``--seed``; ValueError naming the
+    options when the last would pass 2^32 - 1."""
+    n, s = check_runs(runs), check_seed(seed)
+    if s + n - 1 > SEED_MAX:
+        raise ValueError("--seed %d with --runs %d would run seeds up to %d, past 2^32 - 1: lower --seed or --runs"
+                         % (s, n, s + n - 1))
+    return [s + i for i in range(n)]
 
 
 MAX_DURATION_S = 86400.0      # one day: the truth and each run's history are held in memory
@@ -223,7 +241,7 @@ def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False):
         if local:
             pool.shutdown(wait=False, cancel_futures=True)    # not f.cancel(): the pool sets errors on them
         else:
-            pool.shutdown(wait=False)                         # cancels them on the cluster
+            pool.shutdown(wait=False)                         # cancels those not yet running on the cluster
         for p in children:      # runs in progress are abandoned, not waited for (a bps case takes ~20 s)
             p.terminate()
         for p in children:

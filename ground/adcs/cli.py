@@ -39,15 +39,14 @@ def add_campaign_options(p, cases=True):
 
 def run_filter_campaign(fn, name, case, a, dof=6):
     """Run the campaign, write the folder, print the table; returns the exit code."""
-    n = campaign.check_runs(a.runs)
-    campaign.check_seed(a.seed)
+    seeds = campaign.seeds_for(a.seed, a.runs)
+    n = len(seeds)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     params = runs.load_params(a.params) if a.params else None
     out = a.output
     campaign.check_scheduler(a.scheduler)
     from ground.adcs import report
-    seeds = [a.seed + i for i in range(n)]
     campaign.campaign_folder(out, report.FIGURES, {"filter": name, "case": case, "runs": 0, "complete": False,
                                                    "seeds": seeds})
     write_json(os.path.join(out, "config.json"), {"filter": name, "case": case, "runs": n, "seed": a.seed,

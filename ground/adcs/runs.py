@@ -38,7 +38,7 @@ PARAM_KEYS = {
 
 def load_params(path):
     """A scenario/parameter JSON file, checked: unknown keys, NaN and a non-PD inertia are ValueErrors."""
-    d = read_json(path, "params", parse_constant=lambda c: float("nan"))
+    d = read_json(path, "params")             # NaN and Infinity parse to floats, refused below
     if not isinstance(d, dict):
         raise ValueError("%s: expected a JSON object with keys %s" % (path, ", ".join(sorted(PARAM_KEYS))))
     return check_params(d, path)

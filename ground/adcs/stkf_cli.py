@@ -16,8 +16,8 @@ from ground.fileio import output_folder, write_atomic, write_json
 
 
 def _cmd(a):
-    runs = campaign.check_runs(a.runs)
-    campaign.check_seed(a.seed)
+    seeds = campaign.seeds_for(a.seed, a.runs)
+    runs = len(seeds)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     outages = [stkf_sim.parse_outage(o) for o in (a.outage or [])]
@@ -45,7 +45,6 @@ def _cmd(a):
         print("truth: brahe high-fidelity orbits for SatA and SatB over %.0f s ..." % a.duration, file=sys.stderr)
         orbits.truth_samples("hpop", a.duration, cache_dir=out)
     results, complete = [], True
-    seeds = [a.seed + i for i in range(runs)]
     try:
         results = campaign.run_campaign(stkf_sim.run_one, seeds, out, workers=a.workers, scheduler=a.scheduler,
                                         progress=not a.quiet, desc="stkf case %d" % a.case, case=a.case,

@@ -189,14 +189,14 @@ def source_input_lines(path, d):
         return []
     import json
     from ground.adcs.bps_source import BpsSource
+    from ground.fileio import read_json
     side = path + ".json"
-    try:
-        with open(side) as f:
-            inputs = json.load(f)
-    except FileNotFoundError:
+    if not os.path.lexists(side):
         return ["inputs     %s is missing: the header's hash names the inputs, not shown here" % side]
-    except (OSError, ValueError) as exc:
-        return ["inputs     %s unreadable (%s): not shown" % (side, exc)]
+    try:
+        inputs = read_json(side, "sidecar")          # size-limited: a sidecar is a few hundred bytes
+    except ValueError as exc:
+        return ["inputs     unreadable, not shown: %s" % exc]
     if not BpsSource.describes(d.source, d.seed, inputs):
         return ["inputs     %s is another file's (its hash is not this header's): not shown" % side]
     return ["inputs     " + ", ".join("%s %s" % (k, json.dumps(v)) for k, v in inputs.items() if k != "source")]

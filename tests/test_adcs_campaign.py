@@ -56,8 +56,13 @@ def test_a_dead_local_worker_ends_the_campaign_with_error_records_not_a_hang(tmp
 def test_dask_scheduler_address(tmp_path):
     from distributed import LocalCluster
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cl:
-        res = campaign.run_campaign(draw, [3, 4], tmp_path, scheduler=cl.scheduler_address, progress=False)
+        res = campaign.run_campaign(draw, [3, 4], tmp_path, scheduler=cl.scheduler_address, progress=False,
+                                    desc="apkf case 1")
+        prefixes = set(cl.scheduler.task_prefixes)
     assert [r["x"] for r in res] == [np.random.default_rng(s).normal(size=3).tolist() for s in (3, 4)]
+    assert "apkf_case_1" in prefixes and "_call" not in prefixes      # the dashboard names the campaign
+    k = campaign.task_key("sweep t_s", 7)
+    assert k.startswith("sweep_t_s-seed7-") and k != campaign.task_key("sweep t_s", 7)
 
 
 def test_bad_inputs(tmp_path):

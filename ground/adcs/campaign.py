@@ -193,7 +193,8 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
         if scheduler is not None:
             client = _connect(scheduler)
             try:
-                _drain(client.get_executor(pure=False), range(len(seeds)), out, fn, seeds, dirs, kwargs, bar)
+                _drain(client.get_executor(pure=False), range(len(seeds)), out, fn, seeds, dirs, kwargs, bar,
+                       name=desc)
             finally:
                 client.close()
             return out
@@ -209,8 +210,16 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
     return out
 
 
-def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False):
-    """Submit runs ``todo`` to ``pool``, put their results in ``out`` as they come and shut the pool down.
+def task_key(name, seed):
+    """A Dask task's key: the campaign's name and the run's seed, then a unique token (the dashboard groups the
+    tasks by the name, e.g. ``apkf_case_1``, instead of the wrapper's ``_call``)."""
+    import uuid
+    return "%s-seed%d-%s" % (re.sub(r"[^0-9A-Za-z]+", "_", name).strip("_") or "run", seed, uuid.uuid4().hex)
+
+
+def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False, name=None):
+    """Submit runs ``todo`` to ``pool``, put their results in ``out`` as they come and shut the pool down
+    (``name``: a Dask pool's task keys, ``task_key``).
     Returns, in submission order, the runs a local pool lost when one of its worker processes died (the
     pool breaks and fails every run not finished). Ctrl-C cancels the rest, stops a local pool's workers (a
     run they were in is lost; those that finished have their folders) and re-raises."""
@@ -220,7 +229,8 @@ def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False):
     before = set(multiprocessing.active_children())
     children, lost = [], []
     try:
-        futures = {pool.submit(_call, fn, seeds[i], dirs[i], kwargs): i for i in todo}
+        extra = (lambda i: {}) if name is None else (lambda i: {"key": task_key(name, seeds[i])})
+        futures = {pool.submit(_call, fn, seeds[i], dirs[i], kwargs, **extra(i)): i for i in todo}
         if local:                        # the pool started its processes on these submits
             children = [p for p in multiprocessing.active_children() if p not in before]
         for f in as_completed(futures):

@@ -40,13 +40,9 @@ def _cpu():
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
-def _x(v, goal=None):
-    """A real-time factor, with (met) or (missed) against ``goal`` (at least)."""
-    return "—" if v is None else "%.1fx%s" % (v, verdict(v, goal, at_most=False))
-
-
-def _at_most(v, fmt, goal):
-    return "—" if v is None else (fmt % v) + verdict(v, goal)
+def _fig(v, fmt="%.1fx", goal=None, at_most=False):
+    """``v`` by ``fmt`` ("—" if None), with (met) or (missed) against ``goal`` (a real-time factor's: at least)."""
+    return "—" if v is None else (fmt % v) + verdict(v, goal, at_most)
 
 
 def _main(tmp, duration_s):
@@ -102,10 +98,10 @@ def _main(tmp, duration_s):
     print("| figure | goal / thesis | ours |")
     print("|---|---|---|")
     print("| real-time factor, whole run (%.0f s virtual / %.1f s wall) | ≥ 5x (issue 13) | %s |"
-          % (s.get("duration_s") or 0, s.get("wall_s") or 0, _x(s.get("real_time_factor"), 5.0)))
-    print("| real-time factor during the play | — | %s |" % _x(s.get("real_time_factor_play")))
+          % (s.get("duration_s") or 0, s.get("wall_s") or 0, _fig(s.get("real_time_factor"), goal=5.0)))
+    print("| real-time factor during the play | — | %s |" % _fig(s.get("real_time_factor_play")))
     print("| fine loop alone, fps hil 120 s, same link, same sitting | ≥ 12x (issue Ground) | %s |"
-          % _x(hil_rtf, 12.0))
+          % _fig(hil_rtf, goal=12.0))
     print("| fine loop's wait for the ADCS (s) | — | %.1f |" % (s.get("adcs_wait_s") or 0))
     print("| CPU seconds per virtual second, whole run (all its processes) / fine loop alone | — | %s / %s |"
           % ("—" if not s.get("duration_s") else "%.3f" % (cpu_sys / s["duration_s"]),
@@ -119,10 +115,10 @@ def _main(tmp, duration_s):
     t6 = system.thesis_body()["sec644_no_satb_gnss"]
     print("| body pointing 3σ (arcsec) | ≤ %g (budget, Ch. 6); %.1f (Sec. 6.4.4, 4000 s) | %s |"
           % (bps.BUDGET_POINTING_3SIGMA, t6["pointing_3sigma_arcsec"],
-             _at_most(b.get("pointing_3sigma_arcsec"), "%.2f", bps.BUDGET_POINTING_3SIGMA)))
+             _fig(b.get("pointing_3sigma_arcsec"), "%.2f", bps.BUDGET_POINTING_3SIGMA, True)))
     print("| body stability 3σ (arcsec/s) | ≤ %g (budget, Ch. 6); %.1f (Sec. 6.4.4) | %s |"
           % (bps.BUDGET_STABILITY_3SIGMA, t6["stability_3sigma_arcsec_s"],
-             _at_most(b.get("stability_3sigma_arcsec_s"), "%.2f", bps.BUDGET_STABILITY_3SIGMA)))
+             _fig(b.get("stability_3sigma_arcsec_s"), "%.2f", bps.BUDGET_STABILITY_3SIGMA, True)))
     if adcs == "firmware" and b and ref.get("pointing_3sigma_arcsec"):
         rel = b["pointing_3sigma_arcsec"] / ref["pointing_3sigma_arcsec"] - 1
         print("| lean / ground filters, body pointing 3σ | within 25 %% | %.2f / %.2f (%+.1f %%)%s |"

@@ -116,7 +116,7 @@ def stats(x, y):
 def _cmd_generate(a):
     check_source_options(a)
     inputs = [("--csv", getattr(a, "csv_path", None)), ("--params", getattr(a, "params", None))]
-    for path in (a.output, a.output + ".json", a.output + ".jitter.json"):     # the file and its sidecars
+    for path in (a.output, inputs_sidecar(a.output), a.output + ".jitter.json"):     # the file and its sidecars
         check_not_input(path, inputs)
         if os.path.isdir(path):
             raise ValueError("-o %s: %s is a folder, where the distfile or its sidecar goes" % (a.output, path))
@@ -128,9 +128,9 @@ def _cmd_generate(a):
     write_atomic(a.output, data)
     if getattr(src, "inputs", None) is not None:          # the source's parameters in full, beside the file
         from ground.fileio import write_json
-        write_json(a.output + ".json", dict(src.inputs, from_cache=bool(getattr(src, "from_cache", False))))
-        print("source parameters in %s.json%s" % (a.output, " (run taken from the cache)"
-                                                    if getattr(src, "from_cache", False) else ""))
+        write_json(inputs_sidecar(a.output), dict(src.inputs, from_cache=bool(getattr(src, "from_cache", False))))
+        print("source parameters in %s%s" % (inputs_sidecar(a.output), " (run taken from the cache)"
+                                             if getattr(src, "from_cache", False) else ""))
     d, x, y = load(a.output)
     s = stats(x, y)
     side = a.output + ".jitter.json"
@@ -181,23 +181,31 @@ def _cmd_info(a):
     return 0
 
 
+def inputs_sidecar(path):
+    """Where ``generate`` writes the inputs in full of a source that names them (``inputs``) beside distfile
+    ``path``."""
+    return path + ".json"
+
+
 def source_input_lines(path, d):
-    """The source's inputs in full from the sidecar ``path``.json that ``generate`` writes beside a bps distfile
-    (the 16-byte header holds ``bps<ts><g|n>`` and the inputs' hash), when the sidecar is this file's; a line
-    saying so when it is missing, unreadable or another file's."""
-    if not d.source.startswith("bps"):
+    """The source's inputs in full from the sidecar (``inputs_sidecar``) of a distfile whose registered source
+    can tell its own (``describes(header_source, seed, inputs)``: bps, whose 16-byte header holds
+    ``bps<ts><g|n>`` and the inputs' hash), when the sidecar is this file's; a line saying so when it is
+    missing, unreadable or another file's."""
+    owner = next((c for n, c in sources.SOURCES.items() if hasattr(c, "describes") and d.source.startswith(n)),
+                 None)
+    if owner is None:
         return []
     import json
-    from ground.adcs.bps_source import BpsSource
     from ground.fileio import read_json
-    side = path + ".json"
+    side = inputs_sidecar(path)
     if not os.path.lexists(side):
         return ["inputs     %s is missing: the header's hash names the inputs, not shown here" % side]
     try:
         inputs = read_json(side, "sidecar")          # size-limited: a sidecar is a few hundred bytes
     except ValueError as exc:
         return ["inputs     unreadable, not shown: %s" % exc]
-    if not BpsSource.describes(d.source, d.seed, inputs):
+    if not owner.describes(d.source, d.seed, inputs):
         return ["inputs     %s is another file's (its hash is not this header's): not shown" % side]
     return ["inputs     " + ", ".join("%s %s" % (k, json.dumps(v)) for k, v in inputs.items() if k != "source")]
 

@@ -21,6 +21,13 @@ from emulator.fileio import cache_folder, load_npz, write_atomic
 TRUTHS = ("hpop", "two-body")
 
 
+def _key(inputs):
+    """The cache key of a run's inputs (``BpsSource.key``): their hash without the parameter file's path (its
+    content is in ``params_sha256``) and the sidecar's ``from_cache``."""
+    from ground.adcs import bps_cli
+    return bps_cli._key({x: v for x, v in inputs.items() if x not in ("params_file", "from_cache")})
+
+
 class BpsSource:
     name = "bps"
 
@@ -56,19 +63,16 @@ class BpsSource:
                        "seed": int(seed), "truth": self.truth, "version": bps_cli.VERSION,
                        "params_sha256": bps_cli._key(params), "params_file": self.params_path,
                        "calibration_seed": params.get("calibration", {}).get("seed")}
-        k = {x: v for x, v in self.inputs.items() if x != "params_file"}
-        return bps_cli._key(k)
+        return _key(self.inputs)
 
     @staticmethod
     def describes(header_source, header_seed, inputs):
         """Whether ``inputs`` (a distfile's sidecar) are the inputs of the file whose header carries
         ``header_source`` and ``header_seed``: their hash is the header's key and the seeds agree."""
-        from ground.adcs import bps_cli
         if not isinstance(inputs, dict) or inputs.get("source") != "bps" or " " not in header_source:
             return False
-        k = {x: v for x, v in inputs.items() if x not in ("params_file", "from_cache")}
         tag = header_source.split(" ", 1)[1]
-        return bool(tag) and bps_cli._key(k).startswith(tag) and inputs.get("seed") == header_seed
+        return bool(tag) and _key(inputs).startswith(tag) and inputs.get("seed") == header_seed
 
     def header_source(self):
         return ("bps%g%s %s" % (self.ts, "g" if self.satb_gnss else "n", self.cache_key))[:16]

@@ -193,8 +193,7 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
         if scheduler is not None:
             client = _connect(scheduler)
             try:
-                _drain(client.get_executor(pure=False), range(len(seeds)), out, fn, seeds, dirs, kwargs, bar,
-                       name=desc)
+                _drain(client.get_executor(pure=False), range(len(seeds)), out, fn, seeds, dirs, kwargs, bar, desc)
             finally:
                 client.close()
             return out
@@ -204,7 +203,8 @@ def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=T
                 out[i] = _call(fn, s, d, kwargs)
                 bar.update(1)
             return out
-        for i in _drain(_local_pool(workers), range(len(seeds)), out, fn, seeds, dirs, kwargs, bar, local=True):
+        for i in _drain(_local_pool(workers), range(len(seeds)), out, fn, seeds, dirs, kwargs, bar, desc,
+                        local=True):
             out[i] = {"seed": seeds[i], "error": LOST_RUN}
             bar.update(1)
     return out
@@ -217,9 +217,9 @@ def task_key(name, seed):
     return "%s-seed%d-%s" % (re.sub(r"[^0-9A-Za-z]+", "_", name).strip("_") or "run", seed, uuid.uuid4().hex)
 
 
-def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False, name=None):
+def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, name, local=False):
     """Submit runs ``todo`` to ``pool``, put their results in ``out`` as they come and shut the pool down
-    (``name``: a Dask pool's task keys, ``task_key``).
+    (``name``: the campaign's, in a Dask pool's task keys, ``task_key``).
     Returns, in submission order, the runs a local pool lost when one of its worker processes died (the
     pool breaks and fails every run not finished). Ctrl-C cancels the rest, stops a local pool's workers (a
     run they were in is lost; those that finished have their folders) and re-raises."""
@@ -229,8 +229,10 @@ def _drain(pool, todo, out, fn, seeds, dirs, kwargs, bar, local=False, name=None
     before = set(multiprocessing.active_children())
     children, lost = [], []
     try:
-        extra = (lambda i: {}) if name is None else (lambda i: {"key": task_key(name, seeds[i])})
-        futures = {pool.submit(_call, fn, seeds[i], dirs[i], kwargs, **extra(i)): i for i in todo}
+        futures = {}
+        for i in todo:
+            kw = {} if local else {"key": task_key(name, seeds[i])}     # Dask: the task's name on the dashboard
+            futures[pool.submit(_call, fn, seeds[i], dirs[i], kwargs, **kw)] = i
         if local:                        # the pool started its processes on these submits
             children = [p for p in multiprocessing.active_children() if p not in before]
         for f in as_completed(futures):

@@ -9,16 +9,23 @@ Pure Python (CPython and MicroPython). 29-bit extended identifier::
     bits 15..8   source node
     bits  7..0   destination node
 
-A packet whose payload fits 8 bytes is one frame with the ISO-TP bit clear: data = payload, exactly as
-the serial payload (little-endian fields), so the generated DBC describes it. A longer payload is sent
-with ISO-TP on the id with the ISO-TP bit set; the receiver's flow control frames go back on the same
-id with source and destination swapped. CAN carries no sequence number (its own CRC and arbitration
-cover integrity and order): decoded packets have ``seq`` None.
+Every packet carries an end-to-end check after its payload: 2 bytes, little-endian, CRC-16/CCITT-FALSE
+(the serial frame's CRC) over ``pid, src, dst`` and the payload (``check``). The CAN bus's own CRC-15 covers a
+frame on the wire only: an slcan adapter's ASCII stream, a USB-serial harness or a gateway may damage a frame
+before or after it, and a flipped hex digit is still a valid Lawicel line. The check catches that, and a frame
+delivered to the wrong packet id or node (the id is in the CRC), as CSP's CRC32 and AUTOSAR E2E do.
+
+A packet whose payload and check fit 8 bytes is one frame with the ISO-TP bit clear: data = payload (exactly
+as the serial payload, little-endian fields) + check, so the generated DBC describes it. A longer one is sent
+with ISO-TP on the id with the ISO-TP bit set; the receiver's flow control frames go back on the same id with
+source and destination swapped. CAN carries no sequence number (arbitration keeps order): decoded packets have
+``seq`` None; a lost packet is the sender's to resend (``protocol.link.CanLink``, ``firmware.hal.slcan``).
 """
 
-from protocol import core, isotp, table
+from protocol import core, isotp, lawicel, table
 
-SINGLE_MAX = 8
+SINGLE_MAX = 8         # data bytes of a classic CAN frame
+CHECK_BYTES = 2        # the end-to-end check after each payload
 ISOTP_BIT = 1 << 25
 RESERVED_BIT = 1 << 16
 EFF_MASK = 0x1FFFFFFF
@@ -34,15 +41,16 @@ PRIORITIES = (
 CHUNK_PRIORITY = 6     # *_CHUNK upload packets
 DEFAULT_PRIORITY = 5
 
-DROP_REASONS = ("not_extended", "reserved_bit", "unknown_id", "bad_length") + isotp.ERRORS
-RX_DROPS = tuple(set(DROP_REASONS))     # bad_length is a frame's and an ISO-TP transfer's reason: one counter
+DROP_REASONS = ("not_extended", "reserved_bit", "unknown_id", "bad_length", "bad_crc") + isotp.ERRORS
+SLCAN_DROPS = tuple("slcan_" + r for r in lawicel.DROPS)   # malformed Lawicel lines, on whichever side reads
+RX_DROPS = tuple(set(DROP_REASONS)) + SLCAN_DROPS   # bad_length is a frame's and an ISO-TP transfer's: one counter
 LINK_DROPS = tuple(set(core.DROP_REASONS + RX_DROPS))   # a serial link's decoder or a CAN link's, each once
 
 
 def rx_drops(counters, reasons=RX_DROPS):
     """What a port dropped on receive, from its ``counters()``: each of ``reasons`` once (default the CAN
-    decoder's), and every ISO-TP error or timeout the port counts (``isotp_*``: can-isotp's, the slcan port's
-    timeouts). Frames for other nodes and sent frames are not drops."""
+    decoder's and the Lawicel adapter's), and every ISO-TP error or timeout the port counts (``isotp_*``:
+    can-isotp's, the slcan port's timeouts and resends). Frames for other nodes and sent frames are not drops."""
     n = 0
     for k, v in counters.items():
         if k in reasons or k.startswith("isotp_"):
@@ -78,15 +86,28 @@ def reply_id(cid):
 
 
 def is_single(pid):
-    return core.PACKET[pid].size <= SINGLE_MAX
+    """True when packet ``pid`` (payload and check) fits one frame."""
+    return core.PACKET[pid].size + CHECK_BYTES <= SINGLE_MAX
+
+
+def check(pid, src, dst, payload):
+    """The end-to-end check of a packet: CRC-16/CCITT-FALSE over ``pid, src, dst`` then the payload."""
+    return core.crc16(payload, core.crc16(bytes((pid & 0xFF, src & 0xFF, dst & 0xFF))))
+
+
+def wire(pid, src, dst, payload):
+    """The bytes a packet puts on CAN: the payload, then its check (little-endian)."""
+    c = check(pid, src, dst, payload)
+    return bytes(payload) + bytes((c & 0xFF, c >> 8))
 
 
 def encode_frames(pid, src, dst, payload):
-    """[(can_id, data)] for one packet: one frame, or ISO-TP SF/FF+CFs (no flow control)."""
-    if len(payload) <= SINGLE_MAX:
-        return [(can_id(pid, src, dst), bytes(payload))]
+    """[(can_id, data)] for one packet: one frame, or ISO-TP FF+CFs (no flow control)."""
+    data = wire(pid, src, dst, payload)
+    if len(data) <= SINGLE_MAX:
+        return [(can_id(pid, src, dst), data)]
     cid = can_id(pid, src, dst, True)
-    return [(cid, f) for f in isotp.segment(payload)]
+    return [(cid, f) for f in isotp.segment(data)]
 
 
 def encode_packet(name_or_id, src, dst, values=None, **kw):
@@ -140,14 +161,20 @@ class CanDecoder:
             payload = bytes(data)
         return self.packet(pid, (cid >> 8) & 0xFF, cid & 0xFF, payload)
 
-    def packet(self, pid, src, dst, payload):
-        """Check a reassembled payload against the table; the packet tuple or None (counted)."""
+    def packet(self, pid, src, dst, data):
+        """Check a frame's or a reassembled transfer's data (payload + check) against the table and the
+        check; the packet tuple (payload without the check) or None (counted)."""
         pkt = core.PACKET.get(pid)
         if pkt is None:
             self.drops["unknown_id"] += 1
             return None
-        if len(payload) != pkt.size:
+        n = pkt.size
+        if len(data) != n + CHECK_BYTES:
             self.drops["bad_length"] += 1
+            return None
+        payload = bytes(data[:n])
+        if check(pid, src, dst, payload) != data[n] | (data[n + 1] << 8):
+            self.drops["bad_crc"] += 1
             return None
         self.frames += 1
         return (pid, src, dst, None, payload)
@@ -190,7 +217,8 @@ def _num(x):
 
 
 def dbc_text():
-    """A DBC file describing every single-frame packet (Intel byte order, like the serial payload).
+    """A DBC file describing every single-frame packet (Intel byte order, like the serial payload), its
+    end-to-end check the last signal, ``e2e_check`` (see the module docstring).
 
     Message ids carry the packet id with the table's source/destination where it names one node (else
     0); look frames up with a frame-id mask of ``PID_MASK | ISOTP_BIT`` (cantools: ``frame_id_mask``,
@@ -201,14 +229,14 @@ def dbc_text():
     comments = []
     for pid in sorted(core.PACKET):
         pkt = core.PACKET[pid]
-        if pkt.size > SINGLE_MAX:
+        if not is_single(pid):
             continue
         src = core.NODE.get(pkt.src, 0)
         dst = core.NODE.get(pkt.dst, 0)
         cid = can_id(pid, src, dst)
         sender = pkt.src if pkt.src in core.NODE else "Vector__XXX"
         receiver = pkt.dst if pkt.dst in core.NODE else "Vector__XXX"
-        lines.append("BO_ %d %s: %d %s" % (cid | 0x80000000, pkt.name, pkt.size, sender))
+        lines.append("BO_ %d %s: %d %s" % (cid | 0x80000000, pkt.name, pkt.size + CHECK_BYTES, sender))
         comments.append('CM_ BO_ %d "%s";' % (cid | 0x80000000, pkt.doc.replace('"', "'")))
         bit = 0
         for f in pkt.fields:
@@ -226,5 +254,8 @@ def dbc_text():
                 name, bit, n, sign, _num(scale), _num(pmin), _num(pmax), unit, receiver))
             comments.append('CM_ SG_ %d %s "%s";' % (cid | 0x80000000, name, f[7].replace('"', "'")))
             bit += n
+        lines.append(' SG_ e2e_check : %d|16@1+ (1,0) [0|65535] "" %s' % (bit, receiver))
+        comments.append('CM_ SG_ %d e2e_check "CRC-16/CCITT-FALSE over pid, src, dst and the payload";'
+                        % (cid | 0x80000000))
         lines.append("")
     return "\n".join(lines + comments + [""] + floats) + "\n"

@@ -111,10 +111,15 @@ def table_markdown():
          "| 16 | reserved, 0 |",
          "| 15..8 | source node |",
          "| 7..0 | destination node |", "",
-         "A payload of up to %d bytes is one frame (ISO-TP bit clear), data = the payload bytes as on "
-         "serial; those packets are in the DBC file from `fps protocol dbc`. Longer payloads go by ISO-TP "
-         "(8-byte frames, no padding, flow control back on the id with source and destination swapped). "
-         "CAN carries no sequence number." % canmap.SINGLE_MAX, "",
+         "Every packet on CAN ends in a %d-byte end-to-end check: CRC-16/CCITT-FALSE (the serial frame's) "
+         "over the packet id, source, destination and payload, little-endian. The bus's own CRC covers a frame "
+         "on the wire only; the check also covers an slcan adapter's ASCII stream and a frame delivered to the "
+         "wrong id. A payload of up to %d bytes is one frame (ISO-TP bit clear), data = the payload bytes as on "
+         "serial, then the check; those packets are in the DBC file from `fps protocol dbc` (signal "
+         "`e2e_check`). Longer payloads go by ISO-TP (8-byte frames, no padding, flow control back on the id "
+         "with source and destination swapped); a transfer without flow control within N_Bs is sent again "
+         "whole. CAN carries no sequence number." % (canmap.CHECK_BYTES, canmap.SINGLE_MAX - canmap.CHECK_BYTES),
+         "",
          "| packet ids | priority |", "|---|---|"]
     for lo, hi, p in canmap.PRIORITIES:
         L.append("| 0x%02X-0x%02X | %d |" % (lo, hi, p))

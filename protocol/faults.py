@@ -1,10 +1,18 @@
-"""Fault injection on a serial link's byte stream, so a team can rehearse a bad harness (host side, CPython).
+"""Fault injection on a link's byte stream, so a team can rehearse a bad harness (host side, CPython).
 
 ``LinkFaults.parse("bytes=0.01,frames=0.05,seed=1,silence=30:2")`` describes the faults; ``FaultyPort`` wraps
-the port under a ``protocol.link.SerialLink`` (its ``read``/``write``/``close``) and applies them to the frames
-in both directions, below the framing, as a noisy cable would:
+a byte port (its ``read``/``write``/``close``) and applies them to the frames in both directions, below the
+framing, as a noisy cable would. Two framings:
 
-- ``frames=P``: each frame (the bytes up to and including its 0x00 delimiter) is dropped with probability P;
+- serial (``SERIAL``): a frame is the bytes up to and including its 0x00 delimiter (COBS), under a
+  ``protocol.link.SerialLink`` (``inject``);
+- CAN over slcan (``SLCAN``): a frame is one Lawicel line, up to and including its CR, in the ASCII stream
+  between the host and the adapter (``protocol.slcanbus``); only lines carrying a CAN frame (``T``, ``t``,
+  ``R``, ``r``, after any BEL answers) are dropped, as a CAN frame lost on the bus; bit flips hit every byte.
+
+The faults:
+
+- ``frames=P``: each frame is dropped with probability P;
 - ``bytes=P``: each byte of a frame that passes gets one random bit flipped with probability P (a delimiter
   may be hit too, merging or splitting frames: the decoder must cope);
 - ``silence=START_S:LENGTH_S``: nothing passes while the clock reads START_S <= t < START_S + LENGTH_S
@@ -104,13 +112,13 @@ class _Direction:
         g = math.log(1.0 - self.rng.random()) / d
         return int(g) if g < 1e18 else 10 ** 18    # 1e-320 would overflow int(): as good as never
 
-    def frame(self, data, silent):
+    def frame(self, data, silent, droppable=True):
         """The frame as it arrives (b"" if it is lost)."""
         self.frames += 1
         if silent:
             self.silenced += 1
             return b""
-        if self.f.p_frame and self.rng.random() < self.f.p_frame:
+        if self.f.p_frame and droppable and self.rng.random() < self.f.p_frame:
             self.dropped += 1
             return b""
         if self.next_flip < 0:
@@ -128,13 +136,35 @@ class _Direction:
         return bytes(buf)
 
 
-class FaultyPort:
-    """A port (``read(timeout)``, ``write(data)``, ``close()``) whose frames meet ``faults`` both ways."""
+class Framing:
+    """Where a frame ends (``delim``) and whether a frame may be dropped whole (``droppable(frame)``)."""
 
-    def __init__(self, port, faults, clock=None):
+    def __init__(self, name, delim, droppable=None):
+        self.name = name
+        self.delim = delim
+        self.droppable = droppable
+
+
+def _slcan_frame(chunk):
+    i = 0
+    while i < len(chunk) and chunk[i] == 7:     # BEL answers before the line
+        i += 1
+    return i < len(chunk) and chunk[i] in b"TtRr"
+
+
+SERIAL = Framing("serial", b"\x00")
+SLCAN = Framing("slcan", b"\r", _slcan_frame)
+
+
+class FaultyPort:
+    """A port (``read(timeout)``, ``write(data)``, ``close()``) whose frames (``framing``) meet ``faults``
+    both ways."""
+
+    def __init__(self, port, faults, clock=None, framing=SERIAL):
         self.port = port
         self.faults = faults
         self.clock = clock
+        self.framing = framing
         self.tx = _Direction(faults, faults.seed * 2 + 1)
         self.rx = _Direction(faults, faults.seed * 2 + 2)
         self._rx_part = b""
@@ -154,11 +184,13 @@ class FaultyPort:
         out = []
         silent = self.silent()
         start = 0
+        delim, droppable = self.framing.delim, self.framing.droppable
         while True:
-            end = data.find(b"\x00", start)
+            end = data.find(delim, start)
             if end < 0:
                 break
-            out.append(direction.frame(data[start:end + 1], silent))
+            chunk = data[start:end + 1]
+            out.append(direction.frame(chunk, silent, droppable is None or droppable(chunk)))
             start = end + 1
         return b"".join(out), data[start:]
 
@@ -186,11 +218,15 @@ class FaultyPort:
 
 
 def inject(link, faults, clock=None):
-    """Wrap a ``protocol.link.SerialLink``'s port with ``faults``; returns the ``FaultyPort``."""
+    """Wrap a ``protocol.link.SerialLink``'s port, or the Lawicel stream of a ``protocol.link.CanLink`` on an
+    slcan bus (``protocol.slcanbus``), with ``faults``; returns the ``FaultyPort``."""
     port = getattr(link, "_port", None)
     if port is None:
-        raise ValueError("--link-faults: injected on serial links only (pty or a serial port); CAN frames are "
-                         "checked and retransmitted by the CAN controller itself")
+        inj = getattr(getattr(link, "bus", None), "inject_faults", None)
+        if inj is None:
+            raise ValueError("--link-faults: injected on a serial link or an slcan adapter's stream only (this "
+                             "link is neither)")
+        return inj(faults, clock)
     fp = FaultyPort(port, faults, clock)
     link._port = fp
     return fp

@@ -9,14 +9,15 @@
   byte is written; this side keeps it open until the peer's first byte arrives, after which EIO on the
   master means the peer left (``closed``).
 - ``can:virtual:CHANNEL`` (or ``can:INTERFACE:CHANNEL``): python-can.
-- ``slcan:PATH``: python-can's slcan adapter on a serial device or pty slave (``sleep_after_open=0``).
-- ``slcan-pty``: be the slcan *device*: create a pty, speak Lawicel ASCII on the master (``LawicelBus``),
-  ``.peer_path`` for the process that opens ``slcan:PATH``.
+- ``slcan:PATH``: python-can's slcan adapter on a serial device or pty slave, read in blocks and dropping
+  malformed lines (``protocol.slcanbus.SlcanBus``).
+- ``slcan-pty``: be the slcan *device*: create a pty, speak Lawicel ASCII on the master
+  (``protocol.slcanbus.LawicelBus``), ``.peer_path`` for the process that opens ``slcan:PATH``.
 
-Serial links frame with ``protocol.host`` (COBS + CRC-16). CAN links send a payload of up to 8 bytes as one
-frame and longer ones with ISO-TP (PyPI ``can-isotp``), ids per ``protocol.can``; a receive thread answers
-ISO-TP flow control at once, and ``accept=(nodes...)`` makes a CAN link also deliver packets addressed to the
-nodes it serves (see ``CanLink``).
+Serial links frame with ``protocol.host`` (COBS + CRC-16). CAN links send a packet (payload and its end-to-end
+check) of up to 8 bytes as one frame and longer ones with ISO-TP (PyPI ``can-isotp``), ids per
+``protocol.can``; a receive thread answers ISO-TP flow control at once, and ``accept=(nodes...)`` makes a CAN
+link also deliver packets addressed to the nodes it serves (see ``CanLink``).
 """
 
 import collections
@@ -337,7 +338,7 @@ def open_serial(url, node, baudrate=115200):
 
 # --- CAN -------------------------------------------------------------------------------------------------
 class CanLink(Link):
-    """Packets over a python-can bus: one frame up to 8 bytes, else ISO-TP with can-isotp.
+    """Packets over a python-can bus: one frame up to 8 bytes (payload + check), else ISO-TP with can-isotp.
 
     Delivers packets addressed to this node, to BROADCAST, or to one of the ``accept`` nodes (names or
     addresses: the nodes this link serves, e.g. GROUND on the HIL host's BENCH link, whose replies and ISO-TP
@@ -345,23 +346,35 @@ class CanLink(Link):
     ``seq`` is None on CAN (see ``protocol.can``).
 
     A receive thread reads the bus all the time, reassembles ISO-TP transfers and answers their flow control
-    at once, as a CAN driver would: a peer's multi-frame send must not wait for this side to call ``recv``
-    (it gives up after ``ISOTP_TIMEOUT`` and the packet is lost). ``recv`` takes the packets it queued.
+    at once, as a CAN driver would. Frames that fail the end-to-end check, the table or ISO-TP's rules are
+    dropped and counted by reason; so are the adapter's malformed lines (``protocol.slcanbus``). Only the bus
+    failing (a closed port, a vanished adapter or peer) closes the link, with ``closed_why`` saying what.
+
+    Sending: an ISO-TP transfer whose flow control does not come within ``isotp_timeout_s`` (ISO 15765-2's
+    N_Bs, default 1 s) is aborted and the whole packet sent again, ``isotp_tries`` sends in all; if none gets
+    through the packet is lost (``send_raw`` returns False, counted ``tx_isotp_failed``) and the layer above
+    resends it (a TICK, a command, an ADCS cycle). A receiver's partial transfer is discarded after N_Cr
+    (``isotp_timeout_s``) or on the next first frame on its id.
     """
 
     ISOTP_TIMEOUT = 1.0
     POLL_S = 0.05     # the receive thread's bus wait: how soon it sees close()
 
-    def __init__(self, bus, node, accept=()):
+    def __init__(self, bus, node, accept=(), isotp_timeout_s=None, isotp_tries=3):
         Link.__init__(self, node)
         self.bus = bus
         self.accept = frozenset([self.node, 0xFF] + [core.node_id(n) for n in accept])
+        self.isotp_timeout_s = self.ISOTP_TIMEOUT if isotp_timeout_s is None else float(isotp_timeout_s)
+        self.isotp_tries = int(isotp_tries)
         self._dec = canmap.CanDecoder()
         self._stacks = {}   # rx id -> (TransportLayerLogic, deque of rx frames)
         self._rxq = collections.deque()
         self._cond = threading.Condition()   # guards everything above and every bus.send
         self.other_dst = 0
         self.isotp_errors = collections.Counter()
+        self.tx_isotp_resent = 0
+        self.tx_isotp_failed = 0
+        self.last_sent = None
         self.peer_path = None
         self._stop = False
         self._thread = threading.Thread(target=self._receive, name="canlink-rx", daemon=True)
@@ -381,7 +394,7 @@ class CanLink(Link):
                 self.isotp_errors[type(err).__name__] += 1
 
             addr = isotp.Address(isotp.AddressingMode.Normal_29bits, txid=txid, rxid=rxid)
-            ms = int(self.ISOTP_TIMEOUT * 1000)
+            ms = max(1, int(self.isotp_timeout_s * 1000))
             st = isotp.TransportLayerLogic(
                 lambda *_: q.popleft() if q else None, txfn, addr, error_handler=count,
                 params={"stmin": 0, "blocksize": 0, "rx_flowcontrol_timeout": ms + 500,   # ours fires first
@@ -393,45 +406,62 @@ class CanLink(Link):
         import can
         try:
             self.bus.send(can.Message(arbitration_id=cid, data=bytes(data), is_extended_id=True))
-        except can.CanOperationError:
+        except can.CanError as exc:
             self.closed = True
+            self.closed_why = self.closed_why or str(exc)
 
     def send_raw(self, pid, src, dst, payload):
-        """Send one packet; a long one blocks until its ISO-TP transfer is done (TimeoutError after
-        ``ISOTP_TIMEOUT`` s without flow control, ConnectionRefusedError if the receiver's flow control says
-        overflow). Returns None: CAN frames carry no sequence number."""
+        """Send one packet; a long one blocks until its ISO-TP transfer is done or given up (see the class
+        docstring; ``last_sent`` says which). ConnectionRefusedError if the receiver's flow control says
+        overflow (a packet too long for it: no resend helps). Returns None: CAN has no sequence number."""
+        self.last_sent = self._send(pid, src, dst, payload)
+
+    def _send(self, pid, src, dst, payload):
         self._seq = (self._seq + 1) & 0xFF
+        data = canmap.wire(pid, src, dst, payload)
         with self._cond:
-            if len(payload) <= canmap.SINGLE_MAX:
-                self._tx(canmap.can_id(pid, src, dst), payload)
-            else:
-                st, _ = self._stack(canmap.can_id(pid, dst, src, True))
+            if len(data) <= canmap.SINGLE_MAX:
+                self._tx(canmap.can_id(pid, src, dst), data)
+                self.tx_frames += 1
+                return not self.closed
+            st, _ = self._stack(canmap.can_id(pid, dst, src, True))
+            for attempt in range(self.isotp_tries):
+                if attempt:
+                    self.tx_isotp_resent += 1
                 refused = self.isotp_errors["OverflowError"]
-                st.send(bytes(payload))
+                st.send(data)
                 st.process()
-                deadline = time.monotonic() + self.ISOTP_TIMEOUT
+                deadline = time.monotonic() + self.isotp_timeout_s
                 while st.transmitting() and not self.closed:
                     left = deadline - time.monotonic()
                     if left <= 0:
                         st.stop_sending()
-                        raise TimeoutError("ISO-TP send of packet 0x%02x to node 0x%02x: no flow control"
-                                           % (pid, dst))
+                        self.isotp_errors["TimeoutError"] += 1
+                        break
                     self._cond.wait(min(left, 0.01))   # the receive thread takes the flow control
                     st.process()
-                if self.isotp_errors["OverflowError"] != refused:      # can-isotp stopped: nothing was delivered
-                    raise ConnectionRefusedError("ISO-TP send of packet 0x%02x to node 0x%02x: the receiver's flow "
-                                                 "control says overflow (%d bytes)" % (pid, dst, len(payload)))
-        self.tx_frames += 1
+                else:
+                    if self.isotp_errors["OverflowError"] != refused:      # can-isotp stopped: not delivered
+                        raise ConnectionRefusedError(
+                            "ISO-TP send of packet 0x%02x to node 0x%02x: the receiver's flow control says "
+                            "overflow (%d bytes)" % (pid, dst, len(data)))
+                    if self.closed:
+                        return False
+                    self.tx_frames += 1
+                    return True
+            self.tx_isotp_failed += 1
+            return False
 
     def _receive(self):
         """The receive thread: frames to packets (and ISO-TP flow control) until close() or the bus fails."""
         import can
         while not self._stop:
+            why = None
             try:
                 msg = self.bus.recv(self.POLL_S)
                 gone = getattr(self.bus, "peer_gone", False)
-            except (can.CanError, OSError):   # the slcan adapter or host went away
-                msg, gone = None, True
+            except (can.CanError, OSError) as exc:   # the port failed: the adapter or its host went away
+                msg, gone, why = None, True, str(exc) or type(exc).__name__
             if msg is None and not gone:
                 continue
             with self._cond:
@@ -441,6 +471,7 @@ class CanLink(Link):
                         self._rxq.append(p)
                 if gone:
                     self.closed = True
+                    self.closed_why = self.closed_why or why or "the CAN adapter's port closed"
                 self._cond.notify_all()
             if gone:
                 return
@@ -488,7 +519,12 @@ class CanLink(Link):
             d = self._dec.counters()
             d["other_dst"] = self.other_dst
             d["tx_frames"] = self.tx_frames
+            d["tx_isotp_resent"] = self.tx_isotp_resent
+            d["tx_isotp_failed"] = self.tx_isotp_failed
             d.update(("isotp_" + k, v) for k, v in self.isotp_errors.items())
+            c = getattr(self.bus, "counters", None)
+            if c is not None:
+                d.update(c())
         return d
 
     def close(self):
@@ -513,140 +549,27 @@ def isotp_msg(msg):
                             extended_id=msg.is_extended_id)
 
 
-_HEX = b"0123456789ABCDEFabcdef"
-LAWICEL_LINE_MAX = 26    # the longest Lawicel line before its CR: 'T', 8 id digits, the DLC, 16 data digits
-
-
-def _lawicel_bus_class():
+def open_can(interface, channel, node, accept=(), isotp_timeout_s=None, isotp_tries=3, **kw):
+    """A CanLink on python-can's ``interface`` (``slcan``: ``protocol.slcanbus.SlcanBus``)."""
     import can
-
-    class LawicelBus(can.BusABC):
-        """The device side of an slcan adapter on a pty master: Lawicel ASCII in and out.
-
-        Frames the slcan host sends (``T`` lines) are received here; frames sent here reach the host as
-        ``T`` lines. Commands ``O``, ``C``, ``L``, ``S0``..``S9``, ``V``, ``N`` are answered like an adapter.
-        """
-
-        def __init__(self, channel="slcan-pty", **kw):
-            self._master, slave = os.openpty()
-            tty.setraw(slave)
-            self.peer_path = os.ttyname(slave)
-            self._port = _FdPort(self._master, hold_fd=slave)
-            self._buf = bytearray()
-            self._skip = False               # in an overlong line: dropped up to its CR
-            self._rx = collections.deque()
-            self.is_open = False
-            self.peer_gone = False
-            self._wlock = threading.Lock()   # replies from the receive thread, frames from any thread
-            can.BusABC.__init__(self, channel, **kw)
-
-        def _write(self, data):
-            with self._wlock:
-                try:
-                    self._port.write(data)
-                except PeerGone:
-                    self.peer_gone = True
-
-        def _line(self, line):
-            if not line:
-                return
-            c = line[:1]
-            if c in (b"T", b"t", b"R", b"r"):
-                ext = c in (b"T", b"R")
-                remote = c in (b"R", b"r")
-                n = 8 if ext else 3
-                # exactly: n hex id digits (29 or 11 bits), one DLC digit 0-8, 2 x DLC hex data digits
-                dlc = line[1 + n:2 + n]
-                dlc = int(dlc) if dlc.isdigit() and dlc <= b"8" else -1
-                body = line[1:1 + n] + line[2 + n:]
-                if (dlc < 0 or len(line) != 2 + n + (0 if remote else 2 * dlc) or body.strip(_HEX)
-                        or int(line[1:1 + n], 16) > (0x1FFFFFFF if ext else 0x7FF)):
-                    self._write(b"\a")
-                    return
-                cid = int(line[1:1 + n], 16)
-                data = b"" if remote else bytes.fromhex(line[2 + n:].decode())
-                if self.is_open:
-                    self._rx.append(can.Message(arbitration_id=cid, is_extended_id=ext, data=data, dlc=dlc,
-                                                is_remote_frame=remote, timestamp=time.time()))
-                    self._write(b"Z\r" if ext else b"z\r")
-                else:
-                    self._write(b"\a")
-            elif c in (b"O", b"L"):
-                self.is_open = True
-                self._write(b"\r")
-            elif c == b"C":
-                self.is_open = False
-                self._write(b"\r")
-            elif c == b"V":
-                self._write(b"V1013\r")
-            elif c == b"N":
-                self._write(b"NFPS0\r")
-            else:  # S0-S9, s, F, Z, ...: accepted
-                self._write(b"\r")
-
-        def _recv_internal(self, timeout):
-            deadline = None if timeout is None else time.monotonic() + timeout
-            while not self._rx:
-                wait = None if deadline is None else max(0.0, deadline - time.monotonic())
-                try:
-                    data = self._port.read(wait)
-                except PeerGone:
-                    self.peer_gone = True
-                    raise can.CanOperationError("the slcan host closed the pty") from None
-                self._buf.extend(data)
-                while True:
-                    i = self._buf.find(b"\r")
-                    if i < 0:
-                        break
-                    line = bytes(self._buf[:i])
-                    del self._buf[:i + 1]
-                    if self._skip:            # the end of an overlong line, already answered
-                        self._skip = False
-                    else:
-                        self._line(line)
-                if len(self._buf) > LAWICEL_LINE_MAX:     # no CR in sight: garbage, not a line; answered once
-                    del self._buf[:]
-                    if not self._skip:
-                        self._skip = True
-                        self._write(b"\a")
-                if deadline is not None and time.monotonic() >= deadline:
-                    break
-            if self._rx:
-                return self._rx.popleft(), False
-            return None, False
-
-        def send(self, msg, timeout=None):
-            if msg.is_extended_id:
-                head = "%s%08X%d" % ("R" if msg.is_remote_frame else "T", msg.arbitration_id, msg.dlc)
-            else:
-                head = "%s%03X%d" % ("r" if msg.is_remote_frame else "t", msg.arbitration_id, msg.dlc)
-            line = head + ("" if msg.is_remote_frame else bytes(msg.data).hex().upper()) + "\r"
-            self._write(line.encode())
-
-        def shutdown(self):
-            can.BusABC.shutdown(self)
-            self._port.close()
-
-    return LawicelBus
-
-
-def open_can(interface, channel, node, accept=(), **kw):
-    import can
-    if interface == "slcan":
-        kw.setdefault("sleep_after_open", 0)
     try:
-        bus = can.Bus(interface=interface, channel=channel, **kw)
+        if interface == "slcan":
+            from protocol.slcanbus import SlcanBus
+            bus = SlcanBus(channel, **kw)
+        else:
+            bus = can.Bus(interface=interface, channel=channel, **kw)
     except can.CanInterfaceNotImplementedError as exc:      # a typo in the spec: bad input
         raise ValueError("CAN interface %r: %s" % (interface, exc)) from None
     except can.CanInitializationError as exc:               # no such port or adapter: the link failed
         raise OSError("CAN %s channel %r: %s" % (interface, channel, exc)) from None
-    return CanLink(bus, node, accept)
+    return CanLink(bus, node, accept, isotp_timeout_s=isotp_timeout_s, isotp_tries=isotp_tries)
 
 
-def open_slcan_device(node, accept=()):
+def open_slcan_device(node, accept=(), isotp_timeout_s=None, isotp_tries=3):
     """Be the slcan adapter: a CanLink on a Lawicel-speaking pty master; ``.peer_path`` for ``slcan:``."""
-    bus = _lawicel_bus_class()()
-    link = CanLink(bus, node, accept)
+    from protocol.slcanbus import LawicelBus
+    bus = LawicelBus()
+    link = CanLink(bus, node, accept, isotp_timeout_s=isotp_timeout_s, isotp_tries=isotp_tries)
     link.peer_path = bus.peer_path
     return link
 
@@ -663,7 +586,7 @@ def open_link(spec, node, **kw):
     if spec == "pty":
         return open_pty(node)
     if spec == "slcan-pty":
-        return open_slcan_device(node, accept)
+        return open_slcan_device(node, accept, **kw)
     if spec.startswith("slcan:"):
         return open_can("slcan", spec[len("slcan:"):], node, accept, **kw)
     if spec.startswith("can:"):

@@ -97,7 +97,7 @@ def test_slcan_adapter_answers_commands_like_an_adapter(tmp_path):
         assert ask(b"V\r")[0] == b"V1013\r"
         assert ask(b"N\r")[0] == b"NFPS0\r"
         assert ask(b"S8\r")[0] == b"\r" and ad.bitrate == 8
-        assert ask(b"T0A8A603010102\r")[0] == b"\a"                 # closed: refused
+        assert ask(b"T0A8A603020102\r")[0] == b"\a"                 # closed: refused
         assert ask(b"O\r")[0] == b"\r" and ad.is_open
         out, frames = ask(b"T0A8A60302ABCD\r")
         assert out == b"Z\r" and frames == [(0x0A8A6030, True, bytearray(b"\xab\xcd"))]

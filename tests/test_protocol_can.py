@@ -44,8 +44,8 @@ def test_dbc_holds_exactly_the_single_frame_packets(db):
     assert sorted(m.name for m in db.messages) == sorted(core.PACKET[p].name for p in SINGLE)
     for m in db.messages:
         pkt = core.packet_def(m.name)
-        assert m.length == pkt.size and m.is_extended_frame
-        assert [s.name for s in m.signals] == list(pkt.names)
+        assert m.length == pkt.size + canmap.CHECK_BYTES and m.is_extended_frame
+        assert [s.name for s in m.signals] == list(pkt.names) + ["e2e_check"]
         for s, f in zip(m.signals, pkt.fields):
             assert (s.unit or "") == f[2] and s.scale == f[3] and s.is_float == (f[1] == "f")
 
@@ -60,7 +60,9 @@ def test_cantools_decodes_our_frames_to_the_same_values(db, pid):
         [(cid, data)] = canmap.encode_packet(pid, src, dst, values)
         msg = db.get_message_by_frame_id(cid)
         assert msg.name == pkt.name
-        assert msg.decode(data, scaling=False, decode_choices=False) == values
+        raw = msg.decode(data, scaling=False, decode_choices=False)
+        assert raw.pop("e2e_check") == canmap.check(pid, src, dst, core.encode_payload(pid, values))
+        assert raw == values
         phys = msg.decode(data, decode_choices=False)
         for f in pkt.fields:
             assert phys[f[0]] == pytest.approx(values[f[0]] * f[3], rel=1e-12, abs=1e-12)
@@ -87,16 +89,39 @@ def test_decoder_drops_by_reason_without_raising():
     assert dec.feed(0x123, b"\x01\x02", extended=False) is None
     assert dec.feed(ok[0] | canmap.RESERVED_BIT, ok[1]) is None
     assert dec.feed(canmap.can_id(0xEE, 1, 2), b"\x00") is None                 # no packet 0xEE
-    assert dec.feed(ok[0], ok[1] + b"\x00") is None                             # ACK is 2 bytes
+    assert dec.feed(ok[0], ok[1] + b"\x00") is None                             # ACK is 2 bytes + check
     multi = canmap.encode_packet("GNSS", 0x51, 0x30)
     assert dec.feed(multi[2][0], multi[2][1]) is None                           # CF without FF
     assert dec.feed(*ok) is not None
     d = dec.counters()
     assert (d["not_extended"], d["reserved_bit"], d["unknown_id"], d["bad_length"], d["unexpected_cf"]) \
         == (1, 1, 1, 1, 1)
+    assert d["bad_crc"] == 0
     rng = random.Random(7)
     for _ in range(20000):   # random frames never raise
         dec.feed(rng.getrandbits(30), rng.randbytes(rng.randint(0, 8)), rng.random() < 0.9)
+
+
+def test_end_to_end_check_catches_a_damaged_payload_or_id():
+    """Every single-bit flip of a frame's data, and a frame delivered to another node or packet id, fails the
+    check (a flipped hex digit in an slcan line is still a valid frame: only the check catches it)."""
+    dec = canmap.CanDecoder()
+    expect = 1
+    for name in ("RW_CMD", "ACK", "HELLO"):
+        [(cid, data)] = canmap.encode_packet(name, 0x30, 0x40, **({"torque": 1e-3} if name == "RW_CMD" else {}))
+        assert dec.feed(cid, data) is not None
+        expect += len(data) * 8 + 2
+        for i in range(len(data) * 8):
+            bad = bytearray(data)
+            bad[i // 8] ^= 1 << (i % 8)
+            assert dec.feed(cid, bytes(bad)) is None
+        assert dec.feed(cid ^ 0x01, data) is None                 # another destination
+        assert dec.feed(cid ^ (0x01 << 8), data) is None          # another source
+    frames = canmap.encode_packet("GNSS", 0x51, 0x30)
+    cid, last = frames[-1]
+    frames[-1] = (cid, last[:1] + bytes((last[1] ^ 0x10,)) + last[2:])
+    assert [dec.feed(c, d) for c, d in frames] == [None] * len(frames)
+    assert dec.drops["bad_crc"] == expect and sum(dec.drops.values()) == expect
 
 
 def test_candump_lines_round_trip():

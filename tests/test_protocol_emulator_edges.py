@@ -118,30 +118,37 @@ def test_slcan_device_refuses_malformed_lawicel_lines(tmp_path):
 
     try:
         assert line("O") == b"\r"
-        cid = canmap.can_id(core.PACKET_ID["ADCS_TICK"], core.NODE["ADCS"], core.NODE["SPACECRAFT"])
-        pl = core.encode_payload("ADCS_TICK", tick=3, t_ms=3000).hex().upper()
-        for bad in ("T%08X9%s00" % (cid, pl),            # DLC 9: not classic CAN
-                    "T%08XF%s" % (cid, pl + "00" * 7),    # DLC F
-                    "T%08X8%s00" % (cid, pl),             # a data byte beyond the DLC
-                    "T%08X8%s" % (cid, pl[:-2]),          # one short
-                    "T-%07X8%s" % (cid, pl),              # a sign in the id
-                    "T %07X8%s" % (cid, pl),              # a space in the id
-                    "T%08X8%s" % (0x3FFFFFFF, pl),        # beyond 29 bits
-                    "t8008" + pl):                        # beyond 11 bits
+        payload = core.encode_payload("ACK", ref_id=0x45, ref_seq=3)
+        [(cid, data)] = canmap.encode_frames(core.PACKET_ID["ACK"], core.NODE["ADCS"], core.NODE["SPACECRAFT"],
+                                             payload)
+        pl, n = data.hex().upper(), len(data)
+        for bad in ("T%08X9%s00" % (cid, pl + "00" * (8 - n)),   # DLC 9: not classic CAN
+                    "T%08XF%s" % (cid, pl + "00" * 11),           # DLC F
+                    "T%08X%d%s00" % (cid, n, pl),                 # a data byte beyond the DLC
+                    "T%08X%d%s" % (cid, n, pl[:-2]),              # one short
+                    "T-%07X%d%s" % (cid, n, pl),                  # a sign in the id
+                    "T %07X%d%s" % (cid, n, pl),                  # a space in the id
+                    "T%08X%d%s" % (0x3FFFFFFF, n, pl),            # beyond 29 bits
+                    "t800%d%s" % (n, pl),                         # beyond 11 bits
+                    "T%08X%d%sG" % (cid, n, pl[:-1]),             # a non-hex digit
+                    "Q12"):                                       # an unknown command
             assert line(bad) == b"\a", bad
         assert dev.recv(0.05) == []
-        assert line("T%08X8%s" % (cid, pl)) == b"Z\r"
-        assert dev.recv(2.0) == [(core.PACKET_ID["ADCS_TICK"], core.NODE["ADCS"], core.NODE["SPACECRAFT"], None,
-                                  bytes.fromhex(pl))]
+        d = dev.counters()
+        assert (d["slcan_overlong"], d["slcan_bad_length"], d["slcan_non_hex"], d["slcan_unknown_command"]) \
+            == (2, 2, 5, 1)     # a DLC 9 or F line's data runs past the longest classic line
+        assert line("T%08X%d%s" % (cid, n, pl)) == b"Z\r"
+        assert dev.recv(2.0) == [(core.PACKET_ID["ACK"], core.NODE["ADCS"], core.NODE["SPACECRAFT"], None,
+                                  payload)]
         assert dev.counters()["frames"] == 1 and dev.counters()["reserved_bit"] == 0
-        os.write(fd, b"T" * 100000)        # no CR: the buffer grew without bound, and no answer came
+        os.write(fd, b"T" * 100000)        # no CR: dropped in a fixed buffer, answered once
         out, end = b"", time.monotonic() + 5.0
         while time.monotonic() < end and not out:
             if select.select([fd], [], [], 0.05)[0]:
                 out += os.read(fd, 256)
-        assert out == b"\a" and len(dev.bus._buf) <= link.LAWICEL_LINE_MAX
-        os.write(fd, b"%08X8%s\r" % (cid, pl.encode()))  # the overlong line's end: dropped, unanswered
-        assert line("T%08X8%s" % (cid, pl)) == b"Z\r" and len(dev.recv(2.0)) == 1
+        assert out == b"\a" and dev.counters()["slcan_overlong"] == 3
+        os.write(fd, b"%08X%d%s\r" % (cid, n, pl.encode()))  # the overlong line's end: dropped, unanswered
+        assert line("T%08X%d%s" % (cid, n, pl)) == b"Z\r" and len(dev.recv(2.0)) == 1
     finally:
         os.close(fd)
         dev.close()

@@ -21,7 +21,7 @@ with open(sys.argv[2]) as fh:
 k0, k1 = int(sys.argv[3]), int(sys.argv[4])
 app = App(cfg)
 ad = SlcanAdapter("/dev/null")
-ad.is_open = True
+ad.lw.is_open = True
 port = CanPort(ad, "ADCS")
 me, host = port.node, core.NODE["SPACECRAFT"]
 HEX = "0123456789ABCDEF"
@@ -79,7 +79,7 @@ for k in range(k1):
         chunk = lines[i:i + len(ad._buf)]
         ad._buf[0:len(chunk)] = chunk
         out = []
-        ad._bytes(len(chunk), out)
+        ad.lw.feed(ad._buf, len(chunk), out)
         port._frames(out)
     for pid, src, dst, seq, payload in port.recv_ms(0):
         if pid != tick_pkt:

@@ -15,7 +15,8 @@ on a 32-bit MCU, so the tick allocates nothing and is bit-identical under CPytho
    (code * 256, 0.298 uV per LSB); high parts times dR (each <= 31999 * 16383, the pair < 2^30) plus the low
    bytes' share, Q(15 + hq), shifted by 7 + hq to Q8 and rounded;
 6. saturation with anti-windup: the state itself is clamped to +-limit_code (Q8), so the integrator never
-   runs past the mirror's range; the output codes are (V + 128) >> 8, always within +-limit_code;
+   runs past the mirror's range; the output codes are (V + 128) >> 8, always within +-limit_code. A tick whose
+   law hit the clamp on either axis is counted (n_sat) and extends the saturation run (sat_run, below);
 7. the four AD5664R words (layout in ``firmware.ad5664r``); the first tick sends the AD5664R's init sequence
    instead.
 
@@ -31,13 +32,29 @@ zero latency 11.6 dB, 76 deg, 41 Hz. Both exceed the factor 2 wanted for the 12 
 
 Modes (``protocol.table.MODES``): IDLE ramps the command to the centre; TRACK runs the law; HOLD freezes the
 command; CALIBRATE takes voltages from CTRL_SET_FSM; SAFE ramps to the centre and stays there until the
-ground commands another mode. TRACK enters SAFE after ``safe_ticks`` consecutive beam-lost ticks (holding
-meanwhile); TRACK, HOLD and CALIBRATE enter SAFE after ``safe_ticks`` ticks without a packet from the link:
-on a board ``tick`` counts the hardware-timer ticks since the last ``handle``d packet; over the link HAL
-every TICK is link traffic and the wait between TICKs is counted (``link_silent``).
+ground commands another mode; SATURATED is TRACK with the command stuck on its clamp. TRACK (and SATURATED)
+enter SAFE after ``safe_ticks`` consecutive beam-lost ticks (holding meanwhile); TRACK, SATURATED, HOLD and
+CALIBRATE enter SAFE after ``safe_ticks`` ticks without a packet from the link: on a board ``tick`` counts the
+hardware-timer ticks since the last ``handle``d packet; over the link HAL every TICK is link traffic and the
+wait between TICKs is counted (``link_silent``).
+
+Saturation is an event. The run ``sat_run`` counts the ticks the command has stayed on its clamp: each tick
+the law hits it, and each beam-lost hold in TRACK or SATURATED after one (the held command is the clamped
+one). TRACK enters SATURATED when the run reaches ``sat_ticks`` (default ``SAT_TICKS`` = 64, 100.3 ms at
+637.8 Hz). Why 64: the loop (g = 0.5, -3 dB rejection bandwidth 39 Hz, a time constant of 4.1 ms = 2.6 ticks)
+settles in a few ticks, so a transient or a jitter crest holds the clamp for a few ticks only, while 64 ticks
+(25 time constants) on it mean the error itself lies beyond the mirror's range; and 64 is the default status
+decimation, so with decim <= sat_ticks every sustained saturation shows in a CTRL_STATUS while under way, and
+its length (``sat_last``) in the next one, before another can end. SATURATED runs the same law; on the first
+law tick whose command stays inside the clamp on both axes the run ends and the controller returns to TRACK
+(bumpless: the law never stopped); a new episode needs another full run, so the mode changes at most once each
+way per sat_ticks + 1 ticks. A run that reached sat_ticks leaves its length in ``sat_last``;
+``n_sat_episodes`` counts the entries. HOLD, SAFE or any other mode ends a run; a CTRL_SETTINGS asking for
+TRACK while SATURATED keeps SATURATED. ``why`` keeps its meaning (why SAFE was last entered): SATURATED is its
+own reason.
 
 Speed (bench/bench_firmware.py): the tick's state is one preallocated integer list (slots ``S_*`` below) read
-through a local, and ``step`` runs the common case (TRACK, beam present) inline with every other case in
+through a local, and ``step`` runs the law (TRACK or SATURATED, beam present) inline with every other case in
 ``_step_other``. ``firmware.controller_viper.ViperController`` (MicroPython only) runs that common case as
 viper machine code over an int32 array with the same slots and gives identical codes.
 """
@@ -68,6 +85,7 @@ TRACK = const(1)
 HOLD = const(2)
 CALIBRATE = const(3)
 SAFE = const(4)
+SATURATED = const(5)
 
 # The tick's state lives in one preallocated integer list, ``Controller._s`` (an index load is far cheaper than
 # an attribute lookup under MicroPython); the slots, with their Q-formats:
@@ -89,10 +107,13 @@ S_BYQ = const(14)
 S_SHIFT = const(15)      # 7 + hq: law product Q(15 + hq) -> Q8
 S_ROUND = const(16)      # 128 + (1 << (shift - 1) << 8): both roundings of the law, added before its >> 8
 S_SAT_TICK = const(17)   # last tick the command saturated (-1: never)
-S_N_LOST = const(18)     # telemetry counters, wrap at 2^16
-S_N_SAT = const(19)
+S_N_LOST = const(18)     # telemetry counter, wraps at 2^16
+S_N_SAT = const(19)      # ticks the law hit the clamp (stops at _COUNT_MAX)
 S_GH = const(20)         # cached g H^-1 (_gain_hinv): high parts h11 h12 h21 h22 (Q hq), then low bytes
-S_SIZE = const(28)
+S_SAT_RUN = const(28)    # ticks the command has stayed on its clamp (0: off it; stops at _COUNT_MAX)
+S_SAT_LAST = const(29)   # length of the last run that reached sat_ticks, once ended (0: none)
+S_N_SAT_EP = const(30)   # entries into SATURATED, wraps at 2^16
+S_SIZE = const(31)
 
 _INIT_BIT = const(8)
 _E_MAX = const(16383)             # |dR| clamp, Q15 (0.5)
@@ -105,6 +126,7 @@ WHY_BEAM = const(1)               # CTRL_STATUS.why (protocol.table.SAFE_REASONS
 WHY_LINK = const(2)
 WHY_COMMANDED = const(3)
 MAX_HTABLE_BYTES = const(8192)    # H-table blob the controller accepts: a 22x22 grid (7.9 kB; 11x11 is 2 kB)
+SAT_TICKS = const(64)             # ticks on the clamp in a row before TRACK enters SATURATED (module docstring)
 
 _P = core.PACKET_ID
 _E = core.ERROR
@@ -150,9 +172,12 @@ class Controller:
     ry_cmd = _slot(S_RYC)
     n_lost = _slot(S_N_LOST)
     n_sat = _slot(S_N_SAT)
+    sat_run = _slot(S_SAT_RUN)
+    sat_last = _slot(S_SAT_LAST)
+    n_sat_episodes = _slot(S_N_SAT_EP)
 
     def __init__(self, hal=None, table=None, gain_q15=16384, beam_threshold=200, safe_ticks=638, decim=64,
-                 limit_code=ad5664r.TILT_LIMIT_CODE, ramp_code=64, rx_cmd_q15=0, ry_cmd_q15=0):
+                 limit_code=ad5664r.TILT_LIMIT_CODE, ramp_code=64, rx_cmd_q15=0, ry_cmd_q15=0, sat_ticks=SAT_TICKS):
         _check_int("gain_q15", gain_q15, 0, 65535)
         _check_int("beam_threshold", beam_threshold, 1, 4095)
         _check_int("safe_ticks", safe_ticks, 1, 65535)
@@ -161,6 +186,7 @@ class Controller:
         _check_int("ramp_code", ramp_code, 1, ad5664r.TILT_LIMIT_CODE)
         _check_int("rx_cmd_q15", rx_cmd_q15, -16384, 16384)
         _check_int("ry_cmd_q15", ry_cmd_q15, -16384, 16384)
+        _check_int("sat_ticks", sat_ticks, 1, 65535)
         self._s = s = self._state()
         s[S_MODE] = IDLE | _INIT_BIT   # the first tick sends the AD5664R init sequence
         s[S_THR] = beam_threshold
@@ -175,6 +201,7 @@ class Controller:
         self.hal = hal
         self.gain = gain_q15
         self.safe_ticks = safe_ticks
+        self.sat_ticks = sat_ticks
         self.decim = decim
         self.ramp_q8 = ramp_code << 8
         self._pkt = 0                  # tick of the last packet from the link
@@ -201,7 +228,7 @@ class Controller:
 
     @property
     def mode(self):
-        return self._s[S_MODE] & 7
+        return self._s[S_MODE] & 7      # IDLE .. SATURATED (0..5) fit below _INIT_BIT
 
     @mode.setter
     def mode(self, m):
@@ -252,9 +279,10 @@ class Controller:
 
     def step(self, vx, vy, vs):
         """One control tick from Q1 counts (Eq. 7.4, 7.12, 7.13); words in ``self.words``; returns 4.
-        The common case (TRACK, beam present) runs inline; every other case is ``_step_other``."""
+        The law (TRACK or SATURATED, beam present) runs inline; every other case is ``_step_other``."""
         s = self._s
-        if s[S_MODE] != TRACK or vs < s[S_THR]:
+        m = s[S_MODE]
+        if (m != TRACK and m != SATURATED) or vs < s[S_THR]:
             return self._step_other(vx, vy, vs)
         s[S_TICKS] = (s[S_TICKS] + 1) & _COUNT_MAX
         s[S_VS] = vs
@@ -287,7 +315,10 @@ class Controller:
         v_y -= (s[S_GH + 2] * ex + s[S_GH + 3] * ey + ((s[S_GH + 6] * ex + s[S_GH + 7] * ey + r) >> 8)) >> n
         r = s[S_LIM]
         if v_x > r or v_y > r or v_x < s[S_NLIM] or v_y < s[S_NLIM]:
+            self._run_on()                                  # the law hit the clamp: the run goes on
             return self._out(v_x, v_y)
+        if s[S_SAT_RUN]:                                    # inside the clamp again: the run ends
+            self._run_end()
         s[S_VX] = v_x
         s[S_VY] = v_y
         w = self.words
@@ -300,7 +331,7 @@ class Controller:
         return 4
 
     def _step_other(self, vx, vy, vs):
-        """``step`` for the init tick, beam loss and the modes other than TRACK."""
+        """``step`` for the init tick, beam loss and the modes other than TRACK and SATURATED."""
         s = self._s
         m = s[S_MODE]
         if m & _INIT_BIT:              # first tick after boot: the AD5664R init sequence
@@ -315,9 +346,11 @@ class Controller:
         s[S_VS] = vs
         if vs < s[S_THR]:
             s[S_N_LOST] = (s[S_N_LOST] + 1) & 0xFFFF
-            if m == TRACK:             # hold (no integration); SAFE after safe_ticks consecutive lost ticks
+            if m == TRACK or m == SATURATED:   # hold (no integration); SAFE after safe_ticks lost ticks in a row
                 if s[S_LOST] < _COUNT_MAX:
                     s[S_LOST] += 1
+                if s[S_SAT_RUN]:       # the held command is the clamped one: the run goes on
+                    self._run_on()
                 if s[S_LOST] >= self.safe_ticks:
                     s[S_MODE] = SAFE
                     self.why = WHY_BEAM
@@ -325,6 +358,8 @@ class Controller:
             r = vs >> 1
             s[S_RX] = (((2048 - vx) << 15) + r) // vs
             s[S_RY] = (((2048 - vy) << 15) + r) // vs
+        if s[S_SAT_RUN] and m != TRACK and m != SATURATED:    # no law this tick: the run ends
+            self._run_end()
         if m == SAFE or m == IDLE:     # move the command toward the centre by ramp_code per tick, never integrating
             r = self.ramp_q8
             v = s[S_VX]
@@ -332,6 +367,28 @@ class Controller:
             v = s[S_VY]
             s[S_VY] = v - r if v > r else (v + r if v < -r else 0)
         return self._out(s[S_VX], s[S_VY])
+
+    def _run_on(self):
+        """One more tick on the clamp: TRACK enters SATURATED when the run reaches ``sat_ticks``."""
+        s = self._s
+        n = s[S_SAT_RUN]
+        if n < _COUNT_MAX:
+            n += 1
+            s[S_SAT_RUN] = n
+        if n >= self.sat_ticks and s[S_MODE] == TRACK:
+            s[S_MODE] = SATURATED
+            s[S_N_SAT_EP] = (s[S_N_SAT_EP] + 1) & 0xFFFF
+
+    def _run_end(self):
+        """The command left the clamp (or the law stopped): a sustained run leaves its length in sat_last, and
+        SATURATED returns to TRACK."""
+        s = self._s
+        n = s[S_SAT_RUN]
+        if n >= self.sat_ticks:
+            s[S_SAT_LAST] = n
+        s[S_SAT_RUN] = 0
+        if s[S_MODE] == SATURATED:
+            s[S_MODE] = TRACK
 
     def _out(self, v_x, v_y):
         """Saturation (the state itself is clamped: anti-windup), then the words of command v_x, v_y (Q8)."""
@@ -341,7 +398,8 @@ class Controller:
             v_x = r if v_x > r else (-r if v_x < -r else v_x)
             v_y = r if v_y > r else (-r if v_y < -r else v_y)
             s[S_SAT_TICK] = s[S_TICKS]
-            s[S_N_SAT] = (s[S_N_SAT] + 1) & 0xFFFF
+            if s[S_N_SAT] < _COUNT_MAX:
+                s[S_N_SAT] += 1
         s[S_VX] = v_x
         s[S_VY] = v_y
         w = self.words
@@ -421,7 +479,8 @@ class Controller:
                            self.flags, _uv(self.vx_q8), _uv(self.vy_q8), rx, ry, self.vs,
                            w[0] & 0xFFFF, w[1] & 0xFFFF, w[2] & 0xFFFF, w[3] & 0xFFFF,
                            self.n_lost, self.n_sat, self.n_unknown, self.why, self.n_dup & 0xFFFF,
-                           self.n_gap & 0xFFFF, self.n_rx_drop & 0xFFFF)
+                           self.n_gap & 0xFFFF, self.n_rx_drop & 0xFFFF, self.sat_run, self.sat_last,
+                           self.n_sat_episodes)
 
     def handle(self, pid, src, seq, payload):
         """One packet from the link (``seq`` None on CAN); returns a list of replies ``(pid, dst, payload)``.
@@ -475,8 +534,8 @@ class Controller:
             self._s[S_BXQ] = _NO_BIN
         self.decim = decim
         self.safe_ticks = safe_ticks
-        if mode != self.mode:
-            self.mode = mode          # TRACK starts from the current command: bumpless
+        if mode != self.mode and not (mode == TRACK and self.mode == SATURATED):
+            self.mode = mode          # TRACK starts from the current command: bumpless (SATURATED is TRACK)
             self.lost = 0
             if mode == SAFE:
                 self.why = WHY_COMMANDED

@@ -1,14 +1,15 @@
-"""The controller with its common tick (TRACK, beam present, no saturation; a command that leaves the cached
-g H^-1 bin included) compiled by MicroPython's viper emitter to machine code. MicroPython only; the .mpy needs
-``mpy-cross -march``.
+"""The controller with its common tick (TRACK, beam present, the command inside its clamp with no saturation
+run to end; a command that leaves the cached g H^-1 bin included) compiled by MicroPython's viper emitter to
+machine code. MicroPython only; the .mpy needs ``mpy-cross -march``.
 
 Same law, same integers, same order of operations as ``Controller.step`` (firmware/controller.py, Eq. 7.4,
 7.12, 7.13), so the codes are identical (tests/mp/firmware_viper.py checks it over long runs). The state is
 an ``array('i')`` (int32, every slot within +-2^30) with the slots and Q-formats of ``firmware.controller``;
 the words an ``array('i')``. A new bin recomputes the cached g H^-1 here (in viper). Any other case (init tick,
-other modes, beam lost, saturation) is detected before the loop's state is stored and handed whole to the
-bytecode ``Controller.step`` (on saturation the g H^-1 cache may already hold the new bin's, the same values
-the bytecode step computes for it).
+other modes, SATURATED included, beam lost, saturation, the first tick off the clamp after a saturation run)
+is detected before the loop's state is stored and handed whole to the bytecode ``Controller.step``, which
+keeps the saturation counters and mode (on saturation the g H^-1 cache may already hold the new bin's, the
+same values the bytecode step computes for it).
 """
 
 import micropython
@@ -38,6 +39,7 @@ S_BYQ = const(14)
 S_SHIFT = const(15)
 S_ROUND = const(16)
 S_GH = const(20)
+S_SAT_RUN = const(28)
 _TRACK = const(1)
 _E_MAX = const(16383)
 _COUNT_MAX = const(0x3FFFFFFF)
@@ -45,7 +47,8 @@ _COUNT_MAX = const(0x3FFFFFFF)
 for _k, _v in (("S_MODE", S_MODE), ("S_TICKS", S_TICKS), ("S_VX", S_VX), ("S_VY", S_VY), ("S_RX", S_RX),
                ("S_RY", S_RY), ("S_VS", S_VS), ("S_LOST", S_LOST), ("S_THR", S_THR), ("S_RXC", S_RXC),
                ("S_RYC", S_RYC), ("S_LIM", S_LIM), ("S_NLIM", S_NLIM), ("S_BXQ", S_BXQ), ("S_BYQ", S_BYQ),
-               ("S_SHIFT", S_SHIFT), ("S_ROUND", S_ROUND), ("S_GH", S_GH), ("TRACK", _TRACK)):
+               ("S_SHIFT", S_SHIFT), ("S_ROUND", S_ROUND), ("S_GH", S_GH), ("S_SAT_RUN", S_SAT_RUN),
+               ("TRACK", _TRACK)):
     if getattr(_c, _k) != _v:
         raise ImportError("controller_viper: slot %s is %d here, %d in firmware.controller" % (_k, _v,
                                                                                               getattr(_c, _k)))
@@ -110,8 +113,8 @@ class ViperController(Controller):
         v_x -= (k0 * ex + k1 * ey + ((int(s[S_GH + 4]) * ex + int(s[S_GH + 5]) * ey + r) >> 8)) >> n
         v_y -= (k2 * ex + k3 * ey + ((int(s[S_GH + 6]) * ex + int(s[S_GH + 7]) * ey + r) >> 8)) >> n
         lim = int(s[S_LIM])
-        if v_x > lim or v_y > lim or v_x < -lim or v_y < -lim:
-            return int(self.step_bytecode(vx, vy, vs))       # saturation: nothing stored yet
+        if v_x > lim or v_y > lim or v_x < -lim or v_y < -lim or s[S_SAT_RUN] != 0:
+            return int(self.step_bytecode(vx, vy, vs))       # saturation or a run ending: nothing stored yet
         s[S_TICKS] = (s[S_TICKS] + 1) & _COUNT_MAX
         s[S_VS] = vs
         s[S_LOST] = 0

@@ -33,8 +33,10 @@ NODES = (
     ("BROADCAST", 0xFF, "every node"),
 )
 
-# Controller modes (CTRL_SETTINGS.mode, CTRL_STATUS.mode).
-MODES = (("IDLE", 0), ("TRACK", 1), ("HOLD", 2), ("CALIBRATE", 3), ("SAFE", 4))
+# Controller modes (CTRL_SETTINGS.mode, CTRL_STATUS.mode). SATURATED is TRACK with the FSM command held on its
+# clamp for a sustained run (firmware.controller.SAT_TICKS): the law still runs; the controller enters it and
+# returns to TRACK on its own, and the ground cannot command it (CTRL_SETTINGS.mode stops at SAFE).
+MODES = (("IDLE", 0), ("TRACK", 1), ("HOLD", 2), ("CALIBRATE", 3), ("SAFE", 4), ("SATURATED", 5))
 
 # Why the controller last entered SAFE (CTRL_STATUS.why).
 SAFE_REASONS = (("NONE", 0), ("BEAM_LOST", 1), ("LINK_SILENT", 2), ("COMMANDED", 3))
@@ -139,8 +141,8 @@ PACKETS = (
     )),
     (0x22, "CTRL_STATUS", "CONTROLLER", "GROUND", "controller status telemetry", (
         ("tick", "I", "", 1, None, None, 0, "control tick"),
-        ("mode", "B", "", 1, 0, 4, 0, "controller mode"),
-        ("flags", "B", "", 1, None, None, 0, "bit0 beam present, bit1 saturated, bit2 table loaded"),
+        ("mode", "B", "", 1, 0, 5, 0, "controller mode, see MODES (5 SATURATED: a sustained saturation)"),
+        ("flags", "B", "", 1, None, None, 0, "bit0 beam present, bit1 saturated this tick, bit2 table loaded"),
         ("vx", "i", "V", 1e-6, -2500000, 2500000, 0, "commanded X tilt voltage"),
         ("vy", "i", "V", 1e-6, -2500000, 2500000, 0, "commanded Y tilt voltage"),
         ("rx", "h", "", _Q15, None, None, 0, "measured Rx, Q15"),
@@ -151,13 +153,19 @@ PACKETS = (
         ("code_yp", "H", "code", 1, None, None, 0, "AD5664R Y+ code"),
         ("code_yn", "H", "code", 1, None, None, 0, "AD5664R Y- code"),
         ("n_lost", "H", "", 1, None, None, 0, "ticks with the beam below threshold (wraps)"),
-        ("n_sat", "H", "", 1, None, None, 0, "ticks with the command saturated (wraps)"),
+        ("n_sat", "I", "tick", 1, None, None, 0,
+         "ticks the integral law's command hit its clamp on either axis (stops at 2^30 - 1)"),
         ("n_unknown", "H", "", 1, None, None, 0, "unknown packets ignored (wraps)"),
         ("why", "B", "", 1, 0, 3, 0, "why the controller last entered SAFE, see SAFE_REASONS"),
         ("n_dup", "H", "", 1, None, None, 0, "resent TICKs answered again without a step (wraps)"),
         ("n_gap", "H", "", 1, None, None, 0, "ticks the bench ran without this controller (wraps)"),
         ("n_rx_drop", "H", "", 1, None, None, 0,
          "frames or transfers its link dropped, and TICKs dropped as stale or out of range (wraps)"),
+        ("sat_run", "I", "tick", 1, None, None, 0,
+         "ticks the command has stayed on its clamp up to this one (beam-lost holds included; 0 = off it)"),
+        ("sat_last", "I", "tick", 1, None, None, 0,
+         "length of the last sustained saturation (a run that entered SATURATED) once ended (0 = none yet)"),
+        ("n_sat_episodes", "H", "", 1, None, None, 0, "sustained saturations: entries into SATURATED (wraps)"),
     )),
     (0x23, "HTABLE_BEGIN", "GROUND", "CONTROLLER", "begin an H-table upload", _BEGIN),
     (0x24, "HTABLE_CHUNK", "GROUND", "CONTROLLER", "one chunk of an H-table upload", _CHUNK),

@@ -57,9 +57,9 @@ def test_controller_unit_checks_and_stream_identical_to_cpython(tmp_path):
 def test_viper_path_gives_identical_codes_and_allocates_nothing():
     """Under micropython: the viper controller and the bytecode one, fed the same inputs and packets, agree
     on every word and every state slot over 3 x 19,134 ticks (30 s each: a closed loop through beam loss,
-    SAFE, CALIBRATE, HOLD, gain, command and table changes; random samples with dR clamps, saturation and
-    beam-threshold edges). The word CRCs equal those of the bytecode controller under CPython. The viper tick
-    allocates nothing with the heap locked."""
+    SAFE, CALIBRATE, HOLD, gain, command and table changes and a sustained saturation (SATURATED and back);
+    random samples with dR clamps, saturation episodes and beam-threshold edges). The word CRCs equal those of
+    the bytecode controller under CPython. The viper tick allocates nothing with the heap locked."""
     ticks = 19134
     res = run_mp("firmware_viper.py", ticks)
     sys.path.insert(0, os.path.join(ROOT, "tests", "mp"))
@@ -70,13 +70,14 @@ def test_viper_path_gives_identical_codes_and_allocates_nothing():
     cl = res["closed"]
     assert cl["ticks"] == ticks + 1 and cl["mismatch"] == 0
     assert cl["fallbacks"] < 0.2 * ticks                 # the viper code ran the common tick
-    assert all(n > 0 for n in cl["mode_ticks"][1:])      # TRACK, HOLD, CALIBRATE and SAFE all ran
+    assert all(n > 0 for n in cl["mode_ticks"][1:])      # TRACK, HOLD, CALIBRATE, SAFE and SATURATED all ran
     assert cl["crc"] == fv.closed_loop(ticks, 3).crc & 0xFFFFFFFF
     for name, gain, lim, sign, cmd in (("saturating", 65535, 3000, 1.0, 16384), ("moderate", 1500, 32767, -1.0, 0)):
         r = res[name]
         assert r["ticks"] == ticks + 1 and r["mismatch"] == 0 and r["n_lost"] > 0
         assert r["crc"] == fv.random_run(ticks, 7, gain, lim, sign, cmd).crc & 0xFFFFFFFF
     assert res["saturating"]["n_sat"] > ticks // 2
+    assert res["saturating"]["mode_ticks"][5] > 0 and res["saturating"]["n_sat_episodes"] > 1
     assert res["moderate"]["fallbacks"] < 0.2 * ticks    # clamped dR through the viper arithmetic
     assert res["alloc_bytes"] == 0
 

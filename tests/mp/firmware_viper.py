@@ -1,6 +1,7 @@
 # Runs under micropython: the viper controller (firmware/controller_viper.py) gives the same AD5664R words and
 # the same state as the bytecode Controller on every tick of long runs fed identical inputs and packets:
-# a closed loop with beam dropouts, mode, gain, ratio-command and table changes, and a random-input run on a
+# a closed loop with beam dropouts, mode, gain, ratio-command and table changes and a sustained saturation
+# (SATURATED, a dropout within it, the return to TRACK), and a random-input run on a
 # table at the fixed-point limit with a low saturation limit (clamps, saturation, beam threshold edges).
 # Also: its tick allocates nothing over 10,000 ticks with the heap locked. Under CPython (tests/test_firmware_mp.py
 # imports it) both sides are the bytecode Controller, which gives the reference word CRCs.
@@ -37,7 +38,7 @@ class Pair:
         self.a = Controller(**kw)
         self.b = Counted(**kw)
         self.ticks = 0
-        self.mode_ticks = [0] * 5
+        self.mode_ticks = [0] * 6     # IDLE .. SATURATED
         self.mismatch = 0
         self.crc = 0
         self.buf = bytearray(3)
@@ -77,7 +78,7 @@ class Pair:
 
 
 def closed_loop(ticks, seed):
-    """`ticks` of closed loop on the test plant; packets and beam dropouts along the way."""
+    """`ticks` of closed loop on the test plant; packets, beam dropouts and a sustained saturation along the way."""
     grid = htable.grid_from_calibration(fp.calibration())
     pr = Pair(table=grid, safe_ticks=400)
     pr.step(2048, 2048, 0)
@@ -98,7 +99,10 @@ def closed_loop(ticks, seed):
         elif ph == 5500:
             pr.a.set_table(other if (k // 6000) % 2 == 0 else grid)
             pr.b.set_table(other if (k // 6000) % 2 == 0 else grid)
-        p.apply(pr.step(*p.sample()))
+        smp = p.sample()
+        if 5600 <= ph < 5900:     # a far-off spot drives the law onto its clamp (SATURATED; a dropout within)
+            smp = (2048 - 1500, 2048 + 1500, 10 if 5800 <= ph < 5830 else 2500)
+        p.apply(pr.step(*smp))
     return pr
 
 
@@ -165,6 +169,7 @@ if __name__ == "__main__":
         f0 = Counted.fallbacks
         rr = random_run(ticks, 7, gain, lim, sign, cmd)
         out[name] = {"ticks": rr.ticks, "mismatch": rr.mismatch, "crc": rr.crc & 0xFFFFFFFF,
-                     "fallbacks": Counted.fallbacks - f0, "n_sat": rr.a.n_sat, "n_lost": rr.a.n_lost}
+                     "fallbacks": Counted.fallbacks - f0, "n_sat": rr.a.n_sat, "n_lost": rr.a.n_lost,
+                     "mode_ticks": rr.mode_ticks, "n_sat_episodes": rr.a.n_sat_episodes}
     out["alloc_bytes"] = locked_alloc(10000)
     print(json.dumps(out))

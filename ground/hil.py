@@ -15,7 +15,8 @@ absolute (zero at Q2's own centre), so Q1/Q2 misalignment shows as a mean error,
 Run folder (every file written atomically): ``config.json``, ``calibration.json`` (as uploaded),
 ``q2_calibration.json``, ``telemetry.csv`` (CTRL_STATUS), ``samples.npz`` (Q2 counts, Q2 and truth error
 angles at the Q2 instants: 630 Hz, so the loop's ripple near 637.8 Hz folds to lines at 4-60 Hz there, as the
-thesis's recorder folded it), ``summary.json`` (``complete`` false until the run ends), ``report.md`` and the
+thesis's recorder folded it), ``summary.json`` (``complete`` false until the run ends; ``saturation``: the fine
+loop's time on its FSM clamp and each sustained episode, ``saturation_summary``), ``report.md`` and the
 plots ``fig7-18_scatter.png``, ``fig7-19_time.png``. Ctrl-C or SIGTERM stops the run and leaves the folder
 valid with what was recorded and ``complete: false``.
 """
@@ -34,6 +35,8 @@ from ground import report
 from ground.calibrate import STEPS, fit_h, load_calibration
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
 from ground.fileio import output_folder, run_folder, write_atomic, write_json
+from firmware.ad5664r import CODES_PER_VOLT
+from firmware.controller import SAT_TICKS, SATURATED
 from ground.rig import AD660_CODES_PER_VOLT
 from protocol import htable
 
@@ -107,6 +110,7 @@ class Recorder:
         self.minute_rates = []    # (virtual s, wall s) per chunk, for the first/last minute rate
         self.tick0 = None         # the play's first tick (None: the play has not started)
         self.t0_us = 0
+        self.status_before = None   # the last CTRL_STATUS before the play (saturation counts start there)
 
     def path(self, name):
         return os.path.join(self.dir, name)
@@ -132,11 +136,12 @@ class Recorder:
         cols = ("tick", "mode", "beam", "sat", "rx", "ry", "vs", "n_lost", "n_sat", "n_unknown", "why",
                 "n_gap")
         link = ("n_dup", "n_rx_drop")       # the link's own counters: they differ between runs by design
-        lines = [",".join(cols + ("v_cmd_x", "v_cmd_y") + link)]
+        sat = ("sat_run", "sat_last", "n_sat_episodes")     # after the link's: the older columns keep their place
+        lines = [",".join(cols + ("v_cmd_x", "v_cmd_y") + link + sat)]
         for s in self.status:
             lines.append(",".join([str(int(s[c])) if c not in ("rx", "ry") else "%.6f" % s[c] for c in cols]
                                   + ["%.7f" % s["v_cmd"][0], "%.7f" % s["v_cmd"][1]]
-                                  + [str(int(s[c])) for c in link]))
+                                  + [str(int(s[c])) for c in link + sat]))
         write_atomic(self.path("telemetry.csv"), "\n".join(lines) + "\n")
 
 
@@ -164,19 +169,93 @@ def link_counters(rig):
     return {"bench": bench, "controller": ctl}
 
 
+SAT_ON = "FSM command on its clamp for %d ticks in a row" % SAT_TICKS
+SAT_OFF = "FSM command off its clamp"
+
+
 def mode_changes(rig, tick0):
-    """Each mode change seen in CTRL_STATUS after ``tick0`` (the play's start): time, modes and why."""
+    """Each mode change seen in CTRL_STATUS after ``tick0`` (the play's start): time, modes and why (SAFE's
+    reason, the controller's own SATURATED entry and return, or commanded)."""
     from protocol import core
     out = []
     if rig is None:
         return out
     prev = None
+    sat = core.MODE["SATURATED"]
     for tick, mode, why in rig.mode_log:
         if tick >= tick0 and prev is not None and mode != prev:
+            if mode == core.MODE["SAFE"]:
+                reason = core.SAFE_REASON.get(why, why)
+            elif mode == sat:
+                reason = SAT_ON
+            elif prev == sat and mode == core.MODE["TRACK"]:
+                reason = SAT_OFF
+            else:
+                reason = "commanded"
             out.append({"t_s": round((tick - tick0) / rig.rate_hz, 4), "tick": tick,
                         "from": core.MODE_NAME.get(prev, prev), "to": core.MODE_NAME.get(mode, mode),
-                        "why": core.SAFE_REASON.get(why, why) if mode == core.MODE["SAFE"] else "commanded"})
+                        "why": reason})
         prev = mode
+    return out
+
+
+def saturation_summary(status, rate_hz, tick0, before=None):
+    """The ``saturation`` block of ``summary.json``: the fine loop's time on its FSM clamp during a play, from
+    its CTRL_STATUS telemetry.
+
+    status: decoded CTRL_STATUS dicts in tick order (``ground.rig.decode_status``; ``Recorder.status``);
+    rate_hz: the control rate; tick0: the play's first tick (times count from it); before: the last CTRL_STATUS
+    before the play (None: counting starts at the first of ``status``).
+
+    Returns ``{"threshold_ticks", "threshold_s", "ticks", "seconds", "episodes", "episodes_unseen"}``: ``ticks``
+    the ticks the law hit its clamp (CTRL_STATUS.n_sat, from ``before`` on); ``episodes`` each sustained
+    saturation (a run of ``threshold_ticks``, the controller's SAT_TICKS, that put it in SATURATED) seen in the
+    telemetry and not over before tick0, as ``{"start_tick", "start_s", "ticks", "seconds", "max_command_code",
+    "ended"}``: start_s < 0 when it began before the play; ticks the controller's run length (beam-lost holds
+    on the clamp included), exact when CTRL_STATUS comes at least every threshold_ticks ticks, else at least
+    that; max_command_code per axis the command of largest magnitude in the episode's CTRL_STATUS (AD5664R tilt
+    codes, the clamp is +-limit_code); ended false when still under way at the last CTRL_STATUS.
+    ``episodes_unseen``: episodes that began and ended between two CTRL_STATUS (decim > threshold_ticks)."""
+    seq = ([before] if before is not None else []) + list(status)
+    out = {"threshold_ticks": SAT_TICKS, "threshold_s": round(SAT_TICKS / rate_hz, 4), "ticks": 0, "seconds": 0.0,
+           "episodes": [], "episodes_unseen": 0}
+    if not seq:
+        return out
+    out["ticks"] = n = max(0, seq[-1]["n_sat"] - seq[0]["n_sat"])
+    out["seconds"] = round(n / rate_hz, 4)
+    episodes, cur, prev = [], None, None
+    for s in seq:
+        run = s["sat_run"]
+        start = s["tick"] - run + 1 if run else None
+        sustained = run > 0 and (s["mode"] == SATURATED or run >= SAT_TICKS)
+        new = sustained and (cur is None or start != cur["start_tick"])
+        unseen = 0
+        if prev is not None:   # entries into SATURATED since the last status, less one still under way here
+            unseen = max(0, ((s["n_sat_episodes"] - prev["n_sat_episodes"]) & 0xFFFF) - (1 if new else 0))
+            out["episodes_unseen"] += unseen
+        if cur is not None and start != cur["start_tick"]:     # its run ended since the last status
+            if not unseen and s["sat_last"] >= cur["ticks"]:    # sat_last is its length, none ended since
+                cur["ticks"] = s["sat_last"]
+            cur["ended"] = True
+            cur = None
+        if sustained:
+            if new:
+                cur = {"start_tick": start, "ticks": run, "max_command_code": [0, 0], "ended": False}
+                episodes.append(cur)
+            cur["ticks"] = run
+            m = cur["max_command_code"]
+            for a in (0, 1):
+                c = int(round(s["v_cmd"][a] * CODES_PER_VOLT))
+                if abs(c) > abs(m[a]):
+                    m[a] = c
+        prev = s
+    for e in episodes:
+        if e["start_tick"] + e["ticks"] <= tick0:
+            continue                                            # over before the play began
+        e["start_s"] = round((e["start_tick"] - tick0) / rate_hz, 4)
+        e["seconds"] = round(e["ticks"] / rate_hz, 4)
+        out["episodes"].append({k: e[k] for k in ("start_tick", "start_s", "ticks", "seconds", "max_command_code",
+                                                  "ended")})
     return out
 
 
@@ -232,8 +311,8 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     summary["disturbance"]["source"] = d.source
     summary["jitter_harmonics"] = jitter_harmonics(distfile_path, rec, rec.t0_us, run.rig)
     write_json(rec.path("summary.json"), summary)
-    write_atomic(rec.path("report.md"), report.table(summary) + "\n" + "\n".join(
-        "- " + line for line in verdict_lines(summary)) + "\n")
+    write_atomic(rec.path("report.md"), report.table(summary) + "\n\n" + report.saturation_md(
+        summary.get("saturation")) + "\n\n" + "\n".join("- " + line for line in verdict_lines(summary)) + "\n")
     run.raise_if_stopped(out_dir, summary)
     return summary
 
@@ -242,7 +321,8 @@ def new_summary(duration_s, faults=None):
     """The summary a run folder starts with (``complete`` false until the run ends)."""
     return {"complete": False, "error": None, "requirement_met": False, "duration_s": 0.0,
             "requested_duration_s": duration_s, "real_time_factor": None, "overruns": 0, "q2": None,
-            "truth": None, "mode_changes": [], "link_faults": faults.as_dict() if faults else None,
+            "truth": None, "mode_changes": [], "saturation": None,
+            "link_faults": faults.as_dict() if faults else None,
             "link": {"bench": {}, "controller": None},
             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
 
@@ -309,6 +389,7 @@ def prepare_play(rig, rec, cal, q2_dvp, first_arcsec):
         rig.run(24)
     rig.run(int(0.2 * rig.rate_hz))
     rig.take_status()
+    rec.status_before = rig.last_status
     return q2cal
 
 
@@ -362,13 +443,15 @@ def play(rig, rec, player, duration_s, summary, quiet, before_chunk=None, desc="
 
 def finish_summary(rec, run, summary, q2cal, plots):
     """Fill ``summary`` from what ``rec`` holds and how ``run`` ended (samples, statistics, plots, link
-    counters, mode changes, the error with both sides' counters)."""
+    counters, mode changes, saturation, the error with both sides' counters)."""
     rig = run.rig
     summary["link"] = link_counters(rig)
     if rig is not None and rec.tick0 is None:
         summary["overruns"] = rig.lockstep.n_overrun
     summary.update(_finish(rec, q2cal, rec.t0_us, complete=not (run.interrupted or run.failure), plots=plots))
     summary["mode_changes"] = mode_changes(rig, rec.tick0) if rec.tick0 is not None else []
+    summary["saturation"] = (saturation_summary(rec.status, rig.rate_hz, rec.tick0, rec.status_before)
+                             if rig is not None and rec.tick0 is not None else None)
     summary["interrupted"] = run.interrupted
     summary["error"] = run.failure
     if run.failure:
@@ -419,7 +502,8 @@ def _nonzero(d):
 
 
 def verdict_lines(s):
-    """The closing lines: requirement, beam, mode changes, link faults (every run, failed or not)."""
+    """The closing lines: requirement, beam, FSM saturation, mode changes, link faults (every run, failed or
+    not). The SATURATED entries and returns are summed up in the saturation line, not listed one by one."""
     lines = []
     q2 = s.get("q2") or {}
     if s.get("error"):
@@ -437,7 +521,25 @@ def verdict_lines(s):
                 report.REQUIREMENT_ARCSEC, _fmt_num(q2.get("max_radial_arcsec"))))
     if s.get("q2_beam_lost_samples"):
         lines.append("BEAM LOST on Q2 in %d samples" % s["q2_beam_lost_samples"])
+    sat = s.get("saturation")
+    if sat and (sat.get("episodes") or sat.get("episodes_unseen")):
+        ep = sat["episodes"]
+        k = len(ep) + sat.get("episodes_unseen", 0)
+        text = "FSM SATURATED: %d sustained episode%s (>= %d ticks on the clamp)" % (k, "" if k == 1 else "s",
+                                                                                 sat["threshold_ticks"])
+        if ep:
+            big = max(ep, key=lambda e: e["ticks"])
+            text += ", longest %d ticks (%.2f s) from t = %.2f s%s" % (
+                big["ticks"], big["seconds"], big["start_s"], "" if big["ended"] else ", still on it at the end")
+        if len(ep) < k:
+            text += ", %d of them between two CTRL_STATUS" % (k - len(ep))
+        lines.append(text + "; %d ticks (%.2f s) on the clamp in all" % (sat["ticks"], sat["seconds"]))
+    elif sat and sat.get("ticks"):
+        lines.append("FSM command on its clamp for %d ticks (%.2f s) in all, never %d in a row" % (
+            sat["ticks"], sat["seconds"], sat["threshold_ticks"]))
     for m in s.get("mode_changes", []):
+        if (m["from"], m["to"]) in (("TRACK", "SATURATED"), ("SATURATED", "TRACK")):
+            continue
         lines.append("controller left %s for %s at t = %.2f s (%s)" % (m["from"], m["to"], m["t_s"], m["why"])
                      if m["from"] == "TRACK" else
                      "controller went from %s to %s at t = %.2f s (%s)" % (m["from"], m["to"], m["t_s"],

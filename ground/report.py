@@ -1,4 +1,5 @@
-"""Pointing statistics of a HIL run and the table that sets them beside the thesis's (Sec. 7.5, Ch. 2).
+"""Pointing statistics of a HIL run and the table that sets them beside the thesis's (Sec. 7.5, Ch. 2); the
+section on the fine loop's FSM saturation (``saturation_md``).
 
 Pointing loss for the Gaussian far field of Ch. 2: I(theta) / I(0) = exp(-2 theta^2 / theta0^2), so a
 residual error theta costs loss_dB = -10 log10(exp(-2 theta^2 / theta0^2)), with theta0 from the full width
@@ -88,4 +89,33 @@ def table(summary):
     out.append("thesis loss estimated from its mean and 1σ; Q2 samples %s, truth samples %s; requirement "
                "%.2f″ = FWHM/2, θ0 = %.3f″" % (q2.get("n", 0), tr.get("n", 0), REQUIREMENT_ARCSEC,
                                                THETA0_ARCSEC))
+    return "\n".join(out)
+
+
+MAX_EPISODE_ROWS = 20     # the report lists this many saturation episodes, the longest; summary.json has them all
+
+
+def saturation_md(sat):
+    """Markdown section on the fine loop's FSM saturation (``summary["saturation"]``, ``hil.saturation_summary``):
+    the total on the clamp and a row per sustained episode (the longest ``MAX_EPISODE_ROWS``, in time order)."""
+    out = ["## FSM saturation", ""]
+    if not sat:
+        return "\n".join(out + ["no CTRL_STATUS telemetry from the play"])
+    ep = sat.get("episodes") or []
+    out.append("%d ticks (%.2f s) with the integral law's command on its clamp; %d sustained episode%s (at least "
+               "%d ticks, %.1f ms, in a row: the controller enters SATURATED)%s" % (
+                   sat["ticks"], sat["seconds"], len(ep), "" if len(ep) == 1 else "s", sat["threshold_ticks"],
+                   1e3 * sat["threshold_s"], "; %d more began and ended between two CTRL_STATUS"
+                   % sat["episodes_unseen"] if sat.get("episodes_unseen") else ""))
+    if ep:
+        shown = sorted(sorted(ep, key=lambda e: -e["ticks"])[:MAX_EPISODE_ROWS], key=lambda e: e["start_tick"])
+        out += ["", "| start (s) | ticks | duration (s) | largest command X, Y (AD5664R codes) | ended |",
+                "|---|---|---|---|---|"]
+        out += ["| %.2f | %d | %.3f | %d, %d | %s |" % (e["start_s"], e["ticks"], e["seconds"],
+                                                       e["max_command_code"][0], e["max_command_code"][1],
+                                                       "yes" if e["ended"] else "no: on the clamp at the end")
+                for e in shown]
+        if len(ep) > len(shown):
+            out.append("")
+            out.append("(the %d longest of %d episodes; summary.json lists them all)" % (len(shown), len(ep)))
     return "\n".join(out)

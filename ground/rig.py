@@ -76,7 +76,8 @@ def decode_status(payload):
             "v_cmd": (d["vx"] * 1e-6, d["vy"] * 1e-6),
             "v_applied": (x_code / CODES_PER_VOLT, y_code / CODES_PER_VOLT),
             "n_lost": d["n_lost"], "n_sat": d["n_sat"], "n_unknown": d["n_unknown"],
-            "why": d["why"], "n_dup": d["n_dup"], "n_gap": d["n_gap"], "n_rx_drop": d["n_rx_drop"]}
+            "why": d["why"], "n_dup": d["n_dup"], "n_gap": d["n_gap"], "n_rx_drop": d["n_rx_drop"],
+            "sat_run": d["sat_run"], "sat_last": d["sat_last"], "n_sat_episodes": d["n_sat_episodes"]}
 
 
 class CommandError(ValueError):

@@ -20,10 +20,18 @@
   disturbance is known to the chunk's end (plus the interpolation stencil); the ADCS process is ahead, so the
   two loops overlap on two cores. The body pointing reaches the P-FSM with no other delay.
 
+- One verdict for the terminal (``verdict``): the fine loop (every Q2 sample within 11.98″) and the body loop
+  (3σ pointing <= 150″, stability <= 35″/s); exit 0 only when the run completed and both are met, 3 when it
+  completed and a budget was missed.
+- Failures end the run within a bound: the ADCS process sends a heartbeat every ``HEARTBEAT_S`` and is declared
+  stopped after ``SILENT_S`` without a message; ``AdcsFeed.close`` asks it to stop, then SIGTERMs, then SIGKILLs
+  it (``STOP_S``), reading its queue meanwhile so that its writer never blocks the exit.
+
 Run folder (atomic writes): ``config.json``, ``calibration.json``, ``q2_calibration.json``, ``telemetry.csv``,
 ``samples.npz`` (as ``fps hil``), ``body.npz`` (10 Hz dtheta, domega and estimate errors), ``summary.json``
-(``complete`` false until the end), ``report.md`` and ``system_pointing.png`` (both pointing errors on one
-time axis); Ctrl-C or SIGTERM leaves the folder valid with ``complete: false``.
+(``complete`` false until the end; ``verdict``; a stopped run's ``error`` and ``stopped_in``, the phase it was
+in), ``report.md`` and ``system_pointing.png`` (both pointing errors on one time axis); a failure, Ctrl-C or
+SIGTERM leaves the folder valid with ``complete: false``.
 """
 
 import contextlib
@@ -36,6 +44,7 @@ import queue
 import signal
 import struct
 import sys
+import threading
 import time
 
 import numpy as np
@@ -49,7 +58,11 @@ FIGURE = "system_pointing.png"
 RUNTIMES = ("micropython", "cpython")
 LEAD_S = 2.0              # ADCS seconds simulated beyond the play: the last chunk's interpolation stencil
 STENCIL_S = 0.25          # the 10 Hz samples needed beyond a distfile sample (two steps of 0.1 s, and a margin)
-WAIT_S = 600.0            # longest wait for one ADCS message before the run is declared failed
+WAIT_S = 600.0            # longest wait for the ADCS's progress (a message other than its heartbeat)
+HEARTBEAT_S = 1.0         # the ADCS process says it is alive this often, whatever it is doing
+SILENT_S = 10.0           # no message at all for this long (heartbeat included): the ADCS stopped answering
+START_S = 60.0            # the ADCS process's first message (its heartbeat) is due within this of its start
+STOP_S = (2.0, 3.0, 2.0)  # close(): the ADCS process's time to end when asked, after SIGTERM, after SIGKILL
 GOAL_RTF = 5.0            # issue 13: the 600 s run >= 5x real time on 2 cores
 ARCSEC = math.pi / 180.0 / 3600.0
 
@@ -262,33 +275,75 @@ def _jsonable(v):
     return v
 
 
+class StopFlag:
+    """The parent's "stop" to the ADCS process: one shared byte, no lock and no waiters, so that setting it never
+    blocks on a process that died (``multiprocessing.Event.set`` waits for its sleepers, a dead one for ever).
+    ``is_set()`` as ``threading.Event``'s."""
+
+    def __init__(self, ctx):
+        self._v = ctx.RawValue("b", 0)
+
+    def set(self):
+        self._v.value = 1
+
+    def is_set(self):
+        return bool(self._v.value)
+
+
+def _heartbeat(q, stop):
+    """A daemon thread putting ("alive", None) every ``HEARTBEAT_S`` until ``stop``: the parent tells a busy
+    ADCS from one that stopped answering (``SILENT_S``)."""
+    def beat():
+        while not stop.is_set():
+            with contextlib.suppress(Exception):
+                q.put(("alive", None))
+            time.sleep(HEARTBEAT_S)
+    threading.Thread(target=beat, name="fps-system-heartbeat", daemon=True).start()
+
+
 def adcs_worker(spec, q, stop):
-    """The ADCS process: messages ("info" | "cycle" | "adcs_summary" | "reference" | "error" | "end", dict)."""
+    """The ADCS process: messages ("info" | "cycle" | "adcs_summary" | "reference" | "error" | "end" | "alive",
+    dict). Stopped by the parent (``stop`` or SIGTERM), it leaves without waiting to flush its queue."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)      # the parent takes Ctrl-C and stops this process
+    busy = [True]
 
     def on_term(signum, frame):                       # terminate(): unwind, so the session closes its firmware
-        raise _Stopped
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)    # a second one ends the process at once
+        q.cancel_join_thread()                        # the parent has given up: exit without flushing the queue
+        if busy[0]:
+            raise _Stopped
+        os._exit(0)                                   # done (flushing at exit): nothing to unwind
     signal.signal(signal.SIGTERM, on_term)
     try:
-        from ground.adcs import bps, bps_cli
-        params = spec["params"] or bps_cli.calibration(spec["seed"], spec["bps_cache"], progress=False)
-        bps.check_params(params)
-        (_send_ground if spec["adcs"] == "ground" else _send_firmware)(spec, params, q, stop)
+        _heartbeat(q, stop)
+        try:
+            from ground.adcs import bps, bps_cli
+            params = spec["params"] or bps_cli.calibration(spec["seed"], spec["bps_cache"], progress=False)
+            bps.check_params(params)
+            (_send_ground if spec["adcs"] == "ground" else _send_firmware)(spec, params, q, stop)
+        except _Stopped:
+            pass
+        except BaseException as exc:       # noqa: BLE001 (reported to the parent, which fails the run)
+            q.put(("error", "%s: %s" % (type(exc).__name__, exc)))
+        if stop.is_set():
+            q.cancel_join_thread()          # the parent stopped reading: do not wait on a full pipe at exit
+        else:
+            q.put(("end", {}))
     except _Stopped:
-        return
-    except BaseException as exc:       # noqa: BLE001 (reported to the parent, which fails the run)
-        q.put(("error", "%s: %s" % (type(exc).__name__, exc)))
-    q.put(("end", {}))
+        pass
+    finally:
+        busy[0] = False
 
 
 class AdcsFeed:
     """The parent's side of the ADCS process: ``take(until_t)`` collects messages until the ADCS has reached
-    ``until_t`` (s of ADCS time); the 10 Hz samples go to ``on_samples(t, dtheta)``."""
+    ``until_t`` (s of ADCS time); the 10 Hz samples go to ``on_samples(t, dtheta)`` (None: recorded only).
+    ``close()`` ends the process within ``sum(STOP_S)`` s whatever its state."""
 
     def __init__(self, spec, on_samples):
         ctx = multiprocessing.get_context("spawn")
         self.q = ctx.Queue()
-        self.stop = ctx.Event()
+        self.stop = StopFlag(ctx)
         # not a daemon: the session may start processes of its own; close() always ends it
         self.proc = ctx.Process(target=adcs_worker, args=(spec, self.q, self.stop), name="fps-system-adcs")
         self.on_samples = on_samples
@@ -297,13 +352,24 @@ class AdcsFeed:
         self.info, self.reference, self.adcs_summary, self.last_status = {}, None, None, None
         self.t_last = -1.0
         self.ended = False
+        self.closed = False
         self.log = []               # the session's one-line messages (mode changes, late cycles, faults)
         self.wait_s = 0.0           # the fine loop's wall time spent waiting for the ADCS
+        self.t_started = None       # perf_counter at start()
+        self.t_heard = None         # perf_counter of the last message read (heartbeat included)
 
     def start(self):
-        self.proc.start()
+        """Start the ADCS process with SIGINT blocked (Ctrl-C is the parent's: it stops the process)."""
+        self.t_started = time.perf_counter()
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            self.proc.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
-    def _handle(self, kind, d):
+    def _handle(self, kind, d, play=True):
+        """One message. ``play`` false (after the play, or a failed run): samples are recorded but not played,
+        and an ADCS error goes to the log instead of raising."""
         if kind == "cycle":
             self.t.append(d["t"])
             self.dth.append(d["dtheta"])
@@ -313,7 +379,8 @@ class AdcsFeed:
             if d.get("status") is not None:
                 self.last_status = d["status"]
             self.t_last = float(d["t"][-1])
-            self.on_samples(d["t"], d["dtheta"])
+            if play and self.on_samples is not None:
+                self.on_samples(d["t"], d["dtheta"])
         elif kind == "info":
             self.info.update(d)
         elif kind == "reference":
@@ -321,6 +388,9 @@ class AdcsFeed:
         elif kind == "adcs_summary":
             self.adcs_summary = d
         elif kind == "error":
+            if not play:
+                self.log.append("ADCS error: %s" % d)
+                return
             raise OSError("the ADCS (%s) failed: %s" % (self.info.get("adcs", "process"), d))
         elif kind == "log":
             self.log.append(d)
@@ -329,40 +399,56 @@ class AdcsFeed:
 
     def _get(self, timeout):
         try:
-            return self.q.get(timeout=timeout)
+            m = self.q.get(timeout=timeout)
         except queue.Empty:
             return None
+        except (OSError, EOFError, ValueError):    # the pipe broke (a killed process) or the queue is closed
+            return None
+        self.t_heard = time.perf_counter()
+        return m
 
     def take(self, until_t=None, want=None, timeout_s=WAIT_S):
-        """Messages until the ADCS time reaches ``until_t`` (or ``want()`` is true); OSError if it cannot."""
+        """Messages until the ADCS time reaches ``until_t`` (or ``want()`` is true); OSError if it cannot: the
+        process ended or exited, sent nothing for ``SILENT_S`` (``START_S`` for its first message), or made no
+        progress (a message other than its heartbeat) for ``timeout_s``."""
         t_wait0 = time.perf_counter()
-        deadline = t_wait0 + timeout_s
+        t_progress = t_wait0
         try:
             while not (until_t is not None and self.t_last >= until_t - 1e-9 or want is not None and want()):
                 if self.ended:
                     raise OSError("the ADCS ended at t = %.1f s, before t = %s s" % (
                         self.t_last, "%.1f" % until_t if until_t is not None else "?"))
                 m = self._get(0.5)
+                now = time.perf_counter()
                 if m is None:
                     if not self.proc.is_alive() and self.q.empty():
                         raise OSError("the ADCS process exited (status %s) at t = %.1f s"
                                       % (self.proc.exitcode, self.t_last))
-                    if time.perf_counter() > deadline:
-                        raise OSError("no ADCS message for %g s (at t = %.1f s)" % (timeout_s, self.t_last))
+                    if self.t_heard is None and now - (self.t_started or t_wait0) > START_S:
+                        raise OSError("the ADCS process sent nothing within %g s of its start" % START_S)
+                    if self.t_heard is not None and now - self.t_heard > SILENT_S:
+                        raise OSError("the ADCS process stopped answering: nothing from it for %g s (at t = %.1f s)"
+                                      % (SILENT_S, self.t_last))
+                    if now - t_progress > timeout_s:
+                        raise OSError("no progress of the ADCS for %g s (at t = %.1f s)" % (timeout_s, self.t_last))
                     continue
-                self._handle(*m)
+                if m[0] != "alive":
+                    t_progress = now
+                    self._handle(*m)
         finally:
             self.wait_s += time.perf_counter() - t_wait0
 
-    def drain(self):
-        """Whatever has arrived, without waiting (errors after the play are not the fine loop's)."""
-        while True:
+    def drain(self, wait_s=1.0):
+        """What has arrived (for at most ``wait_s`` of reading), recorded, never played and never raising."""
+        deadline = time.perf_counter() + wait_s
+        while time.perf_counter() < deadline:
             try:
                 m = self.q.get_nowait()
-            except queue.Empty:
+            except (queue.Empty, OSError, EOFError, ValueError):
                 return
-            with contextlib.suppress(OSError):
-                self._handle(*m)
+            if m[0] != "alive":
+                with contextlib.suppress(Exception):
+                    self._handle(*m, play=False)
 
     def arrays(self):
         from ground.adcs import bps
@@ -371,19 +457,62 @@ class AdcsFeed:
                 np.array(self.est_err).reshape(-1, len(bps.EST_COLS)))
 
     def close(self):
-        self.stop.set()
-        if self.proc.pid is None:
-            return
-        self.proc.join(2.0)
-        if self.proc.is_alive():
-            self.proc.terminate()          # SIGTERM: the worker unwinds and closes the session
-            self.proc.join(5.0)
-        if self.proc.is_alive():
-            self.proc.kill()
-            self.proc.join(2.0)
-        with contextlib.suppress(Exception):
-            self.q.cancel_join_thread()
-            self.q.close()
+        """Stop the ADCS process and return whether a Ctrl-C or SIGTERM came meanwhile (held until the process is
+        gone). Asked first (``stop``), then SIGTERM (with SIGCONT, for a stopped process), then SIGKILL, each
+        given its share of ``STOP_S``; its queue is read meanwhile, so its writer never blocks on a full pipe.
+        Idempotent; never raises."""
+        if self.closed:
+            return False
+        self.closed = True
+        with _signals_held() as held:
+            self.stop.set()
+            try:
+                if self.proc.pid is not None:
+                    for step, wait_s in zip(("ask", "terminate", "kill"), STOP_S):
+                        if step == "terminate":
+                            with contextlib.suppress(Exception):
+                                self.proc.terminate()
+                                os.kill(self.proc.pid, signal.SIGCONT)
+                        elif step == "kill":
+                            with contextlib.suppress(Exception):
+                                self.proc.kill()
+                        self._drain_until_gone(wait_s)
+                        if not self.proc.is_alive():
+                            break
+                    with contextlib.suppress(Exception):
+                        self.proc.join(0.1)
+            finally:
+                with contextlib.suppress(Exception):
+                    self.q.cancel_join_thread()
+                    self.q.close()
+        return bool(held)
+
+    def _drain_until_gone(self, wait_s):
+        deadline = time.perf_counter() + wait_s
+        while self.proc.is_alive() and time.perf_counter() < deadline:
+            m = self._get(0.05)
+            if m is not None and m[0] != "alive":
+                with contextlib.suppress(Exception):
+                    self._handle(*m, play=False)
+        if not self.proc.is_alive():
+            self.drain()
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM are noted, not raised, inside (the main thread only); yields the list of those noted."""
+    held = []
+    old = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, lambda signum, frame: held.append(signum))
+    except ValueError:          # not the main thread: signals are not delivered here anyway
+        pass
+    try:
+        yield held
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
 
 
 # --- the run -------------------------------------------------------------------------------------------------
@@ -451,7 +580,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     rec = hil.Recorder(out_dir)
     summary = hil.new_summary(duration_s)
     summary.update({"adcs": adcs, "runtime": runtime_name, "goal_real_time_factor": GOAL_RTF,
-                    "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed})
+                    "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed, "phase": "start", "stopped_in": None})
     write_json(rec.path("summary.json"), summary)
     spec = {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,
             "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
@@ -461,60 +590,95 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
     feed.info["adcs"] = adcs
-    q2cal = None
     run = hil.RunOutcome(runtime_name, "serial")
-    with run.guard():
-        try:
-            feed.start()
-            config_json = {
-                "adcs": adcs, "adcs_runtime": runtime_name if adcs == "firmware" else None, "satb_gnss": satb_gnss,
-                "ts_s": ts, "truth": truth, "settle_s": t_settle, "params": params_path and os.path.abspath(params_path),
-                "calibration": calibration_path and os.path.abspath(calibration_path), "seed": seed,
-                "duration_s": duration_s, "runtime": runtime_name, "link": "serial", "faults": faults or None,
-                "distfile_period_us": live.reader.period_us, "live_player": True}
-            write_json(rec.path("config.json"), config_json)
-            if cal is None:
-                say("calibrating H in-process first (Sec. 7.4, 121 points; --calibration FILE skips this) ...")
-                cal = calibrate_inproc(seed, config, rec.path("calibration.json"))
-            else:
-                write_json(rec.path("calibration.json"), cal)
-            with runtime.open_rig(runtime_name, "serial", config=config, seed=seed) as rig:
-                run.rig = rig
-                write_json(rec.path("config.json"), dict(hil.run_config(rig, duration_s, seed, {}), **config_json))
+    q2cal = None
+    try:
+        with run.guard():
+            try:
+                summary["phase"] = "start"           # where the run is (and, in stopped_in, where it stopped)
+                feed.start()
+                config_json = {
+                    "adcs": adcs, "adcs_runtime": runtime_name if adcs == "firmware" else None,
+                    "satb_gnss": satb_gnss, "ts_s": ts, "truth": truth, "settle_s": t_settle,
+                    "params": params_path and os.path.abspath(params_path),
+                    "calibration": calibration_path and os.path.abspath(calibration_path), "seed": seed,
+                    "duration_s": duration_s, "runtime": runtime_name, "link": "serial", "faults": faults or None,
+                    "distfile_period_us": live.reader.period_us, "live_player": True}
+                write_json(rec.path("config.json"), config_json)
+                if cal is None:
+                    summary["phase"] = "h_calibration"
+                    say("calibrating H in-process first (Sec. 7.4, 121 points; --calibration FILE skips this) ...")
+                    cal = calibrate_inproc(seed, config, rec.path("calibration.json"))
+                else:
+                    write_json(rec.path("calibration.json"), cal)
+                summary["phase"] = "controller_start"
+                with runtime.open_rig(runtime_name, "serial", config=config, seed=seed) as rig:
+                    run.rig = rig
+                    write_json(rec.path("config.json"), dict(hil.run_config(rig, duration_s, seed, {}), **config_json))
 
-                def first_sample():
-                    if feed.t_last < t_settle + STENCIL_S + 0.2:
-                        say("waiting for the ADCS to reach the end of its settling (t = %g s of its time) ..."
-                            % t_settle)
-                    feed.take(t_settle + STENCIL_S + 0.2)
-                    return live.reader.sample(0)
-                q2cal = hil.prepare_play(rig, rec, cal, q2_dvp, first_sample)
-                player = Player()
-                player.load(live.reader)
-                player.oneshot()
-                summary["phase"] = "play"             # for whoever watches the folder
-                write_json(rec.path("summary.json"), summary)
-                hil.play(rig, rec, player, duration_s, summary, quiet, desc="system",
-                         before_chunk=lambda t_end: feed.take(want=lambda: live.covered_s >= t_end + 0.01))
-            with contextlib.suppress(OSError):      # the ground filters' column (firmware: run after the session)
-                feed.take(want=lambda: feed.reference is not None, timeout_s=300.0)
-        finally:
-            feed.drain()
-            feed.close()
-    hil.finish_summary(rec, run, summary, q2cal, plots)
-    summary["phase"] = "done"
-    summary.update(_body_summary(feed, live, rec, t_settle))
-    summary["wall_s"] = time.perf_counter() - t_wall0
-    summary["real_time_factor_play"] = summary["real_time_factor"]
-    summary["real_time_factor"] = rec.virtual_s / summary["wall_s"] if summary["wall_s"] > 0 else None
-    summary["adcs_wait_s"] = feed.wait_s
-    summary["requirement_met"] = bool(summary["requirement_met"] and summary["body_pointing"] is not None)
-    write_json(rec.path("summary.json"), summary)
-    if plots:
-        _plot(rec, feed, q2cal, t_settle)
-    write_atomic(rec.path("report.md"), report_md(summary))
+                    def first_sample():
+                        summary["phase"] = "adcs_settling"
+                        if feed.t_last < t_settle + STENCIL_S + 0.2:
+                            say("waiting for the ADCS to reach the end of its settling (t = %g s of its time) ..."
+                                % t_settle)
+                        feed.take(t_settle + STENCIL_S + 0.2)
+                        summary["phase"] = "prepare_play"
+                        return live.reader.sample(0)
+                    summary["phase"] = "prepare_play"         # Q2 calibration, the walk to the first sample
+                    q2cal = hil.prepare_play(rig, rec, cal, q2_dvp, first_sample)
+                    player = Player()
+                    player.load(live.reader)
+                    player.oneshot()
+                    summary["phase"] = "play"             # for whoever watches the folder
+                    write_json(rec.path("summary.json"), summary)
+                    hil.play(rig, rec, player, duration_s, summary, quiet, desc="system",
+                             before_chunk=lambda t_end: feed.take(want=lambda: live.covered_s >= t_end + 0.01))
+                feed.on_samples = None                # the play is over: later samples are recorded, not played
+                summary["phase"] = "reference"
+                with contextlib.suppress(OSError):    # the ground filters' column (firmware: after the session)
+                    feed.take(want=lambda: feed.reference is not None, timeout_s=300.0)
+            except BaseException:
+                feed.close()                          # bounded, whatever the ADCS process is doing
+                raise
+            if feed.close():
+                raise KeyboardInterrupt               # Ctrl-C or SIGTERM while the ADCS process was being stopped
+        stopped_in = summary["phase"] if run.failure or run.interrupted else None
+        hil.finish_summary(rec, run, summary, q2cal, plots)
+        summary["phase"] = "done" if stopped_in is None else ("interrupted" if run.interrupted else "failed")
+        summary["stopped_in"] = stopped_in
+        summary.update(_body_summary(feed, live, rec, t_settle))
+        summary["wall_s"] = time.perf_counter() - t_wall0
+        summary["real_time_factor_play"] = summary["real_time_factor"]
+        summary["real_time_factor"] = rec.virtual_s / summary["wall_s"] if summary["wall_s"] > 0 else None
+        summary["adcs_wait_s"] = feed.wait_s
+        summary["verdict"] = verdict(summary)
+        summary["requirement_met"] = summary["verdict"]["met"]
+        write_json(rec.path("summary.json"), summary)
+        if plots:
+            _plot(rec, feed, q2cal, t_settle)
+        write_atomic(rec.path("report.md"), report_md(summary))
+    except BaseException as exc:     # past the guard (a bug, the disk, Ctrl-C while finishing): the folder says so
+        feed.close()
+        _stopped_folder(rec, summary, exc)
+        raise
     run.raise_if_stopped(out_dir, summary)
     return summary
+
+
+def _stopped_folder(rec, summary, exc):
+    """After an exception past the run's guard: summary.json says complete false and why (best effort: the
+    exception itself is what the caller reports)."""
+    interrupted = isinstance(exc, KeyboardInterrupt)
+    summary.update({"complete": False, "requirement_met": False, "interrupted": interrupted,
+                    "stopped_in": summary.get("stopped_in") or summary.get("phase"),
+                    "phase": "interrupted" if interrupted else "failed"})
+    if not interrupted:
+        summary["error"] = summary.get("error") or "%s: %s" % (type(exc).__name__, exc)
+    if isinstance(summary.get("verdict"), dict):
+        summary["verdict"]["met"] = False
+        summary["verdict"]["complete"] = False
+    with contextlib.suppress(Exception):
+        write_json(rec.path("summary.json"), summary)
 
 
 def _body_summary(feed, live, rec, t_settle):
@@ -536,6 +700,106 @@ def _body_summary(feed, live, rec, t_settle):
             "adcs_log": feed.log[-200:],
             "adcs_info": {k: v for k, v in feed.info.items() if k != "adcs"},
             "thesis_body": thesis_body()}
+
+
+def verdict(s):
+    """One verdict for the terminal from a summary's figures. Fine loop: every Q2 sample within 11.98″ and none
+    with the beam lost (``fps hil``'s requirement). Body loop: 3σ pointing and stability within
+    ``bps.BUDGET_POINTING_3SIGMA`` and ``bps.BUDGET_STABILITY_3SIGMA`` (as ``fps adcs can`` judges them). A loop's
+    ``met`` is None without figures; ``met`` is true only when the run completed and both loops are met.
+    ``missed``: one line per figure that missed, naming the loop and by how much."""
+    from ground.adcs import bps
+    req = report.REQUIREMENT_ARCSEC
+    n, lost = int(s.get("q2_samples") or 0), int(s.get("q2_beam_lost_samples") or 0)
+    worst = (s.get("q2") or {}).get("max_radial_arcsec")
+    fine = {"met": None if n == 0 else bool(lost == 0 and worst is not None and worst <= req),
+            "worst_arcsec": worst, "budget_arcsec": req, "over_arcsec": _over(worst, req),
+            "q2_samples": n, "beam_lost_samples": lost}
+    b = s.get("body_pointing") or {}
+    p, w = b.get("pointing_3sigma_arcsec"), b.get("stability_3sigma_arcsec_s")
+    pb, wb = bps.BUDGET_POINTING_3SIGMA, bps.BUDGET_STABILITY_3SIGMA
+    body = {"met": None if p is None or w is None else bool(p <= pb and w <= wb),
+            "pointing_3sigma_arcsec": p, "pointing_budget_arcsec": pb, "pointing_over_arcsec": _over(p, pb),
+            "stability_3sigma_arcsec_s": w, "stability_budget_arcsec_s": wb,
+            "stability_over_arcsec_s": _over(w, wb), "samples": b.get("samples")}
+    missed = []
+    if fine["met"] is None:
+        missed.append("fine: no Q2 sample recorded")
+    elif not fine["met"]:
+        if worst is not None and worst > req:
+            missed.append("fine: largest Q2 error %.2f″ over the %.2f″ budget by %.2f″"
+                          % (worst, req, worst - req))
+        if lost:
+            missed.append("fine: beam lost on Q2 in %d of %d samples" % (lost, n))
+    if body["met"] is None:
+        missed.append("body: no figures (fewer than 2 samples of the window played)")
+    else:
+        if p > pb:
+            missed.append("body: 3σ pointing %.1f″ over the %g″ budget by %.1f″" % (p, pb, p - pb))
+        if w > wb:
+            missed.append("body: 3σ stability %.1f″/s over the %g″/s budget by %.1f″/s" % (w, wb, w - wb))
+    complete = bool(s.get("complete"))
+    return {"complete": complete, "met": bool(complete and fine["met"] and body["met"]), "fine": fine,
+            "body": body, "missed": missed}
+
+
+def _over(v, budget):
+    return None if v is None else max(0.0, float(v) - budget)
+
+
+def exit_code(s):
+    """``fps system``'s exit status for a finished summary: 0 the run completed and both loops met their budgets,
+    3 it completed but a budget was missed, 1 it did not complete."""
+    v = s.get("verdict") or verdict(s)
+    return 0 if v["met"] else (3 if v["complete"] else 1)
+
+
+def verdict_lines(s):
+    """The closing lines: ``hil.verdict_lines`` for the fine loop, then the body loop's and the terminal's."""
+    v = s.get("verdict") or verdict(s)
+    lines = hil.verdict_lines(dict(s, requirement_met=bool(v["complete"] and v["fine"]["met"])))
+    b = v["body"]
+    if not v["complete"]:
+        return lines
+    if b["met"] is None:
+        lines.append("body loop: no figures (fewer than 2 samples of the window played)")
+    else:
+        lines.append("body loop %s: 3σ pointing %.1f″ (budget %g″), 3σ stability %.1f″/s (budget %g″/s)" % (
+            "within its budgets" if b["met"] else "BUDGET MISSED", b["pointing_3sigma_arcsec"],
+            b["pointing_budget_arcsec"], b["stability_3sigma_arcsec_s"], b["stability_budget_arcsec_s"]))
+    lines.append("terminal: both loops within their budgets" if v["met"] else
+                 "TERMINAL BUDGET MISSED: " + "; ".join(v["missed"]))
+    return lines
+
+
+def verdict_md(s):
+    """The report's verdict: each loop's figure against its budget, and the terminal's."""
+    v = s.get("verdict") or verdict(s)
+    f, b = v["fine"], v["body"]
+    yes = (lambda m: "—" if m is None else ("yes" if m else "**NO**"))
+    rows = [("fine (Q2)", "largest radial error (arcsec)", f["worst_arcsec"], f["budget_arcsec"], f["over_arcsec"],
+             f["met"]),
+            ("body (ADCS)", "3σ pointing (arcsec)", b["pointing_3sigma_arcsec"], b["pointing_budget_arcsec"],
+             b["pointing_over_arcsec"], None if b["met"] is None else b["pointing_over_arcsec"] == 0),
+            ("body (ADCS)", "3σ stability (arcsec/s)", b["stability_3sigma_arcsec_s"], b["stability_budget_arcsec_s"],
+             b["stability_over_arcsec_s"], None if b["met"] is None else b["stability_over_arcsec_s"] == 0)]
+    out = ["## Verdict", "", "| loop | figure | this run | budget | over by | met |", "|---|---|---|---|---|---|"]
+    for loop, label, val, budget, over, met in rows:
+        out.append("| %s | %s | %s | %g | %s | %s |" % (loop, label, _f(val), budget, _f(over), yes(met)))
+    if f["beam_lost_samples"]:
+        out.append("")
+        out.append("The beam was lost on Q2 in %d of %d samples (the fine loop misses)."
+                   % (f["beam_lost_samples"], f["q2_samples"]))
+    out.append("")
+    if not v["complete"]:
+        why = ": %s" % s["error"] if s.get("error") else (", interrupted" if s.get("interrupted") else "")
+        out.append("**Terminal: not judged: the run did not complete** (stopped in %s%s)."
+                   % (s.get("stopped_in") or s.get("phase") or "?", why))
+    elif v["met"]:
+        out.append("**Terminal: both loops within their budgets.**")
+    else:
+        out.append("**Terminal: BUDGET MISSED**: %s." % "; ".join(v["missed"]))
+    return "\n".join(out)
 
 
 def thesis_body():
@@ -617,7 +881,8 @@ def _hold_s():
 
 def report_md(s):
     lines = ["# fps system: %.1f s of the collection window (ADCS %s, fine-pointing controller %s over serial)"
-             % (s.get("duration_s") or 0.0, s.get("adcs"), s.get("runtime")), "", side_by_side(s), ""]
+             % (s.get("duration_s") or 0.0, s.get("adcs"), s.get("runtime")), "", verdict_md(s), "",
+             side_by_side(s), ""]
     if s.get("adcs") == "ground":
         lines.append("The ADCS of this run is the ground body pointing simulator itself, so both columns come "
                      "from the same run.")
@@ -635,7 +900,7 @@ def report_md(s):
     if s.get("adcs_summary") is not None or s.get("adcs_last_status") is not None:
         lines += ["## ADCS session", "", "- counters and fault log: `%s`" % json.dumps(s.get("adcs_summary")),
                   "- last status packet: `%s`" % json.dumps(s.get("adcs_last_status")), ""]
-    lines += ["- " + line for line in hil.verdict_lines(s)]
+    lines += ["- " + line for line in verdict_lines(s)]
     return "\n".join(lines) + "\n"
 
 
@@ -653,6 +918,16 @@ def _faults_arg(text):
         raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}': %s" % exc)
 
 
+def _read_summary(out_dir):
+    """The run folder's summary.json, or {} when it cannot be read (the error line says what happened)."""
+    try:
+        with open(os.path.join(out_dir, "summary.json")) as f:
+            s = json.load(f)
+        return s if isinstance(s, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
 def _cmd(a):
     cfg = None
     if a.config is not None:
@@ -662,15 +937,12 @@ def _cmd(a):
         s = run_system(a.duration, a.output, a.runtime, a.adcs, a.satb_gnss, a.seed, a.ts, a.truth, a.calibration,
                        a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, _faults_arg(a.faults))
     except hil.Interrupted:
-        with open(os.path.join(a.output, "summary.json")) as f:
-            s = json.load(f)
+        s = _read_summary(a.output)
         print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"
-              % (s["duration_s"], a.output), file=sys.stderr)
+              % (s.get("duration_s") or 0.0, a.output), file=sys.stderr)
         return 130
     except hil.RunFailed as exc:
-        with open(os.path.join(a.output, "summary.json")) as f:
-            s = json.load(f)
-        for line in hil.verdict_lines(s)[1:]:
+        for line in verdict_lines(_read_summary(a.output))[1:]:
             print(line, file=sys.stderr)
         print("fps system: error: %s" % exc, file=sys.stderr)
         return 1
@@ -681,15 +953,18 @@ def _cmd(a):
              _x(s["real_time_factor_play"])))
     print("run folder %s: summary.json, report.md, samples.npz, body.npz, telemetry.csv%s"
           % (a.output, ", " + FIGURE if not a.no_plots else ""))
-    for line in hil.verdict_lines(s):
+    rc = exit_code(s)
+    for line in verdict_lines(s):
         print(line)
-    return 0 if s["requirement_met"] else 3
+    return rc
 
 
-EXIT_STATUS = """exit status: 0 complete and every Q2 sample within 11.98 arcsec; 3 complete but the requirement
-missed; 1 failed (the ADCS failed, a body pointing error beyond the P-FSM's range, link down, controller exited:
-the folder holds the partial run with complete=false and the error); 2 bad input; 130 interrupted (partial
-folder, complete=false)."""
+EXIT_STATUS = """exit status: 0 complete, and both loops within their budgets (fine: every Q2 sample within 11.98
+arcsec; body: 3 sigma pointing <= 150 arcsec and stability <= 35 arcsec/s); 3 complete but a budget missed
+(summary.json's verdict and report.md name the loop and by how much); 1 failed (the ADCS failed or stopped
+answering, a body pointing error beyond the P-FSM's range, link down, controller exited: the folder holds the
+partial run with complete=false, the error and stopped_in); 2 bad input; 130 interrupted (partial folder,
+complete=false)."""
 
 
 def register(sub, name, help_):

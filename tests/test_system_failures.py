@@ -1,0 +1,255 @@
+"""``fps system``'s failure paths end within a bound with an honest folder, and its one verdict for the terminal.
+
+Each failure test provokes one failure in a short ``--adcs ground`` run, measures from that moment to the end of
+the command (at most ``BOUND_S``), and reads summary.json (complete false, the reason, where it stopped). The
+P-FSM range stop and Ctrl-C run ``fps system`` in its own interpreter, so that its exit (multiprocessing's exit
+handler waiting on the ADCS process) is part of what is timed."""
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import pytest
+
+from ground import report, system
+from ground.adcs import bps, bps_cli
+from ground.cli import main as fps
+from ground.fileio import write_json
+
+BOUND_S = 30.0
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """(params file, H calibration file, bps cache folder) for short runs without calibrating."""
+    from emulator.bench import Bench
+    from emulator.truth import true_h_field
+    d = tmp_path_factory.mktemp("sysfail")
+    cache = str(d / "cache")
+    params = str(d / "params.json")
+    bps.write_params(params, bps_cli.calibration(0, cache, progress=False))
+    cal = str(d / "cal.json")
+    write_json(cal, true_h_field(Bench(noise=False), None, 0.01))
+    return params, cal, cache
+
+
+def _args(out, setup, duration, *extra):
+    params, cal, cache = setup
+    return ["system", "--adcs", "ground", "--duration", str(duration), "--truth", "two-body", "--params", params,
+            "--calibration", cal, "--bps-cache", cache, "--quiet", "--no-plots", "-o", str(out)] + list(extra)
+
+
+def _summary(out):
+    s = json.loads((out / "summary.json").read_text())
+    assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
+    return s
+
+
+def _when_playing(out, then, timeout_s=120.0):
+    """A thread calling ``then()`` once summary.json says the play has begun (and 0.5 s more)."""
+    def watch():
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with contextlib.suppress(OSError, ValueError):
+                if json.loads((out / "summary.json").read_text()).get("phase") == "play":
+                    time.sleep(0.5)
+                    then()
+                    return
+            time.sleep(0.02)
+    th = threading.Thread(target=watch, daemon=True)
+    th.start()
+    return th
+
+
+def test_a_pfsm_range_stop_ends_the_command(tmp_path, setup):
+    """The hang: the body pointing error leaves the P-FSM's range during the play while the ADCS process is far
+    ahead (its queue's pipe full). The command exits 1 within the bound, its summary naming the range."""
+    out = tmp_path / "run"
+    mark = tmp_path / "provoked"
+    script = tmp_path / "range_stop.py"
+    script.write_text(textwrap.dedent("""
+        import sys, time
+        import numpy as np
+        from ground import system
+        from ground.cli import main
+
+        add = system.LiveDisturbance.add
+
+        def beyond(self, t, dtheta):          # from 5 s into the play: 5000 arcsec, beyond the P-FSM's 810
+            t = np.asarray(t, float)
+            if t[-1] >= self.t0 + 5.0:
+                dtheta = np.full(np.shape(dtheta), 5000.0)
+                with open(%r, "a") as f:
+                    f.write("%%r\\n" %% time.time())
+            return add(self, t, dtheta)
+
+        if __name__ == "__main__":            # the ADCS process (spawn) imports this file too
+            system.LiveDisturbance.add = beyond
+            sys.exit(main(sys.argv[1:]))
+        """ % str(mark)))
+    p = subprocess.run([sys.executable, str(script)] + _args(out, setup, 300), capture_output=True, text=True,
+                       timeout=180, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    t_end = time.time()
+    t_provoked = float(mark.read_text().split()[0])
+    assert p.returncode == 1, p.stderr
+    assert t_end - t_provoked < BOUND_S
+    assert "beyond the P-FSM's range" in p.stderr and "Traceback" not in p.stderr
+    s = _summary(out)
+    assert s["complete"] is False and s["requirement_met"] is False and s["stopped_in"] == "play"
+    assert "beyond the P-FSM's range" in s["error"] and s["phase"] == "failed"
+    assert s["verdict"]["met"] is False and s["verdict"]["complete"] is False
+    assert 0 < s["duration_s"] < 300
+    assert "not judged: the run did not complete" in (out / "report.md").read_text()
+
+
+def test_the_controller_exiting_mid_run_ends_the_command(tmp_path, setup, monkeypatch, capsys):
+    from ground import runtime
+    rigs = []
+    open_rig = runtime.open_rig
+
+    @contextlib.contextmanager
+    def keep(*a, **kw):
+        with open_rig(*a, **kw) as rig:
+            rigs.append(rig)
+            yield rig
+    monkeypatch.setattr(runtime, "open_rig", keep)
+    out = tmp_path / "run"
+    provoked = []
+
+    def kill():
+        rigs[0].process.kill()
+        provoked.append(time.monotonic())
+    _when_playing(out, kill)
+    rc = fps(_args(out, setup, 120))
+    t_end = time.monotonic()
+    err = capsys.readouterr().err
+    assert provoked and rc == 1, err
+    assert t_end - provoked[0] < BOUND_S
+    assert "Traceback" not in err and "fps system: error:" in err
+    s = _summary(out)
+    assert s["complete"] is False and s["stopped_in"] == "play" and s["phase"] == "failed"
+    assert s["error"] and "controller" in s["error"]
+    assert s["verdict"]["met"] is False and s["duration_s"] < 120
+
+
+def test_an_adcs_process_that_stops_answering_ends_the_command(tmp_path, setup, monkeypatch, capsys):
+    """SIGSTOP the ADCS process at its first 10 Hz cycle (its pipe then holds less than the settling): the run
+    fails after ``SILENT_S`` of silence and the process is ended."""
+    feeds, provoked = [], []
+    handle = system.AdcsFeed._handle
+
+    def stop_it(self, kind, d, play=True):
+        if kind == "cycle" and not provoked:
+            os.kill(self.proc.pid, signal.SIGSTOP)
+            feeds.append(self)
+            provoked.append(time.monotonic())
+        return handle(self, kind, d, play)
+    monkeypatch.setattr(system.AdcsFeed, "_handle", stop_it)
+    out = tmp_path / "run"
+    try:
+        rc = fps(_args(out, setup, 60))
+        t_end = time.monotonic()
+        err = capsys.readouterr().err
+        assert provoked and rc == 1, err
+        assert t_end - provoked[0] < BOUND_S
+        assert feeds[0].proc.exitcode is not None                # the stopped process was ended
+        assert "stopped answering" in err and "Traceback" not in err
+        s = _summary(out)
+        assert s["complete"] is False and s["phase"] == "failed" and s["stopped_in"] == "adcs_settling"
+        assert "stopped answering" in s["error"] and s["verdict"]["met"] is False
+    finally:
+        for f in feeds:
+            if f.proc.exitcode is None:
+                with contextlib.suppress(OSError):
+                    os.kill(f.proc.pid, signal.SIGCONT)
+                f.proc.kill()
+
+
+def test_ctrl_c_ends_the_command_with_130(tmp_path, setup):
+    """Ctrl-C as a terminal sends it: SIGINT to the whole process group (the controller's process too)."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "ground.cli"] + _args(out, setup, 120), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    provoked = []
+    try:
+        _when_playing(out, lambda: (os.killpg(proc.pid, signal.SIGINT), provoked.append(time.monotonic())))
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    t_end = time.monotonic()
+    assert provoked and proc.returncode == 130, err.decode()
+    assert t_end - provoked[0] < BOUND_S
+    assert b"partial run" in err and b"Traceback" not in err
+    s = _summary(out)
+    assert s["complete"] is False and s["interrupted"] is True and s["stopped_in"] == "play"
+    assert s["phase"] == "interrupted" and s["requirement_met"] is False and s["verdict"]["met"] is False
+    assert 0 < s["duration_s"] < 120
+
+
+# --- the verdict ------------------------------------------------------------------------------------------------
+def _synthetic(fine_worst=3.0, lost=0, pointing=120.0, stability=20.0, complete=True):
+    return {"complete": complete, "q2_samples": 1000, "q2_beam_lost_samples": lost,
+            "q2": {"max_radial_arcsec": fine_worst},
+            "body_pointing": {"pointing_3sigma_arcsec": pointing, "stability_3sigma_arcsec_s": stability,
+                              "samples": 6001}}
+
+
+def test_verdict_names_the_loop_that_missed_and_by_how_much():
+    v = system.verdict(_synthetic())
+    assert v["met"] is True and v["missed"] == [] and system.exit_code({"verdict": v}) == 0
+    assert v["fine"] == {"met": True, "worst_arcsec": 3.0, "budget_arcsec": report.REQUIREMENT_ARCSEC,
+                         "over_arcsec": 0.0, "q2_samples": 1000, "beam_lost_samples": 0}
+    # the wheel silent from 300 s: body 3 sigma 182 arcsec against 150, fine loop holding
+    v = system.verdict(_synthetic(pointing=182.0))
+    assert v["met"] is False and v["fine"]["met"] is True and v["body"]["met"] is False
+    assert v["body"]["pointing_over_arcsec"] == pytest.approx(32.0) and v["body"]["stability_over_arcsec_s"] == 0
+    assert v["body"]["pointing_budget_arcsec"] == bps.BUDGET_POINTING_3SIGMA == 150.0
+    assert v["missed"] == ["body: 3σ pointing 182.0″ over the 150″ budget by 32.0″"]
+    assert system.exit_code({"verdict": v}) == 3
+    v = system.verdict(_synthetic(stability=40.0))
+    assert v["missed"] == ["body: 3σ stability 40.0″/s over the 35″/s budget by 5.0″/s"]
+    assert v["body"]["stability_budget_arcsec_s"] == bps.BUDGET_STABILITY_3SIGMA == 35.0
+    v = system.verdict(_synthetic(fine_worst=13.0))
+    assert v["fine"]["met"] is False and v["body"]["met"] is True and system.exit_code({"verdict": v}) == 3
+    assert v["missed"] == ["fine: largest Q2 error 13.00″ over the 11.98″ budget by 1.02″"]
+    assert system.verdict(_synthetic(lost=3))["missed"] == ["fine: beam lost on Q2 in 3 of 1000 samples"]
+    # both at once; and a run that did not complete is never met, whatever its figures
+    assert len(system.verdict(_synthetic(fine_worst=20.0, pointing=200.0))["missed"]) == 2
+    v = system.verdict(_synthetic(complete=False))
+    assert v["met"] is False and v["fine"]["met"] and v["body"]["met"] and system.exit_code({"verdict": v}) == 1
+    v = system.verdict({"complete": True, "q2_samples": 0, "q2": None, "body_pointing": None})
+    assert v["met"] is False and v["fine"]["met"] is None and v["body"]["met"] is None
+    md = system.verdict_md(dict(_synthetic(pointing=182.0), verdict=system.verdict(_synthetic(pointing=182.0))))
+    assert "| body (ADCS) | 3σ pointing (arcsec) | 182.00 | 150 | 32.00 | **NO** |" in md
+    assert "**Terminal: BUDGET MISSED**: body: 3σ pointing 182.0″" in md
+
+
+def test_fps_system_exits_3_when_the_body_budget_is_missed_and_0_when_both_are_met(tmp_path, setup, monkeypatch,
+                                                                                 capsys):
+    out = tmp_path / "met"
+    rc = fps(_args(out, setup, 2))
+    s = _summary(out)
+    assert rc == 0, capsys.readouterr().err
+    assert s["complete"] is True and s["verdict"]["met"] is True and s["requirement_met"] is True
+    assert s["verdict"]["fine"]["met"] and s["verdict"]["body"]["met"] and s["stopped_in"] is None
+    assert "terminal: both loops within their budgets" in capsys.readouterr().out
+    # the same run judged against a 1 arcsec pointing budget: complete, the fine loop met, the body not
+    monkeypatch.setattr(bps, "BUDGET_POINTING_3SIGMA", 1.0)
+    out = tmp_path / "missed"
+    rc = fps(_args(out, setup, 2))
+    s = _summary(out)
+    assert rc == 3
+    assert s["complete"] is True and s["verdict"]["met"] is False and s["requirement_met"] is False
+    assert s["verdict"]["fine"]["met"] is True and s["verdict"]["body"]["met"] is False
+    over = s["verdict"]["body"]["pointing_over_arcsec"]
+    assert over == pytest.approx(s["body_pointing"]["pointing_3sigma_arcsec"] - 1.0) and over > 0
+    assert "TERMINAL BUDGET MISSED: body: 3σ pointing" in capsys.readouterr().out
+    md = (out / "report.md").read_text()
+    assert "**Terminal: BUDGET MISSED**: body: 3σ pointing" in md

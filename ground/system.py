@@ -757,7 +757,8 @@ def exit_code(s):
 def verdict_lines(s):
     """The closing lines: ``hil.verdict_lines`` for the fine loop, then the body loop's and the terminal's."""
     v = s.get("verdict") or verdict(s)
-    lines = hil.verdict_lines(dict(s, requirement_met=bool(v["complete"] and v["fine"]["met"])))
+    lines = ["fine loop: " + line if line.lower().startswith("requirement ") else line
+             for line in hil.verdict_lines(dict(s, requirement_met=bool(v["complete"] and v["fine"]["met"])))]
     b = v["body"]
     if not v["complete"]:
         return lines

@@ -250,6 +250,7 @@ def test_fps_system_exits_3_when_the_body_budget_is_missed_and_0_when_both_are_m
     assert s["verdict"]["fine"]["met"] is True and s["verdict"]["body"]["met"] is False
     over = s["verdict"]["body"]["pointing_over_arcsec"]
     assert over == pytest.approx(s["body_pointing"]["pointing_3sigma_arcsec"] - 1.0) and over > 0
-    assert "TERMINAL BUDGET MISSED: body: 3σ pointing" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "TERMINAL BUDGET MISSED: body: 3σ pointing" in printed and "fine loop: requirement met: all" in printed
     md = (out / "report.md").read_text()
     assert "**Terminal: BUDGET MISSED**: body: 3σ pointing" in md

@@ -6,7 +6,8 @@
 
 Controller options: --table PATH (calibration JSON or H-table blob), --track (start in TRACK; needs a table),
 --gain Q15, --decim TICKS, --safe-ticks TICKS, --beam-threshold COUNTS, --rate HZ (for link-silence
-accounting). Exit status 0 when the peer leaves, 2 on bad arguments (the message, naming the option, and the
+accounting), --isotp-timeout-ms MS (CAN: ISO-TP's N_Bs, the wait for flow control before a packet is sent
+again; default 1000). Exit status 0 when the peer leaves, 2 on bad arguments (the message, naming the option, and the
 usage, on stderr), 1 when the link fails while serving (its error on stderr, which the HIL reports when a
 controller exits).
 """
@@ -37,7 +38,7 @@ def parse(argv):
         raise ValueError("first argument must be controller or player, got %r" % (argv[0] if argv else None))
     role = argv[0]
     opts = {"link": None, "table": None, "track": False, "rate": 637.8, "ctl": {}, "distfile": None,
-            "store": None}
+            "store": None, "isotp_ms": None}
     i = 1
     while i < len(argv):
         a = argv[i]
@@ -64,6 +65,14 @@ def parse(argv):
             if not 1.0 <= r <= 100000.0:      # NaN and inf fail too
                 raise ValueError("option --rate = %r: need a tick rate in Hz from 1 to 100000" % v)
             opts["rate"] = r
+        elif a == "--isotp-timeout-ms":
+            try:
+                r = float(v)
+            except ValueError:
+                r = -1.0
+            if not 0.1 <= r <= 60000.0:
+                raise ValueError("option --isotp-timeout-ms = %r: need a wait in ms from 0.1 to 60000" % v)
+            opts["isotp_ms"] = r
         elif a in _CTRL_INT:
             try:
                 opts["ctl"][_CTRL_INT[a]] = int(v)
@@ -93,13 +102,13 @@ def main(argv=None):
             node = Controller(table=opts["table"], **opts["ctl"])
             if opts["track"]:
                 node.mode = TRACK
-            lk = hal_link.open_link(opts["link"], "CONTROLLER")
+            lk = hal_link.open_link(opts["link"], "CONTROLLER", isotp_ms=opts["isotp_ms"])
         else:
             from firmware.player import Player
             node = Player(store_path=opts["store"])
             if opts["distfile"]:
                 node.open_file(opts["distfile"])
-            lk = hal_link.open_link(opts["link"], "PLAYER")
+            lk = hal_link.open_link(opts["link"], "PLAYER", isotp_ms=opts["isotp_ms"])
     except (ValueError, OSError) as exc:          # an option, a file or the link spec: bad input
         return _usage(exc)
     try:

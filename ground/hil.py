@@ -38,6 +38,7 @@ from ground.fileio import output_folder, run_folder, write_atomic, write_json
 from firmware.ad5664r import CODES_PER_VOLT
 from firmware.controller import SAT_TICKS, SATURATED
 from ground.rig import AD660_CODES_PER_VOLT
+from ground.runtime import tick_timeout
 from protocol import htable
 
 CHUNK_S = 1.0     # virtual seconds per lockstep call (progress and interruption granularity)
@@ -334,7 +335,8 @@ def run_config(rig, duration_s, seed, link_opts):
             "rate_hz": rig.rate_hz, "pfsm_hz": rig.lockstep.pfsm_hz, "q2_hz": rig.bench.q2_hz,
             "bench_config": rig.bench.config, "realtime": rig.lockstep.realtime, "port": link_opts.get("port"),
             "link_faults": faults.describe() if faults else None,
-            "tick_timeout_ms": link_opts.get("tick_timeout_ms"), "tick_tries": link_opts.get("tick_tries"),
+            "tick_timeout_ms": tick_timeout(rig.link_name, link_opts.get("tick_timeout_ms")),
+            "tick_tries": link_opts.get("tick_tries"),
             "max_failed_ticks": link_opts.get("max_failed_ticks")}
 
 
@@ -356,9 +358,13 @@ class RunOutcome:
         except KeyboardInterrupt:
             self.interrupted = True
         except (OSError, ValueError) as exc:
+            from ground.runtime import exit_note
             self.rig = self.rig if self.rig is not None else getattr(exc, "rig", None)
             where = getattr(self.rig, "link_desc", None) or "%s over %s" % (self.runtime_name, self.link_name)
-            self.failure = "%s: %s" % (where, exc)
+            msg = str(exc)
+            if "process exited" not in msg:          # say so when the controller is gone, and what it said
+                msg += exit_note(getattr(self.rig, "process", None), wait_s=0.5)
+            self.failure = "%s: %s" % (where, msg)
 
     def raise_if_stopped(self, out_dir, summary):
         """After the folder is written: ``Interrupted`` or ``RunFailed`` (with the summary's error)."""

@@ -7,7 +7,8 @@
   (MicroPython: ``micropython -m firmware.main ...``) on the slave of a pseudo-terminal pair whose master
   this process holds (``protocol.link.open_link("pty")``);
 - ``cpython can``: the same over CAN, the controller opening ``slcan:PTY`` and this process being the
-  slcan device (``open_link("slcan-pty")``). MicroPython firmware speaks serial only.
+  slcan device (``open_link("slcan-pty")``); ``--link-faults`` then act on the Lawicel ASCII stream at this
+  end of the pty (``protocol.faults.SLCAN``). MicroPython firmware speaks serial only.
 
 The subprocess is stopped (closed link, then terminate, then kill) when the context ends.
 """
@@ -27,6 +28,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIMES = ("inproc", "cpython", "micropython", "board")
 LINKS = ("inproc", "serial", "can")
 TICK_TIMEOUT_MS = 3.0      # resend a TICK after this long without its answer (a MicroPython pty round trip: ~0.1 ms)
+CAN_TICK_TIMEOUT_MS = 20.0  # the same on CAN: a round trip is ~1.5 ms there (two ISO-TP transfers, flow control each)
+CAN_ISOTP_TIMEOUT_MS = 3.0   # N_Bs on the lockstep CAN link (both ends): flow control comes in ~0.3 ms on a pty
 TICK_TRIES = 30            # sends of one TICK (waits doubling up to 0.1 s: 2.6 s) before it is an overrun
 MAX_FAILED_TICKS = 2000    # consecutive overruns (a dead link) that end a run: 3.1 s at 637.8 Hz
 
@@ -60,12 +63,14 @@ def add_link_arguments(p):
                         "(for a board whose loop runs from its own timer)")
     p.add_argument("--rate-hz", type=float, default=637.8, help="control loop rate in Hz (default 637.8)")
     p.add_argument("--link-faults", metavar="SPEC",
-                   help="inject faults on the serial link, both directions: bytes=P (bit flip per byte), "
-                        "frames=P (frame drop), seed=N, silence=START_S:LENGTH_S (no traffic for that span of "
-                        "virtual seconds, counted from the play's start in fps hil and from the run's start in "
-                        "fps calibrate; LENGTH_S may be inf), e.g. bytes=0.01,frames=0.05,seed=1")
-    p.add_argument("--tick-timeout-ms", type=float, default=TICK_TIMEOUT_MS,
-                   help="resend a TICK after this many ms without its answer (default %g)" % TICK_TIMEOUT_MS)
+                   help="inject faults on the link, both directions: bytes=P (a bit flip per byte: of the COBS "
+                        "stream on serial, of the slcan ASCII stream on CAN), frames=P (a frame dropped: a COBS "
+                        "frame, or a CAN frame's Lawicel line), seed=N, silence=START_S:LENGTH_S (no traffic for "
+                        "that span of virtual seconds, counted from the play's start in fps hil and from the "
+                        "run's start in fps calibrate; LENGTH_S may be inf), e.g. bytes=0.01,frames=0.05,seed=1")
+    p.add_argument("--tick-timeout-ms", type=float, default=None,
+                   help="resend a TICK after this many ms without its answer (default %g on serial, %g on CAN)"
+                        % (TICK_TIMEOUT_MS, CAN_TICK_TIMEOUT_MS))
     p.add_argument("--tick-tries", type=int, default=TICK_TRIES,
                    help="sends of one TICK, the wait doubling from --tick-timeout-ms up to 100 ms, before the "
                         "tick counts as an overrun, the mirror holding (default %d: 2.6 s)" % TICK_TRIES)
@@ -138,8 +143,12 @@ class RemoteEndpoint:
 def _start(runtime, link_kind, rate_hz):
     from protocol.link import open_link
     # one link carries the BENCH (TICK/FSM_SPI) and the GROUND (commands, ACK/NACK, status): CAN must deliver both
-    link = open_link("pty" if link_kind == "serial" else "slcan-pty", "BENCH", accept=("GROUND",))
+    if link_kind == "serial":
+        link = open_link("pty", "BENCH")
+    else:
+        link = open_link("slcan-pty", "BENCH", accept=("GROUND",), isotp_timeout_s=CAN_ISOTP_TIMEOUT_MS / 1000.0)
     spec = ("serial:" if link_kind == "serial" else "slcan:") + link.peer_path
+    extra = [] if link_kind == "serial" else ["--isotp-timeout-ms", repr(CAN_ISOTP_TIMEOUT_MS)]
     exe = [micropython_binary()] if runtime == "micropython" else [sys.executable]
     env = dict(os.environ)
     if runtime == "micropython":
@@ -148,7 +157,8 @@ def _start(runtime, link_kind, rate_hz):
         env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
     # stderr to a file, not a pipe: nobody reads a pipe during the run, and a full one would stall the controller
     errlog = tempfile.TemporaryFile()
-    proc = subprocess.Popen(exe + ["-m", "firmware.main", "controller", "--link", spec, "--rate", repr(rate_hz)],
+    proc = subprocess.Popen(exe + ["-m", "firmware.main", "controller", "--link", spec, "--rate", repr(rate_hz)]
+                            + extra,
                             cwd=ROOT, env=env,
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errlog)
     proc.errlog = errlog
@@ -156,13 +166,31 @@ def _start(runtime, link_kind, rate_hz):
 
 
 def stderr_tail(proc, n_chars=2000):
-    """The last ``n_chars`` the controller process wrote to stderr."""
+    """The last ``n_chars`` the controller process wrote to stderr (kept when the process is stopped)."""
+    if proc.errlog.closed:
+        return getattr(proc, "stderr_text", "")[-n_chars:]
     proc.errlog.seek(0, os.SEEK_END)
     proc.errlog.seek(max(0, proc.errlog.tell() - n_chars))
     return proc.errlog.read().decode(errors="replace")
 
 
+def exit_note(proc, wait_s=1.0):
+    """``"; the controller process exited with status N: <its last stderr line>"`` once ``proc`` has exited
+    of itself (waiting up to ``wait_s`` for it: a process whose link failed is on its way out), else ``""``
+    (still running, or stopped by this side when the run ended)."""
+    if proc is None or getattr(proc, "stopped_by_us", False):
+        return ""
+    try:
+        proc.wait(wait_s)
+    except subprocess.TimeoutExpired:
+        return ""
+    lines = [ln for ln in stderr_tail(proc).splitlines() if ln.strip()]
+    return "; the controller process exited with status %s%s" % (
+        proc.returncode, (": " + lines[-1].strip()) if lines else " and said nothing on stderr")
+
+
 def _stop(link, proc):
+    proc.stopped_by_us = proc.poll() is None
     with contextlib.suppress(Exception):
         link.close()
     if proc.poll() is None:
@@ -172,6 +200,7 @@ def _stop(link, proc):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(2.0)
+    proc.stderr_text = stderr_tail(proc)
     proc.errlog.close()
 
 
@@ -183,10 +212,18 @@ def check_board(config, rate_hz=637.8):
     board_timing(config if config is not None else default_config()).split(1.0 / rate_hz)
 
 
-def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=TICK_TIMEOUT_MS,
+def tick_timeout(link, tick_timeout_ms=None):
+    """The TICK resend timeout in ms: ``tick_timeout_ms``, or the link's default."""
+    if tick_timeout_ms is not None:
+        return tick_timeout_ms
+    return CAN_TICK_TIMEOUT_MS if link == "can" else TICK_TIMEOUT_MS
+
+
+def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=None,
                   tick_tries=TICK_TRIES, max_failed_ticks=MAX_FAILED_TICKS, rate_hz=637.8, **_):
     """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse."""
     check(runtime, link)
+    tick_timeout_ms = tick_timeout(link, tick_timeout_ms)
     for name, v, lo, hi in (("--tick-timeout-ms", tick_timeout_ms, 0.05, 1e7), ("--tick-tries", tick_tries, 1, 1e6),
                             ("--max-failed-ticks", max_failed_ticks, 1, 1e9),
                             ("--rate-hz", rate_hz, 100.0, RATE_HZ_MAX)):
@@ -197,10 +234,8 @@ def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=TI
     if runtime != "board" and port:
         raise ValueError("--port %s goes with --runtime board" % port)
     if link_faults is not None and runtime == "inproc":
-        raise ValueError("--link-faults needs a link: use --runtime cpython|micropython|board with --link serial")
-    if link_faults is not None and link != "serial":
-        raise ValueError("--link-faults: injected on serial links only; CAN frames are checked and "
-                         "retransmitted by the CAN controller itself")
+        raise ValueError("--link-faults needs a link: use --runtime cpython|micropython|board with --link serial, "
+                         "or --runtime cpython with --link can")
 
 
 def _set_realtime(rig, realtime, rate_hz):
@@ -212,13 +247,14 @@ def _set_realtime(rig, realtime, rate_hz):
 
 @contextlib.contextmanager
 def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=30.0, port=None, baud=115200,
-             link_faults=None, tick_timeout_ms=TICK_TIMEOUT_MS, tick_tries=TICK_TRIES,
+             link_faults=None, tick_timeout_ms=None, tick_tries=TICK_TRIES,
              max_failed_ticks=MAX_FAILED_TICKS, realtime=False, rate_hz=637.8, **kw):
     """A ``Rig`` with the controller in the chosen runtime; see the module docstring.
 
     ``board``: a controller board flashed with ``firmware/`` on the serial port ``port`` at ``baud``.
-    ``link_faults``: a ``protocol.faults.LinkFaults`` injected on the serial link (``rig.faults`` is the
-    ``FaultyPort``; set its ``clock``). TICKs are resent after ``tick_timeout_ms``, ``tick_tries`` times, and
+    ``link_faults``: a ``protocol.faults.LinkFaults`` injected on the serial link or the slcan stream
+    (``rig.faults`` is the ``FaultyPort``; set its ``clock``). TICKs are resent after ``tick_timeout_ms``
+    (None: the link's default, ``tick_timeout``), ``tick_tries`` times, and
     ``max_failed_ticks`` consecutive overruns end the run (``emulator.lockstep.RemoteController``).
     ``realtime``: ticks paced by the wall clock, each answer due within one period (overruns counted)."""
     check_options(runtime, link, port=port, link_faults=link_faults, tick_timeout_ms=tick_timeout_ms,
@@ -232,7 +268,7 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
         _set_realtime(rig, realtime, rate_hz)
         yield rig
         return
-    try_s = tick_timeout_ms / 1000.0
+    try_s = tick_timeout(link, tick_timeout_ms) / 1000.0
     patience_s = 3600.0         # the tries bound a tick (RemoteController backs off to 0.1 s per try)
     if runtime == "board":
         from protocol.link import open_serial

@@ -99,16 +99,17 @@ class _FdPort:
     and a pty master we own is non-blocking so that a peer which stops reading (alive but hung, its pty buffer
     full) ends the link after ``STALL_S`` instead of blocking the writer for ever."""
 
-    def __init__(self, fd, hold_fd=None, owns=True):
+    def __init__(self, fd, hold_fd=None, owns=True, spin=True):
         self.fd = fd
         self._hold = hold_fd   # our copy of a pty slave, closed once the peer has spoken
         self._owns = owns
+        self._spin = spin      # busy-poll before blocking (a reader thread sharing the GIL should not)
         if owns:
             os.set_blocking(fd, False)
 
     def read(self, timeout):
         r = None
-        if timeout:
+        if timeout and self._spin:
             # Busy-poll up to SPIN_S first: a lockstep peer answers within ~100 us, and a blocked wake-up
             # across cores costs tens of us on a VM (10x -> 15x real time for the MicroPython HIL).
             end = time.perf_counter() + min(SPIN_S, timeout)
@@ -348,7 +349,8 @@ class CanLink(Link):
     A receive thread reads the bus all the time, reassembles ISO-TP transfers and answers their flow control
     at once, as a CAN driver would. Frames that fail the end-to-end check, the table or ISO-TP's rules are
     dropped and counted by reason; so are the adapter's malformed lines (``protocol.slcanbus``). Only the bus
-    failing (a closed port, a vanished adapter or peer) closes the link, with ``closed_why`` saying what.
+    failing (a closed port, a vanished adapter or peer) closes the link; ``closed_why`` says what when it was
+    more than the other end closing in order (a port error, a peer that stopped reading).
 
     Sending: an ISO-TP transfer whose flow control does not come within ``isotp_timeout_s`` (ISO 15765-2's
     N_Bs, default 1 s) is aborted and the whole packet sent again, ``isotp_tries`` sends in all; if none gets
@@ -412,8 +414,9 @@ class CanLink(Link):
 
     def send_raw(self, pid, src, dst, payload):
         """Send one packet; a long one blocks until its ISO-TP transfer is done or given up (see the class
-        docstring; ``last_sent`` says which). ConnectionRefusedError if the receiver's flow control says
-        overflow (a packet too long for it: no resend helps). Returns None: CAN has no sequence number."""
+        docstring; ``last_sent`` says which). A flow control saying overflow counts as a failed try
+        (``isotp_OverflowError``): flow control frames carry no end-to-end check, so damage can make one.
+        Returns None: CAN has no sequence number."""
         self.last_sent = self._send(pid, src, dst, payload)
 
     def _send(self, pid, src, dst, payload):
@@ -441,14 +444,13 @@ class CanLink(Link):
                     self._cond.wait(min(left, 0.01))   # the receive thread takes the flow control
                     st.process()
                 else:
-                    if self.isotp_errors["OverflowError"] != refused:      # can-isotp stopped: not delivered
-                        raise ConnectionRefusedError(
-                            "ISO-TP send of packet 0x%02x to node 0x%02x: the receiver's flow control says "
-                            "overflow (%d bytes)" % (pid, dst, len(data)))
                     if self.closed:
                         return False
-                    self.tx_frames += 1
-                    return True
+                    if self.isotp_errors["OverflowError"] == refused:
+                        self.tx_frames += 1
+                        return True
+                    # can-isotp stopped on an overflow answer: nothing was delivered. Flow control frames carry
+                    # no check, so a damaged one can say overflow too: tried again like a lost one.
             self.tx_isotp_failed += 1
             return False
 
@@ -460,8 +462,12 @@ class CanLink(Link):
             try:
                 msg = self.bus.recv(self.POLL_S)
                 gone = getattr(self.bus, "peer_gone", False)
-            except (can.CanError, OSError) as exc:   # the port failed: the adapter or its host went away
-                msg, gone, why = None, True, str(exc) or type(exc).__name__
+            except (can.CanError, OSError) as exc:   # the port failed, or the adapter or its host went away
+                msg, gone = None, True
+                if getattr(self.bus, "peer_gone", False):   # our slcan buses: the other end closed (orderly)
+                    why = getattr(self.bus, "fail_why", None)
+                else:
+                    why = str(exc) or type(exc).__name__
             if msg is None and not gone:
                 continue
             with self._cond:
@@ -471,7 +477,7 @@ class CanLink(Link):
                         self._rxq.append(p)
                 if gone:
                     self.closed = True
-                    self.closed_why = self.closed_why or why or "the CAN adapter's port closed"
+                    self.closed_why = self.closed_why or why
                 self._cond.notify_all()
             if gone:
                 return

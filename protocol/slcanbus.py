@@ -20,7 +20,6 @@ stream and whole frame lines dropped, both directions, on this side of the strea
 
 import collections
 import os
-import select
 import threading
 import time
 import tty
@@ -100,35 +99,10 @@ class _Lines:
         return d
 
 
-class _SerialFd:
-    """select + os.read on a pyserial port's fd, writes through pyserial (the port python-can opened)."""
-
-    def __init__(self, ser):
-        self.ser = ser
-        self.fd = ser.fileno()
-
-    def read(self, timeout):
-        r, _, _ = select.select((self.fd,), (), (), timeout)
-        if not r:
-            return b""
-        try:
-            data = os.read(self.fd, 65536)
-        except BlockingIOError:
-            return b""
-        except OSError:
-            raise PeerGone() from None
-        if not data:
-            raise PeerGone()
-        return data
-
-    def write(self, data):
-        try:
-            self.ser.write(data)
-        except Exception as exc:      # noqa: BLE001 - pyserial's SerialException or OSError: the port failed
-            raise PeerGone(str(exc)) from None
-
-    def close(self):
-        pass
+def _serial_fd(ser):
+    """select + os.read/os.write on the fd of the pyserial port python-can opened (pyserial closes it)."""
+    os.set_blocking(ser.fileno(), False)
+    return _FdPort(ser.fileno(), owns=False, spin=False)
 
 
 class SlcanBus(slcanBus):
@@ -139,12 +113,13 @@ class SlcanBus(slcanBus):
         self._io = None
         self._lines = _Lines()
         self.faults = None
-        self.peer_gone = False
+        self.peer_gone = False      # the adapter's end closed (or stalled: then ``fail_why`` says so)
+        self.fail_why = None
         slcanBus.__init__(self, channel, **kw)
 
     def _port(self):
         if self._io is None:
-            self._io = _SerialFd(self.serialPortOrig)
+            self._io = _serial_fd(self.serialPortOrig)
         return self._io
 
     def inject_faults(self, faults, clock=None):
@@ -158,6 +133,7 @@ class SlcanBus(slcanBus):
             self._port().write(string.encode() + self.LINE_TERMINATOR)
         except PeerGone as exc:
             self.peer_gone = True
+            self.fail_why = str(exc) or None
             raise can.CanOperationError("the slcan adapter's port failed: %s" % (exc or "closed")) from None
 
     def _read(self, timeout):
@@ -213,11 +189,12 @@ class LawicelBus(can.BusABC):
         master, slave = os.openpty()
         tty.setraw(slave)
         self.peer_path = os.ttyname(slave)
-        self._port = _FdPort(master, hold_fd=slave)
+        self._port = _FdPort(master, hold_fd=slave, spin=False)
         self._rx = collections.deque()
         self._tline = bytearray(lawicel.LINE_MAX)
         self.lw = lawicel.Adapter(self._write)
-        self.peer_gone = False
+        self.peer_gone = False      # the host's end closed (or stalled: then ``fail_why`` says so)
+        self.fail_why = None
         self.faults = None
         self._wlock = threading.Lock()   # answers from the receive thread, frames from any thread
         can.BusABC.__init__(self, channel, **kw)
@@ -236,8 +213,9 @@ class LawicelBus(can.BusABC):
         with self._wlock:
             try:
                 self._port.write(bytes(data))
-            except PeerGone:
+            except PeerGone as exc:
                 self.peer_gone = True
+                self.fail_why = str(exc) or None
 
     def _recv_internal(self, timeout):
         deadline = None if timeout is None else time.monotonic() + timeout

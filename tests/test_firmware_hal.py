@@ -118,22 +118,49 @@ def test_backend_names_and_main_options():
 
 
 def test_firmware_main_reports_a_link_failure_while_serving_on_stderr_with_exit_1(monkeypatch, capsys):
-    """An ISO-TP send without flow control (a CAN link under load) while serving is not a usage error: it
-    printed the usage and exited 2, on stdout, which ground.runtime sends to /dev/null (it reports the
-    controller's stderr), so a HIL run said only that the controller's link closed. A bad option or link
-    spec (before serving) is still exit 2 with the usage."""
+    """A link that fails while serving (a port error, a peer that stopped reading) is not a usage error: exit 1
+    with the reason on stderr, which ground.runtime keeps and fps hil reports (stdout goes to /dev/null). A bad
+    option or link spec (before serving) is still exit 2 with the usage."""
     from firmware.hal import link as hal_link
     from firmware.main import main
 
-    def no_flow_control(*a, **k):
-        raise TimeoutError("ISO-TP send of packet 0x11 to node 0x20: no flow control")
-    monkeypatch.setattr(hal_link, "open_link", lambda spec, node: object())
-    monkeypatch.setattr(hal_link, "serve_controller", no_flow_control)
-    monkeypatch.setattr(hal_link, "serve_player", no_flow_control)
+    def port_failed(*a, **k):
+        raise OSError("the link failed: the peer read nothing for 5 s")
+    monkeypatch.setattr(hal_link, "open_link", lambda spec, node, **kw: object())
+    monkeypatch.setattr(hal_link, "serve_controller", port_failed)
+    monkeypatch.setattr(hal_link, "serve_player", port_failed)
     for role in ("controller", "player"):
         assert main([role, "--link", "slcan:/dev/pts/99"]) == 1
         out, err = capsys.readouterr()
-        assert out == "" and "firmware.main: error: ISO-TP send" in err and "usage" not in err
+        assert out == "" and "firmware.main: error: the link failed" in err and "usage" not in err
+    assert main(["controller", "--link", "slcan:/dev/pts/99", "--isotp-timeout-ms", "0"]) == 2
+    assert "--isotp-timeout-ms" in capsys.readouterr()[1]
     assert main(["controller", "--link", "slcan:/dev/pts/99", "--gain", "x"]) == 2
     out, err = capsys.readouterr()        # on stderr, which ground.runtime keeps (it drops stdout)
     assert out == "" and "usage: firmware.main" in err and "--gain" in err
+
+
+def test_serve_controller_raises_when_its_link_failed_and_not_when_the_peer_left():
+    """The link's ``closed_why`` (set when it closed for more than the peer leaving) becomes the OSError that
+    firmware.main turns into exit 1; a peer that left in order ends the serve quietly (exit 0)."""
+    from firmware.controller import Controller
+    from firmware.hal import link as hal_link
+
+    class Closed:
+        node = 0x10
+        closed = True
+
+        def __init__(self, why):
+            self.closed_why = why
+
+        def send_raw(self, *a):
+            pass
+
+        def close(self):
+            pass
+
+    hal_link.serve_controller(Controller(), Closed(None))
+    with pytest.raises(OSError, match="the link failed: port gone"):
+        hal_link.serve_controller(Controller(), Closed("port gone"))
+
+

@@ -471,26 +471,35 @@ def test_isotp_counts_a_transfer_cut_short_by_a_new_first_frame():
 
 
 # --- CAN: an ISO-TP send the receiver refuses is not reported as sent ----------------------------------------
-def test_can_isotp_send_refused_by_overflow_flow_control_raises():
+def test_can_isotp_send_refused_by_overflow_flow_control_is_tried_again_then_lost():
+    """An overflow answer is a failed try (a damaged flow control frame can say overflow: they carry no check):
+    the packet is sent again, and counted lost after the link's tries, never reported sent and never raised."""
     import threading
 
     import can
 
     from protocol import can as canmap
     from protocol.link import open_link
-    lk = open_link("can:virtual:fps-edges-overflow", "BENCH")
+    lk = open_link("can:virtual:fps-edges-overflow", "BENCH", isotp_timeout_s=0.2, isotp_tries=3)
     raw = can.Bus(interface="virtual", channel="fps-edges-overflow")
+    firsts = []
 
-    def receiver():                       # answers the first frame with FC overflow (status 2)
-        m = raw.recv(2.0)
-        raw.send(can.Message(arbitration_id=canmap.reply_id(m.arbitration_id), data=bytes((0x32, 0, 0)),
-                             is_extended_id=True))
+    def receiver():                       # answers every first frame with FC overflow (status 2)
+        while len(firsts) < 3:
+            m = raw.recv(2.0)
+            if m is None:
+                return
+            firsts.append(m)
+            raw.send(can.Message(arbitration_id=canmap.reply_id(m.arbitration_id), data=bytes((0x32, 0, 0)),
+                                 is_extended_id=True))
     th = threading.Thread(target=receiver)
     th.start()
     try:
-        with pytest.raises(ConnectionRefusedError, match="overflow"):
-            lk.send("TICK", "CONTROLLER", tick=1)          # 14 bytes: ISO-TP
-        assert lk.counters()["tx_frames"] == 0 and lk.counters()["isotp_OverflowError"] == 1
+        lk.send("TICK", "CONTROLLER", tick=1)          # 14 bytes + check: ISO-TP
+        c = lk.counters()
+        assert lk.last_sent is False and c["tx_frames"] == 0
+        assert c["isotp_OverflowError"] == 3 and c["tx_isotp_resent"] == 2 and c["tx_isotp_failed"] == 1
+        assert len(firsts) == 3 and all(m.data[0] >> 4 == 1 for m in firsts)     # three first frames
     finally:
         th.join(3)
         raw.shutdown()

@@ -42,6 +42,10 @@ class _Ms:
     def closed(self):
         return self.link.closed
 
+    @property
+    def closed_why(self):
+        return getattr(self.link, "closed_why", None)
+
     def close(self):
         self.link.close()
 
@@ -58,19 +62,24 @@ class _StreamMs(_Ms):
         self.send_raw = link.send_raw
 
 
-def open_link(spec, node):
-    """A link for ``spec`` with ``recv_ms``/``send_raw``/``closed``/``close``."""
+def open_link(spec, node, isotp_ms=None):
+    """A link for ``spec`` with ``recv_ms``/``send_raw``/``closed``/``close``; ``isotp_ms``: a CAN link's
+    ISO-TP N_Bs (None: ISO's 1000 ms)."""
     if _MICROPYTHON:
         if not spec.startswith("serial:"):
             raise ValueError("link %r: MicroPython speaks serial:PATH only" % spec)
         from protocol.stream import StreamLink
         return _StreamMs(StreamLink(spec[len("serial:"):], node))
     from protocol import link as hostlink
-    return _Ms(hostlink.open_link(spec, node))
+    kw = {}
+    if isotp_ms is not None and not spec.startswith("serial:"):
+        kw["isotp_timeout_s"] = isotp_ms / 1000.0
+    return _Ms(hostlink.open_link(spec, node, **kw))
 
 
 def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
-    """Run the controller on a link until the peer leaves.
+    """Run the controller on a link until the peer leaves (OSError if the link failed instead: the process then
+    exits 1 with the reason on stderr, firmware.main).
 
     Exactly-once ticks: the first copy of TICK k steps the controller; a resent TICK k (its answer was lost)
     is answered again with the FSM_SPI words, and the CTRL_STATUS if one was due, computed for k, without a
@@ -155,7 +164,15 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                     status_tick = -1
                 for rpid, rdst, rpayload in ctl.handle(pid, src, seq, payload):
                     link.send_raw(rpid, me, rdst, rpayload)
+    _closed(link)
+
+
+def _closed(link):
+    """Close the link; OSError naming the cause if it failed (more than the peer leaving)."""
+    why = getattr(link, "closed_why", None)
     link.close()
+    if why:
+        raise OSError("the link failed: %s" % why)
 
 
 def serve_player(player, link, poll_ms=100):
@@ -166,4 +183,4 @@ def serve_player(player, link, poll_ms=100):
             if dst == me or dst == BROADCAST:
                 for rpid, rdst, rpayload in player.handle(pid, src, seq, payload):
                     link.send_raw(rpid, me, rdst, rpayload)
-    link.close()
+    _closed(link)

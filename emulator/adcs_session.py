@@ -8,16 +8,26 @@ opens python-can's ``slcan`` interface on the slave (``protocol.link.open_link("
 can-isotp for the payloads over 8 bytes. Devices: RW0..RW3 (RW_CMD -> RW_TLM), STARTRACKER, GNSS (SatA, and
 SatB's fixes relayed 2-3 s late when ``satb_gnss``), BEACON; the emulator is node SPACECRAFT.
 
-Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s):
+Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s), exactly once per cycle over
+a link that loses packets (``firmware.adcs.app.Lockstep`` is the other side):
 
-1. burst for t_k (sent at the end of the previous cycle, or by ``start``): the RW_TLM of each wheel that was
-   commanded (its reply, with the speed at t_k: the reply's deadline is the next tick) or at k = 0 the first
-   read-out; STARTRACKER, GNSS A, due GNSS B, BEACON (ISO-TP); then ADCS_TICK(k, t_k) last;
-2. the firmware runs its cycle on what arrived before the tick and sends RW_CMD x4 and ADCS_STATUS(k);
-3. this side waits for ADCS_STATUS(k) (``reply_timeout_s`` of wall time; missing = a late cycle, the wheels
-   keep their last command as a driver would; ``MAX_LATE_CYCLES`` in a row end the session with OSError, the
-   firmware being hung), applies the commands, steps the dynamics 10 x 0.1 s;
+1. ADCS_TICK(k, t_k, burst, n_gnss_b) opens cycle k, naming the burst that follows it (sent at the end of the
+   previous cycle, or by ``start``): the RW_TLM of each wheel that was commanded (its reply, with the speed at
+   t_k: the reply's deadline is the next tick) or at k = 0 the first read-out; STARTRACKER, GNSS A, due GNSS B,
+   BEACON (ISO-TP). A device that is silent (a fault) is not in the burst, so the firmware sees it missed;
+2. the firmware runs its cycle once the burst named is in, and sends RW_CMD x4 and ADCS_STATUS(k);
+3. this side waits for ADCS_STATUS(k) and the four RW_CMD. A try without them (the first waits 3 x the clean
+   cycles' reply time, the next ``RETRY_S``, then x 1.5 per try up to 1 s) sends ADCS_TICK(k) again: the firmware answers from its cache when k has run, or
+   with ADCS_MISSING(k, bits) while the burst is incomplete, and those packets are sent again (the burst whole
+   when nothing came back at all). Every retry is counted (``summary()["retries"]``). After
+   ``reply_timeout_s`` of wall time the cycle is late: the wheels keep their last command as a driver would;
+   ``MAX_LATE_CYCLES`` late cycles in a row end the session with OSError, the firmware being hung. Then the
+   commands are applied and the dynamics stepped 10 x 0.1 s;
 4. k + 1: the next burst.
+
+``link_faults`` (``protocol.faults.LinkFaults``): bit flips in the slcan ASCII stream and frame lines dropped,
+both directions, at this end of the pty, from the first burst on (``silence`` in the session's virtual
+seconds).
 
 A device reply the firmware misses by its tick is counted by the firmware (ADCS_STATUS counters); a wheel
 that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``), and one whose RW_CMD had a non-finite torque
@@ -59,6 +69,10 @@ RUNTIMES = ("micropython", "cpython")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
 MAX_LATE_CYCLES = 3                  # late cycles in a row that end the session: the firmware is hung
+ISOTP_TIMEOUT_MS = 20.0              # N_Bs on the lockstep pty, both ends (ISO's 1000 ms is for a real bus)
+TRY_MIN_S, TRY_MAX_S = 0.02, 1.0     # the first try's wait for the cycle's replies: 3 x the recent reply time
+RETRY_S = 0.03                       # a further try's first wait: an answer from the cache takes ~10 ms
+TRY_BACKOFF = 1.5                    # each further try of a cycle waits this much longer (up to TRY_MAX_S)
 MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
 
@@ -109,11 +123,12 @@ class AdcsSession:
     ``cache_dir`` (orbit truth cache), ``hold_s``, ``reply_timeout_s`` (wall seconds a cycle may take),
     ``heap_out`` (micropython: a JSON file of the heap bytes per cycle, written when the firmware exits),
     ``apkf_momentum`` (the lean APKF's momentum input: "filtered", the read-outs filtered on the commanded
-    torques, flown; "tach", the read-out difference, and "torque", the commanded torques, for comparison)."""
+    torques, flown; "tach", the read-out difference, and "torque", the commanded torques, for comparison),
+    ``link_faults`` (a ``protocol.faults.LinkFaults`` on the slcan stream, see the module docstring)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
-                 reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered"):
+                 reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
         if not (np.isfinite(duration_s) and duration_s >= 1):
@@ -130,6 +145,8 @@ class AdcsSession:
         self.faults = check_faults(faults, duration_s)
         self.log = log
         self.reply_timeout_s = float(reply_timeout_s)
+        self.link_faults = link_faults
+        self.faults_port = None
         self.heap_out = heap_out
         self.recorded = [] if record else None     # per tick: [tick, t_ms, [[pid, src, payload hex], ...]]
         self.K = int(np.ceil(self.duration_s))
@@ -151,6 +168,11 @@ class AdcsSession:
         self.missed_rw_cmd = [0] * N_WHEELS
         self.refused_rw_cmd = [0] * N_WHEELS     # RW_CMD with a non-finite torque or an enable other than 0/1
         self.fault_log = []
+        self.retries = {"tick_resent": 0, "missing_answered": 0, "packets_resent": 0, "burst_resent": 0,
+                        "cycles_retried": 0}
+        self._burst_pkts = []                    # (bit, pid, src, payload) of the open cycle's burst
+        self._tick_payload = None
+        self._reply_s = 0.05                     # recent wall time from ADCS_TICK to the cycle's last reply
         self.last_status = None
         self._mode = None
         self._active = set()
@@ -172,7 +194,8 @@ class AdcsSession:
                 "torque_max": wp.torque_max,
                 "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
                 "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC, "gnss_sigma": [30.0, 1.0],
-                "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0}
+                "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0,
+                "isotp_timeout_ms": ISOTP_TIMEOUT_MS}
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""
@@ -201,7 +224,8 @@ class AdcsSession:
             os.close(m)
         try:
             self.link = hostlink.open_link("slcan:" + path, "SPACECRAFT", bitrate=1000000,
-                                           accept=("RW0", "RW1", "RW2", "RW3", "STARTRACKER", "GNSS", "BEACON"))
+                                           accept=("RW0", "RW1", "RW2", "RW3", "STARTRACKER", "GNSS", "BEACON"),
+                                           isotp_timeout_s=ISOTP_TIMEOUT_MS / 1000.0)
         finally:
             os.close(s)
         deadline = time.monotonic() + 30.0
@@ -214,6 +238,9 @@ class AdcsSession:
             if any(p[0] == P["HELLO"] for p in self.link.recv(min(left, 0.5))):
                 break
         self._say("ADCS firmware up (%s, pid %d), CAN over slcan on %s" % (self.runtime, self.proc.pid, path))
+        if self.link_faults is not None:
+            from protocol.faults import inject
+            self.faults_port = inject(self.link, self.link_faults, clock=lambda: float(self.k))
         self._t_wall = time.perf_counter()
         self._burst()
         return self
@@ -227,7 +254,8 @@ class AdcsSession:
             return ""
 
     def _send(self, pid, src, payload):
-        self.link.send_raw(pid, src, N["ADCS"], payload)
+        bit = _burst_bit(pid, src, payload)
+        self._burst_pkts.append((bit, pid, src, payload))
         if self.recorded is not None:
             self._rec.append([pid, src, payload.hex()])
 
@@ -253,11 +281,12 @@ class AdcsSession:
 
     # --- the cycle -----------------------------------------------------------------------------------
     def _burst(self):
-        """Device replies and sensor outputs at t_k, then ADCS_TICK(k)."""
+        """ADCS_TICK(k) naming the burst, then the device replies and sensor outputs at t_k."""
         k, sc = self.k, self.sc
         t = float(k)
         t_ms = int(round(t * 1000))
         self._rec = []
+        self._burst_pkts = []
         dead = self.faults["wheel_silent"][0] if self._fault("wheel_silent", t) else -1
         if dead >= 0:
             self.wheels.command(dead, 0.0, False)          # the node is dead: its driver stops, the rotor coasts
@@ -292,27 +321,72 @@ class AdcsSession:
         y = y / np.linalg.norm(y)
         self._send(P["BEACON"], N["BEACON"], core.encode_payload(
             P["BEACON"], t_ms=t_ms, ux=float(y[0]), uy=float(y[1]), uz=float(y[2]), valid=0 if lost else 1))
-        self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"],
-                           core.encode_payload(P["ADCS_TICK"], tick=k, t_ms=t_ms))
+        mask, n_b = 0, 0
+        for bit, _, _, _ in self._burst_pkts:
+            mask |= bit
+            n_b += bit == B_GNSS_B
+        self._tick_payload = core.encode_payload(P["ADCS_TICK"], tick=k, t_ms=t_ms, burst=mask, n_gnss_b=n_b)
+        self._tick_sent = time.monotonic()
+        self._send_burst(None)
         if self.recorded is not None:
             self.recorded.append([k, t_ms, self._rec])
 
+    def _send_burst(self, bits):
+        """ADCS_TICK(k) then the burst's packets (``bits`` None), or only the packets of ``bits`` (an answer to
+        ADCS_MISSING: the firmware has the cycle open)."""
+        if bits is None:
+            self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self._tick_payload)
+        for bit, pid, src, payload in self._burst_pkts:
+            if bits is None or bit & bits:
+                self.link.send_raw(pid, src, N["ADCS"], payload)
+
     def _await(self):
-        """RW_CMDs and ADCS_STATUS of tick k (None if late)."""
+        """RW_CMDs and ADCS_STATUS of tick k (None if late), trying again as the module docstring says."""
         k = self.k
-        deadline = time.monotonic() + self.reply_timeout_s
+        t0 = self._tick_sent
+        deadline = t0 + self.reply_timeout_s
         self._cmd = [None] * N_WHEELS
+        status = None
+        heard = False                            # anything of cycle k came back (a reply or ADCS_MISSING)
+        try_s = min(TRY_MAX_S, max(TRY_MIN_S, 3.0 * self._reply_s))
+        try_end = t0 + try_s
+        retried = retried_once = False
         while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return None
-            for pid, src, dst, seq, payload in self.link.recv(min(left, 0.5)):
-                if pid == P["RW_CMD"] and dst in RW_NODES:
+            now = time.monotonic()
+            if status is not None and all(c is not None for c in self._cmd):
+                if not retried:                  # the try's wait follows the clean cycles' reply time
+                    self._reply_s = 0.8 * self._reply_s + 0.2 * (now - t0)
+                return status
+            if now >= deadline:
+                return status
+            if now >= try_end:                   # a try without the cycle's replies: the tick again
+                retried = True
+                self.retries["tick_resent"] += 1
+                if heard:
+                    self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self._tick_payload)
+                else:                            # the tick or the whole burst may be lost: all of it again
+                    self.retries["burst_resent"] += 1
+                    self._send_burst(None)
+                try_s = RETRY_S if not retried_once else min(TRY_MAX_S, TRY_BACKOFF * try_s)
+                retried_once = True
+                try_end = time.monotonic() + try_s
+                continue
+            for pid, src, dst, seq, payload in self.link.recv(min(deadline, try_end) - now):
+                if pid == P["RW_CMD"] and dst in RW_NODES:   # sent only for cycle k (the firmware's cache)
                     self._cmd[RW_NODES.index(dst)] = payload
+                    heard = True
                 elif pid == P["ADCS_STATUS"]:
                     d = core.payload_dict(pid, payload)
                     if d["tick"] == k:
-                        return d
+                        status, heard = d, True
+                elif pid == P["ADCS_MISSING"]:
+                    d = core.payload_dict(pid, payload)
+                    if d["tick"] == k and status is None:
+                        heard = True
+                        self.retries["missing_answered"] += 1
+                        n = sum(1 for b, _, _, _ in self._burst_pkts if b & d["missing"])
+                        self.retries["packets_resent"] += n
+                        self._send_burst(d["missing"])
             if self.link.closed or self.proc.poll() is not None:
                 raise OSError("ADCS firmware exited at t = %d s (code %s): %s"
                               % (k, self.proc.poll(), self._stderr() or "no message"))
@@ -325,6 +399,9 @@ class AdcsSession:
             raise ValueError("the session's %d s are done" % self.K)
         status = self._await()
         t = float(self.k)
+        if self.retries["tick_resent"] != getattr(self, "_resent_seen", 0):
+            self._resent_seen = self.retries["tick_resent"]
+            self.retries["cycles_retried"] += 1
         dead = self.faults["wheel_silent"][0] if "wheel_silent" in self._active else -1
         if status is None:
             self.n_late += 1
@@ -336,6 +413,7 @@ class AdcsSession:
             status = {}
         else:
             self._late_run = 0
+        applied = np.full(N_WHEELS, np.nan)
         for i in range(N_WHEELS):
             pl = self._cmd[i]
             if i == dead:
@@ -346,6 +424,7 @@ class AdcsSession:
             d = core.payload_dict(P["RW_CMD"], pl)
             if np.isfinite(d["torque"]) and d["enable"] <= 1:
                 self.wheels.command(i, d["torque"], bool(d["enable"]))
+                applied[i] = d["torque"] if d["enable"] else 0.0
             else:                                  # the wheel keeps its last command; counted, not silent
                 self.refused_rw_cmd[i] += 1
             self._commanded[i] = True
@@ -376,7 +455,7 @@ class AdcsSession:
                    "ra": np.array([status[n] for n in ("rax", "ray", "raz")]),
                    "rb": np.array([status[n] for n in ("rbx", "rby", "rbz")]),
                    "att_sigma_rad": status["att_sigma"], "t": t}
-        out["status"], out["est"] = status, est
+        out["status"], out["est"], out["rw_cmd"] = status, est, applied
         self.k += 1
         if self.k < self.K:
             self._burst()
@@ -398,6 +477,8 @@ class AdcsSession:
                                     "rx_drops": st.get("n_rx_drop")},
                 "wheels_failed": st.get("wheels_failed"), "last_mode": st.get("adcs_mode_name"),
                 "link": self.link.counters() if self.link is not None else {},
+                "link_faults": self.link_faults.as_dict() if self.link_faults is not None else None,
+                "retries": dict(self.retries),
                 "faults": self.faults, "fault_log": list(self.fault_log),
                 "complete": self.k >= self.K}
 
@@ -432,6 +513,15 @@ class AdcsSession:
         return False
 
 
+
+
+B_GNSS_B = 1 << dict(table.ADCS_STALE)["GNSS_B"]
+
+
+def _burst_bit(pid, src, payload):
+    """The ADCS_STALE bit naming a burst packet (the firmware's ``burst_bit``, over the same table)."""
+    from firmware.adcs.app import burst_bit
+    return burst_bit(pid, src, payload)
 
 
 def _gnss_payload(t_ms, sat, z):

@@ -218,9 +218,12 @@ PACKETS = (
         ("valid", "B", "", 1, 0, 1, 1, "1 = beacon in view"),
     )),
     (0x45, "ADCS_TICK", "SPACECRAFT", "ADCS",
-     "lockstep: the sensor burst of this 1 Hz cycle is complete, run the cycle (emulated spacecraft only)", (
+     "lockstep: open this 1 Hz cycle; its sensor burst follows; run the cycle once the burst named here is in "
+     "(emulated spacecraft only)", (
         ("tick", "I", "", 1, None, None, 0, "ADCS cycle number"),
         ("t_ms", "I", "ms", 1, None, None, 0, "virtual time of the sensor burst"),
+        ("burst", "B", "", 1, None, None, 0, "packets the burst holds, ADCS_STALE bits (GNSS_B: n_gnss_b > 0)"),
+        ("n_gnss_b", "B", "", 1, 0, 16, 0, "SatB GNSS fixes (relayed) in the burst"),
     )),
     (0x46, "ADCS_STATUS", "ADCS", "*", "ADCS status, once per 1 Hz cycle after the wheel commands", (
         ("tick", "I", "", 1, None, None, 0, "ADCS cycle this status closes"),
@@ -255,5 +258,10 @@ PACKETS = (
         ("rbz", "f", "m", 1, None, None, 0.0, "estimated SatB position z"),
         ("att_sigma", "f", "rad", 1, None, None, 0.0, "APKF attitude 1 sigma, sqrt(trace 4 P_qq)"),
         ("cycle_us", "I", "us", 1, None, None, 0, "time the cycle took on this computer"),
+    )),
+    (0x47, "ADCS_MISSING", "ADCS", "SPACECRAFT",
+     "lockstep: the open cycle's burst lacks these packets, send them again (answers a resent ADCS_TICK)", (
+        ("tick", "I", "", 1, None, None, 0, "ADCS cycle open"),
+        ("missing", "B", "", 1, None, None, 0, "ADCS_STALE bits of the packets not received (GNSS_B: some)"),
     )),
 )

@@ -80,11 +80,13 @@ P_ST = core.PACKET_ID["STARTRACKER"]
 P_GNSS = core.PACKET_ID["GNSS"]
 P_BEACON = core.PACKET_ID["BEACON"]
 P_TICK = core.PACKET_ID["ADCS_TICK"]
+P_MISSING = core.PACKET_ID["ADCS_MISSING"]
 P_STATUS = core.PACKET_ID["ADCS_STATUS"]
 RW0 = core.NODE["RW0"]
 MODE = dict(table.ADCS_MODES)
 STALE = dict(table.ADCS_STALE)
-_FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_TICK, P_STATUS, P_RW_CMD))
+_FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_TICK, P_STATUS, P_RW_CMD,
+                                               P_MISSING))
 _SCALE = core.field_scales(P_GNSS)
 GNSS_M, GNSS_MS = _SCALE["x"], _SCALE["vx"]       # GNSS position (m) and velocity (m/s) per count, from the table
 
@@ -531,11 +533,16 @@ class App:
             self.mode = MODE["HOLD"]
         else:
             self.mode = MODE["POINT"]
-        # the next cycle's inputs
+        self.clear_inputs()
+        return u
+
+    def clear_inputs(self):
+        """Forget the readings received for the next cycle (done after each cycle, and when the spacecraft
+        gives up a cycle whose burst was incomplete)."""
         for i in range(NW):
             self.rw_got[i] = False
         self.st_got = self.gnss_got = self.bc_got = False
-        return u
+        self.nb = 0
 
     def status_payload(self, tick, cycle_us=0, n_rx_drop=0):
         x = self.apkf.x if self.apkf is not None else self.qst
@@ -570,47 +577,138 @@ def _drops(port):
     return canmap.rx_drops(port.counters())
 
 
+_B_GNSS_A = 1 << STALE["GNSS_A"]
+_B_GNSS_B = 1 << STALE["GNSS_B"]
+
+
+def burst_bit(pid, src, payload):
+    """The ADCS_STALE bit naming a burst packet (ADCS_TICK.burst), 0 for a packet that is not one."""
+    if pid == P_RW_TLM:
+        i = src - RW0
+        return 1 << (STALE["RW0"] + i) if 0 <= i < NW else 0
+    if pid == P_ST:
+        return 1 << STALE["STARTRACKER"]
+    if pid == P_GNSS:
+        sat = payload[4]                     # after t_ms (I)
+        return _B_GNSS_A if sat == 0 else (_B_GNSS_B if sat == 1 else 0)
+    if pid == P_BEACON:
+        return 1 << STALE["BEACON"]
+    return 0
+
+
+class Lockstep:
+    """The lockstep with the emulated spacecraft, exactly once per cycle over a lossy link.
+
+    ``ADCS_TICK(k, burst, n_gnss_b)`` opens cycle k and names the sensor packets that follow it; the packets are
+    given to the app while a cycle is open (a copy arriving while none is, a late resend of an earlier burst, is
+    dropped: ``n_late``; a second copy of one already in is dropped too: ``n_dup``), and the cycle runs once,
+    when every packet named is in. A resent ``ADCS_TICK(k)``: answered from the cache when k has run (RW_CMD x4
+    and ADCS_STATUS again, no second cycle), with ``ADCS_MISSING(k, bits)`` while its burst is incomplete. A
+    tick older than the last run is dropped. ``step(tick, t)`` runs the cycle and returns the replies.
+    """
+
+    def __init__(self, app, step):
+        self.app = app
+        self.step = step
+        self.last = -1
+        self.replies = ()
+        self.open_k = -1
+        self.t_ms = 0
+        self.want = self.have = self.nb_want = 0
+        self.tb = []                         # SatB fix times (ms) taken in the open cycle
+        self.n_late = self.n_dup = self.n_missing = self.n_cached = 0
+
+    def _ready(self):
+        return self.want & ~_B_GNSS_B & ~self.have == 0 and len(self.tb) >= self.nb_want
+
+    def _run(self):
+        k = self.open_k
+        self.open_k = -1
+        self.replies = self.step(k, self.t_ms / 1000.0)
+        self.last = k
+        return self.replies
+
+    def on_tick(self, tick, t_ms, burst, n_gnss_b):
+        """Replies [(pid, dst, payload)] to an ADCS_TICK."""
+        if tick == self.last:
+            self.n_cached += 1
+            return self.replies
+        if tick < self.last:
+            return ()
+        if tick != self.open_k:
+            if self.open_k >= 0:             # a cycle given up by the spacecraft: its partial inputs go
+                self.app.clear_inputs()
+            self.open_k, self.t_ms, self.want, self.nb_want, self.have = tick, t_ms, burst, n_gnss_b, 0
+            self.tb = []
+        elif not self._ready():
+            self.n_missing += 1
+            miss = self.want & ~self.have & ~_B_GNSS_B
+            if len(self.tb) < self.nb_want:
+                miss |= _B_GNSS_B
+            return ((P_MISSING, 0, struct.pack(_FMT[P_MISSING], tick & 0xFFFFFFFF, miss)),)
+        return self._run() if self._ready() else ()
+
+    def on_packet(self, pid, src, payload):
+        """Replies to a sensor packet: the cycle's, when it completes the open burst."""
+        if self.open_k < 0:
+            self.n_late += 1
+            return ()
+        bit = burst_bit(pid, src, payload)
+        if bit == _B_GNSS_B:
+            t_ms = struct.unpack_from("<I", payload, 0)[0]
+            if t_ms in self.tb:
+                self.n_dup += 1
+                return ()
+            self.tb.append(t_ms)
+        elif bit & self.have:
+            self.n_dup += 1
+            return ()
+        self.have |= bit
+        self.app.on_packet(pid, src, payload)
+        return self._run() if self._ready() else ()
+
+
 def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
-    """The ADCS on a CAN port until the host leaves: HELLO once the channel is open, then per ADCS_TICK one
-    cycle on what arrived before it, RW_CMD x4 and ADCS_STATUS to the tick's sender. A resent tick (same
-    number) is answered again without a second cycle. ``heap``: callable(tick, bytes) measuring the cycle's
-    heap (gc.mem_alloc deltas, under MicroPython)."""
+    """The ADCS on a CAN port until the host leaves: HELLO once the channel is open, then the lockstep
+    (``Lockstep``): per cycle, RW_CMD x4 and ADCS_STATUS to the tick's sender. ``heap``: callable(tick, bytes)
+    measuring the cycle's heap (gc.mem_alloc deltas, under MicroPython)."""
     me = port.node
     hello = core.encode_payload(core.PACKET_ID["HELLO"], node=me, fw_major=1, fw_minor=0)
     ad = getattr(port, "ad", None)
     while ad is not None and not ad.is_open and not port.closed:
         port.recv_ms(100)             # the host opens the channel (O) before any frame can go out
     port.send_raw(core.PACKET_ID["HELLO"], me, 0xFF, hello)
-    last = -1
-    status = None
-    cmds = ()
     mem = None
     if heap is not None:
         import gc
         mem = gc
+    host = [0]
+
+    def step(tick, t):
+        t0 = ticks_us() if ticks_us else 0
+        if mem is not None:
+            mem.collect()
+            mem.disable()
+            m0 = mem.mem_alloc()
+        u = app.cycle(tick, t)
+        cmds = app.commands(u)
+        if mem is not None:
+            heap(tick, mem.mem_alloc() - m0)
+            mem.enable()
+        dt = ticks_diff(ticks_us(), t0) if ticks_us else 0
+        out = [(P_RW_CMD, dst_w, pl) for dst_w, pl in cmds]
+        out.append((P_STATUS, host[0], app.status_payload(tick, dt, _drops(port))))
+        return out
+
+    ls = Lockstep(app, step)
+    app.lockstep = ls
     while not port.closed:
         for pid, src, dst, seq, payload in port.recv_ms(poll_ms):
-            if pid != P_TICK:
-                app.on_packet(pid, src, payload)
-                continue
-            tick, t_ms = struct.unpack(_FMT[P_TICK], payload)
-            if tick != last:
-                if tick < last:
-                    continue
-                t0 = ticks_us() if ticks_us else 0
-                if mem is not None:
-                    mem.collect()
-                    mem.disable()
-                    m0 = mem.mem_alloc()
-                u = app.cycle(tick, t_ms / 1000.0)
-                cmds = app.commands(u)
-                if mem is not None:
-                    heap(tick, mem.mem_alloc() - m0)
-                    mem.enable()
-                dt = ticks_diff(ticks_us(), t0) if ticks_us else 0
-                last = tick
-                status = app.status_payload(tick, dt, _drops(port))
-            for dst_w, pl in cmds:
-                port.send_raw(P_RW_CMD, me, dst_w, pl)
-            port.send_raw(P_STATUS, me, src, status)
+            if pid == P_TICK:
+                host[0] = src
+                replies = ls.on_tick(*struct.unpack(_FMT[P_TICK], payload))
+            else:
+                replies = ls.on_packet(pid, src, payload)
+            for rpid, rdst, rpl in replies:
+                port.send_raw(rpid, me, rdst or src, rpl)     # ADCS_MISSING (rdst 0): to the tick's sender
     port.close()

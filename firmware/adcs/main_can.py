@@ -3,7 +3,8 @@
     micropython firmware/adcs/main_can.py DEVICE CONFIG.json [HEAP_OUT.json]
 
 DEVICE: the slcan adapter's side, a file descriptor number (a non-blocking pty master inherited from the
-emulator) or a path. CONFIG: the parameter file and settings (emulator/adcs_session.py writes it).
+emulator) or a path. CONFIG: the parameter file and settings (emulator/adcs_session.py writes it;
+``isotp_timeout_ms``, ISO-TP's N_Bs for this side's sends, defaults to ISO's 1000).
 HEAP_OUT: when given, the heap bytes allocated per cycle (gc.mem_alloc deltas) are written there at exit
 (MicroPython only: under CPython the list is empty).
 """
@@ -32,7 +33,7 @@ def main(argv):
     except (ValueError, TypeError, OSError) as exc:
         sys.stderr.write("main_can: %s: %s\n" % (argv[2], exc))
         return 2
-    port = CanPort(SlcanAdapter(dev), "ADCS")
+    port = CanPort(SlcanAdapter(dev), "ADCS", isotp_timeout_ms=cfg.get("isotp_timeout_ms", 1000))
     heap = None
     samples = []
     if len(argv) > 3 and sys.implementation.name == "micropython":

@@ -144,7 +144,7 @@ class CanPort:
         self.ad = adapter
         self.node = core.node_id(node)
         self.accept = [self.node, 0xFF] + [core.node_id(a) for a in accept]
-        self.timeout_ms = isotp_timeout_ms
+        self.timeout_ms = int(isotp_timeout_ms)
         self.tries = tries
         self._dec = canmap.CanDecoder(self._new_channel)   # its ISO-TP channels answer with flow control
         self._q = []

@@ -2,9 +2,12 @@
 spacecraft over CAN (Lawicel over a pty, python-can's slcan on the emulator side), with optional faults.
 
 Run folder (``-o DIR``, atomic writes): ``summary.json`` (written at the start with ``complete`` false; the
-session's counters, the fault log, the ADCS's last status and the body pointing figures after the hold and
-4 t_s, arcsec and arcsec/s), ``history.npz`` (10 Hz truth t, q, w and the pointing error dtheta/domega in arcsec;
-1 Hz status fields), ``pointing.png`` (the pointing error with the ADCS mode). Ctrl-C leaves a valid folder
+session's counters, the link's retries and faults, the fault log, the ADCS's last status and the body
+pointing figures after the hold and 4 t_s, arcsec and arcsec/s), ``history.npz`` (10 Hz truth t, q, w and the
+pointing error dtheta/domega in arcsec; 1 Hz status fields, the flight software's estimates ``est_q``,
+``est_w``, ``est_ra``, ``est_rb`` and the wheel commands applied ``rw_cmd_nm``), ``pointing.png`` (the pointing
+error with the ADCS mode). ``--link-faults`` damages the slcan stream (bit flips, frame lines dropped, both
+directions): the lockstep's retries keep every cycle exactly once, and the retries are counted in the summary. Ctrl-C leaves a valid folder
 with ``complete`` false (exit 130). ``budgets_met``: the pointing figures against the 3σ budgets (150 arcsec,
 35 arcsec/s); a run that misses them exits 3, one too short to have them (null) exits 0.
 """
@@ -64,6 +67,10 @@ def register(sub):
     p.add_argument("--startracker-blind", default=None, metavar="T0:T1", help="star tracker blind from T0 to T1 s")
     p.add_argument("--gnss-outage", default=None, metavar="T0:T1", help="no GNSS fix from T0 to T1 s")
     p.add_argument("--beacon-lost", type=float, default=None, metavar="T0", help="beacon out of view from T0 s")
+    p.add_argument("--link-faults", metavar="SPEC", default=None,
+                   help="faults on the slcan stream, both directions: bytes=P (a bit flip per ASCII byte), "
+                        "frames=P (a CAN frame's line dropped), seed=N, silence=START_S:LENGTH_S (seconds of the "
+                        "run; LENGTH_S may be inf), e.g. bytes=0.001,frames=0.05,seed=1")
     p.add_argument("--quiet", action="store_true", help="no progress bar or messages")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")
@@ -79,13 +86,19 @@ def run(a):
     if a.params:
         bps.load_params(a.params)       # the bps format's own checks (inertia and P positive definite, 4 wheels)
     faults = faults_from_args(a)
+    link_faults = None
+    if a.link_faults:
+        from protocol.faults import LinkFaults
+        link_faults = LinkFaults.parse(a.link_faults)
     log = None if a.quiet else (lambda m: print(m, file=sys.stderr))
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
-                          params=a.params, faults=faults, log=log)
+                          params=a.params, faults=faults, log=log, link_faults=link_faults)
     out = a.output
     run_folder(out, (FIGURE,))
     write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}})
     hist = {k: [] for k in ("t", "q", "w", "ra", "va", "rb", "vb")}
+    est = {k: [] for k in ("q", "w", "ra", "rb")}
+    rw_cmd = []
     stat = {k: [] for k in STATUS_KEYS}
     interrupted = False
     bar = None
@@ -100,6 +113,9 @@ def run(a):
                     hist[k].append(c[k])
                 for k in STATUS_KEYS:
                     stat[k].append(c["status"].get(k, -1))
+                for k in est:
+                    est[k].append(c["est"].get(k, np.full(4 if k == "q" else 3, np.nan)))
+                rw_cmd.append(c["rw_cmd"])
                 if bar is not None:
                     bar.update(1)
             summary = session.summary()
@@ -126,14 +142,19 @@ def run(a):
         summary["complete"] and p["pointing_3sigma_arcsec"] <= bps.BUDGET_POINTING_3SIGMA
         and p["stability_3sigma_arcsec_s"] <= bps.BUDGET_STABILITY_3SIGMA)
     h.update(("status_" + k, np.asarray(v)) for k, v in stat.items())
+    h.update(("est_" + k, np.asarray(v)) for k, v in est.items())
+    h["rw_cmd_nm"] = np.asarray(rw_cmd)
     bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:
         from ground import plots
         plots.adcs_can_pointing(h, os.path.join(out, FIGURE))
     write_json(os.path.join(out, "summary.json"), summary)
-    print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s; %s" % (
+    r = summary["retries"]
+    print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s, link retries: %d cycles, "
+          "%d ticks and %d packets resent; %s" % (
         a.runtime, summary["cycles"], "" if summary["complete"] else " (interrupted)", summary["last_mode"],
-        summary["late_cycles"], summary["firmware_missed"],
+        summary["late_cycles"], summary["firmware_missed"], r["cycles_retried"], r["tick_resent"],
+        r["packets_resent"],
         ("pointing 3σ %.1f″ (budget %.0f″), stability 3σ %.1f″/s (budget %.0f″/s)" % (
             p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
             bps.BUDGET_STABILITY_3SIGMA)) if p else "too short for pointing figures"))

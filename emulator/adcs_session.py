@@ -372,9 +372,10 @@ class AdcsSession:
                 try_end = time.monotonic() + try_s
                 continue
             for pid, src, dst, seq, payload in self.link.recv(min(deadline, try_end) - now):
-                if pid == P["RW_CMD"] and dst in RW_NODES:   # sent only for cycle k (the firmware's cache)
-                    self._cmd[RW_NODES.index(dst)] = payload
-                    heard = True
+                if pid == P["RW_CMD"] and dst in RW_NODES:
+                    if payload[-1] == k & 0xFF:          # not a late copy of the previous cycle's
+                        self._cmd[RW_NODES.index(dst)] = payload
+                        heard = True
                 elif pid == P["ADCS_STATUS"]:
                     d = core.payload_dict(pid, payload)
                     if d["tick"] == k:

@@ -236,9 +236,13 @@ def _send_firmware(spec, params, q, stop):
     from ground.adcs import bps
     n = int(np.ceil(settle_s(spec["ts"]) + spec["adcs_duration_s"]))
     q.put(("info", {"settle_s": settle_s(spec["ts"])}))
+    link_faults = None
+    if spec.get("link_faults"):
+        from protocol.faults import LinkFaults
+        link_faults = LinkFaults.parse(spec["link_faults"])
     s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"], duration_s=float(n),
                     ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), truth=spec["truth"],
-                    cache_dir=spec["cache_dir"], faults=spec.get("faults"))
+                    cache_dir=spec["cache_dir"], faults=spec.get("faults"), link_faults=link_faults)
     try:
         s.start()
         prev = None          # the truth at the end of the previous cycle: the instant of this cycle's estimate
@@ -552,12 +556,14 @@ def calibrate_inproc(seed, config, path):
 
 def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware", satb_gnss=False, seed=0, ts=33.0,
                truth="hpop", calibration_path=None, params_path=None, bps_cache=None, config=None, q2_dvp=0.05,
-               quiet=False, plots=True, faults=None):
+               quiet=False, plots=True, faults=None, link_faults=None):
     """The whole run; returns the summary (also in ``out_dir/summary.json``). Bad input raises ValueError before
     anything is written; afterwards the folder always ends valid, and a failure raises ``hil.RunFailed``, an
     interruption ``hil.Interrupted``. ``faults``: the ADCS session's (``emulator.adcs_session``: wheel_silent,
     startracker_blind, gnss_outage, beacon_lost; times in the ADCS's seconds, the play starting after its
-    settling), firmware ADCS only; its fault log is in the summary's ``adcs_summary`` and the report."""
+    settling), firmware ADCS only; its fault log is in the summary's ``adcs_summary`` and the report.
+    ``link_faults``: a ``protocol.faults.LinkFaults`` on the ADCS's CAN link (its slcan stream; firmware ADCS
+    only), the retries it costs in ``adcs_summary``'s ``retries``."""
     from firmware.player import Player
     from ground import runtime
     from ground.adcs import bps, bps_cli
@@ -570,6 +576,8 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
         if adcs != "firmware":
             raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
         faults = check_faults(faults, settle_s(ts) + float(duration_s) + LEAD_S)
+    if link_faults is not None and adcs != "firmware":
+        raise ValueError("--link-faults needs --adcs firmware (they act on the ADCS's CAN link)")
     hil.check_q2_dv(q2_dvp)
     runtime.check_board(config)
     cal = load_calibration(calibration_path) if calibration_path else None
@@ -585,7 +593,8 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     spec = {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,
             "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
             "bps_cache": bps_cache or bps_cli.CACHE_DEFAULT,
-            "cache_dir": os.path.abspath(bps_cache or bps_cli.CACHE_DEFAULT), "faults": faults or None}
+            "cache_dir": os.path.abspath(bps_cache or bps_cli.CACHE_DEFAULT), "faults": faults or None,
+            "link_faults": link_faults.describe() if link_faults is not None else None}
     live = LiveDisturbance(t_settle)
     say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
@@ -603,6 +612,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                     "params": params_path and os.path.abspath(params_path),
                     "calibration": calibration_path and os.path.abspath(calibration_path), "seed": seed,
                     "duration_s": duration_s, "runtime": runtime_name, "link": "serial", "faults": faults or None,
+                    "adcs_link_faults": spec["link_faults"],
                     "distfile_period_us": live.reader.period_us, "live_player": True}
                 write_json(rec.path("config.json"), config_json)
                 if cal is None:
@@ -894,6 +904,7 @@ def report_md(s):
     lines.append("Estimates are compared with the truth at the instant of each 1 s cycle's estimate; the window "
                  "starts after the %g s hold and 4 t_s of settling (t = %.0f s)." % (_hold_s(), s.get("settle_s") or 0))
     lines += ["", "## Fine pointing (Q2 recorder, as fps hil)", "", report.table(s), "",
+              report.saturation_md(s.get("saturation")), "",
               "real-time factor: %s over the whole command (%.1f s wall, goal ≥ %gx), %s during the play; "
               "the fine loop waited %.1f s for the ADCS" % (_x(s.get("real_time_factor")), s.get("wall_s") or 0.0,
                                                              GOAL_RTF, _x(s.get("real_time_factor_play")),
@@ -929,6 +940,14 @@ def _read_summary(out_dir):
         return {}
 
 
+def _link_faults_arg(text):
+    """--link-faults SPEC as a ``LinkFaults`` (ValueError naming the option when it is malformed)."""
+    if text is None:
+        return None
+    from protocol.faults import LinkFaults
+    return LinkFaults.parse(text)
+
+
 def _cmd(a):
     cfg = None
     if a.config is not None:
@@ -936,7 +955,8 @@ def _cmd(a):
         cfg = load_config(a.config)
     try:
         s = run_system(a.duration, a.output, a.runtime, a.adcs, a.satb_gnss, a.seed, a.ts, a.truth, a.calibration,
-                       a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, _faults_arg(a.faults))
+                       a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, _faults_arg(a.faults),
+                       _link_faults_arg(a.link_faults))
     except hil.Interrupted:
         s = _read_summary(a.output)
         print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"
@@ -994,5 +1014,10 @@ def register(sub, name, help_):
                         "[wheel 0-3, t0 s], startracker_blind [t0, t1 s], gnss_outage [t0, t1 s], beacon_lost t0 s; "
                         "times in the ADCS's seconds from its start (the play begins after 30 s + 4 t_s of "
                         "settling: 162 s at t_s = 33 s)")
+    p.add_argument("--link-faults", default=None, metavar="SPEC",
+                   help="faults on the ADCS's CAN link (firmware ADCS), both directions of its slcan stream: "
+                        "bytes=P (a bit flip per ASCII byte), frames=P (a CAN frame's line dropped), seed=N, "
+                        "silence=START_S:LENGTH_S (the ADCS's seconds; LENGTH_S may be inf); the lockstep's "
+                        "retries keep each 1 Hz cycle exactly once, e.g. bytes=0.001,frames=0.05,seed=1")
     hil.add_run_arguments(p, "seed of the ADCS scenario and the bench emulator")
     p.set_defaults(func=_cmd)

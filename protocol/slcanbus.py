@@ -64,6 +64,9 @@ class _Lines:
             if self._skip:
                 self._skip = False
                 continue
+            if k > lawicel.LINE_MAX:
+                self.drops["overlong"] += 1
+                continue
             if end == 7:
                 self.n_refused += 1
                 if line:
@@ -176,9 +179,17 @@ class SlcanBus(slcanBus):
         return d
 
     def shutdown(self):
+        """Close the channel (``C``) if the adapter is still there, and the port in any case."""
+        if self._is_shutdown:
+            return
+        can.BusABC.shutdown(self)
         try:
-            slcanBus.shutdown(self)
-        except can.CanOperationError:     # the adapter already gone: nothing to close
+            self.close()
+        except can.CanOperationError:     # the adapter already gone
+            pass
+        try:
+            self.serialPortOrig.close()
+        except Exception:                 # noqa: BLE001 - pyserial's errors on a vanished port: nothing to keep
             pass
 
 

@@ -187,6 +187,7 @@ PACKETS = (
     (0x40, "RW_CMD", "ADCS", "RW0", "reaction wheel torque command (dst RW0..RW3)", (
         ("torque", "f", "N m", 1, None, None, 0.0, "motor torque command"),
         ("enable", "B", "", 1, 0, 1, 1, "1 = drive, 0 = coast"),
+        ("cycle", "B", "", 1, None, None, 0, "ADCS cycle (mod 256) the command belongs to; the wheel ignores it"),
     )),
     (0x41, "RW_TLM", "RW0", "ADCS", "reaction wheel telemetry (src RW0..RW3)", (
         ("speed", "f", "rpm", 1, None, None, 0.0, "measured wheel speed (10 rpm 1-sigma noise)"),

@@ -71,7 +71,7 @@ def test_wheels_served_on_a_link(tmp_path, link):
 
         good = core.encode_payload("RW_CMD", torque=1e-6)
         bad = [(RW[1], struct.pack("<f", math.nan) + good[4:]), (RW[2], struct.pack("<f", -math.inf) + good[4:]),
-               (RW[3], good[:4] + b"\x02")]                               # NaN, -inf torque; enable = 2
+               (RW[3], good[:4] + b"\x02" + good[5:])]                    # NaN, -inf torque; enable = 2
         seqs = [adcs.send("RW_CMD", dst, payload=p) for dst, p in bad]
         _collect(adcs, lambda g: len(_of(g, NACK)) >= 3, got)
         nacks = _of(got, NACK)

@@ -562,13 +562,13 @@ class App:
                            n_rx_drop & 0xFFFF, age, x[0], x[1], x[2], x[3], w[0], w[1], w[2],
                            X[0], X[1], X[2], X[6], X[7], X[8], sig, cycle_us & 0xFFFFFFFF)
 
-    def commands(self, u):
-        """[(dst, RW_CMD payload)]: a torque to each wheel in use, coast (enable 0) to a failed one. Every
-        wheel is expected to answer by the next tick (a failed one too: it may come back)."""
+    def commands(self, u, tick=0):
+        """[(dst, RW_CMD payload)] of cycle ``tick``: a torque to each wheel in use, coast (enable 0) to a failed
+        one. Every wheel is expected to answer by the next tick (a failed one too: it may come back)."""
         out = []
         for i in range(NW):
             en = 0 if self.failed & (1 << i) else 1
-            out.append((RW0 + i, struct.pack(_FMT[P_RW_CMD], u[i] if en else 0.0, en)))
+            out.append((RW0 + i, struct.pack(_FMT[P_RW_CMD], u[i] if en else 0.0, en, tick & 0xFF)))
         return out
 
 
@@ -691,7 +691,7 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
             mem.disable()
             m0 = mem.mem_alloc()
         u = app.cycle(tick, t)
-        cmds = app.commands(u)
+        cmds = app.commands(u, tick)
         if mem is not None:
             heap(tick, mem.mem_alloc() - m0)
             mem.enable()

@@ -3,6 +3,10 @@ process (so the relay never waits on the test's GIL). One slave goes to the boar
 ``fps hil --runtime board --port``.
 
 ``python -m tests.ptyrelay`` prints the two slave paths on one line and relays until stdin closes.
+``python -m tests.ptyrelay --slcan-damage PATH N`` relays between the tty PATH and a new pty (its slave path
+printed) and damages one CR-terminated line in N at random (seed 0), each way, with one of: a data character
+made 0xC5, a non-hex 'G', 40 characters with no CR, the line dropped (an external fault on an slcan stream,
+not the project's own).
 """
 
 import contextlib
@@ -57,5 +61,56 @@ def relay_pair():
             proc.wait(5)
 
 
+def _damage(line, k):
+    """The k-th kind of damage to one Lawicel line (CR included)."""
+    kind = k % 4
+    if kind == 0 and len(line) > 12:
+        return line[:11] + b"\xc5" + line[12:]
+    if kind == 1 and len(line) > 12:
+        return line[:11] + b"G" + line[12:]
+    if kind == 2:
+        return b"7" * 40 + line
+    return b""
+
+
+def _slcan_damage(path, every):
+    import random
+    rng = random.Random(0)
+    fa = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    tty.setraw(fa)
+    m, s = os.openpty()
+    tty.setraw(s)
+    os.set_blocking(m, False)
+    print(os.ttyname(s), flush=True)
+    bufs = {fa: b"", m: b""}
+    count = {fa: 0, m: 0}
+    fds = [fa, m, sys.stdin.fileno()]
+    while True:
+        r, _, _ = select.select(fds, [], [])
+        for fd in r:
+            if fd == fds[2]:
+                if not os.read(fd, 100):
+                    return
+                continue
+            try:
+                data = os.read(fd, 65536)
+            except OSError:
+                return                       # one end closed: the relay (the harness) is gone
+            bufs[fd] += data
+            out = []
+            while b"\r" in bufs[fd]:
+                i = bufs[fd].index(b"\r")
+                line, bufs[fd] = bufs[fd][:i + 1], bufs[fd][i + 1:]
+                count[fd] += 1
+                out.append(_damage(line, rng.randrange(4)) if rng.randrange(every) == 0 else line)
+            try:
+                os.write(m if fd == fa else fa, b"".join(out))
+            except BlockingIOError:
+                pass
+
+
 if __name__ == "__main__":
-    _relay()
+    if len(sys.argv) > 1 and sys.argv[1] == "--slcan-damage":
+        _slcan_damage(sys.argv[2], int(sys.argv[3]))
+    else:
+        _relay()

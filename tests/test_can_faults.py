@@ -352,3 +352,42 @@ def test_fps_adcs_can_rides_through_link_faults_bit_identical(tmp_path):
     s = json.loads((runs["faults"] / "summary.json").read_text())
     assert s["complete"] and s["late_cycles"] == 0 and s["retries"]["tick_resent"] > 0
     assert s["link"]["fault_tx_dropped"] + s["link"]["fault_rx_dropped"] > 0
+
+
+def test_controller_over_an_externally_damaged_slcan_stream_stays_up_and_answers():
+    """A relay outside the project damages every 5th line each way (0xC5 in a data field, a non-hex digit, 40
+    characters without CR, a dropped line): the CPython controller neither exits nor goes deaf, every tick is
+    answered through the bench's resends, nothing reaches stderr; when the harness goes, the controller leaves
+    and the host's link closes (no traceback, no hang)."""
+    from emulator.lockstep import RemoteController
+    from protocol.link import open_link
+    host = open_link("slcan-pty", "BENCH", accept=("GROUND",), isotp_timeout_s=0.003)
+    relay = subprocess.Popen([sys.executable, "-m", "tests.ptyrelay", "--slcan-damage", host.peer_path, "5"],
+                             cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    ctl = None
+    try:
+        path = relay.stdout.readline().decode().strip()
+        ctl = subprocess.Popen([sys.executable, "-m", "firmware.main", "controller", "--link", "slcan:" + path,
+                                "--isotp-timeout-ms", "3"], cwd=ROOT, stdin=subprocess.DEVNULL,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        end = time.monotonic() + 20
+        while not any(p[0] == core.PACKET_ID["HELLO"] for p in host.recv(0.2)) and time.monotonic() < end:
+            pass
+        rc = RemoteController(host, timeout_s=30.0, try_timeout_s=0.005, tries=60)
+        answered = sum(rc.on_tick(k, k * 1568, 2048, 2048, 1600) is not None for k in range(300))
+        assert answered == 300 and ctl.poll() is None
+        assert rc.n_resent > 0
+        c = host.counters()
+        assert canmap.rx_drops(c) > 0 and c["slcan_non_hex"] + c["slcan_overlong"] + c["slcan_bad_length"] > 0
+    finally:
+        relay.stdin.close()
+        relay.wait(10)
+    if ctl is not None:
+        ctl.wait(20)
+        err = ctl.stderr.read().decode()
+        assert "Traceback" not in err and ctl.returncode == 0, err     # its peer left: an orderly end
+    end = time.monotonic() + 5
+    while not host.closed and time.monotonic() < end:
+        host.recv(0.05)
+    assert host.closed
+    host.close()

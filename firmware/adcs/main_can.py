@@ -6,7 +6,8 @@ DEVICE: the slcan adapter's side, a file descriptor number (a non-blocking pty m
 emulator) or a path. CONFIG: the parameter file and settings (emulator/adcs_session.py writes it;
 ``isotp_timeout_ms``, ISO-TP's N_Bs for this side's sends, defaults to ISO's 1000).
 HEAP_OUT: when given, the heap bytes allocated per cycle (gc.mem_alloc deltas) are written there at exit
-(MicroPython only: under CPython the list is empty).
+(MicroPython only: under CPython the list is empty). Exit status 0 when the host leaves (its end of the pty
+closes), 1 when the link fails otherwise (the reason on stderr), 2 on a bad configuration.
 """
 
 import json
@@ -46,6 +47,10 @@ def main(argv):
     if len(argv) > 3:
         with open(argv[3], "w") as fh:
             json.dump({"heap_bytes": samples}, fh)
+    why = getattr(port.ad, "fail_why", None)
+    if why:                                 # the link failed (not the host leaving): say so, exit 1
+        sys.stderr.write("main_can: error: the link failed: %s\n" % why)
+        return 1
     return 0
 
 

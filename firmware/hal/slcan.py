@@ -37,6 +37,7 @@ class SlcanAdapter:
         self._tline = bytearray(lawicel.LINE_MAX)
         self.lw = lawicel.Adapter(self._write)
         self.closed = False
+        self.fail_why = None         # set when the fd failed other than by the host closing the pty
         self.n_tx = 0
 
     @property
@@ -72,8 +73,14 @@ class SlcanAdapter:
                 self._poll.poll(100)
                 self._poll.modify(self._f, select.POLLIN)
                 n += self._f.write(mv[n:]) or 0
-        except OSError:
-            self.closed = True
+        except OSError as exc:
+            self._failed(exc)
+
+    def _failed(self, exc):
+        self.closed = True
+        code = exc.args[0] if exc.args else None
+        if code not in (5, 32) and self.fail_why is None:     # EIO, EPIPE: the host closed its end (in order)
+            self.fail_why = "slcan port: %s" % (exc,)
 
     def send_frame(self, cid, data):
         """One received CAN frame (29-bit id) to the host: ``T`` + 8 hex id + dlc + data + CR."""
@@ -96,7 +103,8 @@ class SlcanAdapter:
             if ev & select.POLLIN:
                 try:
                     n = self._f.readinto(self._buf)
-                except OSError:   # EIO: the host closed the pty
+                except OSError as exc:   # EIO: the host closed the pty
+                    self._failed(exc)
                     n = 0
             if n is None:
                 if ev & (select.POLLHUP | select.POLLERR):

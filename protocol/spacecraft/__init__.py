@@ -1,0 +1,638 @@
+"""One spacecraft file: the schema, its checker and the presets (pure Python; runs under MicroPython too).
+
+A spacecraft file is a JSON object describing one vehicle as a flight team knows it before flight: mass and
+inertia, residual dipole, reaction wheels, star tracker, gyro, GNSS, beacon, orbit, magnetorquers and
+magnetometer, and the 1 sigma uncertainty of each figure the filters will estimate (their priors and initial
+covariance). Units are in the key names (``_kgm2`` kg m^2, ``_am2`` A m^2, ``_nm`` N m, ``_rpm``, ``_arcsec``,
+``_deg``, ``_deg_s`` deg/s, ``_hz``, ``_m``, ``_m_s`` m/s, ``_km``, ``_nt`` nT, ``_s``). ``SCHEMA`` lists every key
+with its shape, unit, allowed range and meaning; docs/SPACECRAFT.md is generated from it
+(``fps spacecraft schema``).
+
+- ``check(d)``: a checked, normalised copy (numbers as floats, counts as ints, absent optional blocks as None);
+  ValueError naming the key path, the value and the allowed range, e.g. ``wheels.speed_limit_rpm = -5: must be
+  > 0 and <= 100000 rpm``.
+- ``load(name_or_path)``: a preset by name (``presets()``) or a JSON file, checked.
+- ``inertia_matrix(d)``, ``wheel_axes(d)``, ``true_figures(d)``, ``principal_moments(j6)``: what a filter or a
+  simulator needs from a checked file, as nested lists.
+
+Conventions. Body frame as the emulator's (Yoon 2017, Sec. 4.2). ``inertia_kgm2`` = [Jxx, Jyy, Jzz, Jxy, Jxz,
+Jyz] about the centre of mass, the products being the matrix's off-diagonal entries (Jxy = -integral of x y dm,
+not the product of inertia +integral x y dm that CAD tools print); the spacecraft with its wheels, less the
+rotors' own inertia about their spin axes (emulator.spacecraft.dynamics's J). Wheel misalignment (``wheel_axes``,
+Eq. 4.58-4.60 and 4.148): wheel i's axis is c_i = normalise(n_i + d1_i e1_i + d2_i e2_i), n_i the unit nominal
+axis, d1_i, d2_i the two angles in radians, e1_i = normalise(n_i x n_j) with j the next wheel in the list (the
+last's next is the first; if n_i x n_j vanishes, the body axis least aligned with n_i takes n_j's place),
+e2_i = normalise(n_i x e1_i). The angles enter linearly, as in the thesis: the axis tilts by
+atan(sqrt(d1^2 + d2^2)), 11.8 deg for 12 deg, the same to 0.1 % below 3 deg.
+
+The ``truth`` block (optional, simulation only): how the simulated vehicle departs from the figures (true =
+figure + error), e.g. the thesis's Sec. 4.8 errors. A flight team leaves it out.
+"""
+
+import json
+import math
+import os
+import sys
+
+FORMAT = "fps-spacecraft/1"
+MICROPYTHON = sys.implementation.name == "micropython"
+MAX_WHEELS = 8
+SPAN_MIN = 1e-3        # least eigenvalue of C C^T (unit axes) for the wheels to span three axes
+R_EARTH_M = 6371.2e3   # m, the circular orbit's reference radius (emulator.spacecraft.environment.R_EARTH)
+
+try:
+    _DIR = __file__.rsplit("/", 1)[0]
+except (NameError, AttributeError):      # frozen into firmware: no presets on the filesystem
+    _DIR = "."
+
+WHEELS = "wheels.count"   # a vector's length given by the wheel count
+
+
+def _rng(lo=None, hi=None, lo_open=False, hi_open=False):
+    return (lo, lo_open, hi, hi_open)
+
+
+ANY = _rng()
+POS = _rng(0, None, True)          # > 0
+NONNEG = _rng(0)                   # >= 0
+
+
+def _e(path, kind, unit="", rng=ANY, doc="", n=None, optional=False, nullable=False):
+    return {"path": path, "kind": kind, "unit": unit, "range": rng, "doc": doc, "n": n, "optional": optional,
+            "nullable": nullable}
+
+
+# Every key, in order. kind: str, int, num, vec (n numbers), axes (n 3-vectors), epoch (ISO UTC), block, sources.
+SCHEMA = [
+    _e("format", "str", doc="the file's format, \"%s\"" % FORMAT),
+    _e("name", "str", doc="a short name (letters, digits, - _ .)"),
+    _e("description", "str", doc="what the vehicle is and what the figures are"),
+    _e("mass_kg", "num", "kg", _rng(0, 2000, True), "mass (the orbit truth's drag and SRP)"),
+    _e("inertia_kgm2", "vec", "kg m^2", _rng(-1e4, 1e4), "[Jxx, Jyy, Jzz, Jxy, Jxz, Jyz] about the centre of mass; "
+       "products are the matrix entries (-integral x y dm); without the rotors' spin-axis inertia; must be "
+       "positive definite with each principal moment <= the sum of the other two", n=6),
+    _e("residual_dipole_am2", "vec", "A m^2", _rng(-100, 100), "residual magnetic dipole, body frame "
+       "(the filters' prior mean)", n=3),
+    _e("laser_axis", "vec", "1", _rng(-1, 1), "the laser terminal's boresight in the body frame (normalised; "
+       "not zero)", n=3),
+    _e("surface", "block", doc="areas and coefficients of the orbit truth's drag and solar radiation pressure"),
+    _e("surface.drag_area_m2", "num", "m^2", _rng(0, 100, True), "drag area"),
+    _e("surface.cd", "num", "1", _rng(0, 10, True), "drag coefficient"),
+    _e("surface.srp_area_m2", "num", "m^2", _rng(0, 100, True), "solar radiation pressure area"),
+    _e("surface.cr", "num", "1", _rng(0, 2), "radiation pressure coefficient"),
+    _e("wheels", "block", doc="the reaction wheel assembly"),
+    _e("wheels.count", "int", "1", _rng(3, MAX_WHEELS), "number of wheels"),
+    _e("wheels.nominal_axes", "axes", "1", _rng(-1e3, 1e3), "each wheel's nominal spin axis, body frame "
+       "(any non-zero length: normalised); with the misalignment they must span three axes", n=WHEELS),
+    _e("wheels.delta1_deg", "vec", "deg", _rng(-45, 45), "misalignment angle 1 per wheel, about e1 "
+       "(module docstring; Eq. 4.58-4.60)", n=WHEELS),
+    _e("wheels.delta2_deg", "vec", "deg", _rng(-45, 45), "misalignment angle 2 per wheel, about e2", n=WHEELS),
+    _e("wheels.rotor_inertia_kgm2", "vec", "kg m^2", _rng(0, 1, True), "each rotor's inertia about its spin axis",
+       n=WHEELS),
+    _e("wheels.speed_limit_rpm", "num", "rpm", _rng(0, 1e5, True), "speed limit (the driver cuts the torque "
+       "that would pass it)"),
+    _e("wheels.torque_limit_nm", "num", "N m", _rng(0, 10, True), "motor torque limit"),
+    _e("wheels.friction_coulomb_nm", "num", "N m", _rng(0, 1), "Coulomb friction torque"),
+    _e("wheels.friction_viscous_nms_rad", "num", "N m s/rad", _rng(0, 1e-3), "viscous friction coefficient"),
+    _e("wheels.friction_smooth_rpm", "num", "rpm", _rng(0, 1e3, True), "Coulomb term = c tanh(W / this): "
+       "smooth through zero speed"),
+    _e("wheels.tach_noise_rpm", "num", "rpm", _rng(0, 1e3, True), "speed read-out noise, 1 sigma"),
+    _e("wheels.imbalance_static_kgm", "num", "kg m", _rng(0, 1e-3), "static imbalance U_s (jitter)"),
+    _e("wheels.imbalance_dynamic_kgm2", "num", "kg m^2", _rng(0, 1e-3), "dynamic imbalance U_d (jitter)"),
+    _e("wheels.arm_m", "num", "m", _rng(0, 10), "each wheel sits at arm_m times its unit nominal axis from the "
+       "centre of mass (jitter)"),
+    _e("star_tracker", "block", doc="star tracker; sensor frame = body frame"),
+    _e("star_tracker.sigma_arcsec", "vec", "arcsec", _rng(0, 3600, True), "noise about body x, y, z, 1 sigma",
+       n=3),
+    _e("star_tracker.rate_limit_deg_s", "num", "deg/s", _rng(0, 30, True), "no output at or above this body rate"),
+    _e("star_tracker.rate_hz", "num", "Hz", _rng(0, 1000, True), "output rate"),
+    _e("gyro", "block", doc="rate gyro of the MEKF baseline (Eq. 4.17-4.20)"),
+    _e("gyro.arw_deg_rt_h", "num", "deg/sqrt(h)", _rng(0, 100, True), "angle random walk sigma_v"),
+    _e("gyro.bias_deg_h", "num", "deg/h", _rng(0, 1e5), "initial bias per axis, 1 sigma (the MEKF's P0)"),
+    _e("gyro.bias_instability_deg_h", "num", "deg/h", _rng(0, 1e4), "bias drift over one hour, 1 sigma: "
+       "sigma_u = this / sqrt(1 h)"),
+    _e("gyro.rate_hz", "num", "Hz", _rng(0, 1e4, True), "output rate"),
+    _e("gnss", "block", doc="GNSS navigation solution (Eq. 5.10-5.11)"),
+    _e("gnss.sigma_position_m", "num", "m", _rng(0, 1e5, True), "position noise per axis, 1 sigma"),
+    _e("gnss.sigma_velocity_m_s", "num", "m/s", _rng(0, 1e3, True), "velocity noise per axis, 1 sigma"),
+    _e("gnss.rate_hz", "num", "Hz", _rng(0, 100, True), "solution rate"),
+    _e("beacon", "block", doc="beacon camera: unit vector to the partner, body frame (Eq. 5.13-5.15)"),
+    _e("beacon.sigma_arcsec", "num", "arcsec", _rng(0, 36000, True), "noise per axis, 1 sigma"),
+    _e("beacon.rate_hz", "num", "Hz", _rng(0, 1000, True), "output rate"),
+    _e("orbit", "block", doc="the vehicle's orbit"),
+    _e("orbit.circular", "block", doc="circular orbit of the attitude scenarios (analytic)"),
+    _e("orbit.circular.altitude_km", "num", "km", _rng(100, 50000), "altitude above 6371.2 km (the IGRF "
+       "reference radius the emulator's circular orbit uses)"),
+    _e("orbit.circular.inclination_deg", "num", "deg", _rng(0, 180), "inclination"),
+    _e("orbit.circular.raan_deg", "num", "deg", _rng(0, 360, False, True), "right ascension of the ascending "
+       "node"),
+    _e("orbit.circular.arg_lat_deg", "num", "deg", _rng(0, 360, False, True), "argument of latitude at t = 0"),
+    _e("orbit.state", "block", doc="initial state the orbit truth propagates (EME2000)"),
+    _e("orbit.state.epoch_utc", "epoch", "UTC", doc="epoch, \"YYYY-MM-DDThh:mm:ss[.s]\" (t = 0 of a run)"),
+    _e("orbit.state.position_m", "vec", "m", _rng(-1e8, 1e8), "position at the epoch, EME2000; |r| from "
+       "6478 km to 1e8 m", n=3),
+    _e("orbit.state.velocity_m_s", "vec", "m/s", _rng(-2e4, 2e4), "velocity at the epoch, EME2000; |v| > 0 and "
+       "< 12 km/s", n=3),
+    _e("partner", "block", doc="the other terminal (SatB): null or absent for none", optional=True, nullable=True),
+    _e("partner.position_m", "vec", "m", _rng(-1e8, 1e8), "position at orbit.state.epoch_utc, EME2000", n=3),
+    _e("partner.velocity_m_s", "vec", "m/s", _rng(-2e4, 2e4), "velocity at orbit.state.epoch_utc, EME2000", n=3),
+    _e("partner.relay_delay_s", "vec", "s", _rng(0, 3600), "[min, max] delay of the partner's GNSS relayed "
+       "through the ground (uniform)", n=2),
+    _e("magnetorquers", "block", doc="three magnetorquer rods; null for none", nullable=True),
+    _e("magnetorquers.axes", "axes", "1", _rng(-1e3, 1e3), "each rod's axis, body frame (normalised; must span "
+       "three axes)", n=3),
+    _e("magnetorquers.dipole_limit_am2", "num", "A m^2", _rng(0, 1000, True), "each rod's dipole limit"),
+    _e("magnetometer", "block", doc="three-axis magnetometer; null for none", nullable=True),
+    _e("magnetometer.noise_nt", "num", "nT", _rng(0, 1e5, True), "noise per axis, 1 sigma"),
+    _e("magnetometer.bias_nt", "num", "nT", _rng(0, 1e5), "constant bias per axis after calibration, 1 sigma"),
+    _e("magnetometer.rate_hz", "num", "Hz", _rng(0, 1000, True), "output rate"),
+    _e("uncertainty", "block", doc="1 sigma of the figures above: the filters' initial covariance"),
+    _e("uncertainty.inertia_sigma_kgm2", "vec", "kg m^2", _rng(0, 1e4), "of [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz]", n=6),
+    _e("uncertainty.residual_dipole_sigma_am2", "num", "A m^2", _rng(0, 100), "of each dipole component"),
+    _e("uncertainty.misalignment_sigma_deg", "num", "deg", _rng(0, 45), "of each misalignment angle"),
+    _e("uncertainty.rotor_inertia_sigma_kgm2", "num", "kg m^2", _rng(0, 1), "of each rotor inertia"),
+    _e("uncertainty.disturbance_torque_sigma_nm", "num", "N m", _rng(0, 1), "of the unmodelled disturbance "
+       "torque per axis"),
+    _e("uncertainty.attitude_sigma_deg", "num", "deg", _rng(0, 180, True), "of the initial attitude per axis"),
+    _e("uncertainty.rate_sigma_deg_s", "num", "deg/s", _rng(0, 180, True), "of the initial body rate per axis"),
+    _e("uncertainty.orbit_position_sigma_m", "num", "m", _rng(0, 1e7, True), "of the initial orbit position "
+       "per axis (the STKF's P0)"),
+    _e("uncertainty.orbit_velocity_sigma_m_s", "num", "m/s", _rng(0, 1e4, True), "of the initial orbit velocity "
+       "per axis"),
+    _e("truth", "block", doc="simulation only: the simulated vehicle's departures from the figures "
+       "(true = figure + error); absent or null for none", optional=True, nullable=True),
+    _e("truth.inertia_error_kgm2", "vec", "kg m^2", _rng(-1e4, 1e4), "error of inertia_kgm2 (the true inertia "
+       "must be a rigid body's too)", n=6),
+    _e("truth.residual_dipole_error_am2", "vec", "A m^2", _rng(-100, 100), "error of residual_dipole_am2", n=3),
+    _e("truth.rotor_inertia_error_kgm2", "vec", "kg m^2", _rng(-1, 1), "error of wheels.rotor_inertia_kgm2 (the "
+       "true inertias must be > 0)", n=WHEELS),
+    _e("truth.delta1_error_deg", "vec", "deg", _rng(-45, 45), "error of wheels.delta1_deg (the true angles must be "
+       "from -45 to 45 deg)", n=WHEELS),
+    _e("truth.delta2_error_deg", "vec", "deg", _rng(-45, 45), "error of wheels.delta2_deg", n=WHEELS),
+    _e("sources", "sources", doc="where each figure comes from: key path (a block or a key) -> text",
+       optional=True),
+]
+BY_PATH = dict((e["path"], e) for e in SCHEMA)
+
+
+def _children(block):
+    """The schema entries directly inside ``block`` ("" for the top level), in order."""
+    depth = 0 if block == "" else block.count(".") + 1
+    pre = "" if block == "" else block + "."
+    return [e for e in SCHEMA if e["path"].startswith(pre) and e["path"].count(".") == depth]
+
+
+# --- formatting ---------------------------------------------------------------------------------------------
+def num_text(v):
+    """A number as people write it: 10000 (not 10000.0), 3e-06, 0.012, nan."""
+    if isinstance(v, float) and v == v and abs(v) < 1e15 and v == int(v):
+        return str(int(v))
+    return repr(v)
+
+
+def value_text(v, limit=120):
+    """A JSON value, shortened to ``limit`` characters, for a message."""
+    if v is None:
+        s = "null"
+    elif v is True or v is False:
+        s = "true" if v else "false"
+    elif isinstance(v, (int, float)):
+        s = num_text(v)
+    elif isinstance(v, str):
+        s = '"' + v + '"'
+    elif isinstance(v, (list, tuple)):
+        s = "[" + ", ".join(value_text(x, limit) for x in v) + "]"
+    elif isinstance(v, dict):
+        s = "{" + ", ".join('"%s": %s' % (k, value_text(v[k], limit)) for k in sorted(v)) + "}"
+    else:
+        s = repr(v)
+    return s if len(s) <= limit else s[:limit - 3] + "..."
+
+
+def range_text(rng, unit=""):
+    """The allowed range in words: "> 0 rpm", "from -45 to 45 deg", ">= 0 and < 360 deg"."""
+    lo, lo_open, hi, hi_open = rng
+    if lo is None and hi is None:
+        s = "any finite number"
+    elif hi is None:
+        s = "%s %s" % (">" if lo_open else ">=", num_text(lo))
+    elif lo is None:
+        s = "%s %s" % ("<" if hi_open else "<=", num_text(hi))
+    elif not lo_open and not hi_open:
+        s = "from %s to %s" % (num_text(lo), num_text(hi))
+    else:
+        s = "%s %s and %s %s" % (">" if lo_open else ">=", num_text(lo), "<" if hi_open else "<=", num_text(hi))
+    return s + (" " + unit if unit and unit != "1" else "")
+
+
+def _in(v, rng):
+    lo, lo_open, hi, hi_open = rng
+    if lo is not None and (v <= lo if lo_open else v < lo):
+        return False
+    if hi is not None and (v >= hi if hi_open else v > hi):
+        return False
+    return True
+
+
+# --- the checker --------------------------------------------------------------------------------------------
+def _is_num(v):
+    return isinstance(v, (int, float)) and not (v is True or v is False)
+
+
+def _number(path, v, e):
+    """v as a float in e's range, else ValueError."""
+    if not _is_num(v):
+        raise ValueError("%s = %s: must be a number, %s" % (path, value_text(v), range_text(e["range"], e["unit"])))
+    v = float(v)
+    if not (v == v and abs(v) != float("inf")):
+        raise ValueError("%s = %s: must be a finite number, %s" % (path, value_text(v), range_text(e["range"],
+                                                                                                    e["unit"])))
+    if not _in(v, e["range"]):
+        raise ValueError("%s = %s: must be %s" % (path, value_text(v), range_text(e["range"], e["unit"])))
+    return v
+
+
+def _vector(path, v, n, e):
+    if not isinstance(v, list) or len(v) != n:
+        raise ValueError("%s = %s: must be a list of %d numbers, each %s" % (
+            path, value_text(v), n, range_text(e["range"], e["unit"])))
+    return [_number("%s[%d]" % (path, i), x, e) for i, x in enumerate(v)]
+
+
+def _length(e, out):
+    n = e["n"]
+    return out["wheels"]["count"] if n == WHEELS else n
+
+
+def _parse_epoch(path, s):
+    """(y, mo, d, h, mi, s) from "YYYY-MM-DDThh:mm:ss[.fff]" (a trailing Z allowed)."""
+    bad = ValueError('%s = %s: must be a UTC time "YYYY-MM-DDThh:mm:ss[.s]" from 1957 to 2200'
+                     % (path, value_text(s)))
+    if not isinstance(s, str) or len(s) < 19 or len(s) > 40:
+        raise bad
+    t = s[:-1] if s.endswith("Z") else s
+    if t[4] != "-" or t[7] != "-" or t[10] != "T" or t[13] != ":" or t[16] != ":":
+        raise bad
+    try:
+        parts = [t[0:4], t[5:7], t[8:10], t[11:13], t[14:16]]
+        for p in parts:
+            if not p.isdigit():
+                raise bad
+        y, mo, d, h, mi = [int(p) for p in parts]
+        sec = t[17:]
+        if not sec[:2].isdigit() or (len(sec) > 2 and (sec[2] != "." or not sec[3:].isdigit())):
+            raise bad
+        sec = float(sec)
+    except (ValueError, IndexError):
+        raise bad
+    mdays = (31, 29 if (y % 4 == 0 and (y % 100 != 0 or y % 400 == 0)) else 28, 31, 30, 31, 30, 31, 31, 30, 31,
+             30, 31)
+    if not (1957 <= y <= 2200 and 1 <= mo <= 12 and 1 <= d <= mdays[mo - 1] and h <= 23 and mi <= 59
+            and sec < 61.0):
+        raise bad
+    return (y, mo, d, h, mi, sec)
+
+
+def _walk(block, d, out):
+    """Check the keys of ``block`` in ``d`` into ``out`` (schema order); unknown keys first."""
+    kids = _children(block)
+    names = [e["path"].split(".")[-1] for e in kids]
+    for k in sorted(d):
+        if k not in names:
+            where = block or "the top level"
+            raise ValueError("%s: unknown key (%s takes: %s)" % (
+                (block + "." if block else "") + str(k), where, ", ".join(names)))
+    for e, k in zip(kids, names):
+        path = e["path"]
+        if k not in d:
+            if e["optional"]:
+                out[k] = {} if e["kind"] == "sources" else None
+                continue
+            raise ValueError("%s: missing (%s%s)" % (path, e["doc"], ", " + _shape_text(e) if e["kind"] in
+                                                     ("num", "int", "vec", "axes") else ""))
+        v = d[k]
+        kind = e["kind"]
+        if kind == "block":
+            if v is None and e["nullable"]:
+                out[k] = None
+                continue
+            if not isinstance(v, dict):
+                raise ValueError("%s = %s: must be an object (%s)%s" % (
+                    path, value_text(v), e["doc"], " or null" if e["nullable"] else ""))
+            out[k] = {}
+            _walk(path, v, out[k])
+        elif kind == "str":
+            if not isinstance(v, str) or not v.strip() or len(v) > 2000:
+                raise ValueError("%s = %s: must be a non-empty string (%s)" % (path, value_text(v), e["doc"]))
+            out[k] = v
+        elif kind == "int":
+            if not _is_num(v) or v != int(v) or not _in(v, e["range"]):
+                raise ValueError("%s = %s: must be a whole number %s" % (path, value_text(v),
+                                                                         range_text(e["range"])))
+            out[k] = int(v)
+        elif kind == "num":
+            out[k] = _number(path, v, e)
+        elif kind == "vec":
+            out[k] = _vector(path, v, _length(e, _ROOT[0]), e)
+        elif kind == "axes":
+            n = _length(e, _ROOT[0])
+            if not isinstance(v, list) or len(v) != n:
+                raise ValueError("%s = %s: must be a list of %d vectors [x, y, z]" % (path, value_text(v), n))
+            out[k] = [_vector("%s[%d]" % (path, i), a, 3, e) for i, a in enumerate(v)]
+        elif kind == "epoch":
+            _parse_epoch(path, v)
+            out[k] = v
+        elif kind == "sources":
+            if not isinstance(v, dict):
+                raise ValueError("%s = %s: must be an object of key path -> text" % (path, value_text(v)))
+            out[k] = {}
+            for s in sorted(v):
+                if s not in BY_PATH or s == "sources":
+                    raise ValueError("sources.%s: not a key of the schema (sources name a block or a key, e.g. "
+                                     "\"wheels\" or \"wheels.tach_noise_rpm\")" % s)
+                if not isinstance(v[s], str) or not v[s].strip():
+                    raise ValueError("sources.%s = %s: must be a non-empty string" % (s, value_text(v[s])))
+                out[k][s] = v[s]
+
+
+_ROOT = [None]     # the top-level output while checking (vectors sized by wheels.count read it)
+
+
+def _shape_text(e):
+    n = e["n"]
+    if e["kind"] == "vec":
+        return "%s numbers, each %s" % ("wheels.count" if n == WHEELS else n, range_text(e["range"], e["unit"]))
+    if e["kind"] == "axes":
+        return "%s vectors [x, y, z]" % ("wheels.count" if n == WHEELS else n)
+    if e["kind"] == "int":
+        return "a whole number " + range_text(e["range"])
+    return "a number " + range_text(e["range"], e["unit"])
+
+
+def check(d):
+    """A checked, normalised copy of the spacecraft dict ``d``; ValueError naming the key, the value and the
+    allowed range. Checks beyond each key's range: the inertia (nominal and true) is a rigid body's, the wheels
+    (nominal and true) and the magnetorquers span three axes, the laser axis is not zero, |r| and |v| of the
+    orbit states, the relay delay's min <= max."""
+    if not isinstance(d, dict):
+        raise ValueError("a spacecraft file must be a JSON object, got %s" % value_text(d, 40))
+    out = {}
+    _ROOT[0] = out
+    try:
+        _walk("", d, out)
+    finally:
+        _ROOT[0] = None
+    if out["format"] != FORMAT:
+        raise ValueError('format = %s: must be "%s"' % (value_text(out["format"]), FORMAT))
+    for ch in out["name"]:
+        if not (ch.isalpha() or ch.isdigit() or ch in "-_.") or len(out["name"]) > 64:
+            raise ValueError("name = %s: must be 1 to 64 letters, digits, - _ ." % value_text(out["name"]))
+    _check_inertia("inertia_kgm2", out["inertia_kgm2"])
+    _nonzero("laser_axis", out["laser_axis"])
+    w = out["wheels"]
+    for i, a in enumerate(w["nominal_axes"]):
+        _nonzero("wheels.nominal_axes[%d]" % i, a)
+    _check_span("wheels", wheel_axes(out), "wheels.nominal_axes with wheels.delta1_deg, wheels.delta2_deg")
+    t = out["truth"]
+    if t is not None:
+        tf = true_figures(out)
+        j = tf["inertia_kgm2"]
+        _check_inertia("truth.inertia_error_kgm2", j, "the true inertia inertia_kgm2 + truth.inertia_error_kgm2 "
+                       "= %s" % value_text(j))
+        for i, v in enumerate(tf["rotor_inertia_kgm2"]):
+            if not v > 0:
+                raise ValueError("truth.rotor_inertia_error_kgm2[%d] = %s: the true rotor inertia %s must be "
+                                 "> 0 kg m^2" % (i, num_text(t["rotor_inertia_error_kgm2"][i]), num_text(v)))
+        for k in ("delta1", "delta2"):
+            for i, v in enumerate(tf[k + "_deg"]):
+                if not -45.0 <= v <= 45.0:
+                    raise ValueError("truth.%s_error_deg[%d] = %s: the true angle %s must be from -45 to 45 deg"
+                                     % (k, i, num_text(t[k + "_error_deg"][i]), num_text(v)))
+        _check_span("truth", wheel_axes(out, True), "the true wheel axes (truth.delta1_error_deg, "
+                    "truth.delta2_error_deg)")
+    s = out["orbit"]["state"]
+    rn = _norm(s["position_m"])
+    if not 6478e3 <= rn <= 1e8:
+        raise ValueError("orbit.state.position_m = %s: |r| = %s m must be from 6478000 to 100000000 m"
+                         % (value_text(s["position_m"]), num_text(rn)))
+    vn = _norm(s["velocity_m_s"])
+    if not 0 < vn < 12e3:
+        raise ValueError("orbit.state.velocity_m_s = %s: |v| = %s m/s must be > 0 and < 12000 m/s"
+                         % (value_text(s["velocity_m_s"]), num_text(vn)))
+    p = out["partner"]
+    if p is not None:
+        if _norm(p["position_m"]) < 6478e3:
+            raise ValueError("partner.position_m = %s: |r| must be >= 6478000 m" % value_text(p["position_m"]))
+        dr = _norm([a - b for a, b in zip(p["position_m"], s["position_m"])])
+        if not dr > 0:
+            raise ValueError("partner.position_m = %s: must differ from orbit.state.position_m"
+                             % value_text(p["position_m"]))
+        lo, hi = p["relay_delay_s"]
+        if lo > hi:
+            raise ValueError("partner.relay_delay_s = %s: must be [min, max] with min <= max"
+                             % value_text(p["relay_delay_s"]))
+    m = out["magnetorquers"]
+    if m is not None:
+        for i, a in enumerate(m["axes"]):
+            _nonzero("magnetorquers.axes[%d]" % i, a)
+        _check_span("magnetorquers", [_unit(a) for a in m["axes"]], "magnetorquers.axes")
+    return out
+
+
+def _nonzero(path, v):
+    if not _norm(v) > 0:
+        raise ValueError("%s = %s: must not be zero (a direction)" % (path, value_text(v)))
+
+
+def _check_inertia(path, j6, what=None):
+    lam = principal_moments(j6)
+    J = inertia_matrix({"inertia_kgm2": j6})
+    minors = (J[0][0], J[0][0] * J[1][1] - J[0][1] * J[0][1], _det3(J))
+    head = "%s = %s: " % (path, value_text(j6)) if what is None else "%s: %s: " % (path, what)
+    if not (minors[0] > 0 and minors[1] > 0 and minors[2] > 0 and lam[0] > 0):
+        raise ValueError(head + "not positive definite (principal moments %s kg m^2); must be a rigid body's "
+                         "inertia: positive definite, each principal moment <= the sum of the other two"
+                         % value_text([float("%.6g" % x) for x in lam]))
+    if lam[2] > (lam[0] + lam[1]) * (1.0 + 1e-9):
+        raise ValueError(head + "no rigid body's: its largest principal moment %s exceeds the sum of the other two, "
+                         "%s kg m^2 (triangle inequality, e.g. Jxx + Jyy >= Jzz for principal moments)"
+                         % (num_text(float("%.6g" % lam[2])), num_text(float("%.6g" % (lam[0] + lam[1])))))
+
+
+def _check_span(path, axes, what):
+    g = [[sum(a[r] * a[c] for a in axes) for c in range(3)] for r in range(3)]
+    lam = _eig_sym3(g)
+    if not lam[0] >= SPAN_MIN:
+        raise ValueError("%s: %s do not span three axes (least eigenvalue of C C^T = %s, must be >= %s: every "
+                         "body axis needs a wheel's share)" % (path, what, num_text(float("%.3g" % lam[0])),
+                                                               num_text(SPAN_MIN)))
+
+
+# --- helpers ------------------------------------------------------------------------------------------------
+def _norm(v):
+    return math.sqrt(sum(x * x for x in v))
+
+
+def _unit(v):
+    n = _norm(v)
+    return [x / n for x in v]
+
+
+def _cross(a, b):
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _det3(m):
+    return (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
+
+
+def _eig_sym3(m):
+    """Eigenvalues of a symmetric 3 x 3 (nested lists), ascending (the trigonometric closed form)."""
+    a, b, c, d, e, f = m[0][0], m[0][1], m[0][2], m[1][1], m[1][2], m[2][2]
+    p1 = b * b + c * c + e * e
+    if p1 == 0:
+        return sorted([a, d, f])
+    q = (a + d + f) / 3.0
+    p2 = (a - q) ** 2 + (d - q) ** 2 + (f - q) ** 2 + 2.0 * p1
+    p = math.sqrt(p2 / 6.0)
+    B = [[(a - q) / p, b / p, c / p], [b / p, (d - q) / p, e / p], [c / p, e / p, (f - q) / p]]
+    r = max(-1.0, min(1.0, _det3(B) / 2.0))
+    phi = math.acos(r) / 3.0
+    e1 = q + 2.0 * p * math.cos(phi)
+    e3 = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    return sorted([e3, 3.0 * q - e1 - e3, e1])
+
+
+def principal_moments(j6):
+    """The principal moments (kg m^2, ascending) of [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz]."""
+    return _eig_sym3(inertia_matrix({"inertia_kgm2": j6}))
+
+
+def true_figures(d, true=True):
+    """The figures a simulation flies (true = figure + the truth block's error; the figures themselves without a
+    truth block or with ``true=False``): inertia_kgm2, residual_dipole_am2, rotor_inertia_kgm2, delta1_deg,
+    delta2_deg (lists of floats)."""
+    w = d["wheels"]
+    out = {"inertia_kgm2": list(d["inertia_kgm2"]), "residual_dipole_am2": list(d["residual_dipole_am2"]),
+           "rotor_inertia_kgm2": list(w["rotor_inertia_kgm2"]), "delta1_deg": list(w["delta1_deg"]),
+           "delta2_deg": list(w["delta2_deg"])}
+    t = d.get("truth")
+    if true and t:
+        for k, e in (("inertia_kgm2", "inertia_error_kgm2"), ("residual_dipole_am2", "residual_dipole_error_am2"),
+                     ("rotor_inertia_kgm2", "rotor_inertia_error_kgm2"), ("delta1_deg", "delta1_error_deg"),
+                     ("delta2_deg", "delta2_error_deg")):
+            out[k] = [a + b for a, b in zip(out[k], t[e])]
+    return out
+
+
+def inertia_matrix(d, true=False):
+    """The 3 x 3 inertia (kg m^2, nested lists) of a checked file ``d`` (with ``true``: the truth block's)."""
+    j = true_figures(d)["inertia_kgm2"] if true else d["inertia_kgm2"]
+    return [[j[0], j[3], j[4]], [j[3], j[1], j[5]], [j[4], j[5], j[2]]]
+
+
+def misalignment_axes(n):
+    """(e1, e2) per wheel for the unit nominal axes ``n`` (list of 3-lists): the module docstring's convention
+    (Eq. 4.148 for a pyramid)."""
+    e1, e2 = [], []
+    for i, a in enumerate(n):
+        b = n[(i + 1) % len(n)]
+        v = _cross(a, b)
+        if _norm(v) < 1e-6:                       # parallel neighbours: the least aligned body axis instead
+            k = min(range(3), key=lambda j: abs(a[j]))
+            v = _cross(a, [1.0 if j == k else 0.0 for j in range(3)])
+        v = _unit(v)
+        e1.append(v)
+        e2.append(_unit(_cross(a, v)))
+    return e1, e2
+
+
+def wheel_axes(d, true=False):
+    """Each wheel's unit spin axis (count x 3, body frame) from the nominal axes and the misalignment angles
+    (with ``true``: the truth block's angles): c_i = normalise(n_i + d1_i e1_i + d2_i e2_i), angles in radians
+    (module docstring; Eq. 4.58-4.60)."""
+    w = d["wheels"]
+    f = true_figures(d, true)
+    n = [_unit(a) for a in w["nominal_axes"]]
+    e1, e2 = misalignment_axes(n)
+    out = []
+    for i in range(len(n)):
+        d1, d2 = math.radians(f["delta1_deg"][i]), math.radians(f["delta2_deg"][i])
+        out.append(_unit([n[i][r] + e1[i][r] * d1 + e2[i][r] * d2 for r in range(3)]))
+    return out
+
+
+def epoch_tuple(d):
+    """orbit.state.epoch_utc as (year, month, day, hour, minute, second) (emulator.orbits.EPOCH_UTC's form)."""
+    return _parse_epoch("orbit.state.epoch_utc", d["orbit"]["state"]["epoch_utc"])
+
+
+# --- presets and files --------------------------------------------------------------------------------------
+def presets():
+    """The preset names (the .json files beside this module), sorted."""
+    try:
+        names = os.listdir(_DIR)
+    except OSError:
+        return []
+    return sorted(n[:-5] for n in names if n.endswith(".json"))
+
+
+def preset_path(name):
+    """The file of preset ``name``; ValueError naming the presets if there is none."""
+    if name not in presets():
+        raise ValueError("no preset %s (presets: %s)" % (value_text(name), ", ".join(presets())))
+    return _DIR + "/" + name + ".json"
+
+
+def _no_duplicates(pairs):
+    d = {}
+    for k, v in pairs:
+        if k in d:
+            raise ValueError("key %s appears twice in one object" % value_text(k))
+        d[k] = v
+    return d
+
+
+def read(path):
+    """The JSON object in file ``path``, unchecked; ValueError naming the file if it cannot be read or parsed.
+    Under CPython through protocol.fileio.read_json (size-limited; a key twice in one object is refused)."""
+    if not MICROPYTHON:
+        from protocol.fileio import read_json
+        return read_json(path, "spacecraft file", object_pairs_hook=_no_duplicates)
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError as exc:
+        raise ValueError("spacecraft file %s: cannot read it (%s)" % (path, exc))
+    try:
+        return json.loads(text)
+    except ValueError as exc:
+        raise ValueError("spacecraft file %s: not valid JSON (%s)" % (path, exc))
+
+
+def _exists(path):
+    try:
+        os.stat(path)
+        return True
+    except OSError:
+        return False
+
+
+def load(name_or_path):
+    """A checked spacecraft (``check``'s copy) from a preset name or a JSON file path. ValueError: the file
+    cannot be read, is not JSON, or fails the check (the message starts with the file)."""
+    if not isinstance(name_or_path, str) or not name_or_path:
+        raise ValueError("name a preset (%s) or a spacecraft file" % ", ".join(presets()))
+    if name_or_path in presets() and not _exists(name_or_path):
+        path = preset_path(name_or_path)
+    elif _exists(name_or_path) or "/" in name_or_path or name_or_path.endswith(".json"):
+        path = name_or_path
+    else:
+        raise ValueError("%s is neither a preset (%s) nor a file" % (value_text(name_or_path),
+                                                                     ", ".join(presets())))
+    d = read(path)
+    try:
+        return check(d)
+    except ValueError as exc:
+        raise ValueError("spacecraft file %s: %s" % (path, exc))

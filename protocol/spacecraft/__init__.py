@@ -38,7 +38,6 @@ FORMAT = "fps-spacecraft/1"
 MICROPYTHON = sys.implementation.name == "micropython"
 MAX_WHEELS = 8
 SPAN_MIN = 1e-3        # least eigenvalue of C C^T (unit axes) for the wheels to span three axes
-R_EARTH_M = 6371.2e3   # m, the circular orbit's reference radius (emulator.spacecraft.environment.R_EARTH)
 
 try:
     _DIR = __file__.rsplit("/", 1)[0]
@@ -392,7 +391,8 @@ def check(d):
     w = out["wheels"]
     for i, a in enumerate(w["nominal_axes"]):
         _nonzero("wheels.nominal_axes[%d]" % i, a)
-    _check_span("wheels", wheel_axes(out), "wheels.nominal_axes with wheels.delta1_deg, wheels.delta2_deg")
+    _check_span("wheels.nominal_axes = %s (with wheels.delta1_deg = %s, wheels.delta2_deg = %s)" % (
+        value_text(w["nominal_axes"]), value_text(w["delta1_deg"]), value_text(w["delta2_deg"])), wheel_axes(out))
     t = out["truth"]
     if t is not None:
         tf = true_figures(out)
@@ -402,14 +402,15 @@ def check(d):
         for i, v in enumerate(tf["rotor_inertia_kgm2"]):
             if not v > 0:
                 raise ValueError("truth.rotor_inertia_error_kgm2[%d] = %s: the true rotor inertia %s must be "
-                                 "> 0 kg m^2" % (i, num_text(t["rotor_inertia_error_kgm2"][i]), num_text(v)))
+                                 "> 0 kg m^2" % (i, num_text(t["rotor_inertia_error_kgm2"][i]),
+                                                 num_text(float("%.6g" % v))))
         for k in ("delta1", "delta2"):
             for i, v in enumerate(tf[k + "_deg"]):
                 if not -45.0 <= v <= 45.0:
                     raise ValueError("truth.%s_error_deg[%d] = %s: the true angle %s must be from -45 to 45 deg"
-                                     % (k, i, num_text(t[k + "_error_deg"][i]), num_text(v)))
-        _check_span("truth", wheel_axes(out, True), "the true wheel axes (truth.delta1_error_deg, "
-                    "truth.delta2_error_deg)")
+                                     % (k, i, num_text(t[k + "_error_deg"][i]), num_text(float("%.6g" % v))))
+        _check_span("truth.delta1_error_deg = %s, truth.delta2_error_deg = %s: the true wheel axes" % (
+            value_text(t["delta1_error_deg"]), value_text(t["delta2_error_deg"])), wheel_axes(out, True))
     s = out["orbit"]["state"]
     rn = _norm(s["position_m"])
     if not 6478e3 <= rn <= 1e8:
@@ -435,7 +436,7 @@ def check(d):
     if m is not None:
         for i, a in enumerate(m["axes"]):
             _nonzero("magnetorquers.axes[%d]" % i, a)
-        _check_span("magnetorquers", [_unit(a) for a in m["axes"]], "magnetorquers.axes")
+        _check_span("magnetorquers.axes = %s" % value_text(m["axes"]), [_unit(a) for a in m["axes"]])
     return out
 
 
@@ -459,13 +460,14 @@ def _check_inertia(path, j6, what=None):
                          % (num_text(float("%.6g" % lam[2])), num_text(float("%.6g" % (lam[0] + lam[1])))))
 
 
-def _check_span(path, axes, what):
+def _check_span(head, axes):
+    """ValueError starting with ``head`` unless the unit vectors ``axes`` span three axes."""
     g = [[sum(a[r] * a[c] for a in axes) for c in range(3)] for r in range(3)]
     lam = _eig_sym3(g)
     if not lam[0] >= SPAN_MIN:
-        raise ValueError("%s: %s do not span three axes (least eigenvalue of C C^T = %s, must be >= %s: every "
-                         "body axis needs a wheel's share)" % (path, what, num_text(float("%.3g" % lam[0])),
-                                                               num_text(SPAN_MIN)))
+        raise ValueError("%s: do not span three axes: the least eigenvalue of C C^T (C: the unit axes) is %s, must "
+                         "be >= %s (every body axis needs a share of the torque)"
+                         % (head, num_text(float("%.3g" % lam[0])), num_text(SPAN_MIN)))
 
 
 # --- helpers ------------------------------------------------------------------------------------------------
@@ -599,7 +601,12 @@ def read(path):
     Under CPython through protocol.fileio.read_json (size-limited; a key twice in one object is refused)."""
     if not MICROPYTHON:
         from protocol.fileio import read_json
-        return read_json(path, "spacecraft file", object_pairs_hook=_no_duplicates)
+        try:
+            return read_json(path, "spacecraft file", object_pairs_hook=_no_duplicates)
+        except ValueError as exc:
+            if str(exc).startswith("spacecraft file "):
+                raise
+            raise ValueError("spacecraft file %s: %s" % (path, exc))     # a key twice
     try:
         with open(path) as f:
             text = f.read()

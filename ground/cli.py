@@ -22,6 +22,7 @@ COMMANDS = (
     ("response", "ground.response", "the loop's frequency response: stepped sines, measured |S| beside the model"),
     ("system", "ground.system", "the whole terminal in one run: ADCS and fine-pointing loops coupled live"),
     ("adcs", "ground.adcs.cli", "attitude and orbit filters: APKF, MEKF (Ch. 4), STKF with the EAFLS (Ch. 5)"),
+    ("spacecraft", "ground.spacecraft_cli", "spacecraft files: list, show, check and write one; the schema with units"),
 )
 
 

@@ -1,0 +1,244 @@
+"""``fps spacecraft``: list, show, check and write spacecraft files; print their schema.
+
+    fps spacecraft list                          the presets, one a line
+    fps spacecraft show NAME|FILE [--json]       a preset or a file as a table (key, value, unit), or as JSON
+    fps spacecraft check FILE|NAME               exit 0 "ok: ..." or 2 with the checker's message
+    fps spacecraft template NAME -o FILE         write a preset to FILE to edit (- for standard output)
+    fps spacecraft schema [--markdown | --json]  every key with its unit, range and meaning (docs/SPACECRAFT.md)
+
+The schema and the checker are ``protocol.spacecraft`` (pure Python: the firmware runs the same checker).
+"""
+
+import argparse
+import json
+import sys
+
+from protocol import spacecraft as sc
+from protocol.fileio import output_file, write_atomic
+
+UNITS_HELP = ("Units are in the key names: _kg kg, _kgm2 kg m^2, _kgm kg m, _am2 A m^2, _nm N m, _nms_rad N m s/rad, "
+              "_rpm rev/min, _arcsec arcseconds, _deg degrees, _deg_s deg/s, _deg_rt_h deg/sqrt(h), _deg_h deg/h, "
+              "_hz Hz, _m metres, _m2 m^2, _m_s m/s, _km km, _nt nT, _s seconds; sigma = 1 standard deviation. "
+              "Bad input (a missing or unknown key, a value out of range, NaN or inf, a non-physical inertia, "
+              "wheels that do not span three axes) exits 2 naming the key, the value and the allowed range.")
+
+
+def register(sub, name, help_):
+    p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0].replace("``", "") + " " + UNITS_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_usage())
+    s = p.add_subparsers(dest="spacecraft_cmd", metavar="ACTION")
+    s.required = True
+
+    a = s.add_parser("list", help="list the presets")
+    a.set_defaults(func=cmd_list)
+
+    a = s.add_parser("show", help="print a preset or a file: key, value, unit", description=UNITS_HELP)
+    a.add_argument("what", metavar="NAME|FILE", help="a preset name (fps spacecraft list) or a JSON file")
+    a.add_argument("--json", action="store_true", help="the checked, normalised file as JSON instead")
+    a.set_defaults(func=cmd_show)
+
+    a = s.add_parser("check", help="check a file: exit 0 'ok', or 2 naming the key, value and allowed range",
+                     description=UNITS_HELP)
+    a.add_argument("what", metavar="FILE|NAME", help="a JSON spacecraft file (or a preset name)")
+    a.set_defaults(func=cmd_check)
+
+    a = s.add_parser("template", help="write a preset to a file to start your own from",
+                     description="Write preset NAME, as shipped (its sources included), to FILE atomically. "
+                                 + UNITS_HELP)
+    a.add_argument("name", metavar="NAME", help="a preset: %s" % ", ".join(sc.presets()))
+    a.add_argument("-o", "--output", required=True, metavar="FILE", type=output_file,
+                   help="file to write (- for standard output)")
+    a.set_defaults(func=cmd_template)
+
+    a = s.add_parser("schema", help="every key with its unit, allowed range and meaning (docs/SPACECRAFT.md)")
+    g = a.add_mutually_exclusive_group()
+    g.add_argument("--markdown", action="store_true", help="markdown, as docs/SPACECRAFT.md (the default)")
+    g.add_argument("--json", action="store_true", help="machine-readable: one object per key")
+    a.set_defaults(func=cmd_schema)
+
+
+def _usage():
+    return "\n".join(line.strip() for line in __doc__.split("\n\n")[1].splitlines())
+
+
+# --- actions ------------------------------------------------------------------------------------------------
+def cmd_list(args):
+    for n in sc.presets():
+        d = sc.load(n)
+        print("%-14s %s" % (n, d["description"].split(":")[0].split(". ")[0]))
+    return 0
+
+
+def cmd_show(args):
+    d = sc.load(args.what)
+    if args.json:
+        print(json.dumps(d, indent=1))
+    else:
+        print(show_table(d))
+    return 0
+
+
+def cmd_check(args):
+    d = sc.load(args.what)
+    print("ok: %s: %s, %d wheels, inertia %s kg m^2 (principal %s), %s" % (
+        args.what, d["name"], d["wheels"]["count"], sc.value_text(d["inertia_kgm2"]),
+        sc.value_text([float("%.4g" % x) for x in sc.principal_moments(d["inertia_kgm2"])]),
+        "with a truth block" if d["truth"] else "no truth block"))
+    return 0
+
+
+def cmd_template(args):
+    path = sc.preset_path(args.name)
+    with open(path) as f:
+        text = f.read()
+    sc.check(json.loads(text))                    # a preset is checked before it is handed out
+    if args.output == "-":
+        sys.stdout.write(text)
+        return 0
+    try:
+        write_atomic(args.output, text, make_folder=False)
+    except FileNotFoundError:
+        raise ValueError("-o %s: its folder does not exist; make it first" % args.output) from None
+    print("wrote %s (preset %s): replace its figures and sources with yours, then fps spacecraft check %s"
+          % (args.output, args.name, args.output))
+    return 0
+
+
+def cmd_schema(args):
+    if args.json:
+        print(json.dumps(schema_rows(), indent=1))
+    else:
+        sys.stdout.write(schema_markdown())
+    return 0
+
+
+# --- show ---------------------------------------------------------------------------------------------------
+def show_table(d):
+    """The checked file ``d`` as a text table: key, value, unit (schema order), then what follows from it."""
+    rows = [("key", "value", "unit")]
+    for e in sc.SCHEMA:
+        kind, path = e["kind"], e["path"]
+        v = _get(d, path)
+        if v is _ABSENT:
+            continue
+        if kind == "block":
+            if v is None:
+                rows.append((path, "null (none)", ""))
+            continue
+        if kind == "sources":
+            continue
+        if kind == "str" and path == "description":
+            continue
+        rows.append((path, sc.value_text(v, 200), "" if e["unit"] == "1" else e["unit"]))
+    lam = sc.principal_moments(d["inertia_kgm2"])
+    rows.append(("(principal moments)", sc.value_text([float("%.6g" % x) for x in lam]), "kg m^2"))
+    for i, a in enumerate(sc.wheel_axes(d)):
+        rows.append(("(wheel %d unit axis)" % i, sc.value_text([float("%.6f" % x) for x in a]), ""))
+    if d["truth"]:
+        t = sc.true_figures(d)
+        rows.append(("(true inertia)", sc.value_text(t["inertia_kgm2"]), "kg m^2"))
+        rows.append(("(true residual dipole)", sc.value_text(t["residual_dipole_am2"]), "A m^2"))
+        rows.append(("(true rotor inertia)", sc.value_text(t["rotor_inertia_kgm2"]), "kg m^2"))
+        for i, a in enumerate(sc.wheel_axes(d, True)):
+            rows.append(("(true wheel %d unit axis)" % i, sc.value_text([float("%.6f" % x) for x in a]), ""))
+    w0 = max(len(r[0]) for r in rows)
+    w1 = max(len(r[1]) for r in rows)
+    out = ["%s: %s" % (d["name"], d["description"]), ""]
+    for i, (k, v, u) in enumerate(rows):
+        out.append(("%-*s  %-*s  %s" % (w0, k, w1, v, u)).rstrip())
+        if i == 0:
+            out.append("%s  %s  %s" % ("-" * w0, "-" * w1, "-" * 6))
+    if d["sources"]:
+        out += ["", "sources:"] + ["  %s: %s" % (k, d["sources"][k]) for k in _schema_order(d["sources"])]
+    return "\n".join(out)
+
+
+_ABSENT = object()
+
+
+def _get(d, path):
+    for k in path.split("."):
+        if not isinstance(d, dict) or k not in d:
+            return _ABSENT
+        d = d[k]
+    return d
+
+
+def _schema_order(keys):
+    order = dict((e["path"], i) for i, e in enumerate(sc.SCHEMA))
+    return sorted(keys, key=lambda k: order.get(k, len(order)))
+
+
+# --- schema -------------------------------------------------------------------------------------------------
+def _shape(e):
+    n = e["n"]
+    count = "wheels.count" if n == sc.WHEELS else str(n)
+    return {"str": "string", "int": "whole number", "num": "number", "vec": "%s numbers" % count,
+            "axes": "%s vectors [x, y, z]" % count, "epoch": "string (UTC)", "block": "object",
+            "sources": "object: key path -> text"}[e["kind"]]
+
+
+def schema_rows():
+    """The schema as plain data: key, type, unit, allowed range, required, meaning."""
+    rows = []
+    for e in sc.SCHEMA:
+        numeric = e["kind"] in ("int", "num", "vec", "axes")
+        rows.append({"key": e["path"], "type": _shape(e) + (" or null" if e["nullable"] else ""),
+                     "unit": e["unit"], "range": sc.range_text(e["range"]) if numeric else "",
+                     "required": not e["optional"], "meaning": e["doc"]})
+    return rows
+
+
+def schema_markdown():
+    """docs/SPACECRAFT.md: the spacecraft file's schema, generated from ``protocol.spacecraft.SCHEMA``."""
+    L = ["# The spacecraft file", "",
+         "Generated by `fps spacecraft schema` from `protocol/spacecraft/__init__.py`: do not edit by hand "
+         "(`fps spacecraft schema > docs/SPACECRAFT.md` rewrites it; a test checks it is fresh).", "",
+         "One JSON file describes one vehicle as its team knows it before flight; one checker "
+         "(`protocol.spacecraft.check`, pure Python) serves the ground tools and the MicroPython firmware. "
+         "Format `%s`." % sc.FORMAT, "",
+         "```",
+         "fps spacecraft list                          the presets",
+         "fps spacecraft show NAME|FILE [--json]       key, value, unit",
+         "fps spacecraft check FILE                    exit 0 \"ok: ...\", or 2 naming the key, value and range",
+         "fps spacecraft template NAME -o FILE         a preset to start from",
+         "fps spacecraft schema [--markdown | --json]  this page",
+         "```", "",
+         "## Units and conventions", "",
+         UNITS_HELP, "",
+         "- `inertia_kgm2` = [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz] about the centre of mass, body frame. The products are "
+         "the inertia matrix's off-diagonal entries, Jxy = -∫ x y dm (CAD tools often print the product of inertia "
+         "+∫ x y dm: change its sign). The spacecraft with its wheels, less the rotors' own inertia about their "
+         "spin axes (the emulator's J). It must be a rigid body's: positive definite, and no principal moment "
+         "larger than the sum of the other two (1e-9 relative slack).",
+         "- Wheel axes (Yoon 2017, Eq. 4.58-4.60, 4.148): c_i = normalise(n_i + d1_i e1_i + d2_i e2_i), n_i the "
+         "unit nominal axis, d1_i = `delta1_deg`, d2_i = `delta2_deg` in radians, e1_i = normalise(n_i × n_j) "
+         "with j the next wheel in the list (the last's next is the first; if n_i × n_j vanishes, the body axis "
+         "least aligned with n_i replaces n_j), e2_i = normalise(n_i × e1_i). The angles enter linearly as in the "
+         "thesis: the axis tilts by atan(√(d1² + d2²)) (11.8° for 12°; the same to 0.1 %% below 3°). The unit "
+         "axes (with the misalignment) must span three axes: the least eigenvalue of C Cᵀ at least %s." %
+         sc.num_text(sc.SPAN_MIN),
+         "- `uncertainty`: 1 σ of the figures, the filters' priors and initial covariance (the figure is the "
+         "prior mean). Absolute, in the figure's unit.",
+         "- `truth` (optional, simulation only): the simulated vehicle's departures from the figures, true = "
+         "figure + error (the thesis's Sec. 4.8 errors for `thesis-3u`). A flight team leaves it out.",
+         "- `partner`, `magnetorquers`, `magnetometer` may be null (none); `partner`, `truth` and `sources` may "
+         "be left out. Every other key is required, and an unknown key is refused.",
+         "- NaN and ±inf are refused everywhere; integers are accepted where a number is asked.", "",
+         "## Keys", "",
+         "| key | type | unit | allowed range | meaning |", "|---|---|---|---|---|"]
+    for r in schema_rows():
+        depth = r["key"].count(".")
+        key = "`%s`" % r["key"]
+        opt = "" if r["required"] else " (optional)"
+        L.append("| %s%s | %s | %s | %s | %s |" % ("&nbsp;&nbsp;" * depth, key, r["type"] + opt, r["unit"],
+                                                 r["range"], r["meaning"].replace("|", "\\|")))
+    L += ["", "## Presets", "", "| name | description |", "|---|---|"]
+    for n in sc.presets():
+        d = sc.load(n)
+        L.append("| `%s` | %s |" % (n, d["description"]))
+    L += ["", "Each preset names the source of every figure in its `sources` block (`fps spacecraft show NAME`)."
+          " `thesis-3u` takes every figure from the thesis's constants in this repository's code (a test compares "
+          "them), so the thesis's tables reproduce; `generic-6u` and `generic-12u` are representative vehicles "
+          "with datasheet-class figures, not specific ones.", ""]
+    return "\n".join(L)

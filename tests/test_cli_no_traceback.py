@@ -116,6 +116,11 @@ def _bad_cases(f):
                   ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", "0.01",
                    "--q2-dv", v if v != "-1" else "-inf"]]
     cases += [["distfile", "info"], ["distfile", "nope"]]
+    cases += [["spacecraft"], ["spacecraft", "nope"], ["spacecraft", "show", ""],
+              ["spacecraft", "template", "nope", "-o", o], ["spacecraft", "template", "thesis-3u", "-o", d],
+              ["spacecraft", "template", "thesis-3u", "-o", ""]]
+    for p in (m, g, e, d, "", f["text"], f["cal"], f["nanjson"], f["binjson"]):
+        cases += [["spacecraft", "check", p], ["spacecraft", "show", p]]
     for p in (m, g, e, d, "", f["text"], f["cal"]):
         cases += [["distfile", "info", p], ["distfile", "csv", p],
                   ["distfile", "generate", "-o", o, "--source", "csv", "--csv", p],
@@ -211,7 +216,7 @@ def test_every_command_is_covered(files):
     want = {("protocol", "encode"), ("protocol", "decode"), ("protocol", "dbc"), ("emulator", "config"),
             ("emulator", "truth-h"), ("emulator", "serve"), ("distfile", "generate"), ("distfile", "info"),
             ("distfile", "csv"), ("calibrate",), ("hil",), ("adcs", "apkf"), ("adcs", "mekf"), ("adcs", "stkf"),
-            ("adcs", "bps"), ("adcs", "sweep"), ("response",), ("system",)}
+            ("adcs", "bps"), ("adcs", "sweep"), ("response",), ("system",), ("spacecraft",)}
     assert want <= reached
     assert {c[0] for c in cli.COMMANDS} == {w[0] for w in want}
 

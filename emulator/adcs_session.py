@@ -61,6 +61,7 @@ from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS, WheelParams
 from firmware.adcs.apkf_lean import MOMENTUM
+from firmware.adcs.app import burst_bit
 from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -254,7 +255,7 @@ class AdcsSession:
             return ""
 
     def _send(self, pid, src, payload):
-        bit = _burst_bit(pid, src, payload)
+        bit = burst_bit(pid, src, payload)      # the firmware's own naming of the burst's packets
         self._burst_pkts.append((bit, pid, src, payload))
         if self.recorded is not None:
             self._rec.append([pid, src, payload.hex()])
@@ -517,12 +518,6 @@ class AdcsSession:
 
 
 B_GNSS_B = 1 << dict(table.ADCS_STALE)["GNSS_B"]
-
-
-def _burst_bit(pid, src, payload):
-    """The ADCS_STALE bit naming a burst packet (the firmware's ``burst_bit``, over the same table)."""
-    from firmware.adcs.app import burst_bit
-    return burst_bit(pid, src, payload)
 
 
 def _gnss_payload(t_ms, sat, z):

@@ -391,3 +391,30 @@ def test_controller_over_an_externally_damaged_slcan_stream_stays_up_and_answers
         host.recv(0.05)
     assert host.closed
     host.close()
+
+
+def test_fps_system_with_faults_on_the_adcs_can_link_matches_the_clean_run(tmp_path, inputs):
+    """fps system with --link-faults on the ADCS's CAN link: both loops' results (Q2 samples, body pointing and
+    the estimates' errors) equal the clean run's; the retries are in the ADCS summary."""
+    if not os.path.exists(MICROPYTHON):
+        pytest.skip("the MicroPython unix port is not installed (make install)")
+    from ground.adcs import bps, bps_cli
+    _, cal = inputs
+    params = str(tmp_path / "params.json")
+    cache = str(tmp_path / "cache")
+    bps.write_params(params, bps_cli.calibration(0, cache, progress=False))
+    runs = {}
+    for name, extra in (("clean", []), ("faults", ["--link-faults", "bytes=0.0005,frames=0.02,seed=4"])):
+        out = tmp_path / name
+        p = _fps("system", "--adcs", "firmware", "--duration", "2", "--truth", "two-body", "--params", params,
+                 "--calibration", cal, "--bps-cache", cache, "--quiet", "--no-plots", "-o", str(out), *extra)
+        assert p.returncode in (0, 3), p.stderr
+        runs[name] = out
+    for f in ("samples.npz", "body.npz"):
+        a, b = (np.load(runs[n] / f) for n in ("clean", "faults"))
+        assert a.files == b.files
+        for k in a.files:
+            assert np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"), (f, k)
+    s = json.loads((runs["faults"] / "summary.json").read_text())
+    assert s["complete"] and s["adcs_summary"]["retries"]["tick_resent"] > 0
+    assert json.loads((runs["faults"] / "config.json").read_text())["adcs_link_faults"].startswith("bytes=0.0005")

@@ -183,7 +183,7 @@ def _fake_faults(monkeypatch, tmp_path, clean_rc=0, board_rc=0):
     import numpy as np
     from bench import bench_faults
 
-    def hil(tmp, name, dist, cal, duration, *extra):
+    def hil(tmp, name, dist, cal, duration, *extra, **kw):
         out = tmp_path / name
         out.mkdir()
         np.savez(out / "samples.npz", t_s=np.arange(10.0))
@@ -202,6 +202,7 @@ def _fake_faults(monkeypatch, tmp_path, clean_rc=0, board_rc=0):
     monkeypatch.setattr(bench_faults, "fps", fps)
     monkeypatch.setattr(bench_faults, "_board_realtime", lambda tmp, dist, cal, rate: (
         2000, 2000, False, rate > 1000, board_rc, None if board_rc == 0 else "the link is down"))
+    monkeypatch.setattr(bench_faults, "_can", lambda tmp, dist, cal, failed: print("(the CAN part)"))
     return bench_faults
 
 
@@ -222,6 +223,18 @@ def test_bench_faults_complete_runs_pass(monkeypatch, tmp_path, capsys):
     bench_faults = _fake_faults(monkeypatch, tmp_path)
     bench_faults.main(duration_s=1.0)
     assert "| 637.8 Hz | arduino-zero | 2000 | 2000 | 100.00 % | False |" in capsys.readouterr().out
+
+
+def test_can_survival_is_the_product_of_its_lines():
+    """bench_faults.can_survival: no faults lets everything through; a packet needs every line of its frames and
+    its flow control, so a longer packet fares worse and TICK + FSM_SPI is the product of the two."""
+    from bench.bench_faults import can_survival
+    assert all(v == 1.0 for v in can_survival(0.0, 0.0).values())
+    s = can_survival(0.0, 0.05)
+    assert s["RW_CMD"] == pytest.approx(0.95) and s["TICK"] == pytest.approx(0.95 ** 4)   # FF, 2 CFs, FC
+    assert s["TICK + FSM_SPI"] == pytest.approx(s["TICK"] * s["FSM_SPI"])
+    s = can_survival(0.01, 0.05)
+    assert s["ADCS_STATUS"] < s["HTABLE_CHUNK"] < s["FSM_SPI"] < s["TICK"] < s["RW_CMD"] < 0.95
 
 
 @pytest.mark.parametrize("name", ["adcs", "adcs_can", "adcs_lean", "bps", "emulator", "faults", "firmware", "hil",

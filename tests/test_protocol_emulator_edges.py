@@ -413,8 +413,8 @@ def test_adcs_session_counts_rw_cmds_it_refuses():
     s.link, s.proc, s._t_wall = Link(), Proc(), time.perf_counter()
     s._burst()
     fmt = core.PACKET[P["RW_CMD"]].fmt
-    cmds = [struct.pack(fmt, float("nan"), 1), struct.pack(fmt, 1e-4, 2), struct.pack(fmt, 2.0 ** -12, 1),
-            struct.pack(fmt, -2.0 ** -12, 0)]
+    cmds = [struct.pack(fmt, float("nan"), 1, 0), struct.pack(fmt, 1e-4, 2, 0), struct.pack(fmt, 2.0 ** -12, 1, 0),
+            struct.pack(fmt, -2.0 ** -12, 0, 0)]          # of cycle 0
     s.link.queue = [(P["RW_CMD"], N["ADCS"], N["RW%d" % i], None, c) for i, c in enumerate(cmds)]
     s.link.queue.append((P["ADCS_STATUS"], N["ADCS"], 0xFF, None, core.encode_payload("ADCS_STATUS", tick=0)))
     s.cycle()

@@ -157,7 +157,7 @@ def test_rw_devices_over_inproc_link():
     sc, dev = _devices()
     for i in range(4):
         ground.send("RW_CMD", RW[i], torque=5e-5 * (i + 1))
-    ground.send("RW_CMD", RW[3], payload=b"\x00\x00\xc0\x7f\x01")      # NaN torque: NACK, seq echoed
+    ground.send("RW_CMD", RW[3], payload=b"\x00\x00\xc0\x7f\x01\x00")  # NaN torque: NACK, seq echoed
     served = 0
     while served < 5:
         n = _serve([device], dev)

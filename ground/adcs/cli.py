@@ -5,10 +5,11 @@ Each sub-command is registered by one small function in ``SUBCOMMANDS`` (add you
 A campaign runs
 ``--runs`` seeds (``--seed``, ``--seed``+1, ...) of the Sec. 4.8 scenario over local worker processes
 (``--workers``, default all cores; 1 = in-process) or an existing Dask cluster (``--scheduler tcp://host:port``),
-and writes to ``-o DIR``: ``run_NNNN/`` per seed (series.npz, result.json), ``summary.json`` (arcsec for
-angles, deg where a key says _deg, SI otherwise; ``complete`` is false until the campaign ends, and stays false
-after Ctrl-C), ``report.md`` with the thesis's table beside ours, ``fig4-5_errors.png`` (one run's errors with
-+-3 sigma) and ``monte_carlo.png`` (spread over runs and the NEES against its 95 % band).
+and writes to ``-o DIR``: ``run_NNNN/`` per seed (series.npz, result.json), ``summary.json`` (physical units
+named in each key: arcsec, deg, kg m^2, A m^2; ``complete`` is false until the campaign ends, and stays false
+after Ctrl-C; a run that diverged has ``ok`` false and null figures and is counted in ``runs_diverged``),
+``report.md`` with the thesis's table beside ours, ``fig4-5_errors.png`` (one run's errors with +-3 sigma) and
+``monte_carlo.png`` (spread over runs and the NEES against its 95 % band). Exit 1 if a run failed or diverged.
 """
 
 import os
@@ -63,7 +64,7 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     summary["complete"] = not interrupted
     summary["seeds"] = seeds
     summary["runs_requested"] = n
-    summary["per_run"] = [{k: v for k, v in r.items() if k != "series"} for r in results if r]
+    summary["per_run"] = [runs.run_record(r) for r in results if r]
     write_json(os.path.join(out, "summary.json"), summary)
     plots = report.write_all(out, results, summary, plots=not a.no_plots)
     if interrupted:
@@ -72,11 +73,12 @@ def run_filter_campaign(fn, name, case, a, dof=6):
         return 130
     print(report.table(summary))
     print("\ncampaign folder %s: summary.json, report.md%s" % (out, "".join(", " + p for p in plots)))
-    if summary["runs_failed"]:
-        for f in summary["failures"]:
-            print("fps adcs %s: run seed %d failed: %s" % (name, f["seed"], f["error"]), file=sys.stderr)
-        return 1
-    return 0
+    for f in summary["failures"]:
+        print("fps adcs %s: run seed %d failed: %s" % (name, f["seed"], f["error"]), file=sys.stderr)
+    for f in summary["diverged"]:
+        if not any(g["seed"] == f["seed"] for g in summary["failures"]):
+            print("fps adcs %s: run seed %d diverged: %s" % (name, f["seed"], f["why"]), file=sys.stderr)
+    return 1 if summary["runs_failed"] or summary["runs_diverged"] else 0
 
 
 def _apkf(sub):

@@ -3,19 +3,25 @@
 ``run_apkf(seed, run_dir, case, ...)`` and ``run_mekf(seed, run_dir, ...)`` are top-level (picklable for Dask):
 each simulates the truth from its seed, runs the filter from its initialisation (the APKF at the first two
 consecutive star-tracker outputs, Sec. 4.8; the MEKF at the first), checks P (finite, positive definite) at
-every step, writes
-``run_dir/series.npz`` (t, error, sigma, nees) and ``run_dir/result.json``, and returns the result dict.
-A diverged filter raises FloatingPointError (the campaign records it as that run's error).
+every step, writes ``run_dir/series.npz`` (t, error, sigma, nees, z_att_rate) and ``run_dir/result.json``, and
+returns the result dict.
 
-Units in result.json and the summary: attitude errors are the full small angles 2 dq (arcsec), rates arcsec/s,
-misalignments deg, the gyro bias deg/h, the rest SI; series.npz holds the error state as the filter has it
-(dq, half angles, rad; rad/s).
+Units in result.json and the summary are physical and named in each key: attitude errors are the full small
+angles 2 dq (arcsec), rates arcsec/s, misalignments deg, the gyro bias deg/h, inertias kg m^2, the dipole A m^2
+(the APKF's Jxx-relative parameters converted with the run's scale, ``physical_params``); series.npz holds the
+error state as the filter has it (dq, half angles, rad; rad/s; parameters in the filter's relative units) and
+``z_att_rate``, the attitude and rate errors over their 1 sigma.
 NEES (attitude and rate, 6 dof; MEKF: attitude and gyro bias): e^T P^-1 e per step; over N runs the mean is
 compared with the 95 % band chi2(6N) / N (Bar-Shalom), after the first maneuver set.
+A run that diverged (``divergence``: an estimate not finite, or its NEES beyond ``NEES_DIVERGED_MEDIAN`` /
+``NEES_DIVERGED_LAST``) finishes with ``ok`` false, ``diverged`` true, the reason in ``diverged_why`` and its
+figures null; one whose P stops being finite or positive definite raises FloatingPointError (the campaign
+records it as that run's error); ``aggregate`` counts both in ``runs_diverged`` and leaves them out of its figures.
 """
 
 import json
 import os
+import re
 import warnings
 
 import numpy as np
@@ -26,6 +32,13 @@ from ground.fileio import read_json, write_atomic, write_json
 
 ARCSEC = quat.ARCSEC
 MIN_DURATION_S = 10.0     # below ~5 s no two consecutive star-tracker outputs exist to start the filters
+# Divergence bounds on the 6-dof NEES (a consistent filter's mean is 6; P(chi2_6 > 100) ~ 2e-19). Measured, APKF
+# Case 1-3 on the thesis's 3U (overconfident, README): over 930 s the median after the first set is 6-13 (12
+# runs), and 39 at most over any shorter duration (66 over the first set alone); the largest at any step 300 (the
+# first fix after a blind rotation; 24 runs). On the generic 6U's inertia (s = 0.089), 9 runs: 3 lost P's
+# positive definiteness, the other 6 had medians of 128-4300 and ended 30-90 deg off.
+NEES_DIVERGED_MEDIAN = 100.0   # median over the steps after the first maneuver set (all steps if shorter)
+NEES_DIVERGED_LAST = 1000.0    # at the last step
 PARAM_KEYS = {
     "inertia_kgm2": "6 numbers [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], a rigid body's: positive definite, triangle "
                     "inequality (the true spacecraft)",
@@ -133,19 +146,83 @@ def apkf_error(o, k, x, case):
     return e
 
 
+def physical_params(x, scale, model):
+    """(p, G): the APKF's parameters at x in physical units and their Jacobian on the error state (23 x 41).
+
+    p = [tau_d (N m, 3), J5 (kg m^2, 5), m (A m^2, 3), delta1, delta2 (deg, 4 + 4), Jrw (kg m^2, 4)].
+    The filter's parameters are relative (Sec. 4.6.2): Jxx is fixed at ``model.jxx`` and J, m, tau_d and Jrw are
+    the spacecraft's times s = Jxx_ref / Jxx (J with the rotors' transverse share, Eq. 4.16), and each Jrw_i is
+    divided by the norm of its unnormalised Eq. 4.60 column c_i = c0_i + c1_i d1_i + c2_i d2_i
+    (``scenario.filter_truth``). Hence J = J_f / s, m = m_f / s, tau_d = tau_d_f / s, Jrw_i = Jrw_f,i |c_i| / s;
+    the angles are the filter's, in deg. A 1 sigma is sqrt(diag(G P G^T)): sigma_f / s for J, m and tau_d, and
+    for Jrw_i the linearisation through |c_i| too (d|c_i|/d d1_i = c_i . c1_i / |c_i|). ``scale`` is s; the
+    filter cannot observe it (the campaigns take the run's true s; ``bps.torque_scale`` estimates it)."""
+    s = float(scale)
+    d1, d2, jrw = x[18:22], x[22:26], x[26:30]
+    c = model.c0 + model.c1 * d1 + model.c2 * d2
+    cn = np.linalg.norm(c, axis=0)
+    p = np.concatenate([x[7:18] / s, np.degrees(x[18:26]), jrw * cn / s])
+    G = np.zeros((23, apkf.N))
+    G[0:11, 6:17] = np.eye(11) / s
+    G[11:19, 17:25] = np.eye(8) * (180.0 / np.pi)
+    G[19:23, apkf.IJR] = np.diag(cn / s)
+    G[19:23, apkf.ID1] = np.diag(jrw * np.sum(c * model.c1, axis=0) / cn / s)
+    G[19:23, apkf.ID2] = np.diag(jrw * np.sum(c * model.c2, axis=0) / cn / s)
+    return p, G
+
+
+def apkf_params_report(o, k, f, case):
+    """The APKF's parameter figures at step k in physical units (``physical_params``, the run's true s): the
+    result's 1 sigma keys, ``final_error_params`` (truth minus estimate) and the scale used."""
+    s = float(o["truth"]["scale"])
+    p, G = physical_params(f.x, s, f.model)
+    x_true = f.x.copy()
+    x_true[7:30] = f.x[7:30] + apkf_error(o, k, f.x, case)[apkf.PARAMS]      # the truth in the filter's terms
+    e = physical_params(x_true, s, f.model)[0] - p
+    sp = np.sqrt(np.diag(G @ f.P @ G.T))
+    return {"sigma_jyy_jzz_kgm2": sp[3:5].tolist(), "sigma_dipole_am2": float(sp[8:11].max()),
+            "max_sigma_delta_rw_deg": float(sp[11:19].max()), "max_sigma_jrw_kgm2": float(sp[19:23].max()),
+            "final_error_params": {"jyy_jzz_kgm2": e[3:5].tolist(), "dipole_am2": e[8:11].tolist(),
+                                   "delta_rw_deg": e[11:19].tolist(), "jrw_kgm2": e[19:23].tolist()},
+            "jxx_ref_kgm2": f.model.jxx, "jxx_kgm2": f.model.jxx / s, "param_scale": s}
+
+
+def divergence(nees, err, sig, k0, set_ends, what="attitude + rate"):
+    """Why the run from step k0 diverged, or None: an error or 1 sigma not finite, or its NEES (6 dof) with a
+    median above NEES_DIVERGED_MEDIAN after the first maneuver set (over all steps if the run ends before it)
+    or above NEES_DIVERGED_LAST at the last step. Index k is t = k s."""
+    bad = ~(np.all(np.isfinite(err[k0:]), axis=1) & np.all(np.isfinite(sig[k0:]), axis=1)
+            & np.isfinite(nees[k0:]))
+    if bad.any():
+        return "the estimate is not finite from t = %d s" % (k0 + int(np.argmax(bad)))
+    t0 = int(set_ends[0]) if len(set_ends) and set_ends[0] < len(nees) else k0
+    med = float(np.median(nees[max(t0, k0):]))
+    if med > NEES_DIVERGED_MEDIAN:
+        return "%s NEES median %.3g from t = %d s (bound %g)" % (what, med, max(t0, k0), NEES_DIVERGED_MEDIAN)
+    if nees[-1] > NEES_DIVERGED_LAST:
+        return "%s NEES %.3g at the last step, t = %d s (bound %g)" % (what, nees[-1], len(nees) - 1,
+                                                                       NEES_DIVERGED_LAST)
+    return None
+
+
 def _nees(e, P):
     return float(e @ np.linalg.solve(P, e))
 
 
-def _write_run(run_dir, res, t, err, sig, nees):
+def _write_run(run_dir, res, t, err, sig, nees, z):
     if run_dir is None:
         return
     os.makedirs(run_dir, exist_ok=True)
     import io
     buf = io.BytesIO()
-    np.savez_compressed(buf, t=t, error=err, sigma=sig, nees=nees)
+    np.savez_compressed(buf, t=t, error=err, sigma=sig, nees=nees, z_att_rate=z)
     write_atomic(os.path.join(run_dir, "series.npz"), buf.getvalue())
     write_json(os.path.join(run_dir, "result.json"), res)
+
+
+def _series(err, nees, z):
+    """What ``aggregate`` needs of a run's history: attitude errors (full angles, arcsec), NEES and z."""
+    return {"att_err": (2 * err[:, 0:3] / ARCSEC).tolist(), "nees": nees.tolist(), "z_att_rate": z.tolist()}
 
 
 def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False):
@@ -164,15 +241,20 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
         err[k] = apkf_error(o, k, f.x, case)
         sig[k] = np.sqrt(np.diag(f.P))
         nees[k] = _nees(err[k, 0:6], f.P[0:6, 0:6])
-    res = _final(seed, "apkf", case, o, err, sig, nees, k0)
-    _write_run(run_dir, res, o["t"], err, sig, nees)
+    z = err[:, 0:6] / sig[:, 0:6]
+    why = divergence(nees, err, sig, k0, o["set_ends"])
+    res = _final(seed, "apkf", case, o, err, sig, nees, k0, why,
+                 None if why else apkf_params_report(o, n - 1, f, case))
+    _write_run(run_dir, res, o["t"], err, sig, nees, z)
     if keep_series:
-        res["series"] = {"att_err": (2 * err[:, 0:3] / ARCSEC).tolist(), "nees": nees.tolist()}
+        res["series"] = _series(err, nees, z)
     return res
 
 
 def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True):
-    """One MEKF run with the MEMS gyro (Sec. 4.4.1)."""
+    """One MEKF run with the MEMS gyro (Sec. 4.4.1). Its rate is the gyro's, w_hat = w_meas - b_hat (the bias
+    before the step's update); the rate error against the truth's mean rate over the step, w_true - w_hat =
+    -(b - b_hat) - n, has 1 sigma sqrt(P_bb + sigma_v^2 / dt) (Eq. 4.17, ``scenario.MemsGyro``)."""
     o = _simulate(case, seed, params, gyro=True)
     k0 = np.flatnonzero(o["st_valid"])
     if len(k0) == 0:
@@ -183,43 +265,67 @@ def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True):
     err = np.full((n, 6), np.nan)
     sig = np.full((n, 6), np.nan)
     nees = np.full(n, np.nan)
+    z = np.full((n, 6), np.nan)
     for k in range(k0, n):
         if k > k0:
+            b_hat, var_b = f.x[4:7].copy(), np.diag(f.P)[3:6].copy()
             f.step(o["gyro"][k], o["st_q"][k] if o["st_valid"][k] else None)
             apkf.check_covariance(f.P, o["t"][k], "MEKF")
+            w_true = quat.rotvec(quat.quat_mul(o["q"][k], quat.conj(o["q"][k - 1]))) / f.dt
+            z[k, 3:6] = (w_true - (o["gyro"][k] - b_hat)) / np.sqrt(var_b + f.sigma_v ** 2 / f.dt)
         err[k, 0:3] = quat.error_vec(o["q"][k], f.x[0:4])
         err[k, 3:6] = o["gyro_bias"][max(k, 1)] - f.x[4:7]
         sig[k] = np.sqrt(np.diag(f.P))
         nees[k] = _nees(err[k], f.P)
-    res = _final(seed, "mekf", case, o, err, sig, nees, k0)
-    _write_run(run_dir, res, o["t"], err, sig, nees)
+        z[k, 0:3] = err[k, 0:3] / sig[k, 0:3]
+    why = divergence(nees, err, sig, k0, o["set_ends"], "attitude + gyro bias")
+    res = _final(seed, "mekf", case, o, err, sig, nees, k0, why)
+    _write_run(run_dir, res, o["t"], err, sig, nees, z)
     if keep_series:
-        res["series"] = {"att_err": (2 * err[:, 0:3] / ARCSEC).tolist(), "nees": nees.tolist()}
+        res["series"] = _series(err, nees, z)
     return res
 
 
-def _final(seed, name, case, o, err, sig, nees, k0):
+FIGURE_KEYS = {"apkf": ["final_sigma_attitude_arcsec", "final_error_attitude_arcsec", "final_sigma_rate_arcsec_s",
+                        "final_error_rate_arcsec_s", "sigma_jyy_jzz_kgm2", "sigma_dipole_am2",
+                        "max_sigma_delta_rw_deg", "max_sigma_jrw_kgm2", "final_error_params",
+                        "final_normalised_error"],
+               "mekf": ["final_sigma_attitude_arcsec", "final_error_attitude_arcsec", "final_sigma_bias_deg_h"]}
+
+
+def _final(seed, name, case, o, err, sig, nees, k0, why=None, params=None):
+    """result.json: the final figures (physical units; ``params`` from ``apkf_params_report``), ``ok`` and, for
+    a run that diverged (``why``, from ``divergence``), ``diverged`` true and every figure null."""
     s, e = sig[-1], err[-1]
-    res = {"seed": int(seed), "filter": name, "case": case, "start_s": float(o["t"][k0]),
-           "duration_s": float(o["t"][-1]), "set_ends_s": list(o["set_ends"]),
-           "final_sigma_attitude_arcsec": (2 * s[0:3] / ARCSEC).tolist(),
-           "final_error_attitude_arcsec": (2 * e[0:3] / ARCSEC).tolist()}
+    res = {"seed": int(seed), "filter": name, "case": case, "ok": why is None, "diverged": why is not None,
+           "diverged_why": why, "start_s": float(o["t"][k0]), "duration_s": float(o["t"][-1]),
+           "set_ends_s": list(o["set_ends"])}
+    if why is not None:
+        res.update({k: None for k in FIGURE_KEYS[name]})
+        res["wheel_speed_clips"] = o["clips"]
+        return res
+    res.update({"final_sigma_attitude_arcsec": (2 * s[0:3] / ARCSEC).tolist(),
+                "final_error_attitude_arcsec": (2 * e[0:3] / ARCSEC).tolist()})
     if name == "apkf":
         res.update({
             "final_sigma_rate_arcsec_s": (s[3:6] / ARCSEC).tolist(),
             "final_error_rate_arcsec_s": (e[3:6] / ARCSEC).tolist(),
-            "sigma_jyy_jzz_kgm2": s[9:11].tolist(),
-            "sigma_dipole_am2": float(s[14:17].max()),
-            "max_sigma_delta_rw_deg": float(np.degrees(s[17:25].max())),
-            "max_sigma_jrw_kgm2": float(s[25:29].max()),
-            "final_error_params": {"jyy_jzz_kgm2": e[9:11].tolist(), "dipole_am2": e[14:17].tolist(),
-                                   "delta_rw_deg": np.degrees(e[17:25]).tolist(), "jrw_kgm2": e[25:29].tolist()},
             "final_normalised_error": (e / s).tolist(),
         })
+        res.update(params)
     else:
         res["final_sigma_bias_deg_h"] = (np.degrees(s[3:6]) * 3600).tolist()
     res["wheel_speed_clips"] = o["clips"]
     return res
+
+
+def run_record(r):
+    """A result or error record for ``summary.json``'s ``per_run``: without its series, with ``ok`` (false for an
+    error record) and ``diverged`` (an error record whose P stopped being finite or positive definite too)."""
+    out = {k: v for k, v in r.items() if k != "series"}
+    if "error" in r:
+        out["ok"], out["diverged"] = False, _raised_divergence(r)
+    return out
 
 
 # --- aggregate --------------------------------------------------------------------------------------------
@@ -230,17 +336,36 @@ def nees_band(runs, dof=6, p=0.95):
     return chi2.ppf((1 - p) / 2, n) / runs, chi2.ppf(1 - (1 - p) / 2, n) / runs
 
 
+_RAISED_DIVERGENCE = re.compile(r"FloatingPointError: (APKF|MEKF) diverged")
+
+
+def _raised_divergence(r):
+    """An error record of a run whose filter's P stopped being finite or positive definite (``check_covariance``;
+    not the truth's own FloatingPointError)."""
+    return bool(_RAISED_DIVERGENCE.match(str(r.get("error", ""))))
+
+
 def aggregate(results, name, case, dof=6):
-    """The summary dict (keys of issue 9) over the successful runs; None figures when no run succeeded."""
-    ok = [r for r in results if r and "error" not in r]
+    """The summary dict (keys of issue 9) over the runs that finished and did not diverge (``ok``); None figures
+    when there is none. ``runs_diverged`` counts the runs that diverged, whether they finished (``divergence``)
+    or raised (P not finite or not positive definite; these are also in ``runs_failed``), listed in ``diverged``.
+    Over the steps after the first maneuver set (index k is t = k s; all steps if the runs end before it):
+    ``nees_in_band_share`` (``nees_in_band_fraction``, the same figure under its older name), the share of steps
+    whose mean NEES over the runs (attitude + rate; MEKF: attitude + gyro bias) lies in its 95 % band, and
+    ``rms_over_sigma_attitude`` / ``rms_over_sigma_rate``, per axis the RMS over runs and steps of the error over
+    its 1 sigma (1 for a consistent filter; the MEKF's rate is its gyro's, ``run_mekf``)."""
+    ok = [r for r in results if r and "error" not in r and not r.get("diverged")]
     errors = [r for r in results if r and "error" in r]
+    div = [r for r in results if r and (r.get("diverged") or _raised_divergence(r))]
     s = {"filter": name, "case": case, "runs": len(ok), "runs_failed": len(errors),
-         "failures": [{"seed": r["seed"], "error": r["error"]} for r in errors]}
+         "failures": [{"seed": r["seed"], "error": r["error"]} for r in errors],
+         "runs_diverged": len(div),
+         "diverged": [{"seed": r["seed"], "why": r.get("diverged_why") or r.get("error")} for r in div]}
     keys = ["final_sigma_attitude_arcsec", "final_sigma_rate_arcsec_s", "final_error_attitude_arcsec",
             "sigma_jyy_jzz_kgm2", "sigma_dipole_am2", "max_sigma_delta_rw_deg", "max_sigma_jrw_kgm2"]
-    for k in keys:
+    for k in keys + ["nees_in_band_share", "nees_in_band_fraction", "rms_over_sigma_attitude",
+                     "rms_over_sigma_rate"]:
         s[k] = None
-    s["nees_in_band_fraction"] = None
     if not ok:
         return s
     for k in keys:
@@ -250,7 +375,8 @@ def aggregate(results, name, case, dof=6):
         elif k in ok[0]:
             a = np.array([r[k] for r in ok], dtype=float)
             s[k] = np.mean(a, axis=0).tolist()
-    nees = np.array([r["series"]["nees"] for r in ok if "series" in r], dtype=float)
+    with_series = [r for r in ok if "series" in r]
+    nees = np.array([r["series"]["nees"] for r in with_series], dtype=float)
     t0 = ok[0]["set_ends_s"][0] if ok[0]["set_ends_s"] else 0.0
     if len(nees):
         with warnings.catch_warnings():
@@ -260,11 +386,20 @@ def aggregate(results, name, case, dof=6):
         sel = np.arange(nees.shape[1]) >= t0
         sel &= np.all(np.isfinite(nees), axis=0)
         inside = (mean >= lo) & (mean <= hi)
-        s["nees_in_band_fraction"] = float(inside[sel].mean()) if sel.any() else None
+        s["nees_in_band_share"] = s["nees_in_band_fraction"] = float(inside[sel].mean()) if sel.any() else None
         s["nees"] = {"band": [lo, hi], "from_s": t0, "dof": dof, "mean_after": float(np.mean(mean[sel]))
                      if sel.any() else None, "runs": len(nees),
                      "note": "mean over runs of e^T P^-1 e (attitude + %s); band: 95 %% chi-square"
                              % ("rate" if name == "apkf" else "gyro bias")}
+    z = [np.array(r["series"]["z_att_rate"], dtype=float) for r in with_series
+         if r["series"].get("z_att_rate") is not None]
+    if z:
+        z = np.array(z)[:, int(np.ceil(t0)):]                     # runs x steps x 6
+        fin = np.isfinite(z)
+        n = fin.sum(axis=(0, 1))
+        if np.all(n > 0):
+            rms = np.sqrt(np.sum(np.where(fin, z * z, 0.0), axis=(0, 1)) / n)
+            s["rms_over_sigma_attitude"], s["rms_over_sigma_rate"] = rms[0:3].tolist(), rms[3:6].tolist()
     return s
 
 
@@ -274,10 +409,11 @@ def load_run(run_dir):
         with open(os.path.join(run_dir, "result.json")) as f:
             res = json.load(f)
         d = np.load(os.path.join(run_dir, "series.npz"))
+        z = d["z_att_rate"].tolist() if "z_att_rate" in d.files else None
     except (OSError, ValueError):
         return None
     k = 2 / ARCSEC
-    res["series"] = {"att_err": (d["error"][:, 0:3] * k).tolist(), "nees": d["nees"].tolist()}
+    res["series"] = {"att_err": (d["error"][:, 0:3] * k).tolist(), "nees": d["nees"].tolist(), "z_att_rate": z}
     return res
 
 

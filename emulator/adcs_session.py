@@ -65,6 +65,7 @@ from firmware.adcs.app import burst_bit
 from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+OWN_GROUP = {"process_group": 0} if sys.version_info >= (3, 11) else {"preexec_fn": os.setpgrp}
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
 RUNTIMES = ("micropython", "cpython")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
@@ -220,7 +221,7 @@ class AdcsSession:
         self._err = open(os.path.join(self._tmp, "stderr.txt"), "w+")
         try:
             self.proc = subprocess.Popen(cmd, pass_fds=(m,), cwd=ROOT, env=env, stdout=self._err,
-                                         stderr=subprocess.STDOUT)
+                                         stderr=subprocess.STDOUT, **OWN_GROUP)     # Ctrl-C is the tool's
         finally:
             os.close(m)
         try:

@@ -140,6 +140,13 @@ class RemoteEndpoint:
         return c
 
 
+# A firmware process in a process group of its own: a terminal's Ctrl-C (sent to the foreground group) reaches
+# only the tool, which stops the firmware itself; a Ctrl-C that also killed the firmware made the run end as a link
+# failure (exit 1) instead of an interruption (130). Not a new session: a session leader opening its pty slave
+# would make it its controlling terminal and die of SIGHUP when the tool closes the master.
+OWN_GROUP = {"process_group": 0} if sys.version_info >= (3, 11) else {"preexec_fn": os.setpgrp}
+
+
 def _start(runtime, link_kind, rate_hz):
     from protocol.link import open_link
     # one link carries the BENCH (TICK/FSM_SPI) and the GROUND (commands, ACK/NACK, status): CAN must deliver both
@@ -160,7 +167,7 @@ def _start(runtime, link_kind, rate_hz):
     proc = subprocess.Popen(exe + ["-m", "firmware.main", "controller", "--link", spec, "--rate", repr(rate_hz)]
                             + extra,
                             cwd=ROOT, env=env,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errlog)
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errlog, **OWN_GROUP)
     proc.errlog = errlog
     return link, proc
 

@@ -72,7 +72,7 @@ def accuracy_tables(results_by):
     units = [("final_sigma_attitude_arcsec", 1, "%.2f"), ("final_sigma_rate_arcsec_s", 1, "%.2f"),
              ("final_error_attitude_arcsec", 1, "%.2f"), ("sigma_jyy_jzz_kgm2", 1e3, "%.3f"),
              ("sigma_dipole_am2", 1, "%.4f"), ("max_sigma_delta_rw_deg", 1, "%.3f"),
-             ("max_sigma_jrw_kgm2", 1e8, "%.2f"), ("nees_in_band_fraction", 1, "%.2f")]
+             ("max_sigma_jrw_kgm2", 1e8, "%.2f"), ("nees_in_band_share", 1, "%.2f")]
     names = {"sigma_jyy_jzz_kgm2": "sigma Jyy, Jzz (1e-3 kg m^2)", "max_sigma_jrw_kgm2": "max sigma Jrw (1e-8 kg m^2)"}
     for (name, case), s in results_by.items():
         th = report.thesis_row(name, case)
@@ -83,7 +83,8 @@ def accuracy_tables(results_by):
             rows.append("| %s | %s | %s | %s | %s |" % (label, names.get(k, k), _fmt(s.get(k), scale, f),
                                                       _fmt(th.get(k), scale, f),
                                                       report.verdict(k, s.get(k), th.get(k)) if k in th else "—"))
-        rows.append("| %s | runs ok / failed | %d / %d | — | — |" % (label, s["runs"], s["runs_failed"]))
+        rows.append("| %s | runs ok / diverged / failed | %d / %d / %d | — | — |" % (
+            label, s["runs"], s.get("runs_diverged", 0), s["runs_failed"]))
     return "\n".join(rows)
 
 
@@ -133,12 +134,26 @@ def attitude_bound(seeds=range(6)):
     return "\n".join(lines)
 
 
+# The parameters in runs.physical_params' order: tau_d 0:3, J5 3:8 (Jyy, Jzz first), m 8:11, delta 11:19 (deg),
+# Jrw 19:23 (kg m^2).
+P_J5, P_JYZ, P_DELTA, P_JRW = slice(3, 8), slice(3, 5), slice(11, 19), slice(19, 23)
+
+
+def _physical(o, f, P=None):
+    """(1 sigma, |error|) of the APKF's parameters at its state in physical units (``runs.physical_params`` with
+    the run's true scale, linearised for the error)."""
+    _, G = runs.physical_params(f.x, o["truth"]["scale"], f.model)
+    P = f.P if P is None else P
+    e = runs.apkf_error(o, len(o["t"]) - 1, f.x, 1)
+    return np.sqrt(np.diag(G @ P @ G.T)), np.abs(G @ e)
+
+
 def _final_parameters(o, model=None):
-    """The APKF (case 1) over a simulated run ``o``: its final 1 sigma and |error| per state."""
+    """The APKF (case 1) over a simulated run ``o``: its final parameters' 1 sigma and |error| (``_physical``)."""
     k0, f = runs._start_apkf(o, 1, model=model)
     for k in range(k0 + 1, len(o["t"])):
         f.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
-    return np.sqrt(np.diag(f.P)), np.abs(runs.apkf_error(o, len(o["t"]) - 1, f.x, 1))
+    return _physical(o, f)
 
 
 def parameters_vs_tach(seeds=range(4), rpms=(10.0, 3.0, 1.0)):
@@ -155,8 +170,8 @@ def parameters_vs_tach(seeds=range(4), rpms=(10.0, 3.0, 1.0)):
             o = scenario.simulate(case=1, seed=seed,
                                   wheel_params=WheelParams(**dict(scenario.SCENARIO_WHEELS, noise_rpm=rpm)))
             s, e = _final_parameters(o, apkf.Model(tach_rpm=rpm))
-            rows.append((np.degrees(s[17:25].max()), 1e8 * s[25:29].max(), 1e3 * s[9:11].max(),
-                         np.degrees(e[17:25].max()), 1e8 * e[25:29].max()))
+            rows.append((s[P_DELTA].max(), 1e8 * s[P_JRW].max(), 1e3 * s[P_JYZ].max(), e[P_DELTA].max(),
+                         1e8 * e[P_JRW].max()))
         lines.append("| %g | %.3f | %.2f | %.3f | %.2f | %.1f |" % ((rpm,) + tuple(np.mean(rows, axis=0))))
     lines.append("Thesis (10 rpm): max sigma delta_rw 0.061 deg, Jrw 0.61e-8, Jyy, Jzz 0.078, 0.079e-3.")
     return "\n".join(lines)
@@ -178,8 +193,8 @@ def parameters_vs_misalignment(seeds=range(4), scales=(1.0, 0.3, 0.1)):
                       delta2_deg=tuple(k * d for d in base.delta2_deg))
             o = scenario.simulate(case=1, seed=seed, wheel_params=WheelParams(**wp))
             s, e = _final_parameters(o)
-            rows.append((np.degrees(e[17:25].max()), np.degrees(s[17:25].max()), (e[17:25] / s[17:25]).max(),
-                         (e[25:29] / s[25:29]).max(), (e[9:14] / s[9:14]).max()))
+            rows.append((e[P_DELTA].max(), s[P_DELTA].max(), (e[P_DELTA] / s[P_DELTA]).max(),
+                         (e[P_JRW] / s[P_JRW]).max(), (e[P_J5] / s[P_J5]).max()))
         r = np.mean(rows, axis=0)
         lines.append("| x %g | %.2f | %.3f | %.1f, %.1f, %.1f |" % ((k,) + tuple(r)))
     return "\n".join(lines)
@@ -209,10 +224,9 @@ def parameters_vs_blindness(seeds=range(4), limits=(0.1, 1e3)):
                     e = quat.error_vec(o["q"][k], x_pred[0:4])
                     worst = max(worst, float(np.max(np.abs(e) / np.sqrt(np.diag(P_pred)[0:3]))))
                 f.step(o["t"][k - 1], o["tach"][k], qm)
-            s = np.sqrt(np.diag(f.P))
-            e = np.abs(runs.apkf_error(o, len(o["t"]) - 1, f.x, 1))
-            rows.append(((e[17:25] / s[17:25]).max(), (e[25:29] / s[25:29]).max(), (e[9:14] / s[9:14]).max(),
-                         np.degrees(s[17:25].max()), 1e8 * s[25:29].max(), worst))
+            s, e = _physical(o, f)
+            rows.append(((e[P_DELTA] / s[P_DELTA]).max(), (e[P_JRW] / s[P_JRW]).max(), (e[P_J5] / s[P_J5]).max(),
+                         s[P_DELTA].max(), 1e8 * s[P_JRW].max(), worst))
         r = np.mean(rows, axis=0)
         lines.append("| %s | %.1f, %.1f, %.1f | %.3f | %.2f | %s |" % (
             ("%g deg/s (the scenario's)" % lim) if lim == 0.1 else "any rate (%g deg/s)" % lim, r[0], r[1], r[2],

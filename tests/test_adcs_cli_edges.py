@@ -234,6 +234,13 @@ def test_bps_and_sweep_plots_leave_no_partial_file(params_file, tmp_path, monkey
         assert not [f for f in os.listdir(out) if f.endswith(".png") or ".tmp" in f], os.listdir(out)
 
 
+def _sigint_default():
+    """In the child: SIGINT's default action back, as an interactive terminal gives its jobs (a shell running the
+    tests in the background hands them SIGINT ignored, and a Python started so takes no Ctrl-C)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_terminal_ctrl_c_on_a_local_campaign_prints_no_worker_tracebacks(tmp_path):
     """A terminal's Ctrl-C goes to the whole process group, the local worker processes included: the campaign
     ends with its one-line message, complete=false, and no KeyboardInterrupt traceback from any worker."""
@@ -244,7 +251,7 @@ def test_terminal_ctrl_c_on_a_local_campaign_prints_no_worker_tracebacks(tmp_pat
     out = tmp_path / "apkf"
     p = subprocess.Popen([sys.executable, "-m", "ground.cli", "adcs", "apkf", "--runs", "40", "--workers", "2",
                           "--quiet", "--no-plots", "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True, start_new_session=True)
+                         text=True, start_new_session=True, preexec_fn=_sigint_default)
     try:
         t0 = time.monotonic()
         while not (out / "run_0000" / "result.json").exists() and time.monotonic() - t0 < 120 and p.poll() is None:

@@ -175,7 +175,8 @@ def test_ctrl_c_ends_the_command_with_130(tmp_path, setup):
     """Ctrl-C as a terminal sends it: SIGINT to the whole process group (the controller's process too)."""
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "ground.cli"] + _args(out, setup, 120), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, start_new_session=True)
+                            stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # as a terminal's job
     provoked = []
     try:
         _when_playing(out, lambda: (os.killpg(proc.pid, signal.SIGINT), provoked.append(time.monotonic())))

@@ -56,6 +56,7 @@ import tty
 import numpy as np
 
 from emulator import orbits
+from emulator.runtime import OWN_GROUP
 from emulator.navsensors import ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
@@ -65,7 +66,6 @@ from firmware.adcs.app import burst_bit
 from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-OWN_GROUP = {"process_group": 0} if sys.version_info >= (3, 11) else {"preexec_fn": os.setpgrp}
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
 RUNTIMES = ("micropython", "cpython")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")

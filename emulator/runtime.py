@@ -11,6 +11,12 @@ import sys
 
 from protocol.distfile import SEED_MAX
 
+# A firmware process in a process group of its own: a terminal's Ctrl-C (sent to the foreground group) reaches
+# only the tool, which stops the firmware itself; a Ctrl-C that also killed the firmware made a run end as a link
+# failure (exit 1) instead of an interruption (130). Not a new session: a session leader opening its pty slave
+# would make it its controlling terminal and die of SIGHUP when the tool closes the master. Popen keywords.
+OWN_GROUP = {"process_group": 0} if sys.version_info >= (3, 11) else {"preexec_fn": os.setpgrp}
+
 
 def check_seed(seed, name="--seed"):
     """A run's seed as a whole number from 0 to SEED_MAX (an integral float is taken); ValueError naming it."""

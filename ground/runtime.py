@@ -21,7 +21,7 @@ import tempfile
 import time
 
 from emulator.bench import RATE_HZ_MAX
-from emulator.runtime import check_seed, micropython_binary  # noqa: F401  (check_seed: ground's tools use it)
+from emulator.runtime import OWN_GROUP, check_seed, micropython_binary  # noqa: F401  (check_seed: ground's tools)
 from ground.rig import InprocController, Rig
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -138,13 +138,6 @@ class RemoteEndpoint:
         if self.faults is not None:
             c.update(self.faults.counters())
         return c
-
-
-# A firmware process in a process group of its own: a terminal's Ctrl-C (sent to the foreground group) reaches
-# only the tool, which stops the firmware itself; a Ctrl-C that also killed the firmware made the run end as a link
-# failure (exit 1) instead of an interruption (130). Not a new session: a session leader opening its pty slave
-# would make it its controlling terminal and die of SIGHUP when the tool closes the master.
-OWN_GROUP = {"process_group": 0} if sys.version_info >= (3, 11) else {"preexec_fn": os.setpgrp}
 
 
 def _start(runtime, link_kind, rate_hz):

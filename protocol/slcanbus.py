@@ -139,19 +139,23 @@ class SlcanBus(slcanBus):
             self.fail_why = str(exc) or None
             raise can.CanOperationError("the slcan adapter's port failed: %s" % (exc or "closed")) from None
 
+    def _fill(self, wait):
+        """What the port has within ``wait`` s, split into lines; CanOperationError once the adapter is gone."""
+        try:
+            data = self._port().read(wait)
+        except PeerGone:
+            self.peer_gone = True
+            raise can.CanOperationError("the slcan adapter closed its port") from None
+        if data:
+            self._lines.feed(data)
+        return bool(data)
+
     def _read(self, timeout):
         """One line (with its terminator, as python-can's ``_read``), or None after ``timeout``."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while not self._lines.lines:
             wait = None if deadline is None else max(0.0, deadline - time.monotonic())
-            try:
-                data = self._port().read(wait)
-            except PeerGone:
-                self.peer_gone = True
-                raise can.CanOperationError("the slcan adapter closed its port") from None
-            if data:
-                self._lines.feed(data)
-            elif deadline is not None and time.monotonic() >= deadline:
+            if not self._fill(wait) and deadline is not None and time.monotonic() >= deadline:
                 return None
         return self._lines.lines.popleft().decode("latin-1") + "\r"
 
@@ -164,13 +168,7 @@ class SlcanBus(slcanBus):
             wait = None if deadline is None else deadline - time.monotonic()
             if wait is not None and wait <= 0:
                 return None, False
-            try:
-                data = self._port().read(wait)
-            except PeerGone:
-                self.peer_gone = True
-                raise can.CanOperationError("the slcan adapter closed its port") from None
-            if data:
-                self._lines.feed(data)
+            self._fill(wait)
 
     def counters(self):
         d = self._lines.counters()

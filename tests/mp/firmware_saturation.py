@@ -9,21 +9,13 @@ import json
 from binascii import crc32
 
 import firmware_plant as fp
-from firmware.controller import TRACK, Controller
+from firmware.controller import TRACK, Controller, heap_lock, heap_unlock   # micropython's, or no-ops
 from protocol import core, htable
 
 try:
     from firmware.controller_viper import ViperController
 except ImportError:  # CPython: the bytecode controller on both sides gives the reference
     ViperController = Controller
-try:
-    from micropython import heap_lock, heap_unlock
-except ImportError:  # CPython: nothing to lock
-    def heap_lock():
-        return 0
-
-    def heap_unlock():
-        return 0
 
 LIMIT_CODE = 2000
 FAR = (2048 - 500, 2048 + 500, 2500)       # Rx = +0.2, Ry = -0.2: the law walks off one way every tick

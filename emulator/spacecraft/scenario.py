@@ -139,13 +139,15 @@ def wheel_torques(tau_c, c0, null_fraction=0.1, w_rel=None):
 class PD:
     """Quaternion PD with feed-forward and gyroscopic compensation on nominal J0, C0, Jrw (perfect q, w)."""
 
-    def __init__(self, bandwidth=0.2, zeta=0.9, j0=J0_THESIS):
+    def __init__(self, bandwidth=0.2, zeta=0.9, j0=J0_THESIS, c0=None, jrw=J_RW_NOMINAL):
+        """``j0`` [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], ``c0`` (3 x 4 nominal axes, default Eq. 4.147's pyramid) and
+        ``jrw`` (kg m^2, one or per wheel): the nominal vehicle the controller is designed on."""
         self.j = inertia_matrix(j0)
         d = np.diag(self.j)
         self.kp = d * bandwidth ** 2
         self.kd = d * 2 * zeta * bandwidth
-        self.c0 = pyramid_c0()
-        self.cj0 = self.c0 * J_RW_NOMINAL
+        self.c0 = pyramid_c0() if c0 is None else np.array(c0, dtype=float)
+        self.cj0 = self.c0 * (jrw if np.ndim(jrw) == 0 else np.asarray(jrw, dtype=float))
 
     def torque(self, q, w, w_rel, qc, wc, wdc):
         dq = quat_mul(q, np.array([-qc[0], -qc[1], -qc[2], qc[3]]))        # body error, A(dq) = A(q) A(qc)^T
@@ -182,13 +184,13 @@ class MemsGyro:
         return w
 
 
-def filter_truth(sc):
+def filter_truth(sc, jxx_ref=J0_THESIS[0]):
     """The parameters in the APKF's own terms (Sec. 4.6.2): J incl. the rotors' transverse share C Jrw C^T,
-    everything scaled by s = Jxx_nominal / Jxx_true (J, Jrw, dipole, tau_d), and Jrw_i divided by the norm of
-    the unnormalised Eq. 4.60 column the filter uses."""
+    everything scaled by s = Jxx_ref / Jxx_true (J, Jrw, dipole, tau_d; Jxx_ref the filter's, the nominal Jxx),
+    and Jrw_i divided by the norm of the unnormalised Eq. 4.60 column the filter uses."""
     w = sc.wheels
     j_eq = sc.j + w.c @ np.diag(w.j) @ w.c.T
-    s = J0_THESIS[0] / j_eq[0, 0]
+    s = jxx_ref / j_eq[0, 0]
     c1n = np.sqrt(1 + np.radians(w.p.delta1_deg) ** 2 + np.radians(w.p.delta2_deg) ** 2)
     js = s * j_eq
     return {"scale": s, "J5": np.array([js[1, 1], js[2, 2], js[0, 1], js[0, 2], js[1, 2]]),
@@ -196,8 +198,35 @@ def filter_truth(sc):
             "jrw": s * w.j / c1n, "J": js}
 
 
+def truth_setup(d):
+    """What ``simulate`` flies for a checked spacecraft file ``d`` (``protocol.spacecraft``): the true inertia
+    and dipole (figure + the truth block's error), the wheels (true rotor inertia and axes, ``wheel_axes(d,
+    true=True)``; the file's torque limit, friction and read-out noise; the speed limit ``SCENARIO_WHEELS``'), the
+    star tracker's noise and rate limit, the gyro's figures, and the PD on the file's nominal inertia, axes and
+    rotor inertia. ValueError for a file the scenario cannot fly (not four wheels)."""
+    from protocol import spacecraft as sf
+    w = d["wheels"]
+    if w["count"] != 4:
+        raise ValueError("wheels.count = %d: the Sec. 4.8 scenario and the APKF fly four wheels" % w["count"])
+    tf = sf.true_figures(d)
+    st, g = d["star_tracker"], d["gyro"]
+    wp = WheelParams(**dict(SCENARIO_WHEELS, j_rw=tuple(tf["rotor_inertia_kgm2"]), delta1_deg=tuple(tf["delta1_deg"]),
+                            delta2_deg=tuple(tf["delta2_deg"]), torque_max=w["torque_limit_nm"],
+                            friction_coulomb=w["friction_coulomb_nm"],
+                            friction_viscous=w["friction_viscous_nms_rad"],
+                            friction_smooth_rpm=w["friction_smooth_rpm"], noise_rpm=w["tach_noise_rpm"]))
+    c0 = np.ascontiguousarray(np.array(sf.wheel_axes(d)).T)      # C order: the same BLAS sums as pyramid_c0()
+    return {"inertia": list(tf["inertia_kgm2"]), "dipole": np.array(tf["residual_dipole_am2"]), "wheel_params": wp,
+            "c0": c0, "c": np.ascontiguousarray(np.array(sf.wheel_axes(d, True)).T),
+            "star_tracker": {"sigma_arcsec": tuple(st["sigma_arcsec"]), "rate_max_dps": st["rate_limit_deg_s"]},
+            "gyro": {"arw_deg_rt_h": g["arw_deg_rt_h"], "bias_deg_h": g["bias_deg_h"],
+                     "instability_deg_h": g["bias_instability_deg_h"]},
+            "pd": {"j0": tuple(d["inertia_kgm2"]), "c0": c0, "jrw": w["rotor_inertia_kgm2"]},
+            "filter_truth": {"jxx_ref": d["inertia_kgm2"][0]}}
+
+
 def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.1, duration=None,
-             wheel_params=None, inertia=None, dipole=None, st_rate_max_dps=0.1):
+             wheel_params=None, inertia=None, dipole=None, st_rate_max_dps=0.1, spacecraft=None):
     """Run the scenario; returns a dict of 1 Hz arrays (index k is t = k s) and the truth parameters.
 
     Keys: t, q, w, w_rel (true), tach (measured W - c.w, rad/s), st_q, st_valid, gyro (index k: over k-1..k),
@@ -205,6 +234,8 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
     ``inertia`` [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz] and ``dipole`` (A m^2) replace the thesis's true values.
     ``st_rate_max_dps``: the star tracker's rate limit (Sec. 4.8's 0.1 deg/s; raised only as a diagnostic: the
     noise draws are the same at any limit).
+    ``spacecraft``: a checked spacecraft file (``protocol.spacecraft.load``) to fly instead of the thesis's 3U
+    (``truth_setup``); ``inertia``, ``dipole`` and ``wheel_params`` still replace its true values.
     """
     if case not in CASES:
         raise ValueError("case must be 1, 2 or 3, got %r" % (case,))
@@ -216,14 +247,18 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
         raise ValueError("duration must be >= 2 s, got %r" % (duration,))
     rng = np.random.default_rng(seed)
     r_st, r_rw, r_g = (np.random.default_rng(s) for s in rng.integers(0, 2 ** 63, 3))
-    wheels = Wheels(wheel_params or WheelParams(**SCENARIO_WHEELS), rng=r_rw)
+    v = truth_setup(spacecraft) if spacecraft is not None else {}
+    wheels = Wheels(wheel_params or v.get("wheel_params") or WheelParams(**SCENARIO_WHEELS), rng=r_rw,
+                    c0=v.get("c0"), c=v.get("c"))
     q0, _, _ = man.command(0.0)
+    dipole = v.get("dipole") if dipole is None else dipole
     kw = {} if dipole is None else {"dipole": dipole}
-    sc = Spacecraft(wheels=wheels, dt=dt, q=q0, omega=np.radians([1.0, 0.0, 0.0]), inertia=inertia,
+    sc = Spacecraft(wheels=wheels, dt=dt, q=q0, omega=np.radians([1.0, 0.0, 0.0]),
+                    inertia=v.get("inertia") if inertia is None else inertia,
                     disturbance=lambda t, q, w: tau_d_case(case, t, q), **kw)
-    st = StarTracker(r_st, rate_max_dps=st_rate_max_dps)
-    gy = MemsGyro(r_g) if gyro else None
-    pd = PD()
+    st = StarTracker(r_st, **v.get("star_tracker", {"rate_max_dps": st_rate_max_dps}))
+    gy = MemsGyro(r_g, **v.get("gyro", {})) if gyro else None
+    pd = PD(**v.get("pd", {}))
     n = int(round(T))
     sub = int(round(1.0 / dt))
     out = {k: np.zeros((n + 1, m)) for k, m in (("q", 4), ("w", 3), ("w_rel", 4), ("tach", 4), ("st_q", 4),
@@ -253,7 +288,7 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
             out["gyro_bias"][k] = gy.b
             out["gyro"][k] = gy.measure(q_prev, sc.q, 1.0)
     out["t"] = np.arange(n + 1, dtype=float)
-    out["truth"] = filter_truth(sc)
+    out["truth"] = filter_truth(sc, **v.get("filter_truth", {}))
     out["set_ends"] = [x for x in man.set_end_times() if x <= n]
     out["clips"] = wheels.counters()
     out["spacecraft"] = sc

@@ -113,11 +113,14 @@ class WheelParams:
 class Wheels:
     """Four wheels: commands, limits (with counters), friction, read-out and jitter; numpy over the wheels."""
 
-    def __init__(self, params=None, rng=None):
+    def __init__(self, params=None, rng=None, c0=None, c=None):
+        """``c0``, ``c`` (3 x 4, unit columns): the nominal and true spin axes instead of the pyramid of Eq. 4.147
+        and its misalignment by ``params``' angles (Eq. 4.149), e.g. from a spacecraft file."""
         self.p = params if params is not None else WheelParams()
         p = self.p
-        self.c0 = pyramid_c0()
-        self.c = misaligned_c(self.c0, np.radians(p.delta1_deg), np.radians(p.delta2_deg))   # Eq. 4.149
+        self.c0 = pyramid_c0() if c0 is None else np.array(c0, dtype=float)
+        self.c = (misaligned_c(self.c0, np.radians(p.delta1_deg), np.radians(p.delta2_deg)) if c is None
+                  else np.array(c, dtype=float))                                             # Eq. 4.149
         self.j = p.j_rw.copy()
         self.cj = self.c * self.j                     # C Jrw, 3 x 4 (Eq. 4.55)
         self.speed_max = p.speed_max_rpm * RPM

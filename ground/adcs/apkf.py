@@ -97,10 +97,13 @@ class Model:
     """What the filter knows: nominal geometry, the Jxx reference, the orbit and field, noise levels."""
 
     def __init__(self, dt=1.0, jxx=J0_THESIS[0], orbit=None, field=None,
-                 sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0):
+                 sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, c0=None, uncertainty=None):
+        """``c0``: the nominal wheel axes (3 x 4 unit columns; default Eq. 4.147's pyramid), C1, C2 from them by
+        Eq. 4.148. ``uncertainty``: a spacecraft file's block of 1 sigma priors (``initial_covariance``)."""
         self.dt = float(dt)
         self.jxx = float(jxx)
-        self.c0 = pyramid_c0()
+        self.c0 = pyramid_c0() if c0 is None else np.array(c0, dtype=float)
+        self.uncertainty = uncertainty
         self.c1, self.c2 = misalignment_axes(self.c0)
         self.orbit = orbit or env.CircularOrbit()
         self.field = field or env.TiltedDipoleField()
@@ -145,7 +148,23 @@ def initial_state(q, w, w_rw, j5=J0_THESIS[1:], jrw=J_RW_NOMINAL):
 
 def initial_covariance(model):
     """P0 (Sec. 4.8): (10 deg)^2 attitude, (10 deg/s)^2 rate, J (5e-3)^2 / (2e-3)^2, m 0.3^2, d (10 deg)^2,
-    Jrw (1e-6)^2, wheel speeds R_rw; tau_d is not given: (1e-6 N m)^2, the thesis's disturbance size."""
+    Jrw (1e-6)^2, wheel speeds R_rw; tau_d is not given: (1e-6 N m)^2, the thesis's disturbance size.
+    With ``model.uncertainty`` (a spacecraft file's block) its 1 sigma instead, in the filter's relative units
+    with s = Jxx_ref / Jxx = 1 at the nominal (Sec. 4.6.2; the rotors' transverse share, < 1e-3 of Jxx, left
+    out): J5 from the sigma of [Jyy, Jzz, Jxy, Jxz, Jyz] (Jxx is the fixed reference), the attitude's as the half
+    angle dq."""
+    u = model.uncertainty
+    if u is not None:
+        d = np.zeros(N)
+        d[IQ] = (u["attitude_sigma_deg"] * DEG / 2) ** 2
+        d[IW] = (u["rate_sigma_deg_s"] * DEG) ** 2
+        d[ITD] = u["disturbance_torque_sigma_nm"] ** 2
+        d[IJ] = np.asarray(u["inertia_sigma_kgm2"][1:], dtype=float) ** 2
+        d[IM] = u["residual_dipole_sigma_am2"] ** 2
+        d[ID1] = d[ID2] = (u["misalignment_sigma_deg"] * DEG) ** 2
+        d[IJR] = u["rotor_inertia_sigma_kgm2"] ** 2
+        d[IWR] = d[IWM] = d[IWP] = model.R_rw
+        return np.diag(d)
     d = np.zeros(N)
     d[IQ] = (10 * DEG / 2) ** 2
     d[IW] = (10 * DEG) ** 2

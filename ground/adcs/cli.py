@@ -31,11 +31,43 @@ def add_campaign_options(p, cases=True):
                    help="local worker processes (default: all cores; 1 = in-process)")
     g.add_argument("--scheduler", default=None,
                    help="Dask scheduler address (tcp://host:port): run on that cluster instead of locally")
+    p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
+                   help="the vehicle flown and filtered: a preset (%s) or a spacecraft file (fps spacecraft); "
+                        "its truth block is the simulated vehicle's errors, its figures and uncertainty block the "
+                        "filter's priors and initial P (default thesis-3u, the thesis's 3U)"
+                        % ", ".join(_presets()))
     p.add_argument("--params", default=None,
-                   help="JSON of scenario overrides: %s" % "; ".join("%s: %s" % kv for kv in runs.PARAM_KEYS.items()))
+                   help="JSON of scenario overrides, not a spacecraft: %s. inertia_kgm2 and dipole_am2 replace "
+                        "only the simulated (true) vehicle's, the filter keeps the spacecraft file's priors (a "
+                        "diagnostic; refused with an explicit --spacecraft, whose truth block says the same)"
+                        % "; ".join("%s: %s" % kv for kv in runs.PARAM_KEYS.items()))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, type=output_folder, help="campaign folder")
+
+
+def _presets():
+    from protocol import spacecraft as sf
+    return sf.presets()
+
+
+def load_spacecraft(name_or_path, params=None):
+    """(checked spacecraft file, what was given) for ``--spacecraft`` (None: thesis-3u). ValueError (exit 2)
+    with the checker's message for a bad one, or when ``params`` also sets the true inertia or dipole."""
+    from protocol import spacecraft as sf
+    if name_or_path is not None and params and ({"inertia_kgm2", "dipole_am2"} & set(params)):
+        raise ValueError("--params sets %s and --spacecraft %s says the vehicle too: give the true vehicle in the "
+                         "spacecraft file's truth block, or drop --spacecraft"
+                         % (" and ".join(sorted({"inertia_kgm2", "dipole_am2"} & set(params))), name_or_path))
+    source = "thesis-3u" if name_or_path is None else name_or_path
+    try:
+        d = sf.load(source)
+    except ValueError as exc:
+        raise ValueError("--spacecraft %s: %s" % (source, exc)) from None
+    if d["wheels"]["count"] != 4:
+        raise ValueError("--spacecraft %s: wheels.count = %d: the Sec. 4.8 scenario and the APKF fly four wheels"
+                         % (source, d["wheels"]["count"]))
+    return d, source
 
 
 def run_filter_campaign(fn, name, case, a, dof=6):
@@ -45,18 +77,20 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     params = runs.load_params(a.params) if a.params else None
+    spacecraft, source = load_spacecraft(a.spacecraft, params)
     out = a.output
     campaign.check_scheduler(a.scheduler)
     from ground.adcs import report
     campaign.campaign_folder(out, report.FIGURES, {"filter": name, "case": case, "runs": 0, "complete": False,
                                                    "seeds": seeds})
     write_json(os.path.join(out, "config.json"), {"filter": name, "case": case, "runs": n, "seed": a.seed,
-                                                  "workers": a.workers, "scheduler": a.scheduler, "params": params})
+                                                  "workers": a.workers, "scheduler": a.scheduler, "params": params,
+                                                  "spacecraft": runs.spacecraft_record(spacecraft, source)})
     interrupted = False
     try:
         results = campaign.run_campaign(fn, seeds, out, workers=a.workers, scheduler=a.scheduler,
                                         progress=not a.quiet, desc="%s case %d" % (name, case),
-                                        case=case, params=params)
+                                        case=case, params=params, spacecraft=spacecraft)
     except KeyboardInterrupt:
         interrupted = True
         results = [runs.load_run(campaign.run_dir_for(out, i)) for i in range(n)]
@@ -64,6 +98,7 @@ def run_filter_campaign(fn, name, case, a, dof=6):
     summary["complete"] = not interrupted
     summary["seeds"] = seeds
     summary["runs_requested"] = n
+    summary["spacecraft"] = runs.spacecraft_record(spacecraft, source)
     summary["per_run"] = [runs.run_record(r) for r in results if r]
     write_json(os.path.join(out, "summary.json"), summary)
     plots = report.write_all(out, results, summary, plots=not a.no_plots)

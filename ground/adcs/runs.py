@@ -97,21 +97,65 @@ def check_params(d, where="params"):
     return {k: (v.tolist() if v.shape else float(v)) for k, v in out.items()}
 
 
-def _simulate(case, seed, params, gyro):
+def _simulate(case, seed, params, gyro, spacecraft=None):
     p = params or {}
     return scenario.simulate(case=case, seed=seed, dt=p.get("dt_truth_s", 1.0), gyro=gyro,
                              duration=p.get("duration_s"), inertia=p.get("inertia_kgm2"),
-                             dipole=p.get("dipole_am2"))
+                             dipole=p.get("dipole_am2"), spacecraft=spacecraft)
 
 
-def _start_apkf(o, case, start_at_truth=False, model=None):
+def spacecraft_record(d, source):
+    """What a run records of its spacecraft file: the name or path it was given, the file's name and the first 12
+    hex digits of the SHA-256 of the checked dict (JSON, sorted keys)."""
+    import hashlib
+    h = hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+    return {"source": source, "name": d["name"], "sha256": h}
+
+
+def apkf_model(d):
+    """The APKF's ``Model`` for a checked spacecraft file ``d``: Jxx reference = its Jxx (Sec. 4.6.2), its nominal
+    wheel axes, star-tracker sigma, tachometer noise and ``uncertainty`` block (the initial P)."""
+    from protocol import spacecraft as sf
+    return apkf.Model(jxx=d["inertia_kgm2"][0], sigma_st_arcsec=tuple(d["star_tracker"]["sigma_arcsec"]),
+                      tach_rpm=d["wheels"]["tach_noise_rpm"], c0=np.ascontiguousarray(np.array(sf.wheel_axes(d)).T),
+                      uncertainty=d["uncertainty"])
+
+
+def apkf_prior(d):
+    """The APKF's parameter priors from a checked spacecraft file ``d``, in its relative units with the file's Jxx
+    as the reference (s = 1 at the nominal, Sec. 4.6.2): J5 = [Jyy, Jzz, Jxy, Jxz, Jyz], m, d1, d2 (rad), Jrw."""
+    w = d["wheels"]
+    j = d["inertia_kgm2"]
+    return {"j5": list(j[1:]), "m": list(d["residual_dipole_am2"]), "delta1": np.radians(w["delta1_deg"]),
+            "delta2": np.radians(w["delta2_deg"]), "jrw": list(w["rotor_inertia_kgm2"])}
+
+
+def mekf_options(d):
+    """The MEKF's figures from a checked spacecraft file ``d``: gyro ARW sigma_v (rad/sqrt(s)), rate random walk
+    sigma_u (rad/s/sqrt(s); the instability over one hour, Eq. 4.17-4.20), P0 (attitude, initial bias) and the
+    star tracker's sigma."""
+    g, u = d["gyro"], d["uncertainty"]
+    return {"P0_att_rad": np.radians(u["attitude_sigma_deg"]), "P0_bias": np.radians(g["bias_deg_h"]) / 3600.0,
+            "sigma_v": np.radians(g["arw_deg_rt_h"]) / 60.0,
+            "sigma_u": np.radians(g["bias_instability_deg_h"]) / 3600.0 / 60.0,
+            "sigma_st_rad": np.array(d["star_tracker"]["sigma_arcsec"]) * quat.ARCSEC}
+
+
+def _start_apkf(o, case, start_at_truth=False, model=None, spacecraft=None):
     """(first step, APKF) for a simulated run: attitude from the star tracker, rate differentiated from it
     (Sec. 4.8); ``start_at_truth`` puts the parameters at their true values (a diagnostic), same P0;
-    ``model``: an ``apkf.Model`` other than the default (a diagnostic)."""
+    ``model``: an ``apkf.Model`` other than the default (a diagnostic); ``spacecraft``: a checked spacecraft
+    file giving the model (``apkf_model``) and the priors (``apkf_prior``) instead of the thesis's."""
     k0 = _start(o)
     q0 = o["st_q"][k0]
     w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
-    x0 = apkf.initial_state(q0, w0, o["tach"][k0])
+    if spacecraft is None:
+        x0 = apkf.initial_state(q0, w0, o["tach"][k0])
+    else:
+        pr = apkf_prior(spacecraft)
+        x0 = apkf.initial_state(q0, w0, o["tach"][k0], j5=pr["j5"], jrw=pr["jrw"])
+        x0[15:18], x0[18:22], x0[22:26] = pr["m"], pr["delta1"], pr["delta2"]
+        model = model or apkf_model(spacecraft)
     if start_at_truth:
         tr = o["truth"]
         x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
@@ -225,11 +269,12 @@ def _series(err, nees, z):
     return {"att_err": (2 * err[:, 0:3] / ARCSEC).tolist(), "nees": nees.tolist(), "z_att_rate": z.tolist()}
 
 
-def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False):
+def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False, spacecraft=None):
     """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series.
-    ``start_at_truth`` (a diagnostic, not in the CLI) starts the parameters at their true values, same P0."""
-    o = _simulate(case, seed, params, gyro=False)
-    k0, f = _start_apkf(o, case, start_at_truth)
+    ``start_at_truth`` (a diagnostic, not in the CLI) starts the parameters at their true values, same P0.
+    ``spacecraft``: a checked spacecraft file for the truth and the filter (None: the thesis's 3U)."""
+    o = _simulate(case, seed, params, gyro=False, spacecraft=spacecraft)
+    k0, f = _start_apkf(o, case, start_at_truth, spacecraft=spacecraft)
     n = len(o["t"])
     err = np.full((n, apkf.N), np.nan)
     sig = np.full((n, apkf.N), np.nan)
@@ -251,16 +296,17 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
     return res
 
 
-def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True):
+def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True, spacecraft=None):
     """One MEKF run with the MEMS gyro (Sec. 4.4.1). Its rate is the gyro's, w_hat = w_meas - b_hat (the bias
     before the step's update); the rate error against the truth's mean rate over the step, w_true - w_hat =
-    -(b - b_hat) - n, has 1 sigma sqrt(P_bb + sigma_v^2 / dt) (Eq. 4.17, ``scenario.MemsGyro``)."""
-    o = _simulate(case, seed, params, gyro=True)
+    -(b - b_hat) - n, has 1 sigma sqrt(P_bb + sigma_v^2 / dt) (Eq. 4.17, ``scenario.MemsGyro``).
+    ``spacecraft``: a checked spacecraft file for the truth and the filter's figures (``mekf_options``)."""
+    o = _simulate(case, seed, params, gyro=True, spacecraft=spacecraft)
     k0 = np.flatnonzero(o["st_valid"])
     if len(k0) == 0:
         raise ValueError("no star-tracker output: the filter cannot start")
     k0 = int(k0[0])
-    f = mekf.MEKF(o["st_q"][k0])
+    f = mekf.MEKF(o["st_q"][k0], **({} if spacecraft is None else mekf_options(spacecraft)))
     n = len(o["t"])
     err = np.full((n, 6), np.nan)
     sig = np.full((n, 6), np.nan)

@@ -175,7 +175,7 @@ def main():
     print("| link cost per tick, wall (RemoteController round trip) | ours (us) | overruns |")
     print("|---|---|---|")
     print("| in-process pair (COBS + CRC framing, thread peer) | %.1f | %d |" % lc["inproc"])
-    print("| pty to a CPython process (HARDWARE_FACTS: 84 us median) | %.1f | %d |" % lc["pty"])
+    print("| pty to a CPython process (reference: 84 us median, 64-byte frame, 2 cores) | %.1f | %d |" % lc["pty"])
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@ beside viper under MicroPython), the round trip of a ~32-byte packet between two
 and slcan-over-pty CAN, and the lockstep round trip (TICK -> FSM_SPI) against the MicroPython firmware.
 
 Goal (issue 2): host path >= 100,000 frames/s encode+decode on one core. Reference for the round trip
-(HARDWARE_FACTS, Links): a 64-byte frame between two processes over a pty, median 84 us, p99 161 us.
+(measured on a 2-core machine of this kind): a 64-byte frame between two processes over a pty,
+median 84 us, p99 161 us.
 Goal for the MicroPython HIL: >= 12x real time at 637.8 Hz, i.e. <= 130 us per lockstep tick in all
 (emulator included; the round trip here is the link and firmware share of it).
 """
@@ -126,7 +127,7 @@ def main():
     print("| round trip, %s (%d-byte payload), two processes | peer | median us | p99 us | reference |"
           % (RTT_PACKET, core.packet_def(RTT_PACKET).size))
     print("|---|---|---|---|---|")
-    ref = "64-byte frame: median 84, p99 161 (HARDWARE_FACTS)"
+    ref = "64-byte frame: median 84, p99 161 (2-core reference)"
     for label, spec, exe, prefix, n in (
             ("pty serial", "pty", sys.executable, "serial:", 3000),
             ("pty serial", "pty", mp, "stream:", 3000),

@@ -37,7 +37,7 @@ _DEFAULT = {
         "z1_m": 0.050,                # P-FSM to L1
         "fsm_offset_m": 0.0,          # MEMS FSM distance beyond the exit pupil (0 = at the exit pupil)
     },
-    "mems": {                          # Mirrorcle 13L2.2 behind an AD5664R driver (Table 7.2, HARDWARE_FACTS)
+    "mems": {                          # Mirrorcle 13L2.2 behind an AD5664R driver (Table 7.2; the two datasheets)
         "deg_per_v": 0.5,             # mechanical tilt per tilt volt (Eq. 7.9)
         "range_deg": 1.25,            # mechanical clip
         "full_scale_tilt_v": 2.5,     # tilt volts for a differential of full_scale_codes
@@ -80,7 +80,7 @@ _DEFAULT = {
         "position_noise_v_per_m": 0.05,
         "amp_gain": 1.5,
     },
-    "adc_q1": {                        # SAMD21 12-bit, 0-3.3 V (HARDWARE_FACTS)
+    "adc_q1": {                        # SAMD21 12-bit, 0-3.3 V (SAMD21 datasheet)
         "bits": 12,
         "vref_v": 3.3,
         "noise_counts": 0.7,          # assumed, 1 sigma

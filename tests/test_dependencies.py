@@ -1,4 +1,4 @@
-"""DESIGN.md's one-way dependencies: nothing imports ``ground`` (emulator, protocol and firmware import it
+"""The one-way dependencies of docs/INTERFACES.md: nothing imports ``ground`` (emulator, protocol and firmware import it
 neither at module level nor inside functions)."""
 
 import ast

@@ -352,25 +352,25 @@ class AdcsSession:
         heard = False                            # anything of cycle k came back (a reply or ADCS_MISSING)
         try_s = min(TRY_MAX_S, max(TRY_MIN_S, 3.0 * self._reply_s))
         try_end = t0 + try_s
-        retried = retried_once = False
+        resent = 0                               # ADCS_TICK(k) sent again so far
         while True:
             now = time.monotonic()
             if status is not None and all(c is not None for c in self._cmd):
-                if not retried:                  # the try's wait follows the clean cycles' reply time
+                if not resent:                   # the try's wait follows the clean cycles' reply time
                     self._reply_s = 0.8 * self._reply_s + 0.2 * (now - t0)
                 return status
             if now >= deadline:
                 return status
             if now >= try_end:                   # a try without the cycle's replies: the tick again
-                retried = True
+                resent += 1
                 self.retries["tick_resent"] += 1
+                self.retries["cycles_retried"] += resent == 1
                 if heard:
                     self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self._tick_payload)
                 else:                            # the tick or the whole burst may be lost: all of it again
                     self.retries["burst_resent"] += 1
                     self._send_burst(None)
-                try_s = RETRY_S if not retried_once else min(TRY_MAX_S, TRY_BACKOFF * try_s)
-                retried_once = True
+                try_s = RETRY_S if resent == 1 else min(TRY_MAX_S, TRY_BACKOFF * try_s)
                 try_end = time.monotonic() + try_s
                 continue
             for pid, src, dst, seq, payload in self.link.recv(min(deadline, try_end) - now):
@@ -402,9 +402,6 @@ class AdcsSession:
             raise ValueError("the session's %d s are done" % self.K)
         status = self._await()
         t = float(self.k)
-        if self.retries["tick_resent"] != getattr(self, "_resent_seen", 0):
-            self._resent_seen = self.retries["tick_resent"]
-            self.retries["cycles_retried"] += 1
         dead = self.faults["wheel_silent"][0] if "wheel_silent" in self._active else -1
         if status is None:
             self.n_late += 1

@@ -108,14 +108,32 @@ def _serial_fd(ser):
     return _FdPort(ser.fileno(), owns=False, spin=False)
 
 
-class SlcanBus(slcanBus):
+class _Stream:
+    """What both buses share: the byte port under them (``_io``: an ``_FdPort``, or the ``FaultyPort`` around
+    it once faults are injected) and the counters of the faults with their own (``_own_counters``)."""
+
+    faults = None
+
+    def inject_faults(self, faults, clock=None):
+        """Faults on this side of the ASCII stream, both directions; returns the ``FaultyPort``."""
+        self.faults = faultmod.FaultyPort(self._port(), faults, clock, framing=faultmod.SLCAN)
+        self._io = self.faults
+        return self.faults
+
+    def counters(self):
+        d = self._own_counters()
+        if self.faults is not None:
+            d.update(self.faults.counters())
+        return d
+
+
+class SlcanBus(_Stream, slcanBus):
     """python-can's slcan interface reading in blocks and dropping malformed lines (module docstring)."""
 
     def __init__(self, channel, **kw):
         kw.setdefault("sleep_after_open", 0)
         self._io = None
         self._lines = _Lines()
-        self.faults = None
         self.peer_gone = False      # the adapter's end closed (or stalled: then ``fail_why`` says so)
         self.fail_why = None
         slcanBus.__init__(self, channel, **kw)
@@ -124,12 +142,6 @@ class SlcanBus(slcanBus):
         if self._io is None:
             self._io = _serial_fd(self.serialPortOrig)
         return self._io
-
-    def inject_faults(self, faults, clock=None):
-        """Faults on this side of the ASCII stream, both directions; returns the ``FaultyPort``."""
-        self.faults = faultmod.FaultyPort(self._port(), faults, clock, framing=faultmod.SLCAN)
-        self._io = self.faults
-        return self.faults
 
     def _write(self, string):
         try:
@@ -170,11 +182,8 @@ class SlcanBus(slcanBus):
                 return None, False
             self._fill(wait)
 
-    def counters(self):
-        d = self._lines.counters()
-        if self.faults is not None:
-            d.update(self.faults.counters())
-        return d
+    def _own_counters(self):
+        return self._lines.counters()
 
     def shutdown(self):
         """Close the channel (``C``) if the adapter is still there, and the port in any case."""
@@ -191,20 +200,19 @@ class SlcanBus(slcanBus):
             pass
 
 
-class LawicelBus(can.BusABC):
+class LawicelBus(_Stream, can.BusABC):
     """The device side of an slcan adapter on a pty master: Lawicel ASCII in and out (module docstring)."""
 
     def __init__(self, channel="slcan-pty", **kw):
         master, slave = os.openpty()
         tty.setraw(slave)
         self.peer_path = os.ttyname(slave)
-        self._port = _FdPort(master, hold_fd=slave, spin=False)
+        self._io = _FdPort(master, hold_fd=slave, spin=False)
         self._rx = collections.deque()
         self._tline = bytearray(lawicel.LINE_MAX)
         self.lw = lawicel.Adapter(self._write)
         self.peer_gone = False      # the host's end closed (or stalled: then ``fail_why`` says so)
         self.fail_why = None
-        self.faults = None
         self._wlock = threading.Lock()   # answers from the receive thread, frames from any thread
         can.BusABC.__init__(self, channel, **kw)
 
@@ -212,16 +220,13 @@ class LawicelBus(can.BusABC):
     def is_open(self):
         return self.lw.is_open
 
-    def inject_faults(self, faults, clock=None):
-        """Faults on the adapter's side of the ASCII stream, both directions; returns the ``FaultyPort``."""
-        self.faults = faultmod.FaultyPort(self._port, faults, clock, framing=faultmod.SLCAN)
-        self._port = self.faults
-        return self.faults
+    def _port(self):
+        return self._io
 
     def _write(self, data):
         with self._wlock:
             try:
-                self._port.write(bytes(data))
+                self._io.write(bytes(data))
             except PeerGone as exc:
                 self.peer_gone = True
                 self.fail_why = str(exc) or None
@@ -231,7 +236,7 @@ class LawicelBus(can.BusABC):
         while not self._rx:
             wait = None if deadline is None else max(0.0, deadline - time.monotonic())
             try:
-                data = self._port.read(wait)
+                data = self._io.read(wait)
             except PeerGone:
                 self.peer_gone = True
                 raise can.CanOperationError("the slcan host closed the pty") from None
@@ -255,12 +260,9 @@ class LawicelBus(can.BusABC):
         n = lawicel.frame_line(self._tline, msg.arbitration_id, msg.data, msg.is_extended_id)
         self._write(self._tline[:n])
 
-    def counters(self):
-        d = self.lw.counters()
-        if self.faults is not None:
-            d.update(self.faults.counters())
-        return d
+    def _own_counters(self):
+        return self.lw.counters()
 
     def shutdown(self):
         can.BusABC.shutdown(self)
-        self._port.close()
+        self._io.close()

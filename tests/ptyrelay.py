@@ -17,15 +17,10 @@ import sys
 import tty
 
 
-def _relay():
-    m1, s1 = os.openpty()
-    m2, s2 = os.openpty()
-    for fd in (s1, s2):
-        tty.setraw(fd)
-    for fd in (m1, m2):
-        os.set_blocking(fd, False)
-    print(os.ttyname(s1), os.ttyname(s2), flush=True)
-    fds = [m1, m2, sys.stdin.fileno()]
+def _pump(a, b, through=None, stop_on_error=False):
+    """Relay the fds ``a`` and ``b`` both ways until stdin closes: ``through(fd, data)`` gives what goes on of
+    what ``fd`` sent (all of it by default); a read error is skipped, or ends the relay (``stop_on_error``)."""
+    fds = [a, b, sys.stdin.fileno()]
     while True:
         r, _, _ = select.select(fds, [], [])
         for fd in r:
@@ -36,11 +31,24 @@ def _relay():
             try:
                 data = os.read(fd, 65536)
             except OSError:
+                if stop_on_error:
+                    return               # one end closed: the relay (the harness) is gone
                 continue
             try:                      # a full receiver loses bytes, as a UART without flow control overruns
-                os.write(m2 if fd == m1 else m1, data)
+                os.write(b if fd == a else a, data if through is None else through(fd, data))
             except BlockingIOError:
                 pass
+
+
+def _relay():
+    m1, s1 = os.openpty()
+    m2, s2 = os.openpty()
+    for fd in (s1, s2):
+        tty.setraw(fd)
+    for fd in (m1, m2):
+        os.set_blocking(fd, False)
+    print(os.ttyname(s1), os.ttyname(s2), flush=True)
+    _pump(m1, m2)
 
 
 @contextlib.contextmanager
@@ -83,30 +91,17 @@ def _slcan_damage(path, every):
     os.set_blocking(m, False)
     print(os.ttyname(s), flush=True)
     bufs = {fa: b"", m: b""}
-    count = {fa: 0, m: 0}
-    fds = [fa, m, sys.stdin.fileno()]
-    while True:
-        r, _, _ = select.select(fds, [], [])
-        for fd in r:
-            if fd == fds[2]:
-                if not os.read(fd, 100):
-                    return
-                continue
-            try:
-                data = os.read(fd, 65536)
-            except OSError:
-                return                       # one end closed: the relay (the harness) is gone
-            bufs[fd] += data
-            out = []
-            while b"\r" in bufs[fd]:
-                i = bufs[fd].index(b"\r")
-                line, bufs[fd] = bufs[fd][:i + 1], bufs[fd][i + 1:]
-                count[fd] += 1
-                out.append(_damage(line, rng.randrange(4)) if rng.randrange(every) == 0 else line)
-            try:
-                os.write(m if fd == fa else fa, b"".join(out))
-            except BlockingIOError:
-                pass
+
+    def damage(fd, data):
+        bufs[fd] += data
+        out = []
+        while b"\r" in bufs[fd]:
+            i = bufs[fd].index(b"\r")
+            line, bufs[fd] = bufs[fd][:i + 1], bufs[fd][i + 1:]
+            out.append(_damage(line, rng.randrange(4)) if rng.randrange(every) == 0 else line)
+        return b"".join(out)
+
+    _pump(fa, m, damage, stop_on_error=True)
 
 
 if __name__ == "__main__":

@@ -604,7 +604,8 @@ class Lockstep:
     dropped: ``n_late``; a second copy of one already in is dropped too: ``n_dup``), and the cycle runs once,
     when every packet named is in. A resent ``ADCS_TICK(k)``: answered from the cache when k has run (RW_CMD x4
     and ADCS_STATUS again, no second cycle), with ``ADCS_MISSING(k, bits)`` while its burst is incomplete. A
-    tick older than the last run is dropped. ``step(tick, t)`` runs the cycle and returns the replies.
+    tick older than the last run is dropped. ``step(tick, t)`` runs the cycle and returns the replies
+    [(pid, dst, payload)]; ``host`` is the node whose ADCS_TICK opened the cycle (the replies go to it).
     """
 
     def __init__(self, app, step):
@@ -617,6 +618,7 @@ class Lockstep:
         self.want = self.have = self.nb_want = 0
         self.tb = []                         # SatB fix times (ms) taken in the open cycle
         self.n_late = self.n_dup = self.n_missing = self.n_cached = 0
+        self.host = 0
 
     def _ready(self):
         return self.want & ~_B_GNSS_B & ~self.have == 0 and len(self.tb) >= self.nb_want
@@ -628,8 +630,9 @@ class Lockstep:
         self.last = k
         return self.replies
 
-    def on_tick(self, tick, t_ms, burst, n_gnss_b):
-        """Replies [(pid, dst, payload)] to an ADCS_TICK."""
+    def on_tick(self, tick, t_ms, burst, n_gnss_b, src=0):
+        """Replies [(pid, dst, payload)] to an ADCS_TICK from node ``src``."""
+        self.host = src
         if tick == self.last:
             self.n_cached += 1
             return self.replies
@@ -645,7 +648,7 @@ class Lockstep:
             miss = self.want & ~self.have & ~_B_GNSS_B
             if len(self.tb) < self.nb_want:
                 miss |= _B_GNSS_B
-            return ((P_MISSING, 0, struct.pack(_FMT[P_MISSING], tick & 0xFFFFFFFF, miss)),)
+            return ((P_MISSING, src, struct.pack(_FMT[P_MISSING], tick & 0xFFFFFFFF, miss)),)
         return self._run() if self._ready() else ()
 
     def on_packet(self, pid, src, payload):
@@ -682,8 +685,6 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
     if heap is not None:
         import gc
         mem = gc
-    host = [0]
-
     def step(tick, t):
         t0 = ticks_us() if ticks_us else 0
         if mem is not None:
@@ -697,7 +698,7 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
             mem.enable()
         dt = ticks_diff(ticks_us(), t0) if ticks_us else 0
         out = [(P_RW_CMD, dst_w, pl) for dst_w, pl in cmds]
-        out.append((P_STATUS, host[0], app.status_payload(tick, dt, _drops(port))))
+        out.append((P_STATUS, ls.host, app.status_payload(tick, dt, _drops(port))))
         return out
 
     ls = Lockstep(app, step)
@@ -705,10 +706,10 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
     while not port.closed:
         for pid, src, dst, seq, payload in port.recv_ms(poll_ms):
             if pid == P_TICK:
-                host[0] = src
-                replies = ls.on_tick(*struct.unpack(_FMT[P_TICK], payload))
+                tick, t_ms, burst, n_gnss_b = struct.unpack(_FMT[P_TICK], payload)
+                replies = ls.on_tick(tick, t_ms, burst, n_gnss_b, src)
             else:
                 replies = ls.on_packet(pid, src, payload)
             for rpid, rdst, rpl in replies:
-                port.send_raw(rpid, me, rdst or src, rpl)     # ADCS_MISSING (rdst 0): to the tick's sender
+                port.send_raw(rpid, me, rdst, rpl)
     port.close()

@@ -525,10 +525,17 @@ def _gnss_payload(t_ms, sat, z):
     return core.encode_payload(P["GNSS"], raw, t_ms=t_ms & 0xFFFFFFFF, sat=sat)
 
 
-def _load_params(params):
-    """A parameter-file dict or path (ground/adcs/bps.py format), checked by the flight side's rules."""
-    from firmware.adcs import apkf_lean
+def _load_params(params, spacecraft=None):
+    """A parameter-file dict or path, checked (``protocol.paramfile``, the flight firmware's checker) against the
+    checked spacecraft file ``spacecraft`` (None: the thesis's 3U); the dict as given."""
+    from protocol import paramfile
+    where = "parameter file"
     if isinstance(params, (str, os.PathLike)):
         from emulator.fileio import read_json
+        where = str(params)
         params = read_json(params, "parameter file")
-    return apkf_lean.check_params(params)
+    try:
+        paramfile.check(params, spacecraft)
+    except ValueError as exc:
+        raise ValueError("%s: %s" % (where, exc)) from None
+    return params

@@ -125,7 +125,7 @@ def test_parameter_file_is_checked_against_the_spacecraft(params, tmp_path):
     assert xp.shape == (23,) and P.shape == (23, 23) and 0.9 < scale < 1.3
     bad = json.loads(json.dumps(params))
     bad["wheels"] = 3
-    with pytest.raises(ValueError, match="3 wheels"):
+    with pytest.raises(ValueError, match="wheels = 3: must be 4"):
         bps.check_params(bad)
     bad = json.loads(json.dumps(params))
     bad["x"]["J5_kgm2"] = [-0.05, 0.05, 0, 0, 0]
@@ -137,7 +137,7 @@ def test_parameter_file_is_checked_against_the_spacecraft(params, tmp_path):
         bps.check_params(bad)
     bad = json.loads(json.dumps(params))
     bad["x"]["jrw_kgm2"] = [3e-6] * 3
-    with pytest.raises(ValueError, match="4 finite numbers"):
+    with pytest.raises(ValueError, match=r"x.jrw_kgm2 = \[3e-06, 3e-06, 3e-06\]: must be a list of 4 numbers"):
         bps.check_params(bad)
     bad = json.loads(json.dumps(params))
     bad["P"][0][0] = -1.0
@@ -148,7 +148,7 @@ def test_parameter_file_is_checked_against_the_spacecraft(params, tmp_path):
     assert bps.load_params(str(p))[3] == pytest.approx(scale)
     # finite numbers that are not this spacecraft's, and a calibration record that is not an object
     for key, i, v, msg in (("jrw_kgm2", 0, 1e300, "from 3e-07 to 3e-05 kg m"), ("jrw_kgm2", 0, 1e-2, "jrw_kgm2"),
-                           ("delta1_rad", 0, 1e300, r"delta1_rad .* within \+-0.785398 rad"),
+                           ("delta1_rad", 0, 1e300, r"delta1_rad\[0\] = 1e\+300: must be from -0.785398.* rad"),
                            ("dipole_am2", 1, 50.0, "dipole_am2"), ("tau_d_nm", 2, -1.0, "tau_d_nm")):
         bad = json.loads(json.dumps(params))
         bad["x"][key][i] = v
@@ -156,7 +156,7 @@ def test_parameter_file_is_checked_against_the_spacecraft(params, tmp_path):
             bps.check_params(bad)
     bad = json.loads(json.dumps(params))
     bad["calibration"] = 5
-    with pytest.raises(ValueError, match="'calibration' must be an object"):
+    with pytest.raises(ValueError, match="calibration = 5: must be an object"):
         bps.check_params(bad)
 
 

@@ -11,6 +11,7 @@ import pytest
 from firmware.adcs import apkf_lean as L
 from firmware.adcs import linalg
 from ground.adcs import apkf, quat
+from protocol import paramfile
 from tests.adcs_lean_scenario import run_stkf_ground, run_stkf_lean, scenario, stkf_scenario
 from tests.test_firmware_mp import MICROPYTHON, ROOT
 from tests.test_firmware_mp import run_mp as _run_mp_default
@@ -80,9 +81,10 @@ def test_jacobian_and_propagation_equal_the_ground_filters():
     wp = W + rng.standard_normal(4)
     x[38:42] = wp
     m = apkf.terms(x, model, 100.0)
-    params = {"format": L.FORMAT, "wheels": 4, "jxx_ref_kgm2": model.jxx,
+    params = {"format": paramfile.FORMAT, "wheels": 4, "jxx_ref_kgm2": model.jxx,
               "x": {"tau_d_nm": x[7:10].tolist(), "J5_kgm2": x[10:15].tolist(), "dipole_am2": x[15:18].tolist(),
-                    "delta1_rad": x[18:22].tolist(), "delta2_rad": x[22:26].tolist(), "jrw_kgm2": x[26:30].tolist()}}
+                    "delta1_rad": x[18:22].tolist(), "delta2_rad": x[22:26].tolist(), "jrw_kgm2": x[26:30].tolist()},
+              "P": np.eye(paramfile.N_PARAMS).tolist()}
     old = linalg.zeros
     linalg.zeros = lambda n: [0.0] * n
     try:
@@ -199,7 +201,7 @@ def test_bad_parameter_file_is_refused():
     sc = scenario(1)
     d = json.loads(json.dumps(sc["params"]))
     d["x"]["jrw_kgm2"][0] = -1.0
-    with pytest.raises(ValueError, match="wheel inertias"):
+    with pytest.raises(ValueError, match=r"x.jrw_kgm2\[0\] = -1: must be from 3e-07 to 3e-05 kg m\^2"):
         L.Model(d)
     with pytest.raises(ValueError, match="format"):
         L.Model({"format": "x"})

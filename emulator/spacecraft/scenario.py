@@ -32,6 +32,7 @@ from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import J0_THESIS, Spacecraft, dcm, inertia_matrix, quat_mul
 from emulator.spacecraft.environment import TiltedDipoleField
 from emulator.spacecraft.wheels import J_RW_NOMINAL, Wheels, WheelParams, pyramid_c0
+from protocol import paramfile
 
 DEG = np.pi / 180.0
 ARCSEC = DEG / 3600.0
@@ -326,7 +327,7 @@ def truth_params(sc):
     c1, c2 = misalignment_axes(c0)
     cn = np.linalg.norm(c0 + c1 * d1 + c2 * d2, axis=0)
     jrw = np.asarray(sc.wheels.p.j_rw, float) / cn
-    return {"format": "fps-bps-params/1", "wheels": 4, "jxx_ref_kgm2": float(j[0, 0]), "torque_scale": 1.0,
+    return {"format": paramfile.FORMAT, "wheels": 4, "jxx_ref_kgm2": float(j[0, 0]), "torque_scale": 1.0,
             "x": {"tau_d_nm": [0.0, 0.0, 0.0], "J5_kgm2": [float(v) for v in (j[1, 1], j[2, 2], j[0, 1], j[0, 2], j[1, 2])],
                   "dipole_am2": [float(v) for v in sc.dipole], "delta1_rad": d1.tolist(), "delta2_rad": d2.tolist(),
                   "jrw_kgm2": jrw.tolist()},

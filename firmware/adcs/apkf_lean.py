@@ -7,7 +7,8 @@ pointing phase. The full 41-state filter is ``ground/adcs/apkf.py``; this one ke
     x = [q (4), w (3) rad/s, tau_d (3) N m]          dx = [dq (3), dw (3), dtau_d (3)]   (Eq. 4.76-4.78, cut)
 
 and takes J (Jxx reference + J5), C = C0 + C1 D(d1) + C2 D(d2) (Eq. 4.60), Jrw and the dipole m from the
-parameter file of ``ground/adcs/bps.py`` ("fps-bps-params/1"), all in the file's (filter-scaled) units.
+calibration parameter file (``protocol.paramfile``, "fps-bps-params/1", checked by its checker), all in the
+file's (filter-scaled) units.
 
 Dynamics (Eq. 4.67, 4.83), RK4 over the step with the wheel momentum C Jrw W(s) = hw + s hd (Eq. 4.95's
 linear W(s); hw = C Jrw W- from the read-out at the step's start):
@@ -61,13 +62,13 @@ import math
 
 from firmware.adcs import linalg
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
+from protocol import paramfile
 
 N = 9
 ARCSEC = math.pi / 180.0 / 3600.0
 HOUR = 3600.0
 RPM = 2.0 * math.pi / 60.0
 QD_CASE1 = (2.0e-7) ** 2 / HOUR            # Sec. 4.8, Case 1, (N m)^2/s
-FORMAT = "fps-bps-params/1"
 NW = 4
 FRICTION = (2e-6, 2e-10, 1.0 * RPM)        # wheel datasheet: Coulomb N m, viscous N m s/rad, smoothing rad/s
 TORQUE_MAX = 1e-3                          # wheel datasheet: motor torque limit, N m
@@ -100,33 +101,6 @@ def _cross(a, b):
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
-def check_params(d):
-    """Validate the parameter-file dict (ground/adcs/bps.py's format); ValueError naming what is wrong."""
-    if not isinstance(d, dict) or d.get("format") != FORMAT:
-        raise ValueError("not a BPS parameter file (format must be %r)" % FORMAT)
-    if d.get("wheels") != NW:
-        raise ValueError("%r wheels, the spacecraft has %d" % (d.get("wheels"), NW))
-    x = d.get("x")
-    sizes = (("tau_d_nm", 3), ("J5_kgm2", 5), ("dipole_am2", 3), ("delta1_rad", 4), ("delta2_rad", 4),
-             ("jrw_kgm2", 4))
-    if not isinstance(x, dict):
-        raise ValueError("parameter file has no 'x'")
-    for k, n in sizes:
-        v = x.get(k)
-        if not isinstance(v, list) or len(v) != n:
-            raise ValueError("parameter file: x.%s must be %d numbers" % (k, n))
-        for e in v:
-            if not (isinstance(e, (int, float)) and e == e and abs(e) < 1e30):
-                raise ValueError("parameter file: x.%s has a non-finite value" % k)
-    for e in x["jrw_kgm2"]:
-        if not e > 0:
-            raise ValueError("parameter file: wheel inertias must be > 0")
-    jxx = d.get("jxx_ref_kgm2")
-    if not (isinstance(jxx, (int, float)) and jxx > 0):
-        raise ValueError("parameter file: jxx_ref_kgm2 must be > 0")
-    return d
-
-
 class Model:
     """What the lean filter holds fixed: J, the inverse inertia of the rate equation, C Jrw (3 x 4), the unit
     axes C (3 x 4), m, noise levels; flat lists of float32 values.
@@ -139,12 +113,12 @@ class Model:
 
     def __init__(self, params, dt=1.0, sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, qd=QD_CASE1,
                  momentum="filtered", friction=FRICTION, torque_max=TORQUE_MAX, torque_rel=TORQUE_REL):
-        check_params(params)
+        params = paramfile.check(params)
         x = params["x"]
         j5 = x["J5_kgm2"]
         jxx = float(params["jxx_ref_kgm2"])
         self.dt = float(dt)
-        self.scale = float(params.get("torque_scale", 1.0))
+        self.scale = params["torque_scale"]
         self.friction = (float(friction[0]), float(friction[1]), float(friction[2]))
         self.torque_max = float(torque_max)
         self.torque_rel = float(torque_rel)

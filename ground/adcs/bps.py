@@ -32,12 +32,8 @@ Sequence (Sec. 6.4.2):
    pointing error
    (dtheta1, dtheta2, Eq. 6.12-6.17) and the stability (domega1, domega2, Eq. 6.18-6.21) are collected at 10 Hz.
 
-Parameter file (JSON): ``format`` "fps-bps-params/1"; ``wheels`` 4; ``jxx_ref_kgm2`` (the APKF's fixed
-reference Jxx, Sec. 4.6.2); ``torque_scale`` s (the APKF's relative scale, from ``absolute_jrw``: the controller
-divides the filter's J, Jrw, m, tau_d by it); ``x`` {tau_d_nm [3], J5_kgm2 [Jyy, Jzz, Jxy, Jxz, Jyz], dipole_am2 [3],
-delta1_rad [4], delta2_rad [4], jrw_kgm2 [4]}; ``P`` the 23 x 23 covariance of those (same order);
-``calibration`` {seed, sets, duration_s}. Refused: a wheel count other than the spacecraft's 4, an inertia that is
-not positive definite, wheel inertias <= 0, a covariance that is not symmetric positive definite.
+Parameter file: ``protocol.paramfile`` ("fps-bps-params/1", its keys and the one checker the flight firmware
+uses too); ``torque_scale`` comes from ``absolute_jrw``, ``calibration`` is {seed, sets, duration_s, ...}.
 
 Units in the outputs: arcsec and arcsec/s; J (Eq. 6.22) in rad^2, like Fig. 6-2's axis.
 """
@@ -55,9 +51,10 @@ from emulator.spacecraft.wheels import N_WHEELS, WheelParams
 from ground.adcs import apkf, control, quat, stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
+from protocol import paramfile as pf
 
 ARCSEC = quat.ARCSEC
-FORMAT = "fps-bps-params/1"
+FORMAT = pf.FORMAT
 CAL_SETS = 9
 W_OBJ = np.array([1.0, 1.0, 10.0, 10.0])        # Eq. 6.24
 THESIS = {  # Sec. 6.4.4, ts = 33 s: (mean, 1 sigma)
@@ -92,15 +89,17 @@ def torque_scale(x, jrw_abs, model):
     return float(np.mean(x[26:30] * cn / jrw_abs))
 
 
-# The parameter file's "x": its parts, in order, and where each sits in the APKF's state x (in P, one row lower)
-X_PARTS = (("tau_d_nm", slice(7, 10)), ("J5_kgm2", slice(10, 15)), ("dipole_am2", slice(15, 18)),
-           ("delta1_rad", slice(18, 22)), ("delta2_rad", slice(22, 26)), ("jrw_kgm2", slice(26, 30)))
-# What a parameter file may hold and still describe this spacecraft: part: (low (None: |v| <= high), high, unit).
-# The wheels' inertia within 10x of the datasheet's 3e-6 kg m^2 (the thesis's errors are 25 %), misalignments
-# below 45 deg (the thesis's are 7-12 deg), a dipole under 10 A m^2 and tau_d under the wheels' 1 mN m.
-PARAM_RANGES = {"tau_d_nm": (None, 1e-3, "N m"), "dipole_am2": (None, 10.0, "A m^2"),
-                "delta1_rad": (None, np.pi / 4, "rad"), "delta2_rad": (None, np.pi / 4, "rad"),
-                "jrw_kgm2": (3e-7, 3e-5, "kg m^2")}
+# The parameter file's "x" (protocol.paramfile): its parts, in order, and where each sits in the APKF's state x (in
+# P, one row lower)
+def _x_slices(start=7):
+    out = []
+    for k, n in pf.X_PARTS:
+        out.append((k, slice(start, start + n)))
+        start += n
+    return tuple(out)
+
+
+X_PARTS = _x_slices()
 
 
 def params_from_apkf(x, P, jxx, meta, scale=1.0):
@@ -109,63 +108,25 @@ def params_from_apkf(x, P, jxx, meta, scale=1.0):
             "P": P[apkf.PARAMS, apkf.PARAMS].tolist(), "calibration": meta}
 
 
-def check_params(d, where="parameter file"):
-    """Validate a parameter file dict against the spacecraft; returns (x_params (23), P (23 x 23), jxx,
-    torque_scale)."""
-    if not isinstance(d, dict) or d.get("format") != FORMAT:
-        raise ValueError("%s: not a BPS parameter file (format must be %r)" % (where, FORMAT))
-    if d.get("wheels") != N_WHEELS:
-        raise ValueError("%s: %r wheels, but the spacecraft has %d" % (where, d.get("wheels"), N_WHEELS))
-    if not isinstance(d.get("calibration", {}), dict):
-        raise ValueError("%s: 'calibration' must be an object (the calibration's seed and sets), got %r"
-                         % (where, d["calibration"]))
+def check_params(d, where="parameter file", spacecraft=None):
+    """Validate a parameter file dict against the spacecraft (``protocol.paramfile.check``; ``spacecraft`` a
+    checked spacecraft file, None: the thesis's 3U); returns (x_params (23), P (23 x 23), jxx, torque_scale)."""
     try:
-        xd = d["x"]
-        parts = [np.array(xd[k], dtype=float) for k, _ in X_PARTS]
-        P = np.array(d["P"], dtype=float)
-        jxx = float(d["jxx_ref_kgm2"])
-        scale = float(d.get("torque_scale", 1.0))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError("%s: missing or non-numeric entry (%s)" % (where, exc)) from None
-    for p, (k, s) in zip(parts, X_PARTS):
-        n = s.stop - s.start
-        if p.shape != (n,) or not np.all(np.isfinite(p)):
-            raise ValueError("%s: x.%s must be %d finite numbers (the spacecraft has %d wheels), got %r"
-                             % (where, k, n, N_WHEELS, xd[k]))
-    xp = np.concatenate(parts)
-    j5 = parts[1]
-    J = np.array([[jxx, j5[2], j5[3]], [j5[2], j5[0], j5[4]], [j5[3], j5[4], j5[1]]])
-    lam = np.linalg.eigvalsh(J) if np.isfinite(jxx) else np.full(3, np.nan)
-    if not lam[0] > 0:
-        raise ValueError("%s: the inertia [Jxx ref %g; J5 %s] is not positive definite"
-                         % (where, jxx, j5.tolist()))
-    if lam[2] > (lam[0] + lam[1]) * (1.0 + 1e-9):
-        raise ValueError("%s: the inertia [Jxx ref %g; J5 %s] is no rigid body's: its largest principal moment "
-                         "exceeds the sum of the other two" % (where, jxx, j5.tolist()))
-    for v, (k, _) in zip(parts, X_PARTS):
-        lo, hi, unit = PARAM_RANGES.get(k, (None, np.inf, ""))
-        if np.any((np.abs(v) if lo is None else v) > hi) or (lo is not None and np.any(v < lo)):
-            raise ValueError("%s: x.%s = %s is not this spacecraft's: must be %s %s" % (
-                where, k, v.tolist(), "within +-%g" % hi if lo is None else "from %g to %g" % (lo, hi), unit))
-    if P.shape != (23, 23) or not np.all(np.isfinite(P)) or np.abs(P - P.T).max() > 1e-9 * np.abs(P).max():
-        raise ValueError("%s: P must be a symmetric 23 x 23 matrix" % where)
-    try:
-        np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        raise ValueError("%s: P is not positive definite" % where) from None
-    if not (np.isfinite(scale) and 0.2 < scale < 5):
-        raise ValueError("%s: torque_scale %r out of range (0.2, 5)" % (where, scale))
-    return xp, P, jxx, scale
+        c = pf.check(d, spacecraft)
+    except ValueError as exc:
+        raise ValueError("%s: %s" % (where, exc)) from None
+    xp = np.array([v for k, _ in X_PARTS for v in c["x"][k]])
+    return xp, np.array(c["P"]), c["jxx_ref_kgm2"], c["torque_scale"]
 
 
-def load_params(path):
+def load_params(path, spacecraft=None):
     from ground.fileio import read_json
     d = read_json(path, "parameter file")
-    return check_params(d, path) + (d,)
+    return check_params(d, path, spacecraft) + (d,)
 
 
-def write_params(path, d):
-    check_params(d, path)
+def write_params(path, d, spacecraft=None):
+    check_params(d, path, spacecraft)
     write_json(path, d)
 
 

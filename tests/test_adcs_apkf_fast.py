@@ -31,7 +31,7 @@ def _close(x, P, x_ref, P_ref, tol):
 
 
 def test_recorded_run_is_reproduced(ref):
-    f = apkf.APKF(ref["x0"], case=int(ref["case"]), set_ends=list(ref["set_ends"]))
+    f = apkf.APKF(ref["x0"], case=int(ref["case"]), set_ends=list(ref["set_ends"]), form="thesis")
     checks = list(ref["checks"])
     got = []
     for i in range(1, len(ref["t"])):

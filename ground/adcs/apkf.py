@@ -85,10 +85,20 @@ Q_NOMINAL = {
     "qm": (1e-3) ** 2 / HOUR, "qdelta": (0.01 * DEG) ** 2 / HOUR, "qJrw": (3e-9) ** 2 / HOUR,
 }
 QD_CASE = {1: (2.0e-7) ** 2 / HOUR, 2: (4.0e-6) ** 2 / HOUR, 3: (2.0e-7) ** 2 / HOUR}
+# Case 2's disturbance (Eq. 4.150) is a sine of amplitude A = 1e-6 N m and period T >= 72.7 s. A random walk of
+# density q has increments of variance q L over a lag L, the sine (random phase) A^2 (1 - cos(w L)); the
+# smallest q at or above it at every lag is max_L A^2 (1 - cos(w L)) / L = 0.7246 A^2 w (at w L = 2.33), w =
+# 2 pi / 72.7 s: 6.3e-14 (N m)^2/s, 1.5e-5 N m/sqrt(h), 14x the thesis's 4e-6 N m/sqrt(h). With the thesis's
+# value the filter's rate error is 1.4-2.4x its 1 sigma on Case 2 (measured, 4 runs).
+QD_CASE2_MATCHED = 0.7246 * 1e-6 ** 2 * 2 * np.pi / 72.7
+QD_CONSISTENT = {1: QD_CASE[1], 2: QD_CASE2_MATCHED, 3: QD_CASE[3]}
 # Eq. 4.152: q_d1 per rad/s. The OCR reads "2.0 10^-? Nm/sqrt(h)"; we take 2.0e-5, which makes q_d1 |w| during a
 # 1.4 deg/s rotation comparable with Case 2's q_d (the thesis's stated intent); q_d2 = 0.1 q_d1.
 QD1 = (2.0e-5) ** 2 / HOUR
 QD2 = 0.1 * QD1
+FORMS = ("consistent", "thesis")
+ITER_MAX = 8           # passes of ``update_window`` (measured: 2-5 on Sec. 4.8's runs)
+ITER_TOL = 0.01        # of the start's 1 sigma per axis: a change below it no longer moves the fix's linearisation
 _QP_FIXED = np.array([Q_NOMINAL["qJm"]] * 2 + [Q_NOMINAL["qJp"]] * 3 + [Q_NOMINAL["qm"]] * 3
                      + [Q_NOMINAL["qdelta"]] * 8 + [Q_NOMINAL["qJrw"]] * 4)
 
@@ -491,8 +501,9 @@ def _predict_covariance(P, PhiR, F2, qp, dt, R_rw):
     return out
 
 
-def noise_density(x, case, scale=1.0):
-    """Diagonal q (per second) of the parameter noises: tau_d (3), J5 (5), m (3), d1/d2 (8), Jrw (4)."""
+def noise_density(x, case, scale=1.0, qd=QD_CASE):
+    """Diagonal q (per second) of the parameter noises: tau_d (3), J5 (5), m (3), d1/d2 (8), Jrw (4); tau_d's
+    from the table ``qd`` (by case), Case 3's by Eq. 4.152."""
     q = np.empty(23)
     if case == 3:
         a1, a2, a3 = (abs(v) for v in x[4:7].tolist())
@@ -501,7 +512,7 @@ def noise_density(x, case, scale=1.0):
         q[0:3] = [q0 + QD1 * a1 + QD2 * (s - a1), q0 + QD1 * a2 + QD2 * (s - a2),
                   q0 + QD1 * a3 + QD2 * (s - a3)]                           # Eq. 4.152
     else:
-        q[0:3] = QD_CASE.get(case, Q_NOMINAL["qd"])
+        q[0:3] = qd.get(case, Q_NOMINAL["qd"])
     q[3:] = _QP_FIXED
     q *= scale
     return q
@@ -533,21 +544,99 @@ def shift_tach(x, P, w_plus, R_rw):
     return x, P
 
 
-def predict(x, P, w_plus, model, t, case=1, scale=1.0):
+def _linearise(x, w_plus, model, t):
+    """``shift_tach`` on x (in place), then the step's model at its start with the orbit and field at mid-step:
+    (q, w, c, wheels, r0, F2, PhiR): ``_terms_f``'s constants, ``_rates_f`` at s = 0 (F's point and RK4's
+    first stage), the rate rows F2 of F and the rows of Phi that differ from I (``_phi_rows``)."""
+    x[34:38] = x[38:42]
+    x[38:42] = w_plus
+    c, wheels, _ = _terms_f(x, model, t + 0.5 * model.dt)
+    q, w = x[0:4].tolist(), x[4:7].tolist()
+    r0 = _rates_f(q, w, 0.0, c)
+    F2 = _f2(w, c, wheels, r0, model)
+    return q, w, c, wheels, r0, F2, _phi_rows(w, F2, model.dt)
+
+
+def _carry(M, PhiR):
+    """M <- Phi S M in place: S is ``shift_tach``'s map (W- takes W+'s rows; the new read-out W+ does not
+    depend on the stretch's start), Phi the step's (``_phi_rows``: only rows 0:6 and 29:33 differ from I)."""
+    M[IWM] = M[IWP]
+    M[IWP] = 0.0
+    T = PhiR @ M
+    M[0:6] = T[0:6]
+    M[IWR] = T[6:10]
+
+
+def predict(x, P, w_plus, model, t, case=1, scale=1.0, M=None, qd=QD_CASE):
     """(x, P) at t + dt from t, with the tachometer read-out w_plus at t + dt (rad/s): ``shift_tach``, then
     x by ``propagate`` and P = Phi P Phi^T + Q (Eq. 4.128) with Phi of ``phi`` (Eq. 4.114-4.127) and Q of
-    ``process_noise`` (Eq. 4.135-4.136), computed from the nonzero rows of F and Phi only."""
-    dt = model.dt
+    ``process_noise`` (Eq. 4.135-4.136, tau_d's density from ``qd``), computed from the nonzero rows of F and Phi
+    only. ``M`` (41 x 41, if given) is carried through the step in place (``_carry``): the Jacobian of x on a
+    stretch's start."""
     x = x.copy()
-    x[34:38] = x[38:42]                               # shift_tach on x
-    x[38:42] = w_plus
-    c, wheels, _ = _terms_f(x, model, t + 0.5 * dt)   # orbit and field at mid-step for F and the propagation
-    q, w = x[0:4].tolist(), x[4:7].tolist()
-    r0 = _rates_f(q, w, 0.0, c)                       # the model at s = 0: F's point and RK4's first stage
-    F2 = _f2(w, c, wheels, r0, model)                 # rows 3:6 of F (``jacobian``)
-    PhiR = _phi_rows(w, F2, dt)                       # the rows of Phi (``phi``) that differ from I
-    P = _predict_covariance(P, PhiR, F2, noise_density(x, case, scale), dt, model.R_rw)
-    return _propagate(x, q, w, dt, c, wheels, r0[:2]), P
+    q, w, c, wheels, r0, F2, PhiR = _linearise(x, w_plus, model, t)
+    P = _predict_covariance(P, PhiR, F2, noise_density(x, case, scale, qd), model.dt, model.R_rw)
+    if M is not None:
+        _carry(M, PhiR)
+    return _propagate(x, q, w, model.dt, c, wheels, r0[:2]), P
+
+
+def propagate_window(x, steps, model):
+    """(x_b, M): the state after a stretch of predictions from x (``steps``: (t, w_plus) per step, as
+    ``predict``'s), and M = d x_b / d x, the product of the steps' Phi and ``shift_tach`` maps."""
+    x = np.array(x, dtype=float)
+    M = EYE_N.copy()
+    for t, w_plus in steps:
+        q, w, c, wheels, r0, _, PhiR = _linearise(x, w_plus, model, t)
+        _carry(M, PhiR)
+        _propagate(x, q, w, model.dt, c, wheels, r0[:2])
+    return x, M
+
+
+def difference(x, y):
+    """x - y in the 41 error coordinates: dq = vec(q_x (x) q_y^-1) (Eq. 4.77), the rest subtracted."""
+    d = np.empty(N)
+    d[IQ] = quat.error_vec(x[0:4], y[0:4])
+    d[3:] = x[4:] - y[4:]
+    return d
+
+
+def update_window(xa, Pa, steps, xb, Pb, M, q_meas, R, model, max_iter=ITER_MAX, tol=ITER_TOL):
+    """The star-tracker update after a stretch without outputs, iterated (Gauss-Newton on the stretch's start;
+    Bell and Cathey's iterated Kalman filter carried over the stretch as a fixed-interval smoother).
+
+    (xa, Pa): the estimate after the last update; ``steps``: the stretch's predictions (``predict``), which
+    took it to (xb, Pb) with M = d xb / d xa (``propagate_window``). Q_s = Pb - M Pa M^T is what the stretch
+    added (process noise, read-outs). Pass i linearises about a start x_i (x_0 = xa): with da = xa - x_i,
+    the prior at the fix is x_b,i (x_i propagated) + M_i da with P_b,i = M_i Pa M_i^T + Q_s, and the update
+    (Eq. 4.139-4.142 at x_b,i) moves the start to x_i + da + Pa M_i^T H^T S^-1 nu. The passes stop when the
+    start moves by less than ``tol`` of its 1 sigma on every axis, after ``max_iter``, or when a start cannot be
+    carried over the stretch (not finite; the last pass is kept); the first pass alone is the EKF update.
+    Returns (x, P, passes)."""
+    Qs = Pb - M @ Pa @ M.T
+    sa = np.sqrt(np.diag(Pa))
+    xi = xa
+    for n in range(1, max_iter + 1):
+        da = difference(xa, xi)
+        db = M @ da
+        if n > 1:
+            Pb = M @ Pa @ M.T + Qs
+        z = quat.error_vec(q_meas, xb[0:4])
+        S = Pb[IQ, IQ] + R
+        nu = np.linalg.solve(S, z - db[IQ])
+        x_next = correct(xi, da + (Pa @ M[IQ].T) @ nu)
+        if n == max_iter or np.max(np.abs(difference(x_next, xi)) / sa) < tol:
+            break
+        xb_next, M_next = propagate_window(x_next, steps, model)
+        if not (np.all(np.isfinite(xb_next)) and np.all(np.isfinite(M_next))):
+            break                           # a start the model cannot carry: keep the last pass
+        xi, xb, M = x_next, xb_next, M_next
+    K = Pb[:, IQ] @ np.linalg.inv(S)
+    AP = Pb - K @ Pb[IQ, :]
+    P = AP - (AP[:, IQ] - K @ R) @ K.T
+    out = P + P.T
+    out *= 0.5
+    return correct(xb, db + Pb[:, IQ] @ nu), out, n
 
 
 def _qmul(q, p):
@@ -606,6 +695,16 @@ def fictitious_scale(t, set_ends):
     return 1.0
 
 
+def fictitious_scales(t, set_ends, form="consistent"):
+    """(Q scale over the step from t, R scale of the output at t + 1 s): ``fictitious_scale``'s for the thesis's
+    form (Sec. 4.7.4); the consistent form keeps x100 on both in the first set and x10 on Q alone in the second
+    (R at x10 there left the filter under-confident in the holds, NEES 3.4 against 6, while the iterated
+    update handles what the inflated R was for: measured, 20 runs of Case 1)."""
+    if form == "thesis":
+        return fictitious_scale(t, set_ends), fictitious_scale(t + 1.0, set_ends)
+    return fictitious_scale(t, set_ends), 100.0 if len(set_ends) > 0 and t + 1.0 < set_ends[0] else 1.0
+
+
 def check_covariance(P, t, name="APKF"):
     """Divergence check: FloatingPointError naming the filter and the time unless P is finite and positive
     definite."""
@@ -618,20 +717,51 @@ def check_covariance(P, t, name="APKF"):
 
 
 class APKF:
-    """The APKF over a recorded run: ``step(t, w_plus, q_meas or None)`` per dt."""
+    """The APKF over a recorded run: ``step(t, w_plus, q_meas or None)`` per dt.
 
-    def __init__(self, x0, model=None, case=1, set_ends=()):
+    ``form``: "consistent" (default) or "thesis", the filter as the thesis writes it (Eq. 4.139-4.142 at every
+    output, Sec. 4.7.4's fictitious noise, Case 2's q_d of Sec. 4.8). The consistent form differs in three
+    places, each for a measured reason (20 runs of Case 1 unless said):
+    - the first star-tracker output after a stretch of two or more steps without one goes through
+      ``update_window``: after a blind rotation the attitude can be tens of degrees off (45 deg after the first
+      set's second rotation), and one linear update then moves the parameters by the wrong amount and locks
+      them outside their 3 sigma (the parameters' NEES went from 30 to 990 at that fix);
+    - R is inflated in the first maneuver set only (``fictitious_scales``);
+    - Case 2's q_d is the one matched to its disturbance (``QD_CASE2_MATCHED``).
+    ``reacquisitions``: one (t, steps, passes) per iterated update."""
+
+    def __init__(self, x0, model=None, case=1, set_ends=(), form="consistent"):
+        if form not in FORMS:
+            raise ValueError("form must be one of %s, got %r" % (", ".join(FORMS), form))
         self.model = model or Model()
         self.x = np.array(x0, dtype=float)
         self.P = initial_covariance(self.model)
         self.case = case
         self.set_ends = list(set_ends)
+        self.form = form
+        self.qd = QD_CASE if form == "thesis" else QD_CONSISTENT
+        self.reacquisitions = []
+        self._stretch = None            # (x, P, steps, M) since the last star-tracker output
 
     def step(self, t, w_plus, q_meas=None):
         """Propagate from t to t + dt with the read-out at t + dt, then update if a star-tracker output came."""
         m = self.model
-        s = fictitious_scale(t, self.set_ends)
-        self.x, self.P = predict(self.x, self.P, w_plus, m, t, self.case, s)
-        if q_meas is not None:
-            self.x, self.P = update(self.x, self.P, q_meas, m.R_st * fictitious_scale(t + m.dt, self.set_ends))
+        s_q, s_r = fictitious_scales(t, self.set_ends, self.form)
+        M = None
+        if self.form == "consistent":
+            if self._stretch is None:
+                self._stretch = (self.x, self.P, [], EYE_N.copy())
+            self._stretch[2].append((t, np.array(w_plus, dtype=float)))
+            M = self._stretch[3]
+        self.x, self.P = predict(self.x, self.P, w_plus, m, t, self.case, s_q, M=M, qd=self.qd)
+        if q_meas is None:
+            return self.x, self.P
+        R = m.R_st * s_r
+        stretch, self._stretch = self._stretch, None
+        if stretch is not None and len(stretch[2]) >= 2:
+            xa, Pa, steps, M = stretch
+            self.x, self.P, n = update_window(xa, Pa, steps, self.x, self.P, M, q_meas, R, m)
+            self.reacquisitions.append((t + m.dt, len(steps), n))
+        else:
+            self.x, self.P = update(self.x, self.P, q_meas, R)
         return self.x, self.P

@@ -24,7 +24,7 @@ def main(path=os.path.join(os.path.dirname(__file__), "apkf_reference.npz")):
     q0 = o["st_q"][k0]
     w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
     x0 = apkf.initial_state(q0, w0, o["tach"][k0])
-    f = apkf.APKF(x0, case=CASE, set_ends=o["set_ends"])
+    f = apkf.APKF(x0, case=CASE, set_ends=o["set_ends"], form="thesis")
     n = len(o["t"]) - k0 - 1
     checks = [c if c is not None else n for c in CHECKS]
     xs, Ps = [], []

@@ -247,7 +247,7 @@ def r_quarter_figures(seeds=range(5), t_from=210.0):
     rows = {"att": [], "rate": [], "nees": [], "e": [], "s": []}
     for seed in seeds:
         o = scenario.simulate(case=1, seed=seed)
-        k0, f = runs._start_apkf(o, 1, model=apkf.Model(sigma_st_arcsec=(10.0, 10.0, 30.0)))
+        k0, f = runs._start_apkf(o, 1, model=apkf.Model(sigma_st_arcsec=(10.0, 10.0, 30.0)), form="thesis")
         nees, e_att, s_att = [], [], []
         for k in range(k0 + 1, len(o["t"])):
             f.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
@@ -270,6 +270,47 @@ def r_quarter_figures(seeds=range(5), t_from=210.0):
     return {"seeds": n, "t_from": t_from, "att": np.mean(rows["att"], axis=0), "rate": np.mean(rows["rate"], axis=0),
             "share": float(np.mean((mean_nees >= lo) & (mean_nees <= hi))),
             "ratio": np.sqrt(np.mean(e ** 2, axis=0)) / np.mean(sg, axis=0)}
+
+
+CONSISTENCY_ROWS = (("thesis-3u", 1), ("thesis-3u", 2), ("thesis-3u", 3), ("generic-6u", 1), ("generic-12u", 1))
+
+
+def consistency_figures(by=None, rows=CONSISTENCY_ROWS, runs_n=RUNS):
+    """Issue 29's consistency figures per spacecraft and case: {(filter, spacecraft, case, form): summary}, the
+    APKF in both forms (the thesis's on Case 1 of each spacecraft) and the MEKF; ``by``: summaries already run
+    (``main``'s thesis-3u campaigns), keyed the same way."""
+    from protocol import spacecraft as sf
+    out = dict(by or {})
+    for name, case in rows:
+        d = sf.load(name)
+        todo = [("apkf", "consistent")] + ([("apkf", "thesis")] if case == 1 else []) + \
+               ([("mekf", None)] if case == 1 else [])
+        for flt, form in todo:
+            key = (flt, name, case, form)
+            if key in out:
+                continue
+            fn, kw = (runs.run_apkf, {"form": form}) if flt == "apkf" else (runs.run_mekf, {})
+            res = _campaign(fn, case, workers=2, runs_n=runs_n, spacecraft=d, **kw)[0]
+            out[key] = runs.aggregate(res, flt, case)
+    return out
+
+
+def consistency_table(figs):
+    """``consistency_figures`` as the bench's table, goals beside."""
+    rows = ["| filter | spacecraft, case | NEES (attitude + rate; MEKF: + bias) in its 95 % band after the first "
+            "set | RMS error / 1 sigma, attitude x, y, z | RMS error / 1 sigma, rate x, y, z (MEKF: the gyro's) | "
+            "parameters' final error within 3 sigma (least of 23) | runs ok / diverged / failed |",
+            "|---|---|---|---|---|---|---|"]
+    for (flt, name, case, form), s in figs.items():
+        label = "MEKF" if flt == "mekf" else "APKF, %s form" % form
+        rows.append("| %s | %s, case %d | %s | %s | %s | %s | %d / %d / %d |" % (
+            label, name, case, _fmt(s.get("nees_in_band_share"), 1, "%.2f"),
+            _fmt(s.get("rms_over_sigma_attitude"), 1, "%.2f"), _fmt(s.get("rms_over_sigma_rate"), 1, "%.2f"),
+            _fmt(s.get("params_within_3sigma_share"), 1, "%.2f"), s["runs"], s.get("runs_diverged", 0),
+            s["runs_failed"]))
+    rows.append("Goals (issue 29, %d seeds each): NEES in band >= 0.90; RMS / 1 sigma 0.7-1.3 on every axis; "
+                "parameters within 3 sigma in >= 95 %% of runs; no run diverges." % RUNS)
+    return "\n".join(rows)
 
 
 def r_quarter_diagnostic(seeds=range(5)):
@@ -328,6 +369,10 @@ def main():
         by[("apkf", case)] = runs.aggregate(_campaign(runs.run_apkf, case, workers=2)[0], "apkf", case)
     by[("mekf", None)] = runs.aggregate(_campaign(runs.run_mekf, 1, workers=2)[0], "mekf", 1)
     print(accuracy_tables(by))
+    done = {("apkf", "thesis-3u", c, "consistent"): by[("apkf", c)] for c in (1, 2, 3)}
+    done[("mekf", "thesis-3u", 1, None)] = by[("mekf", None)]
+    print("\nConsistency per spacecraft (%d seeds each, 2 workers):\n" % RUNS)
+    print(consistency_table(consistency_figures(done)))
     diag = runs.aggregate(_campaign(runs.run_apkf, 1, workers=2, start_at_truth=True)[0], "apkf", 1)
     print("\nDiagnostic, APKF case 1 started at the true parameters (same P0): NEES in band %.2f (mean %.2f, "
           "band %.2f-%.2f); final attitude 1 sigma %s arcsec, RMS error %s arcsec."

@@ -56,7 +56,7 @@ def table(summary):
     rows = ["| figure | ours | thesis | goal |", "|---|---|---|---|"]
     for k in ("final_sigma_attitude_arcsec", "final_sigma_rate_arcsec_s", "final_error_attitude_arcsec",
               "sigma_jyy_jzz_kgm2", "sigma_dipole_am2", "max_sigma_delta_rw_deg", "max_sigma_jrw_kgm2",
-              "nees_in_band_share", "rms_over_sigma_attitude", "rms_over_sigma_rate"):
+              "nees_in_band_share", "rms_over_sigma_attitude", "rms_over_sigma_rate", "params_within_3sigma_share"):
         if summary.get(k) is None and k not in th:
             continue
         v = "—"
@@ -71,8 +71,9 @@ def markdown(summary):
     name = summary["filter"].upper()
     head = "# %s, %s\n\n" % (name, "MEMS gyro baseline (Sec. 4.4.1)" if summary["filter"] == "mekf"
                              else "Case %d (Sec. 4.8.%d)" % (summary["case"], summary["case"]))
-    lines = [head.rstrip("\n") + "\n", "Runs: %d ok, %d failed, %d diverged; complete: %s.\n"
-             % (summary["runs"], summary.get("runs_failed", 0), summary.get("runs_diverged", 0), summary["complete"]),
+    lines = [head.rstrip("\n") + "\n", "Runs: %d ok, %d failed, %d diverged; complete: %s.%s\n"
+             % (summary["runs"], summary.get("runs_failed", 0), summary.get("runs_diverged", 0), summary["complete"],
+                " Filter: the %s form (fps adcs apkf --help)." % summary["form"] if summary.get("form") else ""),
              table(summary), ""]
     dur = [r.get("duration_s") for r in summary.get("per_run", []) if r.get("duration_s") is not None]
     if dur and min(dur) < 930:

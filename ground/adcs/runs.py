@@ -141,11 +141,12 @@ def mekf_options(d):
             "sigma_st_rad": np.array(d["star_tracker"]["sigma_arcsec"]) * quat.ARCSEC}
 
 
-def _start_apkf(o, case, start_at_truth=False, model=None, spacecraft=None):
+def _start_apkf(o, case, start_at_truth=False, model=None, spacecraft=None, form="consistent"):
     """(first step, APKF) for a simulated run: attitude from the star tracker, rate differentiated from it
     (Sec. 4.8); ``start_at_truth`` puts the parameters at their true values (a diagnostic), same P0;
     ``model``: an ``apkf.Model`` other than the default (a diagnostic); ``spacecraft``: a checked spacecraft
-    file giving the model (``apkf_model``) and the priors (``apkf_prior``) instead of the thesis's."""
+    file giving the model (``apkf_model``) and the priors (``apkf_prior``) instead of the thesis's; ``form``: the
+    APKF's (``apkf.APKF``)."""
     k0 = _start(o)
     q0 = o["st_q"][k0]
     w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
@@ -160,7 +161,7 @@ def _start_apkf(o, case, start_at_truth=False, model=None, spacecraft=None):
         tr = o["truth"]
         x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
                                                                   tr["jrw"])
-    return k0, apkf.APKF(x0, model=model, case=case, set_ends=o["set_ends"])
+    return k0, apkf.APKF(x0, model=model, case=case, set_ends=o["set_ends"], form=form)
 
 
 def _start(o):
@@ -269,12 +270,14 @@ def _series(err, nees, z):
     return {"att_err": (2 * err[:, 0:3] / ARCSEC).tolist(), "nees": nees.tolist(), "z_att_rate": z.tolist()}
 
 
-def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False, spacecraft=None):
+def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False, spacecraft=None,
+             form="consistent"):
     """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series.
     ``start_at_truth`` (a diagnostic, not in the CLI) starts the parameters at their true values, same P0.
-    ``spacecraft``: a checked spacecraft file for the truth and the filter (None: the thesis's 3U)."""
+    ``spacecraft``: a checked spacecraft file for the truth and the filter (None: the thesis's 3U); ``form``:
+    the APKF's, "consistent" or "thesis" (``apkf.APKF``)."""
     o = _simulate(case, seed, params, gyro=False, spacecraft=spacecraft)
-    k0, f = _start_apkf(o, case, start_at_truth, spacecraft=spacecraft)
+    k0, f = _start_apkf(o, case, start_at_truth, spacecraft=spacecraft, form=form)
     n = len(o["t"])
     err = np.full((n, apkf.N), np.nan)
     sig = np.full((n, apkf.N), np.nan)
@@ -290,6 +293,10 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
     why = divergence(nees, err, sig, k0, o["set_ends"])
     res = _final(seed, "apkf", case, o, err, sig, nees, k0, why,
                  None if why else apkf_params_report(o, n - 1, f, case))
+    passes = [r[2] for r in f.reacquisitions]
+    res["filter_form"] = form
+    res["iterated_updates"] = {"count": len(passes), "max_passes": max(passes, default=0),
+                               "mean_passes": float(np.mean(passes)) if passes else 0.0}
     _write_run(run_dir, res, o["t"], err, sig, nees, z)
     if keep_series:
         res["series"] = _series(err, nees, z)
@@ -332,6 +339,10 @@ def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True, spacecra
     return res
 
 
+# the APKF's 23 parameters, in the error state's order (``apkf.PARAMS``)
+PARAM_NAMES = (["tau_d_%s" % a for a in "xyz"] + ["Jyy", "Jzz", "Jxy", "Jxz", "Jyz"] + ["m_%s" % a for a in "xyz"]
+               + ["delta1_%d" % i for i in range(4)] + ["delta2_%d" % i for i in range(4)]
+               + ["Jrw_%d" % i for i in range(4)])
 FIGURE_KEYS = {"apkf": ["final_sigma_attitude_arcsec", "final_error_attitude_arcsec", "final_sigma_rate_arcsec_s",
                         "final_error_rate_arcsec_s", "sigma_jyy_jzz_kgm2", "sigma_dipole_am2",
                         "max_sigma_delta_rw_deg", "max_sigma_jrw_kgm2", "final_error_params",
@@ -399,7 +410,9 @@ def aggregate(results, name, case, dof=6):
     ``nees_in_band_share`` (``nees_in_band_fraction``, the same figure under its older name), the share of steps
     whose mean NEES over the runs (attitude + rate; MEKF: attitude + gyro bias) lies in its 95 % band, and
     ``rms_over_sigma_attitude`` / ``rms_over_sigma_rate``, per axis the RMS over runs and steps of the error over
-    its 1 sigma (1 for a consistent filter; the MEKF's rate is its gyro's, ``run_mekf``)."""
+    its 1 sigma (1 for a consistent filter; the MEKF's rate is its gyro's, ``run_mekf``). APKF:
+    ``params_within_3sigma_share``, over the parameters the smallest share of runs whose final error is within
+    3 sigma (``params_within_3sigma_by_parameter``, each)."""
     ok = [r for r in results if r and "error" not in r and not r.get("diverged")]
     errors = [r for r in results if r and "error" in r]
     div = [r for r in results if r and (r.get("diverged") or _raised_divergence(r))]
@@ -410,7 +423,7 @@ def aggregate(results, name, case, dof=6):
     keys = ["final_sigma_attitude_arcsec", "final_sigma_rate_arcsec_s", "final_error_attitude_arcsec",
             "sigma_jyy_jzz_kgm2", "sigma_dipole_am2", "max_sigma_delta_rw_deg", "max_sigma_jrw_kgm2"]
     for k in keys + ["nees_in_band_share", "nees_in_band_fraction", "rms_over_sigma_attitude",
-                     "rms_over_sigma_rate"]:
+                     "rms_over_sigma_rate", "params_within_3sigma_share"]:
         s[k] = None
     if not ok:
         return s
@@ -437,6 +450,11 @@ def aggregate(results, name, case, dof=6):
                      if sel.any() else None, "runs": len(nees),
                      "note": "mean over runs of e^T P^-1 e (attitude + %s); band: 95 %% chi-square"
                              % ("rate" if name == "apkf" else "gyro bias")}
+    zf = [r["final_normalised_error"] for r in ok if r.get("final_normalised_error") is not None]
+    if zf:
+        inside = np.abs(np.array(zf, dtype=float)[:, apkf.PARAMS]) <= 3.0           # runs x 23
+        s["params_within_3sigma_share"] = float(inside.mean(axis=0).min())
+        s["params_within_3sigma_by_parameter"] = dict(zip(PARAM_NAMES, inside.mean(axis=0).round(4).tolist()))
     z = [np.array(r["series"]["z_att_rate"], dtype=float) for r in with_series
          if r["series"].get("z_att_rate") is not None]
     if z:

@@ -95,3 +95,19 @@ def test_the_campaign_counts_parameters_within_3_sigma():
     assert s["params_within_3sigma_share"] == 0.5
     assert s["params_within_3sigma_by_parameter"][runs.PARAM_NAMES[20 - 6]] == 0.5
     assert s["params_within_3sigma_by_parameter"]["Jyy"] == 1.0
+
+
+@pytest.mark.parametrize("name", ["generic-6u", "generic-12u"])
+def test_the_apkf_and_the_mekf_are_consistent_on_the_other_spacecraft(name):
+    """Each file's own priors (case 1, 2 seeds, 930 s): the APKF's and the MEKF's mean NEES after the first set
+    near their 6 dof, no parameter beyond 3 sigma at the end, no run diverged."""
+    from protocol import spacecraft as sf
+    d = sf.load(name)
+    for fn in (runs.run_apkf, runs.run_mekf):
+        rs = [fn(seed, None, case=1, spacecraft=d) for seed in range(2)]
+        assert all(r["ok"] for r in rs)
+        t0 = int(rs[0]["set_ends_s"][0])
+        mean = float(np.mean([r["series"]["nees"][t0:] for r in rs]))
+        assert 4.0 < mean < 8.5, (fn.__name__, mean)
+        if fn is runs.run_apkf:
+            assert (np.abs(np.array([r["final_normalised_error"][6:29] for r in rs])) <= 3.0).all()

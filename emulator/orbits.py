@@ -182,11 +182,13 @@ def cache_key(kind, x0s, duration_s, step_s, epoch_utc=EPOCH_UTC, spacecraft=CUB
     return hashlib.sha256(json.dumps(inputs, sort_keys=True).encode()).hexdigest()[:20], inputs
 
 
-def truth_samples(kind="hpop", duration_s=1200.0, x0s=(X0_A, X0_B), step_s=1.0, cache_dir=None):
+def truth_samples(kind="hpop", duration_s=1200.0, x0s=(X0_A, X0_B), step_s=1.0, cache_dir=None,
+                  epoch_utc=EPOCH_UTC, spacecraft=CUBESAT_3U):
     """(t (n,), x (n, n_sat, 6)) at ``step_s``: the truth of every satellite, from the cache when present.
 
     ``kind`` is "hpop" or "two-body". The samples cover [0, duration_s] plus 10 s, so 10th-order Lagrange
-    interpolation keeps a centred stencil to the end.
+    interpolation keeps a centred stencil to the end. ``epoch_utc`` (t = 0) and ``spacecraft`` (mass, areas and
+    coefficients, ``CUBESAT_3U``'s keys) are hpop's (every satellite flies the same surface).
     """
     if kind not in TRUTHS:
         raise ValueError("truth must be one of %s, got %r" % ("/".join(TRUTHS), kind))
@@ -197,7 +199,7 @@ def truth_samples(kind="hpop", duration_s=1200.0, x0s=(X0_A, X0_B), step_s=1.0, 
     for i, x in enumerate(x0s):
         check_state(x, "initial state of satellite %d" % i)
     span = float(np.ceil(duration_s / step_s) * step_s + 10 * step_s)
-    key, inputs = cache_key(kind, x0s, span, step_s)
+    key, inputs = cache_key(kind, x0s, span, step_s, epoch_utc, spacecraft)
     path = os.path.join(cache_dir, "truth_cache", key + ".npz") if cache_dir else None
     n = int(round(span / step_s)) + 1
     if path and os.path.exists(path):
@@ -212,7 +214,7 @@ def truth_samples(kind="hpop", duration_s=1200.0, x0s=(X0_A, X0_B), step_s=1.0, 
     if kind == "two-body":
         x = np.stack([kepler(x0, t) for x0 in x0s], axis=1)
     else:
-        x = np.stack([hpop(x0, span, step_s) for x0 in x0s], axis=1)
+        x = np.stack([hpop(x0, span, step_s, epoch_utc, spacecraft) for x0 in x0s], axis=1)
     r = np.linalg.norm(x[:, :, :3], axis=2)
     if not np.all(np.isfinite(x)) or r.min() < R_EARTH:
         raise ValueError("the %s truth left the valid range (min |r| %.1f km)" % (kind, np.nanmin(r) / 1e3))

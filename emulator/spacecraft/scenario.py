@@ -314,25 +314,70 @@ class GridOrbit:
 TRUTH_PARAMS_SIGMA = [1e-8] * 3 + [0.078e-3] * 5 + [0.002] * 3 + [0.061 * DEG] * 8 + [0.61e-8] * 4
 
 
-def truth_params(sc):
-    """The parameter file a perfect calibration would write for spacecraft ``sc`` (ground/adcs/bps.py format):
-    its own J, wheel misalignment (the thesis's deltas) and dipole; Jrw scaled so that the filter's
-    unnormalised C Jrw (Eq. 4.60) equals the true normalised axes times the true Jrw. P: the 1σ of a
+def _prior_sigma(d):
+    """The spacecraft file ``d``'s 1σ priors (uncertainty block) in ``TRUTH_PARAMS_SIGMA``'s order."""
+    u = d["uncertainty"]
+    return ([u["disturbance_torque_sigma_nm"]] * 3 + list(u["inertia_sigma_kgm2"][1:])
+            + [u["residual_dipole_sigma_am2"]] * 3 + [u["misalignment_sigma_deg"]] * 8
+            + [u["rotor_inertia_sigma_kgm2"]] * 4)
+
+
+def truth_params(sc, spacecraft=None):
+    """The parameter file a perfect calibration would write for spacecraft ``sc`` (``protocol.paramfile``): its
+    own J, wheel misalignment (its wheels' angles about their nominal axes) and dipole; Jrw scaled so that the
+    filter's unnormalised C Jrw (Eq. 4.60) equals the true normalised axes times the true Jrw. P: the 1σ of a
     calibration as good as the thesis's (Sec. 4.8, Case 1 final): J 0.078e-3 kg m^2 (all five), m 0.002 A m^2,
-    delta 0.061 deg, Jrw 0.61e-8 kg m^2, and tau_d 1e-8 N m (1 % of its Case 2 size; the thesis gives none)."""
-    from emulator.spacecraft.wheels import DELTA1_DEG_THESIS, DELTA2_DEG_THESIS, misalignment_axes, pyramid_c0
+    delta 0.061 deg, Jrw 0.61e-8 kg m^2, and tau_d 1e-8 N m (1 % of its Case 2 size; the thesis gives none);
+    for a checked spacecraft file ``spacecraft`` (the vehicle ``sc`` was built from) each scaled by its prior 1σ
+    over thesis-3u's (the same share of the prior left)."""
+    from emulator.spacecraft.wheels import misalignment_axes
     j = sc.j
-    d1, d2 = np.radians(DELTA1_DEG_THESIS), np.radians(DELTA2_DEG_THESIS)
-    c0 = pyramid_c0()
-    c1, c2 = misalignment_axes(c0)
-    cn = np.linalg.norm(c0 + c1 * d1 + c2 * d2, axis=0)
-    jrw = np.asarray(sc.wheels.p.j_rw, float) / cn
+    w = sc.wheels
+    d1, d2 = np.radians(w.p.delta1_deg), np.radians(w.p.delta2_deg)
+    c1, c2 = misalignment_axes(w.c0)
+    cn = np.linalg.norm(w.c0 + c1 * d1 + c2 * d2, axis=0)
+    jrw = np.asarray(w.p.j_rw, float) / cn
+    sigma = np.array(TRUTH_PARAMS_SIGMA)
+    if spacecraft is not None:
+        sigma = sigma * (np.array(_prior_sigma(spacecraft)) / np.array(_prior_sigma(thesis_3u())))
     return {"format": paramfile.FORMAT, "wheels": 4, "jxx_ref_kgm2": float(j[0, 0]), "torque_scale": 1.0,
             "x": {"tau_d_nm": [0.0, 0.0, 0.0], "J5_kgm2": [float(v) for v in (j[1, 1], j[2, 2], j[0, 1], j[0, 2], j[1, 2])],
                   "dipole_am2": [float(v) for v in sc.dipole], "delta1_rad": d1.tolist(), "delta2_rad": d2.tolist(),
                   "jrw_kgm2": jrw.tolist()},
-            "P": np.diag(np.array(TRUTH_PARAMS_SIGMA) ** 2).tolist(),
+            "P": np.diag(sigma ** 2).tolist(),
             "calibration": {"seed": -1, "sets": 0, "duration_s": 0}}
+
+
+def thesis_3u():
+    """The thesis's 3U (the preset thesis-3u, checked): the vehicle when no spacecraft file is given."""
+    from protocol import spacecraft as sf
+    return sf.load("thesis-3u")
+
+
+def laser_axis(d):
+    """The laser terminal's unit boresight l_b (body frame) of a checked spacecraft file ``d``."""
+    lb = np.asarray(d["laser_axis"], float)
+    return lb / np.linalg.norm(lb)
+
+
+def orbit_setup(d):
+    """What the orbit scenarios (the STKF study of Sec. 5.5, the body-pointing world of Sec. 6.4) take from a
+    checked spacecraft file ``d``: ``x0s`` (SatA's orbit.state and the partner SatB's, EME2000 [r, v]),
+    ``epoch_utc`` (t = 0), ``surface`` (the orbit truth's mass, areas and coefficients,
+    ``emulator.orbits.CUBESAT_3U``'s keys), ``gnss`` and ``beacon`` (``emulator.navsensors``' keywords),
+    ``relay_delay_s`` and ``stkf_P0_diag`` (the STKF's P0 from the uncertainty block, m^2 and (m/s)^2 per
+    satellite). ValueError naming ``partner`` when the file has none."""
+    from protocol import spacecraft as sf
+    p = d["partner"]
+    if p is None:
+        raise ValueError("partner = null: the scenario tracks a partner satellite (SatB); give the spacecraft "
+                         "file a partner block")
+    s, u, g = d["orbit"]["state"], d["uncertainty"], d["gnss"]
+    return {"x0s": (np.array(s["position_m"] + s["velocity_m_s"]), np.array(p["position_m"] + p["velocity_m_s"])),
+            "epoch_utc": sf.epoch_tuple(d), "surface": dict(d["surface"], mass_kg=d["mass_kg"]),
+            "gnss": {"sigma_r_m": g["sigma_position_m"], "sigma_v_m_s": g["sigma_velocity_m_s"]},
+            "beacon": {"sigma_arcsec": d["beacon"]["sigma_arcsec"]}, "relay_delay_s": tuple(p["relay_delay_s"]),
+            "stkf_P0_diag": ([u["orbit_position_sigma_m"] ** 2] * 3 + [u["orbit_velocity_sigma_m_s"] ** 2] * 3) * 2}
 
 
 # --- the body-pointing scenario's world (Sec. 6.4) ----------------------------------------------------------
@@ -342,14 +387,23 @@ def truth_span(seconds, margin_s):
     return float(np.ceil((seconds + margin_s) / 1000.0) * 1000.0)
 
 
-def truth_grid(K, truth="two-body", cache_dir=None, span_margin_s=2.0):
-    """SatA's and SatB's orbits for a run of K s: the 1 s truth samples (``emulator.orbits.truth_samples``) and
-    their 10th-order Lagrange interpolation (Sec. 6.4.1) on the ``WORLD_RATE_HZ`` grid over [0, K + 1] s.
+def orbit_truth(kind, duration_s, orbit=None, cache_dir=None):
+    """``emulator.orbits.truth_samples`` of SatA and SatB from ``orbit`` (an ``orbit_setup``; None: thesis-3u's,
+    the thesis's Eq. 5.53): their initial states, epoch and surface."""
+    from emulator import orbits
+    o = orbit or orbit_setup(thesis_3u())
+    return orbits.truth_samples(kind, duration_s, x0s=o["x0s"], cache_dir=cache_dir, epoch_utc=o["epoch_utc"],
+                                spacecraft=o["surface"])
+
+
+def truth_grid(K, truth="two-body", cache_dir=None, span_margin_s=2.0, orbit=None):
+    """SatA's and SatB's orbits for a run of K s: the 1 s truth samples (``emulator.orbits.truth_samples``, from
+    ``orbit``, an ``orbit_setup``; None: the thesis's Eq. 5.53) and their 10th-order Lagrange interpolation
+    (Sec. 6.4.1) on the ``WORLD_RATE_HZ`` grid over [0, K + 1] s.
 
     Returns (t_s, xs, tg, xg): t_s (n,) s, xs (n, 2, 6) and xg (len(tg), 2, 6) [r (m), v (m/s)] of SatA, SatB."""
-    from emulator import orbits
     from emulator.interp import lagrange        # the interpolation of Sec. 6.4.1 (numpy)
-    t_s, xs = orbits.truth_samples(truth, truth_span(K, span_margin_s), cache_dir=cache_dir)
+    t_s, xs = orbit_truth(truth, truth_span(K, span_margin_s), orbit, cache_dir)
     tg = np.arange(0, (K + 1) * WORLD_RATE_HZ + 1) / WORLD_RATE_HZ
     xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)
     return t_s, xs, tg, xg
@@ -365,7 +419,8 @@ class PointingWorld:
       tracker), ``gnss_a`` (SatA's GNSS), ``beacon``, ``relay`` (SatB's GNSS relayed, or None);
     - ``tb`` (SatB's GNSS epochs on its own clock; empty without the relay), ``xb_tb`` (SatB's truth at ``tb``,
       or None);
-    - ``stkf_x0`` (12,): the STKF's initial estimate, the truth at t = 0 off by N(0, ``STKF_P0_DIAG``).
+    - ``stkf_P0_diag`` (12,): the STKF's initial variances (``STKF_P0_DIAG`` for the thesis's 3U), ``stkf_x0``
+      (12,): its initial estimate, the truth at t = 0 off by N(0, ``stkf_P0_diag``).
     """
 
     def __init__(self, **members):
@@ -373,34 +428,42 @@ class PointingWorld:
 
 
 def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, span_margin_s=2.0, n_tags=None,
-                   wheel_speed_limit_rpm=POINTING_WHEEL_RPM, tach_noise_rpm=None):
+                   wheel_speed_limit_rpm=POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None):
     """The world of a body-pointing run of K s (Sec. 6.4.1-6.4.2), as a ``PointingWorld``.
 
     Truth: ``truth_grid(K, truth, cache_dir, span_margin_s)`` at ``WORLD_RATE_HZ``. Random streams: the seven
     children of ``SeedSequence(seed)``, in order: wheels, star tracker, STKF start, SatA's GNSS, SatB's GNSS,
     beacon, relay (SatB's clock phase, then each fix's delay). ``n_tags``: SatB's GNSS epochs (default K), at
     U(0, 1) + 0, 1, ... s. The caller's own margin and tag count keep its results (and its truth cache) as
-    they were: ground/adcs/bps.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1. The wheels are
-    ``SCENARIO_WHEELS``' with the speed limit ``wheel_speed_limit_rpm`` (``POINTING_WHEEL_RPM``: none in effect)
-    and, if ``tach_noise_rpm`` is given, that read-out noise (1 sigma, rpm) instead of the scenario's 10 rpm (a
-    diagnostic; the noise draws are the same, scaled).
+    they were: ground/adcs/bps.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1.
+    ``spacecraft``: a checked spacecraft file (None: thesis-3u, the thesis's 3U), giving the true vehicle
+    (``truth_setup``: inertia, dipole, wheels, star tracker), the orbits, epoch and sensors (``orbit_setup``);
+    ValueError for a file the world cannot fly (not four wheels, no partner). The wheels' speed limit is
+    ``wheel_speed_limit_rpm`` (``POINTING_WHEEL_RPM``: none in effect) and, if ``tach_noise_rpm`` is given, the
+    read-out noise that (1 sigma, rpm) instead of the file's (a diagnostic; the noise draws are the same, scaled).
     """
+    from dataclasses import replace
     from emulator.interp import lagrange
     from emulator.orbits import epoch_gmst_rad
-    t_s, xs, tg, xg = truth_grid(K, truth, cache_dir, span_margin_s)
+    d = spacecraft or thesis_3u()
+    v, o = truth_setup(d), orbit_setup(d)
+    t_s, xs, tg, xg = truth_grid(K, truth, cache_dir, span_margin_s, o)
     orbit = GridOrbit(0.0, WORLD_RATE_HZ, xg[:, 0, 0:3])
     ss = np.random.SeedSequence(seed)
     r_rw, r_st, r_init, r_ga, r_gb, r_bc, r_rel = [np.random.default_rng(s) for s in ss.spawn(7)]
-    wp = dict(SCENARIO_WHEELS, speed_max_rpm=wheel_speed_limit_rpm)
+    wp = replace(v["wheel_params"], speed_max_rpm=wheel_speed_limit_rpm)
     if tach_noise_rpm is not None:
-        wp["noise_rpm"] = float(tach_noise_rpm)
-    wheels = Wheels(WheelParams(**wp), rng=r_rw)
-    field = TiltedDipoleField(gmst0_rad=epoch_gmst_rad())       # the orbits' epoch (t = 0) is Eq. 5.53's
-    sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orbit, field=field)
-    relay = Relay(r_rel, Gnss(r_gb)) if satb_gnss else None
+        wp = replace(wp, noise_rpm=float(tach_noise_rpm))
+    wheels = Wheels(wp, rng=r_rw, c0=v["c0"], c=v["c"])
+    field = TiltedDipoleField(gmst0_rad=epoch_gmst_rad(o["epoch_utc"]))     # the orbits' epoch (t = 0)
+    sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orbit, field=field,
+                    inertia=v["inertia"], dipole=v["dipole"])
+    relay = Relay(r_rel, Gnss(r_gb, **o["gnss"]), o["relay_delay_s"]) if satb_gnss else None
     tb = (r_rel.uniform(0.0, 1.0) + np.arange(K if n_tags is None else n_tags)) if satb_gnss else np.zeros(0)
     return PointingWorld(
         K=K, rate=WORLD_RATE_HZ, t_s=t_s, xs=xs, tg=tg, xg=xg, orbit=orbit, field=field, wheels=wheels, sc=sc,
-        st=StarTracker(r_st), gnss_a=Gnss(r_ga), beacon=Beacon(r_bc), relay=relay, tb=tb,
+        st=StarTracker(r_st, **v["star_tracker"]), gnss_a=Gnss(r_ga, **o["gnss"]),
+        beacon=Beacon(r_bc, **o["beacon"]), relay=relay, tb=tb,
         xb_tb=lagrange(t_s, xs[:, 1, :], tb, order=10) if satb_gnss else None,
-        stkf_x0=xg[0].ravel() + np.sqrt(STKF_P0_DIAG) * r_init.standard_normal(12))
+        stkf_P0_diag=o["stkf_P0_diag"],
+        stkf_x0=xg[0].ravel() + np.sqrt(o["stkf_P0_diag"]) * r_init.standard_normal(12))

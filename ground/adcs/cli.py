@@ -51,9 +51,12 @@ def _presets():
     return sf.presets()
 
 
-def load_spacecraft(name_or_path, params=None):
+def load_spacecraft(name_or_path, params=None, wheels=True, partner=False):
     """(checked spacecraft file, what was given) for ``--spacecraft`` (None: thesis-3u). ValueError (exit 2)
-    with the checker's message for a bad one, or when ``params`` also sets the true inertia or dipole."""
+    with the checker's message for a bad one, one whose wheels.count is not 4 (``wheels``: the APKF and the
+    controllers fly four), one without a partner (``partner``: the STKF and the body pointing track one,
+    ``scenario.orbit_setup``), or when ``params`` also sets the true inertia or dipole."""
+    from emulator.spacecraft import scenario
     from protocol import spacecraft as sf
     if name_or_path is not None and params and ({"inertia_kgm2", "dipole_am2"} & set(params)):
         raise ValueError("--params sets %s and --spacecraft %s says the vehicle too: give the true vehicle in the "
@@ -62,12 +65,21 @@ def load_spacecraft(name_or_path, params=None):
     source = "thesis-3u" if name_or_path is None else name_or_path
     try:
         d = sf.load(source)
+        if wheels and d["wheels"]["count"] != 4:
+            raise ValueError("wheels.count = %d: the Sec. 4.8 scenario, the APKF and the controllers fly four "
+                             "wheels" % d["wheels"]["count"])
+        if partner:
+            scenario.orbit_setup(d)
     except ValueError as exc:
         raise ValueError("--spacecraft %s: %s" % (source, exc)) from None
-    if d["wheels"]["count"] != 4:
-        raise ValueError("--spacecraft %s: wheels.count = %d: the Sec. 4.8 scenario and the APKF fly four wheels"
-                         % (source, d["wheels"]["count"]))
     return d, source
+
+
+def add_spacecraft_option(p, what):
+    """``--spacecraft NAME|FILE`` on ``p``; ``what``: what the command takes from the file."""
+    p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
+                   help="the vehicle: a preset (%s) or a spacecraft file (fps spacecraft); %s (default thesis-3u, "
+                        "the thesis's 3U)" % (", ".join(_presets()), what))
 
 
 def run_filter_campaign(fn, name, case, a, dof=6):

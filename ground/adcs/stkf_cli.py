@@ -11,13 +11,15 @@ import os
 import sys
 import time
 
-from ground.adcs import campaign, stkf_sim
+from emulator.spacecraft import scenario
+from ground.adcs import campaign, runs, stkf_sim
+from ground.adcs.cli import add_spacecraft_option, load_spacecraft
 from ground.fileio import output_folder, write_atomic, write_json
 
 
 def _cmd(a):
     seeds = campaign.seeds_for(a.seed, a.runs)
-    runs = len(seeds)
+    n_runs = len(seeds)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     outages = [stkf_sim.parse_outage(o) for o in (a.outage or [])]
@@ -30,35 +32,39 @@ def _cmd(a):
                              "silence nothing" % (sensor, t0, t1, a.duration))
     if not (0 < a.lag < float("inf")):
         raise ValueError("--lag must be a finite number of seconds > 0, got %r" % a.lag)
-    if a.case == 2 and a.lag < 3.0 + 1.0:
-        raise ValueError("--lag %.2f s is shorter than the relay's longest delay (3 s) plus one filter step "
-                         "(1 s): delayed measurements would be refused" % a.lag)
+    spacecraft, source = load_spacecraft(a.spacecraft, wheels=a.attitude == "apkf", partner=True)
+    orbit = scenario.orbit_setup(spacecraft)
+    delay = orbit["relay_delay_s"][1]
+    if a.case == 2 and a.lag < delay + 1.0:
+        raise ValueError("--lag %.2f s is shorter than the relay's longest delay (%g s, partner.relay_delay_s of "
+                         "--spacecraft %s) plus one filter step (1 s): delayed measurements would be refused"
+                         % (a.lag, delay, source))
     out = a.output
     campaign.check_scheduler(a.scheduler)
     args_text = "fps adcs stkf " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else "fps adcs stkf"
-    summary = stkf_sim.aggregate([], runs, False)
-    summary.update(case=a.case, truth=a.truth, duration_s=a.duration)
+    record = runs.spacecraft_record(spacecraft, source)
+    summary = stkf_sim.aggregate([], n_runs, False)
+    summary.update(case=a.case, truth=a.truth, duration_s=a.duration, spacecraft=record)
     campaign.campaign_folder(out, stkf_sim.FIGURES, summary)
     t0 = time.perf_counter()
     if a.truth == "hpop":  # make the cache once, before the workers read it
-        from emulator import orbits
         print("truth: brahe high-fidelity orbits for SatA and SatB over %.0f s ..." % a.duration, file=sys.stderr)
-        orbits.truth_samples("hpop", a.duration, cache_dir=out)
+        scenario.orbit_truth("hpop", a.duration, orbit, out)
     results, complete = [], True
     try:
         results = campaign.run_campaign(stkf_sim.run_one, seeds, out, workers=a.workers, scheduler=a.scheduler,
                                         progress=not a.quiet, desc="stkf case %d" % a.case, case=a.case,
                                         duration_s=a.duration, truth=a.truth, cache_dir=os.path.abspath(out),
-                                        lag_s=a.lag, outages=outages, attitude=a.attitude)
+                                        lag_s=a.lag, outages=outages, attitude=a.attitude, spacecraft=spacecraft)
     except KeyboardInterrupt:
         complete = False
-        results = [r for r in campaign.finished_results(out, runs) if r is not None]
-    summary = stkf_sim.aggregate(results, runs, complete)
+        results = [r for r in campaign.finished_results(out, n_runs) if r is not None]
+    summary = stkf_sim.aggregate(results, n_runs, complete)
     summary.update(case=a.case, truth=a.truth, attitude=a.attitude, duration_s=a.duration,
-                   wall_s=time.perf_counter() - t0)
+                   wall_s=time.perf_counter() - t0, spacecraft=record)
     plots = []
     if not a.no_plots and summary["runs"]:
-        dirs = [campaign.run_dir_for(out, i) for i in range(runs)]
+        dirs = [campaign.run_dir_for(out, i) for i in range(n_runs)]
         plots = stkf_sim.plots(out, [d for d in dirs if os.path.exists(os.path.join(d, "history.npz"))], a.case)
     summary["plots"] = plots
     write_atomic(os.path.join(out, "report.md"), stkf_sim.report_md(summary, a.case, args_text))
@@ -100,6 +106,9 @@ def register(sub, name, help_):
     p.add_argument("--attitude", choices=stkf_sim.ATTITUDES, default="stated",
                    help="attitude knowledge in the beacon noise: stated covariance (9.81, 8.01, 19.70 arcsec 1 "
                    "sigma, body on J2000; default) or the APKF run in the same simulation")
+    add_spacecraft_option(p, "SatA's and SatB's initial states, the epoch and surface of the orbit truth, the GNSS's "
+                          "and the beacon's noise, the relay's delay and the STKF's P0 from it, and with --attitude "
+                          "apkf the vehicle the APKF flies (the stated attitude covariance stays the thesis's)")
     p.add_argument("--outage", action="append", metavar="SENSOR:T0:T1",
                    help="silence a sensor (gnss_a, beacon or relay) from T0 to T1 s; repeatable")
     g = p.add_mutually_exclusive_group()

@@ -29,7 +29,7 @@ from emulator import orbits
 from emulator.interp import lagrange
 from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
 from emulator.spacecraft.dynamics import dcm
-from emulator.spacecraft.scenario import LAG_S, STKF_P0_DIAG
+from emulator.spacecraft.scenario import LAG_S
 from ground.adcs import stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
@@ -95,20 +95,18 @@ class _Gaps:
 ATTITUDES = ("stated", "apkf")
 
 
-def apkf_attitude(seed, K):
-    """(A_true, A_hat, P_att) for k = 0..K from the APKF over the Sec. 4.8 Case 1 scenario (issue 9)."""
+def apkf_attitude(seed, K, spacecraft=None):
+    """(A_true, A_hat, P_att) for k = 0..K from the APKF over the Sec. 4.8 Case 1 scenario (issue 9), flown by
+    the checked spacecraft file ``spacecraft`` (None: thesis-3u; ``scenario.simulate``, ``runs._start_apkf``)."""
     from emulator.spacecraft import scenario
-    from ground.adcs import apkf, quat
-    from ground.adcs.runs import _start
-    o = scenario.simulate(case=1, seed=seed, duration=max(K, 2))
-    k0 = _start(o)
-    q0 = o["st_q"][k0]
-    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
-    flt = apkf.APKF(apkf.initial_state(q0, w0, o["tach"][k0]), case=1, set_ends=o["set_ends"])
+    from ground.adcs.runs import _start_apkf
+    d = spacecraft or scenario.thesis_3u()
+    o = scenario.simulate(case=1, seed=seed, duration=max(K, 2), spacecraft=d)
+    k0, flt = _start_apkf(o, 1, spacecraft=d)
     A_true = np.array([dcm(q) for q in o["q"][:K + 1]])
     A_hat = np.empty_like(A_true)
     P_att = np.empty_like(A_true)
-    st = np.diag((np.array([20.0, 20.0, 60.0]) * ARCSEC) ** 2)
+    st = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * ARCSEC) ** 2)
     for k in range(K + 1):
         if k < k0:
             A_hat[k], P_att[k] = dcm(o["st_q"][k]), st
@@ -120,8 +118,15 @@ def apkf_attitude(seed, K):
 
 
 def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, lag_s=LAG_S, outages=(),
-             att_sigma_arcsec=ATT_SIGMA_ARCSEC, qa=stkf.QA_THESIS, delay_s=(2.0, 3.0), attitude="stated"):
-    """One run; returns (result dict, history dict of arrays). ``attitude``: "stated" or "apkf"."""
+             att_sigma_arcsec=ATT_SIGMA_ARCSEC, qa=stkf.QA_THESIS, attitude="stated", spacecraft=None):
+    """One run; returns (result dict, history dict of arrays). ``attitude``: "stated" or "apkf". ``spacecraft``:
+    a checked spacecraft file (None: thesis-3u) giving SatA's and SatB's initial states, the epoch and surface of
+    the orbit truth, the GNSS's and the beacon's noise, the relay's delay and the STKF's P0
+    (``scenario.orbit_setup``), and with ``attitude="apkf"`` the vehicle the APKF flies (``apkf_attitude``)."""
+    from emulator.spacecraft import scenario
+    d = spacecraft or scenario.thesis_3u()
+    o = scenario.orbit_setup(d)
+    delay_s = o["relay_delay_s"]
     if attitude not in ATTITUDES:
         raise ValueError("attitude must be one of %s, got %r" % ("/".join(ATTITUDES), attitude))
     if case not in (1, 2):
@@ -129,21 +134,21 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     if not (np.isfinite(duration_s) and duration_s >= 1):
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
     if case == 2 and delay_s[1] > lag_s:
-        raise ValueError("relay delay up to %.2f s is longer than the smoother's lag of %.2f s"
-                         % (delay_s[1], lag_s))
+        raise ValueError("relay delay up to %.2f s (partner.relay_delay_s) is longer than the smoother's lag of "
+                         "%.2f s" % (delay_s[1], lag_s))
     outages = [o if isinstance(o, tuple) else parse_outage(o) for o in outages]
     if case == 1 and any(o[0] == "relay" for o in outages):
         raise ValueError("a relay outage was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
-    t_s, xs = orbits.truth_samples(truth, duration_s, cache_dir=cache_dir)
+    t_s, xs = scenario.orbit_truth(truth, duration_s, o, cache_dir)
     K = int(np.floor(duration_s + 1e-9))
     r_init, r_ga, r_gb, r_bc, r_att, r_rel = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]
-    P0 = np.diag(STKF_P0_DIAG)                    # (4 km)^2, (0.1 km/s)^2 per satellite (Sec. 5.5.1)
+    P0 = np.diag(o["stkf_P0_diag"])               # thesis-3u: (4 km)^2, (0.1 km/s)^2 per satellite (Sec. 5.5.1)
     x_true0 = xs[0].ravel()
-    x0 = x_true0 + np.sqrt(STKF_P0_DIAG) * r_init.standard_normal(12)
+    x0 = x_true0 + np.sqrt(o["stkf_P0_diag"]) * r_init.standard_normal(12)
     flt = Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa), keep_generated=False,
                parts=stkf.PARTS)
-    gnss_a, beacon = Gnss(r_ga), Beacon(r_bc)
-    relay = Relay(r_rel, Gnss(r_gb), delay_s)
+    gnss_a, beacon = Gnss(r_ga, **o["gnss"]), Beacon(r_bc, **o["beacon"])
+    relay = Relay(r_rel, Gnss(r_gb, **o["gnss"]), delay_s)
     phase = r_rel.uniform(0.0, 1.0)               # SatB's receiver clock vs SatA's ticks
     tb = phase + np.arange(0, K)                  # SatB GNSS epochs
     tb = tb[tb <= K]
@@ -151,7 +156,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     att_sd = np.asarray(att_sigma_arcsec, dtype=float) * ARCSEC
     P_att = np.diag(att_sd ** 2)
     A_true = np.eye(3)                            # body frame held on J2000 (stated)
-    att = apkf_attitude(seed, K) if attitude == "apkf" else None
+    att = apkf_attitude(seed, K, d) if attitude == "apkf" else None
     I6 = np.eye(6)
     h_sat = lambda x: (x, I6)                     # noqa: E731  (GNSS of one satellite, Eq. 5.12: H = I on its part)
     R_g, R_relay = gnss_a.R, relay.gnss.R
@@ -220,6 +225,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     Pk = flt.Pk
     tot = lambda s: float(np.sqrt(np.trace(Pk[s, s])))  # noqa: E731
     res = {"seed": int(seed), "case": case, "truth": truth, "attitude": attitude, "duration_s": float(K),
+           "spacecraft": d["name"],
            "final_sigma_ra_m": tot(stkf.IA), "final_sigma_va_m_s": tot(stkf.VA),
            "final_sigma_rb_m": tot(stkf.IB), "final_sigma_vb_m_s": tot(stkf.VB),
            "final_sigma_pointing_arcsec": float(np.hypot(*hist["psig"][-1])),
@@ -274,7 +280,10 @@ def report_md(summary, case, args_text):
              "final_sigma_pointing_arcsec": ("pointing vector", "arcsec")}
     lines = ["# STKF Case %d (%s)" % (case, "without SatB GNSS" if case == 1 else "with SatB GNSS, delayed (EAFLS)"),
              "", "`%s`" % args_text, "",
-             "Runs: %d of %d, complete: %s." % (summary["runs"], summary["runs_requested"], summary["complete"]), "",
+             "Runs: %d of %d, complete: %s. Spacecraft: %s." % (summary["runs"], summary["runs_requested"],
+                                                                 summary["complete"],
+                                                                 (summary.get("spacecraft") or {}).get("name",
+                                                                                                       "thesis-3u")), "",
              "Attitude: %s." % ("from the APKF run in the same simulation (Sec. 4.8 Case 1 scenario)"
                                 if summary.get("attitude") == "apkf" else "stated covariance (below)"), "",
              "| final 1 sigma | thesis | ours | ours/thesis | within 25 % | MC RMS of the final error |",

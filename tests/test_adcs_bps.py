@@ -164,7 +164,7 @@ def test_a_damaged_calibration_cache_is_computed_again(params, tmp_path, monkeyp
     """A truncated or edited cache entry is not an input error: it is recomputed and replaced."""
     from ground.adcs import bps_cli
     calls = []
-    monkeypatch.setattr(bps, "calibrate", lambda seed, progress: calls.append(seed) or params)
+    monkeypatch.setattr(bps, "calibrate", lambda seed, progress, spacecraft: calls.append(seed) or params)
     cache = str(tmp_path)
     assert bps_cli.calibration(3, cache, progress=False) == params and calls == [3]
     (path,) = [os.path.join(cache, f) for f in os.listdir(cache)]

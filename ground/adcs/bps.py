@@ -46,9 +46,9 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
-from emulator.spacecraft.scenario import HOLD_S, LAG_S
+from emulator.spacecraft.scenario import HOLD_S, LAG_S, laser_axis
 from emulator.spacecraft.wheels import N_WHEELS, WheelParams
-from ground.adcs import apkf, control, quat, stkf
+from ground.adcs import apkf, control, quat, runs, stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
 from protocol import paramfile as pf
@@ -131,15 +131,13 @@ def write_params(path, d, spacecraft=None):
 
 
 # --- 1. calibration ----------------------------------------------------------------------------------------
-def calibrate(seed=0, sets=CAL_SETS, progress=False):
-    """Nine calibration maneuver sets through the APKF; returns the parameter-file dict (and the final errors)."""
-    from ground.adcs.runs import _start
-    man = scenario.Maneuver(sets=sets)
-    o = scenario.simulate(case=1, seed=seed, maneuver=man)
-    k0 = _start(o)
-    q0 = o["st_q"][k0]
-    w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
-    f = apkf.APKF(apkf.initial_state(q0, w0, o["tach"][k0]), case=1, set_ends=o["set_ends"])
+def calibrate(seed=0, sets=CAL_SETS, progress=False, spacecraft=None):
+    """Nine calibration maneuver sets through the APKF; returns the parameter-file dict (and the final errors).
+    ``spacecraft``: a checked spacecraft file (None: thesis-3u) for the maneuvers' truth and controller
+    (``scenario.simulate``) and the APKF's model and priors (``runs.apkf_model``, ``runs.apkf_prior``)."""
+    d = spacecraft or scenario.thesis_3u()
+    o = scenario.simulate(case=1, seed=seed, maneuver=scenario.Maneuver(sets=sets), spacecraft=d)
+    k0, f = runs._start_apkf(o, 1, spacecraft=d)
     n = len(o["t"])
     it = range(k0 + 1, n)
     if progress:
@@ -149,10 +147,10 @@ def calibrate(seed=0, sets=CAL_SETS, progress=False):
         f.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
         apkf.check_covariance(f.P, o["t"][k])
     tr = o["truth"]
-    c0 = control.pyramid_c0()
-    u = np.array([control.wheel_torques(o["tau_c"][k], c0, 0.1, o["w_rel"][k - 1]) if k > 0 else np.zeros(4)
+    w = o["spacecraft"].wheels
+    u = np.array([control.wheel_torques(o["tau_c"][k], w.c0, 0.1, o["w_rel"][k - 1]) if k > 0 else np.zeros(4)
                   for k in range(n)])                      # what scenario.simulate commanded over step k-1 -> k
-    u = np.clip(np.vstack([u[1:], np.zeros((1, 4))]), -1e-3, 1e-3)
+    u = np.clip(np.vstack([u[1:], np.zeros((1, 4))]), -w.p.torque_max, w.p.torque_max)
     jabs = absolute_jrw(u, o["tach"])
     scale = torque_scale(f.x, jabs, f.model)
     meta = {"seed": int(seed), "jrw_abs_kgm2": jabs.tolist(), "scale_true": float(tr["scale"]), "sets": int(sets), "duration_s": float(o["t"][-1]),
@@ -165,8 +163,13 @@ def calibrate(seed=0, sets=CAL_SETS, progress=False):
 
 # --- pointing error (Eq. 6.12-6.21) ------------------------------------------------------------------------
 def l_frame(laser_axis=control.LASER_AXIS):
-    """T_b of Eq. 6.17: body to the l frame whose z axis is l_b (minimum rotation of l_b onto z)."""
-    return dcm(control.min_rotation(np.array([0.0, 0.0, 1.0]), np.asarray(laser_axis, float)))
+    """T_b of Eq. 6.17: body to the l frame whose z axis is l_b (minimum rotation of l_b onto z; for l_b = -z,
+    where it is not unique, the half turn about x)."""
+    lb = np.asarray(laser_axis, float)
+    if lb[2] < -1 + 1e-12:
+        return dcm(np.array([1.0, 0.0, 0.0, 0.0]))
+    return dcm(control.min_rotation(np.array([0.0, 0.0, 1.0]), lb))
+
 
 
 def pointing_errors(q, w, ra, va, rb, vb, laser_axis=control.LASER_AXIS):
@@ -285,7 +288,7 @@ class EstimatedOrbit:
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
-             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=TACH_NOISE_RPM):
+             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection time after
     the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict: 10 Hz arrays, fsw_* at 1 Hz). A
     KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
@@ -296,26 +299,37 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     ``wheel_speed_limit_rpm``: the true wheels' speed limit (default: none in effect, as the thesis; see
     ``scenario.POINTING_WHEEL_RPM``); the result's ``max_wheel_speed_rpm`` and ``wheel_speed_clips`` say whether a
     limit was reached. ``tach_noise_rpm``: the tachometers' read-out noise (1 sigma), in the truth and in the APKF's
-    model alike; other than the scenario's 10 rpm only as a diagnostic."""
+    model alike; other than the file's (the scenario's 10 rpm) only as a diagnostic. ``spacecraft``: a checked
+    spacecraft file (None: thesis-3u) for the world (``scenario.pointing_world``: the true vehicle, orbits and
+    sensors) and the flight software: the APKF's model (``runs.apkf_model``; the Jxx reference the parameter
+    file's), the STKF's P0, the wheels' nominal torque limit and friction, the star tracker's noise before the
+    APKF starts and the laser axis of the command and of the pointing error; the parameter file is checked
+    against it."""
     ts = check_ts(ts)
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
-    xp, Pp, jxx, scale = check_params(params)
+    d = spacecraft or scenario.thesis_3u()
+    xp, Pp, jxx, scale = check_params(params, spacecraft=d)
     if not (np.isfinite(duration_s) and duration_s >= 1):
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
     t_settle = hold_s + settle_ts * ts
     K = int(np.ceil(t_settle + duration_s))
-    if not (np.isfinite(tach_noise_rpm) and tach_noise_rpm > 0):
-        raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
+    if tach_noise_rpm is not None:
+        if not (np.isfinite(tach_noise_rpm) and tach_noise_rpm > 0):
+            raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
+        d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
     world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K,   # Sec. 6.4.1
-                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm, tach_noise_rpm=tach_noise_rpm)
+                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm, spacecraft=d)
     rate, xg, wheels, sc, st = world.rate, world.xg, world.wheels, world.sc, world.st
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
     orb = EstimatedOrbit(0.0, world.stkf_x0)
-    model = apkf.Model(dt=1.0, jxx=jxx, orbit=orb, field=world.field, tach_rpm=tach_noise_rpm)
-    ds = control.WHEEL_DATASHEET                     # the wheels' torque limit and friction: datasheet, not truth
-    f_stkf = Afls(world.stkf_x0, np.diag(scenario.STKF_P0_DIAG), 0.0, LAG_S,
+    model = runs.apkf_model(d)
+    model.jxx, model.orbit, model.field = jxx, orb, world.field
+    ds = d["wheels"]                                 # the wheels' torque limit and friction: nominal, not truth
+    lb = laser_axis(d)
+    P_st = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * ARCSEC) ** 2)
+    f_stkf = Afls(world.stkf_x0, np.diag(world.stkf_P0_diag), 0.0, LAG_S,
                   stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)
     I6 = np.eye(6)
     flt = None
@@ -372,7 +386,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 q_hat, w_hat, P_att = flt.x[0:4], flt.x[4:7], 4.0 * flt.P[0:3, 0:3]
             else:
                 q_hat, w_hat = (q_st if st_ok else np.array([0, 0, 0, 1.0])), np.zeros(3)
-                P_att = np.diag((np.array([20.0, 20.0, 60.0]) * ARCSEC) ** 2)
+                P_att = P_st
             A_hat = dcm(q_hat)
             if k > 0:
                 f_stkf.predict(t)
@@ -391,7 +405,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 J = apkf.inertia(x, model) / scale          # physical units (see ``absolute_jrw``)
                 C = apkf.c_rw(x, model)
                 if t >= hold_s:
-                    qc, wc = control.command_rate(xh, stkf.f)
+                    qc, wc = control.command_rate(xh, stkf.f, lb)
                 else:                                       # the hold: rate damping (q_c = q_hat, w_c = 0)
                     qc, wc = q_hat, np.zeros(3)
                 Kp, Dd = control.gains(J, ts)
@@ -401,11 +415,12 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                     tff = control.external_torque(J, x[15:18] / scale, x[7:10] / scale, q_hat, xh[0:3],
                                                   model.field.field(xh[0:3], t))
                 tau_c = control.pd_torque(q_hat, w_hat, qc, wc, Kp, Dd, H, tff)
-                tau_c = control.saturate(tau_c, C, ds.torque_max)
+                tau_c = control.saturate(tau_c, C, ds["torque_limit_nm"])
                 u = control.wheel_torques(tau_c, C, null_fraction=0.0)        # Eq. 6.11 (no null torque)
                 if feedforward:
-                    u = u + control.friction_compensation(tach, ds.friction_coulomb, ds.friction_viscous,
-                                                          ds.friction_smooth_rpm * 2 * np.pi / 60)
+                    u = u + control.friction_compensation(tach, ds["friction_coulomb_nm"],
+                                                          ds["friction_viscous_nms_rad"],
+                                                          ds["friction_smooth_rpm"] * 2 * np.pi / 60)
                 fsw["qc"][k], fsw["tau_c"][k], fsw["wc"][k] = qc, tau_c, wc
                 if tff is not None:
                     fsw["tau_ff"][k] = tff
@@ -442,17 +457,18 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         fsw[key] = fsw[key][:k_done + 1]
     xs10 = xg[:n_ok * sub:sub]
     dth, dom = pointing_errors(hist["q"], hist["w"], xs10[:, 0, 0:3], xs10[:, 0, 3:6], xs10[:, 1, 0:3],
-                               xs10[:, 1, 3:6])
+                               xs10[:, 1, 3:6], lb)
     hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / ARCSEC, dom / ARCSEC
     hist.update({"fsw_" + k: v for k, v in fsw.items()})
     sel = hist["t"] >= t_settle
-    budget = error_budget(hist, xg[:(k_done + 1) * rate:rate], t_settle)
+    budget = error_budget(hist, xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb)
     res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
            "duration_s": float(duration_s), "settle_s": float(t_settle), "simulated_s": float(k_done),
            "complete": bool(complete and k_done == K), "feedforward": bool(feedforward),
            "wall_s": time.perf_counter() - t_wall, "wheel_speed_clips": wheels.counters(),
            "max_wheel_speed_rpm": float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi)),
-           "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm), "tach_noise_rpm": float(tach_noise_rpm)}
+           "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm), "tach_noise_rpm": d["wheels"]["tach_noise_rpm"],
+           "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "spacecraft": d["name"]}
     if sel.sum() >= 2:
         res.update(statistics(dth[sel], dom[sel]))
     else:
@@ -462,7 +478,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     return res, hist
 
 
-def error_budget(hist, x1, t_settle, slow_s=SLOW_S):
+def error_budget(hist, x1, t_settle, slow_s=SLOW_S, laser_axis=control.LASER_AXIS):
     """Where the pointing error comes from, at the 1 Hz flight-software instants after settling (arcsec, 1σ per
     axis): with e(q) the Eq. 6.12-6.16 pointing error of attitude q against the true line of sight,
     ``estimation`` = e(q) - e(q_hat), ``tracking`` = e(q_hat) - e(q_c) (the controller's), ``command`` = e(q_c)
@@ -478,7 +494,7 @@ def error_budget(hist, x1, t_settle, slow_s=SLOW_S):
     ra, va, rb, vb = x1[k, 0, 0:3], x1[k, 0, 3:6], x1[k, 1, 0:3], x1[k, 1, 3:6]
 
     def e(qq):
-        return pointing_errors(qq, w, ra, va, rb, vb)[0] / ARCSEC
+        return pointing_errors(qq, w, ra, va, rb, vb, laser_axis)[0] / ARCSEC
 
     tot, est, cmd = e(q), e(hist["fsw_q_hat"][k]), e(hist["fsw_qc"][k])
     parts = {"total": tot, "estimation": tot - est, "tracking": est - cmd, "command": cmd}

@@ -22,7 +22,9 @@ import time
 
 import numpy as np
 
-from ground.adcs import bps, campaign, control
+from emulator.spacecraft import scenario
+from ground.adcs import bps, campaign, control, runs
+from ground.adcs.cli import add_spacecraft_option, load_spacecraft
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
@@ -67,37 +69,45 @@ def _key(d):
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def calibration(seed, cache_dir, progress=True):
-    """The parameter-file dict of the nine calibration sets for ``seed``, from ``cache_dir`` when present
-    (written atomically: the cache holds whole entries only; a damaged entry, not ours or edited, is computed
-    again and replaced)."""
-    key = _key({"kind": "calibration", "seed": int(seed), "sets": bps.CAL_SETS, "version": VERSION})
+def spacecraft_key(d):
+    """What a cache key holds of the checked spacecraft file ``d``: {"spacecraft": its hash}, nothing for thesis-3u
+    (so that the keys, and the bps distfiles' headers, stay what they were before the file)."""
+    h = runs.spacecraft_record(d, None)["sha256"]
+    return {} if h == runs.spacecraft_record(scenario.thesis_3u(), None)["sha256"] else {"spacecraft": h}
+
+
+def calibration(seed, cache_dir, progress=True, spacecraft=None):
+    """The parameter-file dict of the nine calibration sets for ``seed`` flown by the checked spacecraft file
+    ``spacecraft`` (None: thesis-3u), from ``cache_dir`` when present (keyed by the file's hash too; written
+    atomically: the cache holds whole entries only; a damaged entry, not ours or edited, is computed again and
+    replaced)."""
+    d = spacecraft or scenario.thesis_3u()
+    key = _key(dict(spacecraft_key(d), kind="calibration", seed=int(seed), sets=bps.CAL_SETS, version=VERSION))
     path = os.path.join(cache_dir, "calibration_%s.json" % key) if cache_dir else None
     if path and os.path.exists(path):
         try:
-            return bps.load_params(path)[-1]
+            return bps.load_params(path, d)[-1]
         except ValueError as exc:                 # unreadable, not JSON, or not a parameter file
             print("calibration cache %s is damaged (%s): computing it again" % (path, exc), file=sys.stderr)
     if progress:
         print("calibration: %d maneuver sets through the APKF (seed %d) ..." % (bps.CAL_SETS, seed),
               file=sys.stderr)
-    d = bps.calibrate(seed=seed, progress=progress)
+    p = bps.calibrate(seed=seed, progress=progress, spacecraft=d)
     if path:
         os.makedirs(cache_dir, exist_ok=True)
-        write_json(path, d)
-    return d
+        write_json(path, p)
+    return p
 
 
-def get_params(path, seed, cache_dir, progress=True):
-    if path:
-        return bps.load_params(path)[-1]
-    return calibration(seed, cache_dir, progress)
+def _truth(a, duration, out, spacecraft):
+    if a.truth == "hpop":                             # once, before workers
+        scenario.orbit_truth("hpop", bps.truth_span(int(np.ceil(duration))), scenario.orbit_setup(spacecraft), out)
 
 
-def _truth(a, duration, out):
-    if a.truth == "hpop":
-        from emulator import orbits
-        orbits.truth_samples("hpop", bps.truth_span(int(np.ceil(duration))), cache_dir=out)   # once, before workers
+def _vehicle(a):
+    """(checked spacecraft file, its record, the --params dict or None) of the command's options."""
+    d, source = load_spacecraft(a.spacecraft, partner=True)
+    return d, runs.spacecraft_record(d, source), bps.load_params(a.params, d)[-1] if a.params else None
 
 
 def _collected(s):
@@ -115,9 +125,10 @@ def report_md(s, args_text):
             ("δω1 (arcsec/s)", th["omega"][0], s["stability_mean_arcsec_s"], s["stability_sigma_arcsec_s"], 0),
             ("δω2 (arcsec/s)", th["omega"][1], s["stability_mean_arcsec_s"], s["stability_sigma_arcsec_s"], 1)]
     out = ["# Body pointing simulation (Sec. 6.4.4)", "", "`%s`" % args_text, "",
-           "t_s = %g s, %s SatB's GNSS, %s at 10 Hz after %g s (30 s hold + 4 t_s), truth %s, "
-           "seed %d. complete: %s" % (s["ts_s"], "with" if s["satb_gnss"] else "without", _collected(s),
-                                      s["settle_s"], s["truth"], s["seed"], s["complete"]), "",
+           "Spacecraft %s; t_s = %g s, %s SatB's GNSS, %s at 10 Hz after %g s (30 s hold + 4 t_s), truth %s, "
+           "seed %d. complete: %s" % (_name(s.get("spacecraft")), s["ts_s"],
+                                      "with" if s["satb_gnss"] else "without", _collected(s), s["settle_s"],
+                                      s["truth"], s["seed"], s["complete"]), "",
            "| figure | thesis (mean, 1σ) | ours (mean, 1σ) | 1σ ratio |", "|---|---|---|---|"]
     for label, t, m, sd, i in rows:
         if m is None:
@@ -136,7 +147,7 @@ def report_md(s, args_text):
             "emulated wheels' datasheet: %s rpm; this run's limit %.0f rpm, reached %s times); "
             "wall %.1f s." % ("—" if s.get("J_rad2") is None else "%.3e" % s["J_rad2"],
                               "—" if s.get("pointing_max_arcsec") is None else "%.1f" % s["pointing_max_arcsec"],
-                              s["max_wheel_speed_rpm"], "{:,.0f}".format(control.WHEEL_DATASHEET.speed_max_rpm),
+                              s["max_wheel_speed_rpm"], "{:,.0f}".format(s.get("wheel_datasheet_rpm", control.WHEEL_DATASHEET.speed_max_rpm)),
                               s.get("wheel_speed_limit_rpm", float("nan")),
                               sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), s["wall_s"]), "",
             "The thesis's wheels have no speed limit (Eq. 4.56), nor does this run in effect: the residual dipole's "
@@ -149,6 +160,11 @@ def report_md(s, args_text):
             "datasheet friction and the absolute torque scale to Eq. 6.5 (see ground/adcs/control.py); a 30 s "
             "hold with rate damping on the estimate precedes the slew; Eq. 6.7 as printed, wn = 8/t_s.", ""]
     return "\n".join(out)
+
+
+def _name(spacecraft):
+    """The spacecraft's name from a run's result (its name) or summary (``runs.spacecraft_record``)."""
+    return spacecraft["name"] if isinstance(spacecraft, dict) else spacecraft or "thesis-3u"
 
 
 def budget_md(b):
@@ -198,31 +214,32 @@ def plot_history(path, hist, settle_s, title):
 def _cmd_bps(a):
     ts = bps.check_ts(a.ts)
     check_run_args(a)
-    params = bps.load_params(a.params)[-1] if a.params else None
+    d, record, params = _vehicle(a)
     out = a.output
     run_folder(out, FIGURES_BPS)
     args_text = "fps adcs bps " + " ".join(sys.argv[3:])
     summary = {k: None for k in bps.SUMMARY_KEYS}
-    summary.update(complete=False, ts_s=ts, satb_gnss=a.satb_gnss)
+    summary.update(complete=False, ts_s=ts, satb_gnss=a.satb_gnss, spacecraft=record)
     write_json(os.path.join(out, "summary.json"), summary)
     try:
         if params is None:
-            params = calibration(a.seed, a.cache_dir, not a.quiet)
-        bps.write_params(os.path.join(out, "params.json"), params)
-        _truth(a, 30 + 4 * ts + a.duration, os.path.abspath(a.cache_dir))
+            params = calibration(a.seed, a.cache_dir, not a.quiet, d)
+        bps.write_params(os.path.join(out, "params.json"), params, d)
+        _truth(a, 30 + 4 * ts + a.duration, os.path.abspath(a.cache_dir), d)
     except KeyboardInterrupt:
         print("interrupted before the pointing run: %s has complete=false" % out, file=sys.stderr)
         return 130
     try:
         res, hist = bps.simulate(ts=ts, satb_gnss=a.satb_gnss, duration_s=a.duration, seed=a.seed, params=params,
-                                 truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet)
+                                 truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet,
+                                 spacecraft=d)
     except FloatingPointError as exc:              # a filter or the truth diverged: the run ends, the folder says so
         summary["error"] = str(exc)
         write_json(os.path.join(out, "summary.json"), summary)
         print("fps adcs bps: the run failed: %s (%s has complete=false)" % (exc, out), file=sys.stderr)
         return 1
     bps.save_history(os.path.join(out, "history.npz"), hist)
-    s = dict(res)
+    s = dict(res, spacecraft=record)
     s["thesis"] = {"pointing_sigma_arcsec": [v[1] for v in bps.THESIS[a.satb_gnss]["theta"]],
                    "stability_sigma_arcsec_s": [v[1] for v in bps.THESIS[a.satb_gnss]["omega"]],
                    "ts_s": bps.TS_THESIS}
@@ -292,22 +309,24 @@ def _cmd_sweep(a):
     check_run_args(a)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
-    params = bps.load_params(a.params)[-1] if a.params else None
+    d, record, params = _vehicle(a)
     out = a.output
     campaign.check_scheduler(a.scheduler)
     satb = not a.no_satb_gnss
-    campaign.campaign_folder(out, (FIGURE_SWEEP,), sweep_summary(ts_list, [None] * len(ts_list), False, satb))
+    campaign.campaign_folder(out, (FIGURE_SWEEP,), dict(sweep_summary(ts_list, [None] * len(ts_list), False, satb),
+                                                        spacecraft=record))
     t0 = time.perf_counter()
     complete = True
     try:
         if params is None:
-            params = calibration(a.seed, a.cache_dir, not a.quiet)
-        bps.write_params(os.path.join(out, "params.json"), params)
-        _truth(a, 30 + 4 * max(ts_list) + a.duration, os.path.abspath(a.cache_dir))
+            params = calibration(a.seed, a.cache_dir, not a.quiet, d)
+        bps.write_params(os.path.join(out, "params.json"), params, d)
+        _truth(a, 30 + 4 * max(ts_list) + a.duration, os.path.abspath(a.cache_dir), d)
         results = campaign.run_campaign(bps.sweep_one, list(range(len(ts_list))), out, workers=a.workers,
                                         scheduler=a.scheduler, progress=not a.quiet, desc="sweep t_s",
                                         ts_list=ts_list, params=params, satb_gnss=satb, duration_s=a.duration,
-                                        noise_seed=a.seed, truth=a.truth, cache_dir=os.path.abspath(a.cache_dir))
+                                        noise_seed=a.seed, truth=a.truth, cache_dir=os.path.abspath(a.cache_dir),
+                                        spacecraft=d)
     except KeyboardInterrupt:
         complete = False
         results = campaign.finished_results(out, len(ts_list))
@@ -316,9 +335,11 @@ def _cmd_sweep(a):
     s = sweep_summary(ts_list, results, complete, satb)
     s["wall_s"] = time.perf_counter() - t0
     s["duration_s"] = a.duration
+    s["spacecraft"] = record
     if not a.no_plots:
         plot_sweep(os.path.join(out, FIGURE_SWEEP), s)
-    lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "| t_s (s) | J (rad²) |", "|---|---|"]
+    lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "Spacecraft %s." % record["name"], "",
+             "| t_s (s) | J (rad²) |", "|---|---|"]
     lines += ["| %g | %s |" % (t, "—" if j is None else "%.4e" % j) for t, j in zip(s["ts_s"], s["J"])]
     lines += ["", "minimum at t_s = %s s (thesis: 33 s); %g s collected per t_s, %s SatB's GNSS; complete: %s"
               % (s["ts_best_s"], a.duration, "with" if satb else "without", complete), ""]
@@ -341,8 +362,11 @@ def _common(p):
                    "(default 4000)" % campaign.MAX_DURATION_S)
     p.add_argument("--seed", type=int, default=0, help="noise seed, also the calibration's, 0 to "
                    "2**32 - 1 (default 0)")
-    p.add_argument("--params", default=None, help="parameter file (JSON) from an earlier run's params.json; "
-                   "default: run the nine calibration sets (cached)")
+    p.add_argument("--params", default=None, help="parameter file (JSON) from an earlier run's params.json, "
+                   "checked against --spacecraft; default: run the nine calibration sets (cached)")
+    add_spacecraft_option(p, "the true vehicle (inertia, dipole, wheels, star tracker), the orbits, epoch and "
+                          "sensors of the world, the calibration maneuvers, the APKF's model and priors, the STKF's "
+                          "P0, the controller's wheel limits and the laser axis from it")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",
                    help="true orbits: brahe high-fidelity (default) or two-body (fast)")
     p.add_argument("--cache-dir", default=CACHE_DEFAULT, type=cache_folder,

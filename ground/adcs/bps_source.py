@@ -1,9 +1,10 @@
 """``--source bps`` for ``fps distfile generate``: the body pointing simulator's (dtheta1, dtheta2) at 10 Hz.
 
-The run (``ground.adcs.bps.simulate``) starts after the calibration (from ``--params FILE`` or the cached nine
-sets of ``--seed``); the history given to the distfile is the collection window (after the 30 s hold and
-4 t_s), its time origin at the window's start. Runs are cached in ``--bps-cache`` (default out/bps_cache) under
-a hash of every input (t_s, SatB GNSS, parameter file content, duration, seed, truth, simulator version); an
+The run (``ground.adcs.bps.simulate``, flown by ``--spacecraft``) starts after the calibration (from ``--params
+FILE`` or the cached nine sets of ``--seed``); the history given to the distfile is the collection window (after
+the 30 s hold and 4 t_s), its time origin at the window's start. Runs are cached in ``--bps-cache`` (default out/bps_cache) under
+a hash of every input (t_s, SatB GNSS, parameter file content, duration, seed, truth, simulator version, the
+spacecraft file's hash unless it is thesis-3u); an
 entry is written atomically and only for a complete run, so the cache never holds a partial run. A sidecar
 ``<distfile>.json`` written by the distfile command records the inputs in full; the 16-byte header source field
 carries ``bps<ts><g|n> <key>`` (g: with SatB's GNSS).
@@ -31,15 +32,18 @@ def _key(inputs):
 class BpsSource:
     name = "bps"
 
-    def __init__(self, ts=33.0, satb_gnss=False, params_path=None, truth="hpop", cache_dir=None, quiet=False):
+    def __init__(self, ts=33.0, satb_gnss=False, params_path=None, truth="hpop", cache_dir=None, quiet=False,
+                 spacecraft=None):
         from ground.adcs import bps, bps_cli
+        from ground.adcs.cli import load_spacecraft
         self.ts = bps.check_ts(ts)
         if truth not in TRUTHS:
             raise ValueError("--bps-truth must be one of %s, got %r" % ("/".join(TRUTHS), truth))
         self.satb_gnss, self.truth, self.quiet = bool(satb_gnss), truth, quiet
         self.cache_dir = cache_dir if cache_dir is not None else bps_cli.CACHE_DEFAULT
         self.params_path = params_path
-        self.params = bps.load_params(params_path)[-1] if params_path else None
+        self.spacecraft = load_spacecraft(spacecraft, partner=True)[0]
+        self.params = bps.load_params(params_path, self.spacecraft)[-1] if params_path else None
         self.inputs = None
         self.from_cache = False
 
@@ -52,10 +56,12 @@ class BpsSource:
         p.add_argument("--bps-truth", choices=TRUTHS, default="hpop", help="bps: true orbits (default hpop)")
         p.add_argument("--bps-cache", default=None, type=cache_folder,
                        help="bps: run cache folder (default out/bps_cache)")
+        p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
+                       help="bps: the vehicle, a preset or a spacecraft file (default thesis-3u), as fps adcs bps")
 
     @classmethod
     def from_args(cls, a):
-        return cls(a.ts, a.satb_gnss, a.params, a.bps_truth, a.bps_cache, getattr(a, "quiet", False))
+        return cls(a.ts, a.satb_gnss, a.params, a.bps_truth, a.bps_cache, getattr(a, "quiet", False), a.spacecraft)
 
     def key(self, duration_s, seed, params):
         from ground.adcs import bps_cli
@@ -63,6 +69,7 @@ class BpsSource:
                        "seed": int(seed), "truth": self.truth, "version": bps_cli.VERSION,
                        "params_sha256": bps_cli._key(params), "params_file": self.params_path,
                        "calibration_seed": params.get("calibration", {}).get("seed")}
+        self.inputs.update(bps_cli.spacecraft_key(self.spacecraft))
         return _key(self.inputs)
 
     @staticmethod
@@ -79,7 +86,7 @@ class BpsSource:
 
     def generate(self, duration_s, seed):
         from ground.adcs import bps, bps_cli
-        params = self.params or bps_cli.calibration(seed, self.cache_dir, progress=not self.quiet)
+        params = self.params or bps_cli.calibration(seed, self.cache_dir, not self.quiet, self.spacecraft)
         span = float(duration_s) + 1.0                    # the distfile needs one step and a stencil beyond
         self.cache_key = self.key(span, seed, params)
         path = os.path.join(self.cache_dir, "run_%s.npz" % self.cache_key)
@@ -98,7 +105,7 @@ class BpsSource:
                   % (self.ts, "with" if self.satb_gnss else "without", span, 30 + 4 * self.ts), file=sys.stderr)
         res, hist = bps.simulate(ts=self.ts, satb_gnss=self.satb_gnss, duration_s=span, seed=seed, params=params,
                                  truth=self.truth, cache_dir=os.path.abspath(self.cache_dir),
-                                 progress=not self.quiet)
+                                 progress=not self.quiet, spacecraft=self.spacecraft)
         if not res["complete"]:
             raise KeyboardInterrupt            # nothing cached, nothing written
         sel = hist["t"] >= res["settle_s"] - 1e-9

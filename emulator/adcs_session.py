@@ -40,8 +40,10 @@ no GNSS fix of SatA (SatB's relay too); ``beacon_lost`` t0: the beacon answers "
 Truth: the world ground/adcs/bps.py runs, built by the same ``emulator.spacecraft.scenario.pointing_world``
 (orbits of ``emulator.orbits``, two-body by default, brahe ``hpop`` on request, on a 20 Hz grid by 10th-order
 Lagrange; the spacecraft of ``emulator.spacecraft`` (RK4 at 0.1 s) from q = [0, 0, 0, 1] at rest; the star
-tracker, GNSS, beacon and relay of ``emulator.navsensors``; the STKF's start); the parameter file of a perfect
-calibration (``emulator.spacecraft.scenario.truth_params``) unless one is given.
+tracker, GNSS, beacon and relay of ``emulator.navsensors``; the STKF's start), for the vehicle of a spacecraft
+file (``spacecraft``, default thesis-3u: the true vehicle, orbits, epoch and sensors); the parameter file of a
+perfect calibration of that vehicle (``emulator.spacecraft.scenario.truth_params``) unless one is given, checked
+against it. The firmware's configuration carries the file's nominal figures (``AdcsSession.config``).
 """
 
 import json
@@ -60,7 +62,7 @@ from emulator.runtime import OWN_GROUP
 from emulator.navsensors import ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
-from emulator.spacecraft.wheels import N_WHEELS, WheelParams
+from emulator.spacecraft.wheels import N_WHEELS
 from firmware.adcs.apkf_lean import MOMENTUM
 from firmware.adcs.app import burst_bit
 from protocol import core, table
@@ -126,11 +128,13 @@ class AdcsSession:
     ``heap_out`` (micropython: a JSON file of the heap bytes per cycle, written when the firmware exits),
     ``apkf_momentum`` (the lean APKF's momentum input: "filtered", the read-outs filtered on the commanded
     torques, flown; "tach", the read-out difference, and "torque", the commanded torques, for comparison),
-    ``link_faults`` (a ``protocol.faults.LinkFaults`` on the slcan stream, see the module docstring)."""
+    ``link_faults`` (a ``protocol.faults.LinkFaults`` on the slcan stream, see the module docstring),
+    ``spacecraft`` (a checked spacecraft file, None: thesis-3u; see the module docstring)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
-                 reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None):
+                 reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
+                 spacecraft=None):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
         if not (np.isfinite(duration_s) and duration_s >= 1):
@@ -152,12 +156,13 @@ class AdcsSession:
         self.heap_out = heap_out
         self.recorded = [] if record else None     # per tick: [tick, t_ms, [[pid, src, payload hex], ...]]
         self.K = int(np.ceil(self.duration_s))
+        self.spacecraft = d = spacecraft or scenario.thesis_3u()
         self.world = w = scenario.pointing_world(self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S,
-                                                 n_tags=self.K + 1)
+                                                 n_tags=self.K + 1, spacecraft=d)
         self.xg, self.wheels, self.sc, self.st = w.xg, w.wheels, w.sc, w.st
         self.gnss_a, self.beacon, self.relay, self.tb, self.xb_tb = w.gnss_a, w.beacon, w.relay, w.tb, w.xb_tb
         self.jb = 0
-        self.params = scenario.truth_params(self.sc) if params is None else _load_params(params)
+        self.params = scenario.truth_params(self.sc, d) if params is None else _load_params(params, d)
         self.stkf_x0 = w.stkf_x0.tolist()
         self.k = 0
         self.proc = None
@@ -188,14 +193,22 @@ class AdcsSession:
 
     def config(self):
         """The firmware's configuration (written to its config.json): parameter file, gains, STKF start, and
-        its wheels' torque limit and friction model from the datasheet (``WheelParams()``), not from the
-        emulated wheels (the truth), as ground/adcs/bps.py's flight software."""
-        wp = WheelParams()
+        the spacecraft file's nominal figures, not the emulated (true) vehicle's, as ground/adcs/bps.py's flight
+        software: the wheels' axes, torque limit, friction model and read-out noise, the star tracker's, GNSS's
+        and beacon's noise, the APKF's initial 1 sigma, the STKF's P0 and the laser axis."""
+        d = self.spacecraft
+        w, u, g = d["wheels"], d["uncertainty"], d["gnss"]
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
-                "stkf_x0": self.stkf_x0, "stkf_P0": scenario.STKF_P0_DIAG, "lag_s": scenario.LAG_S,
-                "torque_max": wp.torque_max,
-                "friction": [wp.friction_coulomb, wp.friction_viscous, wp.friction_smooth_rpm * 2 * np.pi / 60],
-                "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC, "gnss_sigma": [30.0, 1.0],
+                "stkf_x0": self.stkf_x0, "stkf_P0": list(self.world.stkf_P0_diag), "lag_s": scenario.LAG_S,
+                "torque_max": w["torque_limit_nm"],
+                "friction": [w["friction_coulomb_nm"], w["friction_viscous_nms_rad"],
+                             w["friction_smooth_rpm"] * 2 * np.pi / 60],
+                "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC,
+                "gnss_sigma": [g["sigma_position_m"], g["sigma_velocity_m_s"]],
+                "wheel_axes": self.wheels.c0.tolist(), "tach_noise_rpm": w["tach_noise_rpm"], "wheels": w,
+                "star_tracker_sigma_arcsec": list(d["star_tracker"]["sigma_arcsec"]),
+                "apkf_p0": [u["attitude_sigma_deg"], u["rate_sigma_deg_s"], u["disturbance_torque_sigma_nm"]],
+                "laser_axis": scenario.laser_axis(d).tolist(),
                 "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0,
                 "isotp_timeout_ms": ISOTP_TIMEOUT_MS}
 
@@ -465,6 +478,7 @@ class AdcsSession:
     def summary(self):
         st = self.last_status or {}
         return {"runtime": self.runtime, "satb_gnss": self.satb, "seed": self.seed, "ts_s": self.ts,
+                "spacecraft": self.spacecraft["name"],
                 "cycles": self.k, "virtual_s": float(self.k), "wall_s": self.wall_s,
                 "speed_x_realtime": (self.k / self.wall_s) if self.wall_s > 0 else None,
                 "late_cycles": self.n_late, "missed_rw_cmd": list(self.missed_rw_cmd),

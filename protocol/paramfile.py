@@ -22,8 +22,10 @@ in), or ValueError naming the key, the value and the allowed range, e.g. ``x.jrw
 3e-07 to 3e-05 kg m^2``. The ranges say what a file may hold and still describe the vehicle: the wheels'
 inertia within 10x of the vehicle's rotor inertia (the thesis's errors are 25 %), tau_d under the wheels' torque
 limit, misalignments under 45 deg, a dipole under 10 A m^2, the inertia [Jxx ref, J5] a rigid body's, s in
-(0.2, 5). Without ``spacecraft`` (a checked ``protocol.spacecraft`` file) the vehicle is the thesis's 3U
-(rotor inertia 3e-6 kg m^2, torque limit 1e-3 N m, four wheels).
+(0.2, 5). Without ``spacecraft`` (a checked ``protocol.spacecraft`` file; of it only ``wheels.count``,
+``wheels.rotor_inertia_kgm2`` and ``wheels.torque_limit_nm`` are read, so the flight firmware passes its
+configuration's wheels block) the vehicle is the thesis's 3U (rotor inertia 3e-6 kg m^2, torque limit 1e-3 N m,
+four wheels).
 """
 
 import math

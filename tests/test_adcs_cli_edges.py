@@ -269,11 +269,12 @@ def test_terminal_ctrl_c_on_a_local_campaign_prints_no_worker_tracebacks(tmp_pat
 
 
 @pytest.mark.parametrize("edit, words", [(lambda d: d["x"]["J5_kgm2"].__setitem__(0, -1.0), "positive definite"),
-                                         (lambda d: d["P"][0].__setitem__(0, -1.0), "P is not positive definite"),
-                                         (lambda d: d.pop("P"), "'P'")])
+                                         (lambda d: d["P"][0].__setitem__(0, -1.0), "P: must be the symmetric "
+                                          "positive definite 23 x 23 covariance of x; not positive definite"),
+                                         (lambda d: d.pop("P"), "P: missing")])
 def test_adcs_can_refuses_the_parameter_files_fps_adcs_bps_refuses(edit, words, params_file, tmp_path, capsys):
     """--params is 'fps adcs bps format': a non-positive-definite inertia or P, or no P, is refused before the
-    flight software is started with it (the flight side's own check is lighter)."""
+    flight software is started with it (ground and flight check it with the one protocol.paramfile)."""
     with open(params_file) as f:
         d = json.load(f)
     edit(d)

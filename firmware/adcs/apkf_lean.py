@@ -77,10 +77,12 @@ MOMENTUM = ("torque", "tach", "filtered")   # the momentum inputs (Model)
 ALL = (True, True, True, True)              # every wheel heard
 
 
-def pyramid():
-    """(C0, C1, C2) flat 3 x 4: the nominal pyramid (Eq. 4.147) and the misalignment axes (Eq. 4.148)."""
-    s = 1.0 / math.sqrt(3.0)
-    c0 = [[-s, -s, s, s], [-s, s, s, -s], [s, s, s, s]]
+def axes(c0=None):
+    """(C0, C1, C2), 3 x 4 nested lists (rows x, y, z; a column per wheel): the nominal unit axes ``c0`` (a
+    spacecraft file's, default the pyramid of Eq. 4.147) and their misalignment axes (Eq. 4.148)."""
+    if c0 is None:
+        s = 1.0 / math.sqrt(3.0)
+        c0 = [[-s, -s, s, s], [-s, s, s, -s], [s, s, s, s]]
     c1 = [[0.0] * 4 for _ in range(3)]
     c2 = [[0.0] * 4 for _ in range(3)]
     for i in range(4):
@@ -112,8 +114,13 @@ class Model:
     41-state filter's input)."""
 
     def __init__(self, params, dt=1.0, sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, qd=QD_CASE1,
-                 momentum="filtered", friction=FRICTION, torque_max=TORQUE_MAX, torque_rel=TORQUE_REL):
-        params = paramfile.check(params)
+                 momentum="filtered", friction=FRICTION, torque_max=TORQUE_MAX, torque_rel=TORQUE_REL, c0=None,
+                 p0=(10.0, 10.0, 1e-6), wheels=None):
+        """``c0``: the nominal wheel axes (``axes``); ``p0``: the initial 1 sigma of the attitude (deg), the rate
+        (deg/s) and tau_d (N m) (``initial_covariance``); ``wheels``: a spacecraft file's wheels block, what the
+        parameter file is checked against (``protocol.paramfile``); the defaults are the thesis's 3U."""
+        params = paramfile.check(params, None if wheels is None else {"wheels": wheels})
+        self.p0 = (float(p0[0]), float(p0[1]), float(p0[2]))
         x = params["x"]
         j5 = x["J5_kgm2"]
         jxx = float(params["jxx_ref_kgm2"])
@@ -125,7 +132,7 @@ class Model:
         self.J = linalg.zeros(9)
         for i, v in enumerate((jxx, j5[2], j5[3], j5[2], j5[0], j5[4], j5[3], j5[4], j5[1])):
             self.J[i] = v
-        c0, c1, c2 = pyramid()
+        c0, c1, c2 = axes(c0)
         self.CJ = linalg.zeros(12)
         self.C = linalg.zeros(12)
         self.jrw = linalg.zeros(4)
@@ -661,7 +668,7 @@ class Lean:
             self.x[4 + i] = w0[i]
             self.x[7 + i] = self.model.tau_d0[i]
         self.P = linalg.zeros(81)
-        initial_covariance(self.P, self.model)
+        initial_covariance(self.P, self.model, *self.model.p0)
         self.wm = linalg.zeros(4)
         self.W, self.Pw = linalg.zeros(4), linalg.zeros(4)
         for i in range(4):

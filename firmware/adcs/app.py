@@ -133,6 +133,14 @@ class App:
         self.torque_max = float(cfg.get("torque_max", apkf_lean.TORQUE_MAX))
         self.fric = cfg.get("friction", apkf_lean.FRICTION)        # coulomb, viscous, smoothing rad/s
         self.sigma_b = float(cfg.get("beacon_sigma_arcsec", 60.0)) * ARCSEC
+        # the vehicle (a spacecraft file's figures; the defaults are the thesis's 3U): the lean APKF's nominal
+        # wheel axes, star-tracker and read-out noise and initial 1 sigma, the wheels its parameter file is checked
+        # against, and the laser axis of the command
+        self.sigma_st = [float(v) for v in cfg.get("star_tracker_sigma_arcsec", (20.0, 20.0, 60.0))]
+        self.mkw = {"c0": cfg.get("wheel_axes"), "sigma_st_arcsec": self.sigma_st,
+                    "tach_rpm": float(cfg.get("tach_noise_rpm", 10.0)),
+                    "p0": cfg.get("apkf_p0", (10.0, 10.0, 1e-6)), "wheels": cfg.get("wheels")}
+        self.laser = tuple(float(v) for v in cfg.get("laser_axis", control.LASER_AXIS))
         sg = cfg.get("gnss_sigma", (30.0, 1.0))
         self.Rg = stkf_lean.zeros_d(36)
         for i in range(6):
@@ -144,7 +152,7 @@ class App:
         self.stkf.get(self.xs, self.sig)
         self.apkf = None
         self.t_apkf = 0.0                   # the APKF's time (s)
-        self.model = apkf_lean.Model(self.params)      # J, C Jrw for the controller before the APKF starts
+        self.model = apkf_lean.Model(self.params, **self.mkw)   # J, C Jrw for the controller before the APKF starts
         zeros = linalg.zeros
         m = self.model
         self.J = zeros(9)
@@ -317,7 +325,8 @@ class App:
                 control.quat_mul(dq, q, pc)
                 s = 2.0 if dq[3] >= 0 else -2.0
                 self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
-                                           momentum=self.momentum, friction=self.fric, torque_max=self.torque_max)
+                                           momentum=self.momentum, friction=self.fric, torque_max=self.torque_max,
+                                           **self.mkw)
                 self.t_apkf = t
             self.st_prev_ok = st_ok
             if st_ok:
@@ -354,8 +363,8 @@ class App:
             return self.apkf.x
         for i in range(9):
             self.Patt[i] = 0.0
-        for i, s in enumerate((20.0, 20.0, 60.0)):
-            self.Patt[i * 4] = (s * ARCSEC) ** 2
+        for i in range(3):
+            self.Patt[i * 4] = (self.sigma_st[i] * ARCSEC) ** 2
         return self.qst
 
     def _stkf(self, t, q):
@@ -399,12 +408,12 @@ class App:
     def _command_rate(self):
         """q_c (Eq. 6.3-6.4) at the STKF state and w_c by a central difference over +-0.5 s."""
         X, xo = self.xs, self.xo
-        control.attitude_command(self.qc, X, (X[3], X[4], X[5]), (X[6], X[7], X[8]), self.cw)
+        control.attitude_command(self.qc, X, (X[3], X[4], X[5]), (X[6], X[7], X[8]), self.cw, self.laser)
         for sgn, qq in ((-1.0, self.qm_), (1.0, self.qp_)):
             xo[0:12] = X[0:12]
             stkf_lean.f(xo, 0, 0.5 * sgn)
             stkf_lean.f(xo, 6, 0.5 * sgn)
-            control.attitude_command(qq, xo, (xo[3], xo[4], xo[5]), (xo[6], xo[7], xo[8]), self.cw)
+            control.attitude_command(qq, xo, (xo[3], xo[4], xo[5]), (xo[6], xo[7], xo[8]), self.cw, self.laser)
         dq = self.cw.q1
         qm = self.qm_
         control.quat_mul(dq, self.qp_, (-qm[0], -qm[1], -qm[2], qm[3]))

@@ -17,7 +17,8 @@ import sys
 
 import numpy as np
 
-from ground.adcs import bps, campaign
+from ground.adcs import bps, campaign, runs
+from ground.adcs.cli import add_spacecraft_option, load_spacecraft
 from ground.fileio import output_folder, run_folder, write_json
 
 FIGURE = "pointing.png"
@@ -61,8 +62,12 @@ def register(sub):
     p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s, in (0, %g] "
                    "(default 33)" % bps.MAX_TS_S)
     p.add_argument("--seed", type=int, default=0, help="scenario seed, >= 0 (default 0)")
-    p.add_argument("--params", default=None, help="parameter file (fps adcs bps format; default: a perfect "
-                                                  "calibration of the emulated spacecraft)")
+    p.add_argument("--params", default=None, help="parameter file (fps adcs bps format, checked against "
+                                                  "--spacecraft; default: a perfect calibration of the emulated "
+                                                  "spacecraft)")
+    add_spacecraft_option(p, "the emulated vehicle (inertia, dipole, wheels, star tracker), its orbits, epoch and "
+                          "sensors, the default parameter file, and the firmware's configuration (wheel axes and "
+                          "limits, sensor noise, initial 1 sigma, STKF P0, laser axis) from it")
     p.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I stops answering at T0 s")
     p.add_argument("--startracker-blind", default=None, metavar="T0:T1", help="star tracker blind from T0 to T1 s")
     p.add_argument("--gnss-outage", default=None, metavar="T0:T1", help="no GNSS fix from T0 to T1 s")
@@ -83,8 +88,9 @@ def run(a):
     campaign.check_duration(a.duration)
     bps.check_ts(a.ts)
     campaign.check_seed(a.seed)
+    d, source = load_spacecraft(a.spacecraft, partner=True)
     if a.params:
-        bps.load_params(a.params)       # the bps format's own checks (inertia and P positive definite, 4 wheels)
+        bps.load_params(a.params, d)    # protocol.paramfile's checks against the spacecraft
     faults = faults_from_args(a)
     link_faults = None
     if a.link_faults:
@@ -92,10 +98,11 @@ def run(a):
         link_faults = LinkFaults.parse(a.link_faults)
     log = None if a.quiet else (lambda m: print(m, file=sys.stderr))
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
-                          params=a.params, faults=faults, log=log, link_faults=link_faults)
+                          params=a.params, faults=faults, log=log, link_faults=link_faults, spacecraft=d)
     out = a.output
     run_folder(out, (FIGURE,))
-    write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}})
+    record = runs.spacecraft_record(d, source)
+    write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}, "spacecraft": record})
     hist = {k: [] for k in ("t", "q", "w", "ra", "va", "rb", "vb")}
     est = {k: [] for k in ("q", "w", "ra", "rb")}
     rw_cmd = []
@@ -126,11 +133,12 @@ def run(a):
         if bar is not None:
             bar.close()
     summary["complete"] = bool(summary["complete"] and not interrupted)
+    summary["spacecraft"] = record
     h = {k: np.concatenate(v) if v else np.zeros((0, 3)) for k, v in hist.items()}
     settle = HOLD_S + 4 * a.ts
     summary["settle_s"] = settle
     if len(h["t"]):
-        dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"])
+        dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"], bps.laser_axis(d))
         h["dtheta_arcsec"], h["domega_arcsec_s"] = dth / bps.ARCSEC, dom / bps.ARCSEC
         sel = h["t"] >= settle
         if sel.sum() >= 2:

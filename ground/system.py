@@ -186,24 +186,32 @@ class _Stopped(Exception):
     """The parent asked the ADCS process to stop."""
 
 
+def _vehicle(spec):
+    """The spec's checked spacecraft file (thesis-3u when it has none)."""
+    from emulator.spacecraft import scenario
+    return spec.get("spacecraft") or scenario.thesis_3u()
+
+
 def _ground_run(spec, params, on_cycle=None, stop=None):
     """``bps.simulate`` for the spec; returns (result, history, estimate errors (K+1, 8)). ``on_cycle(msg)``
     gets each second as the simulation makes it (the body pointing error of its ten steps, Eq. 6.12-6.21, on the
     truth ``simulate`` hands over, and the estimate errors at its start)."""
     from ground.adcs import bps
+    d = _vehicle(spec)
+    lb = bps.laser_axis(d)
 
     def second(k, hist, fsw, x):
         if stop is not None and stop.is_set():
             raise _Stopped
         sl = slice(10 * k + 1, 10 * k + 11)
         dth, dom = bps.pointing_errors(hist["q"][sl], hist["w"][sl], x[:, 0, 0:3], x[:, 0, 3:6], x[:, 1, 0:3],
-                                       x[:, 1, 3:6])
+                                       x[:, 1, 3:6], lb)
         on_cycle({"t": hist["t"][sl].copy(), "dtheta": dth / ARCSEC, "domega": dom / ARCSEC, "t_est": float(k),
                   "est_err": fsw["est_err"][k].copy()})
 
     res, hist = bps.simulate(ts=spec["ts"], satb_gnss=spec["satb_gnss"], duration_s=spec["adcs_duration_s"],
                              seed=spec["seed"], params=params, truth=spec["truth"], cache_dir=spec["cache_dir"],
-                             on_second=second if on_cycle is not None else None)
+                             on_second=second if on_cycle is not None else None, spacecraft=d)
     return res, hist, hist["fsw_est_err"]
 
 
@@ -240,9 +248,11 @@ def _send_firmware(spec, params, q, stop):
     if spec.get("link_faults"):
         from protocol.faults import LinkFaults
         link_faults = LinkFaults.parse(spec["link_faults"])
+    d = _vehicle(spec)
+    lb = bps.laser_axis(d)
     s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"], duration_s=float(n),
                     ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), truth=spec["truth"],
-                    cache_dir=spec["cache_dir"], faults=spec.get("faults"), link_faults=link_faults)
+                    cache_dir=spec["cache_dir"], faults=spec.get("faults"), link_faults=link_faults, spacecraft=d)
     try:
         s.start()
         prev = None          # the truth at the end of the previous cycle: the instant of this cycle's estimate
@@ -250,7 +260,7 @@ def _send_firmware(spec, params, q, stop):
             if stop.is_set():
                 return
             c = s.cycle()
-            dth, dom = bps.pointing_errors(c["q"], c["w"], c["ra"], c["va"], c["rb"], c["vb"])
+            dth, dom = bps.pointing_errors(c["q"], c["w"], c["ra"], c["va"], c["rb"], c["vb"], lb)
             e = c.get("est") or {}
             err = np.full(len(bps.EST_COLS), np.nan)
             if prev is not None and all(k in e for k in ("q", "w", "ra", "rb")):
@@ -322,8 +332,9 @@ def adcs_worker(spec, q, stop):
         _heartbeat(q, stop)
         try:
             from ground.adcs import bps, bps_cli
-            params = spec["params"] or bps_cli.calibration(spec["seed"], spec["bps_cache"], progress=False)
-            bps.check_params(params)
+            d = _vehicle(spec)
+            params = spec["params"] or bps_cli.calibration(spec["seed"], spec["bps_cache"], False, d)
+            bps.check_params(params, spacecraft=d)
             (_send_ground if spec["adcs"] == "ground" else _send_firmware)(spec, params, q, stop)
         except _Stopped:
             pass
@@ -556,17 +567,19 @@ def calibrate_inproc(seed, config, path):
 
 def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware", satb_gnss=False, seed=0, ts=33.0,
                truth="hpop", calibration_path=None, params_path=None, bps_cache=None, config=None, q2_dvp=0.05,
-               quiet=False, plots=True, faults=None, link_faults=None):
+               quiet=False, plots=True, faults=None, link_faults=None, spacecraft=None):
     """The whole run; returns the summary (also in ``out_dir/summary.json``). Bad input raises ValueError before
     anything is written; afterwards the folder always ends valid, and a failure raises ``hil.RunFailed``, an
     interruption ``hil.Interrupted``. ``faults``: the ADCS session's (``emulator.adcs_session``: wheel_silent,
     startracker_blind, gnss_outage, beacon_lost; times in the ADCS's seconds, the play starting after its
     settling), firmware ADCS only; its fault log is in the summary's ``adcs_summary`` and the report.
     ``link_faults``: a ``protocol.faults.LinkFaults`` on the ADCS's CAN link (its slcan stream; firmware ADCS
-    only), the retries it costs in ``adcs_summary``'s ``retries``."""
+    only), the retries it costs in ``adcs_summary``'s ``retries``. ``spacecraft``: a preset's name or a spacecraft
+    file (None: thesis-3u), the vehicle of the ADCS (``fps adcs bps`` or ``fps adcs can`` with ``--spacecraft``)."""
     from firmware.player import Player
     from ground import runtime
-    from ground.adcs import bps, bps_cli
+    from ground.adcs import bps, bps_cli, runs
+    from ground.adcs.cli import load_spacecraft
     from ground.calibrate import load_calibration
 
     t_wall0 = time.perf_counter()
@@ -581,20 +594,23 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     hil.check_q2_dv(q2_dvp)
     runtime.check_board(config)
     cal = load_calibration(calibration_path) if calibration_path else None
-    params = bps.load_params(params_path)[-1] if params_path else None
+    d, source = load_spacecraft(spacecraft, partner=True)
+    record = runs.spacecraft_record(d, source)
+    params = bps.load_params(params_path, d)[-1] if params_path else None
     duration_s = float(duration_s)
     t_settle = settle_s(ts)
     run_folder(out_dir, hil.FIGURES + (FIGURE,))           # the fine loop's figures are hil's
     rec = hil.Recorder(out_dir)
     summary = hil.new_summary(duration_s)
     summary.update({"adcs": adcs, "runtime": runtime_name, "goal_real_time_factor": GOAL_RTF,
-                    "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed, "phase": "start", "stopped_in": None})
+                    "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed, "phase": "start", "stopped_in": None,
+                    "spacecraft": record})
     write_json(rec.path("summary.json"), summary)
     spec = {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,
             "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
             "bps_cache": bps_cache or bps_cli.CACHE_DEFAULT,
             "cache_dir": os.path.abspath(bps_cache or bps_cli.CACHE_DEFAULT), "faults": faults or None,
-            "link_faults": link_faults.describe() if link_faults is not None else None}
+            "link_faults": link_faults.describe() if link_faults is not None else None, "spacecraft": d}
     live = LiveDisturbance(t_settle)
     say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
@@ -612,7 +628,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                     "params": params_path and os.path.abspath(params_path),
                     "calibration": calibration_path and os.path.abspath(calibration_path), "seed": seed,
                     "duration_s": duration_s, "runtime": runtime_name, "link": "serial", "faults": faults or None,
-                    "adcs_link_faults": spec["link_faults"],
+                    "adcs_link_faults": spec["link_faults"], "spacecraft": record,
                     "distfile_period_us": live.reader.period_us, "live_player": True}
                 write_json(rec.path("config.json"), config_json)
                 if cal is None:
@@ -956,7 +972,7 @@ def _cmd(a):
     try:
         s = run_system(a.duration, a.output, a.runtime, a.adcs, a.satb_gnss, a.seed, a.ts, a.truth, a.calibration,
                        a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, _faults_arg(a.faults),
-                       _link_faults_arg(a.link_faults))
+                       _link_faults_arg(a.link_faults), a.spacecraft)
     except hil.Interrupted:
         s = _read_summary(a.output)
         print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"
@@ -1019,5 +1035,8 @@ def register(sub, name, help_):
                         "bytes=P (a bit flip per ASCII byte), frames=P (a CAN frame's line dropped), seed=N, "
                         "silence=START_S:LENGTH_S (the ADCS's seconds; LENGTH_S may be inf); the lockstep's "
                         "retries keep each 1 Hz cycle exactly once, e.g. bytes=0.001,frames=0.05,seed=1")
+    from ground.adcs.cli import add_spacecraft_option
+    add_spacecraft_option(p, "the ADCS's vehicle, as fps adcs bps (--adcs ground) or fps adcs can (--adcs "
+                          "firmware) take it; --params is checked against it")
     hil.add_run_arguments(p, "seed of the ADCS scenario and the bench emulator")
     p.set_defaults(func=_cmd)

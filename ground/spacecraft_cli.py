@@ -204,6 +204,32 @@ def schema_markdown():
          "fps spacecraft template NAME -o FILE         a preset to start from",
          "fps spacecraft schema [--markdown | --json]  this page",
          "```", "",
+         "## Commands that take it", "",
+         "`--spacecraft NAME|FILE` (a preset or a file; default `thesis-3u`, with which every command gives the "
+         "thesis's results bit for bit, as without the option):", "",
+         "- `fps adcs apkf|mekf`: the Sec. 4.8 scenario's true vehicle (the figures plus the `truth` block: "
+         "inertia, dipole, wheels, star tracker, gyro), the filters' model, priors and initial P (`uncertainty`).",
+         "- `fps adcs stkf`: SatA's `orbit.state` and the `partner`'s state, the epoch, `mass_kg` and `surface` "
+         "(the hpop truth), the `gnss` and `beacon` noise, `partner.relay_delay_s`, the STKF's P0 "
+         "(`uncertainty.orbit_*`); with `--attitude apkf` the vehicle the APKF flies (the stated attitude "
+         "covariance stays the thesis's APKF's).",
+         "- `fps adcs bps|sweep` and `fps distfile generate --source bps`: the true vehicle, the orbits and "
+         "sensors as `stkf`, the calibration maneuvers (truth, and the controller on the nominal figures), the "
+         "APKF's model and priors, the STKF's P0, the controller's wheel torque limit and friction, the "
+         "`laser_axis`; `--params` (a calibration's parameter file, `protocol.paramfile`) is checked against the "
+         "wheels.",
+         "- `fps adcs can` and `fps system`: the emulated vehicle as `bps`, the default parameter file (a perfect "
+         "calibration of that vehicle, its P the thesis's final share of the file's `uncertainty`) and the "
+         "firmware's configuration (nominal wheel axes, the wheels block its parameter file is checked against, "
+         "torque limit, friction, read-out, star tracker, GNSS and beacon noise, the APKF's initial 1 σ, the "
+         "STKF's P0, the laser axis).", "",
+         "Refused (exit 2 naming the key): `wheels.count` other than 4 (the APKF, the parameter file and the "
+         "controllers fly four), and a null `partner` for `stkf`, `bps`, `sweep`, `can` and `system`. Not "
+         "followed yet: the sensors' `rate_hz` (the flight software runs at 1 Hz and samples each sensor then), "
+         "`orbit.circular` (the Sec. 4.8 scenario and the calibration maneuvers fly the thesis's circular "
+         "orbit), `wheels.speed_limit_rpm` (the scenarios' wheels have the thesis's no-limit; `bps` reports the "
+         "largest speed), the wheels' imbalance (no jitter in these runs), `magnetorquers` and `magnetometer` "
+         "(no such devices flown).", "",
          "## Units and conventions", "",
          UNITS_HELP, "",
          "- `inertia_kgm2` = [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz] about the centre of mass, body frame. The products are "

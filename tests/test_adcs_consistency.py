@@ -111,3 +111,24 @@ def test_the_apkf_and_the_mekf_are_consistent_on_the_other_spacecraft(name):
         assert 4.0 < mean < 8.5, (fn.__name__, mean)
         if fn is runs.run_apkf:
             assert (np.abs(np.array([r["final_normalised_error"][6:29] for r in rs])) <= 3.0).all()
+
+
+def test_the_cli_records_the_form_and_the_thesis_form_differs(tmp_path, capsys):
+    """``fps adcs apkf --filter`` (300 s, 1 seed): config.json and summary.json say the form; the two forms give
+    different estimates; a bad form is refused by argparse (exit 2)."""
+    from ground.cli import main
+    from ground.fileio import read_json
+    p = tmp_path / "p.json"
+    p.write_text('{"duration_s": 300}')
+    out = {}
+    for form in ("consistent", "thesis"):
+        o = tmp_path / form
+        assert main(["adcs", "apkf", "--runs", "1", "--workers", "1", "--quiet", "--no-plots", "--params", str(p),
+                     "--filter", form, "-o", str(o)]) == 0
+        assert read_json(str(o / "config.json"), "config")["form"] == form
+        out[form] = read_json(str(o / "summary.json"), "summary")
+        assert out[form]["form"] == form and out[form]["per_run"][0]["filter_form"] == form
+    assert out["consistent"]["final_error_attitude_arcsec"] != out["thesis"]["final_error_attitude_arcsec"]
+    with pytest.raises(SystemExit) as e:
+        main(["adcs", "apkf", "--filter", "ekf", "-o", str(tmp_path / "x")])
+    assert e.value.code == 2

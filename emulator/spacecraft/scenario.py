@@ -99,20 +99,26 @@ class Maneuver:
         tt = min(t, self.duration) - self.hold_s
         th = self.angle_deg * DEG
         n_seg = int(tt // (self.rot_s + self.pause_s))
-        for k in range(min(n_seg, 3 * self.sets)):
-            ax = np.eye(3)[k % 3]
-            q = quat_mul(axis_angle_quat(ax, th), q)
+        q = self._turned(min(n_seg, 3 * self.sets))
         r = tt - n_seg * (self.rot_s + self.pause_s)
-        if n_seg < 3 * self.sets:
-            ax = np.eye(3)[n_seg % 3]
-            if r >= self.rot_s:
-                return quat_mul(axis_angle_quat(ax, th), q), w, wd
-            x = np.pi * r / self.rot_s
-            ang = 0.5 * th * (1 - np.cos(x))
-            q = quat_mul(axis_angle_quat(ax, ang), q)
-            w = ax * 0.5 * th * np.sin(x) * np.pi / self.rot_s
-            wd = ax * 0.5 * th * np.cos(x) * (np.pi / self.rot_s) ** 2
+        if n_seg >= 3 * self.sets:
+            return q.copy(), w, wd
+        ax = np.eye(3)[n_seg % 3]
+        if r >= self.rot_s:
+            return quat_mul(axis_angle_quat(ax, th), q), w, wd
+        x = np.pi * r / self.rot_s
+        ang = 0.5 * th * (1 - np.cos(x))
+        q = quat_mul(axis_angle_quat(ax, ang), q)
+        w = ax * 0.5 * th * np.sin(x) * np.pi / self.rot_s
+        wd = ax * 0.5 * th * np.cos(x) * (np.pi / self.rot_s) ** 2
         return q, w, wd
+
+    def _turned(self, n):
+        """q0 after the first n rotations, by the same products in the same order each time (cached)."""
+        cache = self.__dict__.setdefault("_turned_cache", {0: np.array(self.q0, dtype=float)})
+        if n not in cache:
+            cache[n] = quat_mul(axis_angle_quat(np.eye(3)[(n - 1) % 3], self.angle_deg * DEG), self._turned(n - 1))
+        return cache[n]
 
     def set_end_times(self):
         return [self.hold_s + (i + 1) * self.set_s for i in range(self.sets)]
@@ -124,7 +130,7 @@ def null_vector(c):
     return n if n[np.flatnonzero(np.abs(n) > 1e-12)[0]] > 0 else -n
 
 
-def wheel_torques(tau_c, c0, null_fraction=0.1, w_rel=None):
+def wheel_torques(tau_c, c0, null_fraction=0.1, w_rel=None, n=None):
     """Motor torques giving body torque tau_c: min-norm (Eq. 4.144) + null torque a N (Eq. 4.145).
 
     The body feels -C u (reaction), so u = -C^T (C C^T)^-1 tau_c + a N with |a| = null_fraction max|u_mn|.
@@ -132,7 +138,7 @@ def wheel_torques(tau_c, c0, null_fraction=0.1, w_rel=None):
     their 10 000 rpm limit within the 930 s run; the thesis only asks a to be small enough to avoid that).
     """
     u = -c0.T @ np.linalg.solve(c0 @ c0.T, tau_c)
-    n = null_vector(c0)
+    n = null_vector(c0) if n is None else n
     sign = -1.0 if (w_rel is not None and n @ w_rel > 0) else 1.0
     return u + sign * null_fraction * np.max(np.abs(u)) * n
 
@@ -260,6 +266,7 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
     st = StarTracker(r_st, **v.get("star_tracker", {"rate_max_dps": st_rate_max_dps}))
     gy = MemsGyro(r_g, **v.get("gyro", {})) if gyro else None
     pd = PD(**v.get("pd", {}))
+    n_pd = null_vector(pd.c0)
     n = int(round(T))
     sub = int(round(1.0 / dt))
     out = {k: np.zeros((n + 1, m)) for k, m in (("q", 4), ("w", 3), ("w_rel", 4), ("tach", 4), ("st_q", 4),
@@ -278,7 +285,7 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
         qc, wc, wdc = man.command(sc.t)
         tau_c = pd.torque(sc.q, sc.omega, sc.omega_rw_rel, qc, wc, wdc)
         out["tau_c"][k] = tau_c
-        wheels.command_all(wheel_torques(tau_c, pd.c0, null_fraction, sc.omega_rw_rel))
+        wheels.command_all(wheel_torques(tau_c, pd.c0, null_fraction, sc.omega_rw_rel, n_pd))
         q_prev = sc.q.copy()
         for _ in range(sub):
             sc.step()

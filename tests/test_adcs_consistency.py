@@ -132,3 +132,15 @@ def test_the_cli_records_the_form_and_the_thesis_form_differs(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main(["adcs", "apkf", "--filter", "ekf", "-o", str(tmp_path / "x")])
     assert e.value.code == 2
+
+
+def test_the_stkf_campaign_reports_its_consistency():
+    """Two 300 s Case 2 runs (two-body truth): the summary's NEES (12 dof) and RMS error / 1 sigma per vector are
+    there and plausible (the STKF is cautious on the two-body truth: its acceleration noise is for HPOP's forces)."""
+    from ground.adcs import stkf_sim
+    res = [stkf_sim.simulate(2, 300.0, seed=s, truth="two-body")[0] for s in range(2)]
+    s = stkf_sim.aggregate(res, 2, True)
+    assert 3.0 < s["nees_mean"] < 14.0 and 0.0 <= s["nees_in_band_share"] <= 1.0
+    for k in ("ra", "va", "rb", "vb"):
+        assert 0.3 < s["rms_over_sigma_" + k] < 1.5, (k, s["rms_over_sigma_" + k])
+    assert stkf_sim.consistency([])["nees_in_band_share"] is None

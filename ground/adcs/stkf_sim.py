@@ -43,6 +43,7 @@ THESIS = {1: {"final_sigma_ra_m": 9.22, "final_sigma_va_m_s": 0.5252, "final_sig
           2: {"final_sigma_ra_m": 9.21, "final_sigma_va_m_s": 0.5252, "final_sigma_rb_m": 9.21,
               "final_sigma_vb_m_s": 0.5252, "final_sigma_pointing_arcsec": 19.8}}
 KEYS = tuple(THESIS[1])
+NEES_FROM_S = 60    # the consistency figures skip the first minute (P0 of km against GNSS fixes of m)
 
 
 def parse_outage(text):
@@ -167,7 +168,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     log = []
     gaps = _Gaps(log, ("gnss_a", "beacon") + (("relay",) if case == 2 else ()))
     hist = {k: np.zeros((K + 1,) + s) for k, s in
-            (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)))}
+            (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)), ("nees", ()))}
     hist["t"] = np.arange(K + 1, dtype=float)
     step_s = []
     jb = 0
@@ -219,6 +220,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
                                      "surface" % t)
         hist["err"][k] = x - x_true
         hist["sig"][k] = np.sqrt(np.diag(Pk))
+        hist["nees"][k] = hist["err"][k] @ np.linalg.solve(Pk, hist["err"][k])
         hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / ARCSEC
         hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / ARCSEC
     outage_list = gaps.close(float(K))
@@ -236,7 +238,10 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
            "final_error_pointing_arcsec": float(np.hypot(*hist["perr"][-1])),
            "oosm_nodes_generated": flt.generated, "step_us_mean": 1e6 * float(np.mean(step_s[1:] or step_s)),
            "step_us_median": 1e6 * float(np.median(step_s[1:] or step_s)),
-           "outages": outage_list, "log": log}
+           "outages": outage_list, "log": log,
+           "nees": [round(float(v), 4) for v in hist["nees"]],
+           "z2_sum": np.sum((hist["err"][NEES_FROM_S:] / hist["sig"][NEES_FROM_S:]) ** 2, axis=0).tolist(),
+           "z2_steps": max(K + 1 - NEES_FROM_S, 0)}
     return res, hist
 
 
@@ -270,7 +275,30 @@ def aggregate(results, runs_requested, complete):
     med = [r["step_us_median"] for r in good if "step_us_median" in r]
     s["step_us_median"] = float(np.mean(med)) if med and len(med) == len(good) else None   # mean of run medians
     s["outages"] = {str(r["seed"]): r["outages"] for r in good if r["outages"]}
+    s.update(consistency(good))
     return s
+
+
+def consistency(good):
+    """The STKF's consistency over the runs ``good`` from ``NEES_FROM_S``: ``nees_in_band_share``, the share of
+    steps whose mean NEES over the runs (12 dof, all four vectors) lies in its 95 % band, and per vector (SatA,
+    SatB position, velocity) the RMS over runs, steps and axes of the error over its 1 sigma
+    (``rms_over_sigma_*``, 1 if P is right). None without runs."""
+    from ground.adcs.runs import nees_band
+    out = {"nees_in_band_share": None, "nees_mean": None, "rms_over_sigma_ra": None,
+           "rms_over_sigma_va": None, "rms_over_sigma_rb": None, "rms_over_sigma_vb": None}
+    good = [r for r in good if r.get("nees") and r.get("z2_steps")]
+    if not good:
+        return out
+    n = min(len(r["nees"]) for r in good)
+    mean = np.mean([r["nees"][NEES_FROM_S:n] for r in good], axis=0)
+    lo, hi = nees_band(len(good), dof=12)
+    z2 = np.sum([r["z2_sum"] for r in good], axis=0) / sum(r["z2_steps"] for r in good)
+    out.update(nees_in_band_share=float(np.mean((mean >= lo) & (mean <= hi))), nees_mean=float(mean.mean()),
+               nees_band=[lo, hi])
+    for i, k in enumerate(("ra", "va", "rb", "vb")):
+        out["rms_over_sigma_" + k] = float(np.sqrt(np.mean(z2[3 * i:3 * i + 3])))
+    return out
 
 
 def report_md(summary, case, args_text):
@@ -303,6 +331,13 @@ def report_md(summary, case, args_text):
               % summary.get("truth", "?"),
               "conical SRP, low-precision Sun/Moon; no tides, no DE440s) or two-body: a figure that misses is",
               "reported as is, not tuned.", ""]
+    if summary.get("nees_in_band_share") is not None:
+        lines += ["Consistency after %d s: the runs' mean NEES (12 dof) %.2f, in its 95 %% band [%.2f, %.2f] %.2f of "
+                  "the steps; RMS error / 1 sigma: rA %.2f, vA %.2f, rB %.2f, vB %.2f (1 if P is right; below 1 the "
+                  "filter is cautious, above 1 overconfident)." % (
+                      NEES_FROM_S, summary["nees_mean"], summary["nees_band"][0], summary["nees_band"][1],
+                      summary["nees_in_band_share"], summary["rms_over_sigma_ra"], summary["rms_over_sigma_va"],
+                      summary["rms_over_sigma_rb"], summary["rms_over_sigma_vb"]), ""]
     if summary["outages"]:
         lines += ["## Sensor outages (the filter propagated through them)", ""]
         for seed, ol in summary["outages"].items():

@@ -291,66 +291,85 @@ def thesis_sigma_table(figs, by_thesis, seeds=range(5)):
     return "\n".join(lines)
 
 
-def case2_noise_sweep(seeds=range(8), factors=(1.0, None, 100.0)):
-    """Why Case 2 cannot be consistent with a random-walk disturbance model: the consistent form with tau_d's q_d
-    at the thesis's value times each factor (None: ``apkf.QD_CASE2_MATCHED``), same runs. Returns the table."""
+def disturbance_noise_sweep(case, factors, seeds=range(RUNS)):
+    """Why Cases 2 and 3 cannot be consistent with a random-walk disturbance model: the consistent form with tau_d's
+    density scaled, same runs. Case 2: q_d = the thesis's times each factor (None: ``apkf.QD_CASE2_MATCHED``);
+    Case 3: Eq. 4.152's q_d1 and q_d2 times each factor. Returns the table."""
     from scipy.stats import chi2
     n = len(list(seeds))
     lo, hi = chi2.ppf(0.025, 6 * n) / n, chi2.ppf(0.975, 6 * n) / n
-    lines = ["\nCase 2 against tau_d's random-walk density (consistent form otherwise, %d seeds, after the first set):"
-             "\n" % n, "| q_d | NEES mean (6 dof) | NEES in band | RMS / 1 sigma, rate x, y, z | parameters within "
-             "3 sigma at the end (least of 23) |", "|---|---|---|---|---|"]
-    for k in factors:
-        qd = apkf.QD_CASE2_MATCHED if k is None else k * apkf.QD_CASE[2]
-        nees, z, zp = [], [], []
-        for seed in seeds:
-            o = scenario.simulate(case=2, seed=seed)
-            k0, f = runs._start_apkf(o, 2)
-            f.qd = {2: qd}
-            t0 = int(o["set_ends"][0])
-            for kk in range(k0 + 1, len(o["t"])):
-                f.step(o["t"][kk - 1], o["tach"][kk], o["st_q"][kk] if o["st_valid"][kk] else None)
-                if kk >= t0:
-                    e = runs.apkf_error(o, kk, f.x, 2)
-                    nees.append((kk, runs._nees(e[0:6], f.P[0:6, 0:6])))
-                    z.append(e[3:6] / np.sqrt(np.diag(f.P)[3:6]))
-            zp.append(np.abs(e[apkf.PARAMS] / np.sqrt(np.diag(f.P)[apkf.PARAMS])) <= 3.0)
-        steps = np.array(nees)
-        mean = np.array([steps[steps[:, 0] == kk, 1].mean() for kk in np.unique(steps[:, 0])])
-        lines.append("| %s | %.1f | %.2f | %s | %.2f |" % (
-            "matched, %.3g (N m)^2/s (%.0fx the thesis's)" % (qd, qd / apkf.QD_CASE[2]) if k is None else
-            "%gx the thesis's" % k, mean.mean(), np.mean((mean >= lo) & (mean <= hi)),
-            _fmt(np.sqrt(np.mean(np.array(z) ** 2, axis=0)), 1, "%.2f"), np.mean(zp, axis=0).min()))
-    lines.append("No density fits both: the sine's torque is smooth over a rotation and correlates with the maneuver's "
-                 "acceleration, which a random walk (independent increments) cannot say; the parameters take it.")
+    what = "q_d" if case == 2 else "Eq. 4.152's q_d1, q_d2"
+    lines = ["\nCase %d against tau_d's random-walk density (consistent form otherwise, %d seeds, after the first set):"
+             "\n" % (case, n), "| %s | NEES mean (6 dof) | NEES in band | RMS / 1 sigma, rate x, y, z | parameters "
+             "within 3 sigma at the end (least of 23) |" % what, "|---|---|---|---|---|"]
+    qd1, qd2 = apkf.QD1, apkf.QD2
+    meets = []
+    try:
+        for k in factors:
+            if case == 3:
+                apkf.QD1, apkf.QD2 = qd1 * k, qd2 * k
+            nees, z, zp = [], [], []
+            for seed in seeds:
+                o = scenario.simulate(case=case, seed=seed)
+                k0, f = runs._start_apkf(o, case)
+                if case == 2:
+                    f.qd = {2: apkf.QD_CASE2_MATCHED if k is None else k * apkf.QD_CASE[2]}
+                t0 = int(o["set_ends"][0])
+                for kk in range(k0 + 1, len(o["t"])):
+                    f.step(o["t"][kk - 1], o["tach"][kk], o["st_q"][kk] if o["st_valid"][kk] else None)
+                    if kk >= t0:
+                        e = runs.apkf_error(o, kk, f.x, case)
+                        nees.append((kk, runs._nees(e[0:6], f.P[0:6, 0:6])))
+                        z.append(e[3:6] / np.sqrt(np.diag(f.P)[3:6]))
+                zp.append(np.abs(e[apkf.PARAMS] / np.sqrt(np.diag(f.P)[apkf.PARAMS])) <= 3.0)
+            steps = np.array(nees)
+            mean = np.array([steps[steps[:, 0] == kk, 1].mean() for kk in np.unique(steps[:, 0])])
+            label = ("matched, %.3g (N m)^2/s (%.0fx the thesis's)" % (apkf.QD_CASE2_MATCHED,
+                                                                       apkf.QD_CASE2_MATCHED / apkf.QD_CASE[2])
+                     if k is None else "%gx %s" % (k, "the thesis's" if case == 2 else "ours (the default)"))
+            share, within = np.mean((mean >= lo) & (mean <= hi)), np.mean(zp, axis=0).min()
+            if share >= 0.9 and within >= 0.95:
+                meets.append(label)
+            lines.append("| %s | %.1f | %.2f | %s | %.2f |" % (
+                label, mean.mean(), share, _fmt(np.sqrt(np.mean(np.array(z) ** 2, axis=0)), 1, "%.2f"), within))
+    finally:
+        apkf.QD1, apkf.QD2 = qd1, qd2
+    lines.append("Goal (issue 29): NEES in band >= 0.90 with every parameter within 3 sigma in >= 95 %% of runs: %s."
+                 % ("met by " + "; ".join(meets) if meets else
+                    "met by no density here. The disturbance is smooth over a rotation and follows the maneuver, which "
+                    "a random walk (independent increments) does not describe at every lag at once; what the walk "
+                    "leaves out, the parameters take"))
     return "\n".join(lines)
 
 
-def parameters_nees_vs_misalignment(seeds=range(8), scales=(1.0, 0.1), times=(121, 241, 391, 571, 930)):
-    """Where the consistent form's remaining overconfidence comes from (case 1): the parameters' NEES (23 dof)
-    over the run with the true wheel misalignments as the thesis's (7-11 deg) and scaled down (P0 10 deg either
-    way). Returns the table."""
+def parameters_nees_vs_misalignment(seeds=range(8), rows=((1.0, True), (1.0, False), (0.1, True)),
+                                    times=(121, 241, 391, 571, 930)):
+    """Where the thesis form's parameter overconfidence came from (case 1): the parameters' NEES (23 dof) over the
+    run, consistent form, with the true wheel misalignments as the thesis's (7-11 deg) or scaled down (P0 10 deg
+    either way), with and without ``apkf.second_order_noise``. Returns the table."""
     from emulator.spacecraft.wheels import WheelParams
     base = WheelParams(**scenario.SCENARIO_WHEELS)
     lines = ["\nThe parameters' NEES (23 dof, mean of %d seeds, consistent form, case 1) against the size of the true "
-             "misalignments:\n" % len(list(seeds)), "| true misalignments | " + " | ".join("t = %d s" % t for t in times)
-             + " |", "|---|" + "---|" * len(times)]
-    for k in scales:
+             "misalignments:\n" % len(list(seeds)), "| true misalignments | second-order term | "
+             + " | ".join("t = %d s" % t for t in times) + " |", "|---|---|" + "---|" * len(times)]
+    for k, second in rows:
         acc = {t: [] for t in times}
         for seed in seeds:
             wp = dict(scenario.SCENARIO_WHEELS, delta1_deg=tuple(k * d for d in base.delta1_deg),
                       delta2_deg=tuple(k * d for d in base.delta2_deg))
             o = scenario.simulate(case=1, seed=seed, wheel_params=WheelParams(**wp))
             k0, f = runs._start_apkf(o, 1)
+            f.second_order = second
             for kk in range(k0 + 1, len(o["t"])):
                 f.step(o["t"][kk - 1], o["tach"][kk], o["st_q"][kk] if o["st_valid"][kk] else None)
                 if kk in acc:
                     e = runs.apkf_error(o, kk, f.x, 1)[apkf.PARAMS]
                     acc[kk].append(runs._nees(e, f.P[apkf.PARAMS, apkf.PARAMS]))
-        lines.append("| x %g | %s |" % (k, " | ".join("%.1f" % np.mean(acc[t]) for t in times)))
-    lines.append("With the thesis's 7-11 deg the wheel block (Jrw with the misalignments, the directions P holds "
-                 "tightest) is overconfident through the second and third sets: the EKF's linearisation of the "
-                 "bilinear C(delta) Jrw about a 10 deg prior most likely. With 0.7-1.1 deg it is not.")
+        lines.append("| x %g | %s | %s |" % (k, "yes" if second else "no",
+                                             " | ".join("%.1f" % np.mean(acc[t]) for t in times)))
+    lines.append("At the thesis's 7-11 deg, without the second-order term of C(delta) Jrw the wheel block is "
+                 "overconfident through the second and third sets; with it, and with misalignments of 0.7-1.1 deg, "
+                 "the NEES stays near its 23 dof.")
     return "\n".join(lines)
 
 
@@ -459,7 +478,8 @@ def main():
     by_thesis = {c: figs[("apkf", "thesis-3u", 1, "thesis")] if c == 1 else
                  runs.aggregate(_campaign(runs.run_apkf, c, workers=2, form="thesis")[0], "apkf", c) for c in (1, 2, 3)}
     print(thesis_sigma_table(figs, by_thesis))
-    print(case2_noise_sweep())
+    print(disturbance_noise_sweep(2, (1.0, None, 100.0)))
+    print(disturbance_noise_sweep(3, (0.25, 1.0, 4.0)))
     print(parameters_nees_vs_misalignment())
     diag = runs.aggregate(_campaign(runs.run_apkf, 1, workers=2, start_at_truth=True)[0], "apkf", 1)
     print("\nDiagnostic, APKF case 1 started at the true parameters (same P0): NEES in band %.2f (mean %.2f, "

@@ -248,8 +248,8 @@ def schema_markdown():
          "prior mean). Absolute, in the figure's unit.",
          "- `truth` (optional, simulation only): the simulated vehicle's departures from the figures, true = "
          "figure + error (the thesis's Sec. 4.8 errors for `thesis-3u`). A flight team leaves it out.",
-         "- `partner`, `magnetorquers`, `magnetometer` may be null (none); `partner`, `truth` and `sources` may "
-         "be left out. Every other key is required, and an unknown key is refused.",
+         "- `partner`, `magnetorquers`, `magnetometer` may be null (none); `partner`, `truth`, `sources` and "
+         "`surface.cp_offset_m` (no drag or solar pressure torque) may be left out. Every other key is required, and an unknown key is refused.",
          "- NaN and ±inf are refused everywhere; integers are accepted where a number is asked.", "",
          "## Keys", "",
          "| key | type | unit | allowed range | meaning |", "|---|---|---|---|---|"]

@@ -155,7 +155,7 @@ def test_thesis_3u_figures_are_the_code_constants():
     assert (d["mass_kg"], d["surface"]["drag_area_m2"], d["surface"]["cd"], d["surface"]["srp_area_m2"],
             d["surface"]["cr"]) == (cs["mass_kg"], cs["drag_area_m2"], cs["cd"], cs["srp_area_m2"], cs["cr"])
     assert d["laser_axis"] == control.LASER_AXIS.tolist()
-    assert d["magnetorquers"] is None and d["magnetometer"] is None
+    assert d["magnetorquers"]["dipole_limit_am2"] == 0.3 and d["magnetometer"]["noise_nt"] == 50.0
     # priors: the APKF's P0 (Sec. 4.8), the MEKF's, the STKF's (Sec. 5.5.1)
     p0 = np.diag(apkf.initial_covariance(apkf.Model()))
     deg = apkf.DEG
@@ -300,7 +300,7 @@ def test_cli_list_show_check_template_schema(capsys, tmp_path):
     assert rc == 0
     assert re.search(r"^wheels\.speed_limit_rpm +10000 +rpm$", out, re.M)
     assert re.search(r"^inertia_kgm2 +\[0\.012, 0\.047, 0\.045, 0\.001, 0\.002, 0\.003\] +kg m\^2$", out, re.M)
-    assert re.search(r"^magnetorquers +null \(none\)$", out, re.M) and "sources:" in out
+    assert re.search(r"^magnetorquers.dipole_limit_am2 +0.3 +A m\^2$", out, re.M) and "sources:" in out
     rc, out, _ = run(capsys, "show", "generic-6u", "--json")
     assert rc == 0 and json.loads(out) == sc.load("generic-6u")
     mine = tmp_path / "mine.json"

@@ -1,4 +1,5 @@
-"""Orbit and environment torques: circular orbit, tilted-dipole field, gravity gradient, residual dipole.
+"""Orbit and environment torques: circular orbit, tilted-dipole field, gravity gradient, residual dipole, and the
+flight world's drag and solar radiation pressure torques (``SurfaceTorques``).
 
 Gravity gradient (Eq. 4.69-4.75): with G_i = (mu/r^3)(3 r r^T/r^2 - I) (Eq. 4.75) and G_b = A G_i A^T
 (Eq. 4.72), the torque on a body of inertia J is tau_g = (3 mu/r^3) r_b x (J r_b) with r_b the unit vector to
@@ -17,6 +18,7 @@ OMEGA_EARTH = 7.2921159e-5     # rad/s
 # IGRF-13 degree-1 coefficients at epoch 2020 (nT): g10, g11, h11. The dipole m = (g11, h11, g10) * R^3.
 IGRF2020_DIPOLE_NT = (-29404.8, -1450.9, 4652.5)
 M_DIPOLE_THESIS = (-0.11, 0.15, 0.20)   # A m^2, residual dipole, Sec. 4.8
+P_SUN_N_M2 = 4.56e-6          # solar radiation pressure at 1 au (N/m^2)
 
 
 class CircularOrbit:
@@ -93,3 +95,52 @@ def gravity_gradient_torque(j, r_b):
 def magnetic_torque(m_dipole, b_b):
     """Eq. 4.71: tau_m = m x b_b (A m^2 x T = N m)."""
     return cross3(m_dipole, b_b)
+
+
+class SurfaceTorques:
+    """Aerodynamic drag and solar radiation pressure torques of a flat-plate spacecraft whose centre of pressure
+    sits ``cp_offset_m`` (body frame) from its centre of mass: tau = r_cp x (F_drag + F_srp), with
+    F_drag = -1/2 rho Cd A_d |v_r| v_r (v_r = v - w_E x r, the velocity against an atmosphere turning with the
+    Earth) and F_srp = -nu P_sun Cr A_s s (s the unit vector to the Sun, nu the sunlit fraction). Not in the
+    thesis (its spacecraft feels gravity gradient, the residual dipole and Sec. 4.8's tau_d only); this is the
+    flight world's. Stated simplifications: the projected areas do not change with attitude (the file's
+    figures, as the orbit truth's cannonball), and the inertial forces are taken once per second.
+
+    ``t_s`` (n,) s and ``x`` (n, 6) the orbit's [r (m), v (m/s)] (EME2000) at 1 s steps from t = 0;
+    ``epoch_utc`` the orbits' t = 0 (a 6-tuple). Density: brahe's Harris-Priester model; the Sun: brahe's
+    low-precision ephemeris; the shadow: brahe's conical model (the orbit truth's, ``emulator.orbits``)."""
+
+    def __init__(self, t_s, x, epoch_utc, surface, cp_offset_m):
+        from emulator.orbits import _brahe
+        bh = _brahe()
+        y, mo, d, h, mi, s = epoch_utc
+        e0 = bh.Epoch(y, mo, d, h, mi, s, time_system=bh.UTC)
+        x = np.asarray(x, float)
+        r, v = x[:, 0:3], x[:, 3:6]
+        self.cp = tuple(float(c) for c in cp_offset_m)
+        n = len(t_s)
+        f = np.zeros((n, 3))
+        self.rho = np.zeros(n)
+        self.sunlit = np.zeros(n)
+        w_e = np.array([0.0, 0.0, OMEGA_EARTH])
+        for k in range(n):
+            r_sun = np.asarray(bh.sun_position(e0 + float(t_s[k])))
+            self.rho[k] = rho = bh.density_harris_priester(r[k], r_sun)
+            self.sunlit[k] = nu = bh.eclipse_conical(r[k], r_sun)
+            vr = v[k] - np.cross(w_e, r[k])
+            s_hat = (r_sun - r[k]) / np.linalg.norm(r_sun - r[k])
+            f[k] = (-0.5 * rho * surface["cd"] * surface["drag_area_m2"] * np.linalg.norm(vr) * vr
+                    - nu * P_SUN_N_M2 * surface["cr"] * surface["srp_area_m2"] * s_hat)
+        self.t0, self.force_i = float(t_s[0]), f
+        self._f = f.tolist()
+
+    def __call__(self, t, q, w=None):
+        """tau (body frame, N m) at time t (s) and attitude q (inertial to body, scalar last)."""
+        k = min(max(int(t - self.t0), 0), len(self._f) - 1)
+        f0, f1, f2 = self._f[k]
+        e1, e2, e3, q4 = (float(c) for c in q)
+        b0 = (q4*q4 + e1*e1 - e2*e2 - e3*e3) * f0 + 2*(e1*e2 + q4*e3) * f1 + 2*(e1*e3 - q4*e2) * f2
+        b1 = 2*(e1*e2 - q4*e3) * f0 + (q4*q4 - e1*e1 + e2*e2 - e3*e3) * f1 + 2*(e2*e3 + q4*e1) * f2
+        b2 = 2*(e1*e3 + q4*e2) * f0 + 2*(e2*e3 - q4*e1) * f1 + (q4*q4 - e1*e1 - e2*e2 + e3*e3) * f2
+        c0, c1, c2 = self.cp
+        return np.array([c1 * b2 - c2 * b1, c2 * b0 - c0 * b2, c0 * b1 - c1 * b0])

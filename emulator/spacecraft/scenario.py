@@ -381,7 +381,8 @@ def orbit_setup(d):
                          "file a partner block")
     s, u, g = d["orbit"]["state"], d["uncertainty"], d["gnss"]
     return {"x0s": (np.array(s["position_m"] + s["velocity_m_s"]), np.array(p["position_m"] + p["velocity_m_s"])),
-            "epoch_utc": sf.epoch_tuple(d), "surface": dict(d["surface"], mass_kg=d["mass_kg"]),
+            "epoch_utc": sf.epoch_tuple(d),
+            "surface": dict({k: v for k, v in d["surface"].items() if k != "cp_offset_m"}, mass_kg=d["mass_kg"]),
             "gnss": {"sigma_r_m": g["sigma_position_m"], "sigma_v_m_s": g["sigma_velocity_m_s"]},
             "beacon": {"sigma_arcsec": d["beacon"]["sigma_arcsec"]}, "relay_delay_s": tuple(p["relay_delay_s"]),
             "stkf_P0_diag": ([u["orbit_position_sigma_m"] ** 2] * 3 + [u["orbit_velocity_sigma_m_s"] ** 2] * 3) * 2}

@@ -128,6 +128,7 @@ class Model:
         self.field = field or env.TiltedDipoleField()
         self.R_st = np.diag((np.asarray(sigma_st_arcsec) * quat.ARCSEC) ** 2) / 4.0
         self.R_rw = (tach_rpm * RPM) ** 2
+        self.m_ctrl = None      # the magnetorquers' dipole over the step (filter units: A m^2 x s), a known input
 
     def env_inertial(self, t):
         """(unit orbit radius, 3 mu/r^3, field) in the inertial frame at t."""
@@ -204,7 +205,7 @@ def terms(x, model, t):
     J, Ji, cjW, cja = c[0:4]
     return {"J": np.array(J), "Ji": np.array(Ji), "C": np.array(C).T, "jrw": x[26:30], "W": x[30:34],
             "acc": np.array(acc), "r_i": env_i[0], "k": c[6], "b_i": env_i[2], "cjW": np.array(cjW),
-            "cja": np.array(cja)}
+            "cja": np.array(cja), "m_ctrl": getattr(model, "m_ctrl", None)}
 
 
 def _terms_f(x, model, t):
@@ -227,8 +228,15 @@ def _terms_f(x, model, t):
         cja1, cja2, cja3 = cja1 + c1 * jr * ac, cja2 + c2 * jr * ac, cja3 + c3 * jr * ac
     env_i = model.env_inertial(t)
     c = (J, _inv3_f(jxx, jxy, jxz, jyy, jyz, jzz), [cjW1, cjW2, cjW3], [cja1, cja2, cja3], env_i[0].tolist(),
-         env_i[2].tolist(), float(env_i[1]), xl[15:18], xl[7:10])
+         env_i[2].tolist(), float(env_i[1]), _dipole(xl[15:18], model), xl[7:10])
     return c, (C, jrw, W, acc), env_i
+
+
+def _dipole(m, model):
+    """The dipole the torque sees: the estimated residual m plus the magnetorquers' commanded dipole
+    (``Model.m_ctrl``, a known input; filter units), as a list."""
+    mc = getattr(model, "m_ctrl", None)
+    return list(m) if mc is None else [a + b for a, b in zip(m, mc)]
 
 
 def _wheel_terms(m):
@@ -242,7 +250,7 @@ def _rates(q, w, x, m, s):
     r, b = A @ m["r_i"], A @ m["b_i"]
     J = m["J"]
     h = J @ w + m["cjW"] + m["cja"] * s
-    T = -env.cross3(w, h) - m["cja"] + m["k"] * env.cross3(r, J @ r) + env.cross3(x[15:18], b) + x[7:10]
+    T = -env.cross3(w, h) - m["cja"] + m["k"] * env.cross3(r, J @ r) + env.cross3(_mtot(x, m), b) + x[7:10]
     e, q4 = q[0:3], q[3]
     q_dot = 0.5 * np.array([q4 * w[0] - (w[1] * e[2] - w[2] * e[1]), q4 * w[1] - (w[2] * e[0] - w[0] * e[2]),
                             q4 * w[2] - (w[0] * e[1] - w[1] * e[0]), -(w @ e)])
@@ -297,7 +305,13 @@ def _rates_f(q, w, s, c):
 def _consts(x, m):
     """The per-step constants of ``_rates_f`` as Python floats, from ``terms``."""
     return (m["J"].tolist(), m["Ji"].tolist(), m["cjW"].tolist(), m["cja"].tolist(), m["r_i"].tolist(),
-            m["b_i"].tolist(), float(m["k"]), x[15:18].tolist(), x[7:10].tolist())
+            m["b_i"].tolist(), float(m["k"]), _mtot(x, m).tolist(), x[7:10].tolist())
+
+
+def _mtot(x, m):
+    """``_dipole`` for ``terms``' dict: x's residual dipole plus its ``m_ctrl``, as an array."""
+    mc = m.get("m_ctrl")
+    return x[15:18] if mc is None else x[15:18] + np.asarray(mc, float)
 
 
 def _wheels(m):
@@ -623,14 +637,21 @@ def predict(x, P, w_plus, model, t, case=1, scale=1.0, M=None, qd=QD_CASE, secon
 
 
 def propagate_window(x, steps, model):
-    """(x_b, M): the state after a stretch of predictions from x (``steps``: (t, w_plus) per step, as
-    ``predict``'s), and M = d x_b / d x, the product of the steps' Phi and ``shift_tach`` maps."""
+    """(x_b, M): the state after a stretch of predictions from x (``steps``: (t, w_plus[, m_ctrl]) per step, as
+    ``predict``'s, m_ctrl the model's magnetorquer input then, default the model's own), and M = d x_b / d x, the product of the steps' Phi
+    and ``shift_tach`` maps."""
     x = np.array(x, dtype=float)
     M = EYE_N.copy()
-    for t, w_plus in steps:
-        q, w, c, wheels, r0, _, PhiR = _linearise(x, w_plus, model, t)
-        _carry(M, PhiR)
-        _propagate(x, q, w, model.dt, c, wheels, r0[:2])
+    m_now = getattr(model, "m_ctrl", None)
+    try:
+        for st in steps:
+            t, w_plus = st[0], st[1]
+            model.m_ctrl = st[2] if len(st) > 2 else m_now
+            q, w, c, wheels, r0, _, PhiR = _linearise(x, w_plus, model, t)
+            _carry(M, PhiR)
+            _propagate(x, q, w, model.dt, c, wheels, r0[:2])
+    finally:
+        model.m_ctrl = m_now
     return x, M
 
 
@@ -772,7 +793,11 @@ class APKF:
     - the rate's P takes the second-order term of the wheels' C(d) Jrw (``second_order_noise``): without it the
       parameters' NEES was 45 for 23 dof in the second set (31 with it), and the attitude + rate NEES left its
       band in the blind stretches (in band 0.69 / 0.87 of the second / third set's steps; 0.79 / 0.96 with it).
-    ``reacquisitions``: one (t, steps, passes) per iterated update."""
+    ``gate``: a chi-square bound (3 dof) on the star tracker's normalised innovation; an output beyond it is not
+    fused but resets the attitude (``reset_attitude``; ``resets``: one (t, NIS, angle arcsec) each). None (the
+    default, the thesis's filter): every output is fused.
+    ``reacquisitions``: one (t, steps, passes) per iterated update; ``qd`` and ``second_order`` are the form's
+    (a diagnostic may change them)."""
 
     def __init__(self, x0, model=None, case=1, set_ends=(), form="consistent"):
         if form not in FORMS:
@@ -784,8 +809,20 @@ class APKF:
         self.set_ends = list(set_ends)
         self.form = form
         self.qd = QD_CASE if form == "thesis" else QD_CONSISTENT
+        self.second_order = form == "consistent"
         self.reacquisitions = []
         self._stretch = None            # (x, P, steps, M) since the last star-tracker output
+        self.gate = None                # NIS above which a star-tracker output resets the attitude (None: never)
+        self.resets = []
+
+    def reset_attitude(self, q_meas, R):
+        """Take the star tracker's attitude as the estimate (a re-acquisition after a loss): q = q_meas, its
+        covariance R and its correlations with the rest zero; the rate and parameters keep theirs."""
+        self.x[0:4] = np.asarray(q_meas, float) / np.linalg.norm(q_meas)
+        self.P[IQ, :] = 0.0
+        self.P[:, IQ] = 0.0
+        self.P[IQ, IQ] = R
+        self._stretch = None
 
     def step(self, t, w_plus, q_meas=None):
         """Propagate from t to t + dt with the read-out at t + dt, then update if a star-tracker output came."""
@@ -795,14 +832,21 @@ class APKF:
         if self.form == "consistent":
             if self._stretch is None:
                 self._stretch = (self.x, self.P, [], EYE_N.copy())
-            self._stretch[2].append((t, np.array(w_plus, dtype=float)))
+            self._stretch[2].append((t, np.array(w_plus, dtype=float), getattr(m, "m_ctrl", None)))
             M = self._stretch[3]
         self.x, self.P = predict(self.x, self.P, w_plus, m, t, self.case, s_q, M=M, qd=self.qd,
-                                 second_order=self.form == "consistent")
+                                 second_order=self.second_order)
         if q_meas is None:
             return self.x, self.P
         R = m.R_st * s_r
         stretch, self._stretch = self._stretch, None
+        if self.gate is not None:
+            z = quat.error_vec(np.asarray(q_meas, float), self.x[0:4])
+            nis = float(z @ np.linalg.solve(self.P[IQ, IQ] + R, z))
+            if not nis <= self.gate:
+                self.reset_attitude(q_meas, R)
+                self.resets.append((t + m.dt, nis, 2.0 * float(np.linalg.norm(z)) / quat.ARCSEC))
+                return self.x, self.P
         if stretch is not None and len(stretch[2]) >= 2:
             xa, Pa, steps, M = stretch
             self.x, self.P, n = update_window(xa, Pa, steps, self.x, self.P, M, q_meas, R, m)

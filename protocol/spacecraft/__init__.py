@@ -79,6 +79,8 @@ SCHEMA = [
     _e("surface.cd", "num", "1", _rng(0, 10, True), "drag coefficient"),
     _e("surface.srp_area_m2", "num", "m^2", _rng(0, 100, True), "solar radiation pressure area"),
     _e("surface.cr", "num", "1", _rng(0, 2), "radiation pressure coefficient"),
+    _e("surface.cp_offset_m", "vec", "m", _rng(-10, 10), "centre of pressure minus centre of mass, body frame: "
+       "the flight world's drag and solar pressure torques (absent: none)", n=3, optional=True),
     _e("wheels", "block", doc="the reaction wheel assembly"),
     _e("wheels.count", "int", "1", _rng(3, MAX_WHEELS), "number of wheels"),
     _e("wheels.nominal_axes", "axes", "1", _rng(-1e3, 1e3), "each wheel's nominal spin axis, body frame "

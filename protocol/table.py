@@ -29,6 +29,8 @@ NODES = (
     ("STARTRACKER", 0x50, "star tracker"),
     ("GNSS", 0x51, "GNSS receiver"),
     ("BEACON", 0x52, "beacon camera"),
+    ("MTQ", 0x53, "magnetorquer driver (three rods)"),
+    ("MAGNETOMETER", 0x54, "three-axis magnetometer"),
     ("SPACECRAFT", 0x60, "spacecraft dynamics emulator"),
     ("BROADCAST", 0xFF, "every node"),
 )
@@ -57,7 +59,9 @@ ERRORS = (
 # ADCS flight software modes (ADCS_STATUS.adcs_mode).
 ADCS_MODES = (("INIT", 0), ("HOLD", 1), ("POINT", 2), ("DEGRADED", 3))
 
-# ADCS_STATUS.stale bits: the sensor gave nothing usable this cycle (missed, invalid or too old).
+# ADCS_STATUS.stale bits: the sensor gave nothing usable this cycle (missed, invalid or too old). The byte is
+# full: MAGNETOMETER and MTQ_TLM have no bit, so they are not named in ADCS_TICK.burst nor asked for again by
+# ADCS_MISSING (they ride in the burst unnamed; a lost one is a missed reading).
 ADCS_STALE = (("STARTRACKER", 0), ("GNSS_A", 1), ("GNSS_B", 2), ("BEACON", 3), ("RW0", 4), ("RW1", 5),
               ("RW2", 6), ("RW3", 7))
 
@@ -264,5 +268,31 @@ PACKETS = (
      "lockstep: the open cycle's burst lacks these packets, send them again (answers a resent ADCS_TICK)", (
         ("tick", "I", "", 1, None, None, 0, "ADCS cycle open"),
         ("missing", "B", "", 1, None, None, 0, "ADCS_STALE bits of the packets not received (GNSS_B: some)"),
+    )),
+    # --- spacecraft: magnetorquers and magnetometer (body frame; the rods' axes and limit, the magnetometer's
+    # noise and bias are the spacecraft file's) -------------------------------------------------------------
+    (0x48, "MTQ_CMD", "ADCS", "MTQ",
+     "magnetorquer dipole command, body frame: the driver shares it among its rods by least squares and clips "
+     "each rod at its dipole limit; answered by MTQ_TLM", (
+        ("mx", "f", "A m^2", 1, None, None, 0.0, "commanded dipole x, body frame"),
+        ("my", "f", "A m^2", 1, None, None, 0.0, "commanded dipole y"),
+        ("mz", "f", "A m^2", 1, None, None, 0.0, "commanded dipole z"),
+        ("enable", "B", "", 1, 0, 1, 1, "1 = drive, 0 = every rod off (dipole 0)"),
+        ("cycle", "B", "", 1, None, None, 0, "ADCS cycle (mod 256) the command belongs to; the driver ignores it"),
+    )),
+    (0x49, "MTQ_TLM", "MTQ", "ADCS", "magnetorquer telemetry: the dipole the rods apply", (
+        ("mx", "f", "A m^2", 1, None, None, 0.0, "applied dipole x after the per-rod limit, body frame"),
+        ("my", "f", "A m^2", 1, None, None, 0.0, "applied dipole y"),
+        ("mz", "f", "A m^2", 1, None, None, 0.0, "applied dipole z"),
+        ("saturated", "B", "", 1, 0, 7, 0, "bit i: rod i clipped at its dipole limit (rods in the spacecraft "
+         "file's order)"),
+    )),
+    (0x4A, "MAGNETOMETER", "MAGNETOMETER", "ADCS",
+     "magnetic field in the body frame (sensor axes on the body axes), nT as scaled integers", (
+        ("t_ms", "I", "ms", 1, None, None, 0, "measurement time"),
+        ("bx", "i", "nT", 0.1, -1000000, 1000000, 0, "field x, body frame (full scale +-100000 nT)"),
+        ("by", "i", "nT", 0.1, -1000000, 1000000, 0, "field y"),
+        ("bz", "i", "nT", 0.1, -1000000, 1000000, 0, "field z"),
+        ("valid", "B", "", 1, 0, 1, 1, "1 = a reading; 0 = none (beyond full scale on an axis, or failed)"),
     )),
 )

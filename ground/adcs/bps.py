@@ -48,12 +48,13 @@ from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.scenario import HOLD_S, LAG_S, laser_axis
 from emulator.spacecraft.wheels import N_WHEELS, WheelParams
-from ground.adcs import apkf, control, quat, runs, stkf
+from ground.adcs import apkf, control, modes, quat, runs, stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
 from protocol import paramfile as pf
 
 ARCSEC = quat.ARCSEC
+RPM = 2 * np.pi / 60
 FORMAT = pf.FORMAT
 CAL_SETS = 9
 W_OBJ = np.array([1.0, 1.0, 10.0, 10.0])        # Eq. 6.24
@@ -68,6 +69,19 @@ BUDGET_STABILITY_3SIGMA = 35.0
 SLOW_S = 60       # the error budget's moving average for the tracking part's slow share (s)
 TACH_NOISE_RPM = WheelParams.noise_rpm   # the tachometers' 10 rpm 1 sigma (Sec. 4.8)
 SPAN_MARGIN_S = 2.0   # the orbit truth's span beyond the run (``truth_span``; part of the truth cache's key)
+WORLDS = ("thesis", "flight")
+MODE_CODE = {m: float(i) for i, m in enumerate(modes.MODES)}
+# The flight world's flight-software options (``simulate(world="flight", flight={...})``); units in the names.
+FLIGHT = {
+    "slew_rate_deg_s": 0.5,        # the eigenaxis slew's rate limit: ~1/7 of what the 3U's wheels hold at 80 %
+    "slew_acc_deg_s2": 0.05,       # its acceleration limit: ~3 % of the wheels' torque on the 3U's largest axis
+    "reslew_deg": 1.0,             # POINT -> SLEW when the estimate is this far off the command
+    "unload_gain_1_s": 2e-3,       # the cross-product law's gain: the wheels' momentum across b decays in ~500 s
+    "innovation_gate": 44.84,      # chi-square, 3 dof, 1 - 1e-9: a star-tracker output beyond it resets the attitude
+    "beacon_gate_arcsec": 300.0,   # the STKF takes the beacon only while the attitude 1 sigma is within this
+    "wheel_bias_share": 0.2,       # the wheels' null-space speed bias, a share of their speed limit
+    "wheel_bias_gain_1_s": 0.01,   # and its gain: ~100 s to reach it
+}
 SUMMARY_KEYS = ("pointing_mean_arcsec", "pointing_sigma_arcsec", "stability_mean_arcsec_s",
                 "stability_sigma_arcsec_s", "pointing_3sigma_arcsec", "stability_3sigma_arcsec_s", "complete")
 
@@ -271,6 +285,43 @@ def check_ts(ts):
     return control.natural_frequency(v) and v
 
 
+def orbit_period(x):
+    """The Keplerian period (s) of the orbit whose [r (m), v (m/s)] is x (vis-viva: a = 1 / (2/r - v^2/mu))."""
+    r, v = np.linalg.norm(x[0:3]), np.linalg.norm(x[3:6])
+    a = 1.0 / (2.0 / r - v * v / stkf.MU)
+    return float(2 * np.pi * np.sqrt(a ** 3 / stkf.MU))
+
+
+def _flight_command(log, t, q_hat, qc, wc, fo, box, st_ok, blind_s):
+    """The flight world's command at t (after the hold), by mode: SLEW, a rate-limited eigenaxis slew
+    (``modes.EigenaxisSlew``, held in ``box[0]``) from the estimate toward the tracking command, until its
+    reference reaches it; ACQUIRE, the command itself while the star tracker is still blind; on its first output
+    (this second, ``st_ok``, after ``blind_s`` s without one) POINT if the estimate is within ``reslew_deg`` of the
+    command, else another slew from the estimate; POINT, the command, back to SLEW when the estimate is more than
+    ``reslew_deg`` off it."""
+    err = 2.0 * np.degrees(np.arcsin(min(1.0, np.linalg.norm(quat.error_vec(q_hat, qc)))))
+    if log.mode == "POINT":
+        if err <= fo["reslew_deg"]:
+            return qc, wc
+        log.set("SLEW", t, "the estimate is %.2f deg off the command (> %g deg)" % (err, fo["reslew_deg"]))
+    elif log.mode == "ACQUIRE":
+        if not st_ok:
+            return qc, wc
+        why = "the star tracker is back after %d s blind, the estimate %.2f deg off the command" % (blind_s, err)
+        if err <= fo["reslew_deg"]:
+            log.set("POINT", t, why)
+            return qc, wc
+        log.set("SLEW", t, why)
+    if box[0] is None:
+        box[0] = modes.EigenaxisSlew(q_hat, qc, fo["slew_rate_deg_s"] * modes.DEG, fo["slew_acc_deg_s2"] * modes.DEG)
+        log.set("SLEW", t, "a slew of %.1f deg to the partner's line of sight" % np.degrees(box[0].theta0))
+    q_ref, w_ref = box[0].reference(qc, wc)
+    if box[0].done:
+        box[0] = None
+        log.set("ACQUIRE", t + 1.0, "the slew's reference reached the command")
+    return q_ref, w_ref
+
+
 class EstimatedOrbit:
     """SatA's orbit as the flight software knows it, for the APKF's model (``apkf.Model.orbit``): the STKF's
     latest rA, vA (at ``t0``) carried along vA, ``position(t)`` = rA + (t - t0) vA. The APKF asks for the
@@ -288,7 +339,8 @@ class EstimatedOrbit:
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
-             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None):
+             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None,
+             world="thesis", flight=None):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection time after
     the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict: 10 Hz arrays, fsw_* at 1 Hz). A
     KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
@@ -304,8 +356,23 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     sensors) and the flight software: the APKF's model (``runs.apkf_model``; the Jxx reference the parameter
     file's), the STKF's P0, the wheels' nominal torque limit and friction, the star tracker's noise before the
     APKF starts and the laser axis of the command and of the pointing error; the parameter file is checked
-    against it."""
+    against it.
+
+    ``world``: "thesis" (Sec. 6.4 as above) or "flight" (``FLIGHT``; ``flight`` overrides its options): the
+    wheels at the file's speed and torque limits, drag and solar pressure torques about ``surface.cp_offset_m``,
+    the magnetorquers with the cross-product unloading law (``modes.unloading_dipole``; their dipole a known
+    input of the APKF and of the feed-forward), a rate-limited eigenaxis slew before pointing
+    (``modes.EigenaxisSlew``), the APKF's innovation gate (``apkf.APKF.gate``), the STKF's beacon gate
+    (``modes.beacon_gate``) and the mode log. There ``duration_s`` is the whole run from t = 0 (no settling is
+    added) and the figures are over the pointing passes after the first orbit (``flight_statistics``)."""
     ts = check_ts(ts)
+    if world not in WORLDS:
+        raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
+    fo = dict(FLIGHT, **(flight or {}))
+    unknown = sorted(set(fo) - set(FLIGHT))
+    if unknown:
+        raise ValueError("unknown flight option(s) %s (the options: %s)" % (", ".join(unknown), ", ".join(FLIGHT)))
+    fly, world_name = world == "flight", world
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
     d = spacecraft or scenario.thesis_3u()
@@ -314,6 +381,12 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
     t_settle = hold_s + settle_ts * ts
     K = int(np.ceil(t_settle + duration_s))
+    if fly:
+        if d["magnetorquers"] is None:
+            raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers; give "
+                             "the spacecraft file a magnetorquers block (or fly --world thesis)")
+        wheel_speed_limit_rpm = d["wheels"]["speed_limit_rpm"]
+        K = int(np.ceil(duration_s))
     if tach_noise_rpm is not None:
         if not (np.isfinite(tach_noise_rpm) and tach_noise_rpm > 0):
             raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
@@ -321,6 +394,26 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K,   # Sec. 6.4.1
                                     wheel_speed_limit_rpm=wheel_speed_limit_rpm, spacecraft=d)
     rate, xg, wheels, sc, st = world.rate, world.xg, world.wheels, world.sc, world.st
+    log = modes.ModeLog("INIT", 0.0)
+    period = orbit_period(xg[0, 0])
+    if fly:
+        t_settle = period                               # the figures: pointing passes after the first orbit
+        from emulator.spacecraft.environment import SurfaceTorques
+        from protocol import spacecraft as sf
+        cp = d["surface"].get("cp_offset_m")
+        if cp is not None and np.any(cp):
+            sc.disturbance = SurfaceTorques(world.t_s, world.xs[:, 0, :], sf.epoch_tuple(d), d["surface"], cp)
+        m_res_true = sc.dipole
+        mtq = d["magnetorquers"]
+        mtq_axes = np.array([np.asarray(a, float) / np.linalg.norm(a) for a in mtq["axes"]])
+        slew = None
+        gate_rad = fo["beacon_gate_arcsec"] * ARCSEC
+    m_cmd = np.zeros(3)
+    slew_box = [None]
+    t_st_last = 0.0
+    use_beacon = True
+    flog = {k: np.full((K + 1, m), np.nan) for k, m in (("m_cmd", 3), ("h_w", 3), ("mode", 1), ("st_ok", 1),
+                                                        ("beacon_used", 1), ("mtq_sat", 1))}
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
     orb = EstimatedOrbit(0.0, world.stkf_x0)
@@ -376,9 +469,13 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                     x0[7:30] = xp
                     flt = apkf.APKF(x0, model=model, case=1)
                     flt.P[apkf.PARAMS, apkf.PARAMS] = Pp
+                    if fly:
+                        flt.gate = fo["innovation_gate"]
+                    log.set("HOLD", t, "the APKF started from two star-tracker outputs")
                 q_prev = q_st if st_ok else None
             else:
                 orb.set(t - 1.0, f_stkf.x)                 # the STKF's rA, vA at t - 1 (not yet predicted to t)
+                model.m_ctrl = m_cmd * scale if fly else None   # the magnetorquers' dipole over t - 1 .. t
                 flt.step(t - 1.0, tach, q_st if st_ok else None)
                 if not np.all(np.isfinite(flt.x)):
                     raise FloatingPointError("APKF diverged at t = %.0f s" % t)
@@ -390,9 +487,13 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             A_hat = dcm(q_hat)
             if k > 0:
                 f_stkf.predict(t)
-            R_gb = stkf.R_gnss_beacon(gnss_a.R, stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
+            use_beacon = not fly or (flt is not None and modes.beacon_gate(P_att, gate_rad))
             try:
-                f_stkf.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
+                if use_beacon:
+                    R_gb = stkf.R_gnss_beacon(gnss_a.R, stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
+                    f_stkf.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
+                else:                                   # the attitude is not known well enough for the beacon
+                    f_stkf.update(zg, gnss_a.R, lambda x: (x, I6), part=stkf.SAT_A)
                 for tm, z in due:                       # SatB's GNSS: H = I on SatB's part (Eq. 5.12)
                     f_stkf.update(z, relay.gnss.R, lambda x: (x, I6), t=tm, part=stkf.SAT_B)
             except np.linalg.LinAlgError as exc:        # S not positive definite: the filter has diverged
@@ -406,17 +507,32 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 C = apkf.c_rw(x, model)
                 if t >= hold_s:
                     qc, wc = control.command_rate(xh, stkf.f, lb)
+                    if fly:
+                        qc, wc = _flight_command(log, t, q_hat, qc, wc, fo, slew_box, st_ok, t - t_st_last)
+                    elif log.mode == "HOLD":
+                        log.set("POINT", t, "the hold is over")
                 else:                                       # the hold: rate damping (q_c = q_hat, w_c = 0)
                     qc, wc = q_hat, np.zeros(3)
                 Kp, Dd = control.gains(J, ts)
-                H = J @ w_hat + (C * x[26:30] / scale) @ x[38:42] if feedforward else None
+                h_w = (C * x[26:30] / scale) @ x[38:42]     # the wheels' momentum (body frame, N m s)
+                H = J @ w_hat + h_w if feedforward else None
                 tff = None
+                b_i = model.field.field(xh[0:3], t)
+                if fly:                                     # unloading: this second's dipole, known to the APKF
+                    m_cmd, rods_sat = modes.unloading_dipole(A_hat @ b_i, h_w, fo["unload_gain_1_s"],
+                                                             mtq["dipole_limit_am2"], x[15:18] / scale, mtq_axes)
+                    sc.dipole = m_res_true + m_cmd
+                    flog["m_cmd"][k], flog["h_w"][k], flog["mtq_sat"][k] = m_cmd, h_w, float(rods_sat.any())
                 if feedforward:
-                    tff = control.external_torque(J, x[15:18] / scale, x[7:10] / scale, q_hat, xh[0:3],
-                                                  model.field.field(xh[0:3], t))
+                    tff = control.external_torque(J, x[15:18] / scale + m_cmd, x[7:10] / scale, q_hat, xh[0:3],
+                                                  b_i)
                 tau_c = control.pd_torque(q_hat, w_hat, qc, wc, Kp, Dd, H, tff)
                 tau_c = control.saturate(tau_c, C, ds["torque_limit_nm"])
                 u = control.wheel_torques(tau_c, C, null_fraction=0.0)        # Eq. 6.11 (no null torque)
+                if fly:                                     # the wheels held off zero speed (null space)
+                    u = u + modes.null_bias_torque(C, tach, np.asarray(ds["rotor_inertia_kgm2"], float),
+                                                   fo["wheel_bias_share"] * ds["speed_limit_rpm"] * RPM,
+                                                   fo["wheel_bias_gain_1_s"])
                 if feedforward:
                     u = u + control.friction_compensation(tach, ds["friction_coulomb_nm"],
                                                           ds["friction_viscous_nms_rad"],
@@ -425,6 +541,9 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 if tff is not None:
                     fsw["tau_ff"][k] = tff
             fsw["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)        # truth, for the record only
+            flog["mode"][k], flog["st_ok"][k], flog["beacon_used"][k] = MODE_CODE[log.mode], st_ok, use_beacon
+            if st_ok:
+                t_st_last = t
             fsw["q_hat"][k], fsw["w_hat"][k], fsw["u"][k] = q_hat, w_hat, u
             fsw["x_stkf"][k] = xh                                          # rA, vA, rB, vB estimated
             if np.all(np.isfinite(q_hat)):
@@ -460,7 +579,14 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                                xs10[:, 1, 3:6], lb)
     hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / ARCSEC, dom / ARCSEC
     hist.update({"fsw_" + k: v for k, v in fsw.items()})
+    for key in flog:
+        flog[key] = flog[key][:k_done + 1]
+    hist.update({"fsw_" + k: v for k, v in flog.items()})
+    mode_s = flog["mode"][:, 0]
+    mode10 = mode_s[np.minimum(hist["t"].astype(int), k_done)]
     sel = hist["t"] >= t_settle
+    if fly:
+        sel &= mode10 == MODE_CODE["POINT"]
     budget = error_budget(hist, xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb)
     res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
            "duration_s": float(duration_s), "settle_s": float(t_settle), "simulated_s": float(k_done),
@@ -468,7 +594,17 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
            "wall_s": time.perf_counter() - t_wall, "wheel_speed_clips": wheels.counters(),
            "max_wheel_speed_rpm": float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi)),
            "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm), "tach_noise_rpm": d["wheels"]["tach_noise_rpm"],
-           "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "spacecraft": d["name"]}
+           "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "spacecraft": d["name"], "world": world_name,
+           "orbit_period_s": period, "mode_changes": log.changes, "time_in_mode_s": log.time_in(k_done),
+           "apkf_attitude_resets": [] if flt is None else [list(r) for r in flt.resets]}
+    # the star tracker's blind share: after the first slew (flight: the first POINT; thesis: the settling)
+    first_point = next((c["t_s"] for c in log.changes if c["to"] == "POINT"), None)
+    t_from = (first_point if fly else t_settle)
+    secs = np.arange(k_done + 1) >= (np.inf if t_from is None else t_from)
+    res["star_tracker_blind_share"] = float(1.0 - flog["st_ok"][secs, 0].mean()) if secs.any() else None
+    if fly:
+        res.update(flight_statistics(hist, dth, dom, mode10, period, flog, mtq["dipole_limit_am2"], mtq_axes))
+        res["flight_options"] = fo
     if sel.sum() >= 2:
         res.update(statistics(dth[sel], dom[sel]))
     else:
@@ -476,6 +612,39 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         res["J_rad2"] = None
     res["budget"] = budget
     return res, hist
+
+
+def flight_statistics(hist, dth, dom, mode10, period, flog, dipole_limit, axes):
+    """The flight world's figures: per pointing pass (pass p = the POINT samples of orbit p, p >= 1, of those the
+    run holds whole; orbit 0 is the slew and settling) its 3 sigma pointing and stability (as ``statistics``) and largest wheel
+    speed; the largest wheel speed after the first orbit (``max_wheel_speed_rpm`` then means that span, and
+    ``max_wheel_speed_rpm_run`` the whole run's); the magnetorquers' duty (mean of the largest rod's |m| over
+    its limit) and saturated share; the wheels' momentum |h| (N m s) at most and at the end."""
+    t = hist["t"]
+    rpm = np.abs(hist["w_rel"]) * 60 / (2 * np.pi)
+    passes = []
+    n_orbits = int(np.floor(t[-1] / period + 0.01))           # whole orbits (1 % short still counts)
+    for p in range(1, n_orbits):
+        span = (t >= p * period) & (t < (p + 1) * period)
+        sel = span & (mode10 == MODE_CODE["POINT"])
+        if sel.sum() < 2:
+            passes.append({"orbit": p, "samples": int(sel.sum())})
+            continue
+        st = statistics(dth[sel], dom[sel])
+        passes.append({"orbit": p, "t_from_s": float(t[span][0]), "t_to_s": float(t[span][-1]),
+                       "samples": st["samples"], "pointing_3sigma_arcsec": st["pointing_3sigma_arcsec"],
+                       "stability_3sigma_arcsec_s": st["stability_3sigma_arcsec_s"],
+                       "max_wheel_speed_rpm": float(rpm[span].max())})
+    after = t >= period
+    rods = np.abs(np.linalg.lstsq(axes.T, np.nan_to_num(flog["m_cmd"]).T, rcond=None)[0]).max(axis=0)
+    h = np.linalg.norm(flog["h_w"], axis=1)
+    return {"passes": passes, "max_wheel_speed_rpm": float(rpm[after].max()) if after.any() else None,
+            "max_wheel_speed_rpm_run": float(rpm.max()),
+            "mtq_duty": float(np.mean(rods / dipole_limit)),
+            "mtq_saturated_share": float(np.nanmean(flog["mtq_sat"])),
+            "wheel_momentum_max_nms": float(np.nanmax(h)) if np.isfinite(h).any() else None,
+            "wheel_momentum_end_nms": float(h[-1]) if np.isfinite(h[-1]) else None,
+            "beacon_used_share": float(np.nanmean(flog["beacon_used"]))}
 
 
 def error_budget(hist, x1, t_settle, slow_s=SLOW_S, laser_axis=control.LASER_AXIS):

@@ -30,6 +30,9 @@ from ground.fileio import cache_folder, output_folder, run_folder, write_atomic,
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
 FIGURES_BPS = ("fig6-3_pointing.png", "fig6-4_pointing.png")    # without / with SatB's GNSS, as the thesis's
 FIGURE_SWEEP = "fig6-2_sweep.png"
+FIGURES_FLIGHT = ("flight_pointing.png", "flight_wheels.png")
+WHEEL_BAND = 0.8        # the flight world's wheels stay within this share of their speed limit after the first orbit
+BLIND_MAX = 0.10        # and the star tracker is blind less than this share of the time after the first slew
 VERSION = 5          # bump when the simulator's results change: old cache entries stop matching
 
 
@@ -61,6 +64,8 @@ def parse_ts_range(text):
 
 
 def check_run_args(a):
+    if a.duration is None:
+        a.duration = 4000.0
     campaign.check_duration(a.duration)
     campaign.check_seed(a.seed)
 
@@ -211,28 +216,147 @@ def plot_history(path, hist, settle_s, title):
     save_png(fig, path, dpi=90)
 
 
+def flight_checks(s):
+    """The flight world's requirements of one run (``fps adcs bps --world flight``), each {"ok", "what"}:
+    every pointing pass after the first orbit within the 3 sigma budgets, the wheels within ``WHEEL_BAND`` of their
+    speed limit after the first orbit, the star tracker blind less than ``BLIND_MAX`` of the time after the first
+    slew, and at least one pass collected."""
+    passes = [p for p in s.get("passes") or [] if p.get("pointing_3sigma_arcsec") is not None]
+    lim = s["wheel_speed_limit_rpm"]
+    blind = s.get("star_tracker_blind_share")
+    wmax = s.get("max_wheel_speed_rpm")
+    return {
+        "passes": {"ok": bool(passes), "what": "%d pointing pass(es) after the first orbit" % len(passes)},
+        "pointing": {"ok": bool(passes) and all(p["pointing_3sigma_arcsec"] <= bps.BUDGET_POINTING_3SIGMA
+                                                for p in passes),
+                     "what": "every pass's 3σ pointing <= %g arcsec" % bps.BUDGET_POINTING_3SIGMA},
+        "stability": {"ok": bool(passes) and all(p["stability_3sigma_arcsec_s"] <= bps.BUDGET_STABILITY_3SIGMA
+                                                 for p in passes),
+                      "what": "every pass's 3σ stability <= %g arcsec/s" % bps.BUDGET_STABILITY_3SIGMA},
+        "wheels": {"ok": wmax is not None and wmax <= WHEEL_BAND * lim,
+                   "what": "wheels <= %.0f %% of %.0f rpm after the first orbit" % (100 * WHEEL_BAND, lim)},
+        "star_tracker": {"ok": blind is not None and blind < BLIND_MAX,
+                         "what": "star tracker blind < %.0f %% of the time after the first slew" % (100 * BLIND_MAX)},
+    }
+
+
+def report_flight_md(s, args_text):
+    """report.md of a flight-world run: the checks, each pass, the modes, the wheels and magnetorquers."""
+    out = ["# Body pointing in the flight world", "", "`%s`" % args_text, "",
+           "Spacecraft %s; t_s = %g s, %s SatB's GNSS, %.0f s (%.2f orbits of %.0f s), truth %s, seed %d. "
+           "complete: %s" % (_name(s.get("spacecraft")), s["ts_s"], "with" if s["satb_gnss"] else "without",
+                            s["simulated_s"], s["simulated_s"] / s["orbit_period_s"], s["orbit_period_s"],
+                            s["truth"], s["seed"], s["complete"]), "",
+           "| requirement | met |", "|---|---|"]
+    for c in s["checks"].values():
+        out.append("| %s | %s |" % (c["what"], "yes" if c["ok"] else "**NO**"))
+    out += ["", "| pass (orbit) | from (s) | samples (10 Hz, POINT) | 3σ pointing (arcsec) | 3σ stability "
+            "(arcsec/s) | largest wheel speed (rpm) |", "|---|---|---|---|---|---|"]
+    for p in s["passes"]:
+        if p.get("pointing_3sigma_arcsec") is None:
+            out.append("| %d | — | %d | — | — | — |" % (p["orbit"], p["samples"]))
+        else:
+            out.append("| %d | %.0f | %d | %.1f | %.1f | %.0f |" % (
+                p["orbit"], p["t_from_s"], p["samples"], p["pointing_3sigma_arcsec"],
+                p["stability_3sigma_arcsec_s"], p["max_wheel_speed_rpm"]))
+    tm = s["time_in_mode_s"]
+    out += ["", "Time in each mode: " + ", ".join("%s %.0f s" % (k, v) for k, v in tm.items()) + ".",
+            "Star tracker blind %.2f %% of the time after the first slew; the STKF took the beacon %.1f %% of the "
+            "seconds (gated by the attitude 1σ); APKF attitude resets on a large innovation: %d." % (
+                100 * s["star_tracker_blind_share"], 100 * s["beacon_used_share"], len(s["apkf_attitude_resets"])),
+            "Wheels: largest %.0f rpm after the first orbit (%.0f rpm over the run; limit %.0f rpm, speed clips %d); "
+            "momentum at most %.2e N m s, %.2e at the end. Magnetorquers: duty %.2f (mean of the largest rod's |m| "
+            "over its limit), saturated %.1f %% of the seconds." % (
+                s["max_wheel_speed_rpm"], s["max_wheel_speed_rpm_run"], s["wheel_speed_limit_rpm"],
+                sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), s["wheel_momentum_max_nms"],
+                s["wheel_momentum_end_nms"], s["mtq_duty"], 100 * s["mtq_saturated_share"]), "",
+            "| t (s) | mode change | reason |", "|---|---|---|"]
+    for c in s["mode_changes"][:50]:
+        out.append("| %.0f | %s -> %s | %s |" % (c["t_s"], c["from"], c["to"], c["reason"]))
+    if len(s["mode_changes"]) > 50:
+        out.append("| ... | %d more in summary.json | |" % (len(s["mode_changes"]) - 50))
+    out += ["", "Not the thesis's world (that is `--world thesis`): datasheet wheel limits, drag and solar "
+            "pressure torques, magnetorquer unloading, a rate-limited slew and the gates (ground/adcs/modes.py).", ""]
+    return "\n".join(out)
+
+
+def plot_flight(out, hist, s):
+    """flight_pointing.png (the pointing error and stability with the orbits and the modes) and
+    flight_wheels.png (wheel speeds, the wheels' momentum and the magnetorquers' dipole over the orbits)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from ground.plots import save_png
+    t, T = hist["t"], s["orbit_period_s"]
+    t1 = np.arange(len(hist["fsw_mode"]))
+    point = hist["fsw_mode"][:, 0] == bps.MODE_CODE["POINT"]
+    fig, ax = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    for i, (key, unit) in enumerate((("dtheta_arcsec", "arcsec"), ("domega_arcsec_s", "arcsec/s"))):
+        ax[i].plot(t / T, hist[key], lw=0.4)
+        sel = t >= T
+        if sel.any():
+            lim = 1.2 * np.nanmax(np.abs(hist[key][sel]))
+            ax[i].set_ylim(-lim, lim)
+        ax[i].set_ylabel("%s (%s)" % ("pointing δθ1, δθ2" if i == 0 else "stability δω1, δω2", unit))
+    ax[2].step(t1 / T, hist["fsw_mode"][:, 0], where="post", lw=0.8)
+    ax[2].set_yticks(range(len(bps.modes.MODES)))
+    ax[2].set_yticklabels(bps.modes.MODES)
+    ax[2].set_xlabel("time (orbits of %.0f s)" % T)
+    for a_ in ax:
+        for k in range(1, int(t[-1] / T) + 1):
+            a_.axvline(k, color="k", lw=0.5, ls="--")
+    fig.suptitle("Flight world: pointing per pass (after the dashed line: collected in POINT, %d%% of the "
+                 "seconds)" % round(100 * point.mean()))
+    fig.tight_layout()
+    save_png(fig, os.path.join(out, FIGURES_FLIGHT[0]), dpi=90)
+    fig, ax = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    ax[0].plot(t / T, hist["w_rel"] * 60 / (2 * np.pi), lw=0.5)
+    lim = s["wheel_speed_limit_rpm"]
+    for v in (-WHEEL_BAND * lim, WHEEL_BAND * lim):
+        ax[0].axhline(v, color="r", lw=0.6, ls=":")
+    ax[0].set_ylabel("wheel speeds (rpm)")
+    ax[1].plot(t1 / T, 1e3 * np.linalg.norm(hist["fsw_h_w"], axis=1), lw=0.6)
+    ax[1].set_ylabel("wheels' momentum |h| (mN m s)")
+    ax[2].plot(t1 / T, hist["fsw_m_cmd"], lw=0.6)
+    ax[2].set_ylabel("magnetorquer dipole (A m²)")
+    ax[2].set_xlabel("time (orbits of %.0f s)" % T)
+    fig.suptitle("Flight world: wheels (dotted: %.0f %% of the limit) and momentum unloading" % (100 * WHEEL_BAND))
+    fig.tight_layout()
+    save_png(fig, os.path.join(out, FIGURES_FLIGHT[1]), dpi=90)
+
+
 def _cmd_bps(a):
     ts = bps.check_ts(a.ts)
-    check_run_args(a)
     d, record, params = _vehicle(a)
+    if a.world == "flight":
+        if d["magnetorquers"] is None:
+            raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels "
+                             "with magnetorquers (or fly --world thesis)")
+        if a.duration is None:
+            if not (np.isfinite(a.orbits) and 0 < a.orbits <= 100):
+                raise ValueError("--orbits must be in (0, 100], got %r" % (a.orbits,))
+            a.duration = a.orbits * bps.orbit_period(scenario.orbit_setup(d)["x0s"][0])
+    check_run_args(a)
     out = a.output
-    run_folder(out, FIGURES_BPS)
+    run_folder(out, FIGURES_BPS + FIGURES_FLIGHT)
     args_text = "fps adcs bps " + " ".join(sys.argv[3:])
     summary = {k: None for k in bps.SUMMARY_KEYS}
-    summary.update(complete=False, ts_s=ts, satb_gnss=a.satb_gnss, spacecraft=record)
+    summary.update(complete=False, ts_s=ts, satb_gnss=a.satb_gnss, spacecraft=record, world=a.world)
     write_json(os.path.join(out, "summary.json"), summary)
     try:
         if params is None:
             params = calibration(a.seed, a.cache_dir, not a.quiet, d)
         bps.write_params(os.path.join(out, "params.json"), params, d)
-        _truth(a, 30 + 4 * ts + a.duration, os.path.abspath(a.cache_dir), d)
+        _truth(a, a.duration if a.world == "flight" else 30 + 4 * ts + a.duration, os.path.abspath(a.cache_dir), d)
     except KeyboardInterrupt:
         print("interrupted before the pointing run: %s has complete=false" % out, file=sys.stderr)
         return 130
     try:
         res, hist = bps.simulate(ts=ts, satb_gnss=a.satb_gnss, duration_s=a.duration, seed=a.seed, params=params,
                                  truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet,
-                                 spacecraft=d)
+                                 spacecraft=d, world=a.world)
+        if a.world == "flight":
+            return _finish_flight(a, out, res, hist, record, args_text)
     except FloatingPointError as exc:              # a filter or the truth diverged: the run ends, the folder says so
         summary["error"] = str(exc)
         write_json(os.path.join(out, "summary.json"), summary)
@@ -270,6 +394,32 @@ def _cmd_bps(a):
     print("budgets met: 3σ pointing %.1f ≤ %g arcsec, stability %.1f ≤ %g arcsec/s"
           % (s["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, s["stability_3sigma_arcsec_s"],
              bps.BUDGET_STABILITY_3SIGMA))
+    return 0
+
+
+def _finish_flight(a, out, res, hist, record, args_text):
+    bps.save_history(os.path.join(out, "history.npz"), hist)
+    s = dict(res, spacecraft=record)
+    s["checks"] = flight_checks(s)
+    s["budgets_met"] = bool(s["complete"] and all(c["ok"] for c in s["checks"].values()))
+    plots = []
+    if not a.no_plots and len(hist["t"]) > 10:
+        plot_flight(out, hist, s)
+        plots = list(FIGURES_FLIGHT)
+    s["plots"] = plots
+    text = report_flight_md(s, args_text)
+    write_atomic(os.path.join(out, "report.md"), text)
+    write_json(os.path.join(out, "summary.json"), s)
+    print(text)
+    print("run folder %s: summary.json, history.npz, params.json, report.md%s" % (out, "".join(", " + p for p in plots)))
+    if not s["complete"]:
+        print("interrupted: partial run in %s (summary complete=false)" % out, file=sys.stderr)
+        return 130
+    missed = [c["what"] for c in s["checks"].values() if not c["ok"]]
+    if missed:
+        print("REQUIREMENT MISSED: " + "; ".join(missed), file=sys.stderr)
+        return 3
+    print("requirements met: " + "; ".join(c["what"] for c in s["checks"].values()))
     return 0
 
 
@@ -357,9 +507,10 @@ def _cmd_sweep(a):
 
 
 def _common(p):
-    p.add_argument("--duration", type=float, default=4000.0,
-                   help="seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling, 1 to %g "
-                   "(default 4000)" % campaign.MAX_DURATION_S)
+    p.add_argument("--duration", type=float, default=None,
+                   help="thesis world: seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling, 1 to "
+                   "%g (default 4000); flight world: the whole run in s (default --orbits orbits)"
+                   % campaign.MAX_DURATION_S)
     p.add_argument("--seed", type=int, default=0, help="noise seed, also the calibration's, 0 to "
                    "2**32 - 1 (default 0)")
     p.add_argument("--params", default=None, help="parameter file (JSON) from an earlier run's params.json, "
@@ -382,6 +533,13 @@ def register_bps(sub):
     p.add_argument("--ts", type=float, default=bps.TS_THESIS, help="settling time t_s in s, in (0, %g] "
                    "(default 33)" % bps.MAX_TS_S)
     p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed to SatA (2-3 s late)")
+    p.add_argument("--world", choices=bps.WORLDS, default="thesis",
+                   help="thesis (default): Sec. 6.4's world, wheels without a limit in effect, no momentum "
+                   "management, pointing from rest after a 30 s hold; flight: the spacecraft file's wheel speed "
+                   "and torque limits, drag and solar pressure torques, magnetorquer unloading, a rate-limited "
+                   "slew and re-acquisition; its figures are per pointing pass after the first orbit")
+    p.add_argument("--orbits", type=float, default=3.0,
+                   help="flight world: the run's length in orbits when --duration is not given (default 3)")
     _common(p)
     p.set_defaults(func=_cmd_bps)
 

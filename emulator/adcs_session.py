@@ -6,7 +6,9 @@ The wire: a pseudo-terminal. The firmware (``firmware/adcs/main_can.py``, under 
 holds the master and plays the serial-CAN adapter's side of Lawicel (``firmware/hal/slcan.py``); this side
 opens python-can's ``slcan`` interface on the slave (``protocol.link.open_link("slcan:PATH")``), with
 can-isotp for the payloads over 8 bytes. Devices: RW0..RW3 (RW_CMD -> RW_TLM), STARTRACKER, GNSS (SatA, and
-SatB's fixes relayed 2-3 s late when ``satb_gnss``), BEACON; the emulator is node SPACECRAFT.
+SatB's fixes relayed 2-3 s late when ``satb_gnss``), BEACON; the emulator is node SPACECRAFT. With
+``magnetic_devices`` (the flight world's; off for the thesis's, which has none) also the spacecraft file's
+magnetometer (MAGNETOMETER) and magnetorquers (MTQ: MTQ_CMD -> MTQ_TLM), where its blocks are not null.
 
 Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s), exactly once per cycle over
 a link that loses packets (``firmware.adcs.app.Lockstep`` is the other side):
@@ -24,6 +26,17 @@ a link that loses packets (``firmware.adcs.app.Lockstep`` is the other side):
    ``MAX_LATE_CYCLES`` late cycles in a row end the session with OSError, the firmware being hung. Then the
    commands are applied and the dynamics stepped 10 x 0.1 s;
 4. k + 1: the next burst.
+
+The magnetic devices (``magnetic_devices``): each burst carries a MAGNETOMETER packet (the true field at t_k in
+the body frame: the truth's field model at its position, turned by its attitude; ``Magnetometer``'s bias and
+noise, its random stream the eighth child of ``SeedSequence(seed)``, so the world's seven are as without it) and,
+after a cycle whose MTQ_CMD was applied, the MTQ_TLM (or NACK) answering it. ADCS_STALE has no bit left for
+them: they are not named in ADCS_TICK.burst (the firmware does not wait for them, ADCS_MISSING cannot ask for
+them again) and are sent before the named packets, so they arrive while the cycle is open. An MTQ_CMD of cycle
+k (its ``cycle`` byte k mod 256, sent before ADCS_STATUS(k)) is applied with the wheel commands: the truth's
+dipole becomes its residual dipole plus the rods' applied dipole (``devices.Magnetorquers``: least-squares share
+per rod, clipped at the file's limit) and the field torque m x b follows; without one the rods keep their last
+command, as a driver would. The lean flight firmware sends none.
 
 ``link_faults`` (``protocol.faults.LinkFaults``): bit flips in the slcan ASCII stream and frame lines dropped,
 both directions, at this end of the pty, from the first burst on (``silence`` in the session's virtual
@@ -61,6 +74,7 @@ from emulator import orbits
 from emulator.runtime import OWN_GROUP
 from emulator.navsensors import ARCSEC
 from emulator.spacecraft import scenario
+from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftDevices
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
 from firmware.adcs.apkf_lean import MOMENTUM
@@ -129,12 +143,14 @@ class AdcsSession:
     ``apkf_momentum`` (the lean APKF's momentum input: "filtered", the read-outs filtered on the commanded
     torques, flown; "tach", the read-out difference, and "torque", the commanded torques, for comparison),
     ``link_faults`` (a ``protocol.faults.LinkFaults`` on the slcan stream, see the module docstring),
-    ``spacecraft`` (a checked spacecraft file, None: thesis-3u; see the module docstring)."""
+    ``spacecraft`` (a checked spacecraft file, None: thesis-3u; see the module docstring),
+    ``magnetic_devices`` (serve the file's magnetometer and magnetorquers on the bus, see the module docstring;
+    off by default: thesis-3u's are assumptions for the flight world only)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
-                 spacecraft=None):
+                 spacecraft=None, magnetic_devices=False):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
         if not (np.isfinite(duration_s) and duration_s >= 1):
@@ -163,6 +179,15 @@ class AdcsSession:
         self.gnss_a, self.beacon, self.relay, self.tb, self.xb_tb = w.gnss_a, w.beacon, w.relay, w.tb, w.xb_tb
         self.jb = 0
         self.params = scenario.truth_params(self.sc, d) if params is None else _load_params(params, d)
+        self.devices = None                      # the magnetic devices (SpacecraftDevices), when served
+        if magnetic_devices:
+            r_mag = np.random.default_rng(np.random.SeedSequence(self.seed).spawn(8)[7])
+            mag, mtq = Magnetometer.from_spacecraft(d, r_mag), Magnetorquers.from_spacecraft(d)
+            if mag is not None or mtq is not None:
+                self.devices = SpacecraftDevices(self.sc, self.st, magnetometer=mag, magnetorquers=mtq)
+        self._mtq_cmd = None                     # MTQ_CMD payload received this cycle
+        self._mtq_reply = []                     # its answer (MTQ_TLM or NACK), sent in the next burst
+        self.n_mtq_cmd = self.refused_mtq_cmd = 0
         self.stkf_x0 = w.stkf_x0.tolist()
         self.k = 0
         self.proc = None
@@ -238,8 +263,11 @@ class AdcsSession:
         finally:
             os.close(m)
         try:
-            self.link = hostlink.open_link("slcan:" + path, "SPACECRAFT", bitrate=1000000,
-                                           accept=("RW0", "RW1", "RW2", "RW3", "STARTRACKER", "GNSS", "BEACON"),
+            accept = ("RW0", "RW1", "RW2", "RW3", "STARTRACKER", "GNSS", "BEACON")
+            if self.devices is not None:         # MTQ_CMD, and the flow control of MTQ_TLM and MAGNETOMETER
+                accept += (("MTQ",) if self.devices.mtq is not None else ()) + (
+                    ("MAGNETOMETER",) if self.devices.mag is not None else ())
+            self.link = hostlink.open_link("slcan:" + path, "SPACECRAFT", bitrate=1000000, accept=accept,
                                            isotp_timeout_s=ISOTP_TIMEOUT_MS / 1000.0)
         finally:
             os.close(s)
@@ -259,6 +287,9 @@ class AdcsSession:
         self._t_wall = time.perf_counter()
         self._burst()
         return self
+
+    def _has_mtq(self):
+        return self.devices is not None and self.devices.mtq is not None
 
     def _stderr(self):
         try:
@@ -305,6 +336,12 @@ class AdcsSession:
         dead = self.faults["wheel_silent"][0] if self._fault("wheel_silent", t) else -1
         if dead >= 0:
             self.wheels.command(dead, 0.0, False)          # the node is dead: its driver stops, the rotor coasts
+        for pid, src, _, payload in self._mtq_reply:       # unnamed packets first (see the module docstring)
+            self._send(pid, src, payload)
+        self._mtq_reply = []
+        if self.devices is not None and self.devices.mag is not None:
+            pid, src, _, payload = self.devices.magnetometer(N["ADCS"], t_ms)
+            self._send(pid, src, payload)
         speed = self.wheels.read_speed_rpm(sc.omega_rw_rel)
         for i in range(N_WHEELS):
             if i != dead and self._commanded[i]:
@@ -361,6 +398,7 @@ class AdcsSession:
         t0 = self._tick_sent
         deadline = t0 + self.reply_timeout_s
         self._cmd = [None] * N_WHEELS
+        self._mtq_cmd = None
         status = None
         heard = False                            # anything of cycle k came back (a reply or ADCS_MISSING)
         try_s = min(TRY_MAX_S, max(TRY_MIN_S, 3.0 * self._reply_s))
@@ -390,6 +428,10 @@ class AdcsSession:
                 if pid == P["RW_CMD"] and dst in RW_NODES:
                     if payload[-1] == k & 0xFF:          # not a late copy of the previous cycle's
                         self._cmd[RW_NODES.index(dst)] = payload
+                        heard = True
+                elif pid == P["MTQ_CMD"] and dst == N["MTQ"] and self._has_mtq():
+                    if len(payload) == core.PACKET[pid].size and payload[-1] == k & 0xFF:   # not a late copy
+                        self._mtq_cmd = payload
                         heard = True
                 elif pid == P["ADCS_STATUS"]:
                     d = core.payload_dict(pid, payload)
@@ -441,6 +483,11 @@ class AdcsSession:
             else:                                  # the wheel keeps its last command; counted, not silent
                 self.refused_rw_cmd[i] += 1
             self._commanded[i] = True
+        if self._mtq_cmd is not None and self._has_mtq():
+            self._mtq_reply = self.devices.handle(P["MTQ_CMD"], N["ADCS"], N["MTQ"], self._mtq_cmd)
+            ok = self._mtq_reply[0][0] == P["MTQ_TLM"]
+            self.n_mtq_cmd += ok
+            self.refused_mtq_cmd += not ok
         out = {k: np.zeros((10, n)) for k, n in (("q", 4), ("w", 3), ("ra", 3), ("va", 3), ("rb", 3), ("vb", 3))}
         out["t"] = np.zeros(10)
         for j in range(10):
@@ -483,6 +530,9 @@ class AdcsSession:
                 "speed_x_realtime": (self.k / self.wall_s) if self.wall_s > 0 else None,
                 "late_cycles": self.n_late, "missed_rw_cmd": list(self.missed_rw_cmd),
                 "refused_rw_cmd": list(self.refused_rw_cmd),
+                "magnetic_devices": None if self.devices is None else {
+                    "magnetometer": self.devices.mag is not None, "magnetorquers": self._has_mtq(),
+                    "mtq_cmd": self.n_mtq_cmd, "refused_mtq_cmd": self.refused_mtq_cmd},
                 "firmware_missed": {"rw": [st.get("miss_rw%d" % i) for i in range(N_WHEELS)],
                                     "startracker": st.get("miss_st"), "gnss": st.get("miss_gnss"),
                                     "beacon": st.get("miss_beacon"), "st_invalid": st.get("n_st_invalid"),

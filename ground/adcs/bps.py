@@ -292,6 +292,23 @@ def orbit_period(x):
     return float(2 * np.pi * np.sqrt(a ** 3 / stkf.MU))
 
 
+def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
+    """A copy of the checked spacecraft file ``d`` with a partner satellite in its own orbit ``behind_deg``
+    behind it (its orbit.state turned about the orbit normal): for a vehicle shipped without one (generic-12u
+    points at a ground station) to fly the partner-tracking worlds. The name gets "+partner"."""
+    s = d["orbit"]["state"]
+    r, v = np.array(s["position_m"], float), np.array(s["velocity_m_s"], float)
+    k = np.cross(r, v)
+    k /= np.linalg.norm(k)
+    a = -np.radians(behind_deg)
+
+    def turn(x):                                   # Rodrigues' formula about k
+        return x * np.cos(a) + np.cross(k, x) * np.sin(a) + k * (k @ x) * (1 - np.cos(a))
+    return dict(d, name=d["name"] + "+partner",
+                partner={"position_m": turn(r).tolist(), "velocity_m_s": turn(v).tolist(),
+                         "relay_delay_s": list(relay_delay_s)})
+
+
 def _flight_command(log, t, q_hat, qc, wc, fo, box, st_ok, blind_s):
     """The flight world's command at t (after the hold), by mode: SLEW, a rate-limited eigenaxis slew
     (``modes.EigenaxisSlew``, held in ``box[0]``) from the estimate toward the tracking command, until its

@@ -240,6 +240,10 @@ def flight_checks(s):
     }
 
 
+def _f(v, fmt):
+    return "—" if v is None else fmt % v
+
+
 def report_flight_md(s, args_text):
     """report.md of a flight-world run: the checks, each pass, the modes, the wheels and magnetorquers."""
     out = ["# Body pointing in the flight world", "", "`%s`" % args_text, "",
@@ -261,15 +265,16 @@ def report_flight_md(s, args_text):
                 p["stability_3sigma_arcsec_s"], p["max_wheel_speed_rpm"]))
     tm = s["time_in_mode_s"]
     out += ["", "Time in each mode: " + ", ".join("%s %.0f s" % (k, v) for k, v in tm.items()) + ".",
-            "Star tracker blind %.2f %% of the time after the first slew; the STKF took the beacon %.1f %% of the "
+            "Star tracker blind %s %% of the time after the first slew; the STKF took the beacon %.1f %% of the "
             "seconds (gated by the attitude 1σ); APKF attitude resets on a large innovation: %d." % (
-                100 * s["star_tracker_blind_share"], 100 * s["beacon_used_share"], len(s["apkf_attitude_resets"])),
-            "Wheels: largest %.0f rpm after the first orbit (%.0f rpm over the run; limit %.0f rpm, speed clips %d); "
-            "momentum at most %.2e N m s, %.2e at the end. Magnetorquers: duty %.2f (mean of the largest rod's |m| "
+                _f(None if s["star_tracker_blind_share"] is None else 100 * s["star_tracker_blind_share"], "%.2f"),
+                100 * s["beacon_used_share"], len(s["apkf_attitude_resets"])),
+            "Wheels: largest %s rpm after the first orbit (%.0f rpm over the run; limit %.0f rpm, speed clips %d); "
+            "momentum at most %s N m s, %s at the end. Magnetorquers: duty %.2f (mean of the largest rod's |m| "
             "over its limit), saturated %.1f %% of the seconds." % (
-                s["max_wheel_speed_rpm"], s["max_wheel_speed_rpm_run"], s["wheel_speed_limit_rpm"],
-                sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), s["wheel_momentum_max_nms"],
-                s["wheel_momentum_end_nms"], s["mtq_duty"], 100 * s["mtq_saturated_share"]), "",
+                _f(s["max_wheel_speed_rpm"], "%.0f"), s["max_wheel_speed_rpm_run"], s["wheel_speed_limit_rpm"],
+                sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), _f(s["wheel_momentum_max_nms"], "%.2e"),
+                _f(s["wheel_momentum_end_nms"], "%.2e"), s["mtq_duty"], 100 * s["mtq_saturated_share"]), "",
             "| t (s) | mode change | reason |", "|---|---|---|"]
     for c in s["mode_changes"][:50]:
         out.append("| %.0f | %s -> %s | %s |" % (c["t_s"], c["from"], c["to"], c["reason"]))

@@ -84,6 +84,7 @@ from protocol import core, table
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
 RUNTIMES = ("micropython", "cpython")
+WORLDS = ("thesis", "flight")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
 MAX_LATE_CYCLES = 3                  # late cycles in a row that end the session: the firmware is hung
@@ -150,7 +151,7 @@ class AdcsSession:
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
-                 spacecraft=None, magnetic_devices=False):
+                 spacecraft=None, magnetic_devices=False, world="thesis", flight=None):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
         if not (np.isfinite(duration_s) and duration_s >= 1):
@@ -173,8 +174,22 @@ class AdcsSession:
         self.recorded = [] if record else None     # per tick: [tick, t_ms, [[pid, src, payload hex], ...]]
         self.K = int(np.ceil(self.duration_s))
         self.spacecraft = d = spacecraft or scenario.thesis_3u()
-        self.world = w = scenario.pointing_world(self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S,
-                                                 n_tags=self.K + 1, spacecraft=d)
+        if world not in WORLDS:
+            raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
+        self.world_name, self.flight = world, dict(flight or {})
+        fly = world == "flight"
+        if fly and d["magnetorquers"] is None:
+            raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers")
+        self.world = w = scenario.pointing_world(
+            self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S, n_tags=self.K + 1, spacecraft=d,
+            **({"wheel_speed_limit_rpm": d["wheels"]["speed_limit_rpm"]} if fly else {}))
+        if fly:
+            magnetic_devices = True
+            cp = d["surface"].get("cp_offset_m")
+            if cp is not None and any(cp):
+                from emulator.spacecraft.environment import SurfaceTorques
+                from protocol import spacecraft as sf
+                w.sc.disturbance = SurfaceTorques(w.t_s, w.xs[:, 0, :], sf.epoch_tuple(d), d["surface"], cp)
         self.xg, self.wheels, self.sc, self.st = w.xg, w.wheels, w.sc, w.st
         self.gnss_a, self.beacon, self.relay, self.tb, self.xb_tb = w.gnss_a, w.beacon, w.relay, w.tb, w.xb_tb
         self.jb = 0
@@ -207,6 +222,11 @@ class AdcsSession:
         self._reply_s = 0.05                     # recent wall time from ADCS_TICK to the cycle's last reply
         self.last_status = None
         self._mode = None
+        self.mode_changes = []                   # {"t_s", "from", "to", "reason"} per ADCS_STATUS mode change
+        self._st_ok_t = 0.0                      # the star tracker's last valid output (truth side)
+        self._st_blind_before = 0.0              # and the blind stretch that output ended (s)
+        self.st_valid_log = []                   # per cycle: the star tracker's output valid
+        self.wheel_rpm_log = []                  # per cycle: the largest |wheel speed| at its end (rpm)
         self._active = set()
         self.wall_s = 0.0
         self.closed = False
@@ -235,7 +255,8 @@ class AdcsSession:
                 "apkf_p0": [u["attitude_sigma_deg"], u["rate_sigma_deg_s"], u["disturbance_torque_sigma_nm"]],
                 "laser_axis": scenario.laser_axis(d).tolist(),
                 "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0,
-                "isotp_timeout_ms": ISOTP_TIMEOUT_MS}
+                "isotp_timeout_ms": ISOTP_TIMEOUT_MS, "world": self.world_name, "flight": self.flight,
+                "magnetorquers": d["magnetorquers"]}
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""
@@ -351,6 +372,9 @@ class AdcsSession:
         qm, ok = self.st.measure(sc.q, sc.omega)
         if self._fault("startracker_blind", t):
             ok = False
+        if ok and self.k > 0:
+            self._st_blind_before, self._st_ok_t = self.k - self._st_ok_t, float(self.k)
+        self.st_valid_log.append(bool(ok))
         if not ok:
             qm = np.array([0.0, 0.0, 0.0, 1.0])
         self._send(P["STARTRACKER"], N["STARTRACKER"], core.encode_payload(
@@ -498,11 +522,15 @@ class AdcsSession:
             out["ra"][j], out["va"][j], out["rb"][j], out["vb"][j] = g[0, 0:3], g[0, 3:6], g[1, 0:3], g[1, 3:6]
         if not np.all(np.isfinite(self.sc.x)):
             raise FloatingPointError("truth diverged at t = %.1f s" % self.sc.t)
+        self.wheel_rpm_log.append(float(np.abs(self.sc.omega_rw_rel).max() * 60 / (2 * np.pi)))
         if status:
             status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
             status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
             self.last_status = status
             if status["adcs_mode_name"] != self._mode:
+                if self._mode is not None:
+                    self.mode_changes.append({"t_s": t, "from": self._mode, "to": status["adcs_mode_name"],
+                                              "reason": self._why(self._mode, status)})
                 self.fault_log.append({"t_s": t, "event": "ADCS mode %s" % status["adcs_mode_name"]})
                 self._say("t = %.0f s: ADCS mode %s -> %s%s" % (t, self._mode, status["adcs_mode_name"],
                                                                   (" (stale: %s)" % ", ".join(status["stale_names"]))
@@ -521,6 +549,39 @@ class AdcsSession:
             self._burst()
         self.wall_s = time.perf_counter() - self._t_wall
         return out
+
+    def blind_share(self, t_from):
+        """The share of cycles from ``t_from`` (s) on whose star-tracker output was not valid (None if none)."""
+        v = self.st_valid_log[int(np.ceil(t_from)):]
+        return None if not v else 1.0 - sum(v) / len(v)
+
+    def wheel_rpm_max(self, t_from=0.0):
+        """The largest |wheel speed| (rpm) at the ends of the cycles from ``t_from`` (s) on (None if none)."""
+        v = self.wheel_rpm_log[int(np.ceil(t_from)):]
+        return max(v) if v else None
+
+    def _why(self, before, status):
+        """The reason of a mode change, from the transition and what this side knows (the firmware reports the
+        mode; ADCS_STATUS has no room for a reason)."""
+        to = status["adcs_mode_name"]
+        if to == "DEGRADED":
+            return "a wheel failed or a sensor stale (stale: %s; wheels failed bits %d)" % (
+                ", ".join(status["stale_names"]) or "none", status["wheels_failed"])
+        if before == "DEGRADED":
+            return "the wheels and sensors are back"
+        if to == "HOLD":
+            return "the APKF started" if before in (None, "INIT") else "rate damping (no command at this geometry)"
+        if to == "SLEW":
+            return ("the hold is over: the slew to the partner's line of sight" if before == "HOLD" else
+                    "the estimate is off the command beyond the re-slew limit" if before == "POINT" else
+                    "the star tracker is back after %d s blind, the estimate off the command: a new slew"
+                    % self._st_blind_before if before == "ACQUIRE" else "slew")
+        if to == "ACQUIRE":
+            return "the slew's reference reached the command; waiting for the star tracker"
+        if to == "POINT":
+            return ("the star tracker is back after %d s blind, the estimate on the command"
+                    % self._st_blind_before if before == "ACQUIRE" else "pointing")
+        return to
 
     def summary(self):
         st = self.last_status or {}
@@ -543,7 +604,8 @@ class AdcsSession:
                 "link": self.link.counters() if self.link is not None else {},
                 "link_faults": self.link_faults.as_dict() if self.link_faults is not None else None,
                 "retries": dict(self.retries),
-                "faults": self.faults, "fault_log": list(self.fault_log),
+                "faults": self.faults, "fault_log": list(self.fault_log), "world": self.world_name,
+                "mode_changes": list(self.mode_changes),
                 "complete": self.k >= self.K}
 
     def close(self):

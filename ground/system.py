@@ -209,9 +209,12 @@ def _ground_run(spec, params, on_cycle=None, stop=None):
         on_cycle({"t": hist["t"][sl].copy(), "dtheta": dth / ARCSEC, "domega": dom / ARCSEC, "t_est": float(k),
                   "est_err": fsw["est_err"][k].copy()})
 
-    res, hist = bps.simulate(ts=spec["ts"], satb_gnss=spec["satb_gnss"], duration_s=spec["adcs_duration_s"],
+    fly = spec.get("world") == "flight"
+    res, hist = bps.simulate(ts=spec["ts"], satb_gnss=spec["satb_gnss"],
+                             duration_s=spec["adcs_duration_s"] + (_t_settle(spec) if fly else 0.0),
                              seed=spec["seed"], params=params, truth=spec["truth"], cache_dir=spec["cache_dir"],
-                             on_second=second if on_cycle is not None else None, spacecraft=d)
+                             on_second=second if on_cycle is not None else None, spacecraft=d,
+                             world=spec.get("world", "thesis"))
     return res, hist, hist["fsw_est_err"]
 
 
@@ -219,7 +222,8 @@ def _reference(res, hist, err, spec):
     """The ground filters' figures of a ``bps.simulate`` run over the window the play covers (``duration_s``
     from the end of the settling), as ``fps system`` takes its own."""
     from ground.adcs import bps
-    t0, t1 = res["settle_s"], res["settle_s"] + spec["duration_s"]
+    t0 = _t_settle(spec)
+    t1 = t0 + spec["duration_s"]
     sel = (hist["t"] >= t0 - 1e-9) & (hist["t"] <= t1 + 1e-9)
     out = bps.statistics(hist["dtheta_arcsec"][sel] * ARCSEC, hist["domega_arcsec_s"][sel] * ARCSEC)
     out["complete"] = bool(res["complete"])
@@ -228,8 +232,13 @@ def _reference(res, hist, err, spec):
     return out
 
 
+def _t_settle(spec):
+    """Where the play starts in the ADCS's time (``run_system``'s t_settle)."""
+    return spec.get("t_settle", settle_s(spec["ts"]))
+
+
 def _send_ground(spec, params, q, stop):
-    q.put(("info", {"settle_s": settle_s(spec["ts"])}))
+    q.put(("info", {"settle_s": _t_settle(spec)}))
     try:
         res, hist, err = _ground_run(spec, params, lambda m: q.put(("cycle", m)), stop)
     except _Stopped:
@@ -242,8 +251,8 @@ def _send_firmware(spec, params, q, stop):
     the orbit truth and its cache as the ground reference's, where the session takes them."""
     from emulator.adcs_session import AdcsSession
     from ground.adcs import bps
-    n = int(np.ceil(settle_s(spec["ts"]) + spec["adcs_duration_s"]))
-    q.put(("info", {"settle_s": settle_s(spec["ts"])}))
+    n = int(np.ceil(_t_settle(spec) + spec["adcs_duration_s"]))
+    q.put(("info", {"settle_s": _t_settle(spec)}))
     link_faults = None
     if spec.get("link_faults"):
         from protocol.faults import LinkFaults
@@ -252,7 +261,8 @@ def _send_firmware(spec, params, q, stop):
     lb = bps.laser_axis(d)
     s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"], duration_s=float(n),
                     ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), truth=spec["truth"],
-                    cache_dir=spec["cache_dir"], faults=spec.get("faults"), link_faults=link_faults, spacecraft=d)
+                    cache_dir=spec["cache_dir"], faults=spec.get("faults"), link_faults=link_faults, spacecraft=d,
+                    world=spec.get("world", "thesis"))
     try:
         s.start()
         prev = None          # the truth at the end of the previous cycle: the instant of this cycle's estimate
@@ -567,7 +577,7 @@ def calibrate_inproc(seed, config, path):
 
 def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware", satb_gnss=False, seed=0, ts=33.0,
                truth="hpop", calibration_path=None, params_path=None, bps_cache=None, config=None, q2_dvp=0.05,
-               quiet=False, plots=True, faults=None, link_faults=None, spacecraft=None):
+               quiet=False, plots=True, faults=None, link_faults=None, spacecraft=None, world="thesis"):
     """The whole run; returns the summary (also in ``out_dir/summary.json``). Bad input raises ValueError before
     anything is written; afterwards the folder always ends valid, and a failure raises ``hil.RunFailed``, an
     interruption ``hil.Interrupted``. ``faults``: the ADCS session's (``emulator.adcs_session``: wheel_silent,
@@ -575,7 +585,10 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     settling), firmware ADCS only; its fault log is in the summary's ``adcs_summary`` and the report.
     ``link_faults``: a ``protocol.faults.LinkFaults`` on the ADCS's CAN link (its slcan stream; firmware ADCS
     only), the retries it costs in ``adcs_summary``'s ``retries``. ``spacecraft``: a preset's name or a spacecraft
-    file (None: thesis-3u), the vehicle of the ADCS (``fps adcs bps`` or ``fps adcs can`` with ``--spacecraft``)."""
+    file (None: thesis-3u), the vehicle of the ADCS (``fps adcs bps`` or ``fps adcs can`` with ``--spacecraft``).
+    ``world``: "thesis" (Sec. 6.4's) or "flight" (``fps adcs bps --world flight``'s: datasheet wheels,
+    magnetorquers, the rate-limited slew; the lean firmware flies its modes, ``firmware/adcs/flight.py``); in the
+    flight world the play starts at ``bps.flight_settle_s`` (the planned slew, re-acquisition and 4 t_s)."""
     from firmware.player import Player
     from ground import runtime
     from ground.adcs import bps, bps_cli, runs
@@ -584,11 +597,10 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
 
     t_wall0 = time.perf_counter()
     ts = check_inputs(duration_s, runtime_name, adcs, ts, truth, seed)
-    if faults:
-        from emulator.adcs_session import check_faults
-        if adcs != "firmware":
-            raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
-        faults = check_faults(faults, settle_s(ts) + float(duration_s) + LEAD_S)
+    if world not in bps.WORLDS:
+        raise ValueError("--world must be one of %s, got %r" % (", ".join(bps.WORLDS), world))
+    if faults and adcs != "firmware":
+        raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
     if link_faults is not None and adcs != "firmware":
         raise ValueError("--link-faults needs --adcs firmware (they act on the ADCS's CAN link)")
     hil.check_q2_dv(q2_dvp)
@@ -598,19 +610,26 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     record = runs.spacecraft_record(d, source)
     params = bps.load_params(params_path, d)[-1] if params_path else None
     duration_s = float(duration_s)
-    t_settle = settle_s(ts)
+    if world == "flight" and d["magnetorquers"] is None:
+        raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels with "
+                         "magnetorquers (or --world thesis)")
+    t_settle = settle_s(ts) if world == "thesis" else bps.flight_settle_s(d, ts)
+    if faults:
+        from emulator.adcs_session import check_faults
+        faults = check_faults(faults, t_settle + duration_s + LEAD_S)
     run_folder(out_dir, hil.FIGURES + (FIGURE,))           # the fine loop's figures are hil's
     rec = hil.Recorder(out_dir)
     summary = hil.new_summary(duration_s)
     summary.update({"adcs": adcs, "runtime": runtime_name, "goal_real_time_factor": GOAL_RTF,
                     "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed, "phase": "start", "stopped_in": None,
-                    "spacecraft": record})
+                    "spacecraft": record, "world": world})
     write_json(rec.path("summary.json"), summary)
     spec = {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,
             "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
             "bps_cache": bps_cache or bps_cli.CACHE_DEFAULT,
             "cache_dir": os.path.abspath(bps_cache or bps_cli.CACHE_DEFAULT), "faults": faults or None,
-            "link_faults": link_faults.describe() if link_faults is not None else None, "spacecraft": d}
+            "link_faults": link_faults.describe() if link_faults is not None else None, "spacecraft": d,
+            "world": world, "t_settle": t_settle}
     live = LiveDisturbance(t_settle)
     say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
@@ -624,7 +643,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 feed.start()
                 config_json = {
                     "adcs": adcs, "adcs_runtime": runtime_name if adcs == "firmware" else None,
-                    "satb_gnss": satb_gnss, "ts_s": ts, "truth": truth, "settle_s": t_settle,
+                    "satb_gnss": satb_gnss, "ts_s": ts, "truth": truth, "settle_s": t_settle, "world": world,
                     "params": params_path and os.path.abspath(params_path),
                     "calibration": calibration_path and os.path.abspath(calibration_path), "seed": seed,
                     "duration_s": duration_s, "runtime": runtime_name, "link": "serial", "faults": faults or None,
@@ -972,7 +991,7 @@ def _cmd(a):
     try:
         s = run_system(a.duration, a.output, a.runtime, a.adcs, a.satb_gnss, a.seed, a.ts, a.truth, a.calibration,
                        a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, _faults_arg(a.faults),
-                       _link_faults_arg(a.link_faults), a.spacecraft)
+                       _link_faults_arg(a.link_faults), a.spacecraft, a.world)
     except hil.Interrupted:
         s = _read_summary(a.output)
         print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"
@@ -1035,6 +1054,11 @@ def register(sub, name, help_):
                         "bytes=P (a bit flip per ASCII byte), frames=P (a CAN frame's line dropped), seed=N, "
                         "silence=START_S:LENGTH_S (the ADCS's seconds; LENGTH_S may be inf); the lockstep's "
                         "retries keep each 1 Hz cycle exactly once, e.g. bytes=0.001,frames=0.05,seed=1")
+    p.add_argument("--world", choices=("thesis", "flight"), default="flight",
+                   help="flight (default): datasheet wheel limits, drag and solar pressure, magnetorquer "
+                        "unloading, a rate-limited slew and re-acquisition (fps adcs bps --world flight), the play "
+                        "starting once the planned slew and 4 t_s of settling are over (~410 s for thesis-3u); "
+                        "thesis: Sec. 6.4's world, the play after 30 s + 4 t_s")
     from ground.adcs.cli import add_spacecraft_option
     add_spacecraft_option(p, "the ADCS's vehicle, as fps adcs bps (--adcs ground) or fps adcs can (--adcs "
                           "firmware) take it; --params is checked against it")

@@ -56,8 +56,9 @@ ERRORS = (
     ("BUSY", 8, "node busy"),
 )
 
-# ADCS flight software modes (ADCS_STATUS.adcs_mode).
-ADCS_MODES = (("INIT", 0), ("HOLD", 1), ("POINT", 2), ("DEGRADED", 3))
+# ADCS flight software modes (ADCS_STATUS.adcs_mode). SLEW and ACQUIRE are the flight world's (a rate-limited
+# slew to the partner; after it, the command held until the star tracker answers again).
+ADCS_MODES = (("INIT", 0), ("HOLD", 1), ("POINT", 2), ("DEGRADED", 3), ("SLEW", 4), ("ACQUIRE", 5))
 
 # ADCS_STATUS.stale bits: the sensor gave nothing usable this cycle (missed, invalid or too old). The byte is
 # full: MAGNETOMETER and MTQ_TLM have no bit, so they are not named in ADCS_TICK.burst nor asked for again by
@@ -232,7 +233,7 @@ PACKETS = (
     )),
     (0x46, "ADCS_STATUS", "ADCS", "*", "ADCS status, once per 1 Hz cycle after the wheel commands", (
         ("tick", "I", "", 1, None, None, 0, "ADCS cycle this status closes"),
-        ("adcs_mode", "B", "", 1, 0, 3, 0, "see ADCS_MODES"),
+        ("adcs_mode", "B", "", 1, 0, 5, 0, "see ADCS_MODES"),
         ("stale", "B", "", 1, None, None, 0, "sensors without a usable reading this cycle, see ADCS_STALE"),
         ("wheels_failed", "B", "", 1, 0, 15, 0, "bit i: wheel i declared failed (3 missed replies in a row)"),
         ("miss_rw0", "H", "", 1, None, None, 0, "RW_TLM replies of wheel 0 missed by their deadline (wraps)"),

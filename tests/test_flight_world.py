@@ -154,7 +154,7 @@ def test_a_short_flight_run_slews_acquires_and_points_within_the_wheels(params):
     assert sum(res["wheel_speed_clips"]["speed_clip"]) == 0
     assert res["max_wheel_speed_rpm_run"] < 8000
     rate = np.linalg.norm(hist["w"], axis=1) / DEG
-    assert rate.max() < 0.5 * 1.1 + 0.1                  # the slew's limit plus the command's own turn
+    assert rate.max() < 2.0 * 1.1 + 0.1                  # the slew's limit plus the command's own turn
     assert res["passes"] == [] and res["time_in_mode_s"]["POINT"] > 300
     point = hist["fsw_mode"][:, 0] == bps.MODE_CODE["POINT"]
     k = np.nonzero(point)[0]

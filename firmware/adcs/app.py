@@ -56,7 +56,7 @@ except ImportError:                               # CPython
     def ticks_diff(a, b):
         return a - b
 
-from firmware.adcs import apkf_lean, control, linalg, stkf_lean
+from firmware.adcs import apkf_lean, control, flight, linalg, stkf_lean
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol import can as canmap
 from protocol import core, table
@@ -82,11 +82,16 @@ P_BEACON = core.PACKET_ID["BEACON"]
 P_TICK = core.PACKET_ID["ADCS_TICK"]
 P_MISSING = core.PACKET_ID["ADCS_MISSING"]
 P_STATUS = core.PACKET_ID["ADCS_STATUS"]
+P_MAG = core.PACKET_ID["MAGNETOMETER"]
+P_MTQ_CMD = core.PACKET_ID["MTQ_CMD"]
+MTQ = core.NODE["MTQ"]
+DEG = math.pi / 180.0
 RW0 = core.NODE["RW0"]
 MODE = dict(table.ADCS_MODES)
 STALE = dict(table.ADCS_STALE)
 _FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_TICK, P_STATUS, P_RW_CMD,
-                                               P_MISSING))
+                                               P_MISSING, P_MAG, P_MTQ_CMD))
+MAG_T = core.field_scales(P_MAG)["bx"] * 1e-9      # tesla per MAGNETOMETER count
 _SCALE = core.field_scales(P_GNSS)
 GNSS_M, GNSS_MS = _SCALE["x"], _SCALE["vx"]       # GNSS position (m) and velocity (m/s) per count, from the table
 
@@ -222,6 +227,48 @@ class App:
         self.stale = 0
         self.mode = MODE["INIT"]
         self.t = 0.0
+        self._flight_init(cfg)
+
+    def _flight_init(self, cfg):
+        """The flight world's state (``world`` "flight" in the configuration; ``flight`` its options, the
+        defaults those of ground/adcs/bps.py's FLIGHT; ``magnetorquers`` the spacecraft file's block)."""
+        self.fly = cfg.get("world", "thesis") == "flight"
+        self.fmode = "INIT"
+        self.m_cmd = linalg.zeros(3)
+        self.mtq_sat = 0
+        self.n_resets = 0
+        self.mag = linalg.zeros(3)
+        self.mag_got = False
+        self.t_st_ok = 0.0
+        if not self.fly:
+            return
+        fo = cfg.get("flight") or {}
+        mt = cfg.get("magnetorquers")
+        if not mt:
+            raise ValueError("the flight world needs the spacecraft's magnetorquers (configuration key "
+                             "magnetorquers)")
+        ax = mt["axes"]
+        for i in range(3):
+            for j in range(3):
+                if abs(ax[i][j] / math.sqrt(sum(v * v for v in ax[i])) - (1.0 if i == j else 0.0)) > 1e-9:
+                    raise ValueError("the lean ADCS drives three rods along body x, y, z; magnetorquers.axes = %r"
+                                     % (ax,))
+        self.mtq_limit = float(mt["dipole_limit_am2"])
+        self.slew = flight.Slew(float(fo.get("slew_rate_deg_s", 2.0)) * DEG,
+                                float(fo.get("slew_acc_deg_s2", 0.2)) * DEG)
+        self.reslew = float(fo.get("reslew_deg", 1.0)) * DEG
+        self.k_unload = float(fo.get("unload_gain_1_s", 2e-3))
+        self.gate = float(fo.get("innovation_gate", 44.84))
+        self.gate_b = float(fo.get("beacon_gate_arcsec", 300.0)) * ARCSEC
+        w = cfg.get("wheels") or {}
+        lim = float(w.get("speed_limit_rpm", 10000.0)) * RPM
+        self.bias = float(fo.get("wheel_bias_share", 0.2)) * lim
+        self.bias_gain = float(fo.get("wheel_bias_gain_1_s", 0.01))
+        self.jrw_nom = [float(v) for v in w.get("rotor_inertia_kgm2", (3e-6,) * NW)]
+        self.nvec = flight.null_vector(self.C)
+        self.m_file = list(self.model.m)          # the parameter file's dipole (filter units)
+        self.z3 = linalg.zeros(3)
+        self.qr, self.wr = linalg.zeros(4), linalg.zeros(3)
 
     # --- inputs -----------------------------------------------------------------------------------
     def on_packet(self, pid, src, payload):
@@ -268,6 +315,10 @@ class App:
             for i in range(3):
                 z[i] = v[2 + i] * GNSS_M
                 z[3 + i] = v[5 + i] * GNSS_MS
+        elif pid == P_MAG:
+            t_ms, bx, by, bz, valid = struct.unpack(_FMT[P_MAG], payload)
+            self.mag_got = valid == 1
+            self.mag[0], self.mag[1], self.mag[2] = bx * MAG_T, by * MAG_T, bz * MAG_T
         elif pid == P_BEACON:
             t_ms, ux, uy, uz, valid = struct.unpack(_FMT[P_BEACON], payload)
             self.bc_got = True
@@ -347,10 +398,31 @@ class App:
         else:
             env = self._env(t)
         k = self.apkf.skipped
-        self.apkf.step(self.wp, self.qst if st_ok else None, env, self.u, self.rw_got)
+        if self.fly:
+            self._step_flight(env, st_ok)
+        else:
+            self.apkf.step(self.wp, self.qst if st_ok else None, env, self.u, self.rw_got)
         if self.apkf.skipped != k:
             self.st_valid = False            # refused (S not positive definite): stale, as an invalid fix
         self.t_apkf += n
+
+    def _step_flight(self, env, st_ok):
+        """The flight world's APKF step: the magnetorquers' dipole of the step a known input (added to the
+        parameter file's residual in the model), the prediction, then the star tracker's fix unless its
+        normalised innovation passes ``gate``: then the attitude is reset to it (``flight.reset_attitude``)."""
+        a = self.apkf
+        m = a.model.m
+        for i in range(3):
+            m[i] = self.m_file[i] + self.scale * self.m_cmd[i]
+        a.step(self.wp, None, env, self.u, self.rw_got)
+        if not st_ok:
+            return
+        apkf_lean.error_vec(self.z3, self.qst, a.x)
+        if flight.nis3(self.z3, a.P, a.model.R) > self.gate:
+            flight.reset_attitude(a.x, a.P, self.qst, a.model.R)
+            self.n_resets += 1
+        elif not apkf_lean.update(a.x, a.P, self.qst, a.model, a.work):
+            a.skipped += 1
 
     @micropython.native
     def _attitude(self):
@@ -387,7 +459,8 @@ class App:
             except ValueError:
                 self.n_refused += 1
                 self.gnss_got = False            # not usable (miss_gnss was counted: it came)
-        if self.bc_got and self.bc_valid and (self.apkf is not None or (self.st_got and self.st_valid)):
+        gated = self.fly and not math.sqrt(self.Patt[0] + self.Patt[4] + self.Patt[8]) <= self.gate_b
+        if self.bc_got and self.bc_valid and not gated and (self.apkf is not None or (self.st_got and self.st_valid)):
             try:
                 f.update_beacon(self.yb, q, self.Patt, self.sigma_b, t=t)
             except ValueError:
@@ -428,6 +501,8 @@ class App:
             u[i] = 0.0
         if self.apkf is None:
             return u
+        if self.fly:
+            return self._control_flight(t)
         x = self.apkf.x
         q, w = x, (x[4], x[5], x[6])
         hold = t < self.hold_s
@@ -450,6 +525,14 @@ class App:
                 self.qc[i] = q[i]
             for i in range(3):
                 self.wc[i] = 0.0
+        return self._torque(t, x, self.m_ff)
+
+    @micropython.native
+    def _torque(self, t, x, m_ff):
+        """u (4, N m): the PD on (self.qc, self.wc) with the gyroscopic term and the modelled external torque
+        (dipole ``m_ff``, physical) fed forward, saturated, allocated, plus friction compensation."""
+        u = self.u
+        q, w = x, (x[4], x[5], x[6])
         J, sc, H, cj = self.J, self.scale, self.H, self.cjrw
         w0, w1, w2 = w
         wp0, wp1, wp2, wp3 = self.wp
@@ -469,7 +552,7 @@ class App:
         g = 3.0 * MU_EARTH / (rn * rn * rn)
         field_dipole(self.b, X, t, self.gmst0)
         bb = [A[i * 3] * self.b[0] + A[i * 3 + 1] * self.b[1] + A[i * 3 + 2] * self.b[2] for i in range(3)]
-        m0, m1, m2 = self.m_ff
+        m0, m1, m2 = m_ff
         tff = self.tff
         tff[0] = g * (rb[1] * Jr[2] - rb[2] * Jr[1]) + m1 * bb[2] - m2 * bb[1] + x[7] / sc
         tff[1] = g * (rb[2] * Jr[0] - rb[0] * Jr[2]) + m2 * bb[0] - m0 * bb[2] + x[8] / sc
@@ -486,6 +569,84 @@ class App:
                 wi = self.wp[i]
                 u[i] = u[i] + v * wi + c * math.tanh(wi / sm)
         return u
+
+    def _control_flight(self, t):
+        """The flight world's control (ground/adcs/bps.py's ``_flight_command`` and unloading): HOLD (rate
+        damping) until ``hold_s``, then SLEW (``flight.Slew`` from the estimate to the command), ACQUIRE (rate
+        damping on the estimate until the star tracker answers: the blind slew leaves a rate error of a few
+        hundredths of a deg/s, and the command's own turn on top of it could keep the tracker blind), POINT (the command; SLEW again beyond ``reslew``); where the
+        command does not exist, rate damping (HOLD). The magnetorquers' dipole: the cross-product law on the
+        wheels' momentum with the estimated residual dipole cancelled, the field from the magnetometer (the model
+        field through the estimate when it gave none this cycle); the wheels held off zero in the null space."""
+        x = self.apkf.x
+        qc, wc = self.qc, self.wc
+        hold = t < self.hold_s
+        self.no_command = False
+        st_ok = self.st_got and self.st_valid
+        if not hold:
+            try:
+                self._command_rate()
+            except (ValueError, ZeroDivisionError):
+                hold = self.no_command = True
+        if not hold and self.fmode == "ACQUIRE" and not st_ok:
+            hold = True                       # rate damping until the star tracker answers
+        if hold:
+            for i in range(4):
+                qc[i] = x[i]
+            for i in range(3):
+                wc[i] = 0.0
+            if self.fmode not in ("HOLD", "ACQUIRE") and not self.no_command:
+                self.fmode = "HOLD"
+        else:
+            err = flight.angle(x, qc)
+            if self.fmode == "POINT" and err > self.reslew:
+                self.fmode = "SLEW"
+                self.slew.active = False
+            elif self.fmode == "ACQUIRE" and st_ok:
+                self.fmode = "POINT" if err <= self.reslew else "SLEW"
+                self.slew.active = False
+            if self.fmode in ("INIT", "HOLD") or (self.fmode == "SLEW" and not self.slew.active):
+                self.slew.start(x, qc)
+                self.fmode = "SLEW"
+            if self.fmode == "SLEW":
+                self.slew.reference(self.qr, self.wr, qc, wc)
+                for i in range(4):
+                    qc[i] = self.qr[i]
+                for i in range(3):
+                    wc[i] = self.wr[i]
+                if not self.slew.active:
+                    self.fmode = "ACQUIRE"
+        # the magnetorquers: h = C Jrw W (body), b from the magnetometer or the model
+        cj, wp = self.cjrw, self.wp
+        h = [cj[i * 4] * wp[0] + cj[i * 4 + 1] * wp[1] + cj[i * 4 + 2] * wp[2] + cj[i * 4 + 3] * wp[3]
+             for i in range(3)]
+        if self.mag_got:
+            b = self.mag
+        else:
+            control.dcm(self.A, x)
+            field_dipole(self.b, self.xs, t, self.gmst0)
+            A = self.A
+            b = [A[i * 3] * self.b[0] + A[i * 3 + 1] * self.b[1] + A[i * 3 + 2] * self.b[2] for i in range(3)]
+        mf = self.m_ff
+        self.mtq_sat = flight.unloading(self.m_cmd, b, h, self.k_unload, self.mtq_limit, mf)
+        m = self.m_cmd
+        u = self._torque(t, x, (mf[0] + m[0], mf[1] + m[1], mf[2] + m[2]))
+        if self.cof is not None and not self.failed:
+            flight.null_bias(u, self.nvec, wp, self.jrw_nom, self.bias, self.bias_gain)
+        return u
+
+    def _only_st(self, t):
+        """True when the star tracker is the only sensor silent for ``stale_s`` (in a slew it is blind by design)."""
+        keys = ("gnss", "beacon", "gnss_b") if self.satb else ("gnss", "beacon")
+        for k in keys:
+            if t - self.last_ok[k] >= self.stale_s:
+                return False
+        return True
+
+    def mtq_payload(self, tick):
+        """MTQ_CMD of cycle ``tick``: this cycle's dipole (flight world)."""
+        m = self.m_cmd
+        return struct.pack(_FMT[P_MTQ_CMD], m[0], m[1], m[2], 1, tick & 0xFF)
 
     @micropython.native
     def cycle(self, tick, t):
@@ -534,10 +695,14 @@ class App:
         for k in keys:
             if t - self.last_ok[k] >= self.stale_s:
                 long_gap = True
+        if st_ok:
+            self.t_st_ok = t
         if self.apkf is None:
             self.mode = MODE["INIT"]
-        elif self.failed or long_gap:
+        elif self.failed or (long_gap and not (self.fly and self.fmode in ("SLEW", "ACQUIRE") and self._only_st(t))):
             self.mode = MODE["DEGRADED"]
+        elif self.fly:
+            self.mode = MODE["HOLD"] if self.no_command else MODE[self.fmode]
         elif t < self.hold_s or self.acquiring or self.no_command:
             self.mode = MODE["HOLD"]
         else:
@@ -550,7 +715,7 @@ class App:
         gives up a cycle whose burst was incomplete)."""
         for i in range(NW):
             self.rw_got[i] = False
-        self.st_got = self.gnss_got = self.bc_got = False
+        self.st_got = self.gnss_got = self.bc_got = self.mag_got = False
         self.nb = 0
 
     def status_payload(self, tick, cycle_us=0, n_rx_drop=0):
@@ -707,6 +872,8 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
             mem.enable()
         dt = ticks_diff(ticks_us(), t0) if ticks_us else 0
         out = [(P_RW_CMD, dst_w, pl) for dst_w, pl in cmds]
+        if app.fly:                   # the magnetorquers' command, before the status that closes the cycle
+            out.append((P_MTQ_CMD, MTQ, app.mtq_payload(tick)))
         out.append((P_STATUS, ls.host, app.status_payload(tick, dt, _drops(port))))
         return out
 

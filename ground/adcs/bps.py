@@ -73,8 +73,12 @@ WORLDS = ("thesis", "flight")
 MODE_CODE = {m: float(i) for i, m in enumerate(modes.MODES)}
 # The flight world's flight-software options (``simulate(world="flight", flight={...})``); units in the names.
 FLIGHT = {
-    "slew_rate_deg_s": 0.5,        # the eigenaxis slew's rate limit: ~1/7 of what the 3U's wheels hold at 80 %
-    "slew_acc_deg_s2": 0.05,       # its acceleration limit: ~3 % of the wheels' torque on the 3U's largest axis
+    # the eigenaxis slew's rate and acceleration limits: the star tracker is blind above its 0.1 deg/s, so the slew
+    # is short rather than slow (measured: the lean APKF's rate error grew ~5 arcsec/s per blind second; a 90 deg
+    # slew at 0.5 deg/s left ~0.1 deg/s, which kept the tracker blind after it; at 2 deg/s, < 0.03 deg/s);
+    # 2 deg/s is ~1/2 of what the 3U's wheels hold at 80 % of their speed, 0.2 deg/s^2 ~16 % of their torque
+    "slew_rate_deg_s": 2.0,
+    "slew_acc_deg_s2": 0.2,
     "reslew_deg": 1.0,             # POINT -> SLEW when the estimate is this far off the command
     "unload_gain_1_s": 2e-3,       # the cross-product law's gain: the wheels' momentum across b decays in ~500 s
     "innovation_gate": 44.84,      # chi-square, 3 dof, 1 - 1e-9: a star-tracker output beyond it resets the attitude
@@ -292,6 +296,23 @@ def orbit_period(x):
     return float(2 * np.pi * np.sqrt(a ** 3 / stkf.MU))
 
 
+ACQUIRE_MARGIN_S = 60.0     # flight_settle_s: the re-acquisition after the blind slew and a short second slew
+
+
+def flight_settle_s(d, ts=TS_THESIS, flight=None, hold_s=HOLD_S):
+    """When the flight world's pointing can be taken as settled, planned from the start (s): the hold, the first
+    slew's trapezoid (its angle from the attitude at rest, q = [0, 0, 0, 1], to the command at the orbits'
+    initial states; its rate and acceleration limits ``FLIGHT``'s or ``flight``'s), ``ACQUIRE_MARGIN_S`` for the
+    re-acquisition and 4 t_s of settling. ``fps system --world flight`` starts its play there."""
+    fo = dict(FLIGHT, **(flight or {}))
+    x0a, x0b = scenario.orbit_setup(d)["x0s"]
+    qc = control.attitude_command(x0a[0:3], x0a[3:6], x0b[0:3], laser_axis(d))
+    theta = 2.0 * np.arccos(min(1.0, abs(float(qc[3]))))
+    w, a = fo["slew_rate_deg_s"] * modes.DEG, fo["slew_acc_deg_s2"] * modes.DEG
+    t_slew = theta / w + w / a if theta > w * w / a else 2.0 * np.sqrt(theta / a)
+    return float(np.ceil(hold_s + t_slew + ACQUIRE_MARGIN_S + 4.0 * check_ts(ts)))
+
+
 def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
     """A copy of the checked spacecraft file ``d`` with a partner satellite in its own orbit ``behind_deg``
     behind it (its orbit.state turned about the orbit normal): for a vehicle shipped without one (generic-12u
@@ -312,7 +333,9 @@ def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
 def _flight_command(log, t, q_hat, qc, wc, fo, box, st_ok, blind_s):
     """The flight world's command at t (after the hold), by mode: SLEW, a rate-limited eigenaxis slew
     (``modes.EigenaxisSlew``, held in ``box[0]``) from the estimate toward the tracking command, until its
-    reference reaches it; ACQUIRE, the command itself while the star tracker is still blind; on its first output
+    reference reaches it; ACQUIRE, rate damping on the estimate (q_c = q_hat, w_c = 0) while the star tracker is
+    still blind (the blind slew leaves a rate error; the command's own turn on top of it could keep the tracker
+    blind); on its first output
     (this second, ``st_ok``, after ``blind_s`` s without one) POINT if the estimate is within ``reslew_deg`` of the
     command, else another slew from the estimate; POINT, the command, back to SLEW when the estimate is more than
     ``reslew_deg`` off it."""
@@ -322,8 +345,8 @@ def _flight_command(log, t, q_hat, qc, wc, fo, box, st_ok, blind_s):
             return qc, wc
         log.set("SLEW", t, "the estimate is %.2f deg off the command (> %g deg)" % (err, fo["reslew_deg"]))
     elif log.mode == "ACQUIRE":
-        if not st_ok:
-            return qc, wc
+        if not st_ok:                   # rate damping on the estimate until the star tracker answers
+            return q_hat, np.zeros(3)
         why = "the star tracker is back after %d s blind, the estimate %.2f deg off the command" % (blind_s, err)
         if err <= fo["reslew_deg"]:
             log.set("POINT", t, why)

@@ -68,6 +68,11 @@ def register(sub):
     add_spacecraft_option(p, "the emulated vehicle (inertia, dipole, wheels, star tracker), its orbits, epoch and "
                           "sensors, the default parameter file, and the firmware's configuration (wheel axes and "
                           "limits, sensor noise, initial 1 sigma, STKF P0, laser axis) from it")
+    p.add_argument("--world", choices=bps.WORLDS, default="thesis",
+                   help="thesis (default): Sec. 6.4's world; flight: the spacecraft file's wheel limits, drag and "
+                        "solar pressure, its magnetorquers and magnetometer on the bus, and the firmware's flight "
+                        "modes (rate-limited slew, re-acquisition, unloading); the pointing figures then start at "
+                        "the planned slew's end plus 4 t_s (bps.flight_settle_s)")
     p.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I stops answering at T0 s")
     p.add_argument("--startracker-blind", default=None, metavar="T0:T1", help="star tracker blind from T0 to T1 s")
     p.add_argument("--gnss-outage", default=None, metavar="T0:T1", help="no GNSS fix from T0 to T1 s")
@@ -98,7 +103,8 @@ def run(a):
         link_faults = LinkFaults.parse(a.link_faults)
     log = None if a.quiet else (lambda m: print(m, file=sys.stderr))
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
-                          params=a.params, faults=faults, log=log, link_faults=link_faults, spacecraft=d)
+                          params=a.params, faults=faults, log=log, link_faults=link_faults, spacecraft=d,
+                          world=a.world)
     out = a.output
     run_folder(out, (FIGURE,))
     record = runs.spacecraft_record(d, source)
@@ -135,8 +141,14 @@ def run(a):
     summary["complete"] = bool(summary["complete"] and not interrupted)
     summary["spacecraft"] = record
     h = {k: np.concatenate(v) if v else np.zeros((0, 3)) for k, v in hist.items()}
-    settle = HOLD_S + 4 * a.ts
+    settle = HOLD_S + 4 * a.ts if a.world == "thesis" else bps.flight_settle_s(d, a.ts)
     summary["settle_s"] = settle
+    if a.world == "flight":
+        w = np.concatenate(hist["w"]) if hist["w"] else np.zeros((0, 3))
+        summary["wheel_speed_limit_rpm"] = d["wheels"]["speed_limit_rpm"]
+        summary["max_wheel_speed_rpm"] = session.wheel_rpm_max(settle)      # after the planned settling
+        summary["star_tracker_blind_share"] = session.blind_share(settle)
+        summary["max_body_rate_deg_s"] = float(np.degrees(np.linalg.norm(w, axis=1).max())) if len(w) else None
     if len(h["t"]):
         dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"], bps.laser_axis(d))
         h["dtheta_arcsec"], h["domega_arcsec_s"] = dth / bps.ARCSEC, dom / bps.ARCSEC

@@ -14,8 +14,9 @@ needs more:
 - ``beacon_gate``: the STKF's beacon update only while the attitude is known well enough (the beacon's body
   frame vector is rotated to inertial through the attitude estimate, Eq. 5.16).
 - ``ModeLog``: the mode (INIT: no estimate yet; HOLD: rate damping while the APKF converges; SLEW; ACQUIRE: the
-  slew is over and the star tracker, blind above its rate limit, has not answered yet; POINT: the PD of
-  Eq. 6.5 on the command), its changes with time and reason, and the time spent in each.
+  slew is over and the star tracker, blind above its rate limit, has not answered yet: rate damping on the
+  estimate; POINT: the PD of Eq. 6.5 on the command), its changes with time and reason, and the time spent in
+  each.
 """
 
 import numpy as np

@@ -1,0 +1,95 @@
+"""The lean ADCS's flight world: firmware/adcs/flight.py against the ground's laws (CPython and MicroPython),
+the firmware's modes over CAN against the emulated spacecraft (magnetorquers and magnetometer on the bus), and
+``fps adcs can`` / ``fps system`` with ``--world flight``."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from firmware.adcs import flight
+from ground.adcs import bps, modes, quat
+from tests.test_firmware_mp import run_mp
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DEG = np.pi / 180
+
+
+def test_firmware_laws_are_the_grounds_and_micropython_agrees():
+    mp = run_mp("firmware_flight.py")
+    qc = np.array([np.sin(0.5) * 0.6, np.sin(0.5) * -0.8, 0.0, np.cos(0.5)])
+    wc = np.array([0.0, 0.001, 0.0])
+    g = modes.EigenaxisSlew(np.array([0, 0, 0, 1.0]), qc, 2.0 * DEG, 0.2 * DEG)
+    refs = []
+    while not g.done:
+        q_ref, w_ref = g.reference(qc, wc)
+        refs.append(np.concatenate([q_ref, w_ref]))
+        qc = quat.propagate(qc, wc, 1.0)
+    assert mp["steps"] == len(refs) > 10
+    assert np.allclose(np.array(mp["refs"]), np.array(refs), rtol=0, atol=1e-9)
+    m_g, sat_g = modes.unloading_dipole([2e-5, -1e-5, 3e-5], [1e-3, 2e-3, -5e-4], 2e-3, 0.3,
+                                        m_residual=[0.1, -0.15, 0.2])
+    assert np.allclose(mp["m"], m_g, atol=1e-12) and mp["sat"] == sum(1 << i for i in range(3) if sat_g[i])
+    C = np.array(mp["null"])
+    c0 = np.array([-0.577, -0.577, 0.577, 0.577, -0.577, 0.577, 0.577, -0.577, 0.577, 0.577, 0.577, 0.577])
+    assert np.allclose(c0.reshape(3, 4) @ C, 0, atol=1e-12) and abs(np.linalg.norm(C) - 1) < 1e-12
+    P = np.diag(1e-8 * np.arange(1, 10))
+    z = np.array([1e-4, -2e-4, 5e-5])
+    S = P[0:3, 0:3] + np.diag([1e-9, 1e-9, 9e-9])
+    assert abs(mp["nis"] - z @ np.linalg.solve(S, z)) < 1e-9 * mp["nis"]
+
+
+def test_reset_attitude_clears_the_correlations():
+    x = [0.1, 0.2, 0.3, 0.9] + [0.0] * 6
+    P = [0.5] * 81
+    flight.reset_attitude(x, P, [0.0, 0.0, 0.0, 1.0], [1.0, 0, 0, 0, 2.0, 0, 0, 0, 3.0])
+    Pm = np.array(P).reshape(9, 9)
+    assert x[0:4] == [0.0, 0.0, 0.0, 1.0] and np.allclose(Pm[0:3, 0:3], np.diag([1.0, 2.0, 3.0]))
+    assert np.all(Pm[0:3, 3:] == 0) and np.all(Pm[3:, 0:3] == 0) and np.all(Pm[3:, 3:] == 0.5)
+
+
+def test_the_firmware_flies_its_modes_over_can_with_the_magnetorquers():
+    from emulator.adcs_session import AdcsSession
+    runtime = "micropython" if os.path.exists(os.path.join(os.path.dirname(sys.executable), "micropython")) \
+        else "cpython"
+    s = AdcsSession(runtime=runtime, duration_s=300, world="flight")
+    w, rpm = [], []
+    with s:
+        for _ in range(300):
+            c = s.cycle()
+            w.append(np.linalg.norm(c["w"], axis=1).max())
+    summ = s.summary()
+    to = [m["to"] for m in summ["mode_changes"]]
+    assert to[:3] == ["HOLD", "SLEW", "ACQUIRE"] and to[-1] == "POINT", summ["mode_changes"]
+    assert all(m["reason"] for m in summ["mode_changes"])
+    assert summ["magnetic_devices"]["mtq_cmd"] == 300 and summ["magnetic_devices"]["refused_mtq_cmd"] == 0
+    assert summ["world"] == "flight"
+    assert np.degrees(max(w)) < 2.0 * 1.1 + 0.1                  # the slew's rate limit (+ the command's turn)
+    assert s.wheel_rpm_max() < 0.8 * 10000
+    t_point = [m["t_s"] for m in summ["mode_changes"] if m["to"] == "POINT"][-1]
+    assert s.blind_share(t_point) == 0.0
+
+
+def _fps(*args, timeout=900):
+    return subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_fps_adcs_can_and_system_in_the_flight_world(tmp_path):
+    p = _fps("adcs", "can", "--world", "flight", "--duration", "360", "--quiet", "--no-plots",
+             "-o", str(tmp_path / "can"))
+    assert p.returncode == 0, p.stderr
+    s = json.load(open(tmp_path / "can" / "summary.json"))
+    assert s["world"] == "flight" and s["settle_s"] == bps.flight_settle_s(bps.scenario.thesis_3u())
+    assert s["budgets_met"] is True and s["max_wheel_speed_rpm"] < 8000 and s["star_tracker_blind_share"] == 0
+    p = _fps("system", "--duration", "20", "--truth", "two-body", "--quiet", "--no-plots", "-o", str(tmp_path / "sys"))
+    assert p.returncode == 0, p.stderr
+    s = json.load(open(tmp_path / "sys" / "summary.json"))
+    assert s["world"] == "flight" and s["settle_s"] == bps.flight_settle_s(bps.scenario.thesis_3u())
+    assert s["verdict"]["met"] is True
+    modes_seen = [m["to"] for m in s["adcs_summary"]["mode_changes"]]
+    assert "SLEW" in modes_seen and modes_seen[-1] == "POINT"

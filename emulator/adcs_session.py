@@ -605,7 +605,8 @@ class AdcsSession:
                 "link_faults": self.link_faults.as_dict() if self.link_faults is not None else None,
                 "retries": dict(self.retries),
                 "faults": self.faults, "fault_log": list(self.fault_log), "world": self.world_name,
-                "mode_changes": list(self.mode_changes),
+                "mode_changes": list(self.mode_changes), "max_wheel_speed_rpm": self.wheel_rpm_max(),
+                "wheel_datasheet_rpm": self.spacecraft["wheels"]["speed_limit_rpm"],
                 "complete": self.k >= self.K}
 
     def close(self):

@@ -227,9 +227,12 @@ def schema_markdown():
          "controllers fly four), and a null `partner` for `stkf`, `bps`, `sweep`, `can` and `system`. Not "
          "followed yet: the sensors' `rate_hz` (the flight software runs at 1 Hz and samples each sensor then), "
          "`orbit.circular` (the Sec. 4.8 scenario and the calibration maneuvers fly the thesis's circular "
-         "orbit), `wheels.speed_limit_rpm` (the scenarios' wheels have the thesis's no-limit; `bps` reports the "
-         "largest speed), the wheels' imbalance (no jitter in these runs), `magnetorquers` and `magnetometer` "
-         "(no such devices flown).", "",
+         "orbit), the wheels' imbalance (no jitter in these runs); in the thesis world (`--world thesis`) also "
+         "`wheels.speed_limit_rpm` (the thesis's wheels have no limit; `bps` reports the largest speed), "
+         "`magnetorquers`, `magnetometer` and `surface.cp_offset_m`. The flight world (`--world flight` of `bps`, "
+         "`can` and `system`) flies those four: the wheels at their speed and torque limits, the magnetorquers "
+         "(three rods along body x, y, z in the lean firmware) and the magnetometer on the bus, drag and solar "
+         "pressure torques about the centre of pressure.", "",
          "## Units and conventions", "",
          UNITS_HELP, "",
          "- `inertia_kgm2` = [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz] about the centre of mass, body frame. The products are "

@@ -7,7 +7,13 @@ stability_sigma_arcsec_s [2], pointing_3sigma_arcsec, stability_3sigma_arcsec_s,
 figures, the budgets and J), ``history.npz`` (10 Hz: t, q, w, w_rel, dtheta_arcsec, domega_arcsec_s; 1 Hz
 fsw_*), ``report.md`` (thesis table beside ours), ``fig6-3_pointing.png`` (``fig6-4`` with SatB's GNSS).
 The 3 sigma figures are 3 sqrt(s1^2 + s2^2) (the two axes in total) against 150 arcsec and 35 arcsec/s; a run
-that misses them exits 3. Ctrl-C leaves the folder with complete=false (exit 130).
+that misses them exits 3. Ctrl-C leaves the folder with complete=false (exit 130). Both worlds add ``world``,
+``wheel_speed_limit_rpm``, ``star_tracker_blind_share`` and ``mode_changes`` [{t_s, from, to, reason}]. With
+``--world flight`` the 3 sigma figures are over the POINT samples of the orbits after the first (``passes``
+gives each orbit's), ``max_wheel_speed_rpm`` is over the same span (``max_wheel_speed_rpm_run``: the whole
+run's), and ``checks`` (each pass within the budgets, the wheels within 80 % of their limit, the star tracker
+blind < 10 % of the time after the first slew) decide the exit status; report.md and ``flight_pointing.png``,
+``flight_wheels.png`` show them.
 
 ``sweep``: J = E[eps^T W eps] (Eq. 6.22-6.24) for each t_s, the calibration computed once and shared; with
 SatB's GNSS as Sec. 6.4.3 (``--no-satb-gnss`` to leave it out). ``summary.json``: ts_s, J, ts_best_s,

@@ -73,4 +73,5 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from bench.run import standalone
+    standalone(main)

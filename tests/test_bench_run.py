@@ -237,8 +237,8 @@ def test_can_survival_is_the_product_of_its_lines():
     assert s["ADCS_STATUS"] < s["HTABLE_CHUNK"] < s["FSM_SPI"] < s["TICK"] < s["RW_CMD"] < 0.95
 
 
-@pytest.mark.parametrize("name", ["adcs", "adcs_can", "adcs_lean", "bps", "emulator", "faults", "firmware", "hil",
-                                  "protocol", "spacecraft", "stkf", "system"])
+@pytest.mark.parametrize("name", ["adcs", "adcs_can", "adcs_lean", "bps", "emulator", "faults", "firmware", "flight",
+                                  "hil", "protocol", "spacecraft", "stkf", "system"])
 def test_a_benchmark_run_alone_refuses_arguments_instead_of_ignoring_them(monkeypatch, capsys, name):
     import runpy
     import sys

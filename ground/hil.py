@@ -335,7 +335,7 @@ def run_config(rig, duration_s, seed, link_opts):
             "rate_hz": rig.rate_hz, "pfsm_hz": rig.lockstep.pfsm_hz, "q2_hz": rig.bench.q2_hz,
             "bench_config": rig.bench.config, "realtime": rig.lockstep.realtime, "port": link_opts.get("port"),
             "link_faults": faults.describe() if faults else None,
-            "tick_timeout_ms": tick_timeout(rig.link_name, link_opts.get("tick_timeout_ms")),
+            "tick_timeout_ms": tick_timeout(rig.link_name, link_opts.get("tick_timeout_ms"), rig.runtime_name),
             "tick_tries": link_opts.get("tick_tries"),
             "max_failed_ticks": link_opts.get("max_failed_ticks")}
 

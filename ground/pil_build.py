@@ -45,7 +45,9 @@ HEAP_BYTES = 229376
 # the controller and what it imports on the board (the packet table's pure core, the H table, the viper law)
 FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hinv.py", "firmware/upload.py",
           "firmware/controller.py", "firmware/controller_viper.py",
-          "protocol/__init__.py", "protocol/table.py", "protocol/core.py", "protocol/htable.py", "protocol/fast.py")
+          "firmware/hal/__init__.py", "firmware/hal/link.py", "firmware/hal/stdio.py", "firmware/pil_main.py",
+          "protocol/__init__.py", "protocol/table.py", "protocol/core.py", "protocol/htable.py", "protocol/fast.py",
+          "protocol/can.py", "protocol/isotp.py", "protocol/lawicel.py")
 QEMU_ARGS = ("-machine", "microbit", "-nographic", "-monitor", "null", "-semihosting",
              "-global", "nrf51-soc.flash-size=1048576", "-global", "nrf51-soc.sram-size=262144")
 # mpconfigport.h: (what the port has, what the PIL image needs)

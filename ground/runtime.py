@@ -10,6 +10,10 @@
   slcan device (``open_link("slcan-pty")``); ``--link-faults`` then act on the Lawicel ASCII stream at this
   end of the pty (``protocol.faults.SLCAN``). MicroPython firmware speaks serial only.
 
+- ``qemu`` with ``serial``: the controller frozen into the PIL image (``make pil``, ground/pil_build.py: MicroPython's
+  qemu port on a Cortex-M0, QEMU's microbit machine) under ``qemu-system-arm`` with its UART on a pty;
+  ``firmware.pil_main`` is started through the raw REPL, then the pty is the board's serial port.
+
 The subprocess is stopped (closed link, then terminate, then kill) when the context ends.
 """
 
@@ -25,11 +29,12 @@ from emulator.runtime import OWN_GROUP, check_seed, micropython_binary  # noqa: 
 from ground.rig import InprocController, Rig
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-RUNTIMES = ("inproc", "cpython", "micropython", "board")
+RUNTIMES = ("inproc", "cpython", "micropython", "board", "qemu")
 LINKS = ("inproc", "serial", "can")
 TICK_TIMEOUT_MS = 3.0      # resend a TICK after this long without its answer (a MicroPython pty round trip: ~0.1 ms)
 CAN_TICK_TIMEOUT_MS = 5.0   # the same on CAN: a clean round trip is ~1 ms there (two ISO-TP transfers, flow control each)
 CAN_ISOTP_TIMEOUT_MS = 3.0   # N_Bs on the lockstep CAN link (both ends): flow control comes in ~0.3 ms on a pty
+QEMU_TICK_TIMEOUT_MS = 30.0  # the same for the PIL board: a round trip through QEMU's UART is ~1-3 ms, bursts longer
 TICK_TRIES = 30            # sends of one TICK (waits doubling up to 0.1 s: 2.6 s) before it is an overrun
 MAX_FAILED_TICKS = 2000    # consecutive overruns (a dead link) that end a run: 3.1 s at 637.8 Hz
 
@@ -53,7 +58,8 @@ def add_link_arguments(p):
     """The runtime/link/fault flags of ``fps hil`` and ``fps calibrate``."""
     p.add_argument("--runtime", default="inproc", choices=RUNTIMES,
                    help="where the controller firmware runs: in this process, a CPython or MicroPython "
-                        "subprocess, or a board flashed with firmware/ on --port (default inproc)")
+                        "subprocess, a board flashed with firmware/ on --port, or qemu: the PIL image (make pil) on "
+                        "an emulated Cortex-M0 (default inproc)")
     p.add_argument("--link", default=None, choices=LINKS,
                    help="link to the controller (default: inproc for inproc, serial otherwise)")
     p.add_argument("--port", help="--runtime board: the board's serial port, e.g. /dev/ttyACM0")
@@ -84,10 +90,10 @@ def check(runtime, link):
         raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
     if link not in LINKS:
         raise ValueError("link %r not one of %s" % (link, ", ".join(LINKS)))
-    if runtime == "board":
+    if runtime in ("board", "qemu"):
         if link != "serial":
-            raise ValueError("runtime board with link %s: a board is reached on its serial port (--link serial)"
-                             % link)
+            raise ValueError("runtime %s with link %s: a board is reached on its serial port (--link serial)"
+                             % (runtime, link))
         return
     if (runtime == "inproc") != (link == "inproc"):
         raise ValueError("runtime %s with link %s: inproc goes with inproc, cpython/micropython with serial "
@@ -165,6 +171,59 @@ def _start(runtime, link_kind, rate_hz):
     return link, proc
 
 
+def _start_qemu(boot_s=60.0):
+    """QEMU with the PIL image, its UART on a pty; ``firmware.pil_main`` started through the raw REPL. Returns (the
+    bench's serial link on that pty, the QEMU process). OSError naming what is missing."""
+    import re
+    import tty
+    from ground import pil_build
+    from protocol.link import open_serial
+    missing = pil_build.missing_tools()
+    if missing or not os.path.exists(pil_build.IMAGE):
+        raise OSError("runtime qemu needs the PIL image (make pil)%s" % (
+            "" if not missing else " and %s (%s)" % (", ".join(missing), pil_build.install_hint(missing))))
+    errlog = tempfile.TemporaryFile()
+    proc = subprocess.Popen(pil_build.qemu_command(serial="pty", icount=False), cwd=ROOT, stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=errlog, **OWN_GROUP)
+    proc.errlog = errlog
+    fd = None
+    try:
+        line, t0 = b"", time.monotonic()
+        while b"/dev/pts/" not in line:
+            if time.monotonic() - t0 > 10 or proc.poll() is not None:
+                raise OSError("qemu-system-arm gave no pty (%s)" % stderr_tail(proc).strip())
+            line = proc.stdout.readline()
+        path = re.search(rb"(/dev/pts/\d+)", line).group(1).decode()
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(fd)
+
+        def until(token, wait_s):
+            buf, end = b"", time.monotonic() + wait_s
+            while token not in buf:
+                if time.monotonic() > end:
+                    raise OSError("the PIL board gave no %r in %g s (got %r)" % (token, wait_s, buf[-200:]))
+                import select
+                if select.select([fd], [], [], 0.2)[0]:
+                    buf += os.read(fd, 4096)
+            return buf
+        os.write(fd, b"\r")
+        until(b">>> ", boot_s)
+        os.write(fd, b"\x01")
+        until(b"raw REPL; CTRL-B to exit\r\n>", 10.0)
+        os.write(fd, b"import firmware.pil_main\x04")
+        until(b"OK", 10.0)
+        link = open_serial(path, "BENCH", baudrate=115200)
+    except BaseException:
+        proc.kill()
+        proc.wait()
+        errlog.close()
+        raise
+    finally:
+        if fd is not None:
+            os.close(fd)
+    return link, proc
+
+
 def stderr_tail(proc, n_chars=2000):
     """The last ``n_chars`` the controller process wrote to stderr (kept when the process is stopped)."""
     if proc.errlog.closed:
@@ -212,10 +271,12 @@ def check_board(config, rate_hz=637.8):
     board_timing(config if config is not None else default_config()).split(1.0 / rate_hz)
 
 
-def tick_timeout(link, tick_timeout_ms=None):
-    """The TICK resend timeout in ms: ``tick_timeout_ms``, or the link's default."""
+def tick_timeout(link, tick_timeout_ms=None, runtime=None):
+    """The TICK resend timeout in ms: ``tick_timeout_ms``, or the link's (the runtime's, for qemu) default."""
     if tick_timeout_ms is not None:
         return tick_timeout_ms
+    if runtime == "qemu":
+        return QEMU_TICK_TIMEOUT_MS
     return CAN_TICK_TIMEOUT_MS if link == "can" else TICK_TIMEOUT_MS
 
 
@@ -268,7 +329,7 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
         _set_realtime(rig, realtime, rate_hz)
         yield rig
         return
-    try_s = tick_timeout(link, tick_timeout_ms) / 1000.0
+    try_s = tick_timeout(link, tick_timeout_ms, runtime) / 1000.0
     patience_s = 3600.0         # the tries bound a tick (RemoteController backs off to 0.1 s per try)
     if runtime == "board":
         from protocol.link import open_serial
@@ -278,6 +339,9 @@ def open_rig(runtime="inproc", link="inproc", config=None, seed=0, first_wait_s=
             raise OSError("cannot open the board's port %s: %s" % (port, exc)) from None
         proc = None
         name = "board %s" % port
+    elif runtime == "qemu":
+        lk, proc = _start_qemu()
+        name = "qemu (Cortex-M0, QEMU microbit) over serial"
     else:
         lk, proc = _start(runtime, link, rate_hz)
         name = "%s over %s" % (runtime, link)

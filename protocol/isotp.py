@@ -13,11 +13,16 @@ Protocol control information (first byte, high nibble):
 
 try:
     from time import sleep_us
-except ImportError:  # CPython
-    from time import sleep
+except ImportError:
+    try:  # CPython
+        from time import sleep
 
-    def sleep_us(us):
-        sleep(us * 1e-6)
+        def sleep_us(us):
+            sleep(us * 1e-6)
+    except ImportError:  # a port without a time module (the PIL image): it frames, it never paces a send
+
+        def sleep_us(us):
+            raise OSError("this port has no time module: ISO-TP cannot pace its consecutive frames")
 
 MAX_LEN = 4095
 ERRORS = ("bad_pci", "bad_length", "unexpected_cf", "bad_seq", "overflow")

@@ -17,8 +17,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tests", "mp"))
 import firmware_plant as fp  # noqa: E402
 
-pytestmark = pytest.mark.skipif(
-    not os.path.exists(pil_build.IMAGE) or pil_build.missing_tools(),
+needs_image = pytest.mark.skipif(
+    not os.path.exists(pil_build.IMAGE) or bool(pil_build.missing_tools()),
     reason="no PIL image (make pil; it needs %s)" % pil_build.install_hint(pil_build.PACKAGES))
 
 
@@ -63,11 +63,13 @@ def board():
         yield b
 
 
+@needs_image
 def test_the_image_boots_on_the_cortex_m0_machine(board):
     assert b"microbit with nRF51" in board.banner
     assert board.run("import sys\nprint(sys.implementation._mpy & 0xff, sys.platform)").split() == ["6", "qemu"]
 
 
+@needs_image
 def test_viper_and_bytecode_on_the_board_clock_out_the_hosts_words(board):
     blob = htable.pack(_table())
     src = _samples(600)
@@ -82,3 +84,70 @@ def test_viper_and_bytecode_on_the_board_clock_out_the_hosts_words(board):
         assert (r["crc"], r["words"], r["mode"]) == (host["crc"], host["words"], host["mode"])
     # instructions per step, counted by the nRF51's TIMER0 under -icount (one instruction a virtual ns)
     assert 1000 < viper["insn_per_step_with_crc"] < byte["insn_per_step_with_crc"]
+
+
+def test_tilt_voltage_conversions_are_exact_integer_rounding():
+    """The controller's uV <-> Q8 code conversions are the exact ratio 2^25 / 10^7 rounded half away from zero, in
+    integers: the same on every port (a single-precision float on the Cortex-M0 port was 1 uV off)."""
+    from fractions import Fraction
+    from firmware import controller as c
+
+    def exact(num, den, v):
+        f = Fraction(abs(v) * num, den)
+        r = int(f + Fraction(1, 2))
+        return r if v >= 0 else -r
+    for v in list(range(-3000, 3001)) + [-2500000, 2500000, 78125, -78125, 131072 * 3, -131072 * 5]:
+        assert c._q8(v) == exact(1 << 25, 10 ** 7, v)
+        assert c._uv(v) == exact(10 ** 7, 1 << 25, v)
+    assert c._uv(131072) == 39063 and c._uv(-131072) == -39063          # a tie: 39062.5 rounds away from zero
+
+
+def test_the_stdio_link_frames_and_reads_back_packets():
+    """firmware.hal.stdio: what it writes, a peer's decoder reads; what a peer writes, it returns packet by packet
+    (blocking reads of one byte), and an ended input closes it."""
+    import io
+    from protocol import core
+    from firmware.hal.stdio import StdioLink
+    w = io.BytesIO()
+    enc = core.Encoder()
+    frames = b"".join(bytes(enc.frame(core.PACKET_ID["TICK"], core.NODE["BENCH"], core.NODE["CONTROLLER"], k,
+                                core.encode_payload("TICK", tick=k, vx=2048, vy=2048, vs=1500))) for k in range(3))
+    lk = StdioLink("CONTROLLER", reader=io.BytesIO(frames), writer=w)
+    got = [lk.recv_ms(100) for _ in range(3)]
+    assert [g[0][4][:4] for g in got] == [core.encode_payload("TICK", tick=k, vx=2048, vy=2048, vs=1500)[:4]
+                                          for k in range(3)]
+    assert lk.recv_ms(100) == [] and lk.closed
+    lk.send_raw(core.PACKET_ID["HELLO"], lk.node, 0xFF, core.encode_payload("HELLO", node=lk.node))
+    out = core.Decoder().feed(w.getvalue())
+    assert [p[0] for p in out] == [core.PACKET_ID["HELLO"]] and lk.counters()["tx_frames"] == 1
+
+
+@needs_image
+def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_for_bit(tmp_path):
+    """The issue's goal: a 20 s fps hil --runtime qemu gives the Q2 samples and the control telemetry of
+    --runtime micropython bit for bit (the controller is integer arithmetic), and fps calibrate the same points;
+    its real-time factor is reported."""
+    import subprocess
+    import numpy as np
+
+    def fps(*args):
+        p = subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True, text=True,
+                           timeout=900)
+        assert p.returncode == 0, p.stderr
+        return p
+    dist = str(tmp_path / "d.dist")
+    fps("distfile", "generate", "--source", "stat", "--duration", "20", "--seed", "1", "-o", dist)
+    cal = {}
+    for r in ("qemu", "micropython"):
+        cal[r] = str(tmp_path / ("cal_%s.json" % r))
+        fps("calibrate", "--runtime", r, "--grid", "3", "-o", cal[r])
+    a, b = (json.load(open(cal[r])) for r in ("qemu", "micropython"))
+    assert a["points"] == b["points"] and a["runtime"] == "qemu"
+    for r in ("qemu", "micropython"):
+        fps("hil", "--distfile", dist, "--calibration", cal["micropython"], "--duration", "20", "--runtime", r,
+            "--quiet", "--no-plots", "-o", str(tmp_path / r))
+    x, y = (np.load(tmp_path / r / "samples.npz") for r in ("qemu", "micropython"))
+    assert x.files == y.files and all(np.array_equal(x[k], y[k]) for k in x.files)
+    assert (tmp_path / "qemu" / "telemetry.csv").read_bytes() == (tmp_path / "micropython" / "telemetry.csv").read_bytes()
+    s = json.load(open(tmp_path / "qemu" / "summary.json"))
+    assert s["real_time_factor"] > 0 and s["complete"]

@@ -238,7 +238,7 @@ def test_can_survival_is_the_product_of_its_lines():
 
 
 @pytest.mark.parametrize("name", ["adcs", "adcs_can", "adcs_lean", "bps", "emulator", "faults", "firmware", "flight",
-                                  "hil", "protocol", "spacecraft", "stkf", "system"])
+                                  "hil", "pil", "protocol", "spacecraft", "stkf", "system"])
 def test_a_benchmark_run_alone_refuses_arguments_instead_of_ignoring_them(monkeypatch, capsys, name):
     import runpy
     import sys

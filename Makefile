@@ -5,6 +5,9 @@ PY      := $(VENV)/bin/python
 MPY     := $(VENV)/bin/micropython
 STAMP   := $(VENV)/.installed-stamp
 NATMOD  := firmware/adcs/adcsk.mpy
+PIL_ELF := build/pil/MICROBIT/firmware.elf
+PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py protocol/*.py tests/mp/pil_probe.py tests/mp/firmware_plant.py \
+             tests/mp/firmware_viper.py) ground/pil_build.py
 OUT     ?= out
 
 .PHONY: all install test bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
@@ -19,7 +22,7 @@ $(STAMP): requirements.lock pyproject.toml
 
 install: $(STAMP)
 
-test: $(STAMP) $(NATMOD)
+test: $(STAMP) $(NATMOD) $(PIL_ELF)
 	$(PY) -m pytest
 
 bench: $(STAMP) mpy $(NATMOD)
@@ -38,6 +41,10 @@ natmod: $(STAMP)
 # qemu-system-arm. tests/test_pil.py runs on the image when it is built and is skipped, saying why, when not.
 pil: $(STAMP)
 	$(PY) -m ground.pil_build
+
+# `make test` builds the image when the tools are there, and says why not (its tests then skip) when they are not
+$(PIL_ELF): $(PIL_SRC) $(STAMP)
+	$(PY) -m ground.pil_build --optional
 
 fuzz: $(STAMP)
 	$(PY) -m tests.fuzz_frames 1000000

@@ -24,7 +24,8 @@ from emulator.truth import true_h_field
 from ground import distfile_cli, sources
 from ground.cli import main as _fps
 from ground.fileio import write_atomic, write_json
-from ground.runtime import ROOT, micropython_binary
+from emulator.runtime import micropython_binary
+from ground.runtime import ROOT
 
 DURATION_S = 120.0
 LIGHT = "bytes=0.01,frames=0.05,seed=1"

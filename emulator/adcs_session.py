@@ -62,8 +62,6 @@ against it. The firmware's configuration carries the file's nominal figures (``A
 import json
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 import tty
@@ -71,7 +69,7 @@ import tty
 import numpy as np
 
 from emulator import orbits
-from emulator.runtime import OWN_GROUP
+from emulator.launcher import FirmwareProcess, command
 from emulator.navsensors import ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftDevices
@@ -264,7 +262,6 @@ class AdcsSession:
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""
         from protocol import link as hostlink
-        from emulator.runtime import micropython_binary
         self._tmp = tempfile.mkdtemp(prefix="fps-adcs-")
         cfg = os.path.join(self._tmp, "config.json")
         with open(cfg, "w") as fh:
@@ -274,16 +271,9 @@ class AdcsSession:
         os.set_blocking(m, False)
         path = os.ttyname(s)
         extra = [self.heap_out] if self.heap_out else []
-        if self.runtime == "micropython":
-            cmd = [micropython_binary(), "-X", "heapsize=64M", MAIN, str(m), cfg] + extra
-            env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
-        else:
-            cmd = [sys.executable, MAIN, str(m), cfg] + extra
-            env = dict(os.environ, PYTHONPATH=ROOT)
-        self._err = open(os.path.join(self._tmp, "stderr.txt"), "w+")
+        argv, env = command(self.runtime, MAIN, [m, cfg] + extra, micropython_opts=("-X", "heapsize=64M"))
         try:
-            self.proc = subprocess.Popen(cmd, pass_fds=(m,), cwd=ROOT, env=env, stdout=self._err,
-                                         stderr=subprocess.STDOUT, **OWN_GROUP)     # Ctrl-C is the tool's
+            self.proc = FirmwareProcess(argv, env=env, pass_fds=(m,), name="ADCS firmware")
         finally:
             os.close(m)
         try:
@@ -316,12 +306,7 @@ class AdcsSession:
         return self.devices is not None and self.devices.mtq is not None
 
     def _stderr(self):
-        try:
-            self._err.flush()
-            self._err.seek(0)
-            return self._err.read().strip()[-2000:]
-        except (OSError, ValueError):
-            return ""
+        return self.proc.stderr_tail(2000).strip() if self.proc is not None else ""
 
     def _send(self, pid, src, payload):
         bit = burst_bit(pid, src, payload)      # the firmware's own naming of the burst's packets
@@ -622,17 +607,9 @@ class AdcsSession:
                 self.link.close()
             except Exception:   # noqa: BLE001 - a bus already gone must not stop the cleanup
                 pass
-        if self.proc is not None and self.proc.poll() is None:
-            try:
-                self.proc.wait(2.0)          # the firmware leaves when the pty closes
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        if self.proc is not None:
+            self.proc.stop()                 # the firmware leaves when the pty closes; else SIGTERM, SIGKILL
         if self._tmp is not None:
-            try:
-                self._err.close()
-            except (OSError, AttributeError):
-                pass
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
 

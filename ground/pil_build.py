@@ -29,13 +29,14 @@ import sys
 import tarfile
 import tempfile
 
+from emulator import launcher
 from ground import natmod_build
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BOARD = "MICROBIT"
 FULL_DIR = os.path.join(ROOT, "build", "micropython-%s-full" % natmod_build.MP_VERSION)
 OUT = os.path.join(ROOT, "build", "pil")
-IMAGE = os.path.join(OUT, BOARD, "firmware.elf")
+IMAGE = launcher.PIL_IMAGE                     # build/pil/MICROBIT/firmware.elf
 PACKAGES = ("gcc-arm-none-eabi", "libnewlib-arm-none-eabi", "qemu-system-arm")
 MARCH = "armv6m"
 # the heap in the image: 224 KB of the machine's 256 KB. The port's own 140 KB runs out building the H table
@@ -48,8 +49,6 @@ FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hinv.py", "fi
           "firmware/hal/__init__.py", "firmware/hal/link.py", "firmware/hal/stdio.py", "firmware/pil_main.py",
           "protocol/__init__.py", "protocol/table.py", "protocol/core.py", "protocol/htable.py", "protocol/fast.py",
           "protocol/can.py", "protocol/isotp.py", "protocol/lawicel.py")
-QEMU_ARGS = ("-machine", "microbit", "-nographic", "-monitor", "null", "-semihosting",
-             "-global", "nrf51-soc.flash-size=1048576", "-global", "nrf51-soc.sram-size=262144")
 # mpconfigport.h: (what the port has, what the PIL image needs)
 PATCHES = (
     ("#if !defined(QEMU_SOC_NRF51)\n#define MICROPY_EMIT_THUMB          (1)\n#define MICROPY_EMIT_INLINE_THUMB   (1)\n"
@@ -182,12 +181,8 @@ def build(src=None):
 
 
 def qemu_command(image=IMAGE, serial="stdio", icount=True):
-    """qemu-system-arm's command line for the image: the UART on ``serial`` (stdio or pty), deterministic
-    instruction counting (``-icount shift=0``: one virtual ns per instruction) when ``icount``."""
-    cmd = ["qemu-system-arm"] + list(QEMU_ARGS) + ["-serial", serial, "-kernel", image]
-    if icount:
-        cmd += ["-icount", "shift=0"]
-    return cmd
+    """``emulator.launcher.qemu_command``; here the UART on stdio and ``-icount`` by default (the tests' board)."""
+    return launcher.qemu_command(image, serial, icount)
 
 
 class Board:

@@ -21,11 +21,10 @@ import contextlib
 import os
 import subprocess
 import sys
-import tempfile
 import time
 
 from emulator.bench import RATE_HZ_MAX
-from emulator.runtime import OWN_GROUP, check_seed, micropython_binary  # noqa: F401  (check_seed: ground's tools)
+from emulator.runtime import check_seed  # noqa: F401  (ground's tools take it from here)
 from ground.rig import InprocController, Rig
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -147,6 +146,7 @@ class RemoteEndpoint:
 
 
 def _start(runtime, link_kind, rate_hz):
+    from emulator.launcher import FirmwareProcess, command
     from protocol.link import open_link
     # one link carries the BENCH (TICK/FSM_SPI) and the GROUND (commands, ACK/NACK, status): CAN must deliver both
     if link_kind == "serial":
@@ -155,20 +155,8 @@ def _start(runtime, link_kind, rate_hz):
         link = open_link("slcan-pty", "BENCH", accept=("GROUND",), isotp_timeout_s=CAN_ISOTP_TIMEOUT_MS / 1000.0)
     spec = ("serial:" if link_kind == "serial" else "slcan:") + link.peer_path
     extra = [] if link_kind == "serial" else ["--isotp-timeout-ms", repr(CAN_ISOTP_TIMEOUT_MS)]
-    exe = [micropython_binary()] if runtime == "micropython" else [sys.executable]
-    env = dict(os.environ)
-    if runtime == "micropython":
-        env["MICROPYPATH"] = ROOT + ":" + env.get("MICROPYPATH", ".frozen:~/.micropython/lib")
-    else:
-        env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
-    # stderr to a file, not a pipe: nobody reads a pipe during the run, and a full one would stall the controller
-    errlog = tempfile.TemporaryFile()
-    proc = subprocess.Popen(exe + ["-m", "firmware.main", "controller", "--link", spec, "--rate", repr(rate_hz)]
-                            + extra,
-                            cwd=ROOT, env=env,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errlog, **OWN_GROUP)
-    proc.errlog = errlog
-    return link, proc
+    argv, env = command(runtime, "firmware.main", ["controller", "--link", spec, "--rate", repr(rate_hz)] + extra)
+    return link, FirmwareProcess(argv, env=env, stdout=subprocess.DEVNULL, name="controller")
 
 
 def _start_qemu(boot_s=60.0):
@@ -176,16 +164,14 @@ def _start_qemu(boot_s=60.0):
     bench's serial link on that pty, the QEMU process). OSError naming what is missing."""
     import re
     import tty
+    from emulator.launcher import FirmwareProcess, qemu_command
     from ground import pil_build
     from protocol.link import open_serial
     missing = pil_build.missing_tools()
     if missing or not os.path.exists(pil_build.IMAGE):
         raise OSError("runtime qemu needs the PIL image (make pil)%s" % (
             "" if not missing else " and %s (%s)" % (", ".join(missing), pil_build.install_hint(missing))))
-    errlog = tempfile.TemporaryFile()
-    proc = subprocess.Popen(pil_build.qemu_command(serial="pty", icount=False), cwd=ROOT, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=errlog, **OWN_GROUP)
-    proc.errlog = errlog
+    proc = FirmwareProcess(qemu_command(pil_build.IMAGE, serial="pty"), stdout=subprocess.PIPE, name="QEMU")
     fd = None
     try:
         line, t0 = b"", time.monotonic()
@@ -215,8 +201,7 @@ def _start_qemu(boot_s=60.0):
         link = open_serial(path, "BENCH", baudrate=115200)
     except BaseException:
         proc.kill()
-        proc.wait()
-        errlog.close()
+        proc.stop()
         raise
     finally:
         if fd is not None:
@@ -225,42 +210,23 @@ def _start_qemu(boot_s=60.0):
 
 
 def stderr_tail(proc, n_chars=2000):
-    """The last ``n_chars`` the controller process wrote to stderr (kept when the process is stopped)."""
-    if proc.errlog.closed:
-        return getattr(proc, "stderr_text", "")[-n_chars:]
-    proc.errlog.seek(0, os.SEEK_END)
-    proc.errlog.seek(max(0, proc.errlog.tell() - n_chars))
-    return proc.errlog.read().decode(errors="replace")
+    """The last ``n_chars`` the controller process wrote to stderr (``FirmwareProcess.stderr_tail``)."""
+    return proc.stderr_tail(n_chars)
 
 
 def exit_note(proc, wait_s=1.0):
-    """``"; the controller process exited with status N: <its last stderr line>"`` once ``proc`` has exited
-    of itself (waiting up to ``wait_s`` for it: a process whose link failed is on its way out), else ``""``
-    (still running, or stopped by this side when the run ended)."""
-    if proc is None or getattr(proc, "stopped_by_us", False):
-        return ""
-    try:
-        proc.wait(wait_s)
-    except subprocess.TimeoutExpired:
-        return ""
-    lines = [ln for ln in stderr_tail(proc).splitlines() if ln.strip()]
-    return "; the controller process exited with status %s%s" % (
-        proc.returncode, (": " + lines[-1].strip()) if lines else " and said nothing on stderr")
+    """``FirmwareProcess.exit_note`` (``""`` without a process: a board)."""
+    return "" if proc is None else proc.exit_note(wait_s)
 
 
 def _stop(link, proc):
+    """The link closed (the firmware leaves when it closes), then ``FirmwareProcess.stop``."""
     proc.stopped_by_us = proc.poll() is None
     with contextlib.suppress(Exception):
         link.close()
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(2.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(2.0)
-    proc.stderr_text = stderr_tail(proc)
-    proc.errlog.close()
+    stopped = proc.stopped_by_us
+    proc.stop()
+    proc.stopped_by_us = stopped
 
 
 def check_board(config, rate_hz=637.8):

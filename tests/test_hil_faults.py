@@ -20,7 +20,8 @@ from emulator.truth import true_h_field
 from firmware.controller import SAFE, TRACK, Controller
 from ground.cli import main as fps
 from ground.hil import mode_changes
-from ground.runtime import ROOT, micropython_binary
+from emulator.runtime import micropython_binary
+from ground.runtime import ROOT
 from protocol import core, htable
 from protocol.faults import FaultyPort, LinkFaults
 

@@ -125,8 +125,9 @@ def test_the_stdio_link_frames_and_reads_back_packets():
 @needs_image
 def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_for_bit(tmp_path):
     """The issue's goal: a 20 s fps hil --runtime qemu gives the Q2 samples and the control telemetry of
-    --runtime micropython bit for bit (the controller is integer arithmetic), and fps calibrate the same points;
-    its real-time factor is reported."""
+    --runtime micropython bit for bit (the controller is integer arithmetic; of the telemetry, the link's own
+    counters of resent TICKs may differ on a loaded machine), and fps calibrate the same points; its real-time
+    factor is reported."""
     import subprocess
     import numpy as np
 
@@ -148,6 +149,11 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
             "--quiet", "--no-plots", "-o", str(tmp_path / r))
     x, y = (np.load(tmp_path / r / "samples.npz") for r in ("qemu", "micropython"))
     assert x.files == y.files and all(np.array_equal(x[k], y[k]) for k in x.files)
-    assert (tmp_path / "qemu" / "telemetry.csv").read_bytes() == (tmp_path / "micropython" / "telemetry.csv").read_bytes()
+    import csv
+    tq, tm = (list(csv.DictReader(open(tmp_path / r / "telemetry.csv"))) for r in ("qemu", "micropython"))
+    link = ("n_dup", "n_rx_drop")           # the link's counters: TICKs resent when QEMU answered late
+    assert len(tq) == len(tm) > 100
+    assert [{k: v for k, v in r.items() if k not in link} for r in tq] == \
+        [{k: v for k, v in r.items() if k not in link} for r in tm]
     s = json.load(open(tmp_path / "qemu" / "summary.json"))
     assert s["real_time_factor"] > 0 and s["complete"]

@@ -21,7 +21,8 @@ COMMANDS = (
     ("hil", "ground.hil", "emulated hardware-in-the-loop run with the Q2 recorder (Sec. 7.5)"),
     ("response", "ground.response", "the loop's frequency response: stepped sines, measured |S| beside the model"),
     ("system", "ground.system", "the whole terminal in one run: ADCS and fine-pointing loops coupled live"),
-    ("adcs", "ground.adcs.cli", "attitude and orbit filters: APKF, MEKF (Ch. 4), STKF with the EAFLS (Ch. 5)"),
+    ("adcs", "ground.adcs.cli", "the ADCS: apkf, mekf (Ch. 4), stkf (Ch. 5), bps and sweep (body pointing, Ch. 6; "
+     "--world thesis|flight), can (the flight firmware on CAN)"),
     ("spacecraft", "ground.spacecraft_cli", "spacecraft files: list, show, check and write one; the schema with units"),
 )
 

@@ -310,6 +310,9 @@ def _cmd(a):
     import sys
     from emulator.config import load_config
     from ground import runtime
+    if a.timing == "custom" and not a.config:
+        raise ValueError("--timing custom takes its numbers (board.adc_read_us and the rest) from a bench config: "
+                         "give --config FILE, or use --timing arduino-zero or zero-latency")
     cfg = load_config(a.config)
     if a.timing:
         cfg["board"]["timing"] = a.timing

@@ -301,12 +301,13 @@ def decode_can(f, out):
 
 
 def cmd_decode(args):
-    if args.serial is not None:
-        with open(args.serial, "rb") as f:
-            summary = decode_serial(f, sys.stdout)
-    else:
-        with open(args.can, "r", errors="replace") as f:
-            summary = decode_can(f, sys.stdout)
+    opt, path = ("--serial", args.serial) if args.serial is not None else ("--can", args.can)
+    try:
+        f = open(path, "rb") if opt == "--serial" else open(path, "r", errors="replace")
+    except OSError as exc:                  # a capture that is not there: bad input (exit 2), named
+        raise ValueError("%s %s: cannot read it (%s)" % (opt, path, exc.strerror or exc)) from None
+    with f:
+        summary = decode_serial(f, sys.stdout) if opt == "--serial" else decode_can(f, sys.stdout)
     summary["dropped"] = sum(summary["drops"].values())
     print(json.dumps({"summary": summary}))
     return 0

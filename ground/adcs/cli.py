@@ -1,4 +1,5 @@
-"""``fps adcs``: attitude determination campaigns (Yoon 2017, Ch. 4): the APKF and its MEKF baseline.
+"""``fps adcs``: the ADCS: attitude filter campaigns (APKF, MEKF; Yoon 2017, Ch. 4), the STKF (Ch. 5), the body
+pointing simulator and its settling-time sweep (Ch. 6; --world thesis or flight) and the flight firmware on CAN.
 
 Each sub-command is registered by one small function in ``SUBCOMMANDS`` (add yours there).
 
@@ -179,7 +180,7 @@ SUBCOMMANDS = [_apkf, _mekf, _stkf, _bps, _sweep, _can]
 
 def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
-    s = p.add_subparsers(dest="adcs_command", metavar="FILTER")
+    s = p.add_subparsers(dest="adcs_command", metavar="COMMAND")
     for add in SUBCOMMANDS:
         add(s)
 

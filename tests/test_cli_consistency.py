@@ -1,0 +1,33 @@
+"""CLI cases of the "one consistent CLI" issue fixed so far: bad input exits 2 naming the option; the help lists every
+sub-command."""
+
+import subprocess
+import sys
+
+ROOT = __import__("os").path.dirname(__import__("os").path.dirname(__import__("os").path.abspath(__file__)))
+
+
+def _fps(*args):
+    return subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_fps_help_names_every_adcs_command():
+    top = _fps("--help").stdout
+    adcs = _fps("adcs", "--help").stdout
+    for name in ("apkf", "mekf", "stkf", "bps", "sweep", "can"):
+        assert name in top.split("adcs", 1)[1] and name in adcs
+    assert "MEKF baseline" not in adcs and "FILTER" not in adcs
+
+
+def test_a_missing_capture_is_bad_input_named_by_its_option(tmp_path):
+    for opt in ("--serial", "--can"):
+        p = _fps("protocol", "decode", opt, str(tmp_path / "none.bin"))
+        assert p.returncode == 2 and ("%s %s: cannot read it" % (opt, tmp_path / "none.bin")) in p.stderr
+        assert "Traceback" not in p.stderr and "[Errno" not in p.stderr
+
+
+def test_custom_board_timing_without_its_numbers_is_refused(tmp_path):
+    p = _fps("response", "--timing", "custom", "-o", str(tmp_path / "r"))
+    assert p.returncode == 2 and "--timing custom" in p.stderr and "--config" in p.stderr
+    assert not (tmp_path / "r").exists()

@@ -219,6 +219,8 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
     from protocol import htable
     cfg = default_config() if cfg is None else cfg
     link_opts = dict(link_opts or {})
+    from ground import runtime as _rt
+    _rt.check_options(runtime_name, link_name, **link_opts)     # --rate-hz and the link's options first, then --to
     rate = link_opts.get("rate_hz", 637.8)
     nyq = rate / 2
     if not MIN_FROM_HZ <= f_from < f_to:

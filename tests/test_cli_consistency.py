@@ -31,3 +31,8 @@ def test_custom_board_timing_without_its_numbers_is_refused(tmp_path):
     p = _fps("response", "--timing", "custom", "-o", str(tmp_path / "r"))
     assert p.returncode == 2 and "--timing custom" in p.stderr and "--config" in p.stderr
     assert not (tmp_path / "r").exists()
+
+
+def test_a_bad_loop_rate_is_named_before_the_tones_it_would_limit(tmp_path):
+    p = _fps("response", "--rate-hz", "0", "-o", str(tmp_path / "r"))
+    assert p.returncode == 2 and "--rate-hz" in p.stderr and "--to" not in p.stderr

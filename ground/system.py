@@ -945,10 +945,47 @@ def report_md(s):
                                                              GOAL_RTF, _x(s.get("real_time_factor_play")),
                                                              s.get("adcs_wait_s") or 0.0), ""]
     if s.get("adcs_summary") is not None or s.get("adcs_last_status") is not None:
-        lines += ["## ADCS session", "", "- counters and fault log: `%s`" % json.dumps(s.get("adcs_summary")),
-                  "- last status packet: `%s`" % json.dumps(s.get("adcs_last_status")), ""]
+        lines += adcs_session_md(s.get("adcs_summary"), s.get("adcs_last_status"))
     lines += ["- " + line for line in verdict_lines(s)]
     return "\n".join(lines) + "\n"
+
+
+def _cell(v):
+    """A value for a Markdown table cell: numbers and text as they are, lists and dicts as compact JSON."""
+    if isinstance(v, (dict, list)):
+        return "`%s`" % json.dumps(v, separators=(", ", ": "))
+    return "%s" % (v,)
+
+
+def wheel_names(mask):
+    """The wheels a bit mask names (bit i: wheel i, ``RWi``), e.g. 2 -> "RW1"; "none" for 0."""
+    if not isinstance(mask, int):
+        return "—"
+    names = ["RW%d" % i for i in range(8) if mask >> i & 1]
+    return ", ".join(names) if names else "none"
+
+
+def adcs_session_md(summary, status):
+    """The report's ADCS section as Markdown tables: the mode changes, the fault log, the counters, the last
+    status (bit masks decoded into wheel and sensor names)."""
+    out = ["## ADCS session", ""]
+    summary = dict(summary or {})
+    changes, faults = summary.pop("mode_changes", None), summary.pop("fault_log", None)
+    if changes:
+        out += ["| t (s) | mode change | reason |", "|---|---|---|"]
+        out += ["| %.0f | %s -> %s | %s |" % (c["t_s"], c["from"], c["to"], c["reason"]) for c in changes] + [""]
+    if faults:
+        out += ["| t (s) | event |", "|---|---|"] + ["| %.0f | %s |" % (e["t_s"], e["event"]) for e in faults] + [""]
+    if summary:
+        out += ["| counter | value |", "|---|---|"] + ["| %s | %s |" % (k, _cell(v)) for k, v in summary.items()]
+        out.append("")
+    if status:
+        st = dict(status)
+        if "wheels_failed" in st:
+            st["wheels_failed"] = "%s (bit mask %s)" % (wheel_names(st["wheels_failed"]), st["wheels_failed"])
+        out += ["| last status | value |", "|---|---|"] + ["| %s | %s |" % (k, _cell(v)) for k, v in st.items()]
+        out.append("")
+    return out
 
 
 def _x(v):

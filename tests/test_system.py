@@ -281,7 +281,11 @@ def test_adcs_feed_keeps_the_session_counters_and_fails_on_an_adcs_error():
     s = {"adcs": "firmware", "thesis_body": system.thesis_body(), "adcs_summary": feed.adcs_summary,
          "adcs_last_status": feed.last_status, "duration_s": 1.0}
     md = system.report_md(s)
-    assert '"wheel2": 4' in md and '"stale": ["gnss"]' in md
+    assert '| missed | `{"wheel2": 4}` |' in md and '| stale | `["gnss"]` |' in md
+    md = "\n".join(system.adcs_session_md({"mode_changes": [{"t_s": 30.0, "from": "HOLD", "to": "SLEW",
+                                                             "reason": "the hold is over"}]},
+                                         {"wheels_failed": 2, "adcs_mode_name": "DEGRADED"}))
+    assert "| 30 | HOLD -> SLEW | the hold is over |" in md and "| wheels_failed | RW1 (bit mask 2) |" in md
 
 
 def test_system_with_the_four_device_faults_degrades_the_adcs_and_keeps_the_fine_loop(tmp_path, params_file, inputs):

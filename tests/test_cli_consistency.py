@@ -36,3 +36,15 @@ def test_custom_board_timing_without_its_numbers_is_refused(tmp_path):
 def test_a_bad_loop_rate_is_named_before_the_tones_it_would_limit(tmp_path):
     p = _fps("response", "--rate-hz", "0", "-o", str(tmp_path / "r"))
     assert p.returncode == 2 and "--rate-hz" in p.stderr and "--to" not in p.stderr
+
+
+def test_an_stkf_run_too_short_for_the_apkf_to_start_is_bad_input(tmp_path):
+    """--attitude apkf with a run shorter than the scenario's first two star-tracker outputs: exit 2 naming
+    --duration and the shortest that works, no folder left (it ran and failed before, exit 1)."""
+    p = _fps("adcs", "stkf", "--case", "1", "--attitude", "apkf", "--duration", "1", "--quiet", "-o", str(tmp_path / "s"))
+    assert p.returncode == 2 and "--duration 1 s is too short for --attitude apkf" in p.stderr
+    assert not (tmp_path / "s").exists()
+    need = int(p.stderr.split("give --duration ")[1].split()[0])
+    p = _fps("adcs", "stkf", "--case", "1", "--attitude", "apkf", "--duration", str(need), "--quiet", "--no-plots",
+             "-o", str(tmp_path / "t"))
+    assert p.returncode == 0, p.stderr

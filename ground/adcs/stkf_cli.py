@@ -17,6 +17,24 @@ from ground.adcs.cli import add_spacecraft_option, load_spacecraft
 from ground.fileio import output_folder, write_atomic, write_json
 
 
+def _check_apkf_starts(duration, seeds, spacecraft):
+    """--attitude apkf: the APKF starts from two consecutive star-tracker outputs of the Sec. 4.8 scenario, which
+    begins turning at 1 deg/s (blind above 0.1 deg/s): a run must last until then, for every seed (the truth
+    decides when, not the noise). ValueError naming --duration and the shortest that does."""
+    from ground.adcs.runs import _start
+    for seed in seeds[:1] + seeds[-1:]:
+        o = scenario.simulate(case=1, seed=seed, duration=max(2, min(int(duration), 600)), spacecraft=spacecraft)
+        try:
+            k0 = _start(o)
+        except ValueError:
+            k0 = None
+        if k0 is None or k0 > duration:
+            need = _start(scenario.simulate(case=1, seed=seed, duration=600, spacecraft=spacecraft))
+            raise ValueError("--duration %g s is too short for --attitude apkf: the APKF starts from two consecutive "
+                             "star-tracker outputs, the first pair ending at t = %d s of the Sec. 4.8 scenario (seed "
+                             "%d): give --duration %d or more" % (duration, need, seed, need))
+
+
 def _cmd(a):
     seeds = campaign.seeds_for(a.seed, a.runs)
     n_runs = len(seeds)
@@ -33,6 +51,8 @@ def _cmd(a):
     if not (0 < a.lag < float("inf")):
         raise ValueError("--lag must be a finite number of seconds > 0, got %r" % a.lag)
     spacecraft, source = load_spacecraft(a.spacecraft, wheels=a.attitude == "apkf", partner=True)
+    if a.attitude == "apkf":
+        _check_apkf_starts(a.duration, seeds, spacecraft)
     orbit = scenario.orbit_setup(spacecraft)
     delay = orbit["relay_delay_s"][1]
     if a.case == 2 and a.lag < delay + 1.0:

@@ -41,8 +41,28 @@ def build_parser(only=None):
     return p
 
 
+# options whose value may start with "-" (a range such as --ts -5:60:20): argparse takes such a value for an option
+# and answers "expected one argument"; they are joined as --ts=-5:60:20, so the option's own check names the value
+DASH_VALUE_OPTS = ("--ts",)
+
+
+def _join_dash_values(argv):
+    out = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a in DASH_VALUE_OPTS and i + 1 < len(argv) and argv[i + 1].startswith("-") and len(argv[i + 1]) > 1 \
+                and (argv[i + 1][1].isdigit() or argv[i + 1][1] == "."):
+            out.append(a + "=" + argv[i + 1])
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else list(argv)
+    argv = _join_dash_values(sys.argv[1:] if argv is None else list(argv))
     names = [c[0] for c in COMMANDS]
     only = argv[0] if argv and argv[0] in names else None
     parser = build_parser(only)

@@ -48,3 +48,11 @@ def test_an_stkf_run_too_short_for_the_apkf_to_start_is_bad_input(tmp_path):
     p = _fps("adcs", "stkf", "--case", "1", "--attitude", "apkf", "--duration", str(need), "--quiet", "--no-plots",
              "-o", str(tmp_path / "t"))
     assert p.returncode == 0, p.stderr
+
+
+def test_a_negative_settling_time_is_named_by_its_option(tmp_path):
+    """--ts -5:60:20 reached argparse as an option ("expected one argument"); it is now the value --ts refuses."""
+    for cmd in (("adcs", "sweep", "--ts", "-5:60:20"), ("adcs", "bps", "--ts", "-5")):
+        p = _fps(*cmd, "-o", str(tmp_path / "x"))
+        assert p.returncode == 2 and "--ts (settling time t_s) must be in (0" in p.stderr, p.stderr
+        assert "expected one argument" not in p.stderr

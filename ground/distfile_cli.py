@@ -207,7 +207,14 @@ def source_input_lines(path, d):
         return ["inputs     unreadable, not shown: %s" % exc]
     if not owner.describes(d.source, d.seed, inputs):
         return ["inputs     %s is another file's (its hash is not this header's): not shown" % side]
-    return ["inputs     " + ", ".join("%s %s" % (k, json.dumps(v)) for k, v in inputs.items() if k != "source")]
+    unhashed = getattr(owner, "UNHASHED", ())       # the sidecar's notes the header's hash does not cover
+    lines = ["inputs     " + ", ".join("%s %s" % (k, json.dumps(v)) for k, v in inputs.items()
+                                      if k != "source" and k not in unhashed)]
+    notes = [(k, inputs[k]) for k in unhashed if k in inputs]
+    if notes:
+        lines.append("notes      " + ", ".join("%s %s" % (k, json.dumps(v)) for k, v in notes)
+                     + " (not covered by the header's hash: as the sidecar says)")
+    return lines
 
 
 def bandwidth_lines(d):

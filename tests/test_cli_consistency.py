@@ -56,3 +56,20 @@ def test_a_negative_settling_time_is_named_by_its_option(tmp_path):
         p = _fps(*cmd, "-o", str(tmp_path / "x"))
         assert p.returncode == 2 and "--ts (settling time t_s) must be in (0" in p.stderr, p.stderr
         assert "expected one argument" not in p.stderr
+
+
+def test_a_bps_distfile_sidecar_says_its_own_duration_and_keeps_unhashed_notes_apart(tmp_path):
+    """The sidecar's duration_s is the file's (simulated_s the run behind it, one step and the stencil more), and
+    `fps distfile info` shows the notes its header's hash does not cover (params_file, from_cache) apart."""
+    import json
+    out = tmp_path / "b.dist"
+    p = _fps("distfile", "generate", "--source", "bps", "--duration", "5", "--seed", "1", "--bps-truth", "two-body",
+             "--bps-cache", str(tmp_path / "cache"), "-o", str(out))
+    assert p.returncode == 0, p.stderr
+    side = json.loads((tmp_path / "b.dist.json").read_text())
+    assert side["duration_s"] == 5.0 and side["simulated_s"] == 6.0
+    info = _fps("distfile", "info", str(out)).stdout
+    inputs = [ln for ln in info.splitlines() if ln.startswith("inputs ")][0]
+    notes = [ln for ln in info.splitlines() if ln.startswith("notes ")][0]
+    assert "duration_s 5.0" in inputs and "from_cache" not in inputs and "params_file" not in inputs
+    assert "from_cache false" in notes and "not covered by the header's hash" in notes

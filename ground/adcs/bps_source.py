@@ -20,17 +20,19 @@ import numpy as np
 from emulator.fileio import cache_folder, load_npz, write_atomic
 
 TRUTHS = ("hpop", "two-body")
+UNHASHED = ("params_file", "from_cache")    # sidecar notes outside the cache key: the path (its content is hashed)
 
 
 def _key(inputs):
     """The cache key of a run's inputs (``BpsSource.key``): their hash without the parameter file's path (its
     content is in ``params_sha256``) and the sidecar's ``from_cache``."""
     from ground.adcs import bps_cli
-    return bps_cli._key({x: v for x, v in inputs.items() if x not in ("params_file", "from_cache")})
+    return bps_cli._key({x: v for x, v in inputs.items() if x not in UNHASHED})
 
 
 class BpsSource:
     name = "bps"
+    UNHASHED = UNHASHED
 
     def __init__(self, ts=33.0, satb_gnss=False, params_path=None, truth="hpop", cache_dir=None, quiet=False,
                  spacecraft=None):
@@ -63,9 +65,12 @@ class BpsSource:
     def from_args(cls, a):
         return cls(a.ts, a.satb_gnss, a.params, a.bps_truth, a.bps_cache, getattr(a, "quiet", False), a.spacecraft)
 
-    def key(self, duration_s, seed, params):
+    def key(self, duration_s, seed, params, simulated_s=None):
+        """The cache key of a run: the hash of ``inputs``, which hold the file's ``duration_s`` and the
+        ``simulated_s`` behind it (one step and the interpolation stencil more)."""
         from ground.adcs import bps_cli
         self.inputs = {"source": "bps", "ts_s": self.ts, "satb_gnss": self.satb_gnss, "duration_s": float(duration_s),
+                       "simulated_s": float(duration_s if simulated_s is None else simulated_s),
                        "seed": int(seed), "truth": self.truth, "version": bps_cli.VERSION,
                        "params_sha256": bps_cli._key(params), "params_file": self.params_path,
                        "calibration_seed": params.get("calibration", {}).get("seed")}
@@ -88,7 +93,7 @@ class BpsSource:
         from ground.adcs import bps, bps_cli
         params = self.params or bps_cli.calibration(seed, self.cache_dir, not self.quiet, self.spacecraft)
         span = float(duration_s) + 1.0                    # the distfile needs one step and a stencil beyond
-        self.cache_key = self.key(span, seed, params)
+        self.cache_key = self.key(duration_s, seed, params, simulated_s=span)
         path = os.path.join(self.cache_dir, "run_%s.npz" % self.cache_key)
         if os.path.exists(path):
             try:

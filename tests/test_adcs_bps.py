@@ -482,8 +482,10 @@ def test_distfile_info_shows_the_bps_inputs_of_its_own_sidecar_only(params_file,
     assert cli.main(argv) == 0
     capsys.readouterr()
     assert cli.main(["distfile", "info", f]) == 0
-    (line,) = [x for x in capsys.readouterr().out.splitlines() if x.startswith("inputs")]
-    assert 'ts_s 33.0' in line and 'truth "two-body"' in line and "seed 5" in line and params_file in line
+    out = capsys.readouterr().out.splitlines()
+    (line,) = [x for x in out if x.startswith("inputs")]
+    (notes,) = [x for x in out if x.startswith("notes")]        # outside the hash: shown apart
+    assert 'ts_s 33.0' in line and 'truth "two-body"' in line and "seed 5" in line and params_file in notes
     side = json.load(open(f + ".json"))
     for change in ({"seed": 6}, {"ts_s": 34.0}, {"truth": "hpop"}, {"duration_s": 9.0}):
         with open(f + ".json", "w") as g:

@@ -138,9 +138,10 @@ def _cmd_generate(a):
         write_jitter_sidecar(side, src, d, x, y)
     elif os.path.exists(side):
         os.unlink(side)             # a stale sidecar would describe another file
-    print("wrote %s: %d samples at %d us (%.1f s), source %s, seed %d; 1-sigma (%.2f, %.2f) arcsec, "
-          "peak P-FSM (%.2f, %.2f) V" % (a.output, d.count, d.period_us, d.duration_us() * 1e-6, d.source,
-                                          d.seed, s["std_arcsec"][0], s["std_arcsec"][1], *s["pfsm_peak_v"]))
+    print("wrote %s: %d samples at %d us (%s s), source %s%s; 1-sigma (%.2f, %.2f) arcsec, "
+          "peak P-FSM (%.2f, %.2f) V" % (a.output, d.count, d.period_us, "%.4g" % (d.duration_us() * 1e-6),
+                                          d.source, "" if a.source == "csv" else ", seed %d" % d.seed,
+                                          s["std_arcsec"][0], s["std_arcsec"][1], *s["pfsm_peak_v"]))
     return 0
 
 

@@ -329,7 +329,7 @@ def _cmd(a):
     for row in zip(s["freq_hz"], s["s_measured"], s["s_model"], s["phase_measured_deg"], s["phase_model_deg"]):
         print("| %.2f | %.3f | %.3f | %.1f | %.1f |" % row)
     print("board timing %s (samples at %s us, words land at %.1f us), g = 0.5: gain margin %.1f dB, phase margin "
-          "%.1f deg, -3 dB rejection bandwidth %.1f Hz; %d tones in %.1f s wall"
+          "%.1f deg, -3 dB rejection bandwidth %.1f Hz; %d tones in %.3g s wall"
           % (s["timing"]["timing"], s["timing"]["sample_us"], s["timing"]["land_us"], s["gain_margin_db"],
              s["phase_margin_deg"], s["bandwidth_hz"], len(s["freq_hz"]), s["wall_s"]))
     files = ", ".join(("summary.json",) + (() if a.no_plots else FIGURES))

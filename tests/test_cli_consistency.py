@@ -73,3 +73,13 @@ def test_a_bps_distfile_sidecar_says_its_own_duration_and_keeps_unhashed_notes_a
     notes = [ln for ln in info.splitlines() if ln.startswith("notes ")][0]
     assert "duration_s 5.0" in inputs and "from_cache" not in inputs and "params_file" not in inputs
     assert "from_cache false" in notes and "not covered by the header's hash" in notes
+
+
+def test_distfile_generate_says_a_short_files_duration_and_no_seed_for_a_csv(tmp_path):
+    p = _fps("distfile", "generate", "--source", "stat", "--duration", "0.05", "-o", str(tmp_path / "s.dist"))
+    assert p.returncode == 0 and "(0.05734 s)" in p.stdout and "(0.0 s)" not in p.stdout
+    csv = tmp_path / "d.csv"
+    csv.write_text("t_s,x_arcsec,y_arcsec\n" + "".join("%g,%g,%g\n" % (k * 0.01, k % 3, -k % 5) for k in range(200)))
+    p = _fps("distfile", "generate", "--source", "csv", "--csv", str(csv), "--duration", "1", "-o", str(tmp_path / "c.dist"))
+    assert p.returncode == 0, p.stderr
+    assert ", source csv" in p.stdout and "seed" not in p.stdout.split("wrote", 1)[1].split(";")[0]

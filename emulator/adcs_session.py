@@ -178,16 +178,9 @@ class AdcsSession:
         fly = world == "flight"
         if fly and d["magnetorquers"] is None:
             raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers")
-        self.world = w = scenario.pointing_world(
-            self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S, n_tags=self.K + 1, spacecraft=d,
-            **({"wheel_speed_limit_rpm": d["wheels"]["speed_limit_rpm"]} if fly else {}))
-        if fly:
-            magnetic_devices = True
-            cp = d["surface"].get("cp_offset_m")
-            if cp is not None and any(cp):
-                from emulator.spacecraft.environment import SurfaceTorques
-                from protocol import spacecraft as sf
-                w.sc.disturbance = SurfaceTorques(w.t_s, w.xs[:, 0, :], sf.epoch_tuple(d), d["surface"], cp)
+        self.world = w = scenario.pointing_world(self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S,
+                                                 n_tags=self.K + 1, spacecraft=d, flight=fly)
+        magnetic_devices = magnetic_devices or fly
         self.xg, self.wheels, self.sc, self.st = w.xg, w.wheels, w.sc, w.st
         self.gnss_a, self.beacon, self.relay, self.tb, self.xb_tb = w.gnss_a, w.beacon, w.relay, w.tb, w.xb_tb
         self.jb = 0

@@ -94,9 +94,10 @@ def source_urls(uris=None):
     return ["%s/%s" % (u, POOL_PATH) for u in (apt_archive_uris() if uris is None else uris)]
 
 
-def fetch_source(dest=SRC_DIR, url=None, sha256=SHA256):
-    """MicroPython's py/ and tools/ under ``dest`` (downloaded and checked once; a partial one is never left).
-    ``url``: one address, or None for ``source_urls()`` tried in turn (the first that downloads is checked)."""
+def fetch_source(dest=SRC_DIR, url=None, sha256=SHA256, parts=PARTS):
+    """MicroPython's ``parts`` (tree prefixes; None: the whole tree, as ``make pil`` needs) under ``dest``
+    (downloaded and checked once; a partial one is never left). ``url``: one address, or None for
+    ``source_urls()`` tried in turn (the first that downloads is checked)."""
     if os.path.exists(os.path.join(dest, "py", "dynruntime.mk")):
         return dest
     urls = source_urls() if url is None else [url]
@@ -106,7 +107,7 @@ def fetch_source(dest=SRC_DIR, url=None, sha256=SHA256):
     errors = []
     for u in urls:
         try:
-            return _fetch(dest, u, sha256)
+            return _fetch(dest, u, sha256, parts)
         except BuildError as exc:
             errors.append(str(exc))
             if "SHA-256" in str(exc):
@@ -114,7 +115,7 @@ def fetch_source(dest=SRC_DIR, url=None, sha256=SHA256):
     raise BuildError("; ".join(errors))
 
 
-def _fetch(dest, url, sha256):
+def _fetch(dest, url, sha256, parts=PARTS):
     os.makedirs(os.path.dirname(dest), exist_ok=True)
     with tempfile.TemporaryDirectory(dir=os.path.dirname(dest)) as tmp:
         tar = os.path.join(tmp, "src.tar.xz")
@@ -132,7 +133,7 @@ def _fetch(dest, url, sha256):
         top = "micropython-%s/" % MP_VERSION
         with tarfile.open(tar) as tf:
             members = [m for m in tf.getmembers()
-                       if m.name.startswith(top) and m.name[len(top):].startswith(PARTS)]
+                       if m.name.startswith(top) and (parts is None or m.name[len(top):].startswith(parts))]
             try:
                 tf.extractall(tmp, members=members, filter="data")
             except TypeError:                      # a Python without extraction filters (< 3.11.4)

@@ -26,8 +26,6 @@ import os
 import shutil
 import subprocess
 import sys
-import tarfile
-import tempfile
 
 from emulator import launcher
 from ground import natmod_build
@@ -82,47 +80,14 @@ def install_hint(pkgs):
 
 
 def fetch_full(dest=FULL_DIR):
-    """MicroPython's whole source tree under ``dest`` (downloaded, checked against the pinned SHA-256 and
-    extracted once; a partial tree is never left)."""
+    """MicroPython's whole source tree under ``dest`` (``natmod_build.fetch_source``: the machine's apt archives,
+    the pinned SHA-256, extracted once)."""
     if os.path.exists(os.path.join(dest, "ports", "qemu", "Makefile")):
         return dest
-    os.makedirs(os.path.dirname(dest), exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=os.path.dirname(dest)) as tmp:
-        tar = _download(tmp)
-        top = "micropython-%s/" % natmod_build.MP_VERSION
-        with tarfile.open(tar) as tf:
-            members = [m for m in tf.getmembers() if m.name.startswith(top)]
-            try:
-                tf.extractall(tmp, members=members, filter="data")
-            except TypeError:
-                tf.extractall(tmp, members=members)
-        os.replace(os.path.join(tmp, top.rstrip("/")), dest)
-    return dest
-
-
-def _download(tmp):
-    """The source tarball in ``tmp`` from the first apt archive that has it, its SHA-256 checked."""
-    import hashlib
-    import urllib.request
-    errors = []
-    for url in natmod_build.source_urls():
-        tar = os.path.join(tmp, "src.tar.xz")
-        try:
-            with urllib.request.urlopen(url, timeout=60) as r, open(tar, "wb") as fh:
-                shutil.copyfileobj(r, fh)
-        except OSError as exc:
-            errors.append("%s: %s" % (url, exc))
-            continue
-        h = hashlib.sha256()
-        with open(tar, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
-        if h.hexdigest() != natmod_build.SHA256:
-            raise BuildError("MicroPython's source from %s has SHA-256 %s, not %s"
-                             % (url, h.hexdigest(), natmod_build.SHA256))
-        return tar
-    raise BuildError("cannot download MicroPython's source: %s" % ("; ".join(errors) or
-                                                                  "no Debian archive in apt's sources"))
+    try:
+        return natmod_build.fetch_source(dest, parts=None)
+    except natmod_build.BuildError as exc:
+        raise BuildError(str(exc)) from None
 
 
 # the known-answer scripts the PIL tests run on the board (tests/mp: the same ones the unix port runs)

@@ -436,8 +436,10 @@ class PointingWorld:
 
 
 def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, span_margin_s=2.0, n_tags=None,
-                   wheel_speed_limit_rpm=POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None):
-    """The world of a body-pointing run of K s (Sec. 6.4.1-6.4.2), as a ``PointingWorld``.
+                   wheel_speed_limit_rpm=POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None, flight=False):
+    """The world of a body-pointing run of K s (Sec. 6.4.1-6.4.2), as a ``PointingWorld``. ``flight``: the flight
+    world's truth instead (``--world flight``): the wheels at the file's speed limit (``wheel_speed_limit_rpm``
+    ignored) and the drag and solar pressure torques about ``surface.cp_offset_m`` (``SurfaceTorques``).
 
     Truth: ``truth_grid(K, truth, cache_dir, span_margin_s)`` at ``WORLD_RATE_HZ``. Random streams: the seven
     children of ``SeedSequence(seed)``, in order: wheels, star tracker, STKF start, SatA's GNSS, SatB's GNSS,
@@ -454,6 +456,8 @@ def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, s
     from emulator.interp import lagrange
     from emulator.orbits import epoch_gmst_rad
     d = spacecraft or thesis_3u()
+    if flight:
+        wheel_speed_limit_rpm = d["wheels"]["speed_limit_rpm"]
     v, o = truth_setup(d), orbit_setup(d)
     t_s, xs, tg, xg = truth_grid(K, truth, cache_dir, span_margin_s, o)
     orbit = GridOrbit(0.0, WORLD_RATE_HZ, xg[:, 0, 0:3])
@@ -466,6 +470,10 @@ def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, s
     field = TiltedDipoleField(gmst0_rad=epoch_gmst_rad(o["epoch_utc"]))     # the orbits' epoch (t = 0)
     sc = Spacecraft(wheels=wheels, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0), orbit=orbit, field=field,
                     inertia=v["inertia"], dipole=v["dipole"])
+    cp = d["surface"].get("cp_offset_m")
+    if flight and cp is not None and any(cp):
+        from emulator.spacecraft.environment import SurfaceTorques
+        sc.disturbance = SurfaceTorques(t_s, xs[:, 0, :], o["epoch_utc"], d["surface"], cp)
     relay = Relay(r_rel, Gnss(r_gb, **o["gnss"]), o["relay_delay_s"]) if satb_gnss else None
     tb = (r_rel.uniform(0.0, 1.0) + np.arange(K if n_tags is None else n_tags)) if satb_gnss else np.zeros(0)
     return PointingWorld(

@@ -228,15 +228,14 @@ def _terms_f(x, model, t):
         cja1, cja2, cja3 = cja1 + c1 * jr * ac, cja2 + c2 * jr * ac, cja3 + c3 * jr * ac
     env_i = model.env_inertial(t)
     c = (J, _inv3_f(jxx, jxy, jxz, jyy, jyz, jzz), [cjW1, cjW2, cjW3], [cja1, cja2, cja3], env_i[0].tolist(),
-         env_i[2].tolist(), float(env_i[1]), _dipole(xl[15:18], model), xl[7:10])
+         env_i[2].tolist(), float(env_i[1]), _dipole(xl[15:18], getattr(model, "m_ctrl", None)), xl[7:10])
     return c, (C, jrw, W, acc), env_i
 
 
-def _dipole(m, model):
-    """The dipole the torque sees: the estimated residual m plus the magnetorquers' commanded dipole
-    (``Model.m_ctrl``, a known input; filter units), as a list."""
-    mc = getattr(model, "m_ctrl", None)
-    return list(m) if mc is None else [a + b for a, b in zip(m, mc)]
+def _dipole(m, m_ctrl):
+    """The dipole the torque sees: the estimated residual m plus the magnetorquers' commanded dipole ``m_ctrl``
+    (``Model.m_ctrl``, a known input; filter units; None: none), as a list of floats."""
+    return [float(a) for a in m] if m_ctrl is None else [float(a) + float(b) for a, b in zip(m, m_ctrl)]
 
 
 def _wheel_terms(m):
@@ -250,7 +249,8 @@ def _rates(q, w, x, m, s):
     r, b = A @ m["r_i"], A @ m["b_i"]
     J = m["J"]
     h = J @ w + m["cjW"] + m["cja"] * s
-    T = -env.cross3(w, h) - m["cja"] + m["k"] * env.cross3(r, J @ r) + env.cross3(_mtot(x, m), b) + x[7:10]
+    mm = np.array(_dipole(x[15:18], m.get("m_ctrl")))
+    T = -env.cross3(w, h) - m["cja"] + m["k"] * env.cross3(r, J @ r) + env.cross3(mm, b) + x[7:10]
     e, q4 = q[0:3], q[3]
     q_dot = 0.5 * np.array([q4 * w[0] - (w[1] * e[2] - w[2] * e[1]), q4 * w[1] - (w[2] * e[0] - w[0] * e[2]),
                             q4 * w[2] - (w[0] * e[1] - w[1] * e[0]), -(w @ e)])
@@ -305,13 +305,7 @@ def _rates_f(q, w, s, c):
 def _consts(x, m):
     """The per-step constants of ``_rates_f`` as Python floats, from ``terms``."""
     return (m["J"].tolist(), m["Ji"].tolist(), m["cjW"].tolist(), m["cja"].tolist(), m["r_i"].tolist(),
-            m["b_i"].tolist(), float(m["k"]), _mtot(x, m).tolist(), x[7:10].tolist())
-
-
-def _mtot(x, m):
-    """``_dipole`` for ``terms``' dict: x's residual dipole plus its ``m_ctrl``, as an array."""
-    mc = m.get("m_ctrl")
-    return x[15:18] if mc is None else x[15:18] + np.asarray(mc, float)
+            m["b_i"].tolist(), float(m["k"]), _dipole(x[15:18], m.get("m_ctrl")), x[7:10].tolist())
 
 
 def _wheels(m):

@@ -45,6 +45,7 @@ import time
 import numpy as np
 
 from emulator.spacecraft import scenario
+from emulator.spacecraft.devices import Magnetorquers
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.scenario import HOLD_S, LAG_S, laser_axis
 from emulator.spacecraft.wheels import N_WHEELS, WheelParams
@@ -432,19 +433,15 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
         d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
     world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K,   # Sec. 6.4.1
-                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm, spacecraft=d)
+                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm, spacecraft=d, flight=fly)
     rate, xg, wheels, sc, st = world.rate, world.xg, world.wheels, world.sc, world.st
     log = modes.ModeLog("INIT", 0.0)
     period = orbit_period(xg[0, 0])
     if fly:
         t_settle = period                               # the figures: pointing passes after the first orbit
-        from emulator.spacecraft.environment import SurfaceTorques
-        from protocol import spacecraft as sf
-        cp = d["surface"].get("cp_offset_m")
-        if cp is not None and np.any(cp):
-            sc.disturbance = SurfaceTorques(world.t_s, world.xs[:, 0, :], sf.epoch_tuple(d), d["surface"], cp)
         m_res_true = sc.dipole
         mtq = d["magnetorquers"]
+        rods = Magnetorquers.from_spacecraft(d)         # the truth's rods (the session's device model)
         mtq_axes = np.array([np.asarray(a, float) / np.linalg.norm(a) for a in mtq["axes"]])
         slew = None
         gate_rad = fo["beacon_gate_arcsec"] * ARCSEC
@@ -561,7 +558,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 if fly:                                     # unloading: this second's dipole, known to the APKF
                     m_cmd, rods_sat = modes.unloading_dipole(A_hat @ b_i, h_w, fo["unload_gain_1_s"],
                                                              mtq["dipole_limit_am2"], x[15:18] / scale, mtq_axes)
-                    sc.dipole = m_res_true + m_cmd
+                    sc.dipole = m_res_true + rods.command(m_cmd)[0]
                     flog["m_cmd"][k], flog["h_w"][k], flog["mtq_sat"][k] = m_cmd, h_w, float(rods_sat.any())
                 if feedforward:
                     tff = control.external_torque(J, x[15:18] / scale + m_cmd, x[7:10] / scale, q_hat, xh[0:3],

@@ -21,8 +21,8 @@ from emulator.runtime import OWN_GROUP, micropython_binary
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIMES = ("cpython", "micropython", "qemu")
 PIL_IMAGE = os.path.join(ROOT, "build", "pil", "MICROBIT", "firmware.elf")
-QEMU_ARGS = ("-machine", "microbit", "-nographic", "-monitor", "null", "-semihosting",
-             "-global", "nrf51-soc.flash-size=1048576", "-global", "nrf51-soc.sram-size=262144")
+PIL_RAM_BYTES = 32 * 1024         # the thesis's SAMD21G18 has 32 KB of SRAM; the image is linked for it
+QEMU_ARGS = ("-machine", "microbit", "-nographic", "-semihosting", "-global", "nrf51-soc.flash-size=1048576")
 
 
 def command(runtime, target, args=(), micropython_opts=()):
@@ -42,10 +42,14 @@ def command(runtime, target, args=(), micropython_opts=()):
     return exe + head + [str(a) for a in args], env
 
 
-def qemu_command(image=PIL_IMAGE, serial="pty", icount=False):
-    """qemu-system-arm's command line for the PIL image: its UART on ``serial`` (pty or stdio), deterministic
-    instruction counting (``-icount shift=0``: one virtual ns per instruction) when ``icount``."""
-    cmd = ["qemu-system-arm"] + list(QEMU_ARGS) + ["-serial", serial, "-kernel", image]
+def qemu_command(image=PIL_IMAGE, serial="pty", icount=False, monitor=None, ram_bytes=PIL_RAM_BYTES):
+    """qemu-system-arm's command line for the PIL image: ``ram_bytes`` of SRAM (the image's linker script's), its
+    UART on ``serial`` (pty or stdio), deterministic instruction counting (``-icount shift=0``: one virtual ns per
+    instruction) when ``icount``, QEMU's monitor on the unix socket ``monitor`` (None: none), through which the host
+    reads the board's RAM."""
+    mon = "null" if monitor is None else "unix:%s,server=on,wait=off" % monitor
+    cmd = ["qemu-system-arm"] + list(QEMU_ARGS) + ["-global", "nrf51-soc.sram-size=%d" % ram_bytes,
+                                                   "-monitor", mon, "-serial", serial, "-kernel", image]
     if icount:
         cmd += ["-icount", "shift=0"]
     return cmd
@@ -60,6 +64,7 @@ class FirmwareProcess(subprocess.Popen):
         self.name = name
         self.stopped_by_us = False
         self.stderr_text = ""
+        self.console = None            # a board's: a callable giving the last bytes its UART sent
         super().__init__(argv, cwd=ROOT, env=env, stdin=subprocess.DEVNULL,
                          stdout=self.errlog if stdout is None else stdout, stderr=self.errlog, pass_fds=pass_fds,
                          **OWN_GROUP)
@@ -76,7 +81,12 @@ class FirmwareProcess(subprocess.Popen):
     def exit_note(self, wait_s=1.0):
         """``"; the <name> process exited with status N: <its last stderr line>"`` once it has exited of itself
         (waiting up to ``wait_s``: a process whose link failed is on its way out), else ``""`` (still running, or
-        stopped by this side)."""
+        stopped by this side); for a board whose ``console`` shows a traceback, its last lines."""
+        text = self.console() if self.console is not None else b""
+        k = text.rfind(b"Traceback (most recent call last)")
+        if k >= 0:                   # a board (QEMU) runs on after its firmware stopped: what it printed
+            lines = [ln.strip() for ln in text[k:].decode(errors="replace").splitlines() if ln.strip()]
+            return "; the %s board's firmware stopped: %s" % (self.name, " / ".join(lines[-3:]).replace("\x04>", ""))
         if self.stopped_by_us:
             return ""
         try:

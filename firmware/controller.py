@@ -62,9 +62,10 @@ viper machine code over an int32 array with the same slots and gives identical c
 import struct
 
 from firmware import ad5664r
+from firmware import hinv
 from firmware.hinv import HinvTable, load_file
 from firmware.upload import Upload
-from protocol import core, htable
+from protocol import consts, hblob
 
 try:
     from micropython import const
@@ -88,32 +89,34 @@ SAFE = const(4)
 SATURATED = const(5)
 
 # The tick's state lives in one preallocated integer list, ``Controller._s`` (an index load is far cheaper than
-# an attribute lookup under MicroPython); the slots, with their Q-formats:
-S_MODE = const(0)        # mode, plus _INIT_BIT until the init tick went out
-S_TICKS = const(1)       # ticks since boot (wraps at 2^30)
-S_VX = const(2)          # command state, AD5664R tilt code Q8 (code * 256, 0.298 uV per LSB)
-S_VY = const(3)
-S_RX = const(4)          # last measured ratios, Q15
-S_RY = const(5)
-S_VS = const(6)          # last Q1 sum, counts
-S_LOST = const(7)        # consecutive beam-lost ticks (saturates)
-S_THR = const(8)         # beam threshold, counts
-S_RXC = const(9)         # ratio commands, Q15
-S_RYC = const(10)
-S_LIM = const(11)        # +- saturation limit, code Q8
-S_NLIM = const(12)
+# an attribute lookup under MicroPython); the slots, with their Q-formats (private constants: MicroPython folds
+# them and keeps no name; firmware.controller_viper restates them, tests/test_pil.py checks the two agree; S_BXQ
+# and S_BYQ are public for the benches, which force a re-evaluation of g H^-1):
+_S_MODE = const(0)        # mode, plus _INIT_BIT until the init tick went out
+_S_TICKS = const(1)       # ticks since boot (wraps at 2^30)
+_S_VX = const(2)          # command state, AD5664R tilt code Q8 (code * 256, 0.298 uV per LSB)
+_S_VY = const(3)
+_S_RX = const(4)          # last measured ratios, Q15
+_S_RY = const(5)
+_S_VS = const(6)          # last Q1 sum, counts
+_S_LOST = const(7)        # consecutive beam-lost ticks (saturates)
+_S_THR = const(8)         # beam threshold, counts
+_S_RXC = const(9)         # ratio commands, Q15
+_S_RYC = const(10)
+_S_LIM = const(11)        # +- saturation limit, code Q8
+_S_NLIM = const(12)
 S_BXQ = const(13)        # bin of the cached g H^-1, as (bin << 14) in code Q8 (_NO_BIN: none)
 S_BYQ = const(14)
-S_SHIFT = const(15)      # 7 + hq: law product Q(15 + hq) -> Q8
-S_ROUND = const(16)      # 128 + (1 << (shift - 1) << 8): both roundings of the law, added before its >> 8
-S_SAT_TICK = const(17)   # last tick the command saturated (-1: never)
-S_N_LOST = const(18)     # telemetry counter, wraps at 2^16
-S_N_SAT = const(19)      # ticks the law hit the clamp (stops at _COUNT_MAX)
-S_GH = const(20)         # cached g H^-1 (_gain_hinv): high parts h11 h12 h21 h22 (Q hq), then low bytes
-S_SAT_RUN = const(28)    # ticks the command has stayed on its clamp (0: off it; stops at _COUNT_MAX)
-S_SAT_LAST = const(29)   # length of the last run that reached sat_ticks, once ended (0: none)
-S_N_SAT_EP = const(30)   # entries into SATURATED, wraps at 2^16
-S_SIZE = const(31)
+_S_SHIFT = const(15)      # 7 + hq: law product Q(15 + hq) -> Q8
+_S_ROUND = const(16)      # 128 + (1 << (shift - 1) << 8): both roundings of the law, added before its >> 8
+_S_SAT_TICK = const(17)   # last tick the command saturated (-1: never)
+_S_N_LOST = const(18)     # telemetry counter, wraps at 2^16
+_S_N_SAT = const(19)      # ticks the law hit the clamp (stops at _COUNT_MAX)
+_S_GH = const(20)         # cached g H^-1 (_gain_hinv): high parts h11 h12 h21 h22 (Q hq), then low bytes
+_S_SAT_RUN = const(28)    # ticks the command has stayed on its clamp (0: off it; stops at _COUNT_MAX)
+_S_SAT_LAST = const(29)   # length of the last run that reached sat_ticks, once ended (0: none)
+_S_N_SAT_EP = const(30)   # entries into SATURATED, wraps at 2^16
+_S_SIZE = const(31)
 
 _INIT_BIT = const(8)
 _E_MAX = const(16383)             # |dR| clamp, Q15 (0.5)
@@ -128,55 +131,62 @@ WHY_COMMANDED = const(3)
 MAX_HTABLE_BYTES = const(8192)    # H-table blob the controller accepts: a 22x22 grid (7.9 kB; 11x11 is 2 kB)
 SAT_TICKS = const(64)             # ticks on the clamp in a row before TRACK enters SATURATED (module docstring)
 
-_P = core.PACKET_ID
-_E = core.ERROR
-P_SETTINGS = _P["CTRL_SETTINGS"]
-P_SET_FSM = _P["CTRL_SET_FSM"]
-P_STATUS = _P["CTRL_STATUS"]
-P_HT_BEGIN = _P["HTABLE_BEGIN"]
-P_HT_CHUNK = _P["HTABLE_CHUNK"]
-P_HT_END = _P["HTABLE_END"]
-P_ACK = _P["ACK"]
-P_NACK = _P["NACK"]
-P_HELLO = _P["HELLO"]
-_STATUS_FMT = core.PACKET[P_STATUS].fmt
+# the packet table's numbers (protocol.consts, generated from it: no table objects built on the board)
+P_SETTINGS = consts.P_CTRL_SETTINGS
+P_SET_FSM = consts.P_CTRL_SET_FSM
+P_STATUS = consts.P_CTRL_STATUS
+P_HT_BEGIN = consts.P_HTABLE_BEGIN
+P_HT_CHUNK = consts.P_HTABLE_CHUNK
+P_HT_END = consts.P_HTABLE_END
+P_ACK = consts.P_ACK
+P_NACK = consts.P_NACK
+P_HELLO = consts.P_HELLO
+_STATUS_FMT = consts.FMT_CTRL_STATUS
 FW_VERSION = (1, 0)
 
 
-def _slot(i):
-    """A property reading and writing slot i of the state list."""
-    def get(self):
-        return self._s[i]
+class _Slot:
+    """Slot i of the state list as an attribute: a descriptor (about 50 bytes of heap each on the board, where a
+    property of two closures took 115, measured)."""
 
-    def put(self, v):
-        self._s[i] = v
-    return property(get, put)
+    def __init__(self, i):
+        self.i = i
+
+    def __get__(self, obj, cls=None):
+        return self if obj is None else obj._s[self.i]
+
+    def __set__(self, obj, v):
+        obj._s[self.i] = v
 
 
 class Controller:
     """The fine-pointing controller. ``step`` is the allocation-free tick; ``handle`` the packet side.
 
     hal: optional HAL (``firmware.hal``) used by ``tick`` (read Q1, write SPI) and to send telemetry.
+    max_table_bytes: the largest H-table blob an upload may bring (TOO_LARGE beyond). static: the upload's buffer
+    and the table's integer array for that size are allocated here, once, and reused by every upload (a small
+    board, ``firmware.pil_main``: later, its heap holds no free block that large).
     """
 
-    ticks = _slot(S_TICKS)
-    vx_q8 = _slot(S_VX)
-    vy_q8 = _slot(S_VY)
-    rx = _slot(S_RX)
-    ry = _slot(S_RY)
-    vs = _slot(S_VS)
-    lost = _slot(S_LOST)
-    beam_threshold = _slot(S_THR)
-    rx_cmd = _slot(S_RXC)
-    ry_cmd = _slot(S_RYC)
-    n_lost = _slot(S_N_LOST)
-    n_sat = _slot(S_N_SAT)
-    sat_run = _slot(S_SAT_RUN)
-    sat_last = _slot(S_SAT_LAST)
-    n_sat_episodes = _slot(S_N_SAT_EP)
+    ticks = _Slot(_S_TICKS)
+    vx_q8 = _Slot(_S_VX)
+    vy_q8 = _Slot(_S_VY)
+    rx = _Slot(_S_RX)
+    ry = _Slot(_S_RY)
+    vs = _Slot(_S_VS)
+    lost = _Slot(_S_LOST)
+    beam_threshold = _Slot(_S_THR)
+    rx_cmd = _Slot(_S_RXC)
+    ry_cmd = _Slot(_S_RYC)
+    n_lost = _Slot(_S_N_LOST)
+    n_sat = _Slot(_S_N_SAT)
+    sat_run = _Slot(_S_SAT_RUN)
+    sat_last = _Slot(_S_SAT_LAST)
+    n_sat_episodes = _Slot(_S_N_SAT_EP)
 
     def __init__(self, hal=None, table=None, gain_q15=16384, beam_threshold=200, safe_ticks=638, decim=64,
-                 limit_code=ad5664r.TILT_LIMIT_CODE, ramp_code=64, rx_cmd_q15=0, ry_cmd_q15=0, sat_ticks=SAT_TICKS):
+                 limit_code=ad5664r.TILT_LIMIT_CODE, ramp_code=64, rx_cmd_q15=0, ry_cmd_q15=0, sat_ticks=SAT_TICKS,
+                 max_table_bytes=MAX_HTABLE_BYTES, static=False):
         _check_int("gain_q15", gain_q15, 0, 65535)
         _check_int("beam_threshold", beam_threshold, 1, 4095)
         _check_int("safe_ticks", safe_ticks, 1, 65535)
@@ -187,16 +197,16 @@ class Controller:
         _check_int("ry_cmd_q15", ry_cmd_q15, -16384, 16384)
         _check_int("sat_ticks", sat_ticks, 1, 65535)
         self._s = s = self._state()
-        s[S_MODE] = IDLE | _INIT_BIT   # the first tick sends the AD5664R init sequence
-        s[S_THR] = beam_threshold
-        s[S_RXC] = rx_cmd_q15
-        s[S_RYC] = ry_cmd_q15
-        s[S_LIM] = limit_code << 8
-        s[S_NLIM] = -(limit_code << 8)
+        s[_S_MODE] = IDLE | _INIT_BIT   # the first tick sends the AD5664R init sequence
+        s[_S_THR] = beam_threshold
+        s[_S_RXC] = rx_cmd_q15
+        s[_S_RYC] = ry_cmd_q15
+        s[_S_LIM] = limit_code << 8
+        s[_S_NLIM] = -(limit_code << 8)
         s[S_BXQ] = _NO_BIN
-        s[S_SHIFT] = 8
-        s[S_ROUND] = 128 + (128 << 8)
-        s[S_SAT_TICK] = -1
+        s[_S_SHIFT] = 8
+        s[_S_ROUND] = 128 + (128 << 8)
+        s[_S_SAT_TICK] = -1
         self.hal = hal
         self.gain = gain_q15
         self.safe_ticks = safe_ticks
@@ -214,48 +224,50 @@ class Controller:
         self.words = self._words()     # this tick's AD5664R words
         self._h4 = [0] * 4             # scratch for the interpolated H^-1
         self._q1 = [0, 0, 0]
-        self._upload = Upload(MAX_HTABLE_BYTES)
+        self._upload = Upload(max_table_bytes, static=static)
+        self._static_t = hinv.arrays(max_table_bytes) if static else None
         self.table = None
         if table is not None:
             self.set_table(table)
 
     def _state(self):
-        return [0] * S_SIZE
+        return [0] * _S_SIZE
 
     def _words(self):
         return [0, 0, 0, 0]
 
     @property
     def mode(self):
-        return self._s[S_MODE] & 7      # IDLE .. SATURATED (0..5) fit below _INIT_BIT
+        return self._s[_S_MODE] & 7      # IDLE .. SATURATED (0..5) fit below _INIT_BIT
 
     @mode.setter
     def mode(self, m):
         s = self._s
-        s[S_MODE] = m | (s[S_MODE] & _INIT_BIT)
+        s[_S_MODE] = m | (s[_S_MODE] & _INIT_BIT)
 
     @property
     def lim_q8(self):
-        return self._s[S_LIM]
+        return self._s[_S_LIM]
 
     # --- table -------------------------------------------------------------------------------------
     def set_table(self, table):
         """Swap in a table: a HinvTable, a protocol.htable.Grid, blob bytes, or a file path (.json or blob).
-        Raises HTableError (a ValueError) and keeps the previous table if the new one is refused."""
+        Raises HTableError (a ValueError) and keeps the previous table if the new one is refused. With ``static``
+        buffers a blob or a Grid is written into the table's own array once every check has passed."""
         if isinstance(table, str):
             t = load_file(table)
-        elif isinstance(table, (bytes, bytearray)):
-            t = HinvTable(htable.parse(table))
-        elif isinstance(table, htable.Grid):
-            t = HinvTable(table)
+        elif isinstance(table, (bytes, bytearray, memoryview)):
+            t = HinvTable(hblob.Blob(table), self._static_t)   # straight from the bytes: no Grid of floats in RAM
         elif isinstance(table, HinvTable):
             t = table
+        elif isinstance(table, hblob.Rectilinear):                  # a protocol.htable.Grid
+            t = HinvTable(table, self._static_t)
         else:
             raise ValueError("table must be a path, blob bytes, Grid or HinvTable, got %r" % type(table))
         self.table = t
         s = self._s
-        s[S_SHIFT] = t.shift
-        s[S_ROUND] = 128 + (1 << (t.shift - 1) << 8)
+        s[_S_SHIFT] = t.shift
+        s[_S_ROUND] = 128 + (1 << (t.shift - 1) << 8)
         s[S_BXQ] = _NO_BIN             # re-evaluate g H^-1 on the next tick
 
     # --- the tick ----------------------------------------------------------------------------------
@@ -271,8 +283,8 @@ class Controller:
         s = self._s
         for e in range(4):
             v = (g * h[e] + 64) >> 7
-            s[S_GH + e] = v >> 8
-            s[S_GH + 4 + e] = v & 255
+            s[_S_GH + e] = v >> 8
+            s[_S_GH + 4 + e] = v & 255
         s[S_BXQ] = bx << 14
         s[S_BYQ] = by << 14
 
@@ -280,46 +292,46 @@ class Controller:
         """One control tick from Q1 counts (Eq. 7.4, 7.12, 7.13); words in ``self.words``; returns 4.
         The law (TRACK or SATURATED, beam present) runs inline; every other case is ``_step_other``."""
         s = self._s
-        m = s[S_MODE]
-        if (m != TRACK and m != SATURATED) or vs < s[S_THR]:
+        m = s[_S_MODE]
+        if (m != TRACK and m != SATURATED) or vs < s[_S_THR]:
             return self._step_other(vx, vy, vs)
-        s[S_TICKS] = (s[S_TICKS] + 1) & _COUNT_MAX
-        s[S_VS] = vs
-        s[S_LOST] = 0
+        s[_S_TICKS] = (s[_S_TICKS] + 1) & _COUNT_MAX
+        s[_S_VS] = vs
+        s[_S_LOST] = 0
         r = vs >> 1
         ex = (((2048 - vx) << 15) + r) // vs                # Eq. 7.4: Rx, Q15; |.| <= 2^26 before the division
         ey = (((2048 - vy) << 15) + r) // vs
-        s[S_RX] = ex
-        s[S_RY] = ey
-        ex -= s[S_RXC]                                      # Eq. 7.13: dR, Q15, clamped to +-0.5
+        s[_S_RX] = ex
+        s[_S_RY] = ey
+        ex -= s[_S_RXC]                                      # Eq. 7.13: dR, Q15, clamped to +-0.5
         if ex > _E_MAX:
             ex = _E_MAX
         elif ex < -_E_MAX:
             ex = -_E_MAX
-        ey -= s[S_RYC]
+        ey -= s[_S_RYC]
         if ey > _E_MAX:
             ey = _E_MAX
         elif ey < -_E_MAX:
             ey = -_E_MAX
-        v_x = s[S_VX]
-        v_y = s[S_VY]
+        v_x = s[_S_VX]
+        v_y = s[_S_VY]
         if ((v_x ^ s[S_BXQ]) | (v_y ^ s[S_BYQ])) >> 14:     # the command left the cached 64-code bin
             self._gain_hinv(v_x >> 14, v_y >> 14)
         # Eq. 7.12: V -= (g H^-1) dR, high parts (<= 31999 * 16383 each, the pair < 2^30) plus the
         # low bytes' share (<= 2 * 255 * 16383 >> 8), Q(15 + hq) -> Q8 code, rounded: r = 128 + (2^(n-1) << 8)
         # <= 2^26 rounds the low bytes' share and, being 2^(n-1) after the >> 8, the whole
-        n = s[S_SHIFT]
-        r = s[S_ROUND]
-        v_x -= (s[S_GH] * ex + s[S_GH + 1] * ey + ((s[S_GH + 4] * ex + s[S_GH + 5] * ey + r) >> 8)) >> n
-        v_y -= (s[S_GH + 2] * ex + s[S_GH + 3] * ey + ((s[S_GH + 6] * ex + s[S_GH + 7] * ey + r) >> 8)) >> n
-        r = s[S_LIM]
-        if v_x > r or v_y > r or v_x < s[S_NLIM] or v_y < s[S_NLIM]:
+        n = s[_S_SHIFT]
+        r = s[_S_ROUND]
+        v_x -= (s[_S_GH] * ex + s[_S_GH + 1] * ey + ((s[_S_GH + 4] * ex + s[_S_GH + 5] * ey + r) >> 8)) >> n
+        v_y -= (s[_S_GH + 2] * ex + s[_S_GH + 3] * ey + ((s[_S_GH + 6] * ex + s[_S_GH + 7] * ey + r) >> 8)) >> n
+        r = s[_S_LIM]
+        if v_x > r or v_y > r or v_x < s[_S_NLIM] or v_y < s[_S_NLIM]:
             self._run_on()                                  # the law hit the clamp: the run goes on
             return self._out(v_x, v_y)
-        if s[S_SAT_RUN]:                                    # inside the clamp again: the run ends
+        if s[_S_SAT_RUN]:                                    # inside the clamp again: the run ends
             self._run_end()
-        s[S_VX] = v_x
-        s[S_VY] = v_y
+        s[_S_VX] = v_x
+        s[_S_VY] = v_y
         w = self.words
         r = (v_x + 128) >> 8
         w[0] = 0x008000 + r             # X+ = bias + x, cmd 000 addr A
@@ -332,75 +344,75 @@ class Controller:
     def _step_other(self, vx, vy, vs):
         """``step`` for the init tick, beam loss and the modes other than TRACK and SATURATED."""
         s = self._s
-        m = s[S_MODE]
+        m = s[_S_MODE]
         if m & _INIT_BIT:              # first tick after boot: the AD5664R init sequence
-            s[S_MODE] = m & 7
+            s[_S_MODE] = m & 7
             w = self.words
             w[0] = 0x280001
             w[1] = 0x380001
             w[2] = 0x20000F
             w[3] = 0x300000
             return 4
-        s[S_TICKS] = (s[S_TICKS] + 1) & _COUNT_MAX
-        s[S_VS] = vs
-        if vs < s[S_THR]:
-            s[S_N_LOST] = (s[S_N_LOST] + 1) & 0xFFFF
+        s[_S_TICKS] = (s[_S_TICKS] + 1) & _COUNT_MAX
+        s[_S_VS] = vs
+        if vs < s[_S_THR]:
+            s[_S_N_LOST] = (s[_S_N_LOST] + 1) & 0xFFFF
             if m == TRACK or m == SATURATED:   # hold (no integration); SAFE after safe_ticks lost ticks in a row
-                if s[S_LOST] < _COUNT_MAX:
-                    s[S_LOST] += 1
-                if s[S_SAT_RUN]:       # the held command is the clamped one: the run goes on
+                if s[_S_LOST] < _COUNT_MAX:
+                    s[_S_LOST] += 1
+                if s[_S_SAT_RUN]:       # the held command is the clamped one: the run goes on
                     self._run_on()
-                if s[S_LOST] >= self.safe_ticks:
-                    s[S_MODE] = SAFE
+                if s[_S_LOST] >= self.safe_ticks:
+                    s[_S_MODE] = SAFE
                     self.why = WHY_BEAM
         else:                          # ratios for telemetry (calibration reads them)
             r = vs >> 1
-            s[S_RX] = (((2048 - vx) << 15) + r) // vs
-            s[S_RY] = (((2048 - vy) << 15) + r) // vs
-        if s[S_SAT_RUN] and m != TRACK and m != SATURATED:    # no law this tick: the run ends
+            s[_S_RX] = (((2048 - vx) << 15) + r) // vs
+            s[_S_RY] = (((2048 - vy) << 15) + r) // vs
+        if s[_S_SAT_RUN] and m != TRACK and m != SATURATED:    # no law this tick: the run ends
             self._run_end()
         if m == SAFE or m == IDLE:     # move the command toward the centre by ramp_code per tick, never integrating
             r = self.ramp_q8
-            v = s[S_VX]
-            s[S_VX] = v - r if v > r else (v + r if v < -r else 0)
-            v = s[S_VY]
-            s[S_VY] = v - r if v > r else (v + r if v < -r else 0)
-        return self._out(s[S_VX], s[S_VY])
+            v = s[_S_VX]
+            s[_S_VX] = v - r if v > r else (v + r if v < -r else 0)
+            v = s[_S_VY]
+            s[_S_VY] = v - r if v > r else (v + r if v < -r else 0)
+        return self._out(s[_S_VX], s[_S_VY])
 
     def _run_on(self):
         """One more tick on the clamp: TRACK enters SATURATED when the run reaches ``sat_ticks``."""
         s = self._s
-        n = s[S_SAT_RUN]
+        n = s[_S_SAT_RUN]
         if n < _COUNT_MAX:
             n += 1
-            s[S_SAT_RUN] = n
-        if n >= self.sat_ticks and s[S_MODE] == TRACK:
-            s[S_MODE] = SATURATED
-            s[S_N_SAT_EP] = (s[S_N_SAT_EP] + 1) & 0xFFFF
+            s[_S_SAT_RUN] = n
+        if n >= self.sat_ticks and s[_S_MODE] == TRACK:
+            s[_S_MODE] = SATURATED
+            s[_S_N_SAT_EP] = (s[_S_N_SAT_EP] + 1) & 0xFFFF
 
     def _run_end(self):
         """The command left the clamp (or the law stopped): a sustained run leaves its length in sat_last, and
         SATURATED returns to TRACK."""
         s = self._s
-        n = s[S_SAT_RUN]
+        n = s[_S_SAT_RUN]
         if n >= self.sat_ticks:
-            s[S_SAT_LAST] = n
-        s[S_SAT_RUN] = 0
-        if s[S_MODE] == SATURATED:
-            s[S_MODE] = TRACK
+            s[_S_SAT_LAST] = n
+        s[_S_SAT_RUN] = 0
+        if s[_S_MODE] == SATURATED:
+            s[_S_MODE] = TRACK
 
     def _out(self, v_x, v_y):
         """Saturation (the state itself is clamped: anti-windup), then the words of command v_x, v_y (Q8)."""
         s = self._s
-        r = s[S_LIM]
+        r = s[_S_LIM]
         if v_x > r or v_x < -r or v_y > r or v_y < -r:
             v_x = r if v_x > r else (-r if v_x < -r else v_x)
             v_y = r if v_y > r else (-r if v_y < -r else v_y)
-            s[S_SAT_TICK] = s[S_TICKS]
-            if s[S_N_SAT] < _COUNT_MAX:
-                s[S_N_SAT] += 1
-        s[S_VX] = v_x
-        s[S_VY] = v_y
+            s[_S_SAT_TICK] = s[_S_TICKS]
+            if s[_S_N_SAT] < _COUNT_MAX:
+                s[_S_N_SAT] += 1
+        s[_S_VX] = v_x
+        s[_S_VY] = v_y
         w = self.words
         r = (v_x + 128) >> 8
         w[0] = 0x008000 + r
@@ -414,8 +426,8 @@ class Controller:
     def flags(self):
         """CTRL_STATUS flags: bit0 beam present, bit1 saturated on the last tick, bit2 table loaded."""
         s = self._s
-        return ((_FLAG_BEAM if s[S_VS] >= s[S_THR] else 0)
-                | (_FLAG_SAT if s[S_SAT_TICK] == s[S_TICKS] else 0)
+        return ((_FLAG_BEAM if s[_S_VS] >= s[_S_THR] else 0)
+                | (_FLAG_SAT if s[_S_SAT_TICK] == s[_S_TICKS] else 0)
                 | (_FLAG_TABLE if self.table is not None else 0))
 
     def tick(self):
@@ -428,9 +440,9 @@ class Controller:
             self.hal.read_q1(q)
             n = self.step(q[0], q[1], q[2])
             self.hal.spi_write(self.words, n)
-            m = s[S_MODE]
-            if m != IDLE and m != SAFE and ((s[S_TICKS] - self._pkt) & _COUNT_MAX) >= self.safe_ticks:
-                s[S_MODE] = SAFE                            # the ground link fell silent
+            m = s[_S_MODE]
+            if m != IDLE and m != SAFE and ((s[_S_TICKS] - self._pkt) & _COUNT_MAX) >= self.safe_ticks:
+                s[_S_MODE] = SAFE                            # the ground link fell silent
                 self.why = WHY_LINK
         finally:
             heap_unlock()
@@ -446,7 +458,7 @@ class Controller:
     def heard(self, tick_packet=False):
         """A packet arrived from the link: the silence count starts again. A TICK (``tick_packet``) belongs to
         the tick it starts, so that tick sees no silence; any other packet to the last tick."""
-        t = self._s[S_TICKS]
+        t = self._s[_S_TICKS]
         self._pkt = (t + 1) & _COUNT_MAX if tick_packet else t
         self._quiet = 0
 
@@ -460,7 +472,7 @@ class Controller:
 
     def status_due(self):
         """On a board: CTRL_STATUS every ``decim`` of the controller's own ticks."""
-        return self.decim != 0 and self._s[S_TICKS] % self.decim == 0
+        return self.decim != 0 and self._s[_S_TICKS] % self.decim == 0
 
     def status_due_at(self, tick):
         """In lockstep: CTRL_STATUS on the bench ticks k with k % decim == 0, so the bench knows which ticks
@@ -489,25 +501,24 @@ class Controller:
         """
         self.heard()
         seq = seq & 0xFF if seq is not None else 0      # CAN frames carry no sequence number
-        d = core.PACKET.get(pid)
-        if d is None or len(payload) != d.size:
+        size = consts.SIZES[pid]
+        if size == 0xFF or len(payload) != size:
             return self._unknown()
         if pid == P_SETTINGS:
-            code = self._settings(struct.unpack(d.fmt, payload))
+            code = self._settings(struct.unpack(consts.FMT_CTRL_SETTINGS, payload))
         elif pid == P_SET_FSM:
-            code = self._set_fsm(struct.unpack(d.fmt, payload))
+            code = self._set_fsm(struct.unpack(consts.FMT_CTRL_SET_FSM, payload))
         elif pid == P_HT_BEGIN:
-            total, crc = struct.unpack(d.fmt, payload)
+            total, crc = struct.unpack(consts.FMT_HTABLE_BEGIN, payload)
             code = self._upload.begin(total, crc)
             self._end = None
         elif pid == P_HT_CHUNK:
-            offset, length, data = struct.unpack(d.fmt, payload)
+            offset, length, data = struct.unpack(consts.FMT_HTABLE_CHUNK, payload)
             code = self._upload.chunk(offset, length, data)
         elif pid == P_HT_END:
-            code = self._upload_end(struct.unpack(d.fmt, payload)[0])
+            code = self._upload_end(struct.unpack(consts.FMT_HTABLE_END, payload)[0])
         elif pid == P_HELLO:
-            return [(P_HELLO, src, core.encode_payload(P_HELLO, node=core.NODE["CONTROLLER"],
-                                                       fw_major=FW_VERSION[0], fw_minor=FW_VERSION[1]))]
+            return [(P_HELLO, src, hello_payload(consts.NODE_CONTROLLER, FW_VERSION))]
         elif pid == P_ACK or pid == P_NACK:
             return []
         else:
@@ -523,9 +534,9 @@ class Controller:
     def _settings(self, v):
         mode, rx_cmd, ry_cmd, gain, decim, safe_ticks = v
         if mode > SAFE or not (-16384 <= rx_cmd <= 16384) or not (-16384 <= ry_cmd <= 16384) or safe_ticks < 1:
-            return _E["BAD_VALUE"]
+            return consts.E_BAD_VALUE
         if mode == TRACK and self.table is None:
-            return _E["BAD_STATE"]
+            return consts.E_BAD_STATE
         self.rx_cmd = rx_cmd
         self.ry_cmd = ry_cmd
         if gain and gain != self.gain:
@@ -542,13 +553,13 @@ class Controller:
 
     def _set_fsm(self, v):
         if self.mode != CALIBRATE:
-            return _E["BAD_STATE"]
+            return consts.E_BAD_STATE
         uvx, uvy = v
         if not (-2500000 <= uvx <= 2500000) or not (-2500000 <= uvy <= 2500000):
-            return _E["BAD_VALUE"]
+            return consts.E_BAD_VALUE
         s = self._s
-        s[S_VX] = max(s[S_NLIM], min(s[S_LIM], _q8(uvx)))
-        s[S_VY] = max(s[S_NLIM], min(s[S_LIM], _q8(uvy)))
+        s[_S_VX] = max(s[_S_NLIM], min(s[_S_LIM], _q8(uvx)))
+        s[_S_VY] = max(s[_S_NLIM], min(s[_S_LIM], _q8(uvy)))
         return 0
 
     def _upload_end(self, total):
@@ -564,9 +575,9 @@ class Controller:
         else:
             code = 0
             try:
-                self.set_table(bytes(r))
+                self.set_table(r)      # the upload's own buffer, read in place
             except ValueError:
-                code = _E["BAD_CONTENT"]
+                code = consts.E_BAD_CONTENT
         self._end = (total, crc, code)
         return code
 
@@ -585,6 +596,11 @@ def _q8(uv):
 def _uv(q8):
     """Microvolts of the Q8 tilt code ``q8``."""
     return (q8 * _Q8_DEN + _Q8_NUM // 2) // _Q8_NUM if q8 >= 0 else -((-q8 * _Q8_DEN + _Q8_NUM // 2) // _Q8_NUM)
+
+
+def hello_payload(node, version):
+    """A HELLO payload (the packet table's fields: protocol version, node, firmware major and minor, caps 0)."""
+    return struct.pack(consts.FMT_HELLO, consts.PROTOCOL_VERSION, node, version[0], version[1], 0)
 
 
 def _check_int(name, v, lo, hi):

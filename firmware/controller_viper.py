@@ -15,60 +15,53 @@ same values the bytecode step computes for it).
 import micropython
 from array import array
 
-from firmware import controller as _c
 from firmware.controller import Controller
 
 from micropython import const
 
-# The state slots again (viper needs them as constants of this module); checked against the controller below.
-S_MODE = const(0)
-S_TICKS = const(1)
-S_VX = const(2)
-S_VY = const(3)
-S_RX = const(4)
-S_RY = const(5)
-S_VS = const(6)
-S_LOST = const(7)
-S_THR = const(8)
-S_RXC = const(9)
-S_RYC = const(10)
-S_LIM = const(11)
-S_NLIM = const(12)
-S_BXQ = const(13)
-S_BYQ = const(14)
-S_SHIFT = const(15)
-S_ROUND = const(16)
-S_GH = const(20)
-S_SAT_RUN = const(28)
+# The state slots again (viper needs them as constants of this module; tests/test_pil.py checks them against
+# firmware.controller's).
+_S_MODE = const(0)
+_S_TICKS = const(1)
+_S_VX = const(2)
+_S_VY = const(3)
+_S_RX = const(4)
+_S_RY = const(5)
+_S_VS = const(6)
+_S_LOST = const(7)
+_S_THR = const(8)
+_S_RXC = const(9)
+_S_RYC = const(10)
+_S_LIM = const(11)
+_S_NLIM = const(12)
+_S_BXQ = const(13)
+_S_BYQ = const(14)
+_S_SHIFT = const(15)
+_S_ROUND = const(16)
+_S_GH = const(20)
+_S_SAT_RUN = const(28)
+_S_SIZE = const(31)
 _TRACK = const(1)
 _E_MAX = const(16383)
 _COUNT_MAX = const(0x3FFFFFFF)
-
-for _k, _v in (("S_MODE", S_MODE), ("S_TICKS", S_TICKS), ("S_VX", S_VX), ("S_VY", S_VY), ("S_RX", S_RX),
-               ("S_RY", S_RY), ("S_VS", S_VS), ("S_LOST", S_LOST), ("S_THR", S_THR), ("S_RXC", S_RXC),
-               ("S_RYC", S_RYC), ("S_LIM", S_LIM), ("S_NLIM", S_NLIM), ("S_BXQ", S_BXQ), ("S_BYQ", S_BYQ),
-               ("S_SHIFT", S_SHIFT), ("S_ROUND", S_ROUND), ("S_GH", S_GH), ("S_SAT_RUN", S_SAT_RUN),
-               ("TRACK", _TRACK)):
-    if getattr(_c, _k) != _v:
-        raise ImportError("controller_viper: slot %s is %d here, %d in firmware.controller" % (_k, _v,
-                                                                                              getattr(_c, _k)))
 
 
 class ViperController(Controller):
     """``Controller`` whose ``step`` runs the common tick as viper machine code (same constructor)."""
 
     _tab = None
+    _h16 = None
 
     def _state(self):
-        return array("i", [0] * _c.S_SIZE)
+        return array("i", [0] * _S_SIZE)
 
     def _words(self):
         return array("i", [0, 0, 0, 0])
 
     def set_table(self, table):
         Controller.set_table(self, table)
-        t = self.table                 # the table again as one int32 array for _gain_hinv_viper
-        self._tab = array("i", [t.nx, t.ny] + t.ax + t.ay + t.rdx + t.rdy + t.h)
+        self._tab = self.table.t       # HinvTable's arrays, the layout _gain_hinv_viper reads
+        self._h16 = self.table.h16
 
     def step_bytecode(self, vx, vy, vs):
         """The plain ``Controller.step`` (every case; the reference the viper path must match)."""
@@ -84,44 +77,44 @@ class ViperController(Controller):
         b = 1
         b <<= 30
         m = (b << 1) - 1
-        if s[S_MODE] != _TRACK or vs < int(s[S_THR]):
+        if s[_S_MODE] != _TRACK or vs < int(s[_S_THR]):
             return int(self.step_bytecode(vx, vy, vs))
-        v_x = ((s[S_VX] + b) & m) - b
-        v_y = ((s[S_VY] + b) & m) - b
-        if ((v_x ^ (((s[S_BXQ] + b) & m) - b)) | (v_y ^ (((s[S_BYQ] + b) & m) - b))) >> 14:
-            _gain_hinv_viper(self._tab, self._s, self.gain, v_x >> 14, v_y >> 14)    # the command left its bin
+        v_x = ((s[_S_VX] + b) & m) - b
+        v_y = ((s[_S_VY] + b) & m) - b
+        if ((v_x ^ (((s[_S_BXQ] + b) & m) - b)) | (v_y ^ (((s[_S_BYQ] + b) & m) - b))) >> 14:
+            _gain_hinv_viper(self._tab, self._h16, self._s, self.gain, v_x >> 14, v_y >> 14)   # left its bin
         r = vs >> 1
         rx = (((2048 - vx) << 15) + r) // vs                 # Eq. 7.4, Q15
         ry = (((2048 - vy) << 15) + r) // vs
-        ex = rx - (((s[S_RXC] + b) & m) - b)                 # Eq. 7.13, clamped to +-0.5
+        ex = rx - (((s[_S_RXC] + b) & m) - b)                 # Eq. 7.13, clamped to +-0.5
         if ex > _E_MAX:
             ex = _E_MAX
         elif ex < -_E_MAX:
             ex = -_E_MAX
-        ey = ry - (((s[S_RYC] + b) & m) - b)
+        ey = ry - (((s[_S_RYC] + b) & m) - b)
         if ey > _E_MAX:
             ey = _E_MAX
         elif ey < -_E_MAX:
             ey = -_E_MAX
-        n = int(s[S_SHIFT])
-        r = int(s[S_ROUND])
-        k0 = ((s[S_GH] + b) & m) - b
-        k1 = ((s[S_GH + 1] + b) & m) - b
-        k2 = ((s[S_GH + 2] + b) & m) - b
-        k3 = ((s[S_GH + 3] + b) & m) - b
+        n = int(s[_S_SHIFT])
+        r = int(s[_S_ROUND])
+        k0 = ((s[_S_GH] + b) & m) - b
+        k1 = ((s[_S_GH + 1] + b) & m) - b
+        k2 = ((s[_S_GH + 2] + b) & m) - b
+        k3 = ((s[_S_GH + 3] + b) & m) - b
         # Eq. 7.12: V -= (g H^-1) dR (high parts, then the low bytes' share), Q(15 + hq) -> Q8
-        v_x -= (k0 * ex + k1 * ey + ((int(s[S_GH + 4]) * ex + int(s[S_GH + 5]) * ey + r) >> 8)) >> n
-        v_y -= (k2 * ex + k3 * ey + ((int(s[S_GH + 6]) * ex + int(s[S_GH + 7]) * ey + r) >> 8)) >> n
-        lim = int(s[S_LIM])
-        if v_x > lim or v_y > lim or v_x < -lim or v_y < -lim or s[S_SAT_RUN] != 0:
+        v_x -= (k0 * ex + k1 * ey + ((int(s[_S_GH + 4]) * ex + int(s[_S_GH + 5]) * ey + r) >> 8)) >> n
+        v_y -= (k2 * ex + k3 * ey + ((int(s[_S_GH + 6]) * ex + int(s[_S_GH + 7]) * ey + r) >> 8)) >> n
+        lim = int(s[_S_LIM])
+        if v_x > lim or v_y > lim or v_x < -lim or v_y < -lim or s[_S_SAT_RUN] != 0:
             return int(self.step_bytecode(vx, vy, vs))       # saturation or a run ending: nothing stored yet
-        s[S_TICKS] = (s[S_TICKS] + 1) & _COUNT_MAX
-        s[S_VS] = vs
-        s[S_LOST] = 0
-        s[S_RX] = rx
-        s[S_RY] = ry
-        s[S_VX] = v_x
-        s[S_VY] = v_y
+        s[_S_TICKS] = (s[_S_TICKS] + 1) & _COUNT_MAX
+        s[_S_VS] = vs
+        s[_S_LOST] = 0
+        s[_S_RX] = rx
+        s[_S_RY] = ry
+        s[_S_VX] = v_x
+        s[_S_VY] = v_y
         w = ptr32(self.words)
         r = (v_x + 128) >> 8
         w[0] = 0x008000 + r             # X+ = bias + x, cmd 000 addr A
@@ -133,10 +126,11 @@ class ViperController(Controller):
 
 
 @micropython.viper
-def _gain_hinv_viper(t: ptr32, s: ptr32, g: int, bx: int, by: int):
+def _gain_hinv_viper(t: ptr32, h: ptr16, s: ptr32, g: int, bx: int, by: int):
     """``Controller._gain_hinv`` with ``HinvTable.hinv_into`` inlined: g H^-1 at the centre of bin (bx, by)
-    into the state's slots. t is the table as [nx, ny, ax..., ay..., rdx..., rdy..., h...] (Q-formats of
-    ``firmware.hinv``), every entry within +-2^30; the same integer steps as the bytecode, so the same result."""
+    into the state's slots. t is the table's [nx, ny, ax..., ay..., rdx..., rdy...] and h its H^-1 entries, int16
+    (Q-formats of ``firmware.hinv``), every entry within +-2^30; the same integer steps as the bytecode, so the
+    same result. A ptr16 load is zero-extended: ((x + 2^15) & 0xFFFF) - 2^15 restores its sign."""
     b = 1
     b <<= 30                           # 2^30 and 2^31 - 1 built at run time, as in step
     m = (b << 1) - 1
@@ -146,7 +140,6 @@ def _gain_hinv_viper(t: ptr32, s: ptr32, g: int, bx: int, by: int):
     oay = oax + nx
     orx = oay + ny
     ory = orx + nx - 1
-    oh = ory + ny - 1
     x = (bx << 6) + 32
     y = (by << 6) + 32
     i = 0
@@ -171,17 +164,17 @@ def _gain_hinv_viper(t: ptr32, s: ptr32, g: int, bx: int, by: int):
         ty = 4096
     else:
         ty = ((y - a) * int(t[ory + j])) >> 12
-    k = oh + ((j * nx + i) << 2)
+    k = (j * nx + i) << 2
     q = k + (nx << 2)
     e = 0
     while e < 4:
-        a = ((t[k + e] + b) & m) - b
-        u = a + (((((t[k + 4 + e] + b) & m) - b - a) * tx) >> 12)
-        a = ((t[q + e] + b) & m) - b
-        v = a + (((((t[q + 4 + e] + b) & m) - b - a) * tx) >> 12)
+        a = ((h[k + e] + 0x8000) & 0xFFFF) - 0x8000
+        u = a + (((((h[k + 4 + e] + 0x8000) & 0xFFFF) - 0x8000 - a) * tx) >> 12)
+        a = ((h[q + e] + 0x8000) & 0xFFFF) - 0x8000
+        v = a + (((((h[q + 4 + e] + 0x8000) & 0xFFFF) - 0x8000 - a) * tx) >> 12)
         v = (g * (u + (((v - u) * ty) >> 12)) + 64) >> 7
-        s[S_GH + e] = v >> 8
-        s[S_GH + 4 + e] = v & 255
+        s[_S_GH + e] = v >> 8
+        s[_S_GH + 4 + e] = v & 255
         e += 1
-    s[S_BXQ] = bx << 14
-    s[S_BYQ] = by << 14
+    s[_S_BXQ] = bx << 14
+    s[_S_BYQ] = by << 14

@@ -93,6 +93,7 @@ def main(argv=None):
     try:
         role, opts = parse(argv)
         from firmware.hal import link as hal_link
+        from firmware.hal.ports import open_link
         if role == "controller":
             from firmware.controller import TRACK, Controller
             try:  # MicroPython with a native emitter: the viper step, identical codes (tests/mp/firmware_viper.py)
@@ -102,13 +103,13 @@ def main(argv=None):
             node = Controller(table=opts["table"], **opts["ctl"])
             if opts["track"]:
                 node.mode = TRACK
-            lk = hal_link.open_link(opts["link"], "CONTROLLER", isotp_ms=opts["isotp_ms"])
+            lk = open_link(opts["link"], "CONTROLLER", isotp_ms=opts["isotp_ms"])
         else:
             from firmware.player import Player
             node = Player(store_path=opts["store"])
             if opts["distfile"]:
                 node.open_file(opts["distfile"])
-            lk = hal_link.open_link(opts["link"], "PLAYER", isotp_ms=opts["isotp_ms"])
+            lk = open_link(opts["link"], "PLAYER", isotp_ms=opts["isotp_ms"])
     except (ValueError, OSError) as exc:          # an option, a file or the link spec: bad input
         return _usage(exc)
     try:

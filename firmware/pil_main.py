@@ -1,12 +1,103 @@
 """The controller on the PIL board (ground/pil_build.py's image; ``--runtime qemu``): what ``firmware.main
 controller`` does on the unix port, on the console UART (``firmware.hal.stdio``). Started by importing it through
-the raw REPL; Ctrl-C (0x03, a byte like any other in the frames) is turned off first."""
+the raw REPL; Ctrl-C (0x03, a byte like any other in the frames) is turned off first.
 
+The board has 32 KB of RAM: the H-table upload's buffer and the table's integers are allocated first, once, for
+the thesis's 11x11 grid (``TABLE_GRID``; a larger table is refused with TOO_LARGE), while the heap still has a free
+block that large.
+
+What the host reads back after a run (through QEMU's monitor, as a debugger reads a board's RAM), at the bottom
+of the stack region (``pil_board``): a mailbox of five words, ``MAGIC``, the TICK exchanges counted, the sum and
+the largest of their durations, and one clock read's own cost, in ticks of the nRF51's TIMER0 at 16 MHz (16-bit
+mode); above it, the stack painted with ``pil_board.STACK_PAINT`` here at start, whose first overwritten word is
+the stack's high-water mark. An exchange is a TICK's frame, read whole from the UART by ``firmware.hal.nrf51.read_frame``
+(machine code), decoded, then its FSM_SPI (and CTRL_STATUS, when due) computed and framed: the decoding, the step
+and the framing, less the UART's own byte moves (``firmware.hal.stdio``) and the clock reads. Under QEMU's ``-icount shift=0`` one instruction takes
+one virtual ns, so a tick is 62.5 instructions."""
+
+import machine
 import micropython
+import sys
 
-from firmware.controller_viper import ViperController
-from firmware.hal.link import serve_controller
-from firmware.hal.stdio import StdioLink
+import pil_board
+from micropython import const
 
-micropython.kbd_intr(-1)
-serve_controller(ViperController(), StdioLink("CONTROLLER"), rate_hz=637.8)
+BOX_WORDS = const(5)
+
+
+def paint_stack():
+    """``STACK_PAINT`` over the free stack: from above the mailbox to 64 bytes below what is in use now."""
+    m = machine.mem32
+    a = pil_board.STACK_BOTTOM + 4 * BOX_WORDS
+    top = pil_board.STACK_TOP - micropython.stack_use() - 64
+    v = pil_board.STACK_PAINT
+    while a < top:
+        m[a] = v
+        a += 4
+
+
+# The stack is painted before the firmware is imported, so the high-water mark counts the imports too; and the
+# modules are imported leaves first, so that each import nests one level only: a nested import takes about 0.9 KB
+# of C stack, and the chain controller_viper, controller, hinv, htable, consts ran past a 5.5 KB stack (measured).
+paint_stack()
+import protocol.consts  # noqa: E402
+import protocol.frame  # noqa: E402,F401
+import protocol.hblob  # noqa: E402,F401
+import firmware.ad5664r  # noqa: E402,F401
+import firmware.upload  # noqa: E402,F401
+import firmware.hinv  # noqa: E402,F401
+import firmware.controller  # noqa: E402,F401
+from firmware.controller_viper import ViperController  # noqa: E402
+from firmware.hal.link import serve_controller  # noqa: E402
+from firmware.hal.stdio import StdioLink  # noqa: E402
+from firmware.hal import nrf51  # noqa: E402
+
+TABLE_GRID = 11
+MAGIC = const(0x0C0FFEE)
+
+
+class Meter:
+    """TIMER0 and the mailbox: ``now()`` in ticks (``firmware.hal.nrf51``, 16-bit); ``exchange(t0, work, n)`` adds
+    one exchange. Neither allocates (small ints only), so it runs beside the locked heap."""
+
+    def __init__(self, box):
+        self.box = box
+        self.now = nrf51.now
+        nrf51.start(16)
+        m = machine.mem32
+        for k in range(1, BOX_WORDS):
+            m[box + 4 * k] = 0
+        t = self.now()
+        m[box + 16] = (self.now() - t) & 0xFFFF    # one read's own cost, taken off each exchange
+        m[box] = MAGIC
+
+    def exchange(self, t0, work, n):
+        """One exchange: ``work`` ticks, then from t0 to now, in ``n`` timed intervals; less a clock read's own cost
+        for each."""
+        m = machine.mem32
+        b = self.box
+        d = work + ((nrf51.now() - t0) & 0xFFFF) - n * m[b + 16]
+        m[b + 4] += 1
+        m[b + 8] += d
+        if d > m[b + 12]:
+            m[b + 12] = d
+
+
+def main():
+    """Serve the bench until the link ends; on an error, print its traceback on the UART and halt (the host tells
+    it: ``emulator.launcher.FirmwareProcess.exit_note``), never back to the REPL, which would answer the bench's
+    frames as keystrokes."""
+    micropython.kbd_intr(-1)
+    table_bytes = protocol.hblob.blob_size(TABLE_GRID, TABLE_GRID)
+    try:
+        serve_controller(ViperController(max_table_bytes=table_bytes, static=True),
+                         StdioLink(protocol.consts.NODE_CONTROLLER, meter=Meter(pil_board.STACK_BOTTOM),
+                                   read_frame=nrf51.read_frame),
+                         rate_hz=637.8)
+    except Exception as exc:            # MemoryError included
+        sys.print_exception(exc)
+        while True:
+            machine.idle()
+
+
+main()

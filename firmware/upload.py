@@ -8,22 +8,24 @@ the finished temporary file over. Errors are ``protocol.table.ERRORS`` codes; no
 
 import os
 
-from protocol import core
+from protocol import consts
 
 try:
     from binascii import crc32 as _crc32
 except ImportError:  # pragma: no cover
-    _crc32 = core.crc32
-
-_E = core.ERROR
+    from protocol.core import crc32 as _crc32
 
 
 class Upload:
-    """One transfer at a time. ``path`` None keeps it in a bytearray; else it is written to ``path``."""
+    """One transfer at a time. ``path`` None keeps it in a bytearray; else it is written to ``path``.
+    ``static``: the bytearray of ``max_bytes`` is allocated here, once, and every transfer reuses it (a board whose
+    heap would soon be too fragmented for a block that large); ``end`` then hands over a memoryview of it, valid
+    until the next BEGIN."""
 
-    def __init__(self, max_bytes, path=None):
+    def __init__(self, max_bytes, path=None, static=False):
         self.max_bytes = max_bytes
         self.path = path
+        self._static = bytearray(max_bytes) if static and path is None else None
         self._buf = None
         self._f = None
         self.active = False
@@ -42,8 +44,10 @@ class Upload:
     def begin(self, total, crc):
         self._close()
         if total < 1 or total > self.max_bytes:
-            return _E["TOO_LARGE"] if total > self.max_bytes else _E["BAD_VALUE"]
-        if self.path is None:
+            return consts.E_TOO_LARGE if total > self.max_bytes else consts.E_BAD_VALUE
+        if self._static is not None:
+            self._buf = memoryview(self._static)[:total]
+        elif self.path is None:
             self._buf = bytearray(total)
         else:
             self._f = open(self.path, "wb")
@@ -56,11 +60,11 @@ class Upload:
 
     def chunk(self, offset, length, data):
         if not self.active:
-            return _E["BAD_SEQUENCE"]
+            return consts.E_BAD_SEQUENCE
         if offset + length <= self.got:
             return 0                                   # a retransmission of a stored chunk
         if offset != self.got or offset + length > self.total:
-            return _E["BAD_SEQUENCE"]
+            return consts.E_BAD_SEQUENCE
         part = data[:length]
         if self._buf is not None:
             self._buf[offset:offset + length] = part
@@ -73,7 +77,7 @@ class Upload:
     def end(self, total):
         """The bytes (RAM) or the file path, or an error code (int); the transfer is over either way."""
         if not self.active:
-            return _E["BAD_SEQUENCE"]
+            return consts.E_BAD_SEQUENCE
         buf = self._buf
         ok_len = total == self.total and self.got == self.total
         ok_crc = (self._crc & 0xFFFFFFFF) == self.crc
@@ -81,7 +85,7 @@ class Upload:
         if not ok_len or not ok_crc:
             if self.path is not None:
                 _remove(self.path)
-            return _E["BAD_SEQUENCE"] if not ok_len else _E["BAD_CRC"]
+            return consts.E_BAD_SEQUENCE if not ok_len else consts.E_BAD_CRC
         return buf if buf is not None else self.path
 
 

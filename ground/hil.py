@@ -306,6 +306,11 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
             with open(distfile_path, "rb") as f:      # firmware.player.Player's codes, whole blocks at a time
                 player = DistfilePlayer(distfile.parse(f.read()), pfsm_hz=rig.lockstep.pfsm_hz)
             play(rig, rec, player, duration_s, summary, quiet)
+    target = getattr(getattr(run.rig, "process", None), "target", None)
+    if target is not None:                      # --runtime qemu: the board's own figures (ground.pil_build)
+        target = dict(target)
+        summary["instructions_per_step"] = target.pop("instructions_per_step", None)
+        summary["target"] = target
     finish_summary(rec, run, summary, q2cal, plots)
     n_played = min(len(dx), int(round(rec.virtual_s * 1e6 / d.period_us)) + 1)
     summary["disturbance"] = report.error_stats(dx[:n_played], dy[:n_played])   # the body pointing error played

@@ -1,24 +1,34 @@
 """``make pil``: the controller firmware frozen into MicroPython's own qemu port for a Cortex-M0 board, for
 processor-in-the-loop runs under ``qemu-system-arm``.
 
-``python -m ground.pil_build [--optional]`` writes ``build/pil/MICROBIT/firmware.elf``: MicroPython 1.25.0's
-``ports/qemu`` for ``BOARD=MICROBIT`` (QEMU's ``microbit`` machine: an nRF51822, Cortex-M0 at 16 MHz, the closest
-machine QEMU has to the thesis's SAMD21G18, a Cortex-M0+ at 48 MHz with 32 KB of RAM; both ARMv6-M, the M0+ has
-a two-stage pipeline and a single-cycle I/O port the M0 lacks), with the fine-pointing controller's modules
-frozen as armv6m bytecode and viper code (``FROZEN``). The source tarball is the one ``make natmod`` fetches
-(``ground.natmod_build``: the machine's own apt archives, the pinned SHA-256), here extracted whole into
-``build/``. The port as shipped needs three changes, made to a copy of its configuration:
+``python -m ground.pil_build [--optional]`` writes two images of MicroPython 1.25.0's ``ports/qemu`` for
+``BOARD=MICROBIT`` (QEMU's ``microbit`` machine: an nRF51822, Cortex-M0 at 16 MHz, the closest machine QEMU has to
+the thesis's SAMD21G18, a Cortex-M0+ at 48 MHz with 32 KB of RAM; both ARMv6-M, the M0+ has a two-stage pipeline
+and a single-cycle I/O port the M0 lacks), with the fine-pointing controller's modules frozen as armv6m bytecode
+and viper code (``FROZEN``):
+
+- ``build/pil/MICROBIT/firmware.elf``, the thesis's board (``TARGET_MEM``): linked for 32 KB of SRAM, run with as
+  much, what ``--runtime qemu`` starts (``firmware.pil_main``);
+- ``build/pil/MICROBIT-LAB/firmware.elf``, the instruments' board (``LAB_MEM``): the same code with 256 KB, where
+  the tests and ``make bench`` replay recorded samples and count instructions.
+
+The source tarball is the one ``make natmod`` fetches (``ground.natmod_build``: the machine's own apt archives,
+the pinned SHA-256), here extracted whole into ``build/``. The port as shipped needs these changes, made to a copy
+of its files:
 
 - the native emitter is off for the nRF51 (``mpconfigport.h``): viper code would not link; it is turned on for
   ARMv6-M (``MICROPY_EMIT_THUMB``, without the ARMv7-M instructions);
 - ``sys.stdin.buffer`` / ``sys.stdout.buffer`` are off: the packet protocol is binary; they are turned on;
+- its linker script fixes 256 KB of RAM and ``main.c`` a 10 KB stack check: ours (``linker_script``) sets the
+  SRAM, puts the stack region on top and fails the link if the heap runs into it, and the check follows it;
 - its default frozen manifest requires micropython-lib, which the tarball leaves empty: ours freezes the
   firmware only.
 
 Needs ``arm-none-eabi-gcc`` with newlib (``gcc-arm-none-eabi``, ``libnewlib-arm-none-eabi``), host ``gcc`` and
-``make`` for mpy-cross, and ``qemu-system-arm`` to run the image: Debian packages. ``--optional`` (what a
-``make`` target that must not fail uses): a build that cannot be done says why in one line, with the command that
-installs what is missing, and exits 0; the PIL tests are then skipped with that reason.
+``make`` for mpy-cross, and ``qemu-system-arm`` to run the image: Debian packages, which the build installs itself
+as root with apt-get at hand (a CI machine). ``--optional`` (what a ``make`` target that must not fail uses): a
+build that cannot be done says why in one line, with the command that installs what is missing, and exits 0; the
+PIL tests are then skipped with that reason.
 """
 
 import argparse
@@ -34,19 +44,42 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BOARD = "MICROBIT"
 FULL_DIR = os.path.join(ROOT, "build", "micropython-%s-full" % natmod_build.MP_VERSION)
 OUT = os.path.join(ROOT, "build", "pil")
-IMAGE = launcher.PIL_IMAGE                     # build/pil/MICROBIT/firmware.elf
 PACKAGES = ("gcc-arm-none-eabi", "libnewlib-arm-none-eabi", "qemu-system-arm")
 MARCH = "armv6m"
-# the heap in the image: 224 KB of the machine's 256 KB. The port's own 140 KB runs out building the H table
-# (MemoryError allocating 512 bytes in htable.grid_from_calibration, measured): the controller does not yet fit
-# the thesis's 32 KB board, and this image does not pretend it does
-HEAP_BYTES = 229376
+RAM_START = 0x20000000
+STACK_PAINT = 0x15A5C33C         # written over the free stack at start (firmware.pil_main): the high-water mark; a small int
+
+
+class Memory:
+    """One image's memory map: ``ram_bytes`` of SRAM (the linker script's, and QEMU's nRF51 given as much, so an
+    access beyond faults), MicroPython's own variables (about 0.8 KB), the GC heap (a static array of
+    ``heap_bytes``), and the stack, the top ``stack_bytes`` (MicroPython's stack check set 512 bytes inside it);
+    what is left between them is unused. The image is ``build/pil/<name>/firmware.elf``."""
+
+    def __init__(self, name, ram_bytes, heap_bytes, stack_bytes):
+        self.name, self.ram_bytes, self.heap_bytes, self.stack_bytes = name, ram_bytes, heap_bytes, stack_bytes
+        self.dir = os.path.join(OUT, name)
+        self.image = os.path.join(self.dir, "firmware.elf")
+        self.stack_top = RAM_START + ram_bytes
+        self.stack_bottom = self.stack_top - stack_bytes
+
+
+# The thesis's board (a SAMD21G18: 32 KB of SRAM), what --runtime qemu runs: a heap of 19 KB (18 KB is too little:
+# the 18 KB image runs out building its link at start, measured), a stack region of 6 KB (its high-water mark is
+# about 4.5 KB, measured in every qemu run's summary.json)
+TARGET_MEM = Memory("MICROBIT", launcher.PIL_RAM_BYTES, 19 * 1024, 6 * 1024)
+# the instruments' image (tests and make bench count instructions on it): the same code, room for their recorded
+# samples and the float plant; 256 KB of SRAM, as the microbit machine of the port has
+LAB_MEM = Memory("MICROBIT-LAB", 256 * 1024, 200 * 1024, 8 * 1024)
+IMAGE = TARGET_MEM.image
+LAB_IMAGE = LAB_MEM.image
 # the controller and what it imports on the board (the packet table's pure core, the H table, the viper law)
 FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hinv.py", "firmware/upload.py",
           "firmware/controller.py", "firmware/controller_viper.py",
-          "firmware/hal/__init__.py", "firmware/hal/link.py", "firmware/hal/stdio.py", "firmware/pil_main.py",
-          "protocol/__init__.py", "protocol/table.py", "protocol/core.py", "protocol/htable.py", "protocol/fast.py",
-          "protocol/can.py", "protocol/isotp.py", "protocol/lawicel.py")
+          "firmware/hal/__init__.py", "firmware/hal/link.py", "firmware/hal/stdio.py", "firmware/hal/nrf51.py",
+          "firmware/pil_main.py",
+          "protocol/__init__.py", "protocol/consts.py", "protocol/frame.py", "protocol/hblob.py", "protocol/htable.py",
+          "protocol/fast.py")
 # mpconfigport.h: (what the port has, what the PIL image needs)
 PATCHES = (
     ("#if !defined(QEMU_SOC_NRF51)\n#define MICROPY_EMIT_THUMB          (1)\n#define MICROPY_EMIT_INLINE_THUMB   (1)\n"
@@ -55,6 +88,66 @@ PATCHES = (
      "#else\n#define MICROPY_EMIT_THUMB          (1)\n#define MICROPY_EMIT_THUMB_ARMV7M   (0)\n#endif\n"),
     ("#define MICROPY_PY_SYS_STDIO_BUFFER (0)\n", "#define MICROPY_PY_SYS_STDIO_BUFFER (1)\n"),
 )
+# main.c: (what the port has, what the PIL image needs): the stack check inside the linker script's stack
+MAIN_PATCHES = (("    mp_stack_set_limit(10240);\n", "    mp_stack_set_limit(MICROPY_PIL_STACK_LIMIT);\n"),)
+
+
+def linker_script(mem=TARGET_MEM):
+    """The board's memory: ports/qemu's nrf51.ld with ``mem.ram_bytes`` of SRAM and a stack region of
+    ``mem.stack_bytes`` at its top (``_sstack`` .. ``_estack``); the link fails if the variables and the heap run
+    into it."""
+    return """/* The PIL board (ground/pil_build.py): an nRF51 memory map with %(ram)d KB of SRAM, the stack on top */
+MEMORY
+{
+    ROM : ORIGIN = 0x00000000, LENGTH = 1M
+    RAM : ORIGIN = 0x%(org)08X, LENGTH = %(ram)dK
+}
+
+_estack = ORIGIN(RAM) + LENGTH(RAM);
+_sstack = _estack - %(stack)d;
+
+SECTIONS
+{
+    .text : {
+        . = ALIGN(4);
+        KEEP(*(.isr_vector))
+        *(.text*)
+        *(.rodata*)
+        . = ALIGN(4);
+        _etext = .;
+        _sidata = _etext;
+    } > ROM
+
+    .data : AT ( _sidata )
+    {
+        . = ALIGN(4);
+        _sdata = .;
+        *(.data*)
+        . = ALIGN(4);
+        _edata = .;
+    } >RAM
+
+    .bss :
+    {
+        . = ALIGN(4);
+        _sbss = .;
+        *(.bss*)
+        *(COMMON)
+        . = ALIGN(4);
+        _ebss = .;
+    } >RAM
+}
+ASSERT(_ebss <= _sstack, "the variables and the GC heap run into the stack: a smaller heap or stack")
+""" % {"org": RAM_START, "ram": mem.ram_bytes // 1024, "stack": mem.stack_bytes}
+
+
+def board_module(mem=TARGET_MEM):
+    """``pil_board``, frozen into the image: the memory map the firmware paints and the host reads back."""
+    return ('"""The PIL board\'s memory map (generated by ground/pil_build.py)."""\n'
+            "RAM_START = 0x%08X\nRAM_BYTES = %d\nHEAP_BYTES = %d\nSTACK_BYTES = %d\nSTACK_BOTTOM = 0x%08X\n"
+            "STACK_TOP = 0x%08X\nSTACK_PAINT = 0x%08X\n"
+            % (RAM_START, mem.ram_bytes, mem.heap_bytes, mem.stack_bytes, mem.stack_bottom, mem.stack_top,
+               STACK_PAINT))
 
 
 class BuildError(Exception):
@@ -79,6 +172,24 @@ def install_hint(pkgs):
     return "apt-get install --no-install-recommends %s" % " ".join(pkgs)
 
 
+def install_tools(missing):
+    """As root with apt-get at hand (a CI machine): install the ``missing`` Debian packages from the machine's own apt
+    sources, as ``make natmod`` fetches its source; returns what is still missing (all of it when this is not such
+    a machine). BuildError if apt-get fails."""
+    if not missing or os.geteuid() != 0 or shutil.which("apt-get") is None:
+        return missing
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    install = ["apt-get", "install", "-y", "-q", "--no-install-recommends"] + list(missing)
+    print("pil: installing %s (apt-get, as root)" % " ".join(missing), file=sys.stderr, flush=True)
+    p = subprocess.run(install, capture_output=True, text=True, env=env)
+    if p.returncode != 0:                 # the package lists may be stale or absent: once more after an update
+        for cmd in (["apt-get", "update", "-q"], install):
+            p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+            if p.returncode != 0:
+                raise BuildError("%s failed: %s" % (" ".join(cmd[:3]), (p.stderr or p.stdout).strip()[-1500:]))
+    return missing_tools()
+
+
 def fetch_full(dest=FULL_DIR):
     """MicroPython's whole source tree under ``dest`` (``natmod_build.fetch_source``: the machine's apt archives,
     the pinned SHA-256, extracted once)."""
@@ -91,63 +202,98 @@ def fetch_full(dest=FULL_DIR):
 
 
 # the known-answer scripts the PIL tests run on the board (tests/mp: the same ones the unix port runs)
-FROZEN_TESTS = ("firmware_plant.py", "firmware_viper.py", "pil_probe.py")
+FROZEN_TESTS = ("firmware_plant.py", "pil_probe.py")
 
 
-def manifest_text(root=ROOT, files=FROZEN, tests=FROZEN_TESTS):
-    """The frozen manifest: our modules, by path from the repository's root (module names follow), and the
-    tests' scripts as top-level modules."""
-    return "freeze(%r, (%s,))\nfreeze(%r, (%s,))\n" % (
-        root, ", ".join(repr(f) for f in files), os.path.join(root, "tests", "mp"), ", ".join(repr(f) for f in tests))
+def manifest_text(root=ROOT, files=FROZEN, tests=FROZEN_TESTS, out=TARGET_MEM.dir):
+    """The frozen manifest: our modules, by path from the repository's root (module names follow), the tests'
+    scripts as top-level modules, and the board's ``pil_board`` (in ``out``)."""
+    return "freeze(%r, (%s,))\nfreeze(%r, (%s,))\nfreeze(%r, ('pil_board.py',))\n" % (
+        root, ", ".join(repr(f) for f in files), os.path.join(root, "tests", "mp"), ", ".join(repr(f) for f in tests),
+        out)
 
 
 def patch_port(src):
-    """A copy of ports/qemu's configuration with ``PATCHES`` made (the tree's own file kept as .orig)."""
-    path = os.path.join(src, "ports", "qemu", "mpconfigport.h")
-    orig = path + ".orig"
-    if not os.path.exists(orig):
-        shutil.copyfile(path, orig)
-    with open(orig) as f:
-        text = f.read()
-    for old, new in PATCHES:
-        if old not in text:
-            raise BuildError("ports/qemu/mpconfigport.h is not the 1.25.0 one this build patches (%r missing)"
-                             % old.splitlines()[0])
-        text = text.replace(old, new)
+    """ports/qemu's configuration and main.c with ``PATCHES`` and ``MAIN_PATCHES`` made (the tree's own files kept
+    as .orig)."""
+    for name, patches in (("mpconfigport.h", PATCHES), ("main.c", MAIN_PATCHES)):
+        path = os.path.join(src, "ports", "qemu", name)
+        orig = path + ".orig"
+        if not os.path.exists(orig):
+            shutil.copyfile(path, orig)
+        with open(orig) as f:
+            text = f.read()
+        for old, new in patches:
+            if old not in text:
+                raise BuildError("ports/qemu/%s is not the 1.25.0 one this build patches (%r missing)"
+                                 % (name, old.strip().splitlines()[0]))
+            text = text.replace(old, new)
+        _write_if_changed(path, text)
+
+
+def _write_if_changed(path, text):
+    """Write ``text`` unless the file holds it already (make rebuilds what depends on a newer file)."""
+    try:
+        with open(path) as f:
+            if f.read() == text:
+                return
+    except OSError:
+        pass
     with open(path, "w") as f:
         f.write(text)
 
 
-def build(src=None):
-    """mpy-cross, then the MICROBIT image with the firmware frozen; returns the image's path."""
-    missing = missing_tools()
+def build(src=None, mems=(TARGET_MEM, LAB_MEM)):
+    """mpy-cross, then a MICROBIT image with the firmware frozen for each memory map; returns the target's path."""
+    missing = install_tools(missing_tools())
     if missing:
-        raise BuildError("missing %s (install: %s)" % (", ".join(missing), install_hint(missing)))
+        raise BuildError("missing %s (install: %s; as root with apt-get this build installs them itself)"
+                         % (", ".join(missing), install_hint(missing)))
     src = src or fetch_full()
     patch_port(src)
-    os.makedirs(OUT, exist_ok=True)
-    man = os.path.join(OUT, "manifest.py")
-    with open(man, "w") as f:
-        f.write(manifest_text())
     nolib = os.path.join(OUT, "no-micropython-lib")        # the build insists on micropython-lib's README only
     os.makedirs(nolib, exist_ok=True)
     with open(os.path.join(nolib, "README.md"), "w") as f:
         f.write("Empty: the PIL image freezes the firmware only (ground/pil_build.py).\n")
-    for cmd in (["make", "-s", "-C", os.path.join(src, "mpy-cross"), "-j2"],
-                ["make", "-s", "-C", os.path.join(src, "ports", "qemu"), "-j2", "BOARD=" + BOARD,
-                 "BUILD=" + os.path.join(OUT, BOARD), "FROZEN_MANIFEST=" + man, "MPY_LIB_DIR=" + nolib,
-                 "MPY_CROSS_FLAGS=-march=" + MARCH, "MICROPY_HEAP_SIZE=%d" % HEAP_BYTES]):
-        p = subprocess.run(cmd, capture_output=True, text=True)
-        if p.returncode != 0:
-            raise BuildError("%s failed:\n%s" % (" ".join(cmd[:4]), (p.stderr or p.stdout).strip()[-3000:]))
-    if not os.path.exists(IMAGE):
-        raise BuildError("the build left no %s" % IMAGE)
+    _make(["make", "-s", "-C", os.path.join(src, "mpy-cross"), "-j2"])
+    for mem in mems:
+        os.makedirs(mem.dir, exist_ok=True)
+        man = os.path.join(mem.dir, "manifest.py")
+        ld = os.path.join(mem.dir, "board.ld")
+        for path, text in ((man, manifest_text(out=mem.dir)), (ld, linker_script(mem)),
+                           (os.path.join(mem.dir, "pil_board.py"), board_module(mem))):
+            _write_if_changed(path, text)
+        config = ["MICROPY_HEAP_SIZE=%d" % mem.heap_bytes, "LDSCRIPT=" + ld,
+                  "CFLAGS_EXTRA=-DMICROPY_PIL_STACK_LIMIT=%d" % (mem.stack_bytes - 512)]
+        stamp = os.path.join(mem.dir, "config.stamp")     # make does not see a changed -D: main.c is built again
+        try:
+            with open(stamp) as f:
+                same = f.read() == "\n".join(config)
+        except OSError:
+            same = False
+        if not same:
+            for f in ("main.o", "firmware.elf"):
+                if os.path.exists(os.path.join(mem.dir, f)):
+                    os.remove(os.path.join(mem.dir, f))
+        _make(["make", "-s", "-C", os.path.join(src, "ports", "qemu"), "-j2", "BOARD=" + BOARD, "BUILD=" + mem.dir,
+               "FROZEN_MANIFEST=" + man, "MPY_LIB_DIR=" + nolib, "MPY_CROSS_FLAGS=-march=" + MARCH] + config)
+        if not os.path.exists(mem.image):
+            raise BuildError("the build left no %s" % mem.image)
+        with open(stamp, "w") as f:
+            f.write("\n".join(config))
     return IMAGE
 
 
-def qemu_command(image=IMAGE, serial="stdio", icount=True):
-    """``emulator.launcher.qemu_command``; here the UART on stdio and ``-icount`` by default (the tests' board)."""
-    return launcher.qemu_command(image, serial, icount)
+def _make(cmd):
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise BuildError("%s failed:\n%s" % (" ".join(cmd[:4]), (p.stderr or p.stdout).strip()[-3000:]))
+
+
+def qemu_command(mem=LAB_MEM, serial="stdio", icount=True, monitor=None):
+    """``emulator.launcher.qemu_command`` for ``mem``'s image; here the UART on stdio and ``-icount`` by default (the
+    tests' board)."""
+    return launcher.qemu_command(mem.image, serial, icount, monitor, ram_bytes=mem.ram_bytes)
 
 
 class Board:
@@ -155,11 +301,11 @@ class Board:
     REPL: ``run(code)`` executes ``code`` on the board and returns its output (a board-side exception raises
     ``BoardError`` with its traceback). A context manager; ``close()`` ends QEMU."""
 
-    def __init__(self, image=IMAGE, icount=True, boot_s=30.0):
+    def __init__(self, mem=LAB_MEM, icount=True, boot_s=30.0):
         import select  # noqa: F401  (POSIX pipes: what _read polls)
-        if not os.path.exists(image):
-            raise BuildError("no PIL image at %s (make pil)" % image)
-        self.proc = subprocess.Popen(qemu_command(image, "stdio", icount), stdin=subprocess.PIPE,
+        if not os.path.exists(mem.image):
+            raise BuildError("no PIL image at %s (make pil)" % mem.image)
+        self.proc = subprocess.Popen(qemu_command(mem, "stdio", icount), stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         self.banner = self._read(b">>> ", boot_s)
         self._write(b"\r\x01")                        # raw REPL
@@ -214,6 +360,85 @@ class Board:
 
 class BoardError(Exception):
     pass
+
+
+# the target the PIL image stands for, as a qemu run's summary.json states it
+TARGET = {"board": "QEMU microbit (nRF51822) standing for the thesis's SAMD21G18 (CtrlArduino)",
+          "core": "ARM Cortex-M0 (ARMv6-M; the SAMD21's Cortex-M0+ runs the same Thumb code)",
+          "clock_hz": 48e6, "cpi_range": [1.2, 1.6]}
+INSN_PER_TIMER_TICK = 62.5        # firmware.hal.nrf51.INSN_PER_TICK (-icount shift=0, TIMER0 at 16 MHz)
+MAILBOX_MAGIC = 0x0C0FFEE         # firmware.pil_main.MAGIC
+MAILBOX_WORDS = 5
+
+
+class Monitor:
+    """QEMU's human monitor on a unix socket (``launcher.qemu_command(monitor=...)``): ``words(addr, n)`` reads n
+    32-bit words of the guest's memory, as a debugger reads a board's."""
+
+    def __init__(self, path, timeout_s=5.0):
+        import socket
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.settimeout(timeout_s)
+        self.sock.connect(path)
+        self._until_prompt()
+
+    def _until_prompt(self):
+        buf = b""
+        while not buf.endswith(b"(qemu) "):
+            b = self.sock.recv(65536)
+            if not b:
+                raise BoardError("QEMU's monitor closed")
+            buf += b
+        return buf.decode(errors="replace")
+
+    def words(self, addr, n):
+        out = []
+        while len(out) < n:
+            k = min(1024, n - len(out))
+            self.sock.sendall(b"xp /%dwx 0x%08x\n" % (k, addr + 4 * len(out)))
+            text = self._until_prompt()
+            got = []
+            for line in text.splitlines():
+                head, sep, rest = line.partition(":")
+                if sep and head.strip().startswith("0000") and "x" not in head.strip()[:2]:
+                    got.extend(int(w, 16) for w in rest.split())
+            if len(got) != k:
+                raise BoardError("QEMU's monitor gave %d words for %d at 0x%08x" % (len(got), k, addr))
+            out.extend(got)
+        return out
+
+    def close(self):
+        self.sock.close()
+
+
+def read_target(monitor_path, mem=TARGET_MEM):
+    """What a ``--runtime qemu`` run's summary.json states of the target (``TARGET``, the memory map, the stack's
+    high-water mark, the instructions per TICK exchange from ``firmware.pil_main``'s mailbox), read from the board's
+    RAM through QEMU's monitor while it still runs. None for a part the board did not write (no mailbox)."""
+    mon = Monitor(monitor_path)
+    try:
+        box = mon.words(mem.stack_bottom, MAILBOX_WORDS)
+        painted = mon.words(mem.stack_bottom + 4 * MAILBOX_WORDS, mem.stack_bytes // 4 - MAILBOX_WORDS)
+    finally:
+        mon.close()
+    out = dict(TARGET, ram_bytes=mem.ram_bytes, heap_bytes=mem.heap_bytes, stack_bytes=mem.stack_bytes,
+               stack_high_water_bytes=None, instructions_per_step=None)
+    if box[0] != MAILBOX_MAGIC:
+        return out
+    k = 0
+    while k < len(painted) and painted[k] == STACK_PAINT:
+        k += 1
+    out["stack_high_water_bytes"] = mem.stack_bytes - 4 * (MAILBOX_WORDS + k)
+    n, total, worst = box[1], box[2], box[3]
+    if n:
+        f = INSN_PER_TIMER_TICK
+        out["instructions_per_step"] = {
+            "what": "one TICK exchange: its frame decoded, the step, CTRL_STATUS when due, the FSM_SPI framed; the "
+                    "UART's own byte moves left out (firmware.hal.nrf51.read_frame's machine code reads, the port's "
+                    "driver writes: an interrupt or DMA on a board); -icount shift=0, TIMER0 at 16 MHz (62.5 "
+                    "instructions a tick), the clock reads taken off",
+            "n": n, "mean": total / n * f, "max": worst * f, "resolution": f}
+    return out
 
 
 def main(argv=None):

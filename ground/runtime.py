@@ -19,6 +19,7 @@ The subprocess is stopped (closed link, then terminate, then kill) when the cont
 
 import contextlib
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -171,7 +172,12 @@ def _start_qemu(boot_s=60.0):
     if missing or not os.path.exists(pil_build.IMAGE):
         raise OSError("runtime qemu needs the PIL image (make pil)%s" % (
             "" if not missing else " and %s (%s)" % (", ".join(missing), pil_build.install_hint(missing))))
-    proc = FirmwareProcess(qemu_command(pil_build.IMAGE, serial="pty"), stdout=subprocess.PIPE, name="QEMU")
+    import tempfile
+    mon_dir = tempfile.mkdtemp(prefix="fps-qemu-")
+    monitor = os.path.join(mon_dir, "monitor.sock")
+    proc = FirmwareProcess(qemu_command(pil_build.IMAGE, serial="pty", icount=True, monitor=monitor),
+                           stdout=subprocess.PIPE, name="QEMU")
+    proc.monitor_path, proc.monitor_dir = monitor, mon_dir
     fd = None
     try:
         line, t0 = b"", time.monotonic()
@@ -199,9 +205,11 @@ def _start_qemu(boot_s=60.0):
         os.write(fd, b"import firmware.pil_main\x04")
         until(b"OK", 10.0)
         link = open_serial(path, "BENCH", baudrate=115200)
+        proc.console = lambda: bytes(link.rx_tail)
     except BaseException:
         proc.kill()
         proc.stop()
+        shutil.rmtree(mon_dir, ignore_errors=True)
         raise
     finally:
         if fd is not None:
@@ -220,7 +228,15 @@ def exit_note(proc, wait_s=1.0):
 
 
 def _stop(link, proc):
-    """The link closed (the firmware leaves when it closes), then ``FirmwareProcess.stop``."""
+    """The link closed (the firmware leaves when it closes), then ``FirmwareProcess.stop``. The PIL board's RAM is
+    read first, while QEMU still runs (``proc.target``: ``ground.pil_build.read_target``)."""
+    if getattr(proc, "monitor_path", None):
+        from ground import pil_build
+        try:
+            proc.target = pil_build.read_target(proc.monitor_path) if proc.poll() is None else None
+        except (OSError, pil_build.BoardError) as exc:
+            proc.target = dict(pil_build.TARGET, error="the board's RAM could not be read: %s" % exc)
+        shutil.rmtree(proc.monitor_dir, ignore_errors=True)
     proc.stopped_by_us = proc.poll() is None
     with contextlib.suppress(Exception):
         link.close()

@@ -1,20 +1,16 @@
-"""Viper fast paths of the framing core, MicroPython only (``protocol.core`` selects them there).
+"""Viper fast paths of the framing core, MicroPython only (``protocol.frame`` selects them there).
 
-Same arithmetic as the pure functions in ``protocol.core`` (the reference, used on CPython): CRC-16/CCITT-FALSE
+Same arithmetic as the pure functions in ``protocol.frame`` (the reference, used on CPython): CRC-16/CCITT-FALSE
 table driven, COBS. They work on caller buffers given as start/length so the per-tick path copies and
 allocates nothing; callers check lengths first (viper pointers are unchecked). A .mpy of this module needs
 ``mpy-cross -march=<port arch>`` (``ground.mpy_build`` passes it).
 """
 
 import micropython
-from array import array
 
-_T16 = array("H", bytes(512))   # filled by set_table() with core's CRC-16 table
+from protocol.consts import CRC16_TABLE
 
-
-def set_table(table):
-    for i in range(256):
-        _T16[i] = table[i]
+_T16 = bytearray(CRC16_TABLE)   # in RAM, so that its u16 reads are aligned (a Cortex-M0 faults on unaligned ones)
 
 
 @micropython.viper

@@ -11,44 +11,13 @@ a rectilinear grid, so ``grid_from_calibration`` derives one:
 - node (i, j) takes the H of the grid point in column i and row j. ``max_dev_v`` reports how far the
   points' own V0 lie from their nodes (the cross-coupling the rectilinear grid ignores).
 
-Blob (all little-endian)::
-
-    magic b"FPSH" | version u16 = 1 | nx u8 | ny u8 | nx x f32 axis X (V) | ny x f32 axis Y (V)
-    | nx*ny x (a, b, c, d) f32 H in ratio per volt, node (i, j) at index j*nx + i | CRC-32 u32
-
-H = [[a, b], [c, d]] maps FSM tilt volts to quadcell ratios, R = H V (Eq. 7.10).
+The blob (``pack``, ``parse``) is laid out and checked in ``protocol.hblob``, whose names are this module's too.
 """
 
 import struct
 
-from protocol.core import FLOAT32_MAX   # the blob stores float32
-
-try:
-    from binascii import crc32 as _crc32
-except ImportError:  # pragma: no cover
-    from protocol.core import crc32 as _crc32
-
-MAGIC = b"FPSH"
-VERSION = 1
-HEADER_FMT = "<4sHBB"
-HEADER_SIZE = 8
-MAX_AXIS = 32
-V_RANGE = 2.5        # FSM tilt voltage range, V
-
-
-class HTableError(ValueError):
-    """A calibration table or blob is malformed or out of range."""
-
-
-def _finite(v):
-    return v == v and v - v == 0.0
-
-
-def _num(v, what):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(float(v)):
-        raise HTableError("%s = %r is not a finite number" % (what, v))
-    return float(v)
-
+from protocol.hblob import (HEADER_FMT, HEADER_SIZE, MAGIC, MAX_AXIS, V_RANGE, VERSION, Blob,  # noqa: F401
+                            HTableError, Rectilinear, _crc32, _num, blob_size, validate)
 
 def _pair(p, key, i):
     v = p.get(key) if isinstance(p, dict) else None
@@ -81,7 +50,7 @@ def _spread(vals):
     return max(vals) - min(vals)
 
 
-class Grid:
+class Grid(Rectilinear):
     """A rectilinear H table: ``ax``, ``ay`` (V, ascending), ``h`` (list of (a, b, c, d), index j*nx + i)."""
 
     def __init__(self, ax, ay, h, max_dev_v=0.0):
@@ -91,36 +60,6 @@ class Grid:
         self.max_dev_v = max_dev_v
         self.points = None
         self.validate()
-
-    def validate(self):
-        for name, ax in (("ax", self.ax), ("ay", self.ay)):
-            if len(ax) < 2 or len(ax) > MAX_AXIS:
-                raise HTableError("H table axis %s has %d values, need 2..%d" % (name, len(ax), MAX_AXIS))
-            for k in range(len(ax)):
-                v = _num(ax[k], "%s[%d]" % (name, k))
-                if v < -V_RANGE or v > V_RANGE:
-                    raise HTableError("H table %s[%d] = %r V outside the FSM range +-%g V" % (name, k, v, V_RANGE))
-                if k and v <= ax[k - 1]:
-                    raise HTableError("H table %s not strictly increasing at %d: %r <= %r" % (name, k, v,
-                                                                                          ax[k - 1]))
-        if len(self.h) != len(self.ax) * len(self.ay):
-            raise HTableError("H table has %d matrices for a %dx%d grid" % (len(self.h), len(self.ax),
-                                                                          len(self.ay)))
-        for k in range(len(self.h)):
-            m = self.h[k]
-            if len(m) != 4:
-                raise HTableError("H table node %d has %d entries, need 4" % (k, len(m)))
-            for e in range(4):
-                if abs(_num(m[e], "H[%d][%d]" % (k, e))) > FLOAT32_MAX:
-                    raise HTableError("H table node %d entry %d = %r does not fit the blob's float32" % (k, e, m[e]))
-
-    @property
-    def nx(self):
-        return len(self.ax)
-
-    @property
-    def ny(self):
-        return len(self.ay)
 
 
 def grid_from_calibration(cal):
@@ -184,11 +123,6 @@ def grid_from_calibration(cal):
     return g
 
 
-def blob_size(nx, ny):
-    """Bytes of the blob of an nx x ny grid: header, the float32 axes, four float32 of H per node, CRC-32."""
-    return HEADER_SIZE + 4 * (nx + ny) + 16 * nx * ny + 4
-
-
 def pack(g):
     """The blob bytes of a ``Grid``."""
     g.validate()
@@ -208,31 +142,8 @@ def pack(g):
 
 def parse(data):
     """A ``Grid`` from blob bytes; HTableError on a bad magic, version, size, CRC or value."""
-    mv = memoryview(data)
-    if len(mv) < HEADER_SIZE + 4:
-        raise HTableError("H table blob truncated: %d bytes" % len(mv))
-    magic, ver, nx, ny = struct.unpack_from(HEADER_FMT, mv, 0)
-    if magic != MAGIC:
-        raise HTableError("H table blob bad magic %r (expected %r)" % (bytes(magic), MAGIC))
-    if ver != VERSION:
-        raise HTableError("H table blob version %d not supported (expected %d)" % (ver, VERSION))
-    size = blob_size(nx, ny)
-    if len(mv) != size:
-        raise HTableError("H table blob length %d != %d for a %dx%d grid" % (len(mv), size, nx, ny))
-    want = struct.unpack_from("<I", mv, size - 4)[0]
-    got = _crc32(mv[:size - 4]) & 0xFFFFFFFF
-    if want != got:
-        raise HTableError("H table blob CRC-32 mismatch: stored 0x%08x, computed 0x%08x" % (want, got))
-    off = HEADER_SIZE
-    axes = []
-    for k in range(nx + ny):
-        axes.append(struct.unpack_from("<f", mv, off)[0])
-        off += 4
-    h = []
-    for k in range(nx * ny):
-        h.append(struct.unpack_from("<ffff", mv, off))
-        off += 16
-    return Grid(axes[:nx], axes[nx:], h)
+    b = Blob(data)
+    return Grid([b.ax[k] for k in range(b.nx)], [b.ay[k] for k in range(b.ny)], [b.h[k] for k in range(len(b.h))])
 
 
 def pack_calibration(cal):

@@ -245,8 +245,12 @@ class _MemPipe:
             self._cond.notify_all()
 
 
+RX_TAIL = 1024
+
+
 class SerialLink(Link):
-    """Packets framed with COBS + CRC-16 (``protocol.host``) over a byte stream."""
+    """Packets framed with COBS + CRC-16 (``protocol.host``) over a byte stream. ``rx_tail`` keeps the last
+    ``RX_TAIL`` bytes received: what a board printed instead of frames (a traceback) can be told."""
 
     def __init__(self, port, node):
         Link.__init__(self, node)
@@ -254,6 +258,7 @@ class SerialLink(Link):
         self._dec = host.Decoder()
         self.peer_path = None
         self.peer = None
+        self.rx_tail = bytearray()     # the last RX_TAIL bytes received, frames or not (a board's console text)
 
     def send_raw(self, pid, src, dst, payload):
         """Send one frame; returns its sequence number."""
@@ -283,6 +288,9 @@ class SerialLink(Link):
                 self.closed = True
                 return []
             if data:
+                self.rx_tail += data
+                if len(self.rx_tail) > RX_TAIL:
+                    del self.rx_tail[:-RX_TAIL]
                 out = self._dec.feed(data)
                 if out:
                     return out

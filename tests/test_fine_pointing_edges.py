@@ -64,7 +64,8 @@ def _served_controller():
     from emulator.bench import Bench
     from emulator.truth import true_h_field
     from firmware.controller import TRACK
-    from firmware.hal.link import _Ms, serve_controller
+    from firmware.hal.link import serve_controller
+    from firmware.hal.ports import _Ms
     from protocol import htable
     from protocol.link import inproc_pair
     a, b = inproc_pair("BENCH", "CONTROLLER")

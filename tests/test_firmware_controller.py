@@ -187,11 +187,8 @@ def _extreme_table(sign=1.0):
        st.integers(1, 65535), st.integers(-16384, 16384), st.integers(-16384, 16384), st.sampled_from([1.0, -1.0]))
 def test_intermediates_within_2_30_and_codes_in_safe_range(samples, gain, rxc, ryc, sign):
     t = HinvTable(_extreme_table(sign))
-    t.h = [Bounded(v) for v in t.h]
-    t.rdx = [Bounded(v) for v in t.rdx]
-    t.rdy = [Bounded(v) for v in t.rdy]
-    t.ax = [Bounded(v) for v in t.ax]
-    t.ay = [Bounded(v) for v in t.ay]
+    t.t = [Bounded(v) for v in t.t]
+    t.h16 = [Bounded(v) for v in t.h16]
     c = Controller(table=t, gain_q15=Bounded(gain), rx_cmd_q15=Bounded(rxc), ry_cmd_q15=Bounded(ryc),
                    limit_code=30000)
     c.step(2048, 2048, 0)
@@ -358,6 +355,30 @@ def test_htable_upload_swaps_in_and_refusals_keep_previous(grid):
     assert big[0][2][2] == core.ERROR["TOO_LARGE"]
     assert c.table is first
     assert _upload(c, other)[-1][0] == P["ACK"] and c.table is not first
+
+
+def test_a_small_boards_static_table_is_rewritten_in_place_only_once_a_new_one_passes(grid):
+    """static=True (the 32 KB board, firmware.pil_main): the upload buffer and the table's arrays are allocated at
+    construction and reused; an upload is read in place (protocol.hblob.Blob) into the same arrays, the same
+    integers as from a Grid; a refused table (bad content, or larger than the board holds) leaves the loaded one
+    whole, its arrays untouched."""
+    from protocol.hblob import Blob, blob_size
+    blob = htable.pack(grid)
+    c = Controller(max_table_bytes=blob_size(grid.nx, grid.ny), static=True)
+    t, h16 = c._static_t
+    assert all(pid == P["ACK"] for pid, _, _ in _upload(c, blob))
+    assert c.table.t is t and c.table.h16 is h16 and c.table.h == HinvTable(grid).h == HinvTable(Blob(blob)).h
+    before = (list(t), list(h16))
+    singular = htable.pack(htable.Grid(grid.ax, grid.ay, [(1.0, 2.0, 2.0, 4.0)] * len(grid.h)))
+    assert _upload(c, singular)[-1][2][2] == core.ERROR["BAD_CONTENT"]
+    wide = htable.pack(htable.Grid([-2.0 + 0.1 * k for k in range(grid.nx + 1)], grid.ay,
+                                   list(grid.h) + list(grid.h[:grid.ny])))
+    assert _send(c, "HTABLE_BEGIN", total=len(wide), crc32=zlib.crc32(wide))[0][2][2] == core.ERROR["TOO_LARGE"]
+    with pytest.raises(htable.HTableError, match="table memory"):      # past the upload's check, the arrays' own
+        HinvTable(htable.parse(wide), c._static_t)
+    assert (list(t), list(h16)) == before and c.table.h == HinvTable(grid).h
+    other = htable.pack(htable.Grid([-1, 1], [-1, 1], [(-8, 0, 0, 8)] * 4))
+    assert _upload(c, other)[-1][0] == P["ACK"] and c.table.t is t and c.table.h == HinvTable(htable.parse(other)).h
 
 
 def test_table_from_calibration_json_file(tmp_path, grid):

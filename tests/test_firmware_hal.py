@@ -122,11 +122,12 @@ def test_firmware_main_reports_a_link_failure_while_serving_on_stderr_with_exit_
     with the reason on stderr, which ground.runtime keeps and fps hil reports (stdout goes to /dev/null). A bad
     option or link spec (before serving) is still exit 2 with the usage."""
     from firmware.hal import link as hal_link
+    from firmware.hal import ports
     from firmware.main import main
 
     def port_failed(*a, **k):
         raise OSError("the link failed: the peer read nothing for 5 s")
-    monkeypatch.setattr(hal_link, "open_link", lambda spec, node, **kw: object())
+    monkeypatch.setattr(ports, "open_link", lambda spec, node, **kw: object())
     monkeypatch.setattr(hal_link, "serve_controller", port_failed)
     monkeypatch.setattr(hal_link, "serve_player", port_failed)
     for role in ("controller", "player"):

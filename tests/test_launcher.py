@@ -42,3 +42,20 @@ def test_stop_ends_a_process_that_does_not_leave_and_says_nothing_of_it():
     assert p.stdout.readline().strip() == b"up"
     p.stop(grace_s=0.2)                     # SIGTERM ignored: SIGKILL
     assert p.returncode is not None and p.stopped_by_us and p.exit_note() == ""
+
+
+def test_a_board_whose_firmware_stopped_is_told_by_its_last_console_lines():
+    """A QEMU board runs on after its firmware raised (firmware.pil_main halts): the traceback it printed on its UART
+    (``console``: the bench link's last bytes) is what the note says, frames around it ignored."""
+    p = launcher.FirmwareProcess([sys.executable, "-c", "import time; time.sleep(30)"], name="QEMU")
+    try:
+        assert p.exit_note(wait_s=0.1) == ""                  # running, nothing printed: nothing to tell
+        p.console = lambda: (b"\x05\x01\x01\x10\xff\x00Traceback (most recent call last):\r\n  File \"a.py\", line 3, "
+                             b"in f\r\n  File \"b.py\", line 9, in g\r\nMemoryError: memory allocation failed\r\n")
+        note = p.exit_note(wait_s=0.1)
+        assert note.startswith("; the QEMU board's firmware stopped: ") and note.endswith("MemoryError: memory "
+                                                                                        "allocation failed")
+        assert 'File "b.py", line 9, in g' in note and "Traceback" not in note     # its last three lines
+    finally:
+        p.kill()
+        p.stop()

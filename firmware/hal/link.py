@@ -3,78 +3,23 @@
 ``serve_controller`` answers each TICK (the Q1 sample) with one FSM_SPI (the tick number and the AD5664R
 words), plus CTRL_STATUS every ``decim`` ticks, both addressed to the TICK's sender (the HIL host, whose
 ground side reads the status), and handles every other packet between ticks.
-The per-tick path unpacks and packs with preallocated buffers; framing is the link's. ``open_link`` gives a
-``protocol.stream.StreamLink`` for ``serial:PATH`` under MicroPython and, under CPython, any
-``protocol.link`` spec (``serial:PATH`` through pyserial, ``slcan:PATH`` for CAN). Links time out in ms here (``recv_ms``).
+The per-tick path unpacks and packs with preallocated buffers; framing is the link's. The links: a desktop's
+(``firmware.hal.ports.open_link``) or a board's (``firmware.hal.stdio``); they time out in ms here (``recv_ms``).
 """
 
 import struct
-import sys
 
-from firmware.controller import heap_lock, heap_unlock
-from protocol import can, core
+from firmware.controller import FW_VERSION, heap_lock, heap_unlock, hello_payload
+from protocol import consts
 
-P_TICK = core.PACKET_ID["TICK"]
-P_FSM_SPI = core.PACKET_ID["FSM_SPI"]
-P_STATUS = core.PACKET_ID["CTRL_STATUS"]
-P_HELLO = core.PACKET_ID["HELLO"]
-BROADCAST = core.NODE["BROADCAST"]
-_TICK_FMT = core.PACKET[P_TICK].fmt
-_SPI_FMT = core.PACKET[P_FSM_SPI].fmt
-_SPI_SIZE = core.PACKET[P_FSM_SPI].size
-_MICROPYTHON = sys.implementation.name == "micropython"
-
-
-class _Ms:
-    """Adapter giving a ``protocol.link.Link`` (timeout in s) the StreamLink's ``recv_ms``."""
-
-    def __init__(self, link):
-        self.link = link
-        self.node = link.node
-
-    def recv_ms(self, timeout_ms):
-        return self.link.recv(None if timeout_ms is None else timeout_ms / 1000.0)
-
-    def send_raw(self, pid, src, dst, payload):
-        self.link.send_raw(pid, src, dst, payload)
-
-    @property
-    def closed(self):
-        return self.link.closed
-
-    @property
-    def closed_why(self):
-        return getattr(self.link, "closed_why", None)
-
-    def close(self):
-        self.link.close()
-
-    def counters(self):
-        return self.link.counters()
-
-
-class _StreamMs(_Ms):
-    """A StreamLink already speaks ms: its own bound methods, one call less per packet."""
-
-    def __init__(self, link):
-        _Ms.__init__(self, link)
-        self.recv_ms = link.recv
-        self.send_raw = link.send_raw
-
-
-def open_link(spec, node, isotp_ms=None):
-    """A link for ``spec`` with ``recv_ms``/``send_raw``/``closed``/``close``; ``isotp_ms``: a CAN link's
-    ISO-TP N_Bs (None: ISO's 1000 ms)."""
-    if _MICROPYTHON:
-        if not spec.startswith("serial:"):
-            raise ValueError("link %r: MicroPython speaks serial:PATH only" % spec)
-        from protocol.stream import StreamLink
-        return _StreamMs(StreamLink(spec[len("serial:"):], node))
-    from protocol import link as hostlink
-    kw = {}
-    if isotp_ms is not None and not spec.startswith("serial:"):
-        kw["isotp_timeout_s"] = isotp_ms / 1000.0
-    return _Ms(hostlink.open_link(spec, node, **kw))
+P_TICK = consts.P_TICK
+P_FSM_SPI = consts.P_FSM_SPI
+P_STATUS = consts.P_CTRL_STATUS
+P_HELLO = consts.P_HELLO
+BROADCAST = consts.NODE_BROADCAST
+_TICK_FMT = consts.FMT_TICK
+_SPI_FMT = consts.FMT_FSM_SPI
+_SPI_SIZE = consts.SIZES[P_FSM_SPI]
 
 
 def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
@@ -105,8 +50,8 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     stale = -1                                # the last TICK older than ``last`` in a row (-1: none)
     gap = 0                                   # ticks skipped by the jump to ``last``, until a TICK confirms it
     w = ctl.words
-    counters = getattr(link, "counters", None)
-    link.send_raw(P_HELLO, me, BROADCAST, core.encode_payload(P_HELLO, node=me, fw_major=1, fw_minor=0))
+    rx_drops = getattr(link, "rx_drops", None)
+    link.send_raw(P_HELLO, me, BROADCAST, hello_payload(me, FW_VERSION))
     silent_ticks = int(poll_ms * rate_hz / 1000) or 1
     while not link.closed:
         pkts = link.recv_ms(poll_ms)
@@ -150,9 +95,8 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                     heap_unlock()
                 struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
                 if ctl.status_due_at(tick):   # to the HIL host that clocks us (on CAN, ISO-TP to an absent
-                    if counters is not None:  # node would block)
-                        d = counters()
-                        ctl.n_rx_drop = can.rx_drops(d, can.LINK_DROPS) + bad_ticks
+                    if rx_drops is not None:  # node would block)
+                        ctl.n_rx_drop = rx_drops() + bad_ticks
                     status = ctl.status_payload(tick)
                     status_tick = tick
                     link.send_raw(P_STATUS, me, src, status)

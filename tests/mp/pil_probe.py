@@ -4,30 +4,20 @@
 # (armv6m machine code) and the bytecode one, each less the same loop without the step, and the heap they hold.
 import gc
 
-import machine
-
 import firmware_plant as fp
 from firmware.controller import TRACK, Controller
+from firmware.hal import nrf51
 from protocol import htable
 
-T0 = 0x40008000
-INSN_PER_TICK = 62.5          # 1e9 instructions per virtual second / 16 MHz
+INSN_PER_TICK = nrf51.INSN_PER_TICK
 
 
 def timer_start():
-    m = machine.mem32
-    m[T0 + 0x004] = 1         # TASKS_STOP
-    m[T0 + 0x504] = 0         # MODE: timer
-    m[T0 + 0x508] = 3         # BITMODE: 32 bit
-    m[T0 + 0x510] = 0         # PRESCALER: 16 MHz
-    m[T0 + 0x00C] = 1         # TASKS_CLEAR
-    m[T0 + 0x000] = 1         # TASKS_START
+    nrf51.start(32)
 
 
 def timer_now():
-    m = machine.mem32
-    m[T0 + 0x040] = 1         # TASKS_CAPTURE[0]
-    return m[T0 + 0x540] & 0xFFFFFFFF
+    return nrf51.now() & 0xFFFFFFFF
 
 
 def _run(c, src, n):

@@ -6,8 +6,8 @@ MPY     := $(VENV)/bin/micropython
 STAMP   := $(VENV)/.installed-stamp
 NATMOD  := firmware/adcs/adcsk.mpy
 PIL_ELF := build/pil/MICROBIT/firmware.elf
-PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py protocol/*.py tests/mp/pil_probe.py tests/mp/firmware_plant.py \
-             tests/mp/firmware_viper.py) ground/pil_build.py
+PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py protocol/*.py tests/mp/pil_probe.py tests/mp/firmware_plant.py) \
+             ground/pil_build.py
 OUT     ?= out
 
 .PHONY: all install test bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
@@ -36,9 +36,10 @@ $(NATMOD): firmware/adcs/native/adcsk.c firmware/adcs/native/Makefile ground/nat
 natmod: $(STAMP)
 	$(PY) -m ground.natmod_build
 
-# Processor in the loop, first part (ground/pil_build.py): the controller frozen into MicroPython's qemu port for a
-# Cortex-M0 (QEMU's microbit machine); needs Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and
-# qemu-system-arm. tests/test_pil.py runs on the image when it is built and is skipped, saying why, when not.
+# Processor in the loop (ground/pil_build.py): the controller frozen into MicroPython's qemu port for a Cortex-M0
+# (QEMU's microbit machine), a 32 KB board and a 256 KB lab board; needs Debian's gcc-arm-none-eabi,
+# libnewlib-arm-none-eabi and qemu-system-arm, which it installs itself as root with apt-get (CI).
+# tests/test_pil.py runs on the images when they are built and is skipped, saying why, when not.
 pil: $(STAMP)
 	$(PY) -m ground.pil_build
 

@@ -1,8 +1,8 @@
 """Fixed-point H^-1 table over the rectilinear FSM-voltage grid, for the integral law (Eq. 7.10-7.12).
 
-Built once from a ``protocol.htable.Grid`` or ``Blob`` (float, at load time); the controller then reads the
-integers below (one int32 array, ``HinvTable.t``) and interpolates bilinearly (``hinv_into``) when its command
-enters a new 64-code bin. Q-formats:
+Built once from a ``protocol.htable.Grid`` or a ``protocol.hblob.Blob`` (float, at load time); the controller then
+reads the integers below (an int32 array ``HinvTable.t`` and an int16 array ``HinvTable.h16``) and interpolates
+bilinearly (``hinv_into``) when its command enters a new 64-code bin. Q-formats:
 
 - ``ax``, ``ay``   grid axes in AD5664R tilt codes (Q0 code, ``firmware.ad5664r.CODES_PER_VOLT``), ascending.
 - ``rdx``, ``rdy`` per cell 2^24 // width (Q24 per code): the cell fraction t = ((c - ax[i]) * rdx[i]) >> 12

@@ -315,6 +315,7 @@ def _cmd(a):
         runtime.check_options(a.runtime, a.link, **opts)
         runtime.check_board(cfg, opts.get("rate_hz", 637.8))
         rig_cm = runtime.open_rig(a.runtime, a.link, config=cfg, seed=a.seed, **opts)
+    rig = None
     try:
         with rig_cm as rig:
             if getattr(rig, "faults", None) is not None:      # silence windows in virtual seconds of the run
@@ -327,7 +328,10 @@ def _cmd(a):
             from ground.hil import link_counters
             cal["link_counters"] = link_counters(rig) if hasattr(rig, "lockstep") else None
     except (OSError, ValueError) as exc:     # the inputs were checked: this is the run failing (link, process)
-        raise CalibrationFailed("calibration stopped: %s; no calibration written" % exc) from None
+        from ground.runtime import exit_note   # and what the firmware said, if it stopped (a board: its traceback)
+        rig = rig if rig is not None else getattr(exc, "rig", None)
+        note = "" if "process exited" in str(exc) else exit_note(getattr(rig, "process", None), wait_s=0.5)
+        raise CalibrationFailed("calibration stopped: %s%s; no calibration written" % (exc, note)) from None
     base = os.path.splitext(a.output)[0]
     if failed:
         write_json(base + ".failed.json", cal)

@@ -59,3 +59,30 @@ def test_a_board_whose_firmware_stopped_is_told_by_its_last_console_lines():
     finally:
         p.kill()
         p.stop()
+
+
+def test_fps_calibrate_quotes_what_a_stopped_firmware_said(tmp_path, monkeypatch, capsys):
+    """A calibration whose firmware stopped (a QEMU board's traceback, a process's last line) says so beside the
+    link's error, as fps hil does."""
+    import contextlib
+    from ground import calibrate, cli, runtime
+
+    class Proc:
+        def exit_note(self, wait_s):
+            return "; the QEMU board's firmware stopped: MemoryError: memory allocation failed"
+
+    class Rig:
+        process = Proc()
+
+    @contextlib.contextmanager
+    def rig(*a, **k):
+        yield Rig()
+
+    def fails(*a, **k):
+        raise OSError("no answer to HTABLE_END after 40 tries")
+    monkeypatch.setattr(runtime, "open_rig", rig)
+    monkeypatch.setattr(calibrate, "run_calibration", fails)
+    assert cli.main(["calibrate", "--runtime", "micropython", "--grid", "3", "-o", str(tmp_path / "c.json")]) != 0
+    err = capsys.readouterr().err
+    assert "no answer to HTABLE_END" in err and "firmware stopped: MemoryError" in err and "Traceback" not in err
+    assert not (tmp_path / "c.json").exists()

@@ -155,10 +155,12 @@ class BuildError(Exception):
 
 
 def missing_tools():
-    """The Debian packages whose programs are not on PATH."""
+    """The Debian packages whose programs (or, for newlib, whose C library) are not there."""
     need = {"gcc-arm-none-eabi": "arm-none-eabi-gcc", "qemu-system-arm": "qemu-system-arm"}
     out = [p for p, exe in need.items() if shutil.which(exe) is None]
-    if shutil.which("arm-none-eabi-gcc") is not None:          # newlib: its headers beside the compiler's
+    if shutil.which("arm-none-eabi-gcc") is None:              # newlib comes with the compiler, not with it
+        out.append("libnewlib-arm-none-eabi")
+    else:                                                      # newlib: its libc beside the compiler's
         p = subprocess.run(["arm-none-eabi-gcc", "-print-file-name=libc.a"], capture_output=True, text=True)
         if not os.path.isabs(p.stdout.strip()):
             out.append("libnewlib-arm-none-eabi")

@@ -7,8 +7,9 @@ and branch-heavy), against the thesis's tick at 637.8 Hz on a 48 MHz SAMD21 (75,
 - The law alone, viper (armv6m machine code) and bytecode, each less the replay loop's own
   (``tests/mp/pil_probe.py``, on the instruments' image).
 - The 32 KB board (what ``--runtime qemu`` runs) in a 20 s ``fps hil`` with the thesis's 11x11 table: its RAM
-  (the GC heap it reserves and the stack's high-water mark) and each TICK exchange (decoding, step, framing), read
-  from the board after the run (``ground.pil_build.read_target``); the real-time factor.
+  (the GC heap it reserves and the stack's high-water mark) and each TICK exchange (decoding, step, framing), all
+  of them and the common ones that ``firmware.hal.fast_tick`` answers in machine code, read from the board after the
+  run (``ground.pil_build.read_target``); the real-time factor.
 
 Skipped, saying why, without the images."""
 
@@ -65,8 +66,12 @@ def main():
         s = json.load(open(os.path.join(tmp, "hil", "summary.json")))
     t, ips = s["target"], s["instructions_per_step"]
     ram = t["heap_bytes"] + t["stack_high_water_bytes"]
-    m0, m1 = ips["mean"] * CPI[0], ips["mean"] * CPI[1]
     x0, x1 = ips["max"] * CPI[0], ips["max"] * CPI[1]
+
+    def share(insn):
+        c0, c1 = insn * CPI[0], insn * CPI[1]
+        return "%.0f, %.0f-%.0f, %.0f-%.0f %% (%s)" % (insn, c0, c1, 100 * c0 / budget, 100 * c1 / budget,
+                                                   "met" if c1 <= budget / 2 else "missed")
     print("\nThe controller on the 32 KB board (fps hil --runtime qemu, 20 s, the thesis's 11x11 H table; the board's "
           "own figures from its summary.json: %s)\n" % ips["what"])
     print("| figure | thesis / goal | ours |\n|---|---|---|")
@@ -74,11 +79,15 @@ def main():
           "%.1f KB + %.1f KB = %.1f KB (%s) |" % (t["ram_bytes"] // 1024, t["heap_bytes"] / 1024,
                                                  t["stack_high_water_bytes"] / 1024, ram / 1024,
                                                  "met" if ram <= 24 * 1024 else "missed"))
-    print("| TICK exchange, mean over %d: instructions, cycles (CPI %.1f-%.1f), share of the tick | <= 50 %% of %.0f "
-          "cycles | %.0f, %.0f-%.0f, %.0f-%.0f %% (%s) |" % (ips["n"], CPI[0], CPI[1], budget, ips["mean"], m0, m1,
-                                                          100 * m0 / budget, 100 * m1 / budget,
-                                                          "met" if m1 <= budget / 2 else "missed"))
-    print("| TICK exchange, largest (a CTRL_STATUS tick, or one the GC ran in) | - | %.0f, %.0f-%.0f, %.0f-%.0f %% |"
+    print("| TICK exchange, mean over all %d: instructions, cycles (CPI %.1f-%.1f), share of the tick | <= 50 %% of "
+          "%.0f cycles | %s |" % (ips["n"], CPI[0], CPI[1], budget, share(ips["mean"])))
+    c = ips["common"]
+    if c["n"]:
+        print("| TICK exchange, mean over the %d common ones (machine code: no CTRL_STATUS due, in sequence) | <= 50 %% "
+              "| %s |" % (c["n"], share(c["mean"])))
+        print("| TICK exchange, the largest common one (a new H^-1 bin) | <= 50 %% | %s |" % share(c["max"]))
+    print("| TICK exchange, the largest of all (a CTRL_STATUS tick in bytecode, the GC running in it) | - | "
+          "%.0f, %.0f-%.0f, %.0f-%.0f %% |"
           % (ips["max"], x0, x1, 100 * x0 / budget, 100 * x1 / budget))
     print("| fps hil --runtime qemu, 20 s: real-time factor of the play (the whole command %.0f s wall) | >= 1x | "
           "%.2fx (%s) |" % (wall, s["real_time_factor"], "met" if s["real_time_factor"] >= 1 else "missed"))

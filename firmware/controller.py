@@ -116,7 +116,9 @@ _S_GH = const(20)         # cached g H^-1 (_gain_hinv): high parts h11 h12 h21 h
 _S_SAT_RUN = const(28)    # ticks the command has stayed on its clamp (0: off it; stops at _COUNT_MAX)
 _S_SAT_LAST = const(29)   # length of the last run that reached sat_ticks, once ended (0: none)
 _S_N_SAT_EP = const(30)   # entries into SATURATED, wraps at 2^16
-_S_SIZE = const(31)
+_S_PKT = const(31)        # tick of the last packet from the link
+_S_QUIET = const(32)      # ticks the link HAL waited without a TICK (link_silent; stops at _COUNT_MAX)
+_S_SIZE = const(33)
 
 _INIT_BIT = const(8)
 _E_MAX = const(16383)             # |dR| clamp, Q15 (0.5)
@@ -213,8 +215,6 @@ class Controller:
         self.sat_ticks = sat_ticks
         self.decim = decim
         self.ramp_q8 = ramp_code << 8
-        self._pkt = 0                  # tick of the last packet from the link
-        self._quiet = 0                # ticks the link HAL waited without a TICK (link_silent)
         self.n_unknown = 0             # telemetry counters, wrap at 2^16
         self.n_dup = 0                 # set by the link HAL: resent TICKs answered from its cache,
         self.n_gap = 0                 # ticks the bench ran without us, frames its decoder dropped
@@ -441,7 +441,7 @@ class Controller:
             n = self.step(q[0], q[1], q[2])
             self.hal.spi_write(self.words, n)
             m = s[_S_MODE]
-            if m != IDLE and m != SAFE and ((s[_S_TICKS] - self._pkt) & _COUNT_MAX) >= self.safe_ticks:
+            if m != IDLE and m != SAFE and ((s[_S_TICKS] - s[_S_PKT]) & _COUNT_MAX) >= self.safe_ticks:
                 s[_S_MODE] = SAFE                            # the ground link fell silent
                 self.why = WHY_LINK
         finally:
@@ -457,16 +457,19 @@ class Controller:
 
     def heard(self, tick_packet=False):
         """A packet arrived from the link: the silence count starts again. A TICK (``tick_packet``) belongs to
-        the tick it starts, so that tick sees no silence; any other packet to the last tick."""
-        t = self._s[_S_TICKS]
-        self._pkt = (t + 1) & _COUNT_MAX if tick_packet else t
-        self._quiet = 0
+        the tick it starts, so that tick sees no silence; any other packet to the last tick. (Both counts are
+        state slots, not attributes: a board's machine-code TICK path, ``firmware.hal.fast_tick``, sets them.)"""
+        s = self._s
+        t = s[_S_TICKS]
+        s[_S_PKT] = (t + 1) & _COUNT_MAX if tick_packet else t
+        s[_S_QUIET] = 0
 
     def link_silent(self, ticks):
         """The link has been silent for about ``ticks`` ticks with no TICK to step on (link HAL): enter SAFE
         once the total reaches ``safe_ticks`` in TRACK, HOLD or CALIBRATE (the ramp runs on the next ticks)."""
-        self._quiet = min(self._quiet + ticks, _COUNT_MAX)
-        if self.mode != IDLE and self.mode != SAFE and self._quiet >= self.safe_ticks:
+        s = self._s
+        s[_S_QUIET] = q = min(s[_S_QUIET] + ticks, _COUNT_MAX)
+        if self.mode != IDLE and self.mode != SAFE and q >= self.safe_ticks:
             self.mode = SAFE
             self.why = WHY_LINK
 

@@ -7,9 +7,9 @@ the thesis's 11x11 grid (``TABLE_GRID``; a larger table is refused with TOO_LARG
 block that large.
 
 What the host reads back after a run (through QEMU's monitor, as a debugger reads a board's RAM), at the bottom
-of the stack region (``pil_board``): a mailbox of five words, ``MAGIC``, the TICK exchanges counted, the sum and
-the largest of their durations, and one clock read's own cost, in ticks of the nRF51's TIMER0 at 16 MHz (16-bit
-mode); above it, the stack painted with ``pil_board.STACK_PAINT`` here at start, whose first overwritten word is
+of the stack region (``pil_board``): a mailbox of eight words, ``MAGIC``, the TICK exchanges counted, the sum and
+the largest of their durations, one clock read's own cost, and the count, sum and largest of the common ones
+(answered by ``firmware.hal.fast_tick``'s machine code), in ticks of the nRF51's TIMER0 at 16 MHz (16-bit mode); above it, the stack painted with ``pil_board.STACK_PAINT`` here at start, whose first overwritten word is
 the stack's high-water mark. An exchange is a TICK's frame, read whole from the UART by ``firmware.hal.nrf51.read_frame``
 (machine code), decoded, then its FSM_SPI (and CTRL_STATUS, when due) computed and framed: the decoding, the step
 and the framing, less the UART's own byte moves (``firmware.hal.stdio``) and the clock reads. Under QEMU's ``-icount shift=0`` one instruction takes
@@ -22,7 +22,7 @@ import sys
 import pil_board
 from micropython import const
 
-BOX_WORDS = const(5)
+BOX_WORDS = const(8)
 
 
 def paint_stack():
@@ -51,6 +51,7 @@ from firmware.controller_viper import ViperController  # noqa: E402
 from firmware.hal.link import serve_controller  # noqa: E402
 from firmware.hal.stdio import StdioLink  # noqa: E402
 from firmware.hal import nrf51  # noqa: E402
+from firmware.hal import fast_tick  # noqa: E402
 
 TABLE_GRID = 11
 MAGIC = const(0x0C0FFEE)
@@ -71,9 +72,9 @@ class Meter:
         m[box + 16] = (self.now() - t) & 0xFFFF    # one read's own cost, taken off each exchange
         m[box] = MAGIC
 
-    def exchange(self, t0, work, n):
+    def exchange(self, t0, work, n, common=False):
         """One exchange: ``work`` ticks, then from t0 to now, in ``n`` timed intervals; less a clock read's own cost
-        for each."""
+        for each. ``common``: one the machine-code path answered, also counted apart."""
         m = machine.mem32
         b = self.box
         d = work + ((nrf51.now() - t0) & 0xFFFF) - n * m[b + 16]
@@ -81,6 +82,11 @@ class Meter:
         m[b + 8] += d
         if d > m[b + 12]:
             m[b + 12] = d
+        if common:
+            m[b + 20] += 1
+            m[b + 24] += d
+            if d > m[b + 28]:
+                m[b + 28] = d
 
 
 def main():
@@ -92,7 +98,8 @@ def main():
     try:
         serve_controller(ViperController(max_table_bytes=table_bytes, static=True),
                          StdioLink(protocol.consts.NODE_CONTROLLER, meter=Meter(pil_board.STACK_BOTTOM),
-                                   read_frame=nrf51.read_frame),
+                                   read_frame=nrf51.read_frame, write_frame=nrf51.write_frame,
+                                   fast=fast_tick.answer),
                          rate_hz=637.8)
     except Exception as exc:            # MemoryError included
         sys.print_exception(exc)

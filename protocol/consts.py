@@ -2,8 +2,8 @@
 ``protocol/table.py``: do not edit; tests/test_protocol_gen.py checks it is current).
 
 ``P_<NAME>`` packet ids, ``FMT_<NAME>`` their little-endian struct formats, ``SIZES[pid]`` payload bytes
-(0xFF: no such packet), ``NODE_<NAME>`` node addresses, ``E_<NAME>`` NACK codes, ``CRC16_TABLE`` the
-CRC-16/CCITT-FALSE table as 256 little-endian u16.
+(0xFF: no such packet), ``LARGEST_PAYLOAD`` the largest of them, ``NODE_<NAME>`` node addresses,
+``E_<NAME>`` NACK codes, ``CRC16_TABLE`` the CRC-16/CCITT-FALSE table as 256 little-endian u16.
 """
 
 PROTOCOL_VERSION = 1
@@ -106,6 +106,7 @@ SIZES = (
     b'\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff'
     b'\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff'
 )
+LARGEST_PAYLOAD = 93
 CRC16_TABLE = (
     b'\x00\x00!\x10B c0\x84@\xa5P\xc6`\xe7p\x08\x81)\x91J\xa1k\xb1\x8c\xc1\xad\xd1\xce\xe1\xef\xf1'
     b'1\x12\x10\x02s2R"\xb5R\x94B\xf7r\xd6b9\x93\x18\x83{\xb3Z\xa3\xbd\xd3\x9c\xc3\xff\xf3\xde\xe3'

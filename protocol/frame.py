@@ -25,7 +25,15 @@ HEADER_SIZE = 5
 CRC_SIZE = 2
 MAX_PAYLOAD = 255
 MAX_BODY = HEADER_SIZE + MAX_PAYLOAD
-MAX_FRAME = MAX_BODY + CRC_SIZE + (MAX_BODY + CRC_SIZE) // 254 + 2
+
+
+def frame_bytes(max_payload):
+    """The longest frame (its 0x00 included) of a payload of up to ``max_payload`` bytes."""
+    n = HEADER_SIZE + max_payload + CRC_SIZE
+    return n + n // 254 + 2
+
+
+MAX_FRAME = frame_bytes(MAX_PAYLOAD)
 
 
 # --- CRC-16/CCITT-FALSE, table driven (the table in flash: ``consts.CRC16_TABLE``) -----------------
@@ -135,14 +143,15 @@ class Encoder:
     of the frame (same bytes as ``encode_frame``), valid until the next call. Under MicroPython one viper
     call copies the payload, appends the CRC and COBS-encodes; only the returned view is allocated."""
 
-    def __init__(self):
-        self._body = bytearray(MAX_BODY + CRC_SIZE)
-        self._out = bytearray(MAX_FRAME)
+    def __init__(self, max_payload=MAX_PAYLOAD):
+        self.max_payload = max_payload
+        self._body = bytearray(HEADER_SIZE + max_payload + CRC_SIZE)
+        self._out = bytearray(frame_bytes(max_payload))
         self._mv = memoryview(self._out)
 
     def frame(self, pid, src, dst, seq, payload):
-        if len(payload) > MAX_PAYLOAD:
-            raise ValueError("payload is %d bytes > %d" % (len(payload), MAX_PAYLOAD))
+        if len(payload) > self.max_payload:
+            raise ValueError("payload is %d bytes > %d" % (len(payload), self.max_payload))
         if FAST:
             b = self._body
             b[0] = PROTOCOL_VERSION
@@ -168,13 +177,15 @@ class Decoder:
     per source in ``gaps[src]`` (packets missing) and ``dups[src]``.
     """
 
-    def __init__(self, crc_fn=crc16, cobs_fn=cobs_decode):
+    def __init__(self, crc_fn=crc16, cobs_fn=cobs_decode, raw=None, max_frame=MAX_FRAME):
         self._crc = crc_fn
         self._cobs = cobs_fn
-        # the viper path (MicroPython, default functions) decodes into a preallocated buffer
+        self.max_frame = max_frame        # longer frames are dropped as "oversize" (frame_bytes: a board's table)
+        # the viper path (MicroPython, default functions) decodes into a preallocated buffer: ``raw`` (max_frame
+        # bytes) if given, which may be the buffer fed (COBS decodes in place: it writes behind what it reads)
         self._fast = FAST and crc_fn is crc16 and cobs_fn is cobs_decode
         if self._fast:
-            self._raw = bytearray(MAX_FRAME)
+            self._raw = bytearray(max_frame) if raw is None else raw
             self._rawmv = memoryview(self._raw)
         self._buf = bytearray()
         self._overflow = False
@@ -213,7 +224,7 @@ class Decoder:
                 self._overflow = False
             else:                             # the common case: the whole frame is in this chunk
                 frame = data[start:z]
-                over = len(frame) > MAX_FRAME
+                over = len(frame) > self.max_frame
             start = z + 1
             if over:
                 self._drop("oversize")
@@ -238,7 +249,7 @@ class Decoder:
                 self._buf = bytearray()
                 self._overflow = False
             else:
-                src, i, end, over = data, start, z, z - start > MAX_FRAME
+                src, i, end, over = data, start, z, z - start > self.max_frame
             start = z + 1
             if over:
                 self._drop("oversize")
@@ -259,7 +270,7 @@ class Decoder:
     def _append(self, chunk):
         if self._overflow:
             return
-        if len(self._buf) + len(chunk) > MAX_FRAME:
+        if len(self._buf) + len(chunk) > self.max_frame:
             self._overflow = True
             self._buf = bytearray()
         else:
@@ -306,6 +317,12 @@ class Decoder:
                     self.gaps[src] = self.gaps.get(src, 0) + d - 1
         self._last_seq[src] = seq
         return (pid, src, dst, seq, payload)
+
+    def count_frames(self, n, src, seq):
+        """``n`` frames decoded elsewhere (a board's machine-code path, ``firmware.hal.fast_tick``), the last from
+        ``src`` with sequence number ``seq``: counted, and the sequence goes on from it."""
+        self.frames += n
+        self._last_seq[src] = seq
 
     def dropped(self):
         """Frames dropped, every reason together."""

@@ -46,8 +46,8 @@ def source():
            '``protocol/table.py``: do not edit; tests/test_protocol_gen.py checks it is current).',
            "",
            "``P_<NAME>`` packet ids, ``FMT_<NAME>`` their little-endian struct formats, ``SIZES[pid]`` payload bytes",
-           "(0xFF: no such packet), ``NODE_<NAME>`` node addresses, ``E_<NAME>`` NACK codes, ``CRC16_TABLE`` the",
-           "CRC-16/CCITT-FALSE table as 256 little-endian u16.",
+           "(0xFF: no such packet), ``LARGEST_PAYLOAD`` the largest of them, ``NODE_<NAME>`` node addresses,",
+           "``E_<NAME>`` NACK codes, ``CRC16_TABLE`` the CRC-16/CCITT-FALSE table as 256 little-endian u16.",
            '"""',
            "",
            "PROTOCOL_VERSION = %d" % table.PROTOCOL_VERSION,
@@ -71,6 +71,7 @@ def source():
         out.append("FMT_%s = %r" % (name, fmt))
     out.append("")
     out.append("SIZES = " + _bytes_literal(sizes))
+    out.append("LARGEST_PAYLOAD = %d" % max(s for s in sizes if s != UNKNOWN))
     out.append("CRC16_TABLE = " + _bytes_literal(b"".join(struct.pack("<H", v) for v in crc16_table())))
     return "\n".join(out) + "\n"
 

@@ -114,3 +114,18 @@ def test_mpy_cross_compiles_everything_and_the_mpy_build_runs(tmp_path):
     assert p.returncode == 0, p.stderr
     res = json.loads(p.stdout.splitlines()[-1])
     assert res["closed"]["mismatch"] == 0 and res["closed"]["fallbacks"] < 1000 and res["moderate"]["mismatch"] == 0
+
+
+def test_the_boards_machine_code_tick_answers_as_the_bytecode_path():
+    """Under micropython: a board's link with the common TICK in machine code (firmware.hal.fast_tick) answers a
+    stream with a resend, a gap, a stale TICK, a damaged frame, a sequence gap, a TICK beyond the ADC, one to
+    another node and one broadcast, a settings change, a new session and an oversized frame with the same bytes,
+    controller state, link counters and telemetry as the bytecode path; it answers most ticks itself, and the
+    common tick allocates nothing with the heap locked, new H^-1 bins included."""
+    res = run_mp("firmware_fast_tick.py", 1300)
+    assert res["same"] == {"bytes": True, "state": True, "counters": True, "telemetry": True}, res
+    c = res["counters"]
+    assert c["bad_crc"] == 1 and c["oversize"] == 1 and c["seq_gaps"] >= 2 and res["n_dup"] == 1 and res["n_gap"] == 3
+    assert res["mode"] == 1 and res["answered_fast"] > 0.9 * res["frames"]
+    ok, bins = res["locked"]
+    assert ok == 598 and bins > 10

@@ -179,3 +179,24 @@ def test_the_viper_controllers_slots_are_the_controllers():
         if mine is None:
             mine = getattr(controller, name.lstrip("_"))
         assert mine == int(v), name
+
+
+def test_the_fast_ticks_constants_are_the_packet_tables_and_the_controllers():
+    """firmware.hal.fast_tick restates packet ids, sizes, state slots and the link's counter layout as its own
+    constants (viper needs them there): each must be what protocol.consts, firmware.controller and
+    firmware.hal.stdio say."""
+    import re
+    import struct
+    from firmware import controller
+    from firmware.hal import stdio
+    src = open(os.path.join(ROOT, "firmware", "hal", "fast_tick.py")).read()
+    found = {k: int(v, 0) for k, v in re.findall(r"^(_[A-Z_0-9]+) = const\((0x[0-9A-Fa-f]+|\d+)\)", src, re.M)}
+    hdr = 5
+    want = {"_VERSION": consts.PROTOCOL_VERSION, "_P_TICK": consts.P_TICK, "_P_FSM_SPI": consts.P_FSM_SPI,
+            "_BROADCAST": consts.NODE_BROADCAST, "_TICK_RAW": hdr + struct.calcsize(consts.FMT_TICK) + 2,
+            "_SPI_BODY": hdr + struct.calcsize(consts.FMT_FSM_SPI), "_S_TICKS": controller._S_TICKS,
+            "_S_PKT": controller._S_PKT, "_S_QUIET": controller._S_QUIET, "_COUNT_MAX": controller._COUNT_MAX}
+    for k in ("_ST_TX_SEQ", "_ST_TX_FRAMES", "_ST_RX_FRAMES", "_ST_RX_SRC", "_ST_RX_SEQ", "_ST_SPI_N"):
+        want[k] = getattr(stdio, k)
+    assert found == want
+    assert consts.FMT_TICK == "<IIHHH" and consts.FMT_FSM_SPI == "<IBIIII"    # the byte offsets answer() uses

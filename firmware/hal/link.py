@@ -36,7 +36,9 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     jump (so a damaged tick number neither counts nor sends the controller to SAFE), as does a wait of
     ``poll_ms`` without any packet. A HELLO from the bench starts a new session (tick numbers may start again).
     CTRL_STATUS is due on ticks k with k % decim == 0 (``status_due_at``), so the bench knows which ticks
-    carry one; it goes out before the FSM_SPI, to the TICK's sender. A TICK whose Q1 counts lie beyond the
+    carry one; it goes out before the FSM_SPI, to the TICK's sender. A link with ``answer_ticks`` (a board's,
+    ``firmware.hal.stdio`` with ``firmware.hal.fast_tick``) answers the common tick itself, in machine code, with
+    the same calls and bytes as here (without the heap lock: that step's allocation-free proof is this loop's). A TICK whose Q1 counts lie beyond the
     12-bit ADC (the packet table's 0..4095: only damage the CRC-16 missed makes one) is dropped unanswered and
     counted with the frames dropped (``n_rx_drop``); the step's integers stay within +-2^30 (on a 32-bit board
     a larger count overflows: a heap allocation under ``heap_lock``, or a wrapped ratio in viper).
@@ -51,9 +53,15 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     gap = 0                                   # ticks skipped by the jump to ``last``, until a TICK confirms it
     w = ctl.words
     rx_drops = getattr(link, "rx_drops", None)
+    fast = getattr(link, "answer_ticks", None)   # a board's machine-code path for the common tick
     link.send_raw(P_HELLO, me, BROADCAST, hello_payload(me, FW_VERSION))
     silent_ticks = int(poll_ms * rate_hz / 1000) or 1
     while not link.closed:
+        if fast is not None and stale < 0 and not gap and 0 <= last < 0x3FFFFFFF:
+            tick, n = fast(ctl, last)         # the common ticks, answered as below, until a frame is not one
+            if tick != last:
+                last = tick                   # its answer, for a resend
+                struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
         pkts = link.recv_ms(poll_ms)
         if not pkts:
             ctl.link_silent(silent_ticks)

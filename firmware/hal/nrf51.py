@@ -1,7 +1,7 @@
 """The nRF51's peripherals the PIL board (QEMU's microbit machine) uses beyond MicroPython's: TIMER0 as a clock
 (``start(bits)`` runs it at 16 MHz as a 16- or 32-bit counter, ``now()`` captures and reads it; under QEMU's
 ``-icount shift=0``, one instruction a virtual ns, a tick is 62.5 instructions; a 16-bit count is a small int on
-the board, so reading it allocates nothing) and UART0's receiver (``read_frame``, viper)."""
+the board, so reading it allocates nothing) and UART0 (``read_frame`` and ``write_frame``, viper)."""
 
 import machine
 import micropython
@@ -51,3 +51,16 @@ def read_frame(buf: ptr8, n: int) -> int:
             i += 1
             if x == 0:
                 return i
+
+
+@micropython.viper
+def write_frame(buf: ptr8, n: int):
+    """buf[0:n] to UART0's TXD, as the port's own driver does (``uart_tx_strn``: QEMU's UART takes each byte at
+    once)."""
+    base = 0x4000
+    base <<= 16
+    txd = ptr32(base + 0x251C)       # TXD
+    i = 0
+    while i < n:
+        txd[0] = buf[i]
+        i += 1

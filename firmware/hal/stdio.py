@@ -4,36 +4,64 @@ on a Cortex-M0) has no ``select`` and no ``time``: ``recv_ms`` blocks until a pa
 timeout, so link silence is not counted on this HAL (the lockstep bench always sends the next TICK)."""
 
 import sys
+from array import array
 
 from protocol import frame
-from protocol.consts import P_FSM_SPI
+from protocol.consts import LARGEST_PAYLOAD, P_FSM_SPI
 
-_MAX_FRAME = frame.MAX_FRAME
+try:
+    from micropython import const
+except ImportError:                    # CPython
+    def const(x):
+        return x
+
+_MAX_FRAME = frame.frame_bytes(LARGEST_PAYLOAD)     # the packet table's longest frame (not the framing's 255 bytes)
+# the link's counters in ``_st`` (the layout ``firmware.hal.fast_tick.answer`` keeps; tests/test_pil.py checks it)
+_ST_TX_SEQ = const(0)
+_ST_TX_FRAMES = const(1)
+_ST_RX_FRAMES = const(2)
+_ST_RX_SRC = const(3)
+_ST_RX_SEQ = const(4)
+_ST_SPI_N = const(5)
 
 
 class StdioLink:
     """``serve_controller``'s link on the console UART: ``node``, ``recv_ms``, ``send_raw``, ``closed``,
     ``counters``, ``rx_drops``, ``close``. ``node``: the node address (``protocol.consts.NODE_*``); ``meter``: an
-    object with ``now()`` (a 16-bit clock) and ``exchange(t0, work, n)``, told of each TICK exchange: the decoding
+    object with ``now()`` (a 16-bit clock) and ``exchange(t0, work, n, common)``, told of each TICK exchange: the decoding
     of each of its frame's bytes, then from the frame's end to its FSM_SPI framed, less the UART's own reads and
     writes (on a board an interrupt or a DMA channel moves the bytes while the CPU does other work), in ``n``
     timed intervals (``firmware.pil_main.Meter``); ``read_frame(buf, n)``: a board's UART driver reading a whole
-    frame into buf (``firmware.hal.nrf51.read_frame``), in place of ``reader``'s byte at a time."""
+    frame into buf (``firmware.hal.nrf51.read_frame``), in place of ``reader``'s byte at a time; ``write_frame(buf,
+    n)``: its writer of buf[0:n], in place of ``writer``; ``fast``: the common TICK's machine-code path
+    (``firmware.hal.fast_tick.answer``), which ``serve_controller`` runs through ``answer_ticks`` (needs
+    ``read_frame``)."""
 
-    def __init__(self, node, reader=None, writer=None, meter=None, read_frame=None):
+    def __init__(self, node, reader=None, writer=None, meter=None, read_frame=None, write_frame=None, fast=None):
         self.node = node
         self._r = reader if reader is not None else sys.stdin.buffer
         self._w = writer if writer is not None else sys.stdout.buffer
-        self._buf = bytearray(1)
+        self._buf = bytearray(1) if read_frame is None else None
         self._frame = bytearray(_MAX_FRAME)
         self._i = 0                # bytes of the frame being read (beyond _MAX_FRAME: counted, not kept)
-        self._dec = frame.Decoder()
-        self._enc = frame.Encoder()
-        self._seq = 0
-        self.tx_frames = 0
+        # decoded in place, and sized for the packet table (32 KB of RAM: nothing twice, nothing unused)
+        self._dec = frame.Decoder(raw=self._frame, max_frame=_MAX_FRAME)
+        self._enc = frame.Encoder(LARGEST_PAYLOAD)
+        self._st = array("i", [0, 0, 0, -1, -1, 0])
         self.closed = False
         self._meter = meter
         self._read_frame = read_frame
+        self._write_frame = write_frame
+        self._fast = fast
+        if fast is not None:
+            if read_frame is None or not self._dec._fast:
+                raise ValueError("the fast TICK path needs read_frame and the decoder's viper path")
+            self.answer_ticks = self._answer_ticks
+            self._raw = self._enc._body    # a TICK decoded (the frame kept for recv_ms), then its answer's body
+            self._out = self._enc._out     # the answer's frame: the encoder's
+            self._outmv = self._enc._mv
+        self._held = 0             # a frame the fast path read and left (its length), for recv_ms
+        self._t_held = 0
         self._work = 0             # meter ticks spent on the bytes of the frame being read (the waits left out)
         self._n = 0                # the intervals they were timed in
         self._t_frame = 0          # meter's time at the end of the last complete frame
@@ -85,9 +113,15 @@ class StdioLink:
     def _recv_frame(self, fr, mt):
         """``recv_ms`` with a whole frame read by the board's UART driver (``read_frame``)."""
         while True:
-            i = self._read_frame(fr, _MAX_FRAME)
-            if mt is not None:
-                t = mt.now()
+            if self._held:                 # left by the fast path: it was read (and timed from) there
+                i = self._held
+                t = self._t_held
+                self._held = 0
+            else:
+                i = self._read_frame(fr, _MAX_FRAME)
+                if mt is not None:
+                    t = mt.now()
+            self._sync()
             if i > _MAX_FRAME:
                 self._dec.drops["oversize"] += 1
                 out = None
@@ -98,22 +132,69 @@ class StdioLink:
                 self._frame_work = (self._t_frame - t) & 0xFFFF
                 self._frame_n = 1
             if out:
+                st = self._st
+                p = out[-1]                # the sequence the fast path takes up from
+                st[_ST_RX_SRC] = p[1]
+                st[_ST_RX_SEQ] = p[3]
                 return out
 
+    def _answer_ticks(self, ctl, last):
+        """Answer TICKs ``last + 1``, ``last + 2``, ... in machine code (``fast``) while each is the common one;
+        return the last tick answered, and the words' count its step returned. The first frame that is not one is
+        kept, undecoded, for ``recv_ms``. Each exchange is timed as ``recv_ms`` and ``send_raw`` time theirs: from
+        the frame's end to its answer framed."""
+        fr = self._frame
+        rd = self._read_frame
+        ans = self._fast
+        mt = self._meter
+        while True:
+            i = rd(fr, _MAX_FRAME)
+            t = mt.now() if mt is not None else 0
+            k = ans(self, ctl, i, last)
+            if not k:
+                self._held = i
+                self._t_held = t
+                return last, self._st[_ST_SPI_N]
+            if mt is not None:
+                mt.exchange(t, 0, 1, True)
+            last += 1
+            if self._write_frame is not None:
+                self._write_frame(self._out, k)
+            else:
+                self._w.write(self._outmv[:k])
+
+    def _sync(self):
+        """Tell the decoder of the frames the fast path decoded (its counters, and the sequence to go on from)."""
+        st = self._st
+        if st[_ST_RX_FRAMES]:
+            self._dec.count_frames(st[_ST_RX_FRAMES], st[_ST_RX_SRC], st[_ST_RX_SEQ])
+            st[_ST_RX_FRAMES] = 0
+
+    @property
+    def tx_frames(self):
+        return self._st[_ST_TX_FRAMES]
+
+    def _write(self, f):
+        if self._write_frame is not None:
+            self._write_frame(f, len(f))
+        else:
+            self._w.write(f)
+
     def send_raw(self, pid, src, dst, payload, seq=None):
+        st = self._st
         if seq is None:
-            seq = self._seq
-            self._seq = (seq + 1) & 0xFF
+            seq = st[_ST_TX_SEQ]
+            st[_ST_TX_SEQ] = (seq + 1) & 0xFF
         f = self._enc.frame(pid, src, dst, seq, payload)
         mt = self._meter
         if mt is None:
-            self._w.write(f)
+            self._write(f)
         else:                      # the UART write left out: on a board a DMA channel or an interrupt sends it
             t = mt.now()
-            self._w.write(f)
+            self._write(f)
             self._frame_work -= (mt.now() - t) & 0xFFFF
             self._frame_n -= 1
-        self.tx_frames += 1
+        st[_ST_TX_FRAMES] += 1
         if pid == P_FSM_SPI and mt is not None:     # the answer to a TICK: its exchange is over
             mt.exchange(self._t_frame, self._frame_work, self._frame_n + 1)
 
@@ -122,6 +203,7 @@ class StdioLink:
         return self._dec.dropped()
 
     def counters(self):
+        self._sync()
         d = self._dec.counters()
         d["tx_frames"] = self.tx_frames
         return d

@@ -6,8 +6,8 @@ MPY     := $(VENV)/bin/micropython
 STAMP   := $(VENV)/.installed-stamp
 NATMOD  := firmware/adcs/adcsk.mpy
 PIL_ELF := build/pil/MICROBIT/firmware.elf
-PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py protocol/*.py tests/mp/pil_probe.py tests/mp/firmware_plant.py) \
-             ground/pil_build.py
+PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py firmware/adcs/*.py protocol/*.py tests/mp/pil_probe.py \
+             tests/mp/pil_adcs_probe.py tests/mp/firmware_plant.py) firmware/adcs/native/adcsk.c ground/pil_build.py
 OUT     ?= out
 
 .PHONY: all install test bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
@@ -37,7 +37,8 @@ natmod: $(STAMP)
 	$(PY) -m ground.natmod_build
 
 # Processor in the loop (ground/pil_build.py): the controller frozen into MicroPython's qemu port for a Cortex-M0
-# (QEMU's microbit machine), a 32 KB board and a 256 KB lab board; needs Debian's gcc-arm-none-eabi,
+# (QEMU's microbit machine), a 32 KB board and a 256 KB lab board, and the lean ADCS with its C kernels for a
+# Cortex-M7 with an FPU (QEMU's mps2-an500); needs Debian's gcc-arm-none-eabi,
 # libnewlib-arm-none-eabi and qemu-system-arm, which it installs itself as root with apt-get (CI).
 # tests/test_pil.py runs on the images when they are built and is skipped, saying why, when not.
 pil: $(STAMP)

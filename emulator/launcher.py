@@ -22,7 +22,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIMES = ("cpython", "micropython", "qemu")
 PIL_IMAGE = os.path.join(ROOT, "build", "pil", "MICROBIT", "firmware.elf")
 PIL_RAM_BYTES = 32 * 1024         # the thesis's SAMD21G18 has 32 KB of SRAM; the image is linked for it
-QEMU_ARGS = ("-machine", "microbit", "-nographic", "-semihosting", "-global", "nrf51-soc.flash-size=1048576")
+QEMU_ARGS = ("-nographic", "-semihosting")
 
 
 def command(runtime, target, args=(), micropython_opts=()):
@@ -42,14 +42,17 @@ def command(runtime, target, args=(), micropython_opts=()):
     return exe + head + [str(a) for a in args], env
 
 
-def qemu_command(image=PIL_IMAGE, serial="pty", icount=False, monitor=None, ram_bytes=PIL_RAM_BYTES):
-    """qemu-system-arm's command line for the PIL image: ``ram_bytes`` of SRAM (the image's linker script's), its
-    UART on ``serial`` (pty or stdio), deterministic instruction counting (``-icount shift=0``: one virtual ns per
-    instruction) when ``icount``, QEMU's monitor on the unix socket ``monitor`` (None: none), through which the host
-    reads the board's RAM."""
+def qemu_command(image=PIL_IMAGE, serial="pty", icount=False, monitor=None, ram_bytes=PIL_RAM_BYTES,
+                 machine="microbit"):
+    """qemu-system-arm's command line for a PIL image on QEMU's ``machine``: for the microbit, ``ram_bytes`` of SRAM
+    (the image's linker script's) and 1 MB of flash; its UART on ``serial`` (pty or stdio), deterministic
+    instruction counting (``-icount shift=0``: one virtual ns per instruction) when ``icount``, QEMU's monitor on
+    the unix socket ``monitor`` (None: none), through which the host reads the board's RAM."""
     mon = "null" if monitor is None else "unix:%s,server=on,wait=off" % monitor
-    cmd = ["qemu-system-arm"] + list(QEMU_ARGS) + ["-global", "nrf51-soc.sram-size=%d" % ram_bytes,
-                                                   "-monitor", mon, "-serial", serial, "-kernel", image]
+    cmd = ["qemu-system-arm", "-machine", machine] + list(QEMU_ARGS)
+    if machine == "microbit":
+        cmd += ["-global", "nrf51-soc.flash-size=1048576", "-global", "nrf51-soc.sram-size=%d" % ram_bytes]
+    cmd += ["-monitor", mon, "-serial", serial, "-kernel", image]
     if icount:
         cmd += ["-icount", "shift=0"]
     return cmd

@@ -1,7 +1,9 @@
 """Processor in the loop, first part: the controller firmware frozen into MicroPython's qemu port for a Cortex-M0
 (``make pil``, ground/pil_build.py) runs on QEMU's microbit machine, and its viper law, compiled for ARMv6-M,
 clocks out the same AD5664R words as the bytecode controller on the host, bit for bit; its instructions per
-control step are counted under ``-icount``. Skipped, saying why, where the image is not built."""
+control step are counted under ``-icount``; and the lean ADCS on its Cortex-M7 board (QEMU's mps2-an500, an FPU,
+the C kernels built in) replays a recorded session as the unix port does. Skipped, saying why, where the images are
+not built."""
 
 import json
 import os
@@ -200,3 +202,37 @@ def test_the_fast_ticks_constants_are_the_packet_tables_and_the_controllers():
         want[k] = getattr(stdio, k)
     assert found == want
     assert consts.FMT_TICK == "<IIHHH" and consts.FMT_FSM_SPI == "<IBIIII"    # the byte offsets answer() uses
+
+
+@pytest.mark.skipif(not os.path.exists(pil_build.ADCS_IMAGE) or bool(pil_build.missing_tools()),
+                    reason="no ADCS PIL image (make pil; it needs %s)" % pil_build.install_hint(pil_build.PACKAGES))
+def test_the_lean_adcs_on_the_cortex_m7_board_runs_a_recorded_session_as_the_unix_port(tmp_path):
+    """The ADCS image (QEMU mps2-an500: a Cortex-M7 with its FPU, single-precision MicroPython floats, the C kernels
+    built in) replays a recorded 40 s session through its UART: every cycle is counted, the kernels ran, the heap and
+    the stack stay inside the image's, and its last attitude estimate is the float64 unix port's to within 1 arcsec
+    (float32 states against float64: 0.2 arcsec after 210 s, bench_pil_adcs)."""
+    import subprocess
+    from bench.bench_pil_adcs import _angle_arcsec
+    from emulator.adcs_session import AdcsSession
+    from protocol import core
+    n = 40
+    with AdcsSession(runtime="micropython", duration_s=n, record=True) as s:
+        for _ in range(n):
+            s.cycle()
+        cfg, rec = s.config(), s.recorded
+    r = pil_build.replay_adcs(cfg, rec)
+    assert [c[0] for c in r["cycles"]] == list(range(n)) and r["kernels"]
+    assert all(c[1] > 100000 for c in r["cycles"]) and 20 < r["insn_per_timer_tick"] < 100
+    assert 0 < r["heap_bytes"] < pil_build.ADCS_MEM.heap_bytes
+    assert 1000 < r["stack_high_water_bytes"] < pil_build.ADCS_MEM.stack_bytes
+    cf, rf = tmp_path / "cfg.json", tmp_path / "rec.json"
+    cf.write_text(json.dumps(cfg))
+    rf.write_text(json.dumps(rec))
+    mp = os.path.join(os.path.dirname(sys.executable), "micropython")
+    p = subprocess.run([mp, os.path.join(ROOT, "tests", "mp", "firmware_adcs_app.py"), str(cf), str(rf)], cwd=ROOT,
+                       env=dict(os.environ, MICROPYPATH=ROOT), capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    ref = json.loads(p.stdout.strip().splitlines()[-1])["status"]
+    st = core.payload_dict(core.PACKET_ID["ADCS_STATUS"], r["status"])
+    assert st["tick"] == ref["tick"] == n - 1 and st["adcs_mode"] == ref["adcs_mode"]
+    assert _angle_arcsec([st["q%d" % i] for i in range(4)], [ref["q%d" % i] for i in range(4)]) < 1.0

@@ -357,7 +357,10 @@ def _solve_cols_loops(X, L, n, m):
 try:
     from firmware.adcs import adcsk as kernels
 except (ImportError, ValueError):
-    kernels = None
+    try:
+        import adcsk as kernels                   # a board's image: built in (ground/pil_build.py's ADCS board)
+    except ImportError:
+        kernels = None
 if kernels is not None:
     matmul, matmul_bt, symmetrize = kernels.matmul, kernels.matmul_bt, kernels.symmetrize
     cholesky, chol_solve_rows, joseph_select = kernels.cholesky, kernels.chol_solve_rows, kernels.joseph_select

@@ -8,9 +8,13 @@
 // multiply-add). The Python forms stay the reference and run wherever the module is not built (CPython, or a
 // port without native modules). Only the arithmetic moves: no float is boxed, so a call allocates nothing.
 
+#ifndef ADCSK_BUILTIN
 #include "py/dynruntime.h"
+#endif
+// ADCSK_BUILTIN: compiled into a firmware image as a built-in module ``adcsk`` (a board's, ground/pil_build.py),
+// with its own runtime.h and libm-free sqrt (the FPU's instruction, -fno-math-errno)
 
-#if defined(__arm__)
+#if defined(__arm__) && !defined(ADCSK_BUILTIN)
 // newlib's sqrt wrapper pulls in data a native module cannot hold; its IEEE core is the same correctly
 // rounded square root (as every IEEE sqrt, x64's sqrtsd included)
 extern double __ieee754_sqrt(double);
@@ -637,23 +641,48 @@ static mp_obj_t covariance_predict(mp_obj_t P_in, mp_obj_t Phi_in, mp_obj_t T_in
 }
 static MP_DEFINE_CONST_FUN_OBJ_3(covariance_predict_obj, covariance_predict);
 
+// every function the module exports: (its name, its function object); the names spelled out, as the native
+// module build's qstr scan reads them from this text
+#define ADCSK_FUNCS(X) \
+    X(MP_QSTR_matmul, matmul_obj) \
+    X(MP_QSTR_matmul_bt, matmul_bt_obj) \
+    X(MP_QSTR_symmetrize, symmetrize_obj) \
+    X(MP_QSTR_cholesky, cholesky_obj) \
+    X(MP_QSTR_chol_solve_rows, chol_solve_rows_obj) \
+    X(MP_QSTR_joseph_select, joseph_select_obj) \
+    X(MP_QSTR_rows_mul_mirror, rows_mul_mirror_obj) \
+    X(MP_QSTR_sandwich, sandwich_obj) \
+    X(MP_QSTR_ikh_rows, ikh_rows_obj) \
+    X(MP_QSTR_ikh_sandwich, ikh_sandwich_obj) \
+    X(MP_QSTR_between, between_obj) \
+    X(MP_QSTR_update_rows, update_rows_obj) \
+    X(MP_QSTR_phi9, phi9_obj) \
+    X(MP_QSTR_covariance_predict, covariance_predict_obj)
+
+#ifdef ADCSK_BUILTIN
+
+#define ADCSK_ENTRY(q, o) { MP_ROM_QSTR(q), MP_ROM_PTR(&o) },
+static const mp_rom_map_elem_t adcsk_globals_table[] = {
+    { MP_ROM_QSTR(MP_QSTR___name__), MP_ROM_QSTR(MP_QSTR_adcsk) },
+    ADCSK_FUNCS(ADCSK_ENTRY)
+};
+static MP_DEFINE_CONST_DICT(adcsk_globals, adcsk_globals_table);
+
+const mp_obj_module_t adcsk_module = {
+    .base = { &mp_type_module },
+    .globals = (mp_obj_dict_t *)&adcsk_globals,
+};
+MP_REGISTER_MODULE(MP_QSTR_adcsk, adcsk_module);
+
+#else
+
+#define ADCSK_STORE(q, o) mp_store_global(q, MP_OBJ_FROM_PTR(&o));
 mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *args) {
     MP_DYNRUNTIME_INIT_ENTRY
 
-    mp_store_global(MP_QSTR_matmul, MP_OBJ_FROM_PTR(&matmul_obj));
-    mp_store_global(MP_QSTR_matmul_bt, MP_OBJ_FROM_PTR(&matmul_bt_obj));
-    mp_store_global(MP_QSTR_symmetrize, MP_OBJ_FROM_PTR(&symmetrize_obj));
-    mp_store_global(MP_QSTR_cholesky, MP_OBJ_FROM_PTR(&cholesky_obj));
-    mp_store_global(MP_QSTR_chol_solve_rows, MP_OBJ_FROM_PTR(&chol_solve_rows_obj));
-    mp_store_global(MP_QSTR_joseph_select, MP_OBJ_FROM_PTR(&joseph_select_obj));
-    mp_store_global(MP_QSTR_rows_mul_mirror, MP_OBJ_FROM_PTR(&rows_mul_mirror_obj));
-    mp_store_global(MP_QSTR_sandwich, MP_OBJ_FROM_PTR(&sandwich_obj));
-    mp_store_global(MP_QSTR_ikh_rows, MP_OBJ_FROM_PTR(&ikh_rows_obj));
-    mp_store_global(MP_QSTR_ikh_sandwich, MP_OBJ_FROM_PTR(&ikh_sandwich_obj));
-    mp_store_global(MP_QSTR_between, MP_OBJ_FROM_PTR(&between_obj));
-    mp_store_global(MP_QSTR_update_rows, MP_OBJ_FROM_PTR(&update_rows_obj));
-    mp_store_global(MP_QSTR_phi9, MP_OBJ_FROM_PTR(&phi9_obj));
-    mp_store_global(MP_QSTR_covariance_predict, MP_OBJ_FROM_PTR(&covariance_predict_obj));
+    ADCSK_FUNCS(ADCSK_STORE)
 
     MP_DYNRUNTIME_INIT_EXIT
 }
+
+#endif

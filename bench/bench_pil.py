@@ -11,6 +11,9 @@ and branch-heavy), against the thesis's tick at 637.8 Hz on a 48 MHz SAMD21 (75,
   of them and the common ones that ``firmware.hal.fast_tick`` answers in machine code, read from the board after the
   run (``ground.pil_build.read_target``); the real-time factor.
 
+- The disturbance player (``tests/mp/pil_player_probe.py``, on the instruments' image): bytecode and viper, one
+  update per call and in blocks of 64, against the 10.6 kHz update.
+
 Skipped, saying why, without the images."""
 
 import json
@@ -24,6 +27,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CPI = (1.2, 1.6)
 CLOCK_HZ = 48e6
 RATE_HZ = 637.8
+PLAYER_HZ = 10600.0
 
 
 def _fps(*args):
@@ -44,6 +48,10 @@ def main():
     with pil_build.Board() as b:               # the instruments' image: the same code, room for the recordings
         rows = [json.loads(b.run("import json, pil_probe, gc\ngc.collect()\nprint(json.dumps(pil_probe.counts(%d, %s)))"
                                  % (n, v)).strip().splitlines()[-1]) for n, v in ((2000, "True"), (500, "False"))]
+        player = [json.loads(b.run("import json, pil_player_probe as pp, gc\ngc.collect()\nprint(json.dumps(%s))" % c)
+                             .strip().splitlines()[-1])
+                  for c in ("pp.counts(2000, False)", "pp.block_counts(100, 64, False)", "pp.counts(2000, True)",
+                            "pp.block_counts(100, 64, True)")]
     budget = CLOCK_HZ / RATE_HZ
     print("Control law on the Cortex-M0 (QEMU microbit, -icount), the replay loop taken off; cycles at a Cortex-M0+ "
           "CPI of %.1f-%.1f against the 48 MHz tick of %.0f cycles\n" % (CPI[0], CPI[1], budget))
@@ -54,6 +62,22 @@ def main():
         print("| %s | %.0f | %.0f-%.0f | %.0f-%.0f %% |" % ("viper (armv6m)" if r["viper"] else "bytecode",
                                                          r["insn_per_step"], c0, c1, 100 * c0 / budget,
                                                          100 * c1 / budget))
+    upd = CLOCK_HZ / PLAYER_HZ
+    print("\nThe disturbance player (the thesis's SimArduino, taken as the same 48 MHz Cortex-M0+ class) on the "
+          "Cortex-M0 (QEMU microbit, -icount): instructions per 10.6 kHz update (%.0f cycles at 48 MHz), playing a "
+          "distfile from memory; the DACs' SPI writes not in it; one at a time (a timer interrupt's call) or in "
+          "blocks of 64 (a buffer that an interrupt or DMA empties)\n" % upd)
+    print("| player | instructions per update, mean | largest | cycles, mean (CPI %.1f-%.1f) | share of the update |"
+          % CPI)
+    print("|---|---|---|---|---|")
+    for r in player:
+        c0, c1 = r["insn_mean"] * CPI[0], r["insn_mean"] * CPI[1]
+        what = "%s, %s" % ("viper" if r["viper"] else "bytecode",
+                           "blocks of %d" % r["size"] if "size" in r else "one at a time")
+        print("| %s | %.0f | %.0f%s | %.0f-%.0f | %.0f-%.0f %% (%s) |"
+              % (what, r["insn_mean"], r["insn_max"], " (a new segment)" if "size" not in r else " (a block with one)",
+                 c0, c1, 100 * c0 / upd, 100 * c1 / upd, "fits" if c1 <= upd else "does not fit"))
+    print("\nPlayer heap (its object and a 400-sample distfile in memory): %.1f KB" % (player[0]["heap_bytes"] / 1024))
     with tempfile.TemporaryDirectory() as tmp:
         dist = os.path.join(tmp, "d.dist")
         _fps("distfile", "generate", "--source", "stat", "--duration", "20", "--seed", "1", "-o", dist)

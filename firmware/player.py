@@ -247,53 +247,7 @@ class Player:
             m = (cell - 1 - ph) // inc + 1               # outputs left in this segment
             if m > n - k:
                 m = n - k
-            x3 = kx[0]
-            x2 = kx[1]
-            x1 = kx[2]
-            x0 = kx[3]
-            y3 = ky[0]
-            y2 = ky[1]
-            y1 = ky[2]
-            y0 = ky[3]
-            if s:
-                for j in range(k, k + m):
-                    f = (((ph >> s) << 10) + half) // div        # Q10 fraction of the segment
-                    h = (x3 * f + x2) >> 10
-                    h = (h * f + x1) >> 10
-                    c = (h * f + x0) >> 12
-                    if c >> 16:
-                        c = 0 if c < 0 else 65535
-                    xbuf[j] = c
-                    h = (y3 * f + y2) >> 10
-                    h = (h * f + y1) >> 10
-                    c = (h * f + y0) >> 12
-                    if c >> 16:
-                        c = 0 if c < 0 else 65535
-                    ybuf[j] = c
-                    ph += inc
-            else:
-                t = (ph << 10) + half                    # = f div + r, 0 <= r < div
-                f = t // div
-                r = t - f * div
-                for j in range(k, k + m):
-                    h = (x3 * f + x2) >> 10
-                    h = (h * f + x1) >> 10
-                    c = (h * f + x0) >> 12
-                    if c >> 16:
-                        c = 0 if c < 0 else 65535
-                    xbuf[j] = c
-                    h = (y3 * f + y2) >> 10
-                    h = (h * f + y1) >> 10
-                    c = (h * f + y0) >> 12
-                    if c >> 16:
-                        c = 0 if c < 0 else 65535
-                    ybuf[j] = c
-                    r += fr                              # f advances by fq or fq + 1 per output
-                    f += fq
-                    if r >= div:
-                        r -= div
-                        f += 1
-                ph += m * inc
+            ph = self._codes(xbuf, ybuf, k, m, ph, inc, s, half, div, fq, fr, kx, ky)
             k += m
             if ph >= cell:
                 ph -= cell
@@ -314,6 +268,59 @@ class Player:
             self.x_code = xbuf[k - 1]
             self.y_code = ybuf[k - 1]
         return k
+
+    @staticmethod
+    def _codes(xbuf, ybuf, k, m, ph, inc, s, half, div, fq, fr, kx, ky):
+        """The m codes per axis of one segment into xbuf[k:k + m], ybuf[k:k + m] from phase ph; returns the
+        phase after them (``firmware.player_viper`` runs this loop as machine code)."""
+        x3 = kx[0]
+        x2 = kx[1]
+        x1 = kx[2]
+        x0 = kx[3]
+        y3 = ky[0]
+        y2 = ky[1]
+        y1 = ky[2]
+        y0 = ky[3]
+        if s:
+            for j in range(k, k + m):
+                f = (((ph >> s) << 10) + half) // div        # Q10 fraction of the segment
+                h = (x3 * f + x2) >> 10
+                h = (h * f + x1) >> 10
+                c = (h * f + x0) >> 12
+                if c >> 16:
+                    c = 0 if c < 0 else 65535
+                xbuf[j] = c
+                h = (y3 * f + y2) >> 10
+                h = (h * f + y1) >> 10
+                c = (h * f + y0) >> 12
+                if c >> 16:
+                    c = 0 if c < 0 else 65535
+                ybuf[j] = c
+                ph += inc
+        else:
+            t = (ph << 10) + half                    # = f div + r, 0 <= r < div
+            f = t // div
+            r = t - f * div
+            for j in range(k, k + m):
+                h = (x3 * f + x2) >> 10
+                h = (h * f + x1) >> 10
+                c = (h * f + x0) >> 12
+                if c >> 16:
+                    c = 0 if c < 0 else 65535
+                xbuf[j] = c
+                h = (y3 * f + y2) >> 10
+                h = (h * f + y1) >> 10
+                c = (h * f + y0) >> 12
+                if c >> 16:
+                    c = 0 if c < 0 else 65535
+                ybuf[j] = c
+                r += fr                              # f advances by fq or fq + 1 per output
+                f += fq
+                if r >= div:
+                    r -= div
+                    f += 1
+            ph += m * inc
+        return ph
 
     # --- packets -----------------------------------------------------------------------------------
     def status_payload(self):

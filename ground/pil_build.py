@@ -86,7 +86,10 @@ FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hinv.py", "fi
           "firmware/hal/fast_tick.py",
           "firmware/pil_main.py",
           "protocol/__init__.py", "protocol/consts.py", "protocol/frame.py", "protocol/hblob.py", "protocol/htable.py",
-          "protocol/fast.py")
+          "protocol/fast.py",
+          # the disturbance player, measured on the lab board (tests/mp/pil_player_probe.py)
+          "firmware/player.py", "firmware/player_viper.py", "firmware/ad660.py", "protocol/distfile.py",
+          "protocol/core.py", "protocol/table.py")
 
 # The ADCS computer: QEMU's mps2-an500 machine, a Cortex-M7 with a double-precision FPU (FPv5-D16), the closest
 # QEMU has to a CubeSat ADCS board's Cortex-M7 (an STM32F7 at 216 MHz; QEMU models no caches, TCM or pipeline);
@@ -251,7 +254,7 @@ def fetch_full(dest=FULL_DIR):
 
 
 # the known-answer scripts the PIL tests run on the board (tests/mp: the same ones the unix port runs)
-FROZEN_TESTS = ("firmware_plant.py", "pil_probe.py")
+FROZEN_TESTS = ("firmware_plant.py", "pil_probe.py", "pil_player_probe.py")
 
 
 def manifest_text(root=ROOT, files=FROZEN, tests=FROZEN_TESTS, out=TARGET_MEM.dir):

@@ -129,3 +129,13 @@ def test_the_boards_machine_code_tick_answers_as_the_bytecode_path():
     assert res["mode"] == 1 and res["answered_fast"] > 0.9 * res["frames"]
     ok, bins = res["locked"]
     assert ok == 598 and bins > 10
+
+
+def test_the_viper_player_writes_the_bytecode_players_codes():
+    """Under micropython: the viper player (firmware/player_viper.py) writes the codes of the bytecode Player on
+    every update of loop and one-shot plays, in blocks of 1, 7 and 64, with a phase of fixed steps (shift 0) and
+    one divided per code (shift > 0), float32 and int32 distfiles, through the DAC's clip at steps."""
+    runs = run_mp("firmware_player_viper.py")["runs"]
+    assert len(runs) == 24 and all(r["bad"] == 0 for r in runs), [r for r in runs if r["bad"]]
+    assert {r["shift"] for r in runs} == {0, 2} and all(r["n"] >= 12000 for r in runs)
+    assert all(0 < r["clipped"] < r["n"] // 10 for r in runs)

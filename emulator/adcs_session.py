@@ -5,7 +5,10 @@ Contract: ``AdcsSession``: start, cycle, summary, close (README, "ADCS on CAN").
 The wire: a pseudo-terminal. The firmware (``firmware/adcs/main_can.py``, under ``micropython`` or CPython)
 holds the master and plays the serial-CAN adapter's side of Lawicel (``firmware/hal/slcan.py``); this side
 opens python-can's ``slcan`` interface on the slave (``protocol.link.open_link("slcan:PATH")``), with
-can-isotp for the payloads over 8 bytes. Devices: RW0..RW3 (RW_CMD -> RW_TLM), STARTRACKER, GNSS (SatA, and
+can-isotp for the payloads over 8 bytes. Runtime ``qemu``: the firmware is the ADCS PIL board's (``make pil``:
+QEMU's mps2-an500, a Cortex-M7 with its FPU; ``firmware/adcs/pil_main.py``), its UART QEMU's pty, where this side
+opens the same slcan interface; its configuration goes over the UART first; ``board()`` gives its instructions per
+cycle. Devices: RW0..RW3 (RW_CMD -> RW_TLM), STARTRACKER, GNSS (SatA, and
 SatB's fixes relayed 2-3 s late when ``satb_gnss``), BEACON; the emulator is node SPACECRAFT. With
 ``magnetic_devices`` (the flight world's; off for the thesis's, which has none) also the spacecraft file's
 magnetometer (MAGNETOMETER) and magnetorquers (MTQ: MTQ_CMD -> MTQ_TLM), where its blocks are not null.
@@ -69,7 +72,7 @@ import tty
 import numpy as np
 
 from emulator import orbits
-from emulator.launcher import FirmwareProcess, command
+from emulator.launcher import ADCS_IMAGE, ADCS_MACHINE, FirmwareProcess, command, qemu_command, start_board
 from emulator.navsensors import ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftDevices
@@ -81,7 +84,11 @@ from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
-RUNTIMES = ("micropython", "cpython")
+RUNTIMES = ("micropython", "cpython", "qemu")
+# the qemu runtime's board, as a run's summary.json states it
+BOARD = {"board": "QEMU mps2-an500 (ARM's MPS2 FPGA board, AN500 image) standing for a CubeSat ADCS computer",
+         "core": "ARM Cortex-M7 with FPv5-D16 (double-precision FPU); MicroPython floats single precision",
+         "clock_hz": 216e6, "cpi_range": [1.0, 2.0]}
 WORLDS = ("thesis", "flight")
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
@@ -215,6 +222,7 @@ class AdcsSession:
         self._tick_payload = None
         self._reply_s = 0.05                     # recent wall time from ADCS_TICK to the cycle's last reply
         self.last_status = None
+        self._cycle_us = [0, 0, 0]               # the firmware's own cycle times (ADCS_STATUS): n, sum, largest
         self._mode = None
         self.mode_changes = []                   # {"t_s", "from", "to", "reason"} per ADCS_STATUS mode change
         self._st_ok_t = 0.0                      # the star tracker's last valid output (truth side)
@@ -259,25 +267,38 @@ class AdcsSession:
         cfg = os.path.join(self._tmp, "config.json")
         with open(cfg, "w") as fh:
             json.dump(self.config(), fh)
-        m, s = os.openpty()
-        tty.setraw(s)
-        os.set_blocking(m, False)
-        path = os.ttyname(s)
-        extra = [self.heap_out] if self.heap_out else []
-        argv, env = command(self.runtime, MAIN, [m, cfg] + extra, micropython_opts=("-X", "heapsize=64M"))
-        try:
-            self.proc = FirmwareProcess(argv, env=env, pass_fds=(m,), name="ADCS firmware")
-        finally:
-            os.close(m)
-        try:
-            accept = ("RW0", "RW1", "RW2", "RW3", "STARTRACKER", "GNSS", "BEACON")
-            if self.devices is not None:         # MTQ_CMD, and the flow control of MTQ_TLM and MAGNETOMETER
-                accept += (("MTQ",) if self.devices.mtq is not None else ()) + (
-                    ("MAGNETOMETER",) if self.devices.mag is not None else ())
-            self.link = hostlink.open_link("slcan:" + path, "SPACECRAFT", bitrate=1000000, accept=accept,
-                                           isotp_timeout_s=ISOTP_TIMEOUT_MS / 1000.0)
-        finally:
-            os.close(s)
+        accept = ("RW0", "RW1", "RW2", "RW3", "STARTRACKER", "GNSS", "BEACON")
+        if self.devices is not None:             # MTQ_CMD, and the flow control of MTQ_TLM and MAGNETOMETER
+            accept += (("MTQ",) if self.devices.mtq is not None else ()) + (
+                ("MAGNETOMETER",) if self.devices.mag is not None else ())
+
+        def connect(path):
+            return hostlink.open_link("slcan:" + path, "SPACECRAFT", bitrate=1000000, accept=accept,
+                                      isotp_timeout_s=ISOTP_TIMEOUT_MS / 1000.0)
+        if self.runtime == "qemu":               # the ADCS PIL board: its UART is QEMU's pty
+            if not os.path.exists(ADCS_IMAGE):
+                raise OSError("runtime qemu needs the ADCS PIL image %s (make pil)" % os.path.relpath(ADCS_IMAGE))
+            self.proc, self.link = start_board(qemu_command(ADCS_IMAGE, serial="pty", icount=True,
+                                                            machine=ADCS_MACHINE),
+                                               "import firmware.adcs.pil_main", connect,
+                                               first_line=json.dumps(self.config(), separators=(",", ":")),
+                                               name="ADCS board")
+            path = "QEMU's pty"
+        else:
+            m, s = os.openpty()
+            tty.setraw(s)
+            os.set_blocking(m, False)
+            path = os.ttyname(s)
+            extra = [self.heap_out] if self.heap_out else []
+            argv, env = command(self.runtime, MAIN, [m, cfg] + extra, micropython_opts=("-X", "heapsize=64M"))
+            try:
+                self.proc = FirmwareProcess(argv, env=env, pass_fds=(m,), name="ADCS firmware")
+            finally:
+                os.close(m)
+            try:
+                self.link = connect(path)
+            finally:
+                os.close(s)
         deadline = time.monotonic() + 30.0
         while True:
             left = deadline - time.monotonic()
@@ -509,6 +530,11 @@ class AdcsSession:
             status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
             status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
             self.last_status = status
+            if status["tick"] > 0:               # the first cycle starts the filters
+                c = self._cycle_us
+                c[0] += 1
+                c[1] += status["cycle_us"]
+                c[2] = max(c[2], status["cycle_us"])
             if status["adcs_mode_name"] != self._mode:
                 if self._mode is not None:
                     self.mode_changes.append({"t_s": t, "from": self._mode, "to": status["adcs_mode_name"],
@@ -564,6 +590,19 @@ class AdcsSession:
             return ("the star tracker is back after %d s blind, the estimate on the command"
                     % self._st_blind_before if before == "ACQUIRE" else "pointing")
         return to
+
+    def board(self):
+        """A qemu run's board and its instructions per 1 Hz cycle (None for the other runtimes): under ``-icount
+        shift=0`` one instruction is one virtual ns, so the firmware's own cycle time (ADCS_STATUS.cycle_us, its
+        timer: the filters, the control law and the commands; the packets' decoding outside it) in us is
+        thousands of instructions."""
+        if self.runtime != "qemu":
+            return None
+        n, total, worst = self._cycle_us
+        return {"target": dict(BOARD), "instructions_per_cycle": {
+            "what": "the firmware's own cycle (ADCS_STATUS.cycle_us: filters, control law, commands) under -icount "
+                    "shift=0, one instruction a virtual ns; the first cycle (the filters' start) left out",
+            "n": n, "mean": 1000.0 * total / n if n else None, "max": 1000.0 * worst if n else None}}
 
     def summary(self):
         st = self.last_status or {}

@@ -8,7 +8,8 @@ ground.
 run would fill and stall the firmware), in a process group of its own (``runtime.OWN_GROUP``: a terminal's Ctrl-C
 reaches only the tool); ``stderr_tail``, ``exit_note`` and ``stop`` (wait for it to leave, as it does when its link
 closes; then SIGTERM, then SIGKILL) are the same for all. ``command(runtime, target, args)`` builds the command line
-and environment of a CPython or MicroPython firmware; ``qemu_command`` that of the PIL image.
+and environment of a CPython or MicroPython firmware; ``qemu_command`` that of a PIL image, ``start_board`` boots
+one and starts its firmware through the raw REPL.
 """
 
 import os
@@ -22,6 +23,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIMES = ("cpython", "micropython", "qemu")
 PIL_IMAGE = os.path.join(ROOT, "build", "pil", "MICROBIT", "firmware.elf")
 PIL_RAM_BYTES = 32 * 1024         # the thesis's SAMD21G18 has 32 KB of SRAM; the image is linked for it
+ADCS_IMAGE = os.path.join(ROOT, "build", "pil", "MPS2-AN500-ADCS", "firmware.elf")   # ground.pil_build's ADCS_MEM
+ADCS_MACHINE = "mps2-an500"
 QEMU_ARGS = ("-nographic", "-semihosting")
 
 
@@ -56,6 +59,58 @@ def qemu_command(image=PIL_IMAGE, serial="pty", icount=False, monitor=None, ram_
     if icount:
         cmd += ["-icount", "shift=0"]
     return cmd
+
+
+def start_board(cmd, start, connect, first_line=None, name="QEMU", boot_s=60.0):
+    """A PIL board: QEMU (``cmd``, a ``qemu_command`` with ``serial="pty"``) started, the pty it made opened raw,
+    MicroPython's raw REPL entered and ``start`` (a statement, e.g. ``import firmware.pil_main``) run; then
+    ``first_line`` (text, a newline added) written to the board if given, and ``connect(path)`` called, which opens
+    the caller's link on the pty (while this side still holds it open: QEMU drops what a board writes to a pty
+    nobody holds). Returns (the ``FirmwareProcess``, what ``connect`` returned). OSError saying what the board did
+    instead."""
+    import re
+    import select
+    import time
+    import tty
+    proc = FirmwareProcess(cmd, stdout=subprocess.PIPE, name=name)
+    fd = None
+    try:
+        line, t0 = b"", time.monotonic()
+        while b"/dev/pts/" not in line:
+            if time.monotonic() - t0 > 10 or proc.poll() is not None:
+                raise OSError("qemu-system-arm gave no pty (%s)" % proc.stderr_tail().strip())
+            line = proc.stdout.readline()
+        path = re.search(rb"(/dev/pts/\d+)", line).group(1).decode()
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(fd)
+
+        def until(token, wait_s):
+            buf, end = b"", time.monotonic() + wait_s
+            while token not in buf:
+                if time.monotonic() > end:
+                    raise OSError("the PIL board gave no %r in %g s (got %r)" % (token, wait_s, buf[-200:]))
+                if select.select([fd], [], [], 0.2)[0]:
+                    buf += os.read(fd, 4096)
+            return buf
+        os.write(fd, b"\r")
+        until(b">>> ", boot_s)
+        os.write(fd, b"\x01")
+        until(b"raw REPL; CTRL-B to exit\r\n>", 10.0)
+        os.write(fd, start.encode() + b"\x04")
+        until(b"OK", 10.0)
+        if first_line is not None:
+            data = first_line.encode() + b"\n"
+            while data:
+                data = data[os.write(fd, data):]
+        link = connect(path)
+    except BaseException:
+        proc.kill()
+        proc.stop()
+        raise
+    finally:
+        if fd is not None:
+            os.close(fd)
+    return proc, link
 
 
 class FirmwareProcess(subprocess.Popen):

@@ -306,11 +306,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
             with open(distfile_path, "rb") as f:      # firmware.player.Player's codes, whole blocks at a time
                 player = DistfilePlayer(distfile.parse(f.read()), pfsm_hz=rig.lockstep.pfsm_hz)
             play(rig, rec, player, duration_s, summary, quiet)
-    target = getattr(getattr(run.rig, "process", None), "target", None)
-    if target is not None:                      # --runtime qemu: the board's own figures (ground.pil_build)
-        target = dict(target)
-        summary["instructions_per_step"] = target.pop("instructions_per_step", None)
-        summary["target"] = target
+    board_figures(run, summary)
     finish_summary(rec, run, summary, q2cal, plots)
     n_played = min(len(dx), int(round(rec.virtual_s * 1e6 / d.period_us)) + 1)
     summary["disturbance"] = report.error_stats(dx[:n_played], dy[:n_played])   # the body pointing error played
@@ -450,6 +446,16 @@ def play(rig, rec, player, duration_s, summary, quiet, before_chunk=None, desc="
         if bar is not None:
             bar.close()
         summary["overruns"] = rig.lockstep.n_overrun - overrun0
+
+
+def board_figures(run, summary):
+    """--runtime qemu: the board's own figures (``ground.pil_build.read_target``, read when the rig closed) into
+    the summary as ``target`` and ``instructions_per_step``; nothing for the other runtimes."""
+    target = getattr(getattr(run.rig, "process", None), "target", None)
+    if target is not None:
+        target = dict(target)
+        summary["instructions_per_step"] = target.pop("instructions_per_step", None)
+        summary["target"] = target
 
 
 def finish_summary(rec, run, summary, q2cal, plots):

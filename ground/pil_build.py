@@ -101,7 +101,8 @@ ADCS_MEM = Memory(ADCS_BOARD + "-ADCS", 4 * 1024 * 1024, 1024 * 1024, 64 * 1024,
 ADCS_DIR = ADCS_MEM.dir
 ADCS_IMAGE = ADCS_MEM.image
 ADCS_MARCH = "armv7emdp"
-ADCS_FROZEN = ("firmware/__init__.py", "firmware/adcs/__init__.py", "firmware/adcs/app.py",
+ADCS_FROZEN = ("firmware/__init__.py", "firmware/adcs/__init__.py", "firmware/adcs/app.py", "firmware/adcs/pil_main.py",
+               "firmware/hal/__init__.py", "firmware/hal/slcan.py", "firmware/hal/mps2.py",
                "firmware/adcs/apkf_lean.py", "firmware/adcs/stkf_lean.py", "firmware/adcs/control.py",
                "firmware/adcs/flight.py", "firmware/adcs/linalg.py",
                "protocol/__init__.py", "protocol/consts.py", "protocol/frame.py", "protocol/fast.py",

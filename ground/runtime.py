@@ -163,9 +163,7 @@ def _start(runtime, link_kind, rate_hz):
 def _start_qemu(boot_s=60.0):
     """QEMU with the PIL image, its UART on a pty; ``firmware.pil_main`` started through the raw REPL. Returns (the
     bench's serial link on that pty, the QEMU process). OSError naming what is missing."""
-    import re
-    import tty
-    from emulator.launcher import FirmwareProcess, qemu_command
+    from emulator.launcher import qemu_command, start_board
     from ground import pil_build
     from protocol.link import open_serial
     missing = pil_build.missing_tools()
@@ -175,45 +173,15 @@ def _start_qemu(boot_s=60.0):
     import tempfile
     mon_dir = tempfile.mkdtemp(prefix="fps-qemu-")
     monitor = os.path.join(mon_dir, "monitor.sock")
-    proc = FirmwareProcess(qemu_command(pil_build.IMAGE, serial="pty", icount=True, monitor=monitor),
-                           stdout=subprocess.PIPE, name="QEMU")
-    proc.monitor_path, proc.monitor_dir = monitor, mon_dir
-    fd = None
     try:
-        line, t0 = b"", time.monotonic()
-        while b"/dev/pts/" not in line:
-            if time.monotonic() - t0 > 10 or proc.poll() is not None:
-                raise OSError("qemu-system-arm gave no pty (%s)" % stderr_tail(proc).strip())
-            line = proc.stdout.readline()
-        path = re.search(rb"(/dev/pts/\d+)", line).group(1).decode()
-        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
-        tty.setraw(fd)
-
-        def until(token, wait_s):
-            buf, end = b"", time.monotonic() + wait_s
-            while token not in buf:
-                if time.monotonic() > end:
-                    raise OSError("the PIL board gave no %r in %g s (got %r)" % (token, wait_s, buf[-200:]))
-                import select
-                if select.select([fd], [], [], 0.2)[0]:
-                    buf += os.read(fd, 4096)
-            return buf
-        os.write(fd, b"\r")
-        until(b">>> ", boot_s)
-        os.write(fd, b"\x01")
-        until(b"raw REPL; CTRL-B to exit\r\n>", 10.0)
-        os.write(fd, b"import firmware.pil_main\x04")
-        until(b"OK", 10.0)
-        link = open_serial(path, "BENCH", baudrate=115200)
-        proc.console = lambda: bytes(link.rx_tail)
+        proc, link = start_board(qemu_command(pil_build.IMAGE, serial="pty", icount=True, monitor=monitor),
+                                 "import firmware.pil_main", lambda path: open_serial(path, "BENCH", baudrate=115200),
+                                 boot_s=boot_s)
     except BaseException:
-        proc.kill()
-        proc.stop()
         shutil.rmtree(mon_dir, ignore_errors=True)
         raise
-    finally:
-        if fd is not None:
-            os.close(fd)
+    proc.monitor_path, proc.monitor_dir = monitor, mon_dir
+    proc.console = lambda: bytes(link.rx_tail)
     return link, proc
 
 

@@ -55,7 +55,7 @@ from ground.fileio import cache_folder, run_folder, write_atomic, write_json
 
 ADCS_KINDS = ("firmware", "ground")
 FIGURE = "system_pointing.png"
-RUNTIMES = ("micropython", "cpython")
+RUNTIMES = ("micropython", "cpython", "qemu")
 LEAD_S = 2.0              # ADCS seconds simulated beyond the play: the last chunk's interpolation stencil
 STENCIL_S = 0.25          # the 10 Hz samples needed beyond a distfile sample (two steps of 0.1 s, and a margin)
 WAIT_S = 600.0            # longest wait for the ADCS's progress (a message other than its heartbeat)
@@ -280,7 +280,7 @@ def _send_firmware(spec, params, q, stop):
             q.put(("cycle", {"t": t, "dtheta": dth / ARCSEC, "domega": dom / ARCSEC,
                              "t_est": float(e.get("t", t[0] - 0.1)), "est_err": err,
                              "status": _jsonable(c.get("status"))}))
-        q.put(("adcs_summary", _jsonable(s.summary())))
+        q.put(("adcs_summary", _jsonable(dict(s.summary(), **(s.board() or {})))))
     finally:
         s.close()
     res, hist, err = _ground_run(spec, params)          # the ground filters on the same scenario
@@ -688,6 +688,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
             if feed.close():
                 raise KeyboardInterrupt               # Ctrl-C or SIGTERM while the ADCS process was being stopped
         stopped_in = summary["phase"] if run.failure or run.interrupted else None
+        hil.board_figures(run, summary)            # --runtime qemu: the controller's board
         hil.finish_summary(rec, run, summary, q2cal, plots)
         summary["phase"] = "done" if stopped_in is None else ("interrupted" if run.interrupted else "failed")
         summary["stopped_in"] = stopped_in
@@ -1071,7 +1072,9 @@ def register(sub, name, help_):
                    help="firmware: the ADCS flight software on CAN against the emulated spacecraft; ground: the "
                         "body pointing simulator of Sec. 6.4 (default: firmware when this build has it)")
     p.add_argument("--runtime", default="micropython", choices=RUNTIMES,
-                   help="where the fine-pointing controller (and the ADCS firmware) run (default micropython)")
+                   help="where the fine-pointing controller (and the ADCS firmware) run: micropython and cpython "
+                        "on this machine, qemu on the PIL boards of make pil (the controller on a Cortex-M0, the "
+                        "ADCS on a Cortex-M7; default micropython)")
     p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed to SatA (2-3 s late)")
     p.add_argument("--ts", type=float, default=33.0, help="ADCS settling time t_s in s (default 33, Sec. 6.4.4)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop", help="true orbits (default hpop)")

@@ -236,3 +236,51 @@ def test_the_lean_adcs_on_the_cortex_m7_board_runs_a_recorded_session_as_the_uni
     st = core.payload_dict(core.PACKET_ID["ADCS_STATUS"], r["status"])
     assert st["tick"] == ref["tick"] == n - 1 and st["adcs_mode"] == ref["adcs_mode"]
     assert _angle_arcsec([st["q%d" % i] for i in range(4)], [ref["q%d" % i] for i in range(4)]) < 1.0
+
+
+needs_adcs_image = pytest.mark.skipif(
+    not os.path.exists(pil_build.ADCS_IMAGE) or bool(pil_build.missing_tools()),
+    reason="no ADCS PIL image (make pil; it needs %s)" % pil_build.install_hint(pil_build.PACKAGES))
+
+
+def _fps(*args, timeout=600):
+    import subprocess
+    p = subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True, text=True,
+                       timeout=timeout)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return p
+
+
+@needs_adcs_image
+def test_fps_adcs_can_on_the_cortex_m7_board_flies_as_the_unix_port(tmp_path):
+    """fps adcs can --runtime qemu: the ADCS image on QEMU's mps2-an500, CAN through Lawicel on its UART (QEMU's pty,
+    python-can's slcan on the host): the same modes as the unix port's run, its attitude estimate within an arcsec
+    of it (float32 against float64), and the board and its instructions per cycle in summary.json."""
+    import numpy as np
+    from bench.bench_pil_adcs import _angle_arcsec
+    runs = {}
+    for r in ("qemu", "micropython"):
+        p = _fps("adcs", "can", "--runtime", r, "--duration", "40", "--no-plots", "-o", str(tmp_path / r))
+        runs[r] = json.load(open(tmp_path / r / "summary.json"))
+        runs[r]["h"] = np.load(tmp_path / r / "history.npz")
+        if r == "qemu":
+            assert "the board (ARM Cortex-M7)" in p.stdout
+    q, m = runs["qemu"], runs["micropython"]
+    assert q["complete"] and q["cycles"] == m["cycles"] == 40 and q["mode_changes"] == m["mode_changes"]
+    assert "Cortex-M7" in q["target"]["core"] and "target" not in m
+    ipc = q["instructions_per_cycle"]
+    assert ipc["n"] == 39 and 1e5 < ipc["mean"] <= ipc["max"]
+    eq, em = q["h"]["est_q"], m["h"]["est_q"]
+    assert eq.shape == em.shape and max(_angle_arcsec(a, b) for a, b in zip(eq[-5:], em[-5:])) < 1.0
+
+
+@needs_adcs_image
+@pytest.mark.skipif(not os.environ.get("FPS_SLOW"), reason="both boards under QEMU, ~35 s: FPS_SLOW=1")
+def test_fps_system_runs_both_loops_on_their_boards(tmp_path):
+    """fps system --runtime qemu: the controller on the Cortex-M0 board and the ADCS on the Cortex-M7 board, both
+    loops within their budgets, each board's figures in summary.json."""
+    _fps("system", "--runtime", "qemu", "--duration", "5", "--no-plots", "-o", str(tmp_path / "s"), timeout=900)
+    s = json.load(open(tmp_path / "s" / "summary.json"))
+    assert s["requirement_met"] and "Cortex-M0" in s["target"]["core"] and s["instructions_per_step"]["n"] > 3000
+    a = s["adcs_summary"]
+    assert a["runtime"] == "qemu" and "Cortex-M7" in a["target"]["core"] and a["instructions_per_cycle"]["n"] > 100

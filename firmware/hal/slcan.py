@@ -12,14 +12,97 @@ non-blocking) is read with ``select.poll`` and ``readinto`` into a preallocated 
 out as ``T`` lines from one preallocated buffer.
 """
 
-import select
+import sys
 
 from protocol import can as canmap
 from protocol import core, isotp, lawicel
-from protocol.stream import poll_events, ticks_diff, ticks_ms
+
+try:
+    import select
+    from protocol.stream import poll_events, ticks_diff, ticks_ms
+except ImportError:                  # a bare-metal board: no select, no time module; its adapter (UartSlcan) and
+    select = poll_events = ticks_diff = ticks_ms = None      # its clock (CanPort's ``clock``) come with it
 
 
-class SlcanAdapter:
+class _LawicelSide:
+    """What both adapters share: the Lawicel interpreter ``lw`` and its state and counters."""
+
+    @property
+    def is_open(self):
+        return self.lw.is_open
+
+    @property
+    def bitrate(self):
+        return self.lw.bitrate
+
+    @property
+    def n_rx(self):
+        return self.lw.n_rx
+
+    @property
+    def n_bad(self):
+        """Malformed lines (every reason but ``closed``: a well-formed frame while the channel is closed)."""
+        d = self.lw.drops
+        return sum(d[r] for r in lawicel.DROPS if r != "closed")
+
+    def send_frame(self, cid, data):
+        """One received CAN frame (29-bit id) to the host: ``T`` + 8 hex id + dlc + data + CR."""
+        n = lawicel.frame_line(self._tline, cid, data)
+        self._write(memoryview(self._tline)[:n])
+        self.n_tx += 1
+
+    def counters(self):
+        d = self.lw.counters()
+        d["slcan_tx"] = self.n_tx
+        return d
+
+
+class UartSlcan(_LawicelSide):
+    """The adapter side of Lawicel on a board's console UART (``sys.stdin.buffer`` / ``sys.stdout.buffer``: the ADCS
+    PIL board, ``firmware.adcs.pil_main``). The board has no ``select``: ``ready()`` (its UART's receive flag) and
+    ``clock`` (ticks_ms, ticks_diff) let ``poll`` wait for the next line up to its timeout; without them ``poll``
+    blocks until the next line. ``closed`` once the input ends."""
+
+    def __init__(self, reader=None, writer=None, ready=None, clock=None):
+        self._r = reader if reader is not None else sys.stdin.buffer
+        self._w = writer if writer is not None else sys.stdout.buffer
+        self._ready = ready
+        self._clock = clock
+        self._buf = bytearray(1)
+        self._tline = bytearray(lawicel.LINE_MAX)
+        self.lw = lawicel.Adapter(self._write)
+        self.closed = False
+        self.fail_why = None
+        self.n_tx = 0
+
+    def _write(self, data):
+        self._w.write(data)
+
+    def poll(self, timeout_ms):
+        """Frames the host sent in its next line (none for a command line), waiting up to ``timeout_ms`` (-1
+        forever) for its first byte, then to its CR."""
+        out = []
+        b = self._buf
+        if self._ready is not None and timeout_ms >= 0 and not self._ready():
+            ms, diff = self._clock
+            t0 = ms()
+            while not self._ready():
+                if diff(ms(), t0) >= timeout_ms:
+                    return out
+        while not self.closed:
+            if not self._r.readinto(b):
+                self.closed = True
+            else:
+                self.lw.feed(b, 1, out)
+                if b[0] == 13:
+                    break
+        return out
+
+    def close(self):
+        self.closed = True
+
+
+class SlcanAdapter(_LawicelSide):
     """The adapter side of Lawicel on a file descriptor (int) or a path; frames in and out.
 
     ``poll(timeout_ms)`` reads what has arrived, answers commands, and returns the list of frames the host
@@ -39,24 +122,6 @@ class SlcanAdapter:
         self.closed = False
         self.fail_why = None         # set when the fd failed other than by the host closing the pty
         self.n_tx = 0
-
-    @property
-    def is_open(self):
-        return self.lw.is_open
-
-    @property
-    def bitrate(self):
-        return self.lw.bitrate
-
-    @property
-    def n_rx(self):
-        return self.lw.n_rx
-
-    @property
-    def n_bad(self):
-        """Malformed lines (every reason but ``closed``: a well-formed frame while the channel is closed)."""
-        d = self.lw.drops
-        return sum(d[r] for r in lawicel.DROPS if r != "closed")
 
     def _write(self, data):
         if self._f is None:
@@ -81,12 +146,6 @@ class SlcanAdapter:
         code = exc.args[0] if exc.args else None
         if code not in (5, 32) and self.fail_why is None:     # EIO, EPIPE: the host closed its end (in order)
             self.fail_why = "slcan port: %s" % (exc,)
-
-    def send_frame(self, cid, data):
-        """One received CAN frame (29-bit id) to the host: ``T`` + 8 hex id + dlc + data + CR."""
-        n = lawicel.frame_line(self._tline, cid, data)
-        self._write(memoryview(self._tline)[:n])
-        self.n_tx += 1
 
     def _events(self, wait):
         return poll_events(self._ipoll, self._poll, wait)
@@ -119,11 +178,6 @@ class SlcanAdapter:
             wait = 0
         return out
 
-    def counters(self):
-        d = self.lw.counters()
-        d["slcan_tx"] = self.n_tx
-        return d
-
     def close(self):
         if self._f is not None:
             try:
@@ -145,11 +199,13 @@ class CanPort:
     recovers it) or the receiver's flow control said overflow. A lost CF is the receiver's to discard (its
     N_Cr, or the next FF on the id). ``recv_ms(timeout_ms)``: packets ``[(pid, src, dst, None, payload)]`` for
     this node, BROADCAST or an ``accept`` node; frames failing the end-to-end check or the table are dropped and
-    counted by reason in ``counters()`` with the adapter's malformed lines.
+    counted by reason in ``counters()`` with the adapter's malformed lines. ``clock``: (ticks_ms, ticks_diff) where
+    there is no ``time`` module (a board's timer); None: MicroPython's or CPython's.
     """
 
-    def __init__(self, adapter, node, accept=(), isotp_timeout_ms=1000, tries=3):
+    def __init__(self, adapter, node, accept=(), isotp_timeout_ms=1000, tries=3, clock=None):
         self.ad = adapter
+        self._ticks_ms, self._ticks_diff = clock if clock is not None else (ticks_ms, ticks_diff)
         self.node = core.node_id(node)
         self.accept = [self.node, 0xFF] + [core.node_id(a) for a in accept]
         self.timeout_ms = int(isotp_timeout_ms)
@@ -197,9 +253,9 @@ class CanPort:
                 self.isotp_resent += 1
             refused = drops["overflow"] + ch.errors["overflow"]
             ch.send(data)
-            t0 = ticks_ms()
+            t0 = self._ticks_ms()
             while ch.sending and not self.ad.closed:
-                left = self.timeout_ms - ticks_diff(ticks_ms(), t0)
+                left = self.timeout_ms - self._ticks_diff(self._ticks_ms(), t0)
                 if left <= 0:
                     ch.abort()
                     self.isotp_timeouts += 1
@@ -218,7 +274,7 @@ class CanPort:
         if self._q:
             out, self._q = self._q, []
             return out
-        t0 = ticks_ms()
+        t0 = self._ticks_ms()
         wait = -1 if timeout_ms is None else timeout_ms
         while not self.ad.closed:
             self._frames(self.ad.poll(wait))
@@ -226,7 +282,7 @@ class CanPort:
                 out, self._q = self._q, []
                 return out
             if timeout_ms is not None:
-                wait = timeout_ms - ticks_diff(ticks_ms(), t0)
+                wait = timeout_ms - self._ticks_diff(self._ticks_ms(), t0)
                 if wait <= 0:
                     return []
         return []

@@ -17,6 +17,7 @@ import sys
 
 import numpy as np
 
+from emulator.adcs_session import RUNTIMES
 from ground.adcs import bps, campaign, runs
 from ground.adcs.cli import add_spacecraft_option, load_spacecraft
 from ground.fileio import output_folder, run_folder, write_json
@@ -56,8 +57,9 @@ def register(sub):
                        description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=600.0,
                    help="virtual seconds, 1 to %g (default 600)" % campaign.MAX_DURATION_S)
-    p.add_argument("--runtime", default="micropython", choices=("micropython", "cpython"),
-                   help="the firmware's interpreter (default micropython)")
+    p.add_argument("--runtime", default="micropython", choices=RUNTIMES,
+                   help="the firmware's interpreter: micropython or cpython here, or qemu, the ADCS PIL board of "
+                        "make pil (a Cortex-M7 with its FPU under QEMU; default micropython)")
     p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed 2-3 s late (default off)")
     p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s, in (0, %g] "
                    "(default 33)" % bps.MAX_TS_S)
@@ -143,6 +145,9 @@ def run(a):
     h = {k: np.concatenate(v) if v else np.zeros((0, 3)) for k, v in hist.items()}
     settle = HOLD_S + 4 * a.ts if a.world == "thesis" else bps.flight_settle_s(d, a.ts)
     summary["settle_s"] = settle
+    board = session.board()                  # --runtime qemu: the board and its instructions per cycle
+    if board is not None:
+        summary.update(board)
     if a.world == "flight":
         w = np.concatenate(hist["w"]) if hist["w"] else np.zeros((0, 3))
         summary["wheel_speed_limit_rpm"] = d["wheels"]["speed_limit_rpm"]
@@ -169,6 +174,13 @@ def run(a):
         from ground import plots
         plots.adcs_can_pointing(h, os.path.join(out, FIGURE))
     write_json(os.path.join(out, "summary.json"), summary)
+    ipc = summary.get("instructions_per_cycle")
+    if ipc and ipc["n"]:
+        t = summary["target"]
+        print("the board (%s): %.2f M instructions a cycle on the mean, %.2f M the largest: %.1f-%.1f %% of 1 s at "
+              "%.0f MHz" % (t["core"].split(" with")[0], ipc["mean"] / 1e6, ipc["max"] / 1e6,
+                            100 * ipc["mean"] * t["cpi_range"][0] / t["clock_hz"],
+                            100 * ipc["mean"] * t["cpi_range"][1] / t["clock_hz"], t["clock_hz"] / 1e6))
     r = summary["retries"]
     print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s, link retries: %d cycles, "
           "%d ticks and %d packets resent; %s" % (

@@ -282,7 +282,8 @@ def source_options(parser):
     for name, cls in sources.SOURCES.items():
         grp = _Group(parser.add_argument_group("--source %s" % name))
         cls.add_arguments(grp)
-        out[name] = [(act.option_strings[-1], act.dest, default) for act, default in grp.actions]
+        out[name] = [([o for o in act.option_strings if o.startswith("--")][0], act.dest, default)
+                     for act, default in grp.actions]
     return out
 
 

@@ -51,6 +51,7 @@ import numpy as np
 
 from ground import hil, report
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
+from ground.adcs.cli import add_fault_options, add_satb_gnss_option, faults_from_args
 from ground.fileio import cache_folder, run_folder, write_atomic, write_json
 
 ADCS_KINDS = ("firmware", "ground")
@@ -972,6 +973,14 @@ def adcs_session_md(summary, status):
     out = ["## ADCS session", ""]
     summary = dict(summary or {})
     changes, faults = summary.pop("mode_changes", None), summary.pop("fault_log", None)
+    target, ipc = summary.pop("target", None), summary.pop("instructions_per_cycle", None)
+    if target and ipc and ipc.get("n"):      # --runtime qemu: the ADCS's board
+        f = target["clock_hz"]
+        out += ["| ADCS board | instructions a cycle, mean | largest | share of 1 s at %.0f MHz (CPI %g-%g) |"
+                % (f / 1e6, target["cpi_range"][0], target["cpi_range"][1]), "|---|---|---|---|",
+                "| %s | %.2f M | %.2f M | %.1f-%.1f %% |" % (target["core"], ipc["mean"] / 1e6, ipc["max"] / 1e6,
+                                                        100 * ipc["mean"] * target["cpi_range"][0] / f,
+                                                        100 * ipc["mean"] * target["cpi_range"][1] / f), ""]
     if changes:
         out += ["| t (s) | mode change | reason |", "|---|---|---|"]
         out += ["| %.0f | %s -> %s | %s |" % (c["t_s"], c["from"], c["to"], c["reason"]) for c in changes] + [""]
@@ -991,16 +1000,6 @@ def adcs_session_md(summary, status):
 
 def _x(v):
     return "—" if v is None else "%.1fx" % v
-
-
-def _faults_arg(text):
-    """--faults JSON text as a dict (ValueError naming the option when it is not JSON)."""
-    if text is None:
-        return None
-    try:
-        return json.loads(text)
-    except ValueError as exc:
-        raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}': %s" % exc)
 
 
 def _read_summary(out_dir):
@@ -1028,7 +1027,7 @@ def _cmd(a):
         cfg = load_config(a.config)
     try:
         s = run_system(a.duration, a.output, a.runtime, a.adcs, a.satb_gnss, a.seed, a.ts, a.truth, a.calibration,
-                       a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, _faults_arg(a.faults),
+                       a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, faults_from_args(a),
                        _link_faults_arg(a.link_faults), a.spacecraft, a.world)
     except hil.Interrupted:
         s = _read_summary(a.output)
@@ -1075,7 +1074,7 @@ def register(sub, name, help_):
                    help="where the fine-pointing controller (and the ADCS firmware) run: micropython and cpython "
                         "on this machine, qemu on the PIL boards of make pil (the controller on a Cortex-M0, the "
                         "ADCS on a Cortex-M7; default micropython)")
-    p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed to SatA (2-3 s late)")
+    add_satb_gnss_option(p, False)
     p.add_argument("--ts", type=float, default=33.0, help="ADCS settling time t_s in s (default 33, Sec. 6.4.4)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop", help="true orbits (default hpop)")
     p.add_argument("--params", default=None, help="ADCS parameter file (fps adcs bps format; default: the cached "
@@ -1084,11 +1083,8 @@ def register(sub, name, help_):
                    help="calibration and truth cache folder (default out/bps_cache)")
     p.add_argument("--calibration", default=None, help="H calibration JSON (fps calibrate; default: calibrate "
                    "in-process first, 121 points, written to the run folder)")
-    p.add_argument("--faults", default=None, metavar="JSON",
-                   help="faults of the emulated spacecraft's devices (firmware ADCS), a JSON object: wheel_silent "
-                        "[wheel 0-3, t0 s], startracker_blind [t0, t1 s], gnss_outage [t0, t1 s], beacon_lost t0 s; "
-                        "times in the ADCS's seconds from its start (the play begins after 30 s + 4 t_s of "
-                        "settling: 162 s at t_s = 33 s)")
+    add_fault_options(p, "seconds from the ADCS's start, the play beginning after its 30 s hold and 4 t_s; "
+                         "firmware ADCS only")
     p.add_argument("--link-faults", default=None, metavar="SPEC",
                    help="faults on the ADCS's CAN link (firmware ADCS), both directions of its slcan stream: "
                         "bytes=P (a bit flip per ASCII byte), frames=P (a CAN frame's line dropped), seed=N, "

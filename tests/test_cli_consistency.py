@@ -1,85 +1,63 @@
-"""CLI cases of the "one consistent CLI" issue fixed so far: bad input exits 2 naming the option; the help lists every
-sub-command."""
+"""One CLI: the same option for the same thing across commands (SatB's GNSS, device faults), parsed the same way."""
 
-import subprocess
-import sys
+import argparse
+import json
 
-ROOT = __import__("os").path.dirname(__import__("os").path.dirname(__import__("os").path.abspath(__file__)))
+import pytest
 
-
-def _fps(*args):
-    return subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True,
-                          text=True, timeout=120)
+from ground.adcs.cli import add_fault_options, add_satb_gnss_option, faults_from_args
+from ground.cli import build_parser
 
 
-def test_fps_help_names_every_adcs_command():
-    top = _fps("--help").stdout
-    adcs = _fps("adcs", "--help").stdout
-    for name in ("apkf", "mekf", "stkf", "bps", "sweep", "can"):
-        assert name in top.split("adcs", 1)[1] and name in adcs
-    assert "MEKF baseline" not in adcs and "FILTER" not in adcs
+def _actions(argv):
+    """The parser's sub-command for ``argv`` (e.g. ["adcs", "bps"]) and its options by flag."""
+    p = build_parser(only=argv[0])
+    for name in argv:
+        sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+        p = sub.choices[name]
+    return {o: a for a in p._actions for o in a.option_strings}
 
 
-def test_a_missing_capture_is_bad_input_named_by_its_option(tmp_path):
-    for opt in ("--serial", "--can"):
-        p = _fps("protocol", "decode", opt, str(tmp_path / "none.bin"))
-        assert p.returncode == 2 and ("%s %s: cannot read it" % (opt, tmp_path / "none.bin")) in p.stderr
-        assert "Traceback" not in p.stderr and "[Errno" not in p.stderr
+@pytest.mark.parametrize("cmd", [["adcs", "bps"], ["adcs", "sweep"], ["adcs", "can"], ["system"],
+                                 ["distfile", "generate"]])
+def test_every_command_that_flies_the_body_loop_takes_both_satb_gnss_flags(cmd):
+    acts = _actions(cmd)
+    assert "--satb-gnss" in acts and "--no-satb-gnss" in acts
+    assert acts["--satb-gnss"] is acts["--no-satb-gnss"]
 
 
-def test_custom_board_timing_without_its_numbers_is_refused(tmp_path):
-    p = _fps("response", "--timing", "custom", "-o", str(tmp_path / "r"))
-    assert p.returncode == 2 and "--timing custom" in p.stderr and "--config" in p.stderr
-    assert not (tmp_path / "r").exists()
+@pytest.mark.parametrize("cmd", [["adcs", "can"], ["system"]])
+def test_device_faults_are_options_on_both_commands_with_a_bulk_file(cmd):
+    acts = _actions(cmd)
+    for flag in ("--wheel-silent", "--startracker-blind", "--gnss-outage", "--beacon-lost", "--faults"):
+        assert flag in acts, flag
+    assert acts["--faults"].metavar == "FILE"
 
 
-def test_a_bad_loop_rate_is_named_before_the_tones_it_would_limit(tmp_path):
-    p = _fps("response", "--rate-hz", "0", "-o", str(tmp_path / "r"))
-    assert p.returncode == 2 and "--rate-hz" in p.stderr and "--to" not in p.stderr
+def _parse(argv):
+    p = argparse.ArgumentParser()
+    add_fault_options(p, "seconds")
+    add_satb_gnss_option(p, True)
+    return p.parse_args(argv)
 
 
-def test_an_stkf_run_too_short_for_the_apkf_to_start_is_bad_input(tmp_path):
-    """--attitude apkf with a run shorter than the scenario's first two star-tracker outputs: exit 2 naming
-    --duration and the shortest that works, no folder left (it ran and failed before, exit 1)."""
-    p = _fps("adcs", "stkf", "--case", "1", "--attitude", "apkf", "--duration", "1", "--quiet", "-o", str(tmp_path / "s"))
-    assert p.returncode == 2 and "--duration 1 s is too short for --attitude apkf" in p.stderr
-    assert not (tmp_path / "s").exists()
-    need = int(p.stderr.split("give --duration ")[1].split()[0])
-    p = _fps("adcs", "stkf", "--case", "1", "--attitude", "apkf", "--duration", str(need), "--quiet", "--no-plots",
-             "-o", str(tmp_path / "t"))
-    assert p.returncode == 0, p.stderr
+def test_the_fault_file_and_the_options_merge_an_option_overriding_the_file(tmp_path):
+    f = tmp_path / "faults.json"
+    f.write_text(json.dumps({"startracker_blind": [170, 230], "beacon_lost": 300}))
+    a = _parse(["--faults", str(f), "--beacon-lost", "250", "--wheel-silent", "2:100", "--no-satb-gnss"])
+    assert faults_from_args(a) == {"startracker_blind": [170, 230], "beacon_lost": 250.0, "wheel_silent": [2, 100.0]}
+    assert a.satb_gnss is False and _parse([]).satb_gnss is True and faults_from_args(_parse([])) is None
+    assert faults_from_args(_parse(["--faults", '{"gnss_outage": [1, 2]}'])) == {"gnss_outage": [1, 2]}
 
 
-def test_a_negative_settling_time_is_named_by_its_option(tmp_path):
-    """--ts -5:60:20 reached argparse as an option ("expected one argument"); it is now the value --ts refuses."""
-    for cmd in (("adcs", "sweep", "--ts", "-5:60:20"), ("adcs", "bps", "--ts", "-5")):
-        p = _fps(*cmd, "-o", str(tmp_path / "x"))
-        assert p.returncode == 2 and "--ts (settling time t_s) must be in (0" in p.stderr, p.stderr
-        assert "expected one argument" not in p.stderr
-
-
-def test_a_bps_distfile_sidecar_says_its_own_duration_and_keeps_unhashed_notes_apart(tmp_path):
-    """The sidecar's duration_s is the file's (simulated_s the run behind it, one step and the stencil more), and
-    `fps distfile info` shows the notes its header's hash does not cover (params_file, from_cache) apart."""
-    import json
-    out = tmp_path / "b.dist"
-    p = _fps("distfile", "generate", "--source", "bps", "--duration", "5", "--seed", "1", "--bps-truth", "two-body",
-             "--bps-cache", str(tmp_path / "cache"), "-o", str(out))
-    assert p.returncode == 0, p.stderr
-    side = json.loads((tmp_path / "b.dist.json").read_text())
-    assert side["duration_s"] == 5.0 and side["simulated_s"] == 6.0
-    info = _fps("distfile", "info", str(out)).stdout
-    inputs = [ln for ln in info.splitlines() if ln.startswith("inputs ")][0]
-    notes = [ln for ln in info.splitlines() if ln.startswith("notes ")][0]
-    assert "duration_s 5.0" in inputs and "from_cache" not in inputs and "params_file" not in inputs
-    assert "from_cache false" in notes and "not covered by the header's hash" in notes
-
-
-def test_distfile_generate_says_a_short_files_duration_and_no_seed_for_a_csv(tmp_path):
-    p = _fps("distfile", "generate", "--source", "stat", "--duration", "0.05", "-o", str(tmp_path / "s.dist"))
-    assert p.returncode == 0 and "(0.05734 s)" in p.stdout and "(0.0 s)" not in p.stdout
-    csv = tmp_path / "d.csv"
-    csv.write_text("t_s,x_arcsec,y_arcsec\n" + "".join("%g,%g,%g\n" % (k * 0.01, k % 3, -k % 5) for k in range(200)))
-    p = _fps("distfile", "generate", "--source", "csv", "--csv", str(csv), "--duration", "1", "-o", str(tmp_path / "c.dist"))
-    assert p.returncode == 0, p.stderr
-    assert ", source csv" in p.stdout and "seed" not in p.stdout.split("wrote", 1)[1].split(";")[0]
+@pytest.mark.parametrize("argv, needle", [
+    (["--faults", "/no/such/faults.json"], "--faults /no/such/faults.json"),
+    (["--faults", "{beacon"], "--faults must be a JSON object"),
+    (["--faults", "[1, 2]"], "--faults /"),
+    (["--wheel-silent", "two"], "--wheel-silent 'two': expected WHEEL:T0"),
+    (["--gnss-outage", "50"], "--gnss-outage '50': expected T0:T1")])
+def test_a_bad_fault_names_its_option(argv, needle, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError) as e:
+        faults_from_args(_parse(argv))
+    assert str(e.value).startswith(needle.rstrip("/")) or needle.rstrip("/") in str(e.value)

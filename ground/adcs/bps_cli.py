@@ -30,7 +30,7 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from ground.adcs import bps, campaign, control, runs
-from ground.adcs.cli import add_spacecraft_option, load_spacecraft
+from ground.adcs.cli import add_satb_gnss_option, add_spacecraft_option, load_spacecraft
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
@@ -473,7 +473,7 @@ def _cmd_sweep(a):
     d, record, params = _vehicle(a)
     out = a.output
     campaign.check_scheduler(a.scheduler)
-    satb = not a.no_satb_gnss
+    satb = a.satb_gnss
     campaign.campaign_folder(out, (FIGURE_SWEEP,), dict(sweep_summary(ts_list, [None] * len(ts_list), False, satb),
                                                         spacecraft=record))
     t0 = time.perf_counter()
@@ -543,7 +543,7 @@ def register_bps(sub):
                        description=__doc__.split("\n\n")[1])
     p.add_argument("--ts", type=float, default=bps.TS_THESIS, help="settling time t_s in s, in (0, %g] "
                    "(default 33)" % bps.MAX_TS_S)
-    p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed to SatA (2-3 s late)")
+    add_satb_gnss_option(p, False)
     p.add_argument("--world", choices=bps.WORLDS, default="thesis",
                    help="thesis (default): Sec. 6.4's world, wheels without a limit in effect, no momentum "
                    "management, pointing from rest after a 30 s hold; flight: the spacecraft file's wheel speed "
@@ -560,7 +560,7 @@ def register_sweep(sub):
                        description=__doc__.split("\n\n")[2])
     p.add_argument("--ts", default="10:100:5", help="START:STOP:STEP in s, each t_s in (0, %g], "
                    "at most %d points (default 10:100:5, 19 points)" % (bps.MAX_TS_S, MAX_SWEEP_POINTS))
-    p.add_argument("--no-satb-gnss", action="store_true", help="leave SatB's GNSS out (Sec. 6.4.3 uses it)")
+    add_satb_gnss_option(p, True)            # Sec. 6.4.3's sweep flies it
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count; "
                    "1 = in-process)")

@@ -18,6 +18,7 @@ import sys
 import numpy as np
 
 from emulator.fileio import cache_folder, load_npz, write_atomic
+from ground.adcs.cli import add_satb_gnss_option
 
 TRUTHS = ("hpop", "two-body")
 UNHASHED = ("params_file", "from_cache")    # sidecar notes outside the cache key: the path (its content is hashed)
@@ -52,7 +53,7 @@ class BpsSource:
     @staticmethod
     def add_arguments(p):
         p.add_argument("--ts", type=float, default=33.0, help="bps: settling time t_s in s (default 33)")
-        p.add_argument("--satb-gnss", action="store_true", help="bps: SatB's GNSS relayed to SatA")
+        add_satb_gnss_option(p, False)
         p.add_argument("--params", default=None, help="bps: parameter file (default: the cached calibration "
                        "of --seed)")
         p.add_argument("--bps-truth", choices=TRUTHS, default="hpop", help="bps: true orbits (default hpop)")

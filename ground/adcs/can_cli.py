@@ -1,5 +1,6 @@
-"""``fps adcs can``: the ADCS flight software (its own micropython or CPython process) steering the emulated
-spacecraft over CAN (Lawicel over a pty, python-can's slcan on the emulator side), with optional faults.
+"""``fps adcs can``: the ADCS flight software (its own micropython or CPython process, or the ADCS PIL board under
+QEMU) steering the emulated spacecraft over CAN (Lawicel over a pty, python-can's slcan on the emulator side), with
+optional faults (one option each, or ``--faults FILE``).
 
 Run folder (``-o DIR``, atomic writes): ``summary.json`` (written at the start with ``complete`` false; the
 session's counters, the link's retries and faults, the fault log, the ADCS's last status and the body
@@ -19,7 +20,8 @@ import numpy as np
 
 from emulator.adcs_session import RUNTIMES
 from ground.adcs import bps, campaign, runs
-from ground.adcs.cli import add_spacecraft_option, load_spacecraft
+from ground.adcs.cli import (add_fault_options, add_satb_gnss_option, add_spacecraft_option, faults_from_args,
+                             load_spacecraft)
 from ground.fileio import output_folder, run_folder, write_json
 
 FIGURE = "pointing.png"
@@ -27,40 +29,15 @@ STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_g
                "n_refused", "att_sigma", "cycle_us")
 
 
-def _window(text, name):
-    try:
-        a, b = text.split(":")
-        return [float(a), float(b)]
-    except ValueError:
-        raise ValueError("--%s %r: expected T0:T1 in seconds" % (name, text)) from None
-
-
-def faults_from_args(a):
-    f = {}
-    if a.wheel_silent:
-        try:
-            i, t0 = a.wheel_silent.split(":")
-            f["wheel_silent"] = [int(i), float(t0)]
-        except ValueError:
-            raise ValueError("--wheel-silent %r: expected WHEEL:T0 (wheel 0-3, seconds)" % a.wheel_silent) from None
-    if a.startracker_blind:
-        f["startracker_blind"] = _window(a.startracker_blind, "startracker-blind")
-    if a.gnss_outage:
-        f["gnss_outage"] = _window(a.gnss_outage, "gnss-outage")
-    if a.beacon_lost is not None:
-        f["beacon_lost"] = a.beacon_lost
-    return f or None
-
-
 def register(sub):
-    p = sub.add_parser("can", help="the ADCS firmware on CAN against the emulated spacecraft (issue 13)",
+    p = sub.add_parser("can", help="the ADCS flight firmware on CAN against the emulated spacecraft",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=600.0,
                    help="virtual seconds, 1 to %g (default 600)" % campaign.MAX_DURATION_S)
     p.add_argument("--runtime", default="micropython", choices=RUNTIMES,
                    help="the firmware's interpreter: micropython or cpython here, or qemu, the ADCS PIL board of "
                         "make pil (a Cortex-M7 with its FPU under QEMU; default micropython)")
-    p.add_argument("--satb-gnss", action="store_true", help="SatB's GNSS relayed 2-3 s late (default off)")
+    add_satb_gnss_option(p, False)
     p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s, in (0, %g] "
                    "(default 33)" % bps.MAX_TS_S)
     p.add_argument("--seed", type=int, default=0, help="scenario seed, >= 0 (default 0)")
@@ -75,10 +52,7 @@ def register(sub):
                         "solar pressure, its magnetorquers and magnetometer on the bus, and the firmware's flight "
                         "modes (rate-limited slew, re-acquisition, unloading); the pointing figures then start at "
                         "the planned slew's end plus 4 t_s (bps.flight_settle_s)")
-    p.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I stops answering at T0 s")
-    p.add_argument("--startracker-blind", default=None, metavar="T0:T1", help="star tracker blind from T0 to T1 s")
-    p.add_argument("--gnss-outage", default=None, metavar="T0:T1", help="no GNSS fix from T0 to T1 s")
-    p.add_argument("--beacon-lost", type=float, default=None, metavar="T0", help="beacon out of view from T0 s")
+    add_fault_options(p, "seconds from the session's start")
     p.add_argument("--link-faults", metavar="SPEC", default=None,
                    help="faults on the slcan stream, both directions: bytes=P (a bit flip per ASCII byte), "
                         "frames=P (a CAN frame's line dropped), seed=N, silence=START_S:LENGTH_S (seconds of the "

@@ -13,6 +13,8 @@ after Ctrl-C; a run that diverged has ``ok`` false and null figures and is count
 ``monte_carlo.png`` (spread over runs and the NEES against its 95 % band). Exit 1 if a run failed or diverged.
 """
 
+import argparse
+import json
 import os
 import sys
 
@@ -74,6 +76,69 @@ def load_spacecraft(name_or_path, params=None, wheels=True, partner=False):
     except ValueError as exc:
         raise ValueError("--spacecraft %s: %s" % (source, exc)) from None
     return d, source
+
+
+def add_satb_gnss_option(p, default):
+    """``--satb-gnss`` / ``--no-satb-gnss`` (SatB's GNSS fixes relayed to SatA 2-3 s late), the same pair on every
+    command that flies the body loop; ``default`` is the command's (the thesis's choice for what it reproduces)."""
+    p.add_argument("--satb-gnss", action=argparse.BooleanOptionalAction, default=default,
+                   help="SatB's GNSS fixes relayed to SatA 2-3 s late (Sec. 5.5), or not (default %s)"
+                        % ("with them" if default else "without"))
+
+
+def add_fault_options(p, clock):
+    """The emulated spacecraft's device faults, one option each, and ``--faults FILE`` (a JSON object of the same
+    keys: wheel_silent [wheel, t0], startracker_blind [t0, t1], gnss_outage [t0, t1], beacon_lost t0) for many at
+    once; an option given overrides the file's entry. ``clock``: what the times count (said in --help's group title)."""
+    g = p.add_argument_group("device faults (times: %s)" % clock)
+    g.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I (0-3) stops answering at T0 s")
+    g.add_argument("--startracker-blind", default=None, metavar="T0:T1", help="star tracker blind from T0 to T1 s")
+    g.add_argument("--gnss-outage", default=None, metavar="T0:T1", help="no GNSS fix from T0 to T1 s")
+    g.add_argument("--beacon-lost", type=float, default=None, metavar="T0", help="beacon out of view from T0 s")
+    g.add_argument("--faults", default=None, metavar="FILE",
+                   help="a JSON file of faults (the keys wheel_silent, startracker_blind, gnss_outage, beacon_lost "
+                        "as above, e.g. {\"startracker_blind\": [170, 230]}; the object itself is taken too)")
+
+
+def _window(text, name):
+    try:
+        a, b = text.split(":")
+        return [float(a), float(b)]
+    except ValueError:
+        raise ValueError("--%s %r: expected T0:T1 in seconds" % (name, text)) from None
+
+
+def faults_from_args(a):
+    """The faults ``add_fault_options`` took, as the session's dict (None: none). ValueError naming the option."""
+    f = {}
+    if a.faults is not None:
+        text = a.faults.strip()
+        if not text.startswith("{"):
+            try:
+                with open(a.faults) as fh:
+                    text = fh.read()
+            except OSError as exc:
+                raise ValueError("--faults %s: %s" % (a.faults, exc.strerror or exc)) from None
+        try:
+            f = json.loads(text)
+        except ValueError as exc:
+            raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}': %s"
+                             % exc) from None
+        if not isinstance(f, dict):
+            raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}'")
+    if a.wheel_silent:
+        try:
+            i, t0 = a.wheel_silent.split(":")
+            f["wheel_silent"] = [int(i), float(t0)]
+        except ValueError:
+            raise ValueError("--wheel-silent %r: expected WHEEL:T0 (wheel 0-3, seconds)" % a.wheel_silent) from None
+    if a.startracker_blind:
+        f["startracker_blind"] = _window(a.startracker_blind, "startracker-blind")
+    if a.gnss_outage:
+        f["gnss_outage"] = _window(a.gnss_outage, "gnss-outage")
+    if a.beacon_lost is not None:
+        f["beacon_lost"] = a.beacon_lost
+    return f or None
 
 
 def add_spacecraft_option(p, what):

@@ -1,4 +1,9 @@
-"""PNG plots like the thesis's Fig. 7-16/7-17 (calibration) and Fig. 7-18/7-19 (HIL run). Agg backend."""
+"""The plots, in one house style: every axis labelled with its unit, a legend where there is more than one trace,
+the requirement or budget drawn and labelled, scales chosen so the signal shows (a zoomed panel, a 2-D histogram
+where points pile up, a log scale), fault and mode windows shaded, the symbols the reports use (δθ1, δθ2), the
+thesis's figure number in the file name. The helpers here are what every plot of ``fps`` uses; this module draws
+the calibration (Fig. 7-16/7-17), HIL (Fig. 7-18/7-19), ``fps system`` and ``fps adcs can`` figures.
+tests/test_plots.py opens every figure and checks its labels and legends. Agg backend."""
 
 import io
 
@@ -10,6 +15,10 @@ import numpy as np  # noqa: E402
 
 from ground.fileio import write_atomic  # noqa: E402
 
+ARCSEC = '″'
+REQUIREMENT_COLOR = "tab:red"
+FAULT_COLOR = "0.85"
+
 
 def save_png(fig, path, dpi=110):
     """Write ``fig`` as a PNG atomically (no half-written file after an interruption) and close it."""
@@ -17,6 +26,56 @@ def save_png(fig, path, dpi=110):
     fig.savefig(buf, format="png", dpi=dpi)
     plt.close(fig)
     write_atomic(path, buf.getvalue())
+
+
+def subplots(nrows=1, ncols=1, width=9.0, row_height=2.8, **kw):
+    """``plt.subplots`` in the house size (``row_height`` inches a row, so that one row is not a strip) with a
+    light grid on every axes; ``squeeze`` False: always a 2-D array."""
+    fig, axs = plt.subplots(nrows, ncols, figsize=(width, row_height * nrows + 0.8), squeeze=False, **kw)
+    for ax in axs.flat:
+        ax.grid(True, lw=0.3, alpha=0.6)
+    return fig, axs
+
+
+def band(ax, value, label, color=REQUIREMENT_COLOR):
+    """A requirement or budget as labelled dashed lines at +-value; when the data sit far inside it (the axis
+    zoomed on them), the label says so instead of stretching the axis."""
+    lo, hi = ax.get_ylim()
+    if hi >= value or lo <= -value:
+        for sgn in (-1, 1):
+            ax.axhline(sgn * value, color=color, ls="--", lw=0.8, label=label if sgn > 0 else None)
+    else:
+        ax.plot([], [], color=color, ls="--", lw=0.8, label="%s (beyond this zoomed axis)" % label)
+
+
+def shade(ax, windows, label):
+    """Shade each (t0, t1) window (t1 None: to the end), labelled once in the legend."""
+    first = True
+    for t0, t1 in windows:
+        ax.axvspan(t0, ax.get_xlim()[1] if t1 is None else t1, color=FAULT_COLOR, alpha=0.6, lw=0,
+                   label=label if first else None)
+        first = False
+
+
+def zoom(ax, y, lo_share=0.05, margin=1.3):
+    """Y limits on the data's bulk (the central 1 - 2 lo_share of |y|'s distribution, widened by ``margin``), so
+    that a start-up transient does not hide the steady state."""
+    y = np.asarray(y, dtype=float)
+    y = y[np.isfinite(y)]
+    if len(y) == 0:
+        return
+    hi = float(np.quantile(np.abs(y), 1 - lo_share)) * margin
+    if hi > 0:
+        ax.set_ylim(-hi, hi)
+
+
+def legend(ax, outside=False, **kw):
+    """The legend; ``outside``: below the axes ("right": beside them), where it covers no trace."""
+    if outside == "right":
+        return ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False, **kw)
+    if outside:
+        return ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=4, fontsize=8, frameon=False, **kw)
+    return ax.legend(fontsize=8, **kw)
 
 
 def _centre_index(v0):
@@ -29,13 +88,20 @@ def calibration_quivers(cal, path):
     v0 = np.array([p["v0"] for p in pts])
     h = np.array([p["H"] for p in pts])
     fig, ax = plt.subplots(figsize=(7.6, 5.2))
-    ax.quiver(v0[:, 0], v0[:, 1], h[:, 0, 0], h[:, 1, 0], color="b", label="h_x = (a, c)")
-    ax.quiver(v0[:, 0], v0[:, 1], h[:, 0, 1], h[:, 1, 1], color="r", label="h_y = (b, d)")
+    ref = float(np.median(np.linalg.norm(h, axis=1)))           # both quivers on one scale: a key says which
+    span = float(np.ptp(v0[:, 0])) if len(v0) > 1 else 1.0
+    scale = ref / (0.6 * span / max(1, int(np.sqrt(len(v0))) - 1 or 1)) if span > 0 else 1.0
+    q = ax.quiver(v0[:, 0], v0[:, 1], h[:, 0, 0], h[:, 1, 0], color="b", label="h_x = (a, c)", angles="xy",
+                  scale_units="xy", scale=scale)
+    ax.quiver(v0[:, 0], v0[:, 1], h[:, 0, 1], h[:, 1, 1], color="r", label="h_y = (b, d)", angles="xy",
+              scale_units="xy", scale=scale)
+    ax.quiverkey(q, 1.1, 0.62, ref, "scale: %.1f per V\n(ratio change per volt)" % ref, labelpos="S",
+                 coordinates="axes", fontproperties={"size": 8})
     c = _centre_index(v0)
     ax.plot(v0[c, 0], v0[c, 1], "ko", mfc="none", ms=10, label="centre")
     ax.set_xlabel("V0x (V)")
     ax.set_ylabel("V0y (V)")
-    ax.set_title("H calibration: h_x, h_y over (V0x, V0y) (not to scale), cf. Fig. 7-16")
+    ax.set_title("H calibration: h_x, h_y over (V0x, V0y), cf. Fig. 7-16", loc="left", fontsize=10)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     ax.set_aspect("equal", adjustable="datalim")
     fig.tight_layout()
@@ -52,91 +118,143 @@ def calibration_difference(cal, path):
     for k, (ax, name) in enumerate(zip(axs, ("h_x", "h_y"))):
         col = h[:, :, k]
         pct = 100 * np.linalg.norm(col - col[c], axis=1) / np.linalg.norm(col[c])
-        sc = ax.scatter(v0[:, 0], v0[:, 1], c=pct, cmap="viridis", s=40)
-        ax.plot(v0[c, 0], v0[c, 1], "ko", mfc="none", ms=10)
-        fig.colorbar(sc, ax=ax, label="%% difference of %s from the centre" % name)
+        sc = ax.scatter(v0[:, 0], v0[:, 1], c=pct, cmap="viridis", s=40, label="%s at each nulling point" % name)
+        ax.plot(v0[c, 0], v0[c, 1], "ko", mfc="none", ms=10, label="centre (the reference)")
+        fig.colorbar(sc, ax=ax, label="difference of %s from the centre (%%)" % name)
         ax.set_xlabel("V0x (V)")
+        ax.set_ylabel("V0y (V)")
+        legend(ax, loc="upper left")
         ax.set_title("%s: %.2f … %.2f %%" % (name, np.delete(pct, c).min() if len(pct) > 1 else 0, pct.max()))
-    axs[0].set_ylabel("V0y (V)")
     fig.suptitle("Δh pattern over (V0x, V0y), cf. Fig. 7-17")
     fig.tight_layout()
     save_png(fig, path)
 
 
 def hil_scatter(series, path, requirement_arcsec=11.98):
-    """Fig. 7-18: pointing errors in the X-Y plane with 1-4 arcsec circles. ``series``: {label: (x, y)}."""
-    fig, ax = plt.subplots(figsize=(6, 6))
+    """Fig. 7-18: the pointing errors in the X-Y plane. Left, at the requirement's scale: the 11.98 arcsec circle
+    and the 1-4 arcsec rings, every series' samples as points; right, zoomed on the data: a 2-D histogram of the
+    first series (samples per bin, log colour) and the others' outlines (their 99 % radius). ``series``: {label:
+    (x, y)}."""
+    fig, axs = subplots(1, 2, width=12, row_height=5.4)
+    a, z = axs[0]
     colors = ("tab:blue", "tab:orange", "tab:green")
-    lim = 5.0
+    lim = max(5.0, requirement_arcsec * 1.1)
+    ring = np.linspace(0, 2 * np.pi, 256)
     for (label, (x, y)), col in zip(series.items(), colors):
         step = max(1, len(x) // 40000)
-        ax.plot(x[::step], y[::step], ".", ms=1.5, color=col, alpha=0.5, label=label)
+        a.plot(x[::step], y[::step], ".", ms=1.5, color=col, alpha=0.5, label=label)
         if len(x):
             lim = max(lim, float(np.ceil(np.hypot(x, y).max() + 0.5)))
-    a = np.linspace(0, 2 * np.pi, 256)
     for r in (1, 2, 3, 4):
-        ax.plot(r * np.cos(a), r * np.sin(a), "k-", lw=0.6)
-        ax.annotate('%d"' % r, (r * 0.71, r * 0.71), fontsize=8)
-    if lim > requirement_arcsec:
-        ax.plot(requirement_arcsec * np.cos(a), requirement_arcsec * np.sin(a), "r--", lw=0.8,
-                label="requirement %.2f\"" % requirement_arcsec)
-    ax.set_xlim(-lim, lim)
-    ax.set_ylim(-lim, lim)
-    ax.set_aspect("equal")
-    ax.set_xlabel("X error (arcsec)")
-    ax.set_ylabel("Y error (arcsec)")
-    ax.set_title("Pointing errors in the X-Y plane, cf. Fig. 7-18")
-    ax.legend(loc="upper right", fontsize=8, markerscale=6)
-    save_png(fig, path)
-
-
-def hil_time_history(series, path):
-    """Fig. 7-19: X and Y pointing errors against time. ``series``: {label: (t, x, y)}."""
-    fig, axs = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
-    for label, (t, x, y) in series.items():
-        step = max(1, len(t) // 60000)
-        axs[0].plot(t[::step], x[::step], lw=0.4, label=label)
-        axs[1].plot(t[::step], y[::step], lw=0.4, label=label)
-    axs[0].set_ylabel("X error (arcsec)")
-    axs[1].set_ylabel("Y error (arcsec)")
-    axs[1].set_xlabel("time (s)")
-    axs[0].legend(loc="upper right", fontsize=8)
-    axs[0].set_title("Pointing error time history, cf. Fig. 7-19")
+        a.plot(r * np.cos(ring), r * np.sin(ring), "k-", lw=0.5, label="1-4%s rings" % ARCSEC if r == 1 else None)
+    a.plot(requirement_arcsec * np.cos(ring), requirement_arcsec * np.sin(ring), "--", color=REQUIREMENT_COLOR,
+           lw=0.9, label="requirement %.2f%s" % (requirement_arcsec, ARCSEC))
+    a.set_xlim(-lim, lim)
+    a.set_ylim(-lim, lim)
+    a.set_aspect("equal")
+    a.set_xlabel("X error (arcsec)")
+    a.set_ylabel("Y error (arcsec)")
+    a.set_title("at the requirement's scale", fontsize=9)
+    legend(a, markerscale=6, loc="upper right")
+    items = [(k, np.asarray(x), np.asarray(y)) for k, (x, y) in series.items() if len(x)]
+    if items:
+        k0, x0, y0 = items[0]
+        r = max(float(np.quantile(np.hypot(np.concatenate([it[1] for it in items]),
+                                           np.concatenate([it[2] for it in items])), 0.999)) * 1.2, 1e-3)
+        h = z.hist2d(x0, y0, bins=120, range=[[-r, r], [-r, r]], cmap="Blues", norm=matplotlib.colors.LogNorm())
+        fig.colorbar(h[3], ax=z, label="%s samples per bin" % k0)
+        z.plot([], [], "s", color="tab:blue", label="%s (histogram)" % k0)
+        for (k, x, y), col in zip(items[1:], colors[1:]):
+            r99 = float(np.quantile(np.hypot(x - x.mean(), y - y.mean()), 0.99))
+            z.plot(x.mean() + r99 * np.cos(ring), y.mean() + r99 * np.sin(ring), color=col, lw=1.0,
+                   label="%s: 99 %% within this circle" % k)
+        z.set_xlim(-r, r)
+        z.set_ylim(-r, r)
+        z.set_aspect("equal")
+        z.set_xlabel("X error (arcsec)")
+        z.set_ylabel("Y error (arcsec)")
+        z.set_title("zoomed on the data", fontsize=9)
+        legend(z, loc="upper right")
+    fig.suptitle("Pointing errors in the X-Y plane, cf. Fig. 7-18")
     fig.tight_layout()
     save_png(fig, path)
 
 
-def system_time_history(series, path, requirement_arcsec=11.98):
-    """``fps system``: the body pointing error and the fine pointing error on one time axis (X, Y of each).
-    ``series``: {label: (t, x, y)}, the first the body's, the second the fine loop's."""
-    items = list(series.items())
-    fig, axs = plt.subplots(len(items), 1, figsize=(9, 2.8 * len(items) + 0.6), sharex=True, squeeze=False)
-    for ax, (label, (t, x, y)) in zip(axs[:, 0], items):
+def hil_time_history(series, path):
+    """Fig. 7-19: X and Y pointing errors against time, the legend below the axes (it covers no trace).
+    ``series``: {label: (t, x, y)}."""
+    fig, axs = subplots(2, 1, sharex=True, row_height=2.6)
+    for label, (t, x, y) in series.items():
         step = max(1, len(t) // 60000)
-        ax.plot(t[::step], x[::step], lw=0.4, label=label + " X")
-        ax.plot(t[::step], y[::step], lw=0.4, label=label + " Y")
-        ax.set_ylabel("error (arcsec)")
-        ax.legend(loc="upper right", fontsize=8)
-    if "fine" in items[-1][0]:
-        for s in (-1, 1):
-            axs[-1, 0].axhline(s * requirement_arcsec, color="r", lw=0.6, ls="--")
-    axs[-1, 0].set_xlabel("time from the start of the collection window (s)")
+        axs[0, 0].plot(t[::step], x[::step], lw=0.4, label=label)
+        axs[1, 0].plot(t[::step], y[::step], lw=0.4, label=label)
+    axs[0, 0].set_ylabel("X error (arcsec)")
+    axs[1, 0].set_ylabel("Y error (arcsec)")
+    axs[1, 0].set_xlabel("time (s)")
+    legend(axs[1, 0], outside=True)
+    axs[0, 0].set_title("Pointing error time history, cf. Fig. 7-19")
+    fig.tight_layout()
+    save_png(fig, path)
+
+
+def fault_windows(faults):
+    """The (t0, t1) windows and their label of a fault dict (``fps system``/``fps adcs can``: wheel_silent
+    [wheel, t0], startracker_blind [t0, t1], gnss_outage [t0, t1], beacon_lost t0), t1 None: to the end."""
+    out = []
+    for k, v in (faults or {}).items():
+        if k == "wheel_silent":
+            out.append(((v[1], None), "wheel %d silent" % v[0]))
+        elif k in ("startracker_blind", "gnss_outage"):
+            out.append(((v[0], v[1]), k.replace("_", " ")))
+        elif k == "beacon_lost":
+            out.append(((v, None), "beacon lost"))
+    return out
+
+
+def system_time_history(body, fine, path, requirement_arcsec=11.98, budget_3sigma_arcsec=150.0, faults=None):
+    """``fps system``: the body pointing error (δθ1, δθ2 of the ADCS) and the fine pointing error (Q2) on one time
+    axis, the ADCS's seconds (the fault options' clock); the fine panel zoomed on its data with the requirement
+    labelled (beyond the axis when the data sit far inside it), the body panel with its 3σ budget; device
+    faults shaded. ``body``, ``fine``: (t, x, y) or None."""
+    panels = [p for p in ((body, "body pointing (ADCS)", ("δθ1", "δθ2"), budget_3sigma_arcsec,
+                           "3σ budget %.0f%s" % (budget_3sigma_arcsec, ARCSEC)),
+                          (fine, "fine pointing (Q2)", ("X", "Y"), requirement_arcsec,
+                           "requirement %.2f%s" % (requirement_arcsec, ARCSEC))) if p[0] is not None]
+    fig, axs = subplots(len(panels), 1, sharex=True, width=12)
+    for ax, ((t, x, y), name, comps, lim, lim_label) in zip(axs[:, 0], panels):
+        step = max(1, len(t) // 60000)
+        ax.plot(t[::step], x[::step], lw=0.4, label="%s %s" % (name, comps[0]))
+        ax.plot(t[::step], y[::step], lw=0.4, label="%s %s" % (name, comps[1]))
+        ax.set_ylabel("%s (arcsec)" % name.split(" (")[0])
+        zoom(ax, np.concatenate([x, y]), lo_share=0.001)
+        band(ax, lim, lim_label)
+        for (w, label) in fault_windows(faults):
+            shade(ax, [w], label)
+        legend(ax, outside="right")
+    axs[-1, 0].set_xlabel("time from the ADCS's start (s)")
     axs[0, 0].set_title("Body pointing error (ADCS) and fine pointing error (Q2), one time axis")
     fig.tight_layout()
     save_png(fig, path)
 
 
-def adcs_can_pointing(h, path):
-    """``fps adcs can``: the body pointing error (delta theta 1, 2, Eq. 6.12-6.16) and the ADCS mode per cycle."""
+def adcs_can_pointing(h, path, faults=None):
+    """``fps adcs can``: the body pointing error (δθ1, δθ2, Eq. 6.12-6.16, symlog beyond 100 arcsec) with the 3σ
+    budget, and the ADCS mode per cycle; device faults shaded."""
     from protocol.table import ADCS_MODES
-    fig, ax = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    ax[0].plot(h["t"], h["dtheta_arcsec"][:, 0], lw=0.6, label="δθ1")
-    ax[0].plot(h["t"], h["dtheta_arcsec"][:, 1], lw=0.6, label="δθ2")
-    ax[0].set_ylabel("pointing error (arcsec)")
-    ax[0].set_yscale("symlog", linthresh=100)
-    ax[0].legend(loc="upper right")
-    ax[1].step(np.arange(len(h["status_adcs_mode"])), h["status_adcs_mode"], where="post")
-    ax[1].set_yticks([v for _, v in ADCS_MODES], [k for k, _ in ADCS_MODES])
-    ax[1].set_xlabel("t (s)")
+    fig, ax = subplots(2, 1, sharex=True)
+    a, m = ax[0, 0], ax[1, 0]
+    a.plot(h["t"], h["dtheta_arcsec"][:, 0], lw=0.6, label="δθ1")
+    a.plot(h["t"], h["dtheta_arcsec"][:, 1], lw=0.6, label="δθ2")
+    a.set_ylabel("pointing error (arcsec)")
+    a.set_yscale("symlog", linthresh=100)
+    band(a, 150.0, "3σ budget 150%s" % ARCSEC)
+    for (w, label) in fault_windows(faults):
+        shade(a, [w], label)
+    legend(a, loc="upper right")
+    m.step(np.arange(len(h["status_adcs_mode"])), h["status_adcs_mode"], where="post", label="ADCS mode")
+    m.set_yticks([v for _, v in ADCS_MODES], [k for k, _ in ADCS_MODES])
+    m.set_ylabel("ADCS mode (-)")
+    m.set_xlabel("time (s)")
+    a.set_title("ADCS on CAN: body pointing error and mode")
     fig.tight_layout()
     save_png(fig, path)

@@ -302,9 +302,19 @@ def _plot(out_dir, freqs, s_meas, model, summary):
     save_png(fig, os.path.join(out_dir, FIGURES[0]), dpi=100)
     w = 2 * np.pi * np.geomspace(0.5, 0.499 / model.T, 400)
     fig = plt.figure(figsize=(7, 6))
-    model.control.bode_plot(model.L, w, dB=True, Hz=True, display_margins=True,
+    L = model.L
+    try:
+        L = model.control.tf(L, name="L = C(z) P(z)")     # python-control titles a plot by the system's name
+    except TypeError:                                      # an older python-control: no name to give
+        pass
+    model.control.bode_plot(L, w, dB=True, Hz=True, display_margins=True,
                             title="Loop C(z) P(z), X axis, g = %g" % model.gain)
-    save_png(plt.gcf(), os.path.join(out_dir, FIGURES[1]), dpi=100)
+    fig = plt.gcf()
+    f_nyq = 0.5 / model.T
+    for ax in fig.axes:
+        ax.axvline(f_nyq, color="0.4", ls=":", lw=0.8, label="Nyquist frequency %.1f Hz" % f_nyq)
+        ax.legend(fontsize=8, loc="lower left")
+    save_png(fig, os.path.join(out_dir, FIGURES[1]), dpi=100)
     plt.close("all")
 
 

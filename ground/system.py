@@ -702,7 +702,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
         summary["requirement_met"] = summary["verdict"]["met"]
         write_json(rec.path("summary.json"), summary)
         if plots:
-            _plot(rec, feed, q2cal, t_settle)
+            _plot(rec, feed, q2cal, t_settle, faults)
         write_atomic(rec.path("report.md"), report_md(summary))
     except BaseException as exc:     # past the guard (a bug, the disk, Ctrl-C while finishing): the folder says so
         feed.close()
@@ -863,20 +863,24 @@ def thesis_body():
     return out
 
 
-def _plot(rec, feed, q2cal, t_settle):
+def _plot(rec, feed, q2cal, t_settle, faults=None):
+    """system_pointing.png on the ADCS's clock (the fault options'): the body error over the window played and the
+    fine error, both from the ADCS's start."""
     from ground import plots as plt_mod
+    from ground.adcs import bps
     t, dth, _dom, _te, _e = feed.arrays()
     q2, _truth = rec.arrays()
-    series = {}
+    body = fine = None
     if len(t):
         sel = (t >= t_settle - 1e-9) & (t <= t_settle + rec.virtual_s + 1e-9)     # the window played
-        series["body dtheta (ADCS)"] = (t[sel] - t_settle, dth[sel, 0], dth[sel, 1])
+        body = (t[sel], dth[sel, 0], dth[sel, 1])
     if len(q2) and q2cal is not None:
         e = hil.q2_error_arcsec(q2, q2cal)
         ok = np.all(np.isfinite(e), axis=1)
-        series["fine error (Q2)"] = ((q2[ok, 1] - rec.t0_us) * 1e-6, e[ok, 0], e[ok, 1])
-    if series:
-        plt_mod.system_time_history(series, rec.path(FIGURE), report.REQUIREMENT_ARCSEC)
+        fine = ((q2[ok, 1] - rec.t0_us) * 1e-6 + t_settle, e[ok, 0], e[ok, 1])
+    if body is not None or fine is not None:
+        plt_mod.system_time_history(body, fine, rec.path(FIGURE), report.REQUIREMENT_ARCSEC,
+                                    bps.BUDGET_POINTING_3SIGMA, faults)
 
 
 def _f(v, fmt="%.2f"):

@@ -203,9 +203,9 @@ def plot_history(path, hist, settle_s, title):
     t = hist["t"]
     fig, ax = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
     for i in range(2):
-        ax[i, 0].plot(t, hist["dtheta_arcsec"][:, i], lw=0.6)
+        ax[i, 0].plot(t, hist["dtheta_arcsec"][:, i], lw=0.6, label="δθ%d" % (i + 1))
         ax[i, 0].set_ylabel("δθ%d (arcsec)" % (i + 1))
-        ax[i, 1].plot(t, hist["domega_arcsec_s"][:, i], lw=0.6)
+        ax[i, 1].plot(t, hist["domega_arcsec_s"][:, i], lw=0.6, label="δω%d" % (i + 1))
         ax[i, 1].set_ylabel("δω%d (arcsec/s)" % (i + 1))
         sel = t >= settle_s
         if sel.any():
@@ -214,10 +214,11 @@ def plot_history(path, hist, settle_s, title):
             lim = 1.2 * np.abs(hist["domega_arcsec_s"][sel, i]).max()
             ax[i, 1].set_ylim(-lim, lim)
         for a_ in ax[i]:
-            a_.axvline(settle_s, color="k", lw=0.5, ls="--")
+            a_.axvline(settle_s, color="k", lw=0.5, ls="--", label="collection starts (%.0f s)" % settle_s)
+            a_.legend(fontsize=7, loc="upper right")
     ax[1, 0].set_xlabel("time (s)")
     ax[1, 1].set_xlabel("time (s)")
-    fig.suptitle(title + " (dashed: collection starts)")
+    fig.suptitle(title)
     fig.tight_layout()
     save_png(fig, path, dpi=90)
 
@@ -459,6 +460,11 @@ def plot_sweep(path, s):
     ax.set_xlabel("t_s (s)")
     ax.set_ylabel("J (rad²)")
     ax.set_yscale("log")
+    from matplotlib.ticker import LogFormatterSciNotation, LogLocator
+    ax.yaxis.set_minor_locator(LogLocator(subs=(2, 3, 5)))          # J spans less than a decade: label 2, 3, 5
+    ax.yaxis.set_minor_formatter(LogFormatterSciNotation(labelOnlyBase=False, minor_thresholds=(4, 1)))
+    ax.grid(True, which="both", lw=0.3)
+    ax.plot([], [], "C0o-", label="J(t_s), ours")
     ax.legend()
     ax.set_title("Objective J for the settling time (Fig. 6-2)")
     fig.tight_layout()

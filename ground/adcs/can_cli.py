@@ -146,7 +146,7 @@ def run(a):
     bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:
         from ground import plots
-        plots.adcs_can_pointing(h, os.path.join(out, FIGURE))
+        plots.adcs_can_pointing(h, os.path.join(out, FIGURE), faults)
     write_json(os.path.join(out, "summary.json"), summary)
     ipc = summary.get("instructions_per_cycle")
     if ipc and ipc["n"]:

@@ -117,33 +117,42 @@ MEKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600)),
 
 
 def plot_run(series_npz, name, path):
-    """Fig. 4-5 style: each state group's error (solid) with its +-3 sigma bounds (dashed), one run."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from ground.plots import save_png
+    """Fig. 4-5 style: each state group's error (solid) with its +-3 sigma bounds (dashed), one run; each panel
+    zoomed on the run's last two thirds (the start-up transient would hide the steady state), one legend for the
+    components and line styles."""
+    from matplotlib.lines import Line2D
+    from ground.plots import save_png, subplots
     d = np.load(series_npz)
     t, e, s = d["t"], d["error"], d["sigma"]
     groups = APKF_GROUPS if name == "apkf" else MEKF_GROUPS
     ncol = 2
     nrow = (len(groups) + 1) // 2
-    fig, axs = plt.subplots(nrow, ncol, figsize=(11, 2.3 * nrow), sharex=True, squeeze=False)
+    fig, axs = subplots(nrow, ncol, width=11, row_height=2.3 if nrow > 2 else 3.4, sharex=True)
     for ax, (label, sl, k) in zip(axs.flat, groups):
         for i, c in zip(range(sl.start, sl.stop), "bgrmk"):
             ax.plot(t, e[:, i] * k, c, lw=0.7)
             ax.plot(t, 3 * s[:, i] * k, c + "--", lw=0.5)
             ax.plot(t, -3 * s[:, i] * k, c + "--", lw=0.5)
-        ax.set_title(label, fontsize=9)
-        lim = np.nanmax(np.abs(3 * s[len(t) // 3:, sl] * k)) if len(t) > 3 else 1.0
+        ax.set_ylabel(label, fontsize=8)
+        tail = slice(len(t) // 3, None)
+        lim = np.nanmedian(np.abs(3 * s[tail, sl] * k)) if len(t) > 3 else 1.0
+        err = np.nanmax(np.abs(e[tail, sl] * k)) if len(t) > 3 else 0.0
+        lim = max(lim, err) if np.isfinite(err) else lim
         if np.isfinite(lim) and lim > 0:
-            ax.set_ylim(-2 * lim, 2 * lim)
+            ax.set_ylim(-1.5 * lim, 1.5 * lim)
     for ax in axs[-1]:
         ax.set_xlabel("time (s)")
     for ax in list(axs.flat)[len(groups):]:
         ax.axis("off")
-    fig.suptitle("%s: estimation error (solid) and +-3 sigma (dashed), cf. Fig. 4-%s" % (name.upper(),
-                                                                                     "5" if name == "apkf" else "1"))
-    fig.tight_layout()
+    keys = [Line2D([], [], color=c, lw=0.9, label=n) for c, n in zip("bgrm", ("1st component (x, wheel 1)",
+                                                                              "2nd (y, wheel 2)", "3rd (z, wheel 3)",
+                                                                              "4th (wheel 4)"))]
+    keys += [Line2D([], [], color="k", lw=0.7, label="error"), Line2D([], [], color="k", ls="--", lw=0.5,
+                                                                       label="+-3σ")]
+    fig.legend(handles=keys, loc="lower center", ncol=6, fontsize=8, frameon=False)
+    fig.suptitle("%s: estimation error and +-3σ, zoomed on the last two thirds, cf. Fig. 4-%s"
+                 % (name.upper(), "5" if name == "apkf" else "1"))
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     save_png(fig, path, dpi=100)
 
 
@@ -168,8 +177,8 @@ def _plot_spread(results, summary, path):
     t = np.arange(a.shape[1])
     fig, axs = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
     for i, ax in enumerate(axs[:3]):
-        for run in a[:, :, i]:
-            ax.plot(t, run, lw=0.4, alpha=0.5)
+        for j, run in enumerate(a[:, :, i]):
+            ax.plot(t, run, lw=0.4, alpha=0.5, label="each run (%d)" % len(a) if j == 0 else None)
         rms = np.sqrt(np.nanmean(a[:, :, i] ** 2, axis=0)) if len(a) else None
         ax.plot(t, 3 * rms, "k--", lw=0.8, label="3 x RMS over runs")
         ax.plot(t, -3 * rms, "k--", lw=0.8)
@@ -184,8 +193,8 @@ def _plot_spread(results, summary, path):
     if n:
         axs[3].axhline(n["band"][0], color="k", ls="--", lw=0.7)
         axs[3].axhline(n["band"][1], color="k", ls="--", lw=0.7, label="95 % band")
-        axs[3].axvline(n["from_s"], color="gray", lw=0.5)
-    axs[3].set_ylabel("NEES")
+        axs[3].axvline(n["from_s"], color="gray", lw=0.5, label="NEES counted from %g s" % n["from_s"])
+    axs[3].set_ylabel("NEES (-)")
     axs[3].set_xlabel("time (s)")
     axs[3].legend(fontsize=8)
     fig.suptitle("Monte Carlo spread: %s%s" % (summary["filter"].upper(),

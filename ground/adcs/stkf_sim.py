@@ -380,10 +380,17 @@ def plots(out_dir, run_dirs, case):
             lim = 6 * max(h["sig"][len(h["t"]) // 4:, i].max(), 1e-9)
             a.set_ylim(-lim, lim)
             a.grid(True, lw=0.3)
+            a.set_ylabel("%s %s" % ("xyz"[r], titles[c].split(" ", 1)[1]), fontsize=8)
             if r == 0:
                 a.set_title(titles[c])
         ax[2, c].set_xlabel("time (s)")
-    fig.suptitle("STKF Case %d: errors (first run blue, others grey), +-3 sigma dashed" % case)
+    ax[0, 0].plot([], [], "b", label="error" + (" (first run)" if len(hs) > 1 else ""))
+    if len(hs) > 1:
+        ax[0, 0].plot([], [], color="0.75", label="the other %d runs" % (len(hs) - 1))
+    ax[0, 0].plot([], [], "r--", label="+-3σ")
+    ax[0, 0].legend(fontsize=7, loc="upper right")
+    fig.suptitle("STKF Case %d: state errors%s, +-3σ dashed"
+                 % (case, " (first run blue, the others grey)" if len(hs) > 1 else ""))
     fig.tight_layout()
     name = FIGURES[0 if case == 1 else 2]
     save_png(fig, os.path.join(out_dir, name), dpi=90)
@@ -399,6 +406,9 @@ def plots(out_dir, run_dirs, case):
         ax[j].set_ylim(-150, 150)
         ax[j].set_ylabel("angle %d (arcsec)" % (j + 1))
         ax[j].grid(True, lw=0.3)
+    ax[0].plot([], [], "b", label="error" + (" (first run)" if len(hs) > 1 else ""))
+    ax[0].plot([], [], "r--", label="+-3σ")
+    ax[0].legend(fontsize=8, loc="upper right")
     ax[1].set_xlabel("time (s)")
     fig.suptitle("STKF Case %d: pointing vector error in the body frame, +-3 sigma" % case)
     fig.tight_layout()

@@ -8,6 +8,25 @@ import pytest
 from bench import run
 
 
+@pytest.fixture(autouse=True)
+def records(tmp_path, monkeypatch):
+    """The dated record files go to a temporary folder, not docs/bench."""
+    monkeypatch.setattr(run, "RECORDS", str(tmp_path / "bench"))
+    return tmp_path / "bench"
+
+
+def test_every_run_leaves_a_dated_record_with_the_commit_the_machine_and_the_load(monkeypatch, capsys, records):
+    monkeypatch.setattr(run.importlib, "import_module", lambda name: types.SimpleNamespace(main=lambda: print("| t |")))
+    assert run.main(["stkf"]) == 0
+    (f,) = list(records.iterdir())
+    text = f.read_text()
+    assert f.name.startswith(run.time.strftime("%Y-%m-%d_")) and f.name.endswith(".md")
+    for needle in ("- commit: ", "- machine: ", "CPUs", "- load (1, 5, 15 min) before: ", "| t |",
+                   "- load (1, 5, 15 min) after: "):
+        assert needle in text, needle
+    assert str(f.name) in capsys.readouterr().out
+
+
 def test_an_unknown_benchmark_name_is_refused(capsys):
     assert run.main(["protocl"]) == 2
     err = capsys.readouterr().err

@@ -210,6 +210,9 @@ class FakeSession:
     def summary(self):
         return {"cycles": self.k, "late_cycles": 0}
 
+    def board(self):
+        return None                    # not a PIL board (AdcsSession.board: qemu runs only)
+
     def close(self):
         self.closed = True
 

@@ -251,8 +251,8 @@ def r_quarter_figures(seeds=range(5), t_from=210.0, case=1):
                 e_att.append(e[0:6])
                 s_att.append(np.sqrt(np.diag(f.P)[0:6]))
         s = np.sqrt(np.diag(f.P))
-        rows["att"].append(2 * s[0:3] / quat.ARCSEC)      # the quaternion's vector part: half the angle
-        rows["rate"].append(s[3:6] / quat.ARCSEC)
+        rows["att"].append(2 * s[0:3] / quat.RAD_PER_ARCSEC)      # the quaternion's vector part: half the angle
+        rows["rate"].append(s[3:6] / quat.RAD_PER_ARCSEC)
         rows["nees"].append(nees)
         rows["e"].append(e_att)
         rows["s"].append(s_att)

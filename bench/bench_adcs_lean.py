@@ -61,8 +61,8 @@ class F32(list):
 
 
 def _errors(sc, qs, ws):
-    ea = np.array([2 * quat.error_vec(np.array(sc["q"][k]), qs[k]) for k in range(len(qs))]) / quat.ARCSEC
-    ew = (np.array(ws) - np.array(sc["w"][:len(ws)])) / quat.ARCSEC
+    ea = np.array([2 * quat.error_vec(np.array(sc["q"][k]), qs[k]) for k in range(len(qs))]) / quat.RAD_PER_ARCSEC
+    ew = (np.array(ws) - np.array(sc["w"][:len(ws)])) / quat.RAD_PER_ARCSEC
     return ea[T0:], ew[T0:]
 
 

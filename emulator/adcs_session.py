@@ -73,7 +73,7 @@ import numpy as np
 
 from emulator import orbits
 from emulator.launcher import ADCS_IMAGE, ADCS_MACHINE, FirmwareProcess, command, qemu_command, start_board
-from emulator.navsensors import ARCSEC
+from protocol.units import RAD_PER_ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftDevices
 from emulator.spacecraft.dynamics import dcm
@@ -250,7 +250,7 @@ class AdcsSession:
                 "torque_max": w["torque_limit_nm"],
                 "friction": [w["friction_coulomb_nm"], w["friction_viscous_nms_rad"],
                              w["friction_smooth_rpm"] * 2 * np.pi / 60],
-                "beacon_sigma_arcsec": self.beacon.sigma / ARCSEC,
+                "beacon_sigma_arcsec": self.beacon.sigma / RAD_PER_ARCSEC,
                 "gnss_sigma": [g["sigma_position_m"], g["sigma_velocity_m_s"]],
                 "wheel_axes": self.wheels.c0.tolist(), "tach_noise_rpm": w["tach_noise_rpm"], "wheels": w,
                 "star_tracker_sigma_arcsec": list(d["star_tracker"]["sigma_arcsec"]),

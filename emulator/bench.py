@@ -27,8 +27,8 @@ from emulator.mirrors import AD5664R, MEMS, PFSM
 from emulator.optics import Optics
 from emulator.quadcell import Quadcell
 from emulator.timing import board_timing
+from protocol.units import ARCSEC_PER_RAD
 
-ARCSEC = 180.0 / math.pi * 3600.0     # arcsec per radian
 _NOISE_BLOCK = 3 * 4096
 RATE_HZ_MAX = 1e5                     # control tick rate limit (Hz)
 
@@ -82,7 +82,7 @@ class Bench:
         # Boresight: the beam angle after the FSM that centres the spot on Q1 (R = 0, the loop's goal).
         q, d = self.q1, cfg["q1"]["distance_m"]
         self.bore = ((q.cos * q.off_x - q.sin * q.off_y) / d, (q.sin * q.off_x + q.cos * q.off_y) / d)
-        self._sky = self.optics.sky_per_rad * ARCSEC
+        self._sky = self.optics.sky_per_rad * ARCSEC_PER_RAD
         self._ang_mag2 = 2.0 * self.optics.ang_mag
         self._g1 = self._geometry("q1")
         self._g2 = self._geometry("q2")
@@ -749,7 +749,7 @@ class Bench:
 
     def pfsm_v_for_error(self, err_arcsec):
         """P-FSM volts that give a sky error (Eq. 7.7-7.8: V = 10 V / 3 deg x 13.33 theta_e)."""
-        return err_arcsec / ARCSEC * self.optics.pfsm_per_sky / self.pfsm.rad_per_v[0]
+        return err_arcsec / ARCSEC_PER_RAD * self.optics.pfsm_per_sky / self.pfsm.rad_per_v[0]
 
     def static_q1(self, pfsm_v, fsm_v, model="reference"):
         """Noiseless steady-state Q1 ratios (Rx, Ry) and Vs (V) for P-FSM and FSM tilt volts (Eq. 7.4)."""

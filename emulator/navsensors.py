@@ -11,9 +11,7 @@
 import numpy as np
 
 from emulator.spacecraft.dynamics import dcm
-
-ARCSEC = np.pi / (180.0 * 3600.0)
-
+from protocol.units import RAD_PER_ARCSEC
 
 def _nonneg(name, v):
     v = float(v)
@@ -42,7 +40,7 @@ class Beacon:
 
     def __init__(self, rng, sigma_arcsec=60.0):
         self.rng = rng
-        self.sigma = _nonneg("sigma_arcsec", sigma_arcsec) * ARCSEC
+        self.sigma = _nonneg("sigma_arcsec", sigma_arcsec) * RAD_PER_ARCSEC
 
     @property
     def R(self):

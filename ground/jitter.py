@@ -18,9 +18,7 @@ A sidecar ``F.jitter.json`` beside the distfile keeps the wheel frequencies and 
 import numpy as np
 
 from ground import resample
-
-ARCSEC = 180.0 / np.pi * 3600.0
-
+from protocol.units import ARCSEC_PER_RAD
 
 class WheelJitter:
     name = "jitter"
@@ -99,7 +97,7 @@ class WheelJitter:
             e[k] = 2.0 * np.sign(q[3]) * q[0:2]
             sc.step()
         t = np.arange(n) * self.step_s
-        e *= ARCSEC
+        e *= ARCSEC_PER_RAD
         for ax in range(2):          # the body controller's share: mean and drift
             e[:, ax] -= np.polyval(np.polyfit(t, e[:, ax], 1), t)
         return t, e[:, 0], e[:, 1]

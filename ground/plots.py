@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 
 from ground.fileio import write_atomic  # noqa: E402
 
-ARCSEC = '″'
+ARCSEC_SIGN = '″'
 REQUIREMENT_COLOR = "tab:red"
 FAULT_COLOR = "0.85"
 
@@ -146,9 +146,9 @@ def hil_scatter(series, path, requirement_arcsec=11.98):
         if len(x):
             lim = max(lim, float(np.ceil(np.hypot(x, y).max() + 0.5)))
     for r in (1, 2, 3, 4):
-        a.plot(r * np.cos(ring), r * np.sin(ring), "k-", lw=0.5, label="1-4%s rings" % ARCSEC if r == 1 else None)
+        a.plot(r * np.cos(ring), r * np.sin(ring), "k-", lw=0.5, label="1-4%s rings" % ARCSEC_SIGN if r == 1 else None)
     a.plot(requirement_arcsec * np.cos(ring), requirement_arcsec * np.sin(ring), "--", color=REQUIREMENT_COLOR,
-           lw=0.9, label="requirement %.2f%s" % (requirement_arcsec, ARCSEC))
+           lw=0.9, label="requirement %.2f%s" % (requirement_arcsec, ARCSEC_SIGN))
     a.set_xlim(-lim, lim)
     a.set_ylim(-lim, lim)
     a.set_aspect("equal")
@@ -217,9 +217,9 @@ def system_time_history(body, fine, path, requirement_arcsec=11.98, budget_3sigm
     labelled (beyond the axis when the data sit far inside it), the body panel with its 3σ budget; device
     faults shaded. ``body``, ``fine``: (t, x, y) or None."""
     panels = [p for p in ((body, "body pointing (ADCS)", ("δθ1", "δθ2"), budget_3sigma_arcsec,
-                           "3σ budget %.0f%s" % (budget_3sigma_arcsec, ARCSEC)),
+                           "3σ budget %.0f%s" % (budget_3sigma_arcsec, ARCSEC_SIGN)),
                           (fine, "fine pointing (Q2)", ("X", "Y"), requirement_arcsec,
-                           "requirement %.2f%s" % (requirement_arcsec, ARCSEC))) if p[0] is not None]
+                           "requirement %.2f%s" % (requirement_arcsec, ARCSEC_SIGN))) if p[0] is not None]
     fig, axs = subplots(len(panels), 1, sharex=True, width=12)
     for ax, ((t, x, y), name, comps, lim, lim_label) in zip(axs[:, 0], panels):
         step = max(1, len(t) // 60000)
@@ -247,7 +247,7 @@ def adcs_can_pointing(h, path, faults=None):
     a.plot(h["t"], h["dtheta_arcsec"][:, 1], lw=0.6, label="δθ2")
     a.set_ylabel("pointing error (arcsec)")
     a.set_yscale("symlog", linthresh=100)
-    band(a, 150.0, "3σ budget 150%s" % ARCSEC)
+    band(a, 150.0, "3σ budget 150%s" % ARCSEC_SIGN)
     for (w, label) in fault_windows(faults):
         shade(a, [w], label)
     legend(a, loc="upper right")

@@ -53,6 +53,7 @@ from ground import hil, report
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
 from ground.adcs.cli import add_fault_options, add_satb_gnss_option, faults_from_args
 from ground.fileio import cache_folder, run_folder, write_atomic, write_json
+from protocol.units import RAD_PER_ARCSEC
 
 ADCS_KINDS = ("firmware", "ground")
 FIGURE = "system_pointing.png"
@@ -65,9 +66,6 @@ SILENT_S = 10.0           # no message at all for this long (heartbeat included)
 START_S = 60.0            # the ADCS process's first message (its heartbeat) is due within this of its start
 STOP_S = (2.0, 3.0, 2.0)  # close(): the ADCS process's time to end when asked, after SIGTERM, after SIGKILL
 GOAL_RTF = 5.0            # issue 13: the 600 s run >= 5x real time on 2 cores
-ARCSEC = math.pi / 180.0 / 3600.0
-
-
 def firmware_available():
     """True when the ADCS-on-CAN session (``emulator.adcs_session``) is part of this build."""
     import importlib.util
@@ -207,7 +205,7 @@ def _ground_run(spec, params, on_cycle=None, stop=None):
         sl = slice(10 * k + 1, 10 * k + 11)
         dth, dom = bps.pointing_errors(hist["q"][sl], hist["w"][sl], x[:, 0, 0:3], x[:, 0, 3:6], x[:, 1, 0:3],
                                        x[:, 1, 3:6], lb)
-        on_cycle({"t": hist["t"][sl].copy(), "dtheta": dth / ARCSEC, "domega": dom / ARCSEC, "t_est": float(k),
+        on_cycle({"t": hist["t"][sl].copy(), "dtheta": dth / RAD_PER_ARCSEC, "domega": dom / RAD_PER_ARCSEC, "t_est": float(k),
                   "est_err": fsw["est_err"][k].copy()})
 
     fly = spec.get("world") == "flight"
@@ -226,7 +224,7 @@ def _reference(res, hist, err, spec):
     t0 = _t_settle(spec)
     t1 = t0 + spec["duration_s"]
     sel = (hist["t"] >= t0 - 1e-9) & (hist["t"] <= t1 + 1e-9)
-    out = bps.statistics(hist["dtheta_arcsec"][sel] * ARCSEC, hist["domega_arcsec_s"][sel] * ARCSEC)
+    out = bps.statistics(hist["dtheta_arcsec"][sel] * RAD_PER_ARCSEC, hist["domega_arcsec_s"][sel] * RAD_PER_ARCSEC)
     out["complete"] = bool(res["complete"])
     out["estimation"] = estimation_accuracy(np.arange(len(err)), err, t0, t1)
     out["source"] = "ground.adcs.bps.simulate (41-state APKF, STKF + EAFLS), seed %d" % spec["seed"]
@@ -278,7 +276,7 @@ def _send_firmware(spec, params, q, stop):
                 err = bps.estimate_errors(e["q"], e["w"], e["ra"], e["rb"], *prev)
             prev = (c["q"][-1], c["w"][-1], c["ra"][-1], c["rb"][-1])
             t = np.round(np.asarray(c["t"], float) * 10.0) / 10.0      # the 0.1 s steps, without summing drift
-            q.put(("cycle", {"t": t, "dtheta": dth / ARCSEC, "domega": dom / ARCSEC,
+            q.put(("cycle", {"t": t, "dtheta": dth / RAD_PER_ARCSEC, "domega": dom / RAD_PER_ARCSEC,
                              "t_est": float(e.get("t", t[0] - 0.1)), "est_err": err,
                              "status": _jsonable(c.get("status"))}))
         q.put(("adcs_summary", _jsonable(dict(s.summary(), **(s.board() or {})))))
@@ -737,7 +735,7 @@ def _body_summary(feed, live, rec, t_settle):
                         t_est_s=t_est, est_err=err, est_cols=np.array(bps.EST_COLS))
     write_atomic(rec.path("body.npz"), buf.getvalue())
     sel = (t >= t_settle - 1e-9) & (t <= t_settle + rec.virtual_s + 1e-9)
-    body = bps.statistics(dth[sel] * ARCSEC, dom[sel] * ARCSEC) if sel.sum() >= 2 else None
+    body = bps.statistics(dth[sel] * RAD_PER_ARCSEC, dom[sel] * RAD_PER_ARCSEC) if sel.sum() >= 2 else None
     est = estimation_accuracy(t_est, err, t_settle, t_settle + rec.virtual_s)
     n_played = min(len(live.x), int(round(rec.virtual_s / live.dt)) + 1)
     dist = report.error_stats(live.x[:n_played], live.y[:n_played])

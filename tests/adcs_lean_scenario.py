@@ -66,7 +66,8 @@ def stkf_scenario(seconds, case=2, seed=0, delay_s=(2.0, 3.0), att_sigma_arcsec=
     due at that second through the relay: [[tag, z6], ...]; Case 2 only), ``x`` (truth, 12); and ``x0``
     (initial estimate), ``P0``, ``R`` (GNSS, 6 x 6 flat), ``P_att`` (3 x 3 flat, rad^2), ``sigma_b`` (rad)."""
     from emulator import orbits
-    from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
+    from emulator.navsensors import Beacon, Gnss, Relay
+    from protocol.units import RAD_PER_ARCSEC
     from emulator.spacecraft.scenario import STKF_P0_DIAG
     from ground.adcs.stkf_sim import small_rotation
     from emulator.interp import lagrange
@@ -78,7 +79,7 @@ def stkf_scenario(seconds, case=2, seed=0, delay_s=(2.0, 3.0), att_sigma_arcsec=
     relay = Relay(r_rel, Gnss(r_gb), delay_s)
     tb = r_rel.uniform(0.0, 1.0) + np.arange(0, K)
     xb_at = lagrange(t_s, xs[:, 1, :], tb, order=10)
-    sd = np.asarray(att_sigma_arcsec, float) * ARCSEC
+    sd = np.asarray(att_sigma_arcsec, float) * RAD_PER_ARCSEC
     out = {"x0": x0.tolist(), "P0": list(STKF_P0_DIAG), "R": gnss_a.R.ravel().tolist(),
            "P_att": np.diag(sd ** 2).ravel().tolist(), "sigma_b": float(beacon.sigma), "steps": []}
     jb = 0

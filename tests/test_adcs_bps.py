@@ -15,7 +15,7 @@ from ground import cli
 from ground.adcs import bps, bps_cli, control, quat
 from ground.adcs.bps_source import BpsSource
 
-ARC = quat.ARCSEC
+ARC = quat.RAD_PER_ARCSEC
 
 
 @pytest.fixture(scope="module")

@@ -61,8 +61,8 @@ def _run(sc, zeros, f32=False, start=100):
             f.step(cast(sc["wp"][k]), None if sc["qm"][k] is None else cast(sc["qm"][k]), env, cast(sc["u"][k - 1]))
             P = np.array(f.P, dtype=float).reshape(9, 9)
             pd = pd and bool(np.array_equal(P, P.T)) and _pd(P)
-            ea.append(2 * quat.error_vec(np.array(sc["q"][k]), np.array(f.x[0:4], dtype=float)) / quat.ARCSEC)
-            ew.append((np.array(f.x[4:7], dtype=float) - sc["w"][k]) / quat.ARCSEC)
+            ea.append(2 * quat.error_vec(np.array(sc["q"][k]), np.array(f.x[0:4], dtype=float)) / quat.RAD_PER_ARCSEC)
+            ew.append((np.array(f.x[4:7], dtype=float) - sc["w"][k]) / quat.RAD_PER_ARCSEC)
     finally:
         linalg.zeros = old
     return np.array(ea)[start:], np.array(ew)[start:], pd, f
@@ -147,7 +147,7 @@ def test_filtered_and_torque_inputs_beat_the_readout_difference():
             ea = []
             for k in range(1, len(sc["wp"])):
                 f.step(sc["wp"][k], sc["qm"][k], sc["env"][k - 1], sc["u"][k - 1])
-                ea.append(2 * quat.error_vec(np.array(sc["q"][k]), np.array(f.x[0:4])) / quat.ARCSEC)
+                ea.append(2 * quat.error_vec(np.array(sc["q"][k]), np.array(f.x[0:4])) / quat.RAD_PER_ARCSEC)
         finally:
             linalg.zeros = old
         P = np.reshape(f.P, (9, 9))

@@ -44,7 +44,7 @@ def test_mekf_P_positive_definite_and_matches_star_tracker_bound():
     for k in range(k0 + 1, len(o["t"])):
         f.step(o["gyro"][k], o["st_q"][k] if o["st_valid"][k] else None)
         np.linalg.cholesky(f.P)
-    sig = 2 * np.sqrt(np.diag(f.P)[0:3]) / quat.ARCSEC
+    sig = 2 * np.sqrt(np.diag(f.P)[0:3]) / quat.RAD_PER_ARCSEC
     # with a 3 deg/sqrt(h) gyro the attitude cannot beat the 20/20/60 arcsec star tracker by much (Sec. 4.4.1)
     assert np.all(sig < [20, 20, 60]) and np.all(sig > [15, 15, 45])
 

@@ -48,7 +48,7 @@ def test_generic_6u_truth_and_priors_are_the_6u():
     assert abs(o["truth"]["scale"] - 1.0) < 1e-3                         # s = Jxx_ref / Jxx(with rotors) ~ 1
     m = runs.apkf_model(d)
     u = d["uncertainty"]
-    assert m.jxx == d["inertia_kgm2"][0] and np.allclose(np.sqrt(np.diag(m.R_st)) * 2 / apkf.quat.ARCSEC,
+    assert m.jxx == d["inertia_kgm2"][0] and np.allclose(np.sqrt(np.diag(m.R_st)) * 2 / apkf.quat.RAD_PER_ARCSEC,
                                                          d["star_tracker"]["sigma_arcsec"])
     assert np.allclose(m.c0, np.array(sf.wheel_axes(d)).T)
     p0 = np.diag(apkf.initial_covariance(m))

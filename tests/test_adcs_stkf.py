@@ -8,8 +8,9 @@ import pytest
 
 from emulator import orbits
 from emulator.interp import lagrange
-from emulator.navsensors import ARCSEC, Gnss
+from emulator.navsensors import Gnss
 from ground.adcs import afls, stkf, stkf_sim
+from protocol.units import RAD_PER_ARCSEC
 
 
 def test_kepler_truth_conserves_energy_and_matches_rk4():
@@ -116,7 +117,7 @@ def test_gnss_and_beacon_stacked_measurement():
     np.testing.assert_array_equal(H[0:6], np.hstack([np.eye(6), np.zeros((6, 6))]))
     np.testing.assert_allclose(H[6:9], stkf.H_beacon(x, A), rtol=1e-12, atol=1e-20)
     R_g = Gnss(np.random.default_rng(0)).R
-    sb, P_att = 60 * ARCSEC, np.diag((np.array([9.81, 8.01, 19.70]) * ARCSEC) ** 2)
+    sb, P_att = 60 * RAD_PER_ARCSEC, np.diag((np.array([9.81, 8.01, 19.70]) * RAD_PER_ARCSEC) ** 2)
     y = stkf.h_beacon(x, A)
     R = stkf.R_gnss_beacon(R_g, y, sb, P_att)
     assert R.shape == (9, 9) and np.all(R[0:6, 6:9] == 0) and np.all(R[6:9, 0:6] == 0)
@@ -134,7 +135,7 @@ def test_pointing_covariance_matches_sampled_errors():
     x = np.concatenate([orbits.X0_A, orbits.X0_B])
     M = rng.normal(size=(12, 12))
     P = M @ M.T * 400.0 + np.diag([50.0 ** 2] * 12)
-    P_att = np.diag((np.array([9.81, 8.01, 19.7]) * ARCSEC) ** 2)
+    P_att = np.diag((np.array([9.81, 8.01, 19.7]) * RAD_PER_ARCSEC) ** 2)
     A = np.eye(3)
     Pz = stkf.pointing_covariance(x, P, A, P_att)
     L = np.linalg.cholesky(P)
@@ -206,7 +207,7 @@ def test_case2_short_run_is_consistent_and_case1_keeps_pointing():
     assert np.mean(z < 3) > 0.95 and z.max() < 5
     # pointing known far better than SatB's position alone would give (Sec. 5.5.3)
     rho = 2.3e6
-    assert r1["final_sigma_pointing_arcsec"] < 0.2 * r1["final_sigma_rb_m"] / rho / ARCSEC
+    assert r1["final_sigma_pointing_arcsec"] < 0.2 * r1["final_sigma_rb_m"] / rho / RAD_PER_ARCSEC
 
 
 def test_bad_measurements_refused_by_the_filter():

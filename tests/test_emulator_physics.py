@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from emulator.bench import ARCSEC, Bench
+from emulator.bench import Bench
+from protocol.units import ARCSEC_PER_RAD
 from emulator.config import default_config
 from emulator.mirrors import AD5664R, INIT_WORDS, MEMS, PFSM, Modal, fsm_words
 from emulator.optics import Optics, exit_pupil_z2, resizer_matrix
@@ -297,7 +298,7 @@ def test_eq_7_8_pfsm_volts_per_arcsec_and_sky_error():
     b.spi_words(fsm_words(0.1, 0.0, b.config))
     b.settle((0.0, 0.0))
     ex0 = b.true_error_arcsec()[0] + b.bore[0] * b._sky
-    assert ex0 == pytest.approx(2 * b.u_mx * ARCSEC / 13.33, rel=1e-9)
+    assert ex0 == pytest.approx(2 * b.u_mx * ARCSEC_PER_RAD / 13.33, rel=1e-9)
 
 
 # --- true H ----------------------------------------------------------------------------------------------

@@ -87,9 +87,9 @@ def test_null_bias_moves_the_wheels_without_torquing_the_body():
     n = np.linalg.svd(C)[2][-1]
     w_at = n * (2000 * bps.RPM / np.mean(np.abs(n))) * np.sign(n[np.argmax(np.abs(n))])
     assert np.allclose(modes.null_bias_torque(C, w_at, np.full(4, 3e-6), 2000 * bps.RPM, 0.01), 0, atol=1e-15)
-    assert modes.beacon_gate(np.diag([1e-9] * 3), 300 * quat.ARCSEC)
-    assert not modes.beacon_gate(np.diag([1e-6] * 3), 300 * quat.ARCSEC)
-    assert not modes.beacon_gate(np.diag([np.nan] * 3), 300 * quat.ARCSEC)
+    assert modes.beacon_gate(np.diag([1e-9] * 3), 300 * quat.RAD_PER_ARCSEC)
+    assert not modes.beacon_gate(np.diag([1e-6] * 3), 300 * quat.RAD_PER_ARCSEC)
+    assert not modes.beacon_gate(np.diag([np.nan] * 3), 300 * quat.RAD_PER_ARCSEC)
 
 
 def test_surface_torques_are_the_offset_cross_the_force():
@@ -131,9 +131,9 @@ def test_apkf_gate_resets_on_a_lost_attitude_and_not_on_noise():
     model = apkf.Model()
     q0 = _axis_quat([0, 1, 0], 0.2)
     f = apkf.APKF(apkf.initial_state(q0, np.zeros(3), np.zeros(4)), model=model)
-    f.P[0:3, 0:3] = np.eye(3) * (20 * quat.ARCSEC) ** 2
+    f.P[0:3, 0:3] = np.eye(3) * (20 * quat.RAD_PER_ARCSEC) ** 2
     f.gate = 44.84
-    f.step(0.0, np.zeros(4), quat.from_small(np.array([5, -5, 10]) * quat.ARCSEC / 2, q0))
+    f.step(0.0, np.zeros(4), quat.from_small(np.array([5, -5, 10]) * quat.RAD_PER_ARCSEC / 2, q0))
     assert f.resets == []
     far = quat.quat_mul(_axis_quat([1, 0, 0], 2 * DEG), f.x[0:4])
     f.step(1.0, np.zeros(4), far)

@@ -8,7 +8,7 @@ import pytest
 
 from protocol import core
 from emulator.spacecraft import Spacecraft, SpacecraftDevices, StarTracker, WheelParams, Wheels
-from emulator.spacecraft.devices import ARCSEC
+from protocol.units import RAD_PER_ARCSEC
 from emulator.spacecraft.dynamics import dcm, quat_mul
 from emulator.spacecraft.wheels import RPM
 
@@ -95,7 +95,7 @@ def test_startracker_noise_and_validity():
         assert valid
         dq = quat_mul(qm, q * np.array([-1, -1, -1, 1]))          # q_meas (x) q^-1 = q_n (Eq. 4.63)
         errs.append(2 * dq[:3] * np.sign(dq[3]))
-    sig = np.array(errs).std(axis=0) / ARCSEC
+    sig = np.array(errs).std(axis=0) / RAD_PER_ARCSEC
     assert np.all(np.abs(sig / np.array([20.0, 20.0, 60.0]) - 1) < 0.06)
     assert st.measure(q, np.radians([0.08, 0.0, 0.07]))[1] is False        # |w| = 0.106 deg/s
 

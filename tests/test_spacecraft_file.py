@@ -139,7 +139,7 @@ def test_thesis_3u_figures_are_the_code_constants():
     assert md["sigma_v"] == np.radians(g["arw_deg_rt_h"]) / 60.0
     assert md["sigma_u"] == np.radians(g["bias_instability_deg_h"]) / 3600.0 / 60.0
     assert md["P0_bias"] == np.radians(g["bias_deg_h"]) / 3600.0
-    assert np.array_equal(md["sigma_st_rad"], np.array(st["sigma_arcsec"]) * mekf.quat.ARCSEC)
+    assert np.array_equal(md["sigma_st_rad"], np.array(st["sigma_arcsec"]) * mekf.quat.RAD_PER_ARCSEC)
     gn, bd, rd = defaults(Gnss.__init__), defaults(Beacon.__init__), defaults(Relay.__init__)
     assert (d["gnss"]["sigma_position_m"], d["gnss"]["sigma_velocity_m_s"]) == (gn["sigma_r_m"], gn["sigma_v_m_s"])
     assert d["beacon"]["sigma_arcsec"] == bd["sigma_arcsec"] and tuple(d["partner"]["relay_delay_s"]) == rd["delay_s"]

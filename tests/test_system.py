@@ -200,7 +200,7 @@ class FakeSession:
         q = np.tile([0.0, 0.0, 0.0, 1.0], (10, 1))
         w = np.zeros((10, 3))
         ra0, _, rb0, _ = self._truth(np.array([float(self.k)]))
-        h = 5 * quat.ARCSEC                             # half of 10 arcsec
+        h = 5 * quat.RAD_PER_ARCSEC                             # half of 10 arcsec
         est = {"q": np.array([np.sin(h), 0.0, 0.0, np.cos(h)]), "w": np.zeros(3),
                "ra": ra0[0] + [5.0, 0, 0], "rb": rb0[0] + [0, 7.0, 0]}
         self.k += 1
@@ -245,7 +245,7 @@ def test_firmware_path_bookkeeping_with_a_fake_session(monkeypatch, params_file)
     assert c["dtheta"].shape == (10, 2) and np.all(np.isfinite(c["dtheta"]))
     want, _ = bps.pointing_errors(np.tile([0.0, 0, 0, 1], (1, 1)), np.zeros((1, 3)), np.zeros((1, 3)),
                                   np.zeros((1, 3)), np.array([[0, 0, 1e6]]), np.zeros((1, 3)))
-    np.testing.assert_allclose(c["dtheta"], np.tile(want / quat.ARCSEC, (10, 1)), atol=1e-6)
+    np.testing.assert_allclose(c["dtheta"], np.tile(want / quat.RAD_PER_ARCSEC, (10, 1)), atol=1e-6)
     assert c["t_est"] == pytest.approx(3.0)
     # the estimate is compared with the truth at the cycle's start: exactly the offsets put in
     assert np.all(np.isnan(cycles[0]["est_err"]))

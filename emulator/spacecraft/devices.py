@@ -17,8 +17,8 @@ import numpy as np
 from protocol import core
 from emulator.spacecraft.dynamics import dcm, quat_mul
 from emulator.spacecraft.wheels import N_WHEELS
+from protocol.units import RAD_PER_ARCSEC
 
-ARCSEC = np.pi / (180.0 * 3600.0)
 RW_CMD = core.PACKET_ID["RW_CMD"]
 RW_TLM = core.PACKET_ID["RW_TLM"]
 STARTRACKER = core.PACKET_ID["STARTRACKER"]
@@ -43,7 +43,7 @@ class StarTracker:
 
     def __init__(self, rng, sigma_arcsec=(20.0, 20.0, 60.0), rate_max_dps=0.1):
         self.rng = rng
-        self.sigma = np.array(sigma_arcsec, dtype=float) * ARCSEC
+        self.sigma = np.array(sigma_arcsec, dtype=float) * RAD_PER_ARCSEC
         if self.sigma.shape != (3,) or not np.all(np.isfinite(self.sigma)) or np.any(self.sigma < 0):
             raise ValueError("sigma_arcsec must be 3 finite numbers >= 0, got %r" % (sigma_arcsec,))
         if not (np.isfinite(rate_max_dps) and rate_max_dps >= 0):

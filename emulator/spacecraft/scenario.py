@@ -33,9 +33,9 @@ from emulator.spacecraft.dynamics import J0_THESIS, Spacecraft, dcm, inertia_mat
 from emulator.spacecraft.environment import TiltedDipoleField
 from emulator.spacecraft.wheels import J_RW_NOMINAL, Wheels, WheelParams, pyramid_c0
 from protocol import paramfile
+from protocol.units import RAD_PER_ARCSEC
 
 DEG = np.pi / 180.0
-ARCSEC = DEG / 3600.0
 HOUR = 3600.0
 TAU_MAG = 1e-6                                   # N m (Eq. 4.150-4.151)
 CASE2_PERIODS = (80.0, 72.7, 82.47)              # s

@@ -63,9 +63,9 @@ import math
 from firmware.adcs import linalg
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol import paramfile
+from protocol.units import RAD_PER_ARCSEC
 
 N = 9
-ARCSEC = math.pi / 180.0 / 3600.0
 HOUR = 3600.0
 RPM = 2.0 * math.pi / 60.0
 QD_CASE1 = (2.0e-7) ** 2 / HOUR            # Sec. 4.8, Case 1, (N m)^2/s
@@ -165,7 +165,7 @@ class Model:
         self.tau_d0 = [float(v) for v in x["tau_d_nm"]]
         self.R = linalg.zeros(9)
         for i in range(3):
-            self.R[i * 4] = (sigma_st_arcsec[i] * ARCSEC) ** 2 / 4.0
+            self.R[i * 4] = (sigma_st_arcsec[i] * RAD_PER_ARCSEC) ** 2 / 4.0
         self.R_rw = (tach_rpm * RPM) ** 2
         self.tach_3sigma = 3.0 * tach_rpm * RPM
         self.qd = qd

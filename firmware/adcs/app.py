@@ -60,12 +60,12 @@ from firmware.adcs import apkf_lean, control, flight, linalg, stkf_lean
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol import can as canmap
 from protocol import core, table
+from protocol.units import RAD_PER_ARCSEC
 
 MU_EARTH = 3.986004418e14
 R_EARTH = 6371.2e3
 OMEGA_EARTH = 7.2921159e-5
 IGRF2020_DIPOLE_NT = (-29404.8, -1450.9, 4652.5)
-ARCSEC = math.pi / 180.0 / 3600.0
 RPM = 2.0 * math.pi / 60.0
 NW = 4
 FAIL_AFTER = 3
@@ -137,7 +137,7 @@ class App:
         self.satb = bool(cfg.get("satb_gnss", False))
         self.torque_max = float(cfg.get("torque_max", apkf_lean.TORQUE_MAX))
         self.fric = cfg.get("friction", apkf_lean.FRICTION)        # coulomb, viscous, smoothing rad/s
-        self.sigma_b = float(cfg.get("beacon_sigma_arcsec", 60.0)) * ARCSEC
+        self.sigma_b = float(cfg.get("beacon_sigma_arcsec", 60.0)) * RAD_PER_ARCSEC
         # the vehicle (a spacecraft file's figures; the defaults are the thesis's 3U): the lean APKF's nominal
         # wheel axes, star-tracker and read-out noise and initial 1 sigma, the wheels its parameter file is checked
         # against, and the laser axis of the command
@@ -260,7 +260,7 @@ class App:
         self.reslew = float(fo.get("reslew_deg", 1.0)) * DEG
         self.k_unload = float(fo.get("unload_gain_1_s", 2e-3))
         self.gate = float(fo.get("innovation_gate", 44.84))
-        self.gate_b = float(fo.get("beacon_gate_arcsec", 300.0)) * ARCSEC
+        self.gate_b = float(fo.get("beacon_gate_arcsec", 300.0)) * RAD_PER_ARCSEC
         w = cfg.get("wheels") or {}
         lim = float(w.get("speed_limit_rpm", 10000.0)) * RPM
         self.bias = float(fo.get("wheel_bias_share", 0.2)) * lim
@@ -437,7 +437,7 @@ class App:
         for i in range(9):
             self.Patt[i] = 0.0
         for i in range(3):
-            self.Patt[i * 4] = (self.sigma_st[i] * ARCSEC) ** 2
+            self.Patt[i * 4] = (self.sigma_st[i] * RAD_PER_ARCSEC) ** 2
         return self.qst
 
     def _stkf(self, t, q):

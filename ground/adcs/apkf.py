@@ -126,7 +126,7 @@ class Model:
         self.c12 = np.hstack([self.c1, self.c2])
         self.orbit = orbit or env.CircularOrbit()
         self.field = field or env.TiltedDipoleField()
-        self.R_st = np.diag((np.asarray(sigma_st_arcsec) * quat.ARCSEC) ** 2) / 4.0
+        self.R_st = np.diag((np.asarray(sigma_st_arcsec) * quat.RAD_PER_ARCSEC) ** 2) / 4.0
         self.R_rw = (tach_rpm * RPM) ** 2
         self.m_ctrl = None      # the magnetorquers' dipole over the step (filter units: A m^2 x s), a known input
 
@@ -839,7 +839,7 @@ class APKF:
             nis = float(z @ np.linalg.solve(self.P[IQ, IQ] + R, z))
             if not nis <= self.gate:
                 self.reset_attitude(q_meas, R)
-                self.resets.append((t + m.dt, nis, 2.0 * float(np.linalg.norm(z)) / quat.ARCSEC))
+                self.resets.append((t + m.dt, nis, 2.0 * float(np.linalg.norm(z)) / quat.RAD_PER_ARCSEC))
                 return self.x, self.P
         if stretch is not None and len(stretch[2]) >= 2:
             xa, Pa, steps, M = stretch

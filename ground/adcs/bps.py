@@ -53,8 +53,8 @@ from ground.adcs import apkf, control, modes, quat, runs, stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
 from protocol import paramfile as pf
+from protocol.units import RAD_PER_ARCSEC
 
-ARCSEC = quat.ARCSEC
 RPM = 2 * np.pi / 60
 FORMAT = pf.FORMAT
 CAL_SETS = 9
@@ -211,8 +211,8 @@ def pointing_errors(q, w, ra, va, rb, vb, laser_axis=control.LASER_AXIS):
 def estimate_errors(q_hat, w_hat, ra_hat, rb_hat, q, w, ra, rb):
     """Estimate minus truth: attitude (arcsec, 3 axes: 2 x the vector part of q_hat (x) q^-1, Eq. 4.25), rate (arcsec/s) and the
     orbit position errors |rA_hat - rA|, |rB_hat - rB| (m) of one flight-software estimate (``EST_COLS``)."""
-    att = 2.0 * quat.error_vec(np.asarray(q_hat, float), np.asarray(q, float)) / ARCSEC
-    return np.concatenate([att, (np.asarray(w_hat, float) - w) / ARCSEC,
+    att = 2.0 * quat.error_vec(np.asarray(q_hat, float), np.asarray(q, float)) / RAD_PER_ARCSEC
+    return np.concatenate([att, (np.asarray(w_hat, float) - w) / RAD_PER_ARCSEC,
                            [np.linalg.norm(np.asarray(ra_hat, float) - ra),
                             np.linalg.norm(np.asarray(rb_hat, float) - rb)]])
 
@@ -263,7 +263,7 @@ def thesis_3sigma(satb_gnss):
 
 def statistics(dtheta, domega):
     """The summary figures (arcsec, arcsec/s) of the collected samples."""
-    th, om = dtheta / ARCSEC, domega / ARCSEC
+    th, om = dtheta / RAD_PER_ARCSEC, domega / RAD_PER_ARCSEC
     sth, som = th.std(axis=0), om.std(axis=0)
     return {"pointing_mean_arcsec": th.mean(axis=0).tolist(), "pointing_sigma_arcsec": sth.tolist(),
             "stability_mean_arcsec_s": om.mean(axis=0).tolist(), "stability_sigma_arcsec_s": som.tolist(),
@@ -444,7 +444,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         rods = Magnetorquers.from_spacecraft(d)         # the truth's rods (the session's device model)
         mtq_axes = np.array([np.asarray(a, float) / np.linalg.norm(a) for a in mtq["axes"]])
         slew = None
-        gate_rad = fo["beacon_gate_arcsec"] * ARCSEC
+        gate_rad = fo["beacon_gate_arcsec"] * RAD_PER_ARCSEC
     m_cmd = np.zeros(3)
     slew_box = [None]
     t_st_last = 0.0
@@ -458,7 +458,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     model.jxx, model.orbit, model.field = jxx, orb, world.field
     ds = d["wheels"]                                 # the wheels' torque limit and friction: nominal, not truth
     lb = laser_axis(d)
-    P_st = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * ARCSEC) ** 2)
+    P_st = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * RAD_PER_ARCSEC) ** 2)
     f_stkf = Afls(world.stkf_x0, np.diag(world.stkf_P0_diag), 0.0, LAG_S,
                   stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)
     I6 = np.eye(6)
@@ -614,7 +614,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     xs10 = xg[:n_ok * sub:sub]
     dth, dom = pointing_errors(hist["q"], hist["w"], xs10[:, 0, 0:3], xs10[:, 0, 3:6], xs10[:, 1, 0:3],
                                xs10[:, 1, 3:6], lb)
-    hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / ARCSEC, dom / ARCSEC
+    hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / RAD_PER_ARCSEC, dom / RAD_PER_ARCSEC
     hist.update({"fsw_" + k: v for k, v in fsw.items()})
     for key in flog:
         flog[key] = flog[key][:k_done + 1]
@@ -700,7 +700,7 @@ def error_budget(hist, x1, t_settle, slow_s=SLOW_S, laser_axis=control.LASER_AXI
     ra, va, rb, vb = x1[k, 0, 0:3], x1[k, 0, 3:6], x1[k, 1, 0:3], x1[k, 1, 3:6]
 
     def e(qq):
-        return pointing_errors(qq, w, ra, va, rb, vb, laser_axis)[0] / ARCSEC
+        return pointing_errors(qq, w, ra, va, rb, vb, laser_axis)[0] / RAD_PER_ARCSEC
 
     tot, est, cmd = e(q), e(hist["fsw_q_hat"][k]), e(hist["fsw_qc"][k])
     parts = {"total": tot, "estimation": tot - est, "tracking": est - cmd, "command": cmd}

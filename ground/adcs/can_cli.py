@@ -130,7 +130,7 @@ def run(a):
         summary["max_body_rate_deg_s"] = float(np.degrees(np.linalg.norm(w, axis=1).max())) if len(w) else None
     if len(h["t"]):
         dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"], bps.laser_axis(d))
-        h["dtheta_arcsec"], h["domega_arcsec_s"] = dth / bps.ARCSEC, dom / bps.ARCSEC
+        h["dtheta_arcsec"], h["domega_arcsec_s"] = dth / bps.RAD_PER_ARCSEC, dom / bps.RAD_PER_ARCSEC
         sel = h["t"] >= settle
         if sel.sum() >= 2:
             summary["pointing"] = bps.statistics(dth[sel], dom[sel])

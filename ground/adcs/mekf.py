@@ -82,7 +82,7 @@ class MEKF:
 
     def __init__(self, q0, P0_att_rad=np.radians(10.0), P0_bias=np.radians(1.0) / 3600.0,
                  sigma_v=np.radians(3.0) / 60.0, sigma_u=np.radians(0.05) / 3600.0 / 60.0,
-                 sigma_st_rad=np.array([20.0, 20.0, 60.0]) * quat.ARCSEC, dt=1.0):
+                 sigma_st_rad=np.array([20.0, 20.0, 60.0]) * quat.RAD_PER_ARCSEC, dt=1.0):
         self.x = np.concatenate([np.asarray(q0, float), np.zeros(3)])
         self.P = np.diag([(P0_att_rad / 2) ** 2] * 3 + [P0_bias ** 2] * 3)
         self.sigma_v, self.sigma_u, self.dt = sigma_v, sigma_u, dt

@@ -4,10 +4,10 @@ q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.5). Re-exported from the spacecraft m
 import numpy as np
 
 from emulator.spacecraft.dynamics import dcm, quat_mul
+from protocol.units import RAD_PER_ARCSEC  # noqa: F401  (quat.RAD_PER_ARCSEC, where the filters use it)
 
 __all__ = ["dcm", "quat_mul", "conj", "skew", "error_vec", "from_small", "rotvec", "propagate"]
 
-ARCSEC = np.pi / 180.0 / 3600.0
 
 
 def conj(q):

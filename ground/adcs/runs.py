@@ -29,8 +29,8 @@ import numpy as np
 from emulator.spacecraft import scenario
 from ground.adcs import apkf, mekf, quat
 from ground.fileio import read_json, write_atomic, write_json
+from protocol.units import RAD_PER_ARCSEC
 
-ARCSEC = quat.ARCSEC
 MIN_DURATION_S = 10.0     # below ~5 s no two consecutive star-tracker outputs exist to start the filters
 # Divergence bounds on the 6-dof NEES (a consistent filter's mean is 6; P(chi2_6 > 100) ~ 2e-19). Measured, APKF
 # Case 1-3 on the thesis's 3U (overconfident, README): over 930 s the median after the first set is 6-13 (12
@@ -138,7 +138,7 @@ def mekf_options(d):
     return {"P0_att_rad": np.radians(u["attitude_sigma_deg"]), "P0_bias": np.radians(g["bias_deg_h"]) / 3600.0,
             "sigma_v": np.radians(g["arw_deg_rt_h"]) / 60.0,
             "sigma_u": np.radians(g["bias_instability_deg_h"]) / 3600.0 / 60.0,
-            "sigma_st_rad": np.array(d["star_tracker"]["sigma_arcsec"]) * quat.ARCSEC}
+            "sigma_st_rad": np.array(d["star_tracker"]["sigma_arcsec"]) * quat.RAD_PER_ARCSEC}
 
 
 def _start_apkf(o, case, start_at_truth=False, model=None, spacecraft=None, form="consistent"):
@@ -267,7 +267,7 @@ def _write_run(run_dir, res, t, err, sig, nees, z):
 
 def _series(err, nees, z):
     """What ``aggregate`` needs of a run's history: attitude errors (full angles, arcsec), NEES and z."""
-    return {"att_err": (2 * err[:, 0:3] / ARCSEC).tolist(), "nees": nees.tolist(), "z_att_rate": z.tolist()}
+    return {"att_err": (2 * err[:, 0:3] / RAD_PER_ARCSEC).tolist(), "nees": nees.tolist(), "z_att_rate": z.tolist()}
 
 
 def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False, spacecraft=None,
@@ -361,12 +361,12 @@ def _final(seed, name, case, o, err, sig, nees, k0, why=None, params=None):
         res.update({k: None for k in FIGURE_KEYS[name]})
         res["wheel_speed_clips"] = o["clips"]
         return res
-    res.update({"final_sigma_attitude_arcsec": (2 * s[0:3] / ARCSEC).tolist(),
-                "final_error_attitude_arcsec": (2 * e[0:3] / ARCSEC).tolist()})
+    res.update({"final_sigma_attitude_arcsec": (2 * s[0:3] / RAD_PER_ARCSEC).tolist(),
+                "final_error_attitude_arcsec": (2 * e[0:3] / RAD_PER_ARCSEC).tolist()})
     if name == "apkf":
         res.update({
-            "final_sigma_rate_arcsec_s": (s[3:6] / ARCSEC).tolist(),
-            "final_error_rate_arcsec_s": (e[3:6] / ARCSEC).tolist(),
+            "final_sigma_rate_arcsec_s": (s[3:6] / RAD_PER_ARCSEC).tolist(),
+            "final_error_rate_arcsec_s": (e[3:6] / RAD_PER_ARCSEC).tolist(),
             "final_normalised_error": (e / s).tolist(),
         })
         res.update(params)
@@ -476,7 +476,7 @@ def load_run(run_dir):
         z = d["z_att_rate"].tolist() if "z_att_rate" in d.files else None
     except (OSError, ValueError):
         return None
-    k = 2 / ARCSEC
+    k = 2 / RAD_PER_ARCSEC
     res["series"] = {"att_err": (d["error"][:, 0:3] * k).tolist(), "nees": d["nees"].tolist(), "z_att_rate": z}
     return res
 
@@ -506,7 +506,7 @@ def hold_consistency(seed, case=1, start_at_truth=False, t_from=630.0, settle=10
             sig.append(np.sqrt(np.diag(f.P)[0:6]))
             nees.append([_nees(e[0:3], f.P[0:3, 0:3]), _nees(e[3:6], f.P[3:6, 3:6])])
     err, sig = np.array(err), np.array(sig)
-    k = np.array([2 / ARCSEC] * 3 + [1 / ARCSEC] * 3)
+    k = np.array([2 / RAD_PER_ARCSEC] * 3 + [1 / RAD_PER_ARCSEC] * 3)
     return {"nis": np.array(nis), "nees_att_rate": np.array(nees), "error": err * k, "sigma": sig * k}
 
 

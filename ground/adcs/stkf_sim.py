@@ -27,12 +27,13 @@ import numpy as np
 
 from emulator import orbits
 from emulator.interp import lagrange
-from emulator.navsensors import ARCSEC, Beacon, Gnss, Relay
+from emulator.navsensors import Beacon, Gnss, Relay
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.scenario import LAG_S
 from ground.adcs import stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
+from protocol.units import RAD_PER_ARCSEC
 
 ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
 SENSORS = ("gnss_a", "beacon", "relay")
@@ -107,7 +108,7 @@ def apkf_attitude(seed, K, spacecraft=None):
     A_true = np.array([dcm(q) for q in o["q"][:K + 1]])
     A_hat = np.empty_like(A_true)
     P_att = np.empty_like(A_true)
-    st = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * ARCSEC) ** 2)
+    st = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * RAD_PER_ARCSEC) ** 2)
     for k in range(K + 1):
         if k < k0:
             A_hat[k], P_att[k] = dcm(o["st_q"][k]), st
@@ -154,7 +155,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     tb = phase + np.arange(0, K)                  # SatB GNSS epochs
     tb = tb[tb <= K]
     xb_at = lagrange(t_s, xs[:, 1, :], tb, order=10) if case == 2 else None
-    att_sd = np.asarray(att_sigma_arcsec, dtype=float) * ARCSEC
+    att_sd = np.asarray(att_sigma_arcsec, dtype=float) * RAD_PER_ARCSEC
     P_att = np.diag(att_sd ** 2)
     A_true = np.eye(3)                            # body frame held on J2000 (stated)
     att = apkf_attitude(seed, K, d) if attitude == "apkf" else None
@@ -221,8 +222,8 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
         hist["err"][k] = x - x_true
         hist["sig"][k] = np.sqrt(np.diag(Pk))
         hist["nees"][k] = hist["err"][k] @ np.linalg.solve(Pk, hist["err"][k])
-        hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / ARCSEC
-        hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / ARCSEC
+        hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / RAD_PER_ARCSEC
+        hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / RAD_PER_ARCSEC
     outage_list = gaps.close(float(K))
     Pk = flt.Pk
     tot = lambda s: float(np.sqrt(np.trace(Pk[s, s])))  # noqa: E731

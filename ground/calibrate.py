@@ -325,7 +325,7 @@ def _cmd(a):
             cal, failed, wall = run_calibration(rig, grid_v, a.dv, log=log)
             cal["runtime"] = getattr(rig, "runtime_name", "bench")
             cal["link"] = getattr(rig, "link_name", a.port)
-            from ground.hil import link_counters
+            from ground.link_report import link_counters
             cal["link_counters"] = link_counters(rig) if hasattr(rig, "lockstep") else None
     except (OSError, ValueError) as exc:     # the inputs were checked: this is the run failing (link, process)
         from ground.runtime import exit_note   # and what the firmware said, if it stopped (a board: its traceback)

@@ -33,6 +33,7 @@ import numpy as np
 from emulator.runtime import sigterm_as_interrupt
 from ground import report
 from ground.calibrate import STEPS, fit_h, load_calibration
+from ground.link_report import link_counters
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
 from ground.fileio import output_folder, run_folder, write_atomic, write_json
 from firmware.ad5664r import CODES_PER_VOLT
@@ -152,22 +153,6 @@ def _progress_bar(total_s, quiet, desc="hil"):
     from tqdm import tqdm
     return tqdm(total=round(total_s, 3), unit="s", desc=desc, file=sys.stderr,
                 bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s virtual [{elapsed}<{remaining}, {rate_fmt}]")
-
-
-def link_counters(rig):
-    """Both sides' link counters: the bench's (lockstep, commands, decoder, injected faults) and the
-    controller's as of its last CTRL_STATUS."""
-    if rig is None:
-        return {"bench": {}, "controller": None}
-    bench = dict(rig.lockstep.counters())
-    bench["command_retries"] = rig.n_cmd_retries
-    bench["stale_replies"] = getattr(rig, "n_stale_replies", 0)   # late ACKs of an earlier copy, dropped
-    bench["hello_tries"] = getattr(rig, "hello_tries", 0)
-    st = rig.last_status
-    ctl = None if st is None else {"at_tick": st["tick"], "resent_ticks_answered": st["n_dup"],
-                                   "gap_ticks": st["n_gap"], "rx_frames_dropped": st["n_rx_drop"],
-                                   "unknown_packets": st["n_unknown"]}
-    return {"bench": bench, "controller": ctl}
 
 
 SAT_ON = "FSM command on its clamp for %d ticks in a row" % SAT_TICKS

@@ -18,6 +18,7 @@ A sidecar ``F.jitter.json`` beside the distfile keeps the wheel frequencies and 
 import numpy as np
 
 from ground import resample
+from ground.source_registry import get_source
 from protocol.units import ARCSEC_PER_RAD
 
 class WheelJitter:
@@ -59,7 +60,6 @@ class WheelJitter:
 
     @classmethod
     def from_args(cls, a):
-        from ground import sources
         try:
             rpm = [float(v) for v in str(a.jitter_rpm).split(",")]
         except ValueError:
@@ -68,7 +68,7 @@ class WheelJitter:
         if a.jitter_base not in ("none", ""):
             if a.jitter_base == "jitter":
                 raise ValueError("--jitter-base jitter: the base must be another source")
-            base = sources.get_source(a.jitter_base).from_args(a)
+            base = get_source(a.jitter_base).from_args(a)
         return cls(rpm, a.jitter_step_us * 1e-6, a.jitter_scale, base)
 
     def check_rate(self, period_us):

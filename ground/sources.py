@@ -11,6 +11,8 @@ import csv
 
 import numpy as np
 
+from ground.source_registry import SOURCES, get_source, register_source  # noqa: F401  (sources.SOURCES, get_source)
+
 # Ch. 6 "Body pointing" table, ts = 33 s: (mean, 1 sigma) of delta-theta (arcsec), delta-omega (arcsec/s).
 BODY_POINTING = {
     "gnss": {  # with SatB GNSS (2-3 s delay)
@@ -22,23 +24,6 @@ BODY_POINTING = {
         "omega": ((-0.033, 6.764), (-0.031, 8.617)),
     },
 }
-
-SOURCES = {}
-
-
-def register_source(name, factory):
-    """Register a source class (``add_arguments``, ``from_args``) under ``name``."""
-    if name in SOURCES:
-        raise ValueError("source %r already registered" % name)
-    SOURCES[name] = factory
-
-
-def get_source(name):
-    try:
-        return SOURCES[name]
-    except KeyError:
-        raise ValueError("unknown source %r (known: %s)" % (name, ", ".join(sorted(SOURCES)))) from None
-
 
 def _pair(text, what):
     try:
@@ -286,6 +271,6 @@ def _register_bps():
 
 _register_bps()
 
-from ground.jitter import WheelJitter  # noqa: E402  (it uses the registry above for its --jitter-base)
+from ground.jitter import WheelJitter  # noqa: E402  (it takes its --jitter-base from the registry)
 
 register_source("jitter", WheelJitter)

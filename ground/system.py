@@ -51,7 +51,7 @@ import numpy as np
 
 from ground import hil, report
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
-from ground.adcs.cli import add_fault_options, add_satb_gnss_option, faults_from_args
+from ground.adcs.options import add_fault_options, add_satb_gnss_option, faults_from_args
 from ground.fileio import cache_folder, run_folder, write_atomic, write_json
 from protocol.units import RAD_PER_ARCSEC
 
@@ -591,7 +591,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     from firmware.player import Player
     from ground import runtime
     from ground.adcs import bps, bps_cli, runs
-    from ground.adcs.cli import load_spacecraft
+    from ground.adcs.options import load_spacecraft
     from ground.calibrate import load_calibration
 
     t_wall0 = time.perf_counter()
@@ -1097,7 +1097,7 @@ def register(sub, name, help_):
                         "unloading, a rate-limited slew and re-acquisition (fps adcs bps --world flight), the play "
                         "starting once the planned slew and 4 t_s of settling are over (~410 s for thesis-3u); "
                         "thesis: Sec. 6.4's world, the play after 30 s + 4 t_s")
-    from ground.adcs.cli import add_spacecraft_option
+    from ground.adcs.options import add_spacecraft_option
     add_spacecraft_option(p, "the ADCS's vehicle, as fps adcs bps (--adcs ground) or fps adcs can (--adcs "
                           "firmware) take it; --params is checked against it")
     hil.add_run_arguments(p, "seed of the ADCS scenario and the bench emulator")

@@ -29,7 +29,7 @@ from can.interfaces.slcan import slcanBus
 
 from protocol import faults as faultmod
 from protocol import lawicel
-from protocol.link import PeerGone, _FdPort
+from protocol.fdport import PeerGone, _FdPort
 
 _ANSWERS = (b"", b"z", b"Z")      # OK, transmit acknowledged (std, ext): nothing to deliver
 

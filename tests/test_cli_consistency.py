@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from ground.adcs.cli import add_fault_options, add_satb_gnss_option, faults_from_args
+from ground.adcs.options import add_fault_options, add_satb_gnss_option, faults_from_args
 from ground.cli import build_parser
 
 

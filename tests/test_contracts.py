@@ -19,6 +19,8 @@ def test_the_angle_units_are_defined_once_with_their_direction_in_the_name():
     assert units.RAD_PER_ARCSEC * units.ARCSEC_PER_RAD == 1.0
     assert abs(units.RAD_PER_ARCSEC - 4.84813681109536e-06) < 1e-20
     for f, text in _sources():
+        if f == "tests/test_contracts.py":
+            continue
         assert not re.search(r"\bARCSEC\b", text), "%s uses the ambiguous name ARCSEC" % f
         if f != "protocol/units.py":
             assert not re.search(r"^\s*(RAD_PER_ARCSEC|ARCSEC_PER_RAD)\s*=", text, re.M), \

@@ -355,8 +355,9 @@ def test_a_pty_peer_that_stops_reading_closes_the_link_instead_of_blocking_the_w
     import threading
     import tty
 
+    from protocol import fdport
     from protocol import link as hostlink
-    monkeypatch.setattr(hostlink, "STALL_S", 0.3)
+    monkeypatch.setattr(fdport, "STALL_S", 0.3)
     lk = hostlink.open_link("pty", "BENCH")
     fd = os.open(lk.peer_path, os.O_RDWR | os.O_NOCTTY)      # the peer: open, says one byte, never reads
     tty.setraw(fd)

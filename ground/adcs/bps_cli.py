@@ -30,7 +30,7 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from ground.adcs import bps, campaign, control, runs
-from ground.adcs.cli import add_satb_gnss_option, add_spacecraft_option, load_spacecraft
+from ground.adcs.options import add_satb_gnss_option, add_spacecraft_option, load_spacecraft
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")

@@ -18,7 +18,7 @@ import sys
 import numpy as np
 
 from emulator.fileio import cache_folder, load_npz, write_atomic
-from ground.adcs.cli import add_satb_gnss_option
+from ground.adcs.options import add_satb_gnss_option
 
 TRUTHS = ("hpop", "two-body")
 UNHASHED = ("params_file", "from_cache")    # sidecar notes outside the cache key: the path (its content is hashed)
@@ -38,7 +38,7 @@ class BpsSource:
     def __init__(self, ts=33.0, satb_gnss=False, params_path=None, truth="hpop", cache_dir=None, quiet=False,
                  spacecraft=None):
         from ground.adcs import bps, bps_cli
-        from ground.adcs.cli import load_spacecraft
+        from ground.adcs.options import load_spacecraft
         self.ts = bps.check_ts(ts)
         if truth not in TRUTHS:
             raise ValueError("--bps-truth must be one of %s, got %r" % ("/".join(TRUTHS), truth))

@@ -13,7 +13,7 @@ import time
 
 from emulator.spacecraft import scenario
 from ground.adcs import campaign, runs, stkf_sim
-from ground.adcs.cli import add_spacecraft_option, load_spacecraft
+from ground.adcs.options import add_spacecraft_option, load_spacecraft
 from ground.fileio import output_folder, write_atomic, write_json
 
 

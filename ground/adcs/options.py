@@ -1,0 +1,135 @@
+"""The options the ``fps adcs`` commands and ``fps system`` share, each defined once: the campaign options, the
+spacecraft file (``--spacecraft``, ``load_spacecraft``), SatB's GNSS (``--satb-gnss``/``--no-satb-gnss``) and the
+emulated devices' faults (one option each, or ``--faults FILE``). Below the commands that use them (``ground.adcs.cli``
+registers those)."""
+
+import argparse
+import json
+
+from ground.adcs import runs
+from ground.fileio import output_folder
+
+def add_campaign_options(p, cases=True):
+    """The options every campaign sub-command shares."""
+    if cases:
+        p.add_argument("--case", type=int, default=1, choices=(1, 2, 3),
+                       help="disturbance: 1 none, 2 sinusoidal (Eq. 4.150), 3 attitude-dependent (Eq. 4.151)")
+    p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds), >= 1 (default 1; >= 20 for NEES)")
+    p.add_argument("--seed", type=int, default=0, help="first seed, >= 0; run i uses seed + i (default 0)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: all cores; 1 = in-process)")
+    g.add_argument("--scheduler", default=None,
+                   help="Dask scheduler address (tcp://host:port): run on that cluster instead of locally")
+    p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
+                   help="the vehicle flown and filtered: a preset (%s) or a spacecraft file (fps spacecraft); "
+                        "its truth block is the simulated vehicle's errors, its figures and uncertainty block the "
+                        "filter's priors and initial P (default thesis-3u, the thesis's 3U)"
+                        % ", ".join(_presets()))
+    p.add_argument("--params", default=None,
+                   help="JSON of scenario overrides, not a spacecraft: %s. inertia_kgm2 and dipole_am2 replace "
+                        "only the simulated (true) vehicle's, the filter keeps the spacecraft file's priors (a "
+                        "diagnostic; refused with an explicit --spacecraft, whose truth block says the same)"
+                        % "; ".join("%s: %s" % kv for kv in runs.PARAM_KEYS.items()))
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("-o", "--output", required=True, type=output_folder, help="campaign folder")
+
+
+def _presets():
+    from protocol import spacecraft as sf
+    return sf.presets()
+
+
+def load_spacecraft(name_or_path, params=None, wheels=True, partner=False):
+    """(checked spacecraft file, what was given) for ``--spacecraft`` (None: thesis-3u). ValueError (exit 2)
+    with the checker's message for a bad one, one whose wheels.count is not 4 (``wheels``: the APKF and the
+    controllers fly four), one without a partner (``partner``: the STKF and the body pointing track one,
+    ``scenario.orbit_setup``), or when ``params`` also sets the true inertia or dipole."""
+    from emulator.spacecraft import scenario
+    from protocol import spacecraft as sf
+    if name_or_path is not None and params and ({"inertia_kgm2", "dipole_am2"} & set(params)):
+        raise ValueError("--params sets %s and --spacecraft %s says the vehicle too: give the true vehicle in the "
+                         "spacecraft file's truth block, or drop --spacecraft"
+                         % (" and ".join(sorted({"inertia_kgm2", "dipole_am2"} & set(params))), name_or_path))
+    source = "thesis-3u" if name_or_path is None else name_or_path
+    try:
+        d = sf.load(source)
+        if wheels and d["wheels"]["count"] != 4:
+            raise ValueError("wheels.count = %d: the Sec. 4.8 scenario, the APKF and the controllers fly four "
+                             "wheels" % d["wheels"]["count"])
+        if partner:
+            scenario.orbit_setup(d)
+    except ValueError as exc:
+        raise ValueError("--spacecraft %s: %s" % (source, exc)) from None
+    return d, source
+
+
+def add_satb_gnss_option(p, default):
+    """``--satb-gnss`` / ``--no-satb-gnss`` (SatB's GNSS fixes relayed to SatA 2-3 s late), the same pair on every
+    command that flies the body loop; ``default`` is the command's (the thesis's choice for what it reproduces)."""
+    p.add_argument("--satb-gnss", action=argparse.BooleanOptionalAction, default=default,
+                   help="SatB's GNSS fixes relayed to SatA 2-3 s late (Sec. 5.5), or not (default %s)"
+                        % ("with them" if default else "without"))
+
+
+def add_fault_options(p, clock):
+    """The emulated spacecraft's device faults, one option each, and ``--faults FILE`` (a JSON object of the same
+    keys: wheel_silent [wheel, t0], startracker_blind [t0, t1], gnss_outage [t0, t1], beacon_lost t0) for many at
+    once; an option given overrides the file's entry. ``clock``: what the times count (said in --help's group title)."""
+    g = p.add_argument_group("device faults (times: %s)" % clock)
+    g.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I (0-3) stops answering at T0 s")
+    g.add_argument("--startracker-blind", default=None, metavar="T0:T1", help="star tracker blind from T0 to T1 s")
+    g.add_argument("--gnss-outage", default=None, metavar="T0:T1", help="no GNSS fix from T0 to T1 s")
+    g.add_argument("--beacon-lost", type=float, default=None, metavar="T0", help="beacon out of view from T0 s")
+    g.add_argument("--faults", default=None, metavar="FILE",
+                   help="a JSON file of faults (the keys wheel_silent, startracker_blind, gnss_outage, beacon_lost "
+                        "as above, e.g. {\"startracker_blind\": [170, 230]}; the object itself is taken too)")
+
+
+def _window(text, name):
+    try:
+        a, b = text.split(":")
+        return [float(a), float(b)]
+    except ValueError:
+        raise ValueError("--%s %r: expected T0:T1 in seconds" % (name, text)) from None
+
+
+def faults_from_args(a):
+    """The faults ``add_fault_options`` took, as the session's dict (None: none). ValueError naming the option."""
+    f = {}
+    if a.faults is not None:
+        text = a.faults.strip()
+        if not text.startswith("{"):
+            try:
+                with open(a.faults) as fh:
+                    text = fh.read()
+            except OSError as exc:
+                raise ValueError("--faults %s: %s" % (a.faults, exc.strerror or exc)) from None
+        try:
+            f = json.loads(text)
+        except ValueError as exc:
+            raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}': %s"
+                             % exc) from None
+        if not isinstance(f, dict):
+            raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}'")
+    if a.wheel_silent:
+        try:
+            i, t0 = a.wheel_silent.split(":")
+            f["wheel_silent"] = [int(i), float(t0)]
+        except ValueError:
+            raise ValueError("--wheel-silent %r: expected WHEEL:T0 (wheel 0-3, seconds)" % a.wheel_silent) from None
+    if a.startracker_blind:
+        f["startracker_blind"] = _window(a.startracker_blind, "startracker-blind")
+    if a.gnss_outage:
+        f["gnss_outage"] = _window(a.gnss_outage, "gnss-outage")
+    if a.beacon_lost is not None:
+        f["beacon_lost"] = a.beacon_lost
+    return f or None
+
+
+def add_spacecraft_option(p, what):
+    """``--spacecraft NAME|FILE`` on ``p``; ``what``: what the command takes from the file."""
+    p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
+                   help="the vehicle: a preset (%s) or a spacecraft file (fps spacecraft); %s (default thesis-3u, "
+                        "the thesis's 3U)" % (", ".join(_presets()), what))

@@ -5,8 +5,8 @@ pointing the lean flight filters leave on a 600 s session beside the ground filt
   SatA GNSS + beacon, two-body truth, seed 0): the firmware ``firmware/adcs/main_can.py`` under micropython and
   under CPython, on Lawicel over a pty, python-can's slcan interface on the emulator side. Speed = virtual s
   per wall s (goal of the whole ``fps system`` run: >= 5x real time; this is the ADCS loop alone).
-- Pointing: ``ground.adcs.bps.pointing_errors`` on the session's 10 Hz truth after 30 s + 4 t_s (Eq. 6.12-6.21),
-  beside ``ground.adcs.bps.simulate`` (41-state APKF, full STKF/EAFLS, numpy) on the same spacecraft, sensors
+- Pointing: ``ground.adcs.body_pointing.pointing_errors`` on the session's 10 Hz truth after 30 s + 4 t_s (Eq. 6.12-6.21),
+  beside ``ground.adcs.body_pointing.simulate`` (41-state APKF, full STKF/EAFLS, numpy) on the same spacecraft, sensors
   and seed for the same span (the issue's goal: lean within 25 %), both from the parameter file of the nine
   calibration sets (``fps adcs bps``'s calibration, cached in out/bps_cache).
 - Instructions: the session's sensor bursts replayed through ``firmware/adcs/app.py`` (tests/mp/
@@ -40,7 +40,7 @@ from bench import mp
 
 from emulator.adcs_session import AdcsSession
 from ground import natmod_build
-from ground.adcs import bps
+from ground.adcs import body_pointing as bps
 
 ROOT = mp.ROOT
 SECONDS = 600
@@ -296,7 +296,7 @@ def main():
     print("|---|---|---|---|")
     rows = (("lean APKF (step, attitude covariance)", split["apkf"]),
             ("lean STKF (predict, GNSS, get)", split["stkf"] - split["beacon"]),
-            ("beacon update (Afls.update_beacon)", split["beacon"]),
+            ("beacon update (LeanStkf.update_beacon)", split["beacon"]),
             ("control (command, rate, PD, allocation)", split["control"]),
             ("rest of the cycle (wheels, modes, commands)", other))
     for name, us in rows:
@@ -367,7 +367,7 @@ def main():
     print("\nBoth from the parameter file of the nine calibration sets (seed 0, %.1f s, `fps adcs bps`'s cache). "
           "Not the same loop in every respect: the flight side holds the calibrated parameters (9 states) where the "
           "ground APKF estimates them "
-          "on (41), damps the rate after the slew until the star tracker's first fix (bps.py has no such rule), and "
+          "on (41), damps the rate after the slew until the star tracker's first fix (body_pointing.py has no such rule), and "
           "takes its orbit inputs from its own STKF; the figures are over %d s, not the thesis's "
           "4000 s." % (t_cal, SECONDS - HOLD - 4 * TS))
 

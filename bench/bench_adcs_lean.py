@@ -3,7 +3,7 @@
 Scenario (tests/adcs_lean_scenario.py): the emulator's spacecraft (true J, misaligned wheels with their true
 inertias, gravity gradient, a residual dipole) held in an inertial attitude by a PD on the truth for 4000 s,
 with the star tracker (20/20/60 arcsec, 1 Hz) and the tachometers (10 rpm). Both filters start from the
-parameter file a perfect calibration writes (ground/adcs/bps.py format), attitude from the first star-tracker
+parameter file a perfect calibration writes (ground/adcs/body_pointing.py format), attitude from the first star-tracker
 output, rate zero:
 - lean: firmware/adcs/apkf_lean.py (9 states: attitude, rate, disturbance torque; parameters held; the wheel
   momentum change from the wheel speeds each wheel's Kalman filter estimates from its read-outs and the
@@ -71,7 +71,7 @@ def run_lean(sc, f32=False, **kw):
     linalg.zeros = (lambda n: F32([np.float32(0.0)] * n)) if f32 else (lambda n: [0.0] * n)
     c = (lambda v: None if v is None else [np.float32(e) for e in v]) if f32 else (lambda v: v)
     try:
-        f = L.Lean(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0], **kw)
+        f = L.LeanApkf(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0], **kw)
         qs, ws = [np.array(f.x[0:4], float)], [np.zeros(3)]
         for k in range(1, len(sc["wp"])):
             e = sc["env"][k - 1]

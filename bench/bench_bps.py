@@ -15,7 +15,7 @@ import numpy as np
 
 from bench import verdict
 from emulator.spacecraft import scenario
-from ground.adcs import bps, bps_cli
+from ground.adcs import body_pointing as bps, bps_cli
 from ground.adcs.report import THESIS as THESIS_APKF
 
 WHEEL_DATASHEET_RPM = scenario.thesis_3u()["wheels"]["speed_limit_rpm"]     # a result without the key: thesis-3u's

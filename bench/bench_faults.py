@@ -238,7 +238,7 @@ def _can(tmp, dist, cal, failed):
           "ADCS's slcan stream\n" % ADCS_DURATION_S)
     print("| run | exit | complete | wall (s) | ADCS cycles retried | both loops bit-identical to clean |")
     print("|---|---|---|---|---|---|")
-    from ground.adcs import bps, bps_cli
+    from ground.adcs import body_pointing as bps, bps_cli
     params = os.path.join(tmp, "params.json")
     cache = os.path.join(tmp, "bps_cache")
     bps.write_params(params, bps_cli.calibration(0, cache, progress=False))

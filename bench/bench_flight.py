@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from ground.adcs import bps
+from ground.adcs import body_pointing as bps
 from protocol import spacecraft as sf
 
 SPACECRAFT = ("thesis-3u", "generic-6u", "generic-12u")

@@ -18,7 +18,7 @@ import time
 
 from bench import verdict
 from ground import distfile_cli, sources, system
-from ground.adcs import bps, bps_cli
+from ground.adcs import body_pointing as bps, bps_cli
 from ground.fileio import write_atomic
 from ground.hil import run_hil
 

@@ -53,7 +53,7 @@ Faults (``faults`` dict):
 ``startracker_blind`` [t0, t1]: the star tracker answers "no solution" (valid 0); ``gnss_outage`` [t0, t1]:
 no GNSS fix of SatA (SatB's relay too); ``beacon_lost`` t0: the beacon answers "not in view" (valid 0).
 
-Truth: the world ground/adcs/bps.py runs, built by the same ``emulator.spacecraft.scenario.pointing_world``
+Truth: the world ground/adcs/body_pointing.py runs, built by the same ``emulator.spacecraft.scenario.pointing_world``
 (orbits of ``emulator.orbits``, two-body by default, brahe ``hpop`` on request, on a 20 Hz grid by 10th-order
 Lagrange; the spacecraft of ``emulator.spacecraft`` (RK4 at 0.1 s) from q = [0, 0, 0, 1] at rest; the star
 tracker, GNSS, beacon and relay of ``emulator.navsensors``; the STKF's start), for the vehicle of a spacecraft
@@ -240,7 +240,7 @@ class AdcsSession:
 
     def config(self):
         """The firmware's configuration (written to its config.json): parameter file, gains, STKF start, and
-        the spacecraft file's nominal figures, not the emulated (true) vehicle's, as ground/adcs/bps.py's flight
+        the spacecraft file's nominal figures, not the emulated (true) vehicle's, as ground/adcs/body_pointing.py's flight
         software: the wheels' axes, torque limit, friction model and read-out noise, the star tracker's, GNSS's
         and beacon's noise, the APKF's initial 1 sigma, the STKF's P0 and the laser axis."""
         d = self.spacecraft

@@ -3,10 +3,10 @@
 - The ADCS loop (``--adcs``) runs ahead in its own process (``multiprocessing``, spawn) and sends one message
   per 1 s cycle: ``firmware``, the ADCS flight software on CAN against the emulated spacecraft
   (``emulator.adcs_session.AdcsSession``), or ``ground``, the body pointing simulator of Sec. 6.4
-  (``ground.adcs.bps.simulate``: truth, 41-state APKF, STKF with the EAFLS and the controller, run whole and
+  (``ground.adcs.body_pointing.simulate``: truth, 41-state APKF, STKF with the EAFLS and the controller, run whole and
   sent in 1 s slices; its results are those of ``fps adcs bps``). Of each cycle's ten 0.1 s truth samples the
   body pointing error (dtheta1, dtheta2 about the laser line of sight, Eq. 6.12-6.16) and the stability
-  (Eq. 6.18-6.21) are taken by ``ground.adcs.bps.pointing_errors``; the flight software's estimates ("est")
+  (Eq. 6.18-6.21) are taken by ``ground.adcs.body_pointing.pointing_errors``; the flight software's estimates ("est")
   are compared with the truth at the cycle's start.
 - The fine-pointing loop runs as ``fps hil`` does (``ground.hil``: the bench in lockstep with the controller
   firmware over serial, ``micropython`` or ``cpython``, at 637.8 Hz; H calibration, Q2 calibration, Q2
@@ -160,14 +160,14 @@ class LiveDisturbance:
 # --- the ADCS process ----------------------------------------------------------------------------------------
 def settle_s(ts):
     """Where the collection window starts: the 30 s hold and 4 t_s of settling (``bps.simulate``)."""
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     return bps.HOLD_S + 4.0 * ts
 
 
 def estimation_accuracy(t, err, t_from, t_to):
     """The filters' accuracy over [t_from, t_to] from rows of ``bps.estimate_errors``: attitude and rate 1 sigma
     per axis and 3 sigma (of the norm, as the pointing budget), rA and rB position RMS (m)."""
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     t = np.asarray(t, float)
     err = np.asarray(err, float).reshape(-1, len(bps.EST_COLS))
     sel = (t >= t_from - 1e-9) & (t <= t_to + 1e-9) & np.all(np.isfinite(err), axis=1)
@@ -195,7 +195,7 @@ def _ground_run(spec, params, on_cycle=None, stop=None):
     """``bps.simulate`` for the spec; returns (result, history, estimate errors (K+1, 8)). ``on_cycle(msg)``
     gets each second as the simulation makes it (the body pointing error of its ten steps, Eq. 6.12-6.21, on the
     truth ``simulate`` hands over, and the estimate errors at its start)."""
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     d = _vehicle(spec)
     lb = bps.laser_axis(d)
 
@@ -220,14 +220,14 @@ def _ground_run(spec, params, on_cycle=None, stop=None):
 def _reference(res, hist, err, spec):
     """The ground filters' figures of a ``bps.simulate`` run over the window the play covers (``duration_s``
     from the end of the settling), as ``fps system`` takes its own."""
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     t0 = _t_settle(spec)
     t1 = t0 + spec["duration_s"]
     sel = (hist["t"] >= t0 - 1e-9) & (hist["t"] <= t1 + 1e-9)
     out = bps.statistics(hist["dtheta_arcsec"][sel] * RAD_PER_ARCSEC, hist["domega_arcsec_s"][sel] * RAD_PER_ARCSEC)
     out["complete"] = bool(res["complete"])
     out["estimation"] = estimation_accuracy(np.arange(len(err)), err, t0, t1)
-    out["source"] = "ground.adcs.bps.simulate (41-state APKF, STKF + EAFLS), seed %d" % spec["seed"]
+    out["source"] = "ground.adcs.body_pointing.simulate (41-state APKF, STKF + EAFLS), seed %d" % spec["seed"]
     return out
 
 
@@ -249,7 +249,7 @@ def _send_firmware(spec, params, q, stop):
     """The session's cycles (``duration_s`` = its number of 1 s cycles: the settling, the play and the lead);
     the orbit truth and its cache as the ground reference's, where the session takes them."""
     from emulator.adcs_session import AdcsSession
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     n = int(np.ceil(_t_settle(spec) + spec["adcs_duration_s"]))
     q.put(("info", {"settle_s": _t_settle(spec)}))
     link_faults = None
@@ -340,7 +340,7 @@ def adcs_worker(spec, q, stop):
     try:
         _heartbeat(q, stop)
         try:
-            from ground.adcs import bps, bps_cli
+            from ground.adcs import body_pointing as bps, bps_cli
             d = _vehicle(spec)
             params = spec["params"] or bps_cli.calibration(spec["seed"], spec["bps_cache"], False, d)
             bps.check_params(params, spacecraft=d)
@@ -475,7 +475,7 @@ class AdcsFeed:
                     self._handle(*m, play=False)
 
     def arrays(self):
-        from ground.adcs import bps
+        from ground.adcs import body_pointing as bps
         cat = (lambda v, shape: np.concatenate(v) if v else np.zeros(shape))
         return (cat(self.t, (0,)), cat(self.dth, (0, 2)), cat(self.dom, (0, 2)), np.array(self.t_est),
                 np.array(self.est_err).reshape(-1, len(bps.EST_COLS)))
@@ -541,7 +541,7 @@ def _signals_held():
 
 # --- the run -------------------------------------------------------------------------------------------------
 def check_inputs(duration_s, runtime_name, adcs, ts, truth, seed=0):
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     from ground.adcs.bps_source import TRUTHS
     from ground import runtime
     runtime.check_seed(seed)
@@ -590,7 +590,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     flight world the play starts at ``bps.flight_settle_s`` (the planned slew, re-acquisition and 4 t_s)."""
     from firmware.player import Player
     from ground import runtime
-    from ground.adcs import bps, bps_cli, runs
+    from ground.adcs import body_pointing as bps, bps_cli, runs
     from ground.adcs.options import load_spacecraft
     from ground.calibrate import load_calibration
 
@@ -728,7 +728,7 @@ def _stopped_folder(rec, summary, exc):
 
 def _body_summary(feed, live, rec, t_settle):
     """Body pointing (``bps.statistics``) over the window played, the estimates' accuracy, the reference."""
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     t, dth, dom, t_est, err = feed.arrays()
     buf = io.BytesIO()
     np.savez_compressed(buf, t_s=t - t_settle, t_adcs_s=t, dtheta_arcsec=dth, domega_arcsec_s=dom,
@@ -753,7 +753,7 @@ def verdict(s):
     ``bps.BUDGET_POINTING_3SIGMA`` and ``bps.BUDGET_STABILITY_3SIGMA`` (as ``fps adcs can`` judges them). A loop's
     ``met`` is None without figures; ``met`` is true only when the run completed and both loops are met.
     ``missed``: one line per figure that missed, naming the loop and by how much."""
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     req = report.REQUIREMENT_ARCSEC
     n, lost = int(s.get("q2_samples") or 0), int(s.get("q2_beam_lost_samples") or 0)
     worst = (s.get("q2") or {}).get("max_radial_arcsec")
@@ -850,7 +850,7 @@ def verdict_md(s):
 
 def thesis_body():
     """The Ch. 6 budget (3 sigma) and Sec. 6.4.4's measured figures (t_s = 33 s, 4000 s) as 3 sigma of the norm."""
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     out = {"pointing_3sigma_arcsec": bps.BUDGET_POINTING_3SIGMA,
            "stability_3sigma_arcsec_s": bps.BUDGET_STABILITY_3SIGMA}
     for satb, key in ((False, "sec644_no_satb_gnss"), (True, "sec644_satb_gnss")):
@@ -865,7 +865,7 @@ def _plot(rec, feed, q2cal, t_settle, faults=None):
     """system_pointing.png on the ADCS's clock (the fault options'): the body error over the window played and the
     fine error, both from the ADCS's start."""
     from ground import plots as plt_mod
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     t, dth, _dom, _te, _e = feed.arrays()
     q2, _truth = rec.arrays()
     body = fine = None
@@ -925,7 +925,7 @@ def side_by_side(s):
 
 
 def _hold_s():
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     return bps.HOLD_S
 
 

@@ -2,14 +2,14 @@
 alike (pure Python; runs under MicroPython too).
 
 The file carries what the calibration maneuvers taught the APKF into the pointing phase (Yoon 2017, Sec. 6.4.2):
-ground/adcs/bps.py writes it (``calibrate``), ``emulator.spacecraft.scenario.truth_params`` writes a perfect
+ground/adcs/body_pointing.py writes it (``calibrate``), ``emulator.spacecraft.scenario.truth_params`` writes a perfect
 one, and both the ground's pointing run and the lean flight APKF (firmware/adcs/apkf_lean.py) start from it.
 Keys:
 
 - ``format``: "fps-bps-params/1";
 - ``wheels``: the number of wheels (4; with a spacecraft file, its ``wheels.count``);
 - ``jxx_ref_kgm2``: the APKF's fixed reference Jxx (Sec. 4.6.2), kg m^2;
-- ``torque_scale`` (optional, default 1): s, the filter's relative scale (ground/adcs/bps.py ``torque_scale``);
+- ``torque_scale`` (optional, default 1): s, the filter's relative scale (ground/adcs/body_pointing.py ``torque_scale``);
   the controller divides the filter's J, Jrw, m and tau_d by it;
 - ``x``: the APKF's parameters in its relative units: ``tau_d_nm`` [3], ``J5_kgm2`` [Jyy, Jzz, Jxy, Jxz, Jyz],
   ``dipole_am2`` [3], ``delta1_rad`` [4], ``delta2_rad`` [4], ``jrw_kgm2`` [4] (one per wheel);

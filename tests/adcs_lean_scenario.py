@@ -6,7 +6,7 @@ with the star tracker (20/20/60 arcsec) and tachometers (10 rpm) sampled at 1 Hz
 
 ``scenario(seconds, seed)`` returns a dict of per-second lists: ``wp`` (tachometer read-outs, rad/s),
 ``qm`` (star-tracker quaternion or None), ``u`` (the wheel torques commanded over [k, k + 1], N m), ``env`` ((r_i unit, 3 mu/r^3, b_i) at mid-step), ``q``, ``w`` (truth),
-and ``params`` (the parameter file a perfect calibration would write, ground/adcs/bps.py format)."""
+and ``params`` (the parameter file a perfect calibration would write, ground/adcs/body_pointing.py format)."""
 
 import numpy as np
 
@@ -116,7 +116,7 @@ def run_stkf_lean(sc, zeros=None, zeros_d=None, every=None):
     if zeros_d is not None:
         S.zeros_d = zeros_d
     try:
-        f = S.Afls(sc["x0"], sc["P0"], 0.0)
+        f = S.LeanStkf(sc["x0"], sc["P0"], 0.0)
         R, P_att, sb = linalg.zeros(36), linalg.zeros(9), sc["sigma_b"]
         for i in range(36):
             R[i] = sc["R"][i]

@@ -108,7 +108,7 @@ def test_the_apkf_input_is_a_checked_option(momentum):
     assert A.App(_cfg(False)).momentum == "filtered"
     cfg = AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum=momentum).config()
     app = A.App(cfg)
-    app.apkf = A.apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0] * 4,
+    app.apkf = A.apkf_lean.LeanApkf(app.params, [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0] * 4,
                                 momentum=app.momentum)
     seen = []
     step = app.apkf.step
@@ -129,7 +129,7 @@ def test_first_acquisition_damps_the_rate_until_the_star_tracker_answers():
     good, and a far command (the slew itself) is flown as commanded."""
     app = A.App(_cfg(False))
     app._wheels_in()
-    app.apkf = A.apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], [1e-3, 0.0, 0.0], [0.0] * 4)
+    app.apkf = A.apkf_lean.LeanApkf(app.params, [0.0, 0.0, 0.0, 1.0], [1e-3, 0.0, 0.0], [0.0] * 4)
     target = [0.0, 0.0, 0.0, 1.0]
 
     def command():

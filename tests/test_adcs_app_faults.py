@@ -134,7 +134,7 @@ def test_a_measurement_the_stkf_refuses_is_stale_in_the_status(runtime, cfg_file
 
 @pytest.mark.parametrize("runtime", RUNTIMES)
 def test_a_fix_the_apkf_refuses_is_stale_in_the_status(runtime, cfg_file):
-    """A star-tracker fix the APKF refuses (S not positive definite) was counted only in Lean.skipped: the
+    """A star-tracker fix the APKF refuses (S not positive definite) was counted only in LeanApkf.skipped: the
     status said the tracker was fresh and the mode stayed POINT/HOLD while no fix was fused. Now it is stale,
     and after stale_s (10 s) of it the mode is DEGRADED; n_st_invalid (the tracker's own flag) is untouched."""
     r = run_case("apkf_refused_fix_is_stale", runtime, cfg_file)

@@ -12,7 +12,7 @@ from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import Spacecraft
 from emulator.spacecraft.wheels import pyramid_c0
 from ground import cli
-from ground.adcs import bps, bps_cli, control, quat
+from ground.adcs import body_pointing as bps, bps_cli, control, quat
 from ground.adcs.bps_source import BpsSource
 
 ARC = quat.RAD_PER_ARCSEC

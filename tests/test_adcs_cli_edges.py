@@ -10,7 +10,7 @@ import pytest
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import Spacecraft
 from ground import cli
-from ground.adcs import bps, runs
+from ground.adcs import body_pointing as bps, runs
 
 
 @pytest.fixture(scope="module")

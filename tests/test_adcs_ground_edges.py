@@ -52,7 +52,7 @@ def test_bps_flight_software_uses_the_wheel_datasheet_not_the_truth(monkeypatch)
     compensated exactly. It must use the datasheet (WheelParams' defaults) only."""
     from emulator.spacecraft import scenario
     from emulator.spacecraft.dynamics import Spacecraft
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
 
     real_world = scenario.pointing_world
 

@@ -53,7 +53,7 @@ def _run(sc, zeros, f32=False, start=100):
     linalg.zeros = zeros
     try:
         cast = (lambda v: [np.float32(e) for e in v]) if f32 else (lambda v: v)
-        f = L.Lean(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0])
+        f = L.LeanApkf(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0])
         ea, ew, pd = [], [], True
         for k in range(1, len(sc["wp"])):
             env = sc["env"][k - 1]
@@ -88,7 +88,7 @@ def test_jacobian_and_propagation_equal_the_ground_filters():
     old = linalg.zeros
     linalg.zeros = lambda n: [0.0] * n
     try:
-        f = L.Lean(params, q, w, W, momentum="tach")
+        f = L.LeanApkf(params, q, w, W, momentum="tach")
         env = (m["r_i"].tolist(), m["k"], m["b_i"].tolist())
         F, hw, hd, Qw = [0.0] * 81, [0.0] * 3, [0.0] * 3, [0.0] * 9
         Qw = np.reshape(list(L.momentum_rate(hw, hd, Qw, f.model, f.wm, wp, None)), (3, 3))
@@ -143,7 +143,7 @@ def test_filtered_and_torque_inputs_beat_the_readout_difference():
         old = linalg.zeros
         linalg.zeros = z
         try:
-            f = L.Lean(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0], momentum=mode)
+            f = L.LeanApkf(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0], momentum=mode)
             ea = []
             for k in range(1, len(sc["wp"])):
                 f.step(sc["wp"][k], sc["qm"][k], sc["env"][k - 1], sc["u"][k - 1])
@@ -164,7 +164,7 @@ def test_unknown_wheel_torque_adds_noise_and_none_is_refused():
     old = linalg.zeros
     linalg.zeros = lambda n: [0.0] * n
     try:
-        fs = [L.Lean(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0], momentum="torque") for _ in range(2)]
+        fs = [L.LeanApkf(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0], momentum="torque") for _ in range(2)]
         u = list(sc["u"][0])
         un = [float("nan")] + u[1:]
         fs[0].step(sc["wp"][1], None, sc["env"][0], u)
@@ -215,7 +215,7 @@ def test_micropython_gives_cpython_results_and_heap_per_cycle_is_bounded(tmp_pat
     p = tmp_path / "sc.json"
     p.write_text(json.dumps({k: sc[k] for k in ("params", "wp", "qm", "u", "env")}))
     res = run_mp("firmware_adcs.py", p)
-    f = L.Lean(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0])
+    f = L.LeanApkf(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0])
     for k in range(1, len(sc["wp"])):                  # the inputs pass through array('f') on both sides
         qm = sc["qm"][k]
         f.step(array("f", sc["wp"][k]), None if qm is None else array("f", qm), sc["env"][k - 1],
@@ -252,7 +252,7 @@ def test_phi_series_matches_the_matrix_exponential():
     old = linalg.zeros
     linalg.zeros = lambda n: [0.0] * n
     try:
-        f = L.Lean(sc["params"], sc["q"][0], [1e-3, -2e-3, 5e-4], [300.0, -200.0, 100.0, 50.0])
+        f = L.LeanApkf(sc["params"], sc["q"][0], [1e-3, -2e-3, 5e-4], [300.0, -200.0, 100.0, 50.0])
         L.momentum_rate(f.work.hw, f.work.hd, f.work.Qw, f.model, f.wm, f.wm, sc["u"][0], f.work.var)
         L.jacobian(f.work.F, f.x, f.model, f.work.hw, sc["env"][0], f.work)
         L.phi(f.work.Phi, f.work.F, 1.0, f.work)
@@ -519,7 +519,7 @@ def test_lean_stkf_refuses_bad_input_and_keeps_its_state():
     with pytest.raises(ValueError, match="not after"):
         f.predict(float("nan"))
     with pytest.raises(ValueError, match="NaN"):
-        S.Afls([float("nan")] * 12, sc["P0"], 0.0)
+        S.LeanStkf([float("nan")] * 12, sc["P0"], 0.0)
 
 
 def test_phi_and_the_covariance_prediction_equal_the_plain_products_bit_for_bit(monkeypatch):
@@ -654,5 +654,5 @@ def test_lean_stkf_lag_is_the_ground_and_emulator_lag():
     the one the ground's STKF, the body-pointing run and the session's config use."""
     from emulator.spacecraft import scenario as world
     from firmware.adcs import stkf_lean as S
-    from ground.adcs import bps, stkf_sim
+    from ground.adcs import body_pointing as bps, stkf_sim
     assert S.LAG_S == world.LAG_S == stkf_sim.LAG_S == bps.LAG_S

@@ -61,7 +61,7 @@ def test_row_kernels_equal_dense_products():
         P = np.reshape(P, (ld, ld))
         assert np.allclose(P[0:6, 0:6], F @ P0[src:src + 6, src:src + 6] @ F.T + Q, rtol=1e-12)
         assert np.array_equal(P[0:6, 0:6], P[0:6, 0:6].T)
-    f = S.Afls([7e6, 0, 0, 0, 7.5e3, 0] * 2, [1.0] * 12, 0.0, 4.0, cap=5, qa=0.01)
+    f = S.LeanStkf([7e6, 0, 0, 0, 7.5e3, 0] * 2, [1.0] * 12, 0.0, 4.0, cap=5, qa=0.01)
     for k, pos in ((3, 0), (3, 1), (4, 2), (5, 0)):
         P0 = rng.normal(size=(f.ld, f.ld))
         f.P, f.k, f.X, f.t = list(P0.ravel()), k, list(range(f.ld)), list(range(f.cap))
@@ -171,7 +171,7 @@ def test_lean_stkf_calls_equal_dense_references_with_satb_and_the_beacon(monkeyp
     node list, marginalised to the nodes the filter keeps."""
     monkeypatch.setattr(linalg, "zeros", lambda n: [0.0] * n)
     sc = stkf_scenario(40, case=2)
-    f = S.Afls(sc["x0"], sc["P0"], 0.0)
+    f = S.LeanStkf(sc["x0"], sc["P0"], 0.0)
     R = np.reshape(sc["R"], (6, 6))
     Rl, Patt = list(sc["R"]), list(sc["P_att"])
     n_b = 0

@@ -172,7 +172,7 @@ def test_stkf_thesis_3u_is_the_default_bit_for_bit_and_the_6u_flies_its_figures(
 
 def test_bps_and_sweep_thesis_3u_is_the_default_bit_for_bit(tmp_path, thesis_copy, perfect_params):
     d = sf.load("thesis-3u")
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     assert _same(bps.calibrate(2, sets=1), bps.calibrate(2, sets=1, spacecraft=d))
     cache = str(tmp_path / "cache")
     argv = ["adcs", "bps", "--ts", "4", "--duration", "5", "--truth", "two-body", "--satb-gnss", "--params",
@@ -230,7 +230,7 @@ def test_can_thesis_3u_is_the_default_bit_for_bit_and_the_firmware_gets_the_6u(t
 
 def test_system_thesis_3u_is_the_default_bit_for_bit(perfect_params):
     from ground import system
-    from ground.adcs import bps
+    from ground.adcs import body_pointing as bps
     spec = {"ts": 4.0, "satb_gnss": True, "adcs_duration_s": 3.0, "seed": 1, "truth": "two-body",
             "cache_dir": None}
     params = json.loads(open(perfect_params).read())

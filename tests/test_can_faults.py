@@ -400,7 +400,7 @@ def test_fps_system_with_faults_on_the_adcs_can_link_matches_the_clean_run(tmp_p
     the estimates' errors) equal the clean run's; the retries are in the ADCS summary."""
     if not os.path.exists(MICROPYTHON):
         pytest.skip("the MicroPython unix port is not installed (make install)")
-    from ground.adcs import bps, bps_cli
+    from ground.adcs import body_pointing as bps, bps_cli
     _, cal = inputs
     params = str(tmp_path / "params.json")
     cache = str(tmp_path / "cache")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from firmware.adcs import flight
-from ground.adcs import bps, modes, quat
+from ground.adcs import body_pointing as bps, modes, quat
 from tests.test_firmware_mp import run_mp
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from emulator.spacecraft.environment import SurfaceTorques, magnetic_torque
-from ground.adcs import apkf, bps, modes, quat
+from ground.adcs import apkf, body_pointing as bps, modes, quat
 from ground.cli import main as fps
 from protocol import spacecraft as sf
 

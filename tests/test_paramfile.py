@@ -1,6 +1,6 @@
 """One parameter-file checker (protocol.paramfile) for the ground and the flight firmware: the same verdicts under
 CPython and under MicroPython on good and bad files, each refusal naming the key, the value and the allowed range;
-ground/adcs/bps.py and firmware/adcs/apkf_lean.py both refuse through it."""
+ground/adcs/body_pointing.py and firmware/adcs/apkf_lean.py both refuse through it."""
 
 import json
 import os
@@ -11,7 +11,7 @@ import pytest
 
 from emulator.spacecraft import scenario
 from firmware.adcs import apkf_lean
-from ground.adcs import bps
+from ground.adcs import body_pointing as bps
 from protocol import paramfile as pf
 from protocol import spacecraft as sf
 

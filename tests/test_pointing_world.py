@@ -1,4 +1,4 @@
-"""The body-pointing scenario's world (``emulator.spacecraft.scenario.pointing_world``): ground/adcs/bps.py's
+"""The body-pointing scenario's world (``emulator.spacecraft.scenario.pointing_world``): ground/adcs/body_pointing.py's
 ``simulate`` and emulator/adcs_session.py's ``AdcsSession`` build it through the one builder and get the same
 world for the same seed and length (the "same scenario" the benches and ``fps system`` compare on)."""
 
@@ -9,7 +9,7 @@ import pytest
 
 from emulator import adcs_session
 from emulator.spacecraft import scenario
-from ground.adcs import bps
+from ground.adcs import body_pointing as bps
 
 TS, DURATION, SEED = 33.0, 1.0, 4
 K = int(np.ceil(bps.HOLD_S + 4 * TS + DURATION))     # simulate's run length for TS, DURATION

@@ -92,7 +92,7 @@ def test_thesis_3u_figures_are_the_code_constants():
     from emulator.spacecraft.wheels import (DELTA1_DEG_THESIS, DELTA2_DEG_THESIS, DJ_RW_THESIS, J_RW_NOMINAL,
                                             RPM, WheelParams, Wheels, pyramid_c0)
     from firmware.adcs import apkf_lean
-    from ground.adcs import apkf, bps, control, mekf
+    from ground.adcs import apkf, body_pointing as bps, control, mekf
 
     d = sc.load("thesis-3u")
     w, t, u = d["wheels"], d["truth"], d["uncertainty"]

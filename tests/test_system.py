@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from ground import report, system
-from ground.adcs import bps, bps_cli, quat
+from ground.adcs import body_pointing as bps, bps_cli, quat
 from ground.cli import main as fps
 from ground.resample import to_dist_step
 

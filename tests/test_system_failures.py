@@ -18,7 +18,7 @@ import time
 import pytest
 
 from ground import report, system
-from ground.adcs import bps, bps_cli
+from ground.adcs import body_pointing as bps, bps_cli
 from ground.cli import main as fps
 from ground.fileio import write_json
 

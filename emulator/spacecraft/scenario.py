@@ -18,7 +18,7 @@
 - Sensors: star tracker (``devices.StarTracker``, 20/20/60 arcsec, 1 Hz, none at |w| >= 0.1 deg/s); tachometers
   10 rpm 1 sigma on W - c_i.w; a MEMS gyro for the MEKF baseline (model in ``MemsGyro``).
 
-Also here: ``pointing_world``, the world of the body-pointing scenario (Sec. 6.4) that ground/adcs/bps.py's
+Also here: ``pointing_world``, the world of the body-pointing scenario (Sec. 6.4) that ground/adcs/body_pointing.py's
 ``simulate`` and emulator/adcs_session.py's ``AdcsSession`` both run, built in one place so that the "same
 scenario" they are compared on stays the same.
 """
@@ -445,7 +445,7 @@ def pointing_world(K, seed, satb_gnss=False, truth="two-body", cache_dir=None, s
     children of ``SeedSequence(seed)``, in order: wheels, star tracker, STKF start, SatA's GNSS, SatB's GNSS,
     beacon, relay (SatB's clock phase, then each fix's delay). ``n_tags``: SatB's GNSS epochs (default K), at
     U(0, 1) + 0, 1, ... s. The caller's own margin and tag count keep its results (and its truth cache) as
-    they were: ground/adcs/bps.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1.
+    they were: ground/adcs/body_pointing.py passes 2 s and K, emulator/adcs_session.py 8 s and K + 1.
     ``spacecraft``: a checked spacecraft file (None: thesis-3u, the thesis's 3U), giving the true vehicle
     (``truth_setup``: inertia, dipole, wheels, star tracker), the orbits, epoch and sensors (``orbit_setup``);
     ValueError for a file the world cannot fly (not four wheels, no partner). The wheels' speed limit is

@@ -55,7 +55,7 @@ F (Eq. 4.98-4.101, the 9 x 9 corner of ground/adcs/apkf.py's derivation, Jm^-1 f
 Phi = sum_{n<=4} (F dt)^n / n! (App. A.2's series; |F dt| ~ 0.03). Q (Eq. 4.135-4.136) for q_d:
     Q_tt = q_d dt I, Q_wt = Jm^-1 q_d dt^2/2, Q_ww = Jm^-1 Jm^-T q_d dt^3/3 (+ the read-out terms above).
 Star-tracker update (Eq. 4.139-4.142): z = vec(q_meas (x) q_hat^-1), H = [I3 0 0], R = diag(sigma^2)/4, Joseph
-form, P kept symmetric (linalg.joseph_select). Every buffer is allocated once, in ``Lean``.
+form, P kept symmetric (linalg.joseph_select). Every buffer is allocated once, in ``LeanApkf``.
 """
 
 import math
@@ -653,7 +653,7 @@ def correct(x, dx):
         x[i + 1] = x[i + 1] + dx[i]
 
 
-class Lean:
+class LeanApkf:
     """The lean APKF at 1 Hz: ``step(wp, q_meas or None, env, u, got)`` per dt, the read-out wp at the step's
     end, u the motor torques commanded over the step (N m; needed unless ``momentum="tach"``), got which
     wheels were heard (4 booleans, default ``ALL``; used by "filtered", whose speeds are ``W`` with variances

@@ -1,7 +1,7 @@
 """The ADCS flight application (MicroPython): the 1 Hz cycle that ties the lean APKF, the lean STKF/AFLS and
 the pointing controller together, and its CAN service loop.
 
-One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2):
+One cycle (ground/adcs/body_pointing.py's sequence at the flight side's scale, Sec. 6.4.2):
 
 1. sensors: the wheels' RW_TLM (tachometer read-outs at the cycle's time), the star tracker, SatA's GNSS, the
    beacon and SatB's relayed GNSS (time-tagged 2-3 s back) received since the last cycle;
@@ -12,7 +12,7 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
 3. lean STKF/AFLS: predict, SatA's GNSS, the beacon (Eq. 5.13-5.17) with the APKF's attitude covariance
    4 P_qq in its noise (Eq. 5.15-5.16, Sec. 5.3.3), SatB's GNSS at its time tag (EAFLS);
 4. during the hold (``hold_s``, while the APKF converges) rate damping: -D w plus the gyroscopic and
-   modelled external torques fed forward, as bps.py's hold (with idle wheels the thesis's residual dipole takes
+   modelled external torques fed forward, as body_pointing.py's hold (with idle wheels the thesis's residual dipole takes
    the body past the star tracker's 0.1 deg/s within ~6-9 s, measured, and the filter goes blind);
    after it the command at SatB (Eq. 6.3-6.4) and
    its rate (central difference over +-0.5 s of the orbit propagator), quaternion PD (Eq. 6.5-6.7) with the
@@ -29,7 +29,7 @@ One cycle (ground/adcs/bps.py's sequence at the flight side's scale, Sec. 6.4.2)
    0-5 with hpop truth, bench_adcs_can; 0-7 with two-body truth) regain it within ~50 s of the slew with it;
 5. RW_CMD to each wheel, then ADCS_STATUS (mode, stale sensors, missed replies, estimates).
 
-The STKF is firmware/adcs/stkf_lean.py's ``Afls`` through its public calls only (predict, update_gnss,
+The STKF is firmware/adcs/stkf_lean.py's ``LeanStkf`` through its public calls only (predict, update_gnss,
 update_beacon, get). Its lag (4 s, ``lag_s``) is kept only with SatB's GNSS: without it no measurement arrives
 late, so SatB's smoother holds two nodes of 6 states (lag 0, capacity 3, the minimum), which keeps its joint
 covariance at 12 x 12 instead of 30 x 30. The capacity follows from the lag (``stkf_cap``: the lag's nodes at
@@ -118,7 +118,7 @@ def _steps(t, t0):
 
 def stkf_cap(lag_s, rate_hz=1.0):
     """The lean STKF's node capacity for a lag at the 1 Hz predict rate: the nodes within the lag plus two
-    (the anchor and the new node; stkf_lean.Afls's docstring: 6 at 1 Hz with the 4 s lag), at least 3."""
+    (the anchor and the new node; stkf_lean.LeanStkf's docstring: 6 at 1 Hz with the 4 s lag), at least 3."""
     n = int(math.ceil(lag_s * rate_hz - 1e-9)) + 2
     return n if n > 3 else 3
 
@@ -151,7 +151,7 @@ class App:
         for i in range(6):
             self.Rg[i * 7] = (sg[0] if i < 3 else sg[1]) ** 2
         lag = float(cfg.get("lag_s", stkf_lean.LAG_S)) if self.satb else 0.0
-        self.stkf = stkf_lean.Afls(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=stkf_cap(lag))
+        self.stkf = stkf_lean.LeanStkf(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=stkf_cap(lag))
         self.xs = stkf_lean.zeros_d(12)     # the STKF's estimate [rA, vA, rB, vB] and its 1 sigma (get())
         self.sig = stkf_lean.zeros_d(12)
         self.stkf.get(self.xs, self.sig)
@@ -191,7 +191,7 @@ class App:
         self.u = zeros(4)
         # the lean APKF's momentum input (apkf_lean.Model): the read-outs filtered on the torques this app
         # commanded (flown), or, for comparison, the raw read-out difference or the torques alone (see the
-        # README's "Lean flight ADCS under MicroPython")
+        # docs/ADCS.md's "Lean flight ADCS under MicroPython")
         self.momentum = cfg.get("apkf_momentum", "filtered")
         if self.momentum not in apkf_lean.MOMENTUM:
             raise ValueError("apkf_momentum must be one of %s, got %r" % (", ".join(apkf_lean.MOMENTUM),
@@ -231,7 +231,7 @@ class App:
 
     def _flight_init(self, cfg):
         """The flight world's state (``world`` "flight" in the configuration; ``flight`` its options, the
-        defaults those of ground/adcs/bps.py's FLIGHT; ``magnetorquers`` the spacecraft file's block)."""
+        defaults those of ground/adcs/body_pointing.py's FLIGHT; ``magnetorquers`` the spacecraft file's block)."""
         self.fly = cfg.get("world", "thesis") == "flight"
         self.fmode = "INIT"
         self.m_cmd = linalg.zeros(3)
@@ -376,7 +376,7 @@ class App:
                 dq = linalg.zeros(4)
                 control.quat_mul(dq, q, pc)
                 s = 2.0 if dq[3] >= 0 else -2.0
-                self.apkf = apkf_lean.Lean(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
+                self.apkf = apkf_lean.LeanApkf(self.params, q, (s * dq[0], s * dq[1], s * dq[2]), self.wp,
                                            momentum=self.momentum, friction=self.fric, torque_max=self.torque_max,
                                            **self.mkw)
                 self.t_apkf = t
@@ -572,7 +572,7 @@ class App:
         return u
 
     def _control_flight(self, t):
-        """The flight world's control (ground/adcs/bps.py's ``_flight_command`` and unloading): HOLD (rate
+        """The flight world's control (ground/adcs/body_pointing.py's ``_flight_command`` and unloading): HOLD (rate
         damping) until ``hold_s``, then SLEW (``flight.Slew`` from the estimate to the command), ACQUIRE (rate
         damping on the estimate until the star tracker answers: the blind slew leaves a rate error of a few
         hundredths of a deg/s, and the command's own turn on top of it could keep the tracker blind), POINT (the command; SLEW again beyond ``reslew``); where the

@@ -271,10 +271,10 @@ class Work:
         self.t36 = [0.0] * 36
 
 
-class Afls:
+class LeanStkf:
     """The lean STKF: SatA's EKF and SatB's AFLS.
 
-    ``Afls(x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS)``: x0 = [rA, vA, rB, vB] (12, m,
+    ``LeanStkf(x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS)``: x0 = [rA, vA, rB, vB] (12, m,
     m/s), P0diag its 12 variances. ``predict(t)``; ``update_gnss(z6, R (6 x 6 flat), sat, t=None)`` (sat 0
     SatA, on time; sat 1 SatB, any tag within the lag); ``update_beacon(y, q_hat, P_att, sigma_b)``;
     ``get(x12, sig12)`` writes the current estimate and its 1 sigma into the caller's buffers,

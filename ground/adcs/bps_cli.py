@@ -1,4 +1,4 @@
-"""``fps adcs bps`` and ``fps adcs sweep``: the body pointing simulator of Sec. 6.4 (``ground.adcs.bps``).
+"""``fps adcs bps`` and ``fps adcs sweep``: the body pointing simulator of Sec. 6.4 (``ground.adcs.body_pointing``).
 
 ``bps``: one pointing-and-tracking run. Without ``--params`` the nine calibration maneuver sets run first (or
 come from the cache) and their parameter file is written to ``DIR/params.json``. Run folder (atomic writes):
@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from emulator.spacecraft import scenario
-from ground.adcs import bps, campaign, control, runs
+from ground.adcs import body_pointing as bps, campaign, control, runs
 from ground.adcs.options import add_satb_gnss_option, add_spacecraft_option, load_spacecraft
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 

@@ -1,6 +1,6 @@
 """``--source bps`` for ``fps distfile generate``: the body pointing simulator's (dtheta1, dtheta2) at 10 Hz.
 
-The run (``ground.adcs.bps.simulate``, flown by ``--spacecraft``) starts after the calibration (from ``--params
+The run (``ground.adcs.body_pointing.simulate``, flown by ``--spacecraft``) starts after the calibration (from ``--params
 FILE`` or the cached nine sets of ``--seed``); the history given to the distfile is the collection window (after
 the 30 s hold and 4 t_s), its time origin at the window's start. Runs are cached in ``--bps-cache`` (default out/bps_cache) under
 a hash of every input (t_s, SatB GNSS, parameter file content, duration, seed, truth, simulator version, the
@@ -37,7 +37,7 @@ class BpsSource:
 
     def __init__(self, ts=33.0, satb_gnss=False, params_path=None, truth="hpop", cache_dir=None, quiet=False,
                  spacecraft=None):
-        from ground.adcs import bps, bps_cli
+        from ground.adcs import body_pointing as bps, bps_cli
         from ground.adcs.options import load_spacecraft
         self.ts = bps.check_ts(ts)
         if truth not in TRUTHS:
@@ -91,7 +91,7 @@ class BpsSource:
         return ("bps%g%s %s" % (self.ts, "g" if self.satb_gnss else "n", self.cache_key))[:16]
 
     def generate(self, duration_s, seed):
-        from ground.adcs import bps, bps_cli
+        from ground.adcs import body_pointing as bps, bps_cli
         params = self.params or bps_cli.calibration(seed, self.cache_dir, not self.quiet, self.spacecraft)
         span = float(duration_s) + 1.0                    # the distfile needs one step and a stencil beyond
         self.cache_key = self.key(duration_s, seed, params, simulated_s=span)

@@ -19,7 +19,7 @@ import sys
 import numpy as np
 
 from emulator.adcs_session import RUNTIMES
-from ground.adcs import bps, campaign, runs
+from ground.adcs import body_pointing as bps, campaign, runs
 from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_spacecraft_option, faults_from_args,
                              load_spacecraft)
 from ground.fileio import output_folder, run_folder, write_json

@@ -9,7 +9,7 @@ from firmware.adcs import apkf_lean, linalg
 
 with open(sys.argv[1]) as fh:
     sc = json.load(fh)
-f = apkf_lean.Lean(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0])
+f = apkf_lean.LeanApkf(sc["params"], sc["qm"][0], [0.0, 0.0, 0.0], sc["wp"][0])
 wp = linalg.zeros(4)
 qm = linalg.zeros(4)
 u = linalg.zeros(4)

@@ -16,7 +16,7 @@ NODE = core.NODE
 def _app(cfg, w=(1e-3, -5e-4, 2e-4)):
     """An App whose APKF runs (at rest attitude, rate w), past no cycle yet."""
     app = A.App(cfg)
-    app.apkf = apkf_lean.Lean(app.params, [0.0, 0.0, 0.0, 1.0], list(w), [0.0] * 4, momentum=app.momentum)
+    app.apkf = apkf_lean.LeanApkf(app.params, [0.0, 0.0, 0.0, 1.0], list(w), [0.0] * 4, momentum=app.momentum)
     for i in range(A.NW):
         app.rw_got[i] = True
     app._wheels_in()                                # the allocation's axes, as a cycle sets them first

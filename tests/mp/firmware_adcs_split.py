@@ -3,7 +3,7 @@
 # Lawicel ASCII of each burst parsed by SlcanAdapter, frames and ISO-TP reassembled by CanPort, the device
 # payloads unpacked by App.on_packet; RW_CMD x4 and ADCS_STATUS (ISO-TP, its flow control given) sent as T
 # lines to /dev/null). Prints JSON: microseconds per part summed over cycles [argv[3], argv[4]) (ticks_us),
-# parts apkf (_apkf + _attitude), stkf (predict + GNSS updates + get), beacon (Afls.update_beacon), control
+# parts apkf (_apkf + _attitude), stkf (predict + GNSS updates + get), beacon (LeanStkf.update_beacon), control
 # (_control incl. the command rate), cycle (the whole App.cycle + commands), hal.
 import json
 import sys

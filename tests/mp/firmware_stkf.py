@@ -11,7 +11,7 @@ from firmware.adcs import linalg, stkf_lean
 with open(sys.argv[1]) as fh:
     sc = json.load(fh)
 quiet = len(sys.argv) > 2
-f = stkf_lean.Afls(sc["x0"], sc["P0"], 0.0)
+f = stkf_lean.LeanStkf(sc["x0"], sc["P0"], 0.0)
 R, P_att = linalg.zeros(36), linalg.zeros(9)
 for i in range(36):
     R[i] = sc["R"][i]

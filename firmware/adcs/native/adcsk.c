@@ -1,7 +1,7 @@
 // adcsk: the lean ADCS filters' hot kernels as a MicroPython native module (natmod, `make natmod`).
 //
 // Each function here is the Python function of the same name (less a leading underscore; phi9 is apkf_lean.phi,
-// update_rows Afls._update_rows, between the last loops of Afls._hp_between) in firmware/adcs/linalg.py,
+// update_rows LeanStkf._update_rows, between the last loops of LeanStkf._hp_between) in firmware/adcs/linalg.py,
 // stkf_lean.py or apkf_lean.py, over the same buffers: the same operations in the same order, each value stored
 // to a buffer rounded to that buffer's type (array 'f' or 'd') and read back where the Python reads it back, so the
 // results are equal bit for bit (tests/test_adcs_natmod.py; built with -ffp-contract=off: no fused
@@ -420,7 +420,7 @@ static mp_obj_t ikh_sandwich(size_t n_args, const mp_obj_t *args) {
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(ikh_sandwich_obj, 5, 5, ikh_sandwich);
 
-// between(Hp, S, P, ld, ia, ic, A, B, T, qa3, m): Afls._hp_between's last two loops. Hp (6 rows of m,
+// between(Hp, S, P, ld, ia, ic, A, B, T, qa3, m): LeanStkf._hp_between's last two loops. Hp (6 rows of m,
 // a list of 6 float buffers) = A P[a rows, :] + B P[c rows, :]; S (6 x 6) = P_bb, the upper triangle
 // mirrored, with (I - B Fb) Qa (T = I - B Fb; qa3 = (q3, q2, q1), Qa per axis [[q3, q2], [q2, q1]]).
 static mp_obj_t between(size_t n_args, const mp_obj_t *args) {
@@ -485,7 +485,7 @@ static mp_obj_t between(size_t n_args, const mp_obj_t *args) {
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(between_obj, 11, 11, between);
 
-// update_rows(P, ld, X, Hp, S, R, L, d, r, z, m): Afls._update_rows (Eq. 5.24): S += R (lower triangle),
+// update_rows(P, ld, X, Hp, S, R, L, d, r, z, m): LeanStkf._update_rows (Eq. 5.24): S += R (lower triangle),
 // S = L L^T, r = z - h, V = L^-1 Hp in place, X += V^T L^-1 r, P -= V^T V (upper triangle, mirrored).
 // False (nothing but S, L and r changed) unless S is positive definite.
 static mp_obj_t update_rows(size_t n_args, const mp_obj_t *args) {

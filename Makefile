@@ -10,7 +10,7 @@ PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py firmware/adcs/*.py protoco
              tests/mp/pil_adcs_probe.py tests/mp/firmware_plant.py) firmware/adcs/native/adcsk.c ground/pil_build.py
 OUT     ?= out
 
-.PHONY: all install test bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
+.PHONY: all install test check bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
 
 all: test
 
@@ -24,6 +24,10 @@ install: $(STAMP)
 
 test: $(STAMP) $(NATMOD) $(PIL_ELF)
 	$(PY) -m pytest
+
+# the daily tier: everything but the end-to-end modules (tests/conftest.py), under 2 minutes
+check: $(STAMP) $(NATMOD)
+	$(PY) -m pytest -m "not e2e"
 
 bench: $(STAMP) mpy $(NATMOD)
 	$(PY) -m bench.run

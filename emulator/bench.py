@@ -22,6 +22,7 @@ from math import erfc, sqrt
 import numpy as np
 
 from emulator.adc import ADS1256, SAMD21
+from emulator import hcal
 from emulator.config import default_config, validate
 from emulator.mirrors import AD5664R, MEMS, PFSM
 from emulator.optics import Optics
@@ -803,18 +804,11 @@ class Bench:
         Returns {"pfsm_v", "v0", "H", "residual"} (residual: RMS of the 16 fit residuals, ratio units).
         """
         v0 = self.null_q1(pfsm_v, v_start)
-        steps = [(dv, 0), (-dv, 0), (0, dv), (0, -dv), (dv, dv), (-dv, -dv), (dv, -dv), (-dv, dv)]
-        a = np.zeros((16, 4))
-        r = np.zeros(16)
-        for i, (dx, dy) in enumerate(steps):
-            rx, ry, _ = self.static_q1(pfsm_v, (v0[0] + dx, v0[1] + dy))
-            a[2 * i, 0:2] = (dx, dy)
-            a[2 * i + 1, 2:4] = (dx, dy)
-            r[2 * i], r[2 * i + 1] = rx, ry
-        sol, *_ = np.linalg.lstsq(a, r, rcond=None)
-        resid = float(np.sqrt(np.mean((a @ sol - r) ** 2)))
+        steps = [(sx * dv, sy * dv) for sx, sy in hcal.STEPS]
+        r = [self.static_q1(pfsm_v, (v0[0] + dx, v0[1] + dy))[:2] for dx, dy in steps]
+        h, _, resid = hcal.fit_h(steps, r, offset=False)
         return {"pfsm_v": [float(pfsm_v[0]), float(pfsm_v[1])], "v0": [float(v0[0]), float(v0[1])],
-                "H": [[float(sol[0]), float(sol[1])], [float(sol[2]), float(sol[3])]], "residual": resid}
+                "H": [[float(h[0, 0]), float(h[0, 1])], [float(h[1, 0]), float(h[1, 1])]], "residual": resid}
 
     def counters(self):
         return {"ticks": self.tick, "spi_words": self.dac.n_words, "spi_unknown": self.dac.n_unknown,

@@ -9,8 +9,7 @@ both (Eq. 7.14-7.16). Points are ordered with X varying fastest. Shape (docs/INT
 
 import time
 
-import numpy as np
-
+from emulator import hcal
 from emulator.bench import Bench
 from protocol.htable import MAX_AXIS
 
@@ -20,7 +19,7 @@ def sec74_grid(n=11, half_span_v=5.0):
     if not 2 <= n <= MAX_AXIS:
         raise ValueError("grid size %r must be in [2, %d] (the controller's H table holds %d per axis)"
                          % (n, MAX_AXIS, MAX_AXIS))
-    return [float(v) for v in np.round(np.linspace(-half_span_v, half_span_v, n), 12)]
+    return hcal.grid(n, half_span_v)
 
 
 def true_h_field(bench=None, grid_v=None, dv=0.01):

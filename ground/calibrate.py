@@ -26,34 +26,15 @@ import time
 
 import numpy as np
 
+from emulator import hcal
+from emulator.hcal import STEPS, fit_h
 from ground.fileio import output_file, remove_stale, write_json
 from protocol import htable
 
-STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1))   # Sec. 7.4, 8 points
 
 
 class PointError(ValueError):
     """A grid point could not be calibrated (beam lost, saturation, no null)."""
-
-
-def fit_h(dv_applied, ratios):
-    """Least squares H (Eq. 7.15-7.16) with an offset per ratio.
-
-    dv_applied: (n, 2) FSM perturbations (V); ratios: (n, 2) measured (Rx, Ry). Returns (H 2x2, offset (2,),
-    residual RMS).
-    """
-    dv = np.asarray(dv_applied, dtype=float)
-    r = np.asarray(ratios, dtype=float)
-    n = len(dv)
-    a = np.zeros((2 * n, 6))
-    a[0::2, 0:2] = dv
-    a[1::2, 2:4] = dv
-    a[0::2, 4] = 1.0
-    a[1::2, 5] = 1.0
-    b = r.reshape(-1)
-    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
-    resid = float(np.sqrt(np.mean((a @ sol - b) ** 2)))
-    return sol[:4].reshape(2, 2), sol[4:], resid
 
 
 def grid_points(grid_v):
@@ -83,7 +64,7 @@ def sec74_grid(n=11, half_span_v=5.0):
                          % (n, m, MAX_HTABLE_BYTES, m, m))
     if not 0 < half_span_v <= 10.0:
         raise ValueError("--span %r V must be in (0, 10] (the P-FSM's AD660 range)" % half_span_v)
-    return [float(v) for v in np.round(np.linspace(-half_span_v, half_span_v, n), 12)]
+    return hcal.grid(n, half_span_v)
 
 
 class Calibrator:

@@ -30,9 +30,10 @@ import time
 
 import numpy as np
 
+from emulator.hcal import STEPS, fit_h
 from emulator.runtime import sigterm_as_interrupt
 from ground import report
-from ground.calibrate import STEPS, fit_h, load_calibration
+from ground.calibrate import load_calibration
 from ground.link_report import link_counters
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
 from ground.fileio import output_folder, run_folder, write_atomic, write_json

@@ -32,3 +32,13 @@ def test_the_controllers_modes_are_the_packet_tables():
     from protocol import table
     for name, value in table.MODES:
         assert getattr(controller, name) == value, name
+
+
+def test_the_calibration_maths_is_one_module_for_the_truth_and_fps_calibrate():
+    from emulator import bench, hcal, truth
+    from ground import calibrate, hil
+    assert calibrate.fit_h is hcal.fit_h and hil.fit_h is hcal.fit_h and calibrate.STEPS is hcal.STEPS
+    assert truth.sec74_grid(11) == calibrate.sec74_grid(11) == hcal.grid(11) == [float(v) for v in range(-5, 6)]
+    for mod in (bench, calibrate, truth):          # no second least-squares H or grid formula beside hcal's
+        src = open(mod.__file__).read()
+        assert "lstsq" not in src and "linspace" not in src, mod.__name__

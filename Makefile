@@ -10,7 +10,7 @@ PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py firmware/adcs/*.py protoco
              tests/mp/pil_adcs_probe.py tests/mp/firmware_plant.py) firmware/adcs/native/adcsk.c ground/pil_build.py
 OUT     ?= out
 
-.PHONY: all install test check bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
+.PHONY: all install test check figures bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
 
 all: test
 
@@ -51,6 +51,10 @@ pil: $(STAMP)
 # `make test` builds the image when the tools are there, and says why not (its tests then skip) when they are not
 $(PIL_ELF): $(PIL_SRC) $(STAMP)
 	$(PY) -m ground.pil_build --optional
+
+# the documentation's figures (docs/FIGURES.md), each from the fps command named beside it
+figures: $(STAMP)
+	$(PY) -m ground.figures
 
 fuzz: $(STAMP)
 	$(PY) -m tests.fuzz_frames 1000000

@@ -184,3 +184,14 @@ def test_the_bode_plots_name_the_loop_and_the_nyquist_line(figs, tmp_path):
     texts = [t.get_text() for t in loop.texts] + ([loop._suptitle.get_text()] if loop._suptitle else [])
     assert not any("sys[" in x for x in texts)
     assert any("Nyquist frequency" in x for ax in loop.axes for x in _legend_texts(loop, ax))
+
+
+def test_the_docs_show_every_figure_with_its_command():
+    from ground import figures
+    text = open(os.path.join(ROOT, "docs", "FIGURES.md")).read()
+    for _, _, dest, cmd, thesis in figures.FIGURES:
+        assert "(figures/%s)" % dest in text and os.path.exists(os.path.join(ROOT, "docs", "figures", dest)), dest
+        if cmd is not None:
+            assert "`fps %s`" % " ".join(cmd).replace("{d}/", "") in text
+        if thesis:
+            assert thesis in text

@@ -118,8 +118,8 @@ MEKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600)),
 
 def plot_run(series_npz, name, path):
     """Fig. 4-5 style: each state group's error (solid) with its +-3 sigma bounds (dashed), one run; each panel
-    zoomed on the run's last two thirds (the start-up transient would hide the steady state), one legend for the
-    components and line styles."""
+    zoomed on twice its typical 3 sigma past the first third (the start-up transient and the maneuvers' spikes
+    would hide the steady state; they run off the axis), one legend for the components and line styles."""
     from matplotlib.lines import Line2D
     from ground.plots import save_png, subplots
     d = np.load(series_npz)
@@ -134,12 +134,10 @@ def plot_run(series_npz, name, path):
             ax.plot(t, 3 * s[:, i] * k, c + "--", lw=0.5)
             ax.plot(t, -3 * s[:, i] * k, c + "--", lw=0.5)
         ax.set_ylabel(label, fontsize=8)
-        tail = slice(len(t) // 3, None)
-        lim = np.nanmedian(np.abs(3 * s[tail, sl] * k)) if len(t) > 3 else 1.0
-        err = np.nanmax(np.abs(e[tail, sl] * k)) if len(t) > 3 else 0.0
-        lim = max(lim, err) if np.isfinite(err) else lim
-        if np.isfinite(lim) and lim > 0:
-            ax.set_ylim(-1.5 * lim, 1.5 * lim)
+        tail = slice(len(t) // 3, None)           # past the start-up transient
+        lim = np.nanmedian(np.abs(3 * s[tail, sl] * k)) if len(t) > 3 else 1.0    # the typical 3σ: maneuvers'
+        if np.isfinite(lim) and lim > 0:                                           # spikes run off the axis
+            ax.set_ylim(-2 * lim, 2 * lim)
     for ax in axs[-1]:
         ax.set_xlabel("time (s)")
     for ax in list(axs.flat)[len(groups):]:
@@ -150,7 +148,7 @@ def plot_run(series_npz, name, path):
     keys += [Line2D([], [], color="k", lw=0.7, label="error"), Line2D([], [], color="k", ls="--", lw=0.5,
                                                                        label="+-3σ")]
     fig.legend(handles=keys, loc="lower center", ncol=6, fontsize=8, frameon=False)
-    fig.suptitle("%s: estimation error and +-3σ, zoomed on the last two thirds, cf. Fig. 4-%s"
+    fig.suptitle("%s: estimation error and +-3σ (axes at twice the typical 3σ), cf. Fig. 4-%s"
                  % (name.upper(), "5" if name == "apkf" else "1"))
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     save_png(fig, path, dpi=100)

@@ -7,7 +7,7 @@ STAMP   := $(VENV)/.installed-stamp
 NATMOD  := firmware/adcs/adcsk.mpy
 PIL_ELF := build/pil/MICROBIT/firmware.elf
 PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py firmware/adcs/*.py protocol/*.py tests/mp/pil_probe.py \
-             tests/mp/pil_adcs_probe.py tests/mp/firmware_plant.py) firmware/adcs/native/adcsk.c ground/pil_build.py
+             tests/mp/pil_adcs_probe.py tests/mp/firmware_plant.py) firmware/adcs/native/adcsk.c tools/pil_build.py
 OUT     ?= out
 
 .PHONY: all install test check figures bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
@@ -32,25 +32,25 @@ check: $(STAMP) $(NATMOD)
 bench: $(STAMP) mpy $(NATMOD)
 	$(PY) -m bench.run
 
-# The ADCS kernels as a MicroPython native module (ground/natmod_build.py). The targets that run the ADCS
+# The ADCS kernels as a MicroPython native module (tools/natmod_build.py). The targets that run the ADCS
 # firmware build it when they can and run its Python forms when they cannot; `make natmod` insists.
-$(NATMOD): firmware/adcs/native/adcsk.c firmware/adcs/native/Makefile ground/natmod_build.py $(STAMP)
-	$(PY) -m ground.natmod_build --optional
+$(NATMOD): firmware/adcs/native/adcsk.c firmware/adcs/native/Makefile tools/natmod_build.py $(STAMP)
+	$(PY) -m tools.natmod_build --optional
 
 natmod: $(STAMP)
-	$(PY) -m ground.natmod_build
+	$(PY) -m tools.natmod_build
 
-# Processor in the loop (ground/pil_build.py): the controller frozen into MicroPython's qemu port for a Cortex-M0
+# Processor in the loop (tools/pil_build.py): the controller frozen into MicroPython's qemu port for a Cortex-M0
 # (QEMU's microbit machine), a 32 KB board and a 256 KB lab board, and the lean ADCS with its C kernels for a
 # Cortex-M7 with an FPU (QEMU's mps2-an500); needs Debian's gcc-arm-none-eabi,
 # libnewlib-arm-none-eabi and qemu-system-arm, which it installs itself as root with apt-get (CI).
 # tests/test_pil.py runs on the images when they are built and is skipped, saying why, when not.
 pil: $(STAMP)
-	$(PY) -m ground.pil_build
+	$(PY) -m tools.pil_build
 
 # `make test` builds the image when the tools are there, and says why not (its tests then skip) when they are not
 $(PIL_ELF): $(PIL_SRC) $(STAMP)
-	$(PY) -m ground.pil_build --optional
+	$(PY) -m tools.pil_build --optional
 
 # the documentation's figures (docs/FIGURES.md), each from the fps command named beside it
 figures: $(STAMP)
@@ -60,7 +60,7 @@ fuzz: $(STAMP)
 	$(PY) -m tests.fuzz_frames 1000000
 
 mpy: $(STAMP)
-	$(PY) -m ground.mpy_build
+	$(PY) -m tools.mpy_build
 
 protocol-doc: $(STAMP)
 	$(VENV)/bin/fps protocol table > protocol/PROTOCOL.md

@@ -39,7 +39,7 @@ import numpy as np
 from bench import mp
 
 from emulator.adcs_session import AdcsSession
-from ground import natmod_build
+from tools import natmod_build
 from ground.adcs import body_pointing as bps
 
 ROOT = mp.ROOT
@@ -182,7 +182,7 @@ def _satb_cycle(params, d):
 def code_size():
     """The ADCS modules' .mpy bytes (mpy-cross): native code for x64 (what the figures above ran) and for a
     Cortex-M4F (armv7emsp), beside the same modules compiled as bytecode only (the native decorators dropped)."""
-    from ground import mpy_build
+    from tools import mpy_build
     sizes = {}
     with tempfile.TemporaryDirectory() as d:
         for march in ("host", "armv7emsp"):
@@ -205,7 +205,7 @@ def code_size():
         arm = natmod_build.module_path("armv7emsp")
         lines.append("| firmware/adcs/adcsk.mpy (the C kernels, a native module; besides the above) | — | %d | %s |"
                      % (os.path.getsize(MODULE), os.path.getsize(arm) if os.path.exists(arm) else
-                        "not built (`python -m ground.natmod_build --arch armv7emsp` with arm-none-eabi-gcc)"))
+                        "not built (`python -m tools.natmod_build --arch armv7emsp` with arm-none-eabi-gcc)"))
     return "\n".join(lines)
 
 

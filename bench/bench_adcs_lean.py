@@ -180,7 +180,7 @@ def main():
                 ins.append(_mp([q, "cycles"], True, "firmware_stkf.py") if have_vg else 0)
         st = _mp([q], False, "firmware_stkf.py")
         instr_stkf = (ins[1] - ins[0]) / 10.0 if have_vg else float("nan")
-    from ground.natmod_build import TARGET
+    from tools.natmod_build import TARGET
     kern = os.path.exists(TARGET)
     print("\nCost of one 1 Hz cycle (predict + star-tracker update) under micropython (unix x64 port; %s)\n"
           % ("the hot kernels in C, firmware/adcs/adcsk.mpy" if kern else

@@ -336,7 +336,7 @@ def _main(tmp):
             print("| %s | failed: %r | | | |" % (rt, exc))
 
     print("\n.mpy sizes (mpy-cross; the viper module holds machine code for this host)\n")
-    from ground import mpy_build
+    from tools import mpy_build
     print(mpy_build.table(mpy_build.build(os.path.join(tmp, "mpy"))))
     if failed:      # printed above; make bench must still say the benchmark failed
         raise RuntimeError("; ".join(failed))

@@ -4,7 +4,7 @@ double-precision FPU; MicroPython's floats single precision) under ``-icount shi
 
 A 210 s session of the thesis's spacecraft is recorded on the unix port (``emulator.adcs_session``, the calibrated
 parameter file of ``bench_adcs_can``), then replayed on the board cycle by cycle through its UART
-(``ground.pil_build.replay_adcs``): instructions per 1 Hz cycle (the cycle's packets, the filters, the control law,
+(``tools.pil_build.replay_adcs``): instructions per 1 Hz cycle (the cycle's packets, the filters, the control law,
 the wheel commands; counted by the board's CMSDK timer against a calibration of its rate), the heap each cycle
 allocates and the heap in use, the stack's high-water mark; the x86-64 figure of the same cycles beside it
 (callgrind on the unix port, as ``bench_adcs_can``); the last ADCS_STATUS against the unix port's (float64) replay
@@ -30,7 +30,7 @@ GOAL_SHARE = 0.10
 
 
 def main():
-    from ground import pil_build
+    from tools import pil_build
     missing = pil_build.missing_tools()
     if missing or not os.path.exists(pil_build.ADCS_IMAGE):
         print("ADCS PIL benchmark skipped: no image (make pil)%s" % (

@@ -23,7 +23,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIMES = ("cpython", "micropython", "qemu")
 PIL_IMAGE = os.path.join(ROOT, "build", "pil", "MICROBIT", "firmware.elf")
 PIL_RAM_BYTES = 32 * 1024         # the thesis's SAMD21G18 has 32 KB of SRAM; the image is linked for it
-ADCS_IMAGE = os.path.join(ROOT, "build", "pil", "MPS2-AN500-ADCS", "firmware.elf")   # ground.pil_build's ADCS_MEM
+ADCS_IMAGE = os.path.join(ROOT, "build", "pil", "MPS2-AN500-ADCS", "firmware.elf")   # tools.pil_build's ADCS_MEM
 ADCS_MACHINE = "mps2-an500"
 QEMU_ARGS = ("-nographic", "-semihosting")
 

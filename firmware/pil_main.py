@@ -1,4 +1,4 @@
-"""The controller on the PIL board (ground/pil_build.py's image; ``--runtime qemu``): what ``firmware.main
+"""The controller on the PIL board (tools/pil_build.py's image; ``--runtime qemu``): what ``firmware.main
 controller`` does on the unix port, on the console UART (``firmware.hal.stdio``). Started by importing it through
 the raw REPL; Ctrl-C (0x03, a byte like any other in the frames) is turned off first.
 

@@ -10,7 +10,7 @@
   slcan device (``open_link("slcan-pty")``); ``--link-faults`` then act on the Lawicel ASCII stream at this
   end of the pty (``protocol.faults.SLCAN``). MicroPython firmware speaks serial only.
 
-- ``qemu`` with ``serial``: the controller frozen into the PIL image (``make pil``, ground/pil_build.py: MicroPython's
+- ``qemu`` with ``serial``: the controller frozen into the PIL image (``make pil``, tools/pil_build.py: MicroPython's
   qemu port on a Cortex-M0, QEMU's microbit machine) under ``qemu-system-arm`` with its UART on a pty;
   ``firmware.pil_main`` is started through the raw REPL, then the pty is the board's serial port.
 
@@ -164,7 +164,7 @@ def _start_qemu(boot_s=60.0):
     """QEMU with the PIL image, its UART on a pty; ``firmware.pil_main`` started through the raw REPL. Returns (the
     bench's serial link on that pty, the QEMU process). OSError naming what is missing."""
     from emulator.launcher import qemu_command, start_board
-    from ground import pil_build
+    from tools import pil_build
     from protocol.link import open_serial
     missing = pil_build.missing_tools()
     if missing or not os.path.exists(pil_build.IMAGE):
@@ -197,9 +197,9 @@ def exit_note(proc, wait_s=1.0):
 
 def _stop(link, proc):
     """The link closed (the firmware leaves when it closes), then ``FirmwareProcess.stop``. The PIL board's RAM is
-    read first, while QEMU still runs (``proc.target``: ``ground.pil_build.read_target``)."""
+    read first, while QEMU still runs (``proc.target``: ``tools.pil_build.read_target``)."""
     if getattr(proc, "monitor_path", None):
-        from ground import pil_build
+        from tools import pil_build
         try:
             proc.target = pil_build.read_target(proc.monitor_path) if proc.poll() is None else None
         except (OSError, pil_build.BoardError) as exc:

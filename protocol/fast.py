@@ -3,7 +3,7 @@
 Same arithmetic as the pure functions in ``protocol.frame`` (the reference, used on CPython): CRC-16/CCITT-FALSE
 table driven, COBS. They work on caller buffers given as start/length so the per-tick path copies and
 allocates nothing; callers check lengths first (viper pointers are unchecked). A .mpy of this module needs
-``mpy-cross -march=<port arch>`` (``ground.mpy_build`` passes it).
+``mpy-cross -march=<port arch>`` (``tools.mpy_build`` passes it).
 """
 
 import micropython

@@ -12,7 +12,7 @@ import tarfile
 import pytest
 
 from emulator.adcs_session import AdcsSession
-from ground import natmod_build
+from tools import natmod_build
 from tests.test_firmware_mp import MICROPYTHON, ROOT
 
 MODULE = natmod_build.TARGET

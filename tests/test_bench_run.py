@@ -125,7 +125,7 @@ def test_bench_system_with_a_failed_run_raises_after_its_table(monkeypatch, tmp_
 
 def test_bench_firmware_with_a_failed_hil_run_raises_after_its_tables(monkeypatch, capsys):
     from bench import bench_firmware
-    from ground import mpy_build
+    from tools import mpy_build
 
     def fail(*a, **k):
         raise RuntimeError("no HELLO")

@@ -93,7 +93,7 @@ def test_control_tick_allocates_nothing_over_10000_ticks():
 
 
 def test_mpy_cross_compiles_everything_and_the_mpy_build_runs(tmp_path):
-    from ground import mpy_build
+    from tools import mpy_build
     rows = mpy_build.build(str(tmp_path))
     names = [r[0] for r in rows]
     for need in ("firmware/controller.py", "firmware/hinv.py", "firmware/ad5664r.py", "protocol/core.py",

@@ -6,7 +6,7 @@ import os
 import subprocess
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PACKAGES = ("protocol", "firmware", "emulator", "ground", "bench")
+PACKAGES = ("protocol", "firmware", "emulator", "ground", "tools", "bench")
 
 
 def import_graph():

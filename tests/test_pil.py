@@ -1,5 +1,5 @@
 """Processor in the loop, first part: the controller firmware frozen into MicroPython's qemu port for a Cortex-M0
-(``make pil``, ground/pil_build.py) runs on QEMU's microbit machine, and its viper law, compiled for ARMv6-M,
+(``make pil``, tools/pil_build.py) runs on QEMU's microbit machine, and its viper law, compiled for ARMv6-M,
 clocks out the same AD5664R words as the bytecode controller on the host, bit for bit; its instructions per
 control step are counted under ``-icount``; and the lean ADCS on its Cortex-M7 board (QEMU's mps2-an500, an FPU,
 the C kernels built in) replays a recorded session as the unix port does. Skipped, saying why, where the images are
@@ -12,7 +12,7 @@ import sys
 import pytest
 
 from firmware.controller import TRACK, Controller
-from ground import pil_build
+from tools import pil_build
 from protocol import consts, htable
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -159,7 +159,7 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
         [{k: v for k, v in r.items() if k not in link} for r in tm]
     s = json.load(open(tmp_path / "qemu" / "summary.json"))
     assert s["real_time_factor"] > 0 and s["complete"]
-    # the board's own figures, read from its RAM after the run (ground.pil_build.read_target): the thesis's 32 KB,
+    # the board's own figures, read from its RAM after the run (tools.pil_build.read_target): the thesis's 32 KB,
     # heap and stack within 24 KB of it, and the TICK exchanges counted one for one
     t, ips = s["target"], s["instructions_per_step"]
     assert t["ram_bytes"] == 32768 and "Cortex-M0" in t["core"]

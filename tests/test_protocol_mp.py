@@ -46,7 +46,7 @@ def test_viper_fast_paths_give_the_pure_bytes_under_micropython():
 
 
 def test_viper_fast_paths_load_from_mpy(tmp_path):
-    from ground import mpy_build
+    from tools import mpy_build
     mpy_build.build(str(tmp_path))                   # default -march=host: the .mpy holds x64 viper code
     assert os.path.exists(os.path.join(str(tmp_path), "protocol", "fast.mpy"))
     check_fast(json.loads(run(MICROPYTHON, FAST, (GOLDEN, "300"), path=str(tmp_path))[-1]), 300)

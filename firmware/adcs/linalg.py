@@ -358,7 +358,7 @@ try:
     from firmware.adcs import adcsk as kernels
 except (ImportError, ValueError):
     try:
-        import adcsk as kernels                   # a board's image: built in (ground/pil_build.py's ADCS board)
+        import adcsk as kernels                   # a board's image: built in (tools/pil_build.py's ADCS board)
     except ImportError:
         kernels = None
 if kernels is not None:

@@ -1,4 +1,4 @@
-"""The ADCS flight software on the ADCS PIL board (QEMU's mps2-an500, a Cortex-M7 with its FPU; ground/pil_build.py's
+"""The ADCS flight software on the ADCS PIL board (QEMU's mps2-an500, a Cortex-M7 with its FPU; tools/pil_build.py's
 ADCS image): what ``firmware/adcs/main_can.py`` does on the unix port, with CAN through Lawicel on the console UART
 (``firmware.hal.slcan.UartSlcan``; the host opens python-can's slcan interface on QEMU's pty) and the board's timer
 as its clock (``firmware.hal.mps2``). Started by importing it through the raw REPL, with Ctrl-C (a byte like any

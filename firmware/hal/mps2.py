@@ -1,4 +1,4 @@
-"""The clock of the ADCS PIL board (QEMU's mps2-an500, ground/pil_build.py's ADCS image), which has no ``time``
+"""The clock of the ADCS PIL board (QEMU's mps2-an500, tools/pil_build.py's ADCS image), which has no ``time``
 module: the CMSDK APB timer TIMER0, counting down at the 25 MHz peripheral clock from a 30-bit reload (so a read is
 a small int: nothing allocated), extended in software and turned into MicroPython's ``ticks_ms``/``ticks_us``/
 ``ticks_diff`` (values modulo 2^30, as ``time``'s); and UART0's receive flag (``rx_ready``). Under QEMU's ``-icount shift=0`` one instruction is one virtual

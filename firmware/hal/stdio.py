@@ -1,5 +1,5 @@
 """Link HAL for a bare-metal board's console UART: packets framed by ``protocol.frame`` over ``sys.stdin.buffer`` and
-``sys.stdout.buffer`` (MicroPython with binary stdio). The PIL image (ground/pil_build.py, MicroPython's qemu port
+``sys.stdout.buffer`` (MicroPython with binary stdio). The PIL image (tools/pil_build.py, MicroPython's qemu port
 on a Cortex-M0) has no ``select`` and no ``time``: ``recv_ms`` blocks until a packet is complete whatever its
 timeout, so link silence is not counted on this HAL (the lockstep bench always sends the next TICK)."""
 

@@ -1,4 +1,4 @@
-# Runs on the ADCS PIL board (QEMU's mps2-an500: a Cortex-M7 with its FPU, ground/pil_build.py's ADCS image) under
+# Runs on the ADCS PIL board (QEMU's mps2-an500: a Cortex-M7 with its FPU, tools/pil_build.py's ADCS image) under
 # -icount shift=0, where one instruction takes one virtual ns. ``replay()`` reads a recorded ADCS session from the
 # UART, one JSON line at a time (the App's configuration: answered "ready <instructions per timer tick> <1 if the C
 # kernels are in>", then per 1 Hz cycle [tick, t_ms, [[pid, src, hex]...]],

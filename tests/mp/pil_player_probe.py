@@ -1,4 +1,4 @@
-# Runs on the PIL lab board (QEMU's microbit machine, a Cortex-M0; ground/pil_build.py) under -icount shift=0: the
+# Runs on the PIL lab board (QEMU's microbit machine, a Cortex-M0; tools/pil_build.py) under -icount shift=0: the
 # disturbance player (firmware/player.py, the thesis's SimArduino) playing a distfile from memory, one update per
 # fill() call as its 10.6 kHz timer would run it. ``counts(n)`` gives the instructions per update (mean and the
 # largest, a new segment's), each less the same loop without the update, and the heap in use once it plays; the

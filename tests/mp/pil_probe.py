@@ -1,4 +1,4 @@
-# Runs on the PIL board (QEMU's microbit machine, ground/pil_build.py) under -icount shift=0, where one instruction
+# Runs on the PIL board (QEMU's microbit machine, tools/pil_build.py) under -icount shift=0, where one instruction
 # takes one virtual ns: the nRF51's TIMER0 at 16 MHz then counts one tick per 62.5 instructions. ``counts(n)``
 # measures the controller's instructions per control step over n recorded Q1 samples, for the viper controller
 # (armv6m machine code) and the bytecode one, each less the same loop without the step, and the heap they hold.

@@ -1,6 +1,6 @@
 """``make mpy``: compile every firmware file and the pure protocol core to .mpy with mpy-cross.
 
-``python -m ground.mpy_build [--out build/mpy] [--march armv6m]`` writes ``<out>/<package>/<name>.mpy``
+``python -m tools.mpy_build [--out build/mpy] [--march armv6m]`` writes ``<out>/<package>/<name>.mpy``
 mirroring the source tree (load it with ``MICROPYPATH=<out>``) and prints a markdown table of sizes.
 Bytecode .mpy files are architecture independent, but ``protocol/fast.py`` holds viper code, which mpy-cross
 refuses to compile without ``-march`` ("invalid arch"). The default ``host`` is this machine's port (x64 here,
@@ -71,7 +71,7 @@ def table(rows):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m ground.mpy_build", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m tools.mpy_build", description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=os.path.join(ROOT, "build", "mpy"), help="output folder (default build/mpy)")
     ap.add_argument("--march", default=DEFAULT_MARCH,
                     help="mpy-cross -march for the viper code (default host: this machine's port, x64 here)")
@@ -83,7 +83,7 @@ def main(argv=None):
         return 1
     print(table(rows))
     print("\n%d files compiled into %s" % (len(rows), args.out))
-    from ground.natmod_build import TARGET as kern       # the C kernels (make natmod): x64 code
+    from tools.natmod_build import TARGET as kern       # the C kernels (make natmod): x64 code
     if args.march in ("host", "x64") and os.path.exists(kern):
         from ground.fileio import write_atomic
         with open(kern, "rb") as fh:

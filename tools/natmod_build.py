@@ -1,6 +1,6 @@
 """``make natmod``: build the ADCS kernels (firmware/adcs/native/adcsk.c) as a MicroPython native module.
 
-``python -m ground.natmod_build [--arch x64] [--optional]`` writes ``firmware/adcs/adcsk.mpy`` (x64: what the
+``python -m tools.natmod_build [--arch x64] [--optional]`` writes ``firmware/adcs/adcsk.mpy`` (x64: what the
 unix MicroPython here loads; another ``--arch``, e.g. ``armv7emsp`` for a Cortex-M4F board, writes
 ``build/natmod/<arch>/adcsk.mpy`` and needs that arch's gcc). The firmware imports it where it is present and
 runs its Python forms where it is not (firmware/adcs/linalg.py).
@@ -179,7 +179,7 @@ def build(arch="x64", src=None):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m ground.natmod_build", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m tools.natmod_build", description=__doc__.split("\n\n")[0])
     ap.add_argument("--arch", default="x64", help="MicroPython native arch (x64, armv7emsp, ...; default x64)")
     ap.add_argument("--optional", action="store_true",
                     help="a build that cannot be done says why and exits 0 (the Python forms run)")

@@ -74,6 +74,11 @@ def header(names):
                                                   platform.python_version(), _load(), " ".join(names)))
 
 
+def names():
+    """The benchmarks' names (bench/bench_NAME.py)."""
+    return sorted(m.name[len("bench_"):] for m in pkgutil.iter_modules(bench.__path__) if m.name.startswith("bench_"))
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     mods = sorted(m.name for m in pkgutil.iter_modules(bench.__path__) if m.name.startswith("bench_"))

@@ -278,3 +278,21 @@ def test_r_quarter_diagnostic_reaches_the_thesis_and_breaks_the_promise():
     f = r_quarter_figures(seeds=[0])
     assert 8.0 < f["att"][0] < 12.0 and f["rate"][0] < 55.0
     assert f["share"] < 0.5 and min(f["ratio"]) > 1.5
+
+
+def test_against_reads_every_tables_numbers_and_gives_their_ratio():
+    from bench import against
+    a = "| row | figure |\n|---|---|\n| speed | 12.5x (met) |\n| time per tick | 1,200 us |\n"
+    b = "| row | figure |\n|---|---|\n| speed | 10.0x |\n| time per tick | 1,000 us |\n"
+    ours, theirs = against.table_numbers(a), against.table_numbers(b)
+    assert ours == {("speed", 1): 12.5, ("time per tick", 1): 1200.0}
+    rows = {r[0]: r for r in against.compare([ours], [theirs])}
+    assert rows["speed"][4] == pytest.approx(1.25) and rows["time per tick"][4] == pytest.approx(1.2)
+
+
+def test_against_refuses_an_unknown_commit_or_benchmark(capsys):
+    from bench import against
+    assert against.main(["no-such-rev-xyz", "protocol"]) == 2
+    assert "no-such-rev-xyz is no commit" in capsys.readouterr().err
+    assert against.main(["HEAD", "protocl"]) == 2
+    assert "no benchmark named protocl" in capsys.readouterr().err

@@ -1,0 +1,106 @@
+"""``python -m bench.against REV NAME [NAME ...]``: the benchmarks NAME run on this tree and on commit REV in the same
+sitting, alternately (this, REV, this, REV, ... ``--rounds`` times), so that the machine's load falls on both alike,
+then every number of their tables side by side with its ratio (this / REV). A ratio, not an absolute time, says
+whether a change cost speed on a shared machine: within 5 % is noise here.
+
+REV is checked out with ``git worktree`` under ``build/against/<rev>`` and run with this virtual environment (its
+``bench`` and packages from that tree); what ``make`` builds (the C kernels, the PIL images) is not there unless
+built in it, so a benchmark that needs them runs its fallback or skips on that side, saying so. Exit 2 for an
+unknown commit or benchmark."""
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+NUMBER = re.compile(r"-?\d[\d,]*\.?\d*(?:[eE][-+]?\d+)?")
+
+
+def worktree(rev):
+    """The commit's tree under build/against/<short rev> (made once, by ``git worktree add --detach``)."""
+    sha = subprocess.run(["git", "rev-parse", "--short", "--verify", rev + "^{commit}"], cwd=ROOT,
+                         capture_output=True, text=True)
+    if sha.returncode != 0:
+        raise ValueError("%s is no commit of this repository" % rev)
+    path = os.path.join(ROOT, "build", "against", sha.stdout.strip())
+    if not os.path.isdir(path):
+        p = subprocess.run(["git", "worktree", "add", "--detach", path, sha.stdout.strip()], cwd=ROOT,
+                           capture_output=True, text=True)
+        if p.returncode != 0:
+            raise ValueError("git worktree add %s: %s" % (rev, p.stderr.strip()))
+    return path
+
+
+def run_one(tree, name):
+    """One benchmark's output on ``tree`` (its own bench and packages first on the path)."""
+    env = dict(os.environ, PYTHONPATH=tree + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    p = subprocess.run([sys.executable, "-m", "bench.bench_" + name], cwd=tree, env=env, capture_output=True,
+                       text=True)
+    return p.stdout + ("" if p.returncode == 0 else "\n(exit %d: %s)" % (p.returncode, p.stderr.strip()[-300:]))
+
+
+def table_numbers(text):
+    """{(row label, column): number} of every Markdown table row in ``text`` (the first number of each cell)."""
+    out = {}
+    for line in text.splitlines():
+        if not line.startswith("|") or set(line) <= set("|-: "):
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        for j, c in enumerate(cells[1:], 1):
+            m = NUMBER.search(c)
+            if m:
+                try:
+                    out[(cells[0], j)] = float(m.group(0).replace(",", ""))
+                except ValueError:
+                    pass
+    return out
+
+
+def compare(ours, theirs):
+    """Rows of (label, column, ours, theirs, ratio) for the numbers both runs printed, averaged over rounds."""
+    rows = []
+    for key in ours[0]:
+        a = [r[key] for r in ours if key in r]
+        b = [r[key] for r in theirs if key in r]
+        if a and b:
+            ma, mb = sum(a) / len(a), sum(b) / len(b)
+            rows.append((key[0], key[1], ma, mb, ma / mb if mb else None))
+    return rows
+
+
+def main(argv=None):
+    from bench import run
+    ap = argparse.ArgumentParser(prog="python -m bench.against", description=__doc__.split("\n\n")[0])
+    ap.add_argument("rev", help="the commit to compare with (a hash, a tag, HEAD~1)")
+    ap.add_argument("names", nargs="+", help="benchmarks (bench/bench_NAME.py)")
+    ap.add_argument("--rounds", type=int, default=2, help="alternations of this tree and REV (default 2)")
+    a = ap.parse_args(argv)
+    known = run.names()
+    bad = [n for n in a.names if n not in known]
+    if bad or a.rounds < 1:
+        print("bench.against: error: %s" % ("no benchmark named %s; the benchmarks: %s" % (", ".join(bad),
+                                                                                          " ".join(known))
+                                             if bad else "--rounds must be >= 1"), file=sys.stderr)
+        return 2
+    try:
+        tree = worktree(a.rev)
+    except ValueError as exc:
+        print("bench.against: error: %s" % exc, file=sys.stderr)
+        return 2
+    print(run.header(a.names))
+    for name in a.names:
+        ours, theirs = [], []
+        for _ in range(a.rounds):
+            ours.append(table_numbers(run_one(ROOT, name)))
+            theirs.append(table_numbers(run_one(tree, name)))
+        print("\n## %s: this tree against %s (%d rounds, means)\n" % (name, a.rev, a.rounds))
+        print("| row | column | this tree | %s | ratio |\n|---|---|---|---|---|" % a.rev)
+        for label, col, x, y, r in compare(ours, theirs):
+            print("| %s | %d | %.4g | %.4g | %s |" % (label[:70], col, x, y, "—" if r is None else "%.3f" % r))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -87,5 +87,5 @@ def test_the_finder_finds_a_circle():
 
 def test_no_import_circles():
     g = import_graph()
-    assert len(g) > 100 and "ground.hil" in g["ground.system"]
+    assert len(g) > 100 and "ground.hil" in g["ground.system.run"]
     assert cycles(g) == []

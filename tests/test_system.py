@@ -122,7 +122,7 @@ def test_system_bad_input_exits_2_without_traceback(tmp_path, args, needle):
 
 
 def test_system_refuses_firmware_when_the_session_is_missing(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(system, "firmware_available", lambda: False)
+    monkeypatch.setattr(system.run, "firmware_available", lambda: False)
     rc = fps(["system", "--adcs", "firmware", "--duration", "5", "-o", str(tmp_path / "r")])
     assert rc == 2
     assert "adcs_session" in capsys.readouterr().err and not (tmp_path / "r").exists()

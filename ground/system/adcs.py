@@ -14,8 +14,6 @@ from ground.system.constants import HEARTBEAT_S, SILENT_S, START_S, STOP_S, WAIT
 from protocol.units import RAD_PER_ARCSEC
 
 
-
-
 # --- the ADCS process ----------------------------------------------------------------------------------------
 def settle_s(ts):
     """Where the collection window starts: the 30 s hold and 4 t_s of settling (``bps.simulate``)."""

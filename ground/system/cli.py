@@ -14,8 +14,6 @@ from ground.system.reporting import _x, exit_code, side_by_side, verdict_lines
 from ground.system.run import run_system
 
 
-
-
 def _read_summary(out_dir):
     """The run folder's summary.json, or {} when it cannot be read (the error line says what happened)."""
     try:

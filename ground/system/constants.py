@@ -1,8 +1,5 @@
 """``fps system``'s constants and what the other parts share."""
 
-
-
-
 ADCS_KINDS = ("firmware", "ground")
 FIGURE = "system_pointing.png"
 RUNTIMES = ("micropython", "cpython", "qemu")

@@ -5,9 +5,6 @@ import struct
 import numpy as np
 
 
-
-
-
 # --- the live disturbance: 10 Hz body pointing error -> distfile samples -> the P-FSM player ------------------
 class LiveDistfile:
     """A float32 distfile (``protocol.distfile`` kind 1) growing in memory, read by ``firmware.player.Player``

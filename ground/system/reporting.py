@@ -8,8 +8,6 @@ from ground import hil, report
 from ground.system.constants import FIGURE, GOAL_RTF
 
 
-
-
 def verdict(s):
     """One verdict for the terminal from a summary's figures. Fine loop: every Q2 sample within 11.98″ and none
     with the beam lost (``fps hil``'s requirement). Body loop: 3σ pointing and stability within

@@ -19,8 +19,6 @@ from ground.system.reporting import _plot, report_md, thesis_body, verdict
 from protocol.units import RAD_PER_ARCSEC
 
 
-
-
 # --- the run -------------------------------------------------------------------------------------------------
 def check_inputs(duration_s, runtime_name, adcs, ts, truth, seed=0):
     from ground.adcs import body_pointing as bps

@@ -30,8 +30,8 @@ import os
 import numpy as np
 
 from emulator.fileio import load_npz, write_atomic
+from protocol.units import MU_EARTH as MU  # noqa: F401  (orbits.MU: Eq. 5.7)
 
-MU = 398600.4415e9          # m^3/s^2 (Eq. 5.7)
 R_EARTH = 6378136.3         # m (EGM2008)
 EPOCH_UTC = (2016, 12, 19, 3, 24, 57.4339)
 # Eq. 5.53, J2000, SI units: [rA, vA], [rB, vB]

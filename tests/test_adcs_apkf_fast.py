@@ -22,6 +22,15 @@ def ref():
     return dict(np.load(DATA))
 
 
+@pytest.fixture(autouse=True)
+def recorded_mu(monkeypatch):
+    """The reference was recorded with the gravity-gradient torque's mu of its time, 3.986004418e14 m^3/s^2
+    (protocol.units.MU_EARTH, one value for every part since, is 398600.4415e9): the replay uses the same, as it
+    uses the recorded inputs."""
+    from emulator.spacecraft import environment
+    monkeypatch.setattr(environment, "MU_EARTH", 3.986004418e14)
+
+
 def _close(x, P, x_ref, P_ref, tol):
     """x and P agree with the reference to tol of P's 1 sigma (x) and of sigma_i sigma_j (P)."""
     s = np.sqrt(np.diag(P_ref))

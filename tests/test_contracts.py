@@ -42,3 +42,17 @@ def test_the_calibration_maths_is_one_module_for_the_truth_and_fps_calibrate():
     for mod in (bench, calibrate, truth):          # no second least-squares H or grid formula beside hcal's
         src = open(mod.__file__).read()
         assert "lstsq" not in src and "linspace" not in src, mod.__name__
+
+
+def test_one_gravitational_parameter_for_the_orbits_the_filters_and_the_torques():
+    import brahe
+    from emulator import orbits
+    from emulator.spacecraft import environment
+    from firmware.adcs import app, stkf_lean
+    from ground.adcs import stkf
+    from protocol import units
+    assert units.MU_EARTH == brahe.GM_EARTH == 398600.4415e9
+    assert orbits.MU == stkf.MU == stkf_lean.MU == environment.MU_EARTH == app.MU_EARTH == units.MU_EARTH
+    for f, text in _sources():
+        if f not in ("protocol/units.py", "tests/test_contracts.py", "tests/test_adcs_apkf_fast.py"):
+            assert not re.search(r"3\.98600\d*e14|398600\.44\d*e9", text), "%s writes mu again" % f

@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-MU_EARTH = 3.986004418e14      # m^3/s^2
+from protocol.units import MU_EARTH
+
 R_EARTH = 6371.2e3             # m, IGRF reference radius
 OMEGA_EARTH = 7.2921159e-5     # rad/s
 # IGRF-13 degree-1 coefficients at epoch 2020 (nT): g10, g11, h11. The dipole m = (g11, h11, g10) * R^3.

@@ -60,9 +60,8 @@ from firmware.adcs import apkf_lean, control, flight, linalg, stkf_lean
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol import can as canmap
 from protocol import core, table
-from protocol.units import RAD_PER_ARCSEC
+from protocol.units import MU_EARTH, RAD_PER_ARCSEC
 
-MU_EARTH = 3.986004418e14
 R_EARTH = 6371.2e3
 OMEGA_EARTH = 7.2921159e-5
 IGRF2020_DIPOLE_NT = (-29404.8, -1450.9, 4652.5)

@@ -66,8 +66,8 @@ import math
 
 from firmware.adcs import control, linalg
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
+from protocol.units import MU_EARTH as MU  # Eq. 5.7
 
-MU = 398600.4415e9
 QA_THESIS = 0.1 ** 2
 N = 6                  # states per satellite
 LAG_S = 4.0            # the relay delay U(2, 3) s (Sec. 5.5.1) + up to 1 s until the next 1 Hz cycle

@@ -14,7 +14,8 @@ from math import ceil, sqrt
 
 import numpy as np
 
-MU = 398600.4415e9  # m^3/s^2, Eq. 5.7
+from protocol.units import MU_EARTH as MU  # Eq. 5.7
+
 QA_THESIS = 0.1 ** 2  # m^2/s^3 per axis, Sec. 5.5.1
 N = 12
 IA = slice(0, 3)

@@ -129,3 +129,19 @@ def test_parts_checked():
     with pytest.raises(ValueError, match="not one of the model's parts"):
         flt.update(np.zeros(3), np.eye(3), lambda x: (x, np.eye(3)), part=slice(0, 3))
     np.testing.assert_array_equal(flt.x, x0)                  # refused: nothing changed
+
+
+def test_the_reference_is_written_again_by_its_script(tmp_path):
+    """tests/data/make_stkf_reference.py writes the recorded runs from the code as it is: the same keys and shapes,
+    Case 1 to the bit, Case 2 within the tolerances above."""
+    from tests.data import make_stkf_reference
+    path = str(tmp_path / "ref.npz")
+    make_stkf_reference.main(path)
+    with np.load(REF) as ref, np.load(path) as new:
+        assert sorted(ref.files) == sorted(new.files)
+        for k in ref.files:
+            assert ref[k].shape == new[k].shape, k
+            if k.startswith("c1_"):
+                assert np.array_equal(ref[k], new[k]), k
+            else:
+                np.testing.assert_allclose(new[k], ref[k], rtol=1e-7, atol=1e-6, err_msg=k)

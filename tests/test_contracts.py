@@ -56,3 +56,19 @@ def test_one_gravitational_parameter_for_the_orbits_the_filters_and_the_torques(
     for f, text in _sources():
         if f not in ("protocol/units.py", "tests/test_contracts.py", "tests/test_adcs_apkf_fast.py"):
             assert not re.search(r"3\.98600\d*e14|398600\.44\d*e9", text), "%s writes mu again" % f
+
+
+def test_the_repository_stands_alone():
+    """No tracked file needs or cites a document outside the repository."""
+    out = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
+    outside = ("DESIGN" + ".md", "../" + "shared", "THESIS_" + "NUMBERS", "HARDWARE_" + "FACTS")
+    for f in out:
+        p = os.path.join(ROOT, f)
+        if not os.path.isfile(p) or f.endswith((".png", ".npz", ".elf")):
+            continue
+        try:
+            text = open(p, encoding="utf-8").read()
+        except UnicodeDecodeError:
+            continue
+        for word in outside:
+            assert word not in text, "%s cites %s" % (f, word)

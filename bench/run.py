@@ -81,12 +81,12 @@ def names():
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
-    mods = sorted(m.name for m in pkgutil.iter_modules(bench.__path__) if m.name.startswith("bench_"))
-    names = [m[len("bench_"):] for m in mods]
-    unknown = [a for a in argv if a not in names]
+    known = names()
+    mods = ["bench_" + n for n in known]
+    unknown = [a for a in argv if a not in known]
     if unknown:
         print("bench.run: error: no benchmark named %s; the benchmarks: %s"
-              % (", ".join(unknown), " ".join(names)), file=sys.stderr)
+              % (", ".join(unknown), " ".join(known)), file=sys.stderr)
         return 2
     if argv:
         mods = [m for m in mods if m[len("bench_"):] in argv]

@@ -130,6 +130,16 @@ def calibration_difference(cal, path):
     save_png(fig, path)
 
 
+def _xy_frame(ax, lim, title):
+    """A square X-Y error frame of +-lim arcsec."""
+    ax.set_xlim(-lim, lim)
+    ax.set_ylim(-lim, lim)
+    ax.set_aspect("equal")
+    ax.set_xlabel("X error (arcsec)")
+    ax.set_ylabel("Y error (arcsec)")
+    ax.set_title(title, fontsize=9)
+
+
 def hil_scatter(series, path, requirement_arcsec=11.98):
     """Fig. 7-18: the pointing errors in the X-Y plane. Left, at the requirement's scale: the 11.98 arcsec circle
     and the 1-4 arcsec rings, every series' samples as points; right, zoomed on the data: a 2-D histogram of the
@@ -149,12 +159,7 @@ def hil_scatter(series, path, requirement_arcsec=11.98):
         a.plot(r * np.cos(ring), r * np.sin(ring), "k-", lw=0.5, label="1-4%s rings" % ARCSEC_SIGN if r == 1 else None)
     a.plot(requirement_arcsec * np.cos(ring), requirement_arcsec * np.sin(ring), "--", color=REQUIREMENT_COLOR,
            lw=0.9, label="requirement %.2f%s" % (requirement_arcsec, ARCSEC_SIGN))
-    a.set_xlim(-lim, lim)
-    a.set_ylim(-lim, lim)
-    a.set_aspect("equal")
-    a.set_xlabel("X error (arcsec)")
-    a.set_ylabel("Y error (arcsec)")
-    a.set_title("at the requirement's scale", fontsize=9)
+    _xy_frame(a, lim, "at the requirement's scale")
     legend(a, markerscale=6, loc="upper right")
     items = [(k, np.asarray(x), np.asarray(y)) for k, (x, y) in series.items() if len(x)]
     if items:
@@ -168,12 +173,7 @@ def hil_scatter(series, path, requirement_arcsec=11.98):
             r99 = float(np.quantile(np.hypot(x - x.mean(), y - y.mean()), 0.99))
             z.plot(x.mean() + r99 * np.cos(ring), y.mean() + r99 * np.sin(ring), color=col, lw=1.0,
                    label="%s: 99 %% within this circle" % k)
-        z.set_xlim(-r, r)
-        z.set_ylim(-r, r)
-        z.set_aspect("equal")
-        z.set_xlabel("X error (arcsec)")
-        z.set_ylabel("Y error (arcsec)")
-        z.set_title("zoomed on the data", fontsize=9)
+        _xy_frame(z, r, "zoomed on the data")
         legend(z, loc="upper right")
     fig.suptitle("Pointing errors in the X-Y plane, cf. Fig. 7-18")
     fig.tight_layout()

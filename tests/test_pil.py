@@ -24,6 +24,14 @@ needs_image = pytest.mark.skipif(
     reason="no PIL image (make pil; it needs %s)" % pil_build.install_hint(pil_build.PACKAGES))
 
 
+def _fps(*args, timeout=900):
+    import subprocess
+    p = subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True, text=True,
+                       timeout=timeout)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return p
+
+
 def _table():
     return htable.grid_from_calibration(fp.calibration())
 
@@ -130,14 +138,8 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
     --runtime micropython bit for bit (the controller is integer arithmetic; of the telemetry, the link's own
     counters of resent TICKs may differ on a loaded machine), and fps calibrate the same points; its real-time
     factor is reported."""
-    import subprocess
     import numpy as np
-
-    def fps(*args):
-        p = subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True, text=True,
-                           timeout=900)
-        assert p.returncode == 0, p.stderr
-        return p
+    fps = _fps
     dist = str(tmp_path / "d.dist")
     fps("distfile", "generate", "--source", "stat", "--duration", "20", "--seed", "1", "-o", dist)
     cal = {}
@@ -241,14 +243,6 @@ def test_the_lean_adcs_on_the_cortex_m7_board_runs_a_recorded_session_as_the_uni
 needs_adcs_image = pytest.mark.skipif(
     not os.path.exists(pil_build.ADCS_IMAGE) or bool(pil_build.missing_tools()),
     reason="no ADCS PIL image (make pil; it needs %s)" % pil_build.install_hint(pil_build.PACKAGES))
-
-
-def _fps(*args, timeout=600):
-    import subprocess
-    p = subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True, text=True,
-                       timeout=timeout)
-    assert p.returncode == 0, p.stderr[-3000:]
-    return p
 
 
 @needs_adcs_image

@@ -387,6 +387,7 @@ class Board:
             raise BuildError("no PIL image at %s (make pil)" % mem.image)
         self.proc = subprocess.Popen(qemu_command(mem, "stdio", icount), stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self._rx = b""                                # read from the board, not yet taken
         self.banner = self._read(b">>> ", boot_s)
         self._write(b"\r\x01")                        # raw REPL
         self._read(b"raw REPL; CTRL-B to exit\r\n>", 10.0)
@@ -395,27 +396,33 @@ class Board:
         self.proc.stdin.write(data)
         self.proc.stdin.flush()
 
-    def _read(self, token, timeout):
+    def _fill(self, end, waiting_for):
+        """Whatever QEMU's stdout holds now into ``_rx`` (waiting up to 0.5 s); BoardError past ``end`` or at EOF."""
         import select
         import time
-        buf = b""
+        left = end - time.monotonic()
+        if left <= 0:
+            raise BoardError("the board gave no %s (got %r)" % (waiting_for, self._rx[-300:]))
+        r, _, _ = select.select([self.proc.stdout], [], [], min(left, 0.5))
+        if r:
+            b = os.read(self.proc.stdout.fileno(), 65536)
+            if not b:
+                raise BoardError("QEMU exited (%s): %s" % (self.proc.poll(), self.proc.stderr.read()[-500:]))
+            self._rx += b
+
+    def _read(self, token, timeout):
+        """The board's output up to and with ``token``; what follows it stays in ``_rx``."""
+        import time
         end = time.monotonic() + timeout
-        while token not in buf:
-            left = end - time.monotonic()
-            if left <= 0:
-                raise BoardError("the board gave no %r within %g s (got %r)" % (token, timeout, buf[-300:]))
-            r, _, _ = select.select([self.proc.stdout], [], [], min(left, 0.5))
-            if r:
-                b = os.read(self.proc.stdout.fileno(), 65536)
-                if not b:
-                    raise BoardError("QEMU exited (%s): %s" % (self.proc.poll(), self.proc.stderr.read()[-500:]))
-                buf += b
-        return buf
+        while token not in self._rx:
+            self._fill(end, "%r within %g s" % (token, timeout))
+        head, _, self._rx = self._rx.partition(token)
+        return head + token
 
     def start(self, code):
         """Start ``code`` on the board and return once it runs; its output is then read by ``expect_line``."""
         self._write(code.encode() + b"\x04")
-        self._rx = self._read(b"OK", 10.0).split(b"OK", 1)[1]
+        self._read(b"OK", 10.0)
 
     def send_line(self, text):
         self._write(text.encode() + b"\n")
@@ -423,7 +430,6 @@ class Board:
     def expect_line(self, word, timeout):
         """The board's next line that starts with ``word``, split on spaces (BoardError with its output if the
         code ended or raised first)."""
-        import select
         import time
         end = time.monotonic() + timeout
         while True:
@@ -434,15 +440,7 @@ class Board:
                     return f
             if b"\x04" in self._rx:
                 raise BoardError("the board's code ended: %s" % self._rx.decode(errors="replace")[-1500:])
-            left = end - time.monotonic()
-            if left <= 0:
-                raise BoardError("no %r line from the board within %g s (got %r)" % (word, timeout, self._rx[-300:]))
-            r, _, _ = select.select([self.proc.stdout], [], [], min(left, 0.5))
-            if r:
-                got = os.read(self.proc.stdout.fileno(), 65536)
-                if not got:
-                    raise BoardError("QEMU exited (%s)" % self.proc.poll())
-                self._rx += got
+            self._fill(end, "%r line within %g s" % (word, timeout))
 
     def run(self, code, timeout=300.0):
         """Run ``code`` (text) on the board; its standard output as text."""

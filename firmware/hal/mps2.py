@@ -26,7 +26,7 @@ def start():
     _wraps = 0
 
 
-def _count():
+def count():
     """Timer ticks since ``start`` (an int that grows past 2^30 after 42.9 s)."""
     global _last, _wraps
     v = _MASK - machine.mem32[TIMER0 + 4]
@@ -37,11 +37,11 @@ def _count():
 
 
 def ticks_us():
-    return (_count() // (HZ // 1000000)) & _MASK
+    return (count() // (HZ // 1000000)) & _MASK
 
 
 def ticks_ms():
-    return (_count() // (HZ // 1000)) & _MASK
+    return (count() // (HZ // 1000)) & _MASK
 
 
 def ticks_diff(a, b):

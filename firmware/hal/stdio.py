@@ -51,7 +51,7 @@ class StdioLink:
         self.closed = False
         self._meter = meter
         self._read_frame = read_frame
-        self._write_frame = write_frame
+        self._wf = write_frame if write_frame is not None else self._stream_write   # (buf, n): buf[0:n] out
         self._fast = fast
         if fast is not None:
             if read_frame is None or not self._dec._fast:
@@ -59,7 +59,6 @@ class StdioLink:
             self.answer_ticks = self._answer_ticks
             self._raw = self._enc._body    # a TICK decoded (the frame kept for recv_ms), then its answer's body
             self._out = self._enc._out     # the answer's frame: the encoder's
-            self._outmv = self._enc._mv
         self._held = 0             # a frame the fast path read and left (its length), for recv_ms
         self._t_held = 0
         self._work = 0             # meter ticks spent on the bytes of the frame being read (the waits left out)
@@ -145,6 +144,7 @@ class StdioLink:
         the frame's end to its answer framed."""
         fr = self._frame
         rd = self._read_frame
+        wf = self._wf
         ans = self._fast
         mt = self._meter
         while True:
@@ -158,10 +158,7 @@ class StdioLink:
             if mt is not None:
                 mt.exchange(t, 0, 1, True)
             last += 1
-            if self._write_frame is not None:
-                self._write_frame(self._out, k)
-            else:
-                self._w.write(self._outmv[:k])
+            wf(self._out, k)
 
     def _sync(self):
         """Tell the decoder of the frames the fast path decoded (its counters, and the sequence to go on from)."""
@@ -174,11 +171,8 @@ class StdioLink:
     def tx_frames(self):
         return self._st[_ST_TX_FRAMES]
 
-    def _write(self, f):
-        if self._write_frame is not None:
-            self._write_frame(f, len(f))
-        else:
-            self._w.write(f)
+    def _stream_write(self, buf, n):
+        self._w.write(buf if n == len(buf) else memoryview(buf)[:n])
 
     def send_raw(self, pid, src, dst, payload, seq=None):
         st = self._st
@@ -188,10 +182,10 @@ class StdioLink:
         f = self._enc.frame(pid, src, dst, seq, payload)
         mt = self._meter
         if mt is None:
-            self._write(f)
+            self._wf(f, len(f))
         else:                      # the UART write left out: on a board a DMA channel or an interrupt sends it
             t = mt.now()
-            self._write(f)
+            self._wf(f, len(f))
             self._frame_work -= (mt.now() - t) & 0xFFFF
             self._frame_n -= 1
         st[_ST_TX_FRAMES] += 1

@@ -5,7 +5,7 @@
 # the format of tests/mp/firmware_adcs_app.py), runs each cycle as that script does (the cycle's packets, the
 # filters and the control law, the wheel commands) and answers each with a line "c <tick> <instructions> <heap
 # bytes allocated>"; then "end <heap in use> <stack high-water bytes> <the last ADCS_STATUS payload, hex>". The instructions are counted
-# by the CMSDK timer (TIMER0) against a calibration of its rate in instructions (``insn_per_tick``), the cycle's
+# by the board's timer (``firmware.hal.mps2``) against a calibration of its rate in instructions (``insn_per_tick``), the cycle's
 # JSON and hex decoding left out, and a GC before each cycle (not inside it).
 import gc
 import json
@@ -14,22 +14,7 @@ import sys
 import machine
 import micropython
 
-TIMER0 = 0x40000000
-MASK = 0x3FFFFFFF               # the count stays a small int: no allocation to read it
-
-
-def timer_start():
-    m = machine.mem32
-    m[TIMER0] = 0                   # CTRL: stopped
-    m[TIMER0 + 8] = MASK            # RELOAD
-    m[TIMER0 + 4] = MASK            # VALUE
-    m[TIMER0] = 1                   # CTRL: enabled, counting down
-
-
-def now():
-    """Ticks since timer_start, modulo 2^30."""
-    return MASK - machine.mem32[TIMER0 + 4]
-
+from firmware.hal import mps2
 
 @micropython.asm_thumb
 def spin(r0):
@@ -40,9 +25,9 @@ def spin(r0):
 
 def insn_per_tick(n=500000):
     """Instructions per timer tick: a loop of two instructions an iteration, timed."""
-    t = now()
+    t = mps2.count()
     spin(n)
-    return 2 * n / ((now() - t) & MASK)
+    return 2 * n / (mps2.count() - t)
 
 
 def paint_stack(words=12 * 1024):
@@ -71,7 +56,7 @@ def high_water(bottom):
 def replay():
     from firmware.adcs import linalg
     from firmware.adcs.app import App
-    timer_start()
+    mps2.start()
     k = insn_per_tick()
     app = App(json.loads(sys.stdin.readline()))
     bottom = paint_stack()
@@ -86,12 +71,12 @@ def replay():
         pkts = [(pid, src, bytes.fromhex(hx)) for pid, src, hx in pkts]
         gc.collect()
         m0 = gc.mem_alloc()
-        t0 = now()
+        t0 = mps2.count()
         for pid, src, pl in pkts:
             app.on_packet(pid, src, pl)
         u = app.cycle(tick, t_ms / 1000.0)
         app.commands(u)
-        dt = (now() - t0) & MASK
+        dt = mps2.count() - t0
         print("c %d %d %d" % (tick, int(dt * k), gc.mem_alloc() - m0))
     gc.collect()
     print("end %d %d %s" % (gc.mem_alloc(), high_water(bottom), app.status_payload(tick).hex()))

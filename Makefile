@@ -22,12 +22,13 @@ $(STAMP): requirements.lock pyproject.toml
 
 install: $(STAMP)
 
+# both on every core (pytest-xdist; a test's processes and boards stay its own): under 5 minutes on 2 cores
 test: $(STAMP) $(NATMOD) $(PIL_ELF)
-	$(PY) -m pytest
+	$(PY) -m pytest -n auto
 
 # the daily tier: everything but the end-to-end modules (tests/conftest.py), under 2 minutes
 check: $(STAMP) $(NATMOD)
-	$(PY) -m pytest -m "not e2e"
+	$(PY) -m pytest -n auto -m "not e2e"
 
 bench: $(STAMP) mpy $(NATMOD)
 	$(PY) -m bench.run

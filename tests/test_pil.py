@@ -67,8 +67,10 @@ def _host(blob, src):
     return {"crc": crc & 0xFFFFFFFF, "words": list(c.words), "table_crc": tab & 0xFFFFFFFF, "mode": c.mode}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def board():
+    """A lab board for one test: stopped after it (an idle QEMU board spins a core at ~75 %, which slowed the
+    tests after it in the module two-fold)."""
     with pil_build.Board() as b:
         yield b
 

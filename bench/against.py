@@ -1,7 +1,8 @@
 """``python -m bench.against REV NAME [NAME ...]``: the benchmarks NAME run on this tree and on commit REV in the same
 sitting, alternately (this, REV, this, REV, ... ``--rounds`` times), so that the machine's load falls on both alike,
-then every number of their tables side by side with its ratio (this / REV). A ratio, not an absolute time, says
-whether a change cost speed on a shared machine: within 5 % is noise here.
+then every number of their tables side by side with its ratio (this / REV), and whether the cell's printed text was
+the same in every run of both (an accuracy row of a deterministic benchmark is; a time is not). A ratio, not an
+absolute time, says whether a change cost speed on a shared machine: within 5 % is noise here.
 
 REV is checked out with ``git worktree`` under ``build/against/<rev>`` and run with this virtual environment (its
 ``bench`` and packages from that tree); what ``make`` builds (the C kernels, the PIL images) is not there unless
@@ -41,21 +42,34 @@ def run_one(tree, name):
     return p.stdout + ("" if p.returncode == 0 else "\n(exit %d: %s)" % (p.returncode, p.stderr.strip()[-300:]))
 
 
-def table_numbers(text):
-    """{(row label, column): number} of every Markdown table row in ``text`` (the first number of each cell)."""
+def table_cells(text):
+    """{(row label, column): cell text} of every Markdown table row in ``text`` that holds a number."""
     out = {}
     for line in text.splitlines():
         if not line.startswith("|") or set(line) <= set("|-: "):
             continue
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         for j, c in enumerate(cells[1:], 1):
-            m = NUMBER.search(c)
-            if m:
-                try:
-                    out[(cells[0], j)] = float(m.group(0).replace(",", ""))
-                except ValueError:
-                    pass
+            if NUMBER.search(c):
+                out[(cells[0], j)] = c
     return out
+
+
+def table_numbers(text):
+    """{(row label, column): number} of every Markdown table row in ``text`` (the first number of each cell)."""
+    out = {}
+    for key, c in table_cells(text).items():
+        try:
+            out[key] = float(NUMBER.search(c).group(0).replace(",", ""))
+        except ValueError:
+            pass
+    return out
+
+
+def same_text(ours, theirs, key):
+    """True when every run of both printed the cell ``key`` with the same text."""
+    texts = set(r.get(key) for r in ours + theirs)
+    return len(texts) == 1 and None not in texts
 
 
 def compare(ours, theirs):
@@ -93,12 +107,19 @@ def main(argv=None):
     for name in a.names:
         ours, theirs = [], []
         for _ in range(a.rounds):
-            ours.append(table_numbers(run_one(ROOT, name)))
-            theirs.append(table_numbers(run_one(tree, name)))
+            ours.append(run_one(ROOT, name))
+            theirs.append(run_one(tree, name))
+        cells_a, cells_b = [table_cells(t) for t in ours], [table_cells(t) for t in theirs]
         print("\n## %s: this tree against %s (%d rounds, means)\n" % (name, a.rev, a.rounds))
-        print("| row | column | this tree | %s | ratio |\n|---|---|---|---|---|" % a.rev)
-        for label, col, x, y, r in compare(ours, theirs):
-            print("| %s | %d | %.4g | %.4g | %s |" % (label[:70], col, x, y, "—" if r is None else "%.3f" % r))
+        for t in ours + theirs:
+            if "\n(exit " in t:
+                print("(a run failed: %s)\n" % t.rsplit("\n(exit ", 1)[1][:300])
+        print("| row | column | this tree | %s | ratio | same text |\n|---|---|---|---|---|---|" % a.rev)
+        for label, col, x, y, r in compare([table_numbers(t) for t in ours], [table_numbers(t) for t in theirs]):
+            print("| %s | %d | %.4g | %.4g | %s | %s |" % (label[:70], col, x, y, "—" if r is None else "%.3f" % r,
+                                                          "yes" if same_text(cells_a, cells_b, (label, col))
+                                                          else "no"))
+        sys.stdout.flush()
     return 0
 
 

@@ -21,16 +21,21 @@ def inputs(tmp_path_factory):
     return dist, cal
 
 
-E2E_MODULES = {
-    "test_pil", "test_can_faults", "test_hil_faults", "test_system", "test_system_failures", "test_flight_firmware",
-    "test_firmware_lockstep", "test_ground_hil", "test_ground_calibrate", "test_adcs_can", "test_emulator_serve_wheels",
-    "test_adcs_cli_edges", "test_protocol_fuzz", "test_cli_no_traceback", "test_firmware_mp", "test_adcs_natmod",
-    "test_fine_pointing_edges", "test_flight_world", "test_adcs_consistency", "test_adcs_campaign", "test_adcs_runs",
-    "test_launcher", "test_protocol_mp", "test_emulator_lockstep", "test_adcs_lean", "test_protocol_emulator_edges",
-}
+E2E_MODULES = (                            # longest first (their durations in make test), so that they start first
+    "test_pil", "test_can_faults", "test_system_failures", "test_hil_faults", "test_system", "test_flight_firmware",
+    "test_ground_calibrate", "test_firmware_lockstep", "test_cli_no_traceback", "test_ground_hil", "test_adcs_can",
+    "test_adcs_runs", "test_protocol_fuzz", "test_adcs_consistency", "test_emulator_serve_wheels",
+    "test_firmware_mp", "test_fine_pointing_edges", "test_flight_world", "test_adcs_lean", "test_adcs_cli_edges",
+    "test_adcs_campaign", "test_protocol_mp", "test_launcher", "test_adcs_natmod", "test_emulator_lockstep",
+    "test_protocol_emulator_edges",
+)
 
 
 def pytest_collection_modifyitems(config, items):
+    """Mark the end-to-end modules, and run them first (each module's tests kept together, in order): the long
+    tests start while the short ones are left to fill both workers of ``make test`` (pytest-xdist) to the end."""
+    rank = dict((m, k) for k, m in enumerate(E2E_MODULES))
     for item in items:
-        if item.module.__name__.rsplit(".", 1)[-1] in E2E_MODULES:
+        if item.module.__name__.rsplit(".", 1)[-1] in rank:
             item.add_marker(pytest.mark.e2e)
+    items.sort(key=lambda item: rank.get(item.module.__name__.rsplit(".", 1)[-1], len(rank)))

@@ -288,6 +288,12 @@ def test_against_reads_every_tables_numbers_and_gives_their_ratio():
     assert ours == {("speed", 1): 12.5, ("time per tick", 1): 1200.0}
     rows = {r[0]: r for r in against.compare([ours], [theirs])}
     assert rows["speed"][4] == pytest.approx(1.25) and rows["time per tick"][4] == pytest.approx(1.2)
+    c = "| row | figure |\n|---|---|\n| speed | 12.5x |\n| time per tick | 1,200 us |\n"
+    ca, cb, cc = against.table_cells(a), against.table_cells(b), against.table_cells(c)
+    assert against.same_text([ca, ca], [ca], ("time per tick", 1))
+    assert not against.same_text([ca], [cb], ("time per tick", 1))
+    assert not against.same_text([ca], [cc], ("speed", 1))          # the same number, other text: not the same
+    assert not against.same_text([ca], [{}], ("speed", 1))          # a row one side did not print
 
 
 def test_against_refuses_an_unknown_commit_or_benchmark(capsys):

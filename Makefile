@@ -12,7 +12,7 @@ OUT     ?= out
 
 # Python's default, which some machines turn off: modules compiled once into __pycache__ (ignored by git), not
 # again in each of the hundreds of processes the tests and runs start (0.35 s of each fps start here); pip
-# installs without compiling, so only the modules a run imports are compiled, on their first import
+# installs without compiling and compileall compiles on every core
 export PYTHONDONTWRITEBYTECODE :=
 
 .PHONY: all install test check figures bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
@@ -23,12 +23,14 @@ $(STAMP): requirements.lock pyproject.toml
 	test -x $(PY) || $(PYTHON3) -m venv $(VENV)
 	$(PY) -m pip install -q --disable-pip-version-check --no-compile -r requirements.lock
 	$(PY) -m pip install -q --disable-pip-version-check --no-compile --no-deps -e .
+	$(PY) -m compileall -q -j 0 $(VENV)/lib > /dev/null
 	touch $@
 
 install: $(STAMP)
 
 # on every core (pytest-xdist; an idle worker takes tests queued for a busy one): under 5 minutes on 2 cores
 test: $(STAMP) $(NATMOD) $(PIL_ELF)
+	$(PY) -m compileall -q -j 0 protocol firmware emulator ground tools bench tests > /dev/null
 	$(PY) -m pytest -n auto --dist worksteal
 
 # the daily tier: everything but the end-to-end modules (tests/conftest.py), under 2 minutes

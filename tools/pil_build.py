@@ -310,7 +310,9 @@ def build(src=None, mems=(TARGET_MEM, LAB_MEM)):
     with open(os.path.join(nolib, "README.md"), "w") as f:
         f.write("Empty: the PIL image freezes the firmware only (tools/pil_build.py).\n")
     _make(["make", "-s", "-C", os.path.join(src, "mpy-cross"), "-j2"])
-    for mem in mems:
+    for k, mem in enumerate(mems):
+        if k and not os.path.isdir(mem.dir):
+            _seed_objects(mems[0].dir, mem.dir)
         os.makedirs(mem.dir, exist_ok=True)
         man = os.path.join(mem.dir, "manifest.py")
         ld = os.path.join(mem.dir, "board.ld")
@@ -337,6 +339,20 @@ def build(src=None, mems=(TARGET_MEM, LAB_MEM)):
             f.write("\n".join(config))
     build_adcs(src, nolib)
     return IMAGE
+
+
+# what differs between two MICROBIT images (main.c takes the heap size and the stack limit; the rest of the objects
+# are the same): left out when a build directory is seeded from another
+_PER_IMAGE = ("main.o", "main.P", "firmware.elf", "firmware.map", "firmware.bin", "frozen_content.c",
+              "frozen_content.o", "frozen_content.P", "manifest.py", "board.ld", "pil_board.py", "config.stamp")
+
+
+def _seed_objects(done, new):
+    """A new image's build directory started from a built one's objects, times kept, so that make compiles only
+    main.c and the frozen modules again (the lab image came out byte for byte as a build from nothing when this was
+    written; the PIL tests run on it either way)."""
+    import shutil
+    shutil.copytree(done, new, ignore=lambda d, names: [n for n in names if d == done and n in _PER_IMAGE])
 
 
 def build_adcs(src, nolib):

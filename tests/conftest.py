@@ -1,6 +1,8 @@
 """Fixtures shared by the HIL tests, and the test tiers: ``make check`` (daily work, under 2 minutes) leaves out the
 end-to-end modules below, whose tests start processes, boards or whole runs; ``make test`` (what CI runs) runs all;
-``FPS_SLOW=1`` adds the longest runs (marked ``slow``)."""
+``FPS_SLOW=1`` adds the longest runs (marked ``slow(reason=...)``: skipped with that reason without it)."""
+
+import os
 
 import pytest
 
@@ -35,7 +37,11 @@ def pytest_collection_modifyitems(config, items):
     """Mark the end-to-end modules, and run them first (each module's tests kept together, in order): the long
     tests start while the short ones are left to fill both workers of ``make test`` (pytest-xdist) to the end."""
     rank = dict((m, k) for k, m in enumerate(E2E_MODULES))
+    slow = bool(os.environ.get("FPS_SLOW"))
     for item in items:
         if item.module.__name__.rsplit(".", 1)[-1] in rank:
             item.add_marker(pytest.mark.e2e)
+        mark = item.get_closest_marker("slow")
+        if mark is not None and not slow:
+            item.add_marker(pytest.mark.skip(reason=mark.kwargs.get("reason", "a long run: FPS_SLOW=1 runs it")))
     items.sort(key=lambda item: rank.get(item.module.__name__.rsplit(".", 1)[-1], len(rank)))

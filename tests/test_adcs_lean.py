@@ -228,8 +228,7 @@ def test_micropython_gives_cpython_results_and_heap_per_cycle_is_bounded(tmp_pat
 
 
 @pytest.mark.parametrize("seconds", [
-    1000, pytest.param(4000, marks=[pytest.mark.slow, pytest.mark.skipif(
-        not os.environ.get("FPS_SLOW"), reason="the 4000 s run takes ~45 s: FPS_SLOW=1 runs it")])])
+    1000, pytest.param(4000, marks=pytest.mark.slow(reason="the 4000 s run takes ~45 s: FPS_SLOW=1 runs it"))])
 def test_float32_stable_and_within_10_percent_of_float64(seconds):
     """Same code, float32 scalars vs float64 lists, over the emulated scenario (4000 s in the slow run):
     P symmetric and PD at every step, and the attitude and rate 1 sigma within 10 % of the float64 run's."""
@@ -442,8 +441,7 @@ def _f32_vs_f64(seconds, case):
 
 
 @pytest.mark.parametrize("seconds", [
-    300, pytest.param(4000, marks=[pytest.mark.slow, pytest.mark.skipif(
-        not os.environ.get("FPS_SLOW"), reason="the 4000 s run takes ~1 min: FPS_SLOW=1 runs it")])])
+    300, pytest.param(4000, marks=pytest.mark.slow(reason="the 4000 s run takes ~1 min: FPS_SLOW=1 runs it"))])
 def test_lean_stkf_float32_stable_and_within_10_percent_of_float64(seconds):
     """The float32 part (SatA's covariance and its work buffers) in numpy.float32 scalars: symmetric and PD
     at every step, and the RMS error and final 1 sigma of every block within 10 % of the float64 run's

@@ -333,7 +333,7 @@ def test_fps_hil_over_can_under_heavy_faults_stops_clearly(tmp_path, inputs):
     assert s["complete"] is False and s["error"]
 
 
-@pytest.mark.skipif(not os.environ.get("FPS_SLOW"), reason="~20 s under faults: FPS_SLOW=1 make test runs it")
+@pytest.mark.slow(reason="~20 s under faults: FPS_SLOW=1 make test runs it")
 def test_fps_adcs_can_rides_through_link_faults_bit_identical(tmp_path):
     """fps adcs can under bit flips and dropped frame lines: the wheel commands, the flight software's estimates
     and the pointing history equal the clean run's (each cycle ran once), and the retries are counted."""
@@ -394,7 +394,7 @@ def test_controller_over_an_externally_damaged_slcan_stream_stays_up_and_answers
     host.close()
 
 
-@pytest.mark.skipif(not os.environ.get("FPS_SLOW"), reason="~30 s under faults: FPS_SLOW=1 make test runs it")
+@pytest.mark.slow(reason="~30 s under faults: FPS_SLOW=1 make test runs it")
 def test_fps_system_with_faults_on_the_adcs_can_link_matches_the_clean_run(tmp_path, inputs):
     """fps system with --link-faults on the ADCS's CAN link: both loops' results (Q2 samples, body pointing and
     the estimates' errors) equal the clean run's; the retries are in the ADCS summary."""

@@ -3,7 +3,6 @@ and innovation gate, the drag and solar pressure torques, a short run's mode seq
 and refusals, and (FPS_SLOW=1) the issue's 3-orbit goals on the shipped spacecraft."""
 
 import json
-import os
 
 import numpy as np
 import pytest
@@ -195,8 +194,7 @@ def test_cli_flight_world_checks_and_refusals(tmp_path, capsys):
     assert rc == 2 and "invalid choice" in capsys.readouterr().err
 
 
-@pytest.mark.slow
-@pytest.mark.skipif(not os.environ.get("FPS_SLOW"), reason="3 orbits per spacecraft, ~1 min each: FPS_SLOW=1")
+@pytest.mark.slow(reason="3 orbits per spacecraft, ~1 min each: FPS_SLOW=1")
 @pytest.mark.parametrize("name", ["thesis-3u", "generic-6u", "generic-12u"])
 def test_three_orbits_in_the_flight_world_meet_the_goals(name):
     d = sf.load(name)

@@ -219,7 +219,7 @@ def clean(tmp_path_factory, inputs):
     return out, s
 
 
-@pytest.mark.skipif(not os.environ.get("FPS_SLOW"), reason="~20 s under faults: FPS_SLOW=1 make test runs it")
+@pytest.mark.slow(reason="~20 s under faults: FPS_SLOW=1 make test runs it")
 def test_faults_cost_time_not_correctness(tmp_path, inputs, clean):
     out0, s0 = clean
     rc, out, s = _hil(tmp_path, inputs, "faulty", "--link-faults", "bytes=0.01,frames=0.05,seed=1")
@@ -267,7 +267,7 @@ def test_a_silence_is_ridden_through_and_a_permanent_one_ends_the_run(tmp_path, 
     assert 1.0 < s["duration_s"] < 1.0 + 600 / 637.8              # stopped at the 500th failed tick, not at 4 s
 
 
-@pytest.mark.skipif(not os.environ.get("FPS_SLOW"), reason="~50 s under faults: FPS_SLOW=1 make test runs it")
+@pytest.mark.slow(reason="~50 s under faults: FPS_SLOW=1 make test runs it")
 def test_calibration_under_faults_gives_the_same_h(tmp_path):
     outs = []
     for name, extra in (("clean", []), ("faulty", ["--link-faults", "bytes=0.01,frames=0.05,seed=2"])):

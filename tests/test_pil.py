@@ -271,7 +271,7 @@ def test_fps_adcs_can_on_the_cortex_m7_board_flies_as_the_unix_port(tmp_path):
 
 
 @needs_adcs_image
-@pytest.mark.skipif(not os.environ.get("FPS_SLOW"), reason="both boards under QEMU, ~35 s: FPS_SLOW=1")
+@pytest.mark.slow(reason="both boards under QEMU, ~35 s: FPS_SLOW=1")
 def test_fps_system_runs_both_loops_on_their_boards(tmp_path):
     """fps system --runtime qemu: the controller on the Cortex-M0 board and the ADCS on the Cortex-M7 board, both
     loops within their budgets, each board's figures in summary.json."""

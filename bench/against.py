@@ -43,20 +43,26 @@ def run_one(tree, name):
 
 
 def table_cells(text):
-    """{(row label, column): cell text} of every Markdown table row in ``text`` that holds a number."""
-    out = {}
+    """{(table, row label, column): cell text} of every Markdown table row in ``text`` that holds a number; tables
+    are counted from 1 in the order printed, so a row label two tables share is two rows."""
+    out, table, inside = {}, 0, False
     for line in text.splitlines():
-        if not line.startswith("|") or set(line) <= set("|-: "):
+        if not line.startswith("|"):
+            inside = False
+            continue
+        if not inside:
+            table, inside = table + 1, True
+        if set(line) <= set("|-: "):
             continue
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         for j, c in enumerate(cells[1:], 1):
             if NUMBER.search(c):
-                out[(cells[0], j)] = c
+                out[(table, cells[0], j)] = c
     return out
 
 
 def table_numbers(text):
-    """{(row label, column): number} of every Markdown table row in ``text`` (the first number of each cell)."""
+    """{(table, row label, column): number} of every Markdown table row in ``text`` (the first number of each cell)."""
     out = {}
     for key, c in table_cells(text).items():
         try:
@@ -73,14 +79,14 @@ def same_text(ours, theirs, key):
 
 
 def compare(ours, theirs):
-    """Rows of (label, column, ours, theirs, ratio) for the numbers both runs printed, averaged over rounds."""
+    """Rows of (table, label, column, ours, theirs, ratio) for the numbers both runs printed, averaged over rounds."""
     rows = []
     for key in ours[0]:
         a = [r[key] for r in ours if key in r]
         b = [r[key] for r in theirs if key in r]
         if a and b:
             ma, mb = sum(a) / len(a), sum(b) / len(b)
-            rows.append((key[0], key[1], ma, mb, ma / mb if mb else None))
+            rows.append(key + (ma, mb, ma / mb if mb else None))
     return rows
 
 
@@ -114,11 +120,13 @@ def main(argv=None):
         for t in ours + theirs:
             if "\n(exit " in t:
                 print("(a run failed: %s)\n" % t.rsplit("\n(exit ", 1)[1][:300])
-        print("| row | column | this tree | %s | ratio | same text |\n|---|---|---|---|---|---|" % a.rev)
-        for label, col, x, y, r in compare([table_numbers(t) for t in ours], [table_numbers(t) for t in theirs]):
-            print("| %s | %d | %.4g | %.4g | %s | %s |" % (label[:70], col, x, y, "—" if r is None else "%.3f" % r,
-                                                          "yes" if same_text(cells_a, cells_b, (label, col))
-                                                          else "no"))
+        print("| table | row | column | this tree | %s | ratio | same text |\n|---|---|---|---|---|---|---|"
+              % a.rev)
+        for t, label, col, x, y, r in compare([table_numbers(t) for t in ours], [table_numbers(t) for t in theirs]):
+            print("| %d | %s | %d | %.4g | %.4g | %s | %s |" % (t, label[:70], col, x, y,
+                                                               "—" if r is None else "%.3f" % r,
+                                                               "yes" if same_text(cells_a, cells_b, (t, label, col))
+                                                               else "no"))
         sys.stdout.flush()
     return 0
 

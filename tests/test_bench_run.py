@@ -285,15 +285,23 @@ def test_against_reads_every_tables_numbers_and_gives_their_ratio():
     a = "| row | figure |\n|---|---|\n| speed | 12.5x (met) |\n| time per tick | 1,200 us |\n"
     b = "| row | figure |\n|---|---|\n| speed | 10.0x |\n| time per tick | 1,000 us |\n"
     ours, theirs = against.table_numbers(a), against.table_numbers(b)
-    assert ours == {("speed", 1): 12.5, ("time per tick", 1): 1200.0}
-    rows = {r[0]: r for r in against.compare([ours], [theirs])}
-    assert rows["speed"][4] == pytest.approx(1.25) and rows["time per tick"][4] == pytest.approx(1.2)
+    assert ours == {(1, "speed", 1): 12.5, (1, "time per tick", 1): 1200.0}
+    rows = {r[1]: r for r in against.compare([ours], [theirs])}
+    assert rows["speed"][5] == pytest.approx(1.25) and rows["time per tick"][5] == pytest.approx(1.2)
     c = "| row | figure |\n|---|---|\n| speed | 12.5x |\n| time per tick | 1,200 us |\n"
     ca, cb, cc = against.table_cells(a), against.table_cells(b), against.table_cells(c)
-    assert against.same_text([ca, ca], [ca], ("time per tick", 1))
-    assert not against.same_text([ca], [cb], ("time per tick", 1))
-    assert not against.same_text([ca], [cc], ("speed", 1))          # the same number, other text: not the same
-    assert not against.same_text([ca], [{}], ("speed", 1))          # a row one side did not print
+    assert against.same_text([ca, ca], [ca], (1, "time per tick", 1))
+    assert not against.same_text([ca], [cb], (1, "time per tick", 1))
+    assert not against.same_text([ca], [cc], (1, "speed", 1))       # the same number, other text: not the same
+    assert not against.same_text([ca], [{}], (1, "speed", 1))       # a row one side did not print
+
+
+def test_against_keeps_a_row_label_two_tables_share_apart():
+    """bench_hil prints ``inproc`` in its calibration table and again in its hil table: two rows, not one."""
+    from bench import against
+    text = ("| link | s |\n|---|---|\n| inproc | 3.0 |\n\nsome words\n\n"
+            "| link | x |\n|---|---|\n| inproc | 98.7 |\n")
+    assert against.table_numbers(text) == {(1, "inproc", 1): 3.0, (2, "inproc", 1): 98.7}
 
 
 def test_against_refuses_an_unknown_commit_or_benchmark(capsys):

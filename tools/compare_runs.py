@@ -119,12 +119,12 @@ def files(folder):
     return out
 
 
-def compare(a, b, vary=()):
+def compare(a, b, vary=(), listing=None):
     """[(file, entry, a, b, varying)] for every difference between folders ``a`` and ``b``; ``varying`` is True
-    for an entry matching ``VARYING`` or ``vary``."""
+    for an entry matching ``VARYING`` or ``vary``. ``listing``: their ``files()``, if already walked."""
     mine = [re.compile(p) for p in vary]
     pats = [re.compile(p) for p in VARYING + TEXT_VARYING] + mine
-    fa, fb = files(a), files(b)
+    fa, fb = listing or (files(a), files(b))
     rows = []
     for f in sorted(fa | fb):
         if f not in fa or f not in fb:
@@ -157,9 +157,10 @@ def main(argv=None):
         if not os.path.isdir(d):
             print("compare_runs: error: %s is not a folder" % d, file=sys.stderr)
             return 2
-    rows = compare(a.a, a.b, a.vary)
+    fa, fb = files(a.a), files(a.b)
+    rows = compare(a.a, a.b, a.vary, (fa, fb))
     real = [r for r in rows if not r[4]]
-    n = len(files(a.a) | files(a.b))
+    n = len(fa | fb)
     print("| file | entry | %s | %s | may vary |\n|---|---|---|---|---|" % (a.a, a.b))
     for f, k, x, y, v in rows:
         print("| %s | %s | %s | %s | %s |" % (f, k, _short(x), _short(y), "yes" if v else "no"))

@@ -1,7 +1,8 @@
 """``python -m bench.against REV NAME [NAME ...]``: the benchmarks NAME run on this tree and on commit REV in the same
 sitting, alternately (this, REV, this, REV, ... ``--rounds`` times), so that the machine's load falls on both alike,
-then every number of their tables side by side with its ratio (this / REV), and whether the cell's printed text was
-the same in every run of both (an accuracy row of a deterministic benchmark is; a time is not). A ratio, not an
+then every number of their tables side by side with its ratio (this / REV), every verdict (a cell with no number:
+"True", "stopped: ...") by its text, and whether each cell's printed text was the same in every run of both (an
+accuracy row of a deterministic benchmark is; a time is not). A ratio, not an
 absolute time, says whether a change cost speed on a shared machine: within 5 % is noise here.
 
 REV is checked out with ``git worktree`` under ``build/against/<rev>`` and run with this virtual environment (its
@@ -43,8 +44,9 @@ def run_one(tree, name):
 
 
 def table_cells(text):
-    """{(table, row label, column): cell text} of every Markdown table row in ``text`` that holds a number; tables
-    are counted from 1 in the order printed, so a row label two tables share is two rows."""
+    """{(table, row label, column): cell text} of every non-empty cell of every Markdown table row in ``text``
+    (headers and rulers left out); tables are counted from 1 in the order printed, so a row label two tables share is
+    two rows."""
     out, table, inside = {}, 0, False
     for line in text.splitlines():
         if not line.startswith("|"):
@@ -52,11 +54,12 @@ def table_cells(text):
             continue
         if not inside:
             table, inside = table + 1, True
+            continue                                    # the header
         if set(line) <= set("|-: "):
             continue
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         for j, c in enumerate(cells[1:], 1):
-            if NUMBER.search(c):
+            if c:
                 out[(table, cells[0], j)] = c
     return out
 
@@ -65,8 +68,10 @@ def table_numbers(text):
     """{(table, row label, column): number} of every Markdown table row in ``text`` (the first number of each cell)."""
     out = {}
     for key, c in table_cells(text).items():
+        m = NUMBER.search(c)
         try:
-            out[key] = float(NUMBER.search(c).group(0).replace(",", ""))
+            if m:
+                out[key] = float(m.group(0).replace(",", ""))
         except ValueError:
             pass
     return out
@@ -88,6 +93,10 @@ def compare(ours, theirs):
             ma, mb = sum(a) / len(a), sum(b) / len(b)
             rows.append(key + (ma, mb, ma / mb if mb else None))
     return rows
+
+
+def _cell(text):
+    return "(none)" if text is None else text.replace("|", "/")[:40]
 
 
 def main(argv=None):
@@ -122,11 +131,18 @@ def main(argv=None):
                 print("(a run failed: %s)\n" % t.rsplit("\n(exit ", 1)[1][:300])
         print("| table | row | column | this tree | %s | ratio | same text |\n|---|---|---|---|---|---|---|"
               % a.rev)
-        for t, label, col, x, y, r in compare([table_numbers(t) for t in ours], [table_numbers(t) for t in theirs]):
-            print("| %d | %s | %d | %.4g | %.4g | %s | %s |" % (t, label[:70], col, x, y,
-                                                               "—" if r is None else "%.3f" % r,
-                                                               "yes" if same_text(cells_a, cells_b, (t, label, col))
-                                                               else "no"))
+        numbers = {r[:3]: r[3:] for r in compare([table_numbers(t) for t in ours],
+                                                 [table_numbers(t) for t in theirs])}
+        for key in dict.fromkeys(k for c in cells_a + cells_b for k in c):     # in the order printed
+            same = "yes" if same_text(cells_a, cells_b, key) else "no"
+            if key in numbers:
+                x, y, r = numbers[key]
+                print("| %d | %s | %d | %.4g | %.4g | %s | %s |" % (key[0], key[1][:70], key[2], x, y,
+                                                                   "—" if r is None else "%.3f" % r, same))
+            else:           # a verdict, not a number: its text from the first run of each
+                print("| %d | %s | %d | %s | %s | — | %s |" % (key[0], key[1][:70], key[2],
+                                                              _cell(cells_a[0].get(key)), _cell(cells_b[0].get(key)),
+                                                              same))
         sys.stdout.flush()
     return 0
 

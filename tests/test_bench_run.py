@@ -304,6 +304,22 @@ def test_against_keeps_a_row_label_two_tables_share_apart():
     assert against.table_numbers(text) == {(1, "inproc", 1): 3.0, (2, "inproc", 1): 98.7}
 
 
+def test_against_compares_a_verdict_cell_by_its_text(tmp_path, monkeypatch, capsys):
+    """A cell with no number ("True", "stopped: ...") is compared too: a verdict that changed says "no"."""
+    from bench import against, run
+    ours = "| run | identical |\n|---|---|\n| faulted | True |\n| clean | 1.5 s |\n"
+    theirs = "| run | identical |\n|---|---|\n| faulted | stopped: no reply |\n| clean | 1.5 s |\n"
+    assert against.table_cells(ours) == {(1, "faulted", 1): "True", (1, "clean", 1): "1.5 s"}
+    monkeypatch.setattr(against, "worktree", lambda rev: str(tmp_path))
+    monkeypatch.setattr(against, "run_one", lambda tree, name: theirs if tree == str(tmp_path) else ours)
+    monkeypatch.setattr(run, "names", lambda: ["x"])
+    monkeypatch.setattr(run, "header", lambda names: "")
+    assert against.main(["HEAD", "x", "--rounds", "1"]) == 0
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| 1 |")]
+    assert rows == ["| 1 | faulted | 1 | True | stopped: no reply | — | no |",
+                    "| 1 | clean | 1 | 1.5 | 1.5 | 1.000 | yes |"]
+
+
 def test_against_refuses_an_unknown_commit_or_benchmark(capsys):
     from bench import against
     assert against.main(["no-such-rev-xyz", "protocol"]) == 2

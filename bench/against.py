@@ -2,8 +2,8 @@
 sitting, alternately (this, REV, this, REV, ... ``--rounds`` times), so that the machine's load falls on both alike,
 then every number of their tables side by side with its ratio (this / REV), every verdict (a cell with no number:
 "True", "stopped: ...") by its text, and whether each cell's printed text was the same in every run of both (an
-accuracy row of a deterministic benchmark is; a time is not). A ratio, not an
-absolute time, says whether a change cost speed on a shared machine: within 5 % is noise here.
+accuracy row of a deterministic benchmark is; a time is not). A ratio, not an absolute time, says whether a change
+cost speed on a shared machine: within 5 % is noise here.
 
 REV is checked out with ``git worktree`` under ``build/against/<rev>`` and run with this virtual environment (its
 ``bench`` and packages from that tree); what ``make`` builds (the C kernels, the PIL images) is not there unless
@@ -66,15 +66,13 @@ def table_cells(text):
 
 def table_numbers(text):
     """{(table, row label, column): number} of every Markdown table row in ``text`` (the first number of each cell)."""
-    out = {}
-    for key, c in table_cells(text).items():
-        m = NUMBER.search(c)
-        try:
-            if m:
-                out[key] = float(m.group(0).replace(",", ""))
-        except ValueError:
-            pass
-    return out
+    return cell_numbers(table_cells(text))
+
+
+def cell_numbers(cells):
+    """The first number of each cell of ``table_cells``' answer, for the cells that hold one."""
+    return {key: float(m.group(0).replace(",", "")) for key, m in ((k, NUMBER.search(c)) for k, c in cells.items())
+            if m}
 
 
 def same_text(ours, theirs, key):
@@ -131,8 +129,8 @@ def main(argv=None):
                 print("(a run failed: %s)\n" % t.rsplit("\n(exit ", 1)[1][:300])
         print("| table | row | column | this tree | %s | ratio | same text |\n|---|---|---|---|---|---|---|"
               % a.rev)
-        numbers = {r[:3]: r[3:] for r in compare([table_numbers(t) for t in ours],
-                                                 [table_numbers(t) for t in theirs])}
+        numbers = {r[:3]: r[3:] for r in compare([cell_numbers(c) for c in cells_a],
+                                                 [cell_numbers(c) for c in cells_b])}
         for key in dict.fromkeys(k for c in cells_a + cells_b for k in c):     # in the order printed
             same = "yes" if same_text(cells_a, cells_b, key) else "no"
             if key in numbers:

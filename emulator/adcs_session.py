@@ -13,6 +13,11 @@ SatB's fixes relayed 2-3 s late when ``satb_gnss``), BEACON; the emulator is nod
 ``magnetic_devices`` (the flight world's; off for the thesis's, which has none) also the spacecraft file's
 magnetometer (MAGNETOMETER) and magnetorquers (MTQ: MTQ_CMD -> MTQ_TLM), where its blocks are not null.
 
+Runtime ``inproc``: the same app (``firmware.adcs.app.App``) in this process behind
+``firmware.adcs.app.InProcess``, which takes the same packets' bytes and gives the same replies without a process
+or a wire: the analysis host of the one flight stack (``fps adcs bps --world flight`` flies it), bit for bit the
+cpython runtime's history.
+
 Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s), exactly once per cycle over
 a link that loses packets (``firmware.adcs.app.Lockstep`` is the other side):
 
@@ -84,7 +89,7 @@ from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
-RUNTIMES = ("micropython", "cpython", "qemu")
+RUNTIMES = ("inproc", "micropython", "cpython", "qemu")
 # the qemu runtime's board, as a run's summary.json states it
 BOARD = {"board": "QEMU mps2-an500 (ARM's MPS2 FPGA board, AN500 image) standing for a CubeSat ADCS computer",
          "core": "ARM Cortex-M7 with FPv5-D16 (double-precision FPU); MicroPython floats single precision",
@@ -151,12 +156,13 @@ class AdcsSession:
     ``link_faults`` (a ``protocol.faults.LinkFaults`` on the slcan stream, see the module docstring),
     ``spacecraft`` (a checked spacecraft file, None: thesis-3u; see the module docstring),
     ``magnetic_devices`` (serve the file's magnetometer and magnetorquers on the bus, see the module docstring;
-    off by default: thesis-3u's are assumptions for the flight world only)."""
+    off by default: thesis-3u's are assumptions for the flight world only), ``probe`` (runtime inproc: called as
+    probe(tick, t, u) after each cycle of the app, ``self.app``, with the truth still at the cycle's time)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
-                 spacecraft=None, magnetic_devices=False, world="thesis", flight=None):
+                 spacecraft=None, magnetic_devices=False, world="thesis", flight=None, probe=None):
         if runtime not in RUNTIMES:
             raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
         if not (np.isfinite(duration_s) and duration_s >= 1):
@@ -167,6 +173,11 @@ class AdcsSession:
             raise ValueError("truth %r not one of %s" % (truth, ", ".join(orbits.TRUTHS)))
         if apkf_momentum not in MOMENTUM:
             raise ValueError("apkf_momentum must be one of %s, got %r" % (", ".join(MOMENTUM), apkf_momentum))
+        if probe is not None and runtime != "inproc":
+            raise ValueError("a probe reads the app's state: runtime inproc only")
+        self.probe = probe
+        if runtime == "inproc" and link_faults is not None:
+            raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
         self.apkf_momentum = apkf_momentum
         self.runtime, self.satb, self.seed = runtime, bool(satb_gnss), int(seed)
         self.duration_s, self.ts, self.hold_s = float(duration_s), float(ts), float(hold_s)
@@ -208,6 +219,7 @@ class AdcsSession:
         self.k = 0
         self.proc = None
         self.link = None
+        self.app = None                          # runtime inproc: the firmware's App in this process
         self._tmp = None
         self._cmd = [None] * N_WHEELS            # RW_CMD payload received this cycle
         self._commanded = [True] * N_WHEELS      # a reply (RW_TLM) is due in the next burst
@@ -262,6 +274,12 @@ class AdcsSession:
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""
+        if self.runtime == "inproc":             # the app on this host: the same bytes, no process or wire
+            from firmware.adcs.app import App, InProcess
+            self.link = InProcess(App(json.loads(json.dumps(self.config()))), N["ADCS"], self.probe)
+            self.app = self.link.app
+            self._say("ADCS flight software in this process (inproc)")
+            return self._begin()
         from protocol import link as hostlink
         self._tmp = tempfile.mkdtemp(prefix="fps-adcs-")
         cfg = os.path.join(self._tmp, "config.json")
@@ -309,6 +327,10 @@ class AdcsSession:
             if any(p[0] == P["HELLO"] for p in self.link.recv(min(left, 0.5))):
                 break
         self._say("ADCS firmware up (%s, pid %d), CAN over slcan on %s" % (self.runtime, self.proc.pid, path))
+        return self._begin()
+
+    def _begin(self):
+        """Faults on the link, the wall clock, the first burst."""
         if self.link_faults is not None:
             from protocol.faults import inject
             self.faults_port = inject(self.link, self.link_faults, clock=lambda: float(self.k))
@@ -318,6 +340,9 @@ class AdcsSession:
 
     def _has_mtq(self):
         return self.devices is not None and self.devices.mtq is not None
+
+    def _exited(self):
+        return self.link.closed or (self.proc is not None and self.proc.poll() is not None)
 
     def _stderr(self):
         return self.proc.stderr_tail(2000).strip() if self.proc is not None else ""
@@ -472,13 +497,13 @@ class AdcsSession:
                         n = sum(1 for b, _, _, _ in self._burst_pkts if b & d["missing"])
                         self.retries["packets_resent"] += n
                         self._send_burst(d["missing"])
-            if self.link.closed or self.proc.poll() is not None:
+            if self._exited():
                 raise OSError("ADCS firmware exited at t = %d s (code %s): %s"
-                              % (k, self.proc.poll(), self._stderr() or "no message"))
+                              % (k, self.proc.poll() if self.proc else None, self._stderr() or "no message"))
 
     def cycle(self):
         """One 1 s flight-software cycle = 10 dynamics steps of 0.1 s (see the module docstring)."""
-        if self.proc is None:
+        if self.link is None:
             raise OSError("session not started (call start())")
         if self.k >= self.K:
             raise ValueError("the session's %d s are done" % self.K)
@@ -515,13 +540,14 @@ class AdcsSession:
             ok = self._mtq_reply[0][0] == P["MTQ_TLM"]
             self.n_mtq_cmd += ok
             self.refused_mtq_cmd += not ok
-        out = {k: np.zeros((10, n)) for k, n in (("q", 4), ("w", 3), ("ra", 3), ("va", 3), ("rb", 3), ("vb", 3))}
+        out = {k: np.zeros((10, n)) for k, n in (("q", 4), ("w", 3), ("w_rel", 4), ("ra", 3), ("va", 3), ("rb", 3),
+                                                 ("vb", 3))}
         out["t"] = np.zeros(10)
         for j in range(10):
             self.sc.step()
             g = self.xg[(self.k * 10 + j + 1) * (scenario.WORLD_RATE_HZ // 10)]
             out["t"][j] = self.sc.t
-            out["q"][j], out["w"][j] = self.sc.q, self.sc.omega
+            out["q"][j], out["w"][j], out["w_rel"][j] = self.sc.q, self.sc.omega, self.sc.omega_rw_rel
             out["ra"][j], out["va"][j], out["rb"][j], out["vb"][j] = g[0, 0:3], g[0, 3:6], g[1, 0:3], g[1, 3:6]
         if not np.all(np.isfinite(self.sc.x)):
             raise FloatingPointError("truth diverged at t = %.1f s" % self.sc.t)

@@ -1,6 +1,7 @@
-"""The flight world (``fps adcs bps --world flight``): its modes and laws one by one, the APKF's magnetorquer input
-and innovation gate, the drag and solar pressure torques, a short run's mode sequence and limits, the CLI's checks
-and refusals, and (FPS_SLOW=1) the issue's 3-orbit goals on the shipped spacecraft."""
+"""The flight world (``fps adcs bps --world flight``): the flight app's laws one by one (firmware/adcs/flight.py),
+the ground APKF's magnetorquer input and innovation gate, the drag and solar pressure torques, a short run's mode
+sequence and limits, the CLI's checks and refusals, and (FPS_SLOW=1) the 3-orbit goals on the shipped
+spacecraft."""
 
 import json
 
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 
 from emulator.spacecraft.environment import SurfaceTorques, magnetic_torque
+from firmware.adcs import flight
 from ground.adcs import apkf, body_pointing as bps, modes, quat
 from ground.cli import main as fps
 from protocol import spacecraft as sf
@@ -24,12 +26,19 @@ def _angle(q, p):
     return 2 * np.arcsin(min(1.0, np.linalg.norm(quat.error_vec(q, p))))
 
 
+def _slew(qs, qc, rate, acc):
+    s = flight.Slew(rate, acc)
+    s.start(list(qs), list(qc))
+    return s
+
+
 def test_eigenaxis_slew_keeps_its_limits_and_arrives():
     qc = _axis_quat([1, 2, -1], 2.5)                     # 143 deg from the start
-    s = modes.EigenaxisSlew(np.array([0, 0, 0, 1.0]), qc, 0.5 * DEG, 0.05 * DEG)
+    s = _slew([0, 0, 0, 1.0], qc, 0.5 * DEG, 0.05 * DEG)
+    q_ref, w_ref = [0.0] * 4, [0.0] * 3
     rates, steps = [], 0
-    while not s.done:
-        q_ref, w_ref = s.reference(qc, np.zeros(3))
+    while s.active:
+        s.reference(q_ref, w_ref, list(qc), [0.0, 0.0, 0.0])
         rates.append(np.linalg.norm(w_ref))
         steps += 1
         assert steps < 2000
@@ -37,16 +46,17 @@ def test_eigenaxis_slew_keeps_its_limits_and_arrives():
     assert rates.max() <= 0.5 * DEG * (1 + 1e-9)
     assert np.abs(np.diff(rates)).max() <= 0.05 * DEG * (1 + 1e-6) + 1e-12 or rates[-1] < 0.05 * DEG
     assert abs(rates.sum() - 2.5) < 1e-9                 # the reference covered the angle, nothing more
-    assert _angle(s.reference(qc, np.zeros(3))[0], qc) < 1e-12
+    s.reference(q_ref, w_ref, list(qc), [0.0, 0.0, 0.0])
+    assert _angle(np.array(q_ref), qc) < 1e-12
     # against a command that turns: the reference ends on it and its rate then is the command's
     w_c = np.array([0.0, 0.06, 0.0]) * DEG
     qc0 = _axis_quat([0, 0, 1], 1.0)
-    s = modes.EigenaxisSlew(np.array([0, 0, 0, 1.0]), qc0, 0.5 * DEG, 0.05 * DEG)
+    s = _slew([0, 0, 0, 1.0], qc0, 0.5 * DEG, 0.05 * DEG)
     q = qc0
     for _ in range(400):
-        q_ref, w_ref = s.reference(q, w_c)
+        s.reference(q_ref, w_ref, list(q), list(w_c))
         q = quat.propagate(q, w_c, 1.0)
-    assert s.done and _angle(q_ref, quat.propagate(q, -w_c, 1.0)) < 1e-9
+    assert not s.active and _angle(np.array(q_ref), quat.propagate(q, -w_c, 1.0)) < 1e-9
     assert np.allclose(w_ref, w_c, atol=1e-9)
 
 
@@ -57,38 +67,47 @@ def test_mode_log_times_add_up_and_refuse_unknown_modes():
     log.set("SLEW", 30, "b")
     log.set("POINT", 100, "c")
     t = log.time_in(250)
-    assert t == {"INIT": 1, "HOLD": 29, "SLEW": 70, "ACQUIRE": 0, "POINT": 150}
+    assert t == {"INIT": 1, "HOLD": 29, "SLEW": 70, "ACQUIRE": 0, "POINT": 150, "DEGRADED": 0}
     assert [c["to"] for c in log.changes] == ["HOLD", "SLEW", "POINT"]
     with pytest.raises(ValueError, match="unknown mode"):
         log.set("TUMBLE", 3, "x")
+
+
+def _unloading(b, h, gain, limit, m_res=(0.0, 0.0, 0.0)):
+    m = [0.0] * 3
+    sat = flight.unloading(m, list(b), list(h), gain, limit, list(m_res))
+    return np.array(m), [bool(sat >> i & 1) for i in range(3)]
 
 
 def test_unloading_law_removes_momentum_across_the_field_and_clips_per_rod():
     rng = np.random.default_rng(1)
     for _ in range(20):
         b, h = rng.normal(size=3) * 3e-5, rng.normal(size=3) * 1e-3
-        m, sat = modes.unloading_dipole(b, h, 1e-3, 10.0)
-        assert not sat.any()
+        m, sat = _unloading(b, h, 1e-3, 10.0)
+        assert not any(sat)
         h_perp = h - b * (b @ h) / (b @ b)
         assert np.allclose(magnetic_torque(m, b), -1e-3 * h_perp, rtol=1e-9, atol=1e-18)
-    m, sat = modes.unloading_dipole([3e-5, 0, 0], [0, 0, 1.0], 1.0, 0.2)
-    assert sat.tolist() == [False, True, False] and np.allclose(m, [0, 0.2, 0])      # h x b, clipped
+    m, sat = _unloading([3e-5, 0, 0], [0, 0, 1.0], 1.0, 0.2)
+    assert sat == [False, True, False] and np.allclose(m, [0, 0.2, 0])      # h x b, clipped
     # the estimated residual is cancelled: with no momentum the command is -m_residual
-    m, _ = modes.unloading_dipole([1e-5, 2e-5, 0], np.zeros(3), 1e-3, 1.0, m_residual=[0.1, -0.05, 0.2])
+    m, _ = _unloading([1e-5, 2e-5, 0], np.zeros(3), 1e-3, 1.0, m_res=[0.1, -0.05, 0.2])
     assert np.allclose(m, [-0.1, 0.05, -0.2])
+    m, sat = _unloading([0.0, 0.0, 0.0], [1e-3, 0, 0], 1e-3, 1.0)
+    assert np.all(m == 0) and not any(sat)                                  # no field: no command
 
 
 def test_null_bias_moves_the_wheels_without_torquing_the_body():
     d = sf.load("thesis-3u")
     C = np.array(sf.wheel_axes(d)).T
-    u = modes.null_bias_torque(C, np.zeros(4), np.full(4, 3e-6), 2000 * bps.RPM, 0.01)
+    n = np.array(flight.null_vector(C.ravel().tolist()))
+    assert np.allclose(C @ n, 0, atol=1e-12) and abs(np.linalg.norm(n) - 1) < 1e-12 and n[np.argmax(np.abs(n))] > 0
+    u = [0.0] * 4
+    flight.null_bias(u, n, [0.0] * 4, [3e-6] * 4, 2000 * bps.RPM, 0.01)
     assert np.allclose(C @ u, 0, atol=1e-15) and np.abs(u).max() > 0
-    n = np.linalg.svd(C)[2][-1]
-    w_at = n * (2000 * bps.RPM / np.mean(np.abs(n))) * np.sign(n[np.argmax(np.abs(n))])
-    assert np.allclose(modes.null_bias_torque(C, w_at, np.full(4, 3e-6), 2000 * bps.RPM, 0.01), 0, atol=1e-15)
-    assert modes.beacon_gate(np.diag([1e-9] * 3), 300 * quat.RAD_PER_ARCSEC)
-    assert not modes.beacon_gate(np.diag([1e-6] * 3), 300 * quat.RAD_PER_ARCSEC)
-    assert not modes.beacon_gate(np.diag([np.nan] * 3), 300 * quat.RAD_PER_ARCSEC)
+    w_at = n * (2000 * bps.RPM / np.mean(np.abs(n)))
+    u = [0.0] * 4
+    flight.null_bias(u, n, w_at.tolist(), [3e-6] * 4, 2000 * bps.RPM, 0.01)
+    assert np.allclose(u, 0, atol=1e-15)
 
 
 def test_surface_torques_are_the_offset_cross_the_force():

@@ -1,7 +1,8 @@
 """The ADCS flight application (MicroPython): the 1 Hz cycle that ties the lean APKF, the lean STKF/AFLS and
-the pointing controller together, and its CAN service loop.
+the pointing controller together, and its CAN service loop. The same app flies on a board, in its own
+process on CAN (``serve``), and in process under the ground's analysis (``InProcess``, the same packets' bytes).
 
-One cycle (ground/adcs/body_pointing.py's sequence at the flight side's scale, Sec. 6.4.2):
+One cycle (the sequence of Sec. 6.4.2 at the flight side's scale):
 
 1. sensors: the wheels' RW_TLM (tachometer read-outs at the cycle's time), the star tracker, SatA's GNSS, the
    beacon and SatB's relayed GNSS (time-tagged 2-3 s back) received since the last cycle;
@@ -12,7 +13,7 @@ One cycle (ground/adcs/body_pointing.py's sequence at the flight side's scale, S
 3. lean STKF/AFLS: predict, SatA's GNSS, the beacon (Eq. 5.13-5.17) with the APKF's attitude covariance
    4 P_qq in its noise (Eq. 5.15-5.16, Sec. 5.3.3), SatB's GNSS at its time tag (EAFLS);
 4. during the hold (``hold_s``, while the APKF converges) rate damping: -D w plus the gyroscopic and
-   modelled external torques fed forward, as body_pointing.py's hold (with idle wheels the thesis's residual dipole takes
+   modelled external torques fed forward, as the thesis world's hold (with idle wheels the thesis's residual dipole takes
    the body past the star tracker's 0.1 deg/s within ~6-9 s, measured, and the filter goes blind);
    after it the command at SatB (Eq. 6.3-6.4) and
    its rate (central difference over +-0.5 s of the orbit propagator), quaternion PD (Eq. 6.5-6.7) with the
@@ -72,6 +73,21 @@ NEVER = 65535
 NOT_HEARD = (False,) * NW
 UNIT_TOL = 1e-3        # | |v|^2 - 1 | of a unit vector or quaternion off the bus (float32 rounding: ~1e-7)
 _INF = float("inf")
+# The flight world's options (configuration key "flight"; units in the names) and their defaults. The eigenaxis
+# slew is short rather than slow: the star tracker is blind above its 0.1 deg/s, and the lean APKF's rate error
+# grows ~5 arcsec/s per blind second (a 90 deg slew at 0.5 deg/s left ~0.1 deg/s, which kept the tracker blind;
+# at 2 deg/s, < 0.03 deg/s); 2 deg/s is ~1/2 of what the 3U's wheels hold at 80 % of their speed, 0.2 deg/s^2 ~16 %
+# of their torque.
+FLIGHT = {
+    "slew_rate_deg_s": 2.0,
+    "slew_acc_deg_s2": 0.2,
+    "reslew_deg": 1.0,             # POINT -> SLEW when the estimate is this far off the command
+    "unload_gain_1_s": 2e-3,       # the cross-product law's gain: the wheels' momentum across b decays in ~500 s
+    "innovation_gate": 44.84,      # chi-square, 3 dof, 1 - 1e-9: a star-tracker fix beyond it resets the attitude
+    "beacon_gate_arcsec": 300.0,   # the STKF takes the beacon only while the attitude 1 sigma is within this
+    "wheel_bias_share": 0.2,       # the wheels' null-space speed bias, a share of their speed limit
+    "wheel_bias_gain_1_s": 0.01,   # and its gain: ~100 s to reach it
+}
 
 P_RW_CMD = core.PACKET_ID["RW_CMD"]
 P_RW_TLM = core.PACKET_ID["RW_TLM"]
@@ -222,6 +238,7 @@ class App:
         self.miss_st = self.miss_gnss = self.miss_beacon = 0
         self.n_st_invalid = self.n_beacon_invalid = self.n_gnss_b = self.n_gnss_b_drop = 0
         self.n_refused = 0                  # STKF measurements (or predictions) refused with ValueError
+        self.beacon_used = False            # the STKF took this cycle's beacon
         self.last_ok = {"st": 0.0, "gnss": 0.0, "beacon": 0.0, "gnss_b": 0.0}
         self.stale = 0
         self.mode = MODE["INIT"]
@@ -230,12 +247,13 @@ class App:
 
     def _flight_init(self, cfg):
         """The flight world's state (``world`` "flight" in the configuration; ``flight`` its options, the
-        defaults those of ground/adcs/body_pointing.py's FLIGHT; ``magnetorquers`` the spacecraft file's block)."""
+        defaults ``FLIGHT``'s; ``magnetorquers`` the spacecraft file's block)."""
         self.fly = cfg.get("world", "thesis") == "flight"
         self.fmode = "INIT"
         self.m_cmd = linalg.zeros(3)
         self.mtq_sat = 0
-        self.n_resets = 0
+        self.n_resets = 0                   # attitude resets by the innovation gate; the last one's NIS
+        self.reset_nis = 0.0
         self.mag = linalg.zeros(3)
         self.mag_got = False
         self.mag_miss = 0.0                 # the magnetometer's largest difference from the model field (T)
@@ -243,6 +261,11 @@ class App:
         if not self.fly:
             return
         fo = cfg.get("flight") or {}
+        for k in fo:
+            if k not in FLIGHT:
+                raise ValueError("unknown flight option %r (the options: %s)" % (k, ", ".join(sorted(FLIGHT))))
+        fo, given = dict(FLIGHT), fo
+        fo.update(given)
         mt = cfg.get("magnetorquers")
         if not mt:
             raise ValueError("the flight world needs the spacecraft's magnetorquers (configuration key "
@@ -254,16 +277,15 @@ class App:
                     raise ValueError("the lean ADCS drives three rods along body x, y, z; magnetorquers.axes = %r"
                                      % (ax,))
         self.mtq_limit = float(mt["dipole_limit_am2"])
-        self.slew = flight.Slew(float(fo.get("slew_rate_deg_s", 2.0)) * DEG,
-                                float(fo.get("slew_acc_deg_s2", 0.2)) * DEG)
-        self.reslew = float(fo.get("reslew_deg", 1.0)) * DEG
-        self.k_unload = float(fo.get("unload_gain_1_s", 2e-3))
-        self.gate = float(fo.get("innovation_gate", 44.84))
-        self.gate_b = float(fo.get("beacon_gate_arcsec", 300.0)) * RAD_PER_ARCSEC
+        self.slew = flight.Slew(float(fo["slew_rate_deg_s"]) * DEG, float(fo["slew_acc_deg_s2"]) * DEG)
+        self.reslew = float(fo["reslew_deg"]) * DEG
+        self.k_unload = float(fo["unload_gain_1_s"])
+        self.gate = float(fo["innovation_gate"])
+        self.gate_b = float(fo["beacon_gate_arcsec"]) * RAD_PER_ARCSEC
         w = cfg.get("wheels") or {}
         lim = float(w.get("speed_limit_rpm", 10000.0)) * RPM
-        self.bias = float(fo.get("wheel_bias_share", 0.2)) * lim
-        self.bias_gain = float(fo.get("wheel_bias_gain_1_s", 0.01))
+        self.bias = float(fo["wheel_bias_share"]) * lim
+        self.bias_gain = float(fo["wheel_bias_gain_1_s"])
         self.jrw_nom = [float(v) for v in w.get("rotor_inertia_kgm2", (3e-6,) * NW)]
         self.nvec = flight.null_vector(self.C)
         self.m_file = list(self.model.m)          # the parameter file's dipole (filter units)
@@ -418,9 +440,11 @@ class App:
         if not st_ok:
             return
         apkf_lean.error_vec(self.z3, self.qst, a.x)
-        if flight.nis3(self.z3, a.P, a.model.R) > self.gate:
+        nis = flight.nis3(self.z3, a.P, a.model.R)
+        if nis > self.gate:
             flight.reset_attitude(a.x, a.P, self.qst, a.model.R)
             self.n_resets += 1
+            self.reset_nis = nis
         elif not apkf_lean.update(a.x, a.P, self.qst, a.model, a.work):
             a.skipped += 1
 
@@ -460,9 +484,11 @@ class App:
                 self.n_refused += 1
                 self.gnss_got = False            # not usable (miss_gnss was counted: it came)
         gated = self.fly and not math.sqrt(self.Patt[0] + self.Patt[4] + self.Patt[8]) <= self.gate_b
+        self.beacon_used = False
         if self.bc_got and self.bc_valid and not gated and (self.apkf is not None or (self.st_got and self.st_valid)):
             try:
                 f.update_beacon(self.yb, q, self.Patt, self.sigma_b, t=t)
+                self.beacon_used = True
             except ValueError:
                 self.n_refused += 1
                 self.bc_valid = False
@@ -571,7 +597,7 @@ class App:
         return u
 
     def _control_flight(self, t):
-        """The flight world's control (ground/adcs/body_pointing.py's ``_flight_command`` and unloading): HOLD (rate
+        """The flight world's control: HOLD (rate
         damping) until ``hold_s``, then SLEW (``flight.Slew`` from the estimate to the command), ACQUIRE (rate
         damping on the estimate until the star tracker answers: the blind slew leaves a rate error of a few
         hundredths of a deg/s, and the command's own turn on top of it could keep the tracker blind), POINT (the command; SLEW again beyond ``reslew``); where the
@@ -848,6 +874,58 @@ class Lockstep:
         return self._run() if self._ready() else ()
 
 
+def cycle_replies(app, cmds, tick, host, cycle_us=0, n_rx_drop=0):
+    """A cycle's replies [(pid, dst, payload)]: the RW_CMDs ``cmds`` (``App.commands``), in the flight world the
+    magnetorquers' MTQ_CMD, then the ADCS_STATUS to ``host`` that closes the cycle."""
+    out = [(P_RW_CMD, dst_w, pl) for dst_w, pl in cmds]
+    if app.fly:
+        out.append((P_MTQ_CMD, MTQ, app.mtq_payload(tick)))
+    out.append((P_STATUS, host, app.status_payload(tick, cycle_us, n_rx_drop)))
+    return out
+
+
+class InProcess:
+    """The app on this host, behind the calls a CAN link takes (``send_raw``, ``recv``, ``counters``, ``close``):
+    the spacecraft's packets go to ``Lockstep`` as the bytes a bus would carry, and the replies come back the
+    same way, so a session flies the very code and bytes ``serve`` flies, without a process or a wire."""
+
+    def __init__(self, app, node, probe=None):
+        self.app = app
+        self.node = node
+        self.probe = probe                   # probe(tick, t, u): called after each cycle, before its replies
+        self.closed = False
+        self.inbox = []
+        self.ls = Lockstep(app, self._step)
+        app.lockstep = self.ls
+
+    def _step(self, tick, t):
+        u = self.app.cycle(tick, t)
+        if self.probe is not None:
+            self.probe(tick, t, u)
+        return cycle_replies(self.app, self.app.commands(u, tick), tick, self.ls.host)
+
+    def send_raw(self, pid, src, dst, payload):
+        if dst != self.node:
+            return
+        if pid == P_TICK:
+            tick, t_ms, burst, n_gnss_b = struct.unpack(_FMT[P_TICK], payload)
+            out = self.ls.on_tick(tick, t_ms, burst, n_gnss_b, src)
+        else:
+            out = self.ls.on_packet(pid, src, payload)
+        for rpid, rdst, rpl in out:
+            self.inbox.append((rpid, self.node, rdst, 0, rpl))
+
+    def recv(self, timeout=0.0):
+        out, self.inbox = self.inbox, []
+        return out
+
+    def counters(self):
+        return {}
+
+    def close(self):
+        self.closed = True
+
+
 def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
     """The ADCS on a CAN port until the host leaves: HELLO once the channel is open, then the lockstep
     (``Lockstep``): per cycle, RW_CMD x4 and ADCS_STATUS to the tick's sender. ``heap``: callable(tick, bytes)
@@ -874,11 +952,7 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
             heap(tick, mem.mem_alloc() - m0)
             mem.enable()
         dt = ticks_diff(ticks_us(), t0) if ticks_us else 0
-        out = [(P_RW_CMD, dst_w, pl) for dst_w, pl in cmds]
-        if app.fly:                   # the magnetorquers' command, before the status that closes the cycle
-            out.append((P_MTQ_CMD, MTQ, app.mtq_payload(tick)))
-        out.append((P_STATUS, ls.host, app.status_payload(tick, dt, _drops(port))))
-        return out
+        return cycle_replies(app, cmds, tick, ls.host, dt, _drops(port))
 
     ls = Lockstep(app, step)
     app.lockstep = ls

@@ -1,8 +1,10 @@
-"""The flight world's modes for the lean ADCS (MicroPython; the ground's ``ground/adcs/modes.py`` in plain floats):
-the rate-limited eigenaxis slew, the magnetorquers' cross-product unloading law with the estimated residual dipole
-cancelled, the wheels' null-space speed bias, the star-tracker innovation gate with its attitude reset. None of
-this is in the thesis (its Ch. 6 has no momentum management and no slew limit); see the module docstrings on the
-ground side for the laws and their reasons. All angles rad, rates rad/s, dipoles A m^2, torques N m.
+"""The flight world's laws of the lean ADCS (MicroPython, plain floats; ``app.App`` flies them on a board and in
+the ground's analysis alike): the rate-limited eigenaxis slew, the magnetorquers' cross-product unloading law with
+the estimated residual dipole cancelled (m = k (h x b) / |b|^2 - m_res: its torque m x b removes the wheels'
+momentum across the field), the wheels' null-space speed bias (held off zero speed, where Coulomb friction flips
+sign with every tachometer sample), the star-tracker innovation gate with its attitude reset. None of this is in
+the thesis (its Ch. 6 has no momentum management and no slew limit). All angles rad, rates rad/s, dipoles A m^2,
+torques N m.
 """
 
 import math
@@ -41,9 +43,13 @@ def propagate(out, q, w, dt):
 
 
 class Slew:
-    """The rate- and acceleration-limited eigenaxis slew of ``ground.adcs.modes.EigenaxisSlew``: the reference
-    exp(-theta e) (x) q_c, theta shrinking at s <= rate_max, s rising by at most acc_max per second and braking as
-    sqrt(2 acc_max theta); its rate the difference of consecutive references over one step."""
+    """A rate- and acceleration-limited eigenaxis slew toward a moving command. At the start
+    phi = rotvec(q_c (x) q_start^-1), the rotation that takes the start to the command (body frame); the reference
+    is q_ref = exp(-theta e) (x) q_c with e = phi / |phi| fixed and theta shrinking from |phi| at a speed s that
+    rises by at most ``acc_max`` per second, never exceeds ``rate_max`` and brakes as sqrt(2 acc_max theta), so
+    the reference reaches q_c at rest relative to it. Its rate is the difference of consecutive references over
+    one step, the command carried forward by its own rate w_c, so it holds both the slew and the command's own
+    turn. Units: rad, rad/s, rad/s^2, s. Not in the thesis (its Ch. 6 points from rest with the PD alone)."""
 
     def __init__(self, rate_max, acc_max):
         self.rate_max, self.acc_max = float(rate_max), float(acc_max)

@@ -45,50 +45,27 @@ import time
 import numpy as np
 
 from emulator.spacecraft import scenario
-from emulator.spacecraft.devices import Magnetorquers
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.scenario import HOLD_S, LAG_S, laser_axis
 from emulator.spacecraft.wheels import N_WHEELS, WheelParams
-from ground.adcs import apkf, control, modes, quat, runs, stkf
+from ground.adcs import apkf, control, flight_world, modes, quat, runs, stkf
 from ground.adcs.afls import Afls
+from ground.adcs.flight_world import FLIGHT, flight_settle_s                      # noqa: F401 (re-exported)
+from ground.adcs.pointing import (BUDGET_POINTING_3SIGMA, BUDGET_STABILITY_3SIGMA, EST_COLS,  # noqa: F401
+                                  MAX_TS_S, SLOW_S, SUMMARY_KEYS, THESIS, TS_THESIS, W_OBJ, check_ts,
+                                  error_budget, estimate_errors, l_frame, objective, orbit_period,
+                                  pointing_errors, statistics, thesis_3sigma)
 from ground.fileio import write_atomic, write_json
-from protocol import paramfile as pf
+from protocol import paramfile as pf, table
 from protocol.units import RAD_PER_ARCSEC
 
 RPM = 2 * np.pi / 60
 FORMAT = pf.FORMAT
 CAL_SETS = 9
-W_OBJ = np.array([1.0, 1.0, 10.0, 10.0])        # Eq. 6.24
-THESIS = {  # Sec. 6.4.4, ts = 33 s: (mean, 1 sigma)
-    False: {"theta": ((1.261, 21.456), (18.644, 35.919)), "omega": ((-0.033, 6.764), (-0.031, 8.617))},
-    True: {"theta": ((0.955, 20.143), (12.795, 33.945)), "omega": ((-0.024, 7.054), (-0.128, 8.744))},
-}
-TS_THESIS = 33.0
-MAX_TS_S = 21600.0    # t_s at most 6 h: 4 t_s of settling at most a day (the run is held in memory at 10 Hz)
-BUDGET_POINTING_3SIGMA = 150.0
-BUDGET_STABILITY_3SIGMA = 35.0
-SLOW_S = 60       # the error budget's moving average for the tracking part's slow share (s)
 TACH_NOISE_RPM = WheelParams.noise_rpm   # the tachometers' 10 rpm 1 sigma (Sec. 4.8)
 SPAN_MARGIN_S = 2.0   # the orbit truth's span beyond the run (``truth_span``; part of the truth cache's key)
 WORLDS = ("thesis", "flight")
-MODE_CODE = {m: float(i) for i, m in enumerate(modes.MODES)}
-# The flight world's flight-software options (``simulate(world="flight", flight={...})``); units in the names.
-FLIGHT = {
-    # the eigenaxis slew's rate and acceleration limits: the star tracker is blind above its 0.1 deg/s, so the slew
-    # is short rather than slow (measured: the lean APKF's rate error grew ~5 arcsec/s per blind second; a 90 deg
-    # slew at 0.5 deg/s left ~0.1 deg/s, which kept the tracker blind after it; at 2 deg/s, < 0.03 deg/s);
-    # 2 deg/s is ~1/2 of what the 3U's wheels hold at 80 % of their speed, 0.2 deg/s^2 ~16 % of their torque
-    "slew_rate_deg_s": 2.0,
-    "slew_acc_deg_s2": 0.2,
-    "reslew_deg": 1.0,             # POINT -> SLEW when the estimate is this far off the command
-    "unload_gain_1_s": 2e-3,       # the cross-product law's gain: the wheels' momentum across b decays in ~500 s
-    "innovation_gate": 44.84,      # chi-square, 3 dof, 1 - 1e-9: a star-tracker output beyond it resets the attitude
-    "beacon_gate_arcsec": 300.0,   # the STKF takes the beacon only while the attitude 1 sigma is within this
-    "wheel_bias_share": 0.2,       # the wheels' null-space speed bias, a share of their speed limit
-    "wheel_bias_gain_1_s": 0.01,   # and its gain: ~100 s to reach it
-}
-SUMMARY_KEYS = ("pointing_mean_arcsec", "pointing_sigma_arcsec", "stability_mean_arcsec_s",
-                "stability_sigma_arcsec_s", "pointing_3sigma_arcsec", "stability_3sigma_arcsec_s", "complete")
+MODE_CODE = dict(table.ADCS_MODES)
 
 
 # --- parameter file ------------------------------------------------------------------------------------------
@@ -180,46 +157,6 @@ def calibrate(seed=0, sets=CAL_SETS, progress=False, spacecraft=None):
     return params_from_apkf(f.x, f.P, f.model.jxx, meta, scale)
 
 
-# --- pointing error (Eq. 6.12-6.21) ------------------------------------------------------------------------
-def l_frame(laser_axis=control.LASER_AXIS):
-    """T_b of Eq. 6.17: body to the l frame whose z axis is l_b (minimum rotation of l_b onto z; for l_b = -z,
-    where it is not unique, the half turn about x)."""
-    lb = np.asarray(laser_axis, float)
-    if lb[2] < -1 + 1e-12:
-        return dcm(np.array([1.0, 0.0, 0.0, 0.0]))
-    return dcm(control.min_rotation(np.array([0.0, 0.0, 1.0]), lb))
-
-
-
-def pointing_errors(q, w, ra, va, rb, vb, laser_axis=control.LASER_AXIS):
-    """(dtheta (n, 2) rad, domega (n, 2) rad/s) for arrays of true q, w and orbit states (Eq. 6.12-6.21).
-
-    p = rB - rA, p_b = A(q) p, p_l = T_b p_b / |p|, dtheta = asin(p_l[0:2]); v = vB - vA, v_b = A(q) v - w x p_b
-    (the line of sight's rate seen from the turning body), domega = (T_b v_b)[0:2] / |p|.
-    """
-    Tb = l_frame(laser_axis)
-    A = np.array([dcm(qq) for qq in q])
-    p = rb - ra
-    rho = np.linalg.norm(p, axis=1)
-    pb = np.einsum("nij,nj->ni", A, p)
-    pl = pb @ Tb.T / rho[:, None]
-    vb_ = np.einsum("nij,nj->ni", A, vb - va) - np.cross(w, pb)
-    vl = vb_ @ Tb.T / rho[:, None]
-    return np.arcsin(np.clip(pl[:, 0:2], -1, 1)), vl[:, 0:2]
-
-
-def estimate_errors(q_hat, w_hat, ra_hat, rb_hat, q, w, ra, rb):
-    """Estimate minus truth: attitude (arcsec, 3 axes: 2 x the vector part of q_hat (x) q^-1, Eq. 4.25), rate (arcsec/s) and the
-    orbit position errors |rA_hat - rA|, |rB_hat - rB| (m) of one flight-software estimate (``EST_COLS``)."""
-    att = 2.0 * quat.error_vec(np.asarray(q_hat, float), np.asarray(q, float)) / RAD_PER_ARCSEC
-    return np.concatenate([att, (np.asarray(w_hat, float) - w) / RAD_PER_ARCSEC,
-                           [np.linalg.norm(np.asarray(ra_hat, float) - ra),
-                            np.linalg.norm(np.asarray(rb_hat, float) - rb)]])
-
-
-EST_COLS = ("att_x", "att_y", "att_z", "rate_x", "rate_y", "rate_z", "ra_m", "rb_m")
-
-
 def loop_response(att_err, rate_err, ts=TS_THESIS, zeta=control.ZETA, dt=1.0, sub=10):
     """The pointing error one body axis's PD (Eq. 6.5-6.7) leaves from its estimate's errors alone: a linear
     model to explain a run by, not part of the simulator.
@@ -247,71 +184,10 @@ def loop_response(att_err, rate_err, ts=TS_THESIS, zeta=control.ZETA, dt=1.0, su
     return (th[:, None] + om[:, None] * tau + u[:, None] * tau ** 2 / 2).ravel()
 
 
-def objective(dtheta, domega):
-    """J = E[eps^T W eps] (Eq. 6.22-6.24), eps in rad and rad/s."""
-    e = np.column_stack([dtheta, domega])
-    return float(np.mean(e ** 2 @ W_OBJ))
-
-
-def thesis_3sigma(satb_gnss):
-    """Sec. 6.4.4's figures as 3 sigma of the two axes in total, (pointing arcsec, stability arcsec/s), as
-    ``statistics`` gives ours."""
-    th = THESIS[bool(satb_gnss)]
-    return (float(3 * np.hypot(th["theta"][0][1], th["theta"][1][1])),
-            float(3 * np.hypot(th["omega"][0][1], th["omega"][1][1])))
-
-
-def statistics(dtheta, domega):
-    """The summary figures (arcsec, arcsec/s) of the collected samples."""
-    th, om = dtheta / RAD_PER_ARCSEC, domega / RAD_PER_ARCSEC
-    sth, som = th.std(axis=0), om.std(axis=0)
-    return {"pointing_mean_arcsec": th.mean(axis=0).tolist(), "pointing_sigma_arcsec": sth.tolist(),
-            "stability_mean_arcsec_s": om.mean(axis=0).tolist(), "stability_sigma_arcsec_s": som.tolist(),
-            "pointing_3sigma_arcsec": float(3 * np.hypot(*sth)),
-            "stability_3sigma_arcsec_s": float(3 * np.hypot(*som)),
-            "pointing_max_arcsec": float(np.abs(th).max()), "J_rad2": objective(dtheta, domega),
-            "samples": int(len(th))}
-
-
 # --- 3. pointing and tracking -------------------------------------------------------------------------------
 def truth_span(seconds):
     """The truth's span for a run of ``seconds`` (``simulate``'s: ``scenario.truth_span`` with ``SPAN_MARGIN_S``)."""
     return scenario.truth_span(seconds, SPAN_MARGIN_S)
-
-
-def check_ts(ts):
-    """``ts`` (the settling time t_s of Eq. 6.7, s) as a float in (0, MAX_TS_S]; ValueError naming --ts."""
-    try:
-        v = float(ts)
-    except (TypeError, ValueError):
-        raise ValueError("--ts (settling time t_s) must be a number of seconds, got %r" % (ts,)) from None
-    if not 0 < v <= MAX_TS_S:
-        raise ValueError("--ts (settling time t_s) must be in (0, %g] s, got %r" % (MAX_TS_S, ts))
-    return control.natural_frequency(v) and v
-
-
-def orbit_period(x):
-    """The Keplerian period (s) of the orbit whose [r (m), v (m/s)] is x (vis-viva: a = 1 / (2/r - v^2/mu))."""
-    r, v = np.linalg.norm(x[0:3]), np.linalg.norm(x[3:6])
-    a = 1.0 / (2.0 / r - v * v / stkf.MU)
-    return float(2 * np.pi * np.sqrt(a ** 3 / stkf.MU))
-
-
-ACQUIRE_MARGIN_S = 60.0     # flight_settle_s: the re-acquisition after the blind slew and a short second slew
-
-
-def flight_settle_s(d, ts=TS_THESIS, flight=None, hold_s=HOLD_S):
-    """When the flight world's pointing can be taken as settled, planned from the start (s): the hold, the first
-    slew's trapezoid (its angle from the attitude at rest, q = [0, 0, 0, 1], to the command at the orbits'
-    initial states; its rate and acceleration limits ``FLIGHT``'s or ``flight``'s), ``ACQUIRE_MARGIN_S`` for the
-    re-acquisition and 4 t_s of settling. ``fps system --world flight`` starts its play there."""
-    fo = dict(FLIGHT, **(flight or {}))
-    x0a, x0b = scenario.orbit_setup(d)["x0s"]
-    qc = control.attitude_command(x0a[0:3], x0a[3:6], x0b[0:3], laser_axis(d))
-    theta = 2.0 * np.arccos(min(1.0, abs(float(qc[3]))))
-    w, a = fo["slew_rate_deg_s"] * modes.DEG, fo["slew_acc_deg_s2"] * modes.DEG
-    t_slew = theta / w + w / a if theta > w * w / a else 2.0 * np.sqrt(theta / a)
-    return float(np.ceil(hold_s + t_slew + ACQUIRE_MARGIN_S + 4.0 * check_ts(ts)))
 
 
 def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
@@ -329,38 +205,6 @@ def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
     return dict(d, name=d["name"] + "+partner",
                 partner={"position_m": turn(r).tolist(), "velocity_m_s": turn(v).tolist(),
                          "relay_delay_s": list(relay_delay_s)})
-
-
-def _flight_command(log, t, q_hat, qc, wc, fo, box, st_ok, blind_s):
-    """The flight world's command at t (after the hold), by mode: SLEW, a rate-limited eigenaxis slew
-    (``modes.EigenaxisSlew``, held in ``box[0]``) from the estimate toward the tracking command, until its
-    reference reaches it; ACQUIRE, rate damping on the estimate (q_c = q_hat, w_c = 0) while the star tracker is
-    still blind (the blind slew leaves a rate error; the command's own turn on top of it could keep the tracker
-    blind); on its first output
-    (this second, ``st_ok``, after ``blind_s`` s without one) POINT if the estimate is within ``reslew_deg`` of the
-    command, else another slew from the estimate; POINT, the command, back to SLEW when the estimate is more than
-    ``reslew_deg`` off it."""
-    err = 2.0 * np.degrees(np.arcsin(min(1.0, np.linalg.norm(quat.error_vec(q_hat, qc)))))
-    if log.mode == "POINT":
-        if err <= fo["reslew_deg"]:
-            return qc, wc
-        log.set("SLEW", t, "the estimate is %.2f deg off the command (> %g deg)" % (err, fo["reslew_deg"]))
-    elif log.mode == "ACQUIRE":
-        if not st_ok:                   # rate damping on the estimate until the star tracker answers
-            return q_hat, np.zeros(3)
-        why = "the star tracker is back after %d s blind, the estimate %.2f deg off the command" % (blind_s, err)
-        if err <= fo["reslew_deg"]:
-            log.set("POINT", t, why)
-            return qc, wc
-        log.set("SLEW", t, why)
-    if box[0] is None:
-        box[0] = modes.EigenaxisSlew(q_hat, qc, fo["slew_rate_deg_s"] * modes.DEG, fo["slew_acc_deg_s2"] * modes.DEG)
-        log.set("SLEW", t, "a slew of %.1f deg to the partner's line of sight" % np.degrees(box[0].theta0))
-    q_ref, w_ref = box[0].reference(qc, wc)
-    if box[0].done:
-        box[0] = None
-        log.set("ACQUIRE", t + 1.0, "the slew's reference reached the command")
-    return q_ref, w_ref
 
 
 class EstimatedOrbit:
@@ -399,21 +243,22 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     APKF starts and the laser axis of the command and of the pointing error; the parameter file is checked
     against it.
 
-    ``world``: "thesis" (Sec. 6.4 as above) or "flight" (``FLIGHT``; ``flight`` overrides its options): the
-    wheels at the file's speed and torque limits, drag and solar pressure torques about ``surface.cp_offset_m``,
-    the magnetorquers with the cross-product unloading law (``modes.unloading_dipole``; their dipole a known
-    input of the APKF and of the feed-forward), a rate-limited eigenaxis slew before pointing
-    (``modes.EigenaxisSlew``), the APKF's innovation gate (``apkf.APKF.gate``), the STKF's beacon gate
-    (``modes.beacon_gate``) and the mode log. There ``duration_s`` is the whole run from t = 0 (no settling is
-    added) and the figures are over the pointing passes after the first orbit (``flight_statistics``)."""
+    ``world``: "thesis" (Sec. 6.4 as above; ``flight``'s options are checked, not used) or "flight": the flight
+    software that flies, in process (``flight_world.simulate``; ``flight`` overrides its options, ``feedforward``
+    must stay on and
+    ``wheel_speed_limit_rpm`` and ``settle_ts`` do not apply: the file's limits, and the figures over the
+    pointing passes after the first orbit)."""
     ts = check_ts(ts)
     if world not in WORLDS:
         raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
-    fo = dict(FLIGHT, **(flight or {}))
-    unknown = sorted(set(fo) - set(FLIGHT))
-    if unknown:
-        raise ValueError("unknown flight option(s) %s (the options: %s)" % (", ".join(unknown), ", ".join(FLIGHT)))
-    fly, world_name = world == "flight", world
+    if world == "flight":
+        if not feedforward:
+            raise ValueError("the flight software always feeds its modelled torques forward (feedforward)")
+        return flight_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
+                                     truth=truth, cache_dir=cache_dir, progress=progress, hold_s=hold_s,
+                                     on_second=on_second, tach_noise_rpm=tach_noise_rpm, spacecraft=spacecraft,
+                                     flight=flight)
+    flight_world.check_flight(flight)                  # known options, which the thesis world does not use
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
     d = spacecraft or scenario.thesis_3u()
@@ -422,35 +267,16 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
     t_settle = hold_s + settle_ts * ts
     K = int(np.ceil(t_settle + duration_s))
-    if fly:
-        if d["magnetorquers"] is None:
-            raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers; give "
-                             "the spacecraft file a magnetorquers block (or fly --world thesis)")
-        wheel_speed_limit_rpm = d["wheels"]["speed_limit_rpm"]
-        K = int(np.ceil(duration_s))
     if tach_noise_rpm is not None:
         if not (np.isfinite(tach_noise_rpm) and tach_noise_rpm > 0):
             raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
         d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
     world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K,   # Sec. 6.4.1
-                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm, spacecraft=d, flight=fly)
+                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm, spacecraft=d)
     rate, xg, wheels, sc, st = world.rate, world.xg, world.wheels, world.sc, world.st
     log = modes.ModeLog("INIT", 0.0)
     period = orbit_period(xg[0, 0])
-    if fly:
-        t_settle = period                               # the figures: pointing passes after the first orbit
-        m_res_true = sc.dipole
-        mtq = d["magnetorquers"]
-        rods = Magnetorquers.from_spacecraft(d)         # the truth's rods (the session's device model)
-        mtq_axes = np.array([np.asarray(a, float) / np.linalg.norm(a) for a in mtq["axes"]])
-        slew = None
-        gate_rad = fo["beacon_gate_arcsec"] * RAD_PER_ARCSEC
-    m_cmd = np.zeros(3)
-    slew_box = [None]
-    t_st_last = 0.0
-    use_beacon = True
-    flog = {k: np.full((K + 1, m), np.nan) for k, m in (("m_cmd", 3), ("h_w", 3), ("mode", 1), ("st_ok", 1),
-                                                        ("beacon_used", 1), ("mtq_sat", 1))}
+    flog = {k: np.full((K + 1, 1), np.nan) for k in ("mode", "st_ok")}
     gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
     # flight software state
     orb = EstimatedOrbit(0.0, world.stkf_x0)
@@ -458,7 +284,6 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     model.jxx, model.orbit, model.field = jxx, orb, world.field
     ds = d["wheels"]                                 # the wheels' torque limit and friction: nominal, not truth
     lb = laser_axis(d)
-    P_st = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * RAD_PER_ARCSEC) ** 2)
     f_stkf = Afls(world.stkf_x0, np.diag(world.stkf_P0_diag), 0.0, LAG_S,
                   stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)
     I6 = np.eye(6)
@@ -506,13 +331,10 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                     x0[7:30] = xp
                     flt = apkf.APKF(x0, model=model, case=1)
                     flt.P[apkf.PARAMS, apkf.PARAMS] = Pp
-                    if fly:
-                        flt.gate = fo["innovation_gate"]
                     log.set("HOLD", t, "the APKF started from two star-tracker outputs")
                 q_prev = q_st if st_ok else None
             else:
                 orb.set(t - 1.0, f_stkf.x)                 # the STKF's rA, vA at t - 1 (not yet predicted to t)
-                model.m_ctrl = m_cmd * scale if fly else None   # the magnetorquers' dipole over t - 1 .. t
                 flt.step(t - 1.0, tach, q_st if st_ok else None)
                 if not np.all(np.isfinite(flt.x)):
                     raise FloatingPointError("APKF diverged at t = %.0f s" % t)
@@ -520,17 +342,13 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 q_hat, w_hat, P_att = flt.x[0:4], flt.x[4:7], 4.0 * flt.P[0:3, 0:3]
             else:
                 q_hat, w_hat = (q_st if st_ok else np.array([0, 0, 0, 1.0])), np.zeros(3)
-                P_att = P_st
+                P_att = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * RAD_PER_ARCSEC) ** 2)
             A_hat = dcm(q_hat)
             if k > 0:
                 f_stkf.predict(t)
-            use_beacon = not fly or (flt is not None and modes.beacon_gate(P_att, gate_rad))
             try:
-                if use_beacon:
-                    R_gb = stkf.R_gnss_beacon(gnss_a.R, stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
-                    f_stkf.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
-                else:                                   # the attitude is not known well enough for the beacon
-                    f_stkf.update(zg, gnss_a.R, lambda x: (x, I6), part=stkf.SAT_A)
+                R_gb = stkf.R_gnss_beacon(gnss_a.R, stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
+                f_stkf.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
                 for tm, z in due:                       # SatB's GNSS: H = I on SatB's part (Eq. 5.12)
                     f_stkf.update(z, relay.gnss.R, lambda x: (x, I6), t=tm, part=stkf.SAT_B)
             except np.linalg.LinAlgError as exc:        # S not positive definite: the filter has diverged
@@ -544,9 +362,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 C = apkf.c_rw(x, model)
                 if t >= hold_s:
                     qc, wc = control.command_rate(xh, stkf.f, lb)
-                    if fly:
-                        qc, wc = _flight_command(log, t, q_hat, qc, wc, fo, slew_box, st_ok, t - t_st_last)
-                    elif log.mode == "HOLD":
+                    if log.mode == "HOLD":
                         log.set("POINT", t, "the hold is over")
                 else:                                       # the hold: rate damping (q_c = q_hat, w_c = 0)
                     qc, wc = q_hat, np.zeros(3)
@@ -554,22 +370,12 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 h_w = (C * x[26:30] / scale) @ x[38:42]     # the wheels' momentum (body frame, N m s)
                 H = J @ w_hat + h_w if feedforward else None
                 tff = None
-                b_i = model.field.field(xh[0:3], t)
-                if fly:                                     # unloading: this second's dipole, known to the APKF
-                    m_cmd, rods_sat = modes.unloading_dipole(A_hat @ b_i, h_w, fo["unload_gain_1_s"],
-                                                             mtq["dipole_limit_am2"], x[15:18] / scale, mtq_axes)
-                    sc.dipole = m_res_true + rods.command(m_cmd)[0]
-                    flog["m_cmd"][k], flog["h_w"][k], flog["mtq_sat"][k] = m_cmd, h_w, float(rods_sat.any())
                 if feedforward:
-                    tff = control.external_torque(J, x[15:18] / scale + m_cmd, x[7:10] / scale, q_hat, xh[0:3],
-                                                  b_i)
+                    tff = control.external_torque(J, x[15:18] / scale, x[7:10] / scale, q_hat, xh[0:3],
+                                                  model.field.field(xh[0:3], t))
                 tau_c = control.pd_torque(q_hat, w_hat, qc, wc, Kp, Dd, H, tff)
                 tau_c = control.saturate(tau_c, C, ds["torque_limit_nm"])
                 u = control.wheel_torques(tau_c, C, null_fraction=0.0)        # Eq. 6.11 (no null torque)
-                if fly:                                     # the wheels held off zero speed (null space)
-                    u = u + modes.null_bias_torque(C, tach, np.asarray(ds["rotor_inertia_kgm2"], float),
-                                                   fo["wheel_bias_share"] * ds["speed_limit_rpm"] * RPM,
-                                                   fo["wheel_bias_gain_1_s"])
                 if feedforward:
                     u = u + control.friction_compensation(tach, ds["friction_coulomb_nm"],
                                                           ds["friction_viscous_nms_rad"],
@@ -578,9 +384,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 if tff is not None:
                     fsw["tau_ff"][k] = tff
             fsw["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)        # truth, for the record only
-            flog["mode"][k], flog["st_ok"][k], flog["beacon_used"][k] = MODE_CODE[log.mode], st_ok, use_beacon
-            if st_ok:
-                t_st_last = t
+            flog["mode"][k], flog["st_ok"][k] = float(MODE_CODE[log.mode]), st_ok
             fsw["q_hat"][k], fsw["w_hat"][k], fsw["u"][k] = q_hat, w_hat, u
             fsw["x_stkf"][k] = xh                                          # rA, vA, rB, vB estimated
             if np.all(np.isfinite(q_hat)):
@@ -619,11 +423,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     for key in flog:
         flog[key] = flog[key][:k_done + 1]
     hist.update({"fsw_" + k: v for k, v in flog.items()})
-    mode_s = flog["mode"][:, 0]
-    mode10 = mode_s[np.minimum(hist["t"].astype(int), k_done)]
     sel = hist["t"] >= t_settle
-    if fly:
-        sel &= mode10 == MODE_CODE["POINT"]
     budget = error_budget(hist, xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb)
     res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
            "duration_s": float(duration_s), "settle_s": float(t_settle), "simulated_s": float(k_done),
@@ -631,17 +431,11 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
            "wall_s": time.perf_counter() - t_wall, "wheel_speed_clips": wheels.counters(),
            "max_wheel_speed_rpm": float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi)),
            "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm), "tach_noise_rpm": d["wheels"]["tach_noise_rpm"],
-           "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "spacecraft": d["name"], "world": world_name,
+           "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "spacecraft": d["name"], "world": "thesis",
            "orbit_period_s": period, "mode_changes": log.changes, "time_in_mode_s": log.time_in(k_done),
            "apkf_attitude_resets": [] if flt is None else [list(r) for r in flt.resets]}
-    # the star tracker's blind share: after the first slew (flight: the first POINT; thesis: the settling)
-    first_point = next((c["t_s"] for c in log.changes if c["to"] == "POINT"), None)
-    t_from = (first_point if fly else t_settle)
-    secs = np.arange(k_done + 1) >= (np.inf if t_from is None else t_from)
+    secs = np.arange(k_done + 1) >= t_settle         # the star tracker's blind share after the settling
     res["star_tracker_blind_share"] = float(1.0 - flog["st_ok"][secs, 0].mean()) if secs.any() else None
-    if fly:
-        res.update(flight_statistics(hist, dth, dom, mode10, period, flog, mtq["dipole_limit_am2"], mtq_axes))
-        res["flight_options"] = fo
     if sel.sum() >= 2:
         res.update(statistics(dth[sel], dom[sel]))
     else:
@@ -649,68 +443,6 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         res["J_rad2"] = None
     res["budget"] = budget
     return res, hist
-
-
-def flight_statistics(hist, dth, dom, mode10, period, flog, dipole_limit, axes):
-    """The flight world's figures: per pointing pass (pass p = the POINT samples of orbit p, p >= 1, of those the
-    run holds whole; orbit 0 is the slew and settling) its 3 sigma pointing and stability (as ``statistics``) and largest wheel
-    speed; the largest wheel speed after the first orbit (``max_wheel_speed_rpm`` then means that span, and
-    ``max_wheel_speed_rpm_run`` the whole run's); the magnetorquers' duty (mean of the largest rod's |m| over
-    its limit) and saturated share; the wheels' momentum |h| (N m s) at most and at the end."""
-    t = hist["t"]
-    rpm = np.abs(hist["w_rel"]) * 60 / (2 * np.pi)
-    passes = []
-    n_orbits = int(np.floor(t[-1] / period + 0.01))           # whole orbits (1 % short still counts)
-    for p in range(1, n_orbits):
-        span = (t >= p * period) & (t < (p + 1) * period)
-        sel = span & (mode10 == MODE_CODE["POINT"])
-        if sel.sum() < 2:
-            passes.append({"orbit": p, "samples": int(sel.sum())})
-            continue
-        st = statistics(dth[sel], dom[sel])
-        passes.append({"orbit": p, "t_from_s": float(t[span][0]), "t_to_s": float(t[span][-1]),
-                       "samples": st["samples"], "pointing_3sigma_arcsec": st["pointing_3sigma_arcsec"],
-                       "stability_3sigma_arcsec_s": st["stability_3sigma_arcsec_s"],
-                       "max_wheel_speed_rpm": float(rpm[span].max())})
-    after = t >= period
-    rods = np.abs(np.linalg.lstsq(axes.T, np.nan_to_num(flog["m_cmd"]).T, rcond=None)[0]).max(axis=0)
-    h = np.linalg.norm(flog["h_w"], axis=1)
-    return {"passes": passes, "max_wheel_speed_rpm": float(rpm[after].max()) if after.any() else None,
-            "max_wheel_speed_rpm_run": float(rpm.max()),
-            "mtq_duty": float(np.mean(rods / dipole_limit)),
-            "mtq_saturated_share": float(np.nanmean(flog["mtq_sat"])),
-            "wheel_momentum_max_nms": float(np.nanmax(h)) if np.isfinite(h).any() else None,
-            "wheel_momentum_end_nms": float(h[-1]) if np.isfinite(h[-1]) else None,
-            "beacon_used_share": float(np.nanmean(flog["beacon_used"]))}
-
-
-def error_budget(hist, x1, t_settle, slow_s=SLOW_S, laser_axis=control.LASER_AXIS):
-    """Where the pointing error comes from, at the 1 Hz flight-software instants after settling (arcsec, 1σ per
-    axis): with e(q) the Eq. 6.12-6.16 pointing error of attitude q against the true line of sight,
-    ``estimation`` = e(q) - e(q_hat), ``tracking`` = e(q_hat) - e(q_c) (the controller's), ``command`` = e(q_c)
-    (the STKF's and the command law's); ``total`` = e(q) is their sum. ``tracking_slow`` is the tracking part's
-    ``slow_s`` moving average: the bias a PD leaves against a torque it does not model. Each part's mean is
-    given too (``*_mean_arcsec``)."""
-    k = np.arange(len(x1))
-    keep = (k >= t_settle) & np.all(np.isfinite(hist["fsw_qc"][:len(x1)]), axis=1)
-    if keep.sum() < 2 * slow_s:
-        return None
-    k = k[keep]
-    q, w = hist["q"][k * 10], hist["w"][k * 10]
-    ra, va, rb, vb = x1[k, 0, 0:3], x1[k, 0, 3:6], x1[k, 1, 0:3], x1[k, 1, 3:6]
-
-    def e(qq):
-        return pointing_errors(qq, w, ra, va, rb, vb, laser_axis)[0] / RAD_PER_ARCSEC
-
-    tot, est, cmd = e(q), e(hist["fsw_q_hat"][k]), e(hist["fsw_qc"][k])
-    parts = {"total": tot, "estimation": tot - est, "tracking": est - cmd, "command": cmd}
-    box = np.ones(slow_s) / slow_s
-    slow = np.column_stack([np.convolve(parts["tracking"][:, i], box, mode="valid") for i in range(2)])
-    out = {name + "_sigma_arcsec": v.std(axis=0).tolist() for name, v in parts.items()}
-    out["tracking_slow_sigma_arcsec"] = slow.std(axis=0).tolist()
-    out.update({name + "_mean_arcsec": v.mean(axis=0).tolist() for name, v in parts.items()})
-    out["samples"] = int(len(k))
-    return out
 
 
 def save_history(path, hist):

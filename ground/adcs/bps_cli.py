@@ -288,7 +288,8 @@ def report_flight_md(s, args_text):
     if len(s["mode_changes"]) > 50:
         out.append("| ... | %d more in summary.json | |" % (len(s["mode_changes"]) - 50))
     out += ["", "Not the thesis's world (that is `--world thesis`): datasheet wheel limits, drag and solar "
-            "pressure torques, magnetorquer unloading, a rate-limited slew and the gates (ground/adcs/modes.py).", ""]
+            "pressure torques, magnetorquer unloading, a rate-limited slew and the gates, flown by the flight app "
+            "(firmware/adcs/app.py) in process.", ""]
     return "\n".join(out)
 
 

@@ -35,7 +35,8 @@ def register(sub):
     p.add_argument("--duration", type=float, default=600.0,
                    help="virtual seconds, 1 to %g (default 600)" % campaign.MAX_DURATION_S)
     p.add_argument("--runtime", default="micropython", choices=RUNTIMES,
-                   help="the firmware's interpreter: micropython or cpython here, or qemu, the ADCS PIL board of "
+                   help="the firmware's interpreter: micropython or cpython in a process of its own on CAN, "
+                        "inproc (the same app and bytes in this process, no link), or qemu, the ADCS PIL board of "
                         "make pil (a Cortex-M7 with its FPU under QEMU; default micropython)")
     add_satb_gnss_option(p, False)
     p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the PD, s, in (0, %g] "

@@ -3,8 +3,9 @@
 - The ADCS loop (``--adcs``) runs ahead in its own process (``multiprocessing``, spawn) and sends one message
   per 1 s cycle: ``firmware``, the ADCS flight software on CAN against the emulated spacecraft
   (``emulator.adcs_session.AdcsSession``), or ``ground``, the body pointing simulator of Sec. 6.4
-  (``ground.adcs.body_pointing.simulate``: truth, 41-state APKF, STKF with the EAFLS and the controller, run whole and
-  sent in 1 s slices; its results are those of ``fps adcs bps``). Of each cycle's ten 0.1 s truth samples the
+  (``ground.adcs.body_pointing.simulate``, run whole and sent in 1 s slices; its results are those of
+  ``fps adcs bps``: in the thesis world the truth, 41-state APKF, STKF with the EAFLS and the controller; in the
+  flight world the flight app itself in process, bit for bit the firmware's history). Of each cycle's ten 0.1 s truth samples the
   body pointing error (dtheta1, dtheta2 about the laser line of sight, Eq. 6.12-6.16) and the stability
   (Eq. 6.18-6.21) are taken by ``ground.adcs.body_pointing.pointing_errors``; the flight software's estimates ("est")
   are compared with the truth at the cycle's start.

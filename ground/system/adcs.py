@@ -84,7 +84,9 @@ def _reference(res, hist, err, spec):
     out = bps.statistics(hist["dtheta_arcsec"][sel] * RAD_PER_ARCSEC, hist["domega_arcsec_s"][sel] * RAD_PER_ARCSEC)
     out["complete"] = bool(res["complete"])
     out["estimation"] = estimation_accuracy(np.arange(len(err)), err, t0, t1)
-    out["source"] = "ground.adcs.body_pointing.simulate (41-state APKF, STKF + EAFLS), seed %d" % spec["seed"]
+    out["source"] = ("ground.adcs.flight_world.simulate (the flight app in process: lean APKF, lean STKF + AFLS)"
+                     if spec.get("world") == "flight" else
+                     "ground.adcs.body_pointing.simulate (41-state APKF, STKF + EAFLS)") + ", seed %d" % spec["seed"]
     return out
 
 

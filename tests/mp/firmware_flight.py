@@ -1,5 +1,5 @@
 """MicroPython: firmware/adcs/flight.py's slew, unloading law, null vector and gate on fixed inputs; prints the
-results as one JSON line for the CPython side to compare with ground/adcs/modes.py."""
+results as one JSON line, for the tests to compare its MicroPython and CPython runs."""
 import json
 import math
 

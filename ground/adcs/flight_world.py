@@ -1,0 +1,238 @@
+"""The flight world of the body pointing simulator (``fps adcs bps --world flight``): the flight software that flies,
+``firmware.adcs.app.App`` with its lean APKF and lean STKF, steering the emulated spacecraft in this process.
+
+One flight stack: the run is ``emulator.adcs_session.AdcsSession`` with runtime ``inproc``, so the app gets the
+very packets' bytes that ``fps adcs can`` puts on the CAN bus and its history is that command's, bit for bit,
+for the same seed, vehicle and parameter file. The mode machine, the gates, the eigenaxis slew, the unloading
+law and the wheel allocation are the app's (``firmware/adcs/app.py`` and ``flight.py``); nothing of them is
+restated here. What this module adds is the analysis: the truth at 10 Hz, the flight software's state each
+second (read from the app after its cycle), the pointing error against the true line of sight (Eq. 6.12-6.21),
+the passes, the wheels' and magnetorquers' figures and the error budget.
+
+The world: the spacecraft file's wheels at their speed and torque limits, drag and solar pressure torques about
+``surface.cp_offset_m``, the magnetorquers and magnetometer on the bus (``scenario.pointing_world(flight=True)``).
+``duration_s`` is the whole run from t = 0; the figures are over the POINT samples of the orbits after the first.
+"""
+
+import time
+
+import numpy as np
+
+from emulator.adcs_session import AdcsSession, MODE_NAME
+from emulator.spacecraft import scenario
+from emulator.spacecraft.scenario import HOLD_S, laser_axis
+from firmware.adcs.app import FLIGHT
+from ground.adcs import control
+from ground.adcs.modes import MODES
+from ground.adcs.pointing import (TS_THESIS, check_ts, error_budget, estimate_errors, orbit_period,
+                                  pointing_errors, statistics, SUMMARY_KEYS, EST_COLS)
+from protocol import table
+from protocol.units import RAD_PER_ARCSEC
+
+DEG = np.pi / 180.0
+MODE_CODE = dict(table.ADCS_MODES)
+ACQUIRE_MARGIN_S = 60.0     # flight_settle_s: the re-acquisition after the blind slew and a short second slew
+FSW = (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3), ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
+       ("wc", 3), ("x_stkf", 12), ("est_err", len(EST_COLS)), ("m_cmd", 3), ("h_w", 3), ("mode", 1),
+       ("st_ok", 1), ("beacon_used", 1), ("mtq_sat", 1))
+
+
+def flight_settle_s(d, ts=TS_THESIS, flight=None, hold_s=HOLD_S):
+    """When the flight world's pointing can be taken as settled, planned from the start (s): the hold, the first
+    slew's trapezoid (its angle from the attitude at rest, q = [0, 0, 0, 1], to the command at the orbits'
+    initial states; its rate and acceleration limits ``FLIGHT``'s or ``flight``'s), ``ACQUIRE_MARGIN_S`` for the
+    re-acquisition and 4 t_s of settling. ``fps system --world flight`` starts its play there."""
+    fo = dict(FLIGHT, **(flight or {}))
+    x0a, x0b = scenario.orbit_setup(d)["x0s"]
+    qc = control.attitude_command(x0a[0:3], x0a[3:6], x0b[0:3], laser_axis(d))
+    theta = 2.0 * np.arccos(min(1.0, abs(float(qc[3]))))
+    w, a = fo["slew_rate_deg_s"] * DEG, fo["slew_acc_deg_s2"] * DEG
+    t_slew = theta / w + w / a if theta > w * w / a else 2.0 * np.sqrt(theta / a)
+    return float(np.ceil(hold_s + t_slew + ACQUIRE_MARGIN_S + 4.0 * check_ts(ts)))
+
+
+def check_flight(flight):
+    """The flight options ``flight`` over ``FLIGHT``'s defaults; ValueError naming an unknown one."""
+    unknown = sorted(set(flight or {}) - set(FLIGHT))
+    if unknown:
+        raise ValueError("unknown flight option(s) %s (the options: %s)" % (", ".join(unknown), ", ".join(FLIGHT)))
+    return dict(FLIGHT, **(flight or {}))
+
+
+class _Recorder:
+    """The flight software's state after each cycle (``AdcsSession``'s probe): the app's own arrays, copied."""
+
+    def __init__(self, session, K):
+        self.s = session
+        self.fsw = {k: np.full((K + 1, m), np.nan) for k, m in FSW}
+        self.resets = []
+        self._n_resets = 0
+
+    def __call__(self, tick, t, u):
+        s, app, f, k = self.s, self.s.app, self.fsw, tick
+        sc = s.sc
+        f["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)          # truth, for the record only
+        f["mode"][k] = app.mode
+        f["st_ok"][k] = s.st_valid_log[k]
+        f["beacon_used"][k] = app.beacon_used
+        f["x_stkf"][k] = app.xs
+        a = app.apkf
+        if a is None:
+            return
+        f["q_hat"][k], f["w_hat"][k] = a.x[0:4], a.x[4:7]
+        f["qc"][k], f["wc"][k], f["tau_c"][k], f["u"][k], f["tau_ff"][k] = app.qc, app.wc, app.tau, u, app.tff
+        f["m_cmd"][k], f["mtq_sat"][k] = app.m_cmd, app.mtq_sat
+        f["h_w"][k] = np.reshape(app.cjrw, (3, 4)) @ np.asarray(app.wp)
+        x = s.xg[k * scenario.WORLD_RATE_HZ]
+        f["est_err"][k] = estimate_errors(f["q_hat"][k], f["w_hat"][k], app.xs[0:3], app.xs[6:9], sc.q, sc.omega,
+                                          x[0, 0:3], x[1, 0:3])
+        if app.n_resets != self._n_resets:
+            self._n_resets = app.n_resets
+            self.resets.append((t, app.reset_nis, 2.0 * float(np.linalg.norm(app.z3)) / RAD_PER_ARCSEC))
+
+
+def time_in(modes_per_s):
+    """Seconds spent in each mode (``MODES``) from the mode of each 1 s cycle."""
+    out = dict.fromkeys(MODES, 0.0)
+    for m in modes_per_s:
+        if np.isfinite(m):
+            out[MODE_NAME[int(m)]] += 1.0
+    return out
+
+
+def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
+             cache_dir=None, progress=False, hold_s=HOLD_S, on_second=None, tach_noise_rpm=None, spacecraft=None,
+             flight=None, faults=None):
+    """One flight-world run (the module docstring): the app in process for ``duration_s`` seconds. ``params``:
+    the parameter-file dict (checked against the vehicle); ``flight``: options over ``FLIGHT``; ``faults``: the
+    session's device faults; ``on_second(k, hist, fsw, x)`` as ``body_pointing.simulate``'s. Returns (result,
+    history) as ``body_pointing.simulate`` does, the history's 1 Hz rows ``fsw_*`` the app's state after cycle k
+    (NaN before the APKF starts, and at the last row, which no cycle reaches). A KeyboardInterrupt returns what
+    was collected so far with ``complete`` false."""
+    ts = check_ts(ts)
+    fo = check_flight(flight)
+    if params is None:
+        raise ValueError("simulate needs the parameter file (run calibrate first)")
+    if not (np.isfinite(duration_s) and duration_s >= 1):
+        raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
+    d = spacecraft or scenario.thesis_3u()
+    if d["magnetorquers"] is None:
+        raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers; give "
+                         "the spacecraft file a magnetorquers block (or fly --world thesis)")
+    if tach_noise_rpm is not None:
+        if not (np.isfinite(tach_noise_rpm) and tach_noise_rpm > 0):
+            raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
+        d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
+    K = int(np.ceil(duration_s))
+    s = AdcsSession(runtime="inproc", satb_gnss=satb_gnss, seed=seed, duration_s=float(K), ts=ts, params=params,
+                    faults=faults, truth=truth, cache_dir=cache_dir, hold_s=hold_s, spacecraft=d, world="flight",
+                    flight=fo)
+    rec = s.probe = _Recorder(s, K)
+    lb = laser_axis(d)
+    n10 = K * 10 + 1
+    hist = {"t": np.arange(n10) / 10.0, "q": np.zeros((n10, 4)), "w": np.zeros((n10, 3)),
+            "w_rel": np.zeros((n10, 4))}
+    hist["q"][0], hist["w"][0], hist["w_rel"][0] = s.sc.q, s.sc.omega, s.sc.omega_rw_rel
+    sub = scenario.WORLD_RATE_HZ // 10
+    complete, k_done = True, 0
+    t_wall = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=K, desc="bps flight ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), unit="s",
+                   leave=False)
+    try:
+        with s:
+            for k in range(K):
+                c = s.cycle()
+                sl = slice(10 * k + 1, 10 * k + 11)
+                hist["q"][sl], hist["w"][sl], hist["w_rel"][sl] = c["q"], c["w"], c["w_rel"]
+                k_done = k + 1
+                if on_second is not None:
+                    on_second(k, hist, rec.fsw, s.xg[(10 * k + 1) * sub:(10 * k + 10) * sub + 1:sub])
+                if bar is not None:
+                    bar.update(1)
+    except KeyboardInterrupt:
+        complete = False
+    finally:
+        if bar is not None:
+            bar.close()
+    return _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s,
+                   time.perf_counter() - t_wall)
+
+
+def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s):
+    """The run's result and history from the session and the recorder (``simulate``)."""
+    n_ok = k_done * 10 + 1
+    for key in ("q", "w", "w_rel", "t"):
+        hist[key] = hist[key][:n_ok]
+    fsw = {k: v[:k_done + 1] for k, v in rec.fsw.items()}
+    sub = scenario.WORLD_RATE_HZ // 10
+    xs10 = s.xg[:n_ok * sub:sub]
+    dth, dom = pointing_errors(hist["q"], hist["w"], xs10[:, 0, 0:3], xs10[:, 0, 3:6], xs10[:, 1, 0:3],
+                               xs10[:, 1, 3:6], lb)
+    hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / RAD_PER_ARCSEC, dom / RAD_PER_ARCSEC
+    hist.update({"fsw_" + k: v for k, v in fsw.items()})
+    mode_s = fsw["mode"][:, 0]
+    mode10 = mode_s[np.minimum(hist["t"].astype(int), max(k_done - 1, 0))]    # each step flown under its cycle
+    period = orbit_period(s.xg[0, 0])
+    sel = (hist["t"] >= period) & (mode10 == MODE_CODE["POINT"])
+    budget = error_budget(hist, s.xg[:(k_done + 1) * scenario.WORLD_RATE_HZ:scenario.WORLD_RATE_HZ], period,
+                          laser_axis=lb)
+    first_point = next((c["t_s"] for c in s.mode_changes if c["to"] == "POINT"), None)
+    blind = s.blind_share(first_point) if first_point is not None else None
+    res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
+           "duration_s": float(duration_s), "settle_s": float(period), "simulated_s": float(k_done),
+           "complete": bool(complete and k_done == K), "feedforward": True, "wall_s": wall_s,
+           "flight_software": "firmware/adcs/app.py in process (lean APKF, lean STKF with its AFLS)",
+           "wheel_speed_clips": s.wheels.counters(),
+           "wheel_speed_limit_rpm": float(d["wheels"]["speed_limit_rpm"]),
+           "tach_noise_rpm": d["wheels"]["tach_noise_rpm"], "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"],
+           "spacecraft": d["name"], "world": "flight", "orbit_period_s": period, "mode_changes": s.mode_changes,
+           "time_in_mode_s": time_in(mode_s[:k_done]), "apkf_attitude_resets": [list(r) for r in rec.resets],
+           "star_tracker_blind_share": blind, "faults": s.faults, "fault_log": s.fault_log}
+    mtq = d["magnetorquers"]
+    axes = np.array([np.asarray(a, float) / np.linalg.norm(a) for a in mtq["axes"]])
+    flog = {k: fsw[k] for k in ("m_cmd", "h_w", "mtq_sat", "beacon_used")}
+    res.update(flight_statistics(hist, dth, dom, mode10, period, flog, mtq["dipole_limit_am2"], axes))
+    res["flight_options"] = fo
+    if sel.sum() >= 2:
+        res.update(statistics(dth[sel], dom[sel]))
+    else:
+        res.update({k: None for k in SUMMARY_KEYS if k != "complete"})
+        res["J_rad2"] = None
+    res["budget"] = budget
+    return res, hist
+
+
+def flight_statistics(hist, dth, dom, mode10, period, flog, dipole_limit, axes):
+    """The flight world's figures: per pointing pass (pass p = the POINT samples of orbit p, p >= 1, of those the
+    run holds whole; orbit 0 is the slew and settling) its 3 sigma pointing and stability (as ``statistics``) and largest wheel
+    speed; the largest wheel speed after the first orbit (``max_wheel_speed_rpm`` then means that span, and
+    ``max_wheel_speed_rpm_run`` the whole run's); the magnetorquers' duty (mean of the largest rod's |m| over
+    its limit) and saturated share; the wheels' momentum |h| (N m s) at most and at the end."""
+    t = hist["t"]
+    rpm = np.abs(hist["w_rel"]) * 60 / (2 * np.pi)
+    passes = []
+    n_orbits = int(np.floor(t[-1] / period + 0.01))           # whole orbits (1 % short still counts)
+    for p in range(1, n_orbits):
+        span = (t >= p * period) & (t < (p + 1) * period)
+        sel = span & (mode10 == MODE_CODE["POINT"])
+        if sel.sum() < 2:
+            passes.append({"orbit": p, "samples": int(sel.sum())})
+            continue
+        st = statistics(dth[sel], dom[sel])
+        passes.append({"orbit": p, "t_from_s": float(t[span][0]), "t_to_s": float(t[span][-1]),
+                       "samples": st["samples"], "pointing_3sigma_arcsec": st["pointing_3sigma_arcsec"],
+                       "stability_3sigma_arcsec_s": st["stability_3sigma_arcsec_s"],
+                       "max_wheel_speed_rpm": float(rpm[span].max())})
+    after = t >= period
+    rods = np.abs(np.linalg.lstsq(axes.T, np.nan_to_num(flog["m_cmd"]).T, rcond=None)[0]).max(axis=0)
+    h = np.linalg.norm(flog["h_w"], axis=1)
+    return {"passes": passes, "max_wheel_speed_rpm": float(rpm[after].max()) if after.any() else None,
+            "max_wheel_speed_rpm_run": float(rpm.max()),
+            "mtq_duty": float(np.mean(rods / dipole_limit)),
+            "mtq_saturated_share": float(np.nanmean(flog["mtq_sat"])),
+            "wheel_momentum_max_nms": float(np.nanmax(h)) if np.isfinite(h).any() else None,
+            "wheel_momentum_end_nms": float(h[np.isfinite(h)][-1]) if np.isfinite(h).any() else None,
+            "beacon_used_share": float(np.nanmean(flog["beacon_used"]))}

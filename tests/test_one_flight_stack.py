@@ -1,0 +1,67 @@
+"""One flight stack: the ground's flight world flies the flight app (firmware/adcs/app.py) in process, and its
+history is the one the same app gives in a process of its own over CAN, bit for bit."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from emulator.adcs_session import AdcsSession
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _fps(*args):
+    out = subprocess.run([sys.executable, "-m", "ground.cli"] + list(args), cwd=ROOT, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode in (0, 3), out.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def params(tmp_path_factory):
+    p = tmp_path_factory.mktemp("params") / "params.json"
+    p.write_text(json.dumps(AdcsSession(runtime="inproc", world="flight", duration_s=5).params))
+    return str(p)
+
+
+def test_bps_flight_world_and_adcs_can_give_the_same_attitude_history(tmp_path, params):
+    n = "240"
+    _fps("adcs", "bps", "--world", "flight", "--duration", n, "--seed", "2", "--params", params, "--truth",
+         "two-body", "--quiet", "--no-plots", "--cache-dir", str(tmp_path / "cache"), "-o", str(tmp_path / "bps"))
+    _fps("adcs", "can", "--world", "flight", "--duration", n, "--seed", "2", "--params", params, "--runtime",
+         "cpython", "--quiet", "--no-plots", "-o", str(tmp_path / "can"))
+    a, b = np.load(tmp_path / "bps" / "history.npz"), np.load(tmp_path / "can" / "history.npz")
+    assert a["q"].shape == (10 * int(n) + 1, 4) and a["q"].shape[0] == b["q"].shape[0] + 1
+    assert np.array_equal(a["q"][1:], b["q"]) and np.array_equal(a["w"][1:], b["w"])     # b starts at 0.1 s
+    k = int(n)
+    assert np.array_equal(a["fsw_q_hat"][1:k], b["est_q"][1:k])      # the app's estimate, as ADCS_STATUS gave it
+    sa, sb = json.load(open(tmp_path / "bps" / "summary.json")), json.load(open(tmp_path / "can" / "summary.json"))
+    assert sa["mode_changes"] == sb["mode_changes"] and sa["mode_changes"][-1]["to"] == "POINT"
+
+
+@pytest.mark.parametrize("world", ["thesis", "flight"])
+def test_the_inproc_host_flies_the_cpython_process_bit_for_bit(world):
+    h = {}
+    for runtime in ("inproc", "cpython"):
+        s = AdcsSession(runtime=runtime, world=world, duration_s=120, seed=1)
+        rows = []
+        with s:
+            for _ in range(120):
+                c = s.cycle()
+                rows.append(np.concatenate([c["q"].ravel(), c["w"].ravel(), c["rw_cmd"]]))
+                st = c["status"]
+        h[runtime] = (np.array(rows), {k: v for k, v in st.items() if k != "cycle_us"}, s.summary()["mode_changes"])
+    assert np.array_equal(h["inproc"][0], h["cpython"][0])
+    assert h["inproc"][1] == h["cpython"][1] and h["inproc"][2] == h["cpython"][2]
+
+
+def test_the_inproc_host_refuses_what_needs_a_link():
+    from protocol.faults import LinkFaults
+    with pytest.raises(ValueError, match="runtime inproc has none"):
+        AdcsSession(runtime="inproc", duration_s=5, link_faults=LinkFaults.parse("bytes=0.001"))
+    with pytest.raises(ValueError, match="inproc only"):
+        AdcsSession(runtime="cpython", duration_s=5, probe=lambda *a: None)

@@ -1,8 +1,8 @@
-"""APKF and MEKF (issue 9): accuracy beside the thesis (Sec. 4.4.1, 4.8), NEES consistency, and speed.
+"""APKF and MEKF: accuracy beside the thesis (Sec. 4.4.1, 4.8), NEES consistency, and speed.
 
 Accuracy: ``BENCH_ADCS_RUNS`` seeds (default 20) per case through ``fps adcs``'s own run functions on 2 local
 worker processes; final 1 sigma from P (mean over runs), final attitude error RMS over runs, NEES in-band fraction.
-Goals (issue 9): attitude and rate 1 sigma within 25 % of the thesis, parameters within a factor of 2.
+Goals: attitude and rate 1 sigma within 25 % of the thesis, parameters within a factor of 2.
 Speed: APKF predict + update per 1 s step, one 930 s case (truth + filter) wall, 20 seeds on 1 vs 2 local workers,
 and the Dask path (``--scheduler``, here a 2-worker ``LocalCluster`` started by the bench): its start-up, its
 overhead per run, and the same 20 seeds on it. Absolute times depend on the (shared) machine; the ratios are the
@@ -267,7 +267,7 @@ def r_quarter_figures(seeds=range(5), t_from=210.0, case=1):
 
 
 def thesis_sigma_table(figs, by_thesis, seeds=range(5)):
-    """Issue 29: per case, the thesis's final attitude and rate 1 sigma beside ours in both forms (``figs``:
+    """Per case, the thesis's final attitude and rate 1 sigma beside ours in both forms (``figs``:
     ``consistency_figures``' consistent rows; ``by_thesis``: {case: the thesis form's summary}), the bound the
     star tracker gives against an attitude that walks by our rate 1 sigma (``runs.random_walk_bound``), and the
     R/4 diagnostic (``r_quarter_figures``, ``seeds``)."""
@@ -334,7 +334,7 @@ def disturbance_noise_sweep(case, factors, seeds=range(RUNS)):
                 label, mean.mean(), share, _fmt(np.sqrt(np.mean(np.array(z) ** 2, axis=0)), 1, "%.2f"), within))
     finally:
         apkf.QD1, apkf.QD2 = qd1, qd2
-    lines.append("Goal (issue 29): NEES in band >= 0.90 with every parameter within 3 sigma in >= 95 %% of runs: %s."
+    lines.append("Goal: NEES in band >= 0.90 with every parameter within 3 sigma in >= 95 %% of runs: %s."
                  % ("met by " + "; ".join(meets) if meets else
                     "met by no density here. The disturbance is smooth over a rotation and follows the maneuver, which "
                     "a random walk (independent increments) does not describe at every lag at once; what the walk "
@@ -377,7 +377,7 @@ CONSISTENCY_ROWS = (("thesis-3u", 1), ("thesis-3u", 2), ("thesis-3u", 3), ("gene
 
 
 def consistency_figures(by=None, rows=CONSISTENCY_ROWS, runs_n=RUNS):
-    """Issue 29's consistency figures per spacecraft and case: {(filter, spacecraft, case, form): summary}, the
+    """Consistency figures per spacecraft and case: {(filter, spacecraft, case, form): summary}, the
     APKF in both forms (the thesis's on Case 1 of each spacecraft) and the MEKF; ``by``: summaries already run
     (``main``'s thesis-3u campaigns), keyed the same way."""
     from protocol import spacecraft as sf
@@ -409,7 +409,7 @@ def consistency_table(figs):
             _fmt(s.get("rms_over_sigma_attitude"), 1, "%.2f"), _fmt(s.get("rms_over_sigma_rate"), 1, "%.2f"),
             _fmt(s.get("params_within_3sigma_share"), 1, "%.2f"), s["runs"], s.get("runs_diverged", 0),
             s["runs_failed"]))
-    rows.append("Goals (issue 29, %d seeds each): NEES in band >= 0.90; RMS / 1 sigma 0.7-1.3 on every axis; "
+    rows.append("Goals (%d seeds each): NEES in band >= 0.90; RMS / 1 sigma 0.7-1.3 on every axis; "
                 "parameters within 3 sigma in >= 95 %% of runs; no run diverges." % RUNS)
     return "\n".join(rows)
 

@@ -1,4 +1,4 @@
-"""The ADCS on CAN (issue 13): the 1 Hz cycle's cost under MicroPython, the CAN session's speed, and the
+"""The ADCS on CAN: the 1 Hz cycle's cost under MicroPython, the CAN session's speed, and the
 pointing the lean flight filters leave on a 600 s session beside the ground filters' on the same scenario.
 
 - Session: ``emulator.adcs_session.AdcsSession`` for 600 s (hold 30 s, then pointing at SatB, t_s = 33 s,
@@ -7,7 +7,7 @@ pointing the lean flight filters leave on a 600 s session beside the ground filt
   per wall s (goal of the whole ``fps system`` run: >= 5x real time; this is the ADCS loop alone).
 - Pointing: ``ground.adcs.body_pointing.pointing_errors`` on the session's 10 Hz truth after 30 s + 4 t_s (Eq. 6.12-6.21),
   beside ``ground.adcs.body_pointing.simulate`` (41-state APKF, full STKF/EAFLS, numpy) on the same spacecraft, sensors
-  and seed for the same span (the issue's goal: lean within 25 %), both from the parameter file of the nine
+  and seed for the same span (the goal: lean within 25 %), both from the parameter file of the nine
   calibration sets (``fps adcs bps``'s calibration, cached in out/bps_cache).
 - Instructions: the session's sensor bursts replayed through ``firmware/adcs/app.py`` (tests/mp/
   firmware_adcs_app.py) under ``valgrind --tool=callgrind``, cycles [0, 110) and [0, 210) differenced:

@@ -1,4 +1,4 @@
-"""Lean flight ADCS (issue 13): what dropping states costs, heap bytes and instructions per 1 Hz cycle.
+"""Lean flight ADCS: what dropping states costs, heap bytes and instructions per 1 Hz cycle.
 
 Scenario (tests/adcs_lean_scenario.py): the emulator's spacecraft (true J, misaligned wheels with their true
 inertias, gravity gradient, a residual dipole) held in an inertial attitude by a PD on the truth for 4000 s,
@@ -14,7 +14,7 @@ The pointing RMS on three more seeds; a diagnostic table runs them on the same t
 tachometer read-outs.
 Figures over t >= 300 s: attitude (truth minus estimate) and rate (estimate minus truth) error 1 sigma per axis,
 and the pointing error of the laser axis (body x): the angle about the two axes perpendicular to it,
-sqrt(e_y^2 + e_z^2), RMS and 3 sigma (RMS x 3). The issue's goal: the lean filter within 25 % of the ground
+sqrt(e_y^2 + e_z^2), RMS and 3 sigma (RMS x 3). The goal: the lean filter within 25 % of the ground
 filter's pointing figures.
 
 Heap: gc.mem_alloc() before and after each cycle under micropython (gc off in the cycle), 30 s.

@@ -1,4 +1,4 @@
-"""Body pointing simulator (issue 11): Sec. 6.4.4 accuracy for both cases, the 3 sigma budgets, the Sec. 6.4.3
+"""Body pointing simulator: Sec. 6.4.4 accuracy for both cases, the 3 sigma budgets, the Sec. 6.4.3
 sweep's minimum, and speed (one 4000 s case, the 19-point sweep on 2 workers, a 600 s ``--source bps``
 distfile cold and from the cache).
 

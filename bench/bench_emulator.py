@@ -2,7 +2,7 @@
 latency) and the cost of a tick by part.
 
 The run: 637.8 Hz control ticks, P-FSM at 10.6 kHz (a 2 Hz sine from a numpy player), Q2 at 630 Hz, and a
-trivial in-process controller that holds the mirror at the centre null (the issue's benchmark).
+trivial in-process controller that holds the mirror at the centre null (the benchmark).
 Parts, as the lockstep's loop runs them (``Bench.run_ticks``): the tick advance (mirror dynamics, the Q2
 sample, the P-FSM input sums), the Q1 sample with the controller call, the SPI decode of new words (alone);
 link (a TICK / FSM_SPI round trip in-process through the framing, and over a pty to another process).

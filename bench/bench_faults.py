@@ -1,8 +1,8 @@
-"""Benchmark of the HIL over a bad link (issue 8): MicroPython controller over a serial pty, faults injected at the
+"""Benchmark of the HIL over a bad link: MicroPython controller over a serial pty, faults injected at the
 transport (``--link-faults``). Figures: wall time and counters of a 120 s run with and without faults and whether
 its samples and control telemetry are bit-identical; heavy faults (complete and identical, or a clear stop within
 60 s wall); a 2 s silence and a permanent one; calibration under faults; real-time overruns of a board (MicroPython
-``firmware.main`` on a relayed pty) at 637.8 Hz and 2 kHz. The CAN side (issue 28): fps hil with the CPython
+``firmware.main`` on a relayed pty) at 637.8 Hz and 2 kHz. The CAN side: fps hil with the CPython
 controller over slcan, fps adcs can and fps system with faults on the slcan stream, their wall-time cost beside
 serial's, and the share of Lawicel lines and packets a fault rate lets through (``can_survival``), which bounds
 what any retry scheme can do at that rate.

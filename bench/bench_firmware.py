@@ -247,7 +247,7 @@ def _hil_pty(blob, dist, seconds=5.0, runtime="micropython"):
 
 
 def _player(dist, player_py, have_mp):
-    """The player's speed and heap bytes per P-FSM update (issue 8: goal 0, the thesis's 10.6 kHz timer)."""
+    """The player's speed and heap bytes per P-FSM update (goal 0, the thesis's 10.6 kHz timer)."""
     print("\nDisturbance player (P-FSM updates, two axes each)\n")
     print("| runtime | µs/update | updates/s | goal | heap bytes/update (heap locked, 1 update per call) | goal |")
     print("|---|---:|---:|---|---:|---|")

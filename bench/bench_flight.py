@@ -1,5 +1,5 @@
 """The flight world (``fps adcs bps --world flight``): 3 orbits per shipped spacecraft, brahe truth, seed 0, against
-the issue's goals: every pointing pass after the first orbit within 150 arcsec / 35 arcsec/s (3 sigma, two axes),
+the goals: every pointing pass after the first orbit within 150 arcsec / 35 arcsec/s (3 sigma, two axes),
 no wheel above 80 % of its speed limit after the first orbit, the STKF never diverging, the star tracker blind
 less than 10 % of the time after the first slew, and a 3-orbit run within 3 min. generic-12u is shipped without a
 partner satellite (it points at a ground station); it flies here with one 10 deg behind it in its own orbit

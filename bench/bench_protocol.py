@@ -2,7 +2,7 @@
 beside viper under MicroPython), the round trip of a ~32-byte packet between two processes over pty serial
 and slcan-over-pty CAN, and the lockstep round trip (TICK -> FSM_SPI) against the MicroPython firmware.
 
-Goal (issue 2): host path >= 100,000 frames/s encode+decode on one core. Reference for the round trip
+Goal: host path >= 100,000 frames/s encode+decode on one core. Reference for the round trip
 (measured on a 2-core machine of this kind): a 64-byte frame between two processes over a pty,
 median 84 us, p99 161 us.
 Goal for the MicroPython HIL: >= 12x real time at 637.8 Hz, i.e. <= 130 us per lockstep tick in all

@@ -1,4 +1,4 @@
-"""Issue 12: the loop's frequency response (``fps response``) at the default board timing and at zero latency.
+"""The loop's frequency response (``fps response``) at the default board timing and at zero latency.
 
 Prints, per timing, the measured |S| and phase beside the model (ground.response.LoopModel) from 1 Hz to 0.4x the
 loop's Nyquist frequency, the margins and bandwidth, and the wall time of 30 tones in-process (goal <= 60 s);
@@ -24,7 +24,7 @@ from ground.response import LoopModel, run_response, truth_calibration
 
 
 def main():
-    print("## fps response (issue 12)\n")
+    print("## fps response\n")
     for timing in ("arduino-zero", "zero-latency"):
         cfg = default_config()
         cfg["board"]["timing"] = timing

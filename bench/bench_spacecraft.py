@@ -11,7 +11,7 @@ from emulator.spacecraft.wheels import RPM
 
 DURATION = 600.0
 DT = 0.1
-GOAL = "600 s well under a minute (issue 3): > 10x"
+GOAL = "600 s well under a minute: > 10x"
 
 
 def _spacecraft(environment=True, jitter=False, dt=DT):

@@ -1,4 +1,4 @@
-"""STKF with the EAFLS (issue 10): accuracy of Sec. 5.5 (Cases 1 and 2, brahe truth) and speed.
+"""STKF with the EAFLS: accuracy of Sec. 5.5 (Cases 1 and 2, brahe truth) and speed.
 
 Accuracy: final 1 sigma (sqrt trace per 3x3 block; pointing sqrt(Pz11 + Pz22)) over a few seeds, the thesis's
 Table beside ours; the goal is within 25 %. Speed: the brahe truth of both satellites over 1200 s, one STKF
@@ -57,7 +57,7 @@ def main():
     print("|---|---|---|---|---|---|---|")
     for case, k, th, v, e, ratio, ok in rows:
         print("| %d | %s | %g | %.4g | %.4g | %.2f | %s |" % (case, k, th, v, e, ratio, ok))
-    print("\nConsistency (issue 29), the same runs after %d s: the runs' mean NEES (12 dof: both satellites' position "
+    print("\nConsistency, the same runs after %d s: the runs' mean NEES (12 dof: both satellites' position "
           "and velocity) in its 95 %% band, and per vector the RMS error over its 1 sigma (below 1: cautious)\n"
           % stkf_sim.NEES_FROM_S)
     print("| case | mean NEES (12) | NEES in band | rA | vA | rB | vB |")
@@ -66,7 +66,7 @@ def main():
         print("| %d | %.2f | %.2f | %.2f | %.2f | %.2f | %.2f |" % (
             case, c["nees_mean"], c["nees_in_band_share"], c["rms_over_sigma_ra"], c["rms_over_sigma_va"],
             c["rms_over_sigma_rb"], c["rms_over_sigma_vb"]))
-    print("\nWith the APKF (issue 9) in the same simulation instead of the stated attitude covariance "
+    print("\nWith the APKF in the same simulation instead of the stated attitude covariance "
           "(seed 0, brahe truth, 1200 s; the body follows the Sec. 4.8 manoeuvres):\n")
     print("| case | pointing 1 sigma: thesis | stated attitude | APKF attitude | pointing NEES (2 angles; 2 is "
           "consistent): stated | APKF |")

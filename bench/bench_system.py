@@ -1,4 +1,4 @@
-"""Benchmark of ``fps system`` (issue 13): the 600 s run of the whole terminal, its real-time factor on this
+"""Benchmark of ``fps system``: the 600 s run of the whole terminal, its real-time factor on this
 machine (goal >= 5x on 2 cores), the fine pointing's share within 11.98 arcsec with the live body pointing
 disturbance (goal 100 %) and the body pointing 3 sigma beside the thesis's 150 arcsec budget.
 
@@ -97,7 +97,7 @@ def _main(tmp, duration_s):
                                                              "ground body pointing simulator stands in)"))
     print("| figure | goal / thesis | ours |")
     print("|---|---|---|")
-    print("| real-time factor, whole run (%.0f s virtual / %.1f s wall) | ≥ 5x (issue 13) | %s |"
+    print("| real-time factor, whole run (%.0f s virtual / %.1f s wall) | ≥ 5x | %s |"
           % (s.get("duration_s") or 0, s.get("wall_s") or 0, _fig(s.get("real_time_factor"), goal=5.0)))
     print("| real-time factor during the play | — | %s |" % _fig(s.get("real_time_factor_play")))
     print("| fine loop alone, fps hil 120 s, same link, same sitting | ≥ 12x (issue Ground) | %s |"

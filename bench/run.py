@@ -1,7 +1,7 @@
 """``make bench``: run every benchmark module and print its tables (no pass/fail on timings).
 
 Each ``bench/bench_*.py`` exposes ``main()`` that prints markdown tables with the thesis's or the
-issue's figure beside ours. Pass module names (e.g. ``protocol``) to run a subset; a name that is no
+goal figure beside ours. Pass module names (e.g. ``protocol``) to run a subset; a name that is no
 benchmark is refused (exit 2). A benchmark that raises (or exits) is reported as failed, the others run on,
 the last line names the failed ones and the exit status is 1.
 

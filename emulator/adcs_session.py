@@ -1,6 +1,6 @@
 """The emulated spacecraft serving its devices on CAN to the ADCS flight software in a separate process.
 
-Contract: ``AdcsSession``: start, cycle, summary, close (README, "ADCS on CAN").
+Contract: ``AdcsSession``: start, cycle, summary, close (docs/ADCS.md, "ADCS on CAN").
 
 The wire: a pseudo-terminal. The firmware (``firmware/adcs/main_can.py``, under ``micropython`` or CPython)
 holds the master and plays the serial-CAN adapter's side of Lawicel (``firmware/hal/slcan.py``); this side
@@ -148,7 +148,7 @@ def check_faults(faults, duration_s):
 
 
 class AdcsSession:
-    """See the module docstring and the README's "ADCS on CAN". Extra keywords: ``truth`` ("two-body" or "hpop"),
+    """See the module docstring and docs/ADCS.md's "ADCS on CAN". Extra keywords: ``truth`` ("two-body" or "hpop"),
     ``cache_dir`` (orbit truth cache), ``hold_s``, ``reply_timeout_s`` (wall seconds a cycle may take),
     ``heap_out`` (micropython: a JSON file of the heap bytes per cycle, written when the firmware exits),
     ``apkf_momentum`` (the lean APKF's momentum input: "filtered", the read-outs filtered on the commanded

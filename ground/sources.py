@@ -265,7 +265,7 @@ register_source("csv", CsvSource)
 
 
 def _register_bps():
-    from ground.adcs.bps_source import BpsSource   # the body pointing simulator of Sec. 6.4 (issue 11)
+    from ground.adcs.bps_source import BpsSource   # the body pointing simulator of Sec. 6.4
     register_source("bps", BpsSource)
 
 

@@ -7,7 +7,7 @@ a rectilinear grid, so ``grid_from_calibration`` derives one:
 
 - it finds which P-FSM axis drives each FSM axis (the grouping whose column means of V0 spread widest);
 - the FSM X axis values are the means of V0x over each such column, the Y axis values the means of V0y
-  over each row (the choice documented in the issue); they are sorted ascending;
+  over each row; they are sorted ascending;
 - node (i, j) takes the H of the grid point in column i and row j. ``max_dev_v`` reports how far the
   points' own V0 lie from their nodes (the cross-coupling the rectilinear grid ignores).
 

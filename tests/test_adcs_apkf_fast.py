@@ -1,4 +1,4 @@
-"""The APKF's structured predict/update (issue 9 speed) compute what the textbook forms compute.
+"""The APKF's structured predict/update compute what the textbook forms compute.
 
 1. A recorded 930 s Case 3 run (tests/data/apkf_reference.npz: the filter's inputs, and x, P at three points,
    F, Phi, Q at one state, all written by the APKF before the speed-up, see tests/data/make_apkf_reference.py)

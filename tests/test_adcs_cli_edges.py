@@ -111,7 +111,7 @@ def test_interrupted_while_clearing_an_earlier_campaign_the_folder_says_incomple
 
 @pytest.mark.parametrize("command", ["apkf", "mekf", "stkf", "sweep"])
 def test_workers_and_scheduler_together_are_refused(tmp_path, capsys, command):
-    """--workers W | --scheduler ADDR (issue 9): one of them, not both (--workers was ignored)."""
+    """--workers W | --scheduler ADDR: one of them, not both (--workers was ignored)."""
     with pytest.raises(SystemExit) as e:
         cli.main(["adcs", command, "--workers", "2", "--scheduler", "tcp://127.0.0.1:9", "-o", str(tmp_path / "o")])
     err = capsys.readouterr().err

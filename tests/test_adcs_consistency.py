@@ -1,4 +1,4 @@
-"""The APKF's consistent form (issue 29): the iterated update over a blind stretch, and what it buys.
+"""The APKF's consistent form: the iterated update over a blind stretch, and what it buys.
 
 1. ``propagate_window``'s M is the Jacobian of the stretch (against finite differences of the propagation, to
    the linearisation's accuracy).

@@ -1,4 +1,4 @@
-"""The flight STKF's and the Joseph update's restructured loops (issue 13's instruction budget: slices, one
+"""The flight STKF's and the Joseph update's restructured loops (instruction budget: slices, one
 triangle, only the nodes an update touches, buffers read once) against plain dense numpy computations of the
 same equations, call by call; and linalg's written-out sums (m = 3, 6) against the element-by-element loops, bit
 for bit."""

@@ -165,7 +165,7 @@ def test_cli_bad_input(tmp_path, capsys, args, params, msg):
 
 
 def test_apkf_attitude_consistent_in_holds_and_at_its_information_bound():
-    """Issue 9's accuracy gap: started at the true parameters, the APKF's star-tracker innovations and attitude
+    """Accuracy gap: started at the true parameters, the APKF's star-tracker innovations and attitude
     errors are consistent with its P in the holds after the third manoeuvre set (mean NIS and NEES near 3 for
     3 dof), and its attitude 1 sigma sits at the steady state of the star tracker against the attitude random
     walk of its own rate 1 sigma. A wrong R_st (units, the /4, the 20/20/60 axes), an update applied at the

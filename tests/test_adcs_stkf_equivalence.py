@@ -1,4 +1,4 @@
-"""The STKF step's speed work (issue 10: the preallocated smoother, per-satellite node interpolation, fewer numpy
+"""The STKF step's speed work (the preallocated smoother, per-satellite node interpolation, fewer numpy
 calls) computes what the code before it computed.
 
 1. ``tests/data/stkf_step_reference.npz`` was written by the code of commit b2c87c3 (before the speed work):

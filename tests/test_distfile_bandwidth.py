@@ -1,4 +1,4 @@
-"""Distfiles that keep their bandwidth: the step, no silent aliasing, what the player plays (issue 12)."""
+"""Distfiles that keep their bandwidth: the step, no silent aliasing, what the player plays."""
 
 import os
 from array import array
@@ -42,7 +42,7 @@ def test_player_plays_the_step_at_the_kernels_gain(tmp_path, step_us, f):
     assert got == pytest.approx(want, rel=0.01)
     lin = 40.0 * resample.player_gain(f, step_us, "linear")
     assert abs(got - lin) > 0.02 * 40.0 or f == 150.0            # distinguishable from linear interpolation
-    if step_us == 8192:       # the issue's figures for linear interpolation, and the kernel's
+    if step_us == 8192:       # the figures for linear interpolation, and the kernel's
         assert resample.player_gain(f, 8192, "linear") == pytest.approx({35.0: 0.76, 55.0: 0.49}[f], abs=0.01)
         assert resample.player_gain(f, 8192) == pytest.approx({35.0: 0.94, 55.0: 0.63}[f], abs=0.01)
 
@@ -117,7 +117,7 @@ def test_hil_plays_fine_steps(tmp_path, step_us):
 
 def test_jitter_source_harmonics_in_the_file_and_as_played(tmp_path, capsys):
     """Wheel harmonics at rpm/60 Hz reach the file (sidecar written) and the player plays each at its kernel's
-    gain, within 2 % of the file's below 200 Hz at a 1 ms step (issue 12's goal)."""
+    gain, within 2 % of the file's below 200 Hz at a 1 ms step."""
     import json
     o = str(tmp_path / "j.dist")
     assert main(["distfile", "generate", "--source", "jitter", "--jitter-scale", "100", "--jitter-rpm",

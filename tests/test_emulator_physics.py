@@ -328,7 +328,7 @@ def test_true_h_x_varies_more_than_y_and_nulls_near_1p5_v():
 
 
 def test_true_h_follows_a_rotated_quadcell_and_unequal_gains():
-    """The calibration acceptance config of issue 5: Q1 rotated 30 deg, unequal MEMS axis gains."""
+    """The calibration acceptance config: Q1 rotated 30 deg, unequal MEMS axis gains."""
     base = np.array(Bench(noise=False).true_h((0.0, 0.0))["H"])
     cfg = default_config()
     cfg["q1"]["misalignment_deg"] = 30.0

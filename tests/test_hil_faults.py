@@ -1,4 +1,4 @@
-"""A HIL that survives a bad link (issue 8): exactly-once ticks, retries, bounds, the truth in the run folder.
+"""A HIL that survives a bad link: exactly-once ticks, retries, bounds, the truth in the run folder.
 
 The end-to-end runs drive the real MicroPython controller (``firmware.main``) over a serial pty with faults
 injected at the transport (``protocol.faults``); a run with faults must give the same samples and control

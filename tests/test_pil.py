@@ -136,7 +136,7 @@ def test_the_stdio_link_frames_and_reads_back_packets():
 
 @needs_image
 def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_for_bit(tmp_path):
-    """The issue's goal: a 20 s fps hil --runtime qemu gives the Q2 samples and the control telemetry of
+    """The goal: a 20 s fps hil --runtime qemu gives the Q2 samples and the control telemetry of
     --runtime micropython bit for bit (the controller is integer arithmetic; of the telemetry, the link's own
     counters of resent TICKs may differ on a loaded machine), and fps calibrate the same points; its real-time
     factor is reported."""

@@ -1,4 +1,4 @@
-"""The disturbance player's kernel (firmware/player.py, issue 12): Keys's 6-point cubic convolution, its frequency
+"""The disturbance player's kernel (firmware/player.py): Keys's 6-point cubic convolution, its frequency
 response, the integer arithmetic's bounds, the played response and images, and the emulator's numpy player
 giving the same codes as the firmware's."""
 

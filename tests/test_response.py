@@ -87,7 +87,7 @@ def test_model_margins_and_bandwidth_at_the_default_gain():
         assert gm > 6.0 and 30 < pm < 90          # the default g = 0.5 keeps a gain margin over 2
         assert 20 < m.bandwidth_hz() < 60
         assert m.stable(1.0) and not m.stable(10 ** ((gm + 0.5) / 20))
-    # the 55 Hz figure: (z - 1)/(z - 1 + g) at the samples, 0.87 with zero latency
+    # the 55 Hz figure: (z - 1)/(z - 1 + g) at the samples, 0.87 with zero latency
     assert abs(zl.s_samples(55.0)[0]) == pytest.approx(0.864, abs=0.01)
     assert abs(az.s_truth(55.0)[0]) > abs(zl.s_truth(55.0)[0])
 

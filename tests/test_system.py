@@ -1,4 +1,4 @@
-"""``fps system``: the ADCS and the fine-pointing loop in one run (issue 13). Short runs with ``--adcs ground``;
+"""``fps system``: the ADCS and the fine-pointing loop in one run. Short runs with ``--adcs ground``;
 the firmware code path's bookkeeping against a fake ADCS session defined here (the real one is
 ``emulator.adcs_session``), and one short run of the real firmware session with the four device faults."""
 

@@ -2,7 +2,7 @@
 
 Truth (the spacecraft simulator of Fig. 6-1): ``emulator.spacecraft.Spacecraft`` (Eq. 4.16, 4.56; true J, wheel
 inertias and misalignments, residual dipole of Sec. 4.8) by RK4 at 0.1 s, sampled at 10 Hz. The orbits of SatA
-and SatB are the STKF issue's truth (``emulator.orbits.truth_samples``: brahe "hpop" or "two-body", 1 s samples)
+and SatB are the STKF's truth (``emulator.orbits.truth_samples``: brahe "hpop" or "two-body", 1 s samples)
 interpolated by 10th-order Lagrange (Sec. 6.4.1) onto a 20 Hz grid; the spacecraft's gravity gradient and
 magnetic field use SatA's interpolated position. The field's dipole turns with the Earth from GMST at Eq. 5.53's
 epoch (139.40 deg), the orbits' t = 0. Sensors (their own time tags): the

@@ -166,7 +166,8 @@ def report_md(s, args_text):
             "does not model that (scenario.POINTING_WHEEL_RPM; bench_bps runs the same with 20,000 and 10,000 rpm "
             "limits).", "",
             ] + budget_md(s.get("budget")) + [
-            "Known differences from the thesis: the APKF misses the thesis's attitude 1σ by ~2x (README, issue 9); "
+            "Known differences from the thesis: the APKF misses the thesis's attitude 1σ by ~2x (docs/ADCS.md, "
+            "\"Attitude determination\"); "
             "the controller adds the command rate, w x H, the APKF's external-torque estimate, the wheels' "
             "datasheet friction and the absolute torque scale to Eq. 6.5 (see ground/adcs/control.py); a 30 s "
             "hold with rate damping on the estimate precedes the slew; Eq. 6.7 as printed, wn = 8/t_s.", ""]

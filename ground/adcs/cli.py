@@ -80,7 +80,8 @@ def _apkf(sub):
                    help="consistent (default): the first star-tracker output after a blind stretch through an "
                         "iterated update over the stretch, R inflated in the first maneuver set only, Case 2's "
                         "q_d matched to its disturbance; thesis: Eq. 4.139-4.142 and Sec. 4.7.4 as written "
-                        "(reproduces the thesis's tables; its 1 sigma is overconfident, README)")
+                        "(reproduces the thesis's tables; its 1 sigma is overconfident: docs/ADCS.md, "
+                        "\"Attitude determination\")")
     p.set_defaults(func=lambda a: run_filter_campaign(runs.run_apkf, "apkf", a.case, a,
                                                       options={"form": a.form}))
 

@@ -20,7 +20,7 @@ THESIS = {
                   "sigma_jyy_jzz_kgm2": (0.091e-3, 0.095e-3), "sigma_dipole_am2": 0.0056,
                   "max_sigma_delta_rw_deg": 0.072, "max_sigma_jrw_kgm2": 0.71e-8},
 }
-# goal: attitude and rate within 25 %, parameters within a factor of 2 (issue 9)
+# goal: attitude and rate within 25 %, parameters within a factor of 2
 TOL = {"final_sigma_attitude_arcsec": ("rel", 0.25), "final_sigma_rate_arcsec_s": ("rel", 0.25)}
 
 
@@ -29,7 +29,7 @@ def thesis_row(name, case):
 
 
 def verdict(key, ours, theirs):
-    """'ok' / 'MISS' against the issue's goal for one figure (all axes)."""
+    """'ok' / 'MISS' against the goal for one figure (all axes)."""
     if ours is None or theirs is None:
         return "—"
     o, t = np.atleast_1d(np.asarray(ours, float)), np.atleast_1d(np.asarray(theirs, float))
@@ -88,11 +88,11 @@ def markdown(summary):
                         n["band"][1], summary["nees_in_band_share"], n["from_s"]))
     lines.append("Final 1 sigma are the filter's P at the last step (mean over runs); the final attitude error is the "
                  "RMS over runs. 'goal': attitude and rate within 25 % of the thesis, parameters within a factor "
-                 "of 2 (issue 9). Parameter sigmas are physical (kg m^2, A m^2): the filter's Jxx-relative figures "
+                 "of 2. Parameter sigmas are physical (kg m^2, A m^2): the filter's Jxx-relative figures "
                  "(Jxx = 12e-3 kg m^2 fixed, Sec. 4.6.2) divided by the run's s = Jxx_ref / Jxx (1.11 on the "
                  "thesis's 3U); the thesis's are as printed. Runs that diverged are left out of every figure.\n")
     if summary["filter"] == "apkf":
-        lines.append("Known differences from the thesis (README, 'Attitude determination'): the attitude 1 sigma is about "
+        lines.append("Known differences from the thesis (docs/ADCS.md, 'Attitude determination'): the attitude 1 sigma is about "
                      "twice the thesis's (white 10 rpm tachometer noise integrates into a ~40 arcsec random walk per "
                      "step between star-tracker outputs), and from the thesis's initial errors the EKF's parameter "
                      "estimates become overconfident in the second maneuver set (second-order terms), which the NEES "

@@ -33,7 +33,7 @@ from protocol.units import RAD_PER_ARCSEC
 
 MIN_DURATION_S = 10.0     # below ~5 s no two consecutive star-tracker outputs exist to start the filters
 # Divergence bounds on the 6-dof NEES (a consistent filter's mean is 6; P(chi2_6 > 100) ~ 2e-19). Measured, APKF
-# Case 1-3 on the thesis's 3U (overconfident, README): over 930 s the median after the first set is 6-13 (12
+# Case 1-3 on the thesis's 3U (overconfident, docs/ADCS.md): over 930 s the median after the first set is 6-13 (12
 # runs), and 39 at most over any shorter duration (66 over the first set alone); the largest at any step 300 (the
 # first fix after a blind rotation; 24 runs). On the generic 6U's inertia (s = 0.089), 9 runs: 3 lost P's
 # positive definiteness, the other 6 had medians of 128-4300 and ended 30-90 deg off.
@@ -403,7 +403,7 @@ def _raised_divergence(r):
 
 
 def aggregate(results, name, case, dof=6):
-    """The summary dict (keys of issue 9) over the runs that finished and did not diverge (``ok``); None figures
+    """The summary dict over the runs that finished and did not diverge (``ok``); None figures
     when there is none. ``runs_diverged`` counts the runs that diverged, whether they finished (``divergence``)
     or raised (P not finite or not positive definite; these are also in ``runs_failed``), listed in ``diverged``.
     Over the steps after the first maneuver set (index k is t = k s; all steps if the runs end before it):
@@ -482,7 +482,7 @@ def load_run(run_dir):
 
 
 def hold_consistency(seed, case=1, start_at_truth=False, t_from=630.0, settle=10):
-    """Diagnostic of the APKF's attitude accuracy (issue 9): over the attitude holds after ``t_from`` (steps
+    """Diagnostic of the APKF's attitude accuracy: over the attitude holds after ``t_from`` (steps
     with a star-tracker output in each of the last ``settle`` + 1 seconds), the star-tracker innovations'
     NIS (z^T S^-1 z, 3 dof, before the update), the attitude and rate NEES (3 dof each), and the errors and
     1 sigma (attitude as full angles, arcsec; rate arcsec/s). Returns a dict of arrays."""

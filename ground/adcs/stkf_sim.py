@@ -10,7 +10,7 @@ J2000 (q = [0, 0, 0, 1]), and the attitude estimate carries a white error each s
 covariance ``ATT_SIGMA_ARCSEC`` = the APKF's final 1 sigma of Sec. 4.8 Case 1 (9.81, 8.01, 19.70 arcsec).
 That covariance is the P_att of Eq. 5.16 and 5.59.
 
-With ``attitude="apkf"`` the APKF runs in the same simulation instead (issue 9: the Sec. 4.8 Case 1 scenario,
+With ``attitude="apkf"`` the APKF runs in the same simulation instead (the Sec. 4.8 Case 1 scenario,
 same seed, for the same duration): the true attitude is the scenario's, the STKF uses the APKF's estimate
 A(q_hat) and its attitude covariance 4 P[0:3, 0:3] (P of dq_vec, Eq. 4.77) as P_att; before the APKF starts,
 the star-tracker quaternion with its 20/20/60 arcsec covariance.
@@ -98,7 +98,7 @@ ATTITUDES = ("stated", "apkf")
 
 
 def apkf_attitude(seed, K, spacecraft=None):
-    """(A_true, A_hat, P_att) for k = 0..K from the APKF over the Sec. 4.8 Case 1 scenario (issue 9), flown by
+    """(A_true, A_hat, P_att) for k = 0..K from the APKF over the Sec. 4.8 Case 1 scenario, flown by
     the checked spacecraft file ``spacecraft`` (None: thesis-3u; ``scenario.simulate``, ``runs._start_apkf``)."""
     from emulator.spacecraft import scenario
     from ground.adcs.runs import _start_apkf
@@ -262,7 +262,7 @@ def run_one(seed, run_dir, **kw):
 
 
 def aggregate(results, runs_requested, complete):
-    """summary.json content: the means over the good runs of the final 1 sigma (the issue's keys)."""
+    """summary.json content: the means over the good runs of the final 1 sigma (the keys)."""
     good = [r for r in results if r and "error" not in r]
     s = {k: (float(np.mean([r[k] for r in good])) if good else None) for k in KEYS}
     s["runs"] = len(good)

@@ -10,7 +10,7 @@ HEARTBEAT_S = 1.0         # the ADCS process says it is alive this often, whatev
 SILENT_S = 10.0           # no message at all for this long (heartbeat included): the ADCS stopped answering
 START_S = 60.0            # the ADCS process's first message (its heartbeat) is due within this of its start
 STOP_S = (2.0, 3.0, 2.0)  # close(): the ADCS process's time to end when asked, after SIGTERM, after SIGKILL
-GOAL_RTF = 5.0            # issue 13: the 600 s run >= 5x real time on 2 cores
+GOAL_RTF = 5.0            # the 600 s run >= 5x real time on 2 cores
 def firmware_available():
     """True when the ADCS-on-CAN session (``emulator.adcs_session``) is part of this build."""
     import importlib.util

@@ -1,5 +1,5 @@
 """Writes tests/data/apkf_reference.npz: a recorded APKF run (inputs and results) from the APKF as it was
-before the speed-up of issue 9 (commit b2c87c3, dense-ish textbook steps), for tests/test_adcs_apkf_fast.py.
+before the APKF's structured steps (commit b2c87c3, dense-ish textbook steps), for tests/test_adcs_apkf_fast.py.
 
 Inputs: the 930 s Case 3 scenario (seed 0) as the filter sees it (t, tachometers, star-tracker outputs, the
 maneuver set ends, x0). Results: x and P after ``CHECKS`` steps of ``APKF.step``, and F, Phi, Q at one

@@ -1,4 +1,4 @@
-"""Issue 12's small things: one layout of H with its name, the thesis label only for the thesis preset."""
+"""Small things: one layout of H with its name, the thesis label only for the thesis preset."""
 
 import json
 

@@ -3,7 +3,8 @@
 
 ``P_<NAME>`` packet ids, ``FMT_<NAME>`` their little-endian struct formats, ``SIZES[pid]`` payload bytes
 (0xFF: no such packet), ``LARGEST_PAYLOAD`` the largest of them, ``NODE_<NAME>`` node addresses,
-``E_<NAME>`` NACK codes, ``CRC16_TABLE`` the CRC-16/CCITT-FALSE table as 256 little-endian u16.
+``E_<NAME>`` NACK codes, ``MODE_<NAME>`` the ADCS modes (ADCS_STATUS.adcs_mode), ``STALE_<NAME>`` the
+ADCS_STATUS.stale bits, ``CRC16_TABLE`` the CRC-16/CCITT-FALSE table as 256 little-endian u16.
 """
 
 PROTOCOL_VERSION = 1
@@ -36,6 +37,22 @@ E_BAD_CRC = 5
 E_BAD_CONTENT = 6
 E_TOO_LARGE = 7
 E_BUSY = 8
+
+MODE_INIT = 0
+MODE_HOLD = 1
+MODE_POINT = 2
+MODE_DEGRADED = 3
+MODE_SLEW = 4
+MODE_ACQUIRE = 5
+
+STALE_STARTRACKER = 0
+STALE_GNSS_A = 1
+STALE_GNSS_B = 2
+STALE_BEACON = 3
+STALE_RW0 = 4
+STALE_RW1 = 5
+STALE_RW2 = 6
+STALE_RW3 = 7
 
 P_HELLO = 0x01
 FMT_HELLO = '<BBBBH'

@@ -47,7 +47,8 @@ def source():
            "",
            "``P_<NAME>`` packet ids, ``FMT_<NAME>`` their little-endian struct formats, ``SIZES[pid]`` payload bytes",
            "(0xFF: no such packet), ``LARGEST_PAYLOAD`` the largest of them, ``NODE_<NAME>`` node addresses,",
-           "``E_<NAME>`` NACK codes, ``CRC16_TABLE`` the CRC-16/CCITT-FALSE table as 256 little-endian u16.",
+           "``E_<NAME>`` NACK codes, ``MODE_<NAME>`` the ADCS modes (ADCS_STATUS.adcs_mode), ``STALE_<NAME>`` the",
+           "ADCS_STATUS.stale bits, ``CRC16_TABLE`` the CRC-16/CCITT-FALSE table as 256 little-endian u16.",
            '"""',
            "",
            "PROTOCOL_VERSION = %d" % table.PROTOCOL_VERSION,
@@ -58,6 +59,12 @@ def source():
     out.append("")
     for name, code, _doc in table.ERRORS:
         out.append("E_%s = %d" % (name, code))
+    out.append("")
+    for name, code in table.ADCS_MODES:
+        out.append("MODE_%s = %d" % (name, code))
+    out.append("")
+    for name, bit in table.ADCS_STALE:
+        out.append("STALE_%s = %d" % (name, bit))
     out.append("")
     for pid, name, _src, _dst, _doc, fields in table.PACKETS:
         fmt = _fmt(fields)

@@ -9,7 +9,7 @@ import pytest
 
 from emulator.adcs_session import AdcsSession
 from firmware.adcs import app as A
-from protocol import core
+from protocol import consts, core
 
 P = core.PACKET_ID
 
@@ -154,7 +154,7 @@ def test_first_acquisition_damps_the_rate_until_the_star_tracker_answers():
         app.last_ok[k] = t
     app.t_apkf = t - 1.0                       # the filter put in above is one step behind the cycle
     app.cycle(0, t)
-    assert app.mode == A.MODE["HOLD"]
+    assert app.mode == consts.MODE_HOLD
     app.st_got = app.st_valid = True           # a valid fix: acquired, the pointing command from then on
     app._control(t)
     assert app.acquired and not app.acquiring and list(app.wc) == pytest.approx([1e-3] * 3)

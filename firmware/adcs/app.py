@@ -60,7 +60,9 @@ except ImportError:                               # CPython
 from firmware.adcs import apkf_lean, control, flight, linalg, stkf_lean
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol import can as canmap
-from protocol import core, table
+from protocol import core
+from protocol.consts import (MODE_ACQUIRE, MODE_DEGRADED, MODE_HOLD, MODE_INIT, MODE_POINT, MODE_SLEW,
+                             STALE_BEACON, STALE_GNSS_A, STALE_GNSS_B, STALE_RW0, STALE_STARTRACKER)
 from protocol.units import MU_EARTH, RAD_PER_ARCSEC
 
 R_EARTH = 6371.2e3
@@ -102,8 +104,6 @@ P_MTQ_CMD = core.PACKET_ID["MTQ_CMD"]
 MTQ = core.NODE["MTQ"]
 DEG = math.pi / 180.0
 RW0 = core.NODE["RW0"]
-MODE = dict(table.ADCS_MODES)
-STALE = dict(table.ADCS_STALE)
 _FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_TICK, P_STATUS, P_RW_CMD,
                                                P_MISSING, P_MAG, P_MTQ_CMD))
 MAG_T = core.field_scales(P_MAG)["bx"] * 1e-9      # tesla per MAGNETOMETER count
@@ -241,7 +241,7 @@ class App:
         self.beacon_used = False            # the STKF took this cycle's beacon
         self.last_ok = {"st": 0.0, "gnss": 0.0, "beacon": 0.0, "gnss_b": 0.0}
         self.stale = 0
-        self.mode = MODE["INIT"]
+        self.mode = MODE_INIT
         self.t = 0.0
         self._flight_init(cfg)
 
@@ -249,7 +249,7 @@ class App:
         """The flight world's state (``world`` "flight" in the configuration; ``flight`` its options, the
         defaults ``FLIGHT``'s; ``magnetorquers`` the spacecraft file's block)."""
         self.fly = cfg.get("world", "thesis") == "flight"
-        self.fmode = "INIT"
+        self.fmode = MODE_INIT
         self.m_cmd = linalg.zeros(3)
         self.mtq_sat = 0
         self.n_resets = 0                   # attitude resets by the innovation gate; the last one's NIS
@@ -616,34 +616,34 @@ class App:
                 self._command_rate()
             except (ValueError, ZeroDivisionError):
                 hold = self.no_command = True
-        if not hold and self.fmode == "ACQUIRE" and not st_ok:
+        if not hold and self.fmode == MODE_ACQUIRE and not st_ok:
             hold = True                       # rate damping until the star tracker answers
         if hold:
             for i in range(4):
                 qc[i] = x[i]
             for i in range(3):
                 wc[i] = 0.0
-            if self.fmode not in ("HOLD", "ACQUIRE") and not self.no_command:
-                self.fmode = "HOLD"
+            if self.fmode not in (MODE_HOLD, MODE_ACQUIRE) and not self.no_command:
+                self.fmode = MODE_HOLD
         else:
             err = flight.angle(x, qc)
-            if self.fmode == "POINT" and err > self.reslew:
-                self.fmode = "SLEW"
+            if self.fmode == MODE_POINT and err > self.reslew:
+                self.fmode = MODE_SLEW
                 self.slew.active = False
-            elif self.fmode == "ACQUIRE" and st_ok:
-                self.fmode = "POINT" if err <= self.reslew else "SLEW"
+            elif self.fmode == MODE_ACQUIRE and st_ok:
+                self.fmode = MODE_POINT if err <= self.reslew else MODE_SLEW
                 self.slew.active = False
-            if self.fmode in ("INIT", "HOLD") or (self.fmode == "SLEW" and not self.slew.active):
+            if self.fmode in (MODE_INIT, MODE_HOLD) or (self.fmode == MODE_SLEW and not self.slew.active):
                 self.slew.start(x, qc)
-                self.fmode = "SLEW"
-            if self.fmode == "SLEW":
+                self.fmode = MODE_SLEW
+            if self.fmode == MODE_SLEW:
                 self.slew.reference(self.qr, self.wr, qc, wc)
                 for i in range(4):
                     qc[i] = self.qr[i]
                 for i in range(3):
                     wc[i] = self.wr[i]
                 if not self.slew.active:
-                    self.fmode = "ACQUIRE"
+                    self.fmode = MODE_ACQUIRE
         # the magnetorquers: h = C Jrw W (body), b the model field through the estimate (as the APKF's)
         cj, wp = self.cjrw, self.wp
         h = [cj[i * 4] * wp[0] + cj[i * 4 + 1] * wp[1] + cj[i * 4 + 2] * wp[2] + cj[i * 4 + 3] * wp[3]
@@ -708,16 +708,16 @@ class App:
         # stale bits and mode
         stale = 0
         if not st_ok:
-            stale |= 1 << STALE["STARTRACKER"]
+            stale |= 1 << STALE_STARTRACKER
         if not self.gnss_got:
-            stale |= 1 << STALE["GNSS_A"]
+            stale |= 1 << STALE_GNSS_A
         if self.satb and t - self.last_ok["gnss_b"] >= self.stale_s:
-            stale |= 1 << STALE["GNSS_B"]
+            stale |= 1 << STALE_GNSS_B
         if not (self.bc_got and self.bc_valid):
-            stale |= 1 << STALE["BEACON"]
+            stale |= 1 << STALE_BEACON
         for i in range(NW):
             if not self.rw_got[i]:
-                stale |= 1 << (STALE["RW0"] + i)
+                stale |= 1 << (STALE_RW0 + i)
         self.stale = stale
         long_gap = False
         keys = ("st", "gnss", "beacon", "gnss_b") if self.satb else ("st", "gnss", "beacon")
@@ -727,15 +727,15 @@ class App:
         if st_ok:
             self.t_st_ok = t
         if self.apkf is None:
-            self.mode = MODE["INIT"]
-        elif self.failed or (long_gap and not (self.fly and self.fmode in ("SLEW", "ACQUIRE") and self._only_st(t))):
-            self.mode = MODE["DEGRADED"]
+            self.mode = MODE_INIT
+        elif self.failed or (long_gap and not (self.fly and self.fmode in (MODE_SLEW, MODE_ACQUIRE) and self._only_st(t))):
+            self.mode = MODE_DEGRADED
         elif self.fly:
-            self.mode = MODE["HOLD"] if self.no_command else MODE[self.fmode]
+            self.mode = MODE_HOLD if self.no_command else self.fmode
         elif t < self.hold_s or self.acquiring or self.no_command:
-            self.mode = MODE["HOLD"]
+            self.mode = MODE_HOLD
         else:
-            self.mode = MODE["POINT"]
+            self.mode = MODE_POINT
         self.clear_inputs()
         return u
 
@@ -780,22 +780,22 @@ def _drops(port):
     return canmap.rx_drops(port.counters())
 
 
-_B_GNSS_A = 1 << STALE["GNSS_A"]
-_B_GNSS_B = 1 << STALE["GNSS_B"]
+_B_GNSS_A = 1 << STALE_GNSS_A
+_B_GNSS_B = 1 << STALE_GNSS_B
 
 
 def burst_bit(pid, src, payload):
     """The ADCS_STALE bit naming a burst packet (ADCS_TICK.burst), 0 for a packet that is not one."""
     if pid == P_RW_TLM:
         i = src - RW0
-        return 1 << (STALE["RW0"] + i) if 0 <= i < NW else 0
+        return 1 << (STALE_RW0 + i) if 0 <= i < NW else 0
     if pid == P_ST:
-        return 1 << STALE["STARTRACKER"]
+        return 1 << STALE_STARTRACKER
     if pid == P_GNSS:
         sat = payload[4]                     # after t_ms (I)
         return _B_GNSS_A if sat == 0 else (_B_GNSS_B if sat == 1 else 0)
     if pid == P_BEACON:
-        return 1 << STALE["BEACON"]
+        return 1 << STALE_BEACON
     return 0
 
 

@@ -1,6 +1,6 @@
 """Lean flight ADCS: what dropping states costs, heap bytes and instructions per 1 Hz cycle.
 
-Scenario (tests/adcs_lean_scenario.py): the emulator's spacecraft (true J, misaligned wheels with their true
+Scenario (ground/adcs/lean_scenario.py): the emulator's spacecraft (true J, misaligned wheels with their true
 inertias, gravity gradient, a residual dipole) held in an inertial attitude by a PD on the truth for 4000 s,
 with the star tracker (20/20/60 arcsec, 1 Hz) and the tachometers (10 rpm). Both filters start from the
 parameter file a perfect calibration writes (ground/adcs/body_pointing.py format), attitude from the first star-tracker
@@ -22,7 +22,7 @@ Instructions: ``valgrind --tool=callgrind`` on micropython over 5 and 25 cycles,
 harness's own input copying, a few thousand instructions).
 
 The lean STKF (firmware/adcs/stkf_lean.py: SatA's EKF + SatB's 6-state AFLS) on the Sec. 5.5 inputs of
-tests/adcs_lean_scenario.stkf_scenario (two-body truth, SatA GNSS and the beacon each second, SatB's GNSS
+ground/adcs/lean_scenario.stkf_scenario (two-body truth, SatA GNSS and the beacon each second, SatB's GNSS
 through the relay 2-3 s late, so nearly every second generates a node; stated attitude error):
 - instructions per cycle: callgrind over 10 and 20 s, differenced, the collector on as in flight (default
   heap); heap bytes per cycle: gc.mem_alloc() around each cycle with the collector off, max over 30 s;
@@ -45,7 +45,7 @@ from bench import mp, verdict
 from firmware.adcs import apkf_lean as L
 from firmware.adcs import linalg
 from ground.adcs import apkf, quat
-from tests.adcs_lean_scenario import run_stkf_ground, run_stkf_lean, scenario, stkf_scenario
+from ground.adcs.lean_scenario import run_stkf_ground, run_stkf_lean, scenario, stkf_scenario
 
 ROOT = mp.ROOT
 SECONDS = 4000

@@ -272,7 +272,7 @@ def _same_npz(a, b):
 
 
 def _board_realtime(tmp, dist, cal, rate, duration=10.0):
-    from tests.ptyrelay import relay_pair
+    from tools.ptyrelay import relay_pair
     with relay_pair() as (board_path, host_path):
         env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
         proc = subprocess.Popen([micropython_binary(), "-m", "firmware.main", "controller", "--link",

@@ -12,7 +12,7 @@ from firmware.adcs import apkf_lean as L
 from firmware.adcs import linalg
 from ground.adcs import apkf, quat
 from protocol import paramfile
-from tests.adcs_lean_scenario import run_stkf_ground, run_stkf_lean, scenario, stkf_scenario
+from ground.adcs.lean_scenario import run_stkf_ground, run_stkf_lean, scenario, stkf_scenario
 from tests.test_firmware_mp import MICROPYTHON, ROOT
 from tests.test_firmware_mp import run_mp as _run_mp_default
 

@@ -8,7 +8,7 @@ import pytest
 
 from firmware.adcs import linalg
 from firmware.adcs import stkf_lean as S
-from tests.adcs_lean_scenario import stkf_scenario
+from ground.adcs.lean_scenario import stkf_scenario
 
 N = 6
 

@@ -363,7 +363,7 @@ def test_controller_over_an_externally_damaged_slcan_stream_stays_up_and_answers
     from emulator.lockstep import RemoteController
     from protocol.link import open_link
     host = open_link("slcan-pty", "BENCH", accept=("GROUND",), isotp_timeout_s=0.003)
-    relay = subprocess.Popen([sys.executable, "-m", "tests.ptyrelay", "--slcan-damage", host.peer_path, "20"],
+    relay = subprocess.Popen([sys.executable, "-m", "tools.ptyrelay", "--slcan-damage", host.peer_path, "20"],
                              cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
     ctl = None
     try:

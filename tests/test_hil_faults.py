@@ -282,7 +282,7 @@ def test_calibration_under_faults_gives_the_same_h(tmp_path):
 # --- a board on a serial port: a pty pair relayed, MicroPython running firmware.main on one end ------------
 @pytest.fixture
 def board():
-    from tests.ptyrelay import relay_pair
+    from tools.ptyrelay import relay_pair
     with relay_pair() as (board_path, host_path):
         env = dict(os.environ, MICROPYPATH=ROOT + ":.frozen")
         proc = subprocess.Popen([micropython_binary(), "-m", "firmware.main", "controller", "--link",

@@ -85,7 +85,7 @@ def main(argv=None):
     print("\n%d files compiled into %s" % (len(rows), args.out))
     from tools.natmod_build import TARGET as kern       # the C kernels (make natmod): x64 code
     if args.march in ("host", "x64") and os.path.exists(kern):
-        from ground.fileio import write_atomic
+        from protocol.fileio import write_atomic
         with open(kern, "rb") as fh:
             write_atomic(os.path.join(args.out, os.path.relpath(kern, ROOT)), fh.read())
         print("and the ADCS C kernels (native module, x64) copied beside them: %d bytes" % os.path.getsize(kern))

@@ -1,5 +1,5 @@
 # Under micropython: the lean STKF (SatA's GNSS, the beacon, SatB's delayed GNSS through the AFLS) over the
-# inputs in argv[1] (JSON, tests/adcs_lean_scenario.stkf_scenario); prints the estimate and 1 sigma of every
+# inputs in argv[1] (JSON, ground/adcs/lean_scenario.stkf_scenario); prints the estimate and 1 sigma of every
 # second, the node count, and the heap bytes per 1 Hz cycle (gc off in each cycle). argv[2] (optional):
 # "cycles" - only the cycles with the collector on as in flight, no output (the callgrind count).
 import gc

@@ -2,8 +2,8 @@
 process (so the relay never waits on the test's GIL). One slave goes to the board's firmware, the other to
 ``fps hil --runtime board --port``.
 
-``python -m tests.ptyrelay`` prints the two slave paths on one line and relays until stdin closes.
-``python -m tests.ptyrelay --slcan-damage PATH N`` relays between the tty PATH and a new pty (its slave path
+``python -m tools.ptyrelay`` prints the two slave paths on one line and relays until stdin closes.
+``python -m tools.ptyrelay --slcan-damage PATH N`` relays between the tty PATH and a new pty (its slave path
 printed) and damages one CR-terminated line in N at random (seed 0), each way, with one of: a data character
 made 0xC5, a non-hex 'G', 40 characters with no CR, the line dropped (an external fault on an slcan stream,
 not the project's own).
@@ -55,7 +55,7 @@ def _relay():
 def relay_pair():
     """(board_path, host_path): the two ends of the relayed pty pair, for as long as the context lasts."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    proc = subprocess.Popen([sys.executable, "-m", "tests.ptyrelay"], cwd=root, stdin=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "tools.ptyrelay"], cwd=root, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE)
     try:
         board, host = proc.stdout.readline().decode().split()

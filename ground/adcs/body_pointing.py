@@ -52,9 +52,9 @@ from ground.adcs import apkf, control, flight_world, modes, quat, runs, stkf
 from ground.adcs.afls import Afls
 from ground.adcs.flight_world import FLIGHT, flight_settle_s                      # noqa: F401 (re-exported)
 from ground.adcs.pointing import (BUDGET_POINTING_3SIGMA, BUDGET_STABILITY_3SIGMA, EST_COLS,  # noqa: F401
-                                  MAX_TS_S, SLOW_S, SUMMARY_KEYS, THESIS, TS_THESIS, W_OBJ, check_ts,
-                                  error_budget, estimate_errors, l_frame, objective, orbit_period,
-                                  pointing_errors, statistics, thesis_3sigma)
+                                  MAX_TS_S, SLOW_S, SUMMARY_KEYS, THESIS, TS_THESIS, W_OBJ, add_statistics,
+                                  check_ts, close_history, error_budget, estimate_errors, l_frame, objective,
+                                  orbit_period, pointing_errors, statistics, thesis_3sigma)
 from ground.fileio import write_atomic, write_json
 from protocol import paramfile as pf, table
 from protocol.units import RAD_PER_ARCSEC
@@ -410,19 +410,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     finally:
         if bar is not None:
             bar.close()
-    n_ok = k_done * 10 + 1
-    for key in ("q", "w", "w_rel", "t"):
-        hist[key] = hist[key][:n_ok]
-    for key in fsw:
-        fsw[key] = fsw[key][:k_done + 1]
-    xs10 = xg[:n_ok * sub:sub]
-    dth, dom = pointing_errors(hist["q"], hist["w"], xs10[:, 0, 0:3], xs10[:, 0, 3:6], xs10[:, 1, 0:3],
-                               xs10[:, 1, 3:6], lb)
-    hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / RAD_PER_ARCSEC, dom / RAD_PER_ARCSEC
-    hist.update({"fsw_" + k: v for k, v in fsw.items()})
-    for key in flog:
-        flog[key] = flog[key][:k_done + 1]
-    hist.update({"fsw_" + k: v for k, v in flog.items()})
+    dth, dom, rows = close_history(hist, dict(fsw, **flog), xg, rate, k_done, lb)
     sel = hist["t"] >= t_settle
     budget = error_budget(hist, xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb)
     res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
@@ -435,12 +423,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
            "orbit_period_s": period, "mode_changes": log.changes, "time_in_mode_s": log.time_in(k_done),
            "apkf_attitude_resets": [] if flt is None else [list(r) for r in flt.resets]}
     secs = np.arange(k_done + 1) >= t_settle         # the star tracker's blind share after the settling
-    res["star_tracker_blind_share"] = float(1.0 - flog["st_ok"][secs, 0].mean()) if secs.any() else None
-    if sel.sum() >= 2:
-        res.update(statistics(dth[sel], dom[sel]))
-    else:
-        res.update({k: None for k in SUMMARY_KEYS if k != "complete"})
-        res["J_rad2"] = None
+    res["star_tracker_blind_share"] = float(1.0 - rows["st_ok"][secs, 0].mean()) if secs.any() else None
+    add_statistics(res, dth, dom, sel)
     res["budget"] = budget
     return res, hist
 

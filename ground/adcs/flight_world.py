@@ -24,8 +24,8 @@ from emulator.spacecraft.scenario import HOLD_S, laser_axis
 from firmware.adcs.app import FLIGHT
 from ground.adcs import control
 from ground.adcs.modes import MODES
-from ground.adcs.pointing import (TS_THESIS, check_ts, error_budget, estimate_errors, orbit_period,
-                                  pointing_errors, statistics, SUMMARY_KEYS, EST_COLS)
+from ground.adcs.pointing import (EST_COLS, TS_THESIS, add_statistics, check_ts, close_history, error_budget,
+                                  estimate_errors, orbit_period, statistics)
 from protocol import table
 from protocol.units import RAD_PER_ARCSEC
 
@@ -163,16 +163,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
 
 def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s):
     """The run's result and history from the session and the recorder (``simulate``)."""
-    n_ok = k_done * 10 + 1
-    for key in ("q", "w", "w_rel", "t"):
-        hist[key] = hist[key][:n_ok]
-    fsw = {k: v[:k_done + 1] for k, v in rec.fsw.items()}
-    sub = scenario.WORLD_RATE_HZ // 10
-    xs10 = s.xg[:n_ok * sub:sub]
-    dth, dom = pointing_errors(hist["q"], hist["w"], xs10[:, 0, 0:3], xs10[:, 0, 3:6], xs10[:, 1, 0:3],
-                               xs10[:, 1, 3:6], lb)
-    hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / RAD_PER_ARCSEC, dom / RAD_PER_ARCSEC
-    hist.update({"fsw_" + k: v for k, v in fsw.items()})
+    dth, dom, fsw = close_history(hist, rec.fsw, s.xg, scenario.WORLD_RATE_HZ, k_done, lb)
     mode_s = fsw["mode"][:, 0]
     mode10 = mode_s[np.minimum(hist["t"].astype(int), max(k_done - 1, 0))]    # each step flown under its cycle
     period = orbit_period(s.xg[0, 0])
@@ -196,11 +187,7 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
     flog = {k: fsw[k] for k in ("m_cmd", "h_w", "mtq_sat", "beacon_used")}
     res.update(flight_statistics(hist, dth, dom, mode10, period, flog, mtq["dipole_limit_am2"], axes))
     res["flight_options"] = fo
-    if sel.sum() >= 2:
-        res.update(statistics(dth[sel], dom[sel]))
-    else:
-        res.update({k: None for k in SUMMARY_KEYS if k != "complete"})
-        res["J_rad2"] = None
+    add_statistics(res, dth, dom, sel)
     res["budget"] = budget
     return res, hist
 

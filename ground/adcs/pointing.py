@@ -136,3 +136,29 @@ def error_budget(hist, x1, t_settle, slow_s=SLOW_S, laser_axis=control.LASER_AXI
     out.update({name + "_mean_arcsec": v.mean(axis=0).tolist() for name, v in parts.items()})
     out["samples"] = int(len(k))
     return out
+
+
+def close_history(hist, fsw, xg, rate, k_done, laser_axis=control.LASER_AXIS):
+    """A run's history made final after ``k_done`` seconds: the 10 Hz truth rows (t, q, w, w_rel) cut to the
+    seconds run, the 1 Hz flight-software rows ``fsw`` cut to k_done + 1 and added as ``fsw_*``, and the pointing
+    error and stability (Eq. 6.12-6.21, arcsec and arcsec/s) against the orbit truth ``xg`` (``rate`` rows a
+    second) added as ``dtheta_arcsec``, ``domega_arcsec_s``. Returns (dtheta rad, domega rad/s, the cut fsw)."""
+    n_ok = k_done * 10 + 1
+    for key in ("q", "w", "w_rel", "t"):
+        hist[key] = hist[key][:n_ok]
+    fsw = {k: v[:k_done + 1] for k, v in fsw.items()}
+    xs10 = xg[:n_ok * (rate // 10):rate // 10]
+    dth, dom = pointing_errors(hist["q"], hist["w"], xs10[:, 0, 0:3], xs10[:, 0, 3:6], xs10[:, 1, 0:3],
+                               xs10[:, 1, 3:6], laser_axis)
+    hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / RAD_PER_ARCSEC, dom / RAD_PER_ARCSEC
+    hist.update({"fsw_" + k: v for k, v in fsw.items()})
+    return dth, dom, fsw
+
+
+def add_statistics(res, dth, dom, sel):
+    """``statistics`` of the selected samples into ``res``; its figures None where fewer than two are selected."""
+    if sel.sum() >= 2:
+        res.update(statistics(dth[sel], dom[sel]))
+    else:
+        res.update({k: None for k in SUMMARY_KEYS if k != "complete"})
+        res["J_rad2"] = None

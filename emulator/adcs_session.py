@@ -147,6 +147,26 @@ def check_faults(faults, duration_s):
     return out
 
 
+def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults):
+    """``AdcsSession``'s arguments that need no file: ValueError naming the one out of range."""
+    if runtime not in RUNTIMES:
+        raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
+    if not (np.isfinite(duration_s) and duration_s >= 1):
+        raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
+    if not (np.isfinite(ts) and ts > 0):
+        raise ValueError("settling time ts must be > 0 s, got %r" % (ts,))
+    if truth not in orbits.TRUTHS:
+        raise ValueError("truth %r not one of %s" % (truth, ", ".join(orbits.TRUTHS)))
+    if apkf_momentum not in MOMENTUM:
+        raise ValueError("apkf_momentum must be one of %s, got %r" % (", ".join(MOMENTUM), apkf_momentum))
+    if world not in WORLDS:
+        raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
+    if probe is not None and runtime != "inproc":
+        raise ValueError("a probe reads the app's state: runtime inproc only")
+    if runtime == "inproc" and link_faults is not None:
+        raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
+
+
 class AdcsSession:
     """See the module docstring and docs/ADCS.md's "ADCS on CAN". Extra keywords: ``truth`` ("two-body" or "hpop"),
     ``cache_dir`` (orbit truth cache), ``hold_s``, ``reply_timeout_s`` (wall seconds a cycle may take),
@@ -163,21 +183,8 @@ class AdcsSession:
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
                  spacecraft=None, magnetic_devices=False, world="thesis", flight=None, probe=None):
-        if runtime not in RUNTIMES:
-            raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
-        if not (np.isfinite(duration_s) and duration_s >= 1):
-            raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
-        if not (np.isfinite(ts) and ts > 0):
-            raise ValueError("settling time ts must be > 0 s, got %r" % (ts,))
-        if truth not in orbits.TRUTHS:
-            raise ValueError("truth %r not one of %s" % (truth, ", ".join(orbits.TRUTHS)))
-        if apkf_momentum not in MOMENTUM:
-            raise ValueError("apkf_momentum must be one of %s, got %r" % (", ".join(MOMENTUM), apkf_momentum))
-        if probe is not None and runtime != "inproc":
-            raise ValueError("a probe reads the app's state: runtime inproc only")
+        _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults)
         self.probe = probe
-        if runtime == "inproc" and link_faults is not None:
-            raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
         self.apkf_momentum = apkf_momentum
         self.runtime, self.satb, self.seed = runtime, bool(satb_gnss), int(seed)
         self.duration_s, self.ts, self.hold_s = float(duration_s), float(ts), float(hold_s)
@@ -190,8 +197,6 @@ class AdcsSession:
         self.recorded = [] if record else None     # per tick: [tick, t_ms, [[pid, src, payload hex], ...]]
         self.K = int(np.ceil(self.duration_s))
         self.spacecraft = d = spacecraft or scenario.thesis_3u()
-        if world not in WORLDS:
-            raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
         self.world_name, self.flight = world, dict(flight or {})
         fly = world == "flight"
         if fly and d["magnetorquers"] is None:
@@ -552,37 +557,39 @@ class AdcsSession:
         if not np.all(np.isfinite(self.sc.x)):
             raise FloatingPointError("truth diverged at t = %.1f s" % self.sc.t)
         self.wheel_rpm_log.append(float(np.abs(self.sc.omega_rw_rel).max() * 60 / (2 * np.pi)))
-        if status:
-            status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
-            status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
-            self.last_status = status
-            if status["tick"] > 0:               # the first cycle starts the filters
-                c = self._cycle_us
-                c[0] += 1
-                c[1] += status["cycle_us"]
-                c[2] = max(c[2], status["cycle_us"])
-            if status["adcs_mode_name"] != self._mode:
-                if self._mode is not None:
-                    self.mode_changes.append({"t_s": t, "from": self._mode, "to": status["adcs_mode_name"],
-                                              "reason": self._why(self._mode, status)})
-                self.fault_log.append({"t_s": t, "event": "ADCS mode %s" % status["adcs_mode_name"]})
-                self._say("t = %.0f s: ADCS mode %s -> %s%s" % (t, self._mode, status["adcs_mode_name"],
-                                                                  (" (stale: %s)" % ", ".join(status["stale_names"]))
-                                                                  if status["stale_names"] else ""))
-                self._mode = status["adcs_mode_name"]
-        est = {}
-        if status:
-            est = {"q": np.array([status[n] for n in ("q0", "q1", "q2", "q3")]),
-                   "w": np.array([status[n] for n in ("wx", "wy", "wz")]),
-                   "ra": np.array([status[n] for n in ("rax", "ray", "raz")]),
-                   "rb": np.array([status[n] for n in ("rbx", "rby", "rbz")]),
-                   "att_sigma_rad": status["att_sigma"], "t": t}
+        est = self._on_status(status, t) if status else {}
         out["status"], out["est"], out["rw_cmd"] = status, est, applied
         self.k += 1
         if self.k < self.K:
             self._burst()
         self.wall_s = time.perf_counter() - self._t_wall
         return out
+
+    def _on_status(self, status, t):
+        """Take cycle k's ADCS_STATUS (named mode and stale sensors, the firmware's cycle time, a mode change
+        logged with its reason); returns the flight software's estimates it carries."""
+        status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
+        status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
+        self.last_status = status
+        if status["tick"] > 0:               # the first cycle starts the filters
+            c = self._cycle_us
+            c[0] += 1
+            c[1] += status["cycle_us"]
+            c[2] = max(c[2], status["cycle_us"])
+        if status["adcs_mode_name"] != self._mode:
+            if self._mode is not None:
+                self.mode_changes.append({"t_s": t, "from": self._mode, "to": status["adcs_mode_name"],
+                                          "reason": self._why(self._mode, status)})
+            self.fault_log.append({"t_s": t, "event": "ADCS mode %s" % status["adcs_mode_name"]})
+            self._say("t = %.0f s: ADCS mode %s -> %s%s" % (t, self._mode, status["adcs_mode_name"],
+                                                              (" (stale: %s)" % ", ".join(status["stale_names"]))
+                                                              if status["stale_names"] else ""))
+            self._mode = status["adcs_mode_name"]
+        return {"q": np.array([status[n] for n in ("q0", "q1", "q2", "q3")]),
+                "w": np.array([status[n] for n in ("wx", "wy", "wz")]),
+                "ra": np.array([status[n] for n in ("rax", "ray", "raz")]),
+                "rb": np.array([status[n] for n in ("rbx", "rby", "rbz")]),
+                "att_sigma_rad": status["att_sigma"], "t": t}
 
     def blind_share(self, t_from):
         """The share of cycles from ``t_from`` (s) on whose star-tracker output was not valid (None if none)."""

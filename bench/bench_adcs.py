@@ -503,7 +503,7 @@ def main():
         for n in (1, 2):
             plain[n].append(_plain_processes(n))
     plain_1, plain_2 = min(plain[1]), min(plain[2])
-    print("| speed (consistent form) | ours | goal (issues 9, 29) |")
+    print("| speed (consistent form) | ours | goal |")
     print("|---|---|---|")
     print("| APKF predict per step (no star-tracker output) | %.0f us | — |" % pred_us)
     print("| APKF predict + update per 1 s step (one with a star-tracker output) | %.0f us | <= 300 us%s |"

@@ -94,7 +94,7 @@ _DEFAULT = {
     "flight_magnification": 13.33,    # Table 2.1, 80 mm / 6 mm, as used in Eq. 7.7-7.8
     "board": {                         # the controller board's timing in a tick (emulator.timing)
         "timing": "arduino-zero",     # arduino-zero (thesis board) | zero-latency (ideal) | custom
-        "adc_read_us": 426.0,         # one analogRead, Arduino core defaults (ArduinoCore-samd issue 327)
+        "adc_read_us": 426.0,         # one analogRead, Arduino core defaults (ArduinoCore-samd's init() in wiring.c)
         "hold_before_end_us": 75.0,   # sample held 7 ADC clocks before the result (SAMD21 datasheet)
         "compute_us": 250.0,          # assumed: arithmetic, fills the 1568 us period with the SPI
         "spi_us": 40.0,               # 4 x 24-bit words at 4 MHz plus chip-select handling

@@ -7,7 +7,7 @@ MEMS driver takes the new command when the last word is latched (AD5664R datashe
 ``arduino-zero`` (the default, the thesis's CtrlArduino on an Arduino Zero, Sec. 7.2): three ``analogRead``
 calls in sequence with the Arduino core's default ADC set-up. One ``analogRead`` takes about 426 us (prescaler
 DIV512 from 48 MHz, i.e. a 93.75 kHz ADC clock, SAMPLEN 63: 32 ADC clocks of sampling, then 7 of conversion;
-arduino/ArduinoCore-samd issue 327). The input is held at the end of the sampling phase,
+the core's init() in wiring.c, arduino/ArduinoCore-samd). The input is held at the end of the sampling phase,
 about 75 us (7 ADC clocks: 1 + 12/2 for 12 bits, SAMD21 datasheet's propagation delay) before the result is
 ready, so channel i (0, 1, 2) is sampled at (i + 1) 426 - 75 us: 351, 777, 1203 us. The arithmetic takes
 ``compute_us`` = 250 us (assumed: no public figure; it and the SPI time fill the 1568 us the thesis's 637.8 Hz

@@ -264,8 +264,9 @@ class App:
         for k in fo:
             if k not in FLIGHT:
                 raise ValueError("unknown flight option %r (the options: %s)" % (k, ", ".join(sorted(FLIGHT))))
-        fo, given = dict(FLIGHT), fo
-        fo.update(given)
+        opts = dict(FLIGHT)
+        opts.update(fo)
+        fo = opts
         mt = cfg.get("magnetorquers")
         if not mt:
             raise ValueError("the flight world needs the spacecraft's magnetorquers (configuration key "
@@ -530,7 +531,7 @@ class App:
         if self.fly:
             return self._control_flight(t)
         x = self.apkf.x
-        q, w = x, (x[4], x[5], x[6])
+        q = x
         hold = t < self.hold_s
         self.acquiring = self.no_command = False
         if not hold:

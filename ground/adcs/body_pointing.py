@@ -50,13 +50,14 @@ from emulator.spacecraft.scenario import HOLD_S, LAG_S, laser_axis
 from emulator.spacecraft.wheels import N_WHEELS, WheelParams
 from ground.adcs import apkf, control, flight_world, modes, quat, runs, stkf
 from ground.adcs.afls import Afls
+from ground.adcs.modes import MODE_CODE
 from ground.adcs.flight_world import FLIGHT, flight_settle_s                      # noqa: F401 (re-exported)
 from ground.adcs.pointing import (BUDGET_POINTING_3SIGMA, BUDGET_STABILITY_3SIGMA, EST_COLS,  # noqa: F401
                                   MAX_TS_S, SLOW_S, SUMMARY_KEYS, THESIS, TS_THESIS, W_OBJ, add_statistics,
                                   check_ts, close_history, error_budget, estimate_errors, l_frame, objective,
                                   orbit_period, pointing_errors, statistics, thesis_3sigma)
 from ground.fileio import write_atomic, write_json
-from protocol import paramfile as pf, table
+from protocol import paramfile as pf
 from protocol.units import RAD_PER_ARCSEC
 
 RPM = 2 * np.pi / 60
@@ -65,7 +66,6 @@ CAL_SETS = 9
 TACH_NOISE_RPM = WheelParams.noise_rpm   # the tachometers' 10 rpm 1 sigma (Sec. 4.8)
 SPAN_MARGIN_S = 2.0   # the orbit truth's span beyond the run (``truth_span``; part of the truth cache's key)
 WORLDS = ("thesis", "flight")
-MODE_CODE = dict(table.ADCS_MODES)
 
 
 # --- parameter file ------------------------------------------------------------------------------------------
@@ -302,14 +302,11 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     complete = True
     k_done = 0
     t_wall = time.perf_counter()
-    it = range(K + 1)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=K, desc="bps ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), unit="s",
-                   leave=False)
+    from tqdm import tqdm
+    bar = tqdm(total=K, desc="bps ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), unit="s", leave=False,
+               disable=not progress)
     try:
-        for k in it:
+        for k in range(K + 1):
             t = float(k)
             # sensors at t (own time tags: t, SatB's tb)
             tach = wheels.read_speed_rpm(sc.omega_rw_rel) * (2 * np.pi / 60)
@@ -403,13 +400,11 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             k_done = k + 1
             if on_second is not None:
                 on_second(k, hist, fsw, xg[(10 * k + 1) * sub:(10 * k + 10) * sub + 1:sub])
-            if bar is not None:
-                bar.update(1)
+            bar.update(1)
     except KeyboardInterrupt:
         complete = False
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     dth, dom, rows = close_history(hist, dict(fsw, **flog), xg, rate, k_done, lb)
     sel = hist["t"] >= t_settle
     budget = error_budget(hist, xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb)

@@ -18,19 +18,17 @@ import time
 
 import numpy as np
 
-from emulator.adcs_session import AdcsSession, MODE_NAME
+from emulator.adcs_session import AdcsSession
 from emulator.spacecraft import scenario
 from emulator.spacecraft.scenario import HOLD_S, laser_axis
 from firmware.adcs.app import FLIGHT
 from ground.adcs import control
-from ground.adcs.modes import MODES
+from ground.adcs.modes import MODE_CODE, time_in
 from ground.adcs.pointing import (EST_COLS, TS_THESIS, add_statistics, check_ts, close_history, error_budget,
                                   estimate_errors, orbit_period, statistics)
-from protocol import table
 from protocol.units import RAD_PER_ARCSEC
 
 DEG = np.pi / 180.0
-MODE_CODE = dict(table.ADCS_MODES)
 ACQUIRE_MARGIN_S = 60.0     # flight_settle_s: the re-acquisition after the blind slew and a short second slew
 FSW = (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3), ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
        ("wc", 3), ("x_stkf", 12), ("est_err", len(EST_COLS)), ("m_cmd", 3), ("h_w", 3), ("mode", 1),
@@ -62,8 +60,8 @@ def check_flight(flight):
 class _Recorder:
     """The flight software's state after each cycle (``AdcsSession``'s probe): the app's own arrays, copied."""
 
-    def __init__(self, session, K):
-        self.s = session
+    def __init__(self, K):
+        self.s = None                        # the session, set once it exists
         self.fsw = {k: np.full((K + 1, m), np.nan) for k, m in FSW}
         self.resets = []
         self._n_resets = 0
@@ -91,15 +89,6 @@ class _Recorder:
             self.resets.append((t, app.reset_nis, 2.0 * float(np.linalg.norm(app.z3)) / RAD_PER_ARCSEC))
 
 
-def time_in(modes_per_s):
-    """Seconds spent in each mode (``MODES``) from the mode of each 1 s cycle."""
-    out = dict.fromkeys(MODES, 0.0)
-    for m in modes_per_s:
-        if np.isfinite(m):
-            out[MODE_NAME[int(m)]] += 1.0
-    return out
-
-
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, hold_s=HOLD_S, on_second=None, tach_noise_rpm=None, spacecraft=None,
              flight=None, faults=None):
@@ -124,10 +113,10 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
         d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
     K = int(np.ceil(duration_s))
-    s = AdcsSession(runtime="inproc", satb_gnss=satb_gnss, seed=seed, duration_s=float(K), ts=ts, params=params,
-                    faults=faults, truth=truth, cache_dir=cache_dir, hold_s=hold_s, spacecraft=d, world="flight",
-                    flight=fo)
-    rec = s.probe = _Recorder(s, K)
+    rec = _Recorder(K)
+    s = rec.s = AdcsSession(runtime="inproc", satb_gnss=satb_gnss, seed=seed, duration_s=float(K), ts=ts,
+                            params=params, faults=faults, truth=truth, cache_dir=cache_dir, hold_s=hold_s,
+                            spacecraft=d, world="flight", flight=fo, probe=rec)
     lb = laser_axis(d)
     n10 = K * 10 + 1
     hist = {"t": np.arange(n10) / 10.0, "q": np.zeros((n10, 4)), "w": np.zeros((n10, 3)),
@@ -136,11 +125,9 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     sub = scenario.WORLD_RATE_HZ // 10
     complete, k_done = True, 0
     t_wall = time.perf_counter()
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=K, desc="bps flight ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), unit="s",
-                   leave=False)
+    from tqdm import tqdm
+    bar = tqdm(total=K, desc="bps flight ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), unit="s",
+               leave=False, disable=not progress)
     try:
         with s:
             for k in range(K):
@@ -150,13 +137,11 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
                 k_done = k + 1
                 if on_second is not None:
                     on_second(k, hist, rec.fsw, s.xg[(10 * k + 1) * sub:(10 * k + 10) * sub + 1:sub])
-                if bar is not None:
-                    bar.update(1)
+                bar.update(1)
     except KeyboardInterrupt:
         complete = False
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     return _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s,
                    time.perf_counter() - t_wall)
 
@@ -180,7 +165,7 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
            "wheel_speed_limit_rpm": float(d["wheels"]["speed_limit_rpm"]),
            "tach_noise_rpm": d["wheels"]["tach_noise_rpm"], "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"],
            "spacecraft": d["name"], "world": "flight", "orbit_period_s": period, "mode_changes": s.mode_changes,
-           "time_in_mode_s": time_in(mode_s[:k_done]), "apkf_attitude_resets": [list(r) for r in rec.resets],
+           "time_in_mode_s": time_in(s.mode_changes, k_done), "apkf_attitude_resets": [list(r) for r in rec.resets],
            "star_tracker_blind_share": blind, "faults": s.faults, "fault_log": s.fault_log}
     mtq = d["magnetorquers"]
     axes = np.array([np.asarray(a, float) / np.linalg.norm(a) for a in mtq["axes"]])
@@ -194,8 +179,8 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
 
 def flight_statistics(hist, dth, dom, mode10, period, flog, dipole_limit, axes):
     """The flight world's figures: per pointing pass (pass p = the POINT samples of orbit p, p >= 1, of those the
-    run holds whole; orbit 0 is the slew and settling) its 3 sigma pointing and stability (as ``statistics``) and largest wheel
-    speed; the largest wheel speed after the first orbit (``max_wheel_speed_rpm`` then means that span, and
+    run holds whole; orbit 0 is the slew and settling) its 3 sigma pointing and stability (as ``statistics``) and
+    largest wheel speed; the largest wheel speed after the first orbit (``max_wheel_speed_rpm`` then means that span, and
     ``max_wheel_speed_rpm_run`` the whole run's); the magnetorquers' duty (mean of the largest rod's |m| over
     its limit) and saturated share; the wheels' momentum |h| (N m s) at most and at the end."""
     t = hist["t"]

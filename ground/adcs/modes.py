@@ -7,6 +7,19 @@ it converges), POINT (the PD of Eq. 6.5 on the command). The names and codes are
 from protocol import table
 
 MODES = tuple(name for name, _ in sorted(table.ADCS_MODES, key=lambda m: m[1]))
+MODE_CODE = dict(table.ADCS_MODES)
+
+
+def time_in(changes, t_end, mode="INIT", t0=0.0):
+    """Seconds spent in each mode (``MODES``) up to ``t_end``, from the mode at ``t0`` and its ``changes``
+    ({"t_s", "from", "to"} each, in time order)."""
+    out = dict.fromkeys(MODES, 0.0)
+    t = t0
+    for c in changes:
+        out[mode] += c["t_s"] - t
+        t, mode = c["t_s"], c["to"]
+    out[mode] += float(t_end) - t
+    return out
 
 
 class ModeLog:
@@ -26,10 +39,4 @@ class ModeLog:
             self.mode = mode
 
     def time_in(self, t_end):
-        out = dict.fromkeys(MODES, 0.0)
-        t, mode = self.t0, self.changes[0]["from"] if self.changes else self.mode
-        for c in self.changes:
-            out[mode] += c["t_s"] - t
-            t, mode = c["t_s"], c["to"]
-        out[mode] += float(t_end) - t
-        return out
+        return time_in(self.changes, t_end, self.changes[0]["from"] if self.changes else self.mode, self.t0)

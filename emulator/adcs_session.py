@@ -14,12 +14,12 @@ SatB's fixes relayed 2-3 s late when ``satb_gnss``), BEACON; the emulator is nod
 magnetometer (MAGNETOMETER) and magnetorquers (MTQ: MTQ_CMD -> MTQ_TLM), where its blocks are not null.
 
 Runtime ``inproc``: the same app (``firmware.adcs.app.App``) in this process behind
-``firmware.adcs.app.InProcess``, which takes the same packets' bytes and gives the same replies without a process
+``firmware.adcs.lockstep.InProcess``, which takes the same packets' bytes and gives the same replies without a process
 or a wire: the analysis host of the one flight stack (``fps adcs bps --world flight`` flies it), bit for bit the
 cpython runtime's history.
 
 Lockstep (one ``cycle()`` = one flight-software second = 10 RK4 steps of 0.1 s), exactly once per cycle over
-a link that loses packets (``firmware.adcs.app.Lockstep`` is the other side):
+a link that loses packets (``firmware.adcs.lockstep.Lockstep`` is the other side):
 
 1. ADCS_TICK(k, t_k, burst, n_gnss_b) opens cycle k, naming the burst that follows it (sent at the end of the
    previous cycle, or by ``start``): the RW_TLM of each wheel that was commanded (its reply, with the speed at
@@ -84,7 +84,7 @@ from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftD
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
 from firmware.adcs.apkf_lean import MOMENTUM
-from firmware.adcs.app import burst_bit
+from firmware.adcs.lockstep import burst_bit
 from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -280,7 +280,8 @@ class AdcsSession:
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""
         if self.runtime == "inproc":             # the app on this host: the same bytes, no process or wire
-            from firmware.adcs.app import App, InProcess
+            from firmware.adcs.app import App
+            from firmware.adcs.lockstep import InProcess
             self.link = InProcess(App(json.loads(json.dumps(self.config()))), N["ADCS"], self.probe)
             self.app = self.link.app
             self._say("ADCS flight software in this process (inproc)")

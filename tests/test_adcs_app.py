@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 from emulator.adcs_session import AdcsSession
+from firmware.adcs import apkf_lean, stkf_lean
 from firmware.adcs import app as A
+from firmware.adcs.estimation import stkf_cap
+from firmware.adcs.lockstep import _drops
 from protocol import consts, core
 
 P = core.PACKET_ID
@@ -28,17 +31,17 @@ def _status(app, tick):
 
 
 def test_stkf_capacity_follows_the_lag():
-    assert A.stkf_cap(4.0) == 6 and A.stkf_cap(0.0) == 3 and A.stkf_cap(2.5) == 5
-    assert A.App(_cfg(True)).stkf.cap == 6 and A.App(_cfg(True)).stkf.lag == 4.0
+    assert stkf_cap(4.0) == 6 and stkf_cap(0.0) == 3 and stkf_cap(2.5) == 5
+    assert A.App(_cfg(True)).est.stkf.cap == 6 and A.App(_cfg(True)).est.stkf.lag == 4.0
     a = A.App(_cfg(False))
-    assert a.stkf.cap == 3 and a.stkf.lag == 0.0
+    assert a.est.stkf.cap == 3 and a.est.stkf.lag == 0.0
 
 
 def test_refused_measurements_are_counted_and_the_cycle_goes_on():
     cfg = _cfg(True)
     app = A.App(cfg)
     xb = cfg["stkf_x0"][6:12]
-    x_before = list(app.xs)
+    x_before = list(app.est.xs)
     app.cycle(0, 0.0)
     # a SatB fix, the same fix again (repeated tag) and one older than the 4 s lag
     for t in (0.4, 0.4):
@@ -57,8 +60,8 @@ def test_refused_measurements_are_counted_and_the_cycle_goes_on():
     u = app.cycle(10, 10.0)
     st = _status(app, 10)
     assert st["n_refused"] == 3 and st["n_gnss_b"] == 1
-    assert all(math.isfinite(v) for v in u) and np.all(np.isfinite(list(app.xs)))
-    assert app.xs[0] != x_before[0]                      # the estimate is read from the filter every cycle
+    assert all(math.isfinite(v) for v in u) and np.all(np.isfinite(list(app.est.xs)))
+    assert app.est.xs[0] != x_before[0]                      # the estimate is read from the filter every cycle
     assert np.isfinite([st[k] for k in ("rax", "ray", "raz", "rbx", "rby", "rbz")]).all()
     app.cycle(11, 11.0)                                  # and the next cycle runs as usual
     assert _status(app, 11)["n_refused"] == 3
@@ -69,17 +72,17 @@ def test_app_estimate_is_the_filters(satb):
     app = A.App(_cfg(satb))
     for k in range(3):
         app.cycle(k, float(k))
-    x, s = A.stkf_lean.zeros_d(12), A.stkf_lean.zeros_d(12)
-    app.stkf.get(x, s)
-    assert list(app.xs) == list(x) and app.stkf.now == 2.0
+    x, s = stkf_lean.zeros_d(12), stkf_lean.zeros_d(12)
+    app.est.stkf.get(x, s)
+    assert list(app.est.xs) == list(x) and app.est.stkf.now == 2.0
 
 
 def test_a_gap_in_the_ticks_is_propagated_in_steps():
     app = A.App(_cfg(False))
     app.cycle(0, 0.0)
     app.cycle(1, 1500.0)                                 # longer than one prediction step (600 s)
-    assert app.stkf.now == 1500.0 and app.n_refused == 0
-    r = math.sqrt(sum(v * v for v in app.xs[0:3]))
+    assert app.est.stkf.now == 1500.0 and app.health.n_refused == 0
+    r = math.sqrt(sum(v * v for v in app.est.xs[0:3]))
     assert 6.0e6 < r < 8.0e6                             # still on its orbit
 
 
@@ -94,7 +97,7 @@ def test_rx_drops_count_each_can_reason_once():
             d.update(isotp_timeouts=1, other_dst=5, tx_packets=9, bad_cobs=7)
             return d
 
-    assert A._drops(Port()) == len(set(canmap.DROP_REASONS)) + 1
+    assert _drops(Port()) == len(set(canmap.DROP_REASONS)) + 1
 
 
 @pytest.mark.parametrize("momentum", ["torque", "filtered"])
@@ -105,21 +108,21 @@ def test_the_apkf_input_is_a_checked_option(momentum):
         AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum="gyro")
     with pytest.raises(ValueError, match="apkf_momentum"):
         A.App(dict(_cfg(False), apkf_momentum="gyro"))
-    assert A.App(_cfg(False)).momentum == "filtered"
+    assert A.App(_cfg(False)).est.akw["momentum"] == "filtered"
     cfg = AdcsSession(runtime="cpython", duration_s=30.0, apkf_momentum=momentum).config()
     app = A.App(cfg)
-    app.apkf = A.apkf_lean.LeanApkf(app.params, [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0] * 4,
-                                momentum=app.momentum)
+    app.est.apkf = apkf_lean.LeanApkf(app.est.params, [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0] * 4,
+                                momentum=app.est.akw["momentum"])
     seen = []
-    step = app.apkf.step
-    app.apkf.step = lambda wp, q, env, u=None, got=None: (seen.append((list(u), list(got))),
+    step = app.est.apkf.step
+    app.est.apkf.step = lambda wp, q, env, u=None, got=None: (seen.append((list(u), list(got))),
                                                           step(wp, q, env, u, got))
     for i in range(4):
-        app.u[i] = 1e-5 * (i + 1)
-    app.rw_got[:] = [True, False, True, True]
-    app.st_got = app.st_valid = False
-    app._apkf(1.0)
-    assert (app.apkf.model.torque, app.apkf.model.filtered) == (momentum == "torque", momentum == "filtered")
+        app.act.u[i] = 1e-5 * (i + 1)
+    app.rd.rw_got[:] = [True, False, True, True]
+    app.rd.st_got = app.rd.st_valid = False
+    app.est.run_apkf(1.0, app.act.u)
+    assert (app.est.apkf.model.torque, app.est.apkf.model.filtered) == (momentum == "torque", momentum == "filtered")
     assert seen == [([pytest.approx(1e-5 * (i + 1)) for i in range(4)], [True, False, True, True])]
 
 
@@ -128,36 +131,37 @@ def test_first_acquisition_damps_the_rate_until_the_star_tracker_answers():
     not answered, the app damps the rate (q_c = q, w_c = 0) and says HOLD; the first valid fix ends that for
     good, and a far command (the slew itself) is flown as commanded."""
     app = A.App(_cfg(False))
-    app._wheels_in()
-    app.apkf = A.apkf_lean.LeanApkf(app.params, [0.0, 0.0, 0.0, 1.0], [1e-3, 0.0, 0.0], [0.0] * 4)
+    app.health.wheels(app.rd.rw_got)
+    app.act.use_wheels(app.health.failed)
+    app.est.apkf = apkf_lean.LeanApkf(app.est.params, [0.0, 0.0, 0.0, 1.0], [1e-3, 0.0, 0.0], [0.0] * 4)
     target = [0.0, 0.0, 0.0, 1.0]
 
-    def command():
+    def command(X):
         for i in range(4):
-            app.qc[i] = target[i]
+            app.modes.qc[i] = target[i]
         for i in range(3):
-            app.wc[i] = 1e-3
-    app._command_rate = command
-    t = app.hold_s + 10.0
+            app.modes.wc[i] = 1e-3
+    app.modes.command_rate = command
+    t = app.modes.hold_s + 10.0
 
     def rot(deg):
         return [math.sin(math.radians(deg) / 2), 0.0, 0.0, math.cos(math.radians(deg) / 2)]
-    app.st_got, app.st_valid = True, False
+    app.rd.st_got, app.rd.st_valid = True, False
     target[:] = rot(5.0)                       # slewing: flown as commanded
-    app._control(t)
-    assert not app.acquiring and list(app.wc) == pytest.approx([1e-3] * 3)
+    app.control(t, app.rd.st_ok())
+    assert not app.modes.acquiring and list(app.modes.wc) == pytest.approx([1e-3] * 3)
     target[:] = rot(0.5)                       # done by the estimate, tracker not back: rate damping
-    app._control(t)
-    assert app.acquiring and list(app.wc) == [0.0] * 3 and list(app.qc) == list(app.apkf.x[0:4])
-    app.rw_got[:] = [True] * 4
-    for k in app.last_ok:                      # no sensor silent for long (that would say DEGRADED)
-        app.last_ok[k] = t
-    app.t_apkf = t - 1.0                       # the filter put in above is one step behind the cycle
+    app.control(t, app.rd.st_ok())
+    assert app.modes.acquiring and list(app.modes.wc) == [0.0] * 3 and list(app.modes.qc) == list(app.est.apkf.x[0:4])
+    app.rd.rw_got[:] = [True] * 4
+    for k in app.health.last_ok:                      # no sensor silent for long (that would say DEGRADED)
+        app.health.last_ok[k] = t
+    app.est.t_apkf = t - 1.0                       # the filter put in above is one step behind the cycle
     app.cycle(0, t)
     assert app.mode == consts.MODE_HOLD
-    app.st_got = app.st_valid = True           # a valid fix: acquired, the pointing command from then on
-    app._control(t)
-    assert app.acquired and not app.acquiring and list(app.wc) == pytest.approx([1e-3] * 3)
-    app.st_got = app.st_valid = False
-    app._control(t)
-    assert not app.acquiring and list(app.wc) == pytest.approx([1e-3] * 3)
+    app.rd.st_got = app.rd.st_valid = True           # a valid fix: acquired, the pointing command from then on
+    app.control(t, app.rd.st_ok())
+    assert app.modes.acquired and not app.modes.acquiring and list(app.modes.wc) == pytest.approx([1e-3] * 3)
+    app.rd.st_got = app.rd.st_valid = False
+    app.control(t, app.rd.st_ok())
+    assert not app.modes.acquiring and list(app.modes.wc) == pytest.approx([1e-3] * 3)

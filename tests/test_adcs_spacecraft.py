@@ -225,7 +225,7 @@ def test_can_thesis_3u_is_the_default_bit_for_bit_and_the_firmware_gets_the_6u(t
     assert s.sc.j[0, 1] == d["inertia_kgm2"][3] and s.wheels.p.noise_rpm == 2.0
     from firmware.adcs.app import App
     app = App(c)                                     # the flight app takes the 6U's configuration
-    assert app.laser == (0.0, 0.0, 1.0) and np.allclose(app.C, np.array(sf.wheel_axes(d)).T.ravel(), atol=1e-6)
+    assert app.modes.laser == (0.0, 0.0, 1.0) and np.allclose(app.act.C, np.array(sf.wheel_axes(d)).T.ravel(), atol=1e-6)
 
 
 def test_system_thesis_3u_is_the_default_bit_for_bit(perfect_params):

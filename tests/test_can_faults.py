@@ -254,7 +254,7 @@ def _pkts():
 
 
 def test_adcs_lockstep_runs_each_cycle_once_whatever_is_lost_or_repeated():
-    from firmware.adcs.app import Lockstep, burst_bit
+    from firmware.adcs.lockstep import Lockstep, burst_bit
     rw, st, ga, gb, bc = _pkts()
     app = _App()
     runs = []

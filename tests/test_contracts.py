@@ -48,11 +48,11 @@ def test_one_gravitational_parameter_for_the_orbits_the_filters_and_the_torques(
     import brahe
     from emulator import orbits
     from emulator.spacecraft import environment
-    from firmware.adcs import app, stkf_lean
+    from firmware.adcs import estimation, stkf_lean
     from ground.adcs import stkf
     from protocol import units
     assert units.MU_EARTH == brahe.GM_EARTH == 398600.4415e9
-    assert orbits.MU == stkf.MU == stkf_lean.MU == environment.MU_EARTH == app.MU_EARTH == units.MU_EARTH
+    assert orbits.MU == stkf.MU == stkf_lean.MU == environment.MU_EARTH == estimation.MU_EARTH == units.MU_EARTH
     for f, text in _sources():
         if f not in ("protocol/units.py", "tests/test_contracts.py", "tests/test_adcs_apkf_fast.py"):
             assert not re.search(r"3\.98600\d*e14|398600\.44\d*e9", text), "%s writes mu again" % f

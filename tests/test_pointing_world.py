@@ -169,11 +169,11 @@ def test_the_field_turns_from_the_epochs_gmst():
 
 
 def test_the_firmware_field_is_the_emulators():
-    """firmware/adcs/app.py's field_dipole (the flight model) equals environment.TiltedDipoleField at the
+    """firmware/adcs/estimation.py's field_dipole (the flight model) equals environment.TiltedDipoleField at the
     epoch's GMST, along an orbit and over hours (the Earth turns under it)."""
     from emulator import orbits
     from emulator.spacecraft.environment import TiltedDipoleField
-    from firmware.adcs.app import field_dipole
+    from firmware.adcs.estimation import field_dipole
     g = orbits.epoch_gmst_rad()
     f = TiltedDipoleField(gmst0_rad=g)
     b = [0.0, 0.0, 0.0]

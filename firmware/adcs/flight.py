@@ -12,6 +12,37 @@ import math
 from firmware.adcs import control
 
 
+# The flight world's options (configuration key "flight"; units in the names) and their defaults. The eigenaxis
+# slew is short rather than slow: the star tracker is blind above its 0.1 deg/s, and the lean APKF's rate error
+# grows ~5 arcsec/s per blind second (a 90 deg slew at 0.5 deg/s left ~0.1 deg/s, which kept the tracker blind;
+# at 2 deg/s, < 0.03 deg/s); 2 deg/s is ~1/2 of what the 3U's wheels hold at 80 % of their speed, 0.2 deg/s^2 ~16 %
+# of their torque.
+FLIGHT = {
+    "slew_rate_deg_s": 2.0,
+    "slew_acc_deg_s2": 0.2,
+    "reslew_deg": 1.0,             # POINT -> SLEW when the estimate is this far off the command
+    "unload_gain_1_s": 2e-3,       # the cross-product law's gain: the wheels' momentum across b decays in ~500 s
+    "innovation_gate": 44.84,      # chi-square, 3 dof, 1 - 1e-9: a star-tracker fix beyond it resets the attitude
+    "beacon_gate_arcsec": 300.0,   # the STKF takes the beacon only while the attitude 1 sigma is within this
+    "wheel_bias_share": 0.2,       # the wheels' null-space speed bias, a share of their speed limit
+    "wheel_bias_gain_1_s": 0.01,   # and its gain: ~100 s to reach it
+}
+
+
+def options(cfg):
+    """The flight world's options of a configuration (``FLIGHT``'s defaults under its key "flight"), or None in
+    the thesis world (``world`` other than "flight"). An unknown option is refused (ValueError)."""
+    if cfg.get("world", "thesis") != "flight":
+        return None
+    fo = cfg.get("flight") or {}
+    for k in fo:
+        if k not in FLIGHT:
+            raise ValueError("unknown flight option %r (the options: %s)" % (k, ", ".join(sorted(FLIGHT))))
+    opts = dict(FLIGHT)
+    opts.update(fo)
+    return opts
+
+
 def _exp(out, e, a):
     """out = the quaternion of rotation a about the unit axis e."""
     s = math.sin(0.5 * a)

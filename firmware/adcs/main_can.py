@@ -13,7 +13,8 @@ closes), 1 when the link fails otherwise (the reason on stderr), 2 on a bad conf
 import json
 import sys
 
-from firmware.adcs.app import App, serve
+from firmware.adcs.app import App
+from firmware.adcs.lockstep import serve
 from firmware.hal.slcan import CanPort, SlcanAdapter
 from protocol.stream import ticks_us
 

@@ -12,7 +12,8 @@ import sys
 import machine
 import micropython
 
-from firmware.adcs.app import App, serve
+from firmware.adcs.app import App
+from firmware.adcs.lockstep import serve
 from firmware.hal import mps2
 from firmware.hal.slcan import CanPort, UartSlcan
 

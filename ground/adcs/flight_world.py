@@ -21,7 +21,7 @@ import numpy as np
 from emulator.adcs_session import AdcsSession
 from emulator.spacecraft import scenario
 from emulator.spacecraft.scenario import HOLD_S, laser_axis
-from firmware.adcs.app import FLIGHT
+from firmware.adcs.flight import FLIGHT
 from ground.adcs import control
 from ground.adcs.modes import MODE_CODE, time_in
 from ground.adcs.pointing import (EST_COLS, TS_THESIS, add_statistics, check_ts, close_history, error_budget,
@@ -72,21 +72,23 @@ class _Recorder:
         f["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)          # truth, for the record only
         f["mode"][k] = app.mode
         f["st_ok"][k] = s.st_valid_log[k]
-        f["beacon_used"][k] = app.beacon_used
-        f["x_stkf"][k] = app.xs
-        a = app.apkf
+        f["beacon_used"][k] = app.est.beacon_used
+        f["x_stkf"][k] = app.est.xs
+        a = app.est.apkf
         if a is None:
             return
         f["q_hat"][k], f["w_hat"][k] = a.x[0:4], a.x[4:7]
-        f["qc"][k], f["wc"][k], f["tau_c"][k], f["u"][k], f["tau_ff"][k] = app.qc, app.wc, app.tau, u, app.tff
-        f["m_cmd"][k], f["mtq_sat"][k] = app.m_cmd, app.mtq_sat
-        f["h_w"][k] = np.reshape(app.cjrw, (3, 4)) @ np.asarray(app.wp)
+        md, act = app.modes, app.act
+        f["qc"][k], f["wc"][k], f["tau_c"][k], f["u"][k], f["tau_ff"][k] = md.qc, md.wc, act.tau, u, act.tff
+        f["m_cmd"][k], f["mtq_sat"][k] = act.m_cmd, act.mtq_sat
+        f["h_w"][k] = np.reshape(act.cjrw, (3, 4)) @ np.asarray(app.rd.wp)
         x = s.xg[k * scenario.WORLD_RATE_HZ]
-        f["est_err"][k] = estimate_errors(f["q_hat"][k], f["w_hat"][k], app.xs[0:3], app.xs[6:9], sc.q, sc.omega,
+        f["est_err"][k] = estimate_errors(f["q_hat"][k], f["w_hat"][k], app.est.xs[0:3], app.est.xs[6:9], sc.q, sc.omega,
                                           x[0, 0:3], x[1, 0:3])
-        if app.n_resets != self._n_resets:
-            self._n_resets = app.n_resets
-            self.resets.append((t, app.reset_nis, 2.0 * float(np.linalg.norm(app.z3)) / RAD_PER_ARCSEC))
+        est = app.est
+        if est.n_resets != self._n_resets:
+            self._n_resets = est.n_resets
+            self.resets.append((t, est.reset_nis, 2.0 * float(np.linalg.norm(est.z3)) / RAD_PER_ARCSEC))
 
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",

@@ -118,10 +118,10 @@ if len(sys.argv) > 2:
             app.on_packet(pid, src, bytes.fromhex(hx))
         u = app.cycle(tick, t_ms / 1000.0)
         app.commands(u)
-        s = app.stkf
-        v = list(u) + (list(app.apkf.x) + list(app.apkf.P) if app.apkf else [])
+        s = app.est.stkf
+        v = list(u) + (list(app.est.apkf.x) + list(app.est.apkf.P) if app.est.apkf else [])
         h.update(bytes(array("d", v + list(s.X) + list(s.P) + list(s.xa) + list(s.Pa))))
     out["session"] = binascii.hexlify(h.digest()).decode()
     out["session cycles"] = len(rec)
-    out["satb fused"] = app.n_gnss_b
+    out["satb fused"] = app.health.n_gnss_b
 print(json.dumps(out))

@@ -7,6 +7,8 @@ import struct
 import sys
 
 from firmware.adcs import apkf_lean, app as A, stkf_lean
+from firmware.adcs.health import FAIL_AFTER
+from firmware.adcs.intake import NW, RPM
 from protocol import core
 
 P = core.PACKET_ID
@@ -16,19 +18,25 @@ NODE = core.NODE
 def _app(cfg, w=(1e-3, -5e-4, 2e-4)):
     """An App whose APKF runs (at rest attitude, rate w), past no cycle yet."""
     app = A.App(cfg)
-    app.apkf = apkf_lean.LeanApkf(app.params, [0.0, 0.0, 0.0, 1.0], list(w), [0.0] * 4, momentum=app.momentum)
-    for i in range(A.NW):
-        app.rw_got[i] = True
-    app._wheels_in()                                # the allocation's axes, as a cycle sets them first
+    app.est.apkf = apkf_lean.LeanApkf(app.est.params, [0.0, 0.0, 0.0, 1.0], list(w), [0.0] * 4, momentum=app.est.akw["momentum"])
+    for i in range(NW):
+        app.rd.rw_got[i] = True
+    _wheels_in(app)                                 # the allocation's axes, as a cycle sets them first
     return app
+
+
+def _wheels_in(app):
+    """The cycle's first step: the failed wheels, then the allocation's axes."""
+    app.health.wheels(app.rd.rw_got)
+    app.act.use_wheels(app.health.failed)
 
 
 def _fail(app, mask):
     """Declare the wheels in mask failed the way the cycle does: 3 cycles without their RW_TLM."""
-    for _ in range(A.FAIL_AFTER):
-        for i in range(A.NW):
-            app.rw_got[i] = not (mask >> i & 1)
-        app._wheels_in()
+    for _ in range(FAIL_AFTER):
+        for i in range(NW):
+            app.rd.rw_got[i] = not (mask >> i & 1)
+        _wheels_in(app)
 
 
 def case_wheels_left_do_not_span(cfg):
@@ -39,15 +47,15 @@ def case_wheels_left_do_not_span(cfg):
         app = _app(cfg)
         _fail(app, mask)
         res = []
-        for t in (5.0, app.hold_s + 10.0):         # rate damping, then pointing
+        for t in (5.0, app.modes.hold_s + 10.0):         # rate damping, then pointing
             try:
-                u = app._control(t)
+                u = app.control(t, app.rd.st_ok())
                 res.append([float(v) for v in u])
             except Exception as exc:                # noqa: BLE001 - reported, the test says what went wrong
                 res.append("%s: %s" % (type(exc).__name__, exc))
-        c, v, sm = app.fric
-        fc = [v * app.wp[i] + c * math.tanh(app.wp[i] / sm) for i in range(A.NW)]
-        out["%d" % mask] = {"failed": app.failed, "u": res, "friction": fc}
+        c, v, sm = app.act.fric
+        fc = [v * app.rd.wp[i] + c * math.tanh(app.rd.wp[i] / sm) for i in range(NW)]
+        out["%d" % mask] = {"failed": app.health.failed, "u": res, "friction": fc}
     return out
 
 
@@ -79,7 +87,7 @@ def _burst(app, k, cfg, skip=(), extra=()):
     if k:
         stkf_lean.f(x0, 0, float(k))
         stkf_lean.f(x0, 6, float(k))
-    for i in range(A.NW):
+    for i in range(NW):
         if "rw%d" % i not in skip:
             app.on_packet(P["RW_TLM"], NODE["RW0"] + i, struct.pack(core.PACKET[P["RW_TLM"]].fmt, 100.0, 0.0))
     if "st" not in skip:
@@ -97,8 +105,8 @@ def _burst(app, k, cfg, skip=(), extra=()):
 
 
 def _state(app):
-    return {"x": [float(v) for v in app.apkf.x], "P": [float(v) for v in app.apkf.P],
-            "xs": [float(v) for v in app.xs], "u": [float(v) for v in app.u],
+    return {"x": [float(v) for v in app.est.apkf.x], "P": [float(v) for v in app.est.apkf.P],
+            "xs": [float(v) for v in app.est.xs], "u": [float(v) for v in app.act.u],
             "status": [int(v) for v in struct.unpack(core.PACKET[P["ADCS_STATUS"]].fmt,
                                                       app.status_payload(0))[1:17]]}
 
@@ -140,14 +148,14 @@ def case_bad_payloads(cfg):
 def _quiet(app):
     """Not the controller's torques (they would differ between runs of different tick spacing): each wheel
     gets its friction at the bursts' 100 rpm, so that the read-outs' constant speed is what the wheels do."""
-    c, v, sm = app.fric
-    w = 100.0 * A.RPM
-    for i in range(A.NW):
-        app.u[i] = v * w + c * math.tanh(w / sm)
+    c, v, sm = app.act.fric
+    w = 100.0 * RPM
+    for i in range(NW):
+        app.act.u[i] = v * w + c * math.tanh(w / sm)
 
-    def control(t):
-        return app.u
-    app._control = control
+    def control(t, st_ok):
+        return app.act.u
+    app.control = control
     return app
 
 
@@ -158,7 +166,7 @@ def _ticks(cfg, times, st_from=2, skip_at=()):
     for k, t in enumerate(times):
         if k in skip_at:
             app.cycle(k, t)
-            app.commands(app.u)
+            app.commands(app.act.u)
             continue
         t_ms = int(t * 1000)
         _burst(app, t, cfg, ("st",) if t >= st_from else (),
@@ -172,9 +180,9 @@ def case_tick_gap(cfg):
     out = []
     for times in (list(range(13)), [0, 1, 2, 3, 4, 12]):
         app = _ticks(cfg, times)
-        out.append({"x": [float(v) for v in app.apkf.x], "Ptr": float(app.apkf.P[0] + app.apkf.P[10]
-                                                                      + app.apkf.P[20]),
-                    "t_stkf": float(app.stkf.now), "n_refused": app.n_refused})
+        out.append({"x": [float(v) for v in app.est.apkf.x], "Ptr": float(app.est.apkf.P[0] + app.est.apkf.P[10]
+                                                                      + app.est.apkf.P[20]),
+                    "t_stkf": float(app.est.stkf.now), "n_refused": app.health.n_refused})
     return out
 
 
@@ -192,8 +200,8 @@ def case_tick_backwards(cfg):
     """A tick whose time goes back (t = 5 s after 6 s) with a full burst: the status still packs, nothing of
     that burst is fused at the wrong time (SatA's GNSS and the beacon refused), and the filters go on."""
     app = _ticks(cfg, [0, 1, 2, 3, 4, 5, 6])
-    x6 = [float(v) for v in app.apkf.x]
-    xs6 = [float(v) for v in app.xs]
+    x6 = [float(v) for v in app.est.apkf.x]
+    xs6 = [float(v) for v in app.est.xs]
     err = None
     try:
         _burst(app, 5, cfg, (), ())
@@ -201,10 +209,10 @@ def case_tick_backwards(cfg):
     except Exception as exc:                         # noqa: BLE001 - reported to the test
         err = "%s: %s" % (type(exc).__name__, exc)
         st = None
-    res = {"err": err, "x_same": [float(v) for v in app.apkf.x] == x6, "xs_same": [float(v) for v in app.xs] == xs6,
-           "n_refused": app.n_refused, "age": None if st is None else st[16]}
+    res = {"err": err, "x_same": [float(v) for v in app.est.apkf.x] == x6, "xs_same": [float(v) for v in app.est.xs] == xs6,
+           "n_refused": app.health.n_refused, "age": None if st is None else st[16]}
     _burst(app, 7, cfg, (), ())
-    res["t_apkf"], res["t_stkf"] = app.t_apkf, float(app.stkf.now)
+    res["t_apkf"], res["t_stkf"] = app.est.t_apkf, float(app.est.stkf.now)
     return res
 
 
@@ -217,7 +225,7 @@ def case_beacon_without_attitude(cfg):
         app = A.App(cfg)
         _burst(app, 0, cfg)
         _burst(app, 1, cfg, skip)
-        out.append({"xs": [float(v) for v in app.xs], "apkf": app.apkf is not None})
+        out.append({"xs": [float(v) for v in app.est.xs], "apkf": app.est.apkf is not None})
     return out
 
 
@@ -245,10 +253,10 @@ def case_apkf_refused_fix_is_stale(cfg):
     for k in range(16):
         if k == 4:
             for i in range(3):
-                app.apkf.P[i * 9 + i] = -1.0
+                app.est.apkf.P[i * 9 + i] = -1.0
         _burst(app, k, cfg)
     st = struct.unpack(core.PACKET[P["ADCS_STATUS"]].fmt, app.status_payload(15))
-    return {"skipped": app.apkf.skipped, "mode": st[1], "stale": st[2], "n_st_invalid": st[11]}
+    return {"skipped": app.est.apkf.skipped, "mode": st[1], "stale": st[2], "n_st_invalid": st[11]}
 
 
 def case_gnss_b_silent(cfg):
@@ -268,19 +276,19 @@ def case_command_singular(cfg):
     sight is not unique (control.min_rotation raises). After the hold, the cycle must go on, damping the
     rate (mode HOLD) instead of pointing."""
     app = _app(cfg)
-    f = app.stkf
+    f = app.est.stkf
     v = f.xa[3:6]
     n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     for i in range(3):
         f.X[i] = f.xa[i] - 1e5 * v[i] / n
-    f.get(app.xs, app.sig)
-    t = app.hold_s + 10.0
+    f.get(app.est.xs, app.est.sig)
+    t = app.modes.hold_s + 10.0
     try:
-        u = [float(x) for x in app._control(t)]
+        u = [float(x) for x in app.control(t, app.rd.st_ok())]
     except Exception as exc:                         # noqa: BLE001 - reported to the test
         return {"err": "%s: %s" % (type(exc).__name__, exc)}
-    return {"err": None, "u": u, "qc_is_q": [float(x) for x in app.qc] == [float(x) for x in app.apkf.x[0:4]],
-            "wc": [float(x) for x in app.wc], "no_command": app.no_command}
+    return {"err": None, "u": u, "qc_is_q": [float(x) for x in app.modes.qc] == [float(x) for x in app.est.apkf.x[0:4]],
+            "wc": [float(x) for x in app.modes.wc], "no_command": app.modes.no_command}
 
 
 def case_satb_backlog(cfg):
@@ -299,7 +307,7 @@ def case_satb_backlog(cfg):
         stkf_lean.f(x, 6, tj)
         extra.append((P["GNSS"], NODE["GNSS"], _gnss(int(tj * 1000), 1, x[6:12])))
     _burst(app, 10, cfg, (), extra)
-    return {"n_gnss_b": app.n_gnss_b, "n_refused": app.n_refused, "t_last": float(app.stkf.t_last)}
+    return {"n_gnss_b": app.health.n_gnss_b, "n_refused": app.health.n_refused, "t_last": float(app.est.stkf.t_last)}
 
 
 CASES = dict((k[5:], v) for k, v in globals().items() if k.startswith("case_"))

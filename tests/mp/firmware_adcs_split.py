@@ -3,12 +3,13 @@
 # Lawicel ASCII of each burst parsed by SlcanAdapter, frames and ISO-TP reassembled by CanPort, the device
 # payloads unpacked by App.on_packet; RW_CMD x4 and ADCS_STATUS (ISO-TP, its flow control given) sent as T
 # lines to /dev/null). Prints JSON: microseconds per part summed over cycles [argv[3], argv[4]) (ticks_us),
-# parts apkf (_apkf + _attitude), stkf (predict + GNSS updates + get), beacon (LeanStkf.update_beacon), control
-# (_control incl. the command rate), cycle (the whole App.cycle + commands), hal.
+# parts apkf (Estimation.run_apkf + attitude), stkf (predict + GNSS updates + get), beacon (LeanStkf.update_beacon), control
+# (App.control incl. the command rate), cycle (the whole App.cycle + commands), hal.
 import json
 import sys
 
-from firmware.adcs.app import App, P_STATUS
+from firmware.adcs.app import App
+from firmware.adcs.telemetry import P_STATUS
 from firmware.hal.slcan import CanPort, SlcanAdapter
 from protocol import can as canmap
 from protocol import core
@@ -40,11 +41,11 @@ def timed(name, fn):
     return w
 
 
-app._apkf = timed("apkf", app._apkf)
-app._attitude = timed("apkf", app._attitude)
-app._stkf = timed("stkf", app._stkf)
-app.stkf.update_beacon = timed("beacon", app.stkf.update_beacon)
-app._control = timed("control", app._control)
+app.est.run_apkf = timed("apkf", app.est.run_apkf)
+app.est.attitude = timed("apkf", app.est.attitude)
+app.est.run_stkf = timed("stkf", app.est.run_stkf)
+app.est.stkf.update_beacon = timed("beacon", app.est.stkf.update_beacon)
+app.control = timed("control", app.control)
 
 
 def slcan_lines(pkts):

@@ -1,0 +1,98 @@
+"""The ADCS app's health (MicroPython): what each sensor missed, sent invalid or had refused, the wheels'
+failure detection and the sensors' staleness, as ADCS_STATUS reports them.
+
+A wheel whose RW_TLM is missed ``FAIL_AFTER`` (3) cycles in a row is declared failed (its bit in ``failed``); it
+is back as soon as it answers. A sensor is stale in a cycle it gave nothing usable (the ``STALE_*`` bits of the
+packet table); it has been silent for long when its last usable reading is ``stale_s`` seconds old or more.
+"""
+
+from protocol.consts import STALE_BEACON, STALE_GNSS_A, STALE_GNSS_B, STALE_RW0, STALE_STARTRACKER
+
+NW = 4
+FAIL_AFTER = 3
+
+
+class Health:
+    """Counters (16-bit on the wire), the failed-wheel mask and the stale bits of the last cycle."""
+
+    def __init__(self, satb, stale_s):
+        self.satb = satb
+        self.stale_s = stale_s
+        self.miss_rw = [0] * NW
+        self.rw_miss_run = [0] * NW         # cycles in a row each wheel missed
+        self.failed = 0
+        self.miss_st = self.miss_gnss = self.miss_beacon = 0
+        self.n_st_invalid = self.n_beacon_invalid = self.n_gnss_b = self.n_gnss_b_drop = 0
+        self.n_refused = 0                  # measurements (or predictions) the filters refused, fixes dropped
+        self.last_ok = {"st": 0.0, "gnss": 0.0, "beacon": 0.0, "gnss_b": 0.0}
+        self.gnss_t = -1.0                  # the time of SatA's last usable fix (-1: never)
+        self.stale = 0
+
+    def wheels(self, rw_got):
+        """The failed mask after a cycle's read-outs (every wheel answers each tick: ``telemetry.commands``)."""
+        for i in range(NW):
+            if rw_got[i]:
+                self.rw_miss_run[i] = 0
+                if self.failed & (1 << i):
+                    self.failed &= ~(1 << i)        # it answers again: back into the allocation
+            else:
+                self.miss_rw[i] += 1
+                self.rw_miss_run[i] += 1
+                if self.rw_miss_run[i] >= FAIL_AFTER:
+                    self.failed |= 1 << i
+
+    def count(self, rd):
+        """The cycle's missed and invalid readings (``intake.Intake`` ``rd``)."""
+        if not rd.st_got:
+            self.miss_st += 1
+        elif not rd.st_valid:
+            self.n_st_invalid += 1
+        if not rd.gnss_got:
+            self.miss_gnss += 1
+        if not rd.bc_got:
+            self.miss_beacon += 1
+        elif not rd.bc_valid:
+            self.n_beacon_invalid += 1
+
+    def heard(self, rd, t):
+        """The times of the readings the filters took at cycle time t (s)."""
+        if rd.st_ok():
+            self.last_ok["st"] = t
+        if rd.gnss_got:
+            self.last_ok["gnss"] = t
+            self.gnss_t = t
+        if rd.bc_got and rd.bc_valid:
+            self.last_ok["beacon"] = t
+
+    def stale_bits(self, rd, t):
+        """The cycle's ``STALE_*`` bits (SatB's GNSS: stale when silent for ``stale_s``)."""
+        stale = 0
+        if not rd.st_ok():
+            stale |= 1 << STALE_STARTRACKER
+        if not rd.gnss_got:
+            stale |= 1 << STALE_GNSS_A
+        if self.satb and t - self.last_ok["gnss_b"] >= self.stale_s:
+            stale |= 1 << STALE_GNSS_B
+        if not (rd.bc_got and rd.bc_valid):
+            stale |= 1 << STALE_BEACON
+        for i in range(NW):
+            if not rd.rw_got[i]:
+                stale |= 1 << (STALE_RW0 + i)
+        self.stale = stale
+        return stale
+
+    def silent(self, t, keys):
+        """True when any of the sensors ``keys`` (of ``last_ok``) has been silent for ``stale_s`` at t."""
+        for k in keys:
+            if t - self.last_ok[k] >= self.stale_s:
+                return True
+        return False
+
+    def long_gap(self, t):
+        """A sensor silent for ``stale_s``: the star tracker, SatA's GNSS, the beacon (SatB's GNSS when used)."""
+        return self.silent(t, ("st", "gnss", "beacon", "gnss_b") if self.satb else ("st", "gnss", "beacon"))
+
+    def only_st(self, t):
+        """True when the star tracker is the only sensor silent for ``stale_s`` (in a slew it is blind by
+        design)."""
+        return not self.silent(t, ("gnss", "beacon", "gnss_b") if self.satb else ("gnss", "beacon"))

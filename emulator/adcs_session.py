@@ -77,14 +77,13 @@ import tty
 import numpy as np
 
 from emulator import orbits
+from emulator.adcs_bus import N, P, RW_NODES, FaultSchedule, SpacecraftBus, check_faults
 from emulator.launcher import ADCS_IMAGE, ADCS_MACHINE, FirmwareProcess, command, qemu_command, start_board
 from protocol.units import RAD_PER_ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftDevices
-from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
 from firmware.adcs.apkf_lean import MOMENTUM
-from firmware.adcs.lockstep import burst_bit
 from protocol import core, table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -95,7 +94,6 @@ BOARD = {"board": "QEMU mps2-an500 (ARM's MPS2 FPGA board, AN500 image) standing
          "core": "ARM Cortex-M7 with FPv5-D16 (double-precision FPU); MicroPython floats single precision",
          "clock_hz": 216e6, "cpi_range": [1.0, 2.0]}
 WORLDS = ("thesis", "flight")
-FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
 MAX_LATE_CYCLES = 3                  # late cycles in a row that end the session: the firmware is hung
 ISOTP_TIMEOUT_MS = 20.0              # N_Bs on the lockstep pty, both ends (ISO's 1000 ms is for a real bus)
@@ -104,47 +102,6 @@ RETRY_S = 0.03                       # a further try's first wait: an answer fro
 TRY_BACKOFF = 1.5                    # each further try of a cycle waits this much longer (up to TRY_MAX_S)
 MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
-
-P = core.PACKET_ID
-N = core.NODE
-RW_NODES = tuple(N["RW%d" % i] for i in range(N_WHEELS))
-
-
-def check_faults(faults, duration_s):
-    """Validate the faults dict (see the module docstring); returns a normalised copy."""
-    if faults is None:
-        return {}
-    if not isinstance(faults, dict):
-        raise ValueError("faults must be a dict with keys among %s" % ", ".join(FAULTS))
-    out = {}
-    for k, v in faults.items():
-        if k not in FAULTS:
-            raise ValueError("unknown fault %r (known: %s)" % (k, ", ".join(FAULTS)))
-        try:
-            if isinstance(v, bool) or (isinstance(v, (list, tuple)) and any(isinstance(e, bool) for e in v)):
-                raise TypeError("true/false is not a number")          # JSON true would read as 1
-            if k == "beacon_lost":
-                out[k] = t0 = float(v)
-                ok = np.isfinite(t0) and t0 >= 0
-            elif isinstance(v, (str, bytes)):   # "12" would read as [1, 2]
-                ok = False
-            elif k == "wheel_silent":
-                i, t0 = int(v[0]), float(v[1])
-                out[k] = [i, t0]
-                ok = 0 <= i < N_WHEELS and np.isfinite(t0) and t0 >= 0 and float(v[0]) == i and len(v) == 2
-            else:
-                t0, t1 = float(v[0]), float(v[1])
-                out[k] = [t0, t1]
-                ok = len(v) == 2 and np.isfinite(t0) and np.isfinite(t1) and 0 <= t0 < t1
-        except (TypeError, ValueError, IndexError):
-            ok = False
-        if not ok:
-            raise ValueError("fault %s = %r: expected %s" % (k, v, {
-                "wheel_silent": "[wheel 0-3, t0_s >= 0]", "beacon_lost": "t0_s >= 0"}.get(k, "[t0_s, t1_s], 0 <= t0 < t1")))
-        if t0 >= duration_s:                     # t0: the fault's start, set by its branch above
-            raise ValueError("fault %s starts at %g s, not before the run's end (%g s): it would never happen"
-                             % (k, t0, duration_s))
-    return out
 
 
 def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults):
@@ -167,6 +124,167 @@ def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, lin
         raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
 
 
+class ReplyWait:
+    """The lockstep's waiting side of one cycle: the burst sent, then the cycle's RW_CMDs, MTQ_CMD (when
+    ``expect_mtq``) and ADCS_STATUS awaited, trying again as the module docstring says; each retry counted in
+    ``retries``, each late cycle in ``n_late``."""
+
+    def __init__(self, bus, expect_mtq, reply_timeout_s):
+        self.link = None                         # the session's, set with each burst
+        self.bus = bus
+        self.expect_mtq = expect_mtq
+        self.timeout_s = float(reply_timeout_s)
+        self.cmd = [None] * N_WHEELS             # RW_CMD payload received this cycle
+        self.mtq_cmd = None                      # MTQ_CMD payload received this cycle
+        self.retries = {"tick_resent": 0, "missing_answered": 0, "packets_resent": 0, "burst_resent": 0,
+                        "cycles_retried": 0}
+        self.reply_s = 0.05                      # recent wall time from ADCS_TICK to the cycle's last reply
+        self.tick_sent = 0.0
+        self.n_late = 0
+        self.late_run = 0                        # consecutive late cycles
+
+    def send(self, bits=None):
+        """ADCS_TICK(k) then the burst's packets (``bits`` None), or only the packets of ``bits`` (an answer to
+        ADCS_MISSING: the firmware has the cycle open)."""
+        if bits is None:
+            self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self.bus.tick_payload)
+        for bit, pid, src, payload in self.bus.pkts:
+            if bits is None or bit & bits:
+                self.link.send_raw(pid, src, N["ADCS"], payload)
+
+    def open(self):
+        """Cycle k's ADCS_TICK and burst sent: its wait starts."""
+        self.tick_sent = time.monotonic()
+        self.send(None)
+
+    def _done(self, status):
+        return status is not None and all(c is not None for c in self.cmd) and (
+            self.mtq_cmd is not None or not self.expect_mtq)
+
+    def wait(self, k, exited):
+        """RW_CMDs and ADCS_STATUS of tick k (None if late); ``exited()`` the firmware's end (an OSError)."""
+        t0 = self.tick_sent
+        deadline = t0 + self.timeout_s
+        self.cmd = [None] * N_WHEELS
+        self.mtq_cmd = None
+        status = None
+        heard = False                            # anything of cycle k came back (a reply or ADCS_MISSING)
+        try_s = min(TRY_MAX_S, max(TRY_MIN_S, 3.0 * self.reply_s))
+        try_end = t0 + try_s
+        resent = 0                               # ADCS_TICK(k) sent again so far
+        while True:
+            now = time.monotonic()
+            if self._done(status):
+                if not resent:                   # the try's wait follows the clean cycles' reply time
+                    self.reply_s = 0.8 * self.reply_s + 0.2 * (now - t0)
+                return status
+            if now >= deadline:
+                return status
+            if now >= try_end:                   # a try without the cycle's replies: the tick again
+                resent += 1
+                self.retries["tick_resent"] += 1
+                self.retries["cycles_retried"] += resent == 1
+                if heard:
+                    self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self.bus.tick_payload)
+                else:                            # the tick or the whole burst may be lost: all of it again
+                    self.retries["burst_resent"] += 1
+                    self.send(None)
+                try_s = RETRY_S if resent == 1 else min(TRY_MAX_S, TRY_BACKOFF * try_s)
+                try_end = time.monotonic() + try_s
+                continue
+            for pkt in self.link.recv(min(deadline, try_end) - now):
+                got, status = self._take(k, pkt, status)
+                heard = heard or got
+            exited(k)
+
+    def _take(self, k, pkt, status):
+        """(heard, status) after one packet of cycle k."""
+        pid, src, dst, seq, payload = pkt
+        if pid == P["RW_CMD"] and dst in RW_NODES:
+            if payload[-1] == k & 0xFF:          # not a late copy of the previous cycle's
+                self.cmd[RW_NODES.index(dst)] = payload
+                return True, status
+        elif pid == P["MTQ_CMD"] and dst == N["MTQ"] and self.bus.has_mtq():
+            if len(payload) == core.PACKET[pid].size and payload[-1] == k & 0xFF:   # not a late copy
+                self.mtq_cmd = payload
+                return True, status
+        elif pid == P["ADCS_STATUS"]:
+            d = core.payload_dict(pid, payload)
+            if d["tick"] == k:
+                return True, d
+        elif pid == P["ADCS_MISSING"]:
+            d = core.payload_dict(pid, payload)
+            if d["tick"] == k and status is None:
+                self.retries["missing_answered"] += 1
+                self.retries["packets_resent"] += sum(1 for b, _, _, _ in self.bus.pkts if b & d["missing"])
+                self.send(d["missing"])
+                return True, status
+        return False, status
+
+
+class StatusWatch:
+    """The ADCS_STATUS of each cycle: its mode and stale sensors named, the firmware's own cycle times
+    (``cycle_us``: n, sum, largest), each mode change with its reason (``mode_changes``: {"t_s", "from", "to",
+    "reason"}; also an event in ``fault_log``)."""
+
+    def __init__(self, say, fault_log):
+        self.say = say
+        self.fault_log = fault_log
+        self.last = None
+        self.cycle_us = [0, 0, 0]
+        self.mode = None
+        self.mode_changes = []
+
+    def take(self, status, t, st_blind_before):
+        """Take cycle k's ADCS_STATUS at t (s); returns the flight software's estimates it carries."""
+        status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
+        status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
+        self.last = status
+        if status["tick"] > 0:               # the first cycle starts the filters
+            c = self.cycle_us
+            c[0] += 1
+            c[1] += status["cycle_us"]
+            c[2] = max(c[2], status["cycle_us"])
+        name = status["adcs_mode_name"]
+        if name != self.mode:
+            if self.mode is not None:
+                self.mode_changes.append({"t_s": t, "from": self.mode, "to": name,
+                                          "reason": why(self.mode, status, st_blind_before)})
+            self.fault_log.append({"t_s": t, "event": "ADCS mode %s" % name})
+            self.say("t = %.0f s: ADCS mode %s -> %s%s" % (t, self.mode, name, (
+                " (stale: %s)" % ", ".join(status["stale_names"])) if status["stale_names"] else ""))
+            self.mode = name
+        return {"q": np.array([status[n] for n in ("q0", "q1", "q2", "q3")]),
+                "w": np.array([status[n] for n in ("wx", "wy", "wz")]),
+                "ra": np.array([status[n] for n in ("rax", "ray", "raz")]),
+                "rb": np.array([status[n] for n in ("rbx", "rby", "rbz")]),
+                "att_sigma_rad": status["att_sigma"], "t": t}
+
+
+def why(before, status, st_blind_before):
+    """The reason of a mode change, from the transition and what this side knows (the firmware reports the mode;
+    ADCS_STATUS has no room for a reason); ``st_blind_before`` the star tracker's last blind stretch (s)."""
+    to = status["adcs_mode_name"]
+    if to == "DEGRADED":
+        return "a wheel failed or a sensor stale (stale: %s; wheels failed bits %d)" % (
+            ", ".join(status["stale_names"]) or "none", status["wheels_failed"])
+    if before == "DEGRADED":
+        return "the wheels and sensors are back"
+    if to == "HOLD":
+        return "the APKF started" if before in (None, "INIT") else "rate damping (no command at this geometry)"
+    if to == "SLEW":
+        return ("the hold is over: the slew to the partner's line of sight" if before == "HOLD" else
+                "the estimate is off the command beyond the re-slew limit" if before == "POINT" else
+                "the star tracker is back after %d s blind, the estimate off the command: a new slew"
+                % st_blind_before if before == "ACQUIRE" else "slew")
+    if to == "ACQUIRE":
+        return "the slew's reference reached the command; waiting for the star tracker"
+    if to == "POINT":
+        return ("the star tracker is back after %d s blind, the estimate on the command"
+                % st_blind_before if before == "ACQUIRE" else "pointing")
+    return to
+
+
 class AdcsSession:
     """See the module docstring and docs/ADCS.md's "ADCS on CAN". Extra keywords: ``truth`` ("two-body" or "hpop"),
     ``cache_dir`` (orbit truth cache), ``hold_s``, ``reply_timeout_s`` (wall seconds a cycle may take),
@@ -187,15 +305,11 @@ class AdcsSession:
         self.probe = probe
         self.apkf_momentum = apkf_momentum
         self.runtime, self.satb, self.seed = runtime, bool(satb_gnss), int(seed)
-        self.duration_s, self.ts, self.hold_s = float(duration_s), float(ts), float(hold_s)
-        self.faults = check_faults(faults, duration_s)
+        self.ts, self.hold_s = float(ts), float(hold_s)
         self.log = log
-        self.reply_timeout_s = float(reply_timeout_s)
         self.link_faults = link_faults
-        self.faults_port = None
         self.heap_out = heap_out
-        self.recorded = [] if record else None     # per tick: [tick, t_ms, [[pid, src, payload hex], ...]]
-        self.K = int(np.ceil(self.duration_s))
+        self.K = int(np.ceil(float(duration_s)))
         self.spacecraft = d = spacecraft or scenario.thesis_3u()
         self.world_name, self.flight = world, dict(flight or {})
         fly = world == "flight"
@@ -203,52 +317,40 @@ class AdcsSession:
             raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers")
         self.world = w = scenario.pointing_world(self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S,
                                                  n_tags=self.K + 1, spacecraft=d, flight=fly)
-        magnetic_devices = magnetic_devices or fly
-        self.xg, self.wheels, self.sc, self.st = w.xg, w.wheels, w.sc, w.st
-        self.gnss_a, self.beacon, self.relay, self.tb, self.xb_tb = w.gnss_a, w.beacon, w.relay, w.tb, w.xb_tb
-        self.jb = 0
-        self.params = scenario.truth_params(self.sc, d) if params is None else _load_params(params, d)
-        self.devices = None                      # the magnetic devices (SpacecraftDevices), when served
-        if magnetic_devices:
+        self.params = scenario.truth_params(w.sc, d) if params is None else _load_params(params, d)
+        devices = None                           # the magnetic devices (SpacecraftDevices), when served
+        if magnetic_devices or fly:
             r_mag = np.random.default_rng(np.random.SeedSequence(self.seed).spawn(8)[7])
             mag, mtq = Magnetometer.from_spacecraft(d, r_mag), Magnetorquers.from_spacecraft(d)
             if mag is not None or mtq is not None:
-                self.devices = SpacecraftDevices(self.sc, self.st, magnetometer=mag, magnetorquers=mtq)
-        self._mtq_cmd = None                     # MTQ_CMD payload received this cycle
-        # the flight world's firmware sends one each cycle: wait for it as for the RW_CMDs (a lost one is asked for
-        # again with the tick), so that a lossy link's run stays the clean run's
-        self._expect_mtq = world == "flight" and self.devices is not None and self.devices.mtq is not None
-        self._mtq_reply = []                     # its answer (MTQ_TLM or NACK), sent in the next burst
-        self.n_mtq_cmd = self.refused_mtq_cmd = 0
-        self.stkf_x0 = w.stkf_x0.tolist()
+                devices = SpacecraftDevices(w.sc, w.st, magnetometer=mag, magnetorquers=mtq)
+        self.schedule = FaultSchedule(check_faults(faults, duration_s), self._say)
+        self.bus = SpacecraftBus(w, devices, self.schedule, self._say, record)
+        # the flight world's firmware sends an MTQ_CMD each cycle: waited for as the RW_CMDs (a lost one is asked
+        # for again with the tick), so that a lossy link's run stays the clean run's
+        self.wait = ReplyWait(self.bus, fly and devices is not None and devices.mtq is not None, reply_timeout_s)
+        self.watch = StatusWatch(self._say, self.schedule.log)
         self.k = 0
         self.proc = None
         self.link = None
         self.app = None                          # runtime inproc: the firmware's App in this process
         self._tmp = None
-        self._cmd = [None] * N_WHEELS            # RW_CMD payload received this cycle
-        self._commanded = [True] * N_WHEELS      # a reply (RW_TLM) is due in the next burst
-        self.n_late = 0
-        self._late_run = 0                       # consecutive late cycles
-        self.missed_rw_cmd = [0] * N_WHEELS
-        self.refused_rw_cmd = [0] * N_WHEELS     # RW_CMD with a non-finite torque or an enable other than 0/1
-        self.fault_log = []
-        self.retries = {"tick_resent": 0, "missing_answered": 0, "packets_resent": 0, "burst_resent": 0,
-                        "cycles_retried": 0}
-        self._burst_pkts = []                    # (bit, pid, src, payload) of the open cycle's burst
-        self._tick_payload = None
-        self._reply_s = 0.05                     # recent wall time from ADCS_TICK to the cycle's last reply
-        self.last_status = None
-        self._cycle_us = [0, 0, 0]               # the firmware's own cycle times (ADCS_STATUS): n, sum, largest
-        self._mode = None
-        self.mode_changes = []                   # {"t_s", "from", "to", "reason"} per ADCS_STATUS mode change
-        self._st_ok_t = 0.0                      # the star tracker's last valid output (truth side)
-        self._st_blind_before = 0.0              # and the blind stretch that output ended (s)
-        self.st_valid_log = []                   # per cycle: the star tracker's output valid
         self.wheel_rpm_log = []                  # per cycle: the largest |wheel speed| at its end (rpm)
-        self._active = set()
         self.wall_s = 0.0
+        self._t_wall = 0.0
         self.closed = False
+
+    # the world's and the bus's parts, as the callers know them
+    sc = property(lambda self: self.world.sc)
+    xg = property(lambda self: self.world.xg)
+    wheels = property(lambda self: self.world.wheels)
+    devices = property(lambda self: self.bus.devices)
+    recorded = property(lambda self: self.bus.recorded)
+    st_valid_log = property(lambda self: self.bus.st_valid_log)
+    mode_changes = property(lambda self: self.watch.mode_changes)
+    faults = property(lambda self: self.schedule.faults)          # the faults dict (check_faults)
+    fault_log = property(lambda self: self.schedule.log)
+    last_status = property(lambda self: self.watch.last)
 
     # --- process and link -----------------------------------------------------------------------------
     def _say(self, msg):
@@ -263,13 +365,13 @@ class AdcsSession:
         d = self.spacecraft
         w, u, g = d["wheels"], d["uncertainty"], d["gnss"]
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
-                "stkf_x0": self.stkf_x0, "stkf_P0": list(self.world.stkf_P0_diag), "lag_s": scenario.LAG_S,
+                "stkf_x0": self.world.stkf_x0.tolist(), "stkf_P0": list(self.world.stkf_P0_diag), "lag_s": scenario.LAG_S,
                 "torque_max": w["torque_limit_nm"],
                 "friction": [w["friction_coulomb_nm"], w["friction_viscous_nms_rad"],
                              w["friction_smooth_rpm"] * 2 * np.pi / 60],
-                "beacon_sigma_arcsec": self.beacon.sigma / RAD_PER_ARCSEC,
+                "beacon_sigma_arcsec": self.world.beacon.sigma / RAD_PER_ARCSEC,
                 "gnss_sigma": [g["sigma_position_m"], g["sigma_velocity_m_s"]],
-                "wheel_axes": self.wheels.c0.tolist(), "tach_noise_rpm": w["tach_noise_rpm"], "wheels": w,
+                "wheel_axes": self.world.wheels.c0.tolist(), "tach_noise_rpm": w["tach_noise_rpm"], "wheels": w,
                 "star_tracker_sigma_arcsec": list(d["star_tracker"]["sigma_arcsec"]),
                 "apkf_p0": [u["attitude_sigma_deg"], u["rate_sigma_deg_s"], u["disturbance_torque_sigma_nm"]],
                 "laser_axis": scenario.laser_axis(d).tolist(),
@@ -339,173 +441,25 @@ class AdcsSession:
         """Faults on the link, the wall clock, the first burst."""
         if self.link_faults is not None:
             from protocol.faults import inject
-            self.faults_port = inject(self.link, self.link_faults, clock=lambda: float(self.k))
+            inject(self.link, self.link_faults, clock=lambda: float(self.k))
         self._t_wall = time.perf_counter()
         self._burst()
         return self
 
-    def _has_mtq(self):
-        return self.devices is not None and self.devices.mtq is not None
-
-    def _exited(self):
-        return self.link.closed or (self.proc is not None and self.proc.poll() is not None)
+    def _exited(self, k):
+        """OSError when the firmware has left (its process or the link) in cycle k."""
+        if self.link.closed or (self.proc is not None and self.proc.poll() is not None):
+            raise OSError("ADCS firmware exited at t = %d s (code %s): %s"
+                          % (k, self.proc.poll() if self.proc else None, self._stderr() or "no message"))
 
     def _stderr(self):
         return self.proc.stderr_tail(2000).strip() if self.proc is not None else ""
 
-    def _send(self, pid, src, payload):
-        bit = burst_bit(pid, src, payload)      # the firmware's own naming of the burst's packets
-        self._burst_pkts.append((bit, pid, src, payload))
-        if self.recorded is not None:
-            self._rec.append([pid, src, payload.hex()])
-
-    # --- faults ---------------------------------------------------------------------------------------
-    def _fault(self, name, t):
-        f = self.faults.get(name)
-        if f is None:
-            on = False
-        elif name == "beacon_lost":
-            on = t >= f
-        elif name == "wheel_silent":
-            on = t >= f[1]
-        else:
-            on = f[0] <= t < f[1]
-        if on != (name in self._active):
-            (self._active.add if on else self._active.discard)(name)
-            what = "%s %s" % (name, "begins" if on else "ends")
-            if name == "wheel_silent":
-                what += " (wheel %d)" % f[0]
-            self.fault_log.append({"t_s": t, "event": what})
-            self._say("t = %.0f s: fault %s" % (t, what))
-        return on
-
-    # --- the cycle -----------------------------------------------------------------------------------
     def _burst(self):
-        """ADCS_TICK(k) naming the burst, then the device replies and sensor outputs at t_k."""
-        k, sc = self.k, self.sc
-        t = float(k)
-        t_ms = int(round(t * 1000))
-        self._rec = []
-        self._burst_pkts = []
-        dead = self.faults["wheel_silent"][0] if self._fault("wheel_silent", t) else -1
-        if dead >= 0:
-            self.wheels.command(dead, 0.0, False)          # the node is dead: its driver stops, the rotor coasts
-        for pid, src, _, payload in self._mtq_reply:       # unnamed packets first (see the module docstring)
-            self._send(pid, src, payload)
-        self._mtq_reply = []
-        if self.devices is not None and self.devices.mag is not None:
-            pid, src, _, payload = self.devices.magnetometer(N["ADCS"], t_ms)
-            self._send(pid, src, payload)
-        speed = self.wheels.read_speed_rpm(sc.omega_rw_rel)
-        for i in range(N_WHEELS):
-            if i != dead and self._commanded[i]:
-                self._send(P["RW_TLM"], RW_NODES[i], core.encode_payload(
-                    P["RW_TLM"], speed=float(speed[i]), torque=float(sc.tau_motor[i])))
-            self._commanded[i] = False
-        qm, ok = self.st.measure(sc.q, sc.omega)
-        if self._fault("startracker_blind", t):
-            ok = False
-        if ok and self.k > 0:
-            self._st_blind_before, self._st_ok_t = self.k - self._st_ok_t, float(self.k)
-        self.st_valid_log.append(bool(ok))
-        if not ok:
-            qm = np.array([0.0, 0.0, 0.0, 1.0])
-        self._send(P["STARTRACKER"], N["STARTRACKER"], core.encode_payload(
-            P["STARTRACKER"], t_ms=t_ms, q0=float(qm[0]), q1=float(qm[1]), q2=float(qm[2]), q3=float(qm[3]),
-            valid=int(ok)))
-        x = self.xg[k * scenario.WORLD_RATE_HZ].ravel()
-        outage = self._fault("gnss_outage", t)
-        zg = self.gnss_a.measure(x[0:6])                      # drawn always: streams stay aligned
-        if not outage:
-            self._send(P["GNSS"], N["GNSS"], _gnss_payload(t_ms, 0, zg))
-        if self.relay is not None:
-            while self.jb < self.tb.size and self.tb[self.jb] <= t:
-                self.relay.sample(self.tb[self.jb], self.xb_tb[self.jb])
-                self.jb += 1
-            for tm, z in self.relay.due(t):
-                if not outage:
-                    self._send(P["GNSS"], N["GNSS"], _gnss_payload(int(round(tm * 1000)), 1, z))
-        y = self.beacon.measure_dcm(x[0:3], x[6:9], dcm(sc.q))
-        lost = self._fault("beacon_lost", t)
-        y = y / np.linalg.norm(y)
-        self._send(P["BEACON"], N["BEACON"], core.encode_payload(
-            P["BEACON"], t_ms=t_ms, ux=float(y[0]), uy=float(y[1]), uz=float(y[2]), valid=0 if lost else 1))
-        mask, n_b = 0, 0
-        for bit, _, _, _ in self._burst_pkts:
-            mask |= bit
-            n_b += bit == B_GNSS_B
-        self._tick_payload = core.encode_payload(P["ADCS_TICK"], tick=k, t_ms=t_ms, burst=mask, n_gnss_b=n_b)
-        self._tick_sent = time.monotonic()
-        self._send_burst(None)
-        if self.recorded is not None:
-            self.recorded.append([k, t_ms, self._rec])
-
-    def _send_burst(self, bits):
-        """ADCS_TICK(k) then the burst's packets (``bits`` None), or only the packets of ``bits`` (an answer to
-        ADCS_MISSING: the firmware has the cycle open)."""
-        if bits is None:
-            self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self._tick_payload)
-        for bit, pid, src, payload in self._burst_pkts:
-            if bits is None or bit & bits:
-                self.link.send_raw(pid, src, N["ADCS"], payload)
-
-    def _await(self):
-        """RW_CMDs and ADCS_STATUS of tick k (None if late), trying again as the module docstring says."""
-        k = self.k
-        t0 = self._tick_sent
-        deadline = t0 + self.reply_timeout_s
-        self._cmd = [None] * N_WHEELS
-        self._mtq_cmd = None
-        status = None
-        heard = False                            # anything of cycle k came back (a reply or ADCS_MISSING)
-        try_s = min(TRY_MAX_S, max(TRY_MIN_S, 3.0 * self._reply_s))
-        try_end = t0 + try_s
-        resent = 0                               # ADCS_TICK(k) sent again so far
-        while True:
-            now = time.monotonic()
-            if status is not None and all(c is not None for c in self._cmd) and (
-                    self._mtq_cmd is not None or not self._expect_mtq):
-                if not resent:                   # the try's wait follows the clean cycles' reply time
-                    self._reply_s = 0.8 * self._reply_s + 0.2 * (now - t0)
-                return status
-            if now >= deadline:
-                return status
-            if now >= try_end:                   # a try without the cycle's replies: the tick again
-                resent += 1
-                self.retries["tick_resent"] += 1
-                self.retries["cycles_retried"] += resent == 1
-                if heard:
-                    self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self._tick_payload)
-                else:                            # the tick or the whole burst may be lost: all of it again
-                    self.retries["burst_resent"] += 1
-                    self._send_burst(None)
-                try_s = RETRY_S if resent == 1 else min(TRY_MAX_S, TRY_BACKOFF * try_s)
-                try_end = time.monotonic() + try_s
-                continue
-            for pid, src, dst, seq, payload in self.link.recv(min(deadline, try_end) - now):
-                if pid == P["RW_CMD"] and dst in RW_NODES:
-                    if payload[-1] == k & 0xFF:          # not a late copy of the previous cycle's
-                        self._cmd[RW_NODES.index(dst)] = payload
-                        heard = True
-                elif pid == P["MTQ_CMD"] and dst == N["MTQ"] and self._has_mtq():
-                    if len(payload) == core.PACKET[pid].size and payload[-1] == k & 0xFF:   # not a late copy
-                        self._mtq_cmd = payload
-                        heard = True
-                elif pid == P["ADCS_STATUS"]:
-                    d = core.payload_dict(pid, payload)
-                    if d["tick"] == k:
-                        status, heard = d, True
-                elif pid == P["ADCS_MISSING"]:
-                    d = core.payload_dict(pid, payload)
-                    if d["tick"] == k and status is None:
-                        heard = True
-                        self.retries["missing_answered"] += 1
-                        n = sum(1 for b, _, _, _ in self._burst_pkts if b & d["missing"])
-                        self.retries["packets_resent"] += n
-                        self._send_burst(d["missing"])
-            if self._exited():
-                raise OSError("ADCS firmware exited at t = %d s (code %s): %s"
-                              % (k, self.proc.poll() if self.proc else None, self._stderr() or "no message"))
+        """Cycle k's burst built (``SpacecraftBus.burst``) and sent with its ADCS_TICK."""
+        self.bus.burst(self.k)
+        self.wait.link = self.link
+        self.wait.open()
 
     def cycle(self):
         """One 1 s flight-software cycle = 10 dynamics steps of 0.1 s (see the module docstring)."""
@@ -513,39 +467,14 @@ class AdcsSession:
             raise OSError("session not started (call start())")
         if self.k >= self.K:
             raise ValueError("the session's %d s are done" % self.K)
-        status = self._await()
+        status = self.wait.wait(self.k, self._exited)
         t = float(self.k)
-        dead = self.faults["wheel_silent"][0] if "wheel_silent" in self._active else -1
         if status is None:
-            self.n_late += 1
-            self._late_run += 1
-            if self._late_run >= MAX_LATE_CYCLES:     # alive but hung: its pty would fill and block the bursts
-                raise OSError("ADCS firmware gave no ADCS_STATUS for %d cycles in a row (%g s each) at t = %d s: "
-                              "hung? %s" % (self._late_run, self.reply_timeout_s, self.k, self._stderr()))
-            self._say("t = %.0f s: no ADCS_STATUS within %.0f s (late cycle; wheels hold)" % (t, self.reply_timeout_s))
+            self._late(t)
             status = {}
         else:
-            self._late_run = 0
-        applied = np.full(N_WHEELS, np.nan)
-        for i in range(N_WHEELS):
-            pl = self._cmd[i]
-            if i == dead:
-                continue
-            if pl is None:
-                self.missed_rw_cmd[i] += 1
-                continue
-            d = core.payload_dict(P["RW_CMD"], pl)
-            if np.isfinite(d["torque"]) and d["enable"] <= 1:
-                self.wheels.command(i, d["torque"], bool(d["enable"]))
-                applied[i] = d["torque"] if d["enable"] else 0.0
-            else:                                  # the wheel keeps its last command; counted, not silent
-                self.refused_rw_cmd[i] += 1
-            self._commanded[i] = True
-        if self._mtq_cmd is not None and self._has_mtq():
-            self._mtq_reply = self.devices.handle(P["MTQ_CMD"], N["ADCS"], N["MTQ"], self._mtq_cmd)
-            ok = self._mtq_reply[0][0] == P["MTQ_TLM"]
-            self.n_mtq_cmd += ok
-            self.refused_mtq_cmd += not ok
+            self.wait.late_run = 0
+        applied = self.bus.apply(self.wait.cmd, self.wait.mtq_cmd)
         out = {k: np.zeros((10, n)) for k, n in (("q", 4), ("w", 3), ("w_rel", 4), ("ra", 3), ("va", 3), ("rb", 3),
                                                  ("vb", 3))}
         out["t"] = np.zeros(10)
@@ -558,7 +487,7 @@ class AdcsSession:
         if not np.all(np.isfinite(self.sc.x)):
             raise FloatingPointError("truth diverged at t = %.1f s" % self.sc.t)
         self.wheel_rpm_log.append(float(np.abs(self.sc.omega_rw_rel).max() * 60 / (2 * np.pi)))
-        est = self._on_status(status, t) if status else {}
+        est = self.watch.take(status, t, self.bus.st_blind_before) if status else {}
         out["status"], out["est"], out["rw_cmd"] = status, est, applied
         self.k += 1
         if self.k < self.K:
@@ -566,64 +495,25 @@ class AdcsSession:
         self.wall_s = time.perf_counter() - self._t_wall
         return out
 
-    def _on_status(self, status, t):
-        """Take cycle k's ADCS_STATUS (named mode and stale sensors, the firmware's cycle time, a mode change
-        logged with its reason); returns the flight software's estimates it carries."""
-        status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
-        status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
-        self.last_status = status
-        if status["tick"] > 0:               # the first cycle starts the filters
-            c = self._cycle_us
-            c[0] += 1
-            c[1] += status["cycle_us"]
-            c[2] = max(c[2], status["cycle_us"])
-        if status["adcs_mode_name"] != self._mode:
-            if self._mode is not None:
-                self.mode_changes.append({"t_s": t, "from": self._mode, "to": status["adcs_mode_name"],
-                                          "reason": self._why(self._mode, status)})
-            self.fault_log.append({"t_s": t, "event": "ADCS mode %s" % status["adcs_mode_name"]})
-            self._say("t = %.0f s: ADCS mode %s -> %s%s" % (t, self._mode, status["adcs_mode_name"],
-                                                              (" (stale: %s)" % ", ".join(status["stale_names"]))
-                                                              if status["stale_names"] else ""))
-            self._mode = status["adcs_mode_name"]
-        return {"q": np.array([status[n] for n in ("q0", "q1", "q2", "q3")]),
-                "w": np.array([status[n] for n in ("wx", "wy", "wz")]),
-                "ra": np.array([status[n] for n in ("rax", "ray", "raz")]),
-                "rb": np.array([status[n] for n in ("rbx", "rby", "rbz")]),
-                "att_sigma_rad": status["att_sigma"], "t": t}
+    def _late(self, t):
+        """A cycle without its ADCS_STATUS: the wheels hold; OSError after ``MAX_LATE_CYCLES`` in a row."""
+        w = self.wait
+        w.n_late += 1
+        w.late_run += 1
+        if w.late_run >= MAX_LATE_CYCLES:        # alive but hung: its pty would fill and block the bursts
+            raise OSError("ADCS firmware gave no ADCS_STATUS for %d cycles in a row (%g s each) at t = %d s: "
+                          "hung? %s" % (w.late_run, w.timeout_s, self.k, self._stderr()))
+        self._say("t = %.0f s: no ADCS_STATUS within %.0f s (late cycle; wheels hold)" % (t, w.timeout_s))
 
     def blind_share(self, t_from):
         """The share of cycles from ``t_from`` (s) on whose star-tracker output was not valid (None if none)."""
-        v = self.st_valid_log[int(np.ceil(t_from)):]
+        v = self.bus.st_valid_log[int(np.ceil(t_from)):]
         return None if not v else 1.0 - sum(v) / len(v)
 
     def wheel_rpm_max(self, t_from=0.0):
         """The largest |wheel speed| (rpm) at the ends of the cycles from ``t_from`` (s) on (None if none)."""
         v = self.wheel_rpm_log[int(np.ceil(t_from)):]
         return max(v) if v else None
-
-    def _why(self, before, status):
-        """The reason of a mode change, from the transition and what this side knows (the firmware reports the
-        mode; ADCS_STATUS has no room for a reason)."""
-        to = status["adcs_mode_name"]
-        if to == "DEGRADED":
-            return "a wheel failed or a sensor stale (stale: %s; wheels failed bits %d)" % (
-                ", ".join(status["stale_names"]) or "none", status["wheels_failed"])
-        if before == "DEGRADED":
-            return "the wheels and sensors are back"
-        if to == "HOLD":
-            return "the APKF started" if before in (None, "INIT") else "rate damping (no command at this geometry)"
-        if to == "SLEW":
-            return ("the hold is over: the slew to the partner's line of sight" if before == "HOLD" else
-                    "the estimate is off the command beyond the re-slew limit" if before == "POINT" else
-                    "the star tracker is back after %d s blind, the estimate off the command: a new slew"
-                    % self._st_blind_before if before == "ACQUIRE" else "slew")
-        if to == "ACQUIRE":
-            return "the slew's reference reached the command; waiting for the star tracker"
-        if to == "POINT":
-            return ("the star tracker is back after %d s blind, the estimate on the command"
-                    % self._st_blind_before if before == "ACQUIRE" else "pointing")
-        return to
 
     def board(self):
         """A qemu run's board and its instructions per 1 Hz cycle (None for the other runtimes): under ``-icount
@@ -632,23 +522,24 @@ class AdcsSession:
         thousands of instructions."""
         if self.runtime != "qemu":
             return None
-        n, total, worst = self._cycle_us
+        n, total, worst = self.watch.cycle_us
         return {"target": dict(BOARD), "instructions_per_cycle": {
             "what": "the firmware's own cycle (ADCS_STATUS.cycle_us: filters, control law, commands) under -icount "
                     "shift=0, one instruction a virtual ns; the first cycle (the filters' start) left out",
             "n": n, "mean": 1000.0 * total / n if n else None, "max": 1000.0 * worst if n else None}}
 
     def summary(self):
-        st = self.last_status or {}
+        st = self.watch.last or {}
+        bus, dev = self.bus, self.bus.devices
         return {"runtime": self.runtime, "satb_gnss": self.satb, "seed": self.seed, "ts_s": self.ts,
                 "spacecraft": self.spacecraft["name"],
                 "cycles": self.k, "virtual_s": float(self.k), "wall_s": self.wall_s,
                 "speed_x_realtime": (self.k / self.wall_s) if self.wall_s > 0 else None,
-                "late_cycles": self.n_late, "missed_rw_cmd": list(self.missed_rw_cmd),
-                "refused_rw_cmd": list(self.refused_rw_cmd),
-                "magnetic_devices": None if self.devices is None else {
-                    "magnetometer": self.devices.mag is not None, "magnetorquers": self._has_mtq(),
-                    "mtq_cmd": self.n_mtq_cmd, "refused_mtq_cmd": self.refused_mtq_cmd},
+                "late_cycles": self.wait.n_late, "missed_rw_cmd": list(bus.missed_rw_cmd),
+                "refused_rw_cmd": list(bus.refused_rw_cmd),
+                "magnetic_devices": None if dev is None else {
+                    "magnetometer": dev.mag is not None, "magnetorquers": bus.has_mtq(),
+                    "mtq_cmd": bus.n_mtq_cmd, "refused_mtq_cmd": bus.refused_mtq_cmd},
                 "firmware_missed": {"rw": [st.get("miss_rw%d" % i) for i in range(N_WHEELS)],
                                     "startracker": st.get("miss_st"), "gnss": st.get("miss_gnss"),
                                     "beacon": st.get("miss_beacon"), "st_invalid": st.get("n_st_invalid"),
@@ -658,9 +549,9 @@ class AdcsSession:
                 "wheels_failed": st.get("wheels_failed"), "last_mode": st.get("adcs_mode_name"),
                 "link": self.link.counters() if self.link is not None else {},
                 "link_faults": self.link_faults.as_dict() if self.link_faults is not None else None,
-                "retries": dict(self.retries),
+                "retries": dict(self.wait.retries),
                 "faults": self.faults, "fault_log": list(self.fault_log), "world": self.world_name,
-                "mode_changes": list(self.mode_changes), "max_wheel_speed_rpm": self.wheel_rpm_max(),
+                "mode_changes": list(self.watch.mode_changes), "max_wheel_speed_rpm": self.wheel_rpm_max(),
                 "wheel_datasheet_rpm": self.spacecraft["wheels"]["speed_limit_rpm"],
                 "complete": self.k >= self.K}
 
@@ -687,16 +578,6 @@ class AdcsSession:
         return False
 
 
-
-
-B_GNSS_B = 1 << dict(table.ADCS_STALE)["GNSS_B"]
-
-
-def _gnss_payload(t_ms, sat, z):
-    """GNSS payload of a fix z = (x, y, z m, vx, vy, vz m/s): raw = round(value / the field's scale in the table)."""
-    scale = core.field_scales("GNSS")
-    raw = dict((n, int(round(z[i] * (1.0 / scale[n])))) for i, n in enumerate(("x", "y", "z", "vx", "vy", "vz")))
-    return core.encode_payload(P["GNSS"], raw, t_ms=t_ms & 0xFFFFFFFF, sat=sat)
 
 
 def _load_params(params, spacecraft=None):

@@ -13,7 +13,8 @@ import tty
 import numpy as np
 import pytest
 
-from emulator.adcs_session import AdcsSession, check_faults
+from emulator.adcs_bus import check_faults
+from emulator.adcs_session import AdcsSession
 from emulator.spacecraft.wheels import WheelParams
 from protocol import core
 from protocol import link as hostlink

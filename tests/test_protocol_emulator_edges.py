@@ -38,19 +38,19 @@ def test_emulator_json_writer_fsyncs_before_the_rename(tmp_path, monkeypatch):
 
 # --- the packet table is the one contract ----------------------------------------------------------------
 def test_gnss_payload_takes_its_scales_from_the_table(monkeypatch):
-    from emulator import adcs_session
+    from emulator import adcs_bus
     from protocol import core
     pkt = core.PACKET[core.PACKET_ID["GNSS"]]
     z = (6878137.255, -1234.5678, 42.0, 7612.3456, -0.12345, 0.0)
     names = ("x", "y", "z", "vx", "vy", "vz")
-    d = core.payload_dict(pkt.id, adcs_session._gnss_payload(5, 1, z))
+    d = core.payload_dict(pkt.id, adcs_bus.gnss_payload(5, 1, z))
     scale = dict((f[0], f[3]) for f in pkt.fields)
     assert (d["t_ms"], d["sat"]) == (5, 1)
     assert all(abs(d[n] * scale[n] - v) <= 0.5 * scale[n] for n, v in zip(names, z))
     # a table with other scales (cm -> dm, 0.1 mm/s -> mm/s): the emulator follows it, it does not restate it
     other = tuple(f[:3] + ({"m": 0.1, "m/s": 1e-3}[f[2]],) + f[4:] if f[0] in names else f for f in pkt.fields)
     monkeypatch.setattr(pkt, "fields", other)
-    d = core.payload_dict(pkt.id, adcs_session._gnss_payload(5, 1, z))
+    d = core.payload_dict(pkt.id, adcs_bus.gnss_payload(5, 1, z))
     assert [d[n] for n in names] == [68781373, -12346, 420, 7612346, -123, 0]
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from emulator.adcs_session import AdcsSession
 from emulator.spacecraft import scenario
 from emulator.spacecraft.scenario import HOLD_S, laser_axis
-from firmware.adcs.flight import FLIGHT
+from firmware.adcs.flight import FLIGHT, options
 from ground.adcs import control
 from ground.adcs.modes import MODE_CODE, time_in
 from ground.adcs.pointing import (EST_COLS, TS_THESIS, add_statistics, check_ts, close_history, error_budget,
@@ -50,11 +50,9 @@ def flight_settle_s(d, ts=TS_THESIS, flight=None, hold_s=HOLD_S):
 
 
 def check_flight(flight):
-    """The flight options ``flight`` over ``FLIGHT``'s defaults; ValueError naming an unknown one."""
-    unknown = sorted(set(flight or {}) - set(FLIGHT))
-    if unknown:
-        raise ValueError("unknown flight option(s) %s (the options: %s)" % (", ".join(unknown), ", ".join(FLIGHT)))
-    return dict(FLIGHT, **(flight or {}))
+    """The flight options ``flight`` over ``FLIGHT``'s defaults (the app's own check: ``firmware.adcs.flight.options``);
+    ValueError naming an unknown one."""
+    return options({"world": "flight", "flight": flight})
 
 
 class _Recorder:

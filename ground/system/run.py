@@ -94,7 +94,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                          "magnetorquers (or --world thesis)")
     t_settle = settle_s(ts) if world == "thesis" else bps.flight_settle_s(d, ts)
     if faults:
-        from emulator.adcs_session import check_faults
+        from emulator.adcs_bus import check_faults
         faults = check_faults(faults, t_settle + duration_s + LEAD_S)
     run_folder(out_dir, hil.FIGURES + (FIGURE,))           # the fine loop's figures are hil's
     rec = hil.Recorder(out_dir)

@@ -22,6 +22,7 @@ import tempfile
 import numpy as np
 
 from bench import mp
+from ground.adcs.quat import angle_arcsec
 
 ROOT = mp.ROOT
 CLOCK_HZ = 216e6
@@ -62,7 +63,7 @@ def main():
         x86 = bac._cycle_instr(cfg_f, rec_f) if shutil.which("valgrind") else float("nan")
         ref = bac._replay(cfg_f, rec_f, k1, False)["status"]
     st = core.payload_dict(core.PACKET_ID["ADCS_STATUS"], r["status"])
-    dq = _angle_arcsec([st["q%d" % i] for i in range(4)], [ref["q%d" % i] for i in range(4)])
+    dq = angle_arcsec([st["q%d" % i] for i in range(4)], [ref["q%d" % i] for i in range(4)])
 
     def share(n):
         c0, c1 = n * CPI[0], n * CPI[1]
@@ -82,15 +83,6 @@ def main():
     print("| stack high-water | - | %.1f KB |" % (r["stack_high_water_bytes"] / 1024))
     print("| last ADCS_STATUS, float32 board against the float64 unix port: attitude; 1-sigma | - | %.3g arcsec apart; "
           "%.4g vs %.4g rad |" % (dq, st["att_sigma"], ref["att_sigma"]))
-
-
-def _angle_arcsec(a, b):
-    """The rotation between two attitude quaternions (scalar last), in arcsec: ``quat.rotvec`` of a b^-1, whose
-    atan2 does not care that float32 quaternions are not unit to 1e-7 (acos of their dot product would)."""
-    from ground.adcs import quat
-    from protocol.units import ARCSEC_PER_RAD
-    d = quat.quat_mul(np.asarray(a, float), quat.conj(np.asarray(b, float)))
-    return float(np.linalg.norm(quat.rotvec(d))) * ARCSEC_PER_RAD
 
 
 if __name__ == "__main__":

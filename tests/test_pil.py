@@ -216,7 +216,7 @@ def test_the_lean_adcs_on_the_cortex_m7_board_runs_a_recorded_session_as_the_uni
     the stack stay inside the image's, and its last attitude estimate is the float64 unix port's to within 1 arcsec
     (float32 states against float64: 0.2 arcsec after 210 s, bench_pil_adcs)."""
     import subprocess
-    from bench.bench_pil_adcs import _angle_arcsec
+    from ground.adcs.quat import angle_arcsec
     from emulator.adcs_session import AdcsSession
     from protocol import core
     n = 40
@@ -239,7 +239,7 @@ def test_the_lean_adcs_on_the_cortex_m7_board_runs_a_recorded_session_as_the_uni
     ref = json.loads(p.stdout.strip().splitlines()[-1])["status"]
     st = core.payload_dict(core.PACKET_ID["ADCS_STATUS"], r["status"])
     assert st["tick"] == ref["tick"] == n - 1 and st["adcs_mode"] == ref["adcs_mode"]
-    assert _angle_arcsec([st["q%d" % i] for i in range(4)], [ref["q%d" % i] for i in range(4)]) < 1.0
+    assert angle_arcsec([st["q%d" % i] for i in range(4)], [ref["q%d" % i] for i in range(4)]) < 1.0
 
 
 needs_adcs_image = pytest.mark.skipif(
@@ -253,7 +253,7 @@ def test_fps_adcs_can_on_the_cortex_m7_board_flies_as_the_unix_port(tmp_path):
     python-can's slcan on the host): the same modes as the unix port's run, its attitude estimate within an arcsec
     of it (float32 against float64), and the board and its instructions per cycle in summary.json."""
     import numpy as np
-    from bench.bench_pil_adcs import _angle_arcsec
+    from ground.adcs.quat import angle_arcsec
     runs = {}
     for r in ("qemu", "micropython"):
         p = _fps("adcs", "can", "--runtime", r, "--duration", "40", "--no-plots", "-o", str(tmp_path / r))
@@ -267,7 +267,7 @@ def test_fps_adcs_can_on_the_cortex_m7_board_flies_as_the_unix_port(tmp_path):
     ipc = q["instructions_per_cycle"]
     assert ipc["n"] == 39 and 1e5 < ipc["mean"] <= ipc["max"]
     eq, em = q["h"]["est_q"], m["h"]["est_q"]
-    assert eq.shape == em.shape and max(_angle_arcsec(a, b) for a, b in zip(eq[-5:], em[-5:])) < 1.0
+    assert eq.shape == em.shape and max(angle_arcsec(a, b) for a, b in zip(eq[-5:], em[-5:])) < 1.0
 
 
 @needs_adcs_image

@@ -4,9 +4,9 @@ q (x) p with A(q (x) p) = A(q) A(p) (Eq. 4.5). Re-exported from the spacecraft m
 import numpy as np
 
 from emulator.spacecraft.dynamics import dcm, quat_mul
-from protocol.units import RAD_PER_ARCSEC  # noqa: F401  (quat.RAD_PER_ARCSEC, where the filters use it)
+from protocol.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC  # noqa: F401  (quat.RAD_PER_ARCSEC, where the filters use it)
 
-__all__ = ["dcm", "quat_mul", "conj", "skew", "error_vec", "from_small", "rotvec", "propagate"]
+__all__ = ["dcm", "quat_mul", "conj", "skew", "error_vec", "from_small", "rotvec", "propagate", "angle_arcsec"]
 
 
 
@@ -39,6 +39,13 @@ def rotvec(q):
     if s < 1e-300:
         return np.zeros(3)
     return q[:3] * (2.0 * np.arctan2(s, abs(q[3])) / s) * np.sign(q[3] if q[3] != 0 else 1.0)
+
+
+def angle_arcsec(a, b):
+    """The rotation between two attitude quaternions a, b (scalar last), in arcsec: ``rotvec`` of a b^-1, whose
+    atan2 does not care that float32 quaternions are not unit to 1e-7 (acos of their dot product would)."""
+    d = quat_mul(np.asarray(a, float), conj(np.asarray(b, float)))
+    return float(np.linalg.norm(rotvec(d))) * ARCSEC_PER_RAD
 
 
 def propagate(q, w, dt):

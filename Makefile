@@ -15,7 +15,7 @@ OUT     ?= out
 # installs without compiling and compileall compiles on every core
 export PYTHONDONTWRITEBYTECODE :=
 
-.PHONY: all install test check figures bench fuzz mpy natmod pil hil distfile calibrate protocol-doc clean system
+.PHONY: all install test check figures bench fuzz mpy natmod pil hil distfile calibrate protocol-doc consts clean system
 
 all: test
 
@@ -72,6 +72,12 @@ mpy: $(STAMP)
 
 protocol-doc: $(STAMP)
 	$(VENV)/bin/fps protocol table > protocol/PROTOCOL.md
+
+# every restated constant from its one source: protocol/consts.py from the packet table, then the blocks the
+# firmware's viper modules restate (tools/gen_consts.py); tests/test_protocol_gen.py and test_gen_consts.py check
+consts: $(STAMP)
+	$(PY) -m protocol.gen
+	$(PY) -m tools.gen_consts
 
 distfile: $(STAMP)
 	$(VENV)/bin/fps distfile generate --source bps --duration 600 --seed 1 --bps-cache $(OUT)/bps_cache \

@@ -172,42 +172,6 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
     assert ips["n"] > 12000 and 0 < ips["mean"] <= ips["max"], ips          # 20 s at 637.8 Hz: 12,756 ticks
 
 
-def test_the_viper_controllers_slots_are_the_controllers():
-    """firmware.controller_viper restates the state slots as its own constants (viper needs them there; MicroPython
-    keeps no name for a private const, so the check cannot run on the board): each must be the controller's."""
-    import re
-    from firmware import controller
-    src = open(os.path.join(ROOT, "firmware", "controller_viper.py")).read()
-    found = dict(re.findall(r"^(_[A-Z_]+) = const\((\d+)\)", src, re.M))
-    assert len(found) >= 20
-    for name, v in found.items():
-        mine = getattr(controller, name, None)
-        if mine is None:
-            mine = getattr(controller, name.lstrip("_"))
-        assert mine == int(v), name
-
-
-def test_the_fast_ticks_constants_are_the_packet_tables_and_the_controllers():
-    """firmware.hal.fast_tick restates packet ids, sizes, state slots and the link's counter layout as its own
-    constants (viper needs them there): each must be what protocol.consts, firmware.controller and
-    firmware.hal.stdio say."""
-    import re
-    import struct
-    from firmware import controller
-    from firmware.hal import stdio
-    src = open(os.path.join(ROOT, "firmware", "hal", "fast_tick.py")).read()
-    found = {k: int(v, 0) for k, v in re.findall(r"^(_[A-Z_0-9]+) = const\((0x[0-9A-Fa-f]+|\d+)\)", src, re.M)}
-    hdr = 5
-    want = {"_VERSION": consts.PROTOCOL_VERSION, "_P_TICK": consts.P_TICK, "_P_FSM_SPI": consts.P_FSM_SPI,
-            "_BROADCAST": consts.NODE_BROADCAST, "_TICK_RAW": hdr + struct.calcsize(consts.FMT_TICK) + 2,
-            "_SPI_BODY": hdr + struct.calcsize(consts.FMT_FSM_SPI), "_S_TICKS": controller._S_TICKS,
-            "_S_PKT": controller._S_PKT, "_S_QUIET": controller._S_QUIET, "_COUNT_MAX": controller._COUNT_MAX}
-    for k in ("_ST_TX_SEQ", "_ST_TX_FRAMES", "_ST_RX_FRAMES", "_ST_RX_SRC", "_ST_RX_SEQ", "_ST_SPI_N"):
-        want[k] = getattr(stdio, k)
-    assert found == want
-    assert consts.FMT_TICK == "<IIHHH" and consts.FMT_FSM_SPI == "<IBIIII"    # the byte offsets answer() uses
-
-
 @pytest.mark.skipif(not os.path.exists(pil_build.ADCS_IMAGE) or bool(pil_build.missing_tools()),
                     reason="no ADCS PIL image (make pil; it needs %s)" % pil_build.install_hint(pil_build.PACKAGES))
 def test_the_lean_adcs_on_the_cortex_m7_board_runs_a_recorded_session_as_the_unix_port(tmp_path):

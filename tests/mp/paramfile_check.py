@@ -7,6 +7,7 @@ import sys
 
 from protocol import paramfile as pf
 from protocol import spacecraft as sf
+from tests.mp.mutate import DELETE, copy, put
 
 NAN = float("nan")
 INF = float("inf")
@@ -21,30 +22,6 @@ def good():
                   "delta2_rad": [-0.21, 0.21, 0.16, 0.17], "jrw_kgm2": [3.4e-6, 3.3e-6, 2.2e-6, 2.4e-6]},
             "P": [[SIGMA[i] * SIGMA[j] * (1.0 if i == j else 0.3) for j in range(n)] for i in range(n)],
             "calibration": {"seed": 0, "sets": 9}}
-
-
-def copy(v):
-    if isinstance(v, dict):
-        return dict((k, copy(v[k])) for k in v)
-    if isinstance(v, list):
-        return [copy(x) for x in v]
-    return v
-
-
-DELETE = object()
-
-
-def put(d, path, value):
-    keys = path.split(".")
-    for k in keys[:-1]:
-        d = d[int(k)] if isinstance(d, list) else d[k]
-    last = keys[-1]
-    if value is DELETE:
-        del d[last]
-    elif isinstance(d, list):
-        d[int(last)] = value
-    else:
-        d[last] = value
 
 
 BAD = (   # (label, [(key path, new value or DELETE), ...]) applied to good()

@@ -5,6 +5,7 @@ this script under both and compares the lines)."""
 import json
 
 from protocol import spacecraft as sc
+from tests.mp.mutate import DELETE, copy, put
 
 
 def canon(v):
@@ -18,28 +19,6 @@ def canon(v):
     return json.dumps(v)
 
 
-def copy(v):
-    if isinstance(v, dict):
-        return dict((k, copy(v[k])) for k in v)
-    if isinstance(v, list):
-        return [copy(x) for x in v]
-    return v
-
-
-def put(d, path, value):
-    keys = path.split(".")
-    for k in keys[:-1]:
-        d = d[int(k)] if isinstance(d, list) else d[k]
-    last = keys[-1]
-    if value is DELETE:
-        del d[last]
-    elif isinstance(d, list):
-        d[int(last)] = value
-    else:
-        d[last] = value
-
-
-DELETE = object()
 NAN = float("nan")
 INF = float("inf")
 BAD = (   # (label, [(key path, new value or DELETE), ...]) applied to thesis-3u

@@ -104,7 +104,7 @@ MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
 
 
-def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults):
+def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults, estimation=None):
     """``AdcsSession``'s arguments that need no file: ValueError naming the one out of range."""
     if runtime not in RUNTIMES:
         raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
@@ -120,6 +120,8 @@ def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, lin
         raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
     if probe is not None and runtime != "inproc":
         raise ValueError("a probe reads the app's state: runtime inproc only")
+    if estimation is not None and runtime != "inproc":
+        raise ValueError("another estimation runs in this process: runtime inproc only")
     if runtime == "inproc" and link_faults is not None:
         raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
 
@@ -295,14 +297,18 @@ class AdcsSession:
     ``spacecraft`` (a checked spacecraft file, None: thesis-3u; see the module docstring),
     ``magnetic_devices`` (serve the file's magnetometer and magnetorquers on the bus, see the module docstring;
     off by default: thesis-3u's are assumptions for the flight world only), ``probe`` (runtime inproc: called as
-    probe(tick, t, u) after each cycle of the app, ``self.app``, with the truth still at the cycle's time)."""
+    probe(tick, t, u) after each cycle of the app, ``self.app``, with the truth still at the cycle's time),
+    ``estimation`` (runtime inproc: the app's filters other than the lean ones that fly, ``App``'s keyword; the
+    ground's are ``ground.adcs.estimators.estimation``)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
-                 spacecraft=None, magnetic_devices=False, world="thesis", flight=None, probe=None):
-        _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults)
+                 spacecraft=None, magnetic_devices=False, world="thesis", flight=None, probe=None,
+                 estimation=None):
+        _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults, estimation)
         self.probe = probe
+        self.estimation = estimation
         self.apkf_momentum = apkf_momentum
         self.runtime, self.satb, self.seed = runtime, bool(satb_gnss), int(seed)
         self.ts, self.hold_s = float(ts), float(hold_s)
@@ -384,7 +390,8 @@ class AdcsSession:
         if self.runtime == "inproc":             # the app on this host: the same bytes, no process or wire
             from firmware.adcs.app import App
             from firmware.adcs.lockstep import InProcess
-            self.link = InProcess(App(json.loads(json.dumps(self.config()))), N["ADCS"], self.probe)
+            app = App(json.loads(json.dumps(self.config())), estimation=self.estimation)
+            self.link = InProcess(app, N["ADCS"], self.probe)
             self.app = self.link.app
             self._say("ADCS flight software in this process (inproc)")
             return self._begin()

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from emulator.adcs_session import AdcsSession
+from protocol.units import RAD_PER_ARCSEC
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -68,3 +69,30 @@ def test_the_inproc_host_refuses_what_needs_a_link():
         AdcsSession(runtime="inproc", duration_s=5, link_faults=LinkFaults.parse("bytes=0.001"))
     with pytest.raises(ValueError, match="inproc only"):
         AdcsSession(runtime="cpython", duration_s=5, probe=lambda *a: None)
+
+
+def test_the_ground_estimators_fly_the_same_modes_command_and_allocation(params):
+    """The estimator is a plug-in: the app's modes, command and allocation on the ground's 41-state APKF and full
+    STKF (ground/adcs/estimators.py) slew, acquire and point as on the lean filters, from other estimates."""
+    from ground.adcs import flight_world
+    p = json.load(open(params))
+    runs = {e: flight_world.simulate(params=p, duration_s=150, seed=1, estimator=e) for e in ("lean", "ground")}
+    (rl, hl), (rg, hg) = runs["lean"], runs["ground"]
+    assert rg["estimator"] == "ground" and "ground/adcs/estimators.py" in rg["flight_software"] and rg["complete"]
+    assert [c["to"] for c in rg["mode_changes"]][:3] == [c["to"] for c in rl["mode_changes"]][:3] == \
+        ["HOLD", "SLEW", "ACQUIRE"]
+    assert not np.array_equal(hg["fsw_q_hat"][5:], hl["fsw_q_hat"][5:], equal_nan=True)   # other filters' estimates
+    for h in (hl, hg):
+        err = np.linalg.norm(h["fsw_est_err"][140:149, 0:3], axis=1)      # arcsec, once pointing
+        sig = h["fsw_att_sigma"][140:149, 0] / RAD_PER_ARCSEC
+        assert np.all(err < 120.0) and np.all(err < 5.0 * sig), (err, sig)
+
+
+def test_another_estimation_needs_the_inproc_host_and_the_flight_world(tmp_path, capsys):
+    from ground.adcs.estimators import estimation
+    from ground.cli import main as fps
+    from emulator.spacecraft import scenario
+    with pytest.raises(ValueError, match="inproc only"):
+        AdcsSession(runtime="cpython", duration_s=5, estimation=estimation(scenario.thesis_3u()))
+    assert fps(["adcs", "bps", "--estimator", "ground", "--duration", "10", "-o", str(tmp_path / "x")]) == 2
+    assert "--estimator is the flight world's" in capsys.readouterr().err

@@ -38,15 +38,17 @@ from firmware.adcs.modes import Modes
 class App:
     """The ADCS application. ``on_packet(pid, src, payload)`` stores a sensor reading; ``cycle(tick, t)`` runs one
     1 Hz cycle and returns the wheel torques (``u``, N m) it commands. Its components: ``rd`` (readings),
-    ``health``, ``est`` (filters), ``modes``, ``act`` (control and allocation)."""
+    ``health``, ``est`` (filters), ``modes``, ``act`` (control and allocation). ``estimation``: the class (or
+    factory) of the filters, called as estimation(cfg, rd, health, flight options); None: the lean filters that
+    fly (``estimation.Estimation``); the ground's analysis may pass its own (same calls)."""
 
-    def __init__(self, cfg):
+    def __init__(self, cfg, estimation=None):
         fo = flight.options(cfg)
         self.fly = fo is not None
         satb = bool(cfg.get("satb_gnss", False))
         self.health = Health(satb, float(cfg.get("stale_s", 10.0)))
         self.rd = Intake(satb, self.health)
-        self.est = Estimation(cfg, self.rd, self.health, fo)
+        self.est = (estimation or Estimation)(cfg, self.rd, self.health, fo)
         self.modes = Modes(cfg, fo)
         self.act = Allocation(cfg, self.est.model, fo)
         self.t = 0.0

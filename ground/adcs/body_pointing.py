@@ -225,7 +225,7 @@ class EstimatedOrbit:
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
              wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None,
-             world="thesis", flight=None):
+             world="thesis", flight=None, estimator=None):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection time after
     the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict: 10 Hz arrays, fsw_* at 1 Hz). A
     KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
@@ -247,7 +247,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     software that flies, in process (``flight_world.simulate``; ``flight`` overrides its options, ``feedforward``
     must stay on and
     ``wheel_speed_limit_rpm`` and ``settle_ts`` do not apply: the file's limits, and the figures over the
-    pointing passes after the first orbit)."""
+    pointing passes after the first orbit); ``estimator`` "lean" (default) or "ground" (``flight_world.simulate``).
+    The thesis world flies the ground's 41-state APKF and full STKF (``estimator`` None)."""
     ts = check_ts(ts)
     if world not in WORLDS:
         raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
@@ -257,7 +258,9 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         return flight_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
                                      truth=truth, cache_dir=cache_dir, progress=progress, hold_s=hold_s,
                                      on_second=on_second, tach_noise_rpm=tach_noise_rpm, spacecraft=spacecraft,
-                                     flight=flight)
+                                     flight=flight, estimator=estimator or "lean")
+    if estimator is not None:
+        raise ValueError("the thesis world flies the ground's estimators; --estimator is the flight world's")
     flight_world.check_flight(flight)                  # known options, which the thesis world does not use
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")

@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from emulator.spacecraft import scenario
-from ground.adcs import body_pointing as bps, campaign, control, runs
+from ground.adcs import body_pointing as bps, campaign, control, flight_world, runs
 from ground.adcs.options import add_satb_gnss_option, add_spacecraft_option, load_spacecraft
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 
@@ -290,7 +290,9 @@ def report_flight_md(s, args_text):
         out.append("| ... | %d more in summary.json | |" % (len(s["mode_changes"]) - 50))
     out += ["", "Not the thesis's world (that is `--world thesis`): datasheet wheel limits, drag and solar "
             "pressure torques, magnetorquer unloading, a rate-limited slew and the gates, flown by the flight app "
-            "(firmware/adcs/app.py) in process.", ""]
+            "(firmware/adcs/app.py) in process%s." % (
+                " on the ground's estimators (41-state APKF, full STKF: ground/adcs/estimators.py)"
+                if s.get("estimator") == "ground" else ""), ""]
     return "\n".join(out)
 
 
@@ -341,6 +343,9 @@ def plot_flight(out, hist, s):
 
 def _cmd_bps(a):
     ts = bps.check_ts(a.ts)
+    if a.estimator is not None and a.world != "flight":
+        raise ValueError("--estimator is the flight world's (--world flight); the thesis world flies the ground's "
+                         "41-state APKF and full STKF")
     d, record, params = _vehicle(a)
     if a.world == "flight":
         if d["magnetorquers"] is None:
@@ -368,7 +373,7 @@ def _cmd_bps(a):
     try:
         res, hist = bps.simulate(ts=ts, satb_gnss=a.satb_gnss, duration_s=a.duration, seed=a.seed, params=params,
                                  truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet,
-                                 spacecraft=d, world=a.world)
+                                 spacecraft=d, world=a.world, estimator=a.estimator)
         if a.world == "flight":
             return _finish_flight(a, out, res, hist, record, args_text)
     except FloatingPointError as exc:              # a filter or the truth diverged: the run ends, the folder says so
@@ -559,6 +564,10 @@ def register_bps(sub):
                    "slew and re-acquisition; its figures are per pointing pass after the first orbit")
     p.add_argument("--orbits", type=float, default=3.0,
                    help="flight world: the run's length in orbits when --duration is not given (default 3)")
+    p.add_argument("--estimator", choices=flight_world.ESTIMATORS, default=None,
+                   help="flight world: the app's filters, lean (default: the lean APKF and STKF that fly) or "
+                   "ground (the 41-state APKF and the full STKF, for analysis: the same modes, command and "
+                   "allocation on their estimates)")
     _common(p)
     p.set_defaults(func=_cmd_bps)
 

@@ -29,10 +29,11 @@ from ground.adcs.pointing import (EST_COLS, TS_THESIS, add_statistics, check_ts,
 from protocol.units import RAD_PER_ARCSEC
 
 DEG = np.pi / 180.0
+ESTIMATORS = ("lean", "ground")
 ACQUIRE_MARGIN_S = 60.0     # flight_settle_s: the re-acquisition after the blind slew and a short second slew
 FSW = (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3), ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
        ("wc", 3), ("x_stkf", 12), ("est_err", len(EST_COLS)), ("m_cmd", 3), ("h_w", 3), ("mode", 1),
-       ("st_ok", 1), ("beacon_used", 1), ("mtq_sat", 1))
+       ("st_ok", 1), ("beacon_used", 1), ("mtq_sat", 1), ("att_sigma", 1))
 
 
 def flight_settle_s(d, ts=TS_THESIS, flight=None, hold_s=HOLD_S):
@@ -76,6 +77,7 @@ class _Recorder:
         if a is None:
             return
         f["q_hat"][k], f["w_hat"][k] = a.x[0:4], a.x[4:7]
+        f["att_sigma"][k] = app.est.sigma_att()                          # rad, the attitude's 1 sigma (rss)
         md, act = app.modes, app.act
         f["qc"][k], f["wc"][k], f["tau_c"][k], f["u"][k], f["tau_ff"][k] = md.qc, md.wc, act.tau, u, act.tff
         f["m_cmd"][k], f["mtq_sat"][k] = act.m_cmd, act.mtq_sat
@@ -86,19 +88,23 @@ class _Recorder:
         est = app.est
         if est.n_resets != self._n_resets:
             self._n_resets = est.n_resets
-            self.resets.append((t, est.reset_nis, 2.0 * float(np.linalg.norm(est.z3)) / RAD_PER_ARCSEC))
+            self.resets.append((t, est.reset_nis, est.reset_arcsec))
 
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, hold_s=HOLD_S, on_second=None, tach_noise_rpm=None, spacecraft=None,
-             flight=None, faults=None):
+             flight=None, faults=None, estimator="lean"):
     """One flight-world run (the module docstring): the app in process for ``duration_s`` seconds. ``params``:
     the parameter-file dict (checked against the vehicle); ``flight``: options over ``FLIGHT``; ``faults``: the
     session's device faults; ``on_second(k, hist, fsw, x)`` as ``body_pointing.simulate``'s. Returns (result,
     history) as ``body_pointing.simulate`` does, the history's 1 Hz rows ``fsw_*`` the app's state after cycle k
     (NaN before the APKF starts, and at the last row, which no cycle reaches). A KeyboardInterrupt returns what
-    was collected so far with ``complete`` false."""
+    was collected so far with ``complete`` false. ``estimator``: "lean" (the lean APKF and STKF that fly) or
+    "ground" (the 41-state APKF and the full STKF, ``ground.adcs.estimators``, for analysis: the same modes,
+    command and allocation on other estimates)."""
     ts = check_ts(ts)
+    if estimator not in ESTIMATORS:
+        raise ValueError("estimator must be one of %s, got %r" % (", ".join(ESTIMATORS), estimator))
     fo = check_flight(flight)
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
@@ -114,9 +120,13 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
     K = int(np.ceil(duration_s))
     rec = _Recorder(K)
+    est = None
+    if estimator == "ground":
+        from ground.adcs.estimators import estimation
+        est = estimation(d)
     s = rec.s = AdcsSession(runtime="inproc", satb_gnss=satb_gnss, seed=seed, duration_s=float(K), ts=ts,
                             params=params, faults=faults, truth=truth, cache_dir=cache_dir, hold_s=hold_s,
-                            spacecraft=d, world="flight", flight=fo, probe=rec)
+                            spacecraft=d, world="flight", flight=fo, probe=rec, estimation=est)
     lb = laser_axis(d)
     n10 = K * 10 + 1
     hist = {"t": np.arange(n10) / 10.0, "q": np.zeros((n10, 4)), "w": np.zeros((n10, 3)),
@@ -142,8 +152,13 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         complete = False
     finally:
         bar.close()
-    return _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s,
-                   time.perf_counter() - t_wall)
+    res, hist = _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s,
+                        time.perf_counter() - t_wall)
+    res["estimator"] = estimator
+    if estimator == "ground":
+        res["flight_software"] = ("firmware/adcs/app.py in process with the ground's estimators (41-state APKF, "
+                                  "full STKF with its AFLS: ground/adcs/estimators.py)")
+    return res, hist
 
 
 def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s):

@@ -41,6 +41,7 @@ from bench import mp
 from emulator.adcs_session import AdcsSession
 from tools import natmod_build
 from ground.adcs import body_pointing as bps
+from protocol.units import RAD_PER_ARCSEC
 
 ROOT = mp.ROOT
 SECONDS = 600
@@ -104,7 +105,7 @@ def apkf_input(params):
             st = r["stats"]
             lines.append("| %s | %s | %.1f | %.1f | %d | %s | %.0f |" % (
                 label, name, st["pointing_3sigma_arcsec"], st["stability_3sigma_arcsec_s"], len(r["blind"]),
-                r["blind"][-1] if r["blind"] else "—", np.nanmean(r["w_err"][70:100, 0]) / bps.RAD_PER_ARCSEC))
+                r["blind"][-1] if r["blind"] else "—", np.nanmean(r["w_err"][70:100, 0]) / RAD_PER_ARCSEC))
     lines.append("Budget: 3σ <= %.0f arcsec and <= %.0f arcsec/s." % (bps.BUDGET_POINTING_3SIGMA,
                                                                     bps.BUDGET_STABILITY_3SIGMA))
     rel = np.abs(np.divide(params["x"]["J5_kgm2"], params["jxx_ref_kgm2"]) /

@@ -299,13 +299,14 @@ class AdcsSession:
     off by default: thesis-3u's are assumptions for the flight world only), ``probe`` (runtime inproc: called as
     probe(tick, t, u) after each cycle of the app, ``self.app``, with the truth still at the cycle's time),
     ``estimation`` (runtime inproc: the app's filters other than the lean ones that fly, ``App``'s keyword; the
-    ground's are ``ground.adcs.estimators.estimation``)."""
+    ground's are ``ground.adcs.estimators.estimation``), ``wheel_speed_limit_rpm`` (the thesis world's true wheels'
+    limit, ``scenario.pointing_world``'s; the flight world's is the file's)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
                  spacecraft=None, magnetic_devices=False, world="thesis", flight=None, probe=None,
-                 estimation=None):
+                 estimation=None, wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM):
         _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults, estimation)
         self.probe = probe
         self.estimation = estimation
@@ -322,7 +323,8 @@ class AdcsSession:
         if fly and d["magnetorquers"] is None:
             raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers")
         self.world = w = scenario.pointing_world(self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S,
-                                                 n_tags=self.K + 1, spacecraft=d, flight=fly)
+                                                 n_tags=self.K + 1, spacecraft=d, flight=fly,
+                                                 wheel_speed_limit_rpm=wheel_speed_limit_rpm)
         self.params = scenario.truth_params(w.sc, d) if params is None else _load_params(params, d)
         devices = None                           # the magnetic devices (SpacecraftDevices), when served
         if magnetic_devices or fly:

@@ -193,6 +193,7 @@ def test_short_pointing_run_tracks_satb(params):
 
 
 def test_flight_software_takes_its_orbit_from_the_stkf_not_the_truth(params, monkeypatch):
+    from ground.adcs.estimators import EstimatedOrbit
     """The APKF's model and the feed-forward take SatA's position from the STKF's rA (``EstimatedOrbit``): a
     world whose truth orbit cannot be read by anything but the spacecraft it was built into still runs, and the
     APKF's model orbit is the STKF's estimate, within a few of its 30 m 1 sigma of the truth."""
@@ -219,9 +220,9 @@ def test_flight_software_takes_its_orbit_from_the_stkf_not_the_truth(params, mon
     res, hist = bps.simulate(ts=33, duration_s=30, seed=1, params=params, truth="two-body")
     assert res["complete"]
     orb = models[0].orbit
-    assert isinstance(orb, bps.EstimatedOrbit)
+    assert isinstance(orb, EstimatedOrbit)
     truth = worlds[0]
-    k = int(hist["t"][-1])                         # the last second: orb holds the STKF's rA, vA at k - 1
+    k = int(hist["t"][-1]) - 1                     # the last cycle: orb holds the STKF's rA, vA at k - 1
     assert orb.t0 == k - 1
     assert np.array_equal(orb.r, hist["fsw_x_stkf"][k - 1][0:3])
     err = np.linalg.norm(orb.position(k - 0.5) - truth.position(k - 0.5))
@@ -313,7 +314,7 @@ def test_error_budget_is_taken_at_the_right_instants(params):
     res, hist = bps.simulate(ts=40, duration_s=150, seed=3, params=params, truth="two-body")
     assert max(res["pointing_sigma_arcsec"]) < 300
     b = res["budget"]
-    assert b is not None and b["samples"] == 151
+    assert b is not None and b["samples"] == 150            # each cycle from the settling on, t = 112 .. 261 s
     # the 1 Hz total is the same error as the 10 Hz statistics, sampled: a shifted orbit or attitude index
     # would leave it tens of arcsec off (the line of sight turns ~200 arcsec/s relative to inertial)
     for i in range(2):
@@ -335,7 +336,8 @@ def test_on_second_hands_over_each_seconds_truth_and_estimate_errors(params):
     assert res["complete"] and K == 72 and [g[0] for g in got] == list(range(K))
     w = scenario.pointing_world(K, 1, span_margin_s=bps.SPAN_MARGIN_S)          # simulate's world: its truth
     e_all = hist["fsw_est_err"]
-    assert e_all.shape == (K + 1, len(bps.EST_COLS)) and np.all(np.isfinite(e_all))
+    assert e_all.shape == (K + 1, len(bps.EST_COLS)) and np.all(np.isfinite(e_all[1:K]))
+    assert np.all(np.isnan(e_all[[0, K]]))                      # before the APKF starts; no cycle at t = K
     for k, x, e in got:
         sl = slice(10 * k + 1, 10 * k + 11)
         np.testing.assert_array_equal(x, w.xg[np.round(hist["t"][sl] * w.rate).astype(int)])
@@ -343,14 +345,14 @@ def test_on_second_hands_over_each_seconds_truth_and_estimate_errors(params):
                                      x[:, 1, 3:6])
         np.testing.assert_array_equal(dth / ARC, hist["dtheta_arcsec"][sl])   # the live slice = the whole run's
         np.testing.assert_array_equal(e, e_all[k])
-    for k in (0, 40, K):                                        # the truth at t = k (the last second too)
+    for k in (1, 40, K - 1):                                    # the truth at t = k (the last cycle too)
         xt, xh = w.xg[k * w.rate], hist["fsw_x_stkf"][k]
         att = 2 * quat.error_vec(hist["fsw_q_hat"][k], hist["q"][10 * k]) / ARC
         np.testing.assert_allclose(e_all[k, 0:3], att, rtol=1e-12)
         np.testing.assert_allclose(e_all[k, 3:6], (hist["fsw_w_hat"][k] - hist["w"][10 * k]) / ARC, rtol=1e-12)
         assert e_all[k, 6] == pytest.approx(np.linalg.norm(xh[0:3] - xt[0, 0:3]), rel=1e-12)
         assert e_all[k, 7] == pytest.approx(np.linalg.norm(xh[6:9] - xt[1, 0:3]), rel=1e-12)
-    assert e_all[K, 6] < e_all[0, 6]                            # rA converges on SatA's GNSS
+    assert e_all[K - 1, 6] < e_all[1, 6]                        # rA converges on SatA's GNSS
 
 
 def test_interrupted_run_is_marked_incomplete(params, monkeypatch):
@@ -373,19 +375,31 @@ def test_interrupted_run_is_marked_incomplete(params, monkeypatch):
     assert "100 s collected" in bps_cli.report_md(dict(res, complete=True), "fps adcs bps")
 
 
-def test_a_diverging_stkf_ends_the_run_with_its_time(params, monkeypatch):
-    """An STKF update whose innovation covariance is not positive definite (LinAlgError) is the filter's
-    divergence: FloatingPointError naming the filter and the time, as for a NaN estimate."""
+def test_a_refused_stkf_update_is_counted_and_a_diverged_stkf_ends_the_run(params, monkeypatch):
+    """An STKF update whose innovation covariance is not positive definite (LinAlgError) is refused, as the flight
+    app refuses one: counted, its sensors stale for the cycle, the run goes on. A state gone NaN is the filter's
+    divergence: FloatingPointError naming the filter and the time."""
+    from ground.adcs import afls
     calls = {"n": 0}
-    real = bps.Afls.update
+    real = afls.Afls.update
 
     def update(self, *a, **kw):
         calls["n"] += 1
         if calls["n"] == 40:
             raise np.linalg.LinAlgError("innovation covariance is not positive definite (LAPACK info 3)")
         return real(self, *a, **kw)
-    monkeypatch.setattr(bps.Afls, "update", update)
-    with pytest.raises(FloatingPointError, match=r"STKF diverged at t = \d+ s: innovation covariance"):
+    monkeypatch.setattr(afls.Afls, "update", update)
+    seen = []
+    res, hist = bps.simulate(ts=20, duration_s=20, seed=1, params=params, truth="two-body",
+                             on_second=lambda k, h, f, x: seen.append(k))
+    assert res["complete"] and calls["n"] > 40
+    real_x = afls.Afls.x
+
+    def nan_after_60(self):
+        x = real_x.fget(self)
+        return x * np.nan if self.now >= 60 else x
+    monkeypatch.setattr(afls.Afls, "x", property(nan_after_60))
+    with pytest.raises(FloatingPointError, match=r"STKF diverged at t = 60 s"):
         bps.simulate(ts=20, duration_s=100, seed=1, params=params, truth="two-body")
 
 

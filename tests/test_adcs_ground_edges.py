@@ -47,11 +47,12 @@ def test_phi_series_truncation_at_the_scenarios_wheel_speeds():
 
 
 def test_bps_flight_software_uses_the_wheel_datasheet_not_the_truth(monkeypatch):
-    """bps.simulate's flight software took the torque limit and the friction model for its compensation from
-    the emulated wheels' own parameters (the truth): a wheel whose friction differs from its datasheet was
-    compensated exactly. It must use the datasheet (WheelParams' defaults) only."""
+    """The flight software bps.simulate flies (the app, in a session) takes the torque limit and the friction
+    model for its compensation from the spacecraft file (the datasheet), not from the emulated wheels' own
+    parameters (the truth): a wheel whose friction differs from its datasheet is not compensated exactly."""
     from emulator.spacecraft import scenario
     from emulator.spacecraft.dynamics import Spacecraft
+    from firmware.adcs import allocation
     from ground.adcs import body_pointing as bps
 
     real_world = scenario.pointing_world
@@ -63,16 +64,17 @@ def test_bps_flight_software_uses_the_wheel_datasheet_not_the_truth(monkeypatch)
         return w
 
     seen = []
-    real_comp = control.friction_compensation
+    real_init = allocation.Allocation.__init__
 
-    def comp(w_rw, coulomb, viscous, smooth):
-        seen.append((coulomb, viscous, smooth))
-        return real_comp(w_rw, coulomb, viscous, smooth)
+    def init(self, *a, **kw):
+        real_init(self, *a, **kw)
+        seen.append((tuple(self.fric), self.torque_max))
 
     monkeypatch.setattr(scenario, "pointing_world", world)
-    monkeypatch.setattr(control, "friction_compensation", comp)
+    monkeypatch.setattr(allocation.Allocation, "__init__", init)
     sc = Spacecraft(wheels=Wheels(WheelParams(**scenario.SCENARIO_WHEELS)))
-    bps.simulate(ts=1.0, duration_s=1.0, seed=0, params=scenario.truth_params(sc), hold_s=2.0)
+    res, _ = bps.simulate(ts=1.0, duration_s=1.0, seed=0, params=scenario.truth_params(sc), hold_s=2.0)
     d = WheelParams()
-    assert seen and all(s == (d.friction_coulomb, d.friction_viscous, d.friction_smooth_rpm * 2 * np.pi / 60)
-                        for s in seen)
+    assert res["complete"] and len(seen) == 1
+    assert seen[0] == ((d.friction_coulomb, d.friction_viscous, d.friction_smooth_rpm * 2 * np.pi / 60),
+                       scenario.thesis_3u()["wheels"]["torque_limit_nm"])

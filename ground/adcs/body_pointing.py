@@ -9,12 +9,13 @@ epoch (139.40 deg), the orbits' t = 0. Sensors (their own time tags): the
 star tracker (20/20/60 arcsec, none at |w| >= 0.1 deg/s) and the tachometers (10 rpm) at each 1 s tick, SatA's
 GNSS and the beacon (60 arcsec) at each tick, SatB's GNSS on SatB's clock (random phase) relayed 2-3 s late.
 
-Flight software at 1 Hz, from the sensor outputs and wheel read-outs only: the APKF (``ground.adcs.apkf``,
-started from the parameter file), the STKF with the EAFLS (``ground.adcs.stkf``/``afls``, the attitude
-covariance 4 P_qq from the APKF as in Sec. 5.3.3) and the controller of ``ground.adcs.control`` (command
-from the STKF's rA, vA, rB; PD on the APKF's q, w; its J, C, Jrw; minimum-norm wheel torques, held 1 s). The
-orbit and field inputs of the APKF's model and of the external-torque feed-forward come from the STKF's rA
-(``EstimatedOrbit``), not from the truth.
+Flight software at 1 Hz, from the sensor outputs and wheel read-outs only: the flight app itself
+(``firmware/adcs/app.py``, in process: ``thesis_world``), its modes, command (from the STKF's rA, vA, rB), PD
+(Eq. 6.5-6.7, the parameter file's J, C, Jrw), saturation and minimum-norm wheel torques (Eq. 6.11), held 1 s;
+its estimators the ground's by default (``ground.adcs.estimators``: the 41-state APKF started from the parameter
+file, the STKF with the EAFLS taking the attitude covariance 4 P_qq from the APKF as in Sec. 5.3.3), or the lean
+ones that fly. The orbit and field inputs of the APKF's model and of the external-torque feed-forward come from
+the STKF's rA, not from the truth.
 
 Sequence (Sec. 6.4.2):
 1. ``calibrate``: nine sets of the Sec. 4.7.1 calibration maneuver (the ``emulator.spacecraft.scenario``
@@ -29,8 +30,7 @@ Sequence (Sec. 6.4.2):
    same gyroscopic, external-torque and friction feed-forward as after it), as the flight app's step 4: with
    idle wheels the residual dipole's torque took the body past the star tracker's 0.1 deg/s ~9 s into the hold
    (measured), and the slew started from a blind, drifting estimate. After the hold and 4 t_s of settling the
-   pointing error
-   (dtheta1, dtheta2, Eq. 6.12-6.17) and the stability (domega1, domega2, Eq. 6.18-6.21) are collected at 10 Hz.
+   pointing error (dtheta1, dtheta2, Eq. 6.12-6.17) and the stability (domega1, domega2, Eq. 6.18-6.21) are collected at 10 Hz.
 
 Parameter file: ``protocol.paramfile`` ("fps-bps-params/1", its keys and the one checker the flight firmware
 uses too); ``torque_scale`` comes from ``absolute_jrw``, ``calibration`` is {seed, sets, duration_s, ...}.
@@ -40,17 +40,14 @@ Units in the outputs: arcsec and arcsec/s; J (Eq. 6.22) in rad^2, like Fig. 6-2'
 
 import io
 import os
-import time
 
 import numpy as np
 
+from emulator.adcs_session import SPAN_MARGIN_S   # the orbit truth's span beyond a run (``truth_span``)
 from emulator.spacecraft import scenario
-from emulator.spacecraft.dynamics import dcm
-from emulator.spacecraft.scenario import HOLD_S, LAG_S, laser_axis
+from emulator.spacecraft.scenario import HOLD_S
 from emulator.spacecraft.wheels import N_WHEELS, WheelParams
-from ground.adcs import apkf, control, flight_world, modes, quat, runs, stkf
-from ground.adcs.afls import Afls
-from ground.adcs.modes import MODE_CODE
+from ground.adcs import apkf, control, flight_world, runs, thesis_world
 from ground.adcs.flight_world import FLIGHT, flight_settle_s                      # noqa: F401 (re-exported)
 from ground.adcs.pointing import (BUDGET_POINTING_3SIGMA, BUDGET_STABILITY_3SIGMA, EST_COLS,  # noqa: F401
                                   MAX_TS_S, SLOW_S, SUMMARY_KEYS, THESIS, TS_THESIS, W_OBJ, add_statistics,
@@ -58,13 +55,11 @@ from ground.adcs.pointing import (BUDGET_POINTING_3SIGMA, BUDGET_STABILITY_3SIGM
                                   orbit_period, pointing_errors, statistics, thesis_3sigma)
 from ground.fileio import write_atomic, write_json
 from protocol import paramfile as pf
-from protocol.units import RAD_PER_ARCSEC
 
 RPM = 2 * np.pi / 60
 FORMAT = pf.FORMAT
 CAL_SETS = 9
 TACH_NOISE_RPM = WheelParams.noise_rpm   # the tachometers' 10 rpm 1 sigma (Sec. 4.8)
-SPAN_MARGIN_S = 2.0   # the orbit truth's span beyond the run (``truth_span``; part of the truth cache's key)
 WORLDS = ("thesis", "flight")
 
 
@@ -207,21 +202,6 @@ def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
                          "relay_delay_s": list(relay_delay_s)})
 
 
-class EstimatedOrbit:
-    """SatA's orbit as the flight software knows it, for the APKF's model (``apkf.Model.orbit``): the STKF's
-    latest rA, vA (at ``t0``) carried along vA, ``position(t)`` = rA + (t - t0) vA. The APKF asks for the
-    mid-step, half a second on, where the orbit's curvature leaves ~1 m (as the flight app's ``_env``)."""
-
-    def __init__(self, t0, x):
-        self.set(t0, x)
-
-    def set(self, t0, x):
-        self.t0, self.r, self.v = float(t0), np.array(x[0:3], dtype=float), np.array(x[3:6], dtype=float)
-
-    def position(self, t):
-        return self.r + (t - self.t0) * self.v
-
-
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
              wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None,
@@ -243,188 +223,37 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     APKF starts and the laser axis of the command and of the pointing error; the parameter file is checked
     against it.
 
-    ``world``: "thesis" (Sec. 6.4 as above; ``flight``'s options are checked, not used) or "flight": the flight
-    software that flies, in process (``flight_world.simulate``; ``flight`` overrides its options, ``feedforward``
-    must stay on and
-    ``wheel_speed_limit_rpm`` and ``settle_ts`` do not apply: the file's limits, and the figures over the
-    pointing passes after the first orbit); ``estimator`` "lean" (default) or "ground" (``flight_world.simulate``).
-    The thesis world flies the ground's 41-state APKF and full STKF (``estimator`` None)."""
+    ``world``: "thesis" (Sec. 6.4 as above; ``thesis_world.simulate``; ``flight``'s options are checked, not used)
+    or "flight" (``flight_world.simulate``: ``flight`` overrides its options, ``wheel_speed_limit_rpm`` and
+    ``settle_ts`` do not apply: the file's limits, and the figures over the pointing passes after the first orbit).
+    Both fly the flight app in process, which always feeds its modelled torques forward (``feedforward`` must stay
+    on). ``estimator``: its filters, "ground" (the thesis world's default: the 41-state APKF and the full STKF) or
+    "lean" (the flight world's default: those that fly)."""
     ts = check_ts(ts)
     if world not in WORLDS:
         raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
+    if not feedforward:
+        raise ValueError("the flight app always feeds its modelled torques forward (feedforward)")
     if world == "flight":
-        if not feedforward:
-            raise ValueError("the flight software always feeds its modelled torques forward (feedforward)")
         return flight_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
                                      truth=truth, cache_dir=cache_dir, progress=progress, hold_s=hold_s,
                                      on_second=on_second, tach_noise_rpm=tach_noise_rpm, spacecraft=spacecraft,
                                      flight=flight, estimator=estimator or "lean")
-    if estimator is not None:
-        raise ValueError("the thesis world flies the ground's estimators; --estimator is the flight world's")
     flight_world.check_flight(flight)                  # known options, which the thesis world does not use
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
     d = spacecraft or scenario.thesis_3u()
-    xp, Pp, jxx, scale = check_params(params, spacecraft=d)
+    check_params(params, spacecraft=d)
     if not (np.isfinite(duration_s) and duration_s >= 1):
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
-    t_settle = hold_s + settle_ts * ts
-    K = int(np.ceil(t_settle + duration_s))
     if tach_noise_rpm is not None:
         if not (np.isfinite(tach_noise_rpm) and tach_noise_rpm > 0):
             raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
         d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
-    world = scenario.pointing_world(K, seed, satb_gnss, truth, cache_dir, SPAN_MARGIN_S, n_tags=K,   # Sec. 6.4.1
-                                    wheel_speed_limit_rpm=wheel_speed_limit_rpm, spacecraft=d)
-    rate, xg, wheels, sc, st = world.rate, world.xg, world.wheels, world.sc, world.st
-    log = modes.ModeLog("INIT", 0.0)
-    period = orbit_period(xg[0, 0])
-    flog = {k: np.full((K + 1, 1), np.nan) for k in ("mode", "st_ok")}
-    gnss_a, beacon, relay, tb, xb_tb = world.gnss_a, world.beacon, world.relay, world.tb, world.xb_tb
-    # flight software state
-    orb = EstimatedOrbit(0.0, world.stkf_x0)
-    model = runs.apkf_model(d)
-    model.jxx, model.orbit, model.field = jxx, orb, world.field
-    ds = d["wheels"]                                 # the wheels' torque limit and friction: nominal, not truth
-    lb = laser_axis(d)
-    f_stkf = Afls(world.stkf_x0, np.diag(world.stkf_P0_diag), 0.0, LAG_S,
-                  stkf.f, stkf.Phi, lambda dt: stkf.Q(dt), keep_generated=False, parts=stkf.PARTS)
-    I6 = np.eye(6)
-    flt = None
-    q_prev = None
-    u = np.zeros(N_WHEELS)
-    n10 = K * 10 + 1
-    hist = {"t": np.arange(n10) / 10.0, "q": np.zeros((n10, 4)), "w": np.zeros((n10, 3)),
-            "w_rel": np.zeros((n10, 4))}
-    fsw = {k: np.full((K + 1, m), np.nan) for k, m in (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3),
-                                                        ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
-                                                        ("wc", 3), ("x_stkf", 12), ("est_err", len(EST_COLS)))}
-    sub = rate // 10                                 # the grid's rows at the 10 Hz truth steps
-    hist["q"][0], hist["w"][0], hist["w_rel"][0] = sc.q, sc.omega, sc.omega_rw_rel
-    jb = 0
-    complete = True
-    k_done = 0
-    t_wall = time.perf_counter()
-    from tqdm import tqdm
-    bar = tqdm(total=K, desc="bps ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), unit="s", leave=False,
-               disable=not progress)
-    try:
-        for k in range(K + 1):
-            t = float(k)
-            # sensors at t (own time tags: t, SatB's tb)
-            tach = wheels.read_speed_rpm(sc.omega_rw_rel) * (2 * np.pi / 60)
-            q_st, st_ok = st.measure(sc.q, sc.omega)
-            x_true = xg[k * rate].ravel()
-            zg = gnss_a.measure(x_true[0:6])
-            y = beacon.measure_dcm(x_true[0:3], x_true[6:9], dcm(sc.q))
-            due = []
-            if relay is not None:
-                while jb < tb.size and tb[jb] <= t:
-                    relay.sample(tb[jb], xb_tb[jb])
-                    jb += 1
-                due = relay.due(t)
-            # flight software (sensor outputs and wheel read-outs only)
-            if flt is None:
-                if st_ok and q_prev is not None:
-                    w0 = quat.rotvec(quat.quat_mul(q_st, quat.conj(q_prev)))
-                    x0 = apkf.initial_state(q_st, w0, tach)
-                    x0[7:30] = xp
-                    flt = apkf.APKF(x0, model=model, case=1)
-                    flt.P[apkf.PARAMS, apkf.PARAMS] = Pp
-                    log.set("HOLD", t, "the APKF started from two star-tracker outputs")
-                q_prev = q_st if st_ok else None
-            else:
-                orb.set(t - 1.0, f_stkf.x)                 # the STKF's rA, vA at t - 1 (not yet predicted to t)
-                flt.step(t - 1.0, tach, q_st if st_ok else None)
-                if not np.all(np.isfinite(flt.x)):
-                    raise FloatingPointError("APKF diverged at t = %.0f s" % t)
-            if flt is not None:
-                q_hat, w_hat, P_att = flt.x[0:4], flt.x[4:7], 4.0 * flt.P[0:3, 0:3]
-            else:
-                q_hat, w_hat = (q_st if st_ok else np.array([0, 0, 0, 1.0])), np.zeros(3)
-                P_att = np.diag((np.array(d["star_tracker"]["sigma_arcsec"]) * RAD_PER_ARCSEC) ** 2)
-            A_hat = dcm(q_hat)
-            if k > 0:
-                f_stkf.predict(t)
-            try:
-                R_gb = stkf.R_gnss_beacon(gnss_a.R, stkf.h_beacon(f_stkf.x, A_hat), beacon.sigma, P_att)
-                f_stkf.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
-                for tm, z in due:                       # SatB's GNSS: H = I on SatB's part (Eq. 5.12)
-                    f_stkf.update(z, relay.gnss.R, lambda x: (x, I6), t=tm, part=stkf.SAT_B)
-            except np.linalg.LinAlgError as exc:        # S not positive definite: the filter has diverged
-                raise FloatingPointError("STKF diverged at t = %.0f s: %s" % (t, exc))
-            xh = f_stkf.x
-            if not np.all(np.isfinite(xh)):
-                raise FloatingPointError("STKF diverged at t = %.0f s" % t)
-            if flt is not None:
-                x = flt.x
-                J = apkf.inertia(x, model) / scale          # physical units (see ``absolute_jrw``)
-                C = apkf.c_rw(x, model)
-                if t >= hold_s:
-                    qc, wc = control.command_rate(xh, stkf.f, lb)
-                    if log.mode == "HOLD":
-                        log.set("POINT", t, "the hold is over")
-                else:                                       # the hold: rate damping (q_c = q_hat, w_c = 0)
-                    qc, wc = q_hat, np.zeros(3)
-                Kp, Dd = control.gains(J, ts)
-                h_w = (C * x[26:30] / scale) @ x[38:42]     # the wheels' momentum (body frame, N m s)
-                H = J @ w_hat + h_w if feedforward else None
-                tff = None
-                if feedforward:
-                    tff = control.external_torque(J, x[15:18] / scale, x[7:10] / scale, q_hat, xh[0:3],
-                                                  model.field.field(xh[0:3], t))
-                tau_c = control.pd_torque(q_hat, w_hat, qc, wc, Kp, Dd, H, tff)
-                tau_c = control.saturate(tau_c, C, ds["torque_limit_nm"])
-                u = control.wheel_torques(tau_c, C, null_fraction=0.0)        # Eq. 6.11 (no null torque)
-                if feedforward:
-                    u = u + control.friction_compensation(tach, ds["friction_coulomb_nm"],
-                                                          ds["friction_viscous_nms_rad"],
-                                                          ds["friction_smooth_rpm"] * 2 * np.pi / 60)
-                fsw["qc"][k], fsw["tau_c"][k], fsw["wc"][k] = qc, tau_c, wc
-                if tff is not None:
-                    fsw["tau_ff"][k] = tff
-            fsw["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)        # truth, for the record only
-            flog["mode"][k], flog["st_ok"][k] = float(MODE_CODE[log.mode]), st_ok
-            fsw["q_hat"][k], fsw["w_hat"][k], fsw["u"][k] = q_hat, w_hat, u
-            fsw["x_stkf"][k] = xh                                          # rA, vA, rB, vB estimated
-            if np.all(np.isfinite(q_hat)):
-                fsw["est_err"][k] = estimate_errors(q_hat, w_hat, xh[0:3], xh[6:9], hist["q"][10 * k],
-                                                    hist["w"][10 * k], x_true[0:3], x_true[6:9])
-            if k == K:
-                k_done = k
-                break
-            wheels.command_all(u)
-            for j in range(1, 11):
-                sc.step()
-                i = k * 10 + j
-                hist["q"][i], hist["w"][i], hist["w_rel"][i] = sc.q, sc.omega, sc.omega_rw_rel
-            if not np.all(np.isfinite(sc.x)):
-                raise FloatingPointError("truth diverged at t = %.0f s" % sc.t)
-            k_done = k + 1
-            if on_second is not None:
-                on_second(k, hist, fsw, xg[(10 * k + 1) * sub:(10 * k + 10) * sub + 1:sub])
-            bar.update(1)
-    except KeyboardInterrupt:
-        complete = False
-    finally:
-        bar.close()
-    dth, dom, rows = close_history(hist, dict(fsw, **flog), xg, rate, k_done, lb)
-    sel = hist["t"] >= t_settle
-    budget = error_budget(hist, xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb)
-    res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
-           "duration_s": float(duration_s), "settle_s": float(t_settle), "simulated_s": float(k_done),
-           "complete": bool(complete and k_done == K), "feedforward": bool(feedforward),
-           "wall_s": time.perf_counter() - t_wall, "wheel_speed_clips": wheels.counters(),
-           "max_wheel_speed_rpm": float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi)),
-           "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm), "tach_noise_rpm": d["wheels"]["tach_noise_rpm"],
-           "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "spacecraft": d["name"], "world": "thesis",
-           "orbit_period_s": period, "mode_changes": log.changes, "time_in_mode_s": log.time_in(k_done),
-           "apkf_attitude_resets": [] if flt is None else [list(r) for r in flt.resets]}
-    secs = np.arange(k_done + 1) >= t_settle         # the star tracker's blind share after the settling
-    res["star_tracker_blind_share"] = float(1.0 - rows["st_ok"][secs, 0].mean()) if secs.any() else None
-    add_statistics(res, dth, dom, sel)
-    res["budget"] = budget
-    return res, hist
+    return thesis_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
+                                 truth=truth, cache_dir=cache_dir, progress=progress, settle_ts=settle_ts,
+                                 hold_s=hold_s, on_second=on_second, wheel_speed_limit_rpm=wheel_speed_limit_rpm,
+                                 spacecraft=d, estimator=estimator or "ground")
 
 
 def save_history(path, hist):

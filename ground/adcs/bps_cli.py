@@ -30,6 +30,7 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from ground.adcs import body_pointing as bps, campaign, control, flight_world, runs
+from ground.adcs.modes import MODE_CODE, MODES
 from ground.adcs.options import add_satb_gnss_option, add_spacecraft_option, load_spacecraft
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 
@@ -305,7 +306,7 @@ def plot_flight(out, hist, s):
     from ground.plots import save_png
     t, T = hist["t"], s["orbit_period_s"]
     t1 = np.arange(len(hist["fsw_mode"]))
-    point = hist["fsw_mode"][:, 0] == bps.MODE_CODE["POINT"]
+    point = hist["fsw_mode"][:, 0] == MODE_CODE["POINT"]
     fig, ax = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
     for i, (key, unit) in enumerate((("dtheta_arcsec", "arcsec"), ("domega_arcsec_s", "arcsec/s"))):
         ax[i].plot(t / T, hist[key], lw=0.4)
@@ -315,8 +316,8 @@ def plot_flight(out, hist, s):
             ax[i].set_ylim(-lim, lim)
         ax[i].set_ylabel("%s (%s)" % ("pointing δθ1, δθ2" if i == 0 else "stability δω1, δω2", unit))
     ax[2].step(t1 / T, hist["fsw_mode"][:, 0], where="post", lw=0.8)
-    ax[2].set_yticks(range(len(bps.modes.MODES)))
-    ax[2].set_yticklabels(bps.modes.MODES)
+    ax[2].set_yticks(range(len(MODES)))
+    ax[2].set_yticklabels(MODES)
     ax[2].set_xlabel("time (orbits of %.0f s)" % T)
     for a_ in ax:
         for k in range(1, int(t[-1] / T) + 1):

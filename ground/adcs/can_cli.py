@@ -19,10 +19,12 @@ import sys
 import numpy as np
 
 from emulator.adcs_session import RUNTIMES
+from emulator.spacecraft import scenario
 from ground.adcs import body_pointing as bps, campaign, runs
 from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_spacecraft_option, faults_from_args,
                              load_spacecraft)
 from ground.fileio import output_folder, run_folder, write_json
+from protocol.units import RAD_PER_ARCSEC
 
 FIGURE = "pointing.png"
 STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_gnss", "miss_beacon", "n_gnss_b",
@@ -130,8 +132,8 @@ def run(a):
         summary["star_tracker_blind_share"] = session.blind_share(settle)
         summary["max_body_rate_deg_s"] = float(np.degrees(np.linalg.norm(w, axis=1).max())) if len(w) else None
     if len(h["t"]):
-        dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"], bps.laser_axis(d))
-        h["dtheta_arcsec"], h["domega_arcsec_s"] = dth / bps.RAD_PER_ARCSEC, dom / bps.RAD_PER_ARCSEC
+        dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"], scenario.laser_axis(d))
+        h["dtheta_arcsec"], h["domega_arcsec_s"] = dth / RAD_PER_ARCSEC, dom / RAD_PER_ARCSEC
         sel = h["t"] >= settle
         if sel.sum() >= 2:
             summary["pointing"] = bps.statistics(dth[sel], dom[sel])

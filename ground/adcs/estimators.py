@@ -21,10 +21,25 @@ import numpy as np
 from emulator.spacecraft.environment import TiltedDipoleField
 from firmware.adcs import apkf_lean, estimation as lean
 from ground.adcs import afls, apkf, quat, runs, stkf
-from ground.adcs.body_pointing import EstimatedOrbit, check_params
+from ground.adcs.body_pointing import check_params
 from protocol.units import RAD_PER_ARCSEC
 
 I6 = np.eye(6)
+
+
+class EstimatedOrbit:
+    """SatA's orbit as the flight software knows it, for the APKF's model (``apkf.Model.orbit``): the STKF's
+    latest rA, vA (at ``t0``) carried along vA, ``position(t)`` = rA + (t - t0) vA. The APKF asks for the
+    mid-step, half a second on, where the orbit's curvature leaves ~1 m (as the flight app's ``_env``)."""
+
+    def __init__(self, t0, x):
+        self.set(t0, x)
+
+    def set(self, t0, x):
+        self.t0, self.r, self.v = float(t0), np.array(x[0:3], dtype=float), np.array(x[3:6], dtype=float)
+
+    def position(self, t):
+        return self.r + (t - self.t0) * self.v
 
 
 def estimation(spacecraft):
@@ -160,7 +175,10 @@ class GroundEstimation:
                 except (ValueError, np.linalg.LinAlgError):
                     hl.n_refused += 1
         rd.nb = 0
-        self.xs[:] = array("d", f.x.tolist())
+        x = f.x
+        if not np.all(np.isfinite(x)):
+            raise FloatingPointError("STKF diverged at t = %.0f s" % t)
+        self.xs[:] = array("d", x.tolist())
         self.sig[:] = np.sqrt(np.maximum(np.diag(f.Pk), 0.0))
 
     def sigma_att(self):

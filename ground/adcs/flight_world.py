@@ -14,26 +14,19 @@ The world: the spacecraft file's wheels at their speed and torque limits, drag a
 ``duration_s`` is the whole run from t = 0; the figures are over the POINT samples of the orbits after the first.
 """
 
-import time
-
 import numpy as np
 
-from emulator.adcs_session import AdcsSession
 from emulator.spacecraft import scenario
 from emulator.spacecraft.scenario import HOLD_S, laser_axis
 from firmware.adcs.flight import FLIGHT, options
-from ground.adcs import control
+from ground.adcs import app_host, control
+from ground.adcs.app_host import ESTIMATORS  # noqa: F401  (flight_world.ESTIMATORS, the CLI's choices)
 from ground.adcs.modes import MODE_CODE, time_in
-from ground.adcs.pointing import (EST_COLS, TS_THESIS, add_statistics, check_ts, close_history, error_budget,
-                                  estimate_errors, orbit_period, statistics)
-from protocol.units import RAD_PER_ARCSEC
+from ground.adcs.pointing import (TS_THESIS, add_statistics, check_ts, close_history, error_budget, orbit_period,
+                                  statistics)
 
 DEG = np.pi / 180.0
-ESTIMATORS = ("lean", "ground")
 ACQUIRE_MARGIN_S = 60.0     # flight_settle_s: the re-acquisition after the blind slew and a short second slew
-FSW = (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3), ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
-       ("wc", 3), ("x_stkf", 12), ("est_err", len(EST_COLS)), ("m_cmd", 3), ("h_w", 3), ("mode", 1),
-       ("st_ok", 1), ("beacon_used", 1), ("mtq_sat", 1), ("att_sigma", 1))
 
 
 def flight_settle_s(d, ts=TS_THESIS, flight=None, hold_s=HOLD_S):
@@ -56,41 +49,6 @@ def check_flight(flight):
     return options({"world": "flight", "flight": flight})
 
 
-class _Recorder:
-    """The flight software's state after each cycle (``AdcsSession``'s probe): the app's own arrays, copied."""
-
-    def __init__(self, K):
-        self.s = None                        # the session, set once it exists
-        self.fsw = {k: np.full((K + 1, m), np.nan) for k, m in FSW}
-        self.resets = []
-        self._n_resets = 0
-
-    def __call__(self, tick, t, u):
-        s, app, f, k = self.s, self.s.app, self.fsw, tick
-        sc = s.sc
-        f["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)          # truth, for the record only
-        f["mode"][k] = app.mode
-        f["st_ok"][k] = s.st_valid_log[k]
-        f["beacon_used"][k] = app.est.beacon_used
-        f["x_stkf"][k] = app.est.xs
-        a = app.est.apkf
-        if a is None:
-            return
-        f["q_hat"][k], f["w_hat"][k] = a.x[0:4], a.x[4:7]
-        f["att_sigma"][k] = app.est.sigma_att()                          # rad, the attitude's 1 sigma (rss)
-        md, act = app.modes, app.act
-        f["qc"][k], f["wc"][k], f["tau_c"][k], f["u"][k], f["tau_ff"][k] = md.qc, md.wc, act.tau, u, act.tff
-        f["m_cmd"][k], f["mtq_sat"][k] = act.m_cmd, act.mtq_sat
-        f["h_w"][k] = np.reshape(act.cjrw, (3, 4)) @ np.asarray(app.rd.wp)
-        x = s.xg[k * scenario.WORLD_RATE_HZ]
-        f["est_err"][k] = estimate_errors(f["q_hat"][k], f["w_hat"][k], app.est.xs[0:3], app.est.xs[6:9], sc.q, sc.omega,
-                                          x[0, 0:3], x[1, 0:3])
-        est = app.est
-        if est.n_resets != self._n_resets:
-            self._n_resets = est.n_resets
-            self.resets.append((t, est.reset_nis, est.reset_arcsec))
-
-
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, hold_s=HOLD_S, on_second=None, tach_noise_rpm=None, spacecraft=None,
              flight=None, faults=None, estimator="lean"):
@@ -103,8 +61,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     "ground" (the 41-state APKF and the full STKF, ``ground.adcs.estimators``, for analysis: the same modes,
     command and allocation on other estimates)."""
     ts = check_ts(ts)
-    if estimator not in ESTIMATORS:
-        raise ValueError("estimator must be one of %s, got %r" % (", ".join(ESTIMATORS), estimator))
+    app_host.estimation_for(estimator, None)            # a known estimator, before anything runs
     fo = check_flight(flight)
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
@@ -119,41 +76,13 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
         d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
     K = int(np.ceil(duration_s))
-    rec = _Recorder(K)
-    est = None
-    if estimator == "ground":
-        from ground.adcs.estimators import estimation
-        est = estimation(d)
-    s = rec.s = AdcsSession(runtime="inproc", satb_gnss=satb_gnss, seed=seed, duration_s=float(K), ts=ts,
-                            params=params, faults=faults, truth=truth, cache_dir=cache_dir, hold_s=hold_s,
-                            spacecraft=d, world="flight", flight=fo, probe=rec, estimation=est)
+    s, rec, hist, k_done, complete, wall_s = app_host.fly(
+        K, "bps flight ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), progress, on_second,
+        satb_gnss=satb_gnss, seed=seed, ts=ts, params=params, faults=faults, truth=truth, cache_dir=cache_dir,
+        hold_s=hold_s, spacecraft=d, world="flight", flight=fo, estimation=app_host.estimation_for(estimator, d))
     lb = laser_axis(d)
-    n10 = K * 10 + 1
-    hist = {"t": np.arange(n10) / 10.0, "q": np.zeros((n10, 4)), "w": np.zeros((n10, 3)),
-            "w_rel": np.zeros((n10, 4))}
-    hist["q"][0], hist["w"][0], hist["w_rel"][0] = s.sc.q, s.sc.omega, s.sc.omega_rw_rel
-    sub = scenario.WORLD_RATE_HZ // 10
-    complete, k_done = True, 0
-    t_wall = time.perf_counter()
-    from tqdm import tqdm
-    bar = tqdm(total=K, desc="bps flight ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), unit="s",
-               leave=False, disable=not progress)
-    try:
-        with s:
-            for k in range(K):
-                c = s.cycle()
-                sl = slice(10 * k + 1, 10 * k + 11)
-                hist["q"][sl], hist["w"][sl], hist["w_rel"][sl] = c["q"], c["w"], c["w_rel"]
-                k_done = k + 1
-                if on_second is not None:
-                    on_second(k, hist, rec.fsw, s.xg[(10 * k + 1) * sub:(10 * k + 10) * sub + 1:sub])
-                bar.update(1)
-    except KeyboardInterrupt:
-        complete = False
-    finally:
-        bar.close()
     res, hist = _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s,
-                        time.perf_counter() - t_wall)
+                        wall_s)
     res["estimator"] = estimator
     if estimator == "ground":
         res["flight_software"] = ("firmware/adcs/app.py in process with the ground's estimators (41-state APKF, "

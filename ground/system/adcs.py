@@ -52,9 +52,10 @@ def _ground_run(spec, params, on_cycle=None, stop=None):
     """``bps.simulate`` for the spec; returns (result, history, estimate errors (K+1, 8)). ``on_cycle(msg)``
     gets each second as the simulation makes it (the body pointing error of its ten steps, Eq. 6.12-6.21, on the
     truth ``simulate`` hands over, and the estimate errors at its start)."""
+    from emulator.spacecraft import scenario
     from ground.adcs import body_pointing as bps
     d = _vehicle(spec)
-    lb = bps.laser_axis(d)
+    lb = scenario.laser_axis(d)
 
     def second(k, hist, fsw, x):
         if stop is not None and stop.is_set():
@@ -109,6 +110,7 @@ def _send_firmware(spec, params, q, stop):
     the orbit truth and its cache as the ground reference's, where the session takes them."""
     from emulator.adcs_session import AdcsSession
     from ground.adcs import body_pointing as bps
+    from emulator.spacecraft import scenario
     n = int(np.ceil(_t_settle(spec) + spec["adcs_duration_s"]))
     q.put(("info", {"settle_s": _t_settle(spec)}))
     link_faults = None
@@ -116,7 +118,7 @@ def _send_firmware(spec, params, q, stop):
         from protocol.faults import LinkFaults
         link_faults = LinkFaults.parse(spec["link_faults"])
     d = _vehicle(spec)
-    lb = bps.laser_axis(d)
+    lb = scenario.laser_axis(d)
     s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"], duration_s=float(n),
                     ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), truth=spec["truth"],
                     cache_dir=spec["cache_dir"], faults=spec.get("faults"), link_faults=link_faults, spacecraft=d,

@@ -1,0 +1,99 @@
+"""The ground's worlds flying the flight app in process: ``fly`` runs ``emulator.adcs_session.AdcsSession`` with
+runtime ``inproc`` (the very packets' bytes ``fps adcs can`` puts on the CAN bus), records the truth at 10 Hz and
+the flight software's state after each 1 Hz cycle (``Recorder``, read from the app's components). The thesis world
+(``thesis_world``) and the flight world (``flight_world``) add their statistics; nothing of the modes, the
+command, the control law or the wheel allocation is restated on the ground.
+"""
+
+import time
+
+import numpy as np
+
+from emulator.adcs_session import AdcsSession
+from emulator.spacecraft import scenario
+from ground.adcs.pointing import EST_COLS, estimate_errors
+
+# the flight software's state recorded each second (history ``fsw_<name>``; NaN before the APKF starts)
+FSW = (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3), ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
+       ("wc", 3), ("x_stkf", 12), ("est_err", len(EST_COLS)), ("m_cmd", 3), ("h_w", 3), ("mode", 1),
+       ("st_ok", 1), ("beacon_used", 1), ("mtq_sat", 1), ("att_sigma", 1))
+ESTIMATORS = ("lean", "ground")
+
+
+class Recorder:
+    """The flight software's state after each cycle (``AdcsSession``'s probe): the app's own arrays, copied."""
+
+    def __init__(self, K):
+        self.s = None                        # the session, set once it exists
+        self.fsw = {k: np.full((K + 1, m), np.nan) for k, m in FSW}
+        self.resets = []
+        self._n_resets = 0
+
+    def __call__(self, tick, t, u):
+        s, app, f, k = self.s, self.s.app, self.fsw, tick
+        sc = s.sc
+        f["tau_ext_true"][k] = sc.external_torque(sc.t, sc.x)          # truth, for the record only
+        f["mode"][k] = app.mode
+        f["st_ok"][k] = s.st_valid_log[k]
+        est = app.est
+        f["beacon_used"][k] = est.beacon_used
+        f["x_stkf"][k] = est.xs
+        a = est.apkf
+        if a is None:
+            return
+        f["q_hat"][k], f["w_hat"][k] = a.x[0:4], a.x[4:7]
+        f["att_sigma"][k] = est.sigma_att()                              # rad, the attitude's 1 sigma (rss)
+        md, act = app.modes, app.act
+        f["qc"][k], f["wc"][k], f["tau_c"][k], f["u"][k], f["tau_ff"][k] = md.qc, md.wc, act.tau, u, act.tff
+        f["m_cmd"][k], f["mtq_sat"][k] = act.m_cmd, act.mtq_sat
+        f["h_w"][k] = np.reshape(act.cjrw, (3, 4)) @ np.asarray(app.rd.wp)
+        x = s.xg[k * scenario.WORLD_RATE_HZ]
+        f["est_err"][k] = estimate_errors(f["q_hat"][k], f["w_hat"][k], est.xs[0:3], est.xs[6:9], sc.q, sc.omega,
+                                          x[0, 0:3], x[1, 0:3])
+        if est.n_resets != self._n_resets:
+            self._n_resets = est.n_resets
+            self.resets.append((t, est.reset_nis, est.reset_arcsec))
+
+
+def estimation_for(estimator, spacecraft):
+    """The app's ``estimation`` for ``estimator`` ("lean": None, the filters that fly; "ground": the 41-state APKF
+    and the full STKF, ``ground.adcs.estimators``) on the checked spacecraft file ``spacecraft``."""
+    if estimator not in ESTIMATORS:
+        raise ValueError("estimator must be one of %s, got %r" % (", ".join(ESTIMATORS), estimator))
+    if estimator == "lean":
+        return None
+    from ground.adcs.estimators import estimation
+    return estimation(spacecraft)
+
+
+def fly(K, desc, progress=False, on_second=None, **session):
+    """K cycles of the app in process (``AdcsSession(runtime="inproc", **session)``); returns (session,
+    recorder, hist, k_done, complete, wall_s): ``hist`` the truth at 10 Hz (t, q, w, w_rel; rows up to 10 k_done
+    filled), ``complete`` False when a KeyboardInterrupt stopped it. ``on_second(k, hist, fsw, x)`` after cycle k
+    (``body_pointing.simulate``'s)."""
+    rec = Recorder(K)
+    s = rec.s = AdcsSession(runtime="inproc", duration_s=float(K), probe=rec, **session)
+    n10 = K * 10 + 1
+    hist = {"t": np.arange(n10) / 10.0, "q": np.zeros((n10, 4)), "w": np.zeros((n10, 3)),
+            "w_rel": np.zeros((n10, 4))}
+    hist["q"][0], hist["w"][0], hist["w_rel"][0] = s.sc.q, s.sc.omega, s.sc.omega_rw_rel
+    sub = scenario.WORLD_RATE_HZ // 10
+    complete, k_done = True, 0
+    t_wall = time.perf_counter()
+    from tqdm import tqdm
+    bar = tqdm(total=K, desc=desc, unit="s", leave=False, disable=not progress)
+    try:
+        with s:
+            for k in range(K):
+                c = s.cycle()
+                sl = slice(10 * k + 1, 10 * k + 11)
+                hist["q"][sl], hist["w"][sl], hist["w_rel"][sl] = c["q"], c["w"], c["w_rel"]
+                k_done = k + 1
+                if on_second is not None:
+                    on_second(k, hist, rec.fsw, s.xg[(10 * k + 1) * sub:(10 * k + 10) * sub + 1:sub])
+                bar.update(1)
+    except KeyboardInterrupt:
+        complete = False
+    finally:
+        bar.close()
+    return s, rec, hist, k_done, complete, time.perf_counter() - t_wall

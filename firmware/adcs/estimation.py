@@ -108,8 +108,6 @@ class Estimation:
         self.t_st_prev = 0.0
         self.rmid, self.b, self.Patt = linalg.zeros(3), linalg.zeros(3), linalg.zeros(9)
         self.beacon_used = False            # the STKF took this cycle's beacon
-        self.n_resets = 0                   # attitude resets by the innovation gate; the last one's NIS and angle
-        self.reset_nis = self.reset_arcsec = 0.0
         self.fly = fo is not None
         if self.fly:
             self.gate = float(fo["innovation_gate"])
@@ -199,10 +197,10 @@ class Estimation:
         nis = flight.nis3(self.z3, a.P, a.model.R)
         if nis > self.gate:
             flight.reset_attitude(a.x, a.P, rd.qst, a.model.R)
-            self.n_resets += 1
-            self.reset_nis = nis
-            z = self.z3
-            self.reset_arcsec = 2.0 * math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) / RAD_PER_ARCSEC
+            hl, z = self.health, self.z3
+            hl.n_resets += 1
+            hl.reset_nis = nis
+            hl.reset_arcsec = 2.0 * math.sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) / RAD_PER_ARCSEC
         elif not apkf_lean.update(a.x, a.P, rd.qst, a.model, a.work):
             a.skipped += 1
 

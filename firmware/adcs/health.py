@@ -24,6 +24,8 @@ class Health:
         self.miss_st = self.miss_gnss = self.miss_beacon = 0
         self.n_st_invalid = self.n_beacon_invalid = self.n_gnss_b = self.n_gnss_b_drop = 0
         self.n_refused = 0                  # measurements (or predictions) the filters refused, fixes dropped
+        self.n_resets = 0                   # attitude resets by the innovation gate; the last one's NIS and angle
+        self.reset_nis = self.reset_arcsec = 0.0
         self.last_ok = {"st": 0.0, "gnss": 0.0, "beacon": 0.0, "gnss_b": 0.0}
         self.gnss_t = -1.0                  # the time of SatA's last usable fix (-1: never)
         self.stale = 0

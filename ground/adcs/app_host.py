@@ -50,9 +50,10 @@ class Recorder:
         x = s.xg[k * scenario.WORLD_RATE_HZ]
         f["est_err"][k] = estimate_errors(f["q_hat"][k], f["w_hat"][k], est.xs[0:3], est.xs[6:9], sc.q, sc.omega,
                                           x[0, 0:3], x[1, 0:3])
-        if est.n_resets != self._n_resets:
-            self._n_resets = est.n_resets
-            self.resets.append((t, est.reset_nis, est.reset_arcsec))
+        hl = app.health
+        if hl.n_resets != self._n_resets:
+            self._n_resets = hl.n_resets
+            self.resets.append((t, hl.reset_nis, hl.reset_arcsec))
 
 
 def estimation_for(estimator, spacecraft):

@@ -46,18 +46,18 @@ import numpy as np
 from emulator.adcs_session import SPAN_MARGIN_S   # the orbit truth's span beyond a run (``truth_span``)
 from emulator.spacecraft import scenario
 from emulator.spacecraft.scenario import HOLD_S
-from emulator.spacecraft.wheels import N_WHEELS, WheelParams
+from emulator.spacecraft.wheels import WheelParams
 from ground.adcs import apkf, control, flight_world, runs, thesis_world
 from ground.adcs.flight_world import FLIGHT, flight_settle_s                      # noqa: F401 (re-exported)
 from ground.adcs.pointing import (BUDGET_POINTING_3SIGMA, BUDGET_STABILITY_3SIGMA, EST_COLS,  # noqa: F401
                                   MAX_TS_S, SLOW_S, SUMMARY_KEYS, THESIS, TS_THESIS, W_OBJ, add_statistics,
                                   check_ts, close_history, error_budget, estimate_errors, l_frame, objective,
                                   orbit_period, pointing_errors, statistics, thesis_3sigma)
+from ground.adcs.params import (FORMAT, X_PARTS, check_params, load_params, params_from_apkf,  # noqa: F401
+                                write_params)
 from ground.fileio import write_atomic, write_json
-from protocol import paramfile as pf
 
 RPM = 2 * np.pi / 60
-FORMAT = pf.FORMAT
 CAL_SETS = 9
 TACH_NOISE_RPM = WheelParams.noise_rpm   # the tachometers' 10 rpm 1 sigma (Sec. 4.8)
 WORLDS = ("thesis", "flight")
@@ -78,47 +78,6 @@ def torque_scale(x, jrw_abs, model):
     """s_hat = mean over wheels of Jrw_filter |c_i| / Jrw_abs (|c_i| the unnormalised Eq. 4.60 column)."""
     cn = np.sqrt(1 + x[18:22] ** 2 + x[22:26] ** 2)
     return float(np.mean(x[26:30] * cn / jrw_abs))
-
-
-# The parameter file's "x" (protocol.paramfile): its parts, in order, and where each sits in the APKF's state x (in
-# P, one row lower)
-def _x_slices(start=7):
-    out = []
-    for k, n in pf.X_PARTS:
-        out.append((k, slice(start, start + n)))
-        start += n
-    return tuple(out)
-
-
-X_PARTS = _x_slices()
-
-
-def params_from_apkf(x, P, jxx, meta, scale=1.0):
-    return {"format": FORMAT, "wheels": N_WHEELS, "jxx_ref_kgm2": float(jxx), "torque_scale": float(scale),
-            "x": {k: x[s].tolist() for k, s in X_PARTS},
-            "P": P[apkf.PARAMS, apkf.PARAMS].tolist(), "calibration": meta}
-
-
-def check_params(d, where="parameter file", spacecraft=None):
-    """Validate a parameter file dict against the spacecraft (``protocol.paramfile.check``; ``spacecraft`` a
-    checked spacecraft file, None: the thesis's 3U); returns (x_params (23), P (23 x 23), jxx, torque_scale)."""
-    try:
-        c = pf.check(d, spacecraft)
-    except ValueError as exc:
-        raise ValueError("%s: %s" % (where, exc)) from None
-    xp = np.array([v for k, _ in X_PARTS for v in c["x"][k]])
-    return xp, np.array(c["P"]), c["jxx_ref_kgm2"], c["torque_scale"]
-
-
-def load_params(path, spacecraft=None):
-    from ground.fileio import read_json
-    d = read_json(path, "parameter file")
-    return check_params(d, path, spacecraft) + (d,)
-
-
-def write_params(path, d, spacecraft=None):
-    check_params(d, path, spacecraft)
-    write_json(path, d)
 
 
 # --- 1. calibration ----------------------------------------------------------------------------------------

@@ -8,8 +8,8 @@ on either; ``estimation(spacecraft, field)`` is the factory a run passes.
 What the app reads of its estimator: ``apkf`` (None until it starts; ``apkf.x`` with q, w, tau_d in its first
 ten entries, the lean APKF's layout), ``xs`` (the STKF's [rA, vA, rB, vB]), ``Patt`` (the attitude covariance the
 beacon takes, 9 flat), ``model`` (the lean model of the parameter file, whose J, C Jrw and dipole the control law
-takes, as it does with the lean filters), ``beacon_used``, the gate's ``n_resets``, ``reset_nis``,
-``reset_arcsec``. Refusals (a measurement the STKF rejects, a fix the APKF cannot take) are counted in
+takes, as it does with the lean filters), ``beacon_used``; the gate's resets go to ``Health`` (``n_resets``,
+``reset_nis``, ``reset_arcsec``). Refusals (a measurement the STKF rejects, a fix the APKF cannot take) are counted in
 ``Health.n_refused`` as the lean filters' are.
 """
 
@@ -21,7 +21,7 @@ import numpy as np
 from emulator.spacecraft.environment import TiltedDipoleField
 from firmware.adcs import apkf_lean, estimation as lean
 from ground.adcs import afls, apkf, quat, runs, stkf
-from ground.adcs.body_pointing import check_params
+from ground.adcs.params import check_params
 from protocol.units import RAD_PER_ARCSEC
 
 I6 = np.eye(6)
@@ -77,8 +77,6 @@ class GroundEstimation:
         self.q_prev = None                      # the last valid fix before the APKF starts (one step back)
         self.t_prev = -2.0
         self.beacon_used = False
-        self.n_resets = 0
-        self.reset_nis = self.reset_arcsec = 0.0
         self.sigma_st = np.asarray(lean.vehicle(cfg)["sigma_st_arcsec"], float) * RAD_PER_ARCSEC
         self.fly = fo is not None
         self.gate_b = float(fo["beacon_gate_arcsec"]) * RAD_PER_ARCSEC if self.fly else math.inf
@@ -123,8 +121,9 @@ class GroundEstimation:
         if not np.all(np.isfinite(a.x)):
             raise FloatingPointError("APKF diverged at t = %.0f s" % t)
         if len(a.resets) != n_resets:
-            _, self.reset_nis, self.reset_arcsec = a.resets[-1]
-            self.n_resets = len(a.resets)
+            hl = self.health
+            _, hl.reset_nis, hl.reset_arcsec = a.resets[-1]
+            hl.n_resets = len(a.resets)
         self.t_apkf += n
 
     def attitude(self):

@@ -171,21 +171,7 @@ class Bench(FusedLoops, StaticTruth):
 
         Precomputes the P-FSM's exact modal input sums per tick and the states at the Q2 sample instants.
         """
-        counts = np.asarray(counts, dtype=np.int64)
-        x = np.asarray(xcodes)
-        y = np.asarray(ycodes)
-        total = int(counts.sum())
-        if len(counts) == 0 or counts.min() < 1 or len(x) < total or len(y) < total:
-            raise ValueError("load_pfsm: need >= 1 code per tick and %d codes per axis" % total)
-        codes16 = x.dtype == np.uint16 and y.dtype == np.uint16      # in range by type
-        x = x[:total].astype(float)
-        y = y[:total].astype(float)
-        if not codes16:
-            bad = int(((x < 0) | (x > 0xFFFF)).sum() + ((y < 0) | (y > 0xFFFF)).sum())
-            if bad:
-                self.n_pfsm_clip += bad
-                x = np.clip(x, 0, 0xFFFF)
-                y = np.clip(y, 0, 0xFFFF)
+        counts, x, y = self._codes(xcodes, ycodes, counts)
         kv = self.pfsm.range_v / 32768.0
         lo, hi = int(counts.min()), int(counts.max())
         if hi - lo < 8:                             # the lockstep's counts: floor(r) and floor(r) + 1
@@ -247,6 +233,26 @@ class Bench(FusedLoops, StaticTruth):
         self._q2_m0 = m0
         self._blk_n = n_ticks
         self._blk_i = 0
+
+    def _codes(self, xcodes, ycodes, counts):
+        """(counts, x, y) of ``load_pfsm``: the block's codes as floats, those outside 0..0xFFFF clipped and
+        counted (``n_pfsm_clip``); ValueError for a tick without codes or too few codes."""
+        counts = np.asarray(counts, dtype=np.int64)
+        x = np.asarray(xcodes)
+        y = np.asarray(ycodes)
+        total = int(counts.sum())
+        if len(counts) == 0 or counts.min() < 1 or len(x) < total or len(y) < total:
+            raise ValueError("load_pfsm: need >= 1 code per tick and %d codes per axis" % total)
+        codes16 = x.dtype == np.uint16 and y.dtype == np.uint16      # in range by type
+        x = x[:total].astype(float)
+        y = y[:total].astype(float)
+        if not codes16:
+            bad = int(((x < 0) | (x > 0xFFFF)).sum() + ((y < 0) | (y > 0xFFFF)).sum())
+            if bad:
+                self.n_pfsm_clip += bad
+                x = np.clip(x, 0, 0xFFFF)
+                y = np.clip(y, 0, 0xFFFF)
+        return counts, x, y
 
     def _pfsm_at(self, taus, inv, offs, ux, uy, zxa, zya, w_part, powers, ns):
         """P-FSM tilts times Q1's geometry gain gp (x list, y list per tick of the block; the loop adds them as

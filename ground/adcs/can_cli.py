@@ -67,12 +67,57 @@ def register(sub):
 
 
 def run(a):
-    from emulator.adcs_session import AdcsSession
     from emulator.spacecraft.scenario import HOLD_S
     campaign.check_duration(a.duration)
     bps.check_ts(a.ts)
     campaign.check_seed(a.seed)
     d, source = load_spacecraft(a.spacecraft, partner=True)
+    session, faults = _session(a, d)
+    out = a.output
+    run_folder(out, (FIGURE,))
+    record = runs.spacecraft_record(d, source)
+    write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}, "spacecraft": record})
+    rows, summary, interrupted = _fly(session, a)
+    summary["complete"] = bool(summary["complete"] and not interrupted)
+    summary["spacecraft"] = record
+    hist = rows["hist"]
+    h = {k: np.concatenate(v) if v else np.zeros((0, 3)) for k, v in hist.items()}
+    settle = HOLD_S + 4 * a.ts if a.world == "thesis" else bps.flight_settle_s(d, a.ts)
+    summary["settle_s"] = settle
+    board = session.board()                  # --runtime qemu: the board and its instructions per cycle
+    if board is not None:
+        summary.update(board)
+    if a.world == "flight":
+        w = np.concatenate(hist["w"]) if hist["w"] else np.zeros((0, 3))
+        summary["wheel_speed_limit_rpm"] = d["wheels"]["speed_limit_rpm"]
+        summary["max_wheel_speed_rpm"] = session.wheel_rpm_max(settle)      # after the planned settling
+        summary["star_tracker_blind_share"] = session.blind_share(settle)
+        summary["max_body_rate_deg_s"] = float(np.degrees(np.linalg.norm(w, axis=1).max())) if len(w) else None
+    _pointing(summary, h, settle, scenario.laser_axis(d))
+    h.update(("status_" + k, np.asarray(v)) for k, v in rows["stat"].items())
+    h.update(("est_" + k, np.asarray(v)) for k, v in rows["est"].items())
+    h["rw_cmd_nm"] = np.asarray(rows["rw_cmd"])
+    bps.save_history(os.path.join(out, "history.npz"), h)
+    if not a.no_plots and "dtheta_arcsec" in h:
+        from ground import plots
+        plots.adcs_can_pointing(h, os.path.join(out, FIGURE), faults)
+    write_json(os.path.join(out, "summary.json"), summary)
+    _say(summary, a)
+    if interrupted:
+        return 130
+    p = summary.get("pointing")
+    if summary["budgets_met"] is False:
+        print("BUDGET MISSED: 3σ pointing %.1f arcsec (limit %g), stability %.1f arcsec/s (limit %g)"
+              % (p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
+                 bps.BUDGET_STABILITY_3SIGMA), file=sys.stderr)
+        return 3
+    return 0
+
+
+def _session(a, d):
+    """(the session, its faults) of the command's options on the spacecraft ``d``, the parameter file and the
+    faults checked first."""
+    from emulator.adcs_session import AdcsSession
     if a.params:
         bps.load_params(a.params, d)    # protocol.paramfile's checks against the spacecraft
     faults = faults_from_args(a)
@@ -84,10 +129,11 @@ def run(a):
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
                           params=a.params, faults=faults, log=log, link_faults=link_faults, spacecraft=d,
                           world=a.world)
-    out = a.output
-    run_folder(out, (FIGURE,))
-    record = runs.spacecraft_record(d, source)
-    write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}, "spacecraft": record})
+    return session, faults
+
+
+def _fly(session, a):
+    """The session's cycles: (rows {hist, est, rw_cmd, stat}, its summary, interrupted by Ctrl-C)."""
     hist = {k: [] for k in ("t", "q", "w", "ra", "va", "rb", "vb")}
     est = {k: [] for k in ("q", "w", "ra", "rb")}
     rw_cmd = []
@@ -117,22 +163,14 @@ def run(a):
     finally:
         if bar is not None:
             bar.close()
-    summary["complete"] = bool(summary["complete"] and not interrupted)
-    summary["spacecraft"] = record
-    h = {k: np.concatenate(v) if v else np.zeros((0, 3)) for k, v in hist.items()}
-    settle = HOLD_S + 4 * a.ts if a.world == "thesis" else bps.flight_settle_s(d, a.ts)
-    summary["settle_s"] = settle
-    board = session.board()                  # --runtime qemu: the board and its instructions per cycle
-    if board is not None:
-        summary.update(board)
-    if a.world == "flight":
-        w = np.concatenate(hist["w"]) if hist["w"] else np.zeros((0, 3))
-        summary["wheel_speed_limit_rpm"] = d["wheels"]["speed_limit_rpm"]
-        summary["max_wheel_speed_rpm"] = session.wheel_rpm_max(settle)      # after the planned settling
-        summary["star_tracker_blind_share"] = session.blind_share(settle)
-        summary["max_body_rate_deg_s"] = float(np.degrees(np.linalg.norm(w, axis=1).max())) if len(w) else None
+    return {"hist": hist, "est": est, "rw_cmd": rw_cmd, "stat": stat}, summary, interrupted
+
+
+def _pointing(summary, h, settle, lb):
+    """The body pointing error (Eq. 6.12-6.21) into the history ``h`` and its statistics after ``settle`` (s)
+    and the budgets' verdict into ``summary``."""
     if len(h["t"]):
-        dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"], scenario.laser_axis(d))
+        dth, dom = bps.pointing_errors(h["q"], h["w"], h["ra"], h["va"], h["rb"], h["vb"], lb)
         h["dtheta_arcsec"], h["domega_arcsec_s"] = dth / RAD_PER_ARCSEC, dom / RAD_PER_ARCSEC
         sel = h["t"] >= settle
         if sel.sum() >= 2:
@@ -143,14 +181,10 @@ def run(a):
     summary["budgets_met"] = None if p is None else bool(
         summary["complete"] and p["pointing_3sigma_arcsec"] <= bps.BUDGET_POINTING_3SIGMA
         and p["stability_3sigma_arcsec_s"] <= bps.BUDGET_STABILITY_3SIGMA)
-    h.update(("status_" + k, np.asarray(v)) for k, v in stat.items())
-    h.update(("est_" + k, np.asarray(v)) for k, v in est.items())
-    h["rw_cmd_nm"] = np.asarray(rw_cmd)
-    bps.save_history(os.path.join(out, "history.npz"), h)
-    if not a.no_plots and "dtheta_arcsec" in h:
-        from ground import plots
-        plots.adcs_can_pointing(h, os.path.join(out, FIGURE), faults)
-    write_json(os.path.join(out, "summary.json"), summary)
+
+
+def _say(summary, a):
+    """The run's lines on stdout: the board's instructions a cycle (qemu), then the run."""
     ipc = summary.get("instructions_per_cycle")
     if ipc and ipc["n"]:
         t = summary["target"]
@@ -158,7 +192,7 @@ def run(a):
               "%.0f MHz" % (t["core"].split(" with")[0], ipc["mean"] / 1e6, ipc["max"] / 1e6,
                             100 * ipc["mean"] * t["cpi_range"][0] / t["clock_hz"],
                             100 * ipc["mean"] * t["cpi_range"][1] / t["clock_hz"], t["clock_hz"] / 1e6))
-    r = summary["retries"]
+    r, p = summary["retries"], summary.get("pointing")
     print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s, link retries: %d cycles, "
           "%d ticks and %d packets resent; %s" % (
         a.runtime, summary["cycles"], "" if summary["complete"] else " (interrupted)", summary["last_mode"],
@@ -167,11 +201,3 @@ def run(a):
         ("pointing 3σ %.1f″ (budget %.0f″), stability 3σ %.1f″/s (budget %.0f″/s)" % (
             p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
             bps.BUDGET_STABILITY_3SIGMA)) if p else "too short for pointing figures"))
-    if interrupted:
-        return 130
-    if summary["budgets_met"] is False:
-        print("BUDGET MISSED: 3σ pointing %.1f arcsec (limit %g), stability %.1f arcsec/s (limit %g)"
-              % (p["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, p["stability_3sigma_arcsec_s"],
-                 bps.BUDGET_STABILITY_3SIGMA), file=sys.stderr)
-        return 3
-    return 0

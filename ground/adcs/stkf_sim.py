@@ -129,18 +129,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     d = spacecraft or scenario.thesis_3u()
     o = scenario.orbit_setup(d)
     delay_s = o["relay_delay_s"]
-    if attitude not in ATTITUDES:
-        raise ValueError("attitude must be one of %s, got %r" % ("/".join(ATTITUDES), attitude))
-    if case not in (1, 2):
-        raise ValueError("case must be 1 or 2, got %r" % (case,))
-    if not (np.isfinite(duration_s) and duration_s >= 1):
-        raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
-    if case == 2 and delay_s[1] > lag_s:
-        raise ValueError("relay delay up to %.2f s (partner.relay_delay_s) is longer than the smoother's lag of "
-                         "%.2f s" % (delay_s[1], lag_s))
-    outages = [o if isinstance(o, tuple) else parse_outage(o) for o in outages]
-    if case == 1 and any(o[0] == "relay" for o in outages):
-        raise ValueError("a relay outage was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
+    outages = _check(case, duration_s, lag_s, outages, attitude, delay_s)
     t_s, xs = scenario.orbit_truth(truth, duration_s, o, cache_dir)
     K = int(np.floor(duration_s + 1e-9))
     r_init, r_ga, r_gb, r_bc, r_att, r_rel = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]
@@ -159,8 +148,6 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     P_att = np.diag(att_sd ** 2)
     A_true = np.eye(3)                            # body frame held on J2000 (stated)
     att = apkf_attitude(seed, K, d) if attitude == "apkf" else None
-    I6 = np.eye(6)
-    h_sat = lambda x: (x, I6)                     # noqa: E731  (GNSS of one satellite, Eq. 5.12: H = I on its part)
     R_g, R_relay = gnss_a.R, relay.gnss.R
 
     def out(sensor, t):
@@ -191,20 +178,8 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
                     relay.sample(tb[jb], xb_at[jb])
                 jb += 1
             due = relay.due(t)
-        # the filter step (timed)
-        t0 = time.perf_counter()
-        if k > 0:
-            flt.predict(t)
-        if have_g and have_b:  # one stacked update: the two noises are independent
-            R_gb = stkf.R_gnss_beacon(R_g, stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
-            flt.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
-        elif have_g:
-            flt.update(zg, R_g, h_sat, part=stkf.SAT_A)
-        elif have_b:
-            Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), beacon.sigma, P_att)
-            flt.update(y, Rb, lambda x: stkf.h_beacon(x, A_hat), lambda x: stkf.H_beacon(x, A_hat))
-        for tm, z in due:
-            flt.update(z, R_relay, h_sat, t=tm, part=stkf.SAT_B)
+        t0 = time.perf_counter()                 # the filter step, timed
+        _step(flt, k, t, zg, y, due, A_hat, P_att, R_g, R_relay, beacon.sigma)
         step_s.append(time.perf_counter() - t0)
         if have_g:
             gaps.seen("gnss_a", t)
@@ -213,18 +188,70 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
         if due:
             gaps.seen("relay", t)
         gaps.tick(t)
-        x, Pk = flt.x, flt.Pk
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):
-            raise FloatingPointError("filter diverged at t=%.0f s (NaN in x or P)" % t)
-        if min(x[0:3] @ x[0:3], x[6:9] @ x[6:9]) < orbits.R_EARTH ** 2:
-            raise FloatingPointError("filter diverged at t=%.0f s: an estimated orbit is under the Earth's "
-                                     "surface" % t)
-        hist["err"][k] = x - x_true
-        hist["sig"][k] = np.sqrt(np.diag(Pk))
-        hist["nees"][k] = hist["err"][k] @ np.linalg.solve(Pk, hist["err"][k])
-        hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / RAD_PER_ARCSEC
-        hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / RAD_PER_ARCSEC
-    outage_list = gaps.close(float(K))
+        _record(hist, k, t, flt, x_true, A_hat, A_true, P_att)
+    return _result(seed, case, truth, attitude, K, d, flt, hist, step_s, gaps.close(float(K)), log), hist
+
+
+def _check(case, duration_s, lag_s, outages, attitude, delay_s):
+    """``simulate``'s arguments checked (ValueError naming the bad one); the outages parsed."""
+    if attitude not in ATTITUDES:
+        raise ValueError("attitude must be one of %s, got %r" % ("/".join(ATTITUDES), attitude))
+    if case not in (1, 2):
+        raise ValueError("case must be 1 or 2, got %r" % (case,))
+    if not (np.isfinite(duration_s) and duration_s >= 1):
+        raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
+    if case == 2 and delay_s[1] > lag_s:
+        raise ValueError("relay delay up to %.2f s (partner.relay_delay_s) is longer than the smoother's lag of "
+                         "%.2f s" % (delay_s[1], lag_s))
+    outages = [o if isinstance(o, tuple) else parse_outage(o) for o in outages]
+    if case == 1 and any(o[0] == "relay" for o in outages):
+        raise ValueError("a relay outage was given for Case 1, which has no relay (SatB's GNSS is Case 2)")
+    return outages
+
+
+def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att):
+    """Row k of the history: the estimate's error and 1 sigma, its NEES, the pointing error and its 1 sigma;
+    FloatingPointError when the filter diverged (NaN, or an orbit under the Earth's surface)."""
+    x, Pk = flt.x, flt.Pk
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):
+        raise FloatingPointError("filter diverged at t=%.0f s (NaN in x or P)" % t)
+    if min(x[0:3] @ x[0:3], x[6:9] @ x[6:9]) < orbits.R_EARTH ** 2:
+        raise FloatingPointError("filter diverged at t=%.0f s: an estimated orbit is under the Earth's "
+                                 "surface" % t)
+    hist["err"][k] = x - x_true
+    hist["sig"][k] = np.sqrt(np.diag(Pk))
+    hist["nees"][k] = hist["err"][k] @ np.linalg.solve(Pk, hist["err"][k])
+    hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / RAD_PER_ARCSEC
+    hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / RAD_PER_ARCSEC
+
+
+_I6 = np.eye(6)
+
+
+def _h_sat(x):
+    """GNSS of one satellite (Eq. 5.12): H = I on its part."""
+    return x, _I6
+
+
+def _step(flt, k, t, zg, y, due, A_hat, P_att, R_g, R_relay, sigma_b):
+    """One second of the filter: predict to t, SatA's GNSS and the beacon (one stacked update when both came:
+    the two noises are independent; either alone otherwise; None: not received), SatB's relayed fixes ``due``."""
+    if k > 0:
+        flt.predict(t)
+    if zg is not None and y is not None:
+        R_gb = stkf.R_gnss_beacon(R_g, stkf.h_beacon(flt.x, A_hat), sigma_b, P_att)
+        flt.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
+    elif zg is not None:
+        flt.update(zg, R_g, _h_sat, part=stkf.SAT_A)
+    elif y is not None:
+        Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), sigma_b, P_att)
+        flt.update(y, Rb, lambda x: stkf.h_beacon(x, A_hat), lambda x: stkf.H_beacon(x, A_hat))
+    for tm, z in due:
+        flt.update(z, R_relay, _h_sat, t=tm, part=stkf.SAT_B)
+
+
+def _result(seed, case, truth, attitude, K, d, flt, hist, step_s, outage_list, log):
+    """``simulate``'s result dict from the filter at the end and the run's history."""
     Pk = flt.Pk
     tot = lambda s: float(np.sqrt(np.trace(Pk[s, s])))  # noqa: E731
     res = {"seed": int(seed), "case": case, "truth": truth, "attitude": attitude, "duration_s": float(K),
@@ -243,7 +270,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
            "nees": [round(float(v), 4) for v in hist["nees"]],
            "z2_sum": np.sum((hist["err"][NEES_FROM_S:] / hist["sig"][NEES_FROM_S:]) ** 2, axis=0).tolist(),
            "z2_steps": max(K + 1 - NEES_FROM_S, 0)}
-    return res, hist
+    return res
 
 
 def run_one(seed, run_dir, **kw):

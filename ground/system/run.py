@@ -68,34 +68,18 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     ``world``: "thesis" (Sec. 6.4's) or "flight" (``fps adcs bps --world flight``'s: datasheet wheels,
     magnetorquers, the rate-limited slew; the lean firmware flies its modes, ``firmware/adcs/flight.py``); in the
     flight world the play starts at ``bps.flight_settle_s`` (the planned slew, re-acquisition and 4 t_s)."""
-    from firmware.player import Player
     from ground import runtime
-    from ground.adcs import body_pointing as bps, bps_cli, runs
-    from ground.adcs.options import load_spacecraft
+    from ground.adcs import bps_cli
     from ground.calibrate import load_calibration
 
     t_wall0 = time.perf_counter()
     ts = check_inputs(duration_s, runtime_name, adcs, ts, truth, seed)
-    if world not in bps.WORLDS:
-        raise ValueError("--world must be one of %s, got %r" % (", ".join(bps.WORLDS), world))
-    if faults and adcs != "firmware":
-        raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
-    if link_faults is not None and adcs != "firmware":
-        raise ValueError("--link-faults needs --adcs firmware (they act on the ADCS's CAN link)")
     hil.check_q2_dv(q2_dvp)
     runtime.check_board(config)
     cal = load_calibration(calibration_path) if calibration_path else None
-    d, source = load_spacecraft(spacecraft, partner=True)
-    record = runs.spacecraft_record(d, source)
-    params = bps.load_params(params_path, d)[-1] if params_path else None
     duration_s = float(duration_s)
-    if world == "flight" and d["magnetorquers"] is None:
-        raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels with "
-                         "magnetorquers (or --world thesis)")
-    t_settle = settle_s(ts) if world == "thesis" else bps.flight_settle_s(d, ts)
-    if faults:
-        from emulator.adcs_bus import check_faults
-        faults = check_faults(faults, t_settle + duration_s + LEAD_S)
+    d, record, params, t_settle, faults = _vehicle(adcs, world, faults, link_faults, spacecraft, params_path, ts,
+                                                   duration_s)
     run_folder(out_dir, hil.FIGURES + (FIGURE,))           # the fine loop's figures are hil's
     rec = hil.Recorder(out_dir)
     summary = hil.new_summary(duration_s)
@@ -103,60 +87,33 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                     "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed, "phase": "start", "stopped_in": None,
                     "spacecraft": record, "world": world})
     write_json(rec.path("summary.json"), summary)
+    cache = bps_cache or bps_cli.CACHE_DEFAULT
     spec = {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,
             "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
-            "bps_cache": bps_cache or bps_cli.CACHE_DEFAULT,
-            "cache_dir": os.path.abspath(bps_cache or bps_cli.CACHE_DEFAULT), "faults": faults or None,
-            "link_faults": link_faults.describe() if link_faults is not None else None, "spacecraft": d,
-            "world": world, "t_settle": t_settle}
+            "bps_cache": cache, "cache_dir": os.path.abspath(cache), "faults": faults or None, "spacecraft": d,
+            "link_faults": link_faults.describe() if link_faults is not None else None, "world": world,
+            "t_settle": t_settle}
     live = LiveDisturbance(t_settle)
     say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
     feed.info["adcs"] = adcs
-    run = hil.RunOutcome(runtime_name, "serial")
-    q2cal = None
+    run, q2cal = hil.RunOutcome(runtime_name, "serial"), None
     try:
         with run.guard():
             try:
                 summary["phase"] = "start"           # where the run is (and, in stopped_in, where it stopped)
                 feed.start()
-                config_json = {
-                    "adcs": adcs, "adcs_runtime": runtime_name if adcs == "firmware" else None,
-                    "satb_gnss": satb_gnss, "ts_s": ts, "truth": truth, "settle_s": t_settle, "world": world,
-                    "params": params_path and os.path.abspath(params_path),
-                    "calibration": calibration_path and os.path.abspath(calibration_path), "seed": seed,
-                    "duration_s": duration_s, "runtime": runtime_name, "link": "serial", "faults": faults or None,
-                    "adcs_link_faults": spec["link_faults"], "spacecraft": record,
-                    "distfile_period_us": live.reader.period_us, "live_player": True}
+                config_json = dict(spec_config(spec), satb_gnss=satb_gnss, world=world, spacecraft=record,
+                                   params=params_path and os.path.abspath(params_path),
+                                   calibration=calibration_path and os.path.abspath(calibration_path),
+                                   distfile_period_us=live.reader.period_us)
                 write_json(rec.path("config.json"), config_json)
-                if cal is None:
-                    summary["phase"] = "h_calibration"
-                    say("calibrating H in-process first (Sec. 7.4, 121 points; --calibration FILE skips this) ...")
-                    cal = calibrate_inproc(seed, config, rec.path("calibration.json"))
-                else:
-                    write_json(rec.path("calibration.json"), cal)
+                cal = _h_calibration(cal, summary, say, seed, config, rec)
                 summary["phase"] = "controller_start"
                 with runtime.open_rig(runtime_name, "serial", config=config, seed=seed) as rig:
                     run.rig = rig
                     write_json(rec.path("config.json"), dict(hil.run_config(rig, duration_s, seed, {}), **config_json))
-
-                    def first_sample():
-                        summary["phase"] = "adcs_settling"
-                        if feed.t_last < t_settle + STENCIL_S + 0.2:
-                            say("waiting for the ADCS to reach the end of its settling (t = %g s of its time) ..."
-                                % t_settle)
-                        feed.take(t_settle + STENCIL_S + 0.2)
-                        summary["phase"] = "prepare_play"
-                        return live.reader.sample(0)
-                    summary["phase"] = "prepare_play"         # Q2 calibration, the walk to the first sample
-                    q2cal = hil.prepare_play(rig, rec, cal, q2_dvp, first_sample)
-                    player = Player()
-                    player.load(live.reader)
-                    player.oneshot()
-                    summary["phase"] = "play"             # for whoever watches the folder
-                    write_json(rec.path("summary.json"), summary)
-                    hil.play(rig, rec, player, duration_s, summary, quiet, desc="system",
-                             before_chunk=lambda t_end: feed.take(want=lambda: live.covered_s >= t_end + 0.01))
+                    q2cal = _play(rig, rec, cal, q2_dvp, feed, live, summary, t_settle, duration_s, quiet, say)
                 feed.on_samples = None                # the play is over: later samples are recorded, not played
                 summary["phase"] = "reference"
                 with contextlib.suppress(OSError):    # the ground filters' column (firmware: after the session)
@@ -166,28 +123,100 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 raise
             if feed.close():
                 raise KeyboardInterrupt               # Ctrl-C or SIGTERM while the ADCS process was being stopped
-        stopped_in = summary["phase"] if run.failure or run.interrupted else None
-        hil.board_figures(run, summary)            # --runtime qemu: the controller's board
-        hil.finish_summary(rec, run, summary, q2cal, plots)
-        summary["phase"] = "done" if stopped_in is None else ("interrupted" if run.interrupted else "failed")
-        summary["stopped_in"] = stopped_in
-        summary.update(_body_summary(feed, live, rec, t_settle))
-        summary["wall_s"] = time.perf_counter() - t_wall0
-        summary["real_time_factor_play"] = summary["real_time_factor"]
-        summary["real_time_factor"] = rec.virtual_s / summary["wall_s"] if summary["wall_s"] > 0 else None
-        summary["adcs_wait_s"] = feed.wait_s
-        summary["verdict"] = verdict(summary)
-        summary["requirement_met"] = summary["verdict"]["met"]
-        write_json(rec.path("summary.json"), summary)
-        if plots:
-            _plot(rec, feed, q2cal, t_settle, faults)
-        write_atomic(rec.path("report.md"), report_md(summary))
+        _finish(run, rec, summary, q2cal, plots, feed, live, t_settle, t_wall0, faults)
     except BaseException as exc:     # past the guard (a bug, the disk, Ctrl-C while finishing): the folder says so
         feed.close()
         _stopped_folder(rec, summary, exc)
         raise
     run.raise_if_stopped(out_dir, summary)
     return summary
+
+
+def _h_calibration(cal, summary, say, seed, config, rec):
+    """The H calibration the run flies: the one given (copied into the folder), or made in process first."""
+    if cal is None:
+        summary["phase"] = "h_calibration"
+        say("calibrating H in-process first (Sec. 7.4, 121 points; --calibration FILE skips this) ...")
+        return calibrate_inproc(seed, config, rec.path("calibration.json"))
+    write_json(rec.path("calibration.json"), cal)
+    return cal
+
+
+def spec_config(spec):
+    """The run's config.json entries its spec holds (``run_system``'s)."""
+    return {"adcs": spec["adcs"], "adcs_runtime": spec["runtime"] if spec["adcs"] == "firmware" else None,
+            "ts_s": spec["ts"], "truth": spec["truth"], "settle_s": spec["t_settle"], "seed": spec["seed"],
+            "duration_s": spec["duration_s"], "runtime": spec["runtime"], "link": "serial",
+            "faults": spec["faults"], "adcs_link_faults": spec["link_faults"], "live_player": True}
+
+
+def _finish(run, rec, summary, q2cal, plots, feed, live, t_settle, t_wall0, faults):
+    """The run's folder completed, stopped or not: the summary with both loops' figures and the verdict, the
+    plots and report.md."""
+    stopped_in = summary["phase"] if run.failure or run.interrupted else None
+    hil.board_figures(run, summary)            # --runtime qemu: the controller's board
+    hil.finish_summary(rec, run, summary, q2cal, plots)
+    summary["phase"] = "done" if stopped_in is None else ("interrupted" if run.interrupted else "failed")
+    summary["stopped_in"] = stopped_in
+    summary.update(_body_summary(feed, live, rec, t_settle))
+    summary["wall_s"] = time.perf_counter() - t_wall0
+    summary["real_time_factor_play"] = summary["real_time_factor"]
+    summary["real_time_factor"] = rec.virtual_s / summary["wall_s"] if summary["wall_s"] > 0 else None
+    summary["adcs_wait_s"] = feed.wait_s
+    summary["verdict"] = verdict(summary)
+    summary["requirement_met"] = summary["verdict"]["met"]
+    write_json(rec.path("summary.json"), summary)
+    if plots:
+        _plot(rec, feed, q2cal, t_settle, faults)
+    write_atomic(rec.path("report.md"), report_md(summary))
+
+
+def _vehicle(adcs, world, faults, link_faults, spacecraft, params_path, ts, duration_s):
+    """``run_system``'s ADCS inputs checked: (the spacecraft file, its record, the parameter file or None, the
+    ADCS's settling time, the faults checked against the run's span); ValueError naming the bad one."""
+    from ground.adcs import body_pointing as bps, runs
+    from ground.adcs.options import load_spacecraft
+    if world not in bps.WORLDS:
+        raise ValueError("--world must be one of %s, got %r" % (", ".join(bps.WORLDS), world))
+    if faults and adcs != "firmware":
+        raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
+    if link_faults is not None and adcs != "firmware":
+        raise ValueError("--link-faults needs --adcs firmware (they act on the ADCS's CAN link)")
+    d, source = load_spacecraft(spacecraft, partner=True)
+    record = runs.spacecraft_record(d, source)
+    params = bps.load_params(params_path, d)[-1] if params_path else None
+    if world == "flight" and d["magnetorquers"] is None:
+        raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels with "
+                         "magnetorquers (or --world thesis)")
+    t_settle = settle_s(ts) if world == "thesis" else bps.flight_settle_s(d, ts)
+    if faults:
+        from emulator.adcs_bus import check_faults
+        faults = check_faults(faults, t_settle + duration_s + LEAD_S)
+    return d, record, params, t_settle, faults
+
+
+def _play(rig, rec, cal, q2_dvp, feed, live, summary, t_settle, duration_s, quiet, say):
+    """The fine loop's part on the open rig: wait for the ADCS's settling, the Q2 calibration and the walk to the
+    first sample, then the play of the live disturbance; returns the Q2 calibration."""
+    from firmware.player import Player
+
+    def first_sample():
+        summary["phase"] = "adcs_settling"
+        if feed.t_last < t_settle + STENCIL_S + 0.2:
+            say("waiting for the ADCS to reach the end of its settling (t = %g s of its time) ..." % t_settle)
+        feed.take(t_settle + STENCIL_S + 0.2)
+        summary["phase"] = "prepare_play"
+        return live.reader.sample(0)
+    summary["phase"] = "prepare_play"         # Q2 calibration, the walk to the first sample
+    q2cal = hil.prepare_play(rig, rec, cal, q2_dvp, first_sample)
+    player = Player()
+    player.load(live.reader)
+    player.oneshot()
+    summary["phase"] = "play"             # for whoever watches the folder
+    write_json(rec.path("summary.json"), summary)
+    hil.play(rig, rec, player, duration_s, summary, quiet, desc="system",
+             before_chunk=lambda t_end: feed.take(want=lambda: live.covered_s >= t_end + 0.01))
+    return q2cal
 
 
 def _stopped_folder(rec, summary, exc):

@@ -96,3 +96,36 @@ def test_another_estimation_needs_the_inproc_host_and_the_flight_world(tmp_path,
         AdcsSession(runtime="cpython", duration_s=5, estimation=estimation(scenario.thesis_3u()))
     assert fps(["adcs", "bps", "--estimator", "ground", "--duration", "10", "-o", str(tmp_path / "x")]) == 2
     assert "--estimator is the flight world's" in capsys.readouterr().err
+
+
+def test_consistency_tells_an_honest_1_sigma_from_an_overconfident_one():
+    """app_host.consistency: errors drawn from the very covariance the record states are in band ~95 % of the
+    seconds with RMS / 1 sigma ~1; the same errors against a covariance 9x too small (1 sigma 3x) are not."""
+    from ground.adcs.app_host import consistency
+    rng = np.random.default_rng(0)
+    n = 4000
+    A = rng.standard_normal((n, 3, 3)) * 0.3 + np.eye(3)
+    C = np.einsum("kij,klj->kil", A, A) * 1e-10                           # rad^2, SPD, correlated
+    e = np.einsum("kij,kj->ki", np.linalg.cholesky(C), rng.standard_normal((n, 3)))
+    fsw = {"est_err": np.hstack([e / RAD_PER_ARCSEC, np.zeros((n, 5))]), "att_cov": C.reshape(n, 9),
+           "stkf_err": np.hstack([e, e]) * 1e5, "stkf_cov": np.hstack([C.reshape(n, 9), C.reshape(n, 9) / 9]) * 1e10}
+    c = consistency(fsw, 100)
+    for key in ("apkf_attitude", "stkf_ra"):
+        assert 0.93 < c[key]["nees_in_band_share"] < 0.97 and 2.8 < c[key]["nees_mean"] < 3.2
+        assert all(0.9 < r < 1.1 for r in c[key]["rms_over_sigma"]) and c[key]["seconds"] == n - 100
+    assert c["stkf_rb"]["nees_in_band_share"] < 0.5 and all(r > 2.5 for r in c["stkf_rb"]["rms_over_sigma"])
+
+
+def test_both_worlds_report_their_estimators_consistency(params):
+    """The thesis and the flight world each report the APKF's and the STKF's NEES and RMS / 1 sigma (the flight
+    world's after its first orbit: none in a shorter run; its history has what they are computed from)."""
+    from ground.adcs import app_host, flight_world, thesis_world
+    p = json.load(open(params))
+    rf, hf = flight_world.simulate(params=p, duration_s=200, seed=1)
+    rt, _ = thesis_world.simulate(params=p, duration_s=60, seed=1)
+    assert rf["consistency"]["from_s"] == np.ceil(rf["orbit_period_s"]) and rf["consistency"]["stkf_rb"] is None
+    c2 = app_host.consistency({k[4:]: v for k, v in hf.items() if k.startswith("fsw_")}, 100)
+    for c in (rt["consistency"], c2):
+        for key in ("apkf_attitude", "stkf_ra", "stkf_rb"):
+            assert c[key]["seconds"] > 0 and 0.0 <= c[key]["nees_in_band_share"] <= 1.0
+        assert c["apkf_attitude"]["nees_in_band_share"] > 0.8

@@ -260,6 +260,10 @@ class Estimation:
         rd.nb = 0
         f.get(self.xs, self.sig)
 
+    def position_cov(self, PA, PB):
+        """PA[0:9], PB[0:9] = the STKF's 3 x 3 covariances of rA and rB now (m^2; ``LeanStkf.position_cov``)."""
+        self.stkf.position_cov(PA, PB)
+
     def sigma_att(self):
         """The attitude's 1 sigma (rad, root of the trace of 4 P_qq), 0 before the APKF starts."""
         if self.apkf is None:

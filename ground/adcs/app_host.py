@@ -12,11 +12,13 @@ import numpy as np
 from emulator.adcs_session import AdcsSession
 from emulator.spacecraft import scenario
 from ground.adcs.pointing import EST_COLS, estimate_errors
+from protocol.units import RAD_PER_ARCSEC
 
 # the flight software's state recorded each second (history ``fsw_<name>``; NaN before the APKF starts)
 FSW = (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3), ("u", 4), ("tau_ff", 3), ("tau_ext_true", 3),
        ("wc", 3), ("x_stkf", 12), ("est_err", len(EST_COLS)), ("m_cmd", 3), ("h_w", 3), ("mode", 1),
-       ("st_ok", 1), ("beacon_used", 1), ("mtq_sat", 1), ("att_sigma", 1))
+       ("st_ok", 1), ("beacon_used", 1), ("mtq_sat", 1), ("att_sigma", 1), ("att_cov", 9), ("stkf_err", 6),
+       ("stkf_cov", 18))
 ESTIMATORS = ("lean", "ground")
 
 
@@ -50,10 +52,42 @@ class Recorder:
         x = s.xg[k * scenario.WORLD_RATE_HZ]
         f["est_err"][k] = estimate_errors(f["q_hat"][k], f["w_hat"][k], est.xs[0:3], est.xs[6:9], sc.q, sc.omega,
                                           x[0, 0:3], x[1, 0:3])
+        f["att_cov"][k] = est.Patt                                        # rad^2, the attitude's (4 P_qq)
+        f["stkf_err"][k] = np.concatenate([np.asarray(est.xs[0:3]) - x[0, 0:3], np.asarray(est.xs[6:9]) - x[1, 0:3]])
+        pa, pb = np.zeros(9), np.zeros(9)
+        est.position_cov(pa, pb)
+        f["stkf_cov"][k] = np.concatenate([pa, pb])
         hl = app.health
         if hl.n_resets != self._n_resets:
             self._n_resets = hl.n_resets
             self.resets.append((t, hl.reset_nis, hl.reset_arcsec))
+
+
+def consistency(fsw, k_from, p=0.95):
+    """Whether each estimator's 1 sigma holds over the seconds k_from .. of the recorded flight software: for the
+    attitude (the APKF; error 2 x the vector part of q_hat (x) q^-1 against 4 P_qq), SatA's and SatB's positions
+    (the STKF), each second's NEES (3 dof) and the share of seconds within its two-sided ``p`` band (a consistent
+    filter has ~``p`` of them inside), the mean NEES (3 when consistent), and per axis the RMS error over the RMS
+    1 sigma (1 when consistent). None for a part with no second recorded."""
+    from scipy.stats import chi2
+    lo, hi = chi2.ppf((1 - p) / 2, 3), chi2.ppf(1 - (1 - p) / 2, 3)
+    att = np.asarray(fsw["est_err"][:, 0:3], float) * RAD_PER_ARCSEC
+    parts = {"apkf_attitude": (att, fsw["att_cov"]), "stkf_ra": (fsw["stkf_err"][:, 0:3], fsw["stkf_cov"][:, 0:9]),
+             "stkf_rb": (fsw["stkf_err"][:, 3:6], fsw["stkf_cov"][:, 9:18])}
+    out = {"band": [float(lo), float(hi)], "p": p, "from_s": float(k_from)}
+    for name, (e, c) in parts.items():
+        e, c = e[k_from:], c[k_from:]
+        ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(c), axis=1)
+        if not ok.any():
+            out[name] = None
+            continue
+        e, C = e[ok], c[ok].reshape(-1, 3, 3)
+        nees = np.einsum("ki,ki->k", e, np.linalg.solve(C, e[:, :, None])[:, :, 0])
+        sig = np.sqrt(np.einsum("kii->ki", C))
+        out[name] = {"seconds": int(ok.sum()), "nees_mean": float(nees.mean()),
+                     "nees_in_band_share": float(np.mean((nees >= lo) & (nees <= hi))),
+                     "rms_over_sigma": (np.sqrt((e ** 2).mean(axis=0)) / np.sqrt((sig ** 2).mean(axis=0))).tolist()}
+    return out
 
 
 def estimation_for(estimator, spacecraft):

@@ -180,6 +180,12 @@ class GroundEstimation:
         self.xs[:] = array("d", x.tolist())
         self.sig[:] = np.sqrt(np.maximum(np.diag(f.Pk), 0.0))
 
+    def position_cov(self, PA, PB):
+        """PA[0:9], PB[0:9] = the STKF's 3 x 3 covariances of rA and rB now (m^2)."""
+        Pk = self.stkf.Pk
+        PA[0:9] = Pk[0:3, 0:3].ravel().tolist()
+        PB[0:9] = Pk[6:9, 6:9].ravel().tolist()
+
     def sigma_att(self):
         """The attitude's 1 sigma (rad, root of the trace of 4 P_qq), 0 before the APKF starts."""
         if self.apkf is None:

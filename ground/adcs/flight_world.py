@@ -118,6 +118,7 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
     res["flight_options"] = fo
     add_statistics(res, dth, dom, sel)
     res["budget"] = budget
+    res["consistency"] = app_host.consistency(fsw, int(np.ceil(period)))
     return res, hist
 
 

@@ -54,4 +54,5 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     res["star_tracker_blind_share"] = float(1.0 - np.nanmean(rows["st_ok"][secs, 0])) if secs.any() else None
     add_statistics(res, dth, dom, sel)
     res["budget"] = error_budget(hist, s.xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb)
+    res["consistency"] = app_host.consistency(rows, int(np.ceil(t_settle)))
     return res, hist

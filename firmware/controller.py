@@ -22,8 +22,7 @@ on a 32-bit MCU, so the tick allocates nothing and is bit-identical under CPytho
 
 Default gain g = 0.5 (Q15 16384, the table default). The loop per axis (H^-1 H = I) is the integral law
 C(z) = g z / (z - 1) around the MEMS drive as the bench config has it: a 2nd-order Butterworth at 800 Hz, then
-the mirror's 2 kHz resonance (emulator.mirrors.MEMS; an earlier version of this note assumed a 200 Hz first-order
-filter), held from the instant the SPI words land and sampled at each Q1 channel's instant (emulator.timing).
+the mirror's 2 kHz resonance (emulator.mirrors.MEMS), held from the instant the SPI words land and sampled at each Q1 channel's instant (emulator.timing).
 ground.response.LoopModel discretises it exactly (python-control): with the thesis's board (X sampled 351 us
 into the tick, words landing 1568 us after the tick start, one tick later at 637.8 Hz) g = 0.5 keeps a gain
 margin of 14.2 dB (stable up to g = 2.6) and a phase margin of 69 deg, -3 dB rejection bandwidth 39 Hz; with

@@ -103,8 +103,8 @@ ADCS_IMAGE = ADCS_MEM.image
 ADCS_MARCH = "armv7emdp"
 ADCS_FROZEN = ("firmware/__init__.py", "firmware/adcs/__init__.py", "firmware/adcs/app.py", "firmware/adcs/pil_main.py",
                "firmware/hal/__init__.py", "firmware/hal/slcan.py", "firmware/hal/mps2.py",
-               "firmware/adcs/apkf_lean.py", "firmware/adcs/stkf_lean.py", "firmware/adcs/stkf_kernels.py",
-               "firmware/adcs/control.py",
+               "firmware/adcs/apkf_lean.py", "firmware/adcs/apkf_lean_model.py", "firmware/adcs/stkf_lean.py",
+               "firmware/adcs/stkf_kernels.py", "firmware/adcs/control.py",
                "firmware/adcs/flight.py", "firmware/adcs/linalg.py", "firmware/adcs/intake.py",
                "firmware/adcs/health.py", "firmware/adcs/estimation.py", "firmware/adcs/modes.py",
                "firmware/adcs/allocation.py", "firmware/adcs/telemetry.py", "firmware/adcs/lockstep.py",

@@ -6,7 +6,8 @@ MPY     := $(VENV)/bin/micropython
 STAMP   := $(VENV)/.installed-stamp
 NATMOD  := firmware/adcs/adcsk.mpy
 PIL_ELF := build/pil/MICROBIT/firmware.elf
-PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py firmware/adcs/*.py protocol/*.py tests/mp/pil_probe.py \
+PIL_SRC := $(wildcard firmware/*.py firmware/hal/*.py firmware/adcs/*.py protocol/*.py protocol/spacecraft/*.py \
+             tests/mp/pil_probe.py \
              tests/mp/pil_adcs_probe.py tests/mp/firmware_plant.py) firmware/adcs/native/adcsk.c tools/pil_build.py
 OUT     ?= out
 

@@ -9,7 +9,7 @@ and branch-heavy), against the thesis's tick at 637.8 Hz on a 48 MHz SAMD21 (75,
 - The 32 KB board (what ``--runtime qemu`` runs) in a 20 s ``fps hil`` with the thesis's 11x11 table: its RAM
   (the GC heap it reserves and the stack's high-water mark) and each TICK exchange (decoding, step, framing), all
   of them and the common ones that ``firmware.hal.fast_tick`` answers in machine code, read from the board after the
-  run (``tools.pil_build.read_target``); the real-time factor.
+  run (``tools.pil_board.read_target``); the real-time factor.
 
 - The disturbance player (``tests/mp/pil_player_probe.py``, on the instruments' image): bytecode and viper, one
   update per call and in blocks of 64, against the 10.6 kHz update.
@@ -39,13 +39,13 @@ def _fps(*args):
 
 
 def main():
-    from tools import pil_build
+    from tools import pil_board, pil_build
     missing = pil_build.missing_tools()
     if missing or not (os.path.exists(pil_build.IMAGE) and os.path.exists(pil_build.LAB_IMAGE)):
         print("PIL benchmark skipped: no image (make pil)%s" % (
             "; missing %s (%s)" % (", ".join(missing), pil_build.install_hint(missing)) if missing else ""))
         return
-    with pil_build.Board() as b:               # the instruments' image: the same code, room for the recordings
+    with pil_board.Board() as b:               # the instruments' image: the same code, room for the recordings
         rows = [json.loads(b.run("import json, pil_probe, gc\ngc.collect()\nprint(json.dumps(pil_probe.counts(%d, %s)))"
                                  % (n, v)).strip().splitlines()[-1]) for n, v in ((2000, "True"), (500, "False"))]
         player = [json.loads(b.run("import json, pil_player_probe as pp, gc\ngc.collect()\nprint(json.dumps(%s))" % c)

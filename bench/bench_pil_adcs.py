@@ -4,7 +4,7 @@ double-precision FPU; MicroPython's floats single precision) under ``-icount shi
 
 A 210 s session of the thesis's spacecraft is recorded on the unix port (``emulator.adcs_session``, the calibrated
 parameter file of ``bench_adcs_can``), then replayed on the board cycle by cycle through its UART
-(``tools.pil_build.replay_adcs``): instructions per 1 Hz cycle (the cycle's packets, the filters, the control law,
+(``tools.pil_board.replay_adcs``): instructions per 1 Hz cycle (the cycle's packets, the filters, the control law,
 the wheel commands; counted by the board's CMSDK timer against a calibration of its rate), the heap each cycle
 allocates and the heap in use, the stack's high-water mark; the x86-64 figure of the same cycles beside it
 (callgrind on the unix port, as ``bench_adcs_can``); the last ADCS_STATUS against the unix port's (float64) replay
@@ -31,7 +31,7 @@ GOAL_SHARE = 0.10
 
 
 def main():
-    from tools import pil_build
+    from tools import pil_board, pil_build
     missing = pil_build.missing_tools()
     if missing or not os.path.exists(pil_build.ADCS_IMAGE):
         print("ADCS PIL benchmark skipped: no image (make pil)%s" % (
@@ -48,7 +48,7 @@ def main():
         for _ in range(k1):
             s.cycle()
         cfg, rec = s.config(), s.recorded
-    r = pil_build.replay_adcs(cfg, rec)
+    r = pil_board.replay_adcs(cfg, rec)
     cyc = [c for c in r["cycles"] if k0 <= c[0] < k1]
     insn = sum(c[1] for c in cyc) / len(cyc)
     worst = max(c[1] for c in cyc)

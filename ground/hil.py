@@ -345,7 +345,7 @@ def play(rig, rec, player, duration_s, summary, quiet, before_chunk=None, desc="
 
 
 def board_figures(run, summary):
-    """--runtime qemu: the board's own figures (``tools.pil_build.read_target``, read when the rig closed) into
+    """--runtime qemu: the board's own figures (``tools.pil_board.read_target``, read when the rig closed) into
     the summary as ``target`` and ``instructions_per_step``; nothing for the other runtimes."""
     target = getattr(getattr(run.rig, "process", None), "target", None)
     if target is not None:

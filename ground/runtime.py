@@ -197,13 +197,13 @@ def exit_note(proc, wait_s=1.0):
 
 def _stop(link, proc):
     """The link closed (the firmware leaves when it closes), then ``FirmwareProcess.stop``. The PIL board's RAM is
-    read first, while QEMU still runs (``proc.target``: ``tools.pil_build.read_target``)."""
+    read first, while QEMU still runs (``proc.target``: ``tools.pil_board.read_target``)."""
     if getattr(proc, "monitor_path", None):
-        from tools import pil_build
+        from tools import pil_board
         try:
-            proc.target = pil_build.read_target(proc.monitor_path) if proc.poll() is None else None
-        except (OSError, pil_build.BoardError) as exc:
-            proc.target = dict(pil_build.TARGET, error="the board's RAM could not be read: %s" % exc)
+            proc.target = pil_board.read_target(proc.monitor_path) if proc.poll() is None else None
+        except (OSError, pil_board.BoardError) as exc:
+            proc.target = dict(pil_board.TARGET, error="the board's RAM could not be read: %s" % exc)
         shutil.rmtree(proc.monitor_dir, ignore_errors=True)
     proc.stopped_by_us = proc.poll() is None
     with contextlib.suppress(Exception):

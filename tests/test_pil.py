@@ -12,7 +12,7 @@ import sys
 import pytest
 
 from firmware.controller import TRACK, Controller
-from tools import pil_build
+from tools import pil_board, pil_build
 from protocol import consts, htable
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -71,7 +71,7 @@ def _host(blob, src):
 def board():
     """A lab board for one test: stopped after it (an idle QEMU board spins a core at ~75 %, which slowed the
     tests after it in the module two-fold)."""
-    with pil_build.Board() as b:
+    with pil_board.Board() as b:
         yield b
 
 
@@ -163,7 +163,7 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
         [{k: v for k, v in r.items() if k not in link} for r in tm]
     s = json.load(open(tmp_path / "qemu" / "summary.json"))
     assert s["real_time_factor"] > 0 and s["complete"]
-    # the board's own figures, read from its RAM after the run (tools.pil_build.read_target): the thesis's 32 KB,
+    # the board's own figures, read from its RAM after the run (tools.pil_board.read_target): the thesis's 32 KB,
     # heap and stack within 24 KB of it, and the TICK exchanges counted one for one
     t, ips = s["target"], s["instructions_per_step"]
     assert t["ram_bytes"] == 32768 and "Cortex-M0" in t["core"]
@@ -188,7 +188,7 @@ def test_the_lean_adcs_on_the_cortex_m7_board_runs_a_recorded_session_as_the_uni
         for _ in range(n):
             s.cycle()
         cfg, rec = s.config(), s.recorded
-    r = pil_build.replay_adcs(cfg, rec)
+    r = pil_board.replay_adcs(cfg, rec)
     assert [c[0] for c in r["cycles"]] == list(range(n)) and r["kernels"]
     assert all(c[1] > 100000 for c in r["cycles"]) and 20 < r["insn_per_timer_tick"] < 100
     assert 0 < r["heap_bytes"] < pil_build.ADCS_MEM.heap_bytes

@@ -1,4 +1,6 @@
-"""Attitude control for pointing and tracking (Yoon 2017, Ch. 6): plain functions a flight version can follow.
+"""Attitude control for pointing and tracking (Yoon 2017, Ch. 6) in numpy: the reference of the flight app's laws
+(``firmware/adcs/control.py``, held equal to these by tests/test_adcs_lean.py), and the forms the ground's analyses
+and the calibration maneuvers use.
 
 Conventions as the APKF (Sec. 4.2): q = [q1, q2, q3, q4] scalar last, A(q) maps inertial (J2000) to body,
 A(q (x) p) = A(q) A(p).
@@ -8,12 +10,12 @@ A(q (x) p) = A(q) A(p).
   (Eq. 6.3), composed with the Orbit Frame (Eq. 6.4).
 - ``gains`` / ``pd_torque``: the quaternion feedback PD of Eq. 6.5-6.7,
   tau_c = -K q_e - D w_e, K = 2 wn^2 J, D = 2 zeta wn J (zeta = 1).
-  Eq. 6.7 as printed: wn = 8 / t_s (the OCR: "8 Wn - (6.7) ts"), independent of zeta. An earlier reading put a
-  2 zeta in the denominator (wn = 4 / t_s, Wie's t_s = 8 / c with c = 2 zeta wn); the printed form reproduces the
-  thesis's Sec. 6.4.4 stability 1σ (6.764, 8.617) arcsec/s to about 1 % at t_s = 33 s, where the other reading
-  gives ~30 % less and a J sweep whose minimum falls below the thesis's 33 s (bench/bench_bps.py measures both).
+  Eq. 6.7 as printed: wn = 8 / t_s (the OCR: "8 Wn - (6.7) ts"), independent of zeta. Read with a 2 zeta in the
+  denominator (wn = 4 / t_s, Wie's t_s = 8 / c with c = 2 zeta wn) it would give ~30 % less than the thesis's Sec.
+  6.4.4 stability 1σ (6.764, 8.617) arcsec/s at t_s = 33 s and a J sweep whose minimum falls below the thesis's
+  33 s, where the printed form reproduces the stability to about 1 % (bench/bench_bps.py measures both).
   Tested: the closed-loop poles are a double pole at -8 / t_s.
-  Beyond Eq. 6.5 (the thesis is silent; a flight team would add them, and they are switchable): w_e = w - w_c
+  Beyond Eq. 6.5 (the thesis is silent; a flight team would add them): w_e = w - w_c
   with the command rate w_c (the tracking attitude turns at about the orbit rate: without it the PD lags by
   2 zeta |w_c| / wn, ~30 arcmin), the gyroscopic term w x H, and the feed-forward of the known external torques
   the APKF estimates (gravity gradient with its J, residual dipole m x b, tau_d).
@@ -85,16 +87,6 @@ def attitude_command(r_a, v_a, r_b, laser_axis=LASER_AXIS):
     return quat.quat_mul(min_rotation(np.asarray(laser_axis, float), p_o), dcm_to_quat(T))
 
 
-def command_rate(x_hat, f, laser_axis=LASER_AXIS, h=0.5):
-    """(q_c, w_c): the command at the STKF state x_hat (12) and its rate in the command frame by a central
-    difference over +-h s of the orbit propagator f(x, dt) (our addition, see the module docstring)."""
-    qc = attitude_command(x_hat[0:3], x_hat[3:6], x_hat[6:9], laser_axis)
-    xm, xp = f(x_hat, -h), f(x_hat, h)
-    qm = attitude_command(xm[0:3], xm[3:6], xm[6:9], laser_axis)
-    qp = attitude_command(xp[0:3], xp[3:6], xp[6:9], laser_axis)
-    return qc, quat.rotvec(quat.quat_mul(qp, quat.conj(qm))) / (2 * h)
-
-
 def natural_frequency(ts):
     """wn of Eq. 6.7: wn = 8 / t_s (rad/s)."""
     ts = float(ts)
@@ -127,12 +119,6 @@ def pd_torque(q, w, qc, wc, K, D, H=None, tau_ff=None):
     if tau_ff is not None:
         tau = tau - tau_ff
     return tau
-
-
-def external_torque(J, m, tau_d, q, r_i, b_i):
-    """The known external torque the APKF models (Eq. 4.68-4.75): gravity gradient with J, m x b, tau_d."""
-    A = quat.dcm(q)
-    return env.gravity_gradient_torque(J, A @ r_i) + env.cross3(m, A @ b_i) + tau_d
 
 
 def friction_compensation(w_rw, coulomb=WHEEL_DATASHEET.friction_coulomb,

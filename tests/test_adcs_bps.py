@@ -13,6 +13,7 @@ from emulator.spacecraft.dynamics import Spacecraft
 from emulator.spacecraft.wheels import pyramid_c0
 from ground import cli
 from ground.adcs import body_pointing as bps, bps_cli, control, quat
+from protocol import spacecraft as sf
 from ground.adcs.bps_source import BpsSource
 
 ARC = quat.RAD_PER_ARCSEC
@@ -527,3 +528,26 @@ def test_hil_report_shows_the_disturbance_beside_the_residual():
          "disturbance": dict(report.error_stats([30.0, -30.0], [0.0, 40.0]), source="bps33n x")}
     t = report.table(s)
     assert "disturbance played" in t and "1σ (30.00, 20.00) arcsec" in t and "bps33n" in t
+
+
+def test_the_absolute_wheel_inertia_takes_the_datasheet_friction():
+    """absolute_jrw: wheels spun by known torques against Coulomb + viscous friction give their inertia back when
+    the friction is taken (and 3-4 % off when it is not); the calibrated torque scale of a 6U within 1 % of its
+    truth (it was 4.7 % off without the friction, seed 0)."""
+    jrw = np.array([2e-5, 3e-5, 4e-5, 5e-5])
+    c, v, sm = 5e-5, 1e-7, 1.0
+    rng = np.random.default_rng(1)
+    u = rng.uniform(-5e-4, 5e-4, (400, 4))
+    W = [np.full(4, 50.0)]
+    for k in range(399):                                # exact enough at 1 s steps for the test's 0.1 %
+        w = W[-1]
+        for _ in range(100):
+            w = w + (u[k] - (v * w + c * np.tanh(w / sm))) * 0.01 / jrw
+        W.append(w)
+    W = np.array(W)
+    got = bps.absolute_jrw(u, W, friction=(c, v, sm))
+    assert np.allclose(got, jrw, rtol=5e-3)
+    assert np.min(np.abs(bps.absolute_jrw(u, W) / jrw - 1)) > 0.02
+    d = sf.load("generic-6u")
+    p = bps.calibrate(seed=0, spacecraft=d)
+    assert abs(p["torque_scale"] / p["calibration"]["scale_true"] - 1) < 0.01

@@ -64,13 +64,19 @@ WORLDS = ("thesis", "flight")
 
 
 # --- parameter file ------------------------------------------------------------------------------------------
-def absolute_jrw(u, tach, dt=1.0):
+def absolute_jrw(u, tach, dt=1.0, friction=None):
     """Each wheel's absolute inertia from the commanded motor torques u[k] (held over step k -> k+1) and the
-    tachometer read-outs: least squares of dW_i = u_i dt / Jrw_i (friction and the body's own acceleration,
-    < 1 % here, are neglected). Our addition: the APKF's calibration is relative (everything scaled by
-    s = Jxx_ref / Jxx, Sec. 4.6.2), and a controller must know the absolute scale to cancel a torque."""
+    tachometer read-outs: least squares of dW_i = (u_i - f_i) dt / Jrw_i, f_i the wheel's datasheet friction
+    (``friction`` = (Coulomb N m, viscous N m s/rad, smoothing rad/s), at the step's mean read-out speed; None:
+    none) (the body's own acceleration, < 1 % here, is neglected). Our addition: the APKF's calibration is
+    relative (everything scaled by s = Jxx_ref / Jxx, Sec. 4.6.2), and a controller must know the absolute scale
+    to cancel a torque."""
     dW = np.diff(tach, axis=0)
     uu = u[:-1] * dt
+    if friction is not None:
+        c, v, sm = friction
+        wm = 0.5 * (tach[:-1] + tach[1:])
+        uu = uu - control.friction_compensation(wm, c, v, sm) * dt
     return np.sum(uu * uu, axis=0) / np.sum(uu * dW, axis=0)
 
 
@@ -101,7 +107,9 @@ def calibrate(seed=0, sets=CAL_SETS, progress=False, spacecraft=None):
     u = np.array([control.wheel_torques(o["tau_c"][k], w.c0, 0.1, o["w_rel"][k - 1]) if k > 0 else np.zeros(4)
                   for k in range(n)])                      # what scenario.simulate commanded over step k-1 -> k
     u = np.clip(np.vstack([u[1:], np.zeros((1, 4))]), -w.p.torque_max, w.p.torque_max)
-    jabs = absolute_jrw(u, o["tach"])
+    ds = d["wheels"]                                       # the datasheet's friction, not the truth's
+    jabs = absolute_jrw(u, o["tach"], friction=(ds["friction_coulomb_nm"], ds["friction_viscous_nms_rad"],
+                                                 ds["friction_smooth_rpm"] * 2 * np.pi / 60))
     scale = torque_scale(f.x, jabs, f.model)
     meta = {"seed": int(seed), "jrw_abs_kgm2": jabs.tolist(), "scale_true": float(tr["scale"]), "sets": int(sets), "duration_s": float(o["t"][-1]),
             "final_error": {"J5_kgm2": (tr["J5"] - f.x[10:15]).tolist(),

@@ -86,6 +86,7 @@ class Allocation:
         self.jrw_nom = [float(v) for v in w.get("rotor_inertia_kgm2", (3e-6,) * NW)]
         self.nvec = flight.null_vector(self.C)
 
+    @micropython.native
     def use_wheels(self, failed):
         """The axes in use and their (C C^T)^-1 cofactors for the failed mask (bits), when it changed."""
         if failed == self.cof_failed:
@@ -99,6 +100,7 @@ class Allocation:
             self.cof = None
         self.cof_failed = failed
 
+    @micropython.native
     def idle(self):
         """u = 0 (before the APKF starts; each cycle before the law adds to it)."""
         u = self.u

@@ -76,6 +76,7 @@ class App:
         rd.clear()
         return u
 
+    @micropython.native
     def control(self, t, st_ok):
         """The cycle's command and wheel torques (none before the APKF starts)."""
         est, act, md = self.est, self.act, self.modes

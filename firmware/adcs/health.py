@@ -6,6 +6,7 @@ is back as soon as it answers. A sensor is stale in a cycle it gave nothing usab
 packet table); it has been silent for long when its last usable reading is ``stale_s`` seconds old or more.
 """
 
+from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol.consts import STALE_BEACON, STALE_GNSS_A, STALE_GNSS_B, STALE_RW0, STALE_STARTRACKER
 
 NW = 4
@@ -30,6 +31,7 @@ class Health:
         self.gnss_t = -1.0                  # the time of SatA's last usable fix (-1: never)
         self.stale = 0
 
+    @micropython.native
     def wheels(self, rw_got):
         """The failed mask after a cycle's read-outs (every wheel answers each tick: ``telemetry.commands``)."""
         for i in range(NW):
@@ -43,6 +45,7 @@ class Health:
                 if self.rw_miss_run[i] >= FAIL_AFTER:
                     self.failed |= 1 << i
 
+    @micropython.native
     def count(self, rd):
         """The cycle's missed and invalid readings (``intake.Intake`` ``rd``)."""
         if not rd.st_got:
@@ -56,6 +59,7 @@ class Health:
         elif not rd.bc_valid:
             self.n_beacon_invalid += 1
 
+    @micropython.native
     def heard(self, rd, t):
         """The times of the readings the filters took at cycle time t (s)."""
         if rd.st_ok():
@@ -66,6 +70,7 @@ class Health:
         if rd.bc_got and rd.bc_valid:
             self.last_ok["beacon"] = t
 
+    @micropython.native
     def stale_bits(self, rd, t):
         """The cycle's ``STALE_*`` bits (SatB's GNSS: stale when silent for ``stale_s``)."""
         stale = 0
@@ -83,6 +88,7 @@ class Health:
         self.stale = stale
         return stale
 
+    @micropython.native
     def silent(self, t, keys):
         """True when any of the sensors ``keys`` (of ``last_ok``) has been silent for ``stale_s`` at t."""
         for k in keys:

@@ -5,7 +5,7 @@ used; what is refused is counted in the app's ``Health``."""
 import math
 import struct
 
-from firmware.adcs.linalg import zeros
+from firmware.adcs.linalg import micropython, zeros     # micropython: the module, or CPython's no-op stand-in
 from firmware.adcs.stkf_lean import zeros_d
 from protocol import core
 
@@ -50,6 +50,7 @@ class Intake:
         self.mag = zeros(3)
         self.mag_got = False
 
+    @micropython.native
     def st_ok(self):
         """A valid star-tracker fix this cycle."""
         return self.st_got and self.st_valid
@@ -110,6 +111,7 @@ class Intake:
             z[i] = v[2 + i] * GNSS_M
             z[3 + i] = v[5 + i] * GNSS_MS
 
+    @micropython.native
     def clear(self):
         """Forget the readings (after each cycle, and when the spacecraft gives up a cycle whose burst was
         incomplete)."""

@@ -76,6 +76,7 @@ class Modes:
         for i in range(3):
             self.wc[i] = s * dq[i]        # rotvec / (2 h), 2 h = 1 s
 
+    @micropython.native
     def _commanded(self, t, X):
         """True when the command is flown this cycle (after the hold, where it exists)."""
         self.no_command = False
@@ -88,6 +89,7 @@ class Modes:
             return False
         return True
 
+    @micropython.native
     def _damp(self, q):
         """Rate damping: q_c = q, w_c = 0."""
         for i in range(4):
@@ -141,6 +143,7 @@ class Modes:
             if not self.slew.active:
                 self.fmode = MODE_ACQUIRE
 
+    @micropython.native
     def decide(self, t, started, health):
         """The mode reported for the cycle at t (s): ``started`` the APKF has started; ``health`` the app's
         ``health.Health`` after the cycle."""

@@ -206,10 +206,7 @@ def serve_wheels(args):
     from emulator.spacecraft.devices import NACK, RW_NODES
     from emulator.spacecraft.wheels import RPM
     from protocol.link import open_link
-    if args.duration is not None and not args.duration > 0:
-        raise ValueError("--duration must be > 0 s, got %r" % args.duration)
-    if not (args.startracker_hz > 0 and np.isfinite(args.startracker_hz)):
-        raise ValueError("--startracker-hz must be > 0, got %r" % args.startracker_hz)
+    _check_wheel_args(args)
     sc = Spacecraft(wheels=Wheels(WheelParams(), rng=np.random.default_rng(args.seed)), dt=args.dt)
     dev = SpacecraftDevices(sc)
     # on CAN the link also takes what is addressed to the wheels and the star tracker's ISO-TP flow control
@@ -232,16 +229,10 @@ def serve_wheels(args):
 
     clock = time.monotonic
     late = tx_timeouts = 0
-    st_period = 1.0 / args.startracker_hz
-    st_next = 0.0
+    st_period, st_next = 1.0 / args.startracker_hz, 0.0
     with _StopSignals() as stop:
         try:
-            t_wait = clock() + args.wait
-            first = []
-            while not first and stop.name is None and not link.closed and clock() < t_wait:
-                first = link.recv(timeout=min(0.1, max(0.0, t_wait - clock())))
-            if not first and stop.name is None and not link.closed:
-                raise OSError("no flight computer spoke on %s within %g s" % (link.peer_path, args.wait))
+            first = _first_words(link, stop, args.wait)
             t0 = clock()
             answer(first)
             while True:
@@ -270,15 +261,41 @@ def serve_wheels(args):
         finally:
             link_counters = link.counters()
             link.close()
-    summary = {"devices": "wheels", "link": args.link, "seed": args.seed, "dt": sc.dt, "stopped_by": stopped_by,
-               "virtual_s": sc.t, "wall_s": wall, "steps": sc.steps, "late_steps": late, "tx_timeouts": tx_timeouts,
-               "packets_rx": dict(rx), "packets_tx": dict(tx), "nacks": dict(nacks), "link_counters": link_counters,
-               "clips": sc.wheels.counters(), "omega_rw_rpm": (sc.omega_rw / RPM).tolist()}
-    drops = {k: v for k, v in link_counters.items() if v and k not in ("frames", "tx_frames")}
-    print("wheels: stopped by %s after %.2f s (%d steps, %d late); packets in %s, out %s; NACKs %s; "
-          "link drops %s; clips torque %s speed %s"
-          % (stopped_by, sc.t, sc.steps, late, dict(rx), dict(tx), dict(nacks), drops,
-             summary["clips"]["torque_clip"], summary["clips"]["speed_clip"]), file=sys.stderr, flush=True)
+    summary = dict(devices="wheels", link=args.link, seed=args.seed, dt=sc.dt, stopped_by=stopped_by, virtual_s=sc.t,
+                   wall_s=wall, steps=sc.steps, late_steps=late, tx_timeouts=tx_timeouts, packets_rx=dict(rx),
+                   packets_tx=dict(tx), nacks=dict(nacks), link_counters=link_counters, clips=sc.wheels.counters(),
+                   omega_rw_rpm=(sc.omega_rw / RPM).tolist())
+    _say_wheels(summary)
     if args.output:
         write_json(args.output, summary, make_folder=False)
     return 0
+
+
+def _check_wheel_args(args):
+    """ValueError naming a bad ``--duration`` or ``--startracker-hz``."""
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError("--duration must be > 0 s, got %r" % args.duration)
+    if not (args.startracker_hz > 0 and np.isfinite(args.startracker_hz)):
+        raise ValueError("--startracker-hz must be > 0, got %r" % args.startracker_hz)
+
+
+def _first_words(link, stop, wait_s):
+    """The first packets the flight computer sends (it speaks first), waited for up to ``wait_s`` s; OSError when
+    none came (an empty list when stopped or the peer left meanwhile)."""
+    clock = time.monotonic
+    t_wait = clock() + wait_s
+    first = []
+    while not first and stop.name is None and not link.closed and clock() < t_wait:
+        first = link.recv(timeout=min(0.1, max(0.0, t_wait - clock())))
+    if not first and stop.name is None and not link.closed:
+        raise OSError("no flight computer spoke on %s within %g s" % (link.peer_path, wait_s))
+    return first
+
+
+def _say_wheels(s):
+    """The wheel node's last line on stderr: why it stopped, its steps, packets, NACKs, link drops and clips."""
+    drops = {k: v for k, v in s["link_counters"].items() if v and k not in ("frames", "tx_frames")}
+    print("wheels: stopped by %s after %.2f s (%d steps, %d late); packets in %s, out %s; NACKs %s; "
+          "link drops %s; clips torque %s speed %s"
+          % (s["stopped_by"], s["virtual_s"], s["steps"], s["late_steps"], s["packets_rx"], s["packets_tx"],
+             s["nacks"], drops, s["clips"]["torque_clip"], s["clips"]["speed_clip"]), file=sys.stderr, flush=True)

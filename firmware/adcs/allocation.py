@@ -17,12 +17,11 @@ the clean one: its readings are only compared with the model (``mag_miss``, T, t
 import math
 
 from firmware.adcs import apkf_lean, control, flight, linalg
+from firmware.adcs.apkf_lean_model import NW, RPM
 from firmware.adcs.estimation import field_dipole
 from firmware.adcs.linalg import micropython
 from protocol.units import MU_EARTH
 
-RPM = 2.0 * math.pi / 60.0
-NW = 4
 
 
 def _check_rods(mt):

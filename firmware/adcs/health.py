@@ -6,10 +6,10 @@ is back as soon as it answers. A sensor is stale in a cycle it gave nothing usab
 packet table); it has been silent for long when its last usable reading is ``stale_s`` seconds old or more.
 """
 
+from firmware.adcs.apkf_lean_model import NW     # the wheels the lean ADCS flies
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol.consts import STALE_BEACON, STALE_GNSS_A, STALE_GNSS_B, STALE_RW0, STALE_STARTRACKER
 
-NW = 4
 FAIL_AFTER = 3
 
 

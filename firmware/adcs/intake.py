@@ -2,26 +2,19 @@
 buffers, and the checks that decide which of them are usable. A reading outside the packet table's ranges is not
 used; what is refused is counted in the app's ``Health``."""
 
-import math
 import struct
 
+from firmware.adcs.apkf_lean_model import NW, RPM   # the wheels the lean ADCS flies; rad/s per rpm
 from firmware.adcs.linalg import micropython, zeros     # micropython: the module, or CPython's no-op stand-in
 from firmware.adcs.stkf_lean import zeros_d
 from protocol import core
+from protocol.consts import (FMT_BEACON, FMT_GNSS, FMT_MAGNETOMETER, FMT_RW_TLM, FMT_STARTRACKER, NODE_RW0, P_BEACON,
+                             P_GNSS, P_MAGNETOMETER, P_RW_TLM, P_STARTRACKER)
 
-RPM = 2.0 * math.pi / 60.0          # rad/s per rpm
-NW = 4
 UNIT_TOL = 1e-3        # | |v|^2 - 1 | of a unit vector or quaternion off the bus (float32 rounding: ~1e-7)
 _INF = float("inf")
 
-P_RW_TLM = core.PACKET_ID["RW_TLM"]
-P_ST = core.PACKET_ID["STARTRACKER"]
-P_GNSS = core.PACKET_ID["GNSS"]
-P_BEACON = core.PACKET_ID["BEACON"]
-P_MAG = core.PACKET_ID["MAGNETOMETER"]
-RW0 = core.NODE["RW0"]
-_FMT = dict((p, core.PACKET[p].fmt) for p in (P_RW_TLM, P_ST, P_GNSS, P_BEACON, P_MAG))
-MAG_T = core.field_scales(P_MAG)["bx"] * 1e-9      # tesla per MAGNETOMETER count
+MAG_T = core.field_scales(P_MAGNETOMETER)["bx"] * 1e-9      # tesla per MAGNETOMETER count
 _SCALE = core.field_scales(P_GNSS)
 GNSS_M, GNSS_MS = _SCALE["x"], _SCALE["vx"]       # GNSS position (m) and velocity (m/s) per count, from the table
 SATB_FIXES = 4                                    # SatB's fixes of one cycle kept (the newest)
@@ -62,27 +55,27 @@ class Intake:
         n_refused); a GNSS fix of a satellite other than 0 or 1 is refused (n_refused). Of SatB's fixes
         (``satb``) the newest 4 of a cycle are kept, an older one beyond them is refused (n_refused)."""
         if pid == P_RW_TLM:
-            i = src - RW0
+            i = src - NODE_RW0
             if 0 <= i < NW:
-                speed, _ = struct.unpack(_FMT[P_RW_TLM], payload)
+                speed, _ = struct.unpack(FMT_RW_TLM, payload)
                 if -_INF < speed < _INF:
                     self.wp[i] = speed * RPM
                     self.rw_got[i] = True
-        elif pid == P_ST:
-            t_ms, q0, q1, q2, q3, valid = struct.unpack(_FMT[P_ST], payload)
+        elif pid == P_STARTRACKER:
+            t_ms, q0, q1, q2, q3, valid = struct.unpack(FMT_STARTRACKER, payload)
             self.st_got = True
             n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3      # NaN or inf fail the comparison
             self.st_valid = valid == 1 and abs(n2 - 1.0) < UNIT_TOL
             q = self.qst
             q[0], q[1], q[2], q[3] = q0, q1, q2, q3
         elif pid == P_GNSS:
-            self._gnss(struct.unpack(_FMT[P_GNSS], payload))
-        elif pid == P_MAG:
-            t_ms, bx, by, bz, valid = struct.unpack(_FMT[P_MAG], payload)
+            self._gnss(struct.unpack(FMT_GNSS, payload))
+        elif pid == P_MAGNETOMETER:
+            t_ms, bx, by, bz, valid = struct.unpack(FMT_MAGNETOMETER, payload)
             self.mag_got = valid == 1
             self.mag[0], self.mag[1], self.mag[2] = bx * MAG_T, by * MAG_T, bz * MAG_T
         elif pid == P_BEACON:
-            t_ms, ux, uy, uz, valid = struct.unpack(_FMT[P_BEACON], payload)
+            t_ms, ux, uy, uz, valid = struct.unpack(FMT_BEACON, payload)
             self.bc_got = True
             self.bc_valid = valid == 1 and not abs(ux * ux + uy * uy + uz * uz - 1.0) >= UNIT_TOL   # NaN: STKF
             self.yb[0], self.yb[1], self.yb[2] = ux, uy, uz

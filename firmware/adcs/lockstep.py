@@ -11,20 +11,14 @@ except ImportError:                               # CPython
     def ticks_diff(a, b):
         return a - b
 
+from firmware.adcs.apkf_lean_model import NW     # the wheels the lean ADCS flies
 from firmware.adcs.telemetry import cycle_replies
 from protocol import can as canmap
 from protocol import core
-from protocol.consts import STALE_BEACON, STALE_GNSS_A, STALE_GNSS_B, STALE_RW0, STALE_STARTRACKER
+from protocol.consts import (FMT_ADCS_MISSING, FMT_ADCS_TICK, NODE_BROADCAST, NODE_RW0, P_ADCS_MISSING, P_ADCS_TICK,
+                             P_BEACON, P_GNSS, P_HELLO, P_RW_TLM, P_STARTRACKER, STALE_BEACON, STALE_GNSS_A,
+                             STALE_GNSS_B, STALE_RW0, STALE_STARTRACKER)
 
-NW = 4
-P_RW_TLM = core.PACKET_ID["RW_TLM"]
-P_ST = core.PACKET_ID["STARTRACKER"]
-P_GNSS = core.PACKET_ID["GNSS"]
-P_BEACON = core.PACKET_ID["BEACON"]
-P_TICK = core.PACKET_ID["ADCS_TICK"]
-P_MISSING = core.PACKET_ID["ADCS_MISSING"]
-RW0 = core.NODE["RW0"]
-_FMT = dict((p, core.PACKET[p].fmt) for p in (P_TICK, P_MISSING))
 
 
 def _drops(port):
@@ -39,9 +33,9 @@ _B_GNSS_B = 1 << STALE_GNSS_B
 def burst_bit(pid, src, payload):
     """The ADCS_STALE bit naming a burst packet (ADCS_TICK.burst), 0 for a packet that is not one."""
     if pid == P_RW_TLM:
-        i = src - RW0
+        i = src - NODE_RW0
         return 1 << (STALE_RW0 + i) if 0 <= i < NW else 0
-    if pid == P_ST:
+    if pid == P_STARTRACKER:
         return 1 << STALE_STARTRACKER
     if pid == P_GNSS:
         sat = payload[4]                     # after t_ms (I)
@@ -103,7 +97,7 @@ class Lockstep:
             miss = self.want & ~self.have & ~_B_GNSS_B
             if len(self.tb) < self.nb_want:
                 miss |= _B_GNSS_B
-            return ((P_MISSING, src, struct.pack(_FMT[P_MISSING], tick & 0xFFFFFFFF, miss)),)
+            return ((P_ADCS_MISSING, src, struct.pack(FMT_ADCS_MISSING, tick & 0xFFFFFFFF, miss)),)
         return self._run() if self._ready() else ()
 
     def on_packet(self, pid, src, payload):
@@ -148,8 +142,8 @@ class InProcess:
     def send_raw(self, pid, src, dst, payload):
         if dst != self.node:
             return
-        if pid == P_TICK:
-            tick, t_ms, burst, n_gnss_b = struct.unpack(_FMT[P_TICK], payload)
+        if pid == P_ADCS_TICK:
+            tick, t_ms, burst, n_gnss_b = struct.unpack(FMT_ADCS_TICK, payload)
             out = self.ls.on_tick(tick, t_ms, burst, n_gnss_b, src)
         else:
             out = self.ls.on_packet(pid, src, payload)
@@ -172,11 +166,11 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
     (``Lockstep``): per cycle, RW_CMD x4 and ADCS_STATUS to the tick's sender. ``heap``: callable(tick, bytes)
     measuring the cycle's heap (gc.mem_alloc deltas, under MicroPython)."""
     me = port.node
-    hello = core.encode_payload(core.PACKET_ID["HELLO"], node=me, fw_major=1, fw_minor=0)
+    hello = core.encode_payload(P_HELLO, node=me, fw_major=1, fw_minor=0)
     ad = getattr(port, "ad", None)
     while ad is not None and not ad.is_open and not port.closed:
         port.recv_ms(100)             # the host opens the channel (O) before any frame can go out
-    port.send_raw(core.PACKET_ID["HELLO"], me, 0xFF, hello)
+    port.send_raw(P_HELLO, me, NODE_BROADCAST, hello)
     mem = None
     if heap is not None:
         import gc
@@ -198,8 +192,8 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
     ls = Lockstep(app, step)
     while not port.closed:
         for pid, src, dst, seq, payload in port.recv_ms(poll_ms):
-            if pid == P_TICK:
-                tick, t_ms, burst, n_gnss_b = struct.unpack(_FMT[P_TICK], payload)
+            if pid == P_ADCS_TICK:
+                tick, t_ms, burst, n_gnss_b = struct.unpack(FMT_ADCS_TICK, payload)
                 replies = ls.on_tick(tick, t_ms, burst, n_gnss_b, src)
             else:
                 replies = ls.on_packet(pid, src, payload)

@@ -4,16 +4,11 @@ estimates), in the order ``cycle_replies`` sends them."""
 
 import struct
 
-from protocol import core
+from firmware.adcs.apkf_lean_model import NW     # the wheels the lean ADCS flies
+from protocol.consts import (FMT_ADCS_STATUS, FMT_MTQ_CMD, FMT_RW_CMD, NODE_MTQ, NODE_RW0, P_ADCS_STATUS, P_MTQ_CMD,
+                             P_RW_CMD)
 
-NW = 4
 NEVER = 65535
-P_RW_CMD = core.PACKET_ID["RW_CMD"]
-P_STATUS = core.PACKET_ID["ADCS_STATUS"]
-P_MTQ_CMD = core.PACKET_ID["MTQ_CMD"]
-MTQ = core.NODE["MTQ"]
-RW0 = core.NODE["RW0"]
-_FMT = dict((p, core.PACKET[p].fmt) for p in (P_STATUS, P_RW_CMD, P_MTQ_CMD))
 
 
 def commands(u, failed, tick=0):
@@ -23,13 +18,13 @@ def commands(u, failed, tick=0):
     out = []
     for i in range(NW):
         en = 0 if failed & (1 << i) else 1
-        out.append((RW0 + i, struct.pack(_FMT[P_RW_CMD], u[i] if en else 0.0, en, tick & 0xFF)))
+        out.append((NODE_RW0 + i, struct.pack(FMT_RW_CMD, u[i] if en else 0.0, en, tick & 0xFF)))
     return out
 
 
 def mtq_payload(m_cmd, tick):
     """MTQ_CMD of cycle ``tick``: the dipole m_cmd (A m^2) on the three rods."""
-    return struct.pack(_FMT[P_MTQ_CMD], m_cmd[0], m_cmd[1], m_cmd[2], 1, tick & 0xFF)
+    return struct.pack(FMT_MTQ_CMD, m_cmd[0], m_cmd[1], m_cmd[2], 1, tick & 0xFF)
 
 
 def status_payload(app, tick, cycle_us=0, n_rx_drop=0):
@@ -42,7 +37,7 @@ def status_payload(app, tick, cycle_us=0, n_rx_drop=0):
     X = est.xs
     age = NEVER if hl.gnss_t < 0 else min(NEVER - 1, max(0, int(app.t - hl.gnss_t)))
     m = hl.miss_rw
-    return struct.pack(_FMT[P_STATUS], tick & 0xFFFFFFFF, app.modes.mode, hl.stale, hl.failed,
+    return struct.pack(FMT_ADCS_STATUS, tick & 0xFFFFFFFF, app.modes.mode, hl.stale, hl.failed,
                        m[0] & 0xFFFF, m[1] & 0xFFFF, m[2] & 0xFFFF, m[3] & 0xFFFF,
                        hl.miss_st & 0xFFFF, hl.miss_gnss & 0xFFFF, hl.miss_beacon & 0xFFFF,
                        hl.n_st_invalid & 0xFFFF, hl.n_beacon_invalid & 0xFFFF, hl.n_gnss_b & 0xFFFF,
@@ -56,6 +51,6 @@ def cycle_replies(app, cmds, tick, host, cycle_us=0, n_rx_drop=0):
     magnetorquers' MTQ_CMD, then the ADCS_STATUS to ``host`` that closes the cycle."""
     out = [(P_RW_CMD, dst_w, pl) for dst_w, pl in cmds]
     if app.fly:
-        out.append((P_MTQ_CMD, MTQ, mtq_payload(app.act.m_cmd, tick)))
-    out.append((P_STATUS, host, status_payload(app, tick, cycle_us, n_rx_drop)))
+        out.append((P_MTQ_CMD, NODE_MTQ, mtq_payload(app.act.m_cmd, tick)))
+    out.append((P_ADCS_STATUS, host, status_payload(app, tick, cycle_us, n_rx_drop)))
     return out

@@ -9,7 +9,7 @@ import json
 import sys
 
 from firmware.adcs.app import App
-from firmware.adcs.telemetry import P_STATUS
+from protocol.consts import P_ADCS_STATUS as P_STATUS
 from firmware.hal.slcan import CanPort, SlcanAdapter
 from protocol import can as canmap
 from protocol import core

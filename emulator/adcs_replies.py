@@ -23,7 +23,6 @@ class ReplyWait:
     ``retries``, each late cycle in ``n_late``."""
 
     def __init__(self, bus, expect_mtq, reply_timeout_s):
-        self.link = None                         # the session's, set with each burst
         self.bus = bus
         self.expect_mtq = expect_mtq
         self.timeout_s = float(reply_timeout_s)
@@ -36,25 +35,25 @@ class ReplyWait:
         self.n_late = 0
         self.late_run = 0                        # consecutive late cycles
 
-    def send(self, bits=None):
+    def send(self, link, bits=None):
         """ADCS_TICK(k) then the burst's packets (``bits`` None), or only the packets of ``bits`` (an answer to
         ADCS_MISSING: the firmware has the cycle open)."""
         if bits is None:
-            self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self.bus.tick_payload)
+            link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self.bus.tick_payload)
         for bit, pid, src, payload in self.bus.pkts:
             if bits is None or bit & bits:
-                self.link.send_raw(pid, src, N["ADCS"], payload)
+                link.send_raw(pid, src, N["ADCS"], payload)
 
-    def open(self):
+    def open(self, link):
         """Cycle k's ADCS_TICK and burst sent: its wait starts."""
         self.tick_sent = time.monotonic()
-        self.send(None)
+        self.send(link, None)
 
     def _done(self, status):
         return status is not None and all(c is not None for c in self.cmd) and (
             self.mtq_cmd is not None or not self.expect_mtq)
 
-    def wait(self, k, exited):
+    def wait(self, k, link, exited):
         """RW_CMDs and ADCS_STATUS of tick k (None if late); ``exited()`` the firmware's end (an OSError)."""
         t0 = self.tick_sent
         deadline = t0 + self.timeout_s
@@ -78,19 +77,19 @@ class ReplyWait:
                 self.retries["tick_resent"] += 1
                 self.retries["cycles_retried"] += resent == 1
                 if heard:
-                    self.link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self.bus.tick_payload)
+                    link.send_raw(P["ADCS_TICK"], N["SPACECRAFT"], N["ADCS"], self.bus.tick_payload)
                 else:                            # the tick or the whole burst may be lost: all of it again
                     self.retries["burst_resent"] += 1
-                    self.send(None)
+                    self.send(link, None)
                 try_s = RETRY_S if resent == 1 else min(TRY_MAX_S, TRY_BACKOFF * try_s)
                 try_end = time.monotonic() + try_s
                 continue
-            for pkt in self.link.recv(min(deadline, try_end) - now):
-                got, status = self._take(k, pkt, status)
+            for pkt in link.recv(min(deadline, try_end) - now):
+                got, status = self._take(link, k, pkt, status)
                 heard = heard or got
             exited(k)
 
-    def _take(self, k, pkt, status):
+    def _take(self, link, k, pkt, status):
         """(heard, status) after one packet of cycle k."""
         pid, src, dst, seq, payload = pkt
         if pid == P["RW_CMD"] and dst in RW_NODES:
@@ -110,7 +109,7 @@ class ReplyWait:
             if d["tick"] == k and status is None:
                 self.retries["missing_answered"] += 1
                 self.retries["packets_resent"] += sum(1 for b, _, _, _ in self.bus.pkts if b & d["missing"])
-                self.send(d["missing"])
+                self.send(link, d["missing"])
                 return True, status
         return False, status
 

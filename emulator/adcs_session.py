@@ -301,8 +301,7 @@ class AdcsSession:
     def _burst(self):
         """Cycle k's burst built (``SpacecraftBus.burst``) and sent with its ADCS_TICK."""
         self.bus.burst(self.k)
-        self.wait.link = self.link
-        self.wait.open()
+        self.wait.open(self.link)
 
     def cycle(self):
         """One 1 s flight-software cycle = 10 dynamics steps of 0.1 s (see the module docstring)."""
@@ -310,7 +309,7 @@ class AdcsSession:
             raise OSError("session not started (call start())")
         if self.k >= self.K:
             raise ValueError("the session's %d s are done" % self.K)
-        status = self.wait.wait(self.k, self._exited)
+        status = self.wait.wait(self.k, self.link, self._exited)
         t = float(self.k)
         if status is None:
             self._late(t)

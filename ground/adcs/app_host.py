@@ -20,6 +20,9 @@ FSW = (("q_hat", 4), ("w_hat", 3), ("qc", 4), ("tau_c", 3), ("u", 4), ("tau_ff",
        ("st_ok", 1), ("beacon_used", 1), ("mtq_sat", 1), ("att_sigma", 1), ("att_cov", 9), ("stkf_err", 6),
        ("stkf_cov", 18))
 ESTIMATORS = ("lean", "ground")
+SOFTWARE = {"ground": "firmware/adcs/app.py in process with the ground's estimators (41-state APKF, full STKF with "
+                      "its AFLS: ground/adcs/estimators.py)",
+            "lean": "firmware/adcs/app.py in process (lean APKF, lean STKF with its AFLS)"}
 
 
 class Recorder:
@@ -87,6 +90,24 @@ def consistency(fsw, k_from, p=0.95):
         out[name] = {"seconds": int(ok.sum()), "nees_mean": float(nees.mean()),
                      "nees_in_band_share": float(np.mean((nees >= lo) & (nees <= hi))),
                      "rms_over_sigma": (np.sqrt((e ** 2).mean(axis=0)) / np.sqrt((sig ** 2).mean(axis=0))).tolist()}
+    return out
+
+
+def run_result(s, rec, k_done, K, complete, wall_s, world, estimator, settle_s, **run):
+    """What both worlds' results say of a run of the session ``s`` and its recorder: the ``run``'s arguments
+    (ts_s, satb_gnss, seed, truth, duration_s), how far it got, the flight software it flew, the vehicle, the
+    wheels, the modes and the gate's resets."""
+    from ground.adcs.modes import time_in
+    from ground.adcs.pointing import orbit_period
+    d = s.spacecraft
+    out = {"ts_s": run["ts_s"], "satb_gnss": bool(run["satb_gnss"]), "seed": int(run["seed"]), "truth": run["truth"],
+           "duration_s": float(run["duration_s"]), "settle_s": float(settle_s), "simulated_s": float(k_done),
+           "complete": bool(complete and k_done == K), "feedforward": True, "wall_s": wall_s,
+           "flight_software": SOFTWARE[estimator], "estimator": estimator, "world": world, "spacecraft": d["name"],
+           "wheel_speed_clips": s.wheels.counters(), "tach_noise_rpm": d["wheels"]["tach_noise_rpm"],
+           "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "orbit_period_s": orbit_period(s.xg[0, 0]),
+           "mode_changes": s.mode_changes, "time_in_mode_s": time_in(s.mode_changes, k_done),
+           "apkf_attitude_resets": [list(r) for r in rec.resets]}
     return out
 
 

@@ -21,7 +21,7 @@ from emulator.spacecraft.scenario import HOLD_S, laser_axis
 from firmware.adcs.flight import FLIGHT, options
 from ground.adcs import app_host, control
 from ground.adcs.app_host import ESTIMATORS  # noqa: F401  (flight_world.ESTIMATORS, the CLI's choices)
-from ground.adcs.modes import MODE_CODE, time_in
+from ground.adcs.modes import MODE_CODE
 from ground.adcs.pointing import (TS_THESIS, add_statistics, check_ts, close_history, error_budget, orbit_period,
                                   statistics)
 
@@ -81,16 +81,11 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         satb_gnss=satb_gnss, seed=seed, ts=ts, params=params, faults=faults, truth=truth, cache_dir=cache_dir,
         hold_s=hold_s, spacecraft=d, world="flight", flight=fo, estimation=app_host.estimation_for(estimator, d))
     lb = laser_axis(d)
-    res, hist = _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s,
-                        wall_s)
-    res["estimator"] = estimator
-    if estimator == "ground":
-        res["flight_software"] = ("firmware/adcs/app.py in process with the ground's estimators (41-state APKF, "
-                                  "full STKF with its AFLS: ground/adcs/estimators.py)")
-    return res, hist
+    return _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s,
+                   estimator)
 
 
-def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s):
+def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s, estimator):
     """The run's result and history from the session and the recorder (``simulate``)."""
     dth, dom, fsw = close_history(hist, rec.fsw, s.xg, scenario.WORLD_RATE_HZ, k_done, lb)
     mode_s = fsw["mode"][:, 0]
@@ -101,16 +96,10 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
                           laser_axis=lb)
     first_point = next((c["t_s"] for c in s.mode_changes if c["to"] == "POINT"), None)
     blind = s.blind_share(first_point) if first_point is not None else None
-    res = {"ts_s": ts, "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
-           "duration_s": float(duration_s), "settle_s": float(period), "simulated_s": float(k_done),
-           "complete": bool(complete and k_done == K), "feedforward": True, "wall_s": wall_s,
-           "flight_software": "firmware/adcs/app.py in process (lean APKF, lean STKF with its AFLS)",
-           "wheel_speed_clips": s.wheels.counters(),
-           "wheel_speed_limit_rpm": float(d["wheels"]["speed_limit_rpm"]),
-           "tach_noise_rpm": d["wheels"]["tach_noise_rpm"], "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"],
-           "spacecraft": d["name"], "world": "flight", "orbit_period_s": period, "mode_changes": s.mode_changes,
-           "time_in_mode_s": time_in(s.mode_changes, k_done), "apkf_attitude_resets": [list(r) for r in rec.resets],
-           "star_tracker_blind_share": blind, "faults": s.faults, "fault_log": s.fault_log}
+    res = app_host.run_result(s, rec, k_done, K, complete, wall_s, "flight", estimator, period, ts_s=ts,
+                              satb_gnss=satb_gnss, seed=seed, truth=truth, duration_s=duration_s)
+    res.update(wheel_speed_limit_rpm=float(d["wheels"]["speed_limit_rpm"]), star_tracker_blind_share=blind,
+               faults=s.faults, fault_log=s.fault_log)
     mtq = d["magnetorquers"]
     axes = np.array([np.asarray(a, float) / np.linalg.norm(a) for a in mtq["axes"]])
     flog = {k: fsw[k] for k in ("m_cmd", "h_w", "mtq_sat", "beacon_used")}

@@ -14,12 +14,7 @@ import numpy as np
 from emulator.spacecraft import scenario
 from emulator.spacecraft.scenario import HOLD_S, laser_axis
 from ground.adcs import app_host
-from ground.adcs.modes import time_in
-from ground.adcs.pointing import TS_THESIS, add_statistics, check_ts, close_history, error_budget, orbit_period
-
-SOFTWARE = {"ground": "firmware/adcs/app.py in process with the ground's estimators (41-state APKF, full STKF with "
-                      "its AFLS: ground/adcs/estimators.py)",
-            "lean": "firmware/adcs/app.py in process (lean APKF, lean STKF with its AFLS)"}
+from ground.adcs.pointing import TS_THESIS, add_statistics, check_ts, close_history, error_budget
 
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
@@ -40,16 +35,10 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     rate = scenario.WORLD_RATE_HZ
     dth, dom, rows = close_history(hist, rec.fsw, s.xg, rate, k_done, lb)
     sel = hist["t"] >= t_settle
-    res = {"ts_s": check_ts(ts), "satb_gnss": bool(satb_gnss), "seed": int(seed), "truth": truth,
-           "duration_s": float(duration_s), "settle_s": float(t_settle), "simulated_s": float(k_done),
-           "complete": bool(complete and k_done == K), "feedforward": True, "wall_s": wall_s,
-           "flight_software": SOFTWARE[estimator], "estimator": estimator,
-           "wheel_speed_clips": s.wheels.counters(),
-           "max_wheel_speed_rpm": float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi)),
-           "wheel_speed_limit_rpm": float(wheel_speed_limit_rpm), "tach_noise_rpm": d["wheels"]["tach_noise_rpm"],
-           "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "spacecraft": d["name"], "world": "thesis",
-           "orbit_period_s": orbit_period(s.xg[0, 0]), "mode_changes": s.mode_changes,
-           "time_in_mode_s": time_in(s.mode_changes, k_done), "apkf_attitude_resets": [list(r) for r in rec.resets]}
+    res = app_host.run_result(s, rec, k_done, K, complete, wall_s, "thesis", estimator, t_settle, ts_s=check_ts(ts),
+                              satb_gnss=satb_gnss, seed=seed, truth=truth, duration_s=duration_s)
+    res["max_wheel_speed_rpm"] = float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi))
+    res["wheel_speed_limit_rpm"] = float(wheel_speed_limit_rpm)
     secs = np.arange(k_done + 1) >= t_settle         # the star tracker's blind share after the settling
     res["star_tracker_blind_share"] = float(1.0 - np.nanmean(rows["st_ok"][secs, 0])) if secs.any() else None
     add_statistics(res, dth, dom, sel)

@@ -57,7 +57,8 @@ class GroundEstimation:
         self.rd, self.health = rd, health
         self.params = cfg["params"]
         self.xp, self.Pp, jxx, self.scale = check_params(self.params, spacecraft=spacecraft)
-        self.model = apkf_lean.Model(self.params, **lean.vehicle(cfg))    # the control law's (fixed) model
+        veh = lean.vehicle(cfg)
+        self.model = apkf_lean.Model(self.params, **veh)    # the control law's (fixed) model
         self.orb = EstimatedOrbit(0.0, cfg["stkf_x0"])
         self.amodel = runs.apkf_model(spacecraft)
         # the field: the lean filter's model, the tilted dipole turned from the configuration's GMST at t = 0
@@ -77,7 +78,7 @@ class GroundEstimation:
         self.q_prev = None                      # the last valid fix before the APKF starts (one step back)
         self.t_prev = -2.0
         self.beacon_used = False
-        self.sigma_st = np.asarray(lean.vehicle(cfg)["sigma_st_arcsec"], float) * RAD_PER_ARCSEC
+        self.sigma_st = np.asarray(veh["sigma_st_arcsec"], float) * RAD_PER_ARCSEC
         self.fly = fo is not None
         self.gate_b = float(fo["beacon_gate_arcsec"]) * RAD_PER_ARCSEC if self.fly else math.inf
         self.gate = float(fo["innovation_gate"]) if self.fly else None

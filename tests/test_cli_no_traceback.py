@@ -65,35 +65,39 @@ def files(tmp_path_factory):
     return f
 
 
-def _bad_cases(f):
-    """Argument lists that must be refused (exit 1 or 2)."""
-    o = os.path.join(f["out"], "x")
-    m, g, e, t, d = f["missing"], f["garbage"], f["empty"], f["text"], f["dir"]
-    cases = [["nope"], [""], ["protocol"], ["protocol", "nope"], ["protocol", "encode"],
-             ["protocol", "encode", ""], ["protocol", "encode", "NOPE"], ["protocol", "encode", "999"],
-             ["protocol", "encode", "-1"], ["protocol", "encode", "RW_CMD", "torque"],
-             ["protocol", "encode", "RW_CMD", "=1"], ["protocol", "encode", "RW_CMD", "bogus=1"],
-             ["protocol", "encode", "TICK", "--seq", "-1"], ["protocol", "encode", "TICK", "--seq", "256"],
-             ["protocol", "encode", "TICK", "--src", "NOPE"], ["protocol", "encode", "TICK", "--dst", "999"],
-             ["protocol", "encode", "TICK", "--src", ""], ["protocol", "encode", "DIST_CHUNK", "data=zz"],
-             ["protocol", "encode", "DIST_CHUNK", "data=" + "00" * 49], ["protocol", "decode"],
-             ["protocol", "decode", "--serial", m], ["protocol", "decode", "--serial", d],
-             ["protocol", "decode", "--serial", ""], ["protocol", "decode", "--can", m],
-             ["protocol", "dbc"], ["protocol", "dbc", "-o", m], ["protocol", "dbc", "-o", ""],
-             ["protocol", "dbc", "-o", d],
-             ["emulator", "config", "--config", m], ["emulator", "config", "--config", g],
-             ["emulator", "config", "--config", t], ["emulator", "config", "--config", f["nanjson"]],
-             ["emulator", "config", "--config", f["binjson"]], ["emulator", "config", "--config", ""],
-             ["emulator", "truth-h"], ["emulator", "truth-h", "-o", o, "--grid", "0"],
-             ["emulator", "truth-h", "-o", o, "--grid", "-3"], ["emulator", "truth-h", "-o", o, "--grid", "100000000"],
-             ["emulator", "truth-h", "-o", o, "--grid", "x"], ["emulator", "truth-h", "-o", "", "--grid", "2"],
-             ["emulator", "truth-h", "-o", m, "--grid", "2"], ["emulator", "truth-h", "-o", o, "--config", g],
-             ["emulator", "serve", "--devices", "nope"], ["emulator", "serve", "--link", ""],
-             ["emulator", "serve", "--distfile", m, "--wait", "0"],
-             ["emulator", "serve", "--distfile", g, "--wait", "0"],
-             ["emulator", "serve", "--config", g, "--wait", "0"], ["emulator", "serve", "--wait", "0.05"],
-             ["emulator", "serve", "--devices", "wheels", "--config", f["cal"], "--duration", "0.1", "--wait", "0"],
-             ["emulator", "serve", "--devices", "wheels", "--wait", "0"]]
+def _bad_protocol_and_emulator_cases(f, o):
+    """Unknown commands, bad ``fps protocol`` and ``fps emulator`` arguments and input files."""
+    m, g, t, d = f["missing"], f["garbage"], f["text"], f["dir"]
+    return [["nope"], [""], ["protocol"], ["protocol", "nope"], ["protocol", "encode"],
+            ["protocol", "encode", ""], ["protocol", "encode", "NOPE"], ["protocol", "encode", "999"],
+            ["protocol", "encode", "-1"], ["protocol", "encode", "RW_CMD", "torque"],
+            ["protocol", "encode", "RW_CMD", "=1"], ["protocol", "encode", "RW_CMD", "bogus=1"],
+            ["protocol", "encode", "TICK", "--seq", "-1"], ["protocol", "encode", "TICK", "--seq", "256"],
+            ["protocol", "encode", "TICK", "--src", "NOPE"], ["protocol", "encode", "TICK", "--dst", "999"],
+            ["protocol", "encode", "TICK", "--src", ""], ["protocol", "encode", "DIST_CHUNK", "data=zz"],
+            ["protocol", "encode", "DIST_CHUNK", "data=" + "00" * 49], ["protocol", "decode"],
+            ["protocol", "decode", "--serial", m], ["protocol", "decode", "--serial", d],
+            ["protocol", "decode", "--serial", ""], ["protocol", "decode", "--can", m],
+            ["protocol", "dbc"], ["protocol", "dbc", "-o", m], ["protocol", "dbc", "-o", ""],
+            ["protocol", "dbc", "-o", d],
+            ["emulator", "config", "--config", m], ["emulator", "config", "--config", g],
+            ["emulator", "config", "--config", t], ["emulator", "config", "--config", f["nanjson"]],
+            ["emulator", "config", "--config", f["binjson"]], ["emulator", "config", "--config", ""],
+            ["emulator", "truth-h"], ["emulator", "truth-h", "-o", o, "--grid", "0"],
+            ["emulator", "truth-h", "-o", o, "--grid", "-3"], ["emulator", "truth-h", "-o", o, "--grid", "100000000"],
+            ["emulator", "truth-h", "-o", o, "--grid", "x"], ["emulator", "truth-h", "-o", "", "--grid", "2"],
+            ["emulator", "truth-h", "-o", m, "--grid", "2"], ["emulator", "truth-h", "-o", o, "--config", g],
+            ["emulator", "serve", "--devices", "nope"], ["emulator", "serve", "--link", ""],
+            ["emulator", "serve", "--distfile", m, "--wait", "0"],
+            ["emulator", "serve", "--distfile", g, "--wait", "0"],
+            ["emulator", "serve", "--config", g, "--wait", "0"], ["emulator", "serve", "--wait", "0.05"],
+            ["emulator", "serve", "--devices", "wheels", "--config", f["cal"], "--duration", "0.1", "--wait", "0"],
+            ["emulator", "serve", "--devices", "wheels", "--wait", "0"]]
+
+
+def _bad_numbers_for_emulator_distfile_calibrate_hil(f, o):
+    """Each of ``BAD_NUMBERS`` as a number option of ``fps emulator``, ``distfile generate``, ``calibrate``, ``hil``."""
+    cases = []
     for v in BAD_NUMBERS:
         cases += [["emulator", "truth-h", "-o", o, "--dv", v],
                   ["emulator", "serve", "--duration", v, "--wait", "0"],
@@ -115,7 +119,14 @@ def _bad_cases(f):
                   ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", v],
                   ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", "0.01",
                    "--q2-dv", v if v != "-1" else "-inf"]]
-    cases += [["distfile", "info"], ["distfile", "nope"]]
+    return cases
+
+
+def _bad_files_for_spacecraft_distfile_calibrate_hil(f, o):
+    """Missing, garbage, empty and wrong input files, and bad options, of ``fps spacecraft``, ``distfile``,
+    ``calibrate`` and ``hil``."""
+    m, g, e, d = f["missing"], f["garbage"], f["empty"], f["dir"]
+    cases = [["distfile", "info"], ["distfile", "nope"]]
     cases += [["spacecraft"], ["spacecraft", "nope"], ["spacecraft", "show", ""],
               ["spacecraft", "template", "nope", "-o", o], ["spacecraft", "template", "thesis-3u", "-o", d],
               ["spacecraft", "template", "thesis-3u", "-o", ""]]
@@ -157,6 +168,13 @@ def _bad_cases(f):
               ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--runtime", "board"],
               ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--tick-tries", "0",
                "--runtime", "cpython"]]
+    return cases
+
+
+def _bad_response_and_distfile_step_cases(f, o):
+    """Bad numbers and options of ``fps response`` and of ``distfile generate``'s step, jitter and tones."""
+    g = f["garbage"]
+    cases = []
     for v in BAD_NUMBERS:
         cases += [["response", "-o", o, "--points", "2", "--from", v], ["response", "-o", o, "--points", "2",
                                                                         "--to", v],
@@ -179,6 +197,12 @@ def _bad_cases(f):
               ["distfile", "generate", "-o", o, "--duration", "1", "--step-us", "100.5"],
               ["distfile", "generate", "-o", o, "--source", "sine", "--duration", "1", "--freq-hz", "110"],
               ["distfile", "generate", "-o", o, "--source", "csv", "--csv", f["csv_ok"], "--seed", "3"]]
+    return cases
+
+
+def _bad_adcs_and_system_cases(f, o):
+    """Bad options and input files of ``fps adcs`` and ``fps system``, and of the bps distfile source."""
+    cases = []
     for sub in ("apkf", "mekf", "stkf"):
         cases += [["adcs", sub, "-o", o, "--runs", "0"], ["adcs", sub, "-o", o, "--runs", "x"],
                   ["adcs", sub, "-o", o, "--workers", "0"], ["adcs", sub, "-o", o, "--seed", "-1e40"],
@@ -207,6 +231,14 @@ def _bad_cases(f):
               ["distfile", "generate", "-o", o, "--source", "bps", "--params", f["garbage"]],
               ["distfile", "generate", "-o", o, "--source", "bps", "--bps-truth", "nope"]]
     return cases
+
+
+def _bad_cases(f):
+    """Argument lists that must be refused (exit 1 or 2), in the order they run."""
+    o = os.path.join(f["out"], "x")
+    return (_bad_protocol_and_emulator_cases(f, o) + _bad_numbers_for_emulator_distfile_calibrate_hil(f, o)
+            + _bad_files_for_spacecraft_distfile_calibrate_hil(f, o) + _bad_response_and_distfile_step_cases(f, o)
+            + _bad_adcs_and_system_cases(f, o))
 
 
 def test_every_command_is_covered(files):

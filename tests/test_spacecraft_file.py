@@ -83,20 +83,17 @@ def test_the_generic_vehicles_are_plausible():
 
 
 # --- thesis-3u against the code -------------------------------------------------------------------------------
-def test_thesis_3u_figures_are_the_code_constants():
-    from emulator import orbits
-    from emulator.navsensors import Beacon, Gnss, Relay
+def test_thesis_3u_inertia_dipole_and_wheels_are_the_code_constants():
+    """Nominal figures (what the filters and controllers start from) and true ones (Sec. 4.8)."""
     from emulator.spacecraft import environment as env, scenario
-    from emulator.spacecraft.devices import StarTracker
-    from emulator.spacecraft.dynamics import DJ_THESIS, J0_THESIS, Spacecraft
-    from emulator.spacecraft.wheels import (DELTA1_DEG_THESIS, DELTA2_DEG_THESIS, DJ_RW_THESIS, J_RW_NOMINAL,
-                                            RPM, WheelParams, Wheels, pyramid_c0)
+    from emulator.spacecraft.dynamics import DJ_THESIS, J0_THESIS
+    from emulator.spacecraft.wheels import (DELTA1_DEG_THESIS, DELTA2_DEG_THESIS, DJ_RW_THESIS, J_RW_NOMINAL, RPM,
+                                            WheelParams)
     from firmware.adcs import apkf_lean
-    from ground.adcs import apkf, body_pointing as bps, control, mekf
+    from ground.adcs import apkf, body_pointing as bps
 
     d = sc.load("thesis-3u")
-    w, t, u = d["wheels"], d["truth"], d["uncertainty"]
-    # inertia, dipole, wheels: nominal (what the filters and controllers start from) and true (Sec. 4.8)
+    w, t = d["wheels"], d["truth"]
     assert tuple(d["inertia_kgm2"]) == J0_THESIS and tuple(t["inertia_error_kgm2"]) == DJ_THESIS
     assert d["residual_dipole_am2"] == [0.0] * 3 and tuple(t["residual_dipole_error_am2"]) == env.M_DIPOLE_THESIS
     assert defaults(scenario.PD.__init__)["j0"] == J0_THESIS
@@ -115,7 +112,15 @@ def test_thesis_3u_figures_are_the_code_constants():
                                   w["friction_smooth_rpm"] * RPM)
     assert apkf_lean.TORQUE_MAX == w["torque_limit_nm"] and bps.TACH_NOISE_RPM == w["tach_noise_rpm"]
     assert defaults(apkf.Model.__init__)["tach_rpm"] == defaults(apkf_lean.Model.__init__)["tach_rpm"] == 10.0
-    # what the simulations fly, bit for bit: the truth's J, dipole, rotors and axes (Eq. 4.149)
+
+
+def test_thesis_3u_true_figures_are_what_the_simulations_fly():
+    """Bit for bit: the truth's J, dipole, rotors and axes (Eq. 4.149)."""
+    from emulator.spacecraft.dynamics import Spacecraft
+    from emulator.spacecraft.wheels import WheelParams, Wheels, pyramid_c0
+
+    d = sc.load("thesis-3u")
+    wp = WheelParams()
     tf = sc.true_figures(d)
     assert tf["rotor_inertia_kgm2"] == wp.j_rw.tolist() and tf["delta1_deg"] == wp.delta1_deg.tolist()
     assert tf["delta2_deg"] == wp.delta2_deg.tolist()
@@ -124,7 +129,17 @@ def test_thesis_3u_figures_are_the_code_constants():
         sim.dipole.tolist()
     assert np.array_equal(np.array(sc.wheel_axes(d)).T, pyramid_c0())
     assert np.array_equal(np.array(sc.wheel_axes(d, True)).T, Wheels().c)
-    # sensors
+
+
+def test_thesis_3u_sensor_figures_are_the_code_constants():
+    """Star tracker, gyro, GNSS, beacon and relay against the devices' and the filters' defaults."""
+    from emulator.navsensors import Beacon, Gnss, Relay
+    from emulator.spacecraft import scenario
+    from emulator.spacecraft.devices import StarTracker
+    from firmware.adcs import apkf_lean
+    from ground.adcs import apkf, mekf
+
+    d = sc.load("thesis-3u")
     st = d["star_tracker"]
     sd = defaults(StarTracker.__init__)
     assert tuple(st["sigma_arcsec"]) == sd["sigma_arcsec"] and st["rate_limit_deg_s"] == sd["rate_max_dps"]
@@ -143,7 +158,14 @@ def test_thesis_3u_figures_are_the_code_constants():
     gn, bd, rd = defaults(Gnss.__init__), defaults(Beacon.__init__), defaults(Relay.__init__)
     assert (d["gnss"]["sigma_position_m"], d["gnss"]["sigma_velocity_m_s"]) == (gn["sigma_r_m"], gn["sigma_v_m_s"])
     assert d["beacon"]["sigma_arcsec"] == bd["sigma_arcsec"] and tuple(d["partner"]["relay_delay_s"]) == rd["delay_s"]
-    # orbit, partner, body
+
+
+def test_thesis_3u_orbit_partner_and_body_are_the_code_constants():
+    from emulator import orbits
+    from emulator.spacecraft import environment as env
+    from ground.adcs import control
+
+    d = sc.load("thesis-3u")
     c, od = d["orbit"]["circular"], defaults(env.CircularOrbit.__init__)
     assert (c["altitude_km"] * 1000.0, c["inclination_deg"], c["raan_deg"], c["arg_lat_deg"]) == (
         od["altitude"], od["inclination_deg"], od["raan_deg"], od["arg_lat_deg"])
@@ -156,7 +178,14 @@ def test_thesis_3u_figures_are_the_code_constants():
             d["surface"]["cr"]) == (cs["mass_kg"], cs["drag_area_m2"], cs["cd"], cs["srp_area_m2"], cs["cr"])
     assert d["laser_axis"] == control.LASER_AXIS.tolist()
     assert d["magnetorquers"]["dipole_limit_am2"] == 0.3 and d["magnetometer"]["noise_nt"] == 50.0
-    # priors: the APKF's P0 (Sec. 4.8), the MEKF's, the STKF's (Sec. 5.5.1)
+
+
+def test_thesis_3u_uncertainties_are_the_filters_priors():
+    """The APKF's P0 (Sec. 4.8), the MEKF's, the STKF's (Sec. 5.5.1)."""
+    from emulator.spacecraft import scenario
+    from ground.adcs import apkf, mekf
+
+    u = sc.load("thesis-3u")["uncertainty"]
     p0 = np.diag(apkf.initial_covariance(apkf.Model()))
     deg = apkf.DEG
     assert np.array_equal(p0[apkf.IQ], [(u["attitude_sigma_deg"] * deg / 2) ** 2] * 3)
@@ -167,7 +196,7 @@ def test_thesis_3u_figures_are_the_code_constants():
     assert np.array_equal(p0[apkf.ID1], [(u["misalignment_sigma_deg"] * deg) ** 2] * 4)
     assert np.array_equal(p0[apkf.ID2], p0[apkf.ID1])
     assert np.array_equal(p0[apkf.IJR], [u["rotor_inertia_sigma_kgm2"] ** 2] * 4)
-    assert md["P0_att_rad"] == np.radians(u["attitude_sigma_deg"])
+    assert defaults(mekf.MEKF.__init__)["P0_att_rad"] == np.radians(u["attitude_sigma_deg"])
     assert scenario.STKF_P0_DIAG == ([u["orbit_position_sigma_m"] ** 2] * 3 + [u["orbit_velocity_sigma_m_s"] ** 2]
                                      * 3) * 2
 

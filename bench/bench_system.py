@@ -14,9 +14,9 @@ import os
 import resource
 import shutil
 import tempfile
-import time
 
 from bench import verdict
+from bench.common import timed
 from ground import distfile_cli, sources, system
 from ground.adcs import body_pointing as bps, bps_cli
 from ground.fileio import write_atomic
@@ -48,17 +48,37 @@ def _fig(v, fmt="%.1fx", goal=None, at_most=False):
 def _main(tmp, duration_s):
     adcs = "firmware" if system.firmware_available() else "ground"
     cal_path = os.path.join(tmp, "cal.json")
-    t0 = time.perf_counter()
+    cal_wall = _h_calibration(cal_path)
+    # the ADCS parameter file, cached
+    _, params_wall = timed(bps_cli.calibration, SEED, os.path.join(tmp, "cache"), progress=False)
+    run = _system_run(tmp, duration_s, adcs, cal_path)
+    alone = _fine_loop_alone(tmp, cal_path)
+    _print_table(duration_s, adcs, run, alone)
+    s, err = run["summary"], run["error"]
+    print("\nBeforehand, not in the run's wall time (as a second `make system` finds them made): the H calibration "
+          "(fps calibrate, in-process) %.1f s, the ADCS parameter file (nine calibration sets, cached) %.1f s. "
+          "Load average (1 min) at the run's start and end: %.1f, %.1f on %d cores (other jobs share the machine: "
+          "compare with the fine loop alone, measured just after). Complete %s, requirement met %s%s"
+          % (cal_wall, params_wall, *run["load"], os.cpu_count(), s.get("complete"), s.get("requirement_met"),
+             "" if err is None else "; failed: %s" % err))
+    if err is not None or alone["error"] is not None:    # the table is printed; make bench must still say it failed
+        raise RuntimeError("; ".join(e for e in ("fps system: %s" % err if err else None,
+                                                 "fps hil: %s" % alone["error"] if alone["error"] else None) if e))
+
+
+def _h_calibration(cal_path):
+    """The H calibration (``fps calibrate`` in process) into ``cal_path``: its wall time (s). If it fails, says
+    so and raises RuntimeError."""
     try:
-        system.calibrate_inproc(SEED, None, cal_path)
+        return timed(system.calibrate_inproc, SEED, None, cal_path)[1]
     except (OSError, ValueError) as exc:
         print("H calibration failed, nothing measured: %s" % exc)
         raise RuntimeError("H calibration failed: %s" % exc) from exc
-    cal_wall = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    bps_cli.calibration(SEED, os.path.join(tmp, "cache"), progress=False)     # the ADCS parameter file, cached
-    params_wall = time.perf_counter() - t0
+
+def _system_run(tmp, duration_s, adcs, cal_path):
+    """``fps system`` for ``duration_s``: {"summary", "error" (None if it ran), "load" (1 min, at its start and
+    end), "cpu" (CPU s of all its processes)}; a failed run's summary is the one it left."""
     out = os.path.join(tmp, "system")
     err = None
     load0 = os.getloadavg()[0]
@@ -71,23 +91,26 @@ def _main(tmp, duration_s):
         err = str(exc)
         with open(os.path.join(out, "summary.json")) as f:
             s = json.load(f)
+    return {"summary": s, "error": err, "load": (load0, os.getloadavg()[0]), "cpu": _cpu() - cpu0}
 
-    load1 = os.getloadavg()[0]
-    cpu_sys = _cpu() - cpu0
+
+def _fine_loop_alone(tmp, cal_path):
+    """``fps hil`` (the fine loop alone) for 120 s over the same link: {"rtf", "cpu" (CPU s per virtual s),
+    "error"}; the figures None if it failed."""
     dist = os.path.join(tmp, "stat.dist")
     write_atomic(dist, distfile_cli.generate(sources.GaussMarkov2(), 120.0, SEED, "stat"))
     cpu0 = _cpu()
-    hil_err = None
     try:
         h = run_hil(dist, cal_path, 120.0, "micropython", "serial", os.path.join(tmp, "hil"), seed=SEED,
                     quiet=True, plots=False)
-        hil_rtf = h["real_time_factor"]
-        cpu_hil = (_cpu() - cpu0) / h["duration_s"]
+        return {"rtf": h["real_time_factor"], "cpu": (_cpu() - cpu0) / h["duration_s"], "error": None}
     except (OSError, ValueError) as exc:
-        hil_rtf = cpu_hil = None
-        hil_err = str(exc)
         print("fps hil (fine loop alone) failed: %s" % exc)
+        return {"rtf": None, "cpu": None, "error": str(exc)}
 
+
+def _print_table(duration_s, adcs, run, alone):
+    s = run["summary"]
     b = s.get("body_pointing") or {}
     q2 = s.get("q2") or {}
     ref = s.get("ground_reference") or {}
@@ -101,11 +124,11 @@ def _main(tmp, duration_s):
           % (s.get("duration_s") or 0, s.get("wall_s") or 0, _fig(s.get("real_time_factor"), goal=5.0)))
     print("| real-time factor during the play | — | %s |" % _fig(s.get("real_time_factor_play")))
     print("| fine loop alone, fps hil 120 s, same link, same sitting | ≥ 12x (issue Ground) | %s |"
-          % _fig(hil_rtf, goal=12.0))
+          % _fig(alone["rtf"], goal=12.0))
     print("| fine loop's wait for the ADCS (s) | — | %.1f |" % (s.get("adcs_wait_s") or 0))
     print("| CPU seconds per virtual second, whole run (all its processes) / fine loop alone | — | %s / %s |"
-          % ("—" if not s.get("duration_s") else "%.3f" % (cpu_sys / s["duration_s"]),
-             "—" if cpu_hil is None else "%.3f" % cpu_hil))
+          % ("—" if not s.get("duration_s") else "%.3f" % (run["cpu"] / s["duration_s"]),
+             "—" if alone["cpu"] is None else "%.3f" % alone["cpu"]))
     print("| fine pointing share within 11.98″ (Q2) | 100 %% | %s |"
           % ("—" if share is None else "%.4f %%%s" % (100 * share, verdict(share, 1.0, at_most=False))))
     print("| fine pointing largest radial error (arcsec) | 3.9103 (Sec. 7.5) | %s |"
@@ -123,16 +146,6 @@ def _main(tmp, duration_s):
         rel = b["pointing_3sigma_arcsec"] / ref["pointing_3sigma_arcsec"] - 1
         print("| lean / ground filters, body pointing 3σ | within 25 %% | %.2f / %.2f (%+.1f %%)%s |"
               % (b["pointing_3sigma_arcsec"], ref["pointing_3sigma_arcsec"], 100 * rel, verdict(abs(rel), 0.25)))
-    print("\nBeforehand, not in the run's wall time (as a second `make system` finds them made): the H calibration "
-          "(fps calibrate, in-process) %.1f s, the ADCS parameter file (nine calibration sets, cached) %.1f s. "
-          "Load average (1 min) at the run's start and end: %.1f, %.1f on %d cores (other jobs share the machine: "
-          "compare with the fine loop alone, measured just after). Complete %s, requirement met %s%s"
-          % (cal_wall, params_wall, load0, load1, os.cpu_count(), s.get("complete"), s.get("requirement_met"),
-             "" if err is None else "; failed: %s" % err))
-    if err is not None or hil_err is not None:    # the table is printed; make bench must still say it failed
-        raise RuntimeError("; ".join(e for e in ("fps system: %s" % err if err else None,
-                                                 "fps hil: %s" % hil_err if hil_err else None) if e))
-
 
 if __name__ == "__main__":
     from bench.run import standalone

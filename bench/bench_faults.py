@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from bench.common import timed
 from emulator.bench import Bench
 from emulator.truth import true_h_field
 from ground import distfile_cli, sources
@@ -34,6 +35,9 @@ CAN_MILD = "bytes=0.001,frames=0.05,seed=1"
 CAN_DURATION_S = 20.0
 ADCS_DURATION_S = 120.0
 CONTROL_COLS = 14
+HIL_HEAD = ("| run | exit | complete | wall (s) | TICKs resent | command retries | overruns | controller: "
+            "resends answered | controller: frames dropped | bit-identical to clean |\n"
+            "|---|---|---|---|---|---|---|---|---|---|")
 
 
 def fps(argv):
@@ -106,9 +110,7 @@ def _main(tmp, duration_s):
     write_json(cal, true_h_field(Bench(noise=False), None, 0.01))
 
     print("### fps hil, MicroPython over a serial pty, %g s virtual, faults on the link\n" % duration_s)
-    print("| run | exit | complete | wall (s) | TICKs resent | command retries | overruns | controller: "
-          "resends answered | controller: frames dropped | bit-identical to clean |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print(HIL_HEAD)
     failed = []
     rc, wall, clean, s = _hil(tmp, "clean", dist, cal, duration_s)
     print(_row("clean", rc, wall, s), flush=True)
@@ -157,6 +159,14 @@ def _main(tmp, duration_s):
 
 
 def _can(tmp, dist, cal, failed):
+    """The CAN side's tables; a failed clean run is added to ``failed``."""
+    _can_survival_table()
+    _hil_can(tmp, dist, cal, failed)
+    _adcs_can(tmp, failed)
+    _system_can(tmp, cal, failed)
+
+
+def _can_survival_table():
     print("\n### What a fault rate lets through on CAN over slcan (one send of each packet)\n")
     print("| packet | `bytes=0.001,frames=0.05` | `bytes=0.01,frames=0.05` | `bytes=0.05,frames=0.20` |")
     print("|---|---|---|---|")
@@ -167,11 +177,13 @@ def _can(tmp, dist, cal, failed):
           "time; an ASCII line carries each byte twice and ISO-TP has no per-frame retry, so CAN at the same "
           "rates is far worse)" % (LIGHT, 100 * ((0.99 ** 22) * 0.95) * ((0.99 ** 30) * 0.95)))
 
+
+def _hil_can(tmp, dist, cal, failed):
+    """fps hil with the CPython controller over CAN, clean and faulted, beside serial; then the two links'
+    real-time factors, the faults' wall-time cost and the clean CAN run's CPU per tick."""
     print("\n### fps hil, CPython controller over CAN (slcan pty), %g s virtual, faults on the slcan stream\n"
           % CAN_DURATION_S)
-    print("| run | exit | complete | wall (s) | TICKs resent | command retries | overruns | controller: "
-          "resends answered | controller: frames dropped | bit-identical to clean |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print(HIL_HEAD)
     rc, wall_ser, _, s_ser = _hil(tmp, "can_serial", dist, cal, CAN_DURATION_S, runtime="cpython")
     print(_row("clean, **serial** (for comparison)", rc, wall_ser, s_ser), flush=True)
     rc, wall_ser_f, _, s = _hil(tmp, "can_serial_f", dist, cal, CAN_DURATION_S, "--link-faults", CAN_MILD,
@@ -205,6 +217,17 @@ def _can(tmp, dist, cal, failed):
           "against the wall time per tick | — | %.0f / %.0f µs of %.0f µs | — |"
           % (1e6 * cpu_host / ticks, 1e6 * cpu_ctl / ticks, 1e6 * wall_can / ticks))
 
+
+def _fps_timed(argv, spec):
+    """``fps argv`` with ``--link-faults spec`` (none if ``spec`` is None): (exit status, wall s, the summary.json
+    it wrote in its output folder, the one after -o)."""
+    rc, wall = timed(fps, argv + (["--link-faults", spec] if spec else []))
+    with open(os.path.join(argv[argv.index("-o") + 1], "summary.json")) as f:
+        return rc, wall, json.load(f)
+
+
+def _adcs_can(tmp, failed):
+    """fps adcs can (MicroPython flight software), clean and with faults on the slcan stream."""
     print("\n### fps adcs can (MicroPython flight software), %g s, faults on the slcan stream\n" % ADCS_DURATION_S)
     print("| run | exit | complete | wall (s) | cycles retried | ticks resent | packets resent | late cycles | "
           "history bit-identical to clean |")
@@ -213,12 +236,8 @@ def _can(tmp, dist, cal, failed):
     for name, spec in (("clean", None), ("`%s` (completes, identical)" % CAN_MILD, CAN_MILD),
                        ("`%s` (goal: completes, identical)" % LIGHT, LIGHT)):
         out = os.path.join(tmp, "adcs_%d" % (ref is not None))
-        argv = ["adcs", "can", "--duration", "%g" % ADCS_DURATION_S, "--quiet", "--no-plots", "-o", out]
-        t0 = time.perf_counter()
-        rc = fps(argv + (["--link-faults", spec] if spec else []))
-        wall = time.perf_counter() - t0
-        with open(os.path.join(out, "summary.json")) as f:
-            s = json.load(f)
+        rc, wall, s = _fps_timed(["adcs", "can", "--duration", "%g" % ADCS_DURATION_S, "--quiet", "--no-plots",
+                                  "-o", out], spec)
         r = s.get("retries") or {}
         ident = "—"
         if ref is None:
@@ -234,6 +253,10 @@ def _can(tmp, dist, cal, failed):
             name, rc, s.get("complete"), wall, r.get("cycles_retried", "—"), r.get("tick_resent", "—"),
             r.get("packets_resent", "—"), s.get("late_cycles", "—"), ident), flush=True)
 
+
+def _system_can(tmp, cal, failed):
+    """fps system (firmware ADCS over CAN, fine loop over serial), clean and with faults on the ADCS's slcan
+    stream."""
     print("\n### fps system (firmware ADCS over CAN, fine loop over serial, both MicroPython), %g s, faults on the "
           "ADCS's slcan stream\n" % ADCS_DURATION_S)
     print("| run | exit | complete | wall (s) | ADCS cycles retried | both loops bit-identical to clean |")
@@ -245,13 +268,9 @@ def _can(tmp, dist, cal, failed):
     ref = None
     for name, spec in (("clean", None), ("`%s` (goal: completes, identical)" % CAN_MILD, CAN_MILD)):
         out = os.path.join(tmp, "system_%d" % (ref is not None))
-        argv = ["system", "--adcs", "firmware", "--duration", "%g" % ADCS_DURATION_S, "--truth", "two-body",
-                "--params", params, "--calibration", cal, "--bps-cache", cache, "--quiet", "--no-plots", "-o", out]
-        t0 = time.perf_counter()
-        rc = fps(argv + (["--link-faults", spec] if spec else []))
-        wall = time.perf_counter() - t0
-        with open(os.path.join(out, "summary.json")) as f:
-            s = json.load(f)
+        rc, wall, s = _fps_timed(["system", "--adcs", "firmware", "--duration", "%g" % ADCS_DURATION_S, "--truth",
+                                  "two-body", "--params", params, "--calibration", cal, "--bps-cache", cache,
+                                  "--quiet", "--no-plots", "-o", out], spec)
         ident = "—"
         if ref is None:
             ref = out
@@ -262,7 +281,6 @@ def _can(tmp, dist, cal, failed):
         r = (s.get("adcs_summary") or {}).get("retries") or {}
         print("| %s | %d | %s | %.1f | %s | %s |" % (name, rc, s.get("complete"), wall,
                                                     r.get("cycles_retried", "—"), ident), flush=True)
-
 
 def _same_npz(a, b):
     """Every array of two .npz files equal, NaN where NaN (body.npz's estimate errors before the first)."""

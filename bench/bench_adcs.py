@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from bench import verdict
+from bench.common import timed
 from emulator.spacecraft import scenario
 from ground.adcs import apkf, campaign, quat, report, runs
 
@@ -430,42 +431,59 @@ def r_quarter_diagnostic(seeds=range(5)):
 def main():
     print("Accuracy over %d seeds per case (2 local worker processes); thesis Sec. 4.4.1 and 4.8, final 1 sigma.\n"
           % RUNS)
-    by = {}
     t0 = time.perf_counter()
+    walls, res_1w, res_2w = _worker_pairs()
+    # The Dask path afterwards: a LocalCluster's scheduler runs in this process and would slow the in-process runs.
+    walls["dask"], t_cluster, per_run_ms, res_dk = _dask_path()
+    assert _final_errors(res_dk) == _final_errors(res_1w), "runs differ between in-process and Dask"
+    assert _final_errors(res_1w) == _final_errors(res_2w), "runs differ between 1 and 2 workers"
+    _accuracy(res_2w)
+    print("\n(accuracy campaigns took %.0f s)\n" % (time.perf_counter() - t0))
+    _speed(walls, t_cluster, per_run_ms)
+
+
+def _final_errors(results):
+    """Each run's final attitude error, to compare two campaigns' runs."""
+    return [r.get("final_error_attitude_arcsec") for r in results]
+
+
+def _worker_pairs():
+    """APKF Case 1 over the seeds on 1 then 2 local workers, ``SPEEDUP_PAIRS`` times: ({1: walls, 2: walls}, the
+    last 1-worker results, the last 2-worker results)."""
     walls = {1: [], 2: []}
     for _ in range(SPEEDUP_PAIRS):
         res_1w, w = _campaign(runs.run_apkf, 1, workers=1)
         walls[1].append(w)
         res_2w, w = _campaign(runs.run_apkf, 1, workers=2)
         walls[2].append(w)
-    # The Dask path afterwards: a LocalCluster's scheduler runs in this process and would slow the in-process runs.
+    return walls, res_1w, res_2w
+
+
+def _dask_path():
+    """APKF Case 1 over the seeds on a 2-worker LocalCluster, ``DASK_REPEATS`` times: (its walls, the cluster's
+    start-up s, the overhead per run in ms from no-op runs, the last results)."""
     from distributed import LocalCluster
-    t_c = time.perf_counter()
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
-    t_cluster = time.perf_counter() - t_c
-    walls["dask"] = []
+    cluster, t_cluster = timed(LocalCluster, n_workers=2, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+    walls = []
     try:
         for _ in range(DASK_REPEATS):
             res_dk, w = _campaign(runs.run_apkf, 1, workers=None, scheduler=cluster.scheduler_address)
-            walls["dask"].append(w)
+            walls.append(w)
         with tempfile.TemporaryDirectory() as d:
-            t_0 = time.perf_counter()
-            campaign.run_campaign(_noop, [0], d, scheduler=cluster.scheduler_address, progress=False)
-            t_one = time.perf_counter() - t_0
-            t_0 = time.perf_counter()
-            campaign.run_campaign(_noop, list(range(201)), d, scheduler=cluster.scheduler_address, progress=False)
-            t_many = time.perf_counter() - t_0
+            _, t_one = timed(campaign.run_campaign, _noop, [0], d, scheduler=cluster.scheduler_address,
+                             progress=False)
+            _, t_many = timed(campaign.run_campaign, _noop, list(range(201)), d,
+                              scheduler=cluster.scheduler_address, progress=False)
     finally:
         cluster.close()
-    wall_dask = float(np.median(walls["dask"]))
-    per_run_ms = 1e3 * (t_many - t_one) / 200
-    assert [r.get("final_error_attitude_arcsec") for r in res_dk] == \
-        [r.get("final_error_attitude_arcsec") for r in res_1w], "runs differ between in-process and Dask"
-    wall_1w, wall_2w = float(np.median(walls[1])), float(np.median(walls[2]))
-    ratios = [a / b for a, b in zip(walls[1], walls[2])]
-    assert [r.get("final_error_attitude_arcsec") for r in res_1w] == \
-        [r.get("final_error_attitude_arcsec") for r in res_2w], "runs differ between 1 and 2 workers"
-    by[("apkf", 1)] = runs.aggregate(res_2w, "apkf", 1)
+    return walls, t_cluster, 1e3 * (t_many - t_one) / 200, res_dk
+
+
+def _accuracy(res_2w):
+    """The accuracy, consistency and diagnostic tables (APKF Case 1 from ``res_2w``; the other campaigns run
+    here)."""
+    by = {("apkf", 1): runs.aggregate(res_2w, "apkf", 1)}
     for case in (2, 3):
         by[("apkf", case)] = runs.aggregate(_campaign(runs.run_apkf, case, workers=2)[0], "apkf", case)
     by[("mekf", None)] = runs.aggregate(_campaign(runs.run_mekf, 1, workers=2)[0], "mekf", 1)
@@ -492,17 +510,21 @@ def main():
     print(parameters_vs_tach())
     print(parameters_vs_misalignment())
     print(parameters_vs_blindness())
-    print("\n(accuracy campaigns took %.0f s)\n" % (time.perf_counter() - t0))
 
+
+def _speed(walls, t_cluster, per_run_ms):
+    """Times the APKF's step, one case and the seeds on plain processes, and prints the speed table with them
+    beside the campaigns' ``walls`` ({1, 2, "dask": [s, ...]}) and the Dask path's figures."""
     pred_us, step_us, iter_us, iter_max_us, n_iter = step_time()
-    t0 = time.perf_counter()
-    runs.run_apkf(0, None, case=1, keep_series=False)
-    one_case = time.perf_counter() - t0
+    _, one_case = timed(runs.run_apkf, 0, None, case=1, keep_series=False)
     plain = {1: [], 2: []}
     for _ in range(PLAIN_REPEATS):
         for n in (1, 2):
             plain[n].append(_plain_processes(n))
     plain_1, plain_2 = min(plain[1]), min(plain[2])
+    wall_1w, wall_2w = float(np.median(walls[1])), float(np.median(walls[2]))
+    wall_dask = float(np.median(walls["dask"]))
+    ratios = [a / b for a, b in zip(walls[1], walls[2])]
     print("| speed (consistent form) | ours | goal |")
     print("|---|---|---|")
     print("| APKF predict per step (no star-tracker output) | %.0f us | — |" % pred_us)
@@ -530,7 +552,6 @@ def main():
           % per_run_ms)
     print("\nCores: %d (shared with other jobs; the speed-up is bounded by what the other jobs leave)."
           % (os.cpu_count() or 1))
-
 
 if __name__ == "__main__":
     from bench.run import standalone

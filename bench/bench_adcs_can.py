@@ -38,6 +38,7 @@ import time
 import numpy as np
 
 from bench import mp
+from bench.common import missed, timed
 
 from emulator.adcs_session import AdcsSession
 from tools import natmod_build
@@ -169,11 +170,7 @@ def _satb_cycle(params, d):
         for _ in range(CG[1]):
             s.cycle()
         cfg, rec, summ = s.config(), s.recorded, s.summary()
-    cfg_f, rec_f = os.path.join(d, "cfg_b.json"), os.path.join(d, "rec_b.json")
-    with open(cfg_f, "w") as fh:
-        json.dump(cfg, fh)
-    with open(rec_f, "w") as fh:
-        json.dump(rec, fh)
+    cfg_f, rec_f = _write_session(d, cfg, rec, "_b")
     instr = _cycle_instr(cfg_f, rec_f)
     instr_py = _cycle_instr(cfg_f, rec_f, _python_tree(os.path.join(d, "py_b"))) if os.path.exists(MODULE) else instr
     heap = _replay(cfg_f, rec_f, CG[1], False, heap=True)["heap"][int(HOLD + 4 * TS):]
@@ -242,9 +239,37 @@ def robustness():
 
 def main():
     from ground.adcs import bps_cli
-    t0 = time.perf_counter()
-    params = bps_cli.calibration(0, os.path.join(ROOT, "out", "bps_cache"), progress=False)
-    t_cal = time.perf_counter() - t0
+    params, t_cal = timed(bps_cli.calibration, 0, os.path.join(ROOT, "out", "bps_cache"), progress=False)
+    f = _measure(params)
+    (g, _), g_wall = timed(bps.simulate, ts=TS, duration_s=SECONDS - HOLD - 4 * TS, seed=0, params=params,
+                           truth="two-body")
+    _print_cost(f)
+    _print_split(f["split"], f["instr"])
+    if f["satb"] is not None:
+        _print_satb(f["satb"], f["kern"])
+    print(code_size())
+    text, by_input = apkf_input(params)
+    print(text)
+    print(robustness())
+    _print_speed(f["runs"])
+    _print_pointing(f["runs"]["micropython"]["stats"], by_input[(False, "tach")], g, g_wall, t_cal)
+
+
+def _write_session(d, cfg, rec, tag=""):
+    """A session's configuration and recorded bursts as d/cfg<tag>.json and d/rec<tag>.json: their paths."""
+    paths = os.path.join(d, "cfg%s.json" % tag), os.path.join(d, "rec%s.json" % tag)
+    for path, obj in zip(paths, (cfg, rec)):
+        with open(path, "w") as fh:
+            json.dump(obj, fh)
+    return paths
+
+
+def _measure(params):
+    """The CAN session under micropython (recorded) and CPython, and its bursts replayed: {"runs": {runtime:
+    ``session``'s}, "heap_session": heap bytes per cycle in the session, "kern": whether the C kernels are built,
+    "instr", "instr_py", "instr_bc": instructions per pointing cycle with the C kernels, the Python forms and as
+    bytecode only (NaN without valgrind), "heap": heap bytes per replayed cycle, "split": ``_split``'s, "satb":
+    ``_satb_cycle``'s (None without valgrind)}."""
     runs = {}
     with tempfile.TemporaryDirectory() as d:
         heap_file = os.path.join(d, "heap.json")
@@ -252,44 +277,42 @@ def main():
         runs["cpython"] = session("cpython", params)
         with open(heap_file) as fh:
             heap_session = json.load(fh)["heap_bytes"]
-        cfg, rec = os.path.join(d, "cfg.json"), os.path.join(d, "rec.json")
-        with open(cfg, "w") as fh:
-            json.dump(runs["micropython"]["cfg"], fh)
-        with open(rec, "w") as fh:
-            json.dump(runs["micropython"]["rec"], fh)
+        cfg, rec = _write_session(d, runs["micropython"]["cfg"], runs["micropython"]["rec"])
         have_vg = shutil.which("valgrind") is not None
         kern = os.path.exists(MODULE)
         instr = _cycle_instr(cfg, rec) if have_vg else float("nan")
         instr_py = (_cycle_instr(cfg, rec, _python_tree(os.path.join(d, "py"))) if have_vg and kern else
                     instr)
-        if have_vg:
-            bc = _bytecode_tree(os.path.join(d, "bytecode"))
-            instr_bc = _cycle_instr(cfg, rec, bc)
-        else:
-            instr_bc = float("nan")
-        heap = _replay(cfg, rec, SECONDS, False, heap=True)["heap"]
-        split = _split(cfg, rec, int(HOLD + 4 * TS), SECONDS)
-        satb = _satb_cycle(params, d) if have_vg else None
-    t0 = time.perf_counter()
-    g, _ = bps.simulate(ts=TS, duration_s=SECONDS - HOLD - 4 * TS, seed=0, params=params, truth="two-body")
-    g_wall = time.perf_counter() - t0
-    mp = runs["micropython"]
-    hs = np.array(heap[int(HOLD + 4 * TS):])
+        instr_bc = _cycle_instr(cfg, rec, _bytecode_tree(os.path.join(d, "bytecode"))) if have_vg else float("nan")
+        return {"runs": runs, "heap_session": heap_session, "kern": kern, "instr": instr, "instr_py": instr_py,
+                "instr_bc": instr_bc, "heap": _replay(cfg, rec, SECONDS, False, heap=True)["heap"],
+                "split": _split(cfg, rec, int(HOLD + 4 * TS), SECONDS),
+                "satb": _satb_cycle(params, d) if have_vg else None}
+
+
+def _print_cost(f):
+    """The cycle's instructions and heap (``_measure``'s figures ``f``)."""
+    kern, instr, instr_py = f["kern"], f["instr"], f["instr_py"]
+    hs = np.array(f["heap"][int(HOLD + 4 * TS):])
     print("Cost of one 1 Hz ADCS cycle (APKF + STKF + control, no CAN) under micropython (unix x64 port)%s\n"
           % ("" if kern else "; the C kernels (firmware/adcs/adcsk.mpy) are not built: `make natmod` says why"))
     print("| item | goal | ours |")
     print("|---|---|---|")
     print("| x86-64 instructions per cycle, pointing (callgrind, cycles %d-%d)%s | <= %.0f M | %.2f M%s |"
           % (CG[0], CG[1], ", with the C kernels (flown)" if kern else ", Python kernels", GOAL_INSTR / 1e6,
-             instr / 1e6, "" if instr <= GOAL_INSTR else " (missed)"))
+             instr / 1e6, missed(instr, GOAL_INSTR)))
     if kern:
         print("| the same, the filters' Python forms (no native module; same results bit for bit) | <= %.0f M | "
-              "%.2f M%s |" % (GOAL_INSTR / 1e6, instr_py / 1e6, "" if instr_py <= GOAL_INSTR else " (missed)"))
+              "%.2f M%s |" % (GOAL_INSTR / 1e6, instr_py / 1e6, missed(instr_py, GOAL_INSTR)))
     print("| the same, Python forms as bytecode only (no native module, no native emitter) | — | %.2f M |"
-          % (instr_bc / 1e6))
+          % (f["instr_bc"] / 1e6))
     print("| heap bytes per cycle, pointing (max / mean) | measured, bounded | %d / %d |" % (hs.max(), hs.mean()))
     print("| heap bytes per cycle in the CAN session (max over %d cycles, incl. status) | measured | %d |"
-          % (len(heap_session), max(heap_session)))
+          % (len(f["heap_session"]), max(f["heap_session"])))
+
+
+def _print_split(split, instr):
+    """Each part's share of the cycle's time (``_split``'s ``split``) and of ``instr`` instructions."""
     n, cyc = split["cycles"], split["cycle"]
     other = cyc - split["apkf"] - split["stkf"] - split["control"]
     print("\nWhere the cycle goes (micropython, ticks_us over the %d pointing cycles %d-%d; M instructions = the "
@@ -306,31 +329,34 @@ def main():
     print("| **cycle (callgrind)** | %.0f | 100 %% | %.2f |" % (cyc / n, instr / 1e6))
     print("| CAN HAL, outside the cycle (slcan, ISO-TP, unpack, RW_CMD + status out) | %.0f | %.0f %% of the "
           "cycle | %.2f |" % (split["hal"] / n, 100.0 * split["hal"] / cyc, instr * split["hal"] / cyc / 1e6))
-    if satb is not None:
-        ib, hb, sb, fused, ib_py = satb
-        n, cyc = sb["cycles"], sb["cycle"]
-        print("\nThe same cycle with SatB's GNSS relayed 2-3 s late (STKF lag 4 s, 6 nodes; a %d s session, %s SatB "
-              "fixes fused; callgrind cycles %d-%d, time shares over %d-%d)\n" % (CG[1], fused, CG[0], CG[1],
-                                                                                 CG[1] - n, CG[1]))
-        print("| part | share of the cycle | ~M x86-64 instructions |")
-        print("|---|---|---|")
-        for name, us in (("lean APKF", sb["apkf"]),
-                         ("lean STKF (predict, GNSS A and B, get)", sb["stkf"] - sb["beacon"]),
-                         ("beacon update", sb["beacon"]), ("control", sb["control"]),
-                         ("rest of the cycle", cyc - sb["apkf"] - sb["stkf"] - sb["control"])):
-            print("| %s | %.0f %% | %.2f |" % (name, 100.0 * us / cyc, ib * us / cyc / 1e6))
-        print("| **cycle (callgrind%s; goal <= %.0f M)** | 100 %% | %.2f%s |" % (
-            ", C kernels" if kern else "", GOAL_INSTR / 1e6, ib / 1e6, "" if ib <= GOAL_INSTR else " (missed)"))
-        if kern:
-            print("| the same cycle, the filters' Python forms (no native module) | | %.2f%s |" % (
-                ib_py / 1e6, "" if ib_py <= GOAL_INSTR else " (missed)"))
-        print("| CAN HAL, outside the cycle | %.0f %% of the cycle | %.2f |" % (100.0 * sb["hal"] / cyc,
-                                                                               ib * sb["hal"] / cyc / 1e6))
-        print("| heap bytes per cycle, pointing (max / mean) | | %d / %d |" % (max(hb), sum(hb) / len(hb)))
-    print(code_size())
-    text, by_input = apkf_input(params)
-    print(text)
-    print(robustness())
+
+
+def _print_satb(satb, kern):
+    """The cycle with SatB's GNSS relayed (``_satb_cycle``'s ``satb``)."""
+    ib, hb, sb, fused, ib_py = satb
+    n, cyc = sb["cycles"], sb["cycle"]
+    print("\nThe same cycle with SatB's GNSS relayed 2-3 s late (STKF lag 4 s, 6 nodes; a %d s session, %s SatB "
+          "fixes fused; callgrind cycles %d-%d, time shares over %d-%d)\n" % (CG[1], fused, CG[0], CG[1],
+                                                                             CG[1] - n, CG[1]))
+    print("| part | share of the cycle | ~M x86-64 instructions |")
+    print("|---|---|---|")
+    for name, us in (("lean APKF", sb["apkf"]),
+                     ("lean STKF (predict, GNSS A and B, get)", sb["stkf"] - sb["beacon"]),
+                     ("beacon update", sb["beacon"]), ("control", sb["control"]),
+                     ("rest of the cycle", cyc - sb["apkf"] - sb["stkf"] - sb["control"])):
+        print("| %s | %.0f %% | %.2f |" % (name, 100.0 * us / cyc, ib * us / cyc / 1e6))
+    print("| **cycle (callgrind%s; goal <= %.0f M)** | 100 %% | %.2f%s |" % (
+        ", C kernels" if kern else "", GOAL_INSTR / 1e6, ib / 1e6, missed(ib, GOAL_INSTR)))
+    if kern:
+        print("| the same cycle, the filters' Python forms (no native module) | | %.2f%s |" % (
+            ib_py / 1e6, missed(ib_py, GOAL_INSTR)))
+    print("| CAN HAL, outside the cycle | %.0f %% of the cycle | %.2f |" % (100.0 * sb["hal"] / cyc,
+                                                                           ib * sb["hal"] / cyc / 1e6))
+    print("| heap bytes per cycle, pointing (max / mean) | | %d / %d |" % (max(hb), sum(hb) / len(hb)))
+
+
+def _print_speed(runs):
+    """The CAN session's speed under each runtime (``session``'s results ``runs``)."""
     print("\nSpeed of the %d s CAN session (ADCS loop alone; issue: the whole `fps system` run >= %gx)\n" % (
         SECONDS, GOAL_SPEED))
     print("| firmware runtime | wall | virtual s per wall s | late cycles | missed replies (fw) | modes (cycles) |")
@@ -341,20 +367,23 @@ def main():
         print("| %s | %.1f s | %.1f | %d | rw %s, st %s, gnss %s, beacon %s | %s |" % (
             name, r["wall"], SECONDS / r["wall"], s["late_cycles"], fm["rw"], fm["startracker"], fm["gnss"],
             fm["beacon"], ", ".join("%s %d" % kv for kv in sorted(r["modes"].items()))))
+
+
+def _print_pointing(st, tach, g, g_wall, t_cal):
+    """Body pointing of the lean flight filters (``st``: the micropython session's statistics; ``tach``: the
+    CPython session's on the read-out difference) beside the ground's estimators (``g``, its wall ``g_wall``)."""
     print("\nBody pointing after %.0f s (hold + 4 t_s), t_s = %g s, %d s session; arcsec, arcsec/s\n"
           % (HOLD + 4 * TS, TS, SECONDS))
     th = bps.THESIS[False]
     print("| filters | pointing σ x / y | pointing 3σ | max | stability 3σ | lean vs ground (goal <= %.2f) |"
           % GOAL_RATIO)
     print("|---|---|---|---|---|---|")
-    st = mp["stats"]
     ratio = st["pointing_3sigma_arcsec"] / g["pointing_3sigma_arcsec"]
     print("| lean flight (CAN session, micropython) | %.1f / %.1f | %.1f | %.1f | %.1f | %.2f%s |" % (
         *st["pointing_sigma_arcsec"], st["pointing_3sigma_arcsec"], st["pointing_max_arcsec"],
         st["stability_3sigma_arcsec_s"], ratio, " (missed: worse than the ground's)" if ratio > GOAL_RATIO else
         " (better than the ground's by more than 25 %: the flown momentum input, next row)" if ratio < 1 / GOAL_RATIO
         else " (met)"))
-    tach = by_input[(False, "tach")]
     rt = tach["pointing_3sigma_arcsec"] / g["pointing_3sigma_arcsec"]
     print("| lean flight on the ground APKF's momentum input, the read-out difference (CPython session) | %.1f / %.1f "
           "| %.1f | %.1f | %.1f | %.2f%s |" % (

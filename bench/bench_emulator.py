@@ -49,14 +49,15 @@ class HoldMirror:
         return list(INIT_WORDS) if tick == 0 else self.words
 
 
-def full_run(duration_s=600.0, timing=None):
+def full_run(duration_s=600.0, timing=None, fused=True):
     """The 600 s run; adds ``cpu_s`` (process time: the one-core cost, unaffected by other loads). ``timing``:
-    the board timing (None: the config's default, ``arduino-zero``; or ``zero-latency``)."""
+    the board timing (None: the config's default, ``arduino-zero``; or ``zero-latency``); ``fused=False``: the
+    tick one part per call (``emulator.bench_composed``)."""
     from emulator.config import default_config
     cfg = default_config()
     if timing is not None:
         cfg["board"]["timing"] = timing
-    b = Bench(cfg, seed=1)
+    b = Bench(cfg, seed=1, fused=fused)
     c0 = time.process_time()
     res = Lockstep(b, HoldMirror(b.config), SinePlayer()).run(duration_s)
     res["cpu_s"] = time.process_time() - c0
@@ -137,6 +138,22 @@ def link_cost(ticks=3000):
     return out
 
 
+def _fusing(runs):
+    """What the fused loops pay: the same runs with the tick one part per call, the samples compared."""
+    print()
+    print("| tick written one part per call (Bench(fused=False)), the same run | arduino-zero timing | "
+          "zero-latency timing |")
+    print("|---|---|---|")
+    rtf, same = [], []
+    for t, res in runs.items():
+        comp = full_run(timing=t, fused=False)
+        rtf.append((600.0 / comp["cpu_s"], 600.0 / comp["cpu_s"] / (600.0 / res["cpu_s"]) - 1.0))
+        same.append("yes" if all(np.array_equal(comp[k], res[k]) for k in ("q2", "truth_arcsec")) else "NO")
+    print("| real-time factor, one core | %.0fx | %.0fx |" % (rtf[0][0], rtf[1][0]))
+    print("| against the fused loops (the default) | %+.0f %% | %+.0f %% |" % (100 * rtf[0][1], 100 * rtf[1][1]))
+    print("| Q2 samples and truth bit-identical to the fused loops | %s | %s |" % tuple(same))
+
+
 def main():
     runs = {t: full_run(timing=t) for t in ("arduino-zero", "zero-latency")}
     res = runs["arduino-zero"]
@@ -157,6 +174,7 @@ def main():
     print("| ticks / Q2 samples / overruns | 382680 / 378000 / 0 | %d / %d / %d | %d / %d / %d |"
           % (res["ticks"], len(res["q2"]), res["counters"]["overruns"], runs["zero-latency"]["ticks"],
              len(runs["zero-latency"]["q2"]), runs["zero-latency"]["counters"]["overruns"]))
+    _fusing(runs)
     p = parts()
     print()
     print("| CPU cost per tick by part (fused loop, blocks of 256 ticks) | ours (us) |")

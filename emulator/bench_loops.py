@@ -1,11 +1,12 @@
 """The bench's fused tick loops (``Bench.run_ticks``): a block of ticks against a controller with the per-tick
-work (the P-FSM's sub-steps, the Q1 sample, the controller's words) inlined, the lockstep's fast path; with the
-board's timing (``emulator.timing``), ``_run_ticks_timed`` samples X, Y and SUM at their own instants and applies
-the words at their landing instant. A mixin of ``emulator.bench.Bench``, whose state it runs on."""
+work (the P-FSM's sub-steps, the sensing chains of ``emulator.sensing``, the controller's words, the MEMS
+advance) inlined and the state in locals, the lockstep's fast path; with the board's timing
+(``emulator.timing``), ``_run_ticks_timed`` samples X, Y and SUM at their own instants and applies the words at
+their landing instant. ``emulator.bench_composed`` is the same tick one part per call: a test holds the two
+equal bit for bit, and ``bench/bench_emulator.py`` measures what fusing pays. A mixin of
+``emulator.bench.Bench``, whose state it runs on."""
 
 from math import erfc, sqrt
-
-from emulator.adc import ADS1256
 
 
 class FusedLoops:
@@ -20,36 +21,37 @@ class FusedLoops:
         was empty or None (overruns) are counted in ``n_missed``. ``q1_rows``, ``fsm_rows``: lists that record
         each tick's Q1 sample and the MEMS tilt volts after its words (with ``on_tick``).
         """
-        if self._timed:
+        if not self.fused:
+            return self._run_ticks_composed(n, rows, on_tick, k0, us_per_tick, q1_rows, fsm_rows)
+        if self.tab.timed:
             return self._run_ticks_timed(n, rows, on_tick, k0, us_per_tick, q1_rows, fsm_rows)
-        i = self._blk_i
-        if i + n > self._blk_n:
+        blk, m, tab = self.blk, self.m, self.tab
+        i = blk.i
+        if i + n > blk.n:
             raise RuntimeError("no P-FSM codes queued for tick %d: call load_pfsm or advance_tick" % self.tick)
-        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
-        zmx1, zmx2, zmy1, zmy2 = self.zmx1, self.zmx2, self.zmy1, self.zmy2
-        tpx, tpy = self.tpx, self.tpy
-        tpxs, tpys = self._tpx, self._tpy
-        p1, g1, p2, g2 = self._mems_step
-        c1, c2 = self._cm1, self._cm2
-        p = self._q2_p
-        q2_ticks, q2_m0, q2_t_us = self._q2_ticks, self._q2_m0, self._q2_t_us
-        q2_tpx, q2_tpy, q2_mem, mems_rows = self._q2_tpx, self._q2_tpy, self._q2_mem, self._mems_rows
-        noise = self.noise
-        n1, n1_i, n2, n2_i = self._n1, self._n1_i, self._n2, self._n2_i
-        gp1, gf1, co1, si1, ox1, oy1 = self._g1
-        gp2, gf2, co2, si2, ox2, oy2 = self._g2
-        f1, f2 = self.q1.inline, self.q2.inline
-        mid, k1, top, s01, pn1, nc21 = self._adc1
-        k2, s02, pn2, nc22 = self._adc2
-        lo, hi = ADS1256.LO, ADS1256.HI
+        umx, umy, clipped = m.umx, m.umy, m.clipped
+        zmx1, zmx2, zmy1, zmy2 = m.zmx1, m.zmx2, m.zmy1, m.zmy2
+        tpx, tpy = m.tpx, m.tpy
+        tpxs, tpys = blk.tpx, blk.tpy
+        p1, g1, p2, g2 = tab.mems_step
+        c1, c2 = tab.cm1, tab.cm2
+        p = blk.q2_p
+        q2_ticks, q2_m0, q2_t_us = blk.q2_ticks, blk.q2_m0, blk.q2_t_us
+        q2_tpx, q2_tpy, q2_mem, mems_rows = blk.q2_tpx, blk.q2_tpy, blk.q2_mem, tab.mems_rows
+        ch1, ch2 = self.chain1, self.chain2
+        noise, ns1, ns2 = self.noise, ch1.noise, ch2.noise
+        n1, n1_i, n2, n2_i = (ns1.buf, ns1.i, ns2.buf, ns2.i) if noise else ((), 0, (), 0)
+        gp1, gf1, gp2, gf2 = ch1.gp, ch1.gf, ch2.gp, ch2.gf
+        co1, si1, ox1, oy1, lim1, hq1, kx1, ky1, v1, mid, _, k1, _, top, s01, pn1, nc21 = ch1.consts
+        co2, si2, ox2, oy2, lim2, hq2, kx2, ky2, v2, _, _, k2, lo, hi, s02, pn2, nc22 = ch2.consts
+        adc1, adc2 = ch1.adc, ch2.adc
+        fast1, fast2 = ch1.quadcell.outputs_fast, ch2.quadcell.outputs_fast
         ksky, ang = self._sky, self._ang_mag2
         borex, borey = self.bore
         missed = done = 0
         erfc_, sqrt_, round_ = erfc, sqrt, round        # locals: the loop calls them ~10 times a tick
-        lim1, hq1, kx1, ky1, v1 = f1 if f1 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
-        lim2, hq2, kx2, ky2, v2 = f2 if f2 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
         dac = self.dac
-        last_words, last_unknown = self._last_words, self._last_unknown
+        last_words, last_unknown = self._memo
         same_words = same_unknown = 0                   # repeated words, counted as spi_words counts them
         try:
             for k in range(k0, k0 + n):
@@ -68,10 +70,10 @@ class FusedLoops:
                         sx, sy = fxp + fxn, fyp + fyn
                         vx, vy, vs = v1 * (fxn - fxp) * sy, v1 * (fyp - fyn) * sx, v1 * sx * sy
                     else:
-                        vx, vy, vs = self._fast1(xd, yd)
+                        vx, vy, vs = fast1(xd, yd)
                     if noise:
                         if n1_i + 3 > len(n1):
-                            n1 = self._n1 = self._refill()
+                            n1 = ns1.refill()
                             n1_i = 0
                         sv = k1 * (s01 + pn1 * sqrt_(r2))
                         sd = sqrt_(sv * sv + nc21)
@@ -82,7 +84,7 @@ class FusedLoops:
                     else:
                         cx, cy, cs = round_(mid - k1 * vx), round_(mid - k1 * vy), round_(k1 * vs)
                     if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
-                        self.adc1.n_clip += 1
+                        adc1.n_clip += 1
                         cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
                     # --- the controller's answer ---
                     words = on_tick(k, int(k * us_per_tick + 0.5), cx, cy, cs)
@@ -93,13 +95,13 @@ class FusedLoops:
                             same_unknown += last_unknown
                         else:
                             self.spi_words(words)
-                            last_words, last_unknown = self._last_words, self._last_unknown
-                            umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                            last_words, last_unknown = self._memo
+                            umx, umy, clipped = m.umx, m.umy, m.clipped
                     else:
                         missed += 1
                     if q1_rows is not None:
                         q1_rows.append((cx, cy, cs))
-                        fsm_rows.append(self.fsm_v)
+                        fsm_rows.append(m.fsm_v)
                 # --- Q2 samples in this tick: MEMS from the tick start, P-FSM precomputed (load_pfsm) ---
                 while q2_ticks[p] == i:
                     e1, h1, e2, h2 = mems_rows[q2_mem[p]]
@@ -119,12 +121,12 @@ class FusedLoops:
                         sx, sy = fxp + fxn, fyp + fyn
                         vx, vy, vs = v2 * (fxn - fxp) * sy, v2 * (fyp - fyn) * sx, v2 * sx * sy
                     else:
-                        vx, vy, vs = self._fast2(xd, yd)
+                        vx, vy, vs = fast2(xd, yd)
                     ex = (ang * qx - 2.0 * tfx - borex) * ksky       # true sky error (Eq. 7.5)
                     ey = (ang * qy - 2.0 * tfy - borey) * ksky
                     if noise:
                         if n2_i + 3 > len(n2):
-                            n2 = self._n2 = self._refill()
+                            n2 = ns2.refill()
                             n2_i = 0
                         sv = k2 * (s02 + pn2 * sqrt_(r2))
                         sd = sqrt_(sv * sv + nc22)
@@ -135,7 +137,7 @@ class FusedLoops:
                     else:
                         cx, cy, cs = round_(k2 * vx), round_(k2 * vy), round_(k2 * vs)
                     if cx < lo or cx > hi or cy < lo or cy > hi or cs < lo or cs > hi:
-                        self.adc2.n_clip += 1
+                        adc2.n_clip += 1
                         cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
                     rows.append((q2_m0 + p, q2_t_us[p], cx, cy, cs, ex, ey))
                     p += 1
@@ -151,13 +153,14 @@ class FusedLoops:
         finally:
             dac.n_words += same_words
             dac.n_unknown += same_unknown
-            self.zmx1, self.zmx2, self.zmy1, self.zmy2 = zmx1, zmx2, zmy1, zmy2
-            self.tpx, self.tpy = tpx, tpy
-            self._blk_i = i
+            m.zmx1, m.zmx2, m.zmy1, m.zmy2 = zmx1, zmx2, zmy1, zmy2
+            m.tpx, m.tpy = tpx, tpy
+            blk.i = i
             self.tick += done
-            self._q2_p = p
+            blk.q2_p = p
             self.q2_next = q2_m0 + p
-            self._n1_i, self._n2_i = n1_i, n2_i
+            if noise:
+                ns1.i, ns2.i = n1_i, n2_i
             self.n_missed += missed
 
     def _run_ticks_timed(self, n, rows, on_tick, k0, us_per_tick, q1_rows, fsm_rows):
@@ -165,41 +168,39 @@ class FusedLoops:
         their own instants in the tick (P-FSM and MEMS states exact there), and the controller's words act
         ``land`` after the tick start: in this tick (d = 0) or d ticks later, at offset f. A tick without an
         answer is an overrun; the words in flight still land."""
-        i = self._blk_i
-        if i + n > self._blk_n:
+        blk, m, tab = self.blk, self.m, self.tab
+        i = blk.i
+        if i + n > blk.n:
             raise RuntimeError("no P-FSM codes queued for tick %d: call load_pfsm or advance_tick" % self.tick)
-        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
-        zmx1, zmx2, zmy1, zmy2 = self.zmx1, self.zmx2, self.zmy1, self.zmy2
-        tpxs, tpys = self._tpx, self._tpy
-        p1, g1, p2, g2 = self._mems_step
-        t1, t2 = self._mem_tail
-        c1, c2 = self._cm1, self._cm2
-        d = self._land_d
+        umx, umy, clipped = m.umx, m.umy, m.clipped
+        zmx1, zmx2, zmy1, zmy2 = m.zmx1, m.zmx2, m.zmy1, m.zmy2
+        tpxs, tpys = blk.tpx, blk.tpy
+        p1, g1, p2, g2 = tab.mems_step
+        t1, t2 = tab.mem_tail
+        c1, c2 = tab.cm1, tab.cm2
+        d = tab.land_d
         pending = self._pending
-        (tpx0, tpy0), (tpx1, tpy1), (tpx2, tpy2) = self._q1_tp
-        (ae1, ae2, ah0, al0), (be1, be2, bh0, bl0), (ce1, ce2, ch0, cl0) = self._q1_gains
-        p = self._q2_p
-        q2_ticks, q2_m0, q2_t_us, q2_land = self._q2_ticks, self._q2_m0, self._q2_t_us, self._q2_land
-        q2_tpx, q2_tpy, q2_mem, mems_rows = self._q2_tpx, self._q2_tpy, self._q2_mem, self._mems_rows
-        noise = self.noise
-        n1, n1_i, n2, n2_i = self._n1, self._n1_i, self._n2, self._n2_i
-        gp1, gf1, co1, si1, ox1, oy1 = self._g1
-        gp2, gf2, co2, si2, ox2, oy2 = self._g2
-        f1, f2 = self.q1.inline, self.q2.inline
-        fast1, fast2 = self._fast1, self._fast2
-        lim1, hq1, kx1, ky1, v1 = f1 if f1 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
-        mid, k1, top, s01, pn1, nc21 = self._adc1
-        k2, s02, pn2, nc22 = self._adc2
-        lo, hi = ADS1256.LO, ADS1256.HI
+        (tpx0, tpy0), (tpx1, tpy1), (tpx2, tpy2) = blk.q1_tp
+        (ae1, ae2, ah0, al0), (be1, be2, bh0, bl0), (ce1, ce2, ch0, cl0) = tab.q1_gains
+        p = blk.q2_p
+        q2_ticks, q2_m0, q2_t_us, q2_land = blk.q2_ticks, blk.q2_m0, blk.q2_t_us, blk.q2_land
+        q2_tpx, q2_tpy, q2_mem, mems_rows = blk.q2_tpx, blk.q2_tpy, blk.q2_mem, tab.mems_rows
+        ch1, ch2 = self.chain1, self.chain2
+        noise, ns1, ns2 = self.noise, ch1.noise, ch2.noise
+        n1, n1_i, n2, n2_i = (ns1.buf, ns1.i, ns2.buf, ns2.i) if noise else ((), 0, (), 0)
+        gp1, gf1, gp2, gf2 = ch1.gp, ch1.gf, ch2.gp, ch2.gf
+        co1, si1, ox1, oy1, lim1, hq1, kx1, ky1, v1, mid, _, k1, _, top, s01, pn1, nc21 = ch1.consts
+        co2, si2, ox2, oy2, lim2, hq2, kx2, ky2, v2, _, _, k2, lo, hi, s02, pn2, nc22 = ch2.consts
+        adc1, adc2 = ch1.adc, ch2.adc
+        fast1, fast2 = ch1.quadcell.outputs_fast, ch2.quadcell.outputs_fast
         ksky, ang = self._sky, self._ang_mag2
         borex, borey = self.bore
         missed = done = 0
         bt = self.tick
         erfc_, sqrt_, round_ = erfc, sqrt, round        # locals: the loop calls them ~20 times a tick
         dac = self.dac
-        last_words, last_unknown = self._last_words, self._last_unknown
+        last_words, last_unknown = self._memo
         same_words = same_unknown = 0                   # repeated words, counted as spi_words counts them
-        lim2, hq2, kx2, ky2, v2 = f2 if f2 is not None else (-1.0, 0.0, 0.0, 0.0, 0.0)
         try:
             for k in range(k0, k0 + n):
                 dux = duy = 0.0
@@ -212,13 +213,13 @@ class FusedLoops:
                     else:
                         ux0, uy0 = umx, umy
                         self.spi_words(words)
-                        last_words, last_unknown = self._last_words, self._last_unknown
-                        umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                        last_words, last_unknown = self._memo
+                        umx, umy, clipped = m.umx, m.umy, m.clipped
                         dux, duy = umx - ux0, umy - uy0
                         land = dux != 0.0 or duy != 0.0         # a change of input (none: the same sums)
                 if on_tick is not None:
                     if noise and n1_i + 3 > len(n1):
-                        n1 = self._n1 = self._refill()
+                        n1 = ns1.refill()
                         n1_i = 0
                     ux0, uy0 = umx - dux, umy - duy
                     # X at its instant (MEMS: modal part + the held inputs' real gains, see set_rate)
@@ -271,7 +272,7 @@ class FusedLoops:
                     else:
                         cs = round_(k1 * val)
                     if cx < 0 or cx > top or cy < 0 or cy > top or cs < 0 or cs > top:
-                        self.adc1.n_clip += 1
+                        adc1.n_clip += 1
                         cx, cy, cs = (min(top, max(0, c)) for c in (cx, cy, cs))
                     words = on_tick(k, int(k * us_per_tick + 0.5), cx, cy, cs)
                     if words:
@@ -280,15 +281,15 @@ class FusedLoops:
                         else:                                   # lands in this tick, after the samples
                             ux0, uy0 = umx, umy
                             self.spi_words(words)
-                            last_words, last_unknown = self._last_words, self._last_unknown
-                            umx, umy, clipped = self.u_mx, self.u_my, self.mems_clipped
+                            last_words, last_unknown = self._memo
+                            umx, umy, clipped = m.umx, m.umy, m.clipped
                             dux, duy = umx - ux0, umy - uy0
                             land = dux != 0.0 or duy != 0.0
                     else:
                         missed += 1
                     if q1_rows is not None:
                         q1_rows.append((cx, cy, cs))
-                        fsm_rows.append(self.fsm_v)
+                        fsm_rows.append(m.fsm_v)
                 ux0, uy0 = umx - dux, umy - duy
                 while q2_ticks[p] == i:
                     e1, h1, e2, h2 = mems_rows[q2_mem[p]]
@@ -317,7 +318,7 @@ class FusedLoops:
                     ey = (ang * qy - 2.0 * tfy - borey) * ksky
                     if noise:
                         if n2_i + 3 > len(n2):
-                            n2 = self._n2 = self._refill()
+                            n2 = ns2.refill()
                             n2_i = 0
                         sv = k2 * (s02 + pn2 * sqrt_(r2))
                         sd = sqrt_(sv * sv + nc22)
@@ -328,7 +329,7 @@ class FusedLoops:
                     else:
                         cx, cy, cs = round_(k2 * vx), round_(k2 * vy), round_(k2 * vs)
                     if cx < lo or cx > hi or cy < lo or cy > hi or cs < lo or cs > hi:
-                        self.adc2.n_clip += 1
+                        adc2.n_clip += 1
                         cx, cy, cs = (min(hi, max(lo, c)) for c in (cx, cy, cs))
                     rows.append((q2_m0 + p, q2_t_us[p], cx, cy, cs, ex, ey))
                     p += 1
@@ -349,11 +350,12 @@ class FusedLoops:
         finally:
             dac.n_words += same_words
             dac.n_unknown += same_unknown
-            self.zmx1, self.zmx2, self.zmy1, self.zmy2 = zmx1, zmx2, zmy1, zmy2
-            self.tpx, self.tpy = tpxs[i], tpys[i]
-            self._blk_i = i
+            m.zmx1, m.zmx2, m.zmy1, m.zmy2 = zmx1, zmx2, zmy1, zmy2
+            m.tpx, m.tpy = tpxs[i], tpys[i]
+            blk.i = i
             self.tick += done
-            self._q2_p = p
+            blk.q2_p = p
             self.q2_next = q2_m0 + p
-            self._n1_i, self._n2_i = n1_i, n2_i
+            if noise:
+                ns1.i, ns2.i = n1_i, n2_i
             self.n_missed += missed

@@ -174,7 +174,7 @@ def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=MIN_CYCLES, min
             res = rig.run(n_ticks)
             m = len(res["truth_arcsec"])
             tq = res["q2"][:, 1] * 1e-6 - t0
-            inp = np.column_stack([np.asarray(b._q2_tpx[:m]), np.asarray(b._q2_tpy[:m])]) * ksky
+            inp = np.column_stack([np.asarray(b.blk.q2_tpx[:m]), np.asarray(b.blk.q2_tpy[:m])]) * ksky
             keep = (tq >= settle_s) & (tq < settle_s + n_meas)
             # the held command's images at rate -+ f, sampled by Q2 at q2_hz, fold to |rate -+ f - q2_hz|
             # (the recorder's aliasing): fit them too where they fall near f

@@ -105,7 +105,9 @@ def test_fused_block_loop_matches_the_per_tick_path():
         assert np.array_equal(a[key], b[key]), key
     assert a["counters"] == b["counters"]
     assert a["counters"]["overruns"] == 10 and a["counters"]["mems_clip_ticks"] > 0
-    assert (ba.zmx1, ba.zmy2, ba.tpx, ba.q2_next, ba._n1_i) == (bb.zmx1, bb.zmy2, bb.tpx, bb.q2_next, bb._n1_i)
+    sa, sb = ba.m, bb.m
+    assert (sa.zmx1, sa.zmy2, sa.tpx, ba.q2_next, ba.chain1.noise.i) == (sb.zmx1, sb.zmy2, sb.tpx, bb.q2_next,
+                                                                       bb.chain1.noise.i)
 
 
 def test_missing_commands_are_overruns_and_the_mirror_holds():
@@ -372,7 +374,7 @@ def test_bad_timing_and_codes_are_refused_or_counted():
         b.load_pfsm([0x8000] * 3, [0x8000] * 3, [4])
     b.advance_tick([70000] * 17, [-5] * 17)              # beyond the AD660's 16 bits: clipped, counted
     assert b.counters()["pfsm_code_clips"] == 34
-    assert b.tpx > 0 > b.tpy
+    assert b.m.tpx > 0 > b.m.tpy
     for kw in ({"pfsm_hz": 50.0}, {"deadline_s": 0.0}, {"block_ticks": 0}, {"rate_hz": 0.5}):
         with pytest.raises(ValueError, match=next(iter(kw))):
             Lockstep(Bench(ZERO_LATENCY), Integral(default_config()), **kw)

@@ -191,8 +191,8 @@ def test_mems_range_clips_and_bench_counts_it():
     b = Bench(noise=False)
     b.spi_words(INIT_WORDS)
     b.spi_words(fsm_words(2.45, 0.0, b.config))                # X curve passes 1.25 deg before 2.45 V
-    assert b.mems_clipped
-    assert b.u_mx == pytest.approx(1.25 * DEG)
+    assert b.m.clipped
+    assert b.m.umx == pytest.approx(1.25 * DEG)
     for _ in range(3):
         b.advance_tick([0x8000] * 17, [0x8000] * 17)
     assert b.counters()["mems_clip_ticks"] == 3
@@ -298,7 +298,7 @@ def test_eq_7_8_pfsm_volts_per_arcsec_and_sky_error():
     b.spi_words(fsm_words(0.1, 0.0, b.config))
     b.settle((0.0, 0.0))
     ex0 = b.true_error_arcsec()[0] + b.bore[0] * b._sky
-    assert ex0 == pytest.approx(2 * b.u_mx * ARCSEC_PER_RAD / 13.33, rel=1e-9)
+    assert ex0 == pytest.approx(2 * b.m.umx * ARCSEC_PER_RAD / 13.33, rel=1e-9)
 
 
 # --- true H ----------------------------------------------------------------------------------------------

@@ -132,19 +132,8 @@ def random_run(ticks, seed, gain_q15, limit_code, sign, cmd_q15):
 def locked_alloc(n):
     """gc.mem_alloc() over n viper ticks with the heap locked (an allocation would raise MemoryError)."""
     import micropython
-    grid = htable.grid_from_calibration(fp.calibration())
-    c = ViperController(table=grid, safe_ticks=65535)
-    p = fp.Plant(seed=5)
-    src = []
-    c.step(2048, 2048, 0)
-    c.mode = TRACK
-    for k in range(2000):
-        s = p.sample()
-        src.extend(s)
-        p.apply(c.on_tick(k, 0, s[0], s[1], s[2]))
-    c = ViperController(table=grid, safe_ticks=65535)
-    c.step(2048, 2048, 0)
-    c.mode = TRACK
+    from pil_probe import recorded_loop           # the PIL board's replay, on this port's viper controller
+    c, src = recorded_loop(ViperController, 2000)
     m = len(src)
     gc.collect()
     a0 = gc.mem_alloc()

@@ -32,6 +32,26 @@ def _run(c, src, n):
     return timer_now() - t0
 
 
+def recorded_loop(C, ticks):
+    """A controller of class ``C`` on the plant's calibration table closes the loop on ``firmware_plant.Plant(seed=5)``
+    in TRACK for ``ticks`` ticks: (a fresh ``C`` in TRACK, the Q1 samples the first one read: vx, vy, vs, ...), to
+    replay them from their start."""
+    grid = htable.grid_from_calibration(fp.calibration())
+    c = C(table=grid, safe_ticks=65535)
+    p = fp.Plant(seed=5)
+    src = []
+    c.step(2048, 2048, 0)
+    c.mode = TRACK
+    for k in range(ticks):
+        s = p.sample()
+        src.extend(s)
+        p.apply(c.on_tick(k, 0, s[0], s[1], s[2]))
+    c = C(table=grid, safe_ticks=65535)
+    c.step(2048, 2048, 0)
+    c.mode = TRACK
+    return c, src
+
+
 class _Nothing:
     def step(self, vx, vy, vs):
         return 0
@@ -46,19 +66,7 @@ def counts(n=2000, viper=True):
         from firmware.controller_viper import ViperController as C
     else:
         C = Controller
-    grid = htable.grid_from_calibration(fp.calibration())
-    c = C(table=grid, safe_ticks=65535)
-    p = fp.Plant(seed=5)
-    src = []
-    c.step(2048, 2048, 0)
-    c.mode = TRACK
-    for k in range(300):
-        s = p.sample()
-        src.extend(s)
-        p.apply(c.on_tick(k, 0, s[0], s[1], s[2]))
-    c = C(table=grid, safe_ticks=65535)      # afresh, as firmware_viper.locked_alloc: the replay from its start
-    c.step(2048, 2048, 0)
-    c.mode = TRACK
+    c, src = recorded_loop(C, 300)
     gc.collect()
     heap = gc.mem_alloc() - heap0
     timer_start()

@@ -293,7 +293,20 @@ def prepare_play(rig, rec, cal, q2_dvp, first_arcsec):
     rig.run(int(0.2 * rig.rate_hz))
     rig.take_status()
     rec.status_before = rig.last_status
+    _check_tracking(rig)
     return q2cal
+
+
+def _check_tracking(rig):
+    """OSError unless the controller's last CTRL_STATUS before the play says TRACK (or SATURATED, TRACK on its
+    clamp): a play that starts in SAFE or HOLD measures nothing the run is meant to show."""
+    from protocol import core
+    st = rig.last_status
+    if st is None or st["mode"] in (core.MODE["TRACK"], core.MODE["SATURATED"]):
+        return
+    mode = core.MODE_NAME.get(st["mode"], st["mode"])
+    why = " (%s)" % core.SAFE_REASON.get(st["why"], st["why"]) if st["mode"] == core.MODE["SAFE"] else ""
+    raise OSError("the controller was in %s%s at the play's start, not TRACK: the play was not run" % (mode, why))
 
 
 def play(rig, rec, player, duration_s, summary, quiet, before_chunk=None, desc="hil"):
@@ -362,7 +375,9 @@ def finish_summary(rec, run, summary, q2cal, plots):
     if rig is not None and rec.tick0 is None:
         summary["overruns"] = rig.lockstep.n_overrun
     summary.update(_finish(rec, q2cal, rec.t0_us, complete=not (run.interrupted or run.failure), plots=plots))
-    summary["mode_changes"] = mode_changes(rig, rec.tick0) if rec.tick0 is not None else []
+    lock = getattr(rig, "lockstep", None)         # no play: the changes up to where the run stopped
+    tick0 = rec.tick0 if rec.tick0 is not None else lock.tick if lock is not None else None
+    summary["mode_changes"] = mode_changes(rig, tick0) if tick0 is not None else []
     summary["saturation"] = (saturation_summary(rec.status, rig.rate_hz, rec.tick0, rec.status_before)
                              if rig is not None and rec.tick0 is not None else None)
     summary["interrupted"] = run.interrupted

@@ -16,8 +16,9 @@ SAT_OFF = "FSM command off its clamp"
 
 
 def mode_changes(rig, tick0):
-    """Each mode change seen in CTRL_STATUS after ``tick0`` (the play's start): time, modes and why (SAFE's
-    reason, the controller's own SATURATED entry and return, or commanded)."""
+    """Each mode change seen in CTRL_STATUS: time from ``tick0`` (the play's start; before it, negative), modes
+    and why (SAFE's reason, the controller's own SATURATED entry and return, or commanded). Before the play
+    only the changes the ground did not command (its calibration and set-up command many)."""
     from protocol import core
     out = []
     if rig is None:
@@ -25,7 +26,7 @@ def mode_changes(rig, tick0):
     prev = None
     sat = core.MODE["SATURATED"]
     for tick, mode, why in rig.mode_log:
-        if tick >= tick0 and prev is not None and mode != prev:
+        if prev is not None and mode != prev:
             if mode == core.MODE["SAFE"]:
                 reason = core.SAFE_REASON.get(why, why)
             elif mode == sat:
@@ -34,6 +35,9 @@ def mode_changes(rig, tick0):
                 reason = SAT_OFF
             else:
                 reason = "commanded"
+            if tick < tick0 and reason == "commanded":
+                prev = mode
+                continue
             out.append({"t_s": round((tick - tick0) / rig.rate_hz, 4), "tick": tick,
                         "from": core.MODE_NAME.get(prev, prev), "to": core.MODE_NAME.get(mode, mode),
                         "why": reason})

@@ -156,6 +156,20 @@ class Rig:
         s, self.status = self.status, []
         return s
 
+    keepalive_s = 1.0         # the longest the ground lets the controller's link go quiet while it waits (s)
+    _t_alive = float("-inf")
+
+    def keepalive(self):
+        """Tell the controller the ground is still there while the ground waits on something else (the ADCS
+        process, a file): an ACK of its telemetry, at most every ``keepalive_s`` s of wall time. Any packet but a
+        TICK restarts the controller's link-silence count, and an ACK changes nothing else, so the host's own
+        waits never read as a silent ground link (SAFE, LINK_SILENT), however slow the host."""
+        now = time.perf_counter()
+        if now - self._t_alive >= self.keepalive_s:
+            self._t_alive = now
+            self.endpoint.send_ground(P_ACK, bytes((P_STATUS, 0)), self._seq & 0xFF)
+            self._seq += 1
+
     # --- commands ---------------------------------------------------------------------------------
     cmd_timeout_s = 0.05      # wait for ACK/NACK before resending a command
     cmd_tries = 40            # sends of one command before the link is declared down (NoAnswer)

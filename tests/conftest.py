@@ -30,7 +30,7 @@ E2E_MODULES = (                            # longest first (their durations in m
     "test_firmware_mp", "test_fine_pointing_edges", "test_flight_world", "test_adcs_lean", "test_adcs_lean_stkf",
     "test_adcs_cli_edges", "test_adcs_campaign", "test_protocol_mp", "test_launcher", "test_adcs_natmod",
     "test_emulator_lockstep", "test_emulator_serve_and_session_edges", "test_protocol_link_edges",
-    "test_protocol_emulator_edges",
+    "test_protocol_emulator_edges", "test_hil_keepalive",
 )
 
 

@@ -242,6 +242,7 @@ class AdcsFeed:
         self.wait_s = 0.0           # the fine loop's wall time spent waiting for the ADCS
         self.t_started = None       # perf_counter at start()
         self.t_heard = None         # perf_counter of the last message read (heartbeat included)
+        self.on_wait = None         # called as often as take() looks for a message (keeps other links alive)
 
     def start(self):
         """Start the ADCS process with SIGINT blocked (Ctrl-C is the parent's: it stops the process)."""
@@ -303,6 +304,8 @@ class AdcsFeed:
                 if self.ended:
                     raise OSError("the ADCS ended at t = %.1f s, before t = %s s" % (
                         self.t_last, "%.1f" % until_t if until_t is not None else "?"))
+                if self.on_wait is not None:
+                    self.on_wait()
                 m = self._get(0.5)
                 now = time.perf_counter()
                 if m is None:

@@ -112,8 +112,10 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 summary["phase"] = "controller_start"
                 with runtime.open_rig(runtime_name, "serial", config=config, seed=seed) as rig:
                     run.rig = rig
+                    feed.on_wait = rig.keepalive      # the ADCS's pace is not the fine loop's link silence
                     write_json(rec.path("config.json"), dict(hil.run_config(rig, duration_s, seed, {}), **config_json))
                     q2cal = _play(rig, rec, cal, q2_dvp, feed, live, summary, t_settle, duration_s, quiet, say)
+                feed.on_wait = None
                 feed.on_samples = None                # the play is over: later samples are recorded, not played
                 summary["phase"] = "reference"
                 with contextlib.suppress(OSError):    # the ground filters' column (firmware: after the session)

@@ -380,6 +380,7 @@ def finish_summary(rec, run, summary, q2cal, plots):
     summary["mode_changes"] = mode_changes(rig, tick0) if tick0 is not None else []
     summary["saturation"] = (saturation_summary(rec.status, rig.rate_hz, rec.tick0, rec.status_before)
                              if rig is not None and rec.tick0 is not None else None)
+    summary["availability"] = _availability(rec, rig)
     summary["interrupted"] = run.interrupted
     summary["error"] = run.failure
     if run.failure:
@@ -388,6 +389,19 @@ def finish_summary(rec, run, summary, q2cal, plots):
             run.failure, _nonzero(c["bench"]),
             "none received" if c["controller"] is None else _nonzero(c["controller"]))
     return summary
+
+
+def _availability(rec, rig):
+    """The play's link availability on the true error (``ground.availability``), with Q2's saturated samples."""
+    from ground.availability import availability, q2_saturated
+    if rec.tick0 is None or rig is None:
+        return None
+    q2, truth = rec.arrays()
+    rate = rig.rate_hz
+    block = availability((q2[:, 1] - rec.t0_us) * 1e-6, truth, report.REQUIREMENT_ARCSEC, rec.status,
+                         lambda t: rec.tick0 + int(round(t * rate)))
+    block["q2_saturated_samples"] = q2_saturated(q2)
+    return block
 
 
 class RunFailed(OSError):

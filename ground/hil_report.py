@@ -160,6 +160,9 @@ def verdict_lines(s):
                 report.REQUIREMENT_ARCSEC, _fmt_num(q2.get("max_radial_arcsec"))))
     if s.get("q2_beam_lost_samples"):
         lines.append("BEAM LOST on Q2 in %d samples" % s["q2_beam_lost_samples"])
+    av = s.get("availability") or {}
+    if av.get("availability") is not None:
+        lines.append(availability_line(av, (s.get("truth") or {}).get("max_radial_arcsec")))
     sat = s.get("saturation")
     if sat and (sat.get("episodes") or sat.get("episodes_unseen")):
         ep = sat["episodes"]
@@ -188,6 +191,23 @@ def verdict_lines(s):
         lines.append("link: %d TICKs resent, %d command retries, %d overruns (ticks the mirror held)" % (
             b.get("controller_resent", 0), b.get("command_retries", 0), b.get("overruns", 0)))
     return lines
+
+
+def availability_line(av, truth_max):
+    """One line: the share of the play in lock on the true error, the outages, the largest true error, and
+    Q2's saturated samples (whose error is the ADC's rail, not the beam's)."""
+    text = "availability %.2f %% of the play within %.2f″ (true error, largest %s″)" % (
+        100 * av["availability"], report.REQUIREMENT_ARCSEC, _fmt_num(truth_max))
+    n = av["n_outages"]
+    if n:
+        big = max(av["outages"], key=lambda o: o["length_s"])
+        text += ": %d outage%s, longest %.3f s from t = %.2f s, %s" % (
+            n, "" if n == 1 else "s", big["length_s"], big["start_s"], big["cause"] or "cause unknown")
+        if not av["outages"][-1]["ended"]:
+            text += "; not re-acquired by the end"
+    if av.get("q2_saturated_samples"):
+        text += "; Q2 on its ADC's rails in %d samples" % av["q2_saturated_samples"]
+    return text
 
 
 def _fmt_num(v):

@@ -97,6 +97,15 @@ def verdict_md(s):
         out.append("")
         out.append("The beam was lost on Q2 in %d of %d samples (the fine loop misses)."
                    % (f["beam_lost_samples"], f["q2_samples"]))
+    av = s.get("availability") or {}
+    if av.get("availability") is not None:
+        from ground.hil_report import availability_line
+        out.append("")
+        out.append(availability_line(av, (s.get("truth") or {}).get("max_radial_arcsec")).capitalize() + ".")
+        for o in av["outages"][:10]:
+            out.append("- outage from t = %.2f s, %.3f s, peak %.1f″: %s%s" % (
+                o["start_s"], o["length_s"], o["peak_arcsec"], o["cause"] or "cause unknown",
+                "" if o["ended"] else " (not re-acquired by the end)"))
     out.append("")
     if not v["complete"]:
         why = ": %s" % s["error"] if s.get("error") else (", interrupted" if s.get("interrupted") else "")

@@ -553,6 +553,7 @@ def _speed(walls, t_cluster, per_run_ms):
     print("\nCores: %d (shared with other jobs; the speed-up is bounded by what the other jobs leave)."
           % (os.cpu_count() or 1))
 
+
 if __name__ == "__main__":
     from bench.run import standalone
     standalone(main)

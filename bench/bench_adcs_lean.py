@@ -225,6 +225,7 @@ def _print_cost(res, instr, st, instr_stkf):
     print("\nOn this port every float result is a 16-byte heap object (float64, object representation A); a board "
           "port with single-precision floats packed in the object word (representation C) allocates none for them.")
 
+
 STKF_S = 1200
 STKF_F32_S = 4000
 STKF_T0 = 300

@@ -240,6 +240,7 @@ def main():
         if failed:      # the tables are printed; make bench must still say the benchmark failed
             raise RuntimeError("; ".join(failed))
 
+
 if __name__ == "__main__":
     from bench.run import standalone
     standalone(main)

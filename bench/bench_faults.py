@@ -282,6 +282,7 @@ def _system_can(tmp, cal, failed):
         print("| %s | %d | %s | %.1f | %s | %s |" % (name, rc, s.get("complete"), wall,
                                                     r.get("cycles_retried", "—"), ident), flush=True)
 
+
 def _same_npz(a, b):
     """Every array of two .npz files equal, NaN where NaN (body.npz's estimate errors before the first)."""
     za, zb = np.load(a), np.load(b)

@@ -147,6 +147,7 @@ def _print_table(duration_s, adcs, run, alone):
         print("| lean / ground filters, body pointing 3σ | within 25 %% | %.2f / %.2f (%+.1f %%)%s |"
               % (b["pointing_3sigma_arcsec"], ref["pointing_3sigma_arcsec"], 100 * rel, verdict(abs(rel), 0.25)))
 
+
 if __name__ == "__main__":
     from bench.run import standalone
     standalone(main)

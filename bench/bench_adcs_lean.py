@@ -149,6 +149,7 @@ def _print_accuracy(runs, t_truth):
 
 
 def _print_other_seeds():
+    """Runs the ground and lean filters on the scenario with each of ``SEEDS`` and prints their pointing RMS."""
     print("\nOther seeds (the same scenario, its random draws changed): pointing RMS, arcsec\n")
     print("| seed | ground 41-state | lean | lean/ground | lean, commanded torques | its ratio | "
           "lean, read-out difference | its ratio |")
@@ -163,7 +164,8 @@ def _print_other_seeds():
 
 
 def _print_noise_free():
-    """The filters on the same truth with noise-free tachometer read-outs (a diagnostic)."""
+    """Runs the filters on the same truth with noise-free tachometer read-outs and prints their figures (a
+    diagnostic)."""
     sc0 = scenario(SECONDS, tach_rpm=0.0)
     diag = {"ground 41-state": figures(*run_ground(sc0)),
             "lean": figures(*run_lean(sc0)),

@@ -63,12 +63,20 @@ def q2_saturated(q2):
     return int(np.any((ch <= ADS1256_RAILS[0]) | (ch >= ADS1256_RAILS[1]), axis=1).sum())
 
 
-def availability(t_s, truth_arcsec, requirement_arcsec, status=(), tick_of=None):
+UNPLAYABLE = "body error beyond the bench's P-FSM range: not playable"
+
+
+def availability(t_s, truth_arcsec, requirement_arcsec, status=(), tick_of=None, unplayable=()):
     """The ``availability`` block of a summary from the true error at each Q2 sample (t_s from the play's
     start; truth (n, 2) in arcsec). ``status``: the CTRL_STATUS dicts of the play; ``tick_of(t_s)`` the tick
-    at a time, to find the cause. Empty input gives None figures."""
+    at a time, to find the cause. ``unplayable``: (start, end) windows of the play the bench held at its
+    P-FSM's edge: out of lock whatever the truth there says. Empty input gives None figures."""
     t = np.asarray(t_s, dtype=float)
     r = np.hypot(*np.asarray(truth_arcsec, dtype=float).reshape(-1, 2).T) if len(t) else np.zeros(0)
+    held = np.zeros(len(t), bool)
+    for a, b in unplayable:
+        held |= (t >= a) & (t < b)
+    r = np.where(held, np.inf, r)
     if len(t) == 0:
         return {"availability": None, "outages": [], "n_outages": 0, "longest_outage_s": None,
                 "reacquisition_s": [], "in_lock": None}
@@ -78,8 +86,12 @@ def availability(t_s, truth_arcsec, requirement_arcsec, status=(), tick_of=None)
     for a, b in runs:
         length = float(t[b - 1] - t[a]) + dt
         why = cause(status, tick_of(t[a])) if tick_of is not None and status else None
+        if held[a:b].any():
+            why = UNPLAYABLE
+        peak = r[a:b][np.isfinite(r[a:b])]
         out.append({"start_s": round(float(t[a]), 4), "length_s": round(length, 4),
-                    "peak_arcsec": round(float(r[a:b].max()), 3), "ended": b < len(t), "cause": why})
+                    "peak_arcsec": round(float(peak.max()), 3) if peak.size else None, "ended": b < len(t),
+                    "cause": why})
     lock = np.ones(len(t), bool)
     for a, b in runs:
         lock[a:b] = False

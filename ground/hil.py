@@ -114,6 +114,7 @@ class Recorder:
         self.tick0 = None         # the play's first tick (None: the play has not started)
         self.t0_us = 0
         self.status_before = None   # the last CTRL_STATUS before the play (saturation counts start there)
+        self.unplayable = []        # (start, end) s of the play the bench could not play (beyond the P-FSM)
 
     def path(self, name):
         return os.path.join(self.dir, name)
@@ -399,7 +400,7 @@ def _availability(rec, rig):
     q2, truth = rec.arrays()
     rate = rig.rate_hz
     block = availability((q2[:, 1] - rec.t0_us) * 1e-6, truth, report.REQUIREMENT_ARCSEC, rec.status,
-                         lambda t: rec.tick0 + int(round(t * rate)))
+                         lambda t: rec.tick0 + int(round(t * rate)), rec.unplayable)
     block["q2_saturated_samples"] = q2_saturated(q2)
     return block
 

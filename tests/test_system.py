@@ -158,13 +158,19 @@ def test_live_disturbance_equals_the_distfile_of_the_whole_history():
     assert out[0] == out[1]
 
 
-def test_live_disturbance_refuses_a_sample_beyond_the_pfsm():
+def test_live_disturbance_holds_a_sample_beyond_the_pfsm_at_its_edge_and_refuses_a_nan():
+    from ground.distfile_cli import MAX_THETA_E_ARCSEC
     live = system.LiveDisturbance(t0=0.0)
     t = np.arange(40) / 10.0
     xy = np.zeros((40, 2))
-    xy[25:, 1] = 900.0                                  # 900 arcsec x 13.33 > 3 deg
-    with pytest.raises(ValueError, match="cannot be played.*beyond the P-FSM's range"):
-        live.add(t, xy)
+    xy[25:30, 1] = 900.0                                # 900 arcsec x 13.33 > 3 deg
+    live.add(t, xy)
+    assert max(live.y) == pytest.approx(MAX_THETA_E_ARCSEC) and live.n_unplayable > 0
+    (a, b), = live.unplayable
+    assert 2.3 < a < 2.5 and 2.9 < b < 3.2
+    xy[35, 0] = np.nan
+    with pytest.raises(ValueError, match="not a number"):
+        live.add(t + 4.0, xy)
 
 
 # --- the firmware code path against a fake session (the real one: emulator.adcs_session) -------------------

@@ -1,9 +1,10 @@
 """``fps system``'s failure paths end within a bound with an honest folder, and its one verdict for the terminal.
 
 Each failure test provokes one failure in a short ``--adcs ground`` run, measures from that moment to the end of
-the command (at most ``BOUND_S``), and reads summary.json (complete false, the reason, where it stopped). The
-P-FSM range stop and Ctrl-C run ``fps system`` in its own interpreter, so that its exit (multiprocessing's exit
-handler waiting on the ADCS process) is part of what is timed."""
+the command (at most ``BOUND_S``), and reads summary.json (complete false, the reason, where it stopped).
+Ctrl-C runs ``fps system`` in its own interpreter, so that its exit (multiprocessing's exit handler waiting on
+the ADCS process) is part of what is timed. A body error beyond the P-FSM's range is not a failure: the run
+goes on."""
 
 import contextlib
 import json
@@ -11,10 +12,10 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import threading
 import time
 
+import numpy as np
 import pytest
 
 from ground import report, system
@@ -67,46 +68,32 @@ def _when_playing(out, then, timeout_s=120.0):
     return th
 
 
-def test_a_pfsm_range_stop_ends_the_command(tmp_path, setup):
-    """The hang: the body pointing error leaves the P-FSM's range during the play while the ADCS process is far
-    ahead (its queue's pipe full). The command exits 1 within the bound, its summary naming the range."""
+def test_a_body_error_beyond_the_pfsm_is_held_at_its_edge_counted_and_the_run_goes_on(tmp_path, setup,
+                                                                                       monkeypatch):
+    """From 5 s to 8 s into the play the body pointing error is 5000 arcsec, beyond the P-FSM's 810: the bench
+    plays the range's edge, counts the samples and their window, the availability names the outage's cause,
+    and the run completes with the budget missed (exit 3), not a workbench failure."""
+    from ground.availability import UNPLAYABLE
+    add = system.LiveDisturbance.add
+
+    def beyond(self, t, dtheta):
+        t = np.asarray(t, float)
+        d = np.array(dtheta, float)
+        d[(t >= self.t0 + 5.0) & (t < self.t0 + 8.0)] = 5000.0
+        return add(self, t, d)
+    monkeypatch.setattr(system.LiveDisturbance, "add", beyond)
     out = tmp_path / "run"
-    mark = tmp_path / "provoked"
-    script = tmp_path / "range_stop.py"
-    script.write_text(textwrap.dedent("""
-        import sys, time
-        import numpy as np
-        from ground import system
-        from ground.cli import main
-
-        add = system.LiveDisturbance.add
-
-        def beyond(self, t, dtheta):          # from 5 s into the play: 5000 arcsec, beyond the P-FSM's 810
-            t = np.asarray(t, float)
-            if t[-1] >= self.t0 + 5.0:
-                dtheta = np.full(np.shape(dtheta), 5000.0)
-                with open(%r, "a") as f:
-                    f.write("%%r\\n" %% time.time())
-            return add(self, t, dtheta)
-
-        if __name__ == "__main__":            # the ADCS process (spawn) imports this file too
-            system.LiveDisturbance.add = beyond
-            sys.exit(main(sys.argv[1:]))
-        """ % str(mark)))
-    p = subprocess.run([sys.executable, str(script)] + _args(out, setup, 300), capture_output=True, text=True,
-                       timeout=180, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    t_end = time.time()
-    t_provoked = float(mark.read_text().split()[0])
-    assert p.returncode == 1, p.stderr
-    assert t_end - t_provoked < BOUND_S
-    assert "beyond the P-FSM's range" in p.stderr and "Traceback" not in p.stderr
+    assert fps(_args(out, setup, 12)) == 3
     s = _summary(out)
-    assert s["complete"] is False and s["requirement_met"] is False and s["stopped_in"] == "play"
-    assert "beyond the P-FSM's range" in s["error"] and s["phase"] == "failed"
-    assert s["verdict"]["met"] is False and s["verdict"]["complete"] is False
-    assert 0 < s["duration_s"] < 300
-    assert "not judged: the run did not complete" in (out / "report.md").read_text()
-
+    assert s["complete"] is True and s["verdict"]["met"] is False
+    held = s["disturbance"]["beyond_pfsm_range"]
+    assert held["samples"] > 0 and len(held["windows_s"]) == 1
+    (a, b), = held["windows_s"]
+    assert 4.8 < a < 5.2 and 7.8 < b < 8.3
+    causes = [o["cause"] for o in s["availability"]["outages"]]
+    assert UNPLAYABLE in causes
+    assert s["availability"]["availability"] < 0.8
+    assert "not playable" in (out / "report.md").read_text()
 
 def test_the_controller_exiting_mid_run_ends_the_command(tmp_path, setup, monkeypatch, capsys):
     from ground import runtime

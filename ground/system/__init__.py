@@ -16,7 +16,8 @@
   step by 3rd-order Lagrange interpolation (Sec. 7.3.1, ``ground.resample``: the same samples ``fps distfile
   generate --source bps`` would write) and appended to an in-memory distfile that ``firmware.player.Player``
   plays (Keys's 6-point cubic interpolation, Eq. 7.7-7.8 to AD660 codes at 10.6 kHz). A sample beyond the P-FSM's
-  +-3 deg / 13.33 is refused (the run fails, as ``ground.distfile_cli.check_playable`` refuses a distfile).
+  +-3 deg / 13.33 (a bench limit) is played at the range's edge, counted, and its window is an outage of the
+  availability (``ground.availability``); the run goes on.
 - Coupling and timing: before each 1 s chunk of the fine loop the main process takes ADCS messages until the
   disturbance is known to the chunk's end (plus the interpolation stencil); the ADCS process is ahead, so the
   two loops overlap on two cores. The body pointing reaches the P-FSM with no other delay.

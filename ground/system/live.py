@@ -37,7 +37,9 @@ class LiveDisturbance:
     """The body pointing error (t in s of the ADCS, dtheta in arcsec, 10 Hz) from ``t0`` on, resampled to the
     distfile step as it arrives (3rd-order Lagrange, Sec. 7.3.1; a sample is made once its 4-point stencil is
     known, so it equals ``ground.resample.to_dist_step`` of the whole history) and appended to ``reader``.
-    ``covered_s`` is the play time known so far. A sample beyond the P-FSM's range raises ValueError."""
+    ``covered_s`` is the play time known so far. A sample beyond the P-FSM's range (a bench limit, not the
+    spacecraft's) is played at the range's edge and counted: ``unplayable`` holds the (start, end) play times
+    of each such window, ``n_unplayable`` the samples; a sample that is not a number raises ValueError."""
 
     def __init__(self, t0, period_us=None):
         from ground.resample import DIST_PERIOD_US
@@ -47,6 +49,8 @@ class LiveDisturbance:
         self.t = np.zeros(0)
         self.xy = np.zeros((0, 2))
         self.x, self.y = [], []       # what was made, arcsec (for the summary)
+        self.unplayable = []          # (start, end) s of the play with the body error beyond the P-FSM's range
+        self.n_unplayable = 0
 
     def add(self, t, dtheta_arcsec):
         keep = np.asarray(t) >= self.t0 - 1e-9
@@ -61,7 +65,6 @@ class LiveDisturbance:
         return (self.reader.count - 1) * self.dt if self.reader.count else -1.0
 
     def _make(self):
-        from ground.distfile_cli import check_playable
         from ground.resample import lagrange3
         n = len(self.t)
         if n < 4:
@@ -76,15 +79,26 @@ class LiveDisturbance:
         i = int(np.searchsorted(self.t, t_out[0], side="right")) - 1
         w = max(0, i - 1)
         xy = lagrange3(self.t[w:], self.xy[w:], t_out)
-        try:
-            check_playable(xy[:, 0], xy[:, 1], self.reader.period_us)
-        except ValueError:
-            x = np.concatenate([self.x, xy[:, 0]])      # the message names the sample from the play's start
-            y = np.concatenate([self.y, xy[:, 1]])
-            try:
-                check_playable(x, y, self.reader.period_us)
-            except ValueError as exc:
-                raise ValueError("the live body pointing error cannot be played: %s" % exc) from None
+        if not np.isfinite(xy).all():
+            k = j0 + int(np.flatnonzero(~np.isfinite(xy).all(axis=1))[0])
+            raise ValueError("the live body pointing error cannot be played: sample %d (t = %.3f s of the play) "
+                             "is not a number" % (k, k * self.dt))
+        self._clip(xy, j0)
         self.x.extend(xy[:, 0].tolist())
         self.y.extend(xy[:, 1].tolist())
         self.reader.append(xy[:, 0], xy[:, 1])
+
+    def _clip(self, xy, j0):
+        """Hold the samples beyond the P-FSM's range at its edge (in place), recording their windows."""
+        from ground.distfile_cli import MAX_THETA_E_ARCSEC as lim
+        out = np.flatnonzero((np.abs(xy) > lim).any(axis=1))
+        if not out.size:
+            return
+        np.clip(xy, -lim, lim, out=xy)
+        self.n_unplayable += int(out.size)
+        for k in (j0 + out).tolist():
+            t = k * self.dt
+            if self.unplayable and t - self.unplayable[-1][1] <= self.dt * 1.5:
+                self.unplayable[-1][1] = t + self.dt
+            else:
+                self.unplayable.append([t, t + self.dt])

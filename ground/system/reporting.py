@@ -103,8 +103,8 @@ def verdict_md(s):
         out.append("")
         out.append(availability_line(av, (s.get("truth") or {}).get("max_radial_arcsec")).capitalize() + ".")
         for o in av["outages"][:10]:
-            out.append("- outage from t = %.2f s, %.3f s, peak %.1f″: %s%s" % (
-                o["start_s"], o["length_s"], o["peak_arcsec"], o["cause"] or "cause unknown",
+            out.append("- outage from t = %.2f s, %.3f s, peak %s″: %s%s" % (
+                o["start_s"], o["length_s"], _f(o["peak_arcsec"], "%.1f"), o["cause"] or "cause unknown",
                 "" if o["ended"] else " (not re-acquired by the end)"))
     out.append("")
     if not v["complete"]:

@@ -157,6 +157,7 @@ def _finish(run, rec, summary, q2cal, plots, feed, live, t_settle, t_wall0, faul
     plots and report.md."""
     stopped_in = summary["phase"] if run.failure or run.interrupted else None
     hil.board_figures(run, summary)            # --runtime qemu: the controller's board
+    rec.unplayable = live.unplayable
     hil.finish_summary(rec, run, summary, q2cal, plots)
     summary["phase"] = "done" if stopped_in is None else ("interrupted" if run.interrupted else "failed")
     summary["stopped_in"] = stopped_in
@@ -251,6 +252,8 @@ def _body_summary(feed, live, rec, t_settle):
     n_played = min(len(live.x), int(round(rec.virtual_s / live.dt)) + 1)
     dist = report.error_stats(live.x[:n_played], live.y[:n_played])
     dist["source"] = "live ADCS (%s)" % feed.info.get("adcs")
+    dist["beyond_pfsm_range"] = {"samples": live.n_unplayable, "seconds": live.n_unplayable * live.dt,
+                                 "windows_s": [[round(a, 4), round(b, 4)] for a, b in live.unplayable[:50]]}
     return {"settle_s": t_settle, "body_pointing": body, "estimation": est, "ground_reference": feed.reference,
             "disturbance": dist, "adcs_summary": feed.adcs_summary, "adcs_last_status": feed.last_status,
             "adcs_log": feed.log[-200:],

@@ -5,8 +5,8 @@ import zipfile
 
 import numpy as np
 
-from protocol.fileio import (cache_folder, check_not_input, output_file, output_folder, read_input,  # noqa: F401
-                             read_json, write_atomic, write_json)
+from protocol.fileio import (cache_folder, check_not_input, output_file, output_folder, parse_json,  # noqa: F401
+                             read_input, read_json, write_atomic, write_json)
 
 
 def load_npz(path, names):

@@ -4,7 +4,7 @@
 import os
 
 from emulator.fileio import (cache_folder, check_not_input, load_npz, output_file, output_folder,  # noqa: F401
-                             read_input, read_json, write_atomic, write_json)
+                             parse_json, read_input, read_json, write_atomic, write_json)
 
 
 def remove_stale(folder, names):

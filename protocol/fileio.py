@@ -78,13 +78,22 @@ def read_input(path, what, max_bytes=JSON_MAX_BYTES, text=True):
         raise ValueError("%s %s: not a text file (%s)" % (what, path, exc)) from None
 
 
-def read_json(path, what, **kw):
-    """An input JSON file, through ``read_input`` (``kw`` go to ``json.loads``); text that is not JSON is a
-    ValueError naming ``what`` and the path."""
+def parse_json(text, where, **kw):
+    """The JSON value of ``text`` (``kw`` go to ``json.loads``). Text that is not JSON, or whose arrays and
+    objects nest deeper than the parser can follow, is a ValueError that begins with ``where`` (e.g. the option
+    and the file)."""
     try:
-        return json.loads(read_input(path, what), **kw)
+        return json.loads(text, **kw)
     except json.JSONDecodeError as exc:
-        raise ValueError("%s %s: not valid JSON (%s)" % (what, path, exc)) from None
+        raise ValueError("%s: not valid JSON (%s)" % (where, exc)) from None
+    except RecursionError:
+        raise ValueError("%s: its arrays and objects nest too deeply to read" % where) from None
+
+
+def read_json(path, what, **kw):
+    """An input JSON file, through ``read_input`` and ``parse_json`` (``kw`` go to ``json.loads``): a file that
+    cannot be read, is not JSON or nests too deeply is a ValueError naming ``what`` and the path."""
+    return parse_json(read_input(path, what), "%s %s" % (what, path), **kw)
 
 
 def check_not_input(output, inputs, option="-o"):

@@ -5,6 +5,7 @@ for MicroPython)."""
 import errno
 import json
 import os
+import sys
 import tempfile
 
 
@@ -79,15 +80,20 @@ def read_input(path, what, max_bytes=JSON_MAX_BYTES, text=True):
 
 
 def parse_json(text, where, **kw):
-    """The JSON value of ``text`` (``kw`` go to ``json.loads``). Text that is not JSON, or whose arrays and
-    objects nest deeper than the parser can follow, is a ValueError that begins with ``where`` (e.g. the option
-    and the file)."""
+    """The JSON value of ``text`` (``kw`` go to ``json.loads``). Text that is not JSON, whose arrays and objects
+    nest deeper than the parser can follow or that holds an integer of more digits than Python converts, and a
+    ValueError of a ``kw`` hook, are a ValueError that begins with ``where`` (e.g. the option and the file)."""
     try:
         return json.loads(text, **kw)
     except json.JSONDecodeError as exc:
         raise ValueError("%s: not valid JSON (%s)" % (where, exc)) from None
     except RecursionError:
         raise ValueError("%s: its arrays and objects nest too deeply to read" % where) from None
+    except ValueError as exc:                   # an integer of more digits than int() takes, or a hook's refusal
+        msg = str(exc)
+        if "integer string conversion" in msg:
+            msg = "an integer of more than %d digits, beyond any number's range" % sys.get_int_max_str_digits()
+        raise ValueError("%s: %s" % (where, msg)) from None
 
 
 def read_json(path, what, **kw):

@@ -37,3 +37,21 @@ def test_text_that_is_not_json_names_where_it_came_from(tmp_path):
     p = tmp_path / "missing.json"
     with pytest.raises(ValueError, match="^calibration %s: cannot read it" % p):
         read_json(str(p), "calibration")
+
+
+def test_an_integer_of_thousands_of_digits_names_the_file(tmp_path):
+    p = tmp_path / "big.json"
+    p.write_text('{"beacon_lost": 1%s}' % ("0" * 5000))
+    with pytest.raises(ValueError) as e:
+        read_json(str(p), "--faults")
+    assert str(e.value).startswith("--faults %s: an integer of more than " % p), str(e.value)
+    assert "beyond any number's range" in str(e.value) and "set_int_max_str_digits" not in str(e.value)
+
+
+def test_a_hooks_refusal_begins_with_the_file(tmp_path):
+    def no_b(pairs):
+        if any(k == "b" for k, _ in pairs):
+            raise ValueError('key "b" is not allowed')
+        return dict(pairs)
+    with pytest.raises(ValueError, match='^spacecraft file f.json: key "b" is not allowed$'):
+        parse_json('{"a": {"b": 1}}', "spacecraft file f.json", object_pairs_hook=no_b)

@@ -80,6 +80,7 @@ from emulator import orbits
 from emulator.adcs_bus import N, P, FaultSchedule, SpacecraftBus, check_faults
 from emulator.adcs_replies import ReplyWait, StatusWatch
 from emulator.launcher import ADCS_IMAGE, ADCS_MACHINE, FirmwareProcess, command, qemu_command, start_board
+from emulator.runtime import last_lines
 from protocol.units import RAD_PER_ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftDevices
@@ -251,7 +252,7 @@ class AdcsSession:
                                                             machine=ADCS_MACHINE),
                                                "import firmware.adcs.pil_main", connect,
                                                first_line=json.dumps(self.config(), separators=(",", ":")),
-                                               name="ADCS board")
+                                               name="qemu-system-arm (the ADCS PIL board)")
             path = "QEMU's pty"
         else:
             m, s = os.openpty()
@@ -261,7 +262,8 @@ class AdcsSession:
             extra = [self.heap_out] if self.heap_out else []
             argv, env = command(self.runtime, MAIN, [m, cfg] + extra, micropython_opts=("-X", "heapsize=64M"))
             try:
-                self.proc = FirmwareProcess(argv, env=env, pass_fds=(m,), name="ADCS firmware")
+                self.proc = FirmwareProcess(argv, env=env, pass_fds=(m,),
+                                            name="the ADCS firmware (%s)" % self.runtime)
             finally:
                 os.close(m)
             try:
@@ -272,9 +274,10 @@ class AdcsSession:
         while True:
             left = deadline - time.monotonic()
             if left <= 0 or self.proc.poll() is not None or self.link.closed:
-                err = self._stderr()
+                said = self.proc.death(0.5, " before it said HELLO") or "%s said no HELLO within 30 s%s" % (
+                    self.proc.name, (": " + last_lines(self._stderr())) if self._stderr() else "")
                 self.close()
-                raise OSError("ADCS firmware (%s) did not start: %s" % (self.runtime, err or "no HELLO in 30 s"))
+                raise OSError(said)
             if any(p[0] == P["HELLO"] for p in self.link.recv(min(left, 0.5))):
                 break
         self._say("ADCS firmware up (%s, pid %d), CAN over slcan on %s" % (self.runtime, self.proc.pid, path))
@@ -290,10 +293,13 @@ class AdcsSession:
         return self
 
     def _exited(self, k):
-        """OSError when the firmware has left (its process or the link) in cycle k."""
+        """OSError when the firmware has left (its process or the link) in cycle k: the process named, how it
+        ended and its last stderr lines."""
         if self.link.closed or (self.proc is not None and self.proc.poll() is not None):
-            raise OSError("ADCS firmware exited at t = %d s (code %s): %s"
-                          % (k, self.proc.poll() if self.proc else None, self._stderr() or "no message"))
+            when = " at t = %d s" % k
+            said = self.proc.death(1.0, when) if self.proc is not None else ""
+            raise OSError(said or "the ADCS firmware's link closed%s%s" % (
+                when, (" (%s is still running)" % self.proc.name) if self.proc is not None else ""))
 
     def _stderr(self):
         return self.proc.stderr_tail(2000).strip() if self.proc is not None else ""
@@ -343,8 +349,9 @@ class AdcsSession:
         w.n_late += 1
         w.late_run += 1
         if w.late_run >= MAX_LATE_CYCLES:        # alive but hung: its pty would fill and block the bursts
-            raise OSError("ADCS firmware gave no ADCS_STATUS for %d cycles in a row (%g s each) at t = %d s: "
-                          "hung? %s" % (w.late_run, w.timeout_s, self.k, self._stderr()))
+            raise OSError("%s gave no ADCS_STATUS for %d cycles in a row (%g s each) at t = %d s: hung? %s" % (
+                getattr(self.proc, "name", "the ADCS firmware"), w.late_run, w.timeout_s, self.k,
+                last_lines(self._stderr()) or "(nothing on its stderr)"))
         self._say("t = %.0f s: no ADCS_STATUS within %.0f s (late cycle; wheels hold)" % (t, w.timeout_s))
 
     def blind_share(self, t_from):

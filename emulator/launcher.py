@@ -5,11 +5,12 @@ serial port has no process: its runtime opens the port.) Here, not in ground, be
 ground.
 
 ``FirmwareProcess`` is a ``subprocess.Popen`` whose stderr goes to a temporary file (a pipe nobody reads during a
-run would fill and stall the firmware), in a process group of its own (``runtime.OWN_GROUP``: a terminal's Ctrl-C
-reaches only the tool); ``stderr_tail``, ``exit_note`` and ``stop`` (wait for it to leave, as it does when its link
-closes; then SIGTERM, then SIGKILL) are the same for all. ``command(runtime, target, args)`` builds the command line
-and environment of a CPython or MicroPython firmware; ``qemu_command`` that of a PIL image, ``start_board`` boots
-one and starts its firmware through the raw REPL.
+run would fill and stall the firmware), in a process group of its own (a terminal's Ctrl-C reaches only the tool),
+killed by the kernel if the tool dies (``runtime.child_options``); ``stderr_tail``, ``death`` and ``exit_note``
+(the process named, how it ended, its last stderr lines) and ``stop`` (wait for it to leave, as it does when its
+link closes; then SIGTERM, then SIGKILL) are the same for all. ``command(runtime, target, args)`` builds the command
+line and environment of a CPython or MicroPython firmware; ``qemu_command`` that of a PIL image, ``start_board``
+boots one and starts its firmware through the raw REPL.
 """
 
 import os
@@ -17,7 +18,7 @@ import subprocess
 import sys
 import tempfile
 
-from emulator.runtime import OWN_GROUP, micropython_binary
+from emulator.runtime import child_options, exit_status, last_lines, micropython_binary
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIMES = ("cpython", "micropython", "qemu")
@@ -61,24 +62,24 @@ def qemu_command(image=PIL_IMAGE, serial="pty", icount=False, monitor=None, ram_
     return cmd
 
 
-def start_board(cmd, start, connect, first_line=None, name="QEMU", boot_s=60.0):
+def start_board(cmd, start, connect, first_line=None, name="qemu-system-arm (a PIL board)", boot_s=60.0):
     """A PIL board: QEMU (``cmd``, a ``qemu_command`` with ``serial="pty"``) started, the pty it made opened raw,
     MicroPython's raw REPL entered and ``start`` (a statement, e.g. ``import firmware.pil_main``) run; then
     ``first_line`` (text, a newline added) written to the board if given, and ``connect(path)`` called, which opens
     the caller's link on the pty (while this side still holds it open: QEMU drops what a board writes to a pty
-    nobody holds). Returns (the ``FirmwareProcess``, what ``connect`` returned). OSError saying what the board did
-    instead."""
+    nobody holds). ``name``: the process as messages call it. Returns (the ``FirmwareProcess``, what ``connect``
+    returned). OSError saying what the board did instead."""
     import re
     import select
     import time
     import tty
-    proc = FirmwareProcess(cmd, stdout=subprocess.PIPE, name=name)
+    proc = FirmwareProcess(cmd, stdout=subprocess.PIPE, name=name, leaves_on_close=False)
     fd = None
     try:
         line, t0 = b"", time.monotonic()
         while b"/dev/pts/" not in line:
             if time.monotonic() - t0 > 10 or proc.poll() is not None:
-                raise OSError("qemu-system-arm gave no pty (%s)" % proc.stderr_tail().strip())
+                raise OSError("%s gave no pty (%s)" % (name, proc.death(0.0) or proc.stderr_tail().strip()))
             line = proc.stdout.readline()
         path = re.search(rb"(/dev/pts/\d+)", line).group(1).decode()
         fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
@@ -115,17 +116,21 @@ def start_board(cmd, start, connect, first_line=None, name="QEMU", boot_s=60.0):
 
 class FirmwareProcess(subprocess.Popen):
     """A firmware process (see the module docstring). ``stdout``: None (its own output to the same file as its
-    stderr), ``subprocess.PIPE`` (read by the caller, e.g. QEMU's pty line) or ``subprocess.DEVNULL``."""
+    stderr), ``subprocess.PIPE`` (read by the caller, e.g. QEMU's pty line) or ``subprocess.DEVNULL``. ``name``:
+    the process as messages call it, e.g. "the controller (micropython)". ``leaves_on_close``: it exits when its
+    link closes (a firmware process; QEMU does not: ``stop`` then ends it at once)."""
 
-    def __init__(self, argv, env=None, stdout=None, pass_fds=(), name="firmware"):
+    def __init__(self, argv, env=None, stdout=None, pass_fds=(), name="the firmware", leaves_on_close=True):
         self.errlog = tempfile.TemporaryFile()
         self.name = name
+        self.leaves_on_close = leaves_on_close
         self.stopped_by_us = False
+        self.told = False              # its end is in an error already: exit_note says it no more
         self.stderr_text = ""
         self.console = None            # a board's: a callable giving the last bytes its UART sent
         super().__init__(argv, cwd=ROOT, env=env, stdin=subprocess.DEVNULL,
                          stdout=self.errlog if stdout is None else stdout, stderr=self.errlog, pass_fds=pass_fds,
-                         **OWN_GROUP)
+                         **child_options(own_group=True))
 
     def stderr_tail(self, n_chars=2000):
         """The last ``n_chars`` it wrote to stderr (kept after ``stop``)."""
@@ -136,29 +141,41 @@ class FirmwareProcess(subprocess.Popen):
         self.errlog.seek(max(0, self.errlog.tell() - n_chars))
         return self.errlog.read().decode(errors="replace")
 
+    def death(self, wait_s=1.0, when=""):
+        """``"<name> exited with status N<when>: <its last stderr lines>"`` (or ``was killed by SIGTERM``, ``...
+        and wrote nothing on stderr``; ``when`` e.g. " at t = 3 s") once it has ended (waiting up to ``wait_s``: a
+        process whose link failed is on its way out), else ``""`` (still running). Marks it told (``exit_note``
+        then says it no more)."""
+        if self.poll() is None:
+            try:
+                self.wait(wait_s)
+            except subprocess.TimeoutExpired:
+                return ""
+        self.told = True
+        tail = last_lines(self.stderr_tail())
+        return "%s %s%s%s" % (self.name, exit_status(self.returncode), when,
+                              (": " + tail) if tail else " and wrote nothing on stderr")
+
     def exit_note(self, wait_s=1.0):
-        """``"; the <name> process exited with status N: <its last stderr line>"`` once it has exited of itself
-        (waiting up to ``wait_s``: a process whose link failed is on its way out), else ``""`` (still running, or
-        stopped by this side); for a board whose ``console`` shows a traceback, its last lines."""
+        """``"; " + death()`` once it has ended of itself (waiting up to ``wait_s``), else ``""`` (still
+        running, stopped by this side, or its end already told); for a board whose ``console`` shows a traceback,
+        its last lines."""
         text = self.console() if self.console is not None else b""
         k = text.rfind(b"Traceback (most recent call last)")
         if k >= 0:                   # a board (QEMU) runs on after its firmware stopped: what it printed
-            lines = [ln.strip() for ln in text[k:].decode(errors="replace").splitlines() if ln.strip()]
-            return "; the %s board's firmware stopped: %s" % (self.name, " / ".join(lines[-3:]).replace("\x04>", ""))
-        if self.stopped_by_us:
+            lines = last_lines(text[k:].decode(errors="replace")).replace("\x04>", "")
+            return "; the firmware on %s stopped: %s" % (self.name, lines)
+        if self.stopped_by_us or self.told:
             return ""
-        try:
-            self.wait(wait_s)
-        except subprocess.TimeoutExpired:
-            return ""
-        lines = [ln for ln in self.stderr_tail().splitlines() if ln.strip()]
-        return "; the %s process exited with status %s%s" % (
-            self.name, self.returncode, (": " + lines[-1].strip()) if lines else " and said nothing on stderr")
+        said = self.death(wait_s)
+        return "; " + said if said else ""
 
     def stop(self, grace_s=2.0):
-        """Wait ``grace_s`` for it to leave (it does when its link closes), then SIGTERM, then SIGKILL; its stderr
-        is kept in ``stderr_text``."""
+        """Wait ``grace_s`` for it to leave (it does when its link closes; not for one that does not,
+        ``leaves_on_close`` false), then SIGTERM, then SIGKILL; its stderr is kept in ``stderr_text``."""
         self.stopped_by_us = self.poll() is None
+        if not self.leaves_on_close:
+            grace_s = 0.0
         if self.poll() is None:
             try:
                 self.wait(grace_s)

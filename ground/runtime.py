@@ -157,7 +157,7 @@ def _start(runtime, link_kind, rate_hz):
     spec = ("serial:" if link_kind == "serial" else "slcan:") + link.peer_path
     extra = [] if link_kind == "serial" else ["--isotp-timeout-ms", repr(CAN_ISOTP_TIMEOUT_MS)]
     argv, env = command(runtime, "firmware.main", ["controller", "--link", spec, "--rate", repr(rate_hz)] + extra)
-    return link, FirmwareProcess(argv, env=env, stdout=subprocess.DEVNULL, name="controller")
+    return link, FirmwareProcess(argv, env=env, stdout=subprocess.DEVNULL, name="the controller (%s)" % runtime)
 
 
 def _start_qemu(boot_s=60.0):
@@ -176,7 +176,7 @@ def _start_qemu(boot_s=60.0):
     try:
         proc, link = start_board(qemu_command(pil_build.IMAGE, serial="pty", icount=True, monitor=monitor),
                                  "import firmware.pil_main", lambda path: open_serial(path, "BENCH", baudrate=115200),
-                                 boot_s=boot_s)
+                                 name="qemu-system-arm (the controller's PIL board)", boot_s=boot_s)
     except BaseException:
         shutil.rmtree(mon_dir, ignore_errors=True)
         raise
@@ -191,7 +191,8 @@ def stderr_tail(proc, n_chars=2000):
 
 
 def exit_note(proc, wait_s=1.0):
-    """``FirmwareProcess.exit_note`` (``""`` without a process: a board)."""
+    """``FirmwareProcess.exit_note``: ``"; "`` and the process named, how it ended and its last stderr lines, or
+    a board's traceback (``""`` without a process, a board on a port, or while it runs)."""
     return "" if proc is None else proc.exit_note(wait_s)
 
 
@@ -344,8 +345,7 @@ def _first_contact(rig, ep, proc, wait_s):
         if got:
             break
         if proc is not None and proc.poll() is not None:
-            err = stderr_tail(proc)
-            raise OSError("controller process exited with %s before saying HELLO: %s" % (proc.returncode, err))
+            raise OSError(proc.death(when=" before it said HELLO"))
         if ep.link.closed:
             raise OSError("the controller's link closed before it said HELLO")
         if time.perf_counter() - t0 > wait_s:

@@ -1,6 +1,7 @@
 """emulator.launcher: the one firmware launcher (the controller's runtimes and the ADCS session start theirs
 through it): the command lines per runtime, stderr kept after the process is gone, the exit note naming the
-status and the last line, and a stop that ends a process that ignores its link closing."""
+status or the signal and the last lines, and a stop that ends a process that ignores its link closing; every child
+dies with the process that started it."""
 
 import subprocess
 import sys
@@ -26,19 +27,62 @@ def test_command_lines_put_the_repository_on_each_interpreters_path():
         launcher.command("qemu", "firmware.main")
 
 
-def test_a_process_that_fails_is_reported_with_its_status_and_last_line():
+def test_a_process_that_fails_is_reported_with_its_status_and_last_lines():
     p = launcher.FirmwareProcess([sys.executable, "-c", "import sys; print('a', file=sys.stderr); "
-                                  "print('link failed: EIO', file=sys.stderr); sys.exit(3)"], name="controller")
+                                  "print('link failed: EIO', file=sys.stderr); sys.exit(3)"],
+                                 name="the controller (cpython)")
     note = p.exit_note(wait_s=10)
-    assert note == "; the controller process exited with status 3: link failed: EIO"
+    assert note == "; the controller (cpython) exited with status 3: a / link failed: EIO"
+    assert p.exit_note() == ""                               # told once
     p.stop()
     assert "link failed: EIO" in p.stderr_tail() and p.errlog.closed and not p.stopped_by_us
+
+
+def test_a_process_killed_by_a_signal_is_reported_by_the_signals_name():
+    p = launcher.FirmwareProcess([sys.executable, "-c", "import time; time.sleep(30)"], name="the controller (cpython)")
+    p.terminate()
+    assert p.death(wait_s=10, when=" at t = 3 s") == ("the controller (cpython) was killed by SIGTERM at t = 3 s and "
+                                                     "wrote nothing on stderr")
+    p.stop()
+
+
+def test_a_child_dies_with_its_parent_however_the_parent_dies():
+    """A parent started with a firmware process, then SIGKILLed (none of its code runs): the kernel ends the child
+    (``runtime.child_options``: PR_SET_PDEATHSIG), which is in a process group of its own."""
+    import os
+    import signal
+    import time
+    from emulator import runtime
+    if runtime._PRCTL is None:
+        pytest.skip("no prctl (not Linux): a child outlives a parent that is killed")
+    code = ("import sys, time; from emulator import launcher; "
+            "p = launcher.FirmwareProcess([sys.executable, '-c', 'import time; time.sleep(60)']); "
+            "print(p.pid, flush=True); time.sleep(60)")
+    parent = subprocess.Popen([sys.executable, "-c", code], cwd=launcher.ROOT, stdout=subprocess.PIPE)
+    child = int(parent.stdout.readline())
+    assert os.getpgid(child) == child
+    parent.send_signal(signal.SIGKILL)
+    parent.wait(10)
+    parent.stdout.close()
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and _alive(child):
+        time.sleep(0.02)
+    assert not _alive(child)
+
+
+def _alive(pid):
+    """True while ``pid`` runs (a zombie, dead but not yet reaped by init, does not)."""
+    try:
+        with open("/proc/%d/stat" % pid) as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
 
 
 def test_stop_ends_a_process_that_does_not_leave_and_says_nothing_of_it():
     p = launcher.FirmwareProcess([sys.executable, "-c", "import signal, time; "
                                   "signal.signal(signal.SIGTERM, signal.SIG_IGN); print('up', flush=True); "
-                                  "time.sleep(60)"], stdout=subprocess.PIPE, name="QEMU")
+                                  "time.sleep(60)"], stdout=subprocess.PIPE, name="qemu-system-arm")
     assert p.stdout.readline().strip() == b"up"
     p.stop(grace_s=0.2)                     # SIGTERM ignored: SIGKILL
     assert p.returncode is not None and p.stopped_by_us and p.exit_note() == ""
@@ -47,14 +91,15 @@ def test_stop_ends_a_process_that_does_not_leave_and_says_nothing_of_it():
 def test_a_board_whose_firmware_stopped_is_told_by_its_last_console_lines():
     """A QEMU board runs on after its firmware raised (firmware.pil_main halts): the traceback it printed on its UART
     (``console``: the bench link's last bytes) is what the note says, frames around it ignored."""
-    p = launcher.FirmwareProcess([sys.executable, "-c", "import time; time.sleep(30)"], name="QEMU")
+    p = launcher.FirmwareProcess([sys.executable, "-c", "import time; time.sleep(30)"],
+                                 name="qemu-system-arm (a PIL board)")
     try:
         assert p.exit_note(wait_s=0.1) == ""                  # running, nothing printed: nothing to tell
         p.console = lambda: (b"\x05\x01\x01\x10\xff\x00Traceback (most recent call last):\r\n  File \"a.py\", line 3, "
                              b"in f\r\n  File \"b.py\", line 9, in g\r\nMemoryError: memory allocation failed\r\n")
         note = p.exit_note(wait_s=0.1)
-        assert note.startswith("; the QEMU board's firmware stopped: ") and note.endswith("MemoryError: memory "
-                                                                                        "allocation failed")
+        assert note.startswith("; the firmware on qemu-system-arm (a PIL board) stopped: ")
+        assert note.endswith("MemoryError: memory allocation failed")
         assert 'File "b.py", line 9, in g' in note and "Traceback" not in note     # its last three lines
     finally:
         p.kill()
@@ -69,7 +114,7 @@ def test_fps_calibrate_quotes_what_a_stopped_firmware_said(tmp_path, monkeypatch
 
     class Proc:
         def exit_note(self, wait_s):
-            return "; the QEMU board's firmware stopped: MemoryError: memory allocation failed"
+            return "; the firmware on qemu-system-arm (a PIL board) stopped: MemoryError: memory allocation failed"
 
     class Rig:
         process = Proc()
@@ -84,5 +129,5 @@ def test_fps_calibrate_quotes_what_a_stopped_firmware_said(tmp_path, monkeypatch
     monkeypatch.setattr(calibrate, "run_calibration", fails)
     assert cli.main(["calibrate", "--runtime", "micropython", "--grid", "3", "-o", str(tmp_path / "c.json")]) != 0
     err = capsys.readouterr().err
-    assert "no answer to HTABLE_END" in err and "firmware stopped: MemoryError" in err and "Traceback" not in err
+    assert "no answer to HTABLE_END" in err and "PIL board) stopped: MemoryError" in err and "Traceback" not in err
     assert not (tmp_path / "c.json").exists()

@@ -6,6 +6,7 @@ import os
 import subprocess
 
 from emulator import launcher
+from emulator.runtime import child_options, exit_status, last_lines
 from tools.pil_build import ADCS_MEM, LAB_MEM, STACK_PAINT, TARGET_MEM, BuildError
 
 def qemu_command(mem=LAB_MEM, serial="stdio", icount=True, monitor=None):
@@ -17,14 +18,15 @@ def qemu_command(mem=LAB_MEM, serial="stdio", icount=True, monitor=None):
 class Board:
     """The PIL image running under QEMU with its UART on this process's pipes, driven through MicroPython's raw
     REPL: ``run(code)`` executes ``code`` on the board and returns its output (a board-side exception raises
-    ``BoardError`` with its traceback). A context manager; ``close()`` ends QEMU."""
+    ``BoardError`` with its traceback). A context manager; ``close()`` ends QEMU, which also dies with this process
+    (``emulator.runtime.child_options``)."""
 
     def __init__(self, mem=LAB_MEM, icount=True, boot_s=30.0):
         import select  # noqa: F401  (POSIX pipes: what _read polls)
         if not os.path.exists(mem.image):
             raise BuildError("no PIL image at %s (make pil)" % mem.image)
         self.proc = subprocess.Popen(qemu_command(mem, "stdio", icount), stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, **child_options())
         self._rx = b""                                # read from the board, not yet taken
         self.banner = self._read(b">>> ", boot_s)
         self._write(b"\r\x01")                        # raw REPL
@@ -45,7 +47,13 @@ class Board:
         if r:
             b = os.read(self.proc.stdout.fileno(), 65536)
             if not b:
-                raise BoardError("QEMU exited (%s): %s" % (self.proc.poll(), self.proc.stderr.read()[-500:]))
+                try:
+                    self.proc.wait(1.0)
+                except subprocess.TimeoutExpired:
+                    raise BoardError("qemu-system-arm (the PIL board) closed its stdout") from None
+                err = last_lines(self.proc.stderr.read()[-2000:].decode(errors="replace"))
+                raise BoardError("qemu-system-arm (the PIL board) %s%s" % (
+                    exit_status(self.proc.returncode), (": " + err) if err else " and wrote nothing on stderr"))
             self._rx += b
 
     def _read(self, token, timeout):

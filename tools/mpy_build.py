@@ -45,6 +45,7 @@ def build(out_dir, march=DEFAULT_MARCH):
     """Compile every source into out_dir for native code of ``march`` (mpy-cross -march; bytecode-only files
     come out the same for any arch); returns [(source, mpy path, source bytes, mpy bytes)].
     Raises RuntimeError naming the file and mpy-cross's message when one fails."""
+    from emulator.runtime import child_options
     exe = mpy_cross()
     rows = []
     for rel in sources():
@@ -54,7 +55,7 @@ def build(out_dir, march=DEFAULT_MARCH):
         cmd = [exe, "-o", tmp, "-s", rel]
         if march:
             cmd.append("-march=" + march)
-        p = subprocess.run(cmd + [os.path.join(ROOT, rel)], capture_output=True, text=True)
+        p = subprocess.run(cmd + [os.path.join(ROOT, rel)], capture_output=True, text=True, **child_options())
         if p.returncode != 0:
             raise RuntimeError("mpy-cross failed on %s: %s" % (rel, (p.stderr or p.stdout).strip()))
         os.replace(tmp, dst)

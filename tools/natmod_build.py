@@ -164,7 +164,8 @@ def build(arch="x64", src=None):
     os.makedirs(out, exist_ok=True)
     cmd = ["make", "-s", "-C", NATIVE, "MPY_DIR=" + src, "ARCH=" + arch, "BUILD=" + out,
            "PYTHON=" + sys.executable, "MOD=adcsk"]
-    p = subprocess.run(cmd, capture_output=True, text=True)
+    from emulator.runtime import child_options
+    p = subprocess.run(cmd, capture_output=True, text=True, **child_options())
     made = os.path.join(NATIVE, "adcsk.mpy")
     if p.returncode != 0 or not os.path.exists(made):
         raise BuildError("the native module did not build:\n%s" % (p.stderr or p.stdout).strip()[-2000:])

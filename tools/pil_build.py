@@ -43,6 +43,7 @@ import subprocess
 import sys
 
 from emulator import launcher
+from emulator.runtime import child_options
 from tools import natmod_build
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -216,7 +217,8 @@ def missing_tools():
     if shutil.which("arm-none-eabi-gcc") is None:              # newlib comes with the compiler, not with it
         out.append("libnewlib-arm-none-eabi")
     else:                                                      # newlib: its libc beside the compiler's
-        p = subprocess.run(["arm-none-eabi-gcc", "-print-file-name=libc.a"], capture_output=True, text=True)
+        p = subprocess.run(["arm-none-eabi-gcc", "-print-file-name=libc.a"], capture_output=True, text=True,
+                           **child_options())
         if not os.path.isabs(p.stdout.strip()):
             out.append("libnewlib-arm-none-eabi")
     for exe in ("gcc", "make"):
@@ -236,6 +238,7 @@ def install_tools(missing):
     if not missing or os.geteuid() != 0 or shutil.which("apt-get") is None:
         return missing
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    # apt-get alone does not die with this process: a package install killed halfway leaves dpkg to be repaired
     install = ["apt-get", "install", "-y", "-q", "--no-install-recommends"] + list(missing)
     print("pil: installing %s (apt-get, as root)" % " ".join(missing), file=sys.stderr, flush=True)
     p = subprocess.run(install, capture_output=True, text=True, env=env)
@@ -385,7 +388,7 @@ def build_adcs(src, nolib):
 
 
 def _make(cmd):
-    p = subprocess.run(cmd, capture_output=True, text=True)
+    p = subprocess.run(cmd, capture_output=True, text=True, **child_options())
     if p.returncode != 0:
         raise BuildError("%s failed:\n%s" % (" ".join(cmd[:4]), (p.stderr or p.stdout).strip()[-3000:]))
 

@@ -53,10 +53,12 @@ def _relay():
 
 @contextlib.contextmanager
 def relay_pair():
-    """(board_path, host_path): the two ends of the relayed pty pair, for as long as the context lasts."""
+    """(board_path, host_path): the two ends of the relayed pty pair, for as long as the context lasts (the relay
+    dies with this process)."""
+    from emulator.runtime import child_options
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     proc = subprocess.Popen([sys.executable, "-m", "tools.ptyrelay"], cwd=root, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE)
+                            stdout=subprocess.PIPE, **child_options())
     try:
         board, host = proc.stdout.readline().decode().split()
         yield board, host

@@ -141,9 +141,11 @@ def _call(fn, seed, run_dir, kwargs):
 def _ignore_sigint():
     """A local worker's initializer: a terminal's Ctrl-C goes to the whole process group, and only the caller
     acts on it (cancels the runs, stops the workers), instead of every worker also printing a KeyboardInterrupt
-    traceback."""
+    traceback; and the worker dies with the caller, however the caller dies (``die_with_parent``)."""
     import signal
+    from emulator.runtime import die_with_parent
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent()
 
 
 def _bar(total, progress, desc):

@@ -5,7 +5,8 @@ pays for numpy or matplotlib. A module registers itself with ``register(subparse
 which adds its parser and sets ``func`` (called with the parsed args; its return value is the exit code).
 Exit status: 0 success, 1 the run failed (OSError: link, process, disk; or an internal error), 2 bad input
 (ValueError, or argparse's own), 3 a run that completed but missed its requirement (``fps hil``), 130
-interrupted.
+interrupted: by Ctrl-C, or by SIGTERM, which every command takes as a Ctrl-C (``sigterm_as_interrupt``: a
+process manager's stop leaves the run's folder valid with what it did so far).
 """
 
 import argparse
@@ -70,8 +71,10 @@ def main(argv=None):
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from emulator.runtime import sigterm_as_interrupt
     try:
-        rc = args.func(args)
+        with sigterm_as_interrupt():
+            rc = args.func(args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

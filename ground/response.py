@@ -18,6 +18,10 @@ The model (``LoopModel``), per axis with H^-1 H = I (the controller uses the tru
   held, filtered command; derived here, no thesis equation).
 python-control gives the Bode data and the phase margin of the loop C P; the gain margin is the largest stable
 gain scale (bisection on the closed-loop poles) and S_d's -3 dB bandwidth a scan of |S_d|.
+
+A run stopped by Ctrl-C or SIGTERM (exit 130), or failing (exit 1), leaves summary.json with ``complete`` false,
+``interrupted``, the error (naming the controller's process and how it ended, when it died) and the tones measured
+so far.
 """
 
 import math
@@ -139,10 +143,12 @@ MIN_CYCLES = 4
 MIN_AMP_ARCSEC = 0.1     # 4 codes of the P-FSM's AD660 (0.025 arcsec on the sky each); 1e-3 rounded to none
 
 
-def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=MIN_CYCLES, min_s=0.25, progress=None, model=None):
+def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=MIN_CYCLES, min_s=0.25, progress=None, model=None,
+            into=None):
     """Play each tone through the P-FSM with the loop in TRACK; return per frequency the complex S of X and
     Y (residual / input from the truth at the Q2 instants): (frequencies played, S). The rig's player is
-    restored after.
+    restored after. ``into``: a dict whose "freq_hz" and "s" lists get each tone as it is measured (what a run
+    stopped halfway keeps).
 
     With a ``model`` (LoopModel) the amplitude is scheduled: amp / |S_model|, between amp and 3 amp, so the
     residual stays well above the FSM DAC's step (1 AD5664R code ~ 0.02 arcsec on the sky), which otherwise
@@ -152,8 +158,9 @@ def measure(rig, freqs, amp_arcsec=5.0, settle_s=0.1, min_cycles=MIN_CYCLES, min
     b, ls = rig.bench, rig.lockstep
     amp_codes = amp_arcsec * PFSM_V_PER_ARCSEC * AD660_CODES_PER_VOLT
     ksky = b._ang_mag2 * b._sky
-    out = []
-    used = []
+    into = {} if into is None else into
+    out = into.setdefault("s", [])
+    used = into.setdefault("freq_hz", [])
     hold, block0 = ls.player, ls.block_ticks
     try:
         for i, f in enumerate(freqs):
@@ -249,14 +256,24 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
     if not quiet:
         from tqdm import tqdm
         bar = tqdm(total=len(freqs), unit="tone")
+    got, opened = {}, []
     try:
         with runtime.open_rig(runtime_name, link_name, config=cfg, seed=seed, **link_opts) as rig:
+            opened.append(rig)
             rig.upload_htable(htable.pack_calibration(cal))
             rig.pfsm_v(0.0, 0.0)
             rig.settings("TRACK", decim=0)
             rig.run(int(0.2 * rig.rate_hz))
             freqs, s = measure(rig, freqs, amp_arcsec, progress=(lambda i: bar.update(1)) if bar else None,
-                               model=models[0])
+                               model=models[0], into=got)
+    except (KeyboardInterrupt, OSError) as exc:
+        if isinstance(exc, OSError):           # the run failed: and the controller, if its process ended
+            rig = opened[0] if opened else getattr(exc, "rig", None)
+            exc = OSError("%s%s" % (exc, runtime.exit_note(getattr(rig, "process", None), wait_s=0.5)))
+        _stopped(os.path.join(out_dir, "summary.json"), summary, got, exc, time.perf_counter() - t0)
+        if isinstance(exc, OSError):
+            raise exc from None
+        raise
     finally:
         if bar:
             bar.close()
@@ -275,6 +292,21 @@ def run_response(out_dir, cfg=None, f_from=1.0, f_to=300.0, points=30, runtime_n
     if plots:
         _plot(out_dir, freqs, s[:, 0], models[0], summary)
     return summary
+
+
+def _stopped(path, summary, got, exc, wall):
+    """summary.json of a run stopped by ``exc`` (an interruption or the run failing): complete false, why, and the
+    tones measured before (``measure``'s ``into``)."""
+    from ground.fileio import write_json
+    freqs, s = got.get("freq_hz", []), got.get("s", [])
+    n = min(len(freqs), len(s))                   # a tone the interruption cut while it was being recorded
+    s = np.array(s[:n], complex).reshape(-1, 2)
+    summary.update({"complete": False, "interrupted": isinstance(exc, KeyboardInterrupt), "wall_s": round(wall, 3),
+                    "error": None if isinstance(exc, KeyboardInterrupt) else str(exc), "tones_measured": n,
+                    "freq_hz": [float(f) for f in freqs[:n]], "s_measured": np.abs(s[:, 0]).tolist(),
+                    "phase_measured_deg": np.degrees(np.angle(s[:, 0])).tolist(),
+                    "s_measured_y": np.abs(s[:, 1]).tolist()})
+    write_json(path, summary)
 
 
 def _plot(out_dir, freqs, s_meas, model, summary):

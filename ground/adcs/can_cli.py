@@ -8,9 +8,10 @@ pointing figures after the hold and 4 t_s, arcsec and arcsec/s), ``history.npz``
 pointing error dtheta/domega in arcsec; 1 Hz status fields, the flight software's estimates ``est_q``,
 ``est_w``, ``est_ra``, ``est_rb`` and the wheel commands applied ``rw_cmd_nm``), ``pointing.png`` (the pointing
 error with the ADCS mode). ``--link-faults`` damages the slcan stream (bit flips, frame lines dropped, both
-directions): the lockstep's retries keep every cycle exactly once, and the retries are counted in the summary. Ctrl-C leaves a valid folder
-with ``complete`` false (exit 130). ``budgets_met``: the pointing figures against the 3σ budgets (150 arcsec,
-35 arcsec/s); a run that misses them exits 3, one too short to have them (null) exits 0.
+directions): the lockstep's retries keep every cycle exactly once, and the retries are counted in the summary.
+Ctrl-C or SIGTERM leaves a valid folder with ``complete`` false and every cycle flown so far (exit 130); the
+firmware's process (or QEMU) dies with this one however it ends. ``budgets_met``: the pointing figures against the
+3σ budgets (150 arcsec, 35 arcsec/s); a run that misses them exits 3, one too short to have them (null) exits 0.
 """
 
 import os
@@ -79,6 +80,7 @@ def run(a):
     write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}, "spacecraft": record})
     rows, summary, interrupted = _fly(session, a)
     summary["complete"] = bool(summary["complete"] and not interrupted)
+    summary["interrupted"] = interrupted
     summary["spacecraft"] = record
     hist = rows["hist"]
     h = {k: np.concatenate(v) if v else np.zeros((0, 3)) for k, v in hist.items()}
@@ -133,7 +135,9 @@ def _session(a, d):
 
 
 def _fly(session, a):
-    """The session's cycles: (rows {hist, est, rw_cmd, stat}, its summary, interrupted by Ctrl-C)."""
+    """The session's cycles: (rows {hist, est, rw_cmd, stat}, its summary, interrupted by Ctrl-C or SIGTERM). The
+    session is closed (its firmware stopped) however this ends, an interrupted start included; the rows of an
+    interrupted run are those of the cycles recorded whole."""
     hist = {k: [] for k in ("t", "q", "w", "ra", "va", "rb", "vb")}
     est = {k: [] for k in ("q", "w", "ra", "rb")}
     rw_cmd = []
@@ -141,7 +145,8 @@ def _fly(session, a):
     interrupted = False
     bar = None
     try:
-        with session:
+        try:
+            session.start()
             if not a.quiet:
                 from tqdm import tqdm
                 bar = tqdm(total=session.K, desc="ADCS on CAN (%s)" % a.runtime, unit="s", leave=False)
@@ -157,9 +162,16 @@ def _fly(session, a):
                 if bar is not None:
                     bar.update(1)
             summary = session.summary()
+        finally:
+            session.close()
     except KeyboardInterrupt:
         interrupted = True
         summary = session.summary()
+        lists = list(hist.values()) + list(stat.values()) + list(est.values()) + [rw_cmd]
+        n = min(len(v) for v in lists)           # a cycle the interruption cut while it was being recorded
+        for v in lists:
+            del v[n:]
+        summary["cycles"], summary["virtual_s"] = n, float(n)        # the cycles the folder holds
     finally:
         if bar is not None:
             bar.close()

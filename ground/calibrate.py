@@ -250,9 +250,10 @@ def load_calibration(path):
         raise ValueError("calibration %s: %s" % (path, exc)) from None
     for i, p in enumerate(cal["points"]):
         r = p.get("residual")
-        if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0 <= r < float("inf"):
+        if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0 <= r <= sys.float_info.max:
+            from protocol.spacecraft import value_text
             raise ValueError("calibration %s: points[%d].residual must be a finite number >= 0 (the fit's RMS), "
-                             "got %r" % (path, i, r))
+                             "got %s" % (path, i, value_text(r)))
     return cal
 
 

@@ -36,9 +36,13 @@ def _finite(v):
 
 
 def _num(v, what):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(float(v)):
-        raise HTableError("%s = %r is not a finite number" % (what, v))
-    return float(v)
+    try:
+        if not isinstance(v, bool) and isinstance(v, (int, float)) and _finite(float(v)):
+            return float(v)
+        shown = repr(v)
+    except OverflowError:            # an integer beyond any float
+        shown = "an integer of %d digits" % len(str(abs(v)))
+    raise HTableError("%s = %s is not a finite number" % (what, shown))
 
 
 def validate(ax, ay, h):

@@ -116,6 +116,15 @@ def check(d, spacecraft=None):
     return out
 
 
+def _fits(v):
+    """The number v converts to a float (an integer beyond any float does not)."""
+    try:
+        float(v)
+    except OverflowError:
+        return False
+    return True
+
+
 def _covariance(P):
     """P as nested lists of floats: N_PARAMS x N_PARAMS, finite, symmetric, positive definite (Cholesky)."""
     n = N_PARAMS
@@ -127,7 +136,7 @@ def _covariance(P):
         if not isinstance(row, list) or len(row) != n:
             raise ValueError("P[%d] = %s: %s (each row %d numbers)" % (i, sf.value_text(row), what, n))
         for j, v in enumerate(row):
-            if not (sf._is_num(v) and v == v and abs(v) != float("inf")):
+            if not (sf._is_num(v) and v == v and abs(v) != float("inf") and _fits(v)):
                 raise ValueError("P[%d][%d] = %s: must be a finite number (%s)" % (i, j, sf.value_text(v), what[8:]))
         out.append([float(v) for v in row])
     big = max(abs(v) for row in out for v in row)

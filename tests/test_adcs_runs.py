@@ -153,6 +153,8 @@ def test_check_covariance_names_the_time():
     ([], {"duration_s": "10"}, "duration_s = '10' is not numeric"),
     ([], {"inertia_kgm2": [1e-30, 1e-30, 1e-30, 0.0, 0.0, 0.0]}, "Jxx, Jyy, Jzz must be from 1e-4 to 1 kg m"),
     ([], {"dipole_am2": [1e30, 0.0, 0.0]}, "must be 3 numbers within +-10 A m^2"),
+    ([], {"duration_s": 10 ** 400}, "duration_s = 100000...000 (401 digits) is out of range (scenario length"),
+    ([], {"dipole_am2": [0.1, -10 ** 400, 0.0]}, "dipole_am2 = [0.1, -100000...000 (401 digits), 0] is out of range"),
     (["--scheduler", "tcp://127.0.0.1:9"], None, "'tcp://127.0.0.1:9' is unreachable"),
 ])
 def test_cli_bad_input(tmp_path, capsys, args, params, msg):

@@ -58,7 +58,7 @@ def test_good_calibration_loads_and_uploads(tmp_path):
     assert _upload(cal) == (P["ACK"], 0)
 
 
-@pytest.mark.parametrize("residual", [float("nan"), float("inf"), -0.1, True, "0.01", None])
+@pytest.mark.parametrize("residual", [float("nan"), float("inf"), -0.1, True, "0.01", None, 10 ** 400])
 def test_a_residual_that_is_not_a_fit_rms_is_refused_naming_it(tmp_path, residual):
     """The report prints each point's residual: NaN, infinite, negative, a boolean or a string is refused."""
     cal = json.loads(json.dumps(fp.calibration(5)))
@@ -137,3 +137,17 @@ def test_load_and_controller_agree_across_conditioning(tmp_path):
             assert loaded == (_upload(t) == (P["ACK"], 0)), (eps, s)
             seen.add(loaded)
     assert seen == {True, False}
+
+
+@pytest.mark.parametrize("where, msg", [(("grid_v", 0), "grid_v[0]"), (("points", 2, "pfsm_v", 1), "points[2].pfsm_v[1]"),
+                                        (("points", 4, "H", 1, 0), "points[4].H[1][0]")])
+def test_an_integer_beyond_any_float_is_refused_naming_it(tmp_path, where, msg):
+    cal = json.loads(json.dumps(fp.calibration(5)))
+    at = cal
+    for k in where[:-1]:
+        at = at[k]
+    at[where[-1]] = 10 ** 400
+    path = _write(tmp_path, cal)
+    with pytest.raises(ValueError) as e:
+        calibrate.load_calibration(path)
+    assert str(e.value) == "calibration %s: %s = an integer of 401 digits is not a finite number" % (path, msg)

@@ -69,3 +69,18 @@ def test_ground_and_firmware_refuse_through_the_one_checker(perfect):
         bps.check_params(d, spacecraft=six)
     xp, P, jxx, s = bps.check_params(d)
     assert xp.tolist() == [v for k, _ in pf.X_PARTS for v in d["x"][k]] and P.tolist() == d["P"] and s == 1.0
+
+
+@pytest.mark.parametrize("where, msg", [
+    (("jxx_ref_kgm2",), "jxx_ref_kgm2 = 100000...000 (401 digits): must be a finite number, > 0"),
+    (("x", "tau_d_nm", 1), "x.tau_d_nm[1] = 100000...000 (401 digits): must be a finite number"),
+    (("P", 2, 2), "P[2][2] = 100000...000 (401 digits): must be a finite number")])
+def test_an_integer_beyond_any_float_is_refused_by_the_range_check(perfect, where, msg):
+    d = json.loads(perfect.read_text())
+    at = d
+    for k in where[:-1]:
+        at = at[k]
+    at[where[-1]] = 10 ** 400
+    with pytest.raises(ValueError) as e:
+        bps.check_params(d, "p.json")
+    assert str(e.value).startswith("p.json: " + msg), str(e.value)

@@ -266,6 +266,12 @@ BAD = [
     ("orbit.state.epoch_utc", "19 Dec 2016", r'^orbit\.state\.epoch_utc = "19 Dec 2016": must be a UTC time'),
     ("partner.relay_delay_s", [3.0, 2.0], r"^partner\.relay_delay_s = \[3, 2\]: must be \[min, max\]"),
     ("format", "fps-bps-params/1", r'^format = "fps-bps-params/1": must be "fps-spacecraft/1"$'),
+    ("mass_kg", 10 ** 400, r"^mass_kg = 100000\.\.\.000 \(401 digits\): must be a finite number, > 0 and <= 2000 kg$"),
+    ("inertia_kgm2.0", -10 ** 400, r"^inertia_kgm2\[0\] = -100000\.\.\.000 \(401 digits\): must be a finite number"),
+    ("wheels.count", 10 ** 400, r"^wheels\.count = 100000\.\.\.000 \(401 digits\): must be a whole number from 3"),
+    ("wheels.count", float("inf"), r"^wheels\.count = inf: must be a whole number from 3 to 8$"),
+    ("wheels.count", float("nan"), r"^wheels\.count = nan: must be a whole number from 3 to 8$"),
+    ("name", [[[[[[[[[[["x"]]]]]]]]]]], r"^name = \[\[\[\[\[\[\[\[\[\.\.\.\]\]\]\]\]\]\]\]\]: must be a non-empty"),
 ]
 
 

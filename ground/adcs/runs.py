@@ -68,6 +68,9 @@ def check_params(d, where="params"):
             a = np.array(v, dtype=float)
         except (TypeError, ValueError):
             raise ValueError("%s: %s = %r is not numeric (%s)" % (where, k, v, PARAM_KEYS[k])) from None
+        except OverflowError:                                          # an integer beyond any float
+            from protocol.spacecraft import value_text
+            raise ValueError("%s: %s = %s is out of range (%s)" % (where, k, value_text(v), PARAM_KEYS[k])) from None
         if not np.all(np.isfinite(a)):
             raise ValueError("%s: %s = %r is not finite (%s)" % (where, k, v, PARAM_KEYS[k]))
         out[k] = a

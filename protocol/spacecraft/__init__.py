@@ -55,20 +55,27 @@ def num_text(v):
     return repr(v)
 
 
-def value_text(v, limit=120):
-    """A JSON value, shortened to ``limit`` characters, for a message."""
+def value_text(v, limit=120, depth=0):
+    """A JSON value, shortened to ``limit`` characters, for a message: an integer of more than 20 digits by its
+    first and last digits and its length, arrays and objects nested beyond 8 levels as "...". ``depth``: the
+    nesting level of ``v`` itself."""
     if v is None:
         s = "null"
     elif v is True or v is False:
         s = "true" if v else "false"
     elif isinstance(v, (int, float)):
         s = num_text(v)
+        n = len(s) - (s[0] == "-")
+        if isinstance(v, int) and n > 20:
+            s = "%s...%s (%d digits)" % (s[:len(s) - n + 6], s[-3:], n)
     elif isinstance(v, str):
         s = '"' + v + '"'
+    elif isinstance(v, (list, tuple, dict)) and depth >= 8:
+        s = "[...]" if isinstance(v, (list, tuple)) else "{...}"
     elif isinstance(v, (list, tuple)):
-        s = "[" + ", ".join(value_text(x, limit) for x in v) + "]"
+        s = "[" + ", ".join(value_text(x, limit, depth + 1) for x in v) + "]"
     elif isinstance(v, dict):
-        s = "{" + ", ".join('"%s": %s' % (k, value_text(v[k], limit)) for k in sorted(v)) + "}"
+        s = "{" + ", ".join('"%s": %s' % (k, value_text(v[k], limit, depth + 1)) for k in sorted(v)) + "}"
     else:
         s = repr(v)
     return s if len(s) <= limit else s[:limit - 3] + "..."
@@ -104,17 +111,25 @@ def _is_num(v):
     return isinstance(v, (int, float)) and not (v is True or v is False)
 
 
+def _is_whole(v):
+    """v is a finite number with no fraction (an integer of any size included)."""
+    return _is_num(v) and v == v and abs(v) != float("inf") and v == int(v)
+
+
 def _number(path, v, e):
-    """v as a float in e's range, else ValueError."""
+    """v as a float in e's range, else ValueError (showing v as given)."""
     if not _is_num(v):
         raise ValueError("%s = %s: must be a number, %s" % (path, value_text(v), range_text(e["range"], e["unit"])))
-    v = float(v)
-    if not (v == v and abs(v) != float("inf")):
+    try:
+        x = float(v)
+    except OverflowError:                  # an integer beyond any float
+        x = float("inf")
+    if not (x == x and abs(x) != float("inf")):
         raise ValueError("%s = %s: must be a finite number, %s" % (path, value_text(v), range_text(e["range"],
                                                                                                     e["unit"])))
-    if not _in(v, e["range"]):
+    if not _in(x, e["range"]):
         raise ValueError("%s = %s: must be %s" % (path, value_text(v), range_text(e["range"], e["unit"])))
-    return v
+    return x
 
 
 def _vector(path, v, n, e):
@@ -191,7 +206,7 @@ def _walk(block, d, out):
                 raise ValueError("%s = %s: must be a non-empty string (%s)" % (path, value_text(v), e["doc"]))
             out[k] = v
         elif kind == "int":
-            if not _is_num(v) or v != int(v) or not _in(v, e["range"]):
+            if not _is_whole(v) or not _in(v, e["range"]):
                 raise ValueError("%s = %s: must be a whole number %s" % (path, value_text(v),
                                                                          range_text(e["range"])))
             out[k] = int(v)

@@ -184,13 +184,13 @@ def _merge(base, over, path):
 def _check_number(key, val, lo, hi):
     if isinstance(val, bool) or not isinstance(val, (int, float)):
         raise ValueError("config %s: expected a number, got %r" % (key, val))
-    if key in _INTEGER and val != int(val):
-        raise ValueError("config %s: expected an integer, got %r" % (key, val))
     if isinstance(val, int) and not -1e300 < val < 1e300:     # math.isfinite would raise OverflowError
         raise ValueError("config %s = an integer of %d bits is out of range [%g, %g]" % (key, val.bit_length(), lo,
                                                                                          hi))
     if not math.isfinite(val) or not lo <= val <= hi:
         raise ValueError("config %s = %r is out of range [%g, %g]" % (key, val, lo, hi))
+    if key in _INTEGER and val != int(val):
+        raise ValueError("config %s: expected an integer, got %r" % (key, val))
 
 
 def _validate(cfg, ref, path=""):
@@ -242,7 +242,12 @@ def load_config(path=None):
     if path is None:
         return default_config()
     from emulator.fileio import read_json
-    return validate(read_json(path, "config"))
+    cfg = read_json(path, "config")
+    try:
+        return validate(cfg)
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError("config %s: %s" % (path, msg[7:] if msg.startswith("config ") else msg)) from None
 
 
 def dumps(cfg):

@@ -99,6 +99,19 @@ def test_bench_config_with_a_huge_integer_is_bad_input_not_an_internal_error(tmp
     assert "laser.power_w" in err and "internal error" not in err
 
 
+@pytest.mark.parametrize("text, msg", [
+    ('{"mems": {"full_scale_codes": 1e400}}', "mems.full_scale_codes = inf is out of range [1, 65536]"),
+    ('{"mems": {"full_scale_codes": NaN}}', "mems.full_scale_codes = nan is out of range [1, 65536]"),
+    ('{"board": {"adc_read_us": "5"}}', "board.adc_read_us: expected a number, got '5'"),
+    ('{"laser": ' + "[" * 100000 + "]" * 100000 + "}", "its arrays and objects nest too deeply to read")])
+def test_a_bad_bench_config_names_the_file_and_the_key(tmp_path, capsys, text, msg):
+    p = tmp_path / "bench.json"
+    p.write_text(text)
+    assert fps(["emulator", "config", "--config", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "fps emulator: error: config %s: %s" % (p, msg), err
+
+
 # --- the orbit truth cache -----------------------------------------------------------------------------------
 def test_a_damaged_orbit_truth_cache_is_computed_again_not_trusted_or_fatal(tmp_path):
     import io

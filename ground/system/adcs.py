@@ -5,11 +5,14 @@ import multiprocessing
 import os
 import queue
 import signal
+import sys
+import tempfile
 import threading
 import time
 
 import numpy as np
 
+from emulator.runtime import die_with_parent, exit_status, last_lines
 from ground.system.constants import HEARTBEAT_S, SILENT_S, START_S, STOP_S, WAIT_S
 from protocol.units import RAD_PER_ARCSEC
 
@@ -40,6 +43,27 @@ def estimation_accuracy(t, err, t_from, t_to):
 
 class _Stopped(Exception):
     """The parent asked the ADCS process to stop."""
+
+
+class AdcsFailed(OSError):
+    """The ADCS side of ``fps system`` failed (its process, its session, its firmware): the message names the
+    part, not the fine loop's link."""
+
+
+class _ChildFd:
+    """A file descriptor handed to the spawned ADCS process: pickled while the process starts, the descriptor is
+    passed to it (``multiprocessing.reduction.DupFd``); ``fd`` is its number there."""
+
+    def __init__(self, fd):
+        self.fd = fd
+
+    def __reduce__(self):
+        from multiprocessing import reduction
+        return _child_fd, (reduction.DupFd(self.fd),)
+
+
+def _child_fd(dup):
+    return _ChildFd(dup.detach())
 
 
 def _vehicle(spec):
@@ -185,18 +209,36 @@ def _heartbeat(q, stop):
     threading.Thread(target=beat, name="fps-system-heartbeat", daemon=True).start()
 
 
-def adcs_worker(spec, q, stop):
+def _die_of(signum):
+    """End this process by ``signum``'s default action (its parent reads "killed by SIGTERM", not a status)."""
+    signal.signal(signum, signal.SIG_DFL)
+    with contextlib.suppress(Exception):
+        sys.stderr.flush()
+    os.kill(os.getpid(), signum)
+    os._exit(128 + signum)                            # not reached: the default action ends the process
+
+
+def adcs_worker(spec, q, stop, stderr=None):
     """The ADCS process: messages ("info" | "cycle" | "adcs_summary" | "reference" | "error" | "end" | "alive",
-    dict). Stopped by the parent (``stop`` or SIGTERM), it leaves without waiting to flush its queue."""
+    dict). It dies with its parent (``die_with_parent``: the kernel kills it, and the firmware it started, however
+    the parent ends); its stderr goes to ``stderr`` (a ``_ChildFd``: the parent quotes its last lines when it
+    fails). A SIGTERM (the parent's ``close``, or anyone's) unwinds it, so the session closes its firmware, and
+    it then dies of that SIGTERM; it leaves without waiting to flush its queue."""
+    die_with_parent()
+    if stderr is not None:
+        os.dup2(stderr.fd, 2)
+        os.close(stderr.fd)
     signal.signal(signal.SIGINT, signal.SIG_IGN)      # the parent takes Ctrl-C and stops this process
     busy = [True]
+    termed = []
 
-    def on_term(signum, frame):                       # terminate(): unwind, so the session closes its firmware
+    def on_term(signum, frame):                       # unwind, so the session closes its firmware
         signal.signal(signal.SIGTERM, signal.SIG_DFL)    # a second one ends the process at once
-        q.cancel_join_thread()                        # the parent has given up: exit without flushing the queue
+        termed.append(signum)
+        q.cancel_join_thread()                        # exit without flushing the queue
         if busy[0]:
             raise _Stopped
-        os._exit(0)                                   # done (flushing at exit): nothing to unwind
+        _die_of(signum)                               # done: nothing to unwind
     signal.signal(signal.SIGTERM, on_term)
     try:
         _heartbeat(q, stop)
@@ -209,8 +251,10 @@ def adcs_worker(spec, q, stop):
         except _Stopped:
             pass
         except BaseException as exc:       # noqa: BLE001 (reported to the parent, which fails the run)
-            q.put(("error", "%s: %s" % (type(exc).__name__, exc)))
-        if stop.is_set():
+            said = str(exc) if isinstance(exc, (OSError, ValueError)) and str(exc) else "%s: %s" % (
+                type(exc).__name__, exc)
+            q.put(("error", said))
+        if stop.is_set() or termed:
             q.cancel_join_thread()          # the parent stopped reading: do not wait on a full pipe at exit
         else:
             q.put(("end", {}))
@@ -218,6 +262,8 @@ def adcs_worker(spec, q, stop):
         pass
     finally:
         busy[0] = False
+    if termed:
+        _die_of(termed[0])
 
 
 class AdcsFeed:
@@ -229,8 +275,11 @@ class AdcsFeed:
         ctx = multiprocessing.get_context("spawn")
         self.q = ctx.Queue()
         self.stop = StopFlag(ctx)
+        self.errlog = tempfile.TemporaryFile()        # the process's stderr (``stderr_tail``)
+        self.stderr_text = ""                         # what it wrote there, kept by close()
         # not a daemon: the session may start processes of its own; close() always ends it
-        self.proc = ctx.Process(target=adcs_worker, args=(spec, self.q, self.stop), name="fps-system-adcs")
+        self.proc = ctx.Process(target=adcs_worker, args=(spec, self.q, self.stop, _ChildFd(self.errlog.fileno())),
+                                name="fps-system-adcs")
         self.on_samples = on_samples
         self.t, self.dth, self.dom = [], [], []
         self.t_est, self.est_err = [], []
@@ -277,7 +326,7 @@ class AdcsFeed:
             if not play:
                 self.log.append("ADCS error: %s" % d)
                 return
-            raise OSError("the ADCS (%s) failed: %s" % (self.info.get("adcs", "process"), d))
+            raise AdcsFailed("the ADCS (%s) failed: %s" % (self.info.get("adcs", "process"), d))
         elif kind == "log":
             self.log.append(d)
         elif kind == "end":
@@ -293,16 +342,32 @@ class AdcsFeed:
         self.t_heard = time.perf_counter()
         return m
 
+    def stderr_tail(self, n_chars=2000):
+        """The last ``n_chars`` the ADCS process wrote to stderr (kept after ``close``)."""
+        if self.errlog.closed:
+            return self.stderr_text[-n_chars:]
+        fd = self.errlog.fileno()
+        size = os.fstat(fd).st_size
+        return os.pread(fd, n_chars, max(0, size - n_chars)).decode(errors="replace")
+
+    def death(self):
+        """"the ADCS process was killed by SIGTERM at t = 41.0 s of its time: <its last stderr lines>" (or
+        "exited with status N", "before its first cycle", "... and wrote nothing on stderr")."""
+        tail = last_lines(self.stderr_tail())
+        when = "before its first cycle" if self.t_last < 0 else "at t = %.1f s of its time" % self.t_last
+        return "the ADCS process %s %s%s" % (exit_status(self.proc.exitcode), when,
+                                             (": " + tail) if tail else " and wrote nothing on stderr")
+
     def take(self, until_t=None, want=None, timeout_s=WAIT_S):
-        """Messages until the ADCS time reaches ``until_t`` (or ``want()`` is true); OSError if it cannot: the
-        process ended or exited, sent nothing for ``SILENT_S`` (``START_S`` for its first message), or made no
+        """Messages until the ADCS time reaches ``until_t`` (or ``want()`` is true); ``AdcsFailed`` if it cannot:
+        the process ended or died, sent nothing for ``SILENT_S`` (``START_S`` for its first message), or made no
         progress (a message other than its heartbeat) for ``timeout_s``."""
         t_wait0 = time.perf_counter()
         t_progress = t_wait0
         try:
             while not (until_t is not None and self.t_last >= until_t - 1e-9 or want is not None and want()):
                 if self.ended:
-                    raise OSError("the ADCS ended at t = %.1f s, before t = %s s" % (
+                    raise AdcsFailed("the ADCS ended at t = %.1f s, before t = %s s" % (
                         self.t_last, "%.1f" % until_t if until_t is not None else "?"))
                 if self.on_wait is not None:
                     self.on_wait()
@@ -310,15 +375,15 @@ class AdcsFeed:
                 now = time.perf_counter()
                 if m is None:
                     if not self.proc.is_alive() and self.q.empty():
-                        raise OSError("the ADCS process exited (status %s) at t = %.1f s"
-                                      % (self.proc.exitcode, self.t_last))
+                        raise AdcsFailed(self.death())
                     if self.t_heard is None and now - (self.t_started or t_wait0) > START_S:
-                        raise OSError("the ADCS process sent nothing within %g s of its start" % START_S)
+                        raise AdcsFailed("the ADCS process sent nothing within %g s of its start" % START_S)
                     if self.t_heard is not None and now - self.t_heard > SILENT_S:
-                        raise OSError("the ADCS process stopped answering: nothing from it for %g s (at t = %.1f s)"
-                                      % (SILENT_S, self.t_last))
+                        raise AdcsFailed("the ADCS process stopped answering: nothing from it for %g s (at t = "
+                                         "%.1f s)" % (SILENT_S, self.t_last))
                     if now - t_progress > timeout_s:
-                        raise OSError("no progress of the ADCS for %g s (at t = %.1f s)" % (timeout_s, self.t_last))
+                        raise AdcsFailed("no progress of the ADCS for %g s (at t = %.1f s)"
+                                         % (timeout_s, self.t_last))
                     continue
                 if m[0] != "alive":
                     t_progress = now
@@ -373,7 +438,20 @@ class AdcsFeed:
                 with contextlib.suppress(Exception):
                     self.q.cancel_join_thread()
                     self.q.close()
+                self._keep_stderr()
         return bool(held)
+
+    def _keep_stderr(self):
+        """What the process wrote to stderr into ``stderr_text`` (its last lines also into the log), the file
+        closed."""
+        if self.errlog.closed:
+            return
+        with contextlib.suppress(OSError):
+            self.stderr_text = self.stderr_tail(1 << 20)
+        self.errlog.close()
+        tail = last_lines(self.stderr_text)
+        if tail:
+            self.log.append("ADCS process stderr: %s" % tail)
 
     def _drain_until_gone(self, wait_s):
         deadline = time.perf_counter() + wait_s

@@ -12,7 +12,7 @@ import numpy as np
 from ground import hil, report
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
 from ground.fileio import run_folder, write_atomic, write_json
-from ground.system.adcs import AdcsFeed, estimation_accuracy, settle_s
+from ground.system.adcs import AdcsFailed, AdcsFeed, estimation_accuracy, settle_s
 from ground.system.constants import ADCS_KINDS, FIGURE, GOAL_RTF, LEAD_S, RUNTIMES, STENCIL_S, firmware_available
 from ground.system.live import LiveDisturbance
 from ground.system.reporting import _plot, report_md, thesis_body, verdict
@@ -120,6 +120,8 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                 summary["phase"] = "reference"
                 with contextlib.suppress(OSError):    # the ground filters' column (firmware: after the session)
                     feed.take(want=lambda: feed.reference is not None, timeout_s=300.0)
+            except AdcsFailed as exc:                 # the ADCS's own failure: not the fine loop link's
+                run.failure, run.adcs_failed = str(exc), True
             except BaseException:
                 feed.close()                          # bounded, whatever the ADCS process is doing
                 raise
@@ -159,6 +161,8 @@ def _finish(run, rec, summary, q2cal, plots, feed, live, t_settle, t_wall0, faul
     hil.board_figures(run, summary)            # --runtime qemu: the controller's board
     rec.unplayable = live.unplayable
     hil.finish_summary(rec, run, summary, q2cal, plots)
+    if getattr(run, "adcs_failed", False):      # the ADCS's failure as it was said, without the fine loop's counters
+        summary["error"] = run.failure
     summary["phase"] = "done" if stopped_in is None else ("interrupted" if run.interrupted else "failed")
     summary["stopped_in"] = stopped_in
     summary.update(_body_summary(feed, live, rec, t_settle))

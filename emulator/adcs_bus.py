@@ -3,6 +3,8 @@ outputs at t_k) and the ADCS's commands applied to the wheels and magnetorquers,
 schedule. ``emulator.adcs_session.AdcsSession`` carries it over the link (its module docstring: the lockstep, the
 faults, the magnetic devices)."""
 
+import numbers
+
 import numpy as np
 
 from emulator.spacecraft import scenario
@@ -10,6 +12,7 @@ from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
 from firmware.adcs.lockstep import burst_bit
 from protocol import core, table
+from protocol.spacecraft import num_text, value_text
 
 FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
 P = core.PACKET_ID
@@ -18,40 +21,88 @@ RW_NODES = tuple(N["RW%d" % i] for i in range(N_WHEELS))
 B_GNSS_B = 1 << dict(table.ADCS_STALE)["GNSS_B"]
 
 
+class Faults(dict):
+    """A faults dict that knows where each entry was given (``sources``: key -> e.g. "--faults faults.json" or
+    "--beacon-lost"), so that ``check_faults`` names it in its messages."""
+
+    def __init__(self, entries, sources):
+        dict.__init__(self, entries)
+        self.sources = dict(sources)
+
+
+_WINDOW = "[t0 s, t1 s], 0 <= t0 < t1"
+_EXPECTED = {"wheel_silent": "[wheel 0-3, t0 s >= 0]", "startracker_blind": _WINDOW, "gnss_outage": _WINDOW,
+             "beacon_lost": "t0 s >= 0"}
+
+
+def _real(v):
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+
+def _seconds(k, v, x):
+    """``x``, an element of fault ``k``'s value ``v`` (or ``v`` itself), as finite seconds >= 0 (a float);
+    ValueError naming the key, the value and the element otherwise."""
+    what = '"%s": %s' % (k, value_text(v))
+    if x is not v:
+        what += ": " + value_text(x)
+    if not _real(x):
+        raise ValueError("%s is not a number (seconds)" % what)
+    try:
+        t = float(x)
+    except OverflowError:                       # an integer beyond any float
+        t = float("inf")
+    if not (np.isfinite(t) and t >= 0):
+        raise ValueError("%s is out of range (expected %s, finite)" % (what, _EXPECTED[k]))
+    return t
+
+
+def _fault(k, v):
+    """(fault ``k``'s value ``v`` normalised, its start t0 in s); ValueError naming the key and the value."""
+    if k == "beacon_lost":
+        t0 = _seconds(k, v, v)
+        return t0, t0
+    if not isinstance(v, (list, tuple, np.ndarray)) or len(v) != 2:        # "12" would read as [1, 2]
+        raise ValueError('"%s": %s: expected %s' % (k, value_text(v), _EXPECTED[k]))
+    if k == "wheel_silent":
+        i = v[0]
+        if not _real(i):
+            raise ValueError('"%s": %s: %s is not a number (the wheel, 0-%d)'
+                             % (k, value_text(v), value_text(i), N_WHEELS - 1))
+        if i not in range(N_WHEELS):
+            raise ValueError('"%s": %s: the wheel must be 0 to %d (expected %s)'
+                             % (k, value_text(v), N_WHEELS - 1, _EXPECTED[k]))
+        t0 = _seconds(k, v, v[1])
+        return [int(i), t0], t0
+    t0, t1 = _seconds(k, v, v[0]), _seconds(k, v, v[1])
+    if not t0 < t1:
+        raise ValueError('"%s": %s: expected %s' % (k, value_text(v), _EXPECTED[k]))
+    return [t0, t1], t0
+
+
 def check_faults(faults, duration_s):
-    """Validate the faults dict (``AdcsSession``'s module docstring); returns a normalised copy."""
+    """Validate the faults dict (``AdcsSession``'s module docstring); returns a normalised copy (a plain dict).
+    ValueError naming the key and its value as JSON writes them (``"beacon_lost": "3" is not a number
+    (seconds)``): a string, true/false or null where a number is due, a number out of range (an integer
+    beyond any float included), an unknown key, a fault that starts at or after ``duration_s``. With a
+    ``Faults`` dict the message begins with where the entry was given."""
     if faults is None:
         return {}
     if not isinstance(faults, dict):
-        raise ValueError("faults must be a dict with keys among %s" % ", ".join(FAULTS))
+        raise ValueError("faults must be an object with keys among %s, got %s"
+                         % (", ".join(FAULTS), value_text(faults, 40)))
+    sources = getattr(faults, "sources", {})
     out = {}
     for k, v in faults.items():
+        where = "%s: " % sources[k] if k in sources else ""
         if k not in FAULTS:
-            raise ValueError("unknown fault %r (known: %s)" % (k, ", ".join(FAULTS)))
+            raise ValueError("%sunknown fault %s (known: %s)" % (where, value_text(k, 40), ", ".join(FAULTS)))
         try:
-            if isinstance(v, bool) or (isinstance(v, (list, tuple)) and any(isinstance(e, bool) for e in v)):
-                raise TypeError("true/false is not a number")          # JSON true would read as 1
-            if k == "beacon_lost":
-                out[k] = t0 = float(v)
-                ok = np.isfinite(t0) and t0 >= 0
-            elif isinstance(v, (str, bytes)):   # "12" would read as [1, 2]
-                ok = False
-            elif k == "wheel_silent":
-                i, t0 = int(v[0]), float(v[1])
-                out[k] = [i, t0]
-                ok = 0 <= i < N_WHEELS and np.isfinite(t0) and t0 >= 0 and float(v[0]) == i and len(v) == 2
-            else:
-                t0, t1 = float(v[0]), float(v[1])
-                out[k] = [t0, t1]
-                ok = len(v) == 2 and np.isfinite(t0) and np.isfinite(t1) and 0 <= t0 < t1
-        except (TypeError, ValueError, IndexError):
-            ok = False
-        if not ok:
-            raise ValueError("fault %s = %r: expected %s" % (k, v, {
-                "wheel_silent": "[wheel 0-3, t0_s >= 0]", "beacon_lost": "t0_s >= 0"}.get(k, "[t0_s, t1_s], 0 <= t0 < t1")))
-        if t0 >= duration_s:                     # t0: the fault's start, set by its branch above
-            raise ValueError("fault %s starts at %g s, not before the run's end (%g s): it would never happen"
-                             % (k, t0, duration_s))
+            out[k], t0 = _fault(k, v)
+        except ValueError as exc:
+            raise ValueError(where + str(exc)) from None
+        if t0 >= duration_s:
+            raise ValueError('%s"%s" starts at %s s, not before the run\'s end (%g s): it would never happen'
+                             % (where, k, num_text(t0), duration_s))
     return out
 
 

@@ -117,10 +117,14 @@ def test_slcan_adapter_answers_commands_like_an_adapter(tmp_path):
 def test_bad_fault_specs_are_refused():
     for bad in ({"wheel_silent": [4, 10]}, {"startracker_blind": [50, 10]}, {"gnss_outage": "x"},
                 {"beacon_lost": -1}, {"meteor": 3}, [1, 2], {"wheel_silent": "12"},
-                {"startracker_blind": "19"}, {"beacon_lost": True}, {"wheel_silent": [True, 1]}):
+                {"startracker_blind": "19"}, {"beacon_lost": True}, {"wheel_silent": [True, 1]},
+                {"beacon_lost": "3"}, {"wheel_silent": ["1", 5]}, {"gnss_outage": [1, "5"]}, {"beacon_lost": 10 ** 400},
+                {"wheel_silent": [10 ** 400, 5]}, {"startracker_blind": [1, 10 ** 400]}, {"beacon_lost": None}):
         with pytest.raises(ValueError):
             check_faults(bad, 100)
     assert check_faults({"wheel_silent": [1, 5]}, 100) == {"wheel_silent": [1, 5.0]}
+    assert check_faults({"wheel_silent": [2.0, np.float64(5)], "beacon_lost": np.int64(7)}, 100) == {
+        "wheel_silent": [2, 5.0], "beacon_lost": 7.0}
     for late in ({"wheel_silent": [1, 100]}, {"startracker_blind": [120, 180]}, {"beacon_lost": 100.5}):
         with pytest.raises(ValueError, match="never happen"):
             check_faults(late, 100)

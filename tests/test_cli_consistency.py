@@ -61,3 +61,63 @@ def test_a_bad_fault_names_its_option(argv, needle, tmp_path, monkeypatch):
     with pytest.raises(ValueError) as e:
         faults_from_args(_parse(argv))
     assert str(e.value).startswith(needle.rstrip("/")) or needle.rstrip("/") in str(e.value)
+
+
+BIG = "1" + "0" * 400           # an integer no float holds
+
+
+@pytest.mark.parametrize("text, msg", [
+    ('{"beacon_lost": "3"}', '"beacon_lost": "3" is not a number (seconds)'),
+    ('{"beacon_lost": %s}' % BIG, '"beacon_lost": 100000...000 (401 digits) is out of range (expected t0 s >= 0'),
+    ('{"beacon_lost": -1}', '"beacon_lost": -1 is out of range (expected t0 s >= 0, finite)'),
+    ('{"beacon_lost": true}', '"beacon_lost": true is not a number (seconds)'),
+    ('{"beacon_lost": null}', '"beacon_lost": null is not a number (seconds)'),
+    ('{"wheel_silent": ["1", 30]}', '"wheel_silent": ["1", 30]: "1" is not a number (the wheel, 0-3)'),
+    ('{"wheel_silent": [%s, 30]}' % BIG, '"wheel_silent": [100000...000 (401 digits), 30]: the wheel must be 0 to 3'),
+    ('{"wheel_silent": [1, "30"]}', '"wheel_silent": [1, "30"]: "30" is not a number (seconds)'),
+    ('{"startracker_blind": [170, %s]}' % BIG, '"startracker_blind": [170, 100000...000 (401 digits)]: 100000...000 '
+                                               '(401 digits) is out of range (expected [t0 s, t1 s], 0 <= t0 < t1'),
+    ('{"gnss_outage": "12"}', '"gnss_outage": "12": expected [t0 s, t1 s], 0 <= t0 < t1'),
+    ('{"gnss_outage": [20, 10]}', '"gnss_outage": [20, 10]: expected [t0 s, t1 s], 0 <= t0 < t1'),
+    ('{"meteor": 3}', 'unknown fault "meteor" (known: wheel_silent, startracker_blind, gnss_outage, beacon_lost)'),
+    ("[1, 2]", 'must be a JSON object such as {"startracker_blind": [170, 230]}, got [1, 2]'),
+    ("[" * 100000 + "]" * 100000, "its arrays and objects nest too deeply to read"),
+    ('{"beacon_lost": 1%s}' % ("0" * 5000), "an integer of more than 4300 digits, beyond any number's range"),
+    ("{beacon", "not valid JSON (Expecting property name")])
+def test_a_bad_faults_file_names_the_option_the_file_the_key_and_the_value(tmp_path, text, msg):
+    f = tmp_path / "faults.json"
+    f.write_text(text)
+    with pytest.raises(ValueError) as e:
+        faults_from_args(_parse(["--faults", str(f)]))
+    assert str(e.value).startswith("--faults %s: %s" % (f, msg)), str(e.value)
+    if text.startswith("{"):                                  # the object itself, given inline
+        with pytest.raises(ValueError) as e:
+            faults_from_args(_parse(["--faults", text]))
+        assert str(e.value).startswith("--faults") and msg in str(e.value), str(e.value)
+
+
+def test_a_fault_given_as_an_option_is_named_by_its_option_and_checked_the_same():
+    for argv, msg in ((["--beacon-lost", "-5"], '--beacon-lost -5: "beacon_lost": -5 is out of range'),
+                      (["--beacon-lost", "1e400"], '--beacon-lost inf: "beacon_lost": inf is out of range'),
+                      (["--wheel-silent", "4:10"], '--wheel-silent 4:10: "wheel_silent": [4, 10]: the wheel must be 0'),
+                      (["--gnss-outage", "50:40"], '--gnss-outage 50:40: "gnss_outage": [50, 40]: expected [t0 s')):
+        with pytest.raises(ValueError) as e:
+            faults_from_args(_parse(argv))
+        assert str(e.value).startswith(msg), str(e.value)
+
+
+def test_a_fault_past_the_runs_end_names_where_it_was_given(tmp_path):
+    from emulator.adcs_bus import check_faults
+    f = tmp_path / "faults.json"
+    f.write_text('{"startracker_blind": [170, 230], "beacon_lost": 700}')
+    faults = faults_from_args(_parse(["--faults", str(f), "--gnss-outage", "900:950"]))
+    assert faults == {"startracker_blind": [170, 230], "beacon_lost": 700, "gnss_outage": [900.0, 950.0]}
+    assert check_faults(faults, 1000) == {"startracker_blind": [170.0, 230.0], "beacon_lost": 700.0,
+                                          "gnss_outage": [900.0, 950.0]}
+    with pytest.raises(ValueError) as e:
+        check_faults(faults, 800)
+    assert str(e.value) == ('--gnss-outage 900:950: "gnss_outage" starts at 900 s, not before the run\'s end (800 s): '
+                            'it would never happen')
+    with pytest.raises(ValueError) as e:
+        check_faults(faults, 600)
+    assert str(e.value).startswith('--faults %s: "beacon_lost" starts at 700 s' % f)

@@ -4,7 +4,6 @@ emulated devices' faults (one option each, or ``--faults FILE``). Below the comm
 registers those)."""
 
 import argparse
-import json
 
 from ground.adcs import runs
 from ground.fileio import output_folder
@@ -95,37 +94,60 @@ def _window(text, name):
         raise ValueError("--%s %r: expected T0:T1 in seconds" % (name, text)) from None
 
 
-def faults_from_args(a):
-    """The faults ``add_fault_options`` took, as the session's dict (None: none). ValueError naming the option."""
-    f = {}
-    if a.faults is not None:
-        text = a.faults.strip()
-        if not text.startswith("{"):
-            try:
-                with open(a.faults) as fh:
-                    text = fh.read()
-            except OSError as exc:
-                raise ValueError("--faults %s: %s" % (a.faults, exc.strerror or exc)) from None
+FAULTS_EXAMPLE = '{"startracker_blind": [170, 230]}'
+
+
+def _faults_file(text):
+    """(the faults of ``--faults``, where they were given): a JSON file (read by ``ground.fileio.read_json``:
+    size-limited, not nested too deeply), or the JSON object itself. ValueError beginning with the option and
+    the file."""
+    from ground.fileio import parse_json, read_json
+    from protocol.spacecraft import value_text
+    if text.strip().startswith("{"):
+        where = "--faults"
         try:
-            f = json.loads(text)
+            f = parse_json(text, "--faults %s" % value_text(text.strip(), 60))
         except ValueError as exc:
-            raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}': %s"
-                             % exc) from None
-        if not isinstance(f, dict):
-            raise ValueError("--faults must be a JSON object such as '{\"startracker_blind\": [170, 230]}'")
+            raise ValueError("%s; --faults must be a JSON object such as %s, or a file" % (exc, FAULTS_EXAMPLE)) \
+                from None
+    else:
+        where = "--faults %s" % text
+        f = read_json(text, "--faults")
+    if not isinstance(f, dict):
+        raise ValueError("%s: must be a JSON object such as %s, got %s" % (where, FAULTS_EXAMPLE, value_text(f, 40)))
+    return f, where
+
+
+def faults_from_args(a):
+    """The faults ``add_fault_options`` took, as the session's dict (an ``emulator.adcs_bus.Faults``, which
+    knows where each entry was given; None: none), each entry checked (``check_faults``). ValueError naming the
+    option (and the file), the key and the value."""
+    from emulator.adcs_bus import Faults, check_faults
+    f, sources = {}, {}
+    if a.faults is not None:
+        f, where = _faults_file(a.faults)
+        sources = dict.fromkeys(f, where)
     if a.wheel_silent:
         try:
             i, t0 = a.wheel_silent.split(":")
             f["wheel_silent"] = [int(i), float(t0)]
         except ValueError:
             raise ValueError("--wheel-silent %r: expected WHEEL:T0 (wheel 0-3, seconds)" % a.wheel_silent) from None
+        sources["wheel_silent"] = "--wheel-silent %s" % a.wheel_silent
     if a.startracker_blind:
         f["startracker_blind"] = _window(a.startracker_blind, "startracker-blind")
+        sources["startracker_blind"] = "--startracker-blind %s" % a.startracker_blind
     if a.gnss_outage:
         f["gnss_outage"] = _window(a.gnss_outage, "gnss-outage")
+        sources["gnss_outage"] = "--gnss-outage %s" % a.gnss_outage
     if a.beacon_lost is not None:
         f["beacon_lost"] = a.beacon_lost
-    return f or None
+        sources["beacon_lost"] = "--beacon-lost %g" % a.beacon_lost
+    if not f:
+        return None
+    f = Faults(f, sources)
+    check_faults(f, float("inf"))              # the run's span is checked by the run
+    return f
 
 
 def add_spacecraft_option(p, what):

@@ -262,6 +262,15 @@ def test_bad_spacecraft_exits_2_on_every_command(tmp_path, capsys, argv):
     path.write_text(json.dumps(bad))
     cases = (("nope-7u", "neither a preset"), ("generic-12u", "partner = null"), (str(path), "sigma_arcsec[1] = nan"),
              (_five_wheels(tmp_path), "wheels.count = 5"))
+    text = json.dumps(sf.load("generic-6u"))
+    big = text.replace('"mass_kg": 12.0', '"mass_kg": 1' + "0" * 400)
+    for name, bad, words in (("big", big, "mass_kg = 100000...000 (401 digits): must be a finite number, > 0 and "
+                                          "<= 2000 kg"),
+                             ("string", text.replace('"mass_kg": 12.0', '"mass_kg": "12"'), 'mass_kg = "12": must be '
+                              "a number"),
+                             ("deep", "[" * 100000 + "]" * 100000, "its arrays and objects nest too deeply to read")):
+        (tmp_path / name).write_text(bad)
+        cases += ((str(tmp_path / name), "--spacecraft %s: %s" % (tmp_path / name, words)),)
     for sc, words in cases:
         out = tmp_path / "out"
         assert cli.main(argv + ["--spacecraft", sc, "-o", str(out)]) == 2, sc

@@ -42,9 +42,10 @@ def _presets():
 
 def load_spacecraft(name_or_path, params=None, wheels=True, partner=False):
     """(checked spacecraft file, what was given) for ``--spacecraft`` (None: thesis-3u). ValueError (exit 2)
-    with the checker's message for a bad one, one whose wheels.count is not 4 (``wheels``: the APKF and the
-    controllers fly four), one without a partner (``partner``: the STKF and the body pointing track one,
-    ``scenario.orbit_setup``), or when ``params`` also sets the true inertia or dipole."""
+    naming the option and the file, with the reader's or the checker's message, for a bad one, one whose
+    wheels.count is not 4 (``wheels``: the APKF and the controllers fly four), one without a partner
+    (``partner``: the STKF and the body pointing track one, ``scenario.orbit_setup``), or when ``params`` also
+    sets the true inertia or dipole."""
     from emulator.spacecraft import scenario
     from protocol import spacecraft as sf
     if name_or_path is not None and params and ({"inertia_kgm2", "dipole_am2"} & set(params)):
@@ -60,7 +61,8 @@ def load_spacecraft(name_or_path, params=None, wheels=True, partner=False):
         if partner:
             scenario.orbit_setup(d)
     except ValueError as exc:
-        raise ValueError("--spacecraft %s: %s" % (source, exc)) from None
+        msg, head = str(exc), "spacecraft file %s: " % source
+        raise ValueError("--spacecraft %s: %s" % (source, msg[len(head):] if msg.startswith(head) else msg)) from None
     return d, source
 
 

@@ -43,9 +43,11 @@ def check_params(d, where="parameter file", spacecraft=None):
 
 
 def load_params(path, spacecraft=None):
+    """``check_params`` of the parameter file at ``path`` (read by ``ground.fileio.read_json``), and the dict as
+    read; ValueError beginning with the file."""
     from ground.fileio import read_json
     d = read_json(path, "parameter file")
-    return check_params(d, path, spacecraft) + (d,)
+    return check_params(d, "parameter file %s" % path, spacecraft) + (d,)
 
 
 def write_params(path, d, spacecraft=None):

@@ -53,8 +53,8 @@ def load_params(path):
     """A scenario/parameter JSON file, checked: unknown keys, NaN and a non-PD inertia are ValueErrors."""
     d = read_json(path, "params")             # NaN and Infinity parse to floats, refused below
     if not isinstance(d, dict):
-        raise ValueError("%s: expected a JSON object with keys %s" % (path, ", ".join(sorted(PARAM_KEYS))))
-    return check_params(d, path)
+        raise ValueError("params %s: expected a JSON object with keys %s" % (path, ", ".join(sorted(PARAM_KEYS))))
+    return check_params(d, "params %s" % path)
 
 
 def check_params(d, where="params"):

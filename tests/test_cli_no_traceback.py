@@ -241,6 +241,83 @@ def _bad_cases(f):
             + _bad_adcs_and_system_cases(f, o))
 
 
+BIG = "1" + "0" * 400           # valid JSON, an integer no float holds
+
+
+@pytest.fixture(scope="module")
+def hostile(tmp_path_factory):
+    """For each kind of input JSON file (faults, spacecraft, campaign and calibrated parameters, calibration,
+    bench config): a 400-digit integer and a string where a number is due (each with the key it is under), and
+    one file nested 100000 deep for all of them."""
+    from protocol import paramfile
+    from protocol import spacecraft as sf
+    d = tmp_path_factory.mktemp("hostile")
+    sc = json.dumps(sf.load("thesis-3u"))
+    cal = json.dumps(fp.calibration(3))
+    pf = json.dumps({"format": paramfile.FORMAT, "wheels": 4, "jxx_ref_kgm2": "@", "x": {}, "P": []})
+    texts = {"faults": ('{"beacon_lost": @}', "beacon_lost"), "spacecraft": (sc.replace('"mass_kg": 4.0',
+                                                                                         '"mass_kg": @'), "mass_kg"),
+             "campaign_params": ('{"duration_s": @}', "duration_s"), "params": (pf.replace('"@"', "@"), "jxx_ref_kgm2"),
+             "calibration": (cal.replace('"grid_v": [-1.0', '"grid_v": [@'), "grid_v[0]"),
+             "config": ('{"laser": {"power_w": @}}', "laser.power_w")}
+    h = {"deep": (str(d / "deep.json"), None)}
+    with open(h["deep"][0], "w") as fh:
+        fh.write("[" * 100000 + "]" * 100000)
+    for kind, (text, key) in texts.items():
+        assert text.count("@") == 1, kind
+        for variant, value in (("big", BIG), ("string", '"3"')):
+            h[kind, variant] = (str(d / ("%s_%s.json" % (kind, variant))), key)
+            with open(h[kind, variant][0], "w") as fh:
+                fh.write(text.replace("@", value))
+    return h
+
+
+def _hostile_file_cases(f, h, o):
+    """(argument list, the file, the key it must name or None) for each hostile file of ``hostile`` given to
+    every command that takes that kind of file."""
+    takes = {"faults": [["system", "--adcs", "ground", "-o", o], ["adcs", "can", "--duration", "2", "-o", o]],
+             "spacecraft": [["adcs", "apkf", "-o", o], ["adcs", "mekf", "-o", o], ["adcs", "stkf", "--case", "1",
+                                                                                    "-o", o],
+                            ["adcs", "bps", "-o", o], ["adcs", "sweep", "-o", o], ["adcs", "can", "-o", o],
+                            ["system", "--adcs", "ground", "-o", o],
+                            ["distfile", "generate", "--source", "bps", "--duration", "5", "-o", o + ".dist"]],
+             "campaign_params": [["adcs", "apkf", "-o", o], ["adcs", "mekf", "-o", o]],
+             "params": [["adcs", "bps", "-o", o], ["adcs", "sweep", "-o", o], ["adcs", "can", "-o", o],
+                        ["system", "--adcs", "ground", "-o", o],
+                        ["distfile", "generate", "--source", "bps", "--duration", "5", "-o", o + ".dist"]],
+             "calibration": [["hil", "-o", o, "--distfile", f["dist"], "--duration", "0.01"],
+                             ["system", "--adcs", "ground", "-o", o]],
+             "config": [["emulator", "config"], ["emulator", "truth-h", "--grid", "2", "-o", o],
+                        ["emulator", "serve", "--wait", "0"], ["calibrate", "--grid", "2", "-o", o],
+                        ["hil", "-o", o, "--distfile", f["dist"], "--calibration", f["cal"], "--duration", "0.01"],
+                        ["response", "--points", "2", "-o", o]]}
+    option = {"faults": "--faults", "spacecraft": "--spacecraft", "campaign_params": "--params",
+              "params": "--params", "calibration": "--calibration", "config": "--config"}
+    cases = []
+    for kind, argvs in takes.items():
+        for argv in argvs:
+            for path, key in (h["deep"], h[kind, "big"], h[kind, "string"]):
+                cases.append((argv + [option[kind], path], path, key))
+    for sub in ("check", "show"):
+        cases += [(["spacecraft", sub, path], path, key) for path, key in (h["deep"], h["spacecraft", "big"],
+                                                                          h["spacecraft", "string"])]
+    return cases
+
+
+def test_hostile_json_files_exit_2_naming_the_file_and_the_key(capsys, files, hostile):
+    """A 400-digit integer, a string number and a file nested 100000 deep, in every JSON file every command
+    reads: exit 2, one error line naming the file (and the key), no internal error, nothing written."""
+    o = os.path.join(files["out"], "hostile")
+    cases = _hostile_file_cases(files, hostile, o)
+    assert len(cases) == 81
+    for argv, path, key in cases:
+        rc, out, err = run(capsys, argv)
+        last = err.strip().splitlines()[-1] if err.strip() else ""
+        assert rc == 2 and last.startswith("fps") and "error: " in last, (argv, rc, err)
+        assert path in last and (key is None or key in last) and "internal error" not in err, (argv, err)
+        assert not os.path.exists(o) and not os.path.exists(o + ".dist"), argv
+
+
 def test_every_command_is_covered(files):
     """The bad cases reach every command and sub-command ``fps --help`` and their own help list."""
     reached = {tuple(a[:2]) if a[0] in ("protocol", "emulator", "distfile", "adcs") else (a[0],)

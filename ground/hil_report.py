@@ -2,7 +2,6 @@
 from its status, the jitter's harmonics in the Q2 error, and the verdict's lines (``fps hil`` and ``fps system``
 write them; ``ground.hil`` runs the loop)."""
 
-import json
 import os
 
 import numpy as np
@@ -10,6 +9,7 @@ import numpy as np
 from firmware.ad5664r import CODES_PER_VOLT
 from firmware.controller import SAT_TICKS, SATURATED
 from ground import report
+from ground.fileio import read_json
 
 SAT_ON = "FSM command on its clamp for %d ticks in a row" % SAT_TICKS
 SAT_OFF = "FSM command off its clamp"
@@ -114,8 +114,7 @@ def jitter_harmonics(distfile_path, rec, t0_us, rig):
     if not os.path.exists(side) or rig is None:
         return None
     try:
-        with open(side) as f:
-            j = json.load(f)
+        j = read_json(side, "the distfile's jitter sidecar")
         freqs = [float(v) for v in j["wheel_hz"]]
         file_amp = np.asarray(j["file_amp_arcsec"], float).reshape(len(freqs), 2)
         gain = np.asarray(j["player_gain"], float)

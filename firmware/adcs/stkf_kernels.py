@@ -1,7 +1,8 @@
 """The lean STKF's kernels (MicroPython): the two-body propagation of one satellite (Eq. 5.4, 5.7), its
 transition matrix and process noise (Eq. 5.8-5.11), and the 6-state block products the filter's covariance
-updates are made of (``stkf_lean.LeanStkf`` uses them). Compiled by the native emitter; the block products run in
-C when the kernels are built (``linalg.kernels``), with the same results bit for bit."""
+updates are made of, a generated node's rows (``between``) among them (``stkf_lean.LeanStkf`` uses them). Compiled
+by the native emitter; the block products run in C when the kernels are built (``linalg.kernels``), with the same
+results bit for bit."""
 
 from array import array
 import math
@@ -224,6 +225,69 @@ def _ikh_sandwich(P, ld, G, Q, T):
             P[a + j] = s
             P[b + i] = s
             b += ld
+
+
+@micropython.native
+def between(Hp, S, P, ld, ia, ic, A, B, T, qa3, m, Ar, Br, W):
+    """The rows of the generated node b between nodes a (index ia) and c (ic) of the joint covariance P (Eq.
+    5.46-5.52, ``LeanStkf._hp_between``): Hp (6 rows of m) = A P[a rows, :] + B P[c rows, :], and S (6 x 6)
+    = P_bb = Hp_a A^T + Hp_c B^T + (I - B Fb) Qa, upper triangle mirrored (T = I - B Fb; qa3 = (q3, q2, q1),
+    Qa per axis [[q3, q2], [q2, q1]]). Ar, Br (6 lists of 6) and W (6) are work: A and B by rows."""
+    q3, q2, q1 = qa3
+    for i in range(N):                                # A, B by rows (each read once)
+        ra, rb, o = Ar[i], Br[i], 6 * i
+        for k in range(N):
+            ra[k], rb[k] = A[o + k], B[o + k]
+    a00, a01, a02, a03, a04, a05 = Ar[0]
+    a10, a11, a12, a13, a14, a15 = Ar[1]
+    a20, a21, a22, a23, a24, a25 = Ar[2]
+    a30, a31, a32, a33, a34, a35 = Ar[3]
+    a40, a41, a42, a43, a44, a45 = Ar[4]
+    a50, a51, a52, a53, a54, a55 = Ar[5]
+    b00, b01, b02, b03, b04, b05 = Br[0]
+    b10, b11, b12, b13, b14, b15 = Br[1]
+    b20, b21, b22, b23, b24, b25 = Br[2]
+    b30, b31, b32, b33, b34, b35 = Br[3]
+    b40, b41, b42, b43, b44, b45 = Br[4]
+    b50, b51, b52, b53, b54, b55 = Br[5]
+    H0, H1, H2, H3, H4, H5 = Hp
+    l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
+    sa, sc = ia * N * ld, ic * N * ld
+    for j in range(m):                                # Hp = A P[a rows, :] + B P[c rows, :]  (6 x m)
+        o, q = sa + j, sc + j
+        p0, p1, p2, p3, p4, p5 = P[o], P[o + ld], P[o + l2], P[o + l3], P[o + l4], P[o + l5]
+        c0, c1, c2, c3, c4, c5 = P[q], P[q + ld], P[q + l2], P[q + l3], P[q + l4], P[q + l5]
+        H0[j] = a00 * p0 + a01 * p1 + a02 * p2 + a03 * p3 + a04 * p4 + a05 * p5 \
+            + b00 * c0 + b01 * c1 + b02 * c2 + b03 * c3 + b04 * c4 + b05 * c5
+        H1[j] = a10 * p0 + a11 * p1 + a12 * p2 + a13 * p3 + a14 * p4 + a15 * p5 \
+            + b10 * c0 + b11 * c1 + b12 * c2 + b13 * c3 + b14 * c4 + b15 * c5
+        H2[j] = a20 * p0 + a21 * p1 + a22 * p2 + a23 * p3 + a24 * p4 + a25 * p5 \
+            + b20 * c0 + b21 * c1 + b22 * c2 + b23 * c3 + b24 * c4 + b25 * c5
+        H3[j] = a30 * p0 + a31 * p1 + a32 * p2 + a33 * p3 + a34 * p4 + a35 * p5 \
+            + b30 * c0 + b31 * c1 + b32 * c2 + b33 * c3 + b34 * c4 + b35 * c5
+        H4[j] = a40 * p0 + a41 * p1 + a42 * p2 + a43 * p3 + a44 * p4 + a45 * p5 \
+            + b40 * c0 + b41 * c1 + b42 * c2 + b43 * c3 + b44 * c4 + b45 * c5
+        H5[j] = a50 * p0 + a51 * p1 + a52 * p2 + a53 * p3 + a54 * p4 + a55 * p5 \
+            + b50 * c0 + b51 * c1 + b52 * c2 + b53 * c3 + b54 * c4 + b55 * c5
+    sa, sc = ia * N, ic * N
+    for i in range(N):                                # S0 = P_bb, upper triangle mirrored
+        h, o = Hp[i], 6 * i
+        p0, p1, p2, p3, p4, p5 = h[sa], h[sa + 1], h[sa + 2], h[sa + 3], h[sa + 4], h[sa + 5]
+        c0, c1, c2, c3, c4, c5 = h[sc], h[sc + 1], h[sc + 2], h[sc + 3], h[sc + 4], h[sc + 5]
+        for j in range(i, N):
+            a, b = Ar[j], Br[j]
+            W[0] = p0 * a[0] + c0 * b[0]
+            W[1] = p1 * a[1] + c1 * b[1]
+            W[2] = p2 * a[2] + c2 * b[2]
+            W[3] = p3 * a[3] + c3 * b[3]
+            W[4] = p4 * a[4] + c4 * b[4]
+            W[5] = p5 * a[5] + c5 * b[5]
+            g, qg, qh = (j, q3, q2) if j < 3 else (j - 3, q2, q1)    # + (I - B Fb) Qa: Qa's column j
+            W[g] = W[g] + T[o + g] * qg                               # has rows g and g + 3 only
+            W[g + 3] = W[g + 3] + T[o + g + 3] * qh
+            s = W[0] + W[1] + W[2] + W[3] + W[4] + W[5]
+            S[o + j] = s
+            S[j * N + i] = s
 
 
 def _add_gain(x, n, Kt, r, m):

@@ -67,7 +67,7 @@ from firmware.adcs import control, linalg
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 # the kernels, re-exported here for the filter's users
 from firmware.adcs.stkf_kernels import (MU, N, QA_THESIS, _add_gain, _finite, _ikh_rows, _ikh_sandwich,  # noqa: F401
-                                        f, phi, process_noise, rows_mul_mirror, sandwich, zeros_d)
+                                        between, f, phi, process_noise, rows_mul_mirror, sandwich, zeros_d)
 
 LAG_S = 4.0            # the relay delay U(2, 3) s (Sec. 5.5.1) + up to 1 s until the next 1 Hz cycle
 MAX_STEP_S = 600.0     # one predict() at most (RK4 substeps of 1 s)
@@ -329,121 +329,23 @@ class LeanStkf:
         """The generated node b between a (older, index ia) and c (newer, ic) of Eq. 5.46-5.52, as a
         measurement of a and c: Fa = Phi(x_a, dt_a), Fb = Phi(f(x_a, dt_a), dt_b), Qca = Fb Qa Fb^T + Qb,
         B = Qa Fb^T Qca^-1, A = (I - B Fb) Fa; x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)),
-        P_bj = A P_aj + B P_cj (Hp, 6 x m, nodes 0 .. ia), P_bb = P_ba A^T + P_bc B^T + (I - B Fb) Qa (S0).
+        P_bj = A P_aj + B P_cj (Hp, 6 x m, nodes 0 .. ia), P_bb = P_ba A^T + P_bc B^T + (I - B Fb) Qa (S0):
+        ``_generated_node``, then ``between``.
 
         A measurement of b is then a measurement of a and c with H = [A .. B], noise R + (I - B Fb) Qa. The
         update of Eq. 5.24 with node b plugged in (Fig. 5-2) and then marginalised out is the same update of
         the other nodes (exact); b is not kept: with in-order tags 1 s apart no later tag falls between a and
         c, and the pruning keeps a as the anchor."""
-        w, ld, P, X = self.work, self.ld, self.P, self.X
-        xb, xc = w.xb, w.xc
-        for i in range(N):
-            xb[i] = X[ia * N + i]
-            xc[i] = X[ic * N + i]
-        Fa, Fb, Qa, Qb, A, B, T, L = w.Phi, w.Fb, w.Q, w.Qb, w.A, w.B, w.T, w.L
-        phi(Fa, xb, 0, dt_a)
-        f(xb, 0, dt_a)
-        phi(Fb, xb, 0, dt_b)
-        f(xc, 0, -dt_b)
-        process_noise(Qa, dt_a, self.qa)
-        process_noise(Qb, dt_b, self.qa)
-        q3, q2, q1 = Qa[0], Qa[3], Qa[21]                 # Qa per axis [[q3, q2], [q2, q1]], zeros elsewhere
-        for i in range(N):                                # T = Fb Qa, B = T^T (Qa's zero terms left out)
-            o = 6 * i
-            f0, f1, f2, f3, f4, f5 = Fb[o], Fb[o + 1], Fb[o + 2], Fb[o + 3], Fb[o + 4], Fb[o + 5]
-            T[o] = B[i] = f0 * q3 + f3 * q2
-            T[o + 1] = B[6 + i] = f1 * q3 + f4 * q2
-            T[o + 2] = B[12 + i] = f2 * q3 + f5 * q2
-            T[o + 3] = B[18 + i] = f0 * q2 + f3 * q1
-            T[o + 4] = B[24 + i] = f1 * q2 + f4 * q1
-            T[o + 5] = B[30 + i] = f2 * q2 + f5 * q1
-        linalg.matmul_bt(A, T, Fb, N, N, N)               # A = Fb Qa Fb^T + Qb = Qca (work)
-        for i in range(0, 21, 7):                         # (Qb's nonzeros)
-            A[i] = A[i] + Qb[i]
-            A[i + 3] = A[i + 3] + Qb[i + 3]
-            A[i + 18] = A[i + 18] + Qb[i + 18]
-            A[i + 21] = A[i + 21] + Qb[i + 21]
-        linalg.symmetrize(A, N)
-        if not linalg.cholesky(L, A, N):
+        w, ld, P = self.work, self.ld, self.P
+        if not _generated_node(w, self.X, ia, ic, dt_a, dt_b, self.qa):
             self.refused += 1
             raise ValueError("Qca is not positive definite")
-        linalg.chol_solve_rows(B, L, B, N, N)             # B rows: Qca^-1 (Fb Qa)^T rows
-        linalg.matmul(T, B, Fb, N, N, N)                  # T = I - B Fb
-        for i in range(36):
-            T[i] = -T[i]
-        for i in range(N):
-            T[i * 7] = T[i * 7] + 1.0
-        linalg.matmul(A, T, Fa, N, N, N)                  # A = (I - B Fb) Fa
-        d = w.d
-        e0, e1, e2 = xc[0] - xb[0], xc[1] - xb[1], xc[2] - xb[2]     # f(x_c, -dt_b) - f(x_a, dt_a)
-        e3, e4, e5 = xc[3] - xb[3], xc[4] - xb[4], xc[5] - xb[5]
-        for i in range(N):                                # d = Fb e, then x_b = f(x_a, dt_a) + B d
-            o = 6 * i
-            d[i] = Fb[o] * e0 + Fb[o + 1] * e1 + Fb[o + 2] * e2 + Fb[o + 3] * e3 + Fb[o + 4] * e4 + Fb[o + 5] * e5
-        e0, e1, e2, e3, e4, e5 = d[0], d[1], d[2], d[3], d[4], d[5]
-        for i in range(N):
-            o = 6 * i
-            d[N + i] = xb[i] + B[o] * e0 + B[o + 1] * e1 + B[o + 2] * e2 + B[o + 3] * e3 + B[o + 4] * e4 \
-                + B[o + 5] * e5
-        if _K is not None:                                # the two loops below, in C
-            _K.between(w.hp, w.S, P, ld, ia, ic, A, B, T, (q3, q2, q1), m)
-            return
-        Ar, Br = w.ar, w.br                               # A, B by rows (each read once)
-        for i in range(N):
-            ra, rb, o = Ar[i], Br[i], 6 * i
-            for k in range(N):
-                ra[k], rb[k] = A[o + k], B[o + k]
-        a00, a01, a02, a03, a04, a05 = Ar[0]
-        a10, a11, a12, a13, a14, a15 = Ar[1]
-        a20, a21, a22, a23, a24, a25 = Ar[2]
-        a30, a31, a32, a33, a34, a35 = Ar[3]
-        a40, a41, a42, a43, a44, a45 = Ar[4]
-        a50, a51, a52, a53, a54, a55 = Ar[5]
-        b00, b01, b02, b03, b04, b05 = Br[0]
-        b10, b11, b12, b13, b14, b15 = Br[1]
-        b20, b21, b22, b23, b24, b25 = Br[2]
-        b30, b31, b32, b33, b34, b35 = Br[3]
-        b40, b41, b42, b43, b44, b45 = Br[4]
-        b50, b51, b52, b53, b54, b55 = Br[5]
-        H0, H1, H2, H3, H4, H5 = Hp = w.hp
-        l2, l3, l4, l5 = 2 * ld, 3 * ld, 4 * ld, 5 * ld
-        sa, sc = ia * N * ld, ic * N * ld
-        for j in range(m):                                # Hp = A P[a rows, :] + B P[c rows, :]  (6 x m)
-            o, q = sa + j, sc + j
-            p0, p1, p2, p3, p4, p5 = P[o], P[o + ld], P[o + l2], P[o + l3], P[o + l4], P[o + l5]
-            c0, c1, c2, c3, c4, c5 = P[q], P[q + ld], P[q + l2], P[q + l3], P[q + l4], P[q + l5]
-            H0[j] = a00 * p0 + a01 * p1 + a02 * p2 + a03 * p3 + a04 * p4 + a05 * p5 \
-                + b00 * c0 + b01 * c1 + b02 * c2 + b03 * c3 + b04 * c4 + b05 * c5
-            H1[j] = a10 * p0 + a11 * p1 + a12 * p2 + a13 * p3 + a14 * p4 + a15 * p5 \
-                + b10 * c0 + b11 * c1 + b12 * c2 + b13 * c3 + b14 * c4 + b15 * c5
-            H2[j] = a20 * p0 + a21 * p1 + a22 * p2 + a23 * p3 + a24 * p4 + a25 * p5 \
-                + b20 * c0 + b21 * c1 + b22 * c2 + b23 * c3 + b24 * c4 + b25 * c5
-            H3[j] = a30 * p0 + a31 * p1 + a32 * p2 + a33 * p3 + a34 * p4 + a35 * p5 \
-                + b30 * c0 + b31 * c1 + b32 * c2 + b33 * c3 + b34 * c4 + b35 * c5
-            H4[j] = a40 * p0 + a41 * p1 + a42 * p2 + a43 * p3 + a44 * p4 + a45 * p5 \
-                + b40 * c0 + b41 * c1 + b42 * c2 + b43 * c3 + b44 * c4 + b45 * c5
-            H5[j] = a50 * p0 + a51 * p1 + a52 * p2 + a53 * p3 + a54 * p4 + a55 * p5 \
-                + b50 * c0 + b51 * c1 + b52 * c2 + b53 * c3 + b54 * c4 + b55 * c5
-        S, W = w.S, w.l6
-        sa, sc = ia * N, ic * N
-        for i in range(N):                                # S0 = P_bb, upper triangle mirrored
-            h, o = Hp[i], 6 * i
-            p0, p1, p2, p3, p4, p5 = h[sa], h[sa + 1], h[sa + 2], h[sa + 3], h[sa + 4], h[sa + 5]
-            c0, c1, c2, c3, c4, c5 = h[sc], h[sc + 1], h[sc + 2], h[sc + 3], h[sc + 4], h[sc + 5]
-            for j in range(i, N):
-                a, b = Ar[j], Br[j]
-                W[0] = p0 * a[0] + c0 * b[0]
-                W[1] = p1 * a[1] + c1 * b[1]
-                W[2] = p2 * a[2] + c2 * b[2]
-                W[3] = p3 * a[3] + c3 * b[3]
-                W[4] = p4 * a[4] + c4 * b[4]
-                W[5] = p5 * a[5] + c5 * b[5]
-                g, qg, qh = (j, q3, q2) if j < 3 else (j - 3, q2, q1)    # + (I - B Fb) Qa: Qa's column j
-                W[g] = W[g] + T[o + g] * qg                               # has rows g and g + 3 only
-                W[g + 3] = W[g + 3] + T[o + g + 3] * qh
-                s = W[0] + W[1] + W[2] + W[3] + W[4] + W[5]
-                S[o + j] = s
-                S[j * N + i] = s
+        Qa = w.Q
+        q = (Qa[0], Qa[3], Qa[21])                        # Qa per axis [[q3, q2], [q2, q1]]
+        if _K is not None:                                # ``between`` in C
+            _K.between(w.hp, w.S, P, ld, ia, ic, w.A, w.B, w.T, q, m)
+        else:
+            between(w.hp, w.S, P, ld, ia, ic, w.A, w.B, w.T, q, m, w.ar, w.br, w.l6)
 
     @micropython.native
     def _update_rows(self, z, R, m):
@@ -535,65 +437,139 @@ class LeanStkf:
             H[o + 1] = (a1 - au * u1) / rho
             H[o + 2] = (a2 - au * u2) / rho
             r[i] = y[i] - au
-        # R = sigma^2 I + [y x] P_att [y x]^T + H P_rA H^T, then S = R + H P_rB H^T ([y x]'s zeros left out)
-        y0, y1, y2 = y[0], y[1], y[2]
-        n0, n1, n2, sb2 = -y0, -y1, -y2, sigma_b * sigma_b
-        p00, p01, p02, p10, p11, p12 = P_att[0], P_att[1], P_att[2], P_att[3], P_att[4], P_att[5]
-        p20, p21, p22 = P_att[6], P_att[7], P_att[8]
-        t00, t01, t02 = n2 * p10 + y1 * p20, n2 * p11 + y1 * p21, n2 * p12 + y1 * p22     # [y x] P_att
-        t10, t11, t12 = y2 * p00 + n0 * p20, y2 * p01 + n0 * p21, y2 * p02 + n0 * p22
-        t20, t21 = n1 * p00 + y0 * p10, n1 * p01 + y0 * p11
-        R3 = w.R3
-        R3[0] = t01 * n2 + t02 * y1 + sb2
-        R3[1] = R3[3] = t00 * y2 + t02 * n0
-        R3[2] = R3[6] = t00 * n1 + t01 * y0
-        R3[4] = t10 * y2 + t12 * n0 + sb2
-        R3[5] = R3[7] = t10 * n1 + t11 * y0
-        R3[8] = t20 * n1 + t21 * y0 + sb2
-        Kt, T, S, Pa = w.Kt, w.t36, w.S, self.Pa               # Kt = H P[0:3, 0:6] (B's current node), then
-        P0, P1, P2 = list(P[0:6]), list(P[ld:ld + 6]), list(P[2 * ld:2 * ld + 6])    # K^T below
-        p00, p01, p02, p10, p11, p12 = Pa[0], Pa[1], Pa[2], Pa[6], Pa[7], Pa[8]
-        p20, p21, p22 = Pa[12], Pa[13], Pa[14]
-        for i in range(3):
-            h0, h1, h2 = H[3 * i], H[3 * i + 1], H[3 * i + 2]
-            for j in range(6):
-                Kt[6 * i + j] = h0 * P0[j] + h1 * P1[j] + h2 * P2[j]
-            o = 3 * i                                          # T = H P_rA
-            T[o] = h0 * p00 + h1 * p10 + h2 * p20
-            T[o + 1] = h0 * p01 + h1 * p11 + h2 * p21
-            T[o + 2] = h0 * p02 + h1 * p12 + h2 * p22
-        for i in range(3):                                     # R += H P_rA H^T; S = R + H P_rB H^T
-            for j in range(i, 3):
-                h0, h1, h2 = H[3 * j], H[3 * j + 1], H[3 * j + 2]
-                v = R3[3 * i + j] + T[3 * i] * h0 + T[3 * i + 1] * h1 + T[3 * i + 2] * h2
-                R3[3 * i + j] = R3[3 * j + i] = v
-                v += Kt[6 * i] * h0 + Kt[6 * i + 1] * h1 + Kt[6 * i + 2] * h2
-                S[3 * i + j] = S[3 * j + i] = v
+        R3, Kt, T, S = w.R3, w.Kt, w.t36, w.S
+        _beacon_noise(R3, y, P_att, sigma_b)                   # R = sigma^2 I + [y x] P_att [y x]^T
+        _beacon_innovation(Kt, T, S, R3, H, P, ld, self.Pa)    # R += H P_rA H^T, S = R + H P_rB H^T
         if not linalg.cholesky(w.L, S, 3):
             self.refused += 1
             raise ValueError("beacon innovation covariance is not positive definite")
         linalg._solve_cols(Kt, w.L, 6, 3)                     # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
-        K, Rl = Kt, R3
+        K, G = Kt, w.G
         r0, r1, r2 = r[0], r[1], r[2]
         for i in range(6):
             X[i] = X[i] + K[i] * r0 + K[6 + i] * r1 + K[12 + i] * r2
-        G = w.G                                                # I - K H = [G | I's columns 3 .. 5]
-        for i in range(6):                                     # (H is 3 x 6 = [H 0])
-            k0, k1, k2 = K[i], K[6 + i], K[12 + i]
-            for j in range(3):
-                G[3 * i + j] = (1.0 if i == j else 0.0) - (k0 * H[j] + k1 * H[3 + j] + k2 * H[6 + j])
-        RK = w.RK                                              # R K^T (3 x 6), then K R K^T (upper triangle)
-        for a in range(3):
-            ra0, ra1, ra2 = Rl[3 * a], Rl[3 * a + 1], Rl[3 * a + 2]
-            for j in range(6):
-                RK[6 * a + j] = ra0 * K[j] + ra1 * K[6 + j] + ra2 * K[12 + j]
-        KRK = w.KRK
-        for i in range(6):
-            k0, k1, k2 = K[i], K[6 + i], K[12 + i]
-            for j in range(i, 6):
-                KRK[6 * i + j] = k0 * RK[j] + k1 * RK[6 + j] + k2 * RK[12 + j]
-        _ikh_rows(P, ld, N, self.k * N, G)                  # P_0j = (I - K H) P_0j
-        _ikh_sandwich(P, ld, G, KRK, T)                      # Joseph form (Eq. 4.142)
+        _joseph_terms(G, w.RK, w.KRK, K, H, R3)                # I - K H = [G | I's columns 3 .. 5], K R K^T
+        _ikh_rows(P, ld, N, self.k * N, G)                     # P_0j = (I - K H) P_0j
+        _ikh_sandwich(P, ld, G, w.KRK, T)                      # Joseph form (Eq. 4.142)
+
+
+@micropython.native
+def _beacon_noise(R, y, P_att, sigma_b):
+    """The beacon's R (3 x 3 flat) = sigma_b^2 I + [y x] P_att [y x]^T: the attitude error as measurement
+    noise (Sec. 5.3.3), [y x]'s zeros left out."""
+    y0, y1, y2 = y[0], y[1], y[2]
+    n0, n1, n2, sb2 = -y0, -y1, -y2, sigma_b * sigma_b
+    p00, p01, p02, p10, p11, p12 = P_att[0], P_att[1], P_att[2], P_att[3], P_att[4], P_att[5]
+    p20, p21, p22 = P_att[6], P_att[7], P_att[8]
+    t00, t01, t02 = n2 * p10 + y1 * p20, n2 * p11 + y1 * p21, n2 * p12 + y1 * p22     # [y x] P_att
+    t10, t11, t12 = y2 * p00 + n0 * p20, y2 * p01 + n0 * p21, y2 * p02 + n0 * p22
+    t20, t21 = n1 * p00 + y0 * p10, n1 * p01 + y0 * p11
+    R[0] = t01 * n2 + t02 * y1 + sb2
+    R[1] = R[3] = t00 * y2 + t02 * n0
+    R[2] = R[6] = t00 * n1 + t01 * y0
+    R[4] = t10 * y2 + t12 * n0 + sb2
+    R[5] = R[7] = t10 * n1 + t11 * y0
+    R[8] = t20 * n1 + t21 * y0 + sb2
+
+
+@micropython.native
+def _beacon_innovation(Kt, T, S, R, H, P, ld, Pa):
+    """For H = H_B (3 x 3, on rB): Kt = H P[0:3, 0:6] (B's current node; K^T once solved), T = H P_rA,
+    R += H P_rA H^T (rA considered, Pa SatA's covariance) and S = R + H P_rB H^T, both symmetric."""
+    P0, P1, P2 = list(P[0:6]), list(P[ld:ld + 6]), list(P[2 * ld:2 * ld + 6])
+    p00, p01, p02, p10, p11, p12 = Pa[0], Pa[1], Pa[2], Pa[6], Pa[7], Pa[8]
+    p20, p21, p22 = Pa[12], Pa[13], Pa[14]
+    for i in range(3):
+        h0, h1, h2 = H[3 * i], H[3 * i + 1], H[3 * i + 2]
+        for j in range(6):
+            Kt[6 * i + j] = h0 * P0[j] + h1 * P1[j] + h2 * P2[j]
+        o = 3 * i                                          # T = H P_rA
+        T[o] = h0 * p00 + h1 * p10 + h2 * p20
+        T[o + 1] = h0 * p01 + h1 * p11 + h2 * p21
+        T[o + 2] = h0 * p02 + h1 * p12 + h2 * p22
+    for i in range(3):                                     # R += H P_rA H^T; S = R + H P_rB H^T
+        for j in range(i, 3):
+            h0, h1, h2 = H[3 * j], H[3 * j + 1], H[3 * j + 2]
+            v = R[3 * i + j] + T[3 * i] * h0 + T[3 * i + 1] * h1 + T[3 * i + 2] * h2
+            R[3 * i + j] = R[3 * j + i] = v
+            v += Kt[6 * i] * h0 + Kt[6 * i + 1] * h1 + Kt[6 * i + 2] * h2
+            S[3 * i + j] = S[3 * j + i] = v
+
+
+@micropython.native
+def _joseph_terms(G, RK, KRK, K, H, R):
+    """The beacon's Joseph form (Eq. 4.142) terms from K (as K^T, 3 x 6), H = [H_B 0] and R: G = the first
+    three columns of I - K H (its others are the identity's), RK = R K^T (3 x 6) and K R K^T (upper triangle)."""
+    for i in range(6):
+        k0, k1, k2 = K[i], K[6 + i], K[12 + i]
+        for j in range(3):
+            G[3 * i + j] = (1.0 if i == j else 0.0) - (k0 * H[j] + k1 * H[3 + j] + k2 * H[6 + j])
+    for a in range(3):
+        ra0, ra1, ra2 = R[3 * a], R[3 * a + 1], R[3 * a + 2]
+        for j in range(6):
+            RK[6 * a + j] = ra0 * K[j] + ra1 * K[6 + j] + ra2 * K[12 + j]
+    for i in range(6):
+        k0, k1, k2 = K[i], K[6 + i], K[12 + i]
+        for j in range(i, 6):
+            KRK[6 * i + j] = k0 * RK[j] + k1 * RK[6 + j] + k2 * RK[12 + j]
+
+
+@micropython.native
+def _generated_node(w, X, ia, ic, dt_a, dt_b, qa):
+    """The generated node b between a (older, X's node ia) and c (newer, node ic) of Eq. 5.46-5.52, dt_a after a
+    and dt_b before c, into the work buffers w: Fa = Phi(x_a, dt_a) (``Phi``), Fb = Phi(f(x_a, dt_a), dt_b),
+    Qa, Qb (``Q``, ``Qb``), Qca = Fb Qa Fb^T + Qb, B = Qa Fb^T Qca^-1, T = I - B Fb, A = T Fa and
+    x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)) (``d[6:12]``). False if Qca is not positive
+    definite."""
+    xb, xc = w.xb, w.xc
+    for i in range(N):
+        xb[i] = X[ia * N + i]
+        xc[i] = X[ic * N + i]
+    Fa, Fb, Qa, Qb, A, B, T, L = w.Phi, w.Fb, w.Q, w.Qb, w.A, w.B, w.T, w.L
+    phi(Fa, xb, 0, dt_a)
+    f(xb, 0, dt_a)
+    phi(Fb, xb, 0, dt_b)
+    f(xc, 0, -dt_b)
+    process_noise(Qa, dt_a, qa)
+    process_noise(Qb, dt_b, qa)
+    q3, q2, q1 = Qa[0], Qa[3], Qa[21]                 # Qa per axis [[q3, q2], [q2, q1]], zeros elsewhere
+    for i in range(N):                                # T = Fb Qa, B = T^T (Qa's zero terms left out)
+        o = 6 * i
+        f0, f1, f2, f3, f4, f5 = Fb[o], Fb[o + 1], Fb[o + 2], Fb[o + 3], Fb[o + 4], Fb[o + 5]
+        T[o] = B[i] = f0 * q3 + f3 * q2
+        T[o + 1] = B[6 + i] = f1 * q3 + f4 * q2
+        T[o + 2] = B[12 + i] = f2 * q3 + f5 * q2
+        T[o + 3] = B[18 + i] = f0 * q2 + f3 * q1
+        T[o + 4] = B[24 + i] = f1 * q2 + f4 * q1
+        T[o + 5] = B[30 + i] = f2 * q2 + f5 * q1
+    linalg.matmul_bt(A, T, Fb, N, N, N)               # A = Fb Qa Fb^T + Qb = Qca (work)
+    for i in range(0, 21, 7):                         # (Qb's nonzeros)
+        A[i] = A[i] + Qb[i]
+        A[i + 3] = A[i + 3] + Qb[i + 3]
+        A[i + 18] = A[i + 18] + Qb[i + 18]
+        A[i + 21] = A[i + 21] + Qb[i + 21]
+    linalg.symmetrize(A, N)
+    if not linalg.cholesky(L, A, N):
+        return False
+    linalg.chol_solve_rows(B, L, B, N, N)             # B rows: Qca^-1 (Fb Qa)^T rows
+    linalg.matmul(T, B, Fb, N, N, N)                  # T = I - B Fb
+    for i in range(36):
+        T[i] = -T[i]
+    for i in range(N):
+        T[i * 7] = T[i * 7] + 1.0
+    linalg.matmul(A, T, Fa, N, N, N)                  # A = (I - B Fb) Fa
+    d = w.d
+    e0, e1, e2 = xc[0] - xb[0], xc[1] - xb[1], xc[2] - xb[2]     # f(x_c, -dt_b) - f(x_a, dt_a)
+    e3, e4, e5 = xc[3] - xb[3], xc[4] - xb[4], xc[5] - xb[5]
+    for i in range(N):                                # d = Fb e, then x_b = f(x_a, dt_a) + B d
+        o = 6 * i
+        d[i] = Fb[o] * e0 + Fb[o + 1] * e1 + Fb[o + 2] * e2 + Fb[o + 3] * e3 + Fb[o + 4] * e4 + Fb[o + 5] * e5
+    e0, e1, e2, e3, e4, e5 = d[0], d[1], d[2], d[3], d[4], d[5]
+    for i in range(N):
+        o = 6 * i
+        d[N + i] = xb[i] + B[o] * e0 + B[o + 1] * e1 + B[o + 2] * e2 + B[o + 3] * e3 + B[o + 4] * e4 \
+            + B[o + 5] * e5
+    return True
 
 
 _K = linalg.kernels          # the C kernels, when built (linalg's comment): the same results, bit for bit

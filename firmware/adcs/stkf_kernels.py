@@ -91,6 +91,24 @@ def process_noise(Q, dt, qa=QA_THESIS):
 
 
 @micropython.native
+def _mirror6(P, ld, c, v0, v1, v2, v3, v4, v5):
+    """P[0:6, c] = v and P[c, 0:6] = v (the column first; adcsk.c's mirror6)."""
+    P[c] = v0
+    P[ld + c] = v1
+    P[2 * ld + c] = v2
+    P[3 * ld + c] = v3
+    P[4 * ld + c] = v4
+    P[5 * ld + c] = v5
+    b = c * ld
+    P[b] = v0
+    P[b + 1] = v1
+    P[b + 2] = v2
+    P[b + 3] = v3
+    P[b + 4] = v4
+    P[b + 5] = v5
+
+
+@micropython.native
 def rows_mul_mirror(P, ld, src, c_lo, c_hi, F):
     """P[0:6, c] = F P[src:src+6, c] and P[c, 0:6] = its transpose for c_lo <= c < c_hi (F 6 x 6): the cross
     covariance of the current node with the older ones after a transition F (Eq. 5.21's P0j = Phi P0j, or the
@@ -108,19 +126,7 @@ def rows_mul_mirror(P, ld, src, c_lo, c_hi, F):
         v3 = f30 * p0 + f31 * p1 + f32 * p2 + f33 * p3 + f34 * p4 + f35 * p5
         v4 = f40 * p0 + f41 * p1 + f42 * p2 + f43 * p3 + f44 * p4 + f45 * p5
         v5 = f50 * p0 + f51 * p1 + f52 * p2 + f53 * p3 + f54 * p4 + f55 * p5
-        P[c] = v0
-        P[ld + c] = v1
-        P[l2 + c] = v2
-        P[l3 + c] = v3
-        P[l4 + c] = v4
-        P[l5 + c] = v5
-        b = c * ld
-        P[b] = v0
-        P[b + 1] = v1
-        P[b + 2] = v2
-        P[b + 3] = v3
-        P[b + 4] = v4
-        P[b + 5] = v5
+        _mirror6(P, ld, c, v0, v1, v2, v3, v4, v5)
 
 
 @micropython.native
@@ -184,19 +190,7 @@ def _ikh_rows(P, ld, c_lo, c_hi, G):
         v3 = g30 * p0 + g31 * p1 + g32 * p2 + P[l3 + c]
         v4 = g40 * p0 + g41 * p1 + g42 * p2 + P[l4 + c]
         v5 = g50 * p0 + g51 * p1 + g52 * p2 + P[l5 + c]
-        P[c] = v0
-        P[ld + c] = v1
-        P[l2 + c] = v2
-        P[l3 + c] = v3
-        P[l4 + c] = v4
-        P[l5 + c] = v5
-        b = c * ld
-        P[b] = v0
-        P[b + 1] = v1
-        P[b + 2] = v2
-        P[b + 3] = v3
-        P[b + 4] = v4
-        P[b + 5] = v5
+        _mirror6(P, ld, c, v0, v1, v2, v3, v4, v5)
 
 
 @micropython.native

@@ -44,15 +44,21 @@ def matmul(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B (m x p); C must not alias A or B."""
     A, B = list(A[0:n * m]), list(B[0:m * p])    # read once (a buffer read is a new float on MicroPython)
     if m == 6:                                   # the STKF's 6 x 6 blocks: the inner sum written out
-        cols = [B[j::p] for j in range(p)]
-        for i in range(n):
-            a0, a1, a2, a3, a4, a5 = A[i * 6:i * 6 + 6]
-            ic = i * p
-            for j in range(p):
-                b0, b1, b2, b3, b4, b5 = cols[j]
-                C[ic + j] = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5
+        _dot6(C, A, [B[j::p] for j in range(p)], n, p)        # (B's columns)
         return
     _matmul_loops(C, A, B, n, m, p)
+
+
+@micropython.native
+def _dot6(C, A, V, n, p):
+    """C[i, j] = A[i, 0:6] . V[j] for i < n, j < p (A n x 6 and V p vectors of 6, lists): ``matmul`` and
+    ``matmul_bt`` with m = 6, the inner sum written out."""
+    for i in range(n):
+        a0, a1, a2, a3, a4, a5 = A[i * 6:i * 6 + 6]
+        ic = i * p
+        for j in range(p):
+            b0, b1, b2, b3, b4, b5 = V[j]
+            C[ic + j] = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5
 
 
 @micropython.native
@@ -75,12 +81,7 @@ def matmul_bt(C, A, B, n, m, p):
     """C (n x p) = A (n x m) B^T, B being p x m; C must not alias A or B."""
     A, B = list(A[0:n * m]), list(B[0:p * m])
     if m == 6:                                   # the inner sum written out
-        for i in range(n):
-            a0, a1, a2, a3, a4, a5 = A[i * 6:i * 6 + 6]
-            ic = i * p
-            for j in range(p):
-                b0, b1, b2, b3, b4, b5 = B[j * 6:j * 6 + 6]
-                C[ic + j] = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5
+        _dot6(C, A, [B[j * 6:j * 6 + 6] for j in range(p)], n, p)    # (B's rows)
         return
     _matmul_bt_loops(C, A, B, n, m, p)
 

@@ -36,12 +36,11 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     jump (so a damaged tick number neither counts nor sends the controller to SAFE), as does a wait of
     ``poll_ms`` without any packet. A HELLO from the bench starts a new session (tick numbers may start again).
     CTRL_STATUS is due on ticks k with k % decim == 0 (``status_due_at``), so the bench knows which ticks
-    carry one; it goes out before the FSM_SPI, to the TICK's sender. A link with ``answer_ticks`` (a board's,
-    ``firmware.hal.stdio`` with ``firmware.hal.fast_tick``) answers the common tick itself, in machine code, with
-    the same calls and bytes as here (without the heap lock: that step's allocation-free proof is this loop's). A TICK whose Q1 counts lie beyond the
-    12-bit ADC (the packet table's 0..4095: only damage the CRC-16 missed makes one) is dropped unanswered and
-    counted with the frames dropped (``n_rx_drop``); the step's integers stay within +-2^30 (on a 32-bit board
-    a larger count overflows: a heap allocation under ``heap_lock``, or a wrapped ratio in viper).
+    carry one; it goes out before the FSM_SPI, to the TICK's sender. A link with ``answer_ticks`` answers the
+    common ticks itself (``_fast_ticks``). A TICK whose Q1 counts lie beyond the 12-bit ADC (the packet table's
+    0..4095: only damage the CRC-16 missed makes one) is dropped unanswered and counted with the frames dropped
+    (``n_rx_drop``); the step's integers stay within +-2^30 (on a 32-bit board a larger count overflows: a heap
+    allocation under ``heap_lock``, or a wrapped ratio in viper).
     """
     me = link.node
     out = bytearray(_SPI_SIZE)
@@ -58,10 +57,7 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     silent_ticks = int(poll_ms * rate_hz / 1000) or 1
     while not link.closed:
         if fast is not None and stale < 0 and not gap and 0 <= last < 0x3FFFFFFF:
-            tick, n = fast(ctl, last)         # the common ticks, answered as below, until a frame is not one
-            if tick != last:
-                last = tick                   # its answer, for a resend
-                struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
+            last = _fast_ticks(fast, ctl, last, out)
         pkts = link.recv_ms(poll_ms)
         if not pkts:
             ctl.link_silent(silent_ticks)
@@ -69,54 +65,83 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
         for pid, src, dst, seq, payload in pkts:
             if dst != me and dst != BROADCAST:
                 continue
-            if pid == P_TICK:
-                tick, t_us, vx, vy, vs = struct.unpack(_TICK_FMT, payload)
-                if (vx | vy | vs) >> 12:      # beyond the 12-bit ADC (damage the CRC let through): drop it,
-                    bad_ticks += 1            # the bench resends; stepped, it would break the +-2^30 bound
-                    continue
-                if tick == last:              # a resend: the same answer, no second step
-                    ctl.n_dup += 1
-                    if status_tick == tick:
-                        link.send_raw(P_STATUS, me, src, status)
-                    link.send_raw(P_FSM_SPI, me, src, out)
-                    continue
-                if tick < last:               # stale, or our last came from a tick number the CRC let
-                    if stale < 0 or tick < stale:   # through damaged: two in a row going forward are the
-                        stale = tick          # bench's clock, and we take it up again
-                        bad_ticks += 1
-                        continue
-                    last = tick - 1
-                    gap = 0                   # the jump to it was that damage, not ticks run without us
-                stale = -1
-                if gap:                       # the jump before the last tick, confirmed by this one
-                    ctl.n_gap += gap
-                    ctl.link_silent(gap)
+            if pid != P_TICK:
+                if _handle(ctl, link, me, pid, src, seq, payload):     # a HELLO: a new session
+                    last = stale = status_tick = -1
                     gap = 0
-                if last >= 0 and tick > last + 1:
-                    gap = tick - last - 1
-                last = tick
-                ctl.heard(True)
-                heap_lock()                   # the step allocates nothing; locked, its frame stays off the heap
-                try:
-                    n = ctl.step(vx, vy, vs)
-                finally:                      # never leave the heap locked behind an exception
-                    heap_unlock()
-                struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
-                if ctl.status_due_at(tick):   # to the HIL host that clocks us (on CAN, ISO-TP to an absent
-                    if rx_drops is not None:  # node would block)
-                        ctl.n_rx_drop = rx_drops() + bad_ticks
-                    status = ctl.status_payload(tick)
-                    status_tick = tick
-                    link.send_raw(P_STATUS, me, src, status)
-                link.send_raw(P_FSM_SPI, me, src, out)
-            else:
-                if pid == P_HELLO:
-                    last = stale = -1
-                    gap = 0
-                    status_tick = -1
-                for rpid, rdst, rpayload in ctl.handle(pid, src, seq, payload):
-                    link.send_raw(rpid, me, rdst, rpayload)
+                continue
+            tick, t_us, vx, vy, vs = struct.unpack(_TICK_FMT, payload)
+            if (vx | vy | vs) >> 12:          # beyond the 12-bit ADC (damage the CRC let through): drop it,
+                bad_ticks += 1                # the bench resends; stepped, it would break the +-2^30 bound
+                continue
+            if tick == last:                  # a resend: the same answer, no second step
+                _answer_again(ctl, link, me, src, status if status_tick == tick else None, out)
+                continue
+            if tick < last:                   # stale, or our last came from a tick number the CRC let
+                if stale < 0 or tick < stale:   # through damaged: two in a row going forward are the
+                    stale = tick              # bench's clock, and we take it up again
+                    bad_ticks += 1
+                    continue
+                last = tick - 1
+                gap = 0                       # the jump to it was that damage, not ticks run without us
+            stale = -1
+            if gap:                           # the jump before the last tick, confirmed by this one
+                ctl.n_gap += gap
+                ctl.link_silent(gap)
+            gap = tick - last - 1 if last >= 0 and tick > last + 1 else 0
+            last = tick
+            ctl.heard(True)
+            heap_lock()                       # the step allocates nothing; locked, its frame stays off the heap
+            try:
+                n = ctl.step(vx, vy, vs)
+            finally:                          # never leave the heap locked behind an exception
+                heap_unlock()
+            struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
+            if ctl.status_due_at(tick):
+                status = _send_status(ctl, link, me, src, tick, rx_drops, bad_ticks)
+                status_tick = tick
+            link.send_raw(P_FSM_SPI, me, src, out)
     _closed(link)
+
+
+def _fast_ticks(fast, ctl, last, out):
+    """The common ticks after tick ``last``, answered by the link itself (``fast``: its ``answer_ticks``, a
+    board's: ``firmware.hal.stdio`` with ``firmware.hal.fast_tick``) in machine code, with the same calls and
+    bytes as ``serve_controller`` (without the heap lock: that step's allocation-free proof is the serve
+    loop's), until a frame is not one; returns the last tick answered, its FSM_SPI kept in ``out`` for a
+    resend."""
+    tick, n = fast(ctl, last)
+    if tick != last:
+        w = ctl.words
+        struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
+    return tick
+
+
+def _answer_again(ctl, link, me, dst, status, out):
+    """A resent TICK answered again (counted in n_dup): the CTRL_STATUS it carried (None: none), then its
+    FSM_SPI."""
+    ctl.n_dup += 1
+    if status is not None:
+        link.send_raw(P_STATUS, me, dst, status)
+    link.send_raw(P_FSM_SPI, me, dst, out)
+
+
+def _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks):
+    """Tick's CTRL_STATUS, with the frames the link dropped and the bad TICKs in n_rx_drop, sent to dst (the
+    HIL host that clocks us: on CAN, ISO-TP to an absent node would block); returns its payload."""
+    if rx_drops is not None:
+        ctl.n_rx_drop = rx_drops() + bad_ticks
+    status = ctl.status_payload(tick)
+    link.send_raw(P_STATUS, me, dst, status)
+    return status
+
+
+def _handle(ctl, link, me, pid, src, seq, payload):
+    """A packet other than TICK, handled by the controller and its replies sent; True for a HELLO (the bench
+    starts a new session)."""
+    for rpid, rdst, rpayload in ctl.handle(pid, src, seq, payload):
+        link.send_raw(rpid, me, rdst, rpayload)
+    return pid == P_HELLO
 
 
 def _closed(link):

@@ -79,10 +79,7 @@ class Q2Converter:
                     c >>= 1
                     q -= 1
         self.q = q
-        self.c0 = c & _LM
-        self.c1 = (c >> _L) & _LM
-        self.c2 = (c >> (2 * _L)) & _LM
-        self.c3 = c >> (3 * _L)
+        self._c = (c & _LM, (c >> _L) & _LM, (c >> (2 * _L)) & _LM, c >> (3 * _L))   # c's limbs
         self._p = [0] * (_NL + 1)
 
     def code(self, b, off):
@@ -122,12 +119,9 @@ class Q2Converter:
             return 0 if neg else Q2_MAX
         if s > _L * (_NL - 1):                  # c m < 2^98 <= half an LSB
             return ZERO_CODE << 2
-        c0 = self.c0
-        c1 = self.c1
-        c2 = self.c2
-        c3 = self.c3
+        c0, c1, c2, c3 = self._c
         p = self._p
-        t = c0 * m0
+        t = c0 * m0 - neg                        # c m - 1 when negative: ceil(v - 1/2) = floor((c m - 1) / 2^s + 1/2)
         p[0] = t & _LM
         t = c1 * m0 + c0 * m1 + (t >> _L)
         p[1] = t & _LM
@@ -142,12 +136,6 @@ class Q2Converter:
         p[6] = t >> _L
         p[7] = 0
         p[8] = 0
-        if neg:                                  # ceil(v - 1/2) = floor((c m - 1) / 2^s + 1/2)
-            k = 0
-            while not p[k]:
-                p[k] = _LM
-                k += 1
-            p[k] -= 1
         k = (s - 1) // _L                        # add 2^(s - 1), carry up
         p[k] += 1 << ((s - 1) - k * _L)
         while p[k] > _LM:
@@ -164,11 +152,9 @@ class Q2Converter:
                 if t and (r < 10 or t >> (r - 10)):
                     return 0 if neg else Q2_MAX
                 v += t << (2 * _L - r)
-                k += 3
-                while k < _NL:
-                    if p[k]:
+                for j in range(k + 3, _NL):
+                    if p[j]:
                         return 0 if neg else Q2_MAX
-                    k += 1
         v = (ZERO_CODE << 2) - v if neg else (ZERO_CODE << 2) + v
         if v <= 0:
             return 0

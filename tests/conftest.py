@@ -24,7 +24,8 @@ def inputs(tmp_path_factory):
 
 
 E2E_MODULES = (                            # longest first (their durations in make test), so that they start first
-    "test_pil", "test_can_faults", "test_system_failures", "test_hil_faults", "test_system", "test_flight_firmware",
+    "test_pil", "test_can_faults", "test_system_failures", "test_no_orphans", "test_hil_faults", "test_system",
+    "test_flight_firmware",
     "test_ground_calibrate", "test_firmware_lockstep", "test_cli_no_traceback", "test_ground_hil", "test_adcs_can",
     "test_adcs_runs", "test_protocol_fuzz", "test_adcs_consistency", "test_emulator_serve_wheels",
     "test_firmware_mp", "test_fine_pointing_edges", "test_flight_world", "test_adcs_lean", "test_adcs_lean_stkf",

@@ -64,7 +64,7 @@ from firmware import ad5664r
 from firmware import hinv
 from firmware.hinv import HinvTable, load_file
 from firmware.upload import Upload
-from protocol import consts, hblob
+from protocol import consts, hblob   # the packet table's numbers: generated from it, no table objects on the board
 
 try:
     from micropython import const
@@ -134,17 +134,6 @@ WHY_COMMANDED = const(3)
 MAX_HTABLE_BYTES = const(8192)    # H-table blob the controller accepts: a 22x22 grid (7.9 kB; 11x11 is 2 kB)
 SAT_TICKS = const(64)             # ticks on the clamp in a row before TRACK enters SATURATED (module docstring)
 
-# the packet table's numbers (protocol.consts, generated from it: no table objects built on the board)
-P_SETTINGS = consts.P_CTRL_SETTINGS
-P_SET_FSM = consts.P_CTRL_SET_FSM
-P_STATUS = consts.P_CTRL_STATUS
-P_HT_BEGIN = consts.P_HTABLE_BEGIN
-P_HT_CHUNK = consts.P_HTABLE_CHUNK
-P_HT_END = consts.P_HTABLE_END
-P_ACK = consts.P_ACK
-P_NACK = consts.P_NACK
-P_HELLO = consts.P_HELLO
-_STATUS_FMT = consts.FMT_CTRL_STATUS
 FW_VERSION = (1, 0)
 
 
@@ -246,10 +235,6 @@ class Controller:
         s = self._s
         s[_S_MODE] = m | (s[_S_MODE] & _INIT_BIT)
 
-    @property
-    def lim_q8(self):
-        return self._s[_S_LIM]
-
     # --- table -------------------------------------------------------------------------------------
     def set_table(self, table):
         """Swap in a table: a HinvTable, a protocol.htable.Grid, blob bytes, or a file path (.json or blob).
@@ -349,10 +334,7 @@ class Controller:
         if m & _INIT_BIT:              # first tick after boot: the AD5664R init sequence
             s[_S_MODE] = m & 7
             w = self.words
-            w[0] = 0x280001
-            w[1] = 0x380001
-            w[2] = 0x20000F
-            w[3] = 0x300000
+            w[0], w[1], w[2], w[3] = ad5664r.INIT_WORDS
             return 4
         s[_S_TICKS] = (s[_S_TICKS] + 1) & _COUNT_MAX
         s[_S_VS] = vs
@@ -490,7 +472,7 @@ class Controller:
         w = self.words
         rx = max(-32768, min(32767, self.rx))
         ry = max(-32768, min(32767, self.ry))
-        return struct.pack(_STATUS_FMT, self.ticks if tick is None else tick & 0xFFFFFFFF, self.mode,
+        return struct.pack(consts.FMT_CTRL_STATUS, self.ticks if tick is None else tick & 0xFFFFFFFF, self.mode,
                            self.flags, _uv(self.vx_q8), _uv(self.vy_q8), rx, ry, self.vs,
                            w[0] & 0xFFFF, w[1] & 0xFFFF, w[2] & 0xFFFF, w[3] & 0xFFFF,
                            self.n_lost, self.n_sat, self.n_unknown, self.why, self.n_dup & 0xFFFF,
@@ -508,28 +490,28 @@ class Controller:
         size = consts.SIZES[pid]
         if size == 0xFF or len(payload) != size:
             return self._unknown()
-        if pid == P_SETTINGS:
+        if pid == consts.P_CTRL_SETTINGS:
             code = self._settings(struct.unpack(consts.FMT_CTRL_SETTINGS, payload))
-        elif pid == P_SET_FSM:
+        elif pid == consts.P_CTRL_SET_FSM:
             code = self._set_fsm(struct.unpack(consts.FMT_CTRL_SET_FSM, payload))
-        elif pid == P_HT_BEGIN:
+        elif pid == consts.P_HTABLE_BEGIN:
             total, crc = struct.unpack(consts.FMT_HTABLE_BEGIN, payload)
             code = self._upload.begin(total, crc)
             self._end = None
-        elif pid == P_HT_CHUNK:
+        elif pid == consts.P_HTABLE_CHUNK:
             offset, length, data = struct.unpack(consts.FMT_HTABLE_CHUNK, payload)
             code = self._upload.chunk(offset, length, data)
-        elif pid == P_HT_END:
+        elif pid == consts.P_HTABLE_END:
             code = self._upload_end(struct.unpack(consts.FMT_HTABLE_END, payload)[0])
-        elif pid == P_HELLO:
-            return [(P_HELLO, src, hello_payload(consts.NODE_CONTROLLER, FW_VERSION))]
-        elif pid == P_ACK or pid == P_NACK:
+        elif pid == consts.P_HELLO:
+            return [(consts.P_HELLO, src, hello_payload(consts.NODE_CONTROLLER, FW_VERSION))]
+        elif pid == consts.P_ACK or pid == consts.P_NACK:
             return []
         else:
             return self._unknown()
         if code:
-            return [(P_NACK, src, struct.pack("<BBB", pid, seq, code))]
-        return [(P_ACK, src, struct.pack("<BB", pid, seq))]
+            return [(consts.P_NACK, src, struct.pack("<BBB", pid, seq, code))]
+        return [(consts.P_ACK, src, struct.pack("<BB", pid, seq))]
 
     def _unknown(self):
         self.n_unknown = (self.n_unknown + 1) & 0xFFFF

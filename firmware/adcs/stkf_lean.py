@@ -40,7 +40,7 @@ What this flight form chooses, and why (the ground form is ground/adcs/stkf.py +
    joint covariance over nodes 1 s apart is nearly singular (consecutive nodes differ by 1 s of process noise): its
    condition number reaches 1e11-1e12 in Case 1 and 3e7-3e11 in Case 2 (measured over 600 s), beyond float32's 1/eps
    = 1.7e7. Rounding the exact (float64) P to float32 alone makes it indefinite in 596 of 601 steps of Case 1, so no
-   update form (Joseph included) keeps a float32 P of it positive definite (measured, tests/test_adcs_lean.py). A
+   update form (Joseph included) keeps a float32 P of it positive definite (measured, tests/test_adcs_lean_stkf.py). A
    square-root (QR) form would hold it but costs O(m^3), ~3e4 multiply-adds per step at m = 30, tens of times this
    whole filter. So the design needs a port with float64 floats (the unix port; STM32 builds with double floats). On
    a float32-only port (SAMD21) array('d') reads back float32: not supported by this design.

@@ -1,8 +1,8 @@
 // adcsk: the lean ADCS filters' hot kernels as a MicroPython native module (natmod, `make natmod`).
 //
 // Each function here is the Python function of the same name (less a leading underscore; phi9 is apkf_lean.phi,
-// update_rows LeanStkf._update_rows, between the last loops of LeanStkf._hp_between) in firmware/adcs/linalg.py,
-// stkf_lean.py or apkf_lean.py, over the same buffers: the same operations in the same order, each value stored
+// update_rows LeanStkf._update_rows) in firmware/adcs/linalg.py, stkf_kernels.py, stkf_lean.py or apkf_lean.py,
+// over the same buffers: the same operations in the same order, each value stored
 // to a buffer rounded to that buffer's type (array 'f' or 'd') and read back where the Python reads it back, so the
 // results are equal bit for bit (tests/test_adcs_natmod.py; built with -ffp-contract=off: no fused
 // multiply-add). The Python forms stay the reference and run wherever the module is not built (CPython, or a
@@ -420,7 +420,7 @@ static mp_obj_t ikh_sandwich(size_t n_args, const mp_obj_t *args) {
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(ikh_sandwich_obj, 5, 5, ikh_sandwich);
 
-// between(Hp, S, P, ld, ia, ic, A, B, T, qa3, m): LeanStkf._hp_between's last two loops. Hp (6 rows of m,
+// between(Hp, S, P, ld, ia, ic, A, B, T, qa3, m): stkf_kernels.between. Hp (6 rows of m,
 // a list of 6 float buffers) = A P[a rows, :] + B P[c rows, :]; S (6 x 6) = P_bb, the upper triangle
 // mirrored, with (I - B Fb) Qa (T = I - B Fb; qa3 = (q3, q2, q1), Qa per axis [[q3, q2], [q2, q1]]).
 static mp_obj_t between(size_t n_args, const mp_obj_t *args) {

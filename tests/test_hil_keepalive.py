@@ -13,12 +13,13 @@ from ground import runtime
 from ground.hil import _check_tracking, mode_changes
 from protocol import core, htable
 
-SAFE_TICKS = 320          # about 0.5 s of the controller's silence count (63 ticks per empty 100 ms poll)
+SAFE_TICKS = 1900         # about 3 s of the controller's silence count (63 ticks per empty 100 ms poll): a loaded
+                          # machine's own gaps between TICKs stay below it
 
 pytestmark = pytest.mark.skipif(micropython_binary() is None, reason="needs the MicroPython unix port")
 
 
-def _wait_run(keepalive, wait_s=2.0):
+def _wait_run(keepalive, wait_s=6.0):
     """TRACK, 0.2 s of ticks, a wait of ``wait_s`` wall seconds with or without keep-alives, 0.2 s of ticks:
     the Q2 samples after the wait and the modes the controller reported."""
     cal = true_h_field(Bench(noise=False), None, 0.01)
@@ -39,11 +40,11 @@ def _wait_run(keepalive, wait_s=2.0):
 
 def test_a_wait_past_the_silence_limit_with_keepalives_gives_the_run_without_a_wait():
     q2_wait, rig = _wait_run(True)
-    q2_none, _ = _wait_run(True, wait_s=0.0)
-    assert (q2_wait == q2_none).all()
+    assert mode_changes(rig, 0) == []
     assert rig.last_status["mode"] == core.MODE["TRACK"]
     _check_tracking(rig)
-    assert mode_changes(rig, 0) == []
+    q2_none, _ = _wait_run(True, wait_s=0.0)
+    assert (q2_wait == q2_none).all()
 
 
 def test_without_keepalives_the_same_wait_ends_in_safe_and_is_reported_with_its_reason():

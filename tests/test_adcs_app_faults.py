@@ -168,3 +168,23 @@ def test_a_backlog_of_satb_fixes_keeps_the_newest(runtime, cfg_file):
     Now the newest 4 are kept (all fused) and the dropped ones are counted as refused."""
     r = run_case("satb_backlog", runtime, cfg_file)
     assert r["n_gnss_b"] == 4 and r["n_refused"] == 2 and r["t_last"] == 9.5
+
+
+
+def test_a_lost_wheel_leaves_the_allocation_and_the_pointing_keeps_its_budget(tmp_path):
+    """Wheel 1 silent from 300 s of an 1800 s flight-world session: the three left carry the pointing within its
+    150″ 3σ budget (exit 0), with no bias over 20″ in any 400 s window from 400 s on (the coasting rotor's
+    friction fed forward, its speed the wheel filter's), and every wheel below 80 % of its limit."""
+    import numpy as np
+    from ground.cli import main as fps
+    out = tmp_path / "lost"
+    assert fps(["adcs", "can", "--runtime", "inproc", "--world", "flight", "--wheel-silent", "1:300",
+                "--duration", "1800", "--no-plots", "--quiet", "-o", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["wheels_failed"] == 2 and s["pointing"]["pointing_3sigma_arcsec"] < 150.0
+    assert s["max_wheel_speed_rpm"] < 0.8 * s["wheel_speed_limit_rpm"]
+    h = np.load(out / "history.npz")
+    t, dth = h["t"], h["dtheta_arcsec"]
+    for a in np.arange(400.0, 1400.0 + 1e-9, 100.0):
+        win = (t >= a) & (t < a + 400.0)
+        assert np.all(np.abs(dth[win].mean(axis=0)) < 20.0), (a, dth[win].mean(axis=0))

@@ -138,6 +138,8 @@ class Allocation:
         tff[0] = g * (rb[1] * Jr[2] - rb[2] * Jr[1]) + m1 * bb[2] - m2 * bb[1] + x[7] / sc
         tff[1] = g * (rb[2] * Jr[0] - rb[0] * Jr[2]) + m2 * bb[0] - m0 * bb[2] + x[8] / sc
         tff[2] = g * (rb[0] * Jr[1] - rb[1] * Jr[0]) + m0 * bb[1] - m1 * bb[0] + x[9] / sc
+        if failed:
+            self._coasting(tff, wp, failed)
         control.pd_torque(self.tau, q, w, qc, wc, self.K, self.D, H, tff)
         if self.cof is not None:             # else the wheels left do not span: no torque to allocate
             control.saturate(self.tau, self.Cu, self.torque_max, self.cof)
@@ -150,6 +152,18 @@ class Allocation:
                 wi = wp[i]
                 u[i] = u[i] + v * wi + c * math.tanh(wi / sm)
         return u
+
+    def _coasting(self, tff, wp, failed):
+        """tff += C_k f(W_k) for each failed wheel k: its driver is off and its rotor coasts down on its friction
+        f (the model's, as the friction compensation), whose reaction turns the body (H = J w + C Jrw W is
+        conserved); wp the wheels' speeds (a failed wheel's: the wheel filter's estimate, rad/s)."""
+        c, v, sm = self.fric
+        C = self.C
+        for i in range(4):
+            if failed & (1 << i):
+                f = v * wp[i] + c * math.tanh(wp[i] / sm)
+                for r in range(3):
+                    tff[r] += C[r * 4 + i] * f
 
     def flight(self, t, x, qc, wc, rd, failed, X):
         """The flight world's u (4, N m): the magnetorquers' dipole (``m_cmd``) from the wheels' momentum

@@ -67,6 +67,7 @@ class App:
         self.act.use_wheels(hl.failed)
         hl.count(rd)
         est.run_apkf(t, self.act.u, self.act.m_cmd)
+        est.fill_unheard()
         st_ok = rd.st_ok()
         est.run_stkf(t, est.attitude())
         hl.heard(rd, t)

@@ -204,6 +204,18 @@ class Estimation:
         elif not apkf_lean.update(a.x, a.P, rd.qst, a.model, a.work):
             a.skipped += 1
 
+    def fill_unheard(self):
+        """The speeds of the wheels not heard this cycle (``rd.wp``, rad/s): the wheel filter's prediction
+        (``apkf_lean.wheel_speeds``: a silent rotor coasting down on its friction) instead of the last read-out,
+        for the control's momentum and the unloading. Before the APKF starts, or without the wheel filter
+        (momentum "tach" or "torque"), the last read-out stays."""
+        a, rd = self.apkf, self.rd
+        if a is None or not a.model.filtered:
+            return
+        for i in range(4):
+            if not rd.rw_got[i]:
+                rd.wp[i] = a.W[i]
+
     @micropython.native
     def attitude(self):
         """(q, P_att 3 x 3 in ``Patt``): the APKF's, or the star tracker's before it starts."""

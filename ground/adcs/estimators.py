@@ -127,6 +127,16 @@ class GroundEstimation:
             hl.n_resets = len(a.resets)
         self.t_apkf += n
 
+    def fill_unheard(self):
+        """The speeds of the wheels not heard this cycle (``rd.wp``, rad/s): the 41-state APKF's wheel-speed states
+        (Eq. 4.78) instead of the last read-out, for the control and the unloading (and its own next step)."""
+        if self.apkf is None:
+            return
+        rd = self.rd
+        for i in range(4):
+            if not rd.rw_got[i]:
+                rd.wp[i] = float(self.apkf.x[38 + i])
+
     def attitude(self):
         """(q, the attitude covariance 4 P_qq in ``Patt``): the APKF's, or the star tracker's before it starts."""
         if self.apkf is not None:

@@ -10,10 +10,7 @@ import os
 
 from protocol import consts
 
-try:
-    from binascii import crc32 as _crc32
-except ImportError:  # pragma: no cover
-    from protocol.core import crc32 as _crc32
+from protocol.compat import crc32 as _crc32
 
 
 class Upload:

@@ -17,10 +17,7 @@ import struct
 
 from protocol.core import FLOAT32_MAX   # largest finite float32 (the scale, kind 1 samples)
 
-try:
-    from binascii import crc32 as _crc32   # C implementation (CPython, MicroPython unix and most ports)
-except ImportError:  # pragma: no cover - ports without binascii.crc32
-    from protocol.core import crc32 as _crc32
+from protocol.compat import crc32 as _crc32
 
 MAGIC = b"FPSD"
 VERSION = 1

@@ -14,10 +14,7 @@ import struct
 
 from protocol.consts import FLOAT32_MAX   # the blob stores float32
 
-try:
-    from binascii import crc32 as _crc32
-except ImportError:  # pragma: no cover
-    from protocol.core import crc32 as _crc32
+from protocol.compat import crc32 as _crc32
 
 MAGIC = b"FPSH"
 VERSION = 1

@@ -14,7 +14,8 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # The protocol modules that run on the MCU (the host side, pyserial/python-can links and CLIs, does not).
-PROTOCOL_CORE = ("__init__", "table", "consts", "frame", "core", "fast", "distfile", "hblob", "htable", "isotp", "stream")
+PROTOCOL_CORE = ("__init__", "compat", "table", "consts", "frame", "core", "fast", "distfile", "hblob", "htable",
+                 "isotp", "stream")
 DEFAULT_MARCH = "host"
 
 

@@ -7,20 +7,7 @@ low for the word and data latched on SCLK falling edges (SPI mode 1). The SAMD21
 """
 
 from protocol import core
-
-try:
-    from time import ticks_add, ticks_diff, ticks_us
-except ImportError:  # CPython (tests): monotonic microseconds
-    import time
-
-    def ticks_us():
-        return int(time.monotonic() * 1e6)
-
-    def ticks_add(a, b):
-        return a + b
-
-    def ticks_diff(a, b):
-        return a - b
+from protocol.compat import ticks_add, ticks_diff, ticks_us
 
 P_STATUS = core.PACKET_ID["CTRL_STATUS"]
 GROUND = core.NODE["GROUND"]

@@ -9,11 +9,7 @@ from array import array
 from protocol import frame
 from protocol.consts import LARGEST_PAYLOAD, P_FSM_SPI
 
-try:
-    from micropython import const
-except ImportError:                    # CPython
-    def const(x):
-        return x
+from protocol.compat import const
 
 _MAX_FRAME = frame.frame_bytes(LARGEST_PAYLOAD)     # the packet table's longest frame (not the framing's 255 bytes)
 # the link's counters in ``_st`` (the layout ``firmware.hal.fast_tick.answer`` keeps; tests/test_pil.py checks it)

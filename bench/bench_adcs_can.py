@@ -357,7 +357,7 @@ def _print_satb(satb, kern):
 
 def _print_speed(runs):
     """The CAN session's speed under each runtime (``session``'s results ``runs``)."""
-    print("\nSpeed of the %d s CAN session (ADCS loop alone; issue: the whole `fps system` run >= %gx)\n" % (
+    print("\nSpeed of the %d s CAN session (ADCS loop alone; the goal: the whole `fps system` run >= %gx)\n" % (
         SECONDS, GOAL_SPEED))
     print("| firmware runtime | wall | virtual s per wall s | late cycles | missed replies (fw) | modes (cycles) |")
     print("|---|---|---|---|---|---|")

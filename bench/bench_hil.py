@@ -1,7 +1,7 @@
 """Benchmark of the ground tools: real-time factor of a 600 s ``fps hil`` per runtime x link, and the wall
 time of ``fps calibrate`` (121 points) in-process and over the MicroPython serial link.
 
-Goals (issue "Ground"): >= 100x in-process under CPython; >= 12x for MicroPython over a serial pty, with no
+Goals: >= 100x in-process under CPython; >= 12x for MicroPython over a serial pty, with no
 decay between the first and the last minute of the run.
 """
 

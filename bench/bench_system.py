@@ -123,7 +123,7 @@ def _print_table(duration_s, adcs, run, alone):
     print("| real-time factor, whole run (%.0f s virtual / %.1f s wall) | ≥ 5x | %s |"
           % (s.get("duration_s") or 0, s.get("wall_s") or 0, _fig(s.get("real_time_factor"), goal=5.0)))
     print("| real-time factor during the play | — | %s |" % _fig(s.get("real_time_factor_play")))
-    print("| fine loop alone, fps hil 120 s, same link, same sitting | ≥ 12x (issue Ground) | %s |"
+    print("| fine loop alone, fps hil 120 s, same link, same sitting | ≥ 12x (goal) | %s |"
           % _fig(alone["rtf"], goal=12.0))
     print("| fine loop's wait for the ADCS (s) | — | %.1f |" % (s.get("adcs_wait_s") or 0))
     print("| CPU seconds per virtual second, whole run (all its processes) / fine loop alone | — | %s / %s |"

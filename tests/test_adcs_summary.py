@@ -66,7 +66,7 @@ def test_reported_sigma_is_the_physical_1sigma_from_P_and_the_scale(inertia, sca
     np.testing.assert_allclose(e["jrw_kgm2"], w.j - jrw_phys(x0), rtol=1e-9, atol=1e-20)
 
 
-def test_the_6u_run_of_the_issue_diverges_and_the_3u_run_does_not():
+def test_the_generic_6u_with_the_thesis_priors_diverges_and_the_3u_does_not():
     """The generic 6U's inertia with the thesis's priors: the APKF either ends far off with a finite P (not ok,
     no figures) or loses P (FloatingPointError, which the campaign records as a diverged run). The thesis's 3U
     (930 s) is ok."""

@@ -99,7 +99,7 @@ def test_fps_adcs_can_and_system_in_the_flight_world(tmp_path):
 
 
 @pytest.mark.slow(reason="an 1800 s play, ~5 min: FPS_SLOW=1")
-def test_fps_system_flight_1800_s_meets_the_issue_goal(tmp_path):
+def test_fps_system_flight_1800_s_meets_its_goal(tmp_path):
     """The goal: the lean ADCS under MicroPython over CAN in the flight world, 1800 s: every Q2 sample within
     11.98 arcsec, the body loop within its budgets, the wheels within their limit, >= 5x real time."""
     p = _fps("system", "--duration", "1800", "--quiet", "--no-plots", "-o", str(tmp_path / "sys"), timeout=3000)

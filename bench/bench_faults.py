@@ -57,6 +57,8 @@ def _hil(tmp, name, dist, cal, duration, *extra, runtime="micropython"):
 
 
 def _identical(a, b):
+    if not all(os.path.exists(os.path.join(d, f)) for d in (a, b) for f in ("samples.npz", "telemetry.csv")):
+        return "no samples to compare (a run stopped before writing them)"
     za, zb = np.load(os.path.join(a, "samples.npz")), np.load(os.path.join(b, "samples.npz"))
     same = all(np.array_equal(za[k], zb[k]) for k in za.files)
     ta = [",".join(line.split(",")[:CONTROL_COLS]) for line in open(os.path.join(a, "telemetry.csv"))]
@@ -284,7 +286,10 @@ def _system_can(tmp, cal, failed):
 
 
 def _same_npz(a, b):
-    """Every array of two .npz files equal, NaN where NaN (body.npz's estimate errors before the first)."""
+    """Every array of two .npz files equal, NaN where NaN (body.npz's estimate errors before the first); False
+    when either run wrote none (it stopped before)."""
+    if not (os.path.exists(a) and os.path.exists(b)):
+        return False
     za, zb = np.load(a), np.load(b)
     return za.files == zb.files and all(np.array_equal(za[k], zb[k], equal_nan=za[k].dtype.kind == "f")
                                         for k in za.files)

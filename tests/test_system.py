@@ -330,9 +330,8 @@ def test_system_with_the_four_device_faults_degrades_the_adcs_and_keeps_the_fine
     assert "wheel_silent begins" in md and "startracker_blind begins" in md
 
 
-def test_system_faults_are_refused_with_the_ground_adcs_or_when_malformed(tmp_path, params_file, inputs, capsys):
-    for extra, needle in ((["--faults", '{"beacon_lost": 170}'], "needs --adcs firmware"),
-                          (["--faults", "{beacon"], "--faults must be a JSON object"),
+def test_system_faults_are_refused_when_malformed(tmp_path, params_file, inputs, capsys):
+    for extra, needle in ((["--faults", "{beacon"], "--faults must be a JSON object"),
                           (["--faults", '{"meteor": 3}'], "unknown fault")):
         args = _args(tmp_path / "r", params_file, inputs[1], "6", *extra)
         if "meteor" in extra[1]:
@@ -343,3 +342,14 @@ def test_system_faults_are_refused_with_the_ground_adcs_or_when_malformed(tmp_pa
         err = capsys.readouterr().err
         assert needle in err and "Traceback" not in err
         assert not (tmp_path / "r").exists()
+
+
+def test_the_ground_adcs_flies_the_device_faults_too(tmp_path, params_file, inputs):
+    """--adcs ground flies the same app in process against the same emulated devices: a wheel silent from 60 s
+    (before the play) is failed there as with the firmware ADCS, and the run completes."""
+    out = tmp_path / "r"
+    rc = fps(_args(out, params_file, inputs[1], "6", "--wheel-silent", "1:60", "--no-plots"))
+    s = json.loads((out / "summary.json").read_text())
+    assert rc in (0, 3) and s["complete"] is True
+    a = s["adcs_summary"]
+    assert a["faults"] == {"wheel_silent": [1, 60.0]} and a["wheels_failed"] == 2

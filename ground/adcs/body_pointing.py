@@ -172,7 +172,7 @@ def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
              wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None,
-             world="thesis", flight=None, estimator=None):
+             world="thesis", flight=None, estimator=None, faults=None):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection time after
     the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict: 10 Hz arrays, fsw_* at 1 Hz). A
     KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
@@ -195,7 +195,9 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     ``settle_ts`` do not apply: the file's limits, and the figures over the pointing passes after the first orbit).
     Both fly the flight app in process, which always feeds its modelled torques forward (``feedforward`` must stay
     on). ``estimator``: its filters, "ground" (the thesis world's default: the 41-state APKF and the full STKF) or
-    "lean" (the flight world's default: those that fly)."""
+    "lean" (the flight world's default: those that fly). ``faults``: the spacecraft's device faults
+    (``emulator.adcs_bus``: wheel_silent, startracker_blind, gnss_outage, beacon_lost; seconds from the run's
+    start), in either world."""
     ts = check_ts(ts)
     if world not in WORLDS:
         raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
@@ -205,7 +207,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         return flight_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
                                      truth=truth, cache_dir=cache_dir, progress=progress, hold_s=hold_s,
                                      on_second=on_second, tach_noise_rpm=tach_noise_rpm, spacecraft=spacecraft,
-                                     flight=flight, estimator=estimator or "lean")
+                                     flight=flight, estimator=estimator or "lean", faults=faults)
     flight_world.check_flight(flight)                  # known options, which the thesis world does not use
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
@@ -220,7 +222,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     return thesis_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
                                  truth=truth, cache_dir=cache_dir, progress=progress, settle_ts=settle_ts,
                                  hold_s=hold_s, on_second=on_second, wheel_speed_limit_rpm=wheel_speed_limit_rpm,
-                                 spacecraft=d, estimator=estimator or "ground")
+                                 spacecraft=d, estimator=estimator or "ground", faults=faults)
 
 
 def save_history(path, hist):

@@ -19,7 +19,7 @@ from ground.adcs.pointing import TS_THESIS, add_statistics, check_ts, close_hist
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, hold_s=HOLD_S, on_second=None,
-             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, spacecraft=None, estimator="ground"):
+             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, spacecraft=None, estimator="ground", faults=None):
     """One thesis-world run; the arguments and the result as ``body_pointing.simulate``'s (which checks them and
     calls this). Returns (result, history): the history's 10 Hz truth and its 1 Hz rows ``fsw_*`` the app's state
     after cycle k (NaN before the APKF starts, and at the last row, which no cycle reaches)."""
@@ -29,7 +29,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     s, rec, hist, k_done, complete, wall_s = app_host.fly(
         K, "bps ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), progress, on_second,
         satb_gnss=satb_gnss, seed=seed, ts=ts, params=params, truth=truth, cache_dir=cache_dir, hold_s=hold_s,
-        spacecraft=d, world="thesis", wheel_speed_limit_rpm=wheel_speed_limit_rpm,
+        spacecraft=d, world="thesis", wheel_speed_limit_rpm=wheel_speed_limit_rpm, faults=faults,
         estimation=app_host.estimation_for(estimator, d))
     lb = laser_axis(d)
     rate = scenario.WORLD_RATE_HZ

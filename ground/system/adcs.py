@@ -95,7 +95,7 @@ def _ground_run(spec, params, on_cycle=None, stop=None):
                              duration_s=spec["adcs_duration_s"] + (_t_settle(spec) if fly else 0.0),
                              seed=spec["seed"], params=params, truth=spec["truth"], cache_dir=spec["cache_dir"],
                              on_second=second if on_cycle is not None else None, spacecraft=d,
-                             world=spec.get("world", "thesis"))
+                             world=spec.get("world", "thesis"), faults=spec.get("faults"))
     return res, hist, hist["fsw_est_err"]
 
 
@@ -126,6 +126,8 @@ def _send_ground(spec, params, q, stop):
         res, hist, err = _ground_run(spec, params, lambda m: q.put(("cycle", m)), stop)
     except _Stopped:
         return
+    if res.get("devices"):
+        q.put(("adcs_summary", _jsonable(res["devices"])))
     q.put(("reference", _reference(res, hist, err, spec)))
 
 

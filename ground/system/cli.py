@@ -96,11 +96,12 @@ def register(sub, name, help_):
     p.add_argument("--calibration", default=None, help="H calibration JSON (fps calibrate; default: calibrate "
                    "in-process first, 121 points, written to the run folder)")
     add_fault_options(p, "seconds from the ADCS's start, the play beginning after its 30 s hold and 4 t_s; "
-                         "firmware ADCS only")
+                         "either ADCS")
     p.add_argument("--link-faults", default=None, metavar="SPEC",
                    help="faults on the ADCS's CAN link (firmware ADCS), both directions of its slcan stream: "
                         "bytes=P (a bit flip per ASCII byte), frames=P (a CAN frame's line dropped), seed=N, "
-                        "silence=START_S:LENGTH_S (the ADCS's seconds; LENGTH_S may be inf); the lockstep's "
+                        "silence=START_S:LENGTH_S (the ADCS's seconds; LENGTH_S may be inf), first=N (the first N "
+                        "frame lines each way dropped); the lockstep's "
                         "retries keep each 1 Hz cycle exactly once, e.g. bytes=0.001,frames=0.05,seed=1")
     p.add_argument("--world", choices=("thesis", "flight"), default="flight",
                    help="flight (default): datasheet wheel limits, drag and solar pressure, magnetorquer "

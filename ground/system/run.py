@@ -61,7 +61,8 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     anything is written; afterwards the folder always ends valid, and a failure raises ``hil.RunFailed``, an
     interruption ``hil.Interrupted``. ``faults``: the ADCS session's (``emulator.adcs_session``: wheel_silent,
     startracker_blind, gnss_outage, beacon_lost; times in the ADCS's seconds, the play starting after its
-    settling), firmware ADCS only; its fault log is in the summary's ``adcs_summary`` and the report.
+    settling), with either ADCS (the ground's flies the same app in process); with the firmware ADCS its fault log
+    is in the summary's ``adcs_summary`` and the report.
     ``link_faults``: a ``protocol.faults.LinkFaults`` on the ADCS's CAN link (its slcan stream; firmware ADCS
     only), the retries it costs in ``adcs_summary``'s ``retries``. ``spacecraft``: a preset's name or a spacecraft
     file (None: thesis-3u), the vehicle of the ADCS (``fps adcs bps`` or ``fps adcs can`` with ``--spacecraft``).
@@ -185,8 +186,6 @@ def _vehicle(adcs, world, faults, link_faults, spacecraft, params_path, ts, dura
     from ground.adcs.options import load_spacecraft
     if world not in bps.WORLDS:
         raise ValueError("--world must be one of %s, got %r" % (", ".join(bps.WORLDS), world))
-    if faults and adcs != "firmware":
-        raise ValueError("--faults needs --adcs firmware (the faults are the emulated spacecraft's devices')")
     if link_faults is not None and adcs != "firmware":
         raise ValueError("--link-faults needs --adcs firmware (they act on the ADCS's CAN link)")
     d, source = load_spacecraft(spacecraft, partner=True)

@@ -93,6 +93,7 @@ hil: $(STAMP)
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
 	$(VENV)/bin/fps hil --distfile $(OUT)/bps600.dist --calibration $(OUT)/calibration.json \
 	    --duration 600 --runtime micropython --link serial -o $(OUT)/hil
+	@echo "fps is $(VENV)/bin/fps: '. $(VENV)/bin/activate' puts it on the PATH; 'fps --help' lists its commands"
 
 system: $(STAMP) $(NATMOD)
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json

@@ -106,7 +106,7 @@ def register(sub, name, help_):
     p.add_argument("--world", choices=("thesis", "flight"), default="flight",
                    help="flight (default): datasheet wheel limits, drag and solar pressure, magnetorquer "
                         "unloading, a rate-limited slew and re-acquisition (fps adcs bps --world flight), the play "
-                        "starting once the planned slew and 4 t_s of settling are over (~410 s for thesis-3u); "
+                        "starting once the planned slew and 4 t_s of settling are over (277 s for thesis-3u at t_s = 33 s); "
                         "thesis: Sec. 6.4's world, the play after 30 s + 4 t_s")
     from ground.adcs.options import add_spacecraft_option
     add_spacecraft_option(p, "the ADCS's vehicle, as fps adcs bps (--adcs ground) or fps adcs can (--adcs "

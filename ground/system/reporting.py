@@ -210,8 +210,10 @@ def report_md(s):
         lines.append("Ground filters: `bps.simulate` with the same seed, duration, t_s, SatB GNSS and parameter "
                      "file; its sensor noise draws differ from the emulated spacecraft's, so the columns compare "
                      "the filters' accuracy, not the same noise.")
+    settled = ("the %g s hold and 4 t_s of settling" % _hold_s() if s.get("world") == "thesis" else
+               "the %g s hold, the planned first slew and its re-acquisition, and 4 t_s of settling" % _hold_s())
     lines.append("Estimates are compared with the truth at the instant of each 1 s cycle's estimate; the window "
-                 "starts after the %g s hold and 4 t_s of settling (t = %.0f s)." % (_hold_s(), s.get("settle_s") or 0))
+                 "starts after %s (t = %.0f s)." % (settled, s.get("settle_s") or 0))
     lines += ["", "## Fine pointing (Q2 recorder, as fps hil)", "", report.table(s), "",
               report.saturation_md(s.get("saturation")), "",
               "real-time factor: %s over the whole command (%.1f s wall, goal ≥ %gx), %s during the play; "

@@ -73,7 +73,8 @@ def add_link_arguments(p):
                         "stream on serial, of the slcan ASCII stream on CAN), frames=P (a frame dropped: a COBS "
                         "frame, or a CAN frame's Lawicel line), seed=N, silence=START_S:LENGTH_S (no traffic for "
                         "that span of virtual seconds, counted from the play's start in fps hil and from the "
-                        "run's start in fps calibrate; LENGTH_S may be inf), e.g. bytes=0.01,frames=0.05,seed=1")
+                        "run's start in fps calibrate; LENGTH_S may be inf), first=N (the first N frames each "
+                        "way dropped: a lost HELLO), e.g. bytes=0.01,frames=0.05,seed=1")
     p.add_argument("--tick-timeout-ms", type=float, default=None,
                    help="resend a TICK after this many ms without its answer (default %g on serial, %g on CAN)"
                         % (TICK_TIMEOUT_MS, CAN_TICK_TIMEOUT_MS))

@@ -1,6 +1,6 @@
 """Fault injection on a link's byte stream, so a team can rehearse a bad harness (host side, CPython).
 
-``LinkFaults.parse("bytes=0.01,frames=0.05,seed=1,silence=30:2")`` describes the faults; ``FaultyPort`` wraps
+``LinkFaults.parse("bytes=0.01,frames=0.05,seed=1,silence=30:2,first=1")`` describes the faults; ``FaultyPort`` wraps
 a byte port (its ``read``/``write``/``close``) and applies them to the frames in both directions, below the
 framing, as a noisy cable would. Two framings:
 
@@ -13,6 +13,8 @@ framing, as a noisy cable would. Two framings:
 The faults:
 
 - ``frames=P``: each frame is dropped with probability P;
+- ``first=N``: the first N frames each way are dropped (on slcan the first N CAN frame lines: a lost HELLO, a
+  lost first command; the commands that open the channel pass), counted with the dropped ones;
 - ``bytes=P``: each byte of a frame that passes gets one random bit flipped with probability P (a delimiter
   may be hit too, merging or splitting frames: the decoder must cope);
 - ``silence=START_S:LENGTH_S``: nothing passes while the clock reads START_S <= t < START_S + LENGTH_S
@@ -29,13 +31,15 @@ import random
 
 from protocol.distfile import SEED_MAX
 
-KEYS = ("bytes", "frames", "seed", "silence")
+KEYS = ("bytes", "frames", "seed", "silence", "first")
+FIRST_MAX = 10 ** 6        # first=N: at most this many frames dropped at the start
 
 
 class LinkFaults:
-    """Parsed fault settings: ``p_byte``, ``p_frame``, ``seed``, ``silences`` [(start_s, length_s)]."""
+    """Parsed fault settings: ``p_byte``, ``p_frame``, ``seed``, ``silences`` [(start_s, length_s)], ``first``
+    (frames dropped at the start, each way)."""
 
-    def __init__(self, p_byte=0.0, p_frame=0.0, seed=0, silences=()):
+    def __init__(self, p_byte=0.0, p_frame=0.0, seed=0, silences=(), first=0):
         for name, p in (("bytes", p_byte), ("frames", p_frame)):
             if not (isinstance(p, (int, float)) and 0.0 <= p < 1.0):
                 raise ValueError("--link-faults %s=%r: a probability in [0, 1)" % (name, p))
@@ -46,6 +50,9 @@ class LinkFaults:
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= SEED_MAX:
             raise ValueError("--link-faults seed=%r: a whole number from 0 to 2^32 - 1, as every fps seed "
                              "(random.Random would take -1 as 1)" % (seed,))
+        if isinstance(first, bool) or not isinstance(first, int) or not 0 <= first <= FIRST_MAX:
+            raise ValueError("--link-faults first=%r: a whole number of frames from 0 to %d" % (first, FIRST_MAX))
+        self.first = int(first)
         self.p_byte = float(p_byte)
         self.p_frame = float(p_frame)
         self.seed = int(seed)
@@ -53,8 +60,8 @@ class LinkFaults:
 
     @classmethod
     def parse(cls, spec):
-        """From ``bytes=P,frames=P,seed=N,silence=START_S:LENGTH_S`` (any subset, any order)."""
-        kw = {"p_byte": 0.0, "p_frame": 0.0, "seed": 0, "silences": []}
+        """From ``bytes=P,frames=P,seed=N,silence=START_S:LENGTH_S,first=N`` (any subset, any order)."""
+        kw = {"p_byte": 0.0, "p_frame": 0.0, "seed": 0, "silences": [], "first": 0}
         if not spec or not spec.strip():
             raise ValueError("--link-faults: empty; give e.g. bytes=0.01,frames=0.05,seed=1")
         for item in spec.split(","):
@@ -63,8 +70,8 @@ class LinkFaults:
                 raise ValueError("--link-faults item %r: expected KEY=VALUE with KEY one of %s"
                                  % (item, ", ".join(KEYS)))
             try:
-                if key == "seed":
-                    kw["seed"] = int(val)
+                if key in ("seed", "first"):
+                    kw[key] = int(val)
                 elif key == "silence":
                     a, sep2, b = val.partition(":")
                     if not sep2:
@@ -77,24 +84,29 @@ class LinkFaults:
                     kw["p_byte" if key == "bytes" else "p_frame"] = v
             except ValueError:
                 raise ValueError("--link-faults item %r: bad value (bytes/frames: a probability, seed: an "
-                                 "integer, silence: START_S:LENGTH_S in seconds)" % item) from None
+                                 "integer, silence: START_S:LENGTH_S in seconds, first: a number of frames)"
+                                 % item) from None
         return cls(**kw)
 
     def describe(self):
         parts = ["bytes=%g" % self.p_byte, "frames=%g" % self.p_frame, "seed=%d" % self.seed]
         parts += ["silence=%g:%g" % s for s in self.silences]
+        if self.first:
+            parts.append("first=%d" % self.first)
         return ",".join(parts)
 
     def as_dict(self):
         return {"bytes": self.p_byte, "frames": self.p_frame, "seed": self.seed,
-                "silence": [list(s) for s in self.silences]}
+                "silence": [list(s) for s in self.silences], "first": self.first}
 
 
 class _Direction:
-    """Faults for one direction: frame drops, bit flips at a geometric distance, silence."""
+    """Faults for one direction: frame drops (the first ``faults.first``, then at random), bit flips at a
+    geometric distance, silence."""
 
     def __init__(self, faults, seed):
         self.f = faults
+        self.first_left = faults.first
         self.rng = random.Random(seed)
         self.next_flip = self._gap()
         self.frames = 0
@@ -117,6 +129,10 @@ class _Direction:
         self.frames += 1
         if silent:
             self.silenced += 1
+            return b""
+        if self.first_left and droppable:
+            self.first_left -= 1
+            self.dropped += 1
             return b""
         if self.f.p_frame and droppable and self.rng.random() < self.f.p_frame:
             self.dropped += 1

@@ -260,11 +260,13 @@ class RemoteController:
 
     - ``try_timeout_s``: wait for an answer before the first resend, doubled at each resend up to
       ``MAX_TRY_S`` (a slow peer is not flooded); ``tries`` sends at most. None: one try of ``timeout_s``.
-      A frame that fails its checks while the answer is awaited triggers the resend at once (``resent_early``);
+      A frame that arrives damaged while the answer is awaited (``protocol.can.rx_damaged``: a failed check, an
+      ISO-TP frame breaking its rules, a malformed Lawicel line) triggers the resend at once (``resent_early``);
+      slowness does not: a transfer timed out on receive, and the link's own send timeouts, wait for the try;
     - ``timeout_s``: a bound on the whole wait for one tick; after the tries or this the tick is an overrun
       (the mirror holds its last input, as hardware would). Real-time mode sets it per tick from the deadline;
-    - an overrun while the link kept delivering bytes (frames that failed their checks) means the link is too
-      noisy to keep lockstep: ``LinkFailure``. An overrun on a silent link is an outage: the clock goes on,
+    - an overrun while the link kept delivering damaged frames means the link is too noisy to keep lockstep:
+      ``LinkFailure``. An overrun on a link that delivered no damage is an outage: the clock goes on,
       each further tick gets one try until the link answers, and ``max_failed_ticks`` consecutive overruns
       end the run (``LinkFailure``); None: no bound;
     - ``status_decim``: when set, CTRL_STATUS is due on ticks k with k % status_decim == 0 and is part of the
@@ -357,19 +359,13 @@ class RemoteController:
                 inbox.append(pkt)
         return words, got_status
 
-    def _drops(self):
+    def _damaged(self):
+        """Frames the link has received damaged so far (``protocol.can.rx_damaged``; 0 without counters)."""
         try:
             c = self.link.counters()
         except AttributeError:
             return 0
-        return can.rx_drops(c, can.LINK_DROPS)
-
-    def _activity(self):
-        try:
-            c = self.link.counters()
-        except AttributeError:
-            return 0
-        return sum(v for k, v in c.items() if k != "tx_frames" and isinstance(v, int))
+        return can.rx_damaged(c)
 
     def on_tick(self, tick, t_us, vx, vy, vs):
         link = self.link
@@ -387,11 +383,11 @@ class RemoteController:
             tries_left = 1
         words, got_status = None, False
         tries = 0
-        activity0 = None
+        damaged0 = None
         rx0 = self.n_rx
         while True:
             if tries == 1:
-                activity0 = self._activity()
+                damaged0 = self._damaged()
             if tries:
                 self.n_resent += 1
             link.send_raw(self._tick_id, link.node, self.dst, payload)
@@ -399,7 +395,7 @@ class RemoteController:
             tries_left -= 1
             try_end = min(end, clock() + try_s)
             try_s = min(2 * try_s, self.MAX_TRY_S)     # back off: a slow peer is not flooded with resends
-            drops0 = self._drops()
+            seen = self._damaged()
             while True:
                 w, s = self._sort(tick)
                 if w is not None:
@@ -416,7 +412,7 @@ class RemoteController:
                     self._sort(-1)
                     break
                 self._pending.extend(link.recv(timeout=min(left, self.SLICE_S)))
-                if not self._pending and self._drops() != drops0:
+                if not self._pending and self._damaged() != seen:
                     self.n_early += 1     # a damaged frame came instead of the answer: resend now
                     break
             if link.closed or clock() >= end or tries_left <= 0:
@@ -432,7 +428,7 @@ class RemoteController:
         if link.closed:
             why = getattr(link, "closed_why", None)
             raise LinkFailure("the controller's link closed at tick %d%s" % (tick, ": " + why if why else ""))
-        if activity0 is not None and self._activity() != activity0 and words is None and tries > 1:
+        if damaged0 is not None and self._damaged() != damaged0 and words is None and tries > 1:
             raise LinkFailure("tick %d unanswered after %d tries in %.0f ms while the link kept delivering "
                               "damaged frames: too noisy to keep lockstep" % (tick, tries,
                                                                               (clock() - t0) * 1e3))

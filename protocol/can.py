@@ -46,14 +46,46 @@ SLCAN_DROPS = tuple("slcan_" + r for r in lawicel.DROPS)   # malformed Lawicel l
 RX_DROPS = tuple(set(DROP_REASONS)) + SLCAN_DROPS   # bad_length is a frame's and an ISO-TP transfer's: one counter
 LINK_DROPS = tuple(set(core.DROP_REASONS + RX_DROPS))   # a serial link's decoder or a CAN link's, each once
 
+# What arrived damaged, apart from what was lost to slowness. Damaged: a frame failing the end-to-end check or the
+# table, an ISO-TP frame breaking the protocol's rules by its content (a wrong sequence number or length, a flow
+# control frame saying overflow: no node here refuses a transfer, and flow control carries no check), a malformed
+# Lawicel line. Not damage: a transfer timed out or interrupted on receive (``unexpected_cf``; can-isotp's
+# ``ISOTP_RX_LATE``: a slow sender), a frame refused by a closed slcan channel (``slcan_closed``), and what a
+# port counts of its own sends (``tx_*``: ISO-TP's N_Bs, resends, failures).
+RX_DAMAGE = tuple(r for r in set(DROP_REASONS) if r != "unexpected_cf") + tuple(
+    "slcan_" + r for r in lawicel.DROPS if r != "closed")
+# can-isotp's receive errors (``protocol.canlink.CanLink`` counts each as ``isotp_`` + its class name; its send
+# errors as ``tx_isotp_`` + the name, ``ISOTP_TX``)
+ISOTP_DAMAGE = tuple("isotp_" + n for n in (
+    "WrongSequenceNumberError", "InvalidCanDataError", "ChangingInvalidRXDLError", "FrameTooLongError",
+    "MissingEscapeSequenceError", "UnsupportedWaitFrameError", "OverflowError"))
+ISOTP_RX_LATE = tuple("isotp_" + n for n in (
+    "ConsecutiveFrameTimeoutError", "UnexpectedConsecutiveFrameError", "ReceptionInterruptedWithFirstFrameError",
+    "ReceptionInterruptedWithSingleFrameError"))
+ISOTP_TX = ("TimeoutError", "FlowControlTimeoutError", "UnexpectedFlowControlError", "MaximumWaitFrameReachedError",
+            "BadGeneratorError")
+LINK_DAMAGE = tuple(set(core.DROP_REASONS + RX_DAMAGE)) + ISOTP_DAMAGE   # a serial decoder's or a CAN link's
+
 
 def rx_drops(counters, reasons=RX_DROPS):
     """What a port dropped on receive, from its ``counters()``: each of ``reasons`` once (default the CAN
-    decoder's and the Lawicel adapter's), and every ISO-TP error or timeout the port counts (``isotp_*``:
-    can-isotp's, the slcan port's timeouts and resends). Frames for other nodes and sent frames are not drops."""
+    decoder's and the Lawicel adapter's), and every ISO-TP receive error or timeout the port counts (``isotp_*``:
+    can-isotp's). Frames for other nodes and what the port counts of its own sends (``tx_*``) are not drops."""
     n = 0
     for k, v in counters.items():
         if k in reasons or k.startswith("isotp_"):
+            n += v
+    return n
+
+
+def rx_damaged(counters, reasons=LINK_DAMAGE):
+    """What arrived damaged, from a port's ``counters()``: the drops of ``reasons`` (default ``LINK_DAMAGE``:
+    a serial link's decoder, a CAN link's decoder, can-isotp's and the Lawicel lines'), never a timeout, an
+    interrupted transfer or a send of its own (see ``RX_DAMAGE``)."""
+    n = 0
+    for k in reasons:
+        v = counters.get(k)
+        if v:
             n += v
     return n
 

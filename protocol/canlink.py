@@ -26,7 +26,10 @@ class CanLink(Link):
 
     A receive thread reads the bus all the time, reassembles ISO-TP transfers and answers their flow control
     at once, as a CAN driver would. Frames that fail the end-to-end check, the table or ISO-TP's rules are
-    dropped and counted by reason; so are the adapter's malformed lines (``protocol.slcanbus``). Only the bus
+    dropped and counted by reason; so are the adapter's malformed lines (``protocol.slcanbus``). can-isotp's
+    errors are counted by cause: ``isotp_`` + its name on receive, ``tx_isotp_`` + its name for this link's own
+    sends (``protocol.can.ISOTP_TX``: N_Bs timeouts, late flow control); ``protocol.can.rx_damaged`` tells the
+    damaged from the late. Only the bus
     failing (a closed port, a vanished adapter or peer) closes the link; ``closed_why`` says what when it was
     more than the other end closing in order (a port error, a peer that stopped reading).
 
@@ -56,6 +59,7 @@ class CanLink(Link):
         self.tx_isotp_failed = 0
         self.last_sent = None
         self.peer_path = None
+        self._bus_counters = {}   # the bus's last counters, once close() has let it go
         self._stop = False
         self._thread = threading.Thread(target=self._receive, name="canlink-rx", daemon=True)
         self._thread.start()
@@ -205,18 +209,24 @@ class CanLink(Link):
             d["tx_frames"] = self.tx_frames
             d["tx_isotp_resent"] = self.tx_isotp_resent
             d["tx_isotp_failed"] = self.tx_isotp_failed
-            d.update(("isotp_" + k, v) for k, v in self.isotp_errors.items())
+            for k, v in self.isotp_errors.items():
+                d[("tx_isotp_" if k in canmap.ISOTP_TX else "isotp_") + k] = v
             c = getattr(self.bus, "counters", None)
-            if c is not None:
-                d.update(c())
+            d.update(c() if c is not None else self._bus_counters)
         return d
 
     def close(self):
+        """Stop the receive thread and shut the bus down; the bus's counters (an slcan port's lines dropped,
+        refused, re-opened; injected faults) are read first and stay in ``counters()``."""
         import can
         self._stop = True
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join()
         if self.bus is not None:
+            c = getattr(self.bus, "counters", None)
+            if c is not None:
+                with self._cond:
+                    self._bus_counters = dict(c())
             try:
                 self.bus.shutdown()
             except can.CanOperationError:  # an slcan adapter already gone

@@ -88,16 +88,17 @@ def test_a_gap_in_the_ticks_is_propagated_in_steps():
 
 def test_rx_drops_count_each_can_reason_once():
     """ADCS_STATUS.n_rx_drop: every reason the CAN decoder counts (protocol.can.DROP_REASONS, bad_length once,
-    it is one counter) and the ISO-TP timeouts; the serial link's reasons are not a CAN port's."""
+    it is one counter); the port's own send timeouts and resends are not drops, nor are the serial link's
+    reasons a CAN port's."""
     from protocol import can as canmap
 
     class Port:
         def counters(self):
             d = {k: 1 for k in canmap.DROP_REASONS}
-            d.update(isotp_timeouts=1, other_dst=5, tx_packets=9, bad_cobs=7)
+            d.update(tx_isotp_timeouts=1, tx_isotp_resent=2, other_dst=5, tx_packets=9, bad_cobs=7)
             return d
 
-    assert _drops(Port()) == len(set(canmap.DROP_REASONS)) + 1
+    assert _drops(Port()) == len(set(canmap.DROP_REASONS))
 
 
 @pytest.mark.parametrize("momentum", ["torque", "filtered"])

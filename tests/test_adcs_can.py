@@ -69,7 +69,7 @@ def test_slcan_adapter_hal_echoes_single_frames_and_isotp_through_python_can(tmp
             got = link.recv(5.0)
             assert got and got[0][4] == pl and got[0][2] == core.NODE["SPACECRAFT"]
         c = link.counters()
-        assert c["frames"] == 10 and c["bad_seq"] == 0 and c.get("isotp_TimeoutError", 0) == 0
+        assert c["frames"] == 10 and c["bad_seq"] == 0 and c.get("tx_isotp_TimeoutError", 0) == 0
     finally:
         link.close()
         p.wait(5)

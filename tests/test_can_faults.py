@@ -155,7 +155,7 @@ def test_can_link_sends_a_packet_again_whole_when_its_flow_control_is_lost():
         lk.send("TICK", "CONTROLLER", tick=7)
         th.join(3)
         c = lk.counters()
-        assert lk.last_sent is True and c["tx_isotp_resent"] == 1 and c["isotp_TimeoutError"] == 1
+        assert lk.last_sent is True and c["tx_isotp_resent"] == 1 and c["tx_isotp_TimeoutError"] == 1
         wire = canmap.wire(core.PACKET_ID["TICK"], lk.node, core.NODE["CONTROLLER"],
                            core.encode_payload("TICK", tick=7))
         assert frames[0] == frames[1] and frames[1:] == [f for f in __import__("protocol.isotp").isotp.segment(wire)]
@@ -222,12 +222,12 @@ def test_firmware_can_port_sends_again_after_n_bs_and_gives_up_after_its_tries()
     payload = core.encode_payload("ADCS_STATUS", tick=3)
     assert port.send_raw(core.PACKET_ID["ADCS_STATUS"], port.node, core.NODE["SPACECRAFT"], payload) is True
     c = port.counters()
-    assert (c["tx_isotp_resent"], c["isotp_timeouts"], c["tx_isotp_failed"], ad.n_ff) == (1, 1, 0, 2)
+    assert (c["tx_isotp_resent"], c["tx_isotp_timeouts"], c["tx_isotp_failed"], ad.n_ff) == (1, 1, 0, 2)
     ad2 = _FakeAdapter(answer_ff=())
     port2 = CanPort(ad2, "ADCS", isotp_timeout_ms=10, tries=3)
     assert port2.send_raw(core.PACKET_ID["ADCS_STATUS"], port2.node, 0x60, payload) is False
     c = port2.counters()
-    assert (c["tx_isotp_resent"], c["isotp_timeouts"], c["tx_isotp_failed"], ad2.n_ff) == (2, 3, 1, 3)
+    assert (c["tx_isotp_resent"], c["tx_isotp_timeouts"], c["tx_isotp_failed"], ad2.n_ff) == (2, 3, 1, 3)
 
 
 # --- the ADCS lockstep, exactly once ------------------------------------------------------------------------

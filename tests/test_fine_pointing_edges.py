@@ -115,14 +115,15 @@ def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
 def test_the_controllers_rx_drop_counts_what_a_serial_or_a_can_link_dropped():
     """CTRL_STATUS.n_rx_drop summed only the serial decoder's reasons: on a CAN link (python-can's, with
     can-isotp) frames that were not extended, had the reserved bit, or broke an ISO-TP transfer were not
-    counted. Frames for other nodes, sent frames and sequence gaps are not drops."""
+    counted. Frames for other nodes, sent frames, the link's own send timeouts and sequence gaps are not drops."""
     from protocol import can
     _DROPS = can.LINK_DROPS                     # what firmware.hal.link's serve_controller counts
     serial = {k: 1 for k in core.DROP_REASONS}
     serial.update(frames=100, seq_gaps=3, seq_dups=2)
     assert can.rx_drops(serial, _DROPS) == len(core.DROP_REASONS)
     bus = {k: 1 for k in can.DROP_REASONS}
-    bus.update(other_dst=5, tx_frames=9, isotp_timeouts=2, isotp_unexpected_frame=1)
+    bus.update(other_dst=5, tx_frames=9, isotp_ConsecutiveFrameTimeoutError=2, isotp_unexpected_frame=1,
+               tx_isotp_timeouts=4, tx_isotp_TimeoutError=6, tx_isotp_UnexpectedFlowControlError=6)
     assert can.rx_drops(bus, _DROPS) == len(set(can.DROP_REASONS)) + 3
 
 

@@ -10,6 +10,7 @@ import os
 import re
 import subprocess
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -84,6 +85,25 @@ def test_faulty_port_drops_flips_and_silences_whole_frames():
     for t[0] in (0.5, 1.0, 2.9, 3.0):
         fp.write(frame)
     assert fp.counters()["fault_tx_silenced"] == 2 and len(fp.port.sent) == 2
+
+
+def test_first_drops_the_first_frames_each_way_and_is_checked():
+    """first=N: the first N frames of each direction are lost (a lost HELLO), counted with the dropped ones; on
+    slcan only CAN frame lines count, so the commands that open the channel pass."""
+    from protocol.faults import SLCAN
+    f = LinkFaults.parse("first=2,seed=1")
+    assert f.first == 2 and f.describe() == "bytes=0,frames=0,seed=1,first=2" and f.as_dict()["first"] == 2
+    frame = bytes(range(1, 30)) + b"\x00"
+    fp = FaultyPort(_Port(), f)
+    for _ in range(5):
+        fp.write(frame)
+    assert fp.port.sent == [frame] * 3 and fp.counters()["fault_tx_dropped"] == 2
+    fp = FaultyPort(_Port(), LinkFaults(first=1), framing=SLCAN)
+    fp.write(b"S8\rO\rT0123456780\rT0123456781\r")
+    assert fp.port.sent == [b"S8\rO\rT0123456781\r"]
+    for bad in ("first=-1", "first=1.5", "first=x", "first=1000001"):
+        with pytest.raises(ValueError, match="first"):
+            LinkFaults.parse(bad)
 
 
 @pytest.mark.parametrize("spec, words", [("seed=-1", "seed=-1: a whole number from 0 to 2^32 - 1"),
@@ -209,6 +229,66 @@ def test_remote_controller_resends_and_gives_up_on_a_dead_link():
     assert rc.n_timeout == 3 and rc.n_resent == 3                # 4 sends on the first tick, 1 on each next
     assert len([p for p in b.recv(timeout=0.5) if p[0] == core.PACKET_ID["TICK"]]) == 6
     a.close()
+
+
+class _CountingLink:
+    """A link whose peer answers each TICK ``delay_s`` after its first copy, while the counters named in ``rising``
+    go up by one at each of the first ``n_rising`` waits on the link (what a CAN link counts under load, or under
+    damage)."""
+
+    def __init__(self, delay_s, rising, n_rising=10 ** 9):
+        self.node = core.NODE["BENCH"]
+        self.closed = False
+        self.delay_s, self.rising, self.n_rising = delay_s, rising, n_rising
+        self.c = {"tx_frames": 0}
+        self.due = {}
+
+    def send_raw(self, pid, src, dst, payload):
+        self.c["tx_frames"] += 1
+        tick = core.decode_payload(pid, payload)[0]
+        self.due.setdefault(tick, time.perf_counter() + self.delay_s)
+
+    def recv(self, timeout=None):
+        time.sleep(min(timeout or 0.0, 0.0005))
+        if self.n_rising > 0:
+            self.n_rising -= 1
+            for k in self.rising:
+                self.c[k] = self.c.get(k, 0) + 1
+        now = time.perf_counter()
+        out = [(core.PACKET_ID["FSM_SPI"], core.NODE["CONTROLLER"], self.node, None,
+                core.encode_payload("FSM_SPI", tick=t, n=1, w0=0x380001)) for t, d in self.due.items() if d <= now]
+        for p in out:
+            del self.due[core.decode_payload(p[0], p[4])[0]]
+        return out
+
+    def counters(self):
+        return dict(self.c)
+
+
+@pytest.mark.parametrize("rising", [("tx_isotp_TimeoutError", "tx_isotp_UnexpectedFlowControlError",
+                                     "tx_isotp_resent", "tx_isotp_failed"),
+                                    ("isotp_ConsecutiveFrameTimeoutError", "isotp_UnexpectedConsecutiveFrameError",
+                                     "isotp_ReceptionInterruptedWithFirstFrameError", "slcan_refused",
+                                     "fault_tx_frames")])
+def test_a_slow_link_waits_for_its_tries_never_resending_early(rising):
+    """The bench's own ISO-TP send timeouts and transfers timed out on receive (a loaded machine) are slowness, not
+    damage: the TICK is resent as its tries run out (3 ms, doubling), never at once, and the tick is answered
+    (they triggered the early resend, 30 tries went in under 1 s and the run stopped as too noisy)."""
+    from emulator.lockstep import RemoteController
+    rc = RemoteController(_CountingLink(0.2, rising), timeout_s=10.0, try_timeout_s=0.003, tries=30)
+    assert rc.on_tick(5, 0, 2048, 2048, 1600) == [0x380001]
+    assert rc.n_early == 0 and 4 <= rc.n_resent <= 8                # 3, 6, 12, 24, 48, 96 ms: ~0.2 s
+
+
+def test_damage_resends_at_once_and_a_link_that_delivers_only_damage_is_too_noisy():
+    from emulator.lockstep import LinkFailure, RemoteController
+    rc = RemoteController(_CountingLink(0.05, ("bad_crc",), 3), timeout_s=10.0, try_timeout_s=0.003, tries=30)
+    assert rc.on_tick(5, 0, 2048, 2048, 1600) == [0x380001] and rc.n_early == 3
+    rc = RemoteController(_CountingLink(5.0, ("isotp_WrongSequenceNumberError",)), timeout_s=10.0,
+                          try_timeout_s=0.003, tries=30)
+    with pytest.raises(LinkFailure, match="kept delivering damaged frames"):
+        rc.on_tick(5, 0, 2048, 2048, 1600)
+    assert rc.n_early == 30 and rc.n_resent == 29              # every try cut short by damage
 
 
 # --- end to end, MicroPython over a pty ---------------------------------------------------------------------

@@ -235,7 +235,7 @@ def test_mtq_over_virtual_can():
         assert [tlm["mx"], tlm["my"], tlm["mz"]] == pytest.approx([-0.3, 0.125, 0.0]) and tlm["saturated"] == 1
         assert np.allclose(sc.dipole, [-0.29, 0.105, 0.03])
         c = adcs.counters()
-        assert c.get("isotp_TimeoutError", 0) == 0 and c["bad_crc"] == 0
+        assert c.get("tx_isotp_TimeoutError", 0) == 0 and c["bad_crc"] == 0
     finally:
         adcs.close()
         mtq.close()
@@ -368,6 +368,6 @@ def test_session_with_the_flight_firmware_over_slcan_is_unchanged_by_the_magneto
     for a, b in zip(plain, mag):
         assert np.array_equal(a["q"], b["q"]) and np.array_equal(a["est"]["q"], b["est"]["q"])
     assert sm["late_cycles"] == 0 and sm["retries"]["tick_resent"] == 0 and sm["firmware_missed"]["rx_drops"] == 0
-    assert cm["tx_frames"] == cp["tx_frames"] + 12 and cm.get("isotp_TimeoutError", 0) == 0
+    assert cm["tx_frames"] == cp["tx_frames"] + 12 and cm.get("tx_isotp_TimeoutError", 0) == 0
     assert sm["magnetic_devices"] == {"magnetometer": True, "magnetorquers": True, "mtq_cmd": 0,
                                       "refused_mtq_cmd": 0}

@@ -102,6 +102,26 @@ def test_decoder_drops_by_reason_without_raising():
         dec.feed(rng.getrandbits(30), rng.randbytes(rng.randint(0, 8)), rng.random() < 0.9)
 
 
+def test_damage_is_told_from_slowness_and_from_the_ports_own_sends():
+    """rx_damaged counts what arrived damaged (a failed check or table, an ISO-TP frame breaking its rules, a
+    malformed Lawicel line, a damaged serial frame); a transfer timed out or cut short on receive is a drop, not
+    damage; what a port counts of its own sends (N_Bs timeouts, late flow control, resends) is neither."""
+    damage = {"bad_crc": 1, "bad_seq": 1, "slcan_non_hex": 1, "isotp_WrongSequenceNumberError": 1,
+              "bad_cobs": 1, "isotp_OverflowError": 1}
+    late = {"unexpected_cf": 1, "isotp_ConsecutiveFrameTimeoutError": 1,
+            "isotp_ReceptionInterruptedWithFirstFrameError": 1, "isotp_UnexpectedConsecutiveFrameError": 1,
+            "slcan_closed": 1}
+    own = {"tx_isotp_TimeoutError": 5, "tx_isotp_UnexpectedFlowControlError": 5, "tx_isotp_timeouts": 5,
+           "tx_isotp_resent": 5, "tx_isotp_failed": 5, "tx_frames": 50, "other_dst": 5, "slcan_refused": 5,
+           "slcan_reopened": 5, "fault_tx_frames": 50, "fault_rx_dropped": 5}
+    c = dict(damage, **late, **own)
+    assert canmap.rx_damaged(c) == len(damage)
+    assert canmap.rx_damaged(dict(late, **own)) == 0
+    assert canmap.rx_drops(c, canmap.LINK_DROPS) == len(damage) + len(late)
+    assert set(canmap.RX_DAMAGE) | {"unexpected_cf", "slcan_closed"} == set(canmap.RX_DROPS)
+    assert all(("tx_isotp_" + n) not in canmap.LINK_DAMAGE for n in canmap.ISOTP_TX)
+
+
 def test_end_to_end_check_catches_a_damaged_payload_or_id():
     """Every single-bit flip of a frame's data, and a frame delivered to another node or packet id, fails the
     check (a flipped hex digit in an slcan line is still a valid frame: only the check catches it)."""

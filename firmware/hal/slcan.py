@@ -199,8 +199,9 @@ class CanPort:
     recovers it) or the receiver's flow control said overflow. A lost CF is the receiver's to discard (its
     N_Cr, or the next FF on the id). ``recv_ms(timeout_ms)``: packets ``[(pid, src, dst, None, payload)]`` for
     this node, BROADCAST or an ``accept`` node; frames failing the end-to-end check or the table are dropped and
-    counted by reason in ``counters()`` with the adapter's malformed lines. ``clock``: (ticks_ms, ticks_diff) where
-    there is no ``time`` module (a board's timer); None: MicroPython's or CPython's.
+    counted by reason in ``counters()`` with the adapter's malformed lines; this side's own sends are counted
+    apart (``tx_isotp_timeouts``, ``tx_isotp_resent``, ``tx_isotp_failed``), never as drops. ``clock``:
+    (ticks_ms, ticks_diff) where there is no ``time`` module (a board's timer); None: MicroPython's or CPython's.
     """
 
     def __init__(self, adapter, node, accept=(), isotp_timeout_ms=1000, tries=3, clock=None):
@@ -290,7 +291,7 @@ class CanPort:
     def counters(self):
         d = self._dec.counters()
         d["other_dst"] = self.other_dst
-        d["isotp_timeouts"] = self.isotp_timeouts
+        d["tx_isotp_timeouts"] = self.isotp_timeouts
         d["tx_isotp_resent"] = self.isotp_resent
         d["tx_isotp_failed"] = self.isotp_failed
         d["tx_packets"] = self.tx_packets

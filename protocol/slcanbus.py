@@ -8,7 +8,13 @@
   - a malformed line from the adapter (bad length, non-hex, an unknown first character, overlong) is dropped
     and counted by reason (``counters()``, the reasons of ``protocol.lawicel.DROPS``) instead of raising
     ``CanOperationError`` / ``ValueError`` out of ``recv``. Only the port failing (the adapter or its process
-    gone) raises, and that ends the link.
+    gone) raises, and that ends the link;
+  - a channel the adapter keeps closed is opened again: Lawicel's ``O`` opens it, and an adapter answers every
+    frame sent to a closed channel with BEL. When refusals come in a row (``REOPEN_AFTER`` BEL answers with no
+    transmit acknowledgment between them: one damaged line is refused alone, and a frame acknowledged ends the
+    run) the ``O`` goes again just before the next frame, and again at each doubling of the run (2, 4, 8 ...
+    refusals): at most one more per doubling, so an adapter that refuses for another reason is not flooded.
+    Counted: ``slcan_refused`` (BEL answers), ``slcan_reopened`` (``O`` sent again).
 
 - ``LawicelBus``: be the adapter on a pty master (``protocol.lawicel.Adapter`` answers the host's commands),
   ``.peer_path`` for the process that opens ``slcan:PATH``; frames the host transmits are received here,
@@ -43,6 +49,7 @@ class _Lines:
         self.lines = collections.deque()
         self.drops = dict((r, 0) for r in lawicel.DROPS)
         self.n_refused = 0                   # BEL answers: the adapter refused a command or a frame
+        self.refused_run = 0                 # BEL answers since the last transmit acknowledgment
         self.n_frames = 0
 
     def feed(self, data):
@@ -69,9 +76,12 @@ class _Lines:
                 continue
             if end == 7:
                 self.n_refused += 1
+                self.refused_run += 1
                 if line:
                     self.lines.append(line)   # a line cut by a BEL: parsed (and most likely dropped)
                 continue
+            if line == b"Z" or line == b"z":
+                self.refused_run = 0          # a frame acknowledged: the channel is open
             self.lines.append(line)
 
     def message(self):
@@ -128,12 +138,17 @@ class _Stream:
 
 
 class SlcanBus(_Stream, slcanBus):
-    """python-can's slcan interface reading in blocks and dropping malformed lines (module docstring)."""
+    """python-can's slcan interface reading in blocks, dropping malformed lines and opening a channel the
+    adapter keeps closed again (module docstring)."""
+
+    REOPEN_AFTER = 2            # BEL answers in a row that send the open command again (then 4, 8, ...)
 
     def __init__(self, channel, **kw):
         kw.setdefault("sleep_after_open", 0)
         self._io = None
         self._lines = _Lines()
+        self._reopen_at = self.REOPEN_AFTER   # the refusal run that sends the next ``O``
+        self.n_reopened = 0
         self.peer_gone = False      # the adapter's end closed (or stalled: then ``fail_why`` says so)
         self.fail_why = None
         slcanBus.__init__(self, channel, **kw)
@@ -182,8 +197,23 @@ class SlcanBus(_Stream, slcanBus):
                 return None, False
             self._fill(wait)
 
+    def send(self, msg, timeout=None):
+        """python-can's send, after the open command when the adapter's refusals say the channel is closed
+        (the module docstring); called with the link's send lock held, as every write to the port is."""
+        run = self._lines.refused_run
+        if run < self.REOPEN_AFTER:
+            self._reopen_at = self.REOPEN_AFTER
+        elif run >= self._reopen_at:
+            while self._reopen_at <= run:
+                self._reopen_at *= 2
+            self.n_reopened += 1
+            self.open()
+        slcanBus.send(self, msg, timeout)
+
     def _own_counters(self):
-        return self._lines.counters()
+        d = self._lines.counters()
+        d["slcan_reopened"] = self.n_reopened
+        return d
 
     def shutdown(self):
         """Close the channel (``C``) if the adapter is still there, and the port in any case."""

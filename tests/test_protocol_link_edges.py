@@ -64,6 +64,72 @@ def test_slcan_device_refuses_malformed_lawicel_lines(tmp_path):
         dev.close()
 
 
+# --- slcan: a channel the adapter keeps closed is opened again; counters outlive the bus ----------------------
+def _wait(cond, s=5.0):
+    import time
+    end = time.monotonic() + s
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.005)
+    return cond()
+
+
+def test_a_channel_left_closed_by_a_lost_open_command_is_opened_again_and_counted():
+    """The host's O did not reach the adapter (damaged on the way): every frame the host sends is refused with
+    BEL (the adapter counts slcan_closed). After two refusals in a row the host sends O again before its next
+    frame; the adapter opens and the frames get through. The counters of both buses stay readable after close."""
+    from protocol import core, link
+    dev = link.open_slcan_device("BENCH")
+    host = link.open_link("slcan:" + dev.peer_path, "CONTROLLER")
+    try:
+        assert _wait(lambda: dev.bus.lw.is_open)
+        dev.bus.lw.is_open = False                       # as if the O had been lost
+        got = []
+        for k in range(6):
+            host.send("ACK", "BENCH", ref_id=0x21, ref_seq=k)
+            got += dev.recv(0.2)
+        assert [core.decode_payload(p[0], p[4])[1] for p in got] == [2, 3, 4, 5]     # 0 and 1 refused
+        hc, dc = host.counters(), dev.counters()
+        assert (hc["slcan_refused"], hc["slcan_reopened"], dc["slcan_closed"], dc["slcan_rx"]) == (2, 1, 2, 4)
+    finally:
+        host.close()
+        dev.close()
+    assert (host.counters()["slcan_reopened"], dev.counters()["slcan_closed"]) == (1, 2)    # after close too
+
+
+def test_an_adapter_that_refuses_everything_gets_the_open_command_at_each_doubling_only():
+    """An adapter answering BEL to every line (the open command too): the host sends O again at 2, 4, 8 ...
+    refusals in a row, never once per frame."""
+    import select
+    import tty
+
+    from protocol.link import open_link
+    m, s = os.openpty()
+    tty.setraw(s)
+    lk = open_link("slcan:" + os.ttyname(s), "CONTROLLER")
+    os.close(s)
+    seen = b""
+    try:
+        def answer():
+            nonlocal seen
+            while select.select([m], [], [], 0.02)[0]:
+                data = os.read(m, 4096)
+                seen += data
+                os.write(m, b"\a" * data.count(b"\r"))
+            return True
+        answer()
+        opened = seen.count(b"O\r")
+        for k in range(100):
+            lk.send("ACK", "BENCH", ref_id=0x21, ref_seq=k)
+            answer()
+            assert _wait(lambda: lk.counters()["slcan_refused"] >= seen.count(b"\r") - 3)   # S8, O: before
+        c = lk.counters()
+        n = seen.count(b"O\r") - opened
+        assert n == c["slcan_reopened"] and 5 <= n <= 7, (n, c)     # at runs 2, 4, 8 ... 64 of ~107 refusals
+    finally:
+        lk.close()
+        os.close(m)
+
+
 # --- link specs: python-can's errors become the project's ValueError / OSError ----------------------------
 def test_can_link_spec_errors_are_value_or_os_errors(tmp_path, capsys):
     from firmware import main as fw_main

@@ -164,3 +164,15 @@ def test_campaign_consistency_keys_after_the_first_set(tmp_path, name):
     assert all(r["ok"] is True for r in s["per_run"]) and s["runs_diverged"] == 0
     md = (out / "report.md").read_text()
     assert "rms_over_sigma_rate" in md and "nees_in_band_share" in md
+
+
+def test_the_report_names_the_spacecraft_and_its_own_jxx_reference(monkeypatch):
+    """report.md states the file's figures, not the thesis's constants: the spacecraft, its hash, its Jxx."""
+    from ground.adcs import report
+    monkeypatch.setattr(report, "table", lambda s: "")
+    s = {"filter": "apkf", "case": 1, "runs": 2, "complete": True,
+         "per_run": [{"jxx_ref_kgm2": 0.05}, {"jxx_ref_kgm2": 0.05}],
+         "spacecraft": {"name": "generic-6u", "source": "generic-6u", "sha256": "0123456789ab"}}
+    md = report.markdown(s)
+    assert "generic-6u" in md and "0123456789ab" in md and "Jxx_ref = 0.05 kg m^2" in md
+    assert "12e-3" not in md

@@ -71,6 +71,9 @@ def markdown(summary):
     name = summary["filter"].upper()
     head = "# %s, %s\n\n" % (name, "MEMS gyro baseline (Sec. 4.4.1)" if summary["filter"] == "mekf"
                              else "Case %d (Sec. 4.8.%d)" % (summary["case"], summary["case"]))
+    sc = summary.get("spacecraft") or {}
+    if sc:
+        head += "Spacecraft: %s (file %s, sha256 %s).\n\n" % (sc.get("name"), sc.get("source"), sc.get("sha256"))
     lines = [head.rstrip("\n") + "\n", "Runs: %d ok, %d failed, %d diverged; complete: %s.%s\n"
              % (summary["runs"], summary.get("runs_failed", 0), summary.get("runs_diverged", 0), summary["complete"],
                 " Filter: the %s form (fps adcs apkf --help)." % summary["form"] if summary.get("form") else ""),
@@ -87,14 +90,15 @@ def markdown(summary):
                      % (n["note"], n["from_s"], n["mean_after"] or float("nan"), n["dof"], n["runs"], n["band"][0],
                         n["band"][1], summary["nees_in_band_share"], n["from_s"]))
     lines.append("Final 1 sigma are the filter's P at the last step (mean over runs); the final attitude error is the "
-                 "RMS over runs. 'goal': attitude and rate within 25 % of the thesis, parameters within a factor "
+                 "RMS over runs. 'goal': attitude and rate within 25 %% of the thesis, parameters within a factor "
                  "of 2. Parameter sigmas are physical (kg m^2, A m^2): the filter's Jxx-relative figures "
-                 "(Jxx = 12e-3 kg m^2 fixed, Sec. 4.6.2) divided by the run's s = Jxx_ref / Jxx (1.11 on the "
-                 "thesis's 3U); the thesis's are as printed. Runs that diverged are left out of every figure.\n")
+                 "(Jxx_ref %s, the spacecraft file's Jxx, Sec. 4.6.2) divided by the run's s = Jxx_ref / Jxx "
+                 "(the true Jxx); the thesis's are as printed. Runs that diverged are left out of every figure.\n"
+                 % _jxx_ref(summary))
     if summary["filter"] == "apkf":
         lines.append("Known differences from the thesis (docs/ADCS.md, 'Attitude determination'): the attitude 1 sigma is about "
-                     "twice the thesis's (white 10 rpm tachometer noise integrates into a ~40 arcsec random walk per "
-                     "step between star-tracker outputs), and from the thesis's initial errors the EKF's parameter "
+                     "twice the thesis's (white tachometer noise, 10 rpm on the thesis's 3U, integrates into a ~40 "
+                     "arcsec random walk per step between star-tracker outputs), and from the thesis's initial errors the EKF's parameter "
                      "estimates become overconfident in the second maneuver set (second-order terms), which the NEES "
                      "shows. Nothing was tuned toward the thesis's figures.\n")
     for f in summary.get("failures", []):
@@ -103,6 +107,14 @@ def markdown(summary):
         if not any(g["seed"] == f["seed"] for g in summary.get("failures", [])):
             lines.append("- seed %d diverged: %s" % (f["seed"], f["why"]))
     return "\n".join(lines) + "\n"
+
+
+def _jxx_ref(summary):
+    """The runs' Jxx reference (kg m^2) as text: one figure, or the range when runs differ."""
+    v = sorted({r["jxx_ref_kgm2"] for r in summary.get("per_run", []) if r.get("jxx_ref_kgm2") is not None})
+    if not v:
+        return "as the spacecraft file gives it"
+    return "= %.4g kg m^2" % v[0] if len(v) == 1 else "%.4g-%.4g kg m^2" % (v[0], v[-1])
 
 
 # series.npz holds the APKF's parameters in its Jxx-relative units (``runs.physical_params``): "rel." below

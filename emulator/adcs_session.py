@@ -46,9 +46,14 @@ dipole becomes its residual dipole plus the rods' applied dipole (``devices.Magn
 per rod, clipped at the file's limit) and the field torque m x b follows; without one the rods keep their last
 command, as a driver would. The lean flight firmware sends none.
 
+The first contact: this side sends HELLO to the firmware every ``HELLO_RETRY_S`` (doubling up to
+``HELLO_RETRY_MAX_S``) until the firmware's HELLO comes (it says one when the channel opens, and answers each
+HELLO with its own), so a lost HELLO either way costs a retry; after ``HELLO_WAIT_S`` the session ends with
+OSError naming the link and its counters (or the firmware's own end, when its process exited).
+
 ``link_faults`` (``protocol.faults.LinkFaults``): bit flips in the slcan ASCII stream and frame lines dropped,
-both directions, at this end of the pty, from the first burst on (``silence`` in the session's virtual
-seconds).
+both directions, at this end of the pty, from the HELLO on (``silence`` in the session's virtual seconds, from the
+first burst on).
 
 A device reply the firmware misses by its tick is counted by the firmware (ADCS_STATUS counters); a wheel
 that got no RW_CMD in a cycle is counted here (``missed_rw_cmd``), and one whose RW_CMD had a non-finite torque
@@ -81,6 +86,7 @@ from emulator.adcs_bus import N, P, FaultSchedule, SpacecraftBus, check_faults
 from emulator.adcs_replies import ReplyWait, StatusWatch
 from emulator.launcher import ADCS_IMAGE, ADCS_MACHINE, FirmwareProcess, command, qemu_command, start_board
 from emulator.runtime import last_lines
+from protocol import core
 from protocol.units import RAD_PER_ARCSEC
 from emulator.spacecraft import scenario
 from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftDevices
@@ -97,6 +103,8 @@ BOARD = {"board": "QEMU mps2-an500 (ARM's MPS2 FPGA board, AN500 image) standing
 WORLDS = ("thesis", "flight")
 SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``scenario.truth_span``)
 MAX_LATE_CYCLES = 3                  # late cycles in a row that end the session: the firmware is hung
+HELLO_WAIT_S = 30.0                  # wall seconds the firmware has to answer HELLO
+HELLO_RETRY_S, HELLO_RETRY_MAX_S = 0.05, 0.5    # HELLO sent again after this, doubling up to the second
 ISOTP_TIMEOUT_MS = 20.0              # N_Bs on the lockstep pty, both ends (ISO's 1000 ms is for a real bus)
 
 
@@ -181,6 +189,8 @@ class AdcsSession:
         self.wheel_rpm_log = []                  # per cycle: the largest |wheel speed| at its end (rpm)
         self.wall_s = 0.0
         self._t_wall = 0.0
+        self._begun = False                      # the first burst sent: the fault clock runs
+        self.hello_tries = 0
         self.closed = False
 
     # the world's and the bus's parts, as the callers know them
@@ -270,24 +280,60 @@ class AdcsSession:
                 self.link = connect(path)
             finally:
                 os.close(s)
-        deadline = time.monotonic() + 30.0
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0 or self.proc.poll() is not None or self.link.closed:
-                said = self.proc.death(0.5, " before it said HELLO") or "%s said no HELLO within 30 s%s" % (
-                    self.proc.name, (": " + last_lines(self._stderr())) if self._stderr() else "")
-                self.close()
-                raise OSError(said)
-            if any(p[0] == P["HELLO"] for p in self.link.recv(min(left, 0.5))):
-                break
-        self._say("ADCS firmware up (%s, pid %d), CAN over slcan on %s" % (self.runtime, self.proc.pid, path))
-        return self._begin()
-
-    def _begin(self):
-        """Faults on the link, the wall clock, the first burst."""
         if self.link_faults is not None:
             from protocol.faults import inject
-            inject(self.link, self.link_faults, clock=lambda: float(self.k))
+            inject(self.link, self.link_faults, clock=lambda: float(self.k) if self._begun else None)
+        try:
+            self._hello("CAN (slcan on %s)" % path)
+        except BaseException:
+            self.close()
+            raise
+        self._say("ADCS firmware up (%s, pid %d), CAN over slcan on %s%s" % (
+            self.runtime, self.proc.pid, path, "" if self.hello_tries == 1 else
+            " (HELLO answered at try %d)" % self.hello_tries))
+        return self._begin()
+
+    def _hello(self, where):
+        """HELLO to the firmware until its own comes (see the module docstring); OSError after ``HELLO_WAIT_S``,
+        when its process exits or when the link closes. ``where``: the link, as the message names it."""
+        hello = P["HELLO"]
+        payload = core.encode_payload(hello, node=N["SPACECRAFT"])
+        deadline = time.monotonic() + HELLO_WAIT_S
+        gap = HELLO_RETRY_S
+        while True:
+            if self.proc.poll() is not None:
+                raise OSError(self.proc.death(0.5, " before it said HELLO"))
+            if self.link.closed:
+                raise OSError("the link to %s (%s) closed before it said HELLO%s%s" % (
+                    self.proc.name, where, self.proc.exit_note(0.5), self._link_note()))
+            now = time.monotonic()
+            if now >= deadline:
+                raise OSError("%s did not answer HELLO over %s within %g s (%d HELLOs sent)%s%s" % (
+                    self.proc.name, where, HELLO_WAIT_S, self.hello_tries,
+                    (": " + last_lines(self._stderr())) if self._stderr() else "", self._link_note()))
+            self.link.send_raw(hello, N["SPACECRAFT"], N["ADCS"], payload)
+            self.hello_tries += 1
+            end = min(deadline, now + gap)
+            gap = min(2 * gap, HELLO_RETRY_MAX_S)
+            while not self.link.closed:
+                left = end - time.monotonic()
+                if left <= 0:
+                    break
+                if any(p[0] == hello for p in self.link.recv(left)):
+                    return
+
+    def _link_note(self):
+        """`` [link counters: name=value, ...]`` of the link's counters that are not zero ("" without any)."""
+        try:
+            c = self.link.counters() if self.link is not None else {}
+        except Exception:   # noqa: BLE001 - a message's detail: a bus already gone reports nothing
+            c = {}
+        said = ", ".join("%s=%s" % (k, v) for k, v in sorted(c.items()) if v not in (0, None, "", []))
+        return " [link counters: %s]" % said if said else ""
+
+    def _begin(self):
+        """The wall clock, the first burst (the fault clock's silences count from here)."""
+        self._begun = True
         self._t_wall = time.perf_counter()
         self._burst()
         return self
@@ -298,8 +344,9 @@ class AdcsSession:
         if self.link.closed or (self.proc is not None and self.proc.poll() is not None):
             when = " at t = %d s" % k
             said = self.proc.death(1.0, when) if self.proc is not None else ""
-            raise OSError(said or "the ADCS firmware's link closed%s%s" % (
-                when, (" (%s is still running)" % self.proc.name) if self.proc is not None else ""))
+            raise OSError(said or "the ADCS firmware's link closed%s%s%s" % (
+                when, (" (%s is still running)" % self.proc.name) if self.proc is not None else "",
+                self._link_note()))
 
     def _stderr(self):
         return self.proc.stderr_tail(2000).strip() if self.proc is not None else ""
@@ -349,9 +396,9 @@ class AdcsSession:
         w.n_late += 1
         w.late_run += 1
         if w.late_run >= MAX_LATE_CYCLES:        # alive but hung: its pty would fill and block the bursts
-            raise OSError("%s gave no ADCS_STATUS for %d cycles in a row (%g s each) at t = %d s: hung? %s" % (
+            raise OSError("%s gave no ADCS_STATUS for %d cycles in a row (%g s each) at t = %d s: hung? %s%s" % (
                 getattr(self.proc, "name", "the ADCS firmware"), w.late_run, w.timeout_s, self.k,
-                last_lines(self._stderr()) or "(nothing on its stderr)"))
+                last_lines(self._stderr()) or "(nothing on its stderr)", self._link_note()))
         self._say("t = %.0f s: no ADCS_STATUS within %.0f s (late cycle; wheels hold)" % (t, w.timeout_s))
 
     def blind_share(self, t_from):
@@ -398,7 +445,7 @@ class AdcsSession:
                 "wheels_failed": st.get("wheels_failed"), "last_mode": st.get("adcs_mode_name"),
                 "link": self.link.counters() if self.link is not None else {},
                 "link_faults": self.link_faults.as_dict() if self.link_faults is not None else None,
-                "retries": dict(self.wait.retries),
+                "retries": dict(self.wait.retries, hello_tries=self.hello_tries),
                 "faults": self.faults, "fault_log": list(self.fault_log), "world": self.world_name,
                 "mode_changes": list(self.watch.mode_changes), "max_wheel_speed_rpm": self.wheel_rpm_max(),
                 "wheel_datasheet_rpm": self.spacecraft["wheels"]["speed_limit_rpm"],

@@ -320,6 +320,55 @@ def test_fps_adcs_can_interrupted_leaves_a_valid_partial_folder(tmp_path, monkey
     assert np.load(out / "history.npz")["t"].shape == (50,)
 
 
+@pytest.mark.parametrize("runtime", _runtimes())
+def test_a_lost_hello_either_way_costs_a_retry_not_the_session(tmp_path, runtime):
+    """--link-faults first=1: the firmware's HELLO and this side's first HELLO are lost; the session says HELLO
+    again until the firmware answers, and the run completes with the retries counted."""
+    import json
+    from ground import cli
+    out = tmp_path / "run"
+    assert cli.main(["adcs", "can", "--duration", "3", "--runtime", runtime, "--quiet", "--no-plots",
+                     "--link-faults", "first=1", "-o", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["complete"] and s["cycles"] == 3 and s["retries"]["hello_tries"] >= 2
+    assert s["link"]["fault_tx_dropped"] == s["link"]["fault_rx_dropped"] == 1
+
+
+def test_a_firmware_that_never_answers_hello_is_named_with_the_link_not_the_input_files(tmp_path, monkeypatch,
+                                                                                         capsys):
+    """Every frame lost (first=1000000): after the wait, the message says the firmware did not answer HELLO over
+    which link, with the link's counters, in the folder's summary.json too; no traceback, exit 1."""
+    import json
+    from emulator import adcs_session
+    from ground import cli
+    monkeypatch.setattr(adcs_session, "HELLO_WAIT_S", 1.5)
+    out = tmp_path / "run"
+    assert cli.main(["adcs", "can", "--duration", "3", "--runtime", "cpython", "--quiet", "--no-plots",
+                     "--link-faults", "first=1000000", "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "did not answer HELLO over CAN (slcan on /dev/pts/" in err and "within 1.5 s" in err
+    assert "link counters:" in err and "fault_tx_dropped=" in err and "fault_rx_dropped=" in err
+    assert "parameter" not in err and "spacecraft" not in err and "Traceback" not in err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["complete"] is False and "did not answer HELLO" in s["error"] and s["retries"]["hello_tries"] >= 5
+    assert s["link"]["fault_tx_dropped"] == s["retries"]["hello_tries"]      # every HELLO sent was lost
+
+
+def test_the_firmware_answers_each_hello_and_the_in_process_app_too():
+    from emulator.adcs_session import AdcsSession
+    from firmware.adcs.lockstep import InProcess
+    s = AdcsSession(runtime="inproc", duration_s=2)
+    s.start()
+    try:
+        assert isinstance(s.link, InProcess)
+        P, N = core.PACKET_ID, core.NODE
+        s.link.send_raw(P["HELLO"], N["SPACECRAFT"], N["ADCS"], core.encode_payload("HELLO", node=N["SPACECRAFT"]))
+        [(pid, src, dst, _, payload)] = [p for p in s.link.recv() if p[0] == P["HELLO"]]
+        assert (src, dst, core.payload_dict(pid, payload)["node"]) == (N["ADCS"], N["SPACECRAFT"], N["ADCS"])
+    finally:
+        s.close()
+
+
 ADAPTER = r"""
 import json, sys
 from firmware.hal.slcan import SlcanAdapter

@@ -142,7 +142,9 @@ class InProcess:
     def send_raw(self, pid, src, dst, payload):
         if dst != self.node:
             return
-        if pid == P_ADCS_TICK:
+        if pid == P_HELLO:                   # answered as ``serve`` answers it
+            out = ((P_HELLO, src, core.encode_payload(P_HELLO, node=self.node, fw_major=1, fw_minor=0)),)
+        elif pid == P_ADCS_TICK:
             tick, t_ms, burst, n_gnss_b = struct.unpack(FMT_ADCS_TICK, payload)
             out = self.ls.on_tick(tick, t_ms, burst, n_gnss_b, src)
         else:
@@ -162,9 +164,10 @@ class InProcess:
 
 
 def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
-    """The ADCS on a CAN port until the host leaves: HELLO once the channel is open, then the lockstep
-    (``Lockstep``): per cycle, RW_CMD x4 and ADCS_STATUS to the tick's sender. ``heap``: callable(tick, bytes)
-    measuring the cycle's heap (gc.mem_alloc deltas, under MicroPython)."""
+    """The ADCS on a CAN port until the host leaves: HELLO once the channel is open, and again to each HELLO
+    received (the host repeats its own until it hears one: a lost HELLO costs a retry, not the session), then
+    the lockstep (``Lockstep``): per cycle, RW_CMD x4 and ADCS_STATUS to the tick's sender. ``heap``:
+    callable(tick, bytes) measuring the cycle's heap (gc.mem_alloc deltas, under MicroPython)."""
     me = port.node
     hello = core.encode_payload(P_HELLO, node=me, fw_major=1, fw_minor=0)
     ad = getattr(port, "ad", None)
@@ -192,6 +195,9 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
     ls = Lockstep(app, step)
     while not port.closed:
         for pid, src, dst, seq, payload in port.recv_ms(poll_ms):
+            if pid == P_HELLO:
+                port.send_raw(P_HELLO, me, src, hello)
+                continue
             if pid == P_ADCS_TICK:
                 tick, t_ms, burst, n_gnss_b = struct.unpack(FMT_ADCS_TICK, payload)
                 replies = ls.on_tick(tick, t_ms, burst, n_gnss_b, src)

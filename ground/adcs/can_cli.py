@@ -9,6 +9,8 @@ pointing error dtheta/domega in arcsec; 1 Hz status fields, the flight software'
 ``est_w``, ``est_ra``, ``est_rb`` and the wheel commands applied ``rw_cmd_nm``), ``pointing.png`` (the pointing
 error with the ADCS mode). ``--link-faults`` damages the slcan stream (bit flips, frame lines dropped, both
 directions): the lockstep's retries keep every cycle exactly once, and the retries are counted in the summary.
+A run that fails (the firmware exits or hangs, no HELLO, the link closes) leaves ``summary.json`` with ``complete``
+false, the ``error`` and the link's counters (exit 1).
 Ctrl-C or SIGTERM leaves a valid folder with ``complete`` false and every cycle flown so far (exit 130); the
 firmware's process (or QEMU) dies with this one however it ends. ``budgets_met``: the pointing figures against the
 3σ budgets (150 arcsec, 35 arcsec/s); a run that misses them exits 3, one too short to have them (null) exits 0.
@@ -60,7 +62,8 @@ def register(sub):
     p.add_argument("--link-faults", metavar="SPEC", default=None,
                    help="faults on the slcan stream, both directions: bytes=P (a bit flip per ASCII byte), "
                         "frames=P (a CAN frame's line dropped), seed=N, silence=START_S:LENGTH_S (seconds of the "
-                        "run; LENGTH_S may be inf), e.g. bytes=0.001,frames=0.05,seed=1")
+                        "run; LENGTH_S may be inf), first=N (the first N frame lines each way dropped, from the "
+                        "firmware's HELLO on), e.g. bytes=0.001,frames=0.05,seed=1")
     p.add_argument("--quiet", action="store_true", help="no progress bar or messages")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")
@@ -78,7 +81,12 @@ def run(a):
     run_folder(out, (FIGURE,))
     record = runs.spacecraft_record(d, source)
     write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}, "spacecraft": record})
-    rows, summary, interrupted = _fly(session, a)
+    try:
+        rows, summary, interrupted = _fly(session, a)
+    except OSError as exc:                   # the run failed: the folder says why, with the link's counters
+        write_json(os.path.join(out, "summary.json"), dict(session.summary(), complete=False, interrupted=False,
+                                                           error=str(exc), spacecraft=record))
+        raise
     summary["complete"] = bool(summary["complete"] and not interrupted)
     summary["interrupted"] = interrupted
     summary["spacecraft"] = record

@@ -316,6 +316,20 @@ def test_faults_cost_time_not_correctness(tmp_path, inputs, clean):
     assert s["link_faults"]["bytes"] == 0.01 and s0["link_faults"] is None
 
 
+def test_a_lost_first_frame_each_way_costs_a_retry_not_the_run(tmp_path, inputs, clean):
+    """--link-faults first=1 on serial: the controller's HELLO and the bench's first HELLO are lost; HELLO is said
+    again until answered and the run is the clean run, bit for bit."""
+    out0, _ = clean
+    rc, out, s = _hil(tmp_path, inputs, "first", "--link-faults", "first=1")
+    assert rc == 0 and s["complete"] and s["error"] is None and s["overruns"] == 0
+    a, b = np.load(out0 / "samples.npz"), np.load(out / "samples.npz")
+    for k in a.files:
+        assert np.array_equal(a[k], b[k]), k
+    bench = s["link"]["bench"]
+    assert bench["controller_fault_tx_dropped"] == bench["controller_fault_rx_dropped"] == 1
+    assert bench["hello_tries"] >= 2 and s["link_faults"]["first"] == 1
+
+
 def test_heavy_faults_stop_with_a_clear_error(tmp_path, inputs, capsys):
     rc, out, s = _hil(tmp_path, inputs, "heavy", "--link-faults", "bytes=0.05,frames=0.20,seed=1")
     err = capsys.readouterr().err

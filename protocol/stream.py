@@ -16,20 +16,7 @@ import select
 import termios
 
 from protocol import core
-
-try:
-    from time import ticks_diff, ticks_ms, ticks_us
-except ImportError:  # CPython
-    import time
-
-    def ticks_ms():
-        return int(time.monotonic() * 1000)
-
-    def ticks_us():
-        return int(time.monotonic() * 1e6)
-
-    def ticks_diff(a, b):
-        return a - b
+from protocol.compat import ticks_diff, ticks_ms, ticks_us
 
 # Linux termios values (MicroPython's termios module has no flag constants).
 # IGNBRK BRKINT PARMRK ISTRIP INLCR IGNCR ICRNL IXON

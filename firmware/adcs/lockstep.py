@@ -5,16 +5,11 @@ packets' bytes and send the same replies (``telemetry.cycle_replies``)."""
 
 import struct
 
-try:
-    from time import ticks_diff                   # MicroPython: ticks wrap (2^30 us on a 32-bit board)
-except ImportError:                               # CPython
-    def ticks_diff(a, b):
-        return a - b
-
 from firmware.adcs.apkf_lean_model import NW     # the wheels the lean ADCS flies
 from firmware.adcs.telemetry import cycle_replies
 from protocol import can as canmap
 from protocol import core
+from protocol.compat import ticks_diff          # MicroPython: ticks wrap (2^30 us on a 32-bit board)
 from protocol.consts import (FMT_ADCS_MISSING, FMT_ADCS_TICK, NODE_BROADCAST, NODE_RW0, P_ADCS_MISSING, P_ADCS_TICK,
                              P_BEACON, P_GNSS, P_HELLO, P_RW_TLM, P_STARTRACKER, STALE_BEACON, STALE_GNSS_A,
                              STALE_GNSS_B, STALE_RW0, STALE_STARTRACKER)

@@ -31,11 +31,25 @@ zero latency 11.6 dB, 76 deg, 41 Hz. Both exceed the factor 2 wanted for the 12 
 
 Modes (``protocol.table.MODES``): IDLE ramps the command to the centre; TRACK runs the law; HOLD freezes the
 command; CALIBRATE takes voltages from CTRL_SET_FSM; SAFE ramps to the centre and stays there until the
-ground commands another mode; SATURATED is TRACK with the command stuck on its clamp. TRACK (and SATURATED)
-enter SAFE after ``safe_ticks`` consecutive beam-lost ticks (holding meanwhile); TRACK, SATURATED, HOLD and
-CALIBRATE enter SAFE after ``safe_ticks`` ticks without a packet from the link: on a board ``tick`` counts the
-hardware-timer ticks since the last ``handle``d packet; over the link HAL every TICK is link traffic and the
-wait between TICKs is counted (``link_silent``).
+ground commands another mode; SATURATED is TRACK with the command stuck on its clamp; ACQUIRE is TRACK without
+the beam (below). Every mode but IDLE and SAFE enters SAFE after ``safe_ticks`` ticks without a packet from the
+link: on a board ``tick`` counts the hardware-timer ticks since the last ``handle``d packet; over the link HAL
+every TICK is link traffic and the wait between TICKs is counted (``link_silent``). SAFE, commanded or for link
+silence, stays until the ground commands another mode.
+
+Acquisition, then tracking: the body pointing brings the beam onto Q1, the fine loop takes it from there.
+A beam-lost tick in TRACK or SATURATED holds the command (no integration: there is no dR to integrate). After
+``acq_ticks`` (default ``ACQ_TICKS`` = 64, 100.3 ms) beam-lost ticks in a row, the beam is not a flicker: the
+controller enters ACQUIRE (``why`` BEAM_LOST). ACQUIRE runs no law; it holds the command where the beam was
+last seen (a fade, or a body error that ran past the mirror's range and turns back, brings the beam back there)
+until the beam has been lost ``centre_ticks`` ticks in a row (default 638, 1 s), then ramps the command to the
+centre by ``ramp_code`` per tick, as SAFE does: the mirror's rest is the boresight the body pointing aims at,
+so the beam comes back there once the body error is inside Q1's field. A beam-present tick in ACQUIRE stops the
+ramp (the mirror holds while the beam is debounced) and counts; ``acq_ticks`` of them in a row and the
+controller returns to TRACK, the law resuming on the next tick from the command as it stands (bumpless: the
+integrator is the command itself, Eq. 7.12). A commanded TRACK keeps ACQUIRE; link silence takes it to SAFE.
+64 ticks for the same reasons as SAT_TICKS (below): 25 loop time constants, and with decim <= acq_ticks every
+stay in ACQUIRE and every return to TRACK between two losses (each at least acq_ticks long) shows in a CTRL_STATUS.
 
 Saturation is an event. The run ``sat_run`` counts the ticks the command has stayed on its clamp: each tick
 the law hits it, and each beam-lost hold in TRACK or SATURATED after one (the held command is the clamped
@@ -49,8 +63,8 @@ law tick whose command stays inside the clamp on both axes the run ends and the 
 (bumpless: the law never stopped); a new episode needs another full run, so the mode changes at most once each
 way per sat_ticks + 1 ticks. A run that reached sat_ticks leaves its length in ``sat_last``;
 ``n_sat_episodes`` counts the entries. HOLD, SAFE or any other mode ends a run; a CTRL_SETTINGS asking for
-TRACK while SATURATED keeps SATURATED. ``why`` keeps its meaning (why SAFE was last entered): SATURATED is its
-own reason.
+TRACK while SATURATED keeps SATURATED. ``why`` says why SAFE or ACQUIRE was last entered: SATURATED is its own
+reason.
 
 Speed (bench/bench_firmware.py): the tick's state is one preallocated integer list (slots ``S_*`` below) read
 through a local, and ``step`` runs the law (TRACK or SATURATED, beam present) inline with every other case in
@@ -87,6 +101,7 @@ HOLD = const(2)
 CALIBRATE = const(3)
 SAFE = const(4)
 SATURATED = const(5)
+ACQUIRE = const(6)
 # --- end of generated constants ---
 
 # The tick's state lives in one preallocated integer list, ``Controller._s`` (an index load is far cheaper than
@@ -119,7 +134,8 @@ _S_SAT_LAST = const(29)   # length of the last run that reached sat_ticks, once 
 _S_N_SAT_EP = const(30)   # entries into SATURATED, wraps at 2^16
 _S_PKT = const(31)        # tick of the last packet from the link
 _S_QUIET = const(32)      # ticks the link HAL waited without a TICK (link_silent; stops at _COUNT_MAX)
-_S_SIZE = const(33)
+_S_SEEN = const(33)       # ACQUIRE: beam-present ticks in a row (back to TRACK at acq_ticks)
+_S_SIZE = const(34)
 
 _INIT_BIT = const(8)
 _E_MAX = const(16383)             # |dR| clamp, Q15 (0.5)
@@ -128,11 +144,12 @@ _NO_BIN = const(1 << 29)          # (v ^ _NO_BIN) >> 14 != 0 for every |v| < 2^2
 _FLAG_BEAM = const(1)
 _FLAG_SAT = const(2)
 _FLAG_TABLE = const(4)
-WHY_BEAM = const(1)               # CTRL_STATUS.why (protocol.table.SAFE_REASONS)
+WHY_BEAM = const(1)               # CTRL_STATUS.why (protocol.table.SAFE_REASONS): ACQUIRE's
 WHY_LINK = const(2)
 WHY_COMMANDED = const(3)
 MAX_HTABLE_BYTES = const(8192)    # H-table blob the controller accepts: a 22x22 grid (7.9 kB; 11x11 is 2 kB)
 SAT_TICKS = const(64)             # ticks on the clamp in a row before TRACK enters SATURATED (module docstring)
+ACQ_TICKS = const(64)             # beam-lost ticks in a row before TRACK enters ACQUIRE, and beam ticks back
 
 FW_VERSION = (1, 0)
 
@@ -178,7 +195,7 @@ class Controller:
 
     def __init__(self, hal=None, table=None, gain_q15=16384, beam_threshold=200, safe_ticks=638, decim=64,
                  limit_code=ad5664r.TILT_LIMIT_CODE, ramp_code=64, rx_cmd_q15=0, ry_cmd_q15=0, sat_ticks=SAT_TICKS,
-                 max_table_bytes=MAX_HTABLE_BYTES, static=False):
+                 acq_ticks=ACQ_TICKS, centre_ticks=638, max_table_bytes=MAX_HTABLE_BYTES, static=False):
         _check_int("gain_q15", gain_q15, 0, 65535)
         _check_int("beam_threshold", beam_threshold, 1, 4095)
         _check_int("safe_ticks", safe_ticks, 1, 65535)
@@ -188,6 +205,8 @@ class Controller:
         _check_int("rx_cmd_q15", rx_cmd_q15, -16384, 16384)
         _check_int("ry_cmd_q15", ry_cmd_q15, -16384, 16384)
         _check_int("sat_ticks", sat_ticks, 1, 65535)
+        _check_int("acq_ticks", acq_ticks, 1, 65535)
+        _check_int("centre_ticks", centre_ticks, 1, 65535)
         self._s = s = self._state()
         s[_S_MODE] = IDLE | _INIT_BIT   # the first tick sends the AD5664R init sequence
         s[_S_THR] = beam_threshold
@@ -203,13 +222,15 @@ class Controller:
         self.gain = gain_q15
         self.safe_ticks = safe_ticks
         self.sat_ticks = sat_ticks
+        self.acq_ticks = acq_ticks
+        self.centre_ticks = centre_ticks
         self.decim = decim
         self.ramp_q8 = ramp_code << 8
         self.n_unknown = 0             # telemetry counters, wrap at 2^16
         self.n_dup = 0                 # set by the link HAL: resent TICKs answered from its cache,
         self.n_gap = 0                 # ticks the bench ran without us, frames its decoder dropped
         self.n_rx_drop = 0
-        self.why = 0                   # why SAFE was last entered (WHY_*)
+        self.why = 0                   # why SAFE or ACQUIRE was last entered (WHY_*)
         self._end = None               # (total, crc, code) of the last finished upload: END is idempotent
         self.words = self._words()     # this tick's AD5664R words
         self._h4 = [0] * 4             # scratch for the interpolated H^-1
@@ -228,7 +249,7 @@ class Controller:
 
     @property
     def mode(self):
-        return self._s[_S_MODE] & 7      # IDLE .. SATURATED (0..5) fit below _INIT_BIT
+        return self._s[_S_MODE] & 7      # IDLE .. ACQUIRE (0..6) fit below _INIT_BIT
 
     @mode.setter
     def mode(self, m):
@@ -328,7 +349,8 @@ class Controller:
         return 4
 
     def _step_other(self, vx, vy, vs):
-        """``step`` for the init tick, beam loss and the modes other than TRACK and SATURATED."""
+        """``step`` for the init tick, beam loss and the modes other than TRACK and SATURATED (ACQUIRE's
+        exit and return: the module docstring)."""
         s = self._s
         m = s[_S_MODE]
         if m & _INIT_BIT:              # first tick after boot: the AD5664R init sequence
@@ -340,21 +362,30 @@ class Controller:
         s[_S_VS] = vs
         if vs < s[_S_THR]:
             s[_S_N_LOST] = (s[_S_N_LOST] + 1) & 0xFFFF
-            if m == TRACK or m == SATURATED:   # hold (no integration); SAFE after safe_ticks lost ticks in a row
+            if m == TRACK or m == SATURATED or m == ACQUIRE:   # hold (no integration)
                 if s[_S_LOST] < _COUNT_MAX:
                     s[_S_LOST] += 1
-                if s[_S_SAT_RUN]:       # the held command is the clamped one: the run goes on
-                    self._run_on()
-                if s[_S_LOST] >= self.safe_ticks:
-                    s[_S_MODE] = SAFE
-                    self.why = WHY_BEAM
+                s[_S_SEEN] = 0             # ACQUIRE counts the beam's return from the next beam tick on
+                if m != ACQUIRE:
+                    if s[_S_SAT_RUN]:       # the held command is the clamped one: the run goes on
+                        self._run_on()
+                    if s[_S_LOST] >= self.acq_ticks:    # not a flicker: ACQUIRE
+                        s[_S_MODE] = ACQUIRE
+                        self.why = WHY_BEAM
         else:                          # ratios for telemetry (calibration reads them)
             r = vs >> 1
             s[_S_RX] = (((2048 - vx) << 15) + r) // vs
             s[_S_RY] = (((2048 - vy) << 15) + r) // vs
+            if m == ACQUIRE:           # the beam back: hold while it stays acq_ticks in a row, then TRACK
+                s[_S_LOST] = 0
+                s[_S_SEEN] += 1
+                if s[_S_SEEN] >= self.acq_ticks:
+                    s[_S_MODE] = TRACK
+                    s[_S_SEEN] = 0
         if s[_S_SAT_RUN] and m != TRACK and m != SATURATED:    # no law this tick: the run ends
             self._run_end()
-        if m == SAFE or m == IDLE:     # move the command toward the centre by ramp_code per tick, never integrating
+        if m == SAFE or m == IDLE or (m == ACQUIRE and s[_S_LOST] >= self.centre_ticks):
+            # move the command toward the centre by ramp_code per tick, never integrating
             r = self.ramp_q8
             v = s[_S_VX]
             s[_S_VX] = v - r if v > r else (v + r if v < -r else 0)
@@ -530,9 +561,10 @@ class Controller:
             self._s[S_BXQ] = _NO_BIN
         self.decim = decim
         self.safe_ticks = safe_ticks
-        if mode != self.mode and not (mode == TRACK and self.mode == SATURATED):
-            self.mode = mode          # TRACK starts from the current command: bumpless (SATURATED is TRACK)
+        if mode != self.mode and not (mode == TRACK and (self.mode == SATURATED or self.mode == ACQUIRE)):
+            self.mode = mode          # TRACK starts from the current command: bumpless (SATURATED, ACQUIRE: TRACK's)
             self.lost = 0
+            self._s[_S_SEEN] = 0
             if mode == SAFE:
                 self.why = WHY_COMMANDED
         return 0

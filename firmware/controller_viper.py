@@ -6,10 +6,10 @@ Same law, same integers, same order of operations as ``Controller.step`` (firmwa
 7.12, 7.13), so the codes are identical (tests/mp/firmware_viper.py checks it over long runs). The state is
 an ``array('i')`` (int32, every slot within +-2^30) with the slots and Q-formats of ``firmware.controller``;
 the words an ``array('i')``. A new bin recomputes the cached g H^-1 here (in viper). Any other case (init tick,
-other modes, SATURATED included, beam lost, saturation, the first tick off the clamp after a saturation run)
-is detected before the loop's state is stored and handed whole to the bytecode ``Controller.step``, which
-keeps the saturation counters and mode (on saturation the g H^-1 cache may already hold the new bin's, the
-same values the bytecode step computes for it).
+other modes, SATURATED and ACQUIRE included, beam lost, saturation, the first tick off the clamp after a
+saturation run) is detected before the loop's state is stored and handed whole to the bytecode
+``Controller.step``, which keeps the saturation and acquisition counters and the mode (on saturation the g H^-1
+cache may already hold the new bin's, the same values the bytecode step computes for it).
 """
 
 import micropython
@@ -40,7 +40,7 @@ _S_SHIFT = const(15)
 _S_ROUND = const(16)
 _S_GH = const(20)
 _S_SAT_RUN = const(28)
-_S_SIZE = const(33)
+_S_SIZE = const(34)
 _TRACK = const(1)
 _E_MAX = const(16383)
 _COUNT_MAX = const(0x3FFFFFFF)

@@ -142,7 +142,7 @@ def _enums_markdown():
         L.append("| %d | %s | %s |" % (e[1], e[0], e[2]))
     L += ["", "## Controller modes", "", "| value | mode |", "|---|---|"]
     L += ["| %d | %s |" % (m[1], m[0]) for m in table.MODES]
-    L += ["", "## Why the controller entered SAFE (CTRL_STATUS.why)", "", "| value | reason |", "|---|---|"]
+    L += ["", "## Why the controller entered SAFE or ACQUIRE (CTRL_STATUS.why)", "", "| value | reason |", "|---|---|"]
     L += ["| %d | %s |" % (r[1], r[0]) for r in table.SAFE_REASONS]
     L += ["", "## ADCS modes (ADCS_STATUS.adcs_mode)", "", "| value | mode |", "|---|---|"]
     L += ["| %d | %s |" % (m[1], m[0]) for m in table.ADCS_MODES]

@@ -36,11 +36,13 @@ NODES = (
 )
 
 # Controller modes (CTRL_SETTINGS.mode, CTRL_STATUS.mode). SATURATED is TRACK with the FSM command held on its
-# clamp for a sustained run (firmware.controller.SAT_TICKS): the law still runs; the controller enters it and
-# returns to TRACK on its own, and the ground cannot command it (CTRL_SETTINGS.mode stops at SAFE).
-MODES = (("IDLE", 0), ("TRACK", 1), ("HOLD", 2), ("CALIBRATE", 3), ("SAFE", 4), ("SATURATED", 5))
+# clamp for a sustained run (firmware.controller.SAT_TICKS): the law still runs. ACQUIRE is TRACK without the beam
+# (Q1's sum below its threshold for firmware.controller.ACQ_TICKS ticks in a row): no law, the mirror held, then
+# returned to its centre; TRACK again once the beam has been back as long. The controller enters and leaves both
+# on its own, and the ground cannot command them (CTRL_SETTINGS.mode stops at SAFE).
+MODES = (("IDLE", 0), ("TRACK", 1), ("HOLD", 2), ("CALIBRATE", 3), ("SAFE", 4), ("SATURATED", 5), ("ACQUIRE", 6))
 
-# Why the controller last entered SAFE (CTRL_STATUS.why).
+# Why the controller last left TRACK on its own or entered SAFE (CTRL_STATUS.why): BEAM_LOST is ACQUIRE's.
 SAFE_REASONS = (("NONE", 0), ("BEAM_LOST", 1), ("LINK_SILENT", 2), ("COMMANDED", 3))
 
 # Error codes carried by NACK.code (0 is never sent: it means "no error").
@@ -138,7 +140,7 @@ PACKETS = (
         ("ry_cmd", "h", "", _Q15, -16384, 16384, 0, "Ry command, Q15"),
         ("gain", "H", "", _Q15, 0, 65535, 16384, "integral gain g, Q15 (0 keeps the current gain)"),
         ("decim", "H", "tick", 1, 0, 65535, 64, "status telemetry every decim ticks (0 = off)"),
-        ("safe_ticks", "H", "tick", 1, 1, 65535, 638, "silent or beam-lost ticks before SAFE"),
+        ("safe_ticks", "H", "tick", 1, 1, 65535, 638, "ticks of link silence before SAFE"),
     )),
     (0x21, "CTRL_SET_FSM", "GROUND", "CONTROLLER", "CALIBRATE mode: set the FSM tilt voltages directly", (
         ("vx", "i", "V", 1e-6, -2500000, 2500000, 0, "X tilt voltage"),
@@ -146,7 +148,8 @@ PACKETS = (
     )),
     (0x22, "CTRL_STATUS", "CONTROLLER", "GROUND", "controller status telemetry", (
         ("tick", "I", "", 1, None, None, 0, "control tick"),
-        ("mode", "B", "", 1, 0, 5, 0, "controller mode, see MODES (5 SATURATED: a sustained saturation)"),
+        ("mode", "B", "", 1, 0, 6, 0,
+         "controller mode, see MODES (5 SATURATED: a sustained saturation; 6 ACQUIRE: the beam lost, waiting)"),
         ("flags", "B", "", 1, None, None, 0, "bit0 beam present, bit1 saturated this tick, bit2 table loaded"),
         ("vx", "i", "V", 1e-6, -2500000, 2500000, 0, "commanded X tilt voltage"),
         ("vy", "i", "V", 1e-6, -2500000, 2500000, 0, "commanded Y tilt voltage"),
@@ -161,7 +164,8 @@ PACKETS = (
         ("n_sat", "I", "tick", 1, None, None, 0,
          "ticks the integral law's command hit its clamp on either axis (stops at 2^30 - 1)"),
         ("n_unknown", "H", "", 1, None, None, 0, "unknown packets ignored (wraps)"),
-        ("why", "B", "", 1, 0, 3, 0, "why the controller last entered SAFE, see SAFE_REASONS"),
+        ("why", "B", "", 1, 0, 3, 0,
+         "why the controller last entered SAFE or ACQUIRE, see SAFE_REASONS"),
         ("n_dup", "H", "", 1, None, None, 0, "resent TICKs answered again without a step (wraps)"),
         ("n_gap", "H", "", 1, None, None, 0, "ticks the bench ran without this controller (wraps)"),
         ("n_rx_drop", "H", "", 1, None, None, 0,

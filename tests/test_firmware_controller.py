@@ -9,13 +9,14 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from firmware import ad5664r
-from firmware.controller import CALIBRATE, HOLD, SAFE, TRACK, Controller
+from firmware.controller import ACQUIRE, CALIBRATE, HOLD, SAFE, TRACK, WHY_BEAM, Controller
 from firmware.hinv import HINV_MAX, HinvTable
-from protocol import core, htable
+from protocol import core, htable, table
 from tests.mp import firmware_plant as fp
 
 TICKS_10S = 6378          # 10 s at 637.8 Hz
 E_MAX = 16383 / 32768     # the firmware's dR clamp (just under 0.5)
+WHY = dict(table.SAFE_REASONS)   # CTRL_STATUS.why by name
 
 
 @pytest.fixture(scope="module")
@@ -204,31 +205,137 @@ def test_intermediates_within_2_30_and_codes_in_safe_range(samples, gain, rxc, r
 
 
 # --- modes --------------------------------------------------------------------------------------------
-def test_beam_loss_holds_then_safe_ramps_to_centre_without_windup(grid):
-    c = tracking(grid, safe_ticks=50, ramp_code=100)
+def _code_x(words):
+    return ad5664r.pair_to_code(words[0] & 0xFFFF, words[1] & 0xFFFF)
+
+
+def _tracked(grid, ticks=400, **kw):
+    """A controller that has followed the plant's disturbance for ``ticks`` (the mirror off centre)."""
+    c = tracking(grid, **kw)
     p = fp.Plant(seed=5)
-    for k in range(400):
+    for k in range(ticks):
         p.apply(c.on_tick(k, 0, *p.sample()))
+    assert c.words[0] & 0xFFFF != 0x8000
+    return c, p
+
+
+def test_beam_loss_holds_then_acquire_holds_then_centres_without_windup(grid):
+    c, p = _tracked(grid, acq_ticks=50, centre_ticks=300, ramp_code=100)
     held = list(c.words)
-    assert held[0] & 0xFFFF != 0x8000            # the mirror is off centre, following the disturbance
     p.beam = False
-    for k in range(49):
+    for k in range(49):                          # a flicker: TRACK holds the command
         c.on_tick(k, 0, *p.sample())
         assert c.words == held and c.mode == TRACK
-    c.on_tick(49, 0, *p.sample())
-    assert c.mode == SAFE
-    x_prev = abs(ad5664r.pair_to_code(held[0] & 0xFFFF, held[1] & 0xFFFF))
-    for k in range(2000):
+    c.on_tick(49, 0, *p.sample())                # acq_ticks lost in a row: ACQUIRE, BEAM_LOST
+    assert (c.mode, c.why, c.words) == (ACQUIRE, WHY_BEAM, held)
+    st_ = core.payload_dict(P["CTRL_STATUS"], c.status_payload())
+    assert (st_["mode"], st_["why"], st_["flags"] & 1) == (core.MODE["ACQUIRE"], WHY["BEAM_LOST"], 0)
+    for k in range(50, 299):                     # ACQUIRE holds where the beam was last seen
         c.on_tick(k, 0, *p.sample())
-        x = abs(ad5664r.pair_to_code(c.words[0] & 0xFFFF, c.words[1] & 0xFFFF))
-        assert x_prev - 100 <= x <= x_prev
+        assert c.words == held and c.mode == ACQUIRE
+    x_prev = abs(_code_x(held))
+    for k in range(2000):                        # centre_ticks lost in a row: back to the centre, no windup
+        c.on_tick(k, 0, *p.sample())
+        x = abs(_code_x(c.words))
+        assert x_prev - 100 <= x <= x_prev and c.mode == ACQUIRE
         x_prev = x
     assert _codes(c.words) == [0x8000] * 4 and c.vx_q8 == 0 and c.vy_q8 == 0
-    p.beam = True                                # beam back: SAFE latches, no jump, no integration
-    for k in range(100):
-        c.on_tick(k, 0, *p.sample())
-    assert c.mode == SAFE and _codes(c.words) == [0x8000] * 4
-    assert c.n_lost >= 2049
+    assert c.n_lost == 49 + 1 + 249 + 2000 and c.lost == 2299
+
+
+def test_the_beam_back_for_acq_ticks_returns_to_track_bumpless_and_tracks(grid):
+    c, p = _tracked(grid, acq_ticks=50, centre_ticks=100)
+    p.beam = False
+    for k in range(130):                         # ACQUIRE, partway to the centre
+        p.apply(c.on_tick(k, 0, *p.sample()))
+    assert c.mode == ACQUIRE and c.vx_q8 != 0
+    p.beam = True
+    held = list(c.words)
+    for k in range(49):                          # the beam back, debounced: the mirror holds, no law
+        p.apply(c.on_tick(k, 0, *p.sample()))
+        assert c.mode == ACQUIRE and c.words == held and c.lost == 0
+    ref = tracking(grid)                         # the law from the same command: what the first step must be
+    ref.vx_q8, ref.vy_q8 = c.vx_q8, c.vy_q8
+    p.apply(c.on_tick(49, 0, *p.sample()))
+    assert (c.mode, c.words, c.why) == (TRACK, held, WHY_BEAM)    # TRACK again; why stays the loss's reason
+    smp = p.sample()
+    ref.step(*smp)
+    p.apply(c.on_tick(50, 0, *smp))
+    assert c.words == ref.words and (c.vx_q8, c.vy_q8) == (ref.vx_q8, ref.vy_q8)    # bumpless: the law resumes
+    for k in range(2000):
+        p.apply(c.on_tick(k, 0, *p.sample()))
+    assert c.mode == TRACK and max(abs(v) for v in p.residual_v()) < 0.01          # and follows the disturbance
+
+
+def test_a_beam_dropout_restarts_the_debounce_and_the_hold(grid):
+    c, p = _tracked(grid, acq_ticks=20, centre_ticks=60, ramp_code=100)
+    dark, lit = (2048, 2048, 10), (2048 - 40, 2048 + 30, 2500)
+    for _ in range(20):
+        c.step(*dark)
+    assert c.mode == ACQUIRE
+    held = list(c.words)
+    for _ in range(19):
+        c.step(*lit)
+    c.step(*dark)                                # one dark tick: the count starts again
+    for _ in range(19):
+        c.step(*lit)
+    assert c.mode == ACQUIRE and c.words == held
+    for _ in range(59):                          # the hold counts from the dropout's start again
+        c.step(*dark)
+    assert c.words == held
+    c.step(*dark)
+    assert c.words != held and c.mode == ACQUIRE
+    for _ in range(20):
+        c.step(*lit)
+    assert c.mode == TRACK
+
+
+def test_safe_commanded_or_for_link_silence_stays_while_acquire_returns(grid):
+    c, p = _tracked(grid, acq_ticks=20, safe_ticks=1000)
+    for _ in range(20):
+        c.step(2048, 2048, 10)
+    assert c.mode == ACQUIRE
+    assert _send(c, "CTRL_SETTINGS", mode=TRACK, safe_ticks=1000)[0][0] == P["ACK"] and c.mode == ACQUIRE
+    for _ in range(20):                          # TRACK asked in ACQUIRE keeps it: the beam decides
+        c.step(2048, 2048, 10)
+    assert c.mode == ACQUIRE
+    c.link_silent(1000)                          # link silence: SAFE from ACQUIRE
+    assert (c.mode, c.why) == (SAFE, WHY["LINK_SILENT"])
+    for _ in range(200):                         # the beam back: SAFE stays until commanded
+        c.on_tick(0, 0, 2048, 2048, 2500)
+    assert (c.mode, c.why) == (SAFE, WHY["LINK_SILENT"])
+    c, p = _tracked(grid, acq_ticks=20, safe_ticks=1000)
+    for _ in range(20):
+        c.step(2048, 2048, 10)
+    assert _send(c, "CTRL_SETTINGS", mode=SAFE, safe_ticks=1000)[0][0] == P["ACK"]
+    for _ in range(200):
+        c.step(2048, 2048, 2500)
+    assert (c.mode, c.why) == (SAFE, WHY["COMMANDED"])
+    assert _send(c, "CTRL_SETTINGS", mode=TRACK, safe_ticks=1000)[0][0] == P["ACK"] and c.mode == TRACK
+    for _ in range(20):                          # from a commanded TRACK, the next loss enters ACQUIRE again
+        c.step(2048, 2048, 10)
+    assert (c.mode, c.why) == (ACQUIRE, WHY_BEAM)
+    bad = bytearray(core.encode_payload("CTRL_SETTINGS", mode=1))
+    bad[0] = ACQUIRE                             # ACQUIRE cannot be commanded
+    assert c.handle(P["CTRL_SETTINGS"], 1, 3, bytes(bad))[0][2][2] == core.ERROR["BAD_VALUE"]
+
+
+def test_acquire_on_a_board_enters_safe_when_the_link_falls_silent(grid):
+    c = tracking(grid, acq_ticks=5, safe_ticks=40)
+    c.hal = _DarkHal()
+    for _ in range(39):
+        c.tick()
+    assert c.mode == ACQUIRE
+    c.tick()
+    assert (c.mode, c.why) == (SAFE, WHY["LINK_SILENT"])
+
+
+class _DarkHal:
+    def read_q1(self, out):
+        out[0], out[1], out[2] = 2048, 2048, 0
+
+    def spi_write(self, words, n):
+        pass
 
 
 class _StillHal:

@@ -56,8 +56,9 @@ def test_controller_unit_checks_and_stream_identical_to_cpython(tmp_path):
 
 def test_viper_path_gives_identical_codes_and_allocates_nothing():
     """Under micropython: the viper controller and the bytecode one, fed the same inputs and packets, agree
-    on every word and every state slot over 3 x 19,134 ticks (30 s each: a closed loop through beam loss,
-    SAFE, CALIBRATE, HOLD, gain, command and table changes and a sustained saturation (SATURATED and back);
+    on every word and every state slot over 3 x 19,134 ticks (30 s each: a closed loop through a beam flicker, a
+    beam loss (ACQUIRE, its hold and ramp, back to TRACK), a commanded SAFE, CALIBRATE, HOLD, gain, command and
+    table changes and a sustained saturation (SATURATED and back);
     random samples with dR clamps, saturation episodes and beam-threshold edges). The word CRCs equal those of
     the bytecode controller under CPython. The viper tick allocates nothing with the heap locked."""
     ticks = 19134
@@ -70,7 +71,7 @@ def test_viper_path_gives_identical_codes_and_allocates_nothing():
     cl = res["closed"]
     assert cl["ticks"] == ticks + 1 and cl["mismatch"] == 0
     assert cl["fallbacks"] < 0.2 * ticks                 # the viper code ran the common tick
-    assert all(n > 0 for n in cl["mode_ticks"][1:])      # TRACK, HOLD, CALIBRATE, SAFE and SATURATED all ran
+    assert all(n > 0 for n in cl["mode_ticks"][1:])      # TRACK, HOLD, CALIBRATE, SAFE, SATURATED, ACQUIRE ran
     assert cl["crc"] == fv.closed_loop(ticks, 3).crc & 0xFFFFFFFF
     for name, gain, lim, sign, cmd in (("saturating", 65535, 3000, 1.0, 16384), ("moderate", 1500, 32767, -1.0, 0)):
         r = res[name]

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from firmware.controller import HOLD, SAFE, SAT_TICKS, SATURATED, TRACK, Controller
+from firmware.controller import ACQUIRE, HOLD, SAT_TICKS, SATURATED, TRACK, Controller
 from protocol import core, htable
 from tests.mp import firmware_plant as fp
 from tests.test_firmware_mp import ROOT, run_mp
@@ -104,23 +104,58 @@ def test_short_runs_count_but_are_no_episode_and_other_modes_end_a_run(grid):
     assert (c.mode, c.sat_run, c.sat_last) == (HOLD, 0, run)
 
 
-def test_beam_loss_on_the_clamp_still_enters_safe(grid):
-    c = tracking(grid, safe_ticks=30)
+def test_beam_loss_on_the_clamp_enters_acquire_and_the_beam_back_returns_to_the_law(grid):
+    c = tracking(grid, acq_ticks=30, centre_ticks=100)
     for _ in range(100):
         c.step(*FAR)
     assert c.mode == SATURATED
     for _ in range(30):
         c.step(*DARK)
-    assert (c.mode, c.why) == (SAFE, 1)       # BEAM_LOST, as from TRACK
-    run = c.sat_run
-    c.step(*DARK)                             # SAFE ramps the command off the clamp: the run ends
-    assert (c.mode, c.sat_run, c.sat_last) == (SAFE, 0, run)
+    assert (c.mode, c.why) == (ACQUIRE, 1)    # BEAM_LOST, as from TRACK
+    run, clamped = c.sat_run, list(c.words)
+    c.step(*DARK)                             # no law in ACQUIRE: the run ends; the command held on the clamp
+    assert (c.mode, c.sat_run, c.sat_last, c.words) == (ACQUIRE, 0, run, clamped)
+    for _ in range(68):                       # 99 lost in a row
+        c.step(*DARK)
+    assert c.words == clamped
+    c.step(*DARK)                             # centre_ticks lost: the ramp takes the command off the clamp
+    assert abs(c.vx_q8) < fs.LIMIT_CODE << 8 and c.mode == ACQUIRE and c.flags & 2 == 0
+    ep = c.n_sat_episodes
+    for _ in range(30):                       # the spot back but far off: TRACK, and the law onto the clamp again
+        c.step(*FAR)
+    assert c.mode == TRACK
+    for _ in range(SAT_TICKS + 40):
+        c.step(*FAR)
+    assert c.mode == SATURATED and c.n_sat_episodes == ep + 1
 
 
-def test_sat_ticks_is_checked():
-    with pytest.raises(ValueError, match="sat_ticks"):
-        Controller(sat_ticks=0)
-    assert Controller(sat_ticks=10).sat_ticks == 10
+def test_acquire_under_micropython_bytecode_and_viper_with_the_heap_locked():
+    """The beam lost on the clamp, ACQUIRE's hold and ramp, a dropout in the beam's return and TRACK again,
+    under micropython: the bytecode and viper controllers agree on every word and state slot with the heap locked
+    and give CPython's modes, counters and CTRL_STATUS."""
+    res = run_mp("firmware_saturation.py", "acquire")
+    ref = fs.run(acquire=True)
+    assert res["alloc_bytes"] == 0 and res["mismatch"] == 0
+    assert res["crc"] == res["crc_viper"] == ref["crc"]
+    assert res["modes"] == ref["modes"] and res["status"] == ref["status"] and res["counters"] == ref["counters"]
+    modes = res["modes"]
+    lost_at = 40 + 150                                    # the first DARK tick
+    assert modes[lost_at - 1] == SATURATED and modes[lost_at + 62] == SATURATED
+    assert set(modes[lost_at + 63:lost_at + 400 + 30 + 1 + 63]) == {ACQUIRE}   # the loss, the lit ticks debounced
+    assert modes[lost_at + 400 + 30 + 1 + 63] == TRACK and modes[-1] == TRACK
+    hold, ramped, end = res["status"]
+    assert (hold["mode"], hold["why"], hold["sat_run"]) == (ACQUIRE, 1, 0) and hold["sat_last"] >= SAT_TICKS
+    assert abs(hold["code_xp"] - 0x8000) == abs(hold["code_yp"] - 0x8000) == fs.LIMIT_CODE    # held on the clamp
+    assert ramped["mode"] == ACQUIRE and ramped["vx"] == ramped["vy"] == 0 and ramped["flags"] & 1   # centred, lit
+    assert end["mode"] == TRACK and end["n_lost"] == 401
+
+
+def test_sat_ticks_acq_ticks_and_centre_ticks_are_checked():
+    for name in ("sat_ticks", "acq_ticks", "centre_ticks"):
+        for bad in (0, 65536, True):
+            with pytest.raises(ValueError, match=name):
+                Controller(**{name: bad})
+        assert getattr(Controller(**{name: 10}), name) == 10
 
 
 def test_saturation_under_micropython_bytecode_and_viper_with_the_heap_locked():

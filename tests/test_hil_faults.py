@@ -164,10 +164,11 @@ def test_safe_reason_and_mode_changes():
     c = Controller(table=htable.pack_calibration(true_h_field(Bench(noise=False), None, 0.01)), safe_ticks=5)
     c.mode = TRACK
     for _ in range(7):
-        c.step(2048, 2048, 0)                                 # no beam
-    assert c.mode == SAFE and c.why == 1
+        c.step(2048, 2048, 2500)
+    c.link_silent(5)                                          # the ground link silent
+    assert c.mode == SAFE and c.why == 2
     d = core.payload_dict(core.PACKET_ID["CTRL_STATUS"], c.status_payload(7))
-    assert d["why"] == 1 and d["mode"] == SAFE
+    assert d["why"] == 2 and d["mode"] == SAFE
 
     class R:
         rate_hz = 100.0

@@ -6,7 +6,7 @@ from binascii import crc32
 
 import firmware_plant as fp
 from firmware import ad5664r
-from firmware.controller import CALIBRATE, SAFE, TRACK, Controller
+from firmware.controller import ACQUIRE, CALIBRATE, TRACK, Controller
 from protocol import core, htable
 
 P = core.PACKET_ID
@@ -67,13 +67,16 @@ if __name__ == "__main__":
                                                               data=part))
     r = c.handle(P["HTABLE_END"], 1, 1, core.encode_payload("HTABLE_END", total=len(blob)))
     check(r[0][0] == P["NACK"] and r[0][2][2] == core.ERROR["BAD_CONTENT"] and c.table is before, "refused")
-    # beam loss -> SAFE
-    c = Controller(table=grid, safe_ticks=10)
+    # beam loss -> ACQUIRE -> the beam back -> TRACK
+    c = Controller(table=grid, acq_ticks=10)
     c.step(2048, 2048, 0)
     c.mode = TRACK
     for k in range(10):
         c.on_tick(k, 0, 2048, 2048, 3)
-    check(c.mode == SAFE, "beam loss enters SAFE")
+    m = c.mode
+    for k in range(10):
+        c.on_tick(k, 0, 2048, 2048, 2500)
+    check(m == ACQUIRE and c.mode == TRACK and c.why == 1, "beam loss enters ACQUIRE, the beam back TRACK")
     # hinv reference path agrees with the inlined one: a single TRACK step from the centre
     t = c.table
     h = t.hinv_at(0, 0)

@@ -2,10 +2,13 @@
 # a Q1 spot far off centre drives the integral law onto its clamp; the bytecode Controller and the
 # ViperController, fed the same samples, step with the heap locked (an allocation raises MemoryError) through
 # the saturation run, the entry into SATURATED, a beam dropout on the clamp, the return to TRACK when the error
-# reverses, and a second, short run. Prints one JSON line: per-tick modes, counters, CTRL_STATUS at three
-# instants, word CRCs, state mismatches between the two controllers, bytes allocated while locked.
+# reverses, and a second, short run; with the argument ``acquire``, the beam lost on the clamp (ACQUIRE: the run
+# ends, the hold, the ramp to the centre), a dropout within the beam's return, and TRACK again. Prints one JSON
+# line: per-tick modes, counters, CTRL_STATUS at three instants, word CRCs, state mismatches between the two
+# controllers, bytes allocated while locked.
 import gc
 import json
+import sys
 from binascii import crc32
 
 import firmware_plant as fp
@@ -24,24 +27,28 @@ DARK = (2048 - 500, 2048 + 500, 10)        # the beam below threshold: hold
 CENTRE = (2048, 2048, 2500)
 SCRIPT = ((CENTRE, 40), (FAR, 150), (DARK, 20), (FAR, 100), (BACK, 3), (FAR, 30), (BACK, 5), (CENTRE, 40))
 STATUS_AT = (250, 311)                     # CTRL_STATUS after these ticks (SATURATED, back in TRACK) and at the end
+ACQUIRE_SCRIPT = ((CENTRE, 40), (FAR, 150), (DARK, 400), (CENTRE, 30), (DARK, 1), (CENTRE, 100), (FAR, 20))
+ACQUIRE_STATUS_AT = (300, 600)             # in ACQUIRE holding on the clamp, then ramping to the centre
+ACQUIRE_KW = {"centre_ticks": 300}
 
 
-def samples():
+def samples(script=SCRIPT):
     flat = []
-    for smp, n in SCRIPT:
+    for smp, n in script:
         for _ in range(n):
             flat.extend(smp)
     return flat
 
 
-def run():
+def run(acquire=False):
     grid = htable.grid_from_calibration(fp.calibration())
-    a = Controller(table=grid, limit_code=LIMIT_CODE, safe_ticks=1000)
-    b = ViperController(table=grid, limit_code=LIMIT_CODE, safe_ticks=1000)
+    kw = ACQUIRE_KW if acquire else {}
+    a = Controller(table=grid, limit_code=LIMIT_CODE, safe_ticks=1000, **kw)
+    b = ViperController(table=grid, limit_code=LIMIT_CODE, safe_ticks=1000, **kw)
     for c in (a, b):
         c.step(2048, 2048, 0)              # the init tick
         c.mode = TRACK
-    src = samples()
+    src = samples(ACQUIRE_SCRIPT if acquire else SCRIPT)
     n = len(src) // 3
     modes = bytearray(n)
     words = [0] * (8 * n)
@@ -52,7 +59,7 @@ def run():
     size = len(sa)
     alloc = 0
     k = 0
-    for stop in STATUS_AT + (n,):
+    for stop in (ACQUIRE_STATUS_AT if acquire else STATUS_AT) + (n,):
         gc.collect()
         m0 = gc.mem_alloc() if hasattr(gc, "mem_alloc") else 0
         heap_lock()
@@ -96,8 +103,8 @@ def run():
                     crc_b = crc32(buf, crc_b)
     return {"ticks": n, "modes": list(modes), "mismatch": bad[0], "alloc_bytes": alloc,
             "crc": crc_a & 0xFFFFFFFF, "crc_viper": crc_b & 0xFFFFFFFF, "status": statuses,
-            "counters": [a.n_sat, a.sat_run, a.sat_last, a.n_sat_episodes, a.mode]}
+            "counters": [a.n_sat, a.sat_run, a.sat_last, a.n_sat_episodes, a.mode, a.why, a.n_lost]}
 
 
 if __name__ == "__main__":
-    print(json.dumps(run()))
+    print(json.dumps(run(len(sys.argv) > 1 and sys.argv[1] == "acquire")))

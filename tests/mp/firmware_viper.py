@@ -1,6 +1,7 @@
 # Runs under micropython: the viper controller (firmware/controller_viper.py) gives the same AD5664R words and
 # the same state as the bytecode Controller on every tick of long runs fed identical inputs and packets:
-# a closed loop with beam dropouts, mode, gain, ratio-command and table changes and a sustained saturation
+# a closed loop with beam dropouts (a flicker held in TRACK; a loss through ACQUIRE, its hold, its ramp to the
+# centre and the return to TRACK), mode, gain, ratio-command and table changes and a sustained saturation
 # (SATURATED, a dropout within it, the return to TRACK), and a random-input run on a
 # table at the fixed-point limit with a low saturation limit (clamps, saturation, beam threshold edges).
 # Also: its tick allocates nothing over 10,000 ticks with the heap locked. Under CPython (tests/test_firmware_mp.py
@@ -11,7 +12,7 @@ import sys
 from binascii import crc32
 
 import firmware_plant as fp
-from firmware.controller import CALIBRATE, HOLD, TRACK, Controller
+from firmware.controller import CALIBRATE, HOLD, SAFE, TRACK, Controller
 from protocol import core, htable
 
 try:
@@ -38,7 +39,7 @@ class Pair:
         self.a = Controller(**kw)
         self.b = Counted(**kw)
         self.ticks = 0
-        self.mode_ticks = [0] * 6     # IDLE .. SATURATED
+        self.mode_ticks = [0] * 7     # IDLE .. ACQUIRE
         self.mismatch = 0
         self.crc = 0
         self.buf = bytearray(3)
@@ -80,15 +81,19 @@ class Pair:
 def closed_loop(ticks, seed):
     """`ticks` of closed loop on the test plant; packets, beam dropouts and a sustained saturation along the way."""
     grid = htable.grid_from_calibration(fp.calibration())
-    pr = Pair(table=grid, safe_ticks=400)
+    pr = Pair(table=grid, safe_ticks=400, centre_ticks=300)
     pr.step(2048, 2048, 0)
     pr.send("CTRL_SETTINGS", mode=TRACK, safe_ticks=400)
     p = fp.Plant(seed=seed)
     other = htable.Grid(grid.ax, grid.ay, [(a * 1.05, b, c, d * 0.97) for a, b, c, d in grid.h])
     for k in range(ticks):
         ph = k % 6000
-        p.beam = not (2000 <= ph < 2100 or 4000 <= ph < 4500)     # a short loss (hold) and a long one (SAFE)
-        if ph == 4700:
+        p.beam = not (2000 <= ph < 2040 or 4000 <= ph < 4500)     # a flicker (hold) and a loss (ACQUIRE)
+        if ph == 4200:                                             # TRACK asked in ACQUIRE: kept
+            pr.send("CTRL_SETTINGS", mode=TRACK, safe_ticks=400)
+        elif ph == 4640:                                           # back in TRACK since 4564: SAFE commanded
+            pr.send("CTRL_SETTINGS", mode=SAFE, safe_ticks=400)
+        elif ph == 4700:
             pr.send("CTRL_SETTINGS", mode=CALIBRATE, safe_ticks=400)
             pr.send("CTRL_SET_FSM", vx=300000, vy=-200000)
         elif ph == 4800:

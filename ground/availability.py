@@ -4,8 +4,9 @@ length, peak and cause, the time to re-acquire after each, and the pointing whil
 
 An outage is a run of samples beyond the requirement; two outages less than ``MERGE_S`` apart are one (the
 beam did not stay back long enough to carry a frame). Its cause is read from the controller's telemetry
-(CTRL_STATUS) at its start: the mode (SAFE and its reason, HOLD, SATURATED: the FSM on its clamp), the beam
-flag (Q1 dark), or, in TRACK with the beam seen, the disturbance beyond what the loop rejects.
+(CTRL_STATUS) at its start: the mode (SAFE and its reason, HOLD, SATURATED: the FSM on its clamp, ACQUIRE: the
+beam lost, the mirror held until it is back), the beam flag (Q1 dark), or, in TRACK with the beam seen, the
+disturbance beyond what the loop rejects.
 """
 
 import numpy as np
@@ -45,6 +46,9 @@ def cause(status, tick):
     mode = core.MODE_NAME.get(st["mode"], st["mode"])
     if mode == "SAFE":
         return "controller in SAFE (%s)" % core.SAFE_REASON.get(st["why"], st["why"])
+    if mode == "ACQUIRE":
+        return "beam off Q1: controller in ACQUIRE (%s), TRACK again once the beam is back" % (
+            core.SAFE_REASON.get(st["why"], st["why"]))
     if mode == "SATURATED" or st.get("sat"):
         return "FSM on its clamp (body error beyond the FSM's range)"
     if not st.get("beam", True):

@@ -300,10 +300,11 @@ def prepare_play(rig, rec, cal, q2_dvp, first_arcsec):
 
 def _check_tracking(rig):
     """OSError unless the controller's last CTRL_STATUS before the play says TRACK (or SATURATED, TRACK on its
-    clamp): a play that starts in SAFE or HOLD measures nothing the run is meant to show."""
+    clamp, or ACQUIRE, TRACK waiting for the beam, which it takes back on its own): a play that starts in SAFE or
+    HOLD measures nothing the run is meant to show."""
     from protocol import core
     st = rig.last_status
-    if st is None or st["mode"] in (core.MODE["TRACK"], core.MODE["SATURATED"]):
+    if st is None or st["mode"] in (core.MODE["TRACK"], core.MODE["SATURATED"], core.MODE["ACQUIRE"]):
         return
     mode = core.MODE_NAME.get(st["mode"], st["mode"])
     why = " (%s)" % core.SAFE_REASON.get(st["why"], st["why"]) if st["mode"] == core.MODE["SAFE"] else ""

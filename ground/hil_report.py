@@ -7,32 +7,37 @@ import os
 import numpy as np
 
 from firmware.ad5664r import CODES_PER_VOLT
-from firmware.controller import SAT_TICKS, SATURATED
+from firmware.controller import ACQ_TICKS, SAT_TICKS, SATURATED
 from ground import report
 from ground.fileio import read_json
 
 SAT_ON = "FSM command on its clamp for %d ticks in a row" % SAT_TICKS
 SAT_OFF = "FSM command off its clamp"
+BEAM_BACK = "beam back on Q1 for %d ticks in a row" % ACQ_TICKS
+MAX_MODE_LINES = 12       # the verdict's mode-change lines; summary.json's mode_changes holds them all
 
 
 def mode_changes(rig, tick0):
     """Each mode change seen in CTRL_STATUS: time from ``tick0`` (the play's start; before it, negative), modes
-    and why (SAFE's reason, the controller's own SATURATED entry and return, or commanded). Before the play
-    only the changes the ground did not command (its calibration and set-up command many)."""
+    and why (SAFE's and ACQUIRE's reason from CTRL_STATUS.why, the controller's own SATURATED entry and return,
+    its return from ACQUIRE when the beam is back, or commanded). Before the play only the changes the ground did
+    not command (its calibration and set-up command many)."""
     from protocol import core
     out = []
     if rig is None:
         return out
     prev = None
-    sat = core.MODE["SATURATED"]
+    sat, acq, track = core.MODE["SATURATED"], core.MODE["ACQUIRE"], core.MODE["TRACK"]
     for tick, mode, why in rig.mode_log:
         if prev is not None and mode != prev:
-            if mode == core.MODE["SAFE"]:
+            if mode == core.MODE["SAFE"] or mode == acq:
                 reason = core.SAFE_REASON.get(why, why)
             elif mode == sat:
                 reason = SAT_ON
-            elif prev == sat and mode == core.MODE["TRACK"]:
+            elif prev == sat and mode == track:
                 reason = SAT_OFF
+            elif prev == acq and mode == track:
+                reason = BEAM_BACK
             else:
                 reason = "commanded"
             if tick < tick0 and reason == "commanded":
@@ -178,18 +183,46 @@ def verdict_lines(s):
     elif sat and sat.get("ticks"):
         lines.append("FSM command on its clamp for %d ticks (%.2f s) in all, never %d in a row" % (
             sat["ticks"], sat["seconds"], sat["threshold_ticks"]))
-    for m in s.get("mode_changes", []):
-        if (m["from"], m["to"]) in (("TRACK", "SATURATED"), ("SATURATED", "TRACK")):
-            continue
+    changes = [m for m in s.get("mode_changes", [])
+               if (m["from"], m["to"]) not in (("TRACK", "SATURATED"), ("SATURATED", "TRACK"))]
+    for m in changes[:MAX_MODE_LINES]:
         lines.append("controller left %s for %s at t = %.2f s (%s)" % (m["from"], m["to"], m["t_s"], m["why"])
                      if m["from"] == "TRACK" else
                      "controller went from %s to %s at t = %.2f s (%s)" % (m["from"], m["to"], m["t_s"],
                                                                           m["why"]))
+    if len(changes) > MAX_MODE_LINES:
+        lines.append("and %d more mode changes (summary.json's mode_changes)" % (len(changes) - MAX_MODE_LINES))
+    acq = acquire_line(s.get("mode_changes", []), s.get("duration_s"))
+    if acq:
+        lines.append(acq)
     b = (s.get("link") or {}).get("bench") or {}
     if b.get("controller_resent") or b.get("command_retries") or b.get("overruns"):
         lines.append("link: %d TICKs resent, %d command retries, %d overruns (ticks the mirror held)" % (
             b.get("controller_resent", 0), b.get("command_retries", 0), b.get("overruns", 0)))
     return lines
+
+
+def acquire_line(changes, duration_s):
+    """One line on the beam's losses during the play: how often the controller entered ACQUIRE, for how long in
+    all and at most, and whether TRACK came back each time (None: never in ACQUIRE during the play)."""
+    spans, start = [], None
+    for m in changes:
+        if m["to"] == "ACQUIRE":
+            start = max(0.0, m["t_s"])
+        elif m["from"] == "ACQUIRE" and start is not None:
+            spans.append((start, m["t_s"], m["to"]))
+            start = None
+    if start is not None:
+        spans.append((start, duration_s if duration_s is not None else start, None))
+    spans = [sp for sp in spans if sp[1] >= 0]
+    if not spans:
+        return None
+    big = max(spans, key=lambda sp: sp[1] - sp[0])
+    back = sum(1 for sp in spans if sp[2] == "TRACK")
+    return ("beam lost: ACQUIRE %d time%s, %.2f s in all, longest %.2f s from t = %.2f s; TRACK again %d time%s%s"
+            % (len(spans), "" if len(spans) == 1 else "s", sum(b - a for a, b, _ in spans), big[1] - big[0],
+               big[0], back, "" if back == 1 else "s", "" if spans[-1][2] is not None else
+               ", still in ACQUIRE at the end"))
 
 
 def availability_line(av, truth_max):

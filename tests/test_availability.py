@@ -52,6 +52,8 @@ def test_the_cause_follows_the_last_status_at_or_before_the_outage():
     assert cause(st, 150) == "beam off Q1"
     assert cause(st, 250) == "controller in HOLD"
     assert cause([], 10) == "no telemetry yet"
+    st.append(_status(300, "ACQUIRE", beam=False, why=1))     # BEAM_LOST
+    assert cause(st, 350) == "beam off Q1: controller in ACQUIRE (BEAM_LOST), TRACK again once the beam is back"
 
 
 def test_q2_samples_on_the_adcs_rails_are_counted_and_empty_input_is_none():

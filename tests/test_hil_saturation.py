@@ -96,15 +96,44 @@ def test_report_and_verdict_lines():
         {"t_s": 0.2, "tick": 128, "from": "TRACK", "to": "SATURATED", "why": "x"},
         {"t_s": 0.5, "tick": 320, "from": "SATURATED", "to": "TRACK", "why": "y"},
         {"t_s": 0.6, "tick": 384, "from": "TRACK", "to": "SATURATED", "why": "x"},
-        {"t_s": 0.7, "tick": 448, "from": "SATURATED", "to": "SAFE", "why": "BEAM_LOST"}]})
+        {"t_s": 0.7, "tick": 448, "from": "SATURATED", "to": "ACQUIRE", "why": "BEAM_LOST"}]})
     assert lines[0].startswith("FSM SATURATED: 1 sustained episode (>= 64 ticks on the clamp), longest %d ticks"
                                % e["ticks"])
-    assert lines[1:] == ["controller went from SATURATED to SAFE at t = 0.70 s (BEAM_LOST)"]
+    assert lines[1:] == ["controller went from SATURATED to ACQUIRE at t = 0.70 s (BEAM_LOST)",
+                         "beam lost: ACQUIRE 1 time, 0.00 s in all, longest 0.00 s from t = 0.70 s; TRACK again 0 "
+                         "times, still in ACQUIRE at the end"]
     short = dict(sat, episodes=[])
     assert verdict_lines({"saturation": short}) == [
         "FSM command on its clamp for %d ticks (%.2f s) in all, never 64 in a row" % (sat["ticks"], sat["seconds"])]
     assert verdict_lines({"saturation": dict(short, ticks=0)}) == []
     assert "no CTRL_STATUS" in report.saturation_md(None)
+
+
+def test_mode_changes_name_acquire_its_reason_and_the_return():
+    """CTRL_STATUS's (mode, why) at each exit from TRACK into ACQUIRE and each return: summary.json's
+    mode_changes and the verdict's lines name them."""
+    from types import SimpleNamespace
+    from ground.hil_report import mode_changes
+    from protocol import core
+    m = core.MODE
+    rig = SimpleNamespace(rate_hz=RATE, mode_log=[
+        (-64, m["HOLD"], 0), (-10, m["TRACK"], 0), (640, m["ACQUIRE"], 1), (1280, m["TRACK"], 1),
+        (1920, m["ACQUIRE"], 1), (2560, m["SAFE"], 2)])
+    ch = mode_changes(rig, tick0=0)
+    assert [(c["from"], c["to"], c["why"]) for c in ch] == [
+        ("TRACK", "ACQUIRE", "BEAM_LOST"), ("ACQUIRE", "TRACK", "beam back on Q1 for 64 ticks in a row"),
+        ("TRACK", "ACQUIRE", "BEAM_LOST"), ("ACQUIRE", "SAFE", "LINK_SILENT")]
+    assert verdict_lines({"mode_changes": ch, "duration_s": 5.0}) == [
+        "controller left TRACK for ACQUIRE at t = 1.00 s (BEAM_LOST)",
+        "controller went from ACQUIRE to TRACK at t = 2.01 s (beam back on Q1 for 64 ticks in a row)",
+        "controller left TRACK for ACQUIRE at t = 3.01 s (BEAM_LOST)",
+        "controller went from ACQUIRE to SAFE at t = 4.01 s (LINK_SILENT)",
+        "beam lost: ACQUIRE 2 times, 2.01 s in all, longest 1.00 s from t = 1.00 s; TRACK again 1 time"]
+    many = [dict(ch[k % 2], t_s=k) for k in range(30)]
+    lines = verdict_lines({"mode_changes": many, "duration_s": 40.0})
+    assert len(lines) == 14 and lines[12] == "and 18 more mode changes (summary.json's mode_changes)"
+    assert lines[13].startswith("beam lost: ACQUIRE 15 times, 15.00 s in all") and lines[13].endswith(
+        "TRACK again 15 times")
 
 
 @pytest.fixture(scope="module")

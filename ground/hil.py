@@ -286,7 +286,8 @@ def prepare_play(rig, rec, cal, q2_dvp, first_arcsec):
     rig.settings("TRACK", decim=64)
     if callable(first_arcsec):
         first_arcsec = first_arcsec()
-    v_first = (first_arcsec[0] * V_PER_ARCSEC, first_arcsec[1] * V_PER_ARCSEC)
+    # the AD660's +-10 V: a first sample at the P-FSM's edge (a live disturbance beyond its range is played there)
+    v_first = tuple(max(-10.0, min(10.0, a * V_PER_ARCSEC)) for a in first_arcsec)
     n_walk = max(1, int(np.ceil(max(abs(v_first[0]), abs(v_first[1])) / 0.5)))
     for k in range(1, n_walk + 1):
         rig.pfsm_v(v_first[0] * k / n_walk, v_first[1] * k / n_walk)

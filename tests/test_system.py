@@ -173,6 +173,52 @@ def test_live_disturbance_holds_a_sample_beyond_the_pfsm_at_its_edge_and_refuses
         live.add(t + 4.0, xy)
 
 
+def test_a_play_that_starts_beyond_the_pfsm_range_walks_to_its_edge_within_the_ad660_range(tmp_path, inputs,
+                                                                                             monkeypatch):
+    """The live disturbance's first sample held at the P-FSM's edge is a float32 a hair beyond +-10 V: the walk
+    to it stops at the AD660's range instead of refusing the play."""
+    from ground import hil
+    from ground.fileio import read_json
+    from protocol import core
+    live = system.LiveDisturbance(t0=0.0)
+    t = np.arange(40) / 10.0
+    live.add(t, np.full((40, 2), -900.0))               # the play starts beyond the P-FSM's range on both axes
+    first = live.reader.sample(0)
+    assert abs(first[0] * hil.V_PER_ARCSEC) > 10.0
+
+    class Rig:
+        rate_hz = 637.8
+        last_status = {"mode": core.MODE["SATURATED"], "why": 0}
+        volts = []
+
+        def pfsm_v(self, vx, vy):
+            for v in (vx, vy):
+                if not -10.0 <= v <= 10.0:
+                    raise ValueError("P-FSM voltage %r outside the AD660 range +-10 V" % v)
+            self.volts.append((vx, vy))
+
+        def upload_htable(self, blob):
+            pass
+
+        def settings(self, mode, decim=1):
+            pass
+
+        def run(self, n):
+            pass
+
+        def take_status(self):
+            pass
+
+    class Rec:
+        def path(self, name):
+            return str(tmp_path / name)
+
+    monkeypatch.setattr(hil, "calibrate_q2", lambda rig, dvp: {"dv": dvp})
+    rig = Rig()
+    hil.prepare_play(rig, Rec(), read_json(inputs[1], "calibration"), 0.05, lambda: first)
+    assert rig.volts[-1] == (-10.0, -10.0) and len(rig.volts) == 1 + 20
+
+
 # --- the firmware code path against a fake session (the real one: emulator.adcs_session) -------------------
 class FakeSession:
     """Holds a fixed attitude with SatA and SatB on fixed orbits; its estimate is the truth at the cycle's start

@@ -137,9 +137,12 @@ class RemoteEndpoint:
         self.rc.timeout_s = v
 
     def counters(self):
+        """The lockstep's counters, the link's (``link_``: its decoder, ISO-TP, the slcan adapter's lines) and the
+        injected faults' (``fault_*``, once: an slcan bus counts its faults among its own too)."""
         c = dict(self.rc.counters())
         try:
-            c.update(("link_" + k, v) for k, v in self.link.counters().items())
+            c.update(("link_" + k, v) for k, v in self.link.counters().items()
+                     if self.faults is None or not k.startswith("fault_"))
         except AttributeError:
             pass
         if self.faults is not None:

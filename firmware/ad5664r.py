@@ -17,7 +17,12 @@ x = round(V_tilt * CODES_PER_VOLT) with CODES_PER_VOLT = 65536 / 5 V = 13107.2 c
 A decoder recovers x = (P - N) / 2 from a pair (P, N) and checks (P + N) / 2 == BIAS_CODE.
 """
 
-from protocol.compat import const
+# its own shim, not protocol.compat's: the controller's 32 KB board has no RAM for one more module
+try:
+    from micropython import const
+except ImportError:  # CPython
+    def const(x):
+        return x
 
 # Commands C2..C0 (datasheet Table 8).
 CMD_WRITE_INPUT = const(0)        # 000 write input register n

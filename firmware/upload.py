@@ -10,7 +10,11 @@ import os
 
 from protocol import consts
 
-from protocol.compat import crc32 as _crc32
+# its own shim, not protocol.compat's: the controller's 32 KB board has no RAM for one more module
+try:
+    from binascii import crc32 as _crc32
+except ImportError:  # pragma: no cover
+    from protocol.core import crc32 as _crc32
 
 
 class Upload:

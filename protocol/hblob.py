@@ -14,7 +14,11 @@ import struct
 
 from protocol.consts import FLOAT32_MAX   # the blob stores float32
 
-from protocol.compat import crc32 as _crc32
+# its own shim, not protocol.compat's: the controller's 32 KB board has no RAM for one more module
+try:
+    from binascii import crc32 as _crc32
+except ImportError:  # pragma: no cover
+    from protocol.core import crc32 as _crc32
 
 MAGIC = b"FPSH"
 VERSION = 1

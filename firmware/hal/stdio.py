@@ -9,7 +9,12 @@ from array import array
 from protocol import frame
 from protocol.consts import LARGEST_PAYLOAD, P_FSM_SPI
 
-from protocol.compat import const
+# its own shim, not protocol.compat's: the controller's 32 KB board has no RAM for one more module
+try:
+    from micropython import const
+except ImportError:                    # CPython
+    def const(x):
+        return x
 
 _MAX_FRAME = frame.frame_bytes(LARGEST_PAYLOAD)     # the packet table's longest frame (not the framing's 255 bytes)
 # the link's counters in ``_st`` (the layout ``firmware.hal.fast_tick.answer`` keeps; tests/test_pil.py checks it)

@@ -29,7 +29,7 @@ class ReplyWait:
         self.cmd = [None] * N_WHEELS             # RW_CMD payload received this cycle
         self.mtq_cmd = None                      # MTQ_CMD payload received this cycle
         self.retries = {"tick_resent": 0, "missing_answered": 0, "packets_resent": 0, "burst_resent": 0,
-                        "cycles_retried": 0}
+                        "cycles_retried": 0, "hello_tries": 0}
         self.reply_s = 0.05                      # recent wall time from ADCS_TICK to the cycle's last reply
         self.tick_sent = 0.0
         self.n_late = 0

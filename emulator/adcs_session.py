@@ -188,9 +188,7 @@ class AdcsSession:
         self._tmp = None
         self.wheel_rpm_log = []                  # per cycle: the largest |wheel speed| at its end (rpm)
         self.wall_s = 0.0
-        self._t_wall = 0.0
-        self._begun = False                      # the first burst sent: the fault clock runs
-        self.hello_tries = 0
+        self._t_wall = None                      # set by the first burst: the fault clock runs from there
         self.closed = False
 
     # the world's and the bus's parts, as the callers know them
@@ -282,15 +280,15 @@ class AdcsSession:
                 os.close(s)
         if self.link_faults is not None:
             from protocol.faults import inject
-            inject(self.link, self.link_faults, clock=lambda: float(self.k) if self._begun else None)
+            inject(self.link, self.link_faults, clock=lambda: float(self.k) if self._t_wall is not None else None)
         try:
             self._hello("CAN (slcan on %s)" % path)
         except BaseException:
             self.close()
             raise
         self._say("ADCS firmware up (%s, pid %d), CAN over slcan on %s%s" % (
-            self.runtime, self.proc.pid, path, "" if self.hello_tries == 1 else
-            " (HELLO answered at try %d)" % self.hello_tries))
+            self.runtime, self.proc.pid, path, "" if self.wait.retries["hello_tries"] == 1 else
+            " (HELLO answered at try %d)" % self.wait.retries["hello_tries"]))
         return self._begin()
 
     def _hello(self, where):
@@ -309,10 +307,10 @@ class AdcsSession:
             now = time.monotonic()
             if now >= deadline:
                 raise OSError("%s did not answer HELLO over %s within %g s (%d HELLOs sent)%s%s" % (
-                    self.proc.name, where, HELLO_WAIT_S, self.hello_tries,
+                    self.proc.name, where, HELLO_WAIT_S, self.wait.retries["hello_tries"],
                     (": " + last_lines(self._stderr())) if self._stderr() else "", self._link_note()))
             self.link.send_raw(hello, N["SPACECRAFT"], N["ADCS"], payload)
-            self.hello_tries += 1
+            self.wait.retries["hello_tries"] += 1
             end = min(deadline, now + gap)
             gap = min(2 * gap, HELLO_RETRY_MAX_S)
             while not self.link.closed:
@@ -333,7 +331,6 @@ class AdcsSession:
 
     def _begin(self):
         """The wall clock, the first burst (the fault clock's silences count from here)."""
-        self._begun = True
         self._t_wall = time.perf_counter()
         self._burst()
         return self
@@ -445,7 +442,7 @@ class AdcsSession:
                 "wheels_failed": st.get("wheels_failed"), "last_mode": st.get("adcs_mode_name"),
                 "link": self.link.counters() if self.link is not None else {},
                 "link_faults": self.link_faults.as_dict() if self.link_faults is not None else None,
-                "retries": dict(self.wait.retries, hello_tries=self.hello_tries),
+                "retries": dict(self.wait.retries),
                 "faults": self.faults, "fault_log": list(self.fault_log), "world": self.world_name,
                 "mode_changes": list(self.watch.mode_changes), "max_wheel_speed_rpm": self.wheel_rpm_max(),
                 "wheel_datasheet_rpm": self.spacecraft["wheels"]["speed_limit_rpm"],

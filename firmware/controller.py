@@ -17,65 +17,38 @@ on a 32-bit MCU, so the tick allocates nothing and is bit-identical under CPytho
 6. saturation with anti-windup: the state itself is clamped to +-limit_code (Q8), so the integrator never
    runs past the mirror's range; the output codes are (V + 128) >> 8, always within +-limit_code. A tick whose
    law hit the clamp on either axis is counted (n_sat) and extends the saturation run (sat_run, below);
-7. the four AD5664R words (layout in ``firmware.ad5664r``); the first tick sends the AD5664R's init sequence
-   instead.
+7. the four AD5664R words (``firmware.ad5664r``); the first tick sends the AD5664R's init sequence instead.
 
-Default gain g = 0.5 (Q15 16384, the table default). The loop per axis (H^-1 H = I) is the integral law
-C(z) = g z / (z - 1) around the MEMS drive as the bench config has it: a 2nd-order Butterworth at 800 Hz, then
-the mirror's 2 kHz resonance (emulator.mirrors.MEMS), held from the instant the SPI words land and sampled at each Q1 channel's instant (emulator.timing).
-ground.response.LoopModel discretises it exactly (python-control): with the thesis's board (X sampled 351 us
-into the tick, words landing 1568 us after the tick start, one tick later at 637.8 Hz) g = 0.5 keeps a gain
-margin of 14.2 dB (stable up to g = 2.6) and a phase margin of 69 deg, -3 dB rejection bandwidth 39 Hz; with
-zero latency 11.6 dB, 76 deg, 41 Hz. Both exceed the factor 2 wanted for the 12 % spread of H over the grid
-(Fig. 7-17), so the default gain stays. ``fps response`` measures it on the bench.
+Default gain g = 0.5 (Q15 16384): 14.2 dB of gain margin on the thesis's board, beyond the factor 2 the 12 %
+spread of H wants (Fig. 7-17; docs/FINE_POINTING.md, ``fps response``).
 
-Modes (``protocol.table.MODES``): IDLE ramps the command to the centre; TRACK runs the law; HOLD freezes the
-command; CALIBRATE takes voltages from CTRL_SET_FSM; SAFE ramps to the centre and stays there until the
-ground commands another mode; SATURATED is TRACK with the command stuck on its clamp; ACQUIRE is TRACK without
-the beam (below). Every mode but IDLE and SAFE enters SAFE after ``safe_ticks`` ticks without a packet from the
-link: on a board ``tick`` counts the hardware-timer ticks since the last ``handle``d packet; over the link HAL
-every TICK is link traffic and the wait between TICKs is counted (``link_silent``). SAFE, commanded or for link
-silence, stays until the ground commands another mode.
+Modes (``protocol.table.MODES``): IDLE ramps the command to the centre; TRACK runs the law; HOLD freezes it;
+CALIBRATE takes CTRL_SET_FSM's volts; SAFE ramps to the centre and stays until commanded; SATURATED is TRACK on
+its clamp; ACQUIRE is TRACK without the beam. Every mode but IDLE and SAFE enters SAFE after ``safe_ticks``
+ticks without a packet (a board's timer ticks since the last ``handle``d one; over the link HAL, the wait
+between TICKs: ``link_silent``).
 
-Acquisition, then tracking: the body pointing brings the beam onto Q1, the fine loop takes it from there.
-A beam-lost tick in TRACK or SATURATED holds the command (no integration: there is no dR to integrate). After
-``acq_ticks`` (default ``ACQ_TICKS`` = 64, 100.3 ms) beam-lost ticks in a row, the beam is not a flicker: the
-controller enters ACQUIRE (``why`` BEAM_LOST). ACQUIRE runs no law; it holds the command where the beam was
-last seen (a fade, or a body error that ran past the mirror's range and turns back, brings the beam back there)
-until the beam has been lost ``centre_ticks`` ticks in a row (default 638, 1 s), then ramps the command to the
-centre by ``ramp_code`` per tick, as SAFE does: the mirror's rest is the boresight the body pointing aims at,
-so the beam comes back there once the body error is inside Q1's field. A beam-present tick in ACQUIRE stops the
-ramp (the mirror holds while the beam is debounced) and counts; ``acq_ticks`` of them in a row and the
-controller returns to TRACK, the law resuming on the next tick from the command as it stands (bumpless: the
-integrator is the command itself, Eq. 7.12). A commanded TRACK keeps ACQUIRE; link silence takes it to SAFE.
-64 ticks for the same reasons as SAT_TICKS (below): 25 loop time constants, and with decim <= acq_ticks every
-stay in ACQUIRE and every return to TRACK between two losses (each at least acq_ticks long) shows in a CTRL_STATUS.
+Acquisition, then tracking (docs/FINE_POINTING.md, "Losing the beam and taking it back"): a beam-lost tick in
+TRACK or SATURATED holds the command; ``acq_ticks`` (``ACQ_TICKS`` = 64) of them in a row enter ACQUIRE (``why``
+BEAM_LOST), which runs no law, holds the command for ``centre_ticks`` (638) lost ticks, then ramps it to the
+centre by ``ramp_code`` per tick; ``acq_ticks`` beam-present ticks in a row return it to TRACK, the law resuming
+from the command as it stands (bumpless, Eq. 7.12). A commanded TRACK keeps ACQUIRE; link silence: SAFE.
 
-Saturation is an event. The run ``sat_run`` counts the ticks the command has stayed on its clamp: each tick
-the law hits it, and each beam-lost hold in TRACK or SATURATED after one (the held command is the clamped
-one). TRACK enters SATURATED when the run reaches ``sat_ticks`` (default ``SAT_TICKS`` = 64, 100.3 ms at
-637.8 Hz). Why 64: the loop (g = 0.5, -3 dB rejection bandwidth 39 Hz, a time constant of 4.1 ms = 2.6 ticks)
-settles in a few ticks, so a transient or a jitter crest holds the clamp for a few ticks only, while 64 ticks
-(25 time constants) on it mean the error itself lies beyond the mirror's range; and 64 is the default status
-decimation, so with decim <= sat_ticks every sustained saturation shows in a CTRL_STATUS while under way, and
-its length (``sat_last``) in the next one, before another can end. SATURATED runs the same law; on the first
-law tick whose command stays inside the clamp on both axes the run ends and the controller returns to TRACK
-(bumpless: the law never stopped); a new episode needs another full run, so the mode changes at most once each
-way per sat_ticks + 1 ticks. A run that reached sat_ticks leaves its length in ``sat_last``;
-``n_sat_episodes`` counts the entries. HOLD, SAFE or any other mode ends a run; a CTRL_SETTINGS asking for
-TRACK while SATURATED keeps SATURATED. ``why`` says why SAFE or ACQUIRE was last entered: SATURATED is its own
-reason.
+Saturation is an event (docs/FINE_POINTING.md, docs/INTERFACES.md): ``sat_run`` counts the ticks the command
+has stayed on its clamp (each law tick that hits it, and each beam-lost hold after one); at ``sat_ticks``
+(``SAT_TICKS`` = 64, 100.3 ms: 25 loop time constants, and the default status decimation) TRACK enters
+SATURATED, which runs the same law and returns to TRACK on the first law tick inside the clamp on both axes
+(bumpless); ``sat_last``: a finished run's length; ``n_sat_episodes``: the entries. ``why``: SAFE's or ACQUIRE's.
 
 Speed (bench/bench_firmware.py): the tick's state is one preallocated integer list (slots ``S_*`` below) read
 through a local, and ``step`` runs the law (TRACK or SATURATED, beam present) inline with every other case in
-``_step_other``. ``firmware.controller_viper.ViperController`` (MicroPython only) runs that common case as
-viper machine code over an int32 array with the same slots and gives identical codes.
+``_step_other``. ``firmware.controller_viper.ViperController`` (MicroPython only) runs that common case in
+viper over an int32 array with the same slots, with identical codes.
 """
 
 import struct
 
-from firmware import ad5664r
-from firmware import hinv
+from firmware import ad5664r, hinv
 from firmware.hinv import HinvTable, load_file
 from firmware.upload import Upload
 from protocol import consts, hblob   # the packet table's numbers: generated from it, no table objects on the board

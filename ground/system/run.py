@@ -61,8 +61,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     anything is written; afterwards the folder always ends valid, and a failure raises ``hil.RunFailed``, an
     interruption ``hil.Interrupted``. ``faults``: the ADCS session's (``emulator.adcs_session``: wheel_silent,
     startracker_blind, gnss_outage, beacon_lost; times in the ADCS's seconds, the play starting after its
-    settling), with either ADCS (the ground's flies the same app in process); with the firmware ADCS its fault log
-    is in the summary's ``adcs_summary`` and the report.
+    settling), with either ADCS (the same app); their log in the summary's ``adcs_summary`` and the report.
     ``link_faults``: a ``protocol.faults.LinkFaults`` on the ADCS's CAN link (its slcan stream; firmware ADCS
     only), the retries it costs in ``adcs_summary``'s ``retries``. ``spacecraft``: a preset's name or a spacecraft
     file (None: thesis-3u), the vehicle of the ADCS (``fps adcs bps`` or ``fps adcs can`` with ``--spacecraft``).
@@ -116,8 +115,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                     feed.on_wait = rig.keepalive      # the ADCS's pace is not the fine loop's link silence
                     write_json(rec.path("config.json"), dict(hil.run_config(rig, duration_s, seed, {}), **config_json))
                     q2cal = _play(rig, rec, cal, q2_dvp, feed, live, summary, t_settle, duration_s, quiet, say)
-                feed.on_wait = None
-                feed.on_samples = None                # the play is over: later samples are recorded, not played
+                feed.on_wait = feed.on_samples = None     # the play is over: later samples recorded, not played
                 summary["phase"] = "reference"
                 with contextlib.suppress(OSError):    # the ground filters' column (firmware: after the session)
                     feed.take(want=lambda: feed.reference is not None, timeout_s=300.0)

@@ -183,7 +183,6 @@ class Bench(FusedLoops, ComposedLoops, StaticTruth):
     adc1 = property(lambda self: self.chain1.adc, doc="Q1's SAMD21 ADC.")
     adc2 = property(lambda self: self.chain2.adc, doc="Q2's ADS1256 ADC.")
     fsm_v = property(lambda self: self.m.fsm_v, doc="MEMS tilt volts (x, y) decoded from the last words.")
-    _timed = property(lambda self: self.tab.timed, doc="True when the board's timing is not zero-latency.")
 
     # --- timing ------------------------------------------------------------------------------------
     def set_rate(self, rate_hz):

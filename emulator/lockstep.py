@@ -182,7 +182,7 @@ class Lockstep:
         rate, deadline, realtime, on_q2 = self.rate_hz, self.deadline_s, self.realtime, self.on_q2
         us_per_tick = 1e6 / rate
         clock = time.perf_counter
-        if bench._timed:        # the board's timing lives in the bench's loop: one tick per call
+        if bench.tab.timed:     # the board's timing lives in the bench's loop: one tick per call
             return self._ticks_timed(k0, n, t_rt0, q2_rows, q1_rows, fsm_rows)
         for k in range(k0, k0 + n):
             if realtime:

@@ -377,13 +377,15 @@ def finish_summary(rec, run, summary, q2cal, plots):
     summary["link"] = link_counters(rig)
     if rig is not None and rec.tick0 is None:
         summary["overruns"] = rig.lockstep.n_overrun
-    summary.update(_finish(rec, q2cal, rec.t0_us, complete=not (run.interrupted or run.failure), plots=plots))
+    q2, truth = rec.arrays()                      # once: the statistics, the files and the availability
+    summary.update(_finish(rec, q2, truth, q2cal, rec.t0_us, complete=not (run.interrupted or run.failure),
+                           plots=plots))
     lock = getattr(rig, "lockstep", None)         # no play: the changes up to where the run stopped
     tick0 = rec.tick0 if rec.tick0 is not None else lock.tick if lock is not None else None
     summary["mode_changes"] = mode_changes(rig, tick0) if tick0 is not None else []
     summary["saturation"] = (saturation_summary(rec.status, rig.rate_hz, rec.tick0, rec.status_before)
                              if rig is not None and rec.tick0 is not None else None)
-    summary["availability"] = _availability(rec, rig)
+    summary["availability"] = _availability(rec, rig, q2, truth)
     summary["interrupted"] = run.interrupted
     summary["error"] = run.failure
     if run.failure:
@@ -394,12 +396,12 @@ def finish_summary(rec, run, summary, q2cal, plots):
     return summary
 
 
-def _availability(rec, rig):
-    """The play's link availability on the true error (``ground.availability``), with Q2's saturated samples."""
+def _availability(rec, rig, q2, truth):
+    """The play's link availability on the true error (``ground.availability``), with Q2's saturated samples;
+    q2, truth: ``rec``'s samples."""
     from ground.availability import availability, q2_saturated
     if rec.tick0 is None or rig is None:
         return None
-    q2, truth = rec.arrays()
     rate = rig.rate_hz
     block = availability((q2[:, 1] - rec.t0_us) * 1e-6, truth, report.REQUIREMENT_ARCSEC, rec.status,
                          lambda t: rec.tick0 + int(round(t * rate)), rec.unplayable)
@@ -411,9 +413,8 @@ class RunFailed(OSError):
     """The run could not go on (link, controller process, a refused command); its folder holds what was done."""
 
 
-def _finish(rec, q2cal, t0_us, complete, plots):
+def _finish(rec, q2, truth, q2cal, t0_us, complete, plots):
     from ground import plots as plt_mod
-    q2, truth = rec.arrays()
     q2_err = q2_error_arcsec(q2, q2cal) if q2cal is not None else np.full((len(q2), 2), np.nan)
     rec.write_samples(q2, q2_err, truth, t0_us)
     rec.write_telemetry()

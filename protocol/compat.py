@@ -1,6 +1,6 @@
 """MicroPython's names where CPython has none, defined once for the code that runs on both: ``const``
-(MicroPython's compiler folds ``_X = const(n)`` whichever module the name is imported from), the heap lock, the
-``time`` module's tick counters (they wrap on a board; CPython's are monotonic and never wrap) and ``crc32``
+(MicroPython's compiler folds ``_X = const(n)`` whichever module the name is imported from), the ``time``
+module's tick counters (they wrap on a board; CPython's are monotonic and never wrap) and ``crc32``
 (binascii's C implementation, or the protocol's own where a port has none).
 
 The modules the fine-pointing controller's board imports (firmware/ad5664r.py, hal/stdio.py, upload.py,
@@ -12,15 +12,6 @@ try:
 except ImportError:                      # CPython
     def const(x):
         return x
-
-try:
-    from micropython import heap_lock, heap_unlock
-except ImportError:                      # CPython: nothing to lock
-    def heap_lock():
-        return 0
-
-    def heap_unlock():
-        return 0
 
 try:
     from time import ticks_add, ticks_diff, ticks_ms, ticks_us

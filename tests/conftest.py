@@ -23,6 +23,18 @@ def inputs(tmp_path_factory):
     return dist, cal
 
 
+@pytest.fixture(scope="module")
+def system_inputs(tmp_path_factory):
+    """(params file, H calibration file, bps cache folder) for short fps system runs without calibrating."""
+    from ground.adcs import body_pointing as bps, bps_cli
+    d = tmp_path_factory.mktemp("system_inputs")
+    cache = str(d / "cache")
+    params = str(d / "params.json")
+    bps.write_params(params, bps_cli.calibration(0, cache, progress=False))
+    cal = str(d / "cal.json")
+    write_json(cal, true_h_field(Bench(noise=False), None, 0.01))
+    return params, cal, cache
+
 E2E_MODULES = (                            # longest first (their durations in make test), so that they start first
     "test_pil", "test_can_faults", "test_system_failures", "test_no_orphans", "test_hil_faults", "test_system",
     "test_flight_firmware",

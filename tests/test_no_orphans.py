@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 
 from emulator import launcher
-from ground.fileio import write_json
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GONE_S = 2.0            # the run's processes are gone this long after the command's end
@@ -291,21 +290,6 @@ def test_fps_response_leaves_no_process_and_keeps_the_tones_measured(fps_run, tm
 
 
 # --- fps system --------------------------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def system_inputs(tmp_path_factory):
-    """(params file, H calibration file, bps cache folder) for short runs without calibrating."""
-    from emulator.bench import Bench
-    from emulator.truth import true_h_field
-    from ground.adcs import body_pointing as bps, bps_cli
-    d = tmp_path_factory.mktemp("orphans")
-    cache = str(d / "cache")
-    params = str(d / "params.json")
-    bps.write_params(params, bps_cli.calibration(0, cache, progress=False))
-    cal = str(d / "cal.json")
-    write_json(cal, true_h_field(Bench(noise=False), None, 0.01))
-    return params, cal, cache
-
-
 def _system(fps_run, system_inputs, out):
     """fps system with the ADCS firmware and the controller under micropython, started and waited for: both
     firmware processes (the ADCS's under fps system's ADCS process)."""

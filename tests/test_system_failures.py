@@ -19,29 +19,14 @@ import numpy as np
 import pytest
 
 from ground import report, system
-from ground.adcs import body_pointing as bps, bps_cli
+from ground.adcs import body_pointing as bps
 from ground.cli import main as fps
-from ground.fileio import write_json
 
 BOUND_S = 30.0
 
 
-@pytest.fixture(scope="module")
-def setup(tmp_path_factory):
-    """(params file, H calibration file, bps cache folder) for short runs without calibrating."""
-    from emulator.bench import Bench
-    from emulator.truth import true_h_field
-    d = tmp_path_factory.mktemp("sysfail")
-    cache = str(d / "cache")
-    params = str(d / "params.json")
-    bps.write_params(params, bps_cli.calibration(0, cache, progress=False))
-    cal = str(d / "cal.json")
-    write_json(cal, true_h_field(Bench(noise=False), None, 0.01))
-    return params, cal, cache
-
-
-def _args(out, setup, duration, *extra):
-    params, cal, cache = setup
+def _args(out, system_inputs, duration, *extra):
+    params, cal, cache = system_inputs
     return ["system", "--adcs", "ground", "--duration", str(duration), "--truth", "two-body", "--params", params,
             "--calibration", cal, "--bps-cache", cache, "--quiet", "--no-plots", "-o", str(out)] + list(extra)
 
@@ -68,7 +53,7 @@ def _when_playing(out, then, timeout_s=120.0):
     return th
 
 
-def test_a_body_error_beyond_the_pfsm_is_held_at_its_edge_counted_and_the_run_goes_on(tmp_path, setup,
+def test_a_body_error_beyond_the_pfsm_is_held_at_its_edge_counted_and_the_run_goes_on(tmp_path, system_inputs,
                                                                                        monkeypatch):
     """From 5 s to 8 s into the play the body pointing error is 5000 arcsec, beyond the P-FSM's 810: the bench
     plays the range's edge, counts the samples and their window, the availability names the outage's cause,
@@ -83,7 +68,7 @@ def test_a_body_error_beyond_the_pfsm_is_held_at_its_edge_counted_and_the_run_go
         return add(self, t, d)
     monkeypatch.setattr(system.LiveDisturbance, "add", beyond)
     out = tmp_path / "run"
-    assert fps(_args(out, setup, 12)) == 3
+    assert fps(_args(out, system_inputs, 12)) == 3
     s = _summary(out)
     assert s["complete"] is True and s["verdict"]["met"] is False
     held = s["disturbance"]["beyond_pfsm_range"]
@@ -95,7 +80,7 @@ def test_a_body_error_beyond_the_pfsm_is_held_at_its_edge_counted_and_the_run_go
     assert s["availability"]["availability"] < 0.8
     assert "not playable" in (out / "report.md").read_text()
 
-def test_the_controller_exiting_mid_run_ends_the_command(tmp_path, setup, monkeypatch, capsys):
+def test_the_controller_exiting_mid_run_ends_the_command(tmp_path, system_inputs, monkeypatch, capsys):
     from ground import runtime
     rigs = []
     open_rig = runtime.open_rig
@@ -113,7 +98,7 @@ def test_the_controller_exiting_mid_run_ends_the_command(tmp_path, setup, monkey
         rigs[0].process.kill()
         provoked.append(time.monotonic())
     _when_playing(out, kill)
-    rc = fps(_args(out, setup, 120))
+    rc = fps(_args(out, system_inputs, 120))
     t_end = time.monotonic()
     err = capsys.readouterr().err
     assert provoked and rc == 1, err
@@ -125,7 +110,7 @@ def test_the_controller_exiting_mid_run_ends_the_command(tmp_path, setup, monkey
     assert s["verdict"]["met"] is False and s["duration_s"] < 120
 
 
-def test_an_adcs_process_that_stops_answering_ends_the_command(tmp_path, setup, monkeypatch, capsys):
+def test_an_adcs_process_that_stops_answering_ends_the_command(tmp_path, system_inputs, monkeypatch, capsys):
     """SIGSTOP the ADCS process at its first 10 Hz cycle (its pipe then holds less than the settling): the run
     fails after ``SILENT_S`` of silence and the process is ended."""
     feeds, provoked = [], []
@@ -140,7 +125,7 @@ def test_an_adcs_process_that_stops_answering_ends_the_command(tmp_path, setup, 
     monkeypatch.setattr(system.AdcsFeed, "_handle", stop_it)
     out = tmp_path / "run"
     try:
-        rc = fps(_args(out, setup, 60))
+        rc = fps(_args(out, system_inputs, 60))
         t_end = time.monotonic()
         err = capsys.readouterr().err
         assert provoked and rc == 1, err
@@ -158,10 +143,10 @@ def test_an_adcs_process_that_stops_answering_ends_the_command(tmp_path, setup, 
                 f.proc.kill()
 
 
-def test_ctrl_c_ends_the_command_with_130(tmp_path, setup):
+def test_ctrl_c_ends_the_command_with_130(tmp_path, system_inputs):
     """Ctrl-C as a terminal sends it: SIGINT to the whole process group (the controller's process too)."""
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "ground.cli"] + _args(out, setup, 120), stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "ground.cli"] + _args(out, system_inputs, 120), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, start_new_session=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # as a terminal's job
     provoked = []
@@ -219,10 +204,10 @@ def test_verdict_names_the_loop_that_missed_and_by_how_much():
     assert "**Terminal: BUDGET MISSED**: body: 3σ pointing 182.0″" in md
 
 
-def test_fps_system_exits_3_when_the_body_budget_is_missed_and_0_when_both_are_met(tmp_path, setup, monkeypatch,
+def test_fps_system_exits_3_when_the_body_budget_is_missed_and_0_when_both_are_met(tmp_path, system_inputs, monkeypatch,
                                                                                  capsys):
     out = tmp_path / "met"
-    rc = fps(_args(out, setup, 2))
+    rc = fps(_args(out, system_inputs, 2))
     s = _summary(out)
     assert rc == 0, capsys.readouterr().err
     assert s["complete"] is True and s["verdict"]["met"] is True and s["requirement_met"] is True
@@ -231,7 +216,7 @@ def test_fps_system_exits_3_when_the_body_budget_is_missed_and_0_when_both_are_m
     # the same run judged against a 1 arcsec pointing budget: complete, the fine loop met, the body not
     monkeypatch.setattr(bps, "BUDGET_POINTING_3SIGMA", 1.0)
     out = tmp_path / "missed"
-    rc = fps(_args(out, setup, 2))
+    rc = fps(_args(out, system_inputs, 2))
     s = _summary(out)
     assert rc == 3
     assert s["complete"] is True and s["verdict"]["met"] is False and s["requirement_met"] is False

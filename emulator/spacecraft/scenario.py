@@ -208,9 +208,9 @@ def filter_truth(sc, jxx_ref=J0_THESIS[0]):
 def truth_setup(d):
     """What ``simulate`` flies for a checked spacecraft file ``d`` (``protocol.spacecraft``): the true inertia
     and dipole (figure + the truth block's error), the wheels (true rotor inertia and axes, ``wheel_axes(d,
-    true=True)``; the file's torque limit, friction and read-out noise; the speed limit ``SCENARIO_WHEELS``'), the
-    star tracker's noise and rate limit, the gyro's figures, and the PD on the file's nominal inertia, axes and
-    rotor inertia. ValueError for a file the scenario cannot fly (not four wheels)."""
+    true=True)``, their angles about ``reference_axes(d)``; the file's torque limit, friction and read-out noise;
+    the speed limit ``SCENARIO_WHEELS``'), the star tracker's noise and rate limit, the gyro's figures, and the PD
+    on the file's nominal inertia, axes (``wheel_axes(d)``: its nominal tilts applied) and rotor inertia. ValueError for a file the scenario cannot fly (not four wheels)."""
     from protocol import spacecraft as sf
     w = d["wheels"]
     if w["count"] != 4:
@@ -222,13 +222,17 @@ def truth_setup(d):
                             friction_coulomb=w["friction_coulomb_nm"],
                             friction_viscous=w["friction_viscous_nms_rad"],
                             friction_smooth_rpm=w["friction_smooth_rpm"], noise_rpm=w["tach_noise_rpm"]))
-    c0 = np.ascontiguousarray(np.array(sf.wheel_axes(d)).T)      # C order: the same BLAS sums as pyramid_c0()
+    # C order: the same BLAS sums as pyramid_c0(). The wheels' c0 is the angles' reference (the unit nominal axes),
+    # so that their angles, truth_params' and the filters' all count a nominal tilt once; the PD allocates on
+    # the axes the file believes (the nominal tilts applied).
+    c0 = np.ascontiguousarray(np.array(sf.reference_axes(d)).T)
+    c_pd = np.ascontiguousarray(np.array(sf.wheel_axes(d)).T)
     return {"inertia": list(tf["inertia_kgm2"]), "dipole": np.array(tf["residual_dipole_am2"]), "wheel_params": wp,
             "c0": c0, "c": np.ascontiguousarray(np.array(sf.wheel_axes(d, True)).T),
             "star_tracker": {"sigma_arcsec": tuple(st["sigma_arcsec"]), "rate_max_dps": st["rate_limit_deg_s"]},
             "gyro": {"arw_deg_rt_h": g["arw_deg_rt_h"], "bias_deg_h": g["bias_deg_h"],
                      "instability_deg_h": g["bias_instability_deg_h"]},
-            "pd": {"j0": tuple(d["inertia_kgm2"]), "c0": c0, "jrw": w["rotor_inertia_kgm2"]},
+            "pd": {"j0": tuple(d["inertia_kgm2"]), "c0": c_pd, "jrw": w["rotor_inertia_kgm2"]},
             "filter_truth": {"jxx_ref": d["inertia_kgm2"][0]}}
 
 
@@ -237,7 +241,8 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
     """Run the scenario; returns a dict of 1 Hz arrays (index k is t = k s) and the truth parameters.
 
     Keys: t, q, w, w_rel (true), tach (measured W - c.w, rad/s), st_q, st_valid, gyro (index k: over k-1..k),
-    gyro_bias (true bias in gyro[k]), tau_d (true, N m), truth (``filter_truth``), set_ends (s).
+    gyro_bias (true bias in gyro[k]), tau_d (true, N m), truth (``filter_truth``), set_ends (s), pd_c0 (the axes
+    the PD allocated on, 3 x 4).
     ``inertia`` [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz] and ``dipole`` (A m^2) replace the thesis's true values.
     ``st_rate_max_dps``: the star tracker's rate limit (Sec. 4.8's 0.1 deg/s; raised only as a diagnostic: the
     noise draws are the same at any limit).
@@ -298,6 +303,7 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
     out["t"] = np.arange(n + 1, dtype=float)
     out["truth"] = filter_truth(sc, **v.get("filter_truth", {}))
     out["set_ends"] = [x for x in man.set_end_times() if x <= n]
+    out["pd_c0"] = pd.c0
     out["clips"] = wheels.counters()
     out["spacecraft"] = sc
     out["case"] = case

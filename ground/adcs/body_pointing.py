@@ -104,7 +104,7 @@ def calibrate(seed=0, sets=CAL_SETS, progress=False, spacecraft=None):
         apkf.check_covariance(f.P, o["t"][k])
     tr = o["truth"]
     w = o["spacecraft"].wheels
-    u = np.array([control.wheel_torques(o["tau_c"][k], w.c0, 0.1, o["w_rel"][k - 1]) if k > 0 else np.zeros(4)
+    u = np.array([control.wheel_torques(o["tau_c"][k], o["pd_c0"], 0.1, o["w_rel"][k - 1]) if k > 0 else np.zeros(4)
                   for k in range(n)])                      # what scenario.simulate commanded over step k-1 -> k
     u = np.clip(np.vstack([u[1:], np.zeros((1, 4))]), -w.p.torque_max, w.p.torque_max)
     ds = d["wheels"]                                       # the datasheet's friction, not the truth's

@@ -116,21 +116,27 @@ def spacecraft_record(d, source):
 
 
 def apkf_model(d):
-    """The APKF's ``Model`` for a checked spacecraft file ``d``: Jxx reference = its Jxx (Sec. 4.6.2), its nominal
-    wheel axes, star-tracker sigma, tachometer noise and ``uncertainty`` block (the initial P)."""
+    """The APKF's ``Model`` for a checked spacecraft file ``d``: Jxx reference = its Jxx (Sec. 4.6.2), the wheel
+    axes its angles are measured from (``reference_axes``: the file's nominal tilts enter once, as the prior,
+    ``apkf_prior``), star-tracker sigma, tachometer noise and ``uncertainty`` block (the initial P)."""
     from protocol import spacecraft as sf
     return apkf.Model(jxx=d["inertia_kgm2"][0], sigma_st_arcsec=tuple(d["star_tracker"]["sigma_arcsec"]),
-                      tach_rpm=d["wheels"]["tach_noise_rpm"], c0=np.ascontiguousarray(np.array(sf.wheel_axes(d)).T),
+                      tach_rpm=d["wheels"]["tach_noise_rpm"],
+                      c0=np.ascontiguousarray(np.array(sf.reference_axes(d)).T),
                       uncertainty=d["uncertainty"])
 
 
 def apkf_prior(d):
     """The APKF's parameter priors from a checked spacecraft file ``d``, in its relative units with the file's Jxx
-    as the reference (s = 1 at the nominal, Sec. 4.6.2): J5 = [Jyy, Jzz, Jxy, Jxz, Jyz], m, d1, d2 (rad), Jrw."""
+    as the reference (s = 1 at the nominal, Sec. 4.6.2): J5 = [Jyy, Jzz, Jxy, Jxz, Jyz], m, d1, d2 (rad, about
+    ``reference_axes``), Jrw divided by the norm of the unnormalised Eq. 4.60 column at the file's angles (the
+    filter's C Jrw then equals the file's unit axes times its rotor inertia, as ``scenario.filter_truth``'s)."""
     w = d["wheels"]
     j = d["inertia_kgm2"]
-    return {"j5": list(j[1:]), "m": list(d["residual_dipole_am2"]), "delta1": np.radians(w["delta1_deg"]),
-            "delta2": np.radians(w["delta2_deg"]), "jrw": list(w["rotor_inertia_kgm2"])}
+    d1, d2 = np.radians(w["delta1_deg"]), np.radians(w["delta2_deg"])
+    cn = np.sqrt(1 + d1 ** 2 + d2 ** 2)
+    return {"j5": list(j[1:]), "m": list(d["residual_dipole_am2"]), "delta1": d1, "delta2": d2,
+            "jrw": list(np.asarray(w["rotor_inertia_kgm2"], float) / cn)}
 
 
 def mekf_options(d):

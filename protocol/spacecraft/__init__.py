@@ -12,8 +12,8 @@ with its shape, unit, allowed range and meaning; docs/SPACECRAFT.md is generated
   ValueError naming the key path, the value and the allowed range, e.g. ``wheels.speed_limit_rpm = -5: must be
   > 0 and <= 100000 rpm``.
 - ``load(name_or_path)``: a preset by name (``presets()``) or a JSON file, checked.
-- ``inertia_matrix(d)``, ``wheel_axes(d)``, ``true_figures(d)``, ``principal_moments(j6)``: what a filter or a
-  simulator needs from a checked file, as nested lists.
+- ``inertia_matrix(d)``, ``wheel_axes(d)``, ``reference_axes(d)``, ``true_figures(d)``, ``principal_moments(j6)``:
+  what a filter or a simulator needs from a checked file, as nested lists.
 
 Conventions. Body frame as the emulator's (Yoon 2017, Sec. 4.2). ``inertia_kgm2`` = [Jxx, Jyy, Jzz, Jxy, Jxz,
 Jyz] about the centre of mass, the products being the matrix's off-diagonal entries (Jxy = -integral of x y dm,
@@ -429,6 +429,14 @@ def misalignment_axes(n):
         e1.append(v)
         e2.append(_unit(_cross(a, v)))
     return e1, e2
+
+
+def reference_axes(d):
+    """Each wheel's unit nominal axis n_i (count x 3, body frame): the reference every misalignment angle is
+    measured from, the file's ``wheels.delta*_deg`` and the truth's alike (``wheel_axes`` with all angles zero,
+    the same arithmetic). A filter that estimates the angles starts from these axes and the file's angles as
+    its prior, so that a nominal tilt is counted once."""
+    return [_unit([x + 0.0 for x in _unit(a)]) for a in d["wheels"]["nominal_axes"]]
 
 
 def wheel_axes(d, true=False):

@@ -15,12 +15,14 @@ import sys
 
 from protocol import spacecraft as sc
 from protocol.fileio import output_file, write_atomic
+from protocol.spacecraft import plausible
 
 UNITS_HELP = ("Units are in the key names: _kg kg, _kgm2 kg m^2, _kgm kg m, _am2 A m^2, _nm N m, _nms_rad N m s/rad, "
               "_rpm rev/min, _arcsec arcseconds, _deg degrees, _deg_s deg/s, _deg_rt_h deg/sqrt(h), _deg_h deg/h, "
               "_hz Hz, _m metres, _m2 m^2, _m_s m/s, _km km, _nt nT, _s seconds; sigma = 1 standard deviation. "
               "Bad input (a missing or unknown key, a value out of range, NaN or inf, a non-physical inertia, "
-              "wheels that do not span three axes) exits 2 naming the key, the value and the allowed range.")
+              "wheels that do not span three axes, a figure implausible for the vehicle's size and mass: a unit "
+              "slip) exits 2 naming the key, the value and the allowed range.")
 
 
 def register(sub, name, help_):
@@ -191,7 +193,7 @@ def schema_rows():
 
 def schema_markdown():
     """docs/SPACECRAFT.md: the spacecraft file's schema, generated from ``protocol.spacecraft.SCHEMA``."""
-    return "\n".join(_schema_intro() + _schema_keys())
+    return "\n".join(_schema_intro() + _schema_plausible() + _schema_keys())
 
 
 def _schema_intro():
@@ -260,6 +262,50 @@ def _schema_intro():
          "`surface.cp_offset_m` (no drag or solar pressure torque) may be left out. Every other key is required, and an unknown key is refused.",
          "- NaN and ±inf are refused everywhere; integers are accepted where a number is asked.", ""]
     return L
+
+
+def _schema_plausible():
+    """docs/SPACECRAFT.md's plausibility checks (``protocol.spacecraft.plausible``), with the presets' figures."""
+    p, g = plausible, sc.num_text
+    ratios = {"k": [], "rho": [], "rotor": [], "length": []}
+    for n in sc.presets():
+        d = sc.load(n)
+        size = p.size_m(d)
+        lam = sc.principal_moments(d["inertia_kgm2"])
+        ratios["k"] += [(j / d["mass_kg"]) ** 0.5 / size for j in lam]
+        ratios["rho"].append(d["mass_kg"] / size ** 3)
+        ratios["rotor"].append(max(d["wheels"]["rotor_inertia_kgm2"]) / lam[0])
+        ratios["length"] += [sum(x * x for x in d["surface"]["cp_offset_m"] or [0.0]) ** 0.5 / size,
+                             d["wheels"]["arm_m"] / size]
+
+    def span(k, digits):
+        return "%s to %s" % tuple(g(float("%.*g" % (digits, f(ratios[k])))) for f in (min, max))
+    return ["## Plausibility", "",
+            "Within its range a figure may still be in the wrong unit (an inertia in g m^2 is 1000 times too large "
+            "yet far below the schema's 1e4 kg m^2), and a flight then diverges without a word. After the ranges "
+            "and the checks above, `check` compares the figures with each other and with the vehicle's size, and "
+            "refuses a file no vehicle could have, naming the key, the value, the plausible range and the likely slip "
+            "(`protocol/spacecraft/plausible.py`; its docstring gives the reasoning, from homogeneous boxes, "
+            "J = m (b² + c²) / 12, and vehicles with deployed panels). The size is "
+            "L = √max(`surface.drag_area_m2`, `surface.srp_area_m2`), the side of the larger area's square "
+            "(%s m for `thesis-3u`). In order, the first failing check reported:" % g(float("%.3g" % (
+                p.size_m(sc.load("thesis-3u"))))), "",
+            "| check | plausible | catches | the presets |", "|---|---|---|---|",
+            "| `mass_kg` / L³ | from %s to %s kg/m³ | a mass in g; areas in cm² | %s kg/m³ |"
+            % (g(p.DENSITY_MIN), g(p.DENSITY_MAX), span("rho", 2)),
+            "| each principal moment's radius of gyration k = √(J / `mass_kg`), of the inertia and of the true "
+            "inertia (`truth`) | from max(%s L, %s m) to min(%s L, %s m) | an inertia in g m² or kg mm² (k × 31.6 or "
+            "× 1000); a mass in g (k / 31.6) | %s L |" % (g(p.K_MIN_L), g(p.K_MIN_M), g(p.K_MAX_L), g(p.K_MAX_M),
+                                                         span("k", 2)),
+            "| each `wheels.rotor_inertia_kgm2`, and each true one | at most %s %% of the smallest principal moment "
+            "| a rotor inertia in g m² | %s of it |" % (g(100 * p.ROTOR_SHARE_MAX), span("rotor", 2)),
+            "| \\|`surface.cp_offset_m`\\| and `wheels.arm_m` | at most %s L | a length in mm or cm | %s L |"
+            % (g(p.LENGTH_MAX_L), span("length", 2)), "",
+            "The envelopes admit real CubeSats and small satellites with deployed panels (a homogeneous 3U's "
+            "smallest k is 0.22 L, a 3U with 2 m² of wings 0.07 L; panels the areas leave out can raise the "
+            "largest k to about 0.7 L) and still catch a factor 1000: the largest k of a real vehicle is above "
+            "0.15 L, so × 31.6 lands above 3 L. A vehicle outside them (a gravity-gradient boom with a tip mass, "
+            "a dual-spin rotor) is outside what this workbench flies.", ""]
 
 
 def _schema_keys():

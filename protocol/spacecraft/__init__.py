@@ -253,7 +253,8 @@ def check(d):
     """A checked, normalised copy of the spacecraft dict ``d``; ValueError naming the key, the value and the
     allowed range. Checks beyond each key's range: the inertia (nominal and true) is a rigid body's, the wheels
     (nominal and true) and the magnetorquers span three axes, the laser axis is not zero, |r| and |v| of the
-    orbit states, the relay delay's min <= max."""
+    orbit states, the relay delay's min <= max; then physical plausibility (``protocol.spacecraft.plausible``: mass,
+    inertia, rotor inertia and lengths against each other and the vehicle's size, catching a unit slip)."""
     if not isinstance(d, dict):
         raise ValueError("a spacecraft file must be a JSON object, got %s" % value_text(d, 40))
     out = {}
@@ -318,6 +319,8 @@ def check(d):
         for i, a in enumerate(m["axes"]):
             _nonzero("magnetorquers.axes[%d]" % i, a)
         _check_span("magnetorquers.axes = %s" % value_text(m["axes"]), [_unit(a) for a in m["axes"]])
+    from protocol.spacecraft.plausible import check_plausible
+    check_plausible(out, principal_moments)
     return out
 
 

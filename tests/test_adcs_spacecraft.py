@@ -29,10 +29,18 @@ def test_thesis_3u_is_the_default_bit_for_bit():
             assert np.array_equal(v, b[k]), k
     for k, v in a["truth"].items():
         assert np.array_equal(v, b["truth"][k]), k
-    for fn in (runs.run_apkf, runs.run_mekf):
-        assert _same(fn(3, params=SHORT), fn(3, params=SHORT, spacecraft=d)), fn.__name__
+    assert _same(runs.run_mekf(3, params=SHORT), runs.run_mekf(3, params=SHORT, spacecraft=d))
+    assert _same(runs.run_apkf(3, params=SHORT, form="thesis"),
+                 runs.run_apkf(3, params=SHORT, spacecraft=d, form="thesis"))
     m, m0 = runs.apkf_model(d), apkf.Model()
     assert np.array_equal(apkf.initial_covariance(m), apkf.initial_covariance(m0))
+    # the consistent form adds the file's Jxx spread (thesis-3u: 5e-3 kg m^2), which the thesis holds exact
+    x0 = apkf.initial_state([0, 0, 0, 1.0], np.zeros(3), np.zeros(4))
+    p = np.zeros(apkf.N)
+    p[9:14], p[25:29] = x0[10:15], x0[26:30]
+    assert np.allclose(apkf.initial_covariance(m, x0) - apkf.initial_covariance(m0),
+                       m.scale_var * np.outer(p, p), rtol=0, atol=1e-18)
+    assert 0.1 < m.scale_var < 0.2           # (5e-3 / 12e-3)^2 = 0.17 to first order
     assert m.jxx == m0.jxx and np.array_equal(m.R_st, m0.R_st) and m.R_rw == m0.R_rw
     assert np.array_equal(m.c0, m0.c0) and np.array_equal(m.c1, m0.c1) and np.array_equal(m.c2, m0.c2)
 

@@ -443,7 +443,8 @@ class APKF:
             raise ValueError("form must be one of %s, got %r" % (", ".join(FORMS), form))
         self.model = model or Model()
         self.x = np.array(x0, dtype=float)
-        self.P = initial_covariance(self.model)
+        # the consistent form's P0 holds the spread of the Jxx-relative scale; the thesis's holds Jxx exact
+        self.P = initial_covariance(self.model, self.x if form == "consistent" else None)
         self.case = case
         self.set_ends = list(set_ends)
         self.form = form

@@ -60,13 +60,16 @@ class Model:
     """What the filter knows: nominal geometry, the Jxx reference, the orbit and field, noise levels."""
 
     def __init__(self, dt=1.0, jxx=J0_THESIS[0], orbit=None, field=None,
-                 sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, c0=None, uncertainty=None):
+                 sigma_st_arcsec=(20.0, 20.0, 60.0), tach_rpm=10.0, c0=None, uncertainty=None, scale_var=None):
         """``c0``: the nominal wheel axes (3 x 4 unit columns; default Eq. 4.147's pyramid), C1, C2 from them by
-        Eq. 4.148. ``uncertainty``: a spacecraft file's block of 1 sigma priors (``initial_covariance``)."""
+        Eq. 4.148. ``uncertainty``: a spacecraft file's block of 1 sigma priors (``initial_covariance``);
+        ``scale_var``: E[(s - 1)^2] of the Jxx-relative scale s over the vehicles the file admits (None: the
+        first order, (sigma_Jxx / Jxx)^2)."""
         self.dt = float(dt)
         self.jxx = float(jxx)
         self.c0 = pyramid_c0() if c0 is None else np.array(c0, dtype=float)
         self.uncertainty = uncertainty
+        self.scale_var = scale_var
         self.c1, self.c2 = misalignment_axes(self.c0)
         self.c12 = np.hstack([self.c1, self.c2])
         self.orbit = orbit or env.CircularOrbit()
@@ -111,13 +114,18 @@ def initial_state(q, w, w_rw, j5=J0_THESIS[1:], jrw=J_RW_NOMINAL):
     return x
 
 
-def initial_covariance(model):
+def initial_covariance(model, x0=None):
     """P0 (Sec. 4.8): (10 deg)^2 attitude, (10 deg/s)^2 rate, J (5e-3)^2 / (2e-3)^2, m 0.3^2, d (10 deg)^2,
     Jrw (1e-6)^2, wheel speeds R_rw; tau_d is not given: (1e-6 N m)^2, the thesis's disturbance size.
     With ``model.uncertainty`` (a spacecraft file's block) its 1 sigma instead, in the filter's relative units
     with s = Jxx_ref / Jxx = 1 at the nominal (Sec. 4.6.2; the rotors' transverse share, < 1e-3 of Jxx, left
-    out): J5 from the sigma of [Jyy, Jzz, Jxy, Jxz, Jyz] (Jxx is the fixed reference), the attitude's as the half
-    angle dq."""
+    out): J5 from the sigma of [Jyy, Jzz, Jxy, Jxz, Jyz], the attitude's as the half angle dq.
+
+    Jxx is the filter's fixed reference, but the file gives it a 1 sigma too: a true Jxx = Jxx_ref (1 + e) scales
+    every relative parameter by s = 1 / (1 + e), so the scaled states J5, m, Jrw at the prior ``x0`` (their
+    values p) are off by (s - 1) p, all together. That adds E[(s - 1)^2] p p^T over those states (our
+    derivation; the thesis holds Jxx exact), E[(s - 1)^2] being ``model.scale_var`` (to first order
+    (sigma_Jxx / Jxx_ref)^2). Without ``x0`` it is left out."""
     u = model.uncertainty
     if u is not None:
         d = np.zeros(N)
@@ -129,7 +137,14 @@ def initial_covariance(model):
         d[ID1] = d[ID2] = (u["misalignment_sigma_deg"] * DEG) ** 2
         d[IJR] = u["rotor_inertia_sigma_kgm2"] ** 2
         d[IWR] = d[IWM] = d[IWP] = model.R_rw
-        return np.diag(d)
+        P = np.diag(d)
+        if x0 is not None:
+            v = model.scale_var
+            v = (u["inertia_sigma_kgm2"][0] / model.jxx) ** 2 if v is None else v
+            p = np.zeros(N)
+            p[IJ], p[IM], p[IJR] = x0[10:15], x0[15:18], x0[26:30]
+            P += v * np.outer(p, p)
+        return P
     d = np.zeros(N)
     d[IQ] = (10 * DEG / 2) ** 2
     d[IW] = (10 * DEG) ** 2

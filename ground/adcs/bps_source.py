@@ -60,7 +60,9 @@ class BpsSource:
         p.add_argument("--bps-cache", default=None, type=cache_folder,
                        help="bps: run cache folder (default out/bps_cache)")
         p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
-                       help="bps: the vehicle, a preset or a spacecraft file (default thesis-3u), as fps adcs bps")
+                       help="bps: the vehicle, a preset or a spacecraft file (default thesis-3u), as fps adcs bps: "
+                            "its truth block, or, for a file without one, a vehicle drawn from --seed within its "
+                            "uncertainty block")
 
     @classmethod
     def from_args(cls, a):
@@ -91,8 +93,10 @@ class BpsSource:
         return ("bps%g%s %s" % (self.ts, "g" if self.satb_gnss else "n", self.cache_key))[:16]
 
     def generate(self, duration_s, seed):
+        from emulator.spacecraft.dispersion import flown
         from ground.adcs import body_pointing as bps, bps_cli
-        params = self.params or bps_cli.calibration(seed, self.cache_dir, not self.quiet, self.spacecraft)
+        d = flown(self.spacecraft, seed)[0]          # its truth block, or a vehicle drawn from the seed
+        params = self.params or bps_cli.calibration(seed, self.cache_dir, not self.quiet, d)
         span = float(duration_s) + 1.0                    # the distfile needs one step and a stencil beyond
         self.cache_key = self.key(duration_s, seed, params, simulated_s=span)
         path = os.path.join(self.cache_dir, "run_%s.npz" % self.cache_key)
@@ -111,7 +115,7 @@ class BpsSource:
                   % (self.ts, "with" if self.satb_gnss else "without", span, 30 + 4 * self.ts), file=sys.stderr)
         res, hist = bps.simulate(ts=self.ts, satb_gnss=self.satb_gnss, duration_s=span, seed=seed, params=params,
                                  truth=self.truth, cache_dir=os.path.abspath(self.cache_dir),
-                                 progress=not self.quiet, spacecraft=self.spacecraft)
+                                 progress=not self.quiet, spacecraft=d)
         if not res["complete"]:
             raise KeyboardInterrupt            # nothing cached, nothing written
         sel = hist["t"] >= res["settle_s"] - 1e-9

@@ -23,9 +23,9 @@ import numpy as np
 
 from emulator.adcs_session import RUNTIMES
 from emulator.spacecraft import scenario
-from ground.adcs import body_pointing as bps, campaign, runs
+from ground.adcs import body_pointing as bps, campaign
 from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_spacecraft_option, faults_from_args,
-                             load_spacecraft)
+                             fly, load_spacecraft)
 from ground.fileio import output_folder, run_folder, write_json
 from protocol.units import RAD_PER_ARCSEC
 
@@ -76,10 +76,10 @@ def run(a):
     bps.check_ts(a.ts)
     campaign.check_seed(a.seed)
     d, source = load_spacecraft(a.spacecraft, partner=True)
+    d, record = fly(d, source, a.seed, a.vehicle)
     session, faults = _session(a, d)
     out = a.output
     run_folder(out, (FIGURE,))
-    record = runs.spacecraft_record(d, source)
     write_json(os.path.join(out, "summary.json"), {"complete": False, "faults": faults or {}, "spacecraft": record})
     try:
         rows, summary, interrupted = _fly(session, a)

@@ -83,7 +83,7 @@ def _apkf(sub):
                         "(reproduces the thesis's tables; its 1 sigma is overconfident: docs/ADCS.md, "
                         "\"Attitude determination\")")
     p.set_defaults(func=lambda a: run_filter_campaign(runs.run_apkf, "apkf", a.case, a,
-                                                      options={"form": a.form}))
+                                                      options={"form": a.form, "vehicle": a.vehicle}))
 
 
 def _mekf(sub):
@@ -92,7 +92,8 @@ def _mekf(sub):
                                    "0.05 deg/h) + star tracker over the Sec. 4.8 scenario. "
                                    + __doc__.split("\n\n")[2])
     add_campaign_options(p)
-    p.set_defaults(func=lambda a: run_filter_campaign(runs.run_mekf, "mekf", a.case, a))
+    p.set_defaults(func=lambda a: run_filter_campaign(runs.run_mekf, "mekf", a.case, a,
+                                                      options={"vehicle": a.vehicle}))
 
 
 def _stkf(sub):

@@ -25,6 +25,7 @@ def add_campaign_options(p, cases=True):
                         "its truth block is the simulated vehicle's errors, its figures and uncertainty block the "
                         "filter's priors and initial P (default thesis-3u, the thesis's 3U)"
                         % ", ".join(_presets()))
+    add_vehicle_option(p, "each run's vehicle from its own seed")
     p.add_argument("--params", default=None,
                    help="JSON of scenario overrides, not a spacecraft: %s. inertia_kgm2 and dipole_am2 replace "
                         "only the simulated (true) vehicle's, the filter keeps the spacecraft file's priors (a "
@@ -153,7 +154,27 @@ def faults_from_args(a):
 
 
 def add_spacecraft_option(p, what):
-    """``--spacecraft NAME|FILE`` on ``p``; ``what``: what the command takes from the file."""
+    """``--spacecraft NAME|FILE`` and ``--vehicle`` on ``p``; ``what``: what the command takes from the file."""
     p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
                    help="the vehicle: a preset (%s) or a spacecraft file (fps spacecraft); %s (default thesis-3u, "
                         "the thesis's 3U)" % (", ".join(_presets()), what))
+    add_vehicle_option(p, "the vehicle from --seed")
+
+
+def add_vehicle_option(p, drawn):
+    """``--vehicle {file,drawn,nominal}`` (``emulator.spacecraft.dispersion``); ``drawn``: what a draw takes."""
+    from emulator.spacecraft.dispersion import VEHICLES
+    p.add_argument("--vehicle", default="file", choices=VEHICLES,
+                   help="the simulated vehicle: file (default) = the spacecraft file's truth block (thesis-3u's: the "
+                        "thesis's Sec. 4.8 errors), or, for a file without one, %s drawn within its uncertainty "
+                        "block (inertia as a rigid body, wheel tilts, rotor inertias, dipole; never the file's own "
+                        "figures, where the filters would start at the truth); drawn = drawn always; nominal = the "
+                        "file's figures exactly (a diagnostic)" % drawn)
+
+
+def fly(d, source, seed, vehicle):
+    """(the spacecraft file a single run flies, its record for the summary: the file's ``spacecraft_record`` and
+    the vehicle flown, ``emulator.spacecraft.dispersion.flown`` from ``seed``)."""
+    from emulator.spacecraft import dispersion
+    flown, rec = dispersion.flown(d, seed, vehicle)
+    return flown, dict(runs.spacecraft_record(d, source), vehicle=rec)

@@ -119,11 +119,12 @@ def apkf_model(d):
     """The APKF's ``Model`` for a checked spacecraft file ``d``: Jxx reference = its Jxx (Sec. 4.6.2), the wheel
     axes its angles are measured from (``reference_axes``: the file's nominal tilts enter once, as the prior,
     ``apkf_prior``), star-tracker sigma, tachometer noise and ``uncertainty`` block (the initial P)."""
+    from emulator.spacecraft.dispersion import scale_second_moment
     from protocol import spacecraft as sf
     return apkf.Model(jxx=d["inertia_kgm2"][0], sigma_st_arcsec=tuple(d["star_tracker"]["sigma_arcsec"]),
                       tach_rpm=d["wheels"]["tach_noise_rpm"],
                       c0=np.ascontiguousarray(np.array(sf.reference_axes(d)).T),
-                      uncertainty=d["uncertainty"])
+                      uncertainty=d["uncertainty"], scale_var=scale_second_moment(d))
 
 
 def apkf_prior(d):
@@ -279,12 +280,23 @@ def _series(err, nees, z):
     return {"att_err": (2 * err[:, 0:3] / RAD_PER_ARCSEC).tolist(), "nees": nees.tolist(), "z_att_rate": z.tolist()}
 
 
+def fly_vehicle(spacecraft, seed, vehicle="file"):
+    """(the spacecraft file a run of ``seed`` flies, the record of its vehicle): ``emulator.spacecraft.dispersion
+    .flown``. ``spacecraft`` None (the thesis's 3U, its built-in truth) stays None for ``vehicle`` "file"."""
+    from emulator.spacecraft import dispersion
+    if spacecraft is None and vehicle == "file":
+        return None, {"vehicle": "file", "kind": "truth block", "truth": scenario.thesis_3u()["truth"]}
+    return dispersion.flown(spacecraft or scenario.thesis_3u(), seed, vehicle)
+
+
 def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False, spacecraft=None,
-             form="consistent"):
+             form="consistent", vehicle="file"):
     """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series.
     ``start_at_truth`` (a diagnostic, not in the CLI) starts the parameters at their true values, same P0.
-    ``spacecraft``: a checked spacecraft file for the truth and the filter (None: the thesis's 3U); ``form``:
-    the APKF's, "consistent" or "thesis" (``apkf.APKF``)."""
+    ``spacecraft``: a checked spacecraft file for the truth and the filter (None: the thesis's 3U); ``vehicle``:
+    the vehicle flown (``fly_vehicle``: the file's truth block, or drawn from ``seed``); ``form``: the APKF's,
+    "consistent" or "thesis" (``apkf.APKF``)."""
+    spacecraft, vrec = fly_vehicle(spacecraft, seed, vehicle)
     o = _simulate(case, seed, params, gyro=False, spacecraft=spacecraft)
     k0, f = _start_apkf(o, case, start_at_truth, spacecraft=spacecraft, form=form)
     n = len(o["t"])
@@ -303,6 +315,7 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
     res = _final(seed, "apkf", case, o, err, sig, nees, k0, why,
                  None if why else apkf_params_report(o, n - 1, f, case))
     passes = [r[2] for r in f.reacquisitions]
+    res["vehicle"] = vrec
     res["filter_form"] = form
     res["iterated_updates"] = {"count": len(passes), "max_passes": max(passes, default=0),
                                "mean_passes": float(np.mean(passes)) if passes else 0.0}
@@ -312,11 +325,13 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
     return res
 
 
-def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True, spacecraft=None):
+def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True, spacecraft=None, vehicle="file"):
     """One MEKF run with the MEMS gyro (Sec. 4.4.1). Its rate is the gyro's, w_hat = w_meas - b_hat (the bias
     before the step's update); the rate error against the truth's mean rate over the step, w_true - w_hat =
     -(b - b_hat) - n, has 1 sigma sqrt(P_bb + sigma_v^2 / dt) (Eq. 4.17, ``scenario.MemsGyro``).
-    ``spacecraft``: a checked spacecraft file for the truth and the filter's figures (``mekf_options``)."""
+    ``spacecraft``: a checked spacecraft file for the truth and the filter's figures (``mekf_options``);
+    ``vehicle``: as ``run_apkf``'s."""
+    spacecraft, vrec = fly_vehicle(spacecraft, seed, vehicle)
     o = _simulate(case, seed, params, gyro=True, spacecraft=spacecraft)
     k0 = np.flatnonzero(o["st_valid"])
     if len(k0) == 0:
@@ -342,6 +357,7 @@ def run_mekf(seed, run_dir=None, case=1, params=None, keep_series=True, spacecra
         z[k, 0:3] = err[k, 0:3] / sig[k, 0:3]
     why = divergence(nees, err, sig, k0, o["set_ends"], "attitude + gyro bias")
     res = _final(seed, "mekf", case, o, err, sig, nees, k0, why)
+    res["vehicle"] = vrec
     _write_run(run_dir, res, o["t"], err, sig, nees, z)
     if keep_series:
         res["series"] = _series(err, nees, z)

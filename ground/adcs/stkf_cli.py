@@ -75,7 +75,8 @@ def _cmd(a):
         results = campaign.run_campaign(stkf_sim.run_one, seeds, out, workers=a.workers, scheduler=a.scheduler,
                                         progress=not a.quiet, desc="stkf case %d" % a.case, case=a.case,
                                         duration_s=a.duration, truth=a.truth, cache_dir=os.path.abspath(out),
-                                        lag_s=a.lag, outages=outages, attitude=a.attitude, spacecraft=spacecraft)
+                                        lag_s=a.lag, outages=outages, attitude=a.attitude, spacecraft=spacecraft,
+                                        vehicle=a.vehicle)
     except KeyboardInterrupt:
         complete = False
         results = [r for r in campaign.finished_results(out, n_runs) if r is not None]

@@ -273,10 +273,17 @@ def _result(seed, case, truth, attitude, K, d, flt, hist, step_s, outage_list, l
     return res
 
 
-def run_one(seed, run_dir, **kw):
-    """Campaign entry (top level, picklable): simulate, write run_dir/history.npz, result.json, run.log."""
+def run_one(seed, run_dir, vehicle="file", **kw):
+    """Campaign entry (top level, picklable): simulate, write run_dir/history.npz, result.json, run.log. With
+    ``attitude="apkf"`` the APKF flies the vehicle ``vehicle`` of the seed (``runs.fly_vehicle``)."""
     t0 = time.perf_counter()
+    vrec = None
+    if kw.get("attitude") == "apkf":
+        from ground.adcs.runs import fly_vehicle
+        kw["spacecraft"], vrec = fly_vehicle(kw.get("spacecraft"), seed, vehicle)
     res, hist = simulate(seed=seed, **kw)
+    if vrec is not None:
+        res["vehicle"] = vrec
     res["wall_s"] = time.perf_counter() - t0
     if run_dir:
         import io

@@ -40,7 +40,7 @@ def _cmd(a):
     try:
         s = run_system(a.duration, a.output, a.runtime, a.adcs, a.satb_gnss, a.seed, a.ts, a.truth, a.calibration,
                        a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, faults_from_args(a),
-                       _link_faults_arg(a.link_faults), a.spacecraft, a.world)
+                       _link_faults_arg(a.link_faults), a.spacecraft, a.world, a.vehicle)
     except hil.Interrupted:
         s = _read_summary(a.output)
         print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"

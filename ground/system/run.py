@@ -56,7 +56,8 @@ def calibrate_inproc(seed, config, path):
 
 def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware", satb_gnss=False, seed=0, ts=33.0,
                truth="hpop", calibration_path=None, params_path=None, bps_cache=None, config=None, q2_dvp=0.05,
-               quiet=False, plots=True, faults=None, link_faults=None, spacecraft=None, world="thesis"):
+               quiet=False, plots=True, faults=None, link_faults=None, spacecraft=None, world="thesis",
+               vehicle="file"):
     """The whole run; returns the summary (also in ``out_dir/summary.json``). Bad input raises ValueError before
     anything is written; afterwards the folder always ends valid, and a failure raises ``hil.RunFailed``, an
     interruption ``hil.Interrupted``. ``faults``: the ADCS session's (``emulator.adcs_session``: wheel_silent,
@@ -64,7 +65,8 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     settling), with either ADCS (the same app); their log in the summary's ``adcs_summary`` and the report.
     ``link_faults``: a ``protocol.faults.LinkFaults`` on the ADCS's CAN link (its slcan stream; firmware ADCS
     only), the retries it costs in ``adcs_summary``'s ``retries``. ``spacecraft``: a preset's name or a spacecraft
-    file (None: thesis-3u), the vehicle of the ADCS (``fps adcs bps`` or ``fps adcs can`` with ``--spacecraft``).
+    file (None: thesis-3u), the vehicle of the ADCS (``fps adcs bps`` or ``fps adcs can`` with ``--spacecraft``);
+    ``vehicle``: the simulated vehicle, its truth block or drawn from ``seed`` (``emulator.spacecraft.dispersion``).
     ``world``: "thesis" (Sec. 6.4's) or "flight" (``fps adcs bps --world flight``'s: datasheet wheels,
     magnetorquers, the rate-limited slew; the lean firmware flies its modes, ``firmware/adcs/flight.py``); in the
     flight world the play starts at ``bps.flight_settle_s`` (the planned slew, re-acquisition and 4 t_s)."""
@@ -79,7 +81,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     cal = load_calibration(calibration_path) if calibration_path else None
     duration_s = float(duration_s)
     d, record, params, t_settle, faults = _vehicle(adcs, world, faults, link_faults, spacecraft, params_path, ts,
-                                                   duration_s)
+                                                   duration_s, seed, vehicle)
     run_folder(out_dir, hil.FIGURES + (FIGURE,))           # the fine loop's figures are hil's
     rec = hil.Recorder(out_dir)
     summary = hil.new_summary(duration_s)
@@ -177,17 +179,18 @@ def _finish(run, rec, summary, q2cal, plots, feed, live, t_settle, t_wall0, faul
     write_atomic(rec.path("report.md"), report_md(summary))
 
 
-def _vehicle(adcs, world, faults, link_faults, spacecraft, params_path, ts, duration_s):
-    """``run_system``'s ADCS inputs checked: (the spacecraft file, its record, the parameter file or None, the
-    ADCS's settling time, the faults checked against the run's span); ValueError naming the bad one."""
-    from ground.adcs import body_pointing as bps, runs
-    from ground.adcs.options import load_spacecraft
+def _vehicle(adcs, world, faults, link_faults, spacecraft, params_path, ts, duration_s, seed=0, vehicle="file"):
+    """``run_system``'s ADCS inputs checked: (the spacecraft file with the vehicle flown, its record, the parameter
+    file or None, the ADCS's settling time, the faults checked against the run's span); ValueError naming the bad
+    one."""
+    from ground.adcs import body_pointing as bps
+    from ground.adcs.options import fly, load_spacecraft
     if world not in bps.WORLDS:
         raise ValueError("--world must be one of %s, got %r" % (", ".join(bps.WORLDS), world))
     if link_faults is not None and adcs != "firmware":
         raise ValueError("--link-faults needs --adcs firmware (they act on the ADCS's CAN link)")
     d, source = load_spacecraft(spacecraft, partner=True)
-    record = runs.spacecraft_record(d, source)
+    d, record = fly(d, source, seed, vehicle)
     params = bps.load_params(params_path, d)[-1] if params_path else None
     if world == "flight" and d["magnetorquers"] is None:
         raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels with "

@@ -213,7 +213,8 @@ def _schema_intro():
          "```", "",
          "## Commands that take it", "",
          "`--spacecraft NAME|FILE` (a preset or a file; default `thesis-3u`, with which every command gives the "
-         "thesis's results bit for bit, as without the option):", "",
+         "thesis's results bit for bit, as without the option; the APKF's consistent form adds the file's Jxx "
+         "spread to its initial P, which the thesis holds exact):", "",
          "- `fps adcs apkf|mekf`: the Sec. 4.8 scenario's true vehicle (the figures plus the `truth` block: "
          "inertia, dipole, wheels, star tracker, gyro), the filters' model, priors and initial P (`uncertainty`).",
          "- `fps adcs stkf`: SatA's `orbit.state` and the `partner`'s state, the epoch, `mass_kg` and `surface` "
@@ -258,6 +259,17 @@ def _schema_intro():
          "prior mean). Absolute, in the figure's unit.",
          "- `truth` (optional, simulation only): the simulated vehicle's departures from the figures, true = "
          "figure + error (the thesis's Sec. 4.8 errors for `thesis-3u`). A flight team leaves it out.",
+         "- The simulated vehicle (`--vehicle`, every command that flies the body loop): `file` (the default) flies "
+         "the `truth` block where there is one, and otherwise a vehicle drawn from the run's `--seed` within the "
+         "`uncertainty` block (each figure's error Gaussian with its 1 σ: the inertia's six entries redrawn until "
+         "they make a rigid body, each wheel's two tilts, each rotor inertia redrawn until positive, the dipole; "
+         "no sensor misalignment, which the truth does not model); never the file's own figures, where the "
+         "filters would start at the truth. `drawn` draws even with a truth block; `nominal` flies the figures "
+         "(a diagnostic). A campaign's runs each fly their own seed's vehicle; `--seed N` replays vehicle N; each "
+         "result records the vehicle (`vehicle`: kind, seed, the truth block flown) "
+         "(`emulator/spacecraft/dispersion.py`).",
+         "- Misalignment angles, the file's and the truth's, are measured about the untilted nominal axes: a "
+         "nominal tilt is the filters' prior and counts once.",
          "- `partner`, `magnetorquers`, `magnetometer` may be null (none); `partner`, `truth`, `sources` and "
          "`surface.cp_offset_m` (no drag or solar pressure torque) may be left out. Every other key is required, and an unknown key is refused.",
          "- NaN and ±inf are refused everywhere; integers are accepted where a number is asked.", ""]

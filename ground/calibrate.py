@@ -289,6 +289,10 @@ def _cmd(a):
     if a.port is not None and a.runtime != "board":      # a real, free-running bench: wall-clock time
         if not a.port:
             raise ValueError("--port: empty path")
+        if a.runtime != "inproc":
+            raise ValueError("--port %s with --runtime %s: --port alone is a real, free-running bench, and a "
+                             "flashed controller board is --runtime board --port PORT; the %s runtime takes no "
+                             "--port" % (a.port, a.runtime, a.runtime))
         from ground.rig import LiveRig
         rig_cm = contextlib.closing(LiveRig(a.port))
         a.no_truth = True

@@ -30,6 +30,8 @@ from ground.rig import InprocController, Rig
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNTIMES = ("inproc", "cpython", "micropython", "board", "qemu")
+BAUD_DEFAULT = 115200                 # --runtime board's serial port
+BAUD_RANGE = (50, 4000000)
 LINKS = ("inproc", "serial", "can")
 TICK_TIMEOUT_MS = 3.0      # resend a TICK after this long without its answer (a MicroPython pty round trip: ~0.1 ms)
 CAN_TICK_TIMEOUT_MS = 5.0   # the same on CAN: a clean round trip is ~1 ms there (two ISO-TP transfers, flow control each)
@@ -63,7 +65,8 @@ def add_link_arguments(p):
     p.add_argument("--link", default=None, choices=LINKS,
                    help="link to the controller (default: inproc for inproc, serial otherwise)")
     p.add_argument("--port", help="--runtime board: the board's serial port, e.g. /dev/ttyACM0")
-    p.add_argument("--baud", type=int, default=115200, help="--runtime board: baud rate (default 115200)")
+    p.add_argument("--baud", type=int, default=BAUD_DEFAULT, help="--runtime board: baud rate in bit/s (default "
+                   "%d)" % BAUD_DEFAULT)
     p.add_argument("--realtime", action="store_true",
                    help="pace ticks by the wall clock; an answer later than one period is an overrun "
                         "(for a board whose loop runs from its own timer)")
@@ -236,9 +239,14 @@ def tick_timeout(link, tick_timeout_ms=None, runtime=None):
 
 
 def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=None,
-                  tick_tries=TICK_TRIES, max_failed_ticks=MAX_FAILED_TICKS, rate_hz=637.8, **_):
+                  tick_tries=TICK_TRIES, max_failed_ticks=MAX_FAILED_TICKS, rate_hz=637.8, baud=BAUD_DEFAULT, **_):
     """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse."""
     check(runtime, link)
+    if isinstance(baud, bool) or not isinstance(baud, int) or not BAUD_RANGE[0] <= baud <= BAUD_RANGE[1]:
+        raise ValueError("--baud %r: must be a whole number of bit/s from %d to %d" % ((baud,) + BAUD_RANGE))
+    if runtime != "board" and baud != BAUD_DEFAULT:
+        raise ValueError("--baud %d goes with --runtime board (the other runtimes' links have no baud rate to "
+                         "set)" % baud)
     tick_timeout_ms = tick_timeout(link, tick_timeout_ms)
     for name, v, lo, hi in (("--tick-timeout-ms", tick_timeout_ms, 0.05, 1e7), ("--tick-tries", tick_tries, 1, 1e6),
                             ("--max-failed-ticks", max_failed_ticks, 1, 1e9),

@@ -184,11 +184,16 @@ LOST_RUN = ("BrokenProcessPool: a local worker process died (killed, e.g. by the
             "(--scheduler), which retries a dead worker's runs")
 
 
-def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=True, desc="runs", **kwargs):
-    """Run ``fn`` once per seed (see the module docstring); returns the list of result dicts in seed order."""
+def run_campaign(fn, seeds, out_dir, *, workers=None, scheduler=None, progress=True, desc="runs", dirs=None,
+                 **kwargs):
+    """Run ``fn`` once per seed (see the module docstring); returns the list of result dicts in seed order.
+    ``dirs``: each run's folder (default ``run_dir_for(out_dir, i)``; a resumed campaign passes those of the runs
+    it still needs)."""
     seeds = [int(s) for s in seeds]
     check_runs(len(seeds))
-    dirs = [run_dir_for(out_dir, i) for i in range(len(seeds))]
+    dirs = [run_dir_for(out_dir, i) for i in range(len(seeds))] if dirs is None else list(dirs)
+    if len(dirs) != len(seeds):
+        raise ValueError("run_campaign: %d folders for %d seeds" % (len(dirs), len(seeds)))
     os.makedirs(str(out_dir), exist_ok=True)
     out = [None] * len(seeds)
     with _bar(len(seeds), progress, desc) as bar:

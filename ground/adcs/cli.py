@@ -116,7 +116,12 @@ def _can(sub):
     can_cli.register(sub)
 
 
-SUBCOMMANDS = [_apkf, _mekf, _stkf, _bps, _sweep, _can]
+def _campaign(sub):
+    from ground.adcs import population
+    population.register(sub)
+
+
+SUBCOMMANDS = [_apkf, _mekf, _stkf, _bps, _sweep, _can, _campaign]
 
 
 def register(sub, name, help_):

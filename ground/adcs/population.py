@@ -1,0 +1,302 @@
+"""``fps adcs campaign``: the flight world over a population of vehicles drawn from one spacecraft file, as a flight
+team verifies a vehicle by Monte Carlo over its dispersions.
+
+Run i flies seed ``--seed`` + i: its vehicle drawn from that seed within the file's ``uncertainty`` (or the file's
+truth block, ``--vehicle``; ``emulator.spacecraft.dispersion``), the nine calibration sets through the APKF on
+that vehicle, then ``--orbits`` orbits of the flight world (``fps adcs bps --world flight``, the same code),
+judged by the same checks (``bps_cli.flight_checks``). The runs go on local worker processes or a Dask cluster
+(``ground.adcs.campaign``). The folder is resumable: ``campaign.json`` names the campaign, and a campaign run
+again into its folder keeps every finished run (its ``run_NNNN/result.json``) and runs only the others; a
+folder of another campaign is refused.
+
+The folder: ``run_NNNN/`` (result.json, history.npz, params.json) per vehicle; ``summary.json`` (``complete``
+false until every run is in); ``report.md``: the share of vehicles meeting each check with its 95 % Wilson
+interval, the distributions of the figures, the filters' NEES over the population and the worst vehicles with
+the seed that replays each and the checks it missed; ``population_cdf.png``: each figure's CDF over the vehicles
+against its budget.
+"""
+
+import json
+import os
+import sys
+
+import numpy as np
+
+from ground.fileio import write_atomic, write_json
+
+FIGURE = "population_cdf.png"
+CONFIDENCE = 0.95
+NEES_GOAL = 0.90          # a filter's NEES in its 95 % band this share of the time or more: consistent
+WORST = 5
+# the figures per vehicle: (key, unit, budget from the checks or None, what)
+FIGURES = (("pointing_3sigma_arcsec", "arcsec", "pointing", "worst pass's 3σ pointing"),
+           ("stability_3sigma_arcsec_s", "arcsec/s", "stability", "worst pass's 3σ stability"),
+           ("max_wheel_speed_rpm", "rpm", "wheels", "largest wheel speed after the first orbit"),
+           ("mtq_duty", "1", None, "magnetorquers' duty"),
+           ("apkf_nees_in_band_share", "1", None, "APKF attitude NEES in its band"),
+           ("stkf_nees_in_band_share", "1", None, "STKF NEES (12 states) in its band"))
+
+
+def wilson(k, n, confidence=CONFIDENCE):
+    """(low, high): the Wilson score interval of a share k / n (scipy's binomial test)."""
+    from scipy.stats import binomtest
+    if n == 0:
+        return (None, None)
+    ci = binomtest(int(k), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+    return (float(ci.low), float(ci.high))
+
+
+def figures_of(res):
+    """The population's figures of one flight-world result (None where the run has none)."""
+    passes = [p for p in res.get("passes") or [] if p.get("pointing_3sigma_arcsec") is not None]
+    c = res.get("consistency") or {}
+    s = res.get("stkf_consistency") or {}
+    att, n12 = c.get("apkf_attitude"), s.get("nees12_full_cov")
+    return {"pointing_3sigma_arcsec": max((p["pointing_3sigma_arcsec"] for p in passes), default=None),
+            "stability_3sigma_arcsec_s": max((p["stability_3sigma_arcsec_s"] for p in passes), default=None),
+            "max_wheel_speed_rpm": res.get("max_wheel_speed_rpm"), "mtq_duty": res.get("mtq_duty"),
+            "apkf_nees_in_band_share": att.get("nees_in_band_share") if att else None,
+            "stkf_nees_in_band_share": n12.get("in_band_share", n12.get("nees_in_band_share")) if n12 else None}
+
+
+def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="two-body", ts=33.0,
+                satb_gnss=False, cache_dir=None):
+    """One vehicle of the campaign (top level, picklable): drawn from ``seed``, calibrated, flown ``orbits``
+    orbits in the flight world; returns its result with ``vehicle``, ``checks``, ``ok`` (every check met) and
+    ``figures`` (``figures_of``), and writes ``run_dir``."""
+    from emulator.spacecraft import dispersion, scenario
+    from ground.adcs import body_pointing as bps, bps_cli
+    d, vrec = dispersion.flown(spacecraft, seed, vehicle)
+    params = bps_cli.calibration(seed, cache_dir, False, d)
+    duration = orbits * bps.orbit_period(scenario.orbit_setup(d)["x0s"][0])
+    res, hist = bps.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration, seed=seed, params=params, truth=truth,
+                             cache_dir=cache_dir, progress=False, spacecraft=d, world="flight")
+    if not res["complete"]:
+        raise KeyboardInterrupt
+    res["vehicle"] = vrec
+    res["checks"] = bps_cli.flight_checks(res)
+    res["ok"] = bool(all(c["ok"] for c in res["checks"].values()) and res.get("line_of_sight", True))
+    res["figures"] = figures_of(res)
+    if run_dir:
+        os.makedirs(run_dir, exist_ok=True)
+        bps.write_params(os.path.join(run_dir, "params.json"), params, d)
+        bps.save_history(os.path.join(run_dir, "history.npz"), hist)
+        write_json(os.path.join(run_dir, "result.json"), res)
+    return res
+
+
+def _share(results, ok):
+    n = len(results)
+    k = sum(1 for r in results if ok(r))
+    lo, hi = wilson(k, n)
+    return {"met": k, "of": n, "share": k / n if n else None, "ci95": [lo, hi]}
+
+
+def aggregate(results, identity):
+    """summary.json: the shares meeting each check (and all of them) with their 95 % intervals, each figure's
+    distribution (min, median, 95th percentile, max), the worst vehicles and the runs that failed."""
+    good = [r for r in results if r and "error" not in r]
+    failed = [{"seed": r["seed"], "error": r["error"]} for r in results if r and "error" in r]
+    names = sorted({k for r in good for k in r["checks"]})
+    out = dict(identity, runs_done=len(good), runs_failed=len(failed), failures=failed,
+               all_checks=_share(good, lambda r: r["ok"]),
+               checks={k: dict(_share(good, lambda r, k=k: r["checks"][k]["ok"]),
+                               what=next(r["checks"][k]["what"] for r in good)) for k in names})
+    dist = {}
+    for key, unit, _, what in FIGURES:
+        v = np.array([r["figures"][key] for r in good if r["figures"].get(key) is not None], float)
+        dist[key] = ({"unit": unit, "what": what, "n": int(len(v)), "min": float(v.min()),
+                      "median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+                     if len(v) else {"unit": unit, "what": what, "n": 0})
+    out["figures"] = dist
+    worst = sorted(good, key=lambda r: (r["ok"], -(r["figures"].get("pointing_3sigma_arcsec") or np.inf)))[:WORST]
+    out["worst"] = [{"seed": r["seed"], "ok": r["ok"], "figures": r["figures"],
+                     "missed": [c["what"] for c in r["checks"].values() if not c["ok"]]
+                     + ([] if r.get("line_of_sight", True) else ["no line of sight"]),
+                     "vehicle": r["vehicle"]} for r in worst]
+    return out
+
+
+def _fmt(v, f="%.3g"):
+    return "—" if v is None else f % v
+
+
+def report_md(s):
+    """report.md of the summary ``s``."""
+    L = ["# Flight-world campaign over a population of vehicles", "",
+         "Spacecraft %s (sha256 %s), %d vehicles (%s), %g orbits each, seeds %d-%d; %s." % (
+             s["spacecraft"]["name"], s["spacecraft"]["sha256"], s["runs"], s["vehicle_text"], s["orbits"],
+             s["seeds"][0], s["seeds"][-1], "complete" if s["complete"] else "INCOMPLETE (resume to finish)"), "",
+         "| check | vehicles meeting it | share | 95 % interval |", "|---|---|---|---|"]
+    for k, c in list(s["checks"].items()) + [("every check", dict(s["all_checks"], what="all of the above"))]:
+        L.append("| %s: %s | %d of %d | %s | %s-%s |" % (k, c["what"], c["met"], c["of"], _fmt(c["share"], "%.2f"),
+                                                        _fmt(c["ci95"][0], "%.2f"), _fmt(c["ci95"][1], "%.2f")))
+    L += ["", "| figure | vehicles | min | median | 95th percentile | max |", "|---|---|---|---|---|---|"]
+    for key, f in s["figures"].items():
+        L.append("| %s (%s) | %d | %s | %s | %s | %s |" % (f["what"], f["unit"], f["n"], _fmt(f.get("min")),
+                                                          _fmt(f.get("median")), _fmt(f.get("p95")),
+                                                          _fmt(f.get("max"))))
+    L += ["", "Worst vehicles (replay one with `fps adcs bps --world flight --spacecraft %s --vehicle %s --seed N "
+          "--orbits %g --truth %s --ts %g%s`):" % (s["spacecraft"]["source"], s["vehicle"], s["orbits"], s["truth"],
+                                                   s["ts_s"], " --satb-gnss" if s["satb_gnss"] else ""), "",
+          "| seed | every check | worst 3σ pointing (arcsec) | missed |", "|---|---|---|---|"]
+    for w in s["worst"]:
+        L.append("| %d | %s | %s | %s |" % (w["seed"], "met" if w["ok"] else "MISSED",
+                                            _fmt(w["figures"].get("pointing_3sigma_arcsec"), "%.1f"),
+                                            "; ".join(w["missed"]) or "—"))
+    for f in s["failures"]:
+        L.append("\nRun seed %d failed: %s" % (f["seed"], f["error"]))
+    return "\n".join(L) + "\n"
+
+
+def plot_cdf(path, results, s):
+    """Each figure's CDF over the vehicles, its budget as a vertical line where the checks give one."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from ground.adcs import body_pointing as bps
+    budgets = {"pointing": bps.BUDGET_POINTING_3SIGMA, "stability": bps.BUDGET_STABILITY_3SIGMA}
+    good = [r for r in results if r and "error" not in r]
+    fig, axs = plt.subplots(2, 3, figsize=(12, 6.5))
+    for ax, (key, unit, check, what) in zip(axs.ravel(), FIGURES):
+        v = np.sort([r["figures"][key] for r in good if r["figures"].get(key) is not None])
+        if len(v):
+            ax.step(np.concatenate([[v[0]], v]), np.arange(0, len(v) + 1) / len(v), where="post")
+        ax.set_ylim(0, 1.02)
+        lim = budgets.get(check)
+        if key.endswith("nees_in_band_share"):
+            ax.axvline(NEES_GOAL, color="g", ls=":", label="consistent: >= %.2f" % NEES_GOAL)
+            ax.legend(fontsize=8)
+        if check == "wheels" and good:
+            from ground.adcs.bps_cli import WHEEL_BAND
+            lim = WHEEL_BAND * good[0]["wheel_speed_limit_rpm"]
+        if lim is not None:
+            ax.axvline(lim, color="r", ls="--", label="budget %g %s" % (lim, unit))
+            ax.legend(fontsize=8)
+        ax.set_xlabel("%s (%s)" % (what, unit), fontsize=8)
+        ax.set_ylabel("share of vehicles")
+        ax.grid(alpha=0.3)
+    fig.suptitle("%s: %d vehicles, %g orbits" % (s["spacecraft"]["name"], len(good), s["orbits"]))
+    fig.tight_layout()
+    import io
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    write_atomic(path, buf.getvalue())
+
+
+def run(a):
+    """The command (``register``); returns the exit code: 0 every vehicle met every check, 3 some missed, 1 a run
+    failed, 130 interrupted (the finished runs kept: run it again to resume)."""
+    from ground.adcs import campaign
+    from ground.adcs.options import load_spacecraft
+    from ground.adcs.runs import spacecraft_record
+    seeds = campaign.seeds_for(a.seed, a.runs)
+    if a.scheduler is None:
+        campaign.check_workers(a.workers)
+    campaign.check_scheduler(a.scheduler)
+    if not (np.isfinite(a.orbits) and 0 < a.orbits <= 100):
+        raise ValueError("--orbits must be in (0, 100], got %r" % (a.orbits,))
+    d, source = load_spacecraft(a.spacecraft, partner=True)
+    if d["magnetorquers"] is None:
+        raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels with "
+                         "magnetorquers")
+    out = a.output
+    identity = {"format": "fps-adcs-campaign/1", "spacecraft": spacecraft_record(d, source), "vehicle": a.vehicle,
+                "seeds": seeds, "orbits": float(a.orbits), "truth": a.truth, "ts_s": float(a.ts),
+                "satb_gnss": bool(a.satb_gnss)}
+    _open_folder(out, identity)
+    kept = [r if r is not None and r.get("seed") == s else None
+            for r, s in zip(campaign.finished_results(out, len(seeds)), seeds)]
+    todo = [i for i, r in enumerate(kept) if r is None]
+    if kept and len(todo) < len(seeds):
+        print("resuming: %d of %d vehicles already flown in %s" % (len(seeds) - len(todo), len(seeds), out),
+              file=sys.stderr)
+    results, interrupted = list(kept), False
+    kw = dict(spacecraft=d, vehicle=a.vehicle, orbits=a.orbits, truth=a.truth, ts=a.ts, satb_gnss=a.satb_gnss,
+              cache_dir=os.path.abspath(os.path.join(out, "cache")))
+    if a.truth == "hpop":
+        from emulator.spacecraft import scenario
+        from ground.adcs import body_pointing as bps
+        o = scenario.orbit_setup(d)
+        scenario.orbit_truth("hpop", bps.truth_span(a.orbits * bps.orbit_period(o["x0s"][0])), o, kw["cache_dir"])
+    try:
+        if todo:
+            part = campaign.run_campaign(run_vehicle, [seeds[i] for i in todo], out, workers=a.workers,
+                                         scheduler=a.scheduler, progress=not a.quiet, desc="vehicles",
+                                         dirs=[campaign.run_dir_for(out, i) for i in todo], **kw)
+            for i, r in zip(todo, part):
+                results[i] = r
+    except KeyboardInterrupt:
+        interrupted = True
+        results = [r if r is not None and r.get("seed") == s else None
+                   for r, s in zip(campaign.finished_results(out, len(seeds)), seeds)]
+    vt = {"file": "its truth block, or drawn from each seed without one", "drawn": "drawn from each seed",
+          "nominal": "the file's figures"}[a.vehicle]
+    s = aggregate(results, dict(identity, runs=len(seeds), vehicle_text=vt))
+    s["complete"] = not interrupted and all(r is not None for r in results)
+    write_json(os.path.join(out, "summary.json"), s)
+    if not a.no_plots and s["runs_done"]:
+        plot_cdf(os.path.join(out, FIGURE), results, s)
+    text = report_md(s)
+    write_atomic(os.path.join(out, "report.md"), text)
+    print(text)
+    print("campaign folder %s: summary.json, report.md%s" % (out, "" if a.no_plots else ", " + FIGURE))
+    if interrupted:
+        print("interrupted: %d of %d vehicles flown; run the same command again to resume" % (s["runs_done"],
+                                                                                             len(seeds)),
+              file=sys.stderr)
+        return 130
+    if s["runs_failed"]:
+        return 1
+    return 0 if s["all_checks"]["met"] == s["runs_done"] else 3
+
+
+def _open_folder(out, identity):
+    """Make the campaign folder, or reopen it to resume the same campaign; ValueError for another's."""
+    from ground.adcs import campaign
+    path = os.path.join(out, "campaign.json")
+    if os.path.exists(path):
+        try:
+            with open(path) as f:
+                old = json.load(f)
+        except (OSError, ValueError) as exc:
+            raise ValueError("%s: cannot read the campaign it holds (%s): use a new -o" % (path, exc)) from None
+        if old != json.loads(json.dumps(identity)):
+            diff = sorted(k for k in set(old) | set(identity) if old.get(k) != json.loads(json.dumps(identity)).get(k))
+            raise ValueError("-o %s holds another campaign (it differs in %s): use a new -o, or the same options "
+                             "to resume it" % (out, ", ".join(diff)))
+        return
+    campaign.campaign_folder(out, (FIGURE,), {"complete": False})
+    write_json(path, identity)
+
+
+def register(sub):
+    from emulator.spacecraft.dispersion import VEHICLES
+    from ground.adcs.options import add_satb_gnss_option, _presets
+    from ground.fileio import output_folder
+    p = sub.add_parser("campaign", help="the flight world over a population of vehicles drawn from one spacecraft "
+                                        "file", description=__doc__.split("\n\n")[0] + "\n\n" + __doc__.split("\n\n")[1])
+    p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
+                   help="a preset (%s) or a spacecraft file with a partner and magnetorquers (default thesis-3u)"
+                        % ", ".join(_presets()))
+    p.add_argument("--vehicle", default="drawn", choices=VEHICLES,
+                   help="each run's vehicle: drawn (default) = drawn from its seed within the file's uncertainty "
+                        "block; file = the file's truth block (drawn without one); nominal = the figures")
+    p.add_argument("--runs", type=int, default=20, help="vehicles, >= 1 (default 20)")
+    p.add_argument("--seed", type=int, default=0, help="first seed; vehicle i is seed + i (default 0)")
+    p.add_argument("--orbits", type=float, default=3.0, help="orbits flown per vehicle, (0, 100] (default 3; the "
+                   "checks count the passes after the first)")
+    p.add_argument("--ts", type=float, default=33.0, help="settling time t_s of the attitude loop, s (default 33)")
+    add_satb_gnss_option(p, False)
+    p.add_argument("--truth", choices=("two-body", "hpop"), default="two-body",
+                   help="orbit truth: two-body (default) or hpop (brahe's high-fidelity orbits, computed once)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores; 1 = "
+                   "in-process)")
+    g.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler address (tcp://host:port)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("-o", "--output", required=True, type=output_folder,
+                   help="campaign folder (run it again with the same options to resume)")
+    p.set_defaults(func=run)

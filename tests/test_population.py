@@ -1,0 +1,47 @@
+"""fps adcs campaign: the flight world over vehicles drawn from one file; its shares with their intervals, the
+worst vehicles with their seeds, and a folder that resumes without flying a finished vehicle again."""
+
+import json
+import os
+
+import pytest
+
+from ground import cli
+from ground.adcs import population
+
+SHORT = ["adcs", "campaign", "--spacecraft", "generic-6u", "--orbits", "0.05", "--workers", "1", "--quiet",
+         "--no-plots"]
+
+
+def test_the_wilson_interval():
+    lo, hi = population.wilson(95, 100)
+    assert 0.885 < lo < 0.890 and 0.977 < hi < 0.980
+    lo, hi = population.wilson(2, 2)
+    assert hi == pytest.approx(1.0) and 0.3 < lo < 0.4
+
+
+def test_a_campaign_resumes_and_refuses_another_campaigns_folder(tmp_path, capsys):
+    out = tmp_path / "c"
+    rc = cli.main(SHORT + ["--runs", "2", "-o", str(out)])
+    s = json.loads((out / "summary.json").read_text())
+    # 0.05 orbits hold no pointing pass: every vehicle misses that check, named, and the run exits 3
+    assert rc == 3 and s["complete"] and s["runs_done"] == 2 and s["all_checks"]["met"] == 0
+    assert s["checks"]["passes"]["met"] == 0 and s["checks"]["passes"]["ci95"][1] < 0.85
+    assert all("0 pointing pass(es) after the first orbit" in w["missed"] for w in s["worst"])
+    r0 = json.loads((out / "run_0000" / "result.json").read_text())
+    r1 = json.loads((out / "run_0001" / "result.json").read_text())
+    assert r0["vehicle"]["kind"] == "drawn" and r0["vehicle"]["truth"] != r1["vehicle"]["truth"]
+    assert "--vehicle drawn --seed N" in (out / "report.md").read_text()
+    # an interrupted campaign: one vehicle's result missing; the same command flies only that one
+    os.remove(out / "run_0001" / "result.json")
+    t0 = os.stat(out / "run_0000" / "result.json").st_mtime_ns
+    capsys.readouterr()
+    assert cli.main(SHORT + ["--runs", "2", "-o", str(out)]) == 3
+    assert "resuming: 1 of 2 vehicles already flown" in capsys.readouterr().err
+    assert os.stat(out / "run_0000" / "result.json").st_mtime_ns == t0
+    assert json.loads((out / "run_0001" / "result.json").read_text())["vehicle"] == r1["vehicle"]
+    assert json.loads((out / "summary.json").read_text())["runs_done"] == 2
+    # other options into the same folder: refused, nothing touched
+    assert cli.main(SHORT + ["--runs", "3", "-o", str(out)]) == 2
+    assert "holds another campaign (it differs in seeds)" in capsys.readouterr().err
+    assert os.stat(out / "run_0000" / "result.json").st_mtime_ns == t0

@@ -9,13 +9,16 @@ from ground.system.constants import FIGURE, GOAL_RTF
 
 
 def verdict(s):
-    """One verdict for the terminal from a summary's figures. Fine loop: every Q2 sample within 11.98″ and none
-    with the beam lost (``fps hil``'s requirement). Body loop: 3σ pointing and stability within
-    ``bps.BUDGET_POINTING_3SIGMA`` and ``bps.BUDGET_STABILITY_3SIGMA`` (as ``fps adcs can`` judges them). A loop's
-    ``met`` is None without figures; ``met`` is true only when the run completed and both loops are met.
-    ``missed``: one line per figure that missed, naming the loop and by how much."""
-    from ground.adcs import body_pointing as bps
-    req = report.REQUIREMENT_ARCSEC
+    """One verdict for the terminal from a summary's figures, against its ``requirements`` (the spacecraft
+    file's block, or the thesis's: ``protocol.spacecraft.requirements``). Fine loop: every Q2 sample within
+    ``fine_pointing_arcsec`` (the thesis's 11.98″) and none with the beam lost (``fps hil``'s requirement). Body
+    loop: 3σ pointing and stability within ``body_pointing_3sigma_arcsec`` and ``body_stability_3sigma_arcsec_s``
+    (as ``fps adcs can`` judges them). A loop's ``met`` is None without figures; ``met`` is true only when the run
+    completed and both loops are met. ``missed``: one line per figure that missed, naming the loop and by how
+    much."""
+    from protocol import spacecraft as sf
+    r = s.get("requirements") or sf.requirements(None)
+    req = r["fine_pointing_arcsec"]
     n, lost = int(s.get("q2_samples") or 0), int(s.get("q2_beam_lost_samples") or 0)
     worst = (s.get("q2") or {}).get("max_radial_arcsec")
     fine = {"met": None if n == 0 else bool(lost == 0 and worst is not None and worst <= req),
@@ -23,7 +26,7 @@ def verdict(s):
             "q2_samples": n, "beam_lost_samples": lost}
     b = s.get("body_pointing") or {}
     p, w = b.get("pointing_3sigma_arcsec"), b.get("stability_3sigma_arcsec_s")
-    pb, wb = bps.BUDGET_POINTING_3SIGMA, bps.BUDGET_STABILITY_3SIGMA
+    pb, wb = r["body_pointing_3sigma_arcsec"], r["body_stability_3sigma_arcsec_s"]
     body = {"met": None if p is None or w is None else bool(p <= pb and w <= wb),
             "pointing_3sigma_arcsec": p, "pointing_budget_arcsec": pb, "pointing_over_arcsec": _over(p, pb),
             "stability_3sigma_arcsec_s": w, "stability_budget_arcsec_s": wb,

@@ -16,6 +16,7 @@ from ground.system.adcs import AdcsFailed, AdcsFeed, estimation_accuracy, settle
 from ground.system.constants import ADCS_KINDS, FIGURE, GOAL_RTF, LEAD_S, RUNTIMES, STENCIL_S, firmware_available
 from ground.system.live import LiveDisturbance
 from ground.system.reporting import _plot, report_md, thesis_body, verdict
+from protocol import spacecraft as sf
 from protocol.units import RAD_PER_ARCSEC
 
 
@@ -87,7 +88,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     summary = hil.new_summary(duration_s)
     summary.update({"adcs": adcs, "runtime": runtime_name, "goal_real_time_factor": GOAL_RTF,
                     "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed, "phase": "start", "stopped_in": None,
-                    "spacecraft": record, "world": world})
+                    "spacecraft": record, "world": world, "requirements": sf.requirements(d)})
     write_json(rec.path("summary.json"), summary)
     cache = bps_cache or bps_cli.CACHE_DEFAULT
     spec = {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,

@@ -457,6 +457,21 @@ def wheel_axes(d, true=False):
     return out
 
 
+# the thesis's budgets: body pointing and stability (Sec. 6.4), the fine loop's requirement (Ch. 2: half the
+# beam's FWHM), and the flight world's wheel speed share
+THESIS_REQUIREMENTS = {"body_pointing_3sigma_arcsec": 150.0, "body_stability_3sigma_arcsec_s": 35.0,
+                       "fine_pointing_arcsec": 11.98, "wheel_speed_share": 0.8}
+
+
+def requirements(d):
+    """The budgets of the checked file ``d``: its ``requirements`` block, or the thesis's
+    (``THESIS_REQUIREMENTS``) where it has none; with ``source`` "file" or "thesis"."""
+    r = d.get("requirements") if d is not None else None
+    if r:
+        return dict(r, source="file")
+    return dict(THESIS_REQUIREMENTS, source="thesis")
+
+
 def epoch_tuple(d):
     """orbit.state.epoch_utc as (year, month, day, hour, minute, second) (emulator.orbits.EPOCH_UTC's form)."""
     return _parse_epoch("orbit.state.epoch_utc", d["orbit"]["state"]["epoch_utc"])

@@ -131,6 +131,16 @@ SCHEMA = [
     _e("truth.delta1_error_deg", "vec", "deg", _rng(-45, 45), "error of wheels.delta1_deg (the true angles must be "
        "from -45 to 45 deg)", n=WHEELS),
     _e("truth.delta2_error_deg", "vec", "deg", _rng(-45, 45), "error of wheels.delta2_deg", n=WHEELS),
+    _e("requirements", "block", doc="the budgets every verdict reads (absent: the thesis's, Yoon 2017 Ch. 2 and "
+       "Sec. 6.4: 150 arcsec, 35 arcsec/s, 11.98 arcsec, 80 %)", optional=True, nullable=True),
+    _e("requirements.body_pointing_3sigma_arcsec", "num", "arcsec", _rng(0, 36000, True), "the body loop's "
+       "pointing error, 3 sigma"),
+    _e("requirements.body_stability_3sigma_arcsec_s", "num", "arcsec/s", _rng(0, 36000, True), "the body "
+       "loop's pointing stability, 3 sigma"),
+    _e("requirements.fine_pointing_arcsec", "num", "arcsec", _rng(0, 3600, True), "the fine loop's pointing "
+       "requirement: the beam within this of its partner (half the beam's FWHM in the thesis)"),
+    _e("requirements.wheel_speed_share", "num", "1", _rng(0, 1, True, False), "the wheels' speed after the first "
+       "orbit at most this share of wheels.speed_limit_rpm (the flight world)"),
     _e("sources", "sources", doc="where each figure comes from: key path (a block or a key) -> text",
        optional=True),
 ]

@@ -121,20 +121,33 @@ def _f(v, fmt):
     return "—" if v is None else fmt % v
 
 
-def consistency_md(c):
-    """report.md's table of the estimators' 1 sigma against their errors (``app_host.consistency``)."""
+def consistency_md(c, stkf=None):
+    """report.md's table of the estimators' 1 sigma against their errors (``app_host.consistency``; with ``stkf``,
+    the flight world's ``pointing.stkf_consistency``, the STKF's velocities, rB - rA and all 12 states too)."""
     if not c:
         return []
+    if not any(c.get(k) for k in ("apkf_attitude", "stkf_ra", "stkf_rb")):
+        return ["The estimators' consistency is taken from %.0f s on: this run has no second there." % c["from_s"], ""]
     out = ["Whether each estimator's 1σ holds, from %.0f s (NEES of 3 dof per second; a consistent filter has ~%.0f %% "
            "of its seconds within [%.2f, %.2f], a mean of 3 and RMS error / RMS 1σ of 1 per axis):" % (
                c["from_s"], 100 * c["p"], c["band"][0], c["band"][1]), "",
            "| estimate | seconds | NEES in band | mean NEES | RMS / 1σ per axis |", "|---|---|---|---|---|"]
-    for key, what in (("apkf_attitude", "attitude (APKF)"), ("stkf_ra", "SatA's position (STKF)"),
-                      ("stkf_rb", "SatB's position (STKF)")):
-        v = c.get(key)
+    rows = [(what, c.get(key)) for key, what in (("apkf_attitude", "attitude (APKF)"),
+                                                  ("stkf_ra", "SatA's position (STKF)"),
+                                                  ("stkf_rb", "SatB's position (STKF)"))]
+    if stkf:
+        rows += [(what, stkf.get(key)) for key, what in (("va", "SatA's velocity (STKF)"),
+                                                          ("vb", "SatB's velocity (STKF)"),
+                                                          ("rba", "rB − rA, what pointing takes (STKF)"))]
+    for what, v in rows:
         if v:
             out.append("| %s | %d | %.2f | %.2f | %s |" % (what, v["seconds"], v["nees_in_band_share"], v["nees_mean"],
                                                           ", ".join("%.2f" % r for r in v["rms_over_sigma"])))
+    v = (stkf or {}).get("nees12_full_cov")
+    if v:
+        out += ["", "The STKF's 12 states [rA, vA, rB, vB] against its full 12 × 12 covariance (NEES of 12 dof): "
+                "%.2f of %d seconds within [%.2f, %.2f], mean %.2f (12 when consistent)." % (
+                    v["nees_in_band_share"], v["seconds"], v["band"][0], v["band"][1], v["nees_mean"])]
     return out + [""]
 
 
@@ -169,7 +182,7 @@ def report_flight_md(s, args_text):
                 _f(s["max_wheel_speed_rpm"], "%.0f"), s["max_wheel_speed_rpm_run"], s["wheel_speed_limit_rpm"],
                 sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), _f(s["wheel_momentum_max_nms"], "%.2e"),
                 _f(s["wheel_momentum_end_nms"], "%.2e"), s["mtq_duty"], 100 * s["mtq_saturated_share"]), ""]
-    out += consistency_md(s.get("consistency"))
+    out += consistency_md(s.get("consistency"), s.get("stkf_consistency"))
     out += ["| t (s) | mode change | reason |", "|---|---|---|"]
     for c in s["mode_changes"][:50]:
         out.append("| %.0f | %s -> %s | %s |" % (c["t_s"], c["from"], c["to"], c["reason"]))

@@ -7,7 +7,8 @@ for the same seed, vehicle and parameter file. The mode machine, the gates, the 
 law and the wheel allocation are the app's (``firmware/adcs/app.py`` and ``flight.py``); nothing of them is
 restated here. What this module adds is the analysis: the truth at 10 Hz, the flight software's state each
 second (read from the app after its cycle), the pointing error against the true line of sight (Eq. 6.12-6.21),
-the passes, the wheels' and magnetorquers' figures and the error budget.
+the passes, the wheels' and magnetorquers' figures and the error budget; and the STKF's full covariance each
+second (``StkfLog``) for its NEES.
 
 The world: the spacecraft file's wheels at their speed and torque limits, drag and solar pressure torques about
 ``surface.cp_offset_m``, the magnetorquers and magnetometer on the bus (``scenario.pointing_world(flight=True)``).
@@ -18,12 +19,13 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from emulator.spacecraft.scenario import HOLD_S, laser_axis
+from firmware.adcs.estimation import Estimation
 from firmware.adcs.flight import FLIGHT, options
 from ground.adcs import app_host, control
 from ground.adcs.app_host import ESTIMATORS  # noqa: F401  (flight_world.ESTIMATORS, the CLI's choices)
 from ground.adcs.modes import MODE_CODE
-from ground.adcs.pointing import (TS_THESIS, add_statistics, check_ts, close_history, error_budget, orbit_period,
-                                  statistics)
+from ground.adcs.pointing import (TS_THESIS, add_statistics, check_ts, close_history, error_budget, nees, orbit_period,
+                                  statistics, stkf_consistency)
 
 DEG = np.pi / 180.0
 ACQUIRE_MARGIN_S = 60.0     # flight_settle_s: the re-acquisition after the blind slew and a short second slew
@@ -76,24 +78,77 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
             raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))
         d = dict(d, wheels=dict(d["wheels"], tach_noise_rpm=float(tach_noise_rpm)))
     K = int(np.ceil(duration_s))
+    log = StkfLog(K, app_host.estimation_for(estimator, d))
     s, rec, hist, k_done, complete, wall_s = app_host.fly(
         K, "bps flight ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), progress, on_second,
         satb_gnss=satb_gnss, seed=seed, ts=ts, params=params, faults=faults, truth=truth, cache_dir=cache_dir,
-        hold_s=hold_s, spacecraft=d, world="flight", flight=fo, estimation=app_host.estimation_for(estimator, d))
+        hold_s=hold_s, spacecraft=d, world="flight", flight=fo, estimation=log)
     lb = laser_axis(d)
     return _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s,
-                   estimator)
+                   estimator, log)
 
 
-def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s, estimator):
+class StkfLog:
+    """The app's estimation factory (``App(cfg, estimation=...)``) wrapped to record the STKF after each cycle's
+    update: its 1 sigma ``sig`` (12) and its full covariance ``P`` (12 x 12) of [rA, vA, rB, vB], per second
+    (NaN where no cycle ran). It builds the very filters the app would (``make``; None: the lean ones that fly)
+    and only reads them, so the run is the same bit for bit."""
+
+    def __init__(self, K, make=None):
+        self.make = make or Estimation
+        self.sig = np.full((K + 1, 12), np.nan)
+        self.P = np.full((K + 1, 12, 12), np.nan)
+
+    def __call__(self, cfg, rd, health, fo=None):
+        est = self.make(cfg, rd, health, fo)
+        run = est.run_stkf
+
+        def run_stkf(t, q):                          # the app's call, then a copy of what it left
+            run(t, q)
+            k = int(round(t))
+            if 0 <= k < len(self.sig):
+                self.sig[k], self.P[k] = est.sig, stkf_covariance(est.stkf)
+        est.run_stkf = run_stkf
+        return est
+
+
+def stkf_covariance(f):
+    """The full 12 x 12 covariance of [rA, vA, rB, vB] held by the STKF ``f``: the full STKF's joint ``Pk``
+    (``ground.adcs.estimators``), or the lean STKF's SatA block ``Pa`` and its newest SatB node's block of ``P``
+    (``firmware.adcs.stkf_lean``: separate filters, so its cross covariance is zero)."""
+    if hasattr(f, "Pk"):
+        return np.array(f.Pk, float)
+    P = np.zeros((12, 12))
+    P[0:6, 0:6] = np.reshape(np.asarray(f.Pa, float), (6, 6))
+    P[6:12, 6:12] = np.reshape(np.asarray(f.P, float), (f.ld, f.ld))[0:6, 0:6]
+    return P
+
+
+def stkf_history(hist, fsw, log, x1):
+    """The STKF's record added to the history (new keys only): ``fsw_stkf_x_err`` (estimate minus truth of
+    [rA, vA, rB, vB], m and m/s; ``fsw_stkf_err`` is its positions), ``fsw_stkf_sig`` (the filter's 1 sigma),
+    ``fsw_stkf_P`` (its full covariance, 144 = 12 x 12 row by row) and ``fsw_stkf_nees12_full_cov`` (the NEES
+    of the 12 states against that covariance), one row a second as the other ``fsw_*``. ``x1``: the orbit truth
+    at the rows' seconds (n, 2, 6). Returns (x_err, P)."""
+    n = len(fsw["x_stkf"])
+    x_err = np.asarray(fsw["x_stkf"], float) - np.reshape(x1[:n], (n, 12))
+    P = log.P[:n]
+    hist.update(fsw_stkf_x_err=x_err, fsw_stkf_sig=log.sig[:n], fsw_stkf_P=P.reshape(n, 144),
+                fsw_stkf_nees12_full_cov=nees(x_err, P)[:, None])
+    return x_err, P
+
+
+def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s, estimator,
+            log):
     """The run's result and history from the session and the recorder (``simulate``)."""
-    dth, dom, fsw = close_history(hist, rec.fsw, s.xg, scenario.WORLD_RATE_HZ, k_done, lb)
+    rate = scenario.WORLD_RATE_HZ
+    dth, dom, fsw = close_history(hist, rec.fsw, s.xg, rate, k_done, lb)
     mode_s = fsw["mode"][:, 0]
     mode10 = mode_s[np.minimum(hist["t"].astype(int), max(k_done - 1, 0))]    # each step flown under its cycle
     period = orbit_period(s.xg[0, 0])
     sel = (hist["t"] >= period) & (mode10 == MODE_CODE["POINT"])
-    budget = error_budget(hist, s.xg[:(k_done + 1) * scenario.WORLD_RATE_HZ:scenario.WORLD_RATE_HZ], period,
-                          laser_axis=lb)
+    x1 = s.xg[:(k_done + 1) * rate:rate]
+    budget = error_budget(hist, x1, period, laser_axis=lb)
     first_point = next((c["t_s"] for c in s.mode_changes if c["to"] == "POINT"), None)
     blind = s.blind_share(first_point) if first_point is not None else None
     res = app_host.run_result(s, rec, k_done, K, complete, wall_s, "flight", estimator, period, ts_s=ts,
@@ -108,6 +163,8 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
     add_statistics(res, dth, dom, sel)
     res["budget"] = budget
     res["consistency"] = app_host.consistency(fsw, int(np.ceil(period)))
+    x_err, P = stkf_history(hist, fsw, log, x1)
+    res["stkf_consistency"] = stkf_consistency(x_err, P, int(np.ceil(period)))
     return res, hist
 
 

@@ -162,3 +162,68 @@ def add_statistics(res, dth, dom, sel):
     else:
         res.update({k: None for k in SUMMARY_KEYS if k != "complete"})
         res["J_rad2"] = None
+
+
+# --- the STKF's consistency ----------------------------------------------------------------------------------
+STKF_PARTS = {"ra": ("SatA's position", "m"), "va": ("SatA's velocity", "m/s"), "rb": ("SatB's position", "m"),
+              "vb": ("SatB's velocity", "m/s"), "rba": ("the relative position rB - rA", "m")}
+
+
+def nees(e, P):
+    """Each row's normalised estimation error squared e^T P^-1 e for errors e (n, m) and covariances P (n, m, m);
+    NaN where a row has a NaN."""
+    e, P = np.asarray(e, float), np.asarray(P, float)
+    out = np.full(len(e), np.nan)
+    ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(P), axis=(1, 2))
+    if ok.any():
+        out[ok] = np.einsum("ki,ki->k", e[ok], np.linalg.solve(P[ok], e[ok][:, :, None])[:, :, 0])
+    return out
+
+
+def stkf_parts(x_err, P):
+    """The STKF's errors and covariances per part (``STKF_PARTS``) from the errors of [rA, vA, rB, vB] (n, 12)
+    and their full covariances (n, 12, 12): {name: (e (n, 3), P (n, 3, 3))}; rB - rA's covariance is
+    P_AA + P_BB - P_AB - P_BA (Eq. 5.59)."""
+    x_err, P = np.asarray(x_err, float), np.asarray(P, float)
+    out = {name: (x_err[:, i:i + 3], P[:, i:i + 3, i:i + 3])
+           for name, i in (("ra", 0), ("va", 3), ("rb", 6), ("vb", 9))}
+    out["rba"] = (x_err[:, 6:9] - x_err[:, 0:3],
+                  P[:, 0:3, 0:3] + P[:, 6:9, 6:9] - P[:, 0:3, 6:9] - P[:, 6:9, 0:3])
+    return out
+
+
+def _band(dof, p):
+    from scipy.stats import chi2
+    return float(chi2.ppf((1 - p) / 2, dof)), float(chi2.ppf(1 - (1 - p) / 2, dof))
+
+
+def _nees_figures(n, dof, p):
+    lo, hi = _band(dof, p)
+    return {"dof": dof, "band": [lo, hi], "seconds": int(len(n)), "nees_mean": float(n.mean()),
+            "nees_in_band_share": float(np.mean((n >= lo) & (n <= hi)))}
+
+
+def stkf_consistency(x_err, P, k_from, p=0.95):
+    """Whether the STKF's covariance holds over the seconds k_from .. of its errors x_err (n, 12: estimate minus
+    truth of [rA, vA, rB, vB], m and m/s) and full covariances P (n, 12, 12): ``nees12_full_cov`` the NEES of
+    all 12 states against the full covariance (chi-square of 12 dof when consistent: mean 12, ~``p`` of the
+    seconds within the two-sided band), and per part (``STKF_PARTS``) the NEES of its 3 dof against its 3 x 3
+    block and the RMS error, the RMS 1 sigma and their ratio per axis (1 when consistent). A part is None when
+    no second has it finite."""
+    x_err, P = np.asarray(x_err, float)[k_from:], np.asarray(P, float)[k_from:]
+    out = {"from_s": float(k_from), "p": p,
+           "covariance": "full 12 x 12 (the NEES uses the cross covariances the filter holds)"}
+    n12 = nees(x_err, P)
+    ok = np.isfinite(n12)
+    out["nees12_full_cov"] = _nees_figures(n12[ok], 12, p) if ok.any() else None
+    for name, (e, C) in stkf_parts(x_err, P).items():
+        n3 = nees(e, C)
+        ok = np.isfinite(n3)
+        if not ok.any():
+            out[name] = None
+            continue
+        e, sig = e[ok], np.sqrt(np.einsum("kii->ki", C[ok]))
+        rms_e, rms_s = np.sqrt((e ** 2).mean(axis=0)), np.sqrt((sig ** 2).mean(axis=0))
+        out[name] = dict(_nees_figures(n3[ok], 3, p), unit=STKF_PARTS[name][1], rms_error=rms_e.tolist(),
+                         rms_sigma=rms_s.tolist(), rms_over_sigma=(rms_e / rms_s).tolist())
+    return out

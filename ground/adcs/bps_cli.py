@@ -13,7 +13,8 @@ that misses them exits 3. Ctrl-C leaves the folder with complete=false (exit 130
 gives each orbit's), ``max_wheel_speed_rpm`` is over the same span (``max_wheel_speed_rpm_run``: the whole
 run's), and ``checks`` (each pass within the budgets, the wheels within 80 % of their limit, the star tracker
 blind < 10 % of the time after the first slew) decide the exit status; report.md and ``flight_pointing.png``,
-``flight_wheels.png`` show them.
+``flight_wheels.png`` show them. A run whose line of sight to the partner the Earth blocks throughout its pointing
+window (``line_of_sight`` false in the result: ``ground.adcs.occultation``) exits 3 whatever its figures.
 
 ``sweep``: J = E[eps^T W eps] (Eq. 6.22-6.24) for each t_s, the calibration computed once and shared; with
 SatB's GNSS as Sec. 6.4.3 (``--no-satb-gnss`` to leave it out). ``summary.json``: ts_s, J, ts_best_s,
@@ -192,7 +193,7 @@ def _cmd_bps(a):
                    "ts_s": bps.TS_THESIS}
     met = (s["pointing_3sigma_arcsec"] is not None and s["pointing_3sigma_arcsec"] <= bps.BUDGET_POINTING_3SIGMA
            and s["stability_3sigma_arcsec_s"] <= bps.BUDGET_STABILITY_3SIGMA)
-    s["budgets_met"] = bool(met and s["complete"])
+    s["budgets_met"] = bool(met and s["complete"] and s.get("line_of_sight", True))
     plots = []
     if not a.no_plots and len(hist["t"]) > 1:
         name = FIGURES_BPS[1 if a.satb_gnss else 0]
@@ -209,6 +210,8 @@ def _cmd_bps(a):
     if not s["complete"]:
         print("interrupted: partial run in %s (summary complete=false)" % out, file=sys.stderr)
         return 130
+    if _no_line_of_sight(s):
+        return 3
     if not s["budgets_met"]:
         print("BUDGET MISSED: 3σ pointing %.1f arcsec (limit %g), stability %.1f arcsec/s (limit %g)"
               % (s["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, s["stability_3sigma_arcsec_s"],
@@ -220,11 +223,24 @@ def _cmd_bps(a):
     return 0
 
 
+def _no_line_of_sight(s):
+    """True (and says so) when the Earth blocks the line of sight to the partner throughout the pointing window:
+    the run's budgets cannot be met, whatever its figures."""
+    o = s.get("occultation")
+    if s.get("line_of_sight", True) or not o:
+        return False
+    print("NO LINE OF SIGHT: the line of sight to the partner passes within %g km of the Earth's surface throughout "
+          "the %s; no budget is reported as met" % (o["margin_km"], "pointing window" if o["window_share"] is not None
+                                                    else "run"), file=sys.stderr)
+    return True
+
+
 def _finish_flight(a, out, res, hist, record, args_text):
     bps.save_history(os.path.join(out, "history.npz"), hist)
     s = dict(res, spacecraft=record)
     s["checks"] = flight_checks(s)
-    s["budgets_met"] = bool(s["complete"] and all(c["ok"] for c in s["checks"].values()))
+    s["budgets_met"] = bool(s["complete"] and all(c["ok"] for c in s["checks"].values())
+                            and s.get("line_of_sight", True))
     plots = []
     if not a.no_plots and len(hist["t"]) > 10:
         plot_flight(out, hist, s)
@@ -238,6 +254,8 @@ def _finish_flight(a, out, res, hist, record, args_text):
     if not s["complete"]:
         print("interrupted: partial run in %s (summary complete=false)" % out, file=sys.stderr)
         return 130
+    if _no_line_of_sight(s):
+        return 3
     missed = [c["what"] for c in s["checks"].values() if not c["ok"]]
     if missed:
         print("REQUIREMENT MISSED: " + "; ".join(missed), file=sys.stderr)

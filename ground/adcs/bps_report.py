@@ -31,7 +31,7 @@ def report_md(s, args_text):
            "Spacecraft %s; t_s = %g s, %s SatB's GNSS, %s at 10 Hz after %g s (30 s hold + 4 t_s), truth %s, "
            "seed %d. complete: %s" % (_name(s.get("spacecraft")), s["ts_s"],
                                       "with" if s["satb_gnss"] else "without", _collected(s), s["settle_s"],
-                                      s["truth"], s["seed"], s["complete"]), "",
+                                      s["truth"], s["seed"], s["complete"]), ""] + occultation_md(s) + [
            "| figure | thesis (mean, 1σ) | ours (mean, 1σ) | 1σ ratio |", "|---|---|---|---|"]
     for label, t, m, sd, i in rows:
         if m is None:
@@ -151,13 +151,40 @@ def consistency_md(c, stkf=None):
     return out + [""]
 
 
+def occultation_md(s):
+    """report.md's lines on the line of sight to the partner (``occultation.summary``): whether the Earth (plus
+    the atmosphere's margin) blocks it, and that blocked samples are left out of the pointing figures."""
+    o = s.get("occultation")
+    if not o:
+        return []
+    if not o["line_of_sight"]:
+        out = ["**Verdict: no line of sight.** The line of sight to the partner passes within %g km of the Earth's "
+               "surface (sphere of %.3f km) %s, so this run's pointing figures are not reported and no budget "
+               "is met." % (o["margin_km"], o["earth_radius_km"],
+                            "throughout the pointing window" if o["window_share"] is not None else
+                            "throughout the run")]
+    elif o["share"] == 0:
+        out = ["Line of sight: clear of the Earth and %g km of atmosphere throughout (lowest %.0f km above the "
+               "surface)." % (o["margin_km"], o["min_clearance_km"])]
+    else:
+        out = ["Line of sight: occulted %.1f %% of the run (the Earth and %g km of atmosphere in the way; lowest %.0f "
+               "km): those samples are left out of the pointing figures, the passes and the error budget (%d "
+               "samples of the pointing window)." % (100 * o["share"], o["margin_km"], o["min_clearance_km"],
+                                                     o.get("excluded_samples", 0))]
+    iv = o["intervals"]
+    if iv:
+        out.append("Occulted: " + ", ".join("%.0f s for %.0f s" % (a, b) for a, b in iv[:10])
+                   + (" and %d more (summary.json)" % (len(iv) - 10) if len(iv) > 10 else "") + ".")
+    return out + [""]
+
+
 def report_flight_md(s, args_text):
     """report.md of a flight-world run: the checks, each pass, the modes, the wheels and magnetorquers."""
     out = ["# Body pointing in the flight world", "", "`%s`" % args_text, "",
            "Spacecraft %s; t_s = %g s, %s SatB's GNSS, %.0f s (%.2f orbits of %.0f s), truth %s, seed %d. "
            "complete: %s" % (_name(s.get("spacecraft")), s["ts_s"], "with" if s["satb_gnss"] else "without",
                             s["simulated_s"], s["simulated_s"] / s["orbit_period_s"], s["orbit_period_s"],
-                            s["truth"], s["seed"], s["complete"]), "",
+                            s["truth"], s["seed"], s["complete"]), ""] + occultation_md(s) + [
            "| requirement | met |", "|---|---|"]
     for c in s["checks"].values():
         out.append("| %s | %s |" % (c["what"], "yes" if c["ok"] else "**NO**"))

@@ -7,8 +7,9 @@ for the same seed, vehicle and parameter file. The mode machine, the gates, the 
 law and the wheel allocation are the app's (``firmware/adcs/app.py`` and ``flight.py``); nothing of them is
 restated here. What this module adds is the analysis: the truth at 10 Hz, the flight software's state each
 second (read from the app after its cycle), the pointing error against the true line of sight (Eq. 6.12-6.21),
-the passes, the wheels' and magnetorquers' figures and the error budget; and the STKF's full covariance each
-second (``StkfLog``) for its NEES.
+the passes, the wheels' and magnetorquers' figures and the error budget; the STKF's full covariance each second
+(``StkfLog``) for its NEES; and whether the Earth blocks the line of sight (``pointing.line_of_sight``), whose
+occulted samples the pointing figures leave out.
 
 The world: the spacecraft file's wheels at their speed and torque limits, drag and solar pressure torques about
 ``surface.cp_offset_m``, the magnetorquers and magnetometer on the bus (``scenario.pointing_world(flight=True)``).
@@ -24,8 +25,8 @@ from firmware.adcs.flight import FLIGHT, options
 from ground.adcs import app_host, control
 from ground.adcs.app_host import ESTIMATORS  # noqa: F401  (flight_world.ESTIMATORS, the CLI's choices)
 from ground.adcs.modes import MODE_CODE
-from ground.adcs.pointing import (TS_THESIS, add_statistics, check_ts, close_history, error_budget, nees, orbit_period,
-                                  statistics, stkf_consistency)
+from ground.adcs.pointing import (TS_THESIS, add_statistics, check_ts, close_history, error_budget, line_of_sight, nees,
+                                  orbit_period, statistics, stkf_consistency)
 
 DEG = np.pi / 180.0
 ACQUIRE_MARGIN_S = 60.0     # flight_settle_s: the re-acquisition after the blind slew and a short second slew
@@ -146,9 +147,11 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
     mode_s = fsw["mode"][:, 0]
     mode10 = mode_s[np.minimum(hist["t"].astype(int), max(k_done - 1, 0))]    # each step flown under its cycle
     period = orbit_period(s.xg[0, 0])
-    sel = (hist["t"] >= period) & (mode10 == MODE_CODE["POINT"])
+    window = (hist["t"] >= period) & (mode10 == MODE_CODE["POINT"])
+    occ, los = line_of_sight(hist, s.xg, rate, window)
+    sel = window & ~occ
     x1 = s.xg[:(k_done + 1) * rate:rate]
-    budget = error_budget(hist, x1, period, laser_axis=lb)
+    budget = error_budget(hist, x1, period, laser_axis=lb, clear=~occ[::10])
     first_point = next((c["t_s"] for c in s.mode_changes if c["to"] == "POINT"), None)
     blind = s.blind_share(first_point) if first_point is not None else None
     res = app_host.run_result(s, rec, k_done, K, complete, wall_s, "flight", estimator, period, ts_s=ts,
@@ -158,19 +161,21 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
     mtq = d["magnetorquers"]
     axes = np.array([np.asarray(a, float) / np.linalg.norm(a) for a in mtq["axes"]])
     flog = {k: fsw[k] for k in ("m_cmd", "h_w", "mtq_sat", "beacon_used")}
-    res.update(flight_statistics(hist, dth, dom, mode10, period, flog, mtq["dipole_limit_am2"], axes))
+    res.update(flight_statistics(hist, dth, dom, mode10, period, flog, mtq["dipole_limit_am2"], axes, occ))
     res["flight_options"] = fo
     add_statistics(res, dth, dom, sel)
     res["budget"] = budget
     res["consistency"] = app_host.consistency(fsw, int(np.ceil(period)))
     x_err, P = stkf_history(hist, fsw, log, x1)
     res["stkf_consistency"] = stkf_consistency(x_err, P, int(np.ceil(period)))
+    res.update(los)
     return res, hist
 
 
-def flight_statistics(hist, dth, dom, mode10, period, flog, dipole_limit, axes):
+def flight_statistics(hist, dth, dom, mode10, period, flog, dipole_limit, axes, occ=None):
     """The flight world's figures: per pointing pass (pass p = the POINT samples of orbit p, p >= 1, of those the
-    run holds whole; orbit 0 is the slew and settling) its 3 sigma pointing and stability (as ``statistics``) and
+    run holds whole, less those ``occ`` marks occulted; orbit 0 is the slew and settling) its 3 sigma pointing
+    and stability (as ``statistics``) and
     largest wheel speed; the largest wheel speed after the first orbit (``max_wheel_speed_rpm`` then means that span, and
     ``max_wheel_speed_rpm_run`` the whole run's); the magnetorquers' duty (mean of the largest rod's |m| over
     its limit) and saturated share; the wheels' momentum |h| (N m s) at most and at the end."""
@@ -181,14 +186,17 @@ def flight_statistics(hist, dth, dom, mode10, period, flog, dipole_limit, axes):
     for p in range(1, n_orbits):
         span = (t >= p * period) & (t < (p + 1) * period)
         sel = span & (mode10 == MODE_CODE["POINT"])
+        n_occ = 0 if occ is None else int(np.count_nonzero(sel & occ))
+        if occ is not None:
+            sel &= ~occ
         if sel.sum() < 2:
-            passes.append({"orbit": p, "samples": int(sel.sum())})
+            passes.append({"orbit": p, "samples": int(sel.sum()), "occulted_samples": n_occ})
             continue
         st = statistics(dth[sel], dom[sel])
         passes.append({"orbit": p, "t_from_s": float(t[span][0]), "t_to_s": float(t[span][-1]),
                        "samples": st["samples"], "pointing_3sigma_arcsec": st["pointing_3sigma_arcsec"],
                        "stability_3sigma_arcsec_s": st["stability_3sigma_arcsec_s"],
-                       "max_wheel_speed_rpm": float(rpm[span].max())})
+                       "max_wheel_speed_rpm": float(rpm[span].max()), "occulted_samples": n_occ})
     after = t >= period
     rods = np.abs(np.linalg.lstsq(axes.T, np.nan_to_num(flog["m_cmd"]).T, rcond=None)[0]).max(axis=0)
     h = np.linalg.norm(flog["h_w"], axis=1)

@@ -9,7 +9,7 @@ Units: arcsec and arcsec/s in the outputs; J (Eq. 6.22) in rad^2, like Fig. 6-2'
 import numpy as np
 
 from emulator.spacecraft.dynamics import dcm
-from ground.adcs import control, quat, stkf
+from ground.adcs import control, occultation, quat, stkf
 from protocol.units import RAD_PER_ARCSEC
 
 W_OBJ = np.array([1.0, 1.0, 10.0, 10.0])        # Eq. 6.24
@@ -109,15 +109,18 @@ def orbit_period(x):
     return float(2 * np.pi * np.sqrt(a ** 3 / stkf.MU))
 
 
-def error_budget(hist, x1, t_settle, slow_s=SLOW_S, laser_axis=control.LASER_AXIS):
+def error_budget(hist, x1, t_settle, slow_s=SLOW_S, laser_axis=control.LASER_AXIS, clear=None):
     """Where the pointing error comes from, at the 1 Hz flight-software instants after settling (arcsec, 1σ per
     axis): with e(q) the Eq. 6.12-6.16 pointing error of attitude q against the true line of sight,
     ``estimation`` = e(q) - e(q_hat), ``tracking`` = e(q_hat) - e(q_c) (the controller's), ``command`` = e(q_c)
     (the STKF's and the command law's); ``total`` = e(q) is their sum. ``tracking_slow`` is the tracking part's
     ``slow_s`` moving average: the bias a PD leaves against a torque it does not model. Each part's mean is
-    given too (``*_mean_arcsec``)."""
+    given too (``*_mean_arcsec``). ``clear``: per 1 Hz instant, False where the instant is left out (the Earth
+    blocks the line of sight); None keeps them all."""
     k = np.arange(len(x1))
     keep = (k >= t_settle) & np.all(np.isfinite(hist["fsw_qc"][:len(x1)]), axis=1)
+    if clear is not None:
+        keep &= np.asarray(clear, bool)[:len(x1)]
     if keep.sum() < 2 * slow_s:
         return None
     k = k[keep]
@@ -153,6 +156,22 @@ def close_history(hist, fsw, xg, rate, k_done, laser_axis=control.LASER_AXIS):
     hist["dtheta_arcsec"], hist["domega_arcsec_s"] = dth / RAD_PER_ARCSEC, dom / RAD_PER_ARCSEC
     hist.update({"fsw_" + k: v for k, v in fsw.items()})
     return dth, dom, fsw
+
+
+def line_of_sight(hist, xg, rate, window):
+    """Whether the Earth blocks the line of sight to the partner at a run's 10 Hz samples (``occultation.summary``
+    on the orbit truth ``xg``, ``rate`` rows a second; ``window`` the samples the pointing figures take). Adds
+    ``hist["occulted"]``; returns (the occulted samples, the result's keys: ``occultation`` with
+    ``excluded_samples``, the window's occulted ones, ``line_of_sight``, and ``verdict`` "no line of sight" when
+    the window has none)."""
+    x10 = xg[:len(hist["t"]) * (rate // 10):rate // 10]
+    occ, los = occultation.summary(hist["t"], x10[:, 0, 0:3], x10[:, 1, 0:3], window=window)
+    hist["occulted"] = occ
+    los["excluded_samples"] = int(np.count_nonzero(window & occ))
+    out = {"occultation": los, "line_of_sight": los["line_of_sight"]}
+    if not los["line_of_sight"]:
+        out["verdict"] = "no line of sight"
+    return occ, out
 
 
 def add_statistics(res, dth, dom, sel):

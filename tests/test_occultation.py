@@ -140,3 +140,16 @@ def test_a_partner_behind_the_earth_has_no_line_of_sight_and_exits_3(tmp_path):
     assert "Verdict: no line of sight" in (out / "report.md").read_text()
     h = np.load(out / "history.npz")
     assert h["occulted"].all() and len(h["occulted"]) == len(h["t"])
+
+
+def test_the_thesis_world_marks_it_too(tmp_path):
+    sc, params = _far_side(tmp_path)
+    out = tmp_path / "run"
+    p = subprocess.run([sys.executable, "-m", "ground.cli", "adcs", "bps", "--world", "thesis", "--duration", "20",
+                        "--spacecraft", str(sc), "--params", str(params), "--truth", "two-body", "--quiet",
+                        "--no-plots", "--cache-dir", str(tmp_path / "cache"), "-o", str(out)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 3, p.stderr
+    assert "Traceback" not in p.stderr and "NO LINE OF SIGHT" in p.stderr
+    s = json.load(open(out / "summary.json"))
+    assert s["budgets_met"] is False and s["line_of_sight"] is False and s["pointing_3sigma_arcsec"] is None

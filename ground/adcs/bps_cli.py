@@ -31,10 +31,11 @@ import numpy as np
 
 from emulator.spacecraft import scenario
 from ground.adcs import body_pointing as bps, campaign, flight_world, runs
-from ground.adcs.bps_report import (FIGURES_FLIGHT, WHEEL_BAND, plot_flight, plot_history, plot_sweep,
+from ground.adcs.bps_report import (FIGURES_FLIGHT, plot_flight, plot_history, plot_sweep,
                                     report_flight_md, report_md)
-from ground.adcs.options import add_satb_gnss_option, add_spacecraft_option, load_spacecraft
+from ground.adcs.options import add_satb_gnss_option, add_spacecraft_option, fly, load_spacecraft
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
+from protocol import spacecraft as sf
 
 CACHE_DEFAULT = os.path.join("out", "bps_cache")
 FIGURES_BPS = ("fig6-3_pointing.png", "fig6-4_pointing.png")    # without / with SatB's GNSS, as the thesis's
@@ -117,30 +118,33 @@ def _truth(a, duration, out, spacecraft):
 
 
 def _vehicle(a):
-    """(checked spacecraft file, its record, the --params dict or None) of the command's options."""
+    """(checked spacecraft file with the vehicle flown, its record, the --params dict or None) of the command's
+    options (``--vehicle``: the file's truth block, or drawn from ``--seed``)."""
     d, source = load_spacecraft(a.spacecraft, partner=True)
-    return d, runs.spacecraft_record(d, source), bps.load_params(a.params, d)[-1] if a.params else None
+    d, record = fly(d, source, a.seed, a.vehicle)
+    return d, record, bps.load_params(a.params, d)[-1] if a.params else None
 
 
 def flight_checks(s):
     """The flight world's requirements of one run (``fps adcs bps --world flight``), each {"ok", "what"}:
-    every pointing pass after the first orbit within the 3 sigma budgets, the wheels within ``WHEEL_BAND`` of their
+    every pointing pass after the first orbit within the 3 sigma budgets, the wheels within their share of their
     speed limit after the first orbit, the star tracker blind less than ``BLIND_MAX`` of the time after the first
     slew, and at least one pass collected."""
+    req = s.get("requirements") or sf.requirements(None)
+    pb, wb, band = (req["body_pointing_3sigma_arcsec"], req["body_stability_3sigma_arcsec_s"],
+                    req["wheel_speed_share"])
     passes = [p for p in s.get("passes") or [] if p.get("pointing_3sigma_arcsec") is not None]
     lim = s["wheel_speed_limit_rpm"]
     blind = s.get("star_tracker_blind_share")
     wmax = s.get("max_wheel_speed_rpm")
     return {
         "passes": {"ok": bool(passes), "what": "%d pointing pass(es) after the first orbit" % len(passes)},
-        "pointing": {"ok": bool(passes) and all(p["pointing_3sigma_arcsec"] <= bps.BUDGET_POINTING_3SIGMA
-                                                for p in passes),
-                     "what": "every pass's 3σ pointing <= %g arcsec" % bps.BUDGET_POINTING_3SIGMA},
-        "stability": {"ok": bool(passes) and all(p["stability_3sigma_arcsec_s"] <= bps.BUDGET_STABILITY_3SIGMA
-                                                 for p in passes),
-                      "what": "every pass's 3σ stability <= %g arcsec/s" % bps.BUDGET_STABILITY_3SIGMA},
-        "wheels": {"ok": wmax is not None and wmax <= WHEEL_BAND * lim,
-                   "what": "wheels <= %.0f %% of %.0f rpm after the first orbit" % (100 * WHEEL_BAND, lim)},
+        "pointing": {"ok": bool(passes) and all(p["pointing_3sigma_arcsec"] <= pb for p in passes),
+                     "what": "every pass's 3σ pointing <= %g arcsec" % pb},
+        "stability": {"ok": bool(passes) and all(p["stability_3sigma_arcsec_s"] <= wb for p in passes),
+                      "what": "every pass's 3σ stability <= %g arcsec/s" % wb},
+        "wheels": {"ok": wmax is not None and wmax <= band * lim,
+                   "what": "wheels <= %.0f %% of %.0f rpm after the first orbit" % (100 * band, lim)},
         "star_tracker": {"ok": blind is not None and blind < BLIND_MAX,
                          "what": "star tracker blind < %.0f %% of the time after the first slew" % (100 * BLIND_MAX)},
     }
@@ -179,6 +183,7 @@ def _cmd_bps(a):
         res, hist = bps.simulate(ts=ts, satb_gnss=a.satb_gnss, duration_s=a.duration, seed=a.seed, params=params,
                                  truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet,
                                  spacecraft=d, world=a.world, estimator=a.estimator)
+        res["requirements"] = sf.requirements(d)             # the budgets the verdict reads
         if a.world == "flight":
             return _finish_flight(a, out, res, hist, record, args_text)
     except FloatingPointError as exc:              # a filter or the truth diverged: the run ends, the folder says so
@@ -191,8 +196,10 @@ def _cmd_bps(a):
     s["thesis"] = {"pointing_sigma_arcsec": [v[1] for v in bps.THESIS[a.satb_gnss]["theta"]],
                    "stability_sigma_arcsec_s": [v[1] for v in bps.THESIS[a.satb_gnss]["omega"]],
                    "ts_s": bps.TS_THESIS}
-    met = (s["pointing_3sigma_arcsec"] is not None and s["pointing_3sigma_arcsec"] <= bps.BUDGET_POINTING_3SIGMA
-           and s["stability_3sigma_arcsec_s"] <= bps.BUDGET_STABILITY_3SIGMA)
+    req = s["requirements"]
+    pb, wb = req["body_pointing_3sigma_arcsec"], req["body_stability_3sigma_arcsec_s"]
+    met = (s["pointing_3sigma_arcsec"] is not None and s["pointing_3sigma_arcsec"] <= pb
+           and s["stability_3sigma_arcsec_s"] <= wb)
     s["budgets_met"] = bool(met and s["complete"] and s.get("line_of_sight", True))
     plots = []
     if not a.no_plots and len(hist["t"]) > 1:
@@ -214,12 +221,10 @@ def _cmd_bps(a):
         return 3
     if not s["budgets_met"]:
         print("BUDGET MISSED: 3σ pointing %.1f arcsec (limit %g), stability %.1f arcsec/s (limit %g)"
-              % (s["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, s["stability_3sigma_arcsec_s"],
-                 bps.BUDGET_STABILITY_3SIGMA), file=sys.stderr)
+              % (s["pointing_3sigma_arcsec"], pb, s["stability_3sigma_arcsec_s"], wb), file=sys.stderr)
         return 3
     print("budgets met: 3σ pointing %.1f ≤ %g arcsec, stability %.1f ≤ %g arcsec/s"
-          % (s["pointing_3sigma_arcsec"], bps.BUDGET_POINTING_3SIGMA, s["stability_3sigma_arcsec_s"],
-             bps.BUDGET_STABILITY_3SIGMA))
+          % (s["pointing_3sigma_arcsec"], pb, s["stability_3sigma_arcsec_s"], wb))
     return 0
 
 

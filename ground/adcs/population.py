@@ -66,6 +66,7 @@ def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="tw
     ``figures`` (``figures_of``), and writes ``run_dir``."""
     from emulator.spacecraft import dispersion, scenario
     from ground.adcs import body_pointing as bps, bps_cli
+    from protocol import spacecraft as sf
     d, vrec = dispersion.flown(spacecraft, seed, vehicle)
     params = bps_cli.calibration(seed, cache_dir, False, d)
     duration = orbits * bps.orbit_period(scenario.orbit_setup(d)["x0s"][0])
@@ -74,6 +75,7 @@ def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="tw
     if not res["complete"]:
         raise KeyboardInterrupt
     res["vehicle"] = vrec
+    res["requirements"] = sf.requirements(d)
     res["checks"] = bps_cli.flight_checks(res)
     res["ok"] = bool(all(c["ok"] for c in res["checks"].values()) and res.get("line_of_sight", True))
     res["figures"] = figures_of(res)
@@ -154,8 +156,8 @@ def plot_cdf(path, results, s):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from ground.adcs import body_pointing as bps
-    budgets = {"pointing": bps.BUDGET_POINTING_3SIGMA, "stability": bps.BUDGET_STABILITY_3SIGMA}
+    req = s["requirements"]
+    budgets = {"pointing": req["body_pointing_3sigma_arcsec"], "stability": req["body_stability_3sigma_arcsec_s"]}
     good = [r for r in results if r and "error" not in r]
     fig, axs = plt.subplots(2, 3, figsize=(12, 6.5))
     for ax, (key, unit, check, what) in zip(axs.ravel(), FIGURES):
@@ -168,8 +170,7 @@ def plot_cdf(path, results, s):
             ax.axvline(NEES_GOAL, color="g", ls=":", label="consistent: >= %.2f" % NEES_GOAL)
             ax.legend(fontsize=8)
         if check == "wheels" and good:
-            from ground.adcs.bps_cli import WHEEL_BAND
-            lim = WHEEL_BAND * good[0]["wheel_speed_limit_rpm"]
+            lim = req["wheel_speed_share"] * good[0]["wheel_speed_limit_rpm"]
         if lim is not None:
             ax.axvline(lim, color="r", ls="--", label="budget %g %s" % (lim, unit))
             ax.legend(fontsize=8)
@@ -191,6 +192,7 @@ def run(a):
     from ground.adcs import campaign
     from ground.adcs.options import load_spacecraft
     from ground.adcs.runs import spacecraft_record
+    from protocol import spacecraft as sf
     seeds = campaign.seeds_for(a.seed, a.runs)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
@@ -204,7 +206,7 @@ def run(a):
     out = a.output
     identity = {"format": "fps-adcs-campaign/1", "spacecraft": spacecraft_record(d, source), "vehicle": a.vehicle,
                 "seeds": seeds, "orbits": float(a.orbits), "truth": a.truth, "ts_s": float(a.ts),
-                "satb_gnss": bool(a.satb_gnss)}
+                "satb_gnss": bool(a.satb_gnss), "requirements": sf.requirements(d)}
     _open_folder(out, identity)
     kept = [r if r is not None and r.get("seed") == s else None
             for r, s in zip(campaign.finished_results(out, len(seeds)), seeds)]

@@ -6,7 +6,9 @@ AFLS, ``ground/adcs/estimators.py``; ``estimator="lean"`` flies the lean filters
 
 The world is Sec. 6.4.1-6.4.2's (``scenario.pointing_world``): the thesis's spacecraft or a spacecraft file's, its
 wheels without a speed limit in effect (``wheel_speed_limit_rpm``), from q = [0, 0, 0, 1] at rest. The figures are
-collected at 10 Hz after the hold and 4 t_s of settling (``settle_ts``), over ``duration_s`` seconds.
+collected at 10 Hz after the hold and 4 t_s of settling (``settle_ts``), over ``duration_s`` seconds, less the
+samples where the Earth blocks the line of sight to the partner (``pointing.line_of_sight``: a run without line of
+sight in its window is marked "no line of sight", never budgets met).
 """
 
 import numpy as np
@@ -14,7 +16,7 @@ import numpy as np
 from emulator.spacecraft import scenario
 from emulator.spacecraft.scenario import HOLD_S, laser_axis
 from ground.adcs import app_host
-from ground.adcs.pointing import TS_THESIS, add_statistics, check_ts, close_history, error_budget
+from ground.adcs.pointing import TS_THESIS, add_statistics, check_ts, close_history, error_budget, line_of_sight
 
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
@@ -41,7 +43,9 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     res["wheel_speed_limit_rpm"] = float(wheel_speed_limit_rpm)
     secs = np.arange(k_done + 1) >= t_settle         # the star tracker's blind share after the settling
     res["star_tracker_blind_share"] = float(1.0 - np.nanmean(rows["st_ok"][secs, 0])) if secs.any() else None
-    add_statistics(res, dth, dom, sel)
-    res["budget"] = error_budget(hist, s.xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb)
+    occ, los = line_of_sight(hist, s.xg, rate, sel)        # occulted samples leave the pointing figures
+    add_statistics(res, dth, dom, sel & ~occ)
+    res["budget"] = error_budget(hist, s.xg[:(k_done + 1) * rate:rate], t_settle, laser_axis=lb, clear=~occ[::10])
+    res.update(los)
     res["consistency"] = app_host.consistency(rows, int(np.ceil(t_settle)))
     return res, hist

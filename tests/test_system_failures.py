@@ -214,7 +214,8 @@ def test_fps_system_exits_3_when_the_body_budget_is_missed_and_0_when_both_are_m
     assert s["verdict"]["fine"]["met"] and s["verdict"]["body"]["met"] and s["stopped_in"] is None
     assert "terminal: both loops within their budgets" in capsys.readouterr().out
     # the same run judged against a 1 arcsec pointing budget: complete, the fine loop met, the body not
-    monkeypatch.setattr(bps, "BUDGET_POINTING_3SIGMA", 1.0)
+    from protocol import spacecraft as sf
+    monkeypatch.setitem(sf.THESIS_REQUIREMENTS, "body_pointing_3sigma_arcsec", 1.0)
     out = tmp_path / "missed"
     rc = fps(_args(out, system_inputs, 2))
     s = _summary(out)

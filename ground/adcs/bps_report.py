@@ -8,9 +8,12 @@ import numpy as np
 
 from ground.adcs import body_pointing as bps, control
 from ground.adcs.modes import MODE_CODE, MODES
+from protocol.spacecraft import THESIS_REQUIREMENTS
 
 FIGURES_FLIGHT = ("flight_pointing.png", "flight_wheels.png")
-WHEEL_BAND = 0.8        # the flight world's wheels stay within this share of their speed limit after the first orbit
+# the flight world's wheels stay within this share of their speed limit after the first orbit (the thesis-3u default;
+# a spacecraft file's requirements.wheel_speed_share where it gives one)
+WHEEL_BAND = THESIS_REQUIREMENTS["wheel_speed_share"]
 
 
 def _collected(s):

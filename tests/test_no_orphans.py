@@ -185,6 +185,18 @@ def _interrupted(f, rc):
     assert "Traceback" not in err
 
 
+def _stopped(f, sig):
+    """Send ``sig``; no process of the run is left. SIGKILL: the run died of it (False: nothing more to check);
+    SIGTERM: taken as an interrupt (True: the folder is to be checked)."""
+    rc = f.send(sig)
+    f.assert_none_left()
+    if sig == signal.SIGKILL:
+        assert rc == -signal.SIGKILL
+        return False
+    _interrupted(f, rc)
+    return True
+
+
 def _count(name, n=1):
     """A ``wait_for`` condition: at least ``n`` children named ``name``."""
     return lambda names: names.count(name) >= n
@@ -202,12 +214,8 @@ def _hil(fps_run, inputs, out, runtime, sig):
     if sig == signal.SIGTERM:                 # in the play, so that it has samples to keep
         f.wait_for("the play", lambda names: os.path.exists(os.path.join(out, "q2_calibration.json")))
     f.pause(1.0)
-    rc = f.send(sig)
-    f.assert_none_left()
-    if sig == signal.SIGKILL:
-        assert rc == -signal.SIGKILL
+    if not _stopped(f, sig):
         return
-    _interrupted(f, rc)
     s = _summary(out)
     assert s["complete"] is False and s["interrupted"] is True and s["q2_samples"] > 0
     assert len(np.load(os.path.join(out, "samples.npz"))["q2_err_arcsec"]) == s["q2_samples"]
@@ -231,12 +239,8 @@ def _adcs_can(fps_run, out, runtime, sig):
     f = fps_run("adcs", "can", "--duration", "3000", "--runtime", runtime, "--quiet", "--no-plots", "-o", out)
     f.wait_for("the ADCS firmware's process", _count("qemu-system-arm" if runtime == "qemu" else "micropython"))
     f.pause(3.0)
-    rc = f.send(sig)
-    f.assert_none_left()
-    if sig == signal.SIGKILL:
-        assert rc == -signal.SIGKILL
+    if not _stopped(f, sig):
         return
-    _interrupted(f, rc)
     s = _summary(out)
     assert s["complete"] is False and s["interrupted"] is True and s["cycles"] < 3000
     assert s["cycles"] > 0 or runtime == "qemu"           # the ADCS board boots for seconds

@@ -122,15 +122,22 @@ def _far_side(tmp_path):
     return path, params
 
 
-def test_a_partner_behind_the_earth_has_no_line_of_sight_and_exits_3(tmp_path):
+def _fly_far_side(tmp_path, world, duration_s):
+    """``fps adcs bps`` with the far-side partner: (the finished process, its run folder); asserts it exits 3
+    saying NO LINE OF SIGHT, without a traceback."""
     sc, params = _far_side(tmp_path)
     out = tmp_path / "run"
-    p = subprocess.run([sys.executable, "-m", "ground.cli", "adcs", "bps", "--world", "flight", "--duration", "200",
-                        "--spacecraft", str(sc), "--params", str(params), "--truth", "two-body", "--quiet",
-                        "--no-plots", "--cache-dir", str(tmp_path / "cache"), "-o", str(out)],
+    p = subprocess.run([sys.executable, "-m", "ground.cli", "adcs", "bps", "--world", world, "--duration",
+                        str(duration_s), "--spacecraft", str(sc), "--params", str(params), "--truth", "two-body",
+                        "--quiet", "--no-plots", "--cache-dir", str(tmp_path / "cache"), "-o", str(out)],
                        cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert p.returncode == 3, p.stderr
     assert "Traceback" not in p.stderr and "NO LINE OF SIGHT" in p.stderr
+    return p, out
+
+
+def test_a_partner_behind_the_earth_has_no_line_of_sight_and_exits_3(tmp_path):
+    p, out = _fly_far_side(tmp_path, "flight", 200)
     assert "requirements met" not in p.stdout and "budgets met" not in p.stdout
     s = json.load(open(out / "summary.json"))
     assert s["budgets_met"] is False and s["line_of_sight"] is False and s["verdict"] == "no line of sight"
@@ -143,13 +150,6 @@ def test_a_partner_behind_the_earth_has_no_line_of_sight_and_exits_3(tmp_path):
 
 
 def test_the_thesis_world_marks_it_too(tmp_path):
-    sc, params = _far_side(tmp_path)
-    out = tmp_path / "run"
-    p = subprocess.run([sys.executable, "-m", "ground.cli", "adcs", "bps", "--world", "thesis", "--duration", "20",
-                        "--spacecraft", str(sc), "--params", str(params), "--truth", "two-body", "--quiet",
-                        "--no-plots", "--cache-dir", str(tmp_path / "cache"), "-o", str(out)],
-                       cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert p.returncode == 3, p.stderr
-    assert "Traceback" not in p.stderr and "NO LINE OF SIGHT" in p.stderr
+    p, out = _fly_far_side(tmp_path, "thesis", 20)
     s = json.load(open(out / "summary.json"))
     assert s["budgets_met"] is False and s["line_of_sight"] is False and s["pointing_3sigma_arcsec"] is None

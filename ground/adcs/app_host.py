@@ -72,12 +72,12 @@ def consistency(fsw, k_from, p=0.95):
     (the STKF), each second's NEES (3 dof) and the share of seconds within its two-sided ``p`` band (a consistent
     filter has ~``p`` of them inside), the mean NEES (3 when consistent), and per axis the RMS error over the RMS
     1 sigma (1 when consistent). None for a part with no second recorded."""
-    from scipy.stats import chi2
-    lo, hi = chi2.ppf((1 - p) / 2, 3), chi2.ppf(1 - (1 - p) / 2, 3)
+    from ground.adcs.pointing import nees, nees_band
+    lo, hi = nees_band(3, p)
     att = np.asarray(fsw["est_err"][:, 0:3], float) * RAD_PER_ARCSEC
     parts = {"apkf_attitude": (att, fsw["att_cov"]), "stkf_ra": (fsw["stkf_err"][:, 0:3], fsw["stkf_cov"][:, 0:9]),
              "stkf_rb": (fsw["stkf_err"][:, 3:6], fsw["stkf_cov"][:, 9:18])}
-    out = {"band": [float(lo), float(hi)], "p": p, "from_s": float(k_from)}
+    out = {"band": [lo, hi], "p": p, "from_s": float(k_from)}
     for name, (e, c) in parts.items():
         e, c = e[k_from:], c[k_from:]
         ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(c), axis=1)
@@ -85,10 +85,10 @@ def consistency(fsw, k_from, p=0.95):
             out[name] = None
             continue
         e, C = e[ok], c[ok].reshape(-1, 3, 3)
-        nees = np.einsum("ki,ki->k", e, np.linalg.solve(C, e[:, :, None])[:, :, 0])
+        n = nees(e, C)
         sig = np.sqrt(np.einsum("kii->ki", C))
-        out[name] = {"seconds": int(ok.sum()), "nees_mean": float(nees.mean()),
-                     "nees_in_band_share": float(np.mean((nees >= lo) & (nees <= hi))),
+        out[name] = {"seconds": int(ok.sum()), "nees_mean": float(n.mean()),
+                     "nees_in_band_share": float(np.mean((n >= lo) & (n <= hi))),
                      "rms_over_sigma": (np.sqrt((e ** 2).mean(axis=0)) / np.sqrt((sig ** 2).mean(axis=0))).tolist()}
     return out
 

@@ -112,7 +112,8 @@ def calibration(seed, cache_dir, progress=True, spacecraft=None):
     return p
 
 
-def _truth(a, duration, out, spacecraft):
+def prepare_truth(a, duration, out, spacecraft):
+    """``--truth hpop``: the orbit truth for a run of ``duration`` s computed once into ``out``, before workers."""
     if a.truth == "hpop":                             # once, before workers
         scenario.orbit_truth("hpop", bps.truth_span(int(np.ceil(duration))), scenario.orbit_setup(spacecraft), out)
 
@@ -123,6 +124,23 @@ def _vehicle(a):
     d, source = load_spacecraft(a.spacecraft, partner=True)
     d, record = fly(d, source, a.seed, a.vehicle)
     return d, record, bps.load_params(a.params, d)[-1] if a.params else None
+
+
+def orbits_duration(d, orbits):
+    """``orbits`` orbits of the checked spacecraft file ``d``'s orbit, in s; ValueError naming --orbits outside
+    (0, 100]."""
+    if not (np.isfinite(orbits) and 0 < orbits <= 100):
+        raise ValueError("--orbits must be in (0, 100], got %r" % (orbits,))
+    return orbits * bps.orbit_period(scenario.orbit_setup(d)["x0s"][0])
+
+
+def judge_flight(s):
+    """The flight world's verdict into the result ``s``: its ``checks`` (``flight_checks``) and ``budgets_met``
+    (complete, every check met and the partner in sight)."""
+    s["checks"] = flight_checks(s)
+    s["budgets_met"] = bool(s["complete"] and all(c["ok"] for c in s["checks"].values())
+                            and s.get("line_of_sight", True))
+    return s
 
 
 def flight_checks(s):
@@ -161,9 +179,7 @@ def _cmd_bps(a):
             raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels "
                              "with magnetorquers (or fly --world thesis)")
         if a.duration is None:
-            if not (np.isfinite(a.orbits) and 0 < a.orbits <= 100):
-                raise ValueError("--orbits must be in (0, 100], got %r" % (a.orbits,))
-            a.duration = a.orbits * bps.orbit_period(scenario.orbit_setup(d)["x0s"][0])
+            a.duration = orbits_duration(d, a.orbits)
     check_run_args(a)
     out = a.output
     run_folder(out, FIGURES_BPS + FIGURES_FLIGHT)
@@ -175,7 +191,7 @@ def _cmd_bps(a):
         if params is None:
             params = calibration(a.seed, a.cache_dir, not a.quiet, d)
         bps.write_params(os.path.join(out, "params.json"), params, d)
-        _truth(a, a.duration if a.world == "flight" else 30 + 4 * ts + a.duration, os.path.abspath(a.cache_dir), d)
+        prepare_truth(a, a.duration if a.world == "flight" else 30 + 4 * ts + a.duration, os.path.abspath(a.cache_dir), d)
     except KeyboardInterrupt:
         print("interrupted before the pointing run: %s has complete=false" % out, file=sys.stderr)
         return 130
@@ -242,10 +258,7 @@ def _no_line_of_sight(s):
 
 def _finish_flight(a, out, res, hist, record, args_text):
     bps.save_history(os.path.join(out, "history.npz"), hist)
-    s = dict(res, spacecraft=record)
-    s["checks"] = flight_checks(s)
-    s["budgets_met"] = bool(s["complete"] and all(c["ok"] for c in s["checks"].values())
-                            and s.get("line_of_sight", True))
+    s = judge_flight(dict(res, spacecraft=record))
     plots = []
     if not a.no_plots and len(hist["t"]) > 10:
         plot_flight(out, hist, s)
@@ -296,7 +309,7 @@ def _cmd_sweep(a):
         if params is None:
             params = calibration(a.seed, a.cache_dir, not a.quiet, d)
         bps.write_params(os.path.join(out, "params.json"), params, d)
-        _truth(a, 30 + 4 * max(ts_list) + a.duration, os.path.abspath(a.cache_dir), d)
+        prepare_truth(a, 30 + 4 * max(ts_list) + a.duration, os.path.abspath(a.cache_dir), d)
         results = campaign.run_campaign(bps.sweep_one, list(range(len(ts_list))), out, workers=a.workers,
                                         scheduler=a.scheduler, progress=not a.quiet, desc="sweep t_s",
                                         ts_list=ts_list, params=params, satb_gnss=satb, duration_s=a.duration,

@@ -15,11 +15,7 @@ def add_campaign_options(p, cases=True):
                        help="disturbance: 1 none, 2 sinusoidal (Eq. 4.150), 3 attitude-dependent (Eq. 4.151)")
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds), >= 1 (default 1; >= 20 for NEES)")
     p.add_argument("--seed", type=int, default=0, help="first seed, >= 0; run i uses seed + i (default 0)")
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, default=None,
-                   help="local worker processes (default: all cores; 1 = in-process)")
-    g.add_argument("--scheduler", default=None,
-                   help="Dask scheduler address (tcp://host:port): run on that cluster instead of locally")
+    add_workers_options(p)
     p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
                    help="the vehicle flown and filtered: a preset (%s) or a spacecraft file (fps spacecraft); "
                         "its truth block is the simulated vehicle's errors, its figures and uncertainty block the "
@@ -34,6 +30,15 @@ def add_campaign_options(p, cases=True):
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, type=output_folder, help="campaign folder")
+
+
+def add_workers_options(p):
+    """``--workers N`` or ``--scheduler ADDR``: where a campaign's runs go (``ground.adcs.campaign``)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: all cores; 1 = in-process)")
+    g.add_argument("--scheduler", default=None, metavar="ADDR",
+                   help="Dask scheduler address (tcp://host:port): run on that cluster instead of locally")
 
 
 def _presets():

@@ -213,13 +213,14 @@ def stkf_parts(x_err, P):
     return out
 
 
-def _band(dof, p):
+def nees_band(dof, p):
+    """The two-sided ``p`` band of a NEES of ``dof`` degrees of freedom (chi-square quantiles), (low, high)."""
     from scipy.stats import chi2
     return float(chi2.ppf((1 - p) / 2, dof)), float(chi2.ppf(1 - (1 - p) / 2, dof))
 
 
 def _nees_figures(n, dof, p):
-    lo, hi = _band(dof, p)
+    lo, hi = nees_band(dof, p)
     return {"dof": dof, "band": [lo, hi], "seconds": int(len(n)), "nees_mean": float(n.mean()),
             "nees_in_band_share": float(np.mean((n >= lo) & (n <= hi)))}
 

@@ -56,28 +56,28 @@ def figures_of(res):
             "stability_3sigma_arcsec_s": max((p["stability_3sigma_arcsec_s"] for p in passes), default=None),
             "max_wheel_speed_rpm": res.get("max_wheel_speed_rpm"), "mtq_duty": res.get("mtq_duty"),
             "apkf_nees_in_band_share": att.get("nees_in_band_share") if att else None,
-            "stkf_nees_in_band_share": n12.get("in_band_share", n12.get("nees_in_band_share")) if n12 else None}
+            "stkf_nees_in_band_share": n12["nees_in_band_share"] if n12 else None}
 
 
 def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="two-body", ts=33.0,
                 satb_gnss=False, cache_dir=None):
     """One vehicle of the campaign (top level, picklable): drawn from ``seed``, calibrated, flown ``orbits``
-    orbits in the flight world; returns its result with ``vehicle``, ``checks``, ``ok`` (every check met) and
-    ``figures`` (``figures_of``), and writes ``run_dir``."""
-    from emulator.spacecraft import dispersion, scenario
+    orbits in the flight world; returns its result with ``vehicle``, ``checks``, ``ok`` (``budgets_met``: every
+    check met, as ``fps adcs bps --world flight`` judges it) and ``figures`` (``figures_of``), and writes
+    ``run_dir``."""
+    from emulator.spacecraft import dispersion
     from ground.adcs import body_pointing as bps, bps_cli
     from protocol import spacecraft as sf
     d, vrec = dispersion.flown(spacecraft, seed, vehicle)
     params = bps_cli.calibration(seed, cache_dir, False, d)
-    duration = orbits * bps.orbit_period(scenario.orbit_setup(d)["x0s"][0])
-    res, hist = bps.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration, seed=seed, params=params, truth=truth,
-                             cache_dir=cache_dir, progress=False, spacecraft=d, world="flight")
+    res, hist = bps.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=bps_cli.orbits_duration(d, orbits), seed=seed,
+                             params=params, truth=truth, cache_dir=cache_dir, progress=False, spacecraft=d,
+                             world="flight")
     if not res["complete"]:
         raise KeyboardInterrupt
     res["vehicle"] = vrec
     res["requirements"] = sf.requirements(d)
-    res["checks"] = bps_cli.flight_checks(res)
-    res["ok"] = bool(all(c["ok"] for c in res["checks"].values()) and res.get("line_of_sight", True))
+    res["ok"] = bps_cli.judge_flight(res)["budgets_met"]
     res["figures"] = figures_of(res)
     if run_dir:
         os.makedirs(run_dir, exist_ok=True)
@@ -189,7 +189,7 @@ def plot_cdf(path, results, s):
 def run(a):
     """The command (``register``); returns the exit code: 0 every vehicle met every check, 3 some missed, 1 a run
     failed, 130 interrupted (the finished runs kept: run it again to resume)."""
-    from ground.adcs import campaign
+    from ground.adcs import bps_cli, campaign
     from ground.adcs.options import load_spacecraft
     from ground.adcs.runs import spacecraft_record
     from protocol import spacecraft as sf
@@ -197,9 +197,8 @@ def run(a):
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     campaign.check_scheduler(a.scheduler)
-    if not (np.isfinite(a.orbits) and 0 < a.orbits <= 100):
-        raise ValueError("--orbits must be in (0, 100], got %r" % (a.orbits,))
     d, source = load_spacecraft(a.spacecraft, partner=True)
+    duration = bps_cli.orbits_duration(d, a.orbits)
     if d["magnetorquers"] is None:
         raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels with "
                          "magnetorquers")
@@ -208,8 +207,7 @@ def run(a):
                 "seeds": seeds, "orbits": float(a.orbits), "truth": a.truth, "ts_s": float(a.ts),
                 "satb_gnss": bool(a.satb_gnss), "requirements": sf.requirements(d)}
     _open_folder(out, identity)
-    kept = [r if r is not None and r.get("seed") == s else None
-            for r, s in zip(campaign.finished_results(out, len(seeds)), seeds)]
+    kept = _finished(out, seeds)
     todo = [i for i, r in enumerate(kept) if r is None]
     if kept and len(todo) < len(seeds):
         print("resuming: %d of %d vehicles already flown in %s" % (len(seeds) - len(todo), len(seeds), out),
@@ -217,11 +215,7 @@ def run(a):
     results, interrupted = list(kept), False
     kw = dict(spacecraft=d, vehicle=a.vehicle, orbits=a.orbits, truth=a.truth, ts=a.ts, satb_gnss=a.satb_gnss,
               cache_dir=os.path.abspath(os.path.join(out, "cache")))
-    if a.truth == "hpop":
-        from emulator.spacecraft import scenario
-        from ground.adcs import body_pointing as bps
-        o = scenario.orbit_setup(d)
-        scenario.orbit_truth("hpop", bps.truth_span(a.orbits * bps.orbit_period(o["x0s"][0])), o, kw["cache_dir"])
+    bps_cli.prepare_truth(a, duration, kw["cache_dir"], d)
     try:
         if todo:
             part = campaign.run_campaign(run_vehicle, [seeds[i] for i in todo], out, workers=a.workers,
@@ -231,8 +225,7 @@ def run(a):
                 results[i] = r
     except KeyboardInterrupt:
         interrupted = True
-        results = [r if r is not None and r.get("seed") == s else None
-                   for r, s in zip(campaign.finished_results(out, len(seeds)), seeds)]
+        results = _finished(out, seeds)
     vt = {"file": "its truth block, or drawn from each seed without one", "drawn": "drawn from each seed",
           "nominal": "the file's figures"}[a.vehicle]
     s = aggregate(results, dict(identity, runs=len(seeds), vehicle_text=vt))
@@ -252,6 +245,13 @@ def run(a):
     if s["runs_failed"]:
         return 1
     return 0 if s["all_checks"]["met"] == s["runs_done"] else 3
+
+
+def _finished(out, seeds):
+    """Each run's result.json in the folder ``out`` where it is that seed's, None where the run is still to fly."""
+    from ground.adcs import campaign
+    return [r if r is not None and r.get("seed") == s else None
+            for r, s in zip(campaign.finished_results(out, len(seeds)), seeds)]
 
 
 def _open_folder(out, identity):
@@ -275,7 +275,7 @@ def _open_folder(out, identity):
 
 def register(sub):
     from emulator.spacecraft.dispersion import VEHICLES
-    from ground.adcs.options import add_satb_gnss_option, _presets
+    from ground.adcs.options import _presets, add_satb_gnss_option, add_workers_options
     from ground.fileio import output_folder
     p = sub.add_parser("campaign", help="the flight world over a population of vehicles drawn from one spacecraft "
                                         "file", description=__doc__.split("\n\n")[0] + "\n\n" + __doc__.split("\n\n")[1])
@@ -293,10 +293,7 @@ def register(sub):
     add_satb_gnss_option(p, False)
     p.add_argument("--truth", choices=("two-body", "hpop"), default="two-body",
                    help="orbit truth: two-body (default) or hpop (brahe's high-fidelity orbits, computed once)")
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores; 1 = "
-                   "in-process)")
-    g.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler address (tcp://host:port)")
+    add_workers_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, type=output_folder,

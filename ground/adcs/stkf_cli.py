@@ -13,7 +13,7 @@ import time
 
 from emulator.spacecraft import scenario
 from ground.adcs import campaign, runs, stkf_sim
-from ground.adcs.options import add_spacecraft_option, load_spacecraft
+from ground.adcs.options import add_spacecraft_option, add_workers_options, load_spacecraft
 from ground.fileio import output_folder, write_atomic, write_json
 
 
@@ -132,10 +132,7 @@ def register(sub, name, help_):
                           "apkf the vehicle the APKF flies (the stated attitude covariance stays the thesis's)")
     p.add_argument("--outage", action="append", metavar="SENSOR:T0:T1",
                    help="silence a sensor (gnss_a, beacon or relay) from T0 to T1 s; repeatable")
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count; 1 = "
-                   "in-process)")
-    g.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler address (tcp://host:port)")
+    add_workers_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")

@@ -205,6 +205,11 @@ def test_cli_flight_world_checks_and_refusals(tmp_path, capsys):
     for args, what in ((["--orbits", "0"], "--orbits"), (["--spacecraft", str(bad)], "magnetorquers = null")):
         rc = fps(["adcs", "bps", "--world", "flight", "--quiet", "-o", str(tmp_path / "x")] + args)
         assert rc == 2 and what in capsys.readouterr().err
+    for cmd in (["adcs", "campaign", "--runs", "1"], ["system", "--world", "flight"]):   # refused before any run
+        rc = fps(cmd + ["--spacecraft", str(bad), "-o", str(tmp_path / cmd[1])])
+        err = capsys.readouterr().err
+        assert rc == 2 and "magnetorquers = null" in err and "--spacecraft %s" % bad in err
+        assert not (tmp_path / cmd[1]).exists()
     try:
         rc = fps(["adcs", "bps", "--world", "moon", "-o", str(tmp_path / "y")])
     except SystemExit as exc:

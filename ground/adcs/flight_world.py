@@ -52,6 +52,15 @@ def check_flight(flight):
     return options({"world": "flight", "flight": flight})
 
 
+
+def require_magnetorquers(d):
+    """The checked spacecraft file ``d``; ValueError when it has no magnetorquers, with which this world unloads
+    the wheels."""
+    if d["magnetorquers"] is None:
+        raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers; give "
+                         "the spacecraft file a magnetorquers block (or fly --world thesis)")
+    return d
+
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, hold_s=HOLD_S, on_second=None, tach_noise_rpm=None, spacecraft=None,
              flight=None, faults=None, estimator="lean"):
@@ -70,10 +79,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         raise ValueError("simulate needs the parameter file (run calibrate first)")
     if not (np.isfinite(duration_s) and duration_s >= 1):
         raise ValueError("duration must be >= 1 s, got %r" % (duration_s,))
-    d = spacecraft or scenario.thesis_3u()
-    if d["magnetorquers"] is None:
-        raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers; give "
-                         "the spacecraft file a magnetorquers block (or fly --world thesis)")
+    d = require_magnetorquers(spacecraft or scenario.thesis_3u())
     if tach_noise_rpm is not None:
         if not (np.isfinite(tach_noise_rpm) and tach_noise_rpm > 0):
             raise ValueError("tach_noise_rpm must be > 0 (the APKF's R), got %r" % (tach_noise_rpm,))

@@ -46,12 +46,13 @@ def _presets():
     return sf.presets()
 
 
-def load_spacecraft(name_or_path, params=None, wheels=True, partner=False):
+def load_spacecraft(name_or_path, params=None, wheels=True, partner=False, flight=False):
     """(checked spacecraft file, what was given) for ``--spacecraft`` (None: thesis-3u). ValueError (exit 2)
     naming the option and the file, with the reader's or the checker's message, for a bad one, one whose
     wheels.count is not 4 (``wheels``: the APKF and the controllers fly four), one without a partner
-    (``partner``: the STKF and the body pointing track one, ``scenario.orbit_setup``), or when ``params`` also
-    sets the true inertia or dipole."""
+    (``partner``: the STKF and the body pointing track one, ``scenario.orbit_setup``), one without magnetorquers
+    (``flight``: the flight world's, ``flight_world.require_magnetorquers``), or when ``params`` also sets the
+    true inertia or dipole."""
     from emulator.spacecraft import scenario
     from protocol import spacecraft as sf
     if name_or_path is not None and params and ({"inertia_kgm2", "dipole_am2"} & set(params)):
@@ -66,6 +67,9 @@ def load_spacecraft(name_or_path, params=None, wheels=True, partner=False):
                              "wheels" % d["wheels"]["count"])
         if partner:
             scenario.orbit_setup(d)
+        if flight:
+            from ground.adcs.flight_world import require_magnetorquers
+            require_magnetorquers(d)
     except ValueError as exc:
         msg, head = str(exc), "spacecraft file %s: " % source
         raise ValueError("--spacecraft %s: %s" % (source, msg[len(head):] if msg.startswith(head) else msg)) from None

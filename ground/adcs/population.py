@@ -197,11 +197,8 @@ def run(a):
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     campaign.check_scheduler(a.scheduler)
-    d, source = load_spacecraft(a.spacecraft, partner=True)
+    d, source = load_spacecraft(a.spacecraft, partner=True, flight=True)
     duration = bps_cli.orbits_duration(d, a.orbits)
-    if d["magnetorquers"] is None:
-        raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels with "
-                         "magnetorquers")
     out = a.output
     identity = {"format": "fps-adcs-campaign/1", "spacecraft": spacecraft_record(d, source), "vehicle": a.vehicle,
                 "seeds": seeds, "orbits": float(a.orbits), "truth": a.truth, "ts_s": float(a.ts),

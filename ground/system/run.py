@@ -190,12 +190,9 @@ def _vehicle(adcs, world, faults, link_faults, spacecraft, params_path, ts, dura
         raise ValueError("--world must be one of %s, got %r" % (", ".join(bps.WORLDS), world))
     if link_faults is not None and adcs != "firmware":
         raise ValueError("--link-faults needs --adcs firmware (they act on the ADCS's CAN link)")
-    d, source = load_spacecraft(spacecraft, partner=True)
+    d, source = load_spacecraft(spacecraft, partner=True, flight=world == "flight")
     d, record = fly(d, source, seed, vehicle)
     params = bps.load_params(params_path, d)[-1] if params_path else None
-    if world == "flight" and d["magnetorquers"] is None:
-        raise ValueError("magnetorquers = null in the spacecraft file: the flight world unloads the wheels with "
-                         "magnetorquers (or --world thesis)")
     t_settle = settle_s(ts) if world == "thesis" else bps.flight_settle_s(d, ts)
     if faults:
         from emulator.adcs_bus import check_faults

@@ -43,3 +43,19 @@ def test_the_terminals_verdict_reads_the_files_budgets():
     v = verdict(dict(s, requirements=sf.requirements(_file(TIGHT))))
     assert v["fine"]["met"] is False and v["fine"]["budget_arcsec"] == 0.5
     assert v["body"]["met"] is False and v["body"]["pointing_budget_arcsec"] == 20.0
+
+
+def test_the_flight_wheel_plot_draws_the_files_wheel_band(tmp_path, monkeypatch):
+    import numpy as np
+    from ground import plots
+    from ground.adcs import bps_report
+    figs = []
+    monkeypatch.setattr(plots, "save_png", lambda fig, path, dpi=None: figs.append(fig))
+    n = 20
+    hist = {"t": np.arange(n, dtype=float), "dtheta_arcsec": np.zeros((n, 2)), "domega_arcsec_s": np.zeros((n, 2)),
+            "fsw_mode": np.zeros((n, 1)), "w_rel": np.zeros((n, 4)), "fsw_h_w": np.zeros((n, 3)),
+            "fsw_m_cmd": np.zeros((n, 3))}
+    s = {"orbit_period_s": 10.0, "wheel_speed_limit_rpm": 6000.0, "requirements": sf.requirements(_file(TIGHT))}
+    bps_report.plot_flight(str(tmp_path), hist, s)
+    dotted = sorted(ln.get_ydata()[0] for ln in figs[1].axes[0].lines if ln.get_linestyle() == ":")
+    assert dotted == [-3000.0, 3000.0] and "50 % of the limit" in figs[1]._suptitle.get_text()

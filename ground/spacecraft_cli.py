@@ -262,16 +262,17 @@ def _schema_intro():
          "- The simulated vehicle (`--vehicle`, every command that flies the body loop): `file` (the default) flies "
          "the `truth` block where there is one, and otherwise a vehicle drawn from the run's `--seed` within the "
          "`uncertainty` block (each figure's error Gaussian with its 1 σ: the inertia's six entries redrawn until "
-         "they make a rigid body, each wheel's two tilts, each rotor inertia redrawn until positive, the dipole; "
-         "no sensor misalignment, which the truth does not model); never the file's own figures, where the "
+         "they make a rigid body, each wheel's two tilts, each rotor inertia redrawn until positive, the dipole, "
+         "the beacon camera's three misalignment angles; not the star tracker's, whose frame is the body's); never the file's own figures, where the "
          "filters would start at the truth. `drawn` draws even with a truth block; `nominal` flies the figures "
          "(a diagnostic). A campaign's runs each fly their own seed's vehicle; `--seed N` replays vehicle N; each "
          "result records the vehicle (`vehicle`: kind, seed, the truth block flown) "
          "(`emulator/spacecraft/dispersion.py`).",
          "- Misalignment angles, the file's and the truth's, are measured about the untilted nominal axes: a "
          "nominal tilt is the filters' prior and counts once.",
-         "- `partner`, `magnetorquers`, `magnetometer` may be null (none); `partner`, `truth`, `sources` and "
-         "`surface.cp_offset_m` (no drag or solar pressure torque) may be left out. Every other key is required, and an unknown key is refused.",
+         "- `partner`, `magnetorquers`, `magnetometer` may be null (none); `partner`, `truth`, `sources`, "
+         "`surface.cp_offset_m` (no drag or solar pressure torque) and the beacon camera's misalignment keys "
+         "(zero: an aligned camera) may be left out. Every other key is required, and an unknown key is refused.",
          "- NaN and ±inf are refused everywhere; integers are accepted where a number is asked.", ""]
     return L
 

@@ -17,9 +17,11 @@ What is drawn (``draw_truth``), each error independent and Gaussian with the fil
 - the residual dipole per axis (``residual_dipole_sigma_am2``);
 - each wheel's two misalignment angles (``misalignment_sigma_deg``) about ``reference_axes``, redrawn until the
   true angles are within +-45 deg and the axes span three axes;
-- each rotor's inertia (``rotor_inertia_sigma_kgm2``), redrawn until positive.
+- each rotor's inertia (``rotor_inertia_sigma_kgm2``), redrawn until positive;
+- the beacon camera's three misalignment angles (``beacon_misalignment_sigma_deg``; absent: zero), redrawn
+  until the true angles are within +-5 deg.
 
-Sensor misalignments are not drawn: the truth models none (the star tracker's frame is the body's).
+The star tracker's misalignment is not drawn: its frame is the body's.
 The draws come from their own stream (``SeedSequence([seed, STREAM])``), so a drawn vehicle leaves the run's
 noise draws as they are, and ``--seed N`` replays vehicle N exactly.
 """
@@ -83,9 +85,12 @@ def draw_truth(d, seed):
     djr = np.array([_redraw("rotor_inertia_sigma_kgm2",
                             lambda: u["rotor_inertia_sigma_kgm2"] * rng.standard_normal(), lambda e, i=i: jr[i] + e > 0)
                     for i in range(n)])
+    b0, sb = np.array(sf.beacon_misalignment_deg(d, False)), sf.beacon_misalignment_sigma_deg(d)
+    db = _redraw("beacon_misalignment_sigma_deg", lambda: sb * rng.standard_normal(3),
+                 lambda e: np.all(np.abs(b0 + e) <= 5.0))
     return {"inertia_error_kgm2": dj.tolist(), "residual_dipole_error_am2": dm.tolist(),
             "rotor_inertia_error_kgm2": djr.tolist(), "delta1_error_deg": da[:n].tolist(),
-            "delta2_error_deg": da[n:].tolist()}
+            "delta2_error_deg": da[n:].tolist(), "beacon_misalignment_error_deg": db.tolist()}
 
 
 def scale_second_moment(d, n=4000):

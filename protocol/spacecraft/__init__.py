@@ -12,8 +12,8 @@ with its shape, unit, allowed range and meaning; docs/SPACECRAFT.md is generated
   ValueError naming the key path, the value and the allowed range, e.g. ``wheels.speed_limit_rpm = -5: must be
   > 0 and <= 100000 rpm``.
 - ``load(name_or_path)``: a preset by name (``presets()``) or a JSON file, checked.
-- ``inertia_matrix(d)``, ``wheel_axes(d)``, ``reference_axes(d)``, ``true_figures(d)``, ``principal_moments(j6)``:
-  what a filter or a simulator needs from a checked file, as nested lists.
+- ``inertia_matrix(d)``, ``wheel_axes(d)``, ``reference_axes(d)``, ``true_figures(d)``, ``principal_moments(j6)``,
+  ``beacon_misalignment_deg(d)``: what a filter or a simulator needs from a checked file, as nested lists.
 
 Conventions. Body frame as the emulator's (Yoon 2017, Sec. 4.2). ``inertia_kgm2`` = [Jxx, Jyy, Jzz, Jxy, Jxz,
 Jyz] about the centre of mass, the products being the matrix's off-diagonal entries (Jxy = -integral of x y dm,
@@ -184,7 +184,7 @@ def _walk(block, d, out):
                 (block + "." if block else "") + str(k), where, ", ".join(names)))
     for e, k in zip(kids, names):
         path = e["path"]
-        if k not in d:
+        if k not in d or (d[k] is None and e["optional"] and e["kind"] in ("num", "vec")):    # null: as absent
             if e["optional"]:
                 out[k] = {} if e["kind"] == "sources" else None
                 continue
@@ -293,6 +293,11 @@ def check(d):
                                      % (k, i, num_text(t[k + "_error_deg"][i]), num_text(float("%.6g" % v))))
         _check_span("truth.delta1_error_deg = %s, truth.delta2_error_deg = %s: the true wheel axes" % (
             value_text(t["delta1_error_deg"]), value_text(t["delta2_error_deg"])), wheel_axes(out, True))
+        for i, v in enumerate(beacon_misalignment_deg(out)):
+            if not -5.0 <= v <= 5.0:
+                raise ValueError("truth.beacon_misalignment_error_deg[%d] = %s: the true angle %s must be from -5 to "
+                                 "5 deg" % (i, num_text(t["beacon_misalignment_error_deg"][i]),
+                                            num_text(float("%.6g" % v))))
     s = out["orbit"]["state"]
     rn = _norm(s["position_m"])
     if not 6478e3 <= rn <= 1e8:
@@ -410,6 +415,22 @@ def true_figures(d, true=True):
                      ("delta2_deg", "delta2_error_deg")):
             out[k] = [a + b for a, b in zip(out[k], t[e])]
     return out
+
+
+def beacon_misalignment_deg(d, true=True):
+    """The beacon camera's misalignment of a checked file ``d``, the rotation vector [x, y, z] in deg
+    (``beacon.misalignment_deg``, schema): the figure plus, with ``true``, the truth block's error; an absent
+    figure or error is zero."""
+    out = list(d["beacon"].get("misalignment_deg") or [0.0, 0.0, 0.0])
+    t = d.get("truth")
+    e = t.get("beacon_misalignment_error_deg") if true and t else None
+    return [a + b for a, b in zip(out, e)] if e else out
+
+
+def beacon_misalignment_sigma_deg(d):
+    """1 sigma of each angle of ``beacon_misalignment_deg`` (``uncertainty.beacon_misalignment_sigma_deg``;
+    absent: 0)."""
+    return d["uncertainty"].get("beacon_misalignment_sigma_deg") or 0.0
 
 
 def inertia_matrix(d, true=False):

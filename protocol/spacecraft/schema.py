@@ -81,6 +81,9 @@ SCHEMA = [
     _e("beacon", "block", doc="beacon camera: unit vector to the partner, body frame (Eq. 5.13-5.15)"),
     _e("beacon.sigma_arcsec", "num", "arcsec", _rng(0, 36000, True), "noise per axis, 1 sigma"),
     _e("beacon.rate_hz", "num", "Hz", _rng(0, 1000, True), "output rate"),
+    _e("beacon.misalignment_deg", "vec", "deg", _rng(-5, 5), "the camera's frame from the body frame: a small "
+       "rotation vector [x, y, z] about body axes, y = C A(q) u with C = A(dq), dq = [angles/2, 1] normalised "
+       "(Eq. 4.77) (absent: 0, an aligned camera)", n=3, optional=True),
     _e("orbit", "block", doc="the vehicle's orbit"),
     _e("orbit.circular", "block", doc="circular orbit of the attitude scenarios (analytic)"),
     _e("orbit.circular.altitude_km", "num", "km", _rng(100, 50000), "altitude above 6371.2 km (the IGRF "
@@ -121,6 +124,8 @@ SCHEMA = [
        "per axis (the STKF's P0)"),
     _e("uncertainty.orbit_velocity_sigma_m_s", "num", "m/s", _rng(0, 1e4, True), "of the initial orbit velocity "
        "per axis"),
+    _e("uncertainty.beacon_misalignment_sigma_deg", "num", "deg", _rng(0, 5), "of each angle of "
+       "beacon.misalignment_deg (the STKF's P0 when it estimates them; absent: 0)", optional=True),
     _e("truth", "block", doc="simulation only: the simulated vehicle's departures from the figures "
        "(true = figure + error); absent or null for none", optional=True, nullable=True),
     _e("truth.inertia_error_kgm2", "vec", "kg m^2", _rng(-1e4, 1e4), "error of inertia_kgm2 (the true inertia "
@@ -131,6 +136,8 @@ SCHEMA = [
     _e("truth.delta1_error_deg", "vec", "deg", _rng(-45, 45), "error of wheels.delta1_deg (the true angles must be "
        "from -45 to 45 deg)", n=WHEELS),
     _e("truth.delta2_error_deg", "vec", "deg", _rng(-45, 45), "error of wheels.delta2_deg", n=WHEELS),
+    _e("truth.beacon_misalignment_error_deg", "vec", "deg", _rng(-5, 5), "error of beacon.misalignment_deg (the "
+       "true angles must be from -5 to 5 deg; absent: 0)", n=3, optional=True),
     _e("requirements", "block", doc="the budgets every verdict reads (absent: the thesis's, Yoon 2017 Ch. 2 and "
        "Sec. 6.4: 150 arcsec, 35 arcsec/s, 11.98 arcsec, 80 %)", optional=True, nullable=True),
     _e("requirements.body_pointing_3sigma_arcsec", "num", "arcsec", _rng(0, 36000, True), "the body loop's "

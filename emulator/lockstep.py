@@ -306,19 +306,30 @@ class RemoteController:
         self._status_tick = core.PACKET[self._status_id].names.index("tick")
         self._tick_fmt = struct.Struct(core.PACKET[self._tick_id].fmt)   # ADC counts are already in range
         self._pending = deque()
+        self.hello_tries = 0
 
     def wait_peer(self, timeout_s):
-        """Block until the peer's first packet (the firmware's HELLO) arrives; True if one did.
+        """HELLO to the peer until its first packet (its HELLO: it says one when its link opens, and answers
+        each of ours) arrives; True if one did. A HELLO lost either way costs a retry (``protocol.link.
+        first_contact``: 50 ms, doubling up to 0.5 s); ``hello_tries`` counts them.
 
         Start the clock after it: a TICK written before the peer opened a pty may be flushed by its raw-mode
-        setup."""
-        deadline = time.perf_counter() + timeout_s
-        while not self._pending and not self.link.closed:
-            left = deadline - time.perf_counter()
-            if left <= 0:
-                return False
-            self._pending.extend(self.link.recv(timeout=left))
-        return bool(self._pending)
+        setup (a HELLO so flushed is sent again)."""
+        from protocol.link import first_contact
+        hello = core.PACKET_ID["HELLO"]
+        payload = core.encode_payload(hello, node=self.link.node)
+
+        def check():
+            if self.link.closed:
+                raise OSError("the link closed before the controller spoke")
+        try:
+            self.hello_tries, got = first_contact(
+                lambda: self.link.send_raw(hello, self.link.node, self.dst, payload),
+                lambda t: self.link.recv(timeout=t), timeout_s, 0.05, 0.5, check)
+        except OSError:
+            return False
+        self._pending.extend(got or ())
+        return got is not None
 
     def poll(self, timeout_s):
         """Take what the link delivers within ``timeout_s`` into ``inbox`` (between ticks: commands)."""

@@ -1,7 +1,8 @@
 """Devices on a link: ``fps emulator serve --link serial|can [--devices bench|wheels]``.
 
 Creates the device end of a link (a pseudo-terminal pair for serial, an slcan device on a pty for CAN),
-prints the path the controller firmware should open, waits for its first packet (HELLO), and runs the
+prints the path the controller firmware should open, says HELLO until the controller speaks (its HELLO: a
+HELLO lost either way costs a retry), and runs the
 lockstep clock: each tick a TICK packet
 carries the Q1 sample, the controller answers with FSM_SPI (``emulator.lockstep.RemoteController``). The
 P-FSM holds fixed volts or plays a distfile (the firmware player's 6-point kernel, Eq. 7.7-7.8).
@@ -150,7 +151,8 @@ def _bench_summary(args, bench, ctrl, lock, res, duration):
     seen = collections.Counter(core.PACKET[p[0]].name if p[0] in core.PACKET else str(p[0]) for p in ctrl.inbox)
     summary = summarize(res["truth_arcsec"], lock.counters())
     summary.update({"link": args.link, "seed": args.seed, "duration_s": duration, "rate_hz": args.rate,
-                    "packets_from_controller": dict(seen), "bench_config": bench.config})
+                    "packets_from_controller": dict(seen), "hello_tries": ctrl.hello_tries,
+                    "bench_config": bench.config})
     return summary
 
 

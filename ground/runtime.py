@@ -338,30 +338,19 @@ def _first_contact(rig, ep, proc, wait_s):
     """HELLO to the controller, repeated every 50 ms until it answers (its own HELLO counts: it says one when
     its link opens); a HELLO also starts a new session in the firmware (tick numbers from 0 again)."""
     from protocol import core
+    from protocol.link import first_contact
     hello = core.PACKET_ID["HELLO"]
     payload = core.encode_payload(hello, node=core.NODE["GROUND"])
-    t0 = time.perf_counter()
-    tries = 0
-    while True:
-        ep.send_ground(hello, payload, 0)
-        tries += 1
-        end = time.perf_counter() + 0.05
-        got = False
-        while not got:
-            left = end - time.perf_counter()
-            if left <= 0:
-                break
-            pkts = ep.link.recv(timeout=left)
-            got = any(p[0] == hello for p in pkts)
-            ep.inbox.extend(p for p in pkts if p[0] != hello)
-        if got:
-            break
+
+    def check():
         if proc is not None and proc.poll() is not None:
             raise OSError(proc.death(when=" before it said HELLO"))
         if ep.link.closed:
             raise OSError("the controller's link closed before it said HELLO")
-        if time.perf_counter() - t0 > wait_s:
-            raise OSError("controller did not answer HELLO within %g s (%d tries)" % (wait_s, tries))
+    tries, got = first_contact(lambda: ep.send_ground(hello, payload, 0), lambda t: ep.link.recv(timeout=t),
+                               wait_s, 0.05, None, check, lambda pkts: any(p[0] == hello for p in pkts))
+    if got is None:
+        raise OSError("controller did not answer HELLO within %g s (%d tries)" % (wait_s, tries))
     rig.hello_tries = tries
     if tries > 1:
         rig.n_cmd_retries += tries - 1

@@ -52,3 +52,33 @@ def open_link(spec, node, **kw):
         return open_serial(spec, node, **kw)
     raise ValueError("unknown link spec %r (inproc, pty, loop://, serial:PATH, can:virtual:CH, slcan:PATH, "
                      "slcan-pty)" % spec)
+
+
+def first_contact(send_hello, recv, wait_s, gap_s=0.05, gap_max_s=None, check=None, stop=None):
+    """Say HELLO (``send_hello()``) until the peer speaks: again after ``gap_s``, the gap doubling up to
+    ``gap_max_s`` (None: fixed), so a HELLO lost either way costs one retry. ``recv(timeout_s)`` returns the
+    packets that came; ``check()`` (each try) raises OSError for a dead peer or a closed link; ``stop(packets)``
+    says whether these packets are the answer (default: any packet). Returns (HELLOs sent, every packet received
+    up to and with the answer), or (HELLOs sent, None) after ``wait_s`` seconds."""
+    import time
+    deadline = time.monotonic() + wait_s
+    gap, tries, got = gap_s, 0, []
+    stop = stop or bool
+    while True:
+        if check is not None:
+            check()
+        now = time.monotonic()
+        if now >= deadline:
+            return tries, None
+        send_hello()
+        tries += 1
+        end = min(deadline, now + gap)
+        gap = gap if gap_max_s is None else min(2 * gap, gap_max_s)
+        while True:
+            left = end - time.monotonic()
+            if left <= 0:
+                break
+            pkts = recv(left)
+            got.extend(pkts)
+            if pkts and stop(pkts):
+                return tries, got

@@ -237,3 +237,34 @@ def test_adcs_session_ends_when_the_firmware_is_hung():
     with pytest.raises(OSError, match="%d cycles in a row" % adcs_session.MAX_LATE_CYCLES):
         s.cycle()
     assert s.summary()["late_cycles"] == adcs_session.MAX_LATE_CYCLES and s.k == adcs_session.MAX_LATE_CYCLES - 1
+
+
+def test_bench_serve_says_hello_until_a_controller_whose_own_hello_was_lost_answers(tmp_path, monkeypatch):
+    """A controller whose first HELLO never arrived (it does not say it again; it answers each HELLO with its
+    own, as the firmware does): the bench's HELLOs reach it and the run completes."""
+    import threading
+
+    import protocol.link
+    from protocol import core
+    from protocol.stream import StreamLink
+    real_open = protocol.link.open_link
+
+    def controller(path):
+        s = StreamLink(path, "CONTROLLER")
+        while not s.closed:
+            for pid, src, dst, seq, payload in s.recv(200):
+                if pid == core.PACKET_ID["HELLO"]:
+                    s.send("HELLO", "BENCH", node=core.NODE["CONTROLLER"])
+                elif pid == core.PACKET_ID["TICK"]:
+                    s.send("FSM_SPI", "BENCH", tick=core.decode_payload(pid, payload)[0], n=0)
+
+    def open_link(spec, node, **kw):
+        link = real_open(spec, node, **kw)
+        threading.Thread(target=controller, args=(link.peer_path,), daemon=True).start()
+        return link
+    monkeypatch.setattr(protocol.link, "open_link", open_link)
+    out = tmp_path / "serve.json"
+    assert fps(["emulator", "serve", "--duration", "0.2", "--deadline", "0.5", "--wait", "5", "-o", str(out)]) == 0
+    d = json.loads(out.read_text())
+    assert d["complete"] is True and d["hello_tries"] >= 1 and d["packets_from_controller"]["HELLO"] >= 1
+    assert d["counters"]["ticks"] > 100

@@ -268,6 +268,8 @@ PACKETS = (
         ("rbz", "f", "m", 1, None, None, 0.0, "estimated SatB position z"),
         ("att_sigma", "f", "rad", 1, None, None, 0.0, "APKF attitude 1 sigma, sqrt(trace 4 P_qq)"),
         ("cycle_us", "I", "us", 1, None, None, 0, "time the cycle took on this computer"),
+        ("magnetic_failed", "B", "", 1, 0, 15, 0, "bits 0-2: rod i out of the unloading (its driver silent in 3 "
+         "MTQ_TLM in a row); bit 3: the magnetometer silent 3 cycles in a row (the unloading on the field model)"),
     )),
     (0x47, "ADCS_MISSING", "ADCS", "SPACECRAFT",
      "lockstep: the open cycle's burst lacks these packets, send them again (answers a resent ADCS_TICK)", (
@@ -291,6 +293,8 @@ PACKETS = (
         ("mz", "f", "A m^2", 1, None, None, 0.0, "applied dipole z"),
         ("saturated", "B", "", 1, 0, 7, 0, "bit i: rod i clipped at its dipole limit (rods in the spacecraft "
          "file's order)"),
+        ("silent", "B", "", 1, 0, 7, 0, "bit i: rod i's driver did not answer the board (the rod gives no "
+         "dipole)"),
     )),
     (0x4A, "MAGNETOMETER", "MAGNETOMETER", "ADCS",
      "magnetic field in the body frame (sensor axes on the body axes), nT as scaled integers", (

@@ -22,6 +22,7 @@ class Health:
         self.miss_rw = [0] * NW
         self.rw_miss_run = [0] * NW         # cycles in a row each wheel missed
         self.failed = 0
+        self.magnetic = 0                   # ADCS_STATUS.magnetic_failed: rods out, the magnetometer silent
         self.miss_st = self.miss_gnss = self.miss_beacon = 0
         self.n_st_invalid = self.n_beacon_invalid = self.n_gnss_b = self.n_gnss_b_drop = 0
         self.n_refused = 0                  # measurements (or predictions) the filters refused, fixes dropped

@@ -43,7 +43,7 @@ def status_payload(app, tick, cycle_us=0, n_rx_drop=0):
                        hl.n_st_invalid & 0xFFFF, hl.n_beacon_invalid & 0xFFFF, hl.n_gnss_b & 0xFFFF,
                        hl.n_refused & 0xFFFF,
                        n_rx_drop & 0xFFFF, age, x[0], x[1], x[2], x[3], w[0], w[1], w[2],
-                       X[0], X[1], X[2], X[6], X[7], X[8], est.sigma_att(), cycle_us & 0xFFFFFFFF)
+                       X[0], X[1], X[2], X[6], X[7], X[8], est.sigma_att(), cycle_us & 0xFFFFFFFF, hl.magnetic)
 
 
 def cycle_replies(app, cmds, tick, host, cycle_us=0, n_rx_drop=0):

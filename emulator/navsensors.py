@@ -2,7 +2,9 @@
 
 * ``Gnss``: navigation solution y = [r; v] + n, n ~ N(0, diag(30 m, 30 m, 30 m, 1, 1, 1 m/s)^2) (Eq. 5.10-5.11).
 * ``Beacon``: unit vector from SatA to SatB in SatA's body frame with additive noise (Eq. 5.13-5.15),
-  y = A(q) (rB - rA) / |rB - rA| + n, n ~ N(0, (60 arcsec)^2 I3).
+  y = A(q) (rB - rA) / |rB - rA| + n, n ~ N(0, (60 arcsec)^2 I3); a misaligned camera (``misalignment_deg``,
+  the spacecraft file's rotation vector) measures in its own frame, y = C A(q) (rB - rA) / |rB - rA| + n with
+  C = A(dq), dq = [delta/2, 1] normalised (Eq. 4.77).
 * ``Relay``: SatB's GNSS sent through the ground. SatB's receiver samples at 1 Hz on its own clock (a phase
   offset from SatA's filter ticks, so the measurement times fall between filter nodes); each solution keeps
   its time tag and arrives U(2, 3) s later. ``due(t)`` returns what has arrived by t, oldest first.
@@ -38,9 +40,16 @@ class Gnss:
 class Beacon:
     """Beacon camera: SatA->SatB unit vector in SatA's body frame, Eq. 5.13 (60 arcsec 1 sigma per axis)."""
 
-    def __init__(self, rng, sigma_arcsec=60.0):
+    def __init__(self, rng, sigma_arcsec=60.0, misalignment_deg=None):
         self.rng = rng
         self.sigma = _nonneg("sigma_arcsec", sigma_arcsec) * RAD_PER_ARCSEC
+        self.C = None                                   # aligned: y in the body frame
+        if misalignment_deg is not None:
+            g = 0.5 * np.radians(np.asarray(misalignment_deg, dtype=float))
+            if g.shape != (3,) or not np.all(np.isfinite(g)):
+                raise ValueError("misalignment_deg must be 3 finite angles (deg), got %r" % (misalignment_deg,))
+            if np.any(g != 0):
+                self.C = dcm(np.append(g, 1.0) / np.sqrt(1.0 + g @ g))
 
     @property
     def R(self):
@@ -55,6 +64,8 @@ class Beacon:
         rho = np.linalg.norm(d)
         if not (np.isfinite(rho) and rho > 0):
             raise ValueError("beacon: SatA and SatB coincide (or a position is not finite): |rB - rA| = %r m" % rho)
+        if self.C is not None:
+            A = self.C @ A
         return A @ (d / rho) + self.sigma * self.rng.standard_normal(3)
 
 

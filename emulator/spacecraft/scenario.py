@@ -377,7 +377,8 @@ def orbit_setup(d):
     """What the orbit scenarios (the STKF study of Sec. 5.5, the body-pointing world of Sec. 6.4) take from a
     checked spacecraft file ``d``: ``x0s`` (SatA's orbit.state and the partner SatB's, EME2000 [r, v]),
     ``epoch_utc`` (t = 0), ``surface`` (the orbit truth's mass, areas and coefficients,
-    ``emulator.orbits.CUBESAT_3U``'s keys), ``gnss`` and ``beacon`` (``emulator.navsensors``' keywords),
+    ``emulator.orbits.CUBESAT_3U``'s keys), ``gnss`` and ``beacon`` (``emulator.navsensors``' keywords; the
+    beacon camera's true misalignment),
     ``relay_delay_s`` and ``stkf_P0_diag`` (the STKF's P0 from the uncertainty block, m^2 and (m/s)^2 per
     satellite). ValueError naming ``partner`` when the file has none."""
     from protocol import spacecraft as sf
@@ -390,7 +391,8 @@ def orbit_setup(d):
             "epoch_utc": sf.epoch_tuple(d),
             "surface": dict({k: v for k, v in d["surface"].items() if k != "cp_offset_m"}, mass_kg=d["mass_kg"]),
             "gnss": {"sigma_r_m": g["sigma_position_m"], "sigma_v_m_s": g["sigma_velocity_m_s"]},
-            "beacon": {"sigma_arcsec": d["beacon"]["sigma_arcsec"]}, "relay_delay_s": tuple(p["relay_delay_s"]),
+            "beacon": {"sigma_arcsec": d["beacon"]["sigma_arcsec"],
+                       "misalignment_deg": sf.beacon_misalignment_deg(d)}, "relay_delay_s": tuple(p["relay_delay_s"]),
             "stkf_P0_diag": ([u["orbit_position_sigma_m"] ** 2] * 3 + [u["orbit_velocity_sigma_m_s"] ** 2] * 3) * 2}
 
 

@@ -291,3 +291,86 @@ def pointing_error(x_hat, A_hat, x_true, A_true):
     p_hat = pointing(x_hat, A_hat)
     dp = p_hat - pointing(x_true, A_true)
     return (T_b2z(p_hat) @ dp)[:2]
+
+
+# ---- the beacon camera's misalignment (Sec. 8.3: calibrated on orbit) ----
+#
+# x = [rA, vA, rB, vB, delta] (15): delta the camera's small rotation from the body frame, a random constant
+# (no process noise). The camera measures y = C(delta) A(q) u + n, C(delta) = A(dq) with dq = [delta/2, 1]
+# normalised (the small rotation of Eq. 4.77), so C ~ I - [delta x] and Eq. 5.13 is the case delta = 0.
+
+NM = N + 3
+IM = slice(N, NM)
+
+
+def misalignment_dcm(delta):
+    """C(delta) = A(dq), dq = [g, 1]/sqrt(1 + g.g), g = delta/2 (Eq. 4.7 with Eq. 4.77):
+    C = ((1 - g.g) I + 2 g g^T - 2 [g x]) / (1 + g.g)."""
+    g = 0.5 * np.asarray(delta, dtype=float)
+    gg = g.dot(g)
+    return ((1.0 - gg) * I3 + 2.0 * np.outer(g, g) - 2.0 * skew(g)) / (1.0 + gg)
+
+
+def H_misalignment(delta, v):
+    """d(C(delta) v)/d delta for a fixed body-frame vector v (the delta columns of the beacon's H):
+    (1/s) [(g.v) I + g v^T - v g^T + [v x] - (C v) g^T], s = 1 + g.g, g = delta/2; [v x] at delta = 0
+    (C v ~ v + v x delta)."""
+    g = 0.5 * np.asarray(delta, dtype=float)
+    Cv = misalignment_dcm(delta).dot(v)
+    return ((g.dot(v)) * I3 + np.outer(g, v) - np.outer(v, g) + skew(v) - np.outer(Cv, g)) / (1.0 + g.dot(g))
+
+
+def f_m(x, dt):
+    """``f`` with delta held constant: x of 15 (both satellites and delta), 12 or 6 (as ``f``)."""
+    if x.shape[0] != NM:
+        return f(x, dt)
+    return np.concatenate((f(x[:N], dt), x[IM]))
+
+
+def Phi_m(x, dt):
+    """blockdiag(``Phi`` of the satellites, I3): delta a random constant. x of 15, 12 or 6."""
+    if x.shape[0] != NM:
+        return Phi(x, dt)
+    out = np.zeros((NM, NM))
+    out[:N, :N] = Phi(x[:N], dt)
+    out[IM, IM] = I3
+    return out
+
+
+def Q_m(dt, qa=QA_THESIS):
+    """blockdiag(``Q(dt, qa)``, 0): no process noise on delta."""
+    out = np.zeros((NM, NM))
+    out[:N, :N] = Q(dt, qa)
+    return out
+
+
+def beacon_m(x, A):
+    """(h, H) of the misaligned beacon (Eq. 5.13 and 5.16 with C(delta)): h = C A u, and with the camera's
+    attitude C A in Eq. 5.16's place, H = [C A Hb,A, 0, C A Hb,B, 0, d(C A u)/d delta] (3 x 15)."""
+    delta = x[IM]
+    C = misalignment_dcm(delta)
+    u, rho = los(x)
+    v = A.dot(u)
+    y = C.dot(v)
+    hb = (y[:, None] * u - C.dot(A)) / rho            # C A Hb,A (Eq. 5.17)
+    H = np.zeros((3, NM))
+    H[:, IA] = hb
+    H[:, IB] = -hb
+    H[:, IM] = H_misalignment(delta, v)
+    return y, H
+
+
+def gnss_beacon_m(x, A):
+    """(h, H) of SatA's GNSS and the misaligned beacon stacked (Eq. 5.12 and ``beacon_m``): 9 and 9 x 15."""
+    y, Hb_ = beacon_m(x, A)
+    H = np.zeros((9, NM))
+    H[0:6, 0:6] = I6
+    H[6:9] = Hb_
+    return np.concatenate((x[0:6], y)), H
+
+
+def R_beacon_m(x, A, sigma_b, P_att):
+    """R of the misaligned beacon (Eq. 5.15-5.16): the attitude error d_alpha enters before the camera,
+    y = C (I - [d_alpha x]) A u, so sigma_b^2 I + [y x] C P_att C^T [y x]^T with y = C A u (``R_beacon``)."""
+    C = misalignment_dcm(x[IM])
+    return R_beacon(C.dot(A.dot(los(x)[0])), sigma_b, C.dot(P_att).dot(C.T))

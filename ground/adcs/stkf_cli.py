@@ -51,6 +51,7 @@ def _cmd(a):
     if not (0 < a.lag < float("inf")):
         raise ValueError("--lag must be a finite number of seconds > 0, got %r" % a.lag)
     spacecraft, source = load_spacecraft(a.spacecraft, wheels=a.attitude == "apkf", partner=True)
+    stkf_sim.misalignment_setup(spacecraft, a.beacon_misalignment)   # ValueError before any run
     if a.attitude == "apkf":
         _check_apkf_starts(a.duration, seeds, spacecraft)
     orbit = scenario.orbit_setup(spacecraft)
@@ -76,12 +77,13 @@ def _cmd(a):
                                         progress=not a.quiet, desc="stkf case %d" % a.case, case=a.case,
                                         duration_s=a.duration, truth=a.truth, cache_dir=os.path.abspath(out),
                                         lag_s=a.lag, outages=outages, attitude=a.attitude, spacecraft=spacecraft,
-                                        vehicle=a.vehicle)
+                                        vehicle=a.vehicle, beacon_misalignment=a.beacon_misalignment)
     except KeyboardInterrupt:
         complete = False
         results = [r for r in campaign.finished_results(out, n_runs) if r is not None]
     summary = stkf_sim.aggregate(results, n_runs, complete)
-    summary.update(case=a.case, truth=a.truth, attitude=a.attitude, duration_s=a.duration,
+    summary.update(case=a.case, truth=a.truth, attitude=a.attitude, beacon_misalignment=a.beacon_misalignment,
+                   duration_s=a.duration,
                    wall_s=time.perf_counter() - t0, spacecraft=record)
     plots = []
     if not a.no_plots and summary["runs"]:
@@ -130,6 +132,11 @@ def register(sub, name, help_):
     add_spacecraft_option(p, "SatA's and SatB's initial states, the epoch and surface of the orbit truth, the GNSS's "
                           "and the beacon's noise, the relay's delay and the STKF's P0 from it, and with --attitude "
                           "apkf the vehicle the APKF flies (the stated attitude covariance stays the thesis's)")
+    p.add_argument("--beacon-misalignment", choices=stkf_sim.MISALIGNMENT, default="ignore",
+                   help="the beacon camera's misalignment (the spacecraft file's beacon.misalignment_deg, deg): "
+                   "ignore = the filter takes the camera at the file's figure (default; zero in the presets, the "
+                   "thesis's aligned camera); estimate = three more states (rad), P0 from "
+                   "uncertainty.beacon_misalignment_sigma_deg (must be > 0)")
     p.add_argument("--outage", action="append", metavar="SENSOR:T0:T1",
                    help="silence a sensor (gnss_a, beacon or relay) from T0 to T1 s; repeatable")
     add_workers_options(p)

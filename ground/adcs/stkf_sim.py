@@ -15,6 +15,11 @@ same seed, for the same duration): the true attitude is the scenario's, the STKF
 A(q_hat) and its attitude covariance 4 P[0:3, 0:3] (P of dq_vec, Eq. 4.77) as P_att; before the APKF starts,
 the star-tracker quaternion with its 20/20/60 arcsec covariance.
 
+The beacon camera's misalignment (``beacon_misalignment``; the spacecraft file's ``beacon.misalignment_deg``, its
+1 sigma and its truth): the truth's camera measures in its own frame (``navsensors.Beacon``); "ignore" (the
+default) holds the filter at the file's figure (zero in the presets: the thesis's aligned camera, its tables
+unchanged), "estimate" adds the three angles to the STKF's state (``stkf.beacon_m``, P0 from the file's 1 sigma).
+
 Figures: a "final 1 sigma" is sqrt(trace) of the 3x3 block (the thesis's "for the three axes in total");
 the pointing figure is sqrt(Pz11 + Pz22) of Eq. 5.59 ("for the two axes in total").
 """
@@ -33,6 +38,7 @@ from emulator.spacecraft.scenario import LAG_S
 from ground.adcs import stkf
 from ground.adcs.afls import Afls
 from ground.fileio import write_atomic, write_json
+from protocol import spacecraft as sf
 from protocol.units import RAD_PER_ARCSEC
 
 ATT_SIGMA_ARCSEC = (9.81, 8.01, 19.70)
@@ -95,6 +101,7 @@ class _Gaps:
 
 
 ATTITUDES = ("stated", "apkf")
+MISALIGNMENT = ("ignore", "estimate")
 
 
 def apkf_attitude(seed, K, spacecraft=None):
@@ -120,8 +127,10 @@ def apkf_attitude(seed, K, spacecraft=None):
 
 
 def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, lag_s=LAG_S, outages=(),
-             att_sigma_arcsec=ATT_SIGMA_ARCSEC, qa=stkf.QA_THESIS, attitude="stated", spacecraft=None):
-    """One run; returns (result dict, history dict of arrays). ``attitude``: "stated" or "apkf". ``spacecraft``:
+             att_sigma_arcsec=ATT_SIGMA_ARCSEC, qa=stkf.QA_THESIS, attitude="stated", spacecraft=None,
+             beacon_misalignment="ignore"):
+    """One run; returns (result dict, history dict of arrays). ``attitude``: "stated" or "apkf".
+    ``beacon_misalignment``: "ignore" or "estimate" (module docstring). ``spacecraft``:
     a checked spacecraft file (None: thesis-3u) giving SatA's and SatB's initial states, the epoch and surface of
     the orbit truth, the GNSS's and the beacon's noise, the relay's delay and the STKF's P0
     (``scenario.orbit_setup``), and with ``attitude="apkf"`` the vehicle the APKF flies (``apkf_attitude``)."""
@@ -130,15 +139,21 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     o = scenario.orbit_setup(d)
     delay_s = o["relay_delay_s"]
     outages = _check(case, duration_s, lag_s, outages, attitude, delay_s)
+    mis = misalignment_setup(d, beacon_misalignment)
     t_s, xs = scenario.orbit_truth(truth, duration_s, o, cache_dir)
     K = int(np.floor(duration_s + 1e-9))
     r_init, r_ga, r_gb, r_bc, r_att, r_rel = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]
     P0 = np.diag(o["stkf_P0_diag"])               # thesis-3u: (4 km)^2, (0.1 km/s)^2 per satellite (Sec. 5.5.1)
     x_true0 = xs[0].ravel()
     x0 = x_true0 + np.sqrt(o["stkf_P0_diag"]) * r_init.standard_normal(12)
-    flt = Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa), keep_generated=False,
-               parts=stkf.PARTS)
-    gnss_a, beacon = Gnss(r_ga, **o["gnss"]), Beacon(r_bc, **o["beacon"])
+    if mis["estimate"]:
+        flt = Afls(np.concatenate((x0, mis["figure"])), _blockdiag(P0, mis["P0"]), 0.0, lag_s, stkf.f_m,
+                   stkf.Phi_m, lambda dt: stkf.Q_m(dt, qa), keep_generated=False, parts=stkf.PARTS)
+    else:
+        flt = Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa), keep_generated=False,
+                   parts=stkf.PARTS)
+    gnss_a = Gnss(r_ga, **o["gnss"])
+    beacon = Beacon(r_bc, **o["beacon"])           # the camera's true misalignment (scenario.orbit_setup)
     relay = Relay(r_rel, Gnss(r_gb, **o["gnss"]), delay_s)
     phase = r_rel.uniform(0.0, 1.0)               # SatB's receiver clock vs SatA's ticks
     tb = phase + np.arange(0, K)                  # SatB GNSS epochs
@@ -156,7 +171,8 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     log = []
     gaps = _Gaps(log, ("gnss_a", "beacon") + (("relay",) if case == 2 else ()))
     hist = {k: np.zeros((K + 1,) + s) for k, s in
-            (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)), ("nees", ()))}
+            (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)), ("nees", ()), ("merr", (3,)),
+             ("msig", (3,)))}
     hist["t"] = np.arange(K + 1, dtype=float)
     step_s = []
     jb = 0
@@ -179,7 +195,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
                 jb += 1
             due = relay.due(t)
         t0 = time.perf_counter()                 # the filter step, timed
-        _step(flt, k, t, zg, y, due, A_hat, P_att, R_g, R_relay, beacon.sigma)
+        _step(flt, k, t, zg, y, due, A_hat, P_att, R_g, R_relay, beacon.sigma, mis)
         step_s.append(time.perf_counter() - t0)
         if have_g:
             gaps.seen("gnss_a", t)
@@ -188,8 +204,34 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
         if due:
             gaps.seen("relay", t)
         gaps.tick(t)
-        _record(hist, k, t, flt, x_true, A_hat, A_true, P_att)
-    return _result(seed, case, truth, attitude, K, d, flt, hist, step_s, gaps.close(float(K)), log), hist
+        _record(hist, k, t, flt, x_true, A_hat, A_true, P_att, mis)
+    res = _result(seed, case, truth, attitude, K, d, flt, hist, step_s, gaps.close(float(K)), log)
+    res.update(_misalignment_result(hist, mis))
+    return res, hist
+
+
+def _blockdiag(a, b):
+    out = np.zeros((a.shape[0] + b.shape[0],) * 2)
+    out[:a.shape[0], :a.shape[0]] = a
+    out[a.shape[0]:, a.shape[0]:] = b
+    return out
+
+
+def misalignment_setup(d, mode):
+    """The beacon camera's misalignment of the checked file ``d`` for ``simulate`` (rad): ``figure`` (the
+    filter's prior mean), ``truth``, ``P0`` (3 x 3), ``estimate`` (bool), and for "ignore" ``C`` (the figure's
+    C(delta), None when zero: the thesis's aligned camera, its arithmetic unchanged). ValueError for an unknown
+    ``mode`` or "estimate" without a 1 sigma in the file."""
+    if mode not in MISALIGNMENT:
+        raise ValueError("beacon misalignment must be one of %s, got %r" % ("/".join(MISALIGNMENT), mode))
+    fig = np.radians(sf.beacon_misalignment_deg(d, False))
+    sd = np.radians(sf.beacon_misalignment_sigma_deg(d))
+    if mode == "estimate" and not sd > 0:
+        raise ValueError("--beacon-misalignment estimate needs the camera's alignment uncertainty: the spacecraft "
+                         "file's uncertainty.beacon_misalignment_sigma_deg is %s (give its 1 sigma, deg, > 0)"
+                         % sf.num_text(sf.beacon_misalignment_sigma_deg(d)))
+    return {"estimate": mode == "estimate", "figure": fig, "truth": np.radians(sf.beacon_misalignment_deg(d)),
+            "P0": sd * sd * np.eye(3), "C": stkf.misalignment_dcm(fig) if np.any(fig != 0) else None}
 
 
 def _check(case, duration_s, lag_s, outages, attitude, delay_s):
@@ -209,18 +251,25 @@ def _check(case, duration_s, lag_s, outages, attitude, delay_s):
     return outages
 
 
-def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att):
-    """Row k of the history: the estimate's error and 1 sigma, its NEES, the pointing error and its 1 sigma;
-    FloatingPointError when the filter diverged (NaN, or an orbit under the Earth's surface)."""
+def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att, mis):
+    """Row k of the history: the estimate's error and 1 sigma, its NEES, the pointing error and its 1 sigma,
+    the misalignment's error and 1 sigma (arcsec; "ignore": the figure's error, 1 sigma 0); FloatingPointError
+    when the filter diverged (NaN, or an orbit under the Earth's surface)."""
     x, Pk = flt.x, flt.Pk
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):
         raise FloatingPointError("filter diverged at t=%.0f s (NaN in x or P)" % t)
     if min(x[0:3] @ x[0:3], x[6:9] @ x[6:9]) < orbits.R_EARTH ** 2:
         raise FloatingPointError("filter diverged at t=%.0f s: an estimated orbit is under the Earth's "
                                  "surface" % t)
-    hist["err"][k] = x - x_true
-    hist["sig"][k] = np.sqrt(np.diag(Pk))
-    hist["nees"][k] = hist["err"][k] @ np.linalg.solve(Pk, hist["err"][k])
+    hist["err"][k] = x[:stkf.N] - x_true
+    sig = np.sqrt(np.diag(Pk))
+    hist["sig"][k] = sig[:stkf.N]
+    hist["nees"][k] = hist["err"][k] @ np.linalg.solve(Pk[:stkf.N, :stkf.N], hist["err"][k])
+    if mis["estimate"]:
+        hist["merr"][k] = (x[stkf.IM] - mis["truth"]) / RAD_PER_ARCSEC
+        hist["msig"][k] = sig[stkf.IM] / RAD_PER_ARCSEC
+    else:
+        hist["merr"][k] = (mis["figure"] - mis["truth"]) / RAD_PER_ARCSEC
     hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / RAD_PER_ARCSEC
     hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / RAD_PER_ARCSEC
 
@@ -233,11 +282,25 @@ def _h_sat(x):
     return x, _I6
 
 
-def _step(flt, k, t, zg, y, due, A_hat, P_att, R_g, R_relay, sigma_b):
+def _step(flt, k, t, zg, y, due, A_hat, P_att, R_g, R_relay, sigma_b, mis):
     """One second of the filter: predict to t, SatA's GNSS and the beacon (one stacked update when both came:
-    the two noises are independent; either alone otherwise; None: not received), SatB's relayed fixes ``due``."""
+    the two noises are independent; either alone otherwise; None: not received), SatB's relayed fixes ``due``.
+    ``mis``: ``misalignment_setup``'s; with a nonzero figure the camera's attitude C A(q_hat) takes A(q_hat)'s place."""
     if k > 0:
         flt.predict(t)
+    if mis["estimate"]:
+        _update_m(flt, zg, y, A_hat, P_att, R_g, sigma_b)
+    elif mis["C"] is not None:
+        C = mis["C"]
+        _update(flt, zg, y, C.dot(A_hat), C.dot(P_att).dot(C.T), R_g, sigma_b)
+    else:
+        _update(flt, zg, y, A_hat, P_att, R_g, sigma_b)
+    for tm, z in due:
+        flt.update(z, R_relay, _h_sat, t=tm, part=stkf.SAT_B)
+
+
+def _update(flt, zg, y, A_hat, P_att, R_g, sigma_b):
+    """SatA's GNSS and the beacon, the camera aligned with the body frame A(q_hat) (Eq. 5.12, 5.13-5.16)."""
     if zg is not None and y is not None:
         R_gb = stkf.R_gnss_beacon(R_g, stkf.h_beacon(flt.x, A_hat), sigma_b, P_att)
         flt.update(np.concatenate([zg, y]), R_gb, lambda x: stkf.gnss_beacon(x, A_hat))
@@ -246,8 +309,31 @@ def _step(flt, k, t, zg, y, due, A_hat, P_att, R_g, R_relay, sigma_b):
     elif y is not None:
         Rb = stkf.R_beacon(stkf.h_beacon(flt.x, A_hat), sigma_b, P_att)
         flt.update(y, Rb, lambda x: stkf.h_beacon(x, A_hat), lambda x: stkf.H_beacon(x, A_hat))
-    for tm, z in due:
-        flt.update(z, R_relay, _h_sat, t=tm, part=stkf.SAT_B)
+
+
+def _update_m(flt, zg, y, A_hat, P_att, R_g, sigma_b):
+    """``_update`` with the misalignment in the state (``stkf.gnss_beacon_m``, ``stkf.beacon_m``)."""
+    if y is None:
+        if zg is not None:
+            flt.update(zg, R_g, _h_sat, part=stkf.SAT_A)
+        return
+    Rb = stkf.R_beacon_m(flt.x, A_hat, sigma_b, P_att)
+    if zg is None:
+        flt.update(y, Rb, lambda x: stkf.beacon_m(x, A_hat))
+    else:
+        flt.update(np.concatenate([zg, y]), _blockdiag(R_g, Rb), lambda x: stkf.gnss_beacon_m(x, A_hat))
+
+
+def _misalignment_result(hist, mis):
+    """The result's misalignment figures (arcsec): the truth, the final error and 1 sigma per angle, and
+    whether each final error is within 3 sigma ("estimate" only; "ignore": the figure's error, 1 sigma 0)."""
+    e, sd = hist["merr"][-1], hist["msig"][-1]
+    out = {"beacon_misalignment": "estimate" if mis["estimate"] else "ignore",
+           "misalignment_truth_arcsec": (mis["truth"] / RAD_PER_ARCSEC).tolist(),
+           "final_error_misalignment_arcsec": e.tolist(), "final_sigma_misalignment_arcsec": sd.tolist()}
+    if mis["estimate"]:
+        out["misalignment_within_3sigma"] = bool(np.all(np.abs(e) <= 3.0 * sd))
+    return out
 
 
 def _result(seed, case, truth, attitude, K, d, flt, hist, step_s, outage_list, log):
@@ -274,16 +360,14 @@ def _result(seed, case, truth, attitude, K, d, flt, hist, step_s, outage_list, l
 
 
 def run_one(seed, run_dir, vehicle="file", **kw):
-    """Campaign entry (top level, picklable): simulate, write run_dir/history.npz, result.json, run.log. With
-    ``attitude="apkf"`` the APKF flies the vehicle ``vehicle`` of the seed (``runs.fly_vehicle``)."""
+    """Campaign entry (top level, picklable): simulate, write run_dir/history.npz, result.json, run.log. The run
+    flies the vehicle ``vehicle`` of the seed (``runs.fly_vehicle``): its beacon camera's misalignment, and with
+    ``attitude="apkf"`` the vehicle the APKF flies."""
+    from ground.adcs.runs import fly_vehicle
     t0 = time.perf_counter()
-    vrec = None
-    if kw.get("attitude") == "apkf":
-        from ground.adcs.runs import fly_vehicle
-        kw["spacecraft"], vrec = fly_vehicle(kw.get("spacecraft"), seed, vehicle)
+    kw["spacecraft"], vrec = fly_vehicle(kw.get("spacecraft"), seed, vehicle)
     res, hist = simulate(seed=seed, **kw)
-    if vrec is not None:
-        res["vehicle"] = vrec
+    res["vehicle"] = vrec
     res["wall_s"] = time.perf_counter() - t0
     if run_dir:
         import io
@@ -311,7 +395,22 @@ def aggregate(results, runs_requested, complete):
     s["step_us_median"] = float(np.mean(med)) if med and len(med) == len(good) else None   # mean of run medians
     s["outages"] = {str(r["seed"]): r["outages"] for r in good if r["outages"]}
     s.update(consistency(good))
+    s.update(misalignment_summary(good))
     return s
+
+
+def misalignment_summary(good):
+    """The beacon camera's misalignment over the runs ``good`` that estimated it: the share of runs whose three
+    final errors are each within 3 sigma (``misalignment_within_3sigma_share``), and per angle the RMS over the
+    runs of the final error and the mean final 1 sigma (arcsec). Empty without such runs."""
+    est = [r for r in good if "misalignment_within_3sigma" in r]
+    if not est:
+        return {}
+    e = np.array([r["final_error_misalignment_arcsec"] for r in est])
+    sd = np.array([r["final_sigma_misalignment_arcsec"] for r in est])
+    return {"misalignment_within_3sigma_share": float(np.mean([r["misalignment_within_3sigma"] for r in est])),
+            "rms_final_error_misalignment_arcsec": np.sqrt(np.mean(e ** 2, axis=0)).tolist(),
+            "final_sigma_misalignment_arcsec": sd.mean(axis=0).tolist()}
 
 
 def consistency(good):
@@ -373,6 +472,12 @@ def report_md(summary, case, args_text):
                       NEES_FROM_S, summary["nees_mean"], summary["nees_band"][0], summary["nees_band"][1],
                       summary["nees_in_band_share"], summary["rms_over_sigma_ra"], summary["rms_over_sigma_va"],
                       summary["rms_over_sigma_rb"], summary["rms_over_sigma_vb"]), ""]
+    if summary.get("misalignment_within_3sigma_share") is not None:
+        lines += ["The beacon camera's misalignment, estimated: each final error within 3 sigma in %.0f %% of the runs; "
+                  "RMS final error %s arcsec, mean final 1 sigma %s arcsec (about body x, y, z)." % (
+                      100 * summary["misalignment_within_3sigma_share"],
+                      ", ".join("%.1f" % v for v in summary["rms_final_error_misalignment_arcsec"]),
+                      ", ".join("%.1f" % v for v in summary["final_sigma_misalignment_arcsec"])), ""]
     if summary["outages"]:
         lines += ["## Sensor outages (the filter propagated through them)", ""]
         for seed, ol in summary["outages"].items():

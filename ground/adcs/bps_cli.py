@@ -18,7 +18,12 @@ window (``line_of_sight`` false in the result: ``ground.adcs.occultation``) exit
 
 ``sweep``: J = E[eps^T W eps] (Eq. 6.22-6.24) for each t_s, the calibration computed once and shared; with
 SatB's GNSS as Sec. 6.4.3 (``--no-satb-gnss`` to leave it out). ``summary.json``: ts_s, J, ts_best_s,
-complete; ``fig6-2_sweep.png``; ``run_NNNN/result.json`` per t_s.
+complete; ``fig6-2_sweep.png``; ``run_NNNN/result.json`` per t_s. ``--objective terminal`` (Sec. 8.3): the same
+runs, each body error also passed through the fine loop's sensitivity |S| (``--rejection``: its model, or an ``fps
+response`` summary.json), t_s chosen by the residual's 3 sigma (arcsec) after the fine loop
+(``ground.adcs.terminal_tuning``); the summary adds residual_sigma_arcsec, residual_3sigma_arcsec, the body 3 sigma
+figures per t_s, ts_best_body_s, ts_best_terminal_s (= ts_best_s), ts_best_terminal_in_budget_s (among the t_s
+within the body budgets); ``fig6-2_objectives.png`` shows both objectives.
 """
 
 import hashlib
@@ -30,8 +35,8 @@ import time
 import numpy as np
 
 from emulator.spacecraft import scenario
-from ground.adcs import body_pointing as bps, campaign, flight_world, runs
-from ground.adcs.bps_report import (FIGURES_FLIGHT, plot_flight, plot_history, plot_sweep,
+from ground.adcs import body_pointing as bps, campaign, flight_world, runs, terminal_tuning
+from ground.adcs.bps_report import (FIGURES_FLIGHT, plot_flight, plot_history, plot_objectives, plot_sweep,
                                     report_flight_md, report_md)
 from ground.adcs.options import add_satb_gnss_option, add_spacecraft_option, fly, load_spacecraft
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
@@ -291,13 +296,14 @@ def sweep_summary(ts_list, results, complete, satb_gnss):
 def _cmd_sweep(a):
     ts_list = parse_ts_range(a.ts)
     check_run_args(a)
+    table = terminal_tuning.check_args(a.objective, a.rejection)     # None: the body objective
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     d, record, params = _vehicle(a)
     out = a.output
     campaign.check_scheduler(a.scheduler)
     satb = a.satb_gnss
-    campaign.campaign_folder(out, (FIGURE_SWEEP,), dict(sweep_summary(ts_list, [None] * len(ts_list), False, satb),
+    campaign.campaign_folder(out, (FIGURE_SWEEP, terminal_tuning.FIGURE), dict(sweep_summary(ts_list, [None] * len(ts_list), False, satb),
                                                         spacecraft=record))
     t0 = time.perf_counter()
     complete = True
@@ -306,11 +312,12 @@ def _cmd_sweep(a):
             params = calibration(a.seed, a.cache_dir, not a.quiet, d)
         bps.write_params(os.path.join(out, "params.json"), params, d)
         prepare_truth(a, 30 + 4 * max(ts_list) + a.duration, os.path.abspath(a.cache_dir), d)
-        results = campaign.run_campaign(bps.sweep_one, list(range(len(ts_list))), out, workers=a.workers,
+        fn, extra = (bps.sweep_one, {}) if table is None else (terminal_tuning.sweep_one, {"rejection": table})
+        results = campaign.run_campaign(fn, list(range(len(ts_list))), out, workers=a.workers,
                                         scheduler=a.scheduler, progress=not a.quiet, desc="sweep t_s",
                                         ts_list=ts_list, params=params, satb_gnss=satb, duration_s=a.duration,
                                         noise_seed=a.seed, truth=a.truth, cache_dir=os.path.abspath(a.cache_dir),
-                                        spacecraft=d)
+                                        spacecraft=d, **extra)
     except KeyboardInterrupt:
         complete = False
         results = campaign.finished_results(out, len(ts_list))
@@ -320,13 +327,19 @@ def _cmd_sweep(a):
     s["wall_s"] = time.perf_counter() - t0
     s["duration_s"] = a.duration
     s["spacecraft"] = record
+    if table is not None:
+        terminal_tuning.add_summary(s, results, table, sf.requirements(d))
     if not a.no_plots:
         plot_sweep(os.path.join(out, FIGURE_SWEEP), s)
+        if table is not None:
+            plot_objectives(os.path.join(out, terminal_tuning.FIGURE), s)
     lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "Spacecraft %s." % record["name"], "",
              "| t_s (s) | J (rad²) |", "|---|---|"]
     lines += ["| %g | %s |" % (t, "—" if j is None else "%.4e" % j) for t, j in zip(s["ts_s"], s["J"])]
     lines += ["", "minimum at t_s = %s s (thesis: 33 s); %g s collected per t_s, %s SatB's GNSS; complete: %s"
-              % (s["ts_best_s"], a.duration, "with" if satb else "without", complete), ""]
+              % (s.get("ts_best_body_s", s["ts_best_s"]), a.duration, "with" if satb else "without", complete), ""]
+    if table is not None:
+        lines += terminal_tuning.report_lines(s)
     write_atomic(os.path.join(out, "report.md"), "\n".join(lines))
     write_json(os.path.join(out, "summary.json"), s)
     print("\n".join(lines))
@@ -388,6 +401,14 @@ def register_sweep(sub):
     p.add_argument("--ts", default="10:100:5", help="START:STOP:STEP in s, each t_s in (0, %g], "
                    "at most %d points (default 10:100:5, 19 points)" % (bps.MAX_TS_S, MAX_SWEEP_POINTS))
     add_satb_gnss_option(p, True)            # Sec. 6.4.3's sweep flies it
+    p.add_argument("--objective", choices=terminal_tuning.OBJECTIVES, default="body",
+                   help="body (default): t_s by J of the body pointing error (rad², Eq. 6.22); terminal: t_s by "
+                   "the 3σ residual (arcsec) the body error leaves after the fine loop's sensitivity |S| "
+                   "(Sec. 8.3), J reported beside it")
+    p.add_argument("--rejection", default=None, metavar="model|FILE",
+                   help="--objective terminal: the fine loop's |S|, model (default: ground.response's loop model "
+                   "of the thesis bench, 637.8 Hz, g = 0.5) or an fps response run's summary.json (measured, "
+                   "extended as |S| proportional to f below its lowest tone in Hz)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count; "
                    "1 = in-process)")

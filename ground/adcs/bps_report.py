@@ -294,3 +294,38 @@ def plot_sweep(path, s):
     ax.set_title("Objective J for the settling time (Fig. 6-2)")
     fig.tight_layout()
     save_png(fig, path, dpi=90)
+
+
+def plot_objectives(path, s):
+    """Fig. 6-2 with both objectives of a ``--objective terminal`` sweep: J of the body error (left axis, rad²)
+    and the 3σ residual after the fine loop (right axis, arcsec), both on log scales, each one's minimum marked
+    (the residual's also among the t_s within the body budgets), and the thesis's 33 s."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from ground.plots import save_png
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    ax2 = ax.twinx()
+    curves = ((ax, "J", "C0", "o-", "body objective J (rad²)", (("", s["ts_best_body_s"], "*"),)),
+              (ax2, "residual_3sigma_arcsec", "C3", "s-", "terminal objective: 3σ residual after the fine loop "
+               "(arcsec)", (("", s["ts_best_terminal_s"], "*"),
+                            (" within the body budgets", s["ts_best_terminal_in_budget_s"], "P"))))
+    for a_, key, color, style, label, bests in curves:
+        pts = dict((t, v) for t, v in zip(s["ts_s"], s[key]) if v is not None)
+        if pts:
+            a_.plot(list(pts), list(pts.values()), style, color=color, ms=4, label=label)
+            a_.set_ylabel(label, color=color)
+            a_.set_yscale("log")
+        for what, best, marker in bests:
+            if best is not None:
+                a_.plot([best], [pts[best]], marker, color=color, ms=15, mec="k",
+                        label="minimum%s: %g s" % (what, best))
+    ax.axvline(bps.TS_THESIS, color="k", ls=":", label="thesis: 33 s")
+    ax.set_xlabel("t_s (s)")
+    ax.grid(True, which="both", lw=0.3)
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper center")
+    ax.set_title("Settling time by the body error (Fig. 6-2) and by the residual after the fine loop", fontsize=10)
+    fig.tight_layout()
+    save_png(fig, path, dpi=90)

@@ -84,7 +84,8 @@ import numpy as np
 from emulator import orbits
 from emulator.adcs_bus import N, P, FaultSchedule, SpacecraftBus, check_faults
 from emulator.adcs_replies import ReplyWait, StatusWatch
-from emulator.launcher import ADCS_IMAGE, ADCS_MACHINE, FirmwareProcess, command, qemu_command, start_board
+from emulator.launcher import (ADCS_IMAGE, ADCS_MACHINE, FirmwareProcess, check_pil, command, qemu_command,
+                               start_board)
 from emulator.runtime import last_lines
 from protocol import core
 from protocol.units import RAD_PER_ARCSEC
@@ -128,6 +129,8 @@ def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, lin
         raise ValueError("another estimation runs in this process: runtime inproc only")
     if runtime == "inproc" and link_faults is not None:
         raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
+    if runtime == "qemu":
+        check_pil("adcs")                # QEMU and an image built from the tree's sources (make pil)
 
 
 class AdcsSession:
@@ -301,6 +304,8 @@ class AdcsSession:
         while True:
             if self.proc.poll() is not None:
                 raise OSError(self.proc.death(0.5, " before it said HELLO"))
+            if self.proc.crashed():          # a board that stopped at boot: its traceback
+                raise OSError(self.proc.crashed())
             if self.link.closed:
                 raise OSError("the link to %s (%s) closed before it said HELLO%s%s" % (
                     self.proc.name, where, self.proc.exit_note(0.5), self._link_note()))

@@ -14,6 +14,7 @@ boots one and starts its firmware through the raw REPL.
 """
 
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -46,6 +47,23 @@ def command(runtime, target, args=(), micropython_opts=()):
     return exe + head + [str(a) for a in args], env
 
 
+class PilUnavailable(ValueError):
+    """A ``--runtime qemu`` run that cannot start: QEMU missing, or the PIL image missing or not built from the
+    tree's sources (bad input: exit 2, the message naming ``make pil``)."""
+
+
+def check_pil(board="controller"):
+    """PilUnavailable unless qemu-system-arm is at hand and ``board``'s image ("controller": the Cortex-M0's,
+    "adcs": the Cortex-M7's) is built from the tree's sources (``tools.pil_build.stale``: the digest it carries)."""
+    from tools import pil_build
+    if shutil.which("qemu-system-arm") is None:
+        raise PilUnavailable("runtime qemu needs qemu-system-arm (install: %s) and the PIL images (make pil)"
+                             % pil_build.install_hint(["qemu-system-arm"]))
+    why = pil_build.stale(pil_build.ADCS_MEM if board == "adcs" else pil_build.TARGET_MEM)
+    if why:
+        raise PilUnavailable("runtime qemu: %s" % why)
+
+
 def qemu_command(image=PIL_IMAGE, serial="pty", icount=False, monitor=None, ram_bytes=PIL_RAM_BYTES,
                  machine="microbit"):
     """qemu-system-arm's command line for a PIL image on QEMU's ``machine``: for the microbit, ``ram_bytes`` of SRAM
@@ -62,18 +80,33 @@ def qemu_command(image=PIL_IMAGE, serial="pty", icount=False, monitor=None, ram_
     return cmd
 
 
-def start_board(cmd, start, connect, first_line=None, name="qemu-system-arm (a PIL board)", boot_s=60.0):
+def start_board(cmd, start, connect, first_line=None, name="qemu-system-arm (a PIL board)", boot_s=60.0,
+                console_log=True, speaks_first_s=None):
     """A PIL board: QEMU (``cmd``, a ``qemu_command`` with ``serial="pty"``) started, the pty it made opened raw,
     MicroPython's raw REPL entered and ``start`` (a statement, e.g. ``import firmware.pil_main``) run; then
     ``first_line`` (text, a newline added) written to the board if given, and ``connect(path)`` called, which opens
     the caller's link on the pty (while this side still holds it open: QEMU drops what a board writes to a pty
-    nobody holds). ``name``: the process as messages call it. Returns (the ``FirmwareProcess``, what ``connect``
+    nobody holds). ``name``: the process as messages call it. ``console_log``: what the UART sends also written to
+a file, the process's ``console`` (its last bytes: a traceback at boot, ``FirmwareProcess.crashed``).
+``speaks_first_s``: a firmware that frames a packet unasked once it runs (the controller's HELLO) is waited for
+that long, and one that prints a traceback instead is reported at once (``_first_words``). Returns (the ``FirmwareProcess``, what ``connect``
     returned). OSError saying what the board did instead."""
     import re
     import select
     import time
     import tty
+    if shutil.which(cmd[0]) is None:
+        raise PilUnavailable("runtime qemu needs %s (make pil says how to install it)" % cmd[0])
+    log_dir = tempfile.mkdtemp(prefix="fps-board-") if console_log else None
+    if log_dir:                    # what the board's UART sends, also to a file: its console (a traceback)
+        log = os.path.join(log_dir, "uart.log")
+        k = cmd.index("-serial")
+        cmd = cmd[:k] + ["-chardev", "pty,id=uart0,logfile=%s,logappend=on" % log, "-serial", "chardev:uart0"] + \
+            cmd[k + 2:]
     proc = FirmwareProcess(cmd, stdout=subprocess.PIPE, name=name, leaves_on_close=False)
+    if log_dir:
+        proc.cleanup_dirs.append(log_dir)
+        proc.console = lambda: _file_tail(log)
     fd = None
     try:
         line, t0 = b"", time.monotonic()
@@ -98,11 +131,13 @@ def start_board(cmd, start, connect, first_line=None, name="qemu-system-arm (a P
         os.write(fd, b"\x01")
         until(b"raw REPL; CTRL-B to exit\r\n>", 10.0)
         os.write(fd, start.encode() + b"\x04")
-        until(b"OK", 10.0)
+        after = until(b"OK", 10.0).partition(b"OK")[2]
         if first_line is not None:
             data = first_line.encode() + b"\n"
             while data:
                 data = data[os.write(fd, data):]
+        if speaks_first_s:
+            _first_words(fd, after, speaks_first_s, name)
         link = connect(path)
     except BaseException:
         proc.kill()
@@ -112,6 +147,27 @@ def start_board(cmd, start, connect, first_line=None, name="qemu-system-arm (a P
         if fd is not None:
             os.close(fd)
     return proc, link
+
+
+def _first_words(fd, got, wait_s, name):
+    """The board's first output after its start (``got``: what came with the raw REPL's OK), for up to ``wait_s``:
+    a frame's delimiter (0x00) says the firmware runs (the frame itself is dropped: the host's HELLO is answered
+    again); a traceback, read until the UART is quiet for 0.3 s, raises OSError quoting it."""
+    import select
+    import time
+    end = time.monotonic() + wait_s
+    while b"\x00" not in got and b"Traceback (most recent call last)" not in got:
+        left = end - time.monotonic()
+        if left <= 0:
+            return
+        if select.select([fd], [], [], min(left, 0.2))[0]:
+            got += os.read(fd, 4096)
+    if b"\x00" in got:
+        return
+    while select.select([fd], [], [], 0.3)[0]:
+        got += os.read(fd, 4096)
+    text = got[got.find(b"Traceback"):].decode(errors="replace")
+    raise OSError("the firmware on %s stopped at boot: %s" % (name, last_lines(text).replace("\x04>", "")))
 
 
 class FirmwareProcess(subprocess.Popen):
@@ -128,6 +184,7 @@ class FirmwareProcess(subprocess.Popen):
         self.told = False              # its end is in an error already: exit_note says it no more
         self.stderr_text = ""
         self.console = None            # a board's: a callable giving the last bytes its UART sent
+        self.cleanup_dirs = []         # removed by stop
         super().__init__(argv, cwd=ROOT, env=env, stdin=subprocess.DEVNULL,
                          stdout=self.errlog if stdout is None else stdout, stderr=self.errlog, pass_fds=pass_fds,
                          **child_options(own_group=True))
@@ -160,15 +217,23 @@ class FirmwareProcess(subprocess.Popen):
         """``"; " + death()`` once it has ended of itself (waiting up to ``wait_s``), else ``""`` (still
         running, stopped by this side, or its end already told); for a board whose ``console`` shows a traceback,
         its last lines."""
-        text = self.console() if self.console is not None else b""
-        k = text.rfind(b"Traceback (most recent call last)")
-        if k >= 0:                   # a board (QEMU) runs on after its firmware stopped: what it printed
-            lines = last_lines(text[k:].decode(errors="replace")).replace("\x04>", "")
-            return "; the firmware on %s stopped: %s" % (self.name, lines)
+        said = self.crashed()
+        if said:                     # a board (QEMU) runs on after its firmware stopped: what it printed
+            return "; " + said
         if self.stopped_by_us or self.told:
             return ""
         said = self.death(wait_s)
         return "; " + said if said else ""
+
+    def crashed(self):
+        """A board's firmware that stopped with a traceback on its UART (QEMU runs on): ``"the firmware on <name>
+        stopped: <its last lines>"``; else ``""``."""
+        text = self.console() if self.console is not None else b""
+        k = text.rfind(b"Traceback (most recent call last)")
+        if k < 0:
+            return ""
+        return "the firmware on %s stopped: %s" % (
+            self.name, last_lines(text[k:].decode(errors="replace")).replace("\x04>", ""))
 
     def stop(self, grace_s=2.0):
         """Wait ``grace_s`` for it to leave (it does when its link closes; not for one that does not,
@@ -192,3 +257,19 @@ class FirmwareProcess(subprocess.Popen):
         for f in (self.stdout, self.stderr):
             if f is not None:
                 f.close()
+        if self.cleanup_dirs and self.console is not None:
+            kept = self.console()          # read from a file removed now
+            self.console = lambda: kept
+        for d in self.cleanup_dirs:
+            shutil.rmtree(d, ignore_errors=True)
+
+
+def _file_tail(path, n_bytes=4096):
+    """The last ``n_bytes`` of a file (b"" if it cannot be read)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - n_bytes))
+            return f.read()
+    except OSError:
+        return b""

@@ -167,27 +167,31 @@ def _start(runtime, link_kind, rate_hz):
     return link, FirmwareProcess(argv, env=env, stdout=subprocess.DEVNULL, name="the controller (%s)" % runtime)
 
 
+BOOT_WORDS_S = 10.0          # wall seconds the PIL board has from its start to its first frame (its HELLO)
+
+
 def _start_qemu(boot_s=60.0):
     """QEMU with the PIL image, its UART on a pty; ``firmware.pil_main`` started through the raw REPL. Returns (the
-    bench's serial link on that pty, the QEMU process). OSError naming what is missing."""
-    from emulator.launcher import qemu_command, start_board
+    bench's serial link on that pty, the QEMU process). ``emulator.launcher.PilUnavailable`` (a ValueError) without
+    QEMU or with an image that is not the tree's; OSError when the board does not start."""
+    from emulator.launcher import check_pil, qemu_command, start_board
     from tools import pil_build
     from protocol.link import open_serial
-    missing = pil_build.missing_tools()
-    if missing or not os.path.exists(pil_build.IMAGE):
-        raise OSError("runtime qemu needs the PIL image (make pil)%s" % (
-            "" if not missing else " and %s (%s)" % (", ".join(missing), pil_build.install_hint(missing))))
+    check_pil("controller")
     import tempfile
+    mem = pil_build.TARGET_MEM
     mon_dir = tempfile.mkdtemp(prefix="fps-qemu-")
     monitor = os.path.join(mon_dir, "monitor.sock")
     try:
-        proc, link = start_board(qemu_command(pil_build.IMAGE, serial="pty", icount=True, monitor=monitor),
+        proc, link = start_board(qemu_command(mem.image, serial="pty", icount=True, monitor=monitor,
+                                              ram_bytes=mem.ram_bytes),
                                  "import firmware.pil_main", lambda path: open_serial(path, "BENCH", baudrate=115200),
-                                 name="qemu-system-arm (the controller's PIL board)", boot_s=boot_s)
+                                 name="qemu-system-arm (the controller's PIL board)", boot_s=boot_s,
+                                 console_log=False, speaks_first_s=BOOT_WORDS_S)
     except BaseException:
         shutil.rmtree(mon_dir, ignore_errors=True)
         raise
-    proc.monitor_path, proc.monitor_dir = monitor, mon_dir
+    proc.monitor_path, proc.monitor_dir, proc.mem = monitor, mon_dir, mem
     proc.console = lambda: bytes(link.rx_tail)
     return link, proc
 
@@ -209,7 +213,7 @@ def _stop(link, proc):
     if getattr(proc, "monitor_path", None):
         from tools import pil_board
         try:
-            proc.target = pil_board.read_target(proc.monitor_path) if proc.poll() is None else None
+            proc.target = pil_board.read_target(proc.monitor_path, proc.mem) if proc.poll() is None else None
         except (OSError, pil_board.BoardError) as exc:
             proc.target = dict(pil_board.TARGET, error="the board's RAM could not be read: %s" % exc)
         shutil.rmtree(proc.monitor_dir, ignore_errors=True)
@@ -240,8 +244,12 @@ def tick_timeout(link, tick_timeout_ms=None, runtime=None):
 
 def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=None,
                   tick_tries=TICK_TRIES, max_failed_ticks=MAX_FAILED_TICKS, rate_hz=637.8, baud=BAUD_DEFAULT, **_):
-    """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse."""
+    """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse; for runtime qemu,
+    QEMU missing or the image not the tree's (``emulator.launcher.check_pil``: make pil)."""
     check(runtime, link)
+    if runtime == "qemu":
+        from emulator.launcher import check_pil
+        check_pil("controller")
     if isinstance(baud, bool) or not isinstance(baud, int) or not BAUD_RANGE[0] <= baud <= BAUD_RANGE[1]:
         raise ValueError("--baud %r: must be a whole number of bit/s from %d to %d" % ((baud,) + BAUD_RANGE))
     if runtime != "board" and baud != BAUD_DEFAULT:

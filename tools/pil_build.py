@@ -37,6 +37,7 @@ PIL tests are then skipped with that reason.
 """
 
 import argparse
+import json
 import os
 import shutil
 import subprocess
@@ -60,37 +61,54 @@ class Memory:
     """One image's memory map: ``ram_bytes`` of SRAM (the linker script's, and QEMU's nRF51 given as much, so an
     access beyond faults), MicroPython's own variables (about 0.8 KB), the GC heap (a static array of
     ``heap_bytes``), and the stack, the top ``stack_bytes`` (MicroPython's stack check set 512 bytes inside it);
-    what is left between them is unused. The image is ``build/pil/<name>/firmware.elf``."""
+    what is left between them is unused. The image is ``build/pil/<name>/firmware.elf``; ``frozen`` (paths from
+    the repository's root) and ``tests`` (tests/mp scripts) what it freezes, ``c_sources`` C files built in;
+    ``flash_bytes`` the flash of the board it stands for (None: no limit checked)."""
 
-    def __init__(self, name, ram_bytes, heap_bytes, stack_bytes, machine="microbit", ram_start=RAM_START):
+    def __init__(self, name, ram_bytes, heap_bytes, stack_bytes, machine="microbit", ram_start=RAM_START,
+                 frozen=(), tests=(), c_sources=(), flash_bytes=None, board=True):
         self.name, self.ram_bytes, self.heap_bytes, self.stack_bytes = name, ram_bytes, heap_bytes, stack_bytes
         self.machine = machine
         self.dir = os.path.join(OUT, name)
         self.image = os.path.join(self.dir, "firmware.elf")
+        self.ram_start = ram_start
         self.stack_top = ram_start + ram_bytes
         self.stack_bottom = self.stack_top - stack_bytes
+        self.frozen, self.tests, self.c_sources = tuple(frozen), tuple(tests), tuple(c_sources)
+        self.flash_bytes = flash_bytes
+        self.board = board             # a generated pil_board module (the memory map) frozen in
 
 
-# The thesis's board (a SAMD21G18: 32 KB of SRAM), what --runtime qemu runs: a heap of 19 KB (18 KB is too little:
-# the 18 KB image runs out building its link at start, measured), a stack region of 6 KB (its high-water mark is
-# about 4.5 KB, measured in every qemu run's summary.json)
-TARGET_MEM = Memory("MICROBIT", launcher.PIL_RAM_BYTES, 19 * 1024, 6 * 1024)
+# the controller and what it imports on the board (the packet table's numbers, the H table, the viper law): what
+# the thesis's board runs (``TARGET_MEM``)
+CONTROLLER_FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hinv.py", "firmware/upload.py",
+                     "firmware/controller.py", "firmware/controller_viper.py",
+                     "firmware/hal/__init__.py", "firmware/hal/link.py", "firmware/hal/stdio.py",
+                     "firmware/hal/nrf51.py", "firmware/hal/fast_tick.py",
+                     "firmware/pil_main.py",
+                     "protocol/__init__.py", "protocol/compat.py", "protocol/consts.py", "protocol/frame.py",
+                     "protocol/hblob.py", "protocol/htable.py", "protocol/fast.py")
+# the lab board's besides: the disturbance player, measured there (tests/mp/pil_player_probe.py)
+FROZEN = CONTROLLER_FROZEN + ("firmware/player.py", "firmware/player_viper.py", "firmware/ad660.py",
+                              "protocol/distfile.py", "protocol/core.py", "protocol/table.py")
+# the known-answer scripts the PIL tests run on the lab board (tests/mp: the same ones the unix port runs)
+FROZEN_TESTS = ("firmware_plant.py", "pil_probe.py", "pil_player_probe.py")
+SAMD21G18_FLASH = 256 * 1024      # the thesis's CtrlArduino: 256 KB of flash, 32 KB of SRAM
+
+# The thesis's board (a SAMD21G18: 32 KB of SRAM, 256 KB of flash), what --runtime qemu runs: the controller's
+# modules only; a heap of 19 KB (18 KB is too little: the 18 KB image runs out building its link at start,
+# measured), a stack region of 6 KB (its high-water mark is about 4.5 KB, measured in every qemu run's summary.json)
+TARGET_MEM = Memory("MICROBIT", launcher.PIL_RAM_BYTES, 19 * 1024, 6 * 1024, frozen=CONTROLLER_FROZEN,
+                    flash_bytes=SAMD21G18_FLASH)
+# the same firmware on 24 KB of SRAM (a smaller part of the family): the tests run the 11x11 table on it
+SMALL_MEM = Memory("MICROBIT-24K", 24 * 1024, 18880, 4 * 1024 + 768, frozen=CONTROLLER_FROZEN,
+                   flash_bytes=SAMD21G18_FLASH)
 # the instruments' image (tests and make bench count instructions on it): the same code, room for their recorded
 # samples and the float plant; 256 KB of SRAM, as the microbit machine of the port has
-LAB_MEM = Memory("MICROBIT-LAB", 256 * 1024, 200 * 1024, 8 * 1024)
+LAB_MEM = Memory("MICROBIT-LAB", 256 * 1024, 200 * 1024, 8 * 1024, frozen=FROZEN, tests=FROZEN_TESTS)
 IMAGE = TARGET_MEM.image
 LAB_IMAGE = LAB_MEM.image
-# the controller and what it imports on the board (the packet table's pure core, the H table, the viper law)
-FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hinv.py", "firmware/upload.py",
-          "firmware/controller.py", "firmware/controller_viper.py",
-          "firmware/hal/__init__.py", "firmware/hal/link.py", "firmware/hal/stdio.py", "firmware/hal/nrf51.py",
-          "firmware/hal/fast_tick.py",
-          "firmware/pil_main.py",
-          "protocol/__init__.py", "protocol/compat.py", "protocol/consts.py", "protocol/frame.py", "protocol/hblob.py",
-          "protocol/htable.py", "protocol/fast.py",
-          # the disturbance player, measured on the lab board (tests/mp/pil_player_probe.py)
-          "firmware/player.py", "firmware/player_viper.py", "firmware/ad660.py", "protocol/distfile.py",
-          "protocol/core.py", "protocol/table.py")
+SMALL_IMAGE = SMALL_MEM.image
 
 # The ADCS computer: QEMU's mps2-an500 machine, a Cortex-M7 with a double-precision FPU (FPv5-D16), the closest
 # QEMU has to a CubeSat ADCS board's Cortex-M7 (an STM32F7 at 216 MHz; QEMU models no caches, TCM or pipeline);
@@ -98,9 +116,6 @@ FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hinv.py", "fi
 # built in as the module ``adcsk`` with hard-float doubles; 4 MB of SSRAM at 0, the port's own memory map
 ADCS_BOARD = "MPS2-AN500"
 ADCS_MACHINE = "mps2-an500"
-ADCS_MEM = Memory(ADCS_BOARD + "-ADCS", 4 * 1024 * 1024, 1024 * 1024, 64 * 1024, machine=ADCS_MACHINE, ram_start=0)
-ADCS_DIR = ADCS_MEM.dir
-ADCS_IMAGE = ADCS_MEM.image
 ADCS_MARCH = "armv7emdp"
 ADCS_FROZEN = ("firmware/__init__.py", "firmware/adcs/__init__.py", "firmware/adcs/app.py", "firmware/adcs/pil_main.py",
                "firmware/hal/__init__.py", "firmware/hal/slcan.py", "firmware/hal/mps2.py",
@@ -112,8 +127,13 @@ ADCS_FROZEN = ("firmware/__init__.py", "firmware/adcs/__init__.py", "firmware/ad
                "protocol/__init__.py", "protocol/compat.py", "protocol/consts.py", "protocol/frame.py",
                "protocol/fast.py", "protocol/core.py", "protocol/table.py", "protocol/can.py", "protocol/isotp.py",
                "protocol/lawicel.py", "protocol/paramfile.py", "protocol/spacecraft/__init__.py",
-               "protocol/spacecraft/schema.py", "protocol/units.py")
+               "protocol/spacecraft/schema.py", "protocol/spacecraft/plausible.py", "protocol/units.py")
 ADCS_FROZEN_TESTS = ("pil_adcs_probe.py",)
+ADCS_MEM = Memory(ADCS_BOARD + "-ADCS", 4 * 1024 * 1024, 1024 * 1024, 64 * 1024, machine=ADCS_MACHINE, ram_start=0,
+                  frozen=ADCS_FROZEN, tests=ADCS_FROZEN_TESTS, c_sources=("firmware/adcs/native/adcsk.c",),
+                  board=False)
+ADCS_DIR = ADCS_MEM.dir
+ADCS_IMAGE = ADCS_MEM.image
 ADCS_BOARD_MK = """# The ADCS computer's board (generated by tools/pil_build.py): mps2-an500, a Cortex-M7 with its FPU
 QEMU_ARCH = arm
 QEMU_MACHINE = %s
@@ -261,16 +281,124 @@ def fetch_full(dest=FULL_DIR):
         raise BuildError(str(exc)) from None
 
 
-# the known-answer scripts the PIL tests run on the board (tests/mp: the same ones the unix port runs)
-FROZEN_TESTS = ("firmware_plant.py", "pil_probe.py", "pil_player_probe.py")
+def manifest_text(mem, root=ROOT):
+    """``mem``'s frozen manifest: its modules, by path from the repository's root (module names follow), its tests'
+    scripts as top-level modules, and the generated ``pil_source`` (and ``pil_board``, for a board that has one) in
+    its build directory."""
+    text = "freeze(%r, (%s,))\n" % (root, ", ".join(repr(f) for f in mem.frozen))
+    if mem.tests:
+        text += "freeze(%r, (%s,))\n" % (os.path.join(root, "tests", "mp"), ", ".join(repr(f) for f in mem.tests))
+    return text + "freeze(%r, (%s))\n" % (mem.dir, "'pil_board.py', 'pil_source.py'" if mem.board
+                                          else "'pil_source.py',")
 
 
-def manifest_text(root=ROOT, files=FROZEN, tests=FROZEN_TESTS, out=TARGET_MEM.dir):
-    """The frozen manifest: our modules, by path from the repository's root (module names follow), the tests'
-    scripts as top-level modules, and the board's ``pil_board`` (in ``out``; None: none)."""
-    text = "freeze(%r, (%s,))\nfreeze(%r, (%s,))\n" % (
-        root, ", ".join(repr(f) for f in files), os.path.join(root, "tests", "mp"), ", ".join(repr(f) for f in tests))
-    return text + ("freeze(%r, ('pil_board.py',))\n" % out if out else "")
+# the image carries the digest of what it was built from (a string in the frozen ``pil_source``, kept verbatim in
+# the ELF's read-only data); a run refuses an image whose digest is not the tree's (``stale``)
+SOURCE_TAG = "fps-pil-sources:"
+
+
+def source_files(mem):
+    """The repository's files ``mem``'s image is built from, by path from its root: the frozen modules, the tests'
+    scripts, the C sources built in."""
+    return list(mem.frozen) + ["tests/mp/" + t for t in mem.tests] + list(mem.c_sources)
+
+
+def source_digests(mem, root=ROOT):
+    """({path: SHA-256 of the file}, the digest of them all and of the generated memory map): what ``mem``'s image
+    is built from. OSError if a file is missing."""
+    import hashlib
+    files, total = {}, hashlib.sha256()
+    for rel in source_files(mem):
+        with open(os.path.join(root, rel), "rb") as f:
+            files[rel] = hashlib.sha256(f.read()).hexdigest()
+        total.update(("%s %s\n" % (rel, files[rel])).encode())
+    total.update(("%s %d %d %d\n" % (mem.name, mem.ram_bytes, mem.heap_bytes, mem.stack_bytes)).encode())
+    if mem.board:
+        total.update(board_module(mem).encode())
+    return files, total.hexdigest()
+
+
+def source_module(digest):
+    """``pil_source``, frozen into an image: the digest of its sources (``source_digests``)."""
+    return '"""The digest of the sources this image is built from (generated by tools/pil_build.py)."""\n' \
+           'SOURCES = "%s%s"\n' % (SOURCE_TAG, digest)
+
+
+def image_digest(path):
+    """The source digest an image carries (None: none found)."""
+    import re
+    with open(path, "rb") as f:
+        m = re.search(re.escape(SOURCE_TAG.encode()) + rb"([0-9a-f]{64})", f.read())
+    return m.group(1).decode() if m else None
+
+
+def stale(mem, root=ROOT):
+    """Why ``mem``'s image cannot run the tree's code, in words naming ``make pil`` (None: it can): missing, or
+    built from other sources than the tree's (the files that differ named, from the build's summary.json)."""
+    rel = os.path.relpath(mem.image, root)
+    if not os.path.exists(mem.image):
+        return "no PIL image %s: build it with make pil" % rel
+    files, digest = source_digests(mem, root)
+    if image_digest(mem.image) == digest:
+        return None
+    try:
+        with open(os.path.join(mem.dir, "summary.json")) as f:
+            built = json.load(f)["source_files"]
+        changed = sorted(k for k in set(files) | set(built) if files.get(k) != built.get(k))
+    except (OSError, ValueError, KeyError, TypeError):
+        changed = []
+    return "the PIL image %s is stale: built from other sources than the tree's%s; rebuild it with make pil" % (
+        rel, " (%s)" % ", ".join(changed[:6] + (["..."] if len(changed) > 6 else [])) if changed else "")
+
+
+def section_sizes(image):
+    """(.text, .data, .bss) of an ELF image in bytes (``arm-none-eabi-size``)."""
+    p = subprocess.run(["arm-none-eabi-size", image], capture_output=True, text=True, **child_options())
+    if p.returncode != 0:
+        raise BuildError("arm-none-eabi-size %s failed: %s" % (image, p.stderr.strip()))
+    text, data, bss = (int(v) for v in p.stdout.splitlines()[1].split()[:3])
+    return text, data, bss
+
+
+def memory_figures(mem, sizes):
+    """An image's flash and RAM against its board's, from its section ``sizes`` (.text, .data, .bss): flash is
+    .text + .data (the data's initial values), RAM .data + .bss (the GC heap among them) + the stack region
+    (reserved; its high-water mark is measured at run time, ``tools.pil_board.read_target``)."""
+    text, data, bss = sizes
+    return {"text_bytes": text, "data_bytes": data, "bss_bytes": bss, "heap_bytes": mem.heap_bytes,
+            "stack_bytes": mem.stack_bytes, "flash_bytes": text + data, "flash_limit_bytes": mem.flash_bytes,
+            "ram_bytes": data + bss + mem.stack_bytes, "ram_limit_bytes": mem.ram_bytes,
+            "flash_fits": mem.flash_bytes is None or text + data <= mem.flash_bytes,
+            "ram_fits": data + bss + mem.stack_bytes <= mem.ram_bytes}
+
+
+def check_fits(mem, figures):
+    """BuildError, the image removed, when an image does not fit its board's flash or RAM."""
+    over = []
+    if not figures["flash_fits"]:
+        over.append("flash (.text + .data) %d bytes of the board's %d" % (figures["flash_bytes"], mem.flash_bytes))
+    if not figures["ram_fits"]:
+        over.append("RAM (.data + .bss + stack) %d bytes of the board's %d" % (figures["ram_bytes"], mem.ram_bytes))
+    if over:
+        os.remove(mem.image)
+        raise BuildError("%s does not fit its board: %s (fewer frozen modules, a smaller heap or stack)"
+                         % (os.path.relpath(mem.image, ROOT), "; ".join(over)))
+
+
+def finish_image(mem, digests):
+    """After ``mem``'s image is linked: its sizes checked against the board (``check_fits``) and, with the digests
+    of its sources, written to its build directory's summary.json (atomically)."""
+    if not os.path.exists(mem.image):
+        raise BuildError("the build left no %s" % mem.image)
+    fig = memory_figures(mem, section_sizes(mem.image))
+    files, digest = digests
+    fig.update(image=os.path.relpath(mem.image, ROOT), machine=mem.machine, sources=digest)
+    tmp = os.path.join(mem.dir, "summary.json.tmp")
+    with open(tmp, "w") as f:
+        json.dump(dict(fig, source_files=files), f, indent=1, sort_keys=True)
+    os.replace(tmp, os.path.join(mem.dir, "summary.json"))
+    check_fits(mem, fig)
+    return fig
 
 
 def patch_port(src):
@@ -304,8 +432,9 @@ def _write_if_changed(path, text):
         f.write(text)
 
 
-def build(src=None, mems=(TARGET_MEM, LAB_MEM)):
-    """mpy-cross, then a MICROBIT image with the firmware frozen for each memory map; returns the target's path."""
+def build(src=None, mems=(TARGET_MEM, SMALL_MEM, LAB_MEM)):
+    """mpy-cross, then a MICROBIT image with the firmware frozen for each memory map, then the ADCS's; each checked
+    against its board's flash and RAM, the figures in build/pil/summary.json; returns the target's path."""
     missing = install_tools(missing_tools())
     if missing:
         raise BuildError("missing %s (install: %s; as root with apt-get this build installs them itself)"
@@ -317,14 +446,17 @@ def build(src=None, mems=(TARGET_MEM, LAB_MEM)):
     with open(os.path.join(nolib, "README.md"), "w") as f:
         f.write("Empty: the PIL image freezes the firmware only (tools/pil_build.py).\n")
     _make(["make", "-s", "-C", os.path.join(src, "mpy-cross"), "-j2"])
+    figures = {}
     for k, mem in enumerate(mems):
         if k and not os.path.isdir(mem.dir):
             _seed_objects(mems[0].dir, mem.dir)
         os.makedirs(mem.dir, exist_ok=True)
         man = os.path.join(mem.dir, "manifest.py")
         ld = os.path.join(mem.dir, "board.ld")
-        for path, text in ((man, manifest_text(out=mem.dir)), (ld, linker_script(mem)),
-                           (os.path.join(mem.dir, "pil_board.py"), board_module(mem))):
+        digests = source_digests(mem)
+        for path, text in ((man, manifest_text(mem)), (ld, linker_script(mem)),
+                           (os.path.join(mem.dir, "pil_board.py"), board_module(mem)),
+                           (os.path.join(mem.dir, "pil_source.py"), source_module(digests[1]))):
             _write_if_changed(path, text)
         config = ["MICROPY_HEAP_SIZE=%d" % mem.heap_bytes, "LDSCRIPT=" + ld,
                   "CFLAGS_EXTRA=-DMICROPY_PIL_STACK_LIMIT=%d" % (mem.stack_bytes - 512)]
@@ -340,18 +472,22 @@ def build(src=None, mems=(TARGET_MEM, LAB_MEM)):
                     os.remove(os.path.join(mem.dir, f))
         _make(["make", "-s", "-C", os.path.join(src, "ports", "qemu"), "-j2", "BOARD=" + BOARD, "BUILD=" + mem.dir,
                "FROZEN_MANIFEST=" + man, "MPY_LIB_DIR=" + nolib, "MPY_CROSS_FLAGS=-march=" + MARCH] + config)
-        if not os.path.exists(mem.image):
-            raise BuildError("the build left no %s" % mem.image)
         with open(stamp, "w") as f:
             f.write("\n".join(config))
-    build_adcs(src, nolib)
+        figures[mem.name] = finish_image(mem, digests)
+    figures[ADCS_MEM.name] = build_adcs(src, nolib)
+    tmp = os.path.join(OUT, "summary.json.tmp")
+    with open(tmp, "w") as f:
+        json.dump(figures, f, indent=1, sort_keys=True)
+    os.replace(tmp, os.path.join(OUT, "summary.json"))
     return IMAGE
 
 
 # what differs between two MICROBIT images (main.c takes the heap size and the stack limit; the rest of the objects
 # are the same): left out when a build directory is seeded from another
 _PER_IMAGE = ("main.o", "main.P", "firmware.elf", "firmware.map", "firmware.bin", "frozen_content.c",
-              "frozen_content.o", "frozen_content.P", "manifest.py", "board.ld", "pil_board.py", "config.stamp")
+              "frozen_content.o", "frozen_content.P", "manifest.py", "board.ld", "pil_board.py", "config.stamp",
+              "pil_source.py", "summary.json")
 
 
 def _seed_objects(done, new):
@@ -364,27 +500,28 @@ def _seed_objects(done, new):
 
 def build_adcs(src, nolib):
     """The ADCS computer's image (``ADCS_IMAGE``): the lean ADCS frozen for the Cortex-M7 (``ADCS_FROZEN``), its C
-    kernels built in; the board's definition and the user C module generated under ``ADCS_DIR``."""
+    kernels built in; the board's definition and the user C module generated under ``ADCS_DIR``. Returns its
+    memory figures (``finish_image``)."""
     board = os.path.join(ADCS_DIR, "board")
     cmod = os.path.join(ADCS_DIR, "cmod", "adcsk")
     os.makedirs(board, exist_ok=True)
     os.makedirs(cmod, exist_ok=True)
     man = os.path.join(ADCS_DIR, "manifest.py")
+    digests = source_digests(ADCS_MEM)
     for path, text in ((os.path.join(board, "mpconfigboard.mk"), ADCS_BOARD_MK),
                        (os.path.join(cmod, "micropython.mk"), ADCSK_MK),
                        (os.path.join(cmod, "adcsk_builtin.c"),
                         "// generated by tools/pil_build.py: the ADCS kernels built into the image\n"
                         "#define ADCSK_BUILTIN 1\n#include \"py/runtime.h\"\n#include \"%s\"\n"
                         % os.path.join(ROOT, "firmware", "adcs", "native", "adcsk.c")),
-                       (man, manifest_text(files=ADCS_FROZEN, tests=ADCS_FROZEN_TESTS, out=None))):
+                       (os.path.join(ADCS_DIR, "pil_source.py"), source_module(digests[1])),
+                       (man, manifest_text(ADCS_MEM))):
         _write_if_changed(path, text)
     _make(["make", "-s", "-C", os.path.join(src, "ports", "qemu"), "-j2", "BOARD=" + ADCS_BOARD, "BOARD_DIR=" + board,
            "BUILD=" + ADCS_DIR, "FROZEN_MANIFEST=" + man, "MPY_LIB_DIR=" + nolib,
            "USER_C_MODULES=" + os.path.dirname(cmod), "MICROPY_HEAP_SIZE=%d" % ADCS_MEM.heap_bytes,
            "CFLAGS_EXTRA=-DMICROPY_PIL_STACK_LIMIT=%d" % (ADCS_MEM.stack_bytes - 1024)])
-    if not os.path.exists(ADCS_IMAGE):
-        raise BuildError("the build left no %s" % ADCS_IMAGE)
-    return ADCS_IMAGE
+    return finish_image(ADCS_MEM, digests)
 
 
 def _make(cmd):
@@ -403,7 +540,13 @@ def main(argv=None):
     except BuildError as exc:
         print("pil: %s" % exc, file=sys.stderr)
         return 0 if a.optional else 1
-    print("pil: %s (%d bytes)" % (os.path.relpath(path, ROOT), os.path.getsize(path)))
+    with open(os.path.join(OUT, "summary.json")) as f:
+        figures = json.load(f)
+    for name, fig in figures.items():
+        print("pil: %s: flash %d bytes%s, RAM %d of %d bytes (.data + .bss with a %d-byte heap + a %d-byte stack)"
+              % (fig["image"], fig["flash_bytes"], " of %d" % fig["flash_limit_bytes"] if fig["flash_limit_bytes"]
+                 else "", fig["ram_bytes"], fig["ram_limit_bytes"], fig["heap_bytes"], fig["stack_bytes"]))
+    print("pil: %s" % os.path.relpath(path, ROOT))
     return 0
 
 

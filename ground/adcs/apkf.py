@@ -32,6 +32,7 @@ from math import sqrt
 import numpy as np
 
 from ground.adcs import quat
+from ground.adcs.apkf_disturbance import DISTURBANCES, shaping
 from ground.adcs.apkf_model import (DEG, EYE6, EYE_N, EYE_W, HOUR, ID1, ID2, IJR, IQ, IW, IWM, IWP, IWR, Model, N,
                                     NW, PARAMS, _cross, _f2, _inv3_f, _propagate, _rates_f, _terms_f,
                                     initial_covariance)
@@ -39,13 +40,18 @@ from ground.adcs.apkf_model import (DEG, EYE6, EYE_N, EYE_W, HOUR, ID1, ID2, IJR
 from ground.adcs.apkf_model import (IJ, IM, ITD, RPM, c_rw, inertia, initial_state, jacobian, propagate,  # noqa: F401
                                     rates, terms)
 
-# P.take(_SHIFT) copies W+'s rows and columns into W-'s (``shift_tach``); _DIAG_PARAMS: PARAMS' diagonal in P.ravel()
-_SHIFT_ROWS = np.r_[0:33, 37:41, 37:41]
-_SHIFT = (_SHIFT_ROWS[:, None] * N + _SHIFT_ROWS[None, :]).ravel()
-_DIAG_PARAMS = np.arange(PARAMS.start, PARAMS.stop) * (N + 1)
-# P.take(_SO_INDEX): per wheel, P's (d1, d1), (d2, d2), (Jrw, Jrw), (d1, Jrw), (d2, Jrw), (d1, d2) (``second_order_noise``)
-_SO_INDEX = np.concatenate([np.arange(a.start, a.stop) * N + np.arange(b.start, b.stop)
-                            for a, b in ((ID1, ID1), (ID2, ID2), (IJR, IJR), (ID1, IJR), (ID2, IJR), (ID1, ID2))])
+
+
+@lru_cache(maxsize=4)
+def _indices(n):
+    """For an n x n P (41, or more with a shaping filter's states after the thesis's): P.take(shift) copies W+'s
+    rows and columns into W-'s (``shift_tach``); diag: PARAMS' diagonal in P.ravel(); so: per wheel, P's (d1, d1),
+    (d2, d2), (Jrw, Jrw), (d1, Jrw), (d2, Jrw), (d1, d2) (``second_order_noise``)."""
+    rows = np.r_[0:33, 37:41, 37:41, 41:n]
+    so = np.concatenate([np.arange(a.start, a.stop) * n + np.arange(b.start, b.stop)
+                         for a, b in ((ID1, ID1), (ID2, ID2), (IJR, IJR), (ID1, IJR), (ID2, IJR), (ID1, ID2))])
+    return (rows[:, None] * n + rows[None, :]).ravel(), np.arange(PARAMS.start, PARAMS.stop) * (n + 1), so
+
 # nominal process noise (Sec. 4.8), per second
 Q_NOMINAL = {
     "qd": (2.0e-7) ** 2 / HOUR,                 # Case 1, (N m)^2/s
@@ -108,9 +114,9 @@ def phi(F, dt, order=4):
 
 
 @lru_cache(maxsize=16)
-def _phi_wheel_rows(dt):
-    """Rows 29:33 of ``phi``: W + F9a dt W- + F9b dt W+ (Eq. 4.109-4.110)."""
-    R = np.zeros((NW, N))
+def _phi_wheel_rows(dt, n=N):
+    """Rows 29:33 of ``phi``: W + F9a dt W- + F9b dt W+ (Eq. 4.109-4.110), n columns."""
+    R = np.zeros((NW, n))
     R[:, IWR] = EYE_W
     R[:, IWM] = EYE_W * (-1.0 / dt) * dt
     R[:, IWP] = EYE_W * (1.0 / dt) * dt
@@ -118,23 +124,28 @@ def _phi_wheel_rows(dt):
     return R
 
 
-def _phi_rows(w, F2, dt, order=4):
+def _phi_rows(w, F2, dt, order=4, shaping=None):
     """The rows of ``phi`` that differ from I, 10 x 41: rows 0:6 (attitude, rate) from w (F11 = -[w x],
     F12 = I/2) and the rate rows F2 = F[3:6] alone (F's attitude rows are zero beyond column 6, and
-    F[0:6, W] F[W, W-:W+] = [-F2W, F2W]/dt), then the wheel-speed rows 29:33."""
+    F[0:6, W] F[W, W-:W+] = [-F2W, F2W]/dt), then the wheel-speed rows 29:33. With a ``shaping`` filter
+    (``apkf_disturbance``; F2 then has its columns too) the columns of its states are G1 F_A,d - (dt G1 - G2)
+    F_A,d Fd, on their values at the step's end."""
     w1, w2, w3 = (v * dt for v in w)
     h = 0.5 * dt
     Ad = np.empty((6, 6))
     Ad[0:3] = [[0.0, w3, -w2, h, 0.0, 0.0], [-w3, 0.0, w1, 0.0, h, 0.0], [w2, -w1, 0.0, 0.0, 0.0, h]]
     np.multiply(F2[:, 0:6], dt, out=Ad[3:6])
     E, G1, G2 = _series(Ad, dt, order)
-    PhiR = np.empty((10, N))
+    PhiR = np.empty((10, F2.shape[1]))
     PhiR[0:6, 0:6] = E
     np.matmul(G1[:, 3:6], F2[:, 6:], out=PhiR[0:6, 6:])
+    if shaping is not None:
+        ix = shaping.ix
+        PhiR[0:6, ix] -= (dt * G1[:, 3:6] - G2[:, 3:6]) @ (F2[:, ix] @ shaping.Fd)
     Y = G2[:, 3:6] @ (F2[:, IWR] * (1.0 / dt))
     PhiR[0:6, 33:37] -= Y
     PhiR[0:6, 37:41] += Y
-    PhiR[6:10] = _phi_wheel_rows(dt)
+    PhiR[6:10] = _phi_wheel_rows(dt, F2.shape[1])
     return PhiR
 
 
@@ -142,7 +153,9 @@ def _predict_covariance(P, PhiR, F2, qp, dt, R_rw):
     """``shift_tach`` on P, then Phi P Phi^T + Q (Eq. 4.128, 4.135-4.136) from the rows of Phi that differ from
     I (``_phi_rows``), the rate rows F2 of F and the noise densities qp: only rows and columns 0:6 and 29:33
     of P change, and Q's nonzero blocks are (w, w), (w, p), (p, w) and diag(p). Symmetrised."""
-    Pn = P.take(_SHIFT).reshape(N, N)        # W- <- W+ (W+'s correlations kept)
+    n = len(P)
+    shift, diag, _ = _indices(n)
+    Pn = P.take(shift).reshape(n, n)         # W- <- W+ (W+'s correlations kept)
     Pn[IWP] = 0.0
     Pn[:, IWP] = 0.0
     Pn[IWP, IWP] = EYE_W * R_rw              # W+ <- the new read-out
@@ -157,7 +170,7 @@ def _predict_covariance(P, PhiR, F2, qp, dt, R_rw):
     Pn[IW, PARAMS] += Qwp
     Pn[PARAMS, IW] += Qwp.T
     Pn[IW, IW] += (F2p * qp) @ F2p.T * (dt ** 3 / 3)
-    Pn.ravel()[_DIAG_PARAMS] += qp * dt
+    Pn.ravel()[diag] += qp * dt
     out = Pn + Pn.T
     out *= 0.5
     return out
@@ -208,20 +221,35 @@ def shift_tach(x, P, w_plus, R_rw):
 
 def _linearise(x, w_plus, model, t):
     """``shift_tach`` on x (in place), then the step's model at its start with the orbit and field at mid-step:
-    (q, w, c, wheels, r0, F2, PhiR): ``_terms_f``'s constants, ``_rates_f`` at s = 0 (F's point and RK4's
-    first stage), the rate rows F2 of F and the rows of Phi that differ from I (``_phi_rows``)."""
+    (q, w, c, wheels, r0, F2, PhiR, d): ``_terms_f``'s constants, ``_rates_f`` at s = 0 (F's point and RK4's
+    first stage), the rate rows F2 of F, the rows of Phi that differ from I (``_phi_rows``) and tau_d's shaping
+    filter d (``model.disturbance``; None: the random walk). With one, its states in x move to the step's end
+    (Phi = Phi_b S, S = I but Phi_dd on those states; ``_phi_rows``' Phi_b takes them at the end) and the
+    dynamics hold tau_d at mid-step (``apkf_disturbance``)."""
     x[34:38] = x[38:42]
     x[38:42] = w_plus
+    d = getattr(model, "disturbance", None)
+    if d is not None:
+        Phi_dd, Phi_half, _ = d.step(model.dt)
+        z = x[d.ix + 1]
+        x[d.ix + 1] = Phi_dd @ z
     c, wheels, _ = _terms_f(x, model, t + 0.5 * model.dt)
+    if d is not None:
+        c = c[:8] + ((Phi_half[0:3] @ z).tolist(),)
     q, w = x[0:4].tolist(), x[4:7].tolist()
     r0 = _rates_f(q, w, 0.0, c)
     F2 = _f2(w, c, wheels, r0, model)
-    return q, w, c, wheels, r0, F2, _phi_rows(w, F2, model.dt)
+    if d is not None and d.n > N:
+        F2 = np.hstack([F2, np.zeros((3, d.n - N))])
+    return q, w, c, wheels, r0, F2, _phi_rows(w, F2, model.dt, shaping=d), d
 
 
-def _carry(M, PhiR):
+def _carry(M, PhiR, d=None, dt=1.0):
     """M <- Phi S M in place: S is ``shift_tach``'s map (W- takes W+'s rows; the new read-out W+ does not
-    depend on the stretch's start), Phi the step's (``_phi_rows``: only rows 0:6 and 29:33 differ from I)."""
+    depend on the stretch's start), Phi the step's (``_phi_rows``: only rows 0:6 and 29:33 differ from I;
+    with a shaping filter d, its rows first moved by its Phi_dd over dt, as ``_linearise``)."""
+    if d is not None:
+        M[d.ix] = d.step(dt)[0] @ M[d.ix]
     M[IWM] = M[IWP]
     M[IWP] = 0.0
     T = PhiR @ M
@@ -242,7 +270,7 @@ def second_order_noise(x, P, model, Ji):
     a = (x[38:42] - x[34:38]) / dt
     W = x[30:34]
     w1, w2, w3 = x[4:7].tolist()
-    p11, p22, pj, p1j, p2j, p12 = P.take(_SO_INDEX).reshape(6, NW)
+    p11, p22, pj, p1j, p2j, p12 = P.take(_indices(len(P))[2]).reshape(6, NW)
     s11 = p11 * pj + p1j * p1j
     s22 = p22 * pj + p2j * p2j
     s12 = p12 * pj + p1j * p2j
@@ -258,20 +286,48 @@ def second_order_noise(x, P, model, Ji):
     return Q + Q.T
 
 
+def _shaped(P, ix, Phi_dd):
+    """S P S^T, S = I but Phi_dd on the shaping filter's states ``ix`` (``_linearise``)."""
+    P = P.copy()
+    P[ix] = Phi_dd @ P[ix]
+    P[:, ix] = P[:, ix] @ Phi_dd.T
+    return P
+
+
+def _add_shaping_noise(P, ix, Q, F2, dt):
+    """P += the shaping filter's Q_dd on its states ``ix`` and its cross terms with the rate, in place (the order
+    of Eq. 4.135-4.136: Q_w,d = F_w,d Q_dd dt/2, Q_ww = F_w,d Q_dd F_w,d^T dt^2/3)."""
+    F = F2[:, ix]
+    Qw = F @ Q * (0.5 * dt)
+    P[IW, ix] += Qw
+    P[ix, IW] += Qw.T
+    P[IW, IW] += F @ Q @ F.T * (dt * dt / 3)
+    P[np.ix_(ix, ix)] += Q
+
+
 def predict(x, P, w_plus, model, t, case=1, scale=1.0, M=None, qd=QD_CASE, second_order=False):
     """(x, P) at t + dt from t, with the tachometer read-out w_plus at t + dt (rad/s): ``shift_tach``, then
     x by ``propagate`` and P = Phi P Phi^T + Q (Eq. 4.128) with Phi of ``phi`` (Eq. 4.114-4.127) and Q of
     ``process_noise`` (Eq. 4.135-4.136, tau_d's density from ``qd``), computed from the nonzero rows of F and Phi
     only. ``M`` (41 x 41, if given) is carried through the step in place (``_carry``): the Jacobian of x on a
-    stretch's start. ``second_order``: add ``second_order_noise`` to the rate's block."""
+    stretch's start. ``second_order``: add ``second_order_noise`` to the rate's block. With a shaping filter
+    (``model.disturbance``) tau_d's Phi and Q are its (``_linearise``, ``_add_shaping_noise``; Q_dd times
+    ``scale``) and P, M are n x n with its added states."""
     x = x.copy()
-    q, w, c, wheels, r0, F2, PhiR = _linearise(x, w_plus, model, t)
+    q, w, c, wheels, r0, F2, PhiR, d = _linearise(x, w_plus, model, t)
     Q2 = second_order_noise(x, P, model, np.array(c[1])) if second_order else None
-    P = _predict_covariance(P, PhiR, F2, noise_density(x, case, scale, qd), model.dt, model.R_rw)
+    qp = noise_density(x, case, scale, qd)
+    if d is not None:
+        Phi_dd, _, Q_dd = d.step(model.dt)
+        qp[0:3] = 0.0
+        P = _shaped(P, d.ix, Phi_dd)
+    P = _predict_covariance(P, PhiR, F2, qp, model.dt, model.R_rw)
+    if d is not None:
+        _add_shaping_noise(P, d.ix, Q_dd * scale, F2, model.dt)
     if Q2 is not None:
         P[IW, IW] += Q2
     if M is not None:
-        _carry(M, PhiR)
+        _carry(M, PhiR, d, model.dt)
     return _propagate(x, q, w, model.dt, c, wheels, r0[:2]), P
 
 
@@ -280,14 +336,14 @@ def propagate_window(x, steps, model):
     ``predict``'s, m_ctrl the model's magnetorquer input then, default the model's own), and M = d x_b / d x, the product of the steps' Phi
     and ``shift_tach`` maps."""
     x = np.array(x, dtype=float)
-    M = EYE_N.copy()
+    M = np.eye(len(x) - 1)
     m_now = getattr(model, "m_ctrl", None)
     try:
         for st in steps:
             t, w_plus = st[0], st[1]
             model.m_ctrl = st[2] if len(st) > 2 else m_now
-            q, w, c, wheels, r0, _, PhiR = _linearise(x, w_plus, model, t)
-            _carry(M, PhiR)
+            q, w, c, wheels, r0, _, PhiR, d = _linearise(x, w_plus, model, t)
+            _carry(M, PhiR, d, model.dt)
             _propagate(x, q, w, model.dt, c, wheels, r0[:2])
     finally:
         model.m_ctrl = m_now
@@ -295,8 +351,9 @@ def propagate_window(x, steps, model):
 
 
 def difference(x, y):
-    """x - y in the 41 error coordinates: dq = vec(q_x (x) q_y^-1) (Eq. 4.77), the rest subtracted."""
-    d = np.empty(N)
+    """x - y in the error coordinates (41, or more with a shaping filter's): dq = vec(q_x (x) q_y^-1) (Eq. 4.77),
+    the rest subtracted."""
+    d = np.empty(len(x) - 1)
     d[IQ] = quat.error_vec(x[0:4], y[0:4])
     d[3:] = x[4:] - y[4:]
     return d
@@ -370,9 +427,9 @@ def update_standard(x, P, q_meas, R):
     """The same update with P+ = (I - K H) P (for the tests)."""
     z = quat.error_vec(q_meas, x[0:4])
     K = np.linalg.solve(P[IQ, IQ] + R, P[IQ, :]).T
-    H = np.zeros((3, N))
+    H = np.zeros((3, len(P)))
     H[:, IQ] = np.eye(3)
-    return correct(x, K @ z), (np.eye(N) - K @ H) @ P
+    return correct(x, K @ z), (np.eye(len(P)) - K @ H) @ P
 
 
 def correct(x, dx):
@@ -417,6 +474,17 @@ def check_covariance(P, t, name="APKF"):
         raise FloatingPointError("%s diverged at t = %.0f s: P is not positive definite" % (name, t)) from None
 
 
+def shaping_states(x, P, sf):
+    """(x, P) with a shaping filter's states (``apkf_disturbance``): a second order's appended at zero; the
+    prior of all, tau_d's too, its stationary covariance (``ShapingFilter.prior``), uncorrelated with the rest."""
+    x = np.concatenate([x, np.zeros(sf.n - N)])
+    Pn = np.zeros((sf.n, sf.n))
+    Pn[:N, :N] = P
+    Pn[ITD] = Pn[:, ITD] = 0.0
+    Pn[np.ix_(sf.ix, sf.ix)] = sf.prior()
+    return x, Pn
+
+
 class APKF:
     """The APKF over a recorded run: ``step(t, w_plus, q_meas or None)`` per dt.
 
@@ -436,15 +504,23 @@ class APKF:
     fused but resets the attitude (``reset_attitude``; ``resets``: one (t, NIS, angle arcsec) each). None (the
     default, the thesis's filter): every output is fused.
     ``reacquisitions``: one (t, steps, passes) per iterated update; ``qd`` and ``second_order`` are the form's
-    (a diagnostic may change them)."""
+    (a diagnostic may change them).
+    ``disturbance``: tau_d's model, "white" (the thesis's random walk, default), "markov" or "harmonic" (the
+    shaping filters of ``apkf_disturbance``, first and second order, for the case by its rules), set on
+    ``model.disturbance``; a second-order one appends its states to x and P (``shaping_states``)."""
 
-    def __init__(self, x0, model=None, case=1, set_ends=(), form="consistent"):
+    def __init__(self, x0, model=None, case=1, set_ends=(), form="consistent", disturbance="white"):
         if form not in FORMS:
             raise ValueError("form must be one of %s, got %r" % (", ".join(FORMS), form))
+        if disturbance not in DISTURBANCES:
+            raise ValueError("disturbance must be one of %s, got %r" % (", ".join(DISTURBANCES), disturbance))
         self.model = model or Model()
+        sf = self.model.disturbance = None if disturbance == "white" else shaping(case, disturbance)
         self.x = np.array(x0, dtype=float)
         # the consistent form's P0 holds the spread of the Jxx-relative scale; the thesis's holds Jxx exact
         self.P = initial_covariance(self.model, self.x if form == "consistent" else None)
+        if sf is not None:
+            self.x, self.P = shaping_states(self.x, self.P, sf)
         self.case = case
         self.set_ends = list(set_ends)
         self.form = form
@@ -471,7 +547,7 @@ class APKF:
         M = None
         if self.form == "consistent":
             if self._stretch is None:
-                self._stretch = (self.x, self.P, [], EYE_N.copy())
+                self._stretch = (self.x, self.P, [], np.eye(len(self.P)))
             self._stretch[2].append((t, np.array(w_plus, dtype=float), getattr(m, "m_ctrl", None)))
             M = self._stretch[3]
         self.x, self.P = predict(self.x, self.P, w_plus, m, t, self.case, s_q, M=M, qd=self.qd,

@@ -77,6 +77,7 @@ class Model:
         self.R_st = np.diag((np.asarray(sigma_st_arcsec) * quat.RAD_PER_ARCSEC) ** 2) / 4.0
         self.R_rw = (tach_rpm * RPM) ** 2
         self.m_ctrl = None      # the magnetorquers' dipole over the step (filter units: A m^2 x s), a known input
+        self.disturbance = None  # tau_d's shaping filter (``apkf_disturbance.GaussMarkov``); None: a random walk
 
     def env_inertial(self, t):
         """(unit orbit radius, 3 mu/r^3, field) in the inertial frame at t."""

@@ -18,6 +18,7 @@ import os
 import sys
 
 from ground.adcs import apkf, campaign, runs
+from ground.adcs.apkf_disturbance import DISTURBANCES, shaping
 from ground.adcs.options import add_campaign_options, load_spacecraft
 from ground.fileio import output_folder, write_json
 
@@ -82,8 +83,19 @@ def _apkf(sub):
                         "q_d matched to its disturbance; thesis: Eq. 4.139-4.142 and Sec. 4.7.4 as written "
                         "(reproduces the thesis's tables; its 1 sigma is overconfident: docs/ADCS.md, "
                         "\"Attitude determination\")")
-    p.set_defaults(func=lambda a: run_filter_campaign(runs.run_apkf, "apkf", a.case, a,
-                                                      options={"form": a.form, "vehicle": a.vehicle}))
+    p.add_argument("--disturbance", choices=DISTURBANCES, default="white",
+                   help="the filter's model of the disturbance torque tau_d (N m): white (default), the thesis's "
+                        "random walk; markov, a first-order Gauss-Markov state (sigma, N m, and correlation time, "
+                        "s, from the case's disturbance); harmonic, a damped oscillator at Case 2's sine periods "
+                        "(s; Case 2 only): docs/ADCS.md, \"Disturbance models\"")
+    p.set_defaults(func=_run_apkf)
+
+
+def _run_apkf(a):
+    if a.disturbance != "white":
+        shaping(a.case, a.disturbance)            # ValueError (exit 2): a form the case has no figures for
+    return run_filter_campaign(runs.run_apkf, "apkf", a.case, a,
+                               options={"form": a.form, "vehicle": a.vehicle, "disturbance": a.disturbance})
 
 
 def _mekf(sub):

@@ -151,12 +151,12 @@ def mekf_options(d):
             "sigma_st_rad": np.array(d["star_tracker"]["sigma_arcsec"]) * quat.RAD_PER_ARCSEC}
 
 
-def _start_apkf(o, case, start_at_truth=False, model=None, spacecraft=None, form="consistent"):
+def _start_apkf(o, case, start_at_truth=False, model=None, spacecraft=None, form="consistent", disturbance="white"):
     """(first step, APKF) for a simulated run: attitude from the star tracker, rate differentiated from it
     (Sec. 4.8); ``start_at_truth`` puts the parameters at their true values (a diagnostic), same P0;
     ``model``: an ``apkf.Model`` other than the default (a diagnostic); ``spacecraft``: a checked spacecraft
-    file giving the model (``apkf_model``) and the priors (``apkf_prior``) instead of the thesis's; ``form``: the
-    APKF's (``apkf.APKF``)."""
+    file giving the model (``apkf_model``) and the priors (``apkf_prior``) instead of the thesis's; ``form`` and
+    ``disturbance``: the APKF's (``apkf.APKF``)."""
     k0 = _start(o)
     q0 = o["st_q"][k0]
     w0 = quat.rotvec(quat.quat_mul(q0, quat.conj(o["st_q"][k0 - 1])))
@@ -171,7 +171,7 @@ def _start_apkf(o, case, start_at_truth=False, model=None, spacecraft=None, form
         tr = o["truth"]
         x0[10:15], x0[15:18], x0[18:22], x0[22:26], x0[26:30] = (tr["J5"], tr["m"], tr["delta1"], tr["delta2"],
                                                                   tr["jrw"])
-    return k0, apkf.APKF(x0, model=model, case=case, set_ends=o["set_ends"], form=form)
+    return k0, apkf.APKF(x0, model=model, case=case, set_ends=o["set_ends"], form=form, disturbance=disturbance)
 
 
 def _start(o):
@@ -234,7 +234,7 @@ def apkf_params_report(o, k, f, case):
     x_true = f.x.copy()
     x_true[7:30] = f.x[7:30] + apkf_error(o, k, f.x, case)[apkf.PARAMS]      # the truth in the filter's terms
     e = physical_params(x_true, s, f.model)[0] - p
-    sp = np.sqrt(np.diag(G @ f.P @ G.T))
+    sp = np.sqrt(np.diag(G @ f.P[:apkf.N, :apkf.N] @ G.T))
     return {"sigma_jyy_jzz_kgm2": sp[3:5].tolist(), "sigma_dipole_am2": float(sp[8:11].max()),
             "max_sigma_delta_rw_deg": float(sp[11:19].max()), "max_sigma_jrw_kgm2": float(sp[19:23].max()),
             "final_error_params": {"jyy_jzz_kgm2": e[3:5].tolist(), "dipole_am2": e[8:11].tolist(),
@@ -290,15 +290,15 @@ def fly_vehicle(spacecraft, seed, vehicle="file"):
 
 
 def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at_truth=False, spacecraft=None,
-             form="consistent", vehicle="file"):
+             form="consistent", vehicle="file", disturbance="white"):
     """One APKF run; see the module docstring. Returns the final figures and (for the aggregate) the series.
     ``start_at_truth`` (a diagnostic, not in the CLI) starts the parameters at their true values, same P0.
     ``spacecraft``: a checked spacecraft file for the truth and the filter (None: the thesis's 3U); ``vehicle``:
     the vehicle flown (``fly_vehicle``: the file's truth block, or drawn from ``seed``); ``form``: the APKF's,
-    "consistent" or "thesis" (``apkf.APKF``)."""
+    "consistent" or "thesis", and ``disturbance``, tau_d's model, "white" or "markov" (``apkf.APKF``)."""
     spacecraft, vrec = fly_vehicle(spacecraft, seed, vehicle)
     o = _simulate(case, seed, params, gyro=False, spacecraft=spacecraft)
-    k0, f = _start_apkf(o, case, start_at_truth, spacecraft=spacecraft, form=form)
+    k0, f = _start_apkf(o, case, start_at_truth, spacecraft=spacecraft, form=form, disturbance=disturbance)
     n = len(o["t"])
     err = np.full((n, apkf.N), np.nan)
     sig = np.full((n, apkf.N), np.nan)
@@ -308,7 +308,7 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
             f.step(o["t"][k - 1], o["tach"][k], o["st_q"][k] if o["st_valid"][k] else None)
             apkf.check_covariance(f.P, o["t"][k])
         err[k] = apkf_error(o, k, f.x, case)
-        sig[k] = np.sqrt(np.diag(f.P))
+        sig[k] = np.sqrt(np.diag(f.P)[:apkf.N])           # a shaping filter's added states left out
         nees[k] = _nees(err[k, 0:6], f.P[0:6, 0:6])
     z = err[:, 0:6] / sig[:, 0:6]
     why = divergence(nees, err, sig, k0, o["set_ends"])
@@ -317,6 +317,7 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
     passes = [r[2] for r in f.reacquisitions]
     res["vehicle"] = vrec
     res["filter_form"] = form
+    res["disturbance_model"] = disturbance
     res["iterated_updates"] = {"count": len(passes), "max_passes": max(passes, default=0),
                                "mean_passes": float(np.mean(passes)) if passes else 0.0}
     _write_run(run_dir, res, o["t"], err, sig, nees, z)

@@ -215,7 +215,8 @@ class AdcsSession:
         """The firmware's configuration (written to its config.json): parameter file, gains, STKF start, and
         the spacecraft file's nominal figures, not the emulated (true) vehicle's, as ground/adcs/body_pointing.py's flight
         software: the wheels' axes, torque limit, friction model and read-out noise, the star tracker's, GNSS's
-        and beacon's noise, the APKF's initial 1 sigma, the STKF's P0 and the laser axis."""
+        and beacon's noise, the APKF's initial 1 sigma, the STKF's P0 and the laser axis; in the flight world the STKF's
+        dynamics (``scenario.FLIGHT_STKF``: J2 and its process noise)."""
         d = self.spacecraft
         w, u, g = d["wheels"], d["uncertainty"], d["gnss"]
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
@@ -231,7 +232,7 @@ class AdcsSession:
                 "laser_axis": scenario.laser_axis(d).tolist(),
                 "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0,
                 "isotp_timeout_ms": ISOTP_TIMEOUT_MS, "world": self.world_name, "flight": self.flight,
-                "magnetorquers": d["magnetorquers"]}
+                "magnetorquers": d["magnetorquers"], **(scenario.FLIGHT_STKF if self.world_name == "flight" else {})}
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""

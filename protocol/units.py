@@ -11,3 +11,8 @@ ARCSEC_PER_RAD = 180.0 / math.pi * 3600.0     # 206264.8 arcsec in one radian
 # thesis's orbit model (Eq. 5.7) and of brahe's GM_EARTH, so the two-body orbits, the STKF, the gravity-gradient
 # torque and the high-precision truth agree
 MU_EARTH = 398600.4415e9
+
+# The Earth's second zonal harmonic (JGM-3's and EGM96's unnormalised J2) and the equatorial radius it goes with
+# (WGS-84's, m): the flight STKF's J2 model (firmware/adcs/stkf_kernels.py)
+J2_EARTH = 1.08262668e-3
+R_EARTH_EQ = 6378137.0

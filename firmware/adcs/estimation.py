@@ -58,6 +58,18 @@ def stkf_cap(lag_s, rate_hz=1.0):
     return n if n > 3 else 3
 
 
+def stkf_model(cfg):
+    """The STKF's dynamics from the configuration: ``stkf_gravity`` ("two-body", Eq. 5.7, the default; "j2": with
+    the J2 term) and ``stkf_qa`` (the white acceleration noise, m^2/s^3, Eq. 5.8; default the thesis's 0.01), as
+    ``LeanStkf``'s keywords. ValueError naming the key for a bad value."""
+    gravity, qa = cfg.get("stkf_gravity", "two-body"), cfg.get("stkf_qa", stkf_lean.QA_THESIS)
+    if not (isinstance(gravity, str) and gravity in stkf_lean.GRAVITY):
+        raise ValueError("stkf_gravity must be one of %s, got %r" % (", ".join(sorted(stkf_lean.GRAVITY)), gravity))
+    if not (isinstance(qa, (int, float)) and not isinstance(qa, bool) and qa - qa == 0 and qa > 0):
+        raise ValueError("stkf_qa must be a number > 0 (m^2/s^3), got %r" % (qa,))
+    return {"gravity": gravity, "qa": float(qa)}
+
+
 def vehicle(cfg):
     """The lean APKF's vehicle from the configuration (a spacecraft file's figures; the defaults are the thesis's
     3U): its nominal wheel axes, star-tracker and read-out noise, initial 1 sigma and the wheels its parameter file
@@ -96,7 +108,8 @@ class Estimation:
         for i in range(6):
             self.Rg[i * 7] = (sg[0] if i < 3 else sg[1]) ** 2
         lag = float(cfg.get("lag_s", stkf_lean.LAG_S)) if rd.satb else 0.0
-        self.stkf = stkf_lean.LeanStkf(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=stkf_cap(lag))
+        self.stkf = stkf_lean.LeanStkf(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=stkf_cap(lag),
+                                       **stkf_model(cfg))
         self.xs = stkf_lean.zeros_d(12)
         self.sig = stkf_lean.zeros_d(12)
         self.stkf.get(self.xs, self.sig)

@@ -2,7 +2,16 @@
 transition matrix and process noise (Eq. 5.8-5.11), and the 6-state block products the filter's covariance
 updates are made of, a generated node's rows (``between``) among them (``stkf_lean.LeanStkf`` uses them). Compiled
 by the native emitter; the block products run in C when the kernels are built (``linalg.kernels``), with the same
-results bit for bit."""
+results bit for bit.
+
+Gravity (``GRAVITY``): two-body (Eq. 5.7, the thesis's), or two-body plus the J2 zonal term
+
+    a_J2 = -(3/2) J2 mu R^2 / |r|^5 [x (1 - 5 z^2/|r|^2), y (1 - 5 z^2/|r|^2), z (3 - 5 z^2/|r|^2)]
+
+in J2000 with its z axis taken as the Earth's pole (precession and nutation left out: the pole of date is
+~0.36 deg off J2000's in 2026, a J2 error of ~6e-3 of the term, which the J2 model's process noise covers,
+docs/ADCS.md). ``f`` and ``phi`` take the term's coefficient ``j2`` = (3/2) J2 mu R^2 (m^5/s^2; 0.0: two-body, the
+same operations as without it, bit for bit)."""
 
 from array import array
 import math
@@ -10,9 +19,12 @@ import math
 from firmware.adcs import linalg
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from protocol.units import MU_EARTH as MU  # Eq. 5.7
+from protocol.units import J2_EARTH, R_EARTH_EQ
 
 QA_THESIS = 0.1 ** 2
 N = 6                  # states per satellite
+J2_TERM = 1.5 * J2_EARTH * MU * R_EARTH_EQ * R_EARTH_EQ      # m^5/s^2, the J2 term's coefficient
+GRAVITY = {"two-body": 0.0, "j2": J2_TERM}                      # the model's name -> f's and phi's j2
 
 
 def zeros_d(n):
@@ -20,9 +32,9 @@ def zeros_d(n):
 
 
 @micropython.native
-def f(x, o, dt):
+def f(x, o, dt, j2=0.0):
     """Two-body propagation (Eq. 5.4, 5.7) of one satellite's state x[o:o+6] by dt (negative: backward,
-    Eq. 5.51), in place: RK4 steps of at most 1 s."""
+    Eq. 5.51), in place: RK4 steps of at most 1 s; j2 != 0: with the J2 term (module docstring)."""
     n = 1
     while n < abs(dt) - 1e-9:
         n += 1
@@ -31,45 +43,80 @@ def f(x, o, dt):
     hh, k = 0.5 * h, h / 6.0
     for _ in range(n):
         r2 = rx * rx + ry * ry + rz * rz
-        c = -MU / (r2 * math.sqrt(r2))
-        a1x, a1y, a1z = c * rx, c * ry, c * rz
+        q = r2 * math.sqrt(r2)
+        c = cz = -MU / q
+        if j2:                                   # + the J2 term: (cxy x, cxy y, cz z)
+            e = j2 / (q * r2)
+            c = c - e * (1.0 - 5.0 * rz * rz / r2)
+            cz = c - 2.0 * e
+        a1x, a1y, a1z = c * rx, c * ry, cz * rz
         x2, y2, z2 = rx + hh * vx, ry + hh * vy, rz + hh * vz
         u2, v2, w2 = vx + hh * a1x, vy + hh * a1y, vz + hh * a1z
         r2 = x2 * x2 + y2 * y2 + z2 * z2
-        c = -MU / (r2 * math.sqrt(r2))
-        a2x, a2y, a2z = c * x2, c * y2, c * z2
+        q = r2 * math.sqrt(r2)
+        c = cz = -MU / q
+        if j2:                                   # + the J2 term: (cxy x, cxy y, cz z)
+            e = j2 / (q * r2)
+            c = c - e * (1.0 - 5.0 * z2 * z2 / r2)
+            cz = c - 2.0 * e
+        a2x, a2y, a2z = c * x2, c * y2, cz * z2
         x3, y3, z3 = rx + hh * u2, ry + hh * v2, rz + hh * w2
         u3, v3, w3 = vx + hh * a2x, vy + hh * a2y, vz + hh * a2z
         r2 = x3 * x3 + y3 * y3 + z3 * z3
-        c = -MU / (r2 * math.sqrt(r2))
-        a3x, a3y, a3z = c * x3, c * y3, c * z3
+        q = r2 * math.sqrt(r2)
+        c = cz = -MU / q
+        if j2:                                   # + the J2 term: (cxy x, cxy y, cz z)
+            e = j2 / (q * r2)
+            c = c - e * (1.0 - 5.0 * z3 * z3 / r2)
+            cz = c - 2.0 * e
+        a3x, a3y, a3z = c * x3, c * y3, cz * z3
         x4, y4, z4 = rx + h * u3, ry + h * v3, rz + h * w3
         u4, v4, w4 = vx + h * a3x, vy + h * a3y, vz + h * a3z
         r2 = x4 * x4 + y4 * y4 + z4 * z4
-        c = -MU / (r2 * math.sqrt(r2))
+        q = r2 * math.sqrt(r2)
+        c = cz = -MU / q
+        if j2:                                   # + the J2 term: (cxy x, cxy y, cz z)
+            e = j2 / (q * r2)
+            c = c - e * (1.0 - 5.0 * z4 * z4 / r2)
+            cz = c - 2.0 * e
         rx, ry, rz = rx + k * (vx + 2.0 * (u2 + u3) + u4), ry + k * (vy + 2.0 * (v2 + v3) + v4), \
             rz + k * (vz + 2.0 * (w2 + w3) + w4)
         vx, vy, vz = vx + k * (a1x + 2.0 * (a2x + a3x) + c * x4), vy + k * (a1y + 2.0 * (a2y + a3y) + c * y4), \
-            vz + k * (a1z + 2.0 * (a2z + a3z) + c * z4)
+            vz + k * (a1z + 2.0 * (a2z + a3z) + cz * z4)
     x[o], x[o + 1], x[o + 2], x[o + 3], x[o + 4], x[o + 5] = rx, ry, rz, vx, vy, vz
 
 
 @micropython.native
-def phi(Phi, x, o, dt):
+def phi(Phi, x, o, dt, j2=0.0):
     """Phi (6 x 6) of one satellite over dt at x[o:o+3] (Eq. 3.30 with F of Eq. 5.4):
-    [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]], G = -mu/|r|^3 (I - 3 r r^T/|r|^2)."""
+    [[I + G dt^2/2, I dt + G dt^3/6], [G dt, I + G dt^2/2]], G = -mu/|r|^3 (I - 3 r r^T/|r|^2), plus with
+    j2 != 0 the J2 term's gradient -e [diag(b) + (2 w - 5 b_i) r_i r_j/|r|^2 - 10 z r_i dz_j/|r|^2],
+    e = j2/|r|^5, w = 5 z^2/|r|^2, b = (1 - w, 1 - w, 3 - w)."""
     r0, r1, r2 = x[o], x[o + 1], x[o + 2]
     rr = r0 * r0 + r1 * r1 + r2 * r2
     c = -MU / (rr * math.sqrt(rr))
     d = -3.0 * c / rr
     h2, h3 = 0.5 * dt * dt, dt * dt * dt / 6.0
     r = (r0, r1, r2)
+    e = w = b = ei = 0.0
+    if j2:
+        e = j2 / (rr * rr * math.sqrt(rr))
+        w = 5.0 * r2 * r2 / rr
     for i in range(3):
         di, o = d * r[i], 6 * i
+        if j2:
+            b = 3.0 - w if i == 2 else 1.0 - w
+            ei = -e * (2.0 * w - 5.0 * b) * r[i] / rr
         for j in range(3):
             g = di * r[j]
+            if j2:
+                g = g + ei * r[j]
+                if j == 2:
+                    g = g + 10.0 * e * r2 * r[i] / rr
             if i == j:
                 g += c
+                if j2:
+                    g = g - e * b
                 Phi[o + j] = Phi[o + 21 + j] = 1.0 + h2 * g
                 Phi[o + 3 + j] = dt + h3 * g
             else:

@@ -1,10 +1,10 @@
 """The lean STKF with the AFLS (flight code, MicroPython): thesis Sec. 5.3-5.4 over preallocated flat buffers.
 
-State [rA, vA, rB, vB] (12, m and m/s, J2000; Eq. 5.6); two-body dynamics with white acceleration noise qa
-(Eq. 5.7-5.9), Phi to third order but its G^2 dt^3/6 term (Eq. 3.30 with F of Eq. 5.4), GNSS updates
-(Eq. 5.10-5.12), the beacon (Eq. 5.13-5.17, the attitude error as measurement noise as in Sec. 5.3.3), SatB's
-delayed GNSS through the augmented fixed-lag smoother (AFLS, Eq. 5.18-5.24) with node generation between nodes
-(EAFLS, Eq. 5.46-5.52).
+State [rA, vA, rB, vB] (12, m and m/s, J2000; Eq. 5.6); two-body dynamics (Eq. 5.7; or with the J2 term,
+``gravity="j2"``, stkf_kernels' docstring) with white acceleration noise qa (Eq. 5.8-5.9), Phi to third order but
+its G^2 dt^3/6 term (Eq. 3.30 with F of Eq. 5.4), GNSS updates (Eq. 5.10-5.12), the beacon (Eq. 5.13-5.17, the
+attitude error as measurement noise as in Sec. 5.3.3), SatB's delayed GNSS through the augmented fixed-lag smoother
+(AFLS, Eq. 5.18-5.24) with node generation between nodes (EAFLS, Eq. 5.46-5.52).
 
 What this flight form chooses, and why (the ground form is ground/adcs/stkf.py + afls.py, 12 states per node):
 
@@ -66,8 +66,9 @@ import math
 from firmware.adcs import control, linalg
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 # the kernels, re-exported here for the filter's users
-from firmware.adcs.stkf_kernels import (MU, N, QA_THESIS, _add_gain, _finite, _ikh_rows, _ikh_sandwich,  # noqa: F401
-                                        between, f, phi, process_noise, rows_mul_mirror, sandwich, zeros_d)
+from firmware.adcs.stkf_kernels import (GRAVITY, MU, N, QA_THESIS, _add_gain, _finite, _ikh_rows,  # noqa: F401
+                                        _ikh_sandwich, between, f, phi, process_noise, rows_mul_mirror, sandwich,
+                                        zeros_d)
 
 LAG_S = 4.0            # the relay delay U(2, 3) s (Sec. 5.5.1) + up to 1 s until the next 1 Hz cycle
 MAX_STEP_S = 600.0     # one predict() at most (RK4 substeps of 1 s)
@@ -119,9 +120,11 @@ class Work:
 class LeanStkf:
     """The lean STKF: SatA's EKF and SatB's AFLS.
 
-    ``LeanStkf(x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS)``: x0 = [rA, vA, rB, vB] (12, m,
-    m/s), P0diag its 12 variances. ``predict(t)``; ``update_gnss(z6, R (6 x 6 flat), sat, t=None)`` (sat 0
-    SatA, on time; sat 1 SatB, any tag within the lag); ``update_beacon(y, q_hat, P_att, sigma_b)``;
+    ``LeanStkf(x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS, gravity="two-body")``: x0 = [rA, vA, rB,
+    vB] (12, m, m/s), P0diag its 12 variances, qa the white acceleration noise (m^2/s^3, Eq. 5.8), gravity
+    "two-body" (Eq. 5.7) or "j2" (``GRAVITY``; ``j2`` the J2 term's coefficient passed to f and phi).
+    ``predict(t)``; ``update_gnss(z6, R (6 x 6 flat), sat, t=None)`` (sat 0 SatA, on time; sat 1 SatB, any
+    tag within the lag); ``update_beacon(y, q_hat, P_att, sigma_b)``;
     ``get(x12, sig12)`` writes the current estimate and its 1 sigma into the caller's buffers,
     ``position_cov(PA9, PB9)`` the position covariances (for the pointing covariance, Eq. 5.59).
     Bad input raises ValueError and leaves the filter as it was (``refused`` counts refused measurements).
@@ -131,7 +134,11 @@ class LeanStkf:
     SatA: ``xa`` (6), ``Pa`` (6 x 6). SatB's nodes, newest first: ``X[6 i: 6 i + 6]`` at ``t[i]``, i < ``k``,
     joint covariance ``P`` (leading dimension ``ld``)."""
 
-    def __init__(self, x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS, tol=1e-9):
+    def __init__(self, x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS, tol=1e-9, gravity="two-body"):
+        if gravity not in GRAVITY:
+            raise ValueError("gravity model must be one of %s, got %r" % (", ".join(sorted(GRAVITY)), gravity))
+        if not (qa - qa == 0.0 and qa > 0):
+            raise ValueError("process noise qa must be > 0 m^2/s^3, got %r" % (qa,))
         if not (lag_s - lag_s == 0.0 and lag_s >= 0):
             raise ValueError("smoother lag must be >= 0 s, got %r" % (lag_s,))
         if not (_finite(x0, 12) and _finite(P0diag, 12) and t0 - t0 == 0.0):
@@ -142,6 +149,7 @@ class LeanStkf:
         if cap < 3:
             raise ValueError("smoother capacity must be >= 3 nodes")
         self.cap, self.ld, self.qa, self.tol, self.lag = cap, cap * N, qa, tol, float(lag_s)
+        self.j2 = GRAVITY[gravity]
         self.xa = zeros_d(N)
         self.Pa = linalg.zeros(36)
         self.X = zeros_d(cap * N)
@@ -233,16 +241,16 @@ class LeanStkf:
             raise ValueError("prediction step of %r s is longer than %g s (propagate in steps)" % (dt, MAX_STEP_S))
         wa, w = self.wa, self.work
         process_noise(wa.Q, dt, self.qa)
-        phi(wa.Phi, self.xa, 0, dt)
-        f(self.xa, 0, dt)
+        phi(wa.Phi, self.xa, 0, dt, self.j2)
+        f(self.xa, 0, dt, self.j2)
         sandwich(self.Pa, 6, 0, wa.Phi, wa.Q, wa.T)
         process_noise(w.Q, dt, self.qa)
-        phi(w.Phi, self.X, 0, dt)
+        phi(w.Phi, self.X, 0, dt, self.j2)
         self._prune(t_new)                      # before the products: dropped nodes cost nothing
         self._shift(0)
         X, P, ld = self.X, self.P, self.ld
         X[0:N] = X[N:2 * N]
-        f(X, 0, dt)
+        f(X, 0, dt, self.j2)
         self.t[0] = t_new
         m = self.k * N
         rows_mul_mirror(P, ld, N, N, m, w.Phi)   # P0j = Phi P0j from the old node 0's rows (now N .. 2N-1)
@@ -337,7 +345,7 @@ class LeanStkf:
         the other nodes (exact); b is not kept: with in-order tags 1 s apart no later tag falls between a and
         c, and the pruning keeps a as the anchor."""
         w, ld, P = self.work, self.ld, self.P
-        if not _generated_node(w, self.X, ia, ic, dt_a, dt_b, self.qa):
+        if not _generated_node(w, self.X, ia, ic, dt_a, dt_b, self.qa, self.j2):
             self.refused += 1
             raise ValueError("Qca is not positive definite")
         Qa = w.Q
@@ -515,21 +523,21 @@ def _joseph_terms(G, RK, KRK, K, H, R):
 
 
 @micropython.native
-def _generated_node(w, X, ia, ic, dt_a, dt_b, qa):
+def _generated_node(w, X, ia, ic, dt_a, dt_b, qa, j2):
     """The generated node b between a (older, X's node ia) and c (newer, node ic) of Eq. 5.46-5.52, dt_a after a
     and dt_b before c, into the work buffers w: Fa = Phi(x_a, dt_a) (``Phi``), Fb = Phi(f(x_a, dt_a), dt_b),
     Qa, Qb (``Q``, ``Qb``), Qca = Fb Qa Fb^T + Qb, B = Qa Fb^T Qca^-1, T = I - B Fb, A = T Fa and
     x_b = f(x_a, dt_a) + B Fb (f(x_c, -dt_b) - f(x_a, dt_a)) (``d[6:12]``). False if Qca is not positive
-    definite."""
+    definite. j2: the J2 term's coefficient (``GRAVITY``)."""
     xb, xc = w.xb, w.xc
     for i in range(N):
         xb[i] = X[ia * N + i]
         xc[i] = X[ic * N + i]
     Fa, Fb, Qa, Qb, A, B, T, L = w.Phi, w.Fb, w.Q, w.Qb, w.A, w.B, w.T, w.L
-    phi(Fa, xb, 0, dt_a)
-    f(xb, 0, dt_a)
-    phi(Fb, xb, 0, dt_b)
-    f(xc, 0, -dt_b)
+    phi(Fa, xb, 0, dt_a, j2)
+    f(xb, 0, dt_a, j2)
+    phi(Fb, xb, 0, dt_b, j2)
+    f(xc, 0, -dt_b, j2)
     process_noise(Qa, dt_a, qa)
     process_noise(Qb, dt_b, qa)
     q3, q2, q1 = Qa[0], Qa[3], Qa[21]                 # Qa per axis [[q3, q2], [q2, q1]], zeros elsewhere

@@ -20,7 +20,7 @@ export PYTHONDONTWRITEBYTECODE :=
 
 all: test
 
-$(STAMP): requirements.lock pyproject.toml
+$(STAMP): requirements.lock pyproject.toml emulator/spacecraft/_truth.c
 	test -x $(PY) || $(PYTHON3) -m venv $(VENV)
 	$(PY) -m pip install -q --disable-pip-version-check --no-compile -r requirements.lock
 	$(PY) -m pip install -q --disable-pip-version-check --no-compile --no-deps -e .

@@ -116,7 +116,8 @@ class ReplyWait:
 
 class StatusWatch:
     """The ADCS_STATUS of each cycle: its mode and stale sensors named, the firmware's own cycle times
-    (``cycle_us``: n, sum, largest), each mode change with its reason (``mode_changes``: {"t_s", "from", "to",
+    (``cycle_us``: n, sum, largest; ``filters_start_us`` the first cycle out of INIT, which starts the filters,
+    apart), each mode change with its reason (``mode_changes``: {"t_s", "from", "to",
     "reason"}; also an event in ``fault_log``)."""
 
     def __init__(self, say, fault_log):
@@ -124,6 +125,7 @@ class StatusWatch:
         self.fault_log = fault_log
         self.last = None
         self.cycle_us = [0, 0, 0]
+        self.filters_start_us = None         # the cycle that starts the filters, apart from cycle_us
         self.mode = None
         self.mode_changes = []
 
@@ -132,7 +134,9 @@ class StatusWatch:
         status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
         status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
         self.last = status
-        if status["tick"] > 0:               # the first cycle starts the filters
+        if self.filters_start_us is None and status["adcs_mode_name"] != "INIT":
+            self.filters_start_us = status["cycle_us"]     # the first cycle out of INIT starts the filters
+        else:
             c = self.cycle_us
             c[0] += 1
             c[1] += status["cycle_us"]

@@ -84,8 +84,8 @@ import numpy as np
 from emulator import orbits
 from emulator.adcs_bus import N, P, FaultSchedule, SpacecraftBus, check_faults
 from emulator.adcs_replies import ReplyWait, StatusWatch
-from emulator.launcher import (ADCS_IMAGE, ADCS_MACHINE, FirmwareProcess, check_pil, command, qemu_command,
-                               start_board)
+from emulator.launcher import (ADCS_IMAGE, ADCS_MACHINE, PIL_ISOTP_TIMEOUT_MS, FirmwareProcess, check_pil, command,
+                               qemu_command, start_board)
 from emulator.runtime import last_lines
 from protocol import core
 from protocol.units import RAD_PER_ARCSEC
@@ -256,7 +256,8 @@ class AdcsSession:
 
         def connect(path):
             return hostlink.open_link("slcan:" + path, "SPACECRAFT", bitrate=1000000, accept=accept,
-                                      isotp_timeout_s=ISOTP_TIMEOUT_MS / 1000.0)
+                                      isotp_timeout_s=(PIL_ISOTP_TIMEOUT_MS if self.runtime == "qemu"
+                                                       else ISOTP_TIMEOUT_MS) / 1000.0)
         if self.runtime == "qemu":               # the ADCS PIL board: its UART is QEMU's pty
             if not os.path.exists(ADCS_IMAGE):
                 raise OSError("runtime qemu needs the ADCS PIL image %s (make pil)" % os.path.relpath(ADCS_IMAGE))
@@ -424,8 +425,10 @@ class AdcsSession:
         n, total, worst = self.watch.cycle_us
         return {"target": dict(BOARD), "instructions_per_cycle": {
             "what": "the firmware's own cycle (ADCS_STATUS.cycle_us: filters, control law, commands) under -icount "
-                    "shift=0, one instruction a virtual ns; the first cycle (the filters' start) left out",
-            "n": n, "mean": 1000.0 * total / n if n else None, "max": 1000.0 * worst if n else None}}
+                    "shift=0, one instruction a virtual ns; the first cycle out of INIT (the filters' start) apart, "
+                    "in filters_start",
+            "n": n, "mean": 1000.0 * total / n if n else None, "max": 1000.0 * worst if n else None,
+            "filters_start": None if self.watch.filters_start_us is None else 1000.0 * self.watch.filters_start_us}}
 
     def summary(self):
         st = self.watch.last or {}

@@ -28,6 +28,11 @@ PIL_RAM_BYTES = 32 * 1024         # the thesis's SAMD21G18 has 32 KB of SRAM; th
 ADCS_IMAGE = os.path.join(ROOT, "build", "pil", "MPS2-AN500-ADCS", "firmware.elf")   # tools.pil_build's ADCS_MEM
 ADCS_MACHINE = "mps2-an500"
 QEMU_ARGS = ("-nographic", "-semihosting")
+# ISO-TP's N_Bs and N_Cr on the host's side of a PIL board's CAN, in wall ms: the board sends a flow control or its
+# next consecutive frame only between its computations, whose longest (the filters' start, 11.6 M instructions)
+# takes a few hundred ms of wall time under QEMU's -icount; ISO 15765-2's own 1000 ms (the board keeps its own
+# timeouts in its virtual time: its timer counts instructions)
+PIL_ISOTP_TIMEOUT_MS = 1000.0
 
 
 def command(runtime, target, args=(), micropython_opts=()):

@@ -229,7 +229,8 @@ def test_fps_adcs_can_on_the_cortex_m7_board_flies_as_the_unix_port(tmp_path):
     assert q["complete"] and q["cycles"] == m["cycles"] == 40 and q["mode_changes"] == m["mode_changes"]
     assert "Cortex-M7" in q["target"]["core"] and "target" not in m
     ipc = q["instructions_per_cycle"]
-    assert ipc["n"] == 39 and 1e5 < ipc["mean"] <= ipc["max"]
+    assert ipc["n"] == 39 and 1e5 < ipc["mean"] <= ipc["max"] < ipc["filters_start"]     # the APKF's start apart
+    assert q["link"].get("tx_isotp_failed", 0) == 0                 # the host waits out the board's computations
     eq, em = q["h"]["est_q"], m["h"]["est_q"]
     assert eq.shape == em.shape and max(angle_arcsec(a, b) for a, b in zip(eq[-5:], em[-5:])) < 1.0
 

@@ -16,13 +16,17 @@ its J includes the rotors' transverse share J_a. The motor and friction torques 
 internal: H = J w + C Jrw W obeys dH/dt|body = -w x H + tau_ext, so the inertial A^T H is conserved without external
 torque. tau_ext = gravity gradient + residual dipole (Eq. 4.68-4.75) + a pluggable callable + wheel jitter.
 The motor torque is held over each fixed RK4 step (zero-order hold, as a 1 Hz-10 Hz flight computer drives it).
+
+Two forms of the step: ``derivative``/``_step_python`` here on Python floats (the reference), and the C kernel
+``emulator.spacecraft._truth`` (built by ``pip install -e .``), the same operations in the same order
+(``emulator.spacecraft.kernel``). ``Spacecraft.truth_form`` says which one steps.
 """
 
 import math
 
 import numpy as np
 
-from emulator.spacecraft import environment as env
+from emulator.spacecraft import environment as env, kernel as _kernel
 from emulator.spacecraft.wheels import N_WHEELS, RPM as _RPM, Wheels
 
 # [Jxx, Jyy, Jzz, Jxy, Jxz, Jyz], kg m^2 (Sec. 4.8): nominal and true error; products are matrix entries.
@@ -94,7 +98,7 @@ class Spacecraft:
 
     def __init__(self, wheels=None, inertia=None, dt=0.1, q=(0.0, 0.0, 0.0, 1.0), omega=(0.0, 0.0, 0.0),
                  omega_rw=(0.0,) * N_WHEELS, orbit=_DEFAULT, field=_DEFAULT,
-                 dipole=env.M_DIPOLE_THESIS, gravity_gradient=True, disturbance=None, t0=0.0):
+                 dipole=env.M_DIPOLE_THESIS, gravity_gradient=True, disturbance=None, t0=0.0, kernel=None):
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError("dt must be > 0 s, got %r" % (dt,))
         self.wheels = wheels if wheels is not None else Wheels()
@@ -127,6 +131,8 @@ class Spacecraft:
         self.tau_motor = np.zeros(N_WHEELS)       # applied over the last step (after limits)
         self.steps = 0
         self.q_drift_max = 0.0
+        self.truth_form = _kernel.form(kernel, type(self.wheels) is Wheels)
+        self._kernel = self._kernel_key = None
 
     # --- state views ---------------------------------------------------------------------------------
     @property
@@ -238,7 +244,25 @@ class Spacecraft:
             wrel[0], wrel[1], wrel[2], wrel[3]])
 
     def step(self):
-        """One RK4 step of dt with the wheels' limited motor torques held; the quaternion is renormalised."""
+        """One RK4 step of dt with the wheels' limited motor torques held; the quaternion is renormalised. The C
+        kernel's (``truth_form`` "kernel") or ``_step_python``; the two agree to rounding."""
+        if self.truth_form == "python":
+            return self._step_python()
+        key = (self.orbit, self.field, self.disturbance, self.gravity_gradient)
+        if key != self._kernel_key:
+            self._kernel, self._kernel_key = _kernel.build(self), key
+        w = self.wheels
+        x, tq = np.empty(15), np.empty(N_WHEELS)
+        qn, clip = self._kernel.step(self.t, self.dt, self.x, x, tq, w.cmd, w.enable, self._dipole)
+        if clip:
+            w.n_torque_clip += [(clip >> i) & 1 for i in range(N_WHEELS)]
+            w.n_speed_clip += [(clip >> (N_WHEELS + i)) & 1 for i in range(N_WHEELS)]
+        self.q_drift_max = max(self.q_drift_max, abs(qn - 1.0))
+        self.x, self.t, self.tau_motor = x, self.t + self.dt, tq
+        self.steps += 1
+
+    def _step_python(self):
+        """``step`` on Python floats (the reference form)."""
         dt, t, x = self.dt, self.t, self.x
         tq = self.wheels.apply_limits(x[7:11] - self.wheels.c.T @ x[4:7], dt)
         k1 = self.derivative(t, x, tq)

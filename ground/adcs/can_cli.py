@@ -213,15 +213,19 @@ def _say(summary, a):
     if ipc and ipc["n"]:
         t = summary["target"]
         print("the board (%s): %.2f M instructions a cycle on the mean, %.2f M the largest: %.1f-%.1f %% of 1 s at "
-              "%.0f MHz" % (t["core"].split(" with")[0], ipc["mean"] / 1e6, ipc["max"] / 1e6,
-                            100 * ipc["mean"] * t["cpi_range"][0] / t["clock_hz"],
-                            100 * ipc["mean"] * t["cpi_range"][1] / t["clock_hz"], t["clock_hz"] / 1e6))
+              "%.0f MHz%s" % (t["core"].split(" with")[0], ipc["mean"] / 1e6, ipc["max"] / 1e6,
+                              100 * ipc["mean"] * t["cpi_range"][0] / t["clock_hz"],
+                              100 * ipc["mean"] * t["cpi_range"][1] / t["clock_hz"], t["clock_hz"] / 1e6,
+                              "; the filters' start apart: %.2f M" % (ipc["filters_start"] / 1e6)
+                              if ipc.get("filters_start") else ""))
     r, p, req = summary["retries"], summary.get("pointing"), summary["requirements"]
+    lk = summary.get("link") or {}
     print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s, link retries: %d cycles, "
-          "%d ticks and %d packets resent; %s" % (
+          "%d ticks and %d packets resent, ISO-TP transfers %d resent and %d failed (%d timeouts); %s" % (
         a.runtime, summary["cycles"], "" if summary["complete"] else " (interrupted)", summary["last_mode"],
         summary["late_cycles"], summary["firmware_missed"], r["cycles_retried"], r["tick_resent"],
-        r["packets_resent"],
+        r["packets_resent"], lk.get("tx_isotp_resent", 0), lk.get("tx_isotp_failed", 0),
+        sum(v for k, v in lk.items() if "Timeout" in k),
         ("pointing 3σ %.1f″ (budget %.0f″), stability 3σ %.1f″/s (budget %.0f″/s)" % (
             p["pointing_3sigma_arcsec"], req["body_pointing_3sigma_arcsec"], p["stability_3sigma_arcsec_s"],
             req["body_stability_3sigma_arcsec_s"])) if p else "too short for pointing figures"))

@@ -169,6 +169,7 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
     flog = {k: fsw[k] for k in ("m_cmd", "h_w", "mtq_sat", "beacon_used")}
     res.update(flight_statistics(hist, dth, dom, mode10, period, flog, mtq["dipole_limit_am2"], axes, occ))
     res["flight_options"] = fo
+    res["truth_form"] = s.sc.truth_form             # the truth's RK4 step: "kernel" (C) or "python"
     add_statistics(res, dth, dom, sel)
     res["budget"] = budget
     res["consistency"] = app_host.consistency(fsw, int(np.ceil(period)))

@@ -21,6 +21,19 @@ def remove_stale(folder, names):
     return gone
 
 
+def folder_line(path, first=("summary.json", "report.md")):
+    """"run folder PATH: a, b, ..." naming every file the folder holds (``first`` ahead, the rest sorted; a
+    sub-folder with a trailing /), so the line never names a file that was not written nor leaves one out."""
+    try:
+        names = os.listdir(str(path))
+    except OSError:
+        return "run folder %s: (not written)" % path
+    shown = [n + "/" if os.path.isdir(os.path.join(str(path), n)) else n for n in names if not n.startswith(".")]
+    order = {n: i for i, n in enumerate(first)}
+    shown.sort(key=lambda n: (order.get(n, len(order)), n))
+    return "run folder %s: %s" % (path, ", ".join(shown) or "(empty)")
+
+
 def run_folder(path, figures=()):
     """Make the run folder ``path`` (or reuse it) without the ``figures`` an earlier run left there
     (``remove_stale``); returns ``path``."""

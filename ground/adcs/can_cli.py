@@ -6,8 +6,8 @@ Run folder (``-o DIR``, atomic writes): ``summary.json`` (written at the start w
 session's counters, the link's retries and faults, the fault log, the ADCS's last status and the body
 pointing figures after the hold and 4 t_s, arcsec and arcsec/s), ``history.npz`` (10 Hz truth t, q, w and the
 pointing error dtheta/domega in arcsec; 1 Hz status fields, the flight software's estimates ``est_q``,
-``est_w``, ``est_ra``, ``est_rb`` and the wheel commands applied ``rw_cmd_nm``), ``pointing.png`` (the pointing
-error with the ADCS mode). ``--link-faults`` damages the slcan stream (bit flips, frame lines dropped, both
+``est_w``, ``est_ra``, ``est_rb`` and the wheel commands applied ``rw_cmd_nm``), ``report.md`` (the verdict table,
+the run, the mode changes and the faults), ``pointing.png`` (the pointing error with the ADCS mode). ``--link-faults`` damages the slcan stream (bit flips, frame lines dropped, both
 directions): the lockstep's retries keep every cycle exactly once, and the retries are counted in the summary.
 A run that fails (the firmware exits or hangs, no HELLO, the link closes) leaves ``summary.json`` with ``complete``
 false, the ``error`` and the link's counters (exit 1).
@@ -26,7 +26,7 @@ from emulator.spacecraft import scenario
 from ground.adcs import body_pointing as bps, campaign
 from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_spacecraft_option, faults_from_args,
                              fly, load_spacecraft)
-from ground.fileio import output_folder, run_folder, write_json
+from ground.fileio import folder_line, output_folder, run_folder, write_atomic, write_json
 from protocol import spacecraft as sf
 from protocol.units import RAD_PER_ARCSEC
 
@@ -114,17 +114,84 @@ def run(a):
         from ground import plots
         plots.adcs_can_pointing(h, os.path.join(out, FIGURE), faults)
     write_json(os.path.join(out, "summary.json"), summary)
+    write_atomic(os.path.join(out, "report.md"), report_md(summary, a))
     _say(summary, a)
+    print(folder_line(out))
+    for line in verdict_lines(summary):
+        print(line, file=sys.stderr if line.startswith(("BUDGET", "INTERRUPTED")) else sys.stdout)
     if interrupted:
         return 130
-    p, req = summary.get("pointing"), summary["requirements"]
-    if summary["budgets_met"] is False:
-        print("BUDGET MISSED: 3σ pointing %.1f arcsec (limit %g), stability %.1f arcsec/s (limit %g; the %s's)"
-              % (p["pointing_3sigma_arcsec"], req["body_pointing_3sigma_arcsec"], p["stability_3sigma_arcsec_s"],
-                 req["body_stability_3sigma_arcsec_s"], "spacecraft file" if req["source"] == "file" else "thesis"),
-              file=sys.stderr)
-        return 3
-    return 0
+    return 3 if summary["budgets_met"] is False else 0
+
+
+def verdict_rows(s):
+    """The verdict's rows (what, ours, limit, met: True, False or None when the run has no figure): the body
+    pointing and stability 3σ against the budgets the verdict reads (``s["requirements"]``)."""
+    p, req = s.get("pointing") or {}, s["requirements"]
+    return [(what, p.get(key), req[limit], None if p.get(key) is None else p[key] <= req[limit])
+            for what, key, limit in (("body pointing 3σ (arcsec)", "pointing_3sigma_arcsec",
+                                      "body_pointing_3sigma_arcsec"),
+                                     ("body stability 3σ (arcsec/s)", "stability_3sigma_arcsec_s",
+                                      "body_stability_3sigma_arcsec_s"))]
+
+
+def verdict_lines(s):
+    """The closing lines: the requirements met, missed (with each figure and its budget) or not reached."""
+    if s.get("interrupted"):
+        return ["INTERRUPTED after %d cycles: partial run, complete=false" % s["cycles"]]
+    rows = verdict_rows(s)
+    src = "the spacecraft file's" if s["requirements"]["source"] == "file" else "the thesis's"
+    text = "; ".join("%s %.1f (budget %g)" % (w, v, lim) for w, v, lim, _ in rows if v is not None)
+    if s["budgets_met"] is None:
+        return ["no verdict: the run ended before the pointing window (%.0f s of settling), exit 0"
+                % s["settle_s"]]
+    if s["budgets_met"]:
+        return ["requirements met (%s budgets): %s" % (src, text)]
+    return ["BUDGET MISSED (%s budgets): %s%s" % (src, text, "" if s["complete"] else "; the run did not complete")]
+
+
+def report_md(s, a):
+    """report.md: the verdict table, the run, the mode changes and the faults."""
+    mark = {True: "yes", False: "**NO**", None: "—"}
+    sc = s.get("spacecraft") or {}
+    out = ["# fps adcs can: the ADCS flight software over CAN", "",
+           "Spacecraft %s (file %s, sha256 %s, vehicle %s); world %s; runtime %s; t_s = %g s; seed %d; %s SatB's "
+           "GNSS. complete: %s" % (sc.get("name"), sc.get("source"), sc.get("sha256"),
+                                   (sc.get("vehicle") or {}).get("vehicle", "file"), a.world, a.runtime, a.ts,
+                                   a.seed, "with" if a.satb_gnss else "without", s["complete"]), "",
+           "## Verdict", "", "| requirement | ours | budget | met |", "|---|---|---|---|"]
+    for what, v, lim, met in verdict_rows(s):
+        out.append("| %s | %s | %g | %s |" % (what, "—" if v is None else "%.1f" % v, lim, mark[met]))
+    out += ["", "The figures are taken after %.0f s (the hold and the settling); the budgets are %s." % (
+        s["settle_s"], "the spacecraft file's" if s["requirements"]["source"] == "file" else "the thesis's (Sec. 6.4)"),
+        "", "## The run", "",
+        "- %d cycles of 1 s, last mode %s, %d late cycles; %.1f s wall (%.2f× real time)" % (
+            s["cycles"], s["last_mode"], s["late_cycles"], s.get("wall_s", float("nan")),
+            s.get("speed_x_realtime", float("nan"))),
+        "- missed by the firmware: %s" % _missed_text(s["firmware_missed"]),
+        "- link retries: %d cycles retried, %d TICKs and %d packets resent. Retries are the lockstep's normal "
+        "answer to frames that came late or damaged (a loaded machine makes more); each cycle still flies exactly "
+        "once, so they change no figure." % (s["retries"]["cycles_retried"], s["retries"]["tick_resent"],
+                                             s["retries"]["packets_resent"])]
+    if s.get("max_wheel_speed_rpm") is not None and s.get("wheel_speed_limit_rpm"):
+        out.append("- largest wheel speed after the settling %.0f rpm (limit %g rpm)" % (
+            s["max_wheel_speed_rpm"], s["wheel_speed_limit_rpm"]))
+    out += ["", "## Mode changes", "", "| t (s) | from | to | reason |", "|---|---|---|---|"]
+    out += ["| %.0f | %s | %s | %s |" % (c["t_s"], c["from"], c["to"], c.get("reason", ""))
+            for c in s.get("mode_changes", [])] or ["| — | | | none |"]
+    if s.get("faults"):
+        out += ["", "## Faults", "", "Injected: %s." % ", ".join("%s %s" % kv for kv in s["faults"].items())]
+    return "\n".join(out) + "\n"
+
+
+def _missed_text(m):
+    """The firmware's missed-input counters as words, the non-zero ones only (``none`` when all are zero)."""
+    parts = []
+    for k, v in m.items():
+        n = sum(v) if isinstance(v, list) else v
+        if n:
+            parts.append("%s %s" % (k.replace("_", " "), v if isinstance(v, list) else n))
+    return ", ".join(parts) or "none"
 
 
 def _session(a, d):
@@ -138,11 +205,17 @@ def _session(a, d):
     if a.link_faults:
         from protocol.faults import LinkFaults
         link_faults = LinkFaults.parse(a.link_faults)
-    log = None if a.quiet else (lambda m: print(m, file=sys.stderr))
+    log = None if a.quiet else _log
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
                           params=a.params, faults=faults, log=log, link_faults=link_faults, spacecraft=d,
                           world=a.world)
     return session, faults
+
+
+def _log(message):
+    """A session's line on stderr above the progress bar (tqdm.write), never over it."""
+    from tqdm import tqdm
+    tqdm.write(message, file=sys.stderr)
 
 
 def _fly(session, a):

@@ -33,7 +33,7 @@ def test_a_met_run_reports_its_table_and_every_file(tmp_path, capsys):
     line = [ln for ln in out.splitlines() if ln.startswith("run folder ")][0]
     named = line.split(": ", 1)[1].split(", ")
     assert sorted(named) == sorted(os.listdir(tmp_path / "run")) and named[:2] == ["summary.json", "report.md"]
-    assert "requirements met (the thesis's budgets)" in out
+    assert "requirements met (the thesis's budgets)" in out and "{" not in out     # no Python dict printed
 
 
 def test_a_missed_budget_is_named_on_stderr_with_exit_3(tmp_path, capsys):

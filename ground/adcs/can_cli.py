@@ -293,10 +293,11 @@ def _say(summary, a):
                               if ipc.get("filters_start") else ""))
     r, p, req = summary["retries"], summary.get("pointing"), summary["requirements"]
     lk = summary.get("link") or {}
-    print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed (fw) %s, link retries: %d cycles, "
-          "%d ticks and %d packets resent, ISO-TP transfers %d resent and %d failed (%d timeouts); %s" % (
+    print("ADCS on CAN, %s, %d s%s: last mode %s, late cycles %d, missed by the firmware: %s; link retries "
+          "(normal when frames come late or damaged: each cycle still flies once): %d cycles, %d ticks and %d "
+          "packets resent, ISO-TP transfers %d resent and %d failed (%d timeouts); %s" % (
         a.runtime, summary["cycles"], "" if summary["complete"] else " (interrupted)", summary["last_mode"],
-        summary["late_cycles"], summary["firmware_missed"], r["cycles_retried"], r["tick_resent"],
+        summary["late_cycles"], _missed_text(summary["firmware_missed"]), r["cycles_retried"], r["tick_resent"],
         r["packets_resent"], lk.get("tx_isotp_resent", 0), lk.get("tx_isotp_failed", 0),
         sum(v for k, v in lk.items() if "Timeout" in k),
         ("pointing 3σ %.1f″ (budget %.0f″), stability 3σ %.1f″/s (budget %.0f″/s)" % (

@@ -34,21 +34,21 @@ def register(sub, name, help_):
                    help="bench: the optical bench in lockstep (default); wheels: RW0..RW3 and STARTRACKER of the "
                         "spacecraft emulator, paced by the wall clock")
     s.add_argument("--link", default="serial", choices=("serial", "can"),
-                   help="serial: a pseudo-terminal pair (prints the slave path); can: slcan over a pty")
-    s.add_argument("--seed", type=int, default=0)
+                   help="serial (default): a pseudo-terminal pair (prints the slave path); can: slcan over a pty")
+    s.add_argument("--seed", type=int, default=0, help="the emulator's seed, >= 0 (default 0)")
     s.add_argument("--duration", type=float,
                    help="seconds to run (bench: virtual, default 10, at most what 80 %% of this machine's memory "
                         "holds at ~400 B a tick; wheels: wall = virtual, default until stopped)")
     s.add_argument("--wait", type=float, default=30.0,
-                   help="seconds to wait for the peer's first packet (bench: HELLO; wheels: any)")
+                   help="wall seconds to wait for the peer's first packet (bench: HELLO; wheels: any; default 30)")
     s.add_argument("-o", "--output", type=output_file, help="write the run summary (JSON) here")
     b = s.add_argument_group("bench (--devices bench)")
     b.add_argument("--config", help="bench config JSON")
     b.add_argument("--rate", type=float, default=637.8, help="control tick rate in Hz (default 637.8)")
     b.add_argument("--pfsm-v", type=float, nargs=2, default=(0.0, 0.0), metavar=("VX", "VY"),
-                   help="hold the P-FSM at these volts (when no --distfile)")
+                   help="hold the P-FSM at these volts (when no --distfile; default 0 0)")
     b.add_argument("--distfile", help="play this distfile into the P-FSM (firmware player)")
-    b.add_argument("--deadline", type=float, default=1.0, help="seconds to wait for each FSM command")
+    b.add_argument("--deadline", type=float, default=1.0, help="wall seconds to wait for each FSM command (default 1)")
     b.add_argument("--max-failed-ticks", type=int, default=MAX_FAILED_TICKS, metavar="N",
                    help="consecutive ticks without the controller's FSM command (each waits --deadline) that end "
                         "the run as a dead link, exit 1 (default %d)" % MAX_FAILED_TICKS)

@@ -371,7 +371,7 @@ def register(sub, name, help_):
     p.add_argument("--span", type=float, default=5.0, help="P-FSM grid half span in V (default 5: -5..+5 V)")
     p.add_argument("--dv", type=float, default=0.01, help="FSM perturbation in V (default 0.01)")
     p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
-    p.add_argument("--seed", type=int, default=0, help="emulator seed")
+    p.add_argument("--seed", type=int, default=0, help="the emulator's seed, >= 0 (default 0)")
     from ground.runtime import add_link_arguments
     add_link_arguments(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")

@@ -319,7 +319,7 @@ def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
     s = p.add_subparsers(dest="distfile_cmd", metavar="ACTION")
     g = s.add_parser("generate", help="generate a distfile from a source")
-    g.add_argument("--source", default="stat", choices=sorted(sources.SOURCES), help="disturbance source")
+    g.add_argument("--source", default="stat", choices=sorted(sources.SOURCES), help="disturbance source (default stat)")
     g.add_argument("--duration", type=float, default=600.0, help="seconds (default 600)")
     g.add_argument("--seed", type=int, default=None,
                    help="random seed (default 1; not for --source csv, which has no randomness)")

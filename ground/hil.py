@@ -496,7 +496,7 @@ missed; 1 failed (link down or too noisy, controller exited, a command refused: 
 run with complete=false and the error); 2 bad input; 130 interrupted (partial folder, complete=false)."""
 
 
-def add_run_arguments(p, seed_help="emulator seed"):
+def add_run_arguments(p, seed_help="the emulator's seed, >= 0 (default 0)"):
     """The run flags ``fps hil`` and ``fps system`` share: bench config, seed, Q2 calibration, output."""
     p.add_argument("--config", help="bench config JSON (default: the thesis bench preset)")
     p.add_argument("--seed", type=int, default=0, help=seed_help)

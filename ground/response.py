@@ -393,7 +393,7 @@ def register(sub, name, help_):
     p.add_argument("--to", dest="to_hz", type=float, default=300.0, help="highest tone, Hz (default 300)")
     p.add_argument("--points", type=int, default=30, help="tones, log-spaced (default 30)")
     p.add_argument("--amp", type=float, default=5.0, help="tone amplitude, arcsec on the sky (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="emulator seed")
+    p.add_argument("--seed", type=int, default=0, help="the emulator's seed, >= 0 (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("-o", "--output", required=True, type=output_folder, help="run folder")

@@ -46,7 +46,7 @@ def register(sub, name, help_):
     e.add_argument("fields", nargs="*", metavar="FIELD=VALUE", help="raw field values (others take defaults)")
     e.add_argument("--src", default=None, help="source node name or address (default: the table's)")
     e.add_argument("--dst", default=None, help="destination node name or address (default: the table's)")
-    e.add_argument("--seq", type=_int, default=0, help="sequence number 0..255 (serial only)")
+    e.add_argument("--seq", type=_int, default=0, help="sequence number 0..255 (serial only; default 0)")
     e.add_argument("--can", action="store_true", help="print CAN frames as candump -L lines")
     e.set_defaults(func=cmd_encode)
 

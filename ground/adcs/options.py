@@ -12,7 +12,7 @@ def add_campaign_options(p, cases=True):
     """The options every campaign sub-command shares."""
     if cases:
         p.add_argument("--case", type=int, default=1, choices=(1, 2, 3),
-                       help="disturbance: 1 none, 2 sinusoidal (Eq. 4.150), 3 attitude-dependent (Eq. 4.151)")
+                       help="disturbance: 1 none (default), 2 sinusoidal (Eq. 4.150), 3 attitude-dependent (Eq. 4.151)")
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds), >= 1 (default 1; >= 20 for NEES)")
     p.add_argument("--seed", type=int, default=0, help="first seed, >= 0; run i uses seed + i (default 0)")
     add_workers_options(p)

@@ -120,7 +120,7 @@ def register(sub, name, help_):
                    help="1: SatA GNSS + beacon; 2: plus SatB GNSS relayed with a U(2, 3) s delay")
     p.add_argument("--duration", type=float, default=1200.0, help="simulated seconds, 1 to %g (default 1200, as "
                    "Sec. 5.5)" % campaign.MAX_DURATION_S)
-    p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds seed .. seed+runs-1)")
+    p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds seed .. seed+runs-1; default 1)")
     p.add_argument("--seed", type=int, default=0, help="first seed, >= 0 (default 0)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",
                    help="true orbits: brahe high-fidelity (default) or two-body (fast)")

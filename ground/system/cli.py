@@ -111,5 +111,5 @@ def register(sub, name, help_):
     from ground.adcs.options import add_spacecraft_option
     add_spacecraft_option(p, "the ADCS's vehicle, as fps adcs bps (--adcs ground) or fps adcs can (--adcs "
                           "firmware) take it; --params is checked against it")
-    hil.add_run_arguments(p, "seed of the ADCS scenario and the bench emulator")
+    hil.add_run_arguments(p, "seed of the ADCS scenario and the bench emulator, >= 0 (default 0)")
     p.set_defaults(func=_cmd)

@@ -10,11 +10,13 @@ import numpy as np
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
+from firmware.adcs.health import MAG_SILENT, N_RODS as _FW_RODS
 from firmware.adcs.lockstep import burst_bit
 from protocol import core, table
 from protocol.spacecraft import num_text, value_text
 
-FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost")
+FAULTS = ("wheel_silent", "startracker_blind", "gnss_outage", "beacon_lost", "magnetometer_silent",
+          "magnetorquer_dead")
 P = core.PACKET_ID
 N = core.NODE
 RW_NODES = tuple(N["RW%d" % i] for i in range(N_WHEELS))
@@ -32,7 +34,11 @@ class Faults(dict):
 
 _WINDOW = "[t0 s, t1 s], 0 <= t0 < t1"
 _EXPECTED = {"wheel_silent": "[wheel 0-3, t0 s >= 0]", "startracker_blind": _WINDOW, "gnss_outage": _WINDOW,
-             "beacon_lost": "t0 s >= 0"}
+             "beacon_lost": "t0 s >= 0", "magnetometer_silent": "t0 s >= 0",
+             "magnetorquer_dead": "[rod 0-2, t0 s >= 0]"}
+N_RODS = _FW_RODS                               # MTQ_TLM's bits name three rods
+_UNIT = {"wheel_silent": ("wheel", N_WHEELS), "magnetorquer_dead": ("rod", N_RODS)}     # [unit, t0] faults
+_START = ("beacon_lost", "magnetometer_silent")                                          # t0 faults
 
 
 def _real(v):
@@ -58,19 +64,19 @@ def _seconds(k, v, x):
 
 def _fault(k, v):
     """(fault ``k``'s value ``v`` normalised, its start t0 in s); ValueError naming the key and the value."""
-    if k == "beacon_lost":
+    if k in _START:
         t0 = _seconds(k, v, v)
         return t0, t0
     if not isinstance(v, (list, tuple, np.ndarray)) or len(v) != 2:        # "12" would read as [1, 2]
         raise ValueError('"%s": %s: expected %s' % (k, value_text(v), _EXPECTED[k]))
-    if k == "wheel_silent":
-        i = v[0]
+    if k in _UNIT:
+        i, (unit, n) = v[0], _UNIT[k]
         if not _real(i):
-            raise ValueError('"%s": %s: %s is not a number (the wheel, 0-%d)'
-                             % (k, value_text(v), value_text(i), N_WHEELS - 1))
-        if i not in range(N_WHEELS):
-            raise ValueError('"%s": %s: the wheel must be 0 to %d (expected %s)'
-                             % (k, value_text(v), N_WHEELS - 1, _EXPECTED[k]))
+            raise ValueError('"%s": %s: %s is not a number (the %s, 0-%d)'
+                             % (k, value_text(v), value_text(i), unit, n - 1))
+        if i not in range(n):
+            raise ValueError('"%s": %s: the %s must be 0 to %d (expected %s)'
+                             % (k, value_text(v), unit, n - 1, _EXPECTED[k]))
         t0 = _seconds(k, v, v[1])
         return [int(i), t0], t0
     t0, t1 = _seconds(k, v, v[0]), _seconds(k, v, v[1])
@@ -106,6 +112,24 @@ def check_faults(faults, duration_s):
     return out
 
 
+def magnetic_events(before, now, t):
+    """The health events [{"t_s", "event", "reason"}] of ADCS_STATUS.magnetic_failed going from ``before`` to
+    ``now`` (bits 0-2 rods out of the unloading, bit 3 the magnetometer silent: ``firmware.adcs.health``) at t."""
+    out = []
+    for i in range(N_RODS):
+        b = 1 << i
+        if (before ^ now) & b:
+            out.append({"t_s": t, "event": "rod %d %s the unloading" % (i, "out of" if now & b else "back in"),
+                        "reason": "its driver silent in 3 MTQ_TLM in a row: the other rods' least-squares torque"
+                        if now & b else "its driver answers again"})
+    if (before ^ now) & MAG_SILENT:
+        out.append({"t_s": t, "event": "magnetometer %s" % ("silent" if now & MAG_SILENT else "back"),
+                    "reason": "no valid reading 3 cycles in a row: the unloading goes on with the onboard field "
+                              "model (the STKF's position, the APKF's attitude), its only field; the model check "
+                              "pauses" if now & MAG_SILENT else "a valid reading again"})
+    return out
+
+
 def gnss_payload(t_ms, sat, z):
     """GNSS payload of a fix z = (x, y, z m, vx, vy, vz m/s): raw = round(value / the field's scale in the table)."""
     scale = core.field_scales("GNSS")
@@ -127,17 +151,17 @@ class FaultSchedule:
         f = self.faults.get(name)
         if f is None:
             on = False
-        elif name == "beacon_lost":
+        elif name in _START:
             on = t >= f
-        elif name == "wheel_silent":
+        elif name in _UNIT:
             on = t >= f[1]
         else:
             on = f[0] <= t < f[1]
         if on != (name in self.active):
             (self.active.add if on else self.active.discard)(name)
             what = "%s %s" % (name, "begins" if on else "ends")
-            if name == "wheel_silent":
-                what += " (wheel %d)" % f[0]
+            if name in _UNIT:
+                what += " (%s %d)" % (_UNIT[name][0], f[0])
             self.log.append({"t_s": t, "event": what})
             self.say("t = %.0f s: fault %s" % (t, what))
         return on
@@ -157,6 +181,11 @@ class SpacecraftBus:
         self.w, self.sc, self.wheels, self.xg = world, world.sc, world.wheels, world.xg
         self.devices = devices
         self.faults = faults
+        for k, what in (("magnetometer_silent", "a magnetometer"), ("magnetorquer_dead", "magnetorquers")):
+            have = devices is not None and (devices.mag if k == "magnetometer_silent" else devices.mtq) is not None
+            if k in faults.faults and not have:
+                raise ValueError("fault \"%s\": no %s on this world's bus (the flight world's magnetic devices, "
+                                 "from the spacecraft file)" % (k, what))
         self.jb = 0                              # SatB's next fix time (world.tb) to sample
         self.commanded = [True] * N_WHEELS       # a reply (RW_TLM) is due in the next burst
         self.missed_rw_cmd = [0] * N_WHEELS
@@ -194,7 +223,10 @@ class SpacecraftBus:
         for pid, src, _, payload in self.mtq_reply:        # unnamed packets first (AdcsSession's docstring)
             self._send(pid, src, payload)
         self.mtq_reply = []
-        if self.devices is not None and self.devices.mag is not None:
+        if self.has_mtq():
+            self.devices.rods_dead(1 << self.faults.faults["magnetorquer_dead"][0]
+                                   if self.faults.on("magnetorquer_dead", t) else 0)
+        if self.devices is not None and self.devices.mag is not None and not self.faults.on("magnetometer_silent", t):
             pid, src, _, payload = self.devices.magnetometer(N["ADCS"], t_ms)
             self._send(pid, src, payload)
         speed = self.wheels.read_speed_rpm(sc.omega_rw_rel)

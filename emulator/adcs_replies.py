@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from emulator.adcs_bus import N, P, RW_NODES
+from emulator.adcs_bus import N, P, RW_NODES, magnetic_events
 from emulator.spacecraft.wheels import N_WHEELS
 from protocol import core, table
 
@@ -118,7 +118,8 @@ class StatusWatch:
     """The ADCS_STATUS of each cycle: its mode and stale sensors named, the firmware's own cycle times
     (``cycle_us``: n, sum, largest; ``filters_start_us`` the first cycle out of INIT, which starts the filters,
     apart), each mode change with its reason (``mode_changes``: {"t_s", "from", "to",
-    "reason"}; also an event in ``fault_log``)."""
+    "reason"}; also an event in ``fault_log``), each magnetic device out or back (``health_events``:
+    ``adcs_bus.magnetic_events``; also in ``fault_log``)."""
 
     def __init__(self, say, fault_log):
         self.say = say
@@ -128,6 +129,8 @@ class StatusWatch:
         self.filters_start_us = None         # the cycle that starts the filters, apart from cycle_us
         self.mode = None
         self.mode_changes = []
+        self.health_events = []
+        self.magnetic = 0
 
     def take(self, status, t, st_blind_before):
         """Take cycle k's ADCS_STATUS at t (s); returns the flight software's estimates it carries."""
@@ -141,6 +144,11 @@ class StatusWatch:
             c[0] += 1
             c[1] += status["cycle_us"]
             c[2] = max(c[2], status["cycle_us"])
+        for e in magnetic_events(self.magnetic, status["magnetic_failed"], t):
+            self.health_events.append(e)
+            self.fault_log.append(e)
+            self.say("t = %.0f s: ADCS %s (%s)" % (t, e["event"], e["reason"]))
+        self.magnetic = status["magnetic_failed"]
         name = status["adcs_mode_name"]
         if name != self.mode:
             if self.mode is not None:

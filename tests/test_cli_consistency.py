@@ -79,7 +79,7 @@ BIG = "1" + "0" * 400           # an integer no float holds
                                                '(401 digits) is out of range (expected [t0 s, t1 s], 0 <= t0 < t1'),
     ('{"gnss_outage": "12"}', '"gnss_outage": "12": expected [t0 s, t1 s], 0 <= t0 < t1'),
     ('{"gnss_outage": [20, 10]}', '"gnss_outage": [20, 10]: expected [t0 s, t1 s], 0 <= t0 < t1'),
-    ('{"meteor": 3}', 'unknown fault "meteor" (known: wheel_silent, startracker_blind, gnss_outage, beacon_lost)'),
+    ('{"meteor": 3}', 'unknown fault "meteor" (known: wheel_silent, startracker_blind, gnss_outage, beacon_lost, magnetometer_silent'),
     ("[1, 2]", 'must be a JSON object such as {"startracker_blind": [170, 230]}, got [1, 2]'),
     ("[" * 100000 + "]" * 100000, "its arrays and objects nest too deeply to read"),
     ('{"beacon_lost": 1%s}' % ("0" * 5000), "an integer of more than 4300 digits, beyond any number's range"),

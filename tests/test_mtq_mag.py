@@ -22,7 +22,7 @@ P, N = core.PACKET_ID, core.NODE
 NEW = ("MTQ_CMD", "MTQ_TLM", "MAGNETOMETER")
 VALUES = {
     "MTQ_CMD": {"mx": 0.125, "my": -0.25, "mz": 1.5, "enable": 1, "cycle": 200},
-    "MTQ_TLM": {"mx": 0.125, "my": -0.25, "mz": 0.3125, "saturated": 4},
+    "MTQ_TLM": {"mx": 0.125, "my": -0.25, "mz": 0.3125, "saturated": 4, "silent": 2},
     "MAGNETOMETER": {"t_ms": 123456, "bx": 212345, "by": -98765, "bz": 1000000, "valid": 1},
 }
 
@@ -173,7 +173,8 @@ def test_mtq_cmd_answered_with_mtq_tlm_and_sets_the_dipole():
     assert tlm["saturated"] == 2
     assert np.allclose(sc.dipole, [0.11, -0.32, 0.28])                         # residual + applied
     out = dev.handle(P["MTQ_CMD"], N["ADCS"], N["MTQ"], core.encode_payload("MTQ_CMD", mx=0.1, enable=0))
-    assert core.payload_dict(P["MTQ_TLM"], out[0][3]) == {"mx": 0.0, "my": 0.0, "mz": 0.0, "saturated": 0}
+    assert core.payload_dict(P["MTQ_TLM"], out[0][3]) == {"mx": 0.0, "my": 0.0, "mz": 0.0, "saturated": 0,
+                                                          "silent": 0}
     assert np.allclose(sc.dipole, [0.01, -0.02, 0.03]) and dev.n_mtq_cmd == 2
 
 

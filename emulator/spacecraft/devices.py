@@ -7,7 +7,8 @@ enable and is answered by RW_TLM (noisy speed read-out, Eq. 4.57, and the torque
 limits). ``startracker(dst)`` makes a STARTRACKER packet (pid, src, dst, payload) from the true attitude now
 (Eq. 4.63-4.66). MTQ_CMD to MTQ sets the rods' dipole (``Magnetorquers``: least-squares share per rod, clipped
 at the rod's limit; the spacecraft's dipole becomes its residual dipole plus the rods', so the field torque
-m x b follows) and is answered by MTQ_TLM; ``magnetometer(dst)`` makes a MAGNETOMETER packet from the true field
+m x b follows) and is answered by MTQ_TLM (a rod whose driver is dead, ``rods_dead``: no dipole, named in its
+``silent`` bits); ``magnetometer(dst)`` makes a MAGNETOMETER packet from the true field
 in the body frame (``Magnetometer``: constant bias plus white noise). Neither is in the thesis: they are the
 spacecraft file's ``magnetorquers`` and ``magnetometer`` blocks (``from_spacecraft``, None for a null block).
 """
@@ -112,6 +113,7 @@ class Magnetorquers:
         self.share = np.zeros(3)                  # each rod's dipole (A m^2, along its axis)
         self.applied = np.zeros(3)
         self.saturated = np.zeros(3, dtype=bool)
+        self.dead = 0                             # bit i: rod i's driver is dead (no dipole, no answer)
 
     @classmethod
     def from_spacecraft(cls, d, rng=None):
@@ -130,8 +132,14 @@ class Magnetorquers:
         s = np.linalg.lstsq(self.axes.T, m, rcond=None)[0]
         self.saturated = np.abs(s) > self.limit
         self.share = np.clip(s, -self.limit, self.limit)
-        self.applied = self.axes.T @ self.share
+        self.set_dead(self.dead)
         return self.applied.copy(), self.saturated.copy()
+
+    def set_dead(self, mask):
+        """Rods whose driver is dead (bit i: rod i) give no dipole from now on; ``applied`` is the others'."""
+        self.dead = int(mask)
+        live = np.array([0.0 if mask >> i & 1 else 1.0 for i in range(3)])
+        self.applied = self.axes.T @ (self.share * live)
 
     def saturated_bits(self):
         """The MTQ_TLM.saturated bit field of the last command (bit i: rod i clipped)."""
@@ -212,8 +220,9 @@ class SpacecraftDevices:
 
     def _mtq(self, pid, src, dst, payload, seq):
         """MTQ_CMD: the rods take the command (enable 0: no dipole), the spacecraft's dipole becomes the residual
-        plus the rods'; MTQ_TLM with the applied dipole and the clipped rods. NACK BAD_VALUE for a wrong length,
-        a non-finite dipole or an enable other than 0/1 (the rods keep their last command)."""
+        plus the rods'; MTQ_TLM with the applied dipole, the clipped rods and those whose driver is dead
+        (``silent``). NACK BAD_VALUE for a wrong length, a non-finite dipole or an enable other than 0/1 (the rods
+        keep their last command)."""
         if pid != MTQ_CMD:
             return self._nack(pid, dst, src, seq, "UNKNOWN_PACKET")
         if len(payload) != core.PACKET[pid].size:
@@ -226,7 +235,15 @@ class SpacecraftDevices:
         self.sc.dipole = self.residual_dipole + applied
         self.n_mtq_cmd += 1
         return [(MTQ_TLM, dst, src, core.encode_payload(MTQ_TLM, mx=float(applied[0]), my=float(applied[1]),
-                                                          mz=float(applied[2]), saturated=self.mtq.saturated_bits()))]
+                                                          mz=float(applied[2]), saturated=self.mtq.saturated_bits(),
+                                                          silent=self.mtq.dead))]
+
+    def rods_dead(self, mask):
+        """The rods whose driver is dead (bit i: rod i; ``Magnetorquers.set_dead``), the spacecraft's dipole
+        following at once; MTQ_TLM names them in ``silent``."""
+        if self.mtq is not None and mask != self.mtq.dead:
+            self.mtq.set_dead(mask)
+            self.sc.dipole = self.residual_dipole + self.mtq.applied
 
     def magnetometer(self, dst=core.NODE["ADCS"], t_ms=None):
         """One MAGNETOMETER packet (pid, src, dst, payload) from the true field at the spacecraft now (``t_ms``

@@ -9,7 +9,8 @@ friction compensation only (they keep their speed, so the body feels no torque f
 
 In the flight world the magnetorquers unload the wheels (``flight.unloading``: the cross-product law on the
 wheels' momentum with the estimated residual dipole cancelled, the field the model's through the estimate, as the
-APKF's) and the wheels are held off zero speed in the null space (``flight.null_bias``). The magnetometer's packets
+APKF's; a rod out, ``health.Health.magnetic``, leaves the others' least-squares torque: ``flight.rods_left``) and
+the wheels are held off zero speed in the null space (``flight.null_bias``). The magnetometer's packets
 ride unnamed in the burst, so a lost one could not be asked for again and would make a lossy link's run differ from
 the clean one: its readings are only compared with the model (``mag_miss``, T, the largest difference).
 """
@@ -165,10 +166,11 @@ class Allocation:
                 for r in range(3):
                     tff[r] += C[r * 4 + i] * f
 
-    def flight(self, t, x, qc, wc, rd, failed, X):
+    def flight(self, t, x, qc, wc, rd, failed, X, rods_out=0):
         """The flight world's u (4, N m): the magnetorquers' dipole (``m_cmd``) from the wheels' momentum
-        h = C Jrw W and the model field b through the estimate, then ``torque`` with the dipole's torque fed
-        forward and the wheels' null-space bias when all four work; ``rd`` the cycle's ``intake.Intake``."""
+        h = C Jrw W and the model field b through the estimate (the rods ``rods_out``, bits, left out:
+        ``flight.rods_left``), then ``torque`` with the dipole's torque fed forward and the wheels' null-space bias
+        when all four work; ``rd`` the cycle's ``intake.Intake``."""
         cj, wp = self.cjrw, rd.wp
         h = [cj[i * 4] * wp[0] + cj[i * 4 + 1] * wp[1] + cj[i * 4 + 2] * wp[2] + cj[i * 4 + 3] * wp[3]
              for i in range(3)]
@@ -181,7 +183,7 @@ class Allocation:
             if d > self.mag_miss:
                 self.mag_miss = d
         mf = self.m_ff
-        self.mtq_sat = flight.unloading(self.m_cmd, b, h, self.k_unload, self.mtq_limit, mf)
+        self.mtq_sat = flight.unloading(self.m_cmd, b, h, self.k_unload, self.mtq_limit, mf, rods_out)
         m = self.m_cmd
         u = self.torque(t, x, (mf[0] + m[0], mf[1] + m[1], mf[2] + m[2]), qc, wc, wp, failed, X)
         if self.cof is not None and not failed:

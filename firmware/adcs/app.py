@@ -5,7 +5,7 @@ on a board, in its own process on CAN and in process under the ground's analysis
 The components, one file each:
 
 - ``intake.Intake``: the cycle's readings off the bus, and which are usable;
-- ``health.Health``: missed, invalid and refused readings, failed wheels, stale sensors;
+- ``health.Health``: missed, invalid and refused readings, failed wheels and magnetic devices, stale sensors;
 - ``estimation.Estimation``: the lean APKF and the lean STKF/AFLS;
 - ``modes.Modes``: the mode machine and the command at SatB (where a mode transition is decided);
 - ``allocation.Allocation``: the PD, saturation and wheel allocation, friction compensation, the magnetorquers'
@@ -16,7 +16,8 @@ One cycle (the sequence of Sec. 6.4.2 at the flight side's scale):
 
 1. sensors: the wheels' RW_TLM (tachometer read-outs at the cycle's time), the star tracker, SatA's GNSS, the
    beacon and SatB's relayed GNSS (time-tagged 2-3 s back) received since the last cycle; a wheel silent for
-   3 cycles leaves the allocation;
+   3 cycles leaves the allocation, a rod whose driver is silent in 3 MTQ_TLM the unloading (the magnetometer
+   silent for 3 cycles is reported: the unloading runs on the field model);
 2. the lean APKF (attitude, rate, disturbance torque; parameters from the calibration's parameter file);
 3. the lean STKF/AFLS: predict, SatA's GNSS, the beacon, SatB's GNSS at its time tag;
 4. the mode and the command (``modes``), the wheel torques (``allocation``);
@@ -29,7 +30,7 @@ acquisition, magnetorquer unloading, the innovation gate: ``flight``, options un
 from firmware.adcs import flight, telemetry
 from firmware.adcs.allocation import Allocation
 from firmware.adcs.estimation import Estimation
-from firmware.adcs.health import Health
+from firmware.adcs.health import RODS, Health
 from firmware.adcs.intake import Intake
 from firmware.adcs.linalg import micropython     # the module, or CPython's no-op stand-in for its decorators
 from firmware.adcs.modes import Modes
@@ -64,6 +65,7 @@ class App:
         rd, hl, est = self.rd, self.health, self.est
         self.t = t
         hl.wheels(rd.rw_got)
+        hl.magnetics(rd)
         self.act.use_wheels(hl.failed)
         hl.count(rd)
         est.run_apkf(t, self.act.u, self.act.m_cmd)
@@ -87,7 +89,7 @@ class App:
         x, X = est.apkf.x, est.xs
         if self.fly:
             md.flight(t, x, st_ok, X)
-            return act.flight(t, x, md.qc, md.wc, self.rd, self.health.failed, X)
+            return act.flight(t, x, md.qc, md.wc, self.rd, self.health.failed, X, self.health.magnetic & RODS)
         md.thesis(t, x, st_ok, X)
         return act.torque(t, x, act.m_ff, md.qc, md.wc, self.rd.wp, self.health.failed, X)
 

@@ -135,10 +135,11 @@ def angle(q, p):
     return 2.0 * math.acos(d if d < 1.0 else 1.0)
 
 
-def unloading(m, b, h, gain, limit, m_res):
+def unloading(m, b, h, gain, limit, m_res, out=0):
     """m (3) = gain (h x b) / |b|^2 - m_res (b the body field, T; h the wheels' momentum, N m s; m_res the
     estimated residual dipole), for three rods along body x, y, z, each clipped to +-limit; returns the clipped
-    rods as bits."""
+    rods as bits. With rods ``out`` (bits: their driver dead) the rods left give the least-squares torque of that
+    dipole instead (``rods_left``)."""
     bb = b[0] * b[0] + b[1] * b[1] + b[2] * b[2]
     if not bb > 0:
         m[0] = m[1] = m[2] = 0.0
@@ -147,12 +148,71 @@ def unloading(m, b, h, gain, limit, m_res):
     m[0] = k * (h[1] * b[2] - h[2] * b[1]) - m_res[0]
     m[1] = k * (h[2] * b[0] - h[0] * b[2]) - m_res[1]
     m[2] = k * (h[0] * b[1] - h[1] * b[0]) - m_res[2]
+    if out:
+        return rods_left(m, b, bb, out, limit)
     sat = 0
     for i in range(3):
         if m[i] > limit:
             m[i], sat = limit, sat | (1 << i)
         elif m[i] < -limit:
             m[i], sat = -limit, sat | (1 << i)
+    return sat
+
+
+def _clip(v, limit):
+    return limit if v > limit else (-limit if v < -limit else v)
+
+
+def _edge(a, d, c, rj, rl, p, limit):
+    """(p, q, cost): rod j held at p, rod l at its best within +-limit, for the quadratic
+    0.5 (a p^2 + 2 d p q + c q^2) - rj p - rl q."""
+    q = _clip((rl - d * p) / c, limit) if c > 0 else 0.0
+    return p, q, 0.5 * (a * p * p + 2.0 * d * p * q + c * q * q) - rj * p - rl * q
+
+
+def rods_left(m, b, bb, out, limit):
+    """m (3) in place: the dipole of the rods not in ``out`` (bits; rods along body x, y, z) whose torque m' x b
+    is the least-squares fit of m x b within the rods' +-limit (b the body field, T, bb = |b|^2); returns the rods
+    at the limit as bits. With c_j = e_j x b the normal equations are N_jl = c_j . c_l = |b|^2 d_jl - b_j b_l,
+    r_j = c_j . (m x b) = m_j |b|^2 - b_j (b . m): one rod left, m'_j = r_j / N_jj clipped; two, the 2 x 2
+    solution (the same torque exactly when the rod out has b_i != 0: a dipole along b gives none) or, beyond the
+    limit, the best point on the box's edges. Not in the thesis."""
+    bm = b[0] * m[0] + b[1] * m[1] + b[2] * m[2]
+    j = l = -1
+    for k in range(3):
+        if not out & (1 << k):
+            if j < 0:
+                j = k
+            else:
+                l = k
+    mj = mk = 0.0
+    if j >= 0 and l < 0:
+        a = bb - b[j] * b[j]
+        mj = _clip((m[j] * bb - b[j] * bm) / a, limit) if a > 1e-18 * bb else 0.0
+    elif l >= 0:
+        a, c, d = bb - b[j] * b[j], bb - b[l] * b[l], -b[j] * b[l]
+        rj, rl = m[j] * bb - b[j] * bm, m[l] * bb - b[l] * bm
+        det = a * c - d * d
+        ok = False
+        if det > 1e-12 * bb * bb:
+            mj, mk = (c * rj - d * rl) / det, (a * rl - d * rj) / det
+            ok = abs(mj) <= limit and abs(mk) <= limit
+        if not ok:                          # the box's edges: rod j at +-limit, then rod l
+            best = float("inf")
+            for e in (limit, -limit):
+                p, q, f = _edge(a, d, c, rj, rl, e, limit)
+                if f < best:
+                    best, mj, mk = f, p, q
+                q, p, f = _edge(c, d, a, rl, rj, e, limit)
+                if f < best:
+                    best, mj, mk = f, p, q
+    m[0] = m[1] = m[2] = 0.0
+    sat = 0
+    for k, v in ((j, mj), (l, mk)):
+        if k >= 0:
+            m[k] = v
+            if abs(v) >= limit:
+                sat |= 1 << k
     return sat
 
 

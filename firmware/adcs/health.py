@@ -1,9 +1,14 @@
-"""The ADCS app's health (MicroPython): what each sensor missed, sent invalid or had refused, the wheels'
-failure detection and the sensors' staleness, as ADCS_STATUS reports them.
+"""The ADCS app's health (MicroPython): what each sensor missed, sent invalid or had refused, the wheels' and the
+magnetic devices' failure detection and the sensors' staleness, as ADCS_STATUS reports them.
 
 A wheel whose RW_TLM is missed ``FAIL_AFTER`` (3) cycles in a row is declared failed (its bit in ``failed``); it
-is back as soon as it answers. A sensor is stale in a cycle it gave nothing usable (the ``STALE_*`` bits of the
-packet table); it has been silent for long when its last usable reading is ``stale_s`` seconds old or more.
+is back as soon as it answers. The same for the magnetic devices (``magnetic``, ADCS_STATUS.magnetic_failed): a
+rod whose driver MTQ_TLM names silent 3 times in a row leaves the unloading (bits ``RODS``) until it answers (a
+lost MTQ_TLM counts neither way: it rides unnamed in the burst, so a lossy link would otherwise fail the rods); the
+magnetometer, once heard, without a valid reading 3 cycles in a row is silent (bit ``MAG_SILENT``) until one
+comes (one that never answered is not flagged: the spacecraft may have none). A sensor is stale in a cycle it
+gave nothing usable (the ``STALE_*`` bits of the packet table); it has been silent for long when its last usable
+reading is ``stale_s`` seconds old or more.
 """
 
 from firmware.adcs.apkf_lean_model import NW     # the wheels the lean ADCS flies
@@ -11,6 +16,9 @@ from firmware.adcs.linalg import micropython     # the module, or CPython's no-o
 from protocol.consts import STALE_BEACON, STALE_GNSS_A, STALE_GNSS_B, STALE_RW0, STALE_STARTRACKER
 
 FAIL_AFTER = 3
+N_RODS = 3
+RODS = 0x7             # ADCS_STATUS.magnetic_failed: bits 0-2 the rods out of the unloading
+MAG_SILENT = 0x8       # bit 3: the magnetometer silent
 
 
 class Health:
@@ -23,6 +31,9 @@ class Health:
         self.rw_miss_run = [0] * NW         # cycles in a row each wheel missed
         self.failed = 0
         self.magnetic = 0                   # ADCS_STATUS.magnetic_failed: rods out, the magnetometer silent
+        self.rod_miss_run = [0] * N_RODS    # MTQ_TLM in a row naming each rod silent
+        self.mag_miss_run = 0               # cycles in a row without a valid magnetometer reading
+        self.mag_heard = False
         self.miss_st = self.miss_gnss = self.miss_beacon = 0
         self.n_st_invalid = self.n_beacon_invalid = self.n_gnss_b = self.n_gnss_b_drop = 0
         self.n_refused = 0                  # measurements (or predictions) the filters refused, fixes dropped
@@ -45,6 +56,27 @@ class Health:
                 self.rw_miss_run[i] += 1
                 if self.rw_miss_run[i] >= FAIL_AFTER:
                     self.failed |= 1 << i
+
+    @micropython.native
+    def magnetics(self, rd):
+        """``magnetic`` after a cycle's readings (``intake.Intake`` ``rd``; the module docstring)."""
+        if rd.mtq_got:
+            for i in range(N_RODS):
+                if rd.mtq_silent & (1 << i):
+                    self.rod_miss_run[i] += 1
+                    if self.rod_miss_run[i] >= FAIL_AFTER:
+                        self.magnetic |= 1 << i
+                else:
+                    self.rod_miss_run[i] = 0
+                    self.magnetic &= ~(1 << i)          # it answers again: back into the unloading
+        if rd.mag_got:
+            self.mag_heard = True
+            self.mag_miss_run = 0
+            self.magnetic &= ~MAG_SILENT
+        elif self.mag_heard:
+            self.mag_miss_run += 1
+            if self.mag_miss_run >= FAIL_AFTER:
+                self.magnetic |= MAG_SILENT
 
     @micropython.native
     def count(self, rd):

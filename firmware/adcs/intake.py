@@ -8,8 +8,8 @@ from firmware.adcs.apkf_lean_model import NW, RPM   # the wheels the lean ADCS f
 from firmware.adcs.linalg import micropython, zeros     # micropython: the module, or CPython's no-op stand-in
 from firmware.adcs.stkf_lean import zeros_d
 from protocol import core
-from protocol.consts import (FMT_BEACON, FMT_GNSS, FMT_MAGNETOMETER, FMT_RW_TLM, FMT_STARTRACKER, NODE_RW0, P_BEACON,
-                             P_GNSS, P_MAGNETOMETER, P_RW_TLM, P_STARTRACKER)
+from protocol.consts import (FMT_BEACON, FMT_GNSS, FMT_MAGNETOMETER, FMT_MTQ_TLM, FMT_RW_TLM, FMT_STARTRACKER,
+                             NODE_RW0, P_BEACON, P_GNSS, P_MAGNETOMETER, P_MTQ_TLM, P_RW_TLM, P_STARTRACKER)
 
 UNIT_TOL = 1e-3        # | |v|^2 - 1 | of a unit vector or quaternion off the bus (float32 rounding: ~1e-7)
 _INF = float("inf")
@@ -24,7 +24,8 @@ class Intake:
     """One cycle's readings: the wheels' speeds ``wp`` (rad/s) and which answered (``rw_got``), the star tracker's
     quaternion ``qst`` (``st_got``, ``st_valid``), SatA's GNSS ``zg`` (m, m/s; ``gnss_got``), the beacon's unit
     vector ``yb`` (``bc_got``, ``bc_valid``), SatB's relayed fixes ``zb[:nb]`` at their times ``tb`` (s), the
-    magnetometer's field ``mag`` (T, ``mag_got``). The estimators clear a flag when they refuse its reading."""
+    magnetometer's field ``mag`` (T, ``mag_got``), the rods whose driver did not answer the last MTQ_CMD
+    (``mtq_silent`` bits, in its MTQ_TLM: ``mtq_got``). The estimators clear a flag when they refuse its reading."""
 
     def __init__(self, satb, health):
         self.satb = satb                    # SatB's GNSS is used
@@ -42,6 +43,8 @@ class Intake:
         self.nb = 0
         self.mag = zeros(3)
         self.mag_got = False
+        self.mtq_got = False
+        self.mtq_silent = 0
 
     @micropython.native
     def st_ok(self):
@@ -74,6 +77,9 @@ class Intake:
             t_ms, bx, by, bz, valid = struct.unpack(FMT_MAGNETOMETER, payload)
             self.mag_got = valid == 1
             self.mag[0], self.mag[1], self.mag[2] = bx * MAG_T, by * MAG_T, bz * MAG_T
+        elif pid == P_MTQ_TLM:
+            self.mtq_silent = struct.unpack(FMT_MTQ_TLM, payload)[4]
+            self.mtq_got = True
         elif pid == P_BEACON:
             t_ms, ux, uy, uz, valid = struct.unpack(FMT_BEACON, payload)
             self.bc_got = True
@@ -110,5 +116,5 @@ class Intake:
         incomplete)."""
         for i in range(NW):
             self.rw_got[i] = False
-        self.st_got = self.gnss_got = self.bc_got = self.mag_got = False
+        self.st_got = self.gnss_got = self.bc_got = self.mag_got = self.mtq_got = False
         self.nb = 0

@@ -86,16 +86,22 @@ def add_satb_gnss_option(p, default):
 
 def add_fault_options(p, clock):
     """The emulated spacecraft's device faults, one option each, and ``--faults FILE`` (a JSON object of the same
-    keys: wheel_silent [wheel, t0], startracker_blind [t0, t1], gnss_outage [t0, t1], beacon_lost t0) for many at
-    once; an option given overrides the file's entry. ``clock``: what the times count (said in --help's group title)."""
+    keys: wheel_silent [wheel, t0], startracker_blind [t0, t1], gnss_outage [t0, t1], beacon_lost t0,
+    magnetometer_silent t0, magnetorquer_dead [rod, t0]) for many at once; an option given overrides the file's
+    entry. ``clock``: what the times count (said in --help's group title)."""
     g = p.add_argument_group("device faults (times: %s)" % clock)
     g.add_argument("--wheel-silent", default=None, metavar="I:T0", help="wheel I (0-3) stops answering at T0 s")
     g.add_argument("--startracker-blind", default=None, metavar="T0:T1", help="star tracker blind from T0 to T1 s")
     g.add_argument("--gnss-outage", default=None, metavar="T0:T1", help="no GNSS fix from T0 to T1 s")
     g.add_argument("--beacon-lost", type=float, default=None, metavar="T0", help="beacon out of view from T0 s")
+    g.add_argument("--magnetometer-silent", type=float, default=None, metavar="T0",
+                   help="the magnetometer stops answering at T0 s (flight world)")
+    g.add_argument("--magnetorquer-dead", default=None, metavar="I:T0",
+                   help="rod I's driver (0-2) dies at T0 s: no dipole, MTQ_TLM names it silent (flight world)")
     g.add_argument("--faults", default=None, metavar="FILE",
-                   help="a JSON file of faults (the keys wheel_silent, startracker_blind, gnss_outage, beacon_lost "
-                        "as above, e.g. {\"startracker_blind\": [170, 230]}; the object itself is taken too)")
+                   help="a JSON file of faults (the keys wheel_silent, startracker_blind, gnss_outage, beacon_lost, "
+                        "magnetometer_silent, magnetorquer_dead as above, e.g. {\"startracker_blind\": [170, 230]}; "
+                        "the object itself is taken too)")
 
 
 def _window(text, name):
@@ -104,6 +110,15 @@ def _window(text, name):
         return [float(a), float(b)]
     except ValueError:
         raise ValueError("--%s %r: expected T0:T1 in seconds" % (name, text)) from None
+
+
+def _unit(text, name, unit, last):
+    try:
+        i, t0 = text.split(":")
+        return [int(i), float(t0)]
+    except ValueError:
+        raise ValueError("--%s %r: expected %s:T0 (%s 0-%d, seconds)" % (name, text, unit.upper(), unit, last)) \
+            from None
 
 
 FAULTS_EXAMPLE = '{"startracker_blind": [170, 230]}'
@@ -140,12 +155,11 @@ def faults_from_args(a):
         f, where = _faults_file(a.faults)
         sources = dict.fromkeys(f, where)
     if a.wheel_silent:
-        try:
-            i, t0 = a.wheel_silent.split(":")
-            f["wheel_silent"] = [int(i), float(t0)]
-        except ValueError:
-            raise ValueError("--wheel-silent %r: expected WHEEL:T0 (wheel 0-3, seconds)" % a.wheel_silent) from None
+        f["wheel_silent"] = _unit(a.wheel_silent, "wheel-silent", "wheel", 3)
         sources["wheel_silent"] = "--wheel-silent %s" % a.wheel_silent
+    if a.magnetorquer_dead:
+        f["magnetorquer_dead"] = _unit(a.magnetorquer_dead, "magnetorquer-dead", "rod", 2)
+        sources["magnetorquer_dead"] = "--magnetorquer-dead %s" % a.magnetorquer_dead
     if a.startracker_blind:
         f["startracker_blind"] = _window(a.startracker_blind, "startracker-blind")
         sources["startracker_blind"] = "--startracker-blind %s" % a.startracker_blind
@@ -155,10 +169,18 @@ def faults_from_args(a):
     if a.beacon_lost is not None:
         f["beacon_lost"] = a.beacon_lost
         sources["beacon_lost"] = "--beacon-lost %g" % a.beacon_lost
+    if a.magnetometer_silent is not None:
+        f["magnetometer_silent"] = a.magnetometer_silent
+        sources["magnetometer_silent"] = "--magnetometer-silent %g" % a.magnetometer_silent
     if not f:
         return None
     f = Faults(f, sources)
     check_faults(f, float("inf"))              # the run's span is checked by the run
+    world = getattr(a, "world", "flight")
+    for k in ("magnetometer_silent", "magnetorquer_dead"):
+        if k in f and world != "flight":
+            raise ValueError("%s: the %s world has no magnetic devices on the bus (--world flight)"
+                             % (sources[k], world))
     return f
 
 

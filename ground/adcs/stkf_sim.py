@@ -146,12 +146,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     P0 = np.diag(o["stkf_P0_diag"])               # thesis-3u: (4 km)^2, (0.1 km/s)^2 per satellite (Sec. 5.5.1)
     x_true0 = xs[0].ravel()
     x0 = x_true0 + np.sqrt(o["stkf_P0_diag"]) * r_init.standard_normal(12)
-    if mis["estimate"]:
-        flt = Afls(np.concatenate((x0, mis["figure"])), _blockdiag(P0, mis["P0"]), 0.0, lag_s, stkf.f_m,
-                   stkf.Phi_m, lambda dt: stkf.Q_m(dt, qa), keep_generated=False, parts=stkf.PARTS)
-    else:
-        flt = Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa), keep_generated=False,
-                   parts=stkf.PARTS)
+    flt = _filter(x0, P0, lag_s, qa, mis)
     gnss_a = Gnss(r_ga, **o["gnss"])
     beacon = Beacon(r_bc, **o["beacon"])           # the camera's true misalignment (scenario.orbit_setup)
     relay = Relay(r_rel, Gnss(r_gb, **o["gnss"]), delay_s)
@@ -171,8 +166,8 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     log = []
     gaps = _Gaps(log, ("gnss_a", "beacon") + (("relay",) if case == 2 else ()))
     hist = {k: np.zeros((K + 1,) + s) for k, s in
-            (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)), ("nees", ()), ("merr", (3,)),
-             ("msig", (3,)))}
+            (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)), ("nees", ()), ("lerr", ()),
+             ("merr", (3,)), ("msig", (3,)))}
     hist["t"] = np.arange(K + 1, dtype=float)
     step_s = []
     jb = 0
@@ -208,6 +203,16 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     res = _result(seed, case, truth, attitude, K, d, flt, hist, step_s, gaps.close(float(K)), log)
     res.update(_misalignment_result(hist, mis))
     return res, hist
+
+
+def _filter(x0, P0, lag_s, qa, mis):
+    """The STKF with the EAFLS from (x0, P0) at t = 0; with the misalignment estimated, x0 and P0 augmented by
+    its figure and 1 sigma (``stkf.f_m``, ``Phi_m``, ``Q_m``)."""
+    if mis["estimate"]:
+        return Afls(np.concatenate((x0, mis["figure"])), _blockdiag(P0, mis["P0"]), 0.0, lag_s, stkf.f_m,
+                    stkf.Phi_m, lambda dt: stkf.Q_m(dt, qa), keep_generated=False, parts=stkf.PARTS)
+    return Afls(x0, P0, 0.0, lag_s, stkf.f, stkf.Phi, lambda dt: stkf.Q(dt, qa), keep_generated=False,
+                parts=stkf.PARTS)
 
 
 def _blockdiag(a, b):
@@ -253,8 +258,9 @@ def _check(case, duration_s, lag_s, outages, attitude, delay_s):
 
 def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att, mis):
     """Row k of the history: the estimate's error and 1 sigma, its NEES, the pointing error and its 1 sigma,
-    the misalignment's error and 1 sigma (arcsec; "ignore": the figure's error, 1 sigma 0); FloatingPointError
-    when the filter diverged (NaN, or an orbit under the Earth's surface)."""
+    the line of sight's direction error (arcsec, J2000: the orbits' alone, without the attitude's), the
+    misalignment's error and 1 sigma (arcsec; "ignore": the figure's error, 1 sigma 0); FloatingPointError when
+    the filter diverged (NaN, or an orbit under the Earth's surface)."""
     x, Pk = flt.x, flt.Pk
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):
         raise FloatingPointError("filter diverged at t=%.0f s (NaN in x or P)" % t)
@@ -271,6 +277,7 @@ def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att, mis):
     else:
         hist["merr"][k] = (mis["figure"] - mis["truth"]) / RAD_PER_ARCSEC
     hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / RAD_PER_ARCSEC
+    hist["lerr"][k] = np.linalg.norm(np.cross(stkf.los(x)[0], stkf.los(x_true)[0])) / RAD_PER_ARCSEC
     hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / RAD_PER_ARCSEC
 
 
@@ -473,8 +480,8 @@ def report_md(summary, case, args_text):
                       summary["nees_in_band_share"], summary["rms_over_sigma_ra"], summary["rms_over_sigma_va"],
                       summary["rms_over_sigma_rb"], summary["rms_over_sigma_vb"]), ""]
     if summary.get("misalignment_within_3sigma_share") is not None:
-        lines += ["The beacon camera's misalignment, estimated: each final error within 3 sigma in %.0f %% of the runs; "
-                  "RMS final error %s arcsec, mean final 1 sigma %s arcsec (about body x, y, z)." % (
+        lines += ["The beacon camera's misalignment, estimated: each final error within 3 sigma in %.0f %% of the "
+                  "runs; RMS final error %s arcsec, mean final 1 sigma %s arcsec (about body x, y, z)." % (
                       100 * summary["misalignment_within_3sigma_share"],
                       ", ".join("%.1f" % v for v in summary["rms_final_error_misalignment_arcsec"]),
                       ", ".join("%.1f" % v for v in summary["final_sigma_misalignment_arcsec"])), ""]

@@ -32,7 +32,7 @@ from math import sqrt
 import numpy as np
 
 from ground.adcs import quat
-from ground.adcs.apkf_disturbance import DISTURBANCES, shaping
+from ground.adcs.apkf_disturbance import DISTURBANCES, QD1, QD2, shaping  # QD1, QD2: Eq. 4.152's q_d1, q_d2
 from ground.adcs.apkf_model import (DEG, EYE6, EYE_N, EYE_W, HOUR, ID1, ID2, IJR, IQ, IW, IWM, IWP, IWR, Model, N,
                                     NW, PARAMS, _cross, _f2, _inv3_f, _propagate, _rates_f, _terms_f,
                                     initial_covariance)
@@ -66,10 +66,6 @@ QD_CASE = {1: (2.0e-7) ** 2 / HOUR, 2: (4.0e-6) ** 2 / HOUR, 3: (2.0e-7) ** 2 / 
 # value the filter's rate error is 1.4-2.4x its 1 sigma on Case 2 (measured, 4 runs).
 QD_CASE2_MATCHED = 0.7246 * 1e-6 ** 2 * 2 * np.pi / 72.7
 QD_CONSISTENT = {1: QD_CASE[1], 2: QD_CASE2_MATCHED, 3: QD_CASE[3]}
-# Eq. 4.152: q_d1 per rad/s. The OCR reads "2.0 10^-? Nm/sqrt(h)"; we take 2.0e-5, which makes q_d1 |w| during a
-# 1.4 deg/s rotation comparable with Case 2's q_d (the thesis's stated intent); q_d2 = 0.1 q_d1.
-QD1 = (2.0e-5) ** 2 / HOUR
-QD2 = 0.1 * QD1
 FORMS = ("consistent", "thesis")
 ITER_MAX = 8           # passes of ``update_window`` (measured: 1-3 on Sec. 4.8's runs, 2.1 on average)
 ITER_TOL = 0.1         # of the start's 1 sigma per axis: a smaller change no longer moves the fix's linearisation
@@ -127,9 +123,9 @@ def _phi_wheel_rows(dt, n=N):
 def _phi_rows(w, F2, dt, order=4, shaping=None):
     """The rows of ``phi`` that differ from I, 10 x 41: rows 0:6 (attitude, rate) from w (F11 = -[w x],
     F12 = I/2) and the rate rows F2 = F[3:6] alone (F's attitude rows are zero beyond column 6, and
-    F[0:6, W] F[W, W-:W+] = [-F2W, F2W]/dt), then the wheel-speed rows 29:33. With a ``shaping`` filter
-    (``apkf_disturbance``; F2 then has its columns too) the columns of its states are G1 F_A,d - (dt G1 - G2)
-    F_A,d Fd, on their values at the step's end."""
+    F[0:6, W] F[W, W-:W+] = [-F2W, F2W]/dt), then the wheel-speed rows 29:33. With a shaping filter's step
+    ``shaping`` (``_linearise``; F2 then has its states' columns too) the columns of its states are G1 F_A,d -
+    (dt G1 - G2) F_A,d Fd, on their values at the step's end."""
     w1, w2, w3 = (v * dt for v in w)
     h = 0.5 * dt
     Ad = np.empty((6, 6))
@@ -140,8 +136,8 @@ def _phi_rows(w, F2, dt, order=4, shaping=None):
     PhiR[0:6, 0:6] = E
     np.matmul(G1[:, 3:6], F2[:, 6:], out=PhiR[0:6, 6:])
     if shaping is not None:
-        ix = shaping.ix
-        PhiR[0:6, ix] -= (dt * G1[:, 3:6] - G2[:, 3:6]) @ (F2[:, ix] @ shaping.Fd)
+        ix = shaping[0]
+        PhiR[0:6, ix] -= (dt * G1[:, 3:6] - G2[:, 3:6]) @ (F2[:, ix] @ shaping[4])
     Y = G2[:, 3:6] @ (F2[:, IWR] * (1.0 / dt))
     PhiR[0:6, 33:37] -= Y
     PhiR[0:6, 37:41] += Y
@@ -221,35 +217,37 @@ def shift_tach(x, P, w_plus, R_rw):
 
 def _linearise(x, w_plus, model, t):
     """``shift_tach`` on x (in place), then the step's model at its start with the orbit and field at mid-step:
-    (q, w, c, wheels, r0, F2, PhiR, d): ``_terms_f``'s constants, ``_rates_f`` at s = 0 (F's point and RK4's
-    first stage), the rate rows F2 of F, the rows of Phi that differ from I (``_phi_rows``) and tau_d's shaping
-    filter d (``model.disturbance``; None: the random walk). With one, its states in x move to the step's end
+    (q, w, c, wheels, r0, F2, PhiR, sd): ``_terms_f``'s constants, ``_rates_f`` at s = 0 (F's point and RK4's
+    first stage), the rate rows F2 of F, the rows of Phi that differ from I (``_phi_rows``) and the step of
+    tau_d's shaping filter (``model.disturbance``; None: the random walk), sd = (its states' places in the error
+    state, Phi_dd, e^{Fd dt/2}, Q_dd, Fd) at x. With one, its states in x move to the step's end
     (Phi = Phi_b S, S = I but Phi_dd on those states; ``_phi_rows``' Phi_b takes them at the end) and the
     dynamics hold tau_d at mid-step (``apkf_disturbance``)."""
     x[34:38] = x[38:42]
     x[38:42] = w_plus
     d = getattr(model, "disturbance", None)
+    sd = None
     if d is not None:
-        Phi_dd, Phi_half, _ = d.step(model.dt)
-        z = x[d.ix + 1]
-        x[d.ix + 1] = Phi_dd @ z
+        sd = d.step(model.dt, x)
+        z = x[sd[0] + 1]
+        x[sd[0] + 1] = sd[1] @ z
     c, wheels, _ = _terms_f(x, model, t + 0.5 * model.dt)
     if d is not None:
-        c = c[:8] + ((Phi_half[0:3] @ z).tolist(),)
+        c = c[:8] + ((sd[2][0:3] @ z).tolist(),)
     q, w = x[0:4].tolist(), x[4:7].tolist()
     r0 = _rates_f(q, w, 0.0, c)
     F2 = _f2(w, c, wheels, r0, model)
     if d is not None and d.n > N:
         F2 = np.hstack([F2, np.zeros((3, d.n - N))])
-    return q, w, c, wheels, r0, F2, _phi_rows(w, F2, model.dt, shaping=d), d
+    return q, w, c, wheels, r0, F2, _phi_rows(w, F2, model.dt, shaping=sd), sd
 
 
-def _carry(M, PhiR, d=None, dt=1.0):
+def _carry(M, PhiR, sd=None):
     """M <- Phi S M in place: S is ``shift_tach``'s map (W- takes W+'s rows; the new read-out W+ does not
     depend on the stretch's start), Phi the step's (``_phi_rows``: only rows 0:6 and 29:33 differ from I;
-    with a shaping filter d, its rows first moved by its Phi_dd over dt, as ``_linearise``)."""
-    if d is not None:
-        M[d.ix] = d.step(dt)[0] @ M[d.ix]
+    with a shaping filter's step ``sd`` (``_linearise``), its states' rows first moved by its Phi_dd)."""
+    if sd is not None:
+        M[sd[0]] = sd[1] @ M[sd[0]]
     M[IWM] = M[IWP]
     M[IWP] = 0.0
     T = PhiR @ M
@@ -314,20 +312,19 @@ def predict(x, P, w_plus, model, t, case=1, scale=1.0, M=None, qd=QD_CASE, secon
     (``model.disturbance``) tau_d's Phi and Q are its (``_linearise``, ``_add_shaping_noise``; Q_dd times
     ``scale``) and P, M are n x n with its added states."""
     x = x.copy()
-    q, w, c, wheels, r0, F2, PhiR, d = _linearise(x, w_plus, model, t)
+    q, w, c, wheels, r0, F2, PhiR, sd = _linearise(x, w_plus, model, t)
     Q2 = second_order_noise(x, P, model, np.array(c[1])) if second_order else None
     qp = noise_density(x, case, scale, qd)
-    if d is not None:
-        Phi_dd, _, Q_dd = d.step(model.dt)
+    if sd is not None:
         qp[0:3] = 0.0
-        P = _shaped(P, d.ix, Phi_dd)
+        P = _shaped(P, sd[0], sd[1])
     P = _predict_covariance(P, PhiR, F2, qp, model.dt, model.R_rw)
-    if d is not None:
-        _add_shaping_noise(P, d.ix, Q_dd * scale, F2, model.dt)
+    if sd is not None:
+        _add_shaping_noise(P, sd[0], sd[3] * scale, F2, model.dt)
     if Q2 is not None:
         P[IW, IW] += Q2
     if M is not None:
-        _carry(M, PhiR, d, model.dt)
+        _carry(M, PhiR, sd)
     return _propagate(x, q, w, model.dt, c, wheels, r0[:2]), P
 
 
@@ -342,8 +339,8 @@ def propagate_window(x, steps, model):
         for st in steps:
             t, w_plus = st[0], st[1]
             model.m_ctrl = st[2] if len(st) > 2 else m_now
-            q, w, c, wheels, r0, _, PhiR, d = _linearise(x, w_plus, model, t)
-            _carry(M, PhiR, d, model.dt)
+            q, w, c, wheels, r0, _, PhiR, sd = _linearise(x, w_plus, model, t)
+            _carry(M, PhiR, sd)
             _propagate(x, q, w, model.dt, c, wheels, r0[:2])
     finally:
         model.m_ctrl = m_now

@@ -87,7 +87,8 @@ def _apkf(sub):
                    help="the filter's model of the disturbance torque tau_d (N m): white (default), the thesis's "
                         "random walk; markov, a first-order Gauss-Markov state (sigma, N m, and correlation time, "
                         "s, from the case's disturbance); harmonic, a damped oscillator at Case 2's sine periods "
-                        "(s; Case 2 only): docs/ADCS.md, \"Disturbance models\"")
+                        "(s; Case 2 only); gradient, the torque's slope on the attitude (N m/rad, 9 states; Case 3 "
+                        "only): docs/ADCS.md, \"Disturbance models\"")
     p.set_defaults(func=_run_apkf)
 
 

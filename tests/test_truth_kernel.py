@@ -71,6 +71,8 @@ def _agree(a, b, n=2000):
     assert np.abs(ta - tb).max() <= RTOL * np.abs(ta).max()
     assert ca == cb
     assert db == pytest.approx(da, rel=1e-6, abs=1e-15)
+    ea, eb = a.external_torque(a.t, xa[-1]), b.external_torque(a.t, xa[-1])     # the recorder's call
+    assert np.abs(ea - eb).max() <= RTOL * np.abs(ea).max()
     return xa
 
 

@@ -262,16 +262,22 @@ static int tau_ext(const Kernel *k, double t, const double *x, const double *m, 
     return 0;
 }
 
+/* the wheels' speeds relative to the body, W - C^T w */
+static void wrel_of(const Kernel *k, const double *x, double *wrel)
+{
+    for (int i = 0; i < NW; i++)
+        wrel[i] = x[7 + i] - (k->C[i] * x[4] + k->C[4 + i] * x[5] + k->C[8 + i] * x[6]);
+}
+
 /* Spacecraft.derivative: dx/dt (Eq. 4.10, 4.16, 4.55-4.56) with the motor torques tq held */
 static int derivative(const Kernel *k, double t, const double *x, const double *tq, const double *m, const Env *e,
                       double *dx)
 {
     const double *q = x, *w = x + 4, *W = x + 7, *C = k->C, *CJ = k->CJ, *J = k->J, *Ji = k->Ji;
     double wrel[NW], net[NW], h[3], tau[3], r[3];
-    for (int i = 0; i < NW; i++) {
-        wrel[i] = W[i] - (C[i] * w[0] + C[4 + i] * w[1] + C[8 + i] * w[2]);
+    wrel_of(k, x, wrel);
+    for (int i = 0; i < NW; i++)
         net[i] = tq[i] - (k->fv * wrel[i] + k->fc * tanh(wrel[i] * k->fs));
-    }
     for (int c = 0; c < 3; c++)
         h[c] = J[3 * c] * w[0] + J[3 * c + 1] * w[1] + J[3 * c + 2] * w[2]
                + (CJ[4 * c] * W[0] + CJ[4 * c + 1] * W[1] + CJ[4 * c + 2] * W[2] + CJ[4 * c + 3] * W[3]);
@@ -298,9 +304,10 @@ static double sgn(double v) { return v > 0.0 ? 1.0 : (v < 0.0 ? -1.0 : v); }
 static int limit(const Kernel *k, const double *x, const double *cmd, const char *enable, double dt, double *tq)
 {
     int flags = 0;
+    double wrel[NW];
+    wrel_of(k, x, wrel);
     for (int i = 0; i < NW; i++) {
-        double wr = x[7 + i] - (k->C[i] * x[4] + k->C[4 + i] * x[5] + k->C[8 + i] * x[6]);
-        double u = enable[i] ? cmd[i] : 0.0, v = u < -k->tmax ? -k->tmax : (u > k->tmax ? k->tmax : u);
+        double wr = wrel[i], u = enable[i] ? cmd[i] : 0.0, v = u < -k->tmax ? -k->tmax : (u > k->tmax ? k->tmax : u);
         double room = k->jrw[i] * (k->wmax - fabs(wr)) / dt;
         room = room > 0.0 ? room : 0.0;
         if (v != u)
@@ -385,7 +392,32 @@ done:
     return err ? NULL : Py_BuildValue("di", qn, flags);
 }
 
+/* torque(t, x, dipole) -> tau_ext (N m, body) at time t and state x (Spacecraft.external_torque) */
+static PyObject *kernel_torque(Kernel *k, PyObject *const *a, Py_ssize_t na)
+{
+    Py_buffer bx;
+    double t, m[3], tau[3], wrel[NW];
+    const double *mp;
+    int err;
+    Env e;
+    if (na != 3) {
+        PyErr_SetString(PyExc_TypeError, "torque takes 3 arguments");
+        return NULL;
+    }
+    t = PyFloat_AsDouble(a[0]);
+    mp = a[2] == Py_None ? NULL : m;
+    if ((t == -1.0 && PyErr_Occurred()) || (mp && doubles(a[2], "dipole", m, 3) < 0)
+        || get(a[1], &bx, 15, 0, "d", "x"))
+        return NULL;
+    wrel_of(k, bx.buf, wrel);
+    err = environment(k, t, mp != NULL, &e) || tau_ext(k, t, bx.buf, mp, &e, wrel, tau);
+    PyBuffer_Release(&bx);
+    return err ? NULL : Py_BuildValue("(ddd)", tau[0], tau[1], tau[2]);
+}
+
 static PyMethodDef kernel_methods[] = {
+    {"torque", (PyCFunction)(void (*)(void))kernel_torque, METH_FASTCALL,
+     "torque(t, x, dipole) -> (tx, ty, tz): the external torque (N m, body) at time t and state x (15)"},
     {"step", (PyCFunction)(void (*)(void))kernel_step, METH_FASTCALL,
      "step(t, dt, x, x_out, tq_out, cmd, enable, dipole) -> (|q| before renormalising, clip flags): one RK4 step "
      "of dt from x (15) into x_out, the wheels' limited torques into tq_out (flag bit i: wheel i's torque clipped, "

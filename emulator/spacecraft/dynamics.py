@@ -178,6 +178,8 @@ class Spacecraft:
     def external_torque(self, t, x):
         """tau_ext (body frame, N m) at time t and state x: gravity gradient, residual dipole, the callable,
         jitter (its force moves the centre of mass, which this model does not follow)."""
+        if self.truth_form == "kernel" and not self.wheels.p.jitter:
+            return np.array(self._kernel_now().torque(t, np.ascontiguousarray(x, dtype=float), self._dipole))
         wrel = x[7:11] - self.wheels.c.T @ x[4:7] if self.wheels.p.jitter else None
         return np.array(self._tau_ext(t, x, x[0:4].tolist(), wrel))
 
@@ -248,18 +250,22 @@ class Spacecraft:
         kernel's (``truth_form`` "kernel") or ``_step_python``; the two agree to rounding."""
         if self.truth_form == "python":
             return self._step_python()
-        key = (self.orbit, self.field, self.disturbance, self.gravity_gradient)
-        if key != self._kernel_key:
-            self._kernel, self._kernel_key = _kernel.build(self), key
         w = self.wheels
         x, tq = np.empty(15), np.empty(N_WHEELS)
-        qn, clip = self._kernel.step(self.t, self.dt, self.x, x, tq, w.cmd, w.enable, self._dipole)
+        qn, clip = self._kernel_now().step(self.t, self.dt, self.x, x, tq, w.cmd, w.enable, self._dipole)
         if clip:
             w.n_torque_clip += [(clip >> i) & 1 for i in range(N_WHEELS)]
             w.n_speed_clip += [(clip >> (N_WHEELS + i)) & 1 for i in range(N_WHEELS)]
         self.q_drift_max = max(self.q_drift_max, abs(qn - 1.0))
         self.x, self.t, self.tau_motor = x, self.t + self.dt, tq
         self.steps += 1
+
+    def _kernel_now(self):
+        """The C kernel for the orbit, field, disturbance and gravity gradient as they are now."""
+        key = (self.orbit, self.field, self.disturbance, self.gravity_gradient)
+        if key != self._kernel_key:
+            self._kernel, self._kernel_key = _kernel.build(self), key
+        return self._kernel
 
     def _step_python(self):
         """``step`` on Python floats (the reference form)."""

@@ -98,6 +98,11 @@ def magnetic_torque(m_dipole, b_b):
     return cross3(m_dipole, b_b)
 
 
+def _norms(a):
+    """|a_k| of each row as a column, by ``np.linalg.norm`` row by row (the same rounding as a single vector's)."""
+    return np.array([np.linalg.norm(row) for row in a]).reshape(-1, 1)
+
+
 class SurfaceTorques:
     """Aerodynamic drag and solar radiation pressure torques of a flat-plate spacecraft whose centre of pressure
     sits ``cp_offset_m`` (body frame) from its centre of mass: tau = r_cp x (F_drag + F_srp), with
@@ -119,19 +124,13 @@ class SurfaceTorques:
         x = np.asarray(x, float)
         r, v = x[:, 0:3], x[:, 3:6]
         self.cp = tuple(float(c) for c in cp_offset_m)
-        n = len(t_s)
-        f = np.zeros((n, 3))
-        self.rho = np.zeros(n)
-        self.sunlit = np.zeros(n)
-        w_e = np.array([0.0, 0.0, OMEGA_EARTH])
-        for k in range(n):
-            r_sun = np.asarray(bh.sun_position(e0 + float(t_s[k])))
-            self.rho[k] = rho = bh.density_harris_priester(r[k], r_sun)
-            self.sunlit[k] = nu = bh.eclipse_conical(r[k], r_sun)
-            vr = v[k] - np.cross(w_e, r[k])
-            s_hat = (r_sun - r[k]) / np.linalg.norm(r_sun - r[k])
-            f[k] = (-0.5 * rho * surface["cd"] * surface["drag_area_m2"] * np.linalg.norm(vr) * vr
-                    - nu * P_SUN_N_M2 * surface["cr"] * surface["srp_area_m2"] * s_hat)
+        r_sun = np.array([bh.sun_position(e0 + float(tk)) for tk in t_s], dtype=float).reshape(-1, 3)
+        self.rho = np.array([bh.density_harris_priester(a, b) for a, b in zip(r, r_sun)], dtype=float)
+        self.sunlit = np.array([bh.eclipse_conical(a, b) for a, b in zip(r, r_sun)], dtype=float)
+        vr = v - np.cross(np.array([0.0, 0.0, OMEGA_EARTH]), r)
+        s_hat = (r_sun - r) / _norms(r_sun - r)
+        f = ((-0.5 * self.rho[:, None] * surface["cd"] * surface["drag_area_m2"] * _norms(vr)) * vr
+             - (self.sunlit[:, None] * P_SUN_N_M2 * surface["cr"] * surface["srp_area_m2"]) * s_hat)
         self.t0, self.force_i = float(t_s[0]), f
         self._f = f.tolist()
 

@@ -1,8 +1,8 @@
 """The truth's RK4 step in C: ``emulator.spacecraft._truth``, a CPython extension that ``pip install -e .`` builds
 (pyproject.toml's ext-modules; optional, so an install without a C compiler still succeeds and the Python form
 steps). Its ``Kernel`` holds the spacecraft's constants and environment; ``Kernel.step`` is one step of
-``Spacecraft._step_python`` (Eq. 4.10, 4.16, 4.55-4.56, 4.69-4.75, the wheels' limits and jitter) with the same
-operations in the same order, compiled without floating-point contraction, so the two agree to rounding
+``Spacecraft._step_python`` (Eq. 4.10, 4.16, 4.55-4.56, 4.69-4.75, the wheels' limits and jitter) and
+``Kernel.torque`` is ``Spacecraft.external_torque``, with the same operations in the same order, compiled without floating-point contraction, so the two agree to rounding
 (tests/test_truth_kernel.py).
 
 The kernel evaluates in C the circular orbit, the orbit grid of ``scenario.GridOrbit``, the tilted dipole, the

@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from bench import verdict
+from bench import adcs_disturbance, verdict
 from bench.common import timed
 from emulator.spacecraft import scenario
 from ground.adcs import apkf, campaign, quat, report, runs
@@ -309,30 +309,18 @@ def disturbance_noise_sweep(case, factors, seeds=range(RUNS)):
         for k in factors:
             if case == 3:
                 apkf.QD1, apkf.QD2 = qd1 * k, qd2 * k
-            nees, z, zp = [], [], []
-            for seed in seeds:
-                o = scenario.simulate(case=case, seed=seed)
-                k0, f = runs._start_apkf(o, case)
+
+            def setup(o, k0, f, k=k):
                 if case == 2:
                     f.qd = {2: apkf.QD_CASE2_MATCHED if k is None else k * apkf.QD_CASE[2]}
-                t0 = int(o["set_ends"][0])
-                for kk in range(k0 + 1, len(o["t"])):
-                    f.step(o["t"][kk - 1], o["tach"][kk], o["st_q"][kk] if o["st_valid"][kk] else None)
-                    if kk >= t0:
-                        e = runs.apkf_error(o, kk, f.x, case)
-                        nees.append((kk, runs._nees(e[0:6], f.P[0:6, 0:6])))
-                        z.append(e[3:6] / np.sqrt(np.diag(f.P)[3:6]))
-                zp.append(np.abs(e[apkf.PARAMS] / np.sqrt(np.diag(f.P)[apkf.PARAMS])) <= 3.0)
-            steps = np.array(nees)
-            mean = np.array([steps[steps[:, 0] == kk, 1].mean() for kk in np.unique(steps[:, 0])])
+            mean, rms, within = adcs_disturbance.consistency_over(case, seeds, setup=setup)
             label = ("matched, %.3g (N m)^2/s (%.0fx the thesis's)" % (apkf.QD_CASE2_MATCHED,
                                                                        apkf.QD_CASE2_MATCHED / apkf.QD_CASE[2])
                      if k is None else "%gx %s" % (k, "the thesis's" if case == 2 else "ours (the default)"))
-            share, within = np.mean((mean >= lo) & (mean <= hi)), np.mean(zp, axis=0).min()
+            share = np.mean((mean >= lo) & (mean <= hi))
             if share >= 0.9 and within >= 0.95:
                 meets.append(label)
-            lines.append("| %s | %.1f | %.2f | %s | %.2f |" % (
-                label, mean.mean(), share, _fmt(np.sqrt(np.mean(np.array(z) ** 2, axis=0)), 1, "%.2f"), within))
+            lines.append("| %s | %.1f | %.2f | %s | %.2f |" % (label, mean.mean(), share, _fmt(rms, 1, "%.2f"), within))
     finally:
         apkf.QD1, apkf.QD2 = qd1, qd2
     lines.append("Goal: NEES in band >= 0.90 with every parameter within 3 sigma in >= 95 %% of runs: %s."
@@ -507,6 +495,8 @@ def _accuracy(res_2w):
     print(thesis_sigma_table(figs, by_thesis))
     print(disturbance_noise_sweep(2, (1.0, None, 100.0)))
     print(disturbance_noise_sweep(3, (0.25, 1.0, 4.0)))
+    print(adcs_disturbance.disturbance_models_table(adcs_disturbance.disturbance_models(_campaign, RUNS),
+                                                   adcs_disturbance.known_disturbance(range(RUNS)), RUNS))
     print(parameters_nees_vs_misalignment())
     diag = runs.aggregate(_campaign(runs.run_apkf, 1, workers=2, start_at_truth=True)[0], "apkf", 1)
     print("\nDiagnostic, APKF case 1 started at the true parameters (same P0): NEES in band %.2f (mean %.2f, "

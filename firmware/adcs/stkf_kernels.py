@@ -8,9 +8,9 @@ Gravity (``GRAVITY``): two-body (Eq. 5.7, the thesis's), or two-body plus the J2
 
     a_J2 = -(3/2) J2 mu R^2 / |r|^5 [x (1 - 5 z^2/|r|^2), y (1 - 5 z^2/|r|^2), z (3 - 5 z^2/|r|^2)]
 
-in J2000 with its z axis taken as the Earth's pole (precession and nutation left out: the pole of date is
-~0.36 deg off J2000's in 2026, a J2 error of ~6e-3 of the term, which the J2 model's process noise covers,
-docs/ADCS.md). ``f`` and ``phi`` take the term's coefficient ``j2`` = (3/2) J2 mu R^2 (m^5/s^2; 0.0: two-body, the
+in J2000 with its z axis taken as the Earth's pole (precession and nutation left out: the pole of date moves
+~20 arcsec a year off J2000's, 0.15 deg in 2027, a J2 error of ~5e-3 of the term, which the J2 model's process
+noise covers, docs/ADCS.md). ``f`` and ``phi`` take the term's coefficient ``j2`` = (3/2) J2 mu R^2 (m^5/s^2; 0.0: two-body, the
 same operations as without it, bit for bit)."""
 
 from array import array

@@ -2,15 +2,15 @@
 
 ``disturbance_models``: Cases 1-3, the thesis's white model beside each shaping filter the case has figures for,
 ``RUNS`` seeds each through ``fps adcs apkf``'s own run function (the thesis-3U default, consistent form).
-``known_disturbance``: the bound a disturbance model can reach, Case 2's harmonic filter started at the true
-torque and its rate. ``consistency_over``: the consistent form's figures over seeds in this process (also
+``known_disturbance``: the bound a disturbance model can reach, Case 2's harmonic and Case 3's gradient filters
+started at the true disturbance. ``consistency_over``: the consistent form's figures over seeds in this process (also
 ``bench_adcs.disturbance_noise_sweep``'s).
 """
 
 import numpy as np
 
 from emulator.spacecraft import scenario
-from ground.adcs import apkf, runs
+from ground.adcs import apkf, quat, runs
 
 # (case, tau_d's model): white is the thesis's random walk; the others ``apkf_disturbance.shaping``'s
 DISTURBANCE_ROWS = ((1, "white"), (1, "markov"), (2, "white"), (2, "markov"), (2, "harmonic"), (3, "white"),
@@ -54,24 +54,45 @@ def disturbance_models(campaign, runs_n, rows=DISTURBANCE_ROWS):
                                       "apkf", case) for case, d in rows}
 
 
-def _start_at_true_torque(o, k0, f):
-    """The harmonic filter's torque and its rate set to the truth's at the start (the rate by central
-    differences of the truth's 1 Hz torque), their covariance 1e-6 of the stationary one."""
-    s = o["truth"]["scale"]
-    ix = f.model.disturbance.ix
-    f.x[ix + 1] = np.concatenate([o["tau_d"][k0], 0.5 * (o["tau_d"][k0 + 1] - o["tau_d"][k0 - 1])]) * s
-    P0 = f.model.disturbance.prior() * 1e-6
-    f.P[ix] = 0.0
-    f.P[:, ix] = 0.0
-    f.P[np.ix_(ix, ix)] = P0
+def _true_shaping_state(o, k0, case):
+    """The truth's shaping-filter state at step k0, in the filter's units (scaled as ``scenario.filter_truth``):
+    Case 2 [tau_d, d tau_d / dt] (the rate by central differences of the 1 Hz torque), Case 3 [tau_d, vec(G)]
+    with Eq. 4.151's G = d tau_d / d theta = -(A/2)(q4 I + [e x]) at the true attitude (q = [e, q4])."""
+    tau = o["tau_d"][k0]
+    if case == 2:
+        z = np.concatenate([tau, 0.5 * (o["tau_d"][k0 + 1] - o["tau_d"][k0 - 1])])
+    else:
+        e, q4 = o["q"][k0][0:3], o["q"][k0][3]
+        G = -0.5 * scenario.TAU_MAG * (q4 * np.eye(3) + quat.skew(e))
+        z = np.concatenate([tau, G.ravel()])
+    return z * o["truth"]["scale"]
 
 
-def known_disturbance(seeds):
-    """Case 2 with the harmonic filter started at the true torque (``_start_at_true_torque``): what is left when
-    the disturbance is known. Returns (NEES in band, RMS / 1 sigma of the rate, parameters within 3 sigma)."""
-    mean, rms, within = consistency_over(2, seeds, "harmonic", _start_at_true_torque)
+def _start_at_true_disturbance(case):
+    """``consistency_over``'s setup: the shaping filter's states set to the truth's at the start
+    (``_true_shaping_state``), their covariance 1e-6 of the filter's prior, uncorrelated."""
+    def setup(o, k0, f):
+        ix = f.model.disturbance.ix
+        f.x[ix + 1] = _true_shaping_state(o, k0, case)
+        f.P[ix] = 0.0
+        f.P[:, ix] = 0.0
+        f.P[np.ix_(ix, ix)] = f.model.disturbance.prior() * 1e-6
+    return setup
+
+
+KNOWN_ROWS = ((2, "harmonic"), (3, "gradient"))
+
+
+def known_disturbance(seeds, rows=KNOWN_ROWS):
+    """{(case, model): (NEES in band, RMS / 1 sigma of the rate, parameters within 3 sigma)} with the shaping
+    filter started at the true disturbance (``_start_at_true_disturbance``): what is left when the disturbance is
+    known at the start and its model is the truth's."""
     lo, hi = band(len(list(seeds)))
-    return float(np.mean((mean >= lo) & (mean <= hi))), rms, within
+    out = {}
+    for case, d in rows:
+        mean, rms, within = consistency_over(case, seeds, d, _start_at_true_disturbance(case))
+        out[(case, d)] = float(np.mean((mean >= lo) & (mean <= hi))), rms, within
+    return out
 
 
 def _fmt(v, f="%.2f"):
@@ -98,9 +119,9 @@ def disturbance_models_table(figs, known=None, known_seeds=0):
             case, d, _fmt(s["nees_in_band_share"]), _fmt(s["rms_over_sigma_attitude"]),
             _fmt(s["rms_over_sigma_rate"]), _fmt(s["params_within_3sigma_share"]), s["runs"],
             s.get("runs_diverged", 0), s["runs_failed"], "met" if _verdict(s) else "missed"))
-    if known is not None:
-        rows.append("| 2 | harmonic started at the true torque (%d seeds; a bound, not a filter) | %.2f | — | %s | "
-                    "%.2f | — | — |" % (known_seeds, known[0], _fmt(known[1]), known[2]))
+    for (case, d), (share, rms, within) in (known or {}).items():
+        rows.append("| %d | %s started at the true disturbance (%d seeds; a bound, not a filter) | %.2f | — | %s | "
+                    "%.2f | — | — |" % (case, d, known_seeds, share, _fmt(rms), within))
     rows.append("Goals (Case 2 and 3 with a shaping filter): NEES in band >= 0.90, RMS / 1 sigma 0.7-1.3 on every "
                 "axis, parameters within 3 sigma in >= 95 % of runs; Case 1 no worse than white.")
     return "\n".join(rows)

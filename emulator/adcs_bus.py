@@ -7,6 +7,7 @@ import numbers
 
 import numpy as np
 
+from emulator.occultation import occulted
 from emulator.spacecraft import scenario
 from emulator.spacecraft.dynamics import dcm
 from emulator.spacecraft.wheels import N_WHEELS
@@ -195,6 +196,7 @@ class SpacecraftBus:
         self.st_ok_t = 0.0                       # the star tracker's last valid output (truth side)
         self.st_blind_before = 0.0               # and the blind stretch that output ended (s)
         self.st_valid_log = []                   # per cycle: the star tracker's output valid
+        self.beacon_occulted = 0                 # cycles the Earth hid the partner from the beacon camera
         self.recorded = [] if record else None
         self._rec = []
         self.pkts = []                           # (bit, pid, src, payload) of the open cycle's burst
@@ -275,7 +277,9 @@ class SpacecraftBus:
                 if not outage:
                     self._send(P["GNSS"], N["GNSS"], gnss_payload(int(round(tm * 1000)), 1, z))
         y = w.beacon.measure_dcm(x[0:3], x[6:9], dcm(self.sc.q))
-        lost = self.faults.on("beacon_lost", t)
+        hidden = bool(occulted(x[0:3], x[6:9]))         # the Earth (and its air) between the two: no beacon
+        self.beacon_occulted += hidden
+        lost = hidden or self.faults.on("beacon_lost", t)
         y = y / np.linalg.norm(y)
         self._send(P["BEACON"], N["BEACON"], core.encode_payload(
             P["BEACON"], t_ms=t_ms, ux=float(y[0]), uy=float(y[1]), uz=float(y[2]), valid=0 if lost else 1))

@@ -62,6 +62,8 @@ Faults (``faults`` dict):
 ``wheel_silent`` [i, t0]: from t0 wheel i's node is dead (no RW_TLM, commands ignored, the rotor coasts);
 ``startracker_blind`` [t0, t1]: the star tracker answers "no solution" (valid 0); ``gnss_outage`` [t0, t1]:
 no GNSS fix of SatA (SatB's relay too); ``beacon_lost`` t0: the beacon answers "not in view" (valid 0).
+The beacon also answers "not in view" whenever the Earth, with 100 km of atmosphere, is between the two
+satellites (``emulator.occultation``; counted in ``beacon_occulted_cycles``).
 
 Truth: the world ground/adcs/body_pointing.py runs, built by the same ``emulator.spacecraft.scenario.pointing_world``
 (orbits of ``emulator.orbits``, two-body by default, brahe ``hpop`` on request, on a 20 Hz grid by 10th-order
@@ -438,7 +440,7 @@ class AdcsSession:
                 "cycles": self.k, "virtual_s": float(self.k), "wall_s": self.wall_s,
                 "speed_x_realtime": (self.k / self.wall_s) if self.wall_s > 0 else None,
                 "late_cycles": self.wait.n_late, "missed_rw_cmd": list(bus.missed_rw_cmd),
-                "refused_rw_cmd": list(bus.refused_rw_cmd),
+                "refused_rw_cmd": list(bus.refused_rw_cmd), "beacon_occulted_cycles": bus.beacon_occulted,
                 "magnetic_devices": None if dev is None else {
                     "magnetometer": dev.mag is not None, "magnetorquers": bus.has_mtq(),
                     "mtq_cmd": bus.n_mtq_cmd, "refused_mtq_cmd": bus.refused_mtq_cmd},

@@ -153,3 +153,23 @@ def test_the_thesis_world_marks_it_too(tmp_path):
     p, out = _fly_far_side(tmp_path, "thesis", 20)
     s = json.load(open(out / "summary.json"))
     assert s["budgets_met"] is False and s["line_of_sight"] is False and s["pointing_3sigma_arcsec"] is None
+
+
+def test_the_beacon_camera_cannot_see_a_partner_behind_the_earth(tmp_path):
+    """The emulated beacon answers "not in view" on every cycle the Earth hides the partner, and the flight
+    software counts each as an invalid beacon; the shipped partner is never hidden."""
+    sc, _ = _far_side(tmp_path)
+    counts = []
+    for d in (sf.load(str(sc)), sf.load("thesis-3u")):
+        s = AdcsSession(runtime="inproc", world="flight", duration_s=20, spacecraft=d)
+        s.start()
+        try:
+            for _ in range(s.K):
+                s.cycle()
+            out = s.summary()
+        finally:
+            s.close()
+        counts.append((out["beacon_occulted_cycles"], out["firmware_missed"]["beacon_invalid"], out["cycles"]))
+    (hid, invalid, n), (hid_ok, invalid_ok, _) = counts
+    assert hid == n == 20 and invalid >= n - 2          # the first cycle or two come before the app reads it
+    assert hid_ok == 0 and invalid_ok == 0

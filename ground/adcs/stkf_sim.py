@@ -167,7 +167,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     gaps = _Gaps(log, ("gnss_a", "beacon") + (("relay",) if case == 2 else ()))
     hist = {k: np.zeros((K + 1,) + s) for k, s in
             (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)), ("nees", ()), ("lerr", ()),
-             ("merr", (3,)), ("msig", (3,)))}
+             ("merr", (3,)), ("msig", (3,)), ("aerr", (3,)), ("asig", (3,)))}
     hist["t"] = np.arange(K + 1, dtype=float)
     step_s = []
     jb = 0
@@ -259,8 +259,9 @@ def _check(case, duration_s, lag_s, outages, attitude, delay_s):
 def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att, mis):
     """Row k of the history: the estimate's error and 1 sigma, its NEES, the pointing error and its 1 sigma,
     the line of sight's direction error (arcsec, J2000: the orbits' alone, without the attitude's), the
-    misalignment's error and 1 sigma (arcsec; "ignore": the figure's error, 1 sigma 0); FloatingPointError when
-    the filter diverged (NaN, or an orbit under the Earth's surface)."""
+    misalignment's error and 1 sigma (arcsec; "ignore": the figure's error, 1 sigma 0), the attitude knowledge's
+    error d_alpha (A_true = A(d_alpha) A_hat, Eq. 4.77) and the 1 sigma the filter is given (arcsec);
+    FloatingPointError when the filter diverged (NaN, or an orbit under the Earth's surface)."""
     x, Pk = flt.x, flt.Pk
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):
         raise FloatingPointError("filter diverged at t=%.0f s (NaN in x or P)" % t)
@@ -278,6 +279,9 @@ def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att, mis):
         hist["merr"][k] = (mis["figure"] - mis["truth"]) / RAD_PER_ARCSEC
     hist["perr"][k] = stkf.pointing_error(x, A_hat, x_true, A_true) / RAD_PER_ARCSEC
     hist["lerr"][k] = np.linalg.norm(np.cross(stkf.los(x)[0], stkf.los(x_true)[0])) / RAD_PER_ARCSEC
+    M = A_true.dot(A_hat.T)                       # A(d_alpha) ~ I - [d_alpha x]
+    hist["aerr"][k] = 0.5 * np.array([M[1, 2] - M[2, 1], M[2, 0] - M[0, 2], M[0, 1] - M[1, 0]]) / RAD_PER_ARCSEC
+    hist["asig"][k] = np.sqrt(np.diag(P_att)) / RAD_PER_ARCSEC
     hist["psig"][k] = np.sqrt(np.diag(stkf.pointing_covariance(x, Pk, A_hat, P_att))) / RAD_PER_ARCSEC
 
 

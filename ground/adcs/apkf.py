@@ -310,7 +310,7 @@ def predict(x, P, w_plus, model, t, case=1, scale=1.0, M=None, qd=QD_CASE, secon
     only. ``M`` (41 x 41, if given) is carried through the step in place (``_carry``): the Jacobian of x on a
     stretch's start. ``second_order``: add ``second_order_noise`` to the rate's block. With a shaping filter
     (``model.disturbance``) tau_d's Phi and Q are its (``_linearise``, ``_add_shaping_noise``; Q_dd times
-    ``scale``) and P, M are n x n with its added states."""
+    ``scale`` only if its ``fictitious``) and P, M are n x n with its added states."""
     x = x.copy()
     q, w, c, wheels, r0, F2, PhiR, sd = _linearise(x, w_plus, model, t)
     Q2 = second_order_noise(x, P, model, np.array(c[1])) if second_order else None
@@ -320,7 +320,7 @@ def predict(x, P, w_plus, model, t, case=1, scale=1.0, M=None, qd=QD_CASE, secon
         P = _shaped(P, sd[0], sd[1])
     P = _predict_covariance(P, PhiR, F2, qp, model.dt, model.R_rw)
     if sd is not None:
-        _add_shaping_noise(P, sd[0], sd[3] * scale, F2, model.dt)
+        _add_shaping_noise(P, sd[0], sd[3] * (scale if model.disturbance.fictitious else 1.0), F2, model.dt)
     if Q2 is not None:
         P[IW, IW] += Q2
     if M is not None:

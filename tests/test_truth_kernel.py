@@ -3,6 +3,9 @@ stepped by both agrees to rounding (1e-12 of each block of the state) over thous
 environment in C (circular orbit, orbit grid, tilted dipole, surface torques, jitter) and called back in Python
 (another orbit, field or disturbance)."""
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 
@@ -134,3 +137,15 @@ def test_kernel_refuses_bad_state():
     sc.x = sc.x.astype(np.float32)
     with pytest.raises(ValueError, match="x must be 15"):
         sc.step()
+
+
+@built
+def test_a_copy_steps_on():
+    """A copied or pickled spacecraft leaves the kernel behind and builds its own: it steps as the original."""
+    sc = _make("kernel", disturbance=drag)
+    _fly(sc, 20)
+    for dup in (copy.deepcopy, lambda s: pickle.loads(pickle.dumps(s))):
+        twin = dup(sc)
+        sc.step()
+        twin.step()
+        assert twin.truth_form == "kernel" and np.array_equal(twin.x, sc.x)

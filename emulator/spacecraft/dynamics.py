@@ -134,6 +134,10 @@ class Spacecraft:
         self.truth_form = _kernel.form(kernel, type(self.wheels) is Wheels)
         self._kernel = self._kernel_key = None
 
+    def __getstate__(self):
+        """Copies and pickles leave the C kernel behind (it is built again at the next step)."""
+        return dict(self.__dict__, _kernel=None, _kernel_key=None)
+
     # --- state views ---------------------------------------------------------------------------------
     @property
     def q(self):

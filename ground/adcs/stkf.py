@@ -4,7 +4,8 @@ State x = [rA, vA, rB, vB] (12, SI units, J2000; Eq. 5.6). Two-body dynamics wit
 of spectral density Qa (Eq. 5.7-5.9); GNSS updates (Eq. 5.10-5.12); the beacon unit-vector update in SatA's
 body frame (Eq. 5.13-5.17), with the attitude covariance as extra measurement noise (Sec. 5.3.3). SatB's
 delayed GNSS goes through the smoother in ``ground.adcs.afls`` (Eq. 5.18-5.52). The pointing vector, its
-error and covariance, and the two angles perpendicular to it: Eq. 5.54-5.60.
+error and covariance, and the two angles perpendicular to it: Eq. 5.54-5.60. The beacon camera's misalignment
+(Sec. 8.3 leaves its calibration to a mission): x augmented by its three angles, ``beacon_m`` (end of the module).
 
 Attitude errors: the true attitude is A(q) = A(dq) A(q_hat) with the small rotation d_alpha = 2 dq_vec
 (Eq. 4.77); ``P_att`` is the covariance of d_alpha (rad^2), so 4 Pqq of Eq. 5.59 is ``P_att``.

@@ -5,7 +5,8 @@ its samples and control telemetry are bit-identical; heavy faults (complete and 
 ``firmware.main`` on a relayed pty) at 637.8 Hz and 2 kHz. The CAN side: fps hil with the CPython
 controller over slcan, fps adcs can and fps system with faults on the slcan stream, their wall-time cost beside
 serial's, and the share of Lawicel lines and packets a fault rate lets through (``can_survival``), which bounds
-what any retry scheme can do at that rate.
+what any retry scheme can do at that rate. The ADCS's FDIR of its magnetic devices (``fdir_magnetic``): 3 orbits of
+the flight world clean, with the magnetometer silent and with each rod's driver dead.
 """
 
 import contextlib
@@ -156,6 +157,7 @@ def _main(tmp, duration_s):
         print("| %g Hz | %s | %d | %d | %.2f %% | %s |" % (rate, "zero-latency" if zl else "arduino-zero", ov, n,
                                                            100.0 * ov / max(n, 1), met), flush=True)
     _can(tmp, dist, cal, failed)
+    fdir_magnetic()
     if failed:      # the tables are printed; make bench must still say the benchmark failed
         raise RuntimeError("; ".join(failed))
 
@@ -324,3 +326,122 @@ def _board_realtime(tmp, dist, cal, rate, duration=10.0):
 if __name__ == "__main__":
     from bench.run import standalone
     standalone(main)
+
+
+FDIR_ORBITS = 3
+FDIR_T0_S = 1500.0          # the faults begin after the first acquisition, before the first orbit ends
+FDIR_SEED = 3
+FDIR_NEAR_S = 60.0          # pointing samples this close to a wheel's zero crossing set apart
+
+
+def _zero_crossing_share(hist, T, near_s=FDIR_NEAR_S):
+    """(the wheels' zero crossings after the first orbit, the 10 Hz samples within ``near_s`` of one)."""
+    t, w = hist["t"], hist["w_rel"]
+    cross = np.zeros(len(t), bool)
+    cross[1:] = np.any(np.sign(w[1:]) != np.sign(w[:-1]), axis=1) & (t[1:] >= T)
+    n = int(round(near_s * 10))
+    return int(cross.sum()), np.convolve(cross, np.ones(2 * n + 1), "same") > 0
+
+
+def _pointing_3sigma(hist, sel):
+    """3 sigma pointing (arcsec) of the selected samples (as ``pointing.statistics``), None under two."""
+    d = hist["dtheta_arcsec"][sel]
+    return float(3 * np.hypot(*d.std(axis=0))) if len(d) >= 2 else None
+
+
+def _uncancellable_share(hist, rod, T, limit=0.3):
+    """The share of the seconds after the first orbit in which the two rods left without ``rod`` cannot cancel the
+    true residual dipole's torque within +-``limit`` A m^2 (their dipole m' = -m_res + (m_res,i / b_i) b, b the
+    field model in the body at the flown estimates, the same torque exactly, has a rod beyond the limit)."""
+    from emulator.orbits import epoch_gmst_rad
+    from emulator.spacecraft import scenario
+    from firmware.adcs import control
+    from firmware.adcs.estimation import field_dipole
+    d = scenario.thesis_3u()
+    m_res = np.add(d["residual_dipole_am2"], d["truth"]["residual_dipole_error_am2"])
+    gmst0 = epoch_gmst_rad(scenario.orbit_setup(d)["epoch_utc"])
+    bi, A = [0.0] * 3, [0.0] * 9
+    q, X = hist["fsw_q_hat"], hist["fsw_x_stkf"]
+    n = out = 0
+    for k in range(int(np.ceil(T)), len(q) - 1):
+        field_dipole(bi, X[k], float(k), gmst0)
+        control.dcm(A, q[k])
+        b = np.reshape(A, (3, 3)) @ bi
+        m = -m_res + m_res[rod] / b[rod] * b
+        n += 1
+        out += np.abs(m).max() > limit
+    return out / max(n, 1)
+
+
+@contextlib.contextmanager
+def _undetected():
+    """The ADCS blind to MTQ_TLM's ``silent`` bits: a rod's failure as an open coil whose driver still answers
+    (an experiment: no fault option makes it)."""
+    from firmware.adcs.health import Health
+    real = Health.magnetics
+
+    def blind(self, rd):
+        got, rd.mtq_got = rd.mtq_got, False
+        real(self, rd)
+        rd.mtq_got = got
+    Health.magnetics = blind
+    try:
+        yield
+    finally:
+        Health.magnetics = real
+
+
+def fdir_magnetic(orbits=FDIR_ORBITS, t0=FDIR_T0_S, seed=FDIR_SEED, rods=(0, 1, 2), which=None):
+    """The flight world (thesis-3u, hpop truth, the app in process: ``fps adcs bps --world flight``) for
+    ``orbits`` orbits, clean and with each magnetic fault from ``t0``: the magnetometer silent, each rod's driver
+    dead (and rod 0 dead unseen, ``_undetected``). Columns: the wheels' largest speed after the first orbit (goal
+    <= 80 % of the 10000 rpm limit), the pointing 3 sigma over the POINT samples after it (the flight goal
+    < 150 arcsec) and over those farther than ``FDIR_NEAR_S`` from a wheel's zero crossing, the crossings, the
+    rods' duty, the health event and its delay (goal: within 3 cycles). ``which``: the cases' indices to run
+    (None: all). Returns the rows."""
+    from ground.adcs import body_pointing as bps
+    from ground.adcs.modes import MODE_CODE
+    from ground.adcs.pointing import orbit_period
+    from emulator.spacecraft import scenario
+    params = bps.calibrate(seed=0)
+    T = orbit_period(scenario.orbit_setup(scenario.thesis_3u())["x0s"][0])
+    cases = [("clean", None, None), ("magnetometer silent from %g s" % t0, {"magnetometer_silent": t0}, None)]
+    cases += [("rod %d's driver dead from %g s" % (i, t0), {"magnetorquer_dead": [i, t0]}, None) for i in rods]
+    cases.append(("rod 0 dead from %g s, unseen (an open coil that still answers)" % t0,
+                  {"magnetorquer_dead": [0, t0]}, _undetected))
+    print("\n### FDIR: a silent magnetometer or a dead magnetorquer rod, flight world, %d orbits (%.0f s), "
+          "seed %d\n" % (orbits, orbits * T, seed))
+    print("| run | wheels' largest speed after orbit 1 (rpm; goal <= 8000) | pointing 3σ (arcsec; goal < 150) | "
+          "the same %g s or more from a wheel's zero crossing | wheels' zero crossings | rods' duty | "
+          "seconds the rods left cannot cancel the residual dipole | event (delay after the fault; goal <= 3 s) | "
+          "wall (s) |" % FDIR_NEAR_S)
+    print("|---|---|---|---|---|---|---|---|---|")
+    rows = []
+    cache = tempfile.mkdtemp(prefix="bench_fdir_")
+    for name, faults, ctx in [c for i, c in enumerate(cases) if which is None or i in which]:
+        with (ctx or contextlib.nullcontext)():
+            (res, hist), wall = timed(bps.simulate, params=params, duration_s=orbits * T, world="flight",
+                                      truth="hpop", seed=seed, faults=faults, cache_dir=cache)
+        n_cross, near = _zero_crossing_share(hist, T)
+        t = hist["t"]
+        mode = hist["fsw_mode"][np.minimum(t.astype(int), len(hist["fsw_mode"]) - 2), 0]
+        sel = (t >= T) & (mode == MODE_CODE["POINT"]) & ~hist["occulted"]
+        ev = res["health_events"]
+        row = {"run": name, "max_wheel_speed_rpm": res["max_wheel_speed_rpm"],
+               "pointing_3sigma_arcsec": _pointing_3sigma(hist, sel),
+               "pointing_3sigma_far_arcsec": _pointing_3sigma(hist, sel & ~near), "zero_crossings": n_cross,
+               "mtq_duty": res["mtq_duty"], "events": ev, "wall_s": wall}
+        rows.append(row)
+        rod = (faults or {}).get("magnetorquer_dead", [None])[0]
+        row["uncancellable_share"] = None if rod is None else _uncancellable_share(hist, rod, T)
+        what = "; ".join("%s at %.0f s (+%.0f s)" % (e["event"], e["t_s"], e["t_s"] - t0) for e in ev) or "none"
+        print("| %s | %.0f | %s | %s | %d | %.2f | %s | %s | %.0f |" % (
+            name, row["max_wheel_speed_rpm"], _num(row["pointing_3sigma_arcsec"]),
+            _num(row["pointing_3sigma_far_arcsec"]), n_cross, row["mtq_duty"],
+            "—" if rod is None else "%.0f %%" % (100 * row["uncancellable_share"]), what, wall), flush=True)
+    shutil.rmtree(cache, ignore_errors=True)
+    return rows
+
+
+def _num(v):
+    return "—" if v is None else "%.1f" % v

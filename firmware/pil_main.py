@@ -7,12 +7,14 @@ the thesis's 11x11 grid (``TABLE_GRID``; a larger table is refused with TOO_LARG
 block that large.
 
 What the host reads back after a run (through QEMU's monitor, as a debugger reads a board's RAM), at the bottom
-of the stack region (``pil_board``): a mailbox of eight words, ``MAGIC``, the TICK exchanges counted, the sum and
-the largest of their durations, one clock read's own cost, and the count, sum and largest of the common ones
-(answered by ``firmware.hal.fast_tick``'s machine code), in ticks of the nRF51's TIMER0 at 16 MHz (16-bit mode); above it, the stack painted with ``pil_board.STACK_PAINT`` here at start, whose first overwritten word is
-the stack's high-water mark. An exchange is a TICK's frame, read whole from the UART by ``firmware.hal.nrf51.read_frame``
-(machine code), decoded, then its FSM_SPI (and CTRL_STATUS, when due) computed and framed: the decoding, the step
-and the framing, less the UART's own byte moves (``firmware.hal.stdio``) and the clock reads. Under QEMU's ``-icount shift=0`` one instruction takes
+of the stack region (``pil_board``): a mailbox (``tools.pil_mailbox``): ``MAGIC``, one clock read's own cost, then
+for each kind of TICK exchange (``firmware.hal.stdio.K_*``: common, a new H^-1 bin, CTRL_STATUS, a resend answered
+from the cache, other) its count, sum, largest and a histogram by bit length, in ticks of the nRF51's TIMER0 at
+16 MHz (16-bit mode); above it, the stack painted with ``pil_board.STACK_PAINT`` here at start, whose first
+overwritten word is the stack's high-water mark. An exchange is a TICK's frame, read whole from the UART by
+``firmware.hal.nrf51.read_frame`` (machine code), decoded, then its FSM_SPI (and CTRL_STATUS, when due) computed
+and framed: the decoding, the step and the framing, less the UART's own byte moves (``firmware.hal.stdio``) and
+the clock reads. Under QEMU's ``-icount shift=0`` one instruction takes
 one virtual ns, so a tick is 62.5 instructions."""
 
 import machine
@@ -22,13 +24,16 @@ import sys
 import pil_board
 from micropython import const
 
-BOX_WORDS = const(8)
+_KINDS = const(5)                 # firmware.hal.stdio's K_COMMON .. K_OTHER
+_BUCKETS = const(18)              # a histogram bucket per bit length of a duration in timer ticks (0..17)
+_KIND_WORDS = const(21)           # count, sum, largest, _BUCKETS
+_BOX_WORDS = const(107)           # MAGIC, a clock read's cost, _KINDS * _KIND_WORDS (tools.pil_mailbox)
 
 
 def paint_stack():
     """``STACK_PAINT`` over the free stack: from above the mailbox to 64 bytes below what is in use now."""
     m = machine.mem32
-    a = pil_board.STACK_BOTTOM + 4 * BOX_WORDS
+    a = pil_board.STACK_BOTTOM + 4 * _BOX_WORDS
     top = pil_board.STACK_TOP - micropython.stack_use() - 64
     v = pil_board.STACK_PAINT
     while a < top:
@@ -58,35 +63,37 @@ MAGIC = const(0x0C0FFEE)
 
 
 class Meter:
-    """TIMER0 and the mailbox: ``now()`` in ticks (``firmware.hal.nrf51``, 16-bit); ``exchange(t0, work, n)`` adds
-    one exchange. Neither allocates (small ints only), so it runs beside the locked heap."""
+    """TIMER0 and the mailbox: ``now()`` in ticks (``firmware.hal.nrf51``, 16-bit); ``exchange(t0, work, n,
+    kind)`` adds one exchange of that kind. Neither allocates (small ints only), so it runs beside the locked
+    heap."""
 
     def __init__(self, box):
         self.box = box
         self.now = nrf51.now
         nrf51.start(16)
         m = machine.mem32
-        for k in range(1, BOX_WORDS):
+        for k in range(1, _BOX_WORDS):
             m[box + 4 * k] = 0
         t = self.now()
-        m[box + 16] = (self.now() - t) & 0xFFFF    # one read's own cost, taken off each exchange
+        m[box + 4] = (self.now() - t) & 0xFFFF     # one read's own cost, taken off each exchange
         m[box] = MAGIC
 
-    def exchange(self, t0, work, n, common=False):
-        """One exchange: ``work`` ticks, then from t0 to now, in ``n`` timed intervals; less a clock read's own cost
-        for each. ``common``: one the machine-code path answered, also counted apart."""
+    def exchange(self, t0, work, n, kind):
+        """One exchange of ``kind``: ``work`` ticks, then from t0 to now, in ``n`` timed intervals; less a clock
+        read's own cost for each."""
         m = machine.mem32
-        b = self.box
-        d = work + ((nrf51.now() - t0) & 0xFFFF) - n * m[b + 16]
-        m[b + 4] += 1
-        m[b + 8] += d
-        if d > m[b + 12]:
-            m[b + 12] = d
-        if common:
-            m[b + 20] += 1
-            m[b + 24] += d
-            if d > m[b + 28]:
-                m[b + 28] = d
+        d = work + ((nrf51.now() - t0) & 0xFFFF) - n * m[self.box + 4]
+        if d < 0:
+            d = 0
+        a = self.box + 8 + 4 * _KIND_WORDS * kind
+        m[a] += 1
+        m[a + 4] += d
+        if d > m[a + 8]:
+            m[a + 8] = d
+        k = 0
+        while d >> k and k < _BUCKETS - 1:
+            k += 1
+        m[a + 12 + 4 * k] += 1
 
 
 def main():

@@ -170,6 +170,10 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
     assert 1000 < t["stack_high_water_bytes"] < t["stack_bytes"]
     assert t["heap_bytes"] + t["stack_high_water_bytes"] <= 24 * 1024
     assert ips["n"] > 12000 and 0 < ips["mean"] <= ips["max"], ips          # 20 s at 637.8 Hz: 12,756 ticks
+    k = ips["kinds"]                  # each kind apart (tools.pil_mailbox); a resend in no total
+    assert sum(v["n"] for name, v in k.items() if name != "resend") == ips["n"]
+    assert abs(k["status"]["n"] - ips["n"] / 64) <= ips["n"] / 640 and k["bin_change"]["n"] > 0    # every 64th
+    assert k["status"]["max"] == ips["max"] and sum(c for _, _, c in k["common"]["histogram"]) == k["common"]["n"]
 
 
 @pytest.mark.skipif(not os.path.exists(pil_build.ADCS_IMAGE) or bool(pil_build.missing_tools()),

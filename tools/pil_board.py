@@ -7,6 +7,7 @@ import subprocess
 
 from emulator import launcher
 from emulator.runtime import child_options, exit_status, last_lines
+from tools import pil_mailbox
 from tools.pil_build import ADCS_MEM, LAB_MEM, STACK_PAINT, TARGET_MEM, BuildError
 
 def qemu_command(mem=LAB_MEM, serial="stdio", icount=True, monitor=None):
@@ -152,10 +153,10 @@ TARGET = {"board": "QEMU microbit (nRF51822) standing for the thesis's SAMD21G18
 INSN_PER_TIMER_TICK = 62.5        # firmware.hal.nrf51.INSN_PER_TICK (-icount shift=0, TIMER0 at 16 MHz)
 
 
-MAILBOX_MAGIC = 0x0C0FFEE         # firmware.pil_main.MAGIC
+MAILBOX_MAGIC = pil_mailbox.MAGIC
 
 
-MAILBOX_WORDS = 8
+MAILBOX_WORDS = pil_mailbox.WORDS
 
 
 class Monitor:
@@ -216,16 +217,5 @@ def read_target(monitor_path, mem=TARGET_MEM):
     while k < len(painted) and painted[k] == STACK_PAINT:
         k += 1
     out["stack_high_water_bytes"] = mem.stack_bytes - 4 * (MAILBOX_WORDS + k)
-    n, total, worst, n_common, common, worst_common = box[1], box[2], box[3], box[5], box[6], box[7]
-    if n:
-        f = INSN_PER_TIMER_TICK
-        out["instructions_per_step"] = {
-            "what": "one TICK exchange: its frame decoded, the step, CTRL_STATUS when due, the FSM_SPI framed; the "
-                    "UART's own byte moves left out (firmware.hal.nrf51's machine code reads and writes: an "
-                    "interrupt or DMA on a board); -icount shift=0, TIMER0 at 16 MHz (62.5 instructions a tick), the "
-                    "clock reads taken off. common: the ticks firmware.hal.fast_tick answered in machine code (no "
-                    "CTRL_STATUS due, in sequence); the rest took the bytecode path",
-            "n": n, "mean": total / n * f, "max": worst * f, "resolution": f,
-            "common": {"n": n_common, "mean": common / n_common * f if n_common else None,
-                       "max": worst_common * f if n_common else None}}
+    out["instructions_per_step"] = pil_mailbox.decode(box)
     return out

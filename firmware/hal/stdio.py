@@ -24,12 +24,23 @@ _ST_RX_FRAMES = const(2)
 _ST_RX_SRC = const(3)
 _ST_RX_SEQ = const(4)
 _ST_SPI_N = const(5)
+# the kinds of TICK exchange a meter tells apart (``kind[0]``, set by ``firmware.hal.link.serve_controller`` for the
+# bytecode path): the common tick in machine code, the same with a new H^-1 bin, a CTRL_STATUS tick, a resent TICK
+# answered from the cache, any other (the init tick, a mode's or saturation's bytecode step)
+_K_COMMON = const(0)
+_K_BIN = const(1)
+_K_STATUS = const(2)
+_K_RESEND = const(3)
+_K_OTHER = const(4)
+_S_BXQ = const(13)                     # firmware.controller.S_BXQ, S_BYQ: the cached H^-1 bin's state slots
+_S_BYQ = const(14)
 
 
 class StdioLink:
     """``serve_controller``'s link on the console UART: ``node``, ``recv_ms``, ``send_raw``, ``closed``,
     ``counters``, ``rx_drops``, ``close``. ``node``: the node address (``protocol.consts.NODE_*``); ``meter``: an
-    object with ``now()`` (a 16-bit clock) and ``exchange(t0, work, n, common)``, told of each TICK exchange: the decoding
+    object with ``now()`` (a 16-bit clock) and ``exchange(t0, work, n, kind)``, told of each TICK exchange (``_K_*``;
+``kind[0]``: the bytecode path's, which ``serve_controller`` sets for a resend or a status): the decoding
     of each of its frame's bytes, then from the frame's end to its FSM_SPI framed, less the UART's own reads and
     writes (on a board an interrupt or a DMA channel moves the bytes while the CPU does other work), in ``n``
     timed intervals (``firmware.pil_main.Meter``); ``read_frame(buf, n)``: a board's UART driver reading a whole
@@ -49,6 +60,7 @@ class StdioLink:
         self._dec = frame.Decoder(raw=self._frame, max_frame=_MAX_FRAME)
         self._enc = frame.Encoder(LARGEST_PAYLOAD)
         self._st = array("i", [0, 0, 0, -1, -1, 0])
+        self.kind = array("i", [_K_OTHER])
         self.closed = False
         self._meter = meter
         self._read_frame = read_frame
@@ -148,8 +160,11 @@ class StdioLink:
         wf = self._wf
         ans = self._fast
         mt = self._meter
+        s = ctl._s
         while True:
             i = rd(fr, _MAX_FRAME)
+            bx = s[_S_BXQ]                     # the cached H^-1 bin: another after the step is a new bin
+            by = s[_S_BYQ]
             t = mt.now() if mt is not None else 0
             k = ans(self, ctl, i, last)
             if not k:
@@ -157,7 +172,7 @@ class StdioLink:
                 self._t_held = t
                 return last, self._st[_ST_SPI_N]
             if mt is not None:
-                mt.exchange(t, 0, 1, True)
+                mt.exchange(t, 0, 1, _K_BIN if bx != s[_S_BXQ] or by != s[_S_BYQ] else _K_COMMON)
             last += 1
             wf(self._out, k)
 
@@ -191,7 +206,8 @@ class StdioLink:
             self._frame_n -= 1
         st[_ST_TX_FRAMES] += 1
         if pid == P_FSM_SPI and mt is not None:     # the answer to a TICK: its exchange is over
-            mt.exchange(self._t_frame, self._frame_work, self._frame_n + 1)
+            mt.exchange(self._t_frame, self._frame_work, self._frame_n + 1, self.kind[0])
+            self.kind[0] = _K_OTHER            # the next one's, unless serve_controller says otherwise
 
     def rx_drops(self):
         """Frames the decoder dropped (every ``frame.DROP_REASONS``)."""

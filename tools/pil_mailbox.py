@@ -1,0 +1,53 @@
+"""The controller board's mailbox (``firmware.pil_main.Meter``), read through QEMU's monitor after a run
+(``tools.pil_board.read_target``): each kind of TICK exchange counted apart, with its distribution, in instructions
+(``-icount shift=0``: one a virtual ns; the nRF51's TIMER0 at 16 MHz, 62.5 instructions a tick).
+
+The kinds (``firmware.hal.stdio.K_*``): ``common`` (machine code, the cached H^-1 bin), ``bin_change``
+(machine code, a new bin: the bilinear lookup in the step), ``status`` (bytecode, CTRL_STATUS framed),
+``resend`` (a resent TICK answered from the cache: its count follows the host's load, so it is kept out of the
+totals), ``other`` (bytecode: the init tick, a mode's or saturation's step)."""
+
+MAGIC = 0x0C0FFEE                 # firmware.pil_main.MAGIC
+KINDS = ("common", "bin_change", "status", "resend", "other")
+BUCKETS = 18                      # firmware.pil_main.BUCKETS: a bucket per bit length of the ticks (0..17)
+KIND_WORDS = 3 + BUCKETS
+WORDS = 2 + len(KINDS) * KIND_WORDS
+INSN_PER_TIMER_TICK = 62.5        # firmware.hal.nrf51.INSN_PER_TICK
+WHAT = ("one TICK exchange: its frame decoded, the step, CTRL_STATUS when due, the FSM_SPI framed; the UART's own "
+        "byte moves left out (firmware.hal.nrf51's machine code reads and writes: an interrupt or DMA on a board); "
+        "-icount shift=0, TIMER0 at 16 MHz (62.5 instructions a tick), the clock reads taken off. By kind: common "
+        "and bin_change answered in machine code (firmware.hal.fast_tick), bin_change with a new H^-1 bin; status "
+        "the CTRL_STATUS ticks (bytecode); resend a resent TICK answered from the cache (left out of n, mean and "
+        "max: their number follows the host's load); other the rest of the bytecode path. histogram: [lowest, "
+        "highest instructions, count] by the duration's bit length in timer ticks")
+
+
+def _kind(words, f):
+    n, total, worst = words[0], words[1], words[2]
+    hist = []
+    for k, c in enumerate(words[3:3 + BUCKETS]):
+        if c:
+            lo = 0 if k == 0 else 1 << (k - 1)
+            hist.append([lo * f, ((1 << k) - 1) * f, c])
+    return {"n": n, "sum": total * f, "mean": total / n * f if n else None, "max": worst * f if n else None,
+            "histogram": hist}
+
+
+def decode(box):
+    """``instructions_per_step`` from the mailbox's words (None when the board wrote none): n, mean and max over
+    the exchanges answered the first time, and ``kinds``: each kind's n, sum, mean, max and histogram."""
+    if len(box) < WORDS or box[0] != MAGIC:
+        return None
+    f = INSN_PER_TIMER_TICK
+    kinds = {name: _kind(box[2 + i * KIND_WORDS:2 + (i + 1) * KIND_WORDS], f) for i, name in enumerate(KINDS)}
+    first = [kinds[k] for k in KINDS if k != "resend"]
+    n = sum(k["n"] for k in first)
+    if not n:
+        return None
+    total = sum(k["sum"] for k in first)
+    fast = [kinds["common"], kinds["bin_change"]]
+    nf = sum(k["n"] for k in fast)
+    return {"what": WHAT, "n": n, "mean": total / n, "max": max(k["max"] or 0 for k in first),
+            "resolution": f, "kinds": kinds,
+            "common": {"n": nf, "mean": sum(k["sum"] for k in fast) / nf if nf else None,
+                       "max": max(k["max"] or 0 for k in fast) if nf else None}}

@@ -71,12 +71,14 @@ def _true_shaping_state(o, k0, case):
 
 def _start_at_true_disturbance(case):
     """``consistency_over``'s setup: the shaping filter's states set to the truth's at the start
-    (``_true_shaping_state``), their covariance 1e-6 of the filter's prior, uncorrelated. Case 1 (no disturbance)
-    takes Case 2's harmonic filter, to see what the added states cost when the torque is known to be zero."""
+    (``_true_shaping_state``), their covariance 1e-6 of the filter's prior, uncorrelated, and kept so: no
+    fictitious noise on the filter's Q_dd. Case 1 (no disturbance) takes Case 2's harmonic filter, to see what the
+    added states cost when the torque is known to be zero."""
     def setup(o, k0, f):
         if f.model.disturbance is None:
             f.model.disturbance = shaping(2, "harmonic")
             f.x, f.P = apkf.shaping_states(f.x, f.P, f.model.disturbance)
+        f.model.disturbance.fictitious = False
         ix = f.model.disturbance.ix
         f.x[ix + 1] = _true_shaping_state(o, k0, case)
         f.P[ix] = 0.0

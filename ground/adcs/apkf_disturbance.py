@@ -24,9 +24,9 @@ filter takes the first order in Fd dt, (G1 F_A,d - (dt G1 - G2) F_A,d Fd) (the n
 that block: < 1e-3 at T >= 14 s or periods >= 73 s), and holds the torque at mid-step, (e^{Fd dt/2} z(t))_tau,
 in the RK4 of the mean. Q's cross terms with the rate keep the order of Eq. 4.135-4.136: Q_w,d = F_w,d Q_dd dt/2,
 Q_ww = F_w,d Q_dd F_w,d^T dt^2/3 (the thesis's for the random walk, Q_dd = q_d dt). Sec. 4.7.4's fictitious
-noise (Q x100 in the first maneuver set, x10 in the second) is not applied to Q_dd: a shaping filter's Q sets the
-size of the disturbance it models (sigma^2 = the stationary variance), and x100 would model one 10x the known
-bound (``fictitious``; measured both ways: docs/ADCS.md).
+noise (Q x100 in the first maneuver set, x10 in the second) multiplies Q_dd as it does the rest of Q
+(``fictitious``; without it the first-order model of Case 1 is no longer the random walk it equals at T = 50 h:
+measured, docs/ADCS.md).
 
 sigma, T, w0 and G's prior come from what is known of each case's disturbance (``shaping``); where nothing is
 known of a density, it is the thesis's floor q_d0.
@@ -55,7 +55,7 @@ class ShapingFilter:
     covariance; None: none). The states are ordered [tau_x, tau_y, tau_z(, rate_x, rate_y, rate_z)]; ``ix`` are
     their places in the error state, ``ix + 1`` in x."""
 
-    fictitious = False      # Q_dd is the model: Sec. 4.7.4's fictitious-noise scale stays on the thesis's states
+    fictitious = True       # Q_dd takes Sec. 4.7.4's fictitious-noise scale, as the thesis's Q (False: not)
 
     def __init__(self, F1, qc, P_inf=None):
         self.F1 = np.broadcast_to(np.asarray(F1, dtype=float), (3,) + np.shape(F1)[-2:]).copy()
@@ -120,7 +120,7 @@ class AttitudeGradient:
     < 1e-3 rad/s, < 1e-9 N m/s. P0: tau_d ``sigma_tau`` (Sec. 4.8's), each entry of G ``sigma_g``."""
 
     k, n = 4, N_BASE + 9
-    fictitious = False
+    fictitious = True
     ix = np.r_[6:9, N_BASE:N_BASE + 9]
 
     def __init__(self, sigma_tau, sigma_g, q_tau, q_g, q_g_angle=0.0):

@@ -23,7 +23,8 @@ ends, then nominal. Adaptive q_d (Eq. 4.152, Case 3): q_d,i = q_d0 + q_d1 |w_i| 
 That is the thesis's filter (``APKF(form="thesis")``); its 1 sigma is overconfident on its own scenario. The
 default ``form="consistent"`` keeps the model and adds an iterated update over each blind stretch
 (``update_window``), the second-order term of the wheels' C(d) Jrw (``second_order_noise``), R inflated in the
-first set only, and Case 2's q_d matched to its disturbance: see ``APKF``.
+first set only, and Case 2's q_d matched to its disturbance: see ``APKF``. Either form takes tau_d as the thesis's
+random walk or as a shaping filter's output (``APKF(disturbance=...)``, ``apkf_disturbance``; Sec. 8.3).
 """
 
 from functools import lru_cache

@@ -214,6 +214,10 @@ def _stop(link, proc):
         from tools import pil_board
         try:
             proc.target = pil_board.read_target(proc.monitor_path, proc.mem) if proc.poll() is None else None
+            ips = (proc.target or {}).get("instructions_per_step")
+            if ips:                    # the link's bytes on the wire and the baud that closes the loop
+                from tools import pil_wire
+                proc.target["wire"] = pil_wire.figures(ips["kinds"]["common"]["mean"], ips["kinds"]["status"]["max"])
         except (OSError, pil_board.BoardError) as exc:
             proc.target = dict(pil_board.TARGET, error="the board's RAM could not be read: %s" % exc)
         shutil.rmtree(proc.monitor_dir, ignore_errors=True)

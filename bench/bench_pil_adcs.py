@@ -83,6 +83,37 @@ def main():
     print("| stack high-water | - | %.1f KB |" % (r["stack_high_water_bytes"] / 1024))
     print("| last ADCS_STATUS, float32 board against the float64 unix port: attitude; 1-sigma | - | %.3g arcsec apart; "
           "%.4g vs %.4g rad |" % (dq, st["att_sigma"], ref["att_sigma"]))
+    system_rows()
+
+
+SYSTEM_S = 120
+
+
+def system_rows():
+    """fps system --runtime qemu for SYSTEM_S: both boards, the ADCS's CAN through ISO-TP; its transfers failed
+    (the goal: none), resent and timed out, and the filters' start apart from the cycles."""
+    import subprocess
+    import sys
+    with tempfile.TemporaryDirectory() as d:
+        out = os.path.join(d, "s")
+        p = subprocess.run([sys.executable, "-m", "ground.cli", "system", "--runtime", "qemu", "--duration",
+                            str(SYSTEM_S), "--quiet", "--no-plots", "-o", out], cwd=ROOT, capture_output=True,
+                           text=True, timeout=7200)
+        if p.returncode != 0:
+            print("\nfps system --runtime qemu --duration %d failed: %s" % (SYSTEM_S, p.stderr.strip()[-300:]))
+            return
+        with open(os.path.join(out, "summary.json")) as fh:
+            a = json.load(fh)["adcs_summary"]
+    lk, ipc = a["link"], a["instructions_per_cycle"]
+    print("\nfps system --runtime qemu --duration %d (both boards; the ADCS's CAN through Lawicel on its UART, ISO-TP "
+          "beyond 8 bytes, the host's N_Bs and N_Cr 1000 ms on a PIL board)\n" % SYSTEM_S)
+    print("| figure | goal | ours |\n|---|---|---|")
+    print("| ISO-TP transfers failed | 0 | %d (%s) |" % (lk.get("tx_isotp_failed", 0),
+                                                        "met" if not lk.get("tx_isotp_failed") else "missed"))
+    print("| ISO-TP transfers resent; host timeouts | - | %d; %d |" % (
+        lk.get("tx_isotp_resent", 0), sum(v for k, v in lk.items() if "Timeout" in k)))
+    print("| the board's cycle, mean and largest (the filters' start apart) | - | %.2f M, %.2f M instructions; the "
+          "filters' start %.2f M |" % (ipc["mean"] / 1e6, ipc["max"] / 1e6, (ipc["filters_start"] or 0) / 1e6))
 
 
 if __name__ == "__main__":

@@ -251,9 +251,6 @@ def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=No
     """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse; for runtime qemu,
     QEMU missing or the image not the tree's (``emulator.launcher.check_pil``: make pil)."""
     check(runtime, link)
-    if runtime == "qemu":
-        from emulator.launcher import check_pil
-        check_pil("controller")
     if isinstance(baud, bool) or not isinstance(baud, int) or not BAUD_RANGE[0] <= baud <= BAUD_RANGE[1]:
         raise ValueError("--baud %r: must be a whole number of bit/s from %d to %d" % ((baud,) + BAUD_RANGE))
     if runtime != "board" and baud != BAUD_DEFAULT:
@@ -272,6 +269,9 @@ def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=No
     if link_faults is not None and runtime == "inproc":
         raise ValueError("--link-faults needs a link: use --runtime cpython|micropython|board with --link serial, "
                          "or --runtime cpython with --link can")
+    if runtime == "qemu":              # the options first: their messages name the flag
+        from emulator.launcher import check_pil
+        check_pil("controller")
 
 
 def _set_realtime(rig, realtime, rate_hz):

@@ -35,7 +35,7 @@ def _main(tmp, runs, duration_s):
     bps.write_params(params, bps_cli.calibration(0, cache, progress=False))
     print("### fps system, %g s, faults on the ADCS's slcan stream: %d fault seeds against the clean run\n"
           % (duration_s, runs))
-    print("| run | exit | complete | wall (s) | ADCS cycles retried | ISO-TP/frames damaged | both loops "
+    print("| run | exit | complete | wall (s) | ADCS cycles retried | faults injected (bits flipped, frames dropped) | both loops "
           "bit-identical to clean (goal: every run) |")
     print("|---|---|---|---|---|---|---|")
     ref, same, failed = None, 0, []
@@ -46,7 +46,8 @@ def _main(tmp, runs, duration_s):
                                   "two-body", "--params", params, "--calibration", cal, "--bps-cache", cache,
                                   "--quiet", "--no-plots", "-o", out], spec)
         r = (s.get("adcs_summary") or {}).get("retries") or {}
-        damaged = ((s.get("adcs_summary") or {}).get("link") or {}).get("rx_damaged", "—")
+        link = (s.get("adcs_summary") or {}).get("link") or {}
+        faults = sum(v for k, v in link.items() if k.startswith("fault_")) if spec else 0
         if k == 0:
             ref, ident = out, "(the reference)"
             if rc not in (0, 3):
@@ -56,7 +57,7 @@ def _main(tmp, runs, duration_s):
             same += bool(ident)
         print("| %s | %d | %s | %.1f | %s | %s | %s |" % ("clean" if spec is None else "`%s`" % spec, rc,
                                                        s.get("complete"), wall, r.get("cycles_retried", "—"),
-                                                       damaged, ident), flush=True)
+                                                       faults, ident), flush=True)
     print("\n%d of %d faulted runs identical to the clean run (goal: %d of %d)" % (same, runs, runs, runs))
     if failed:
         raise RuntimeError("; ".join(failed))

@@ -1,7 +1,9 @@
 """The spacecraft's side of the ADCS's CAN bus: each cycle's burst (ADCS_TICK naming the device replies and sensor
 outputs at t_k) and the ADCS's commands applied to the wheels and magnetorquers, with the device faults on their
 schedule. ``emulator.adcs_session.AdcsSession`` carries it over the link (its module docstring: the lockstep, the
-faults, the magnetic devices)."""
+faults, the magnetic devices). The magnetic devices' faults (the flight world's): ``magnetometer_silent`` t0, from t0
+no MAGNETOMETER packet; ``magnetorquer_dead`` [i, t0], from t0 rod i's driver is dead: the rod gives no dipole and
+MTQ_TLM names it in ``silent`` (``devices.SpacecraftDevices.rods_dead``)."""
 
 import numbers
 

@@ -164,11 +164,11 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
     s = json.load(open(tmp_path / "qemu" / "summary.json"))
     assert s["real_time_factor"] > 0 and s["complete"]
     # the board's own figures, read from its RAM after the run (tools.pil_board.read_target): the thesis's 32 KB,
-    # heap and stack within 24 KB of it, and the TICK exchanges counted one for one
+    # the heap and the stack's high-water within it, and the TICK exchanges counted one for one
     t, ips = s["target"], s["instructions_per_step"]
     assert t["ram_bytes"] == 32768 and "Cortex-M0" in t["core"]
     assert 1000 < t["stack_high_water_bytes"] < t["stack_bytes"]
-    assert t["heap_bytes"] + t["stack_high_water_bytes"] <= 24 * 1024
+    assert t["heap_bytes"] + t["stack_high_water_bytes"] <= 32 * 1024 - 1024       # MicroPython's own ~0.8 KB
     assert ips["n"] > 12000 and 0 < ips["mean"] <= ips["max"], ips          # 20 s at 637.8 Hz: 12,756 ticks
     k = ips["kinds"]                  # each kind apart (tools.pil_mailbox); a resend in no total
     assert sum(v["n"] for name, v in k.items() if name != "resend") == ips["n"]

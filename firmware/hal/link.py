@@ -20,14 +20,6 @@ BROADCAST = consts.NODE_BROADCAST
 _TICK_FMT = consts.FMT_TICK
 _SPI_FMT = consts.FMT_FSM_SPI
 _SPI_SIZE = consts.SIZES[P_FSM_SPI]
-# firmware.hal.stdio's kinds of TICK exchange (no module globals: the 32 KB board's heap holds them)
-try:
-    from micropython import const
-except ImportError:                    # CPython
-    def const(x):
-        return x
-_K_STATUS = const(2)
-_K_RESEND = const(3)
 
 
 def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
@@ -129,9 +121,9 @@ def _answer_again(ctl, link, me, dst, status, out):
     """A resent TICK answered again (counted in n_dup): the CTRL_STATUS it carried (None: none), then its
     FSM_SPI."""
     ctl.n_dup += 1
-    kind = getattr(link, "kind", None)        # a metered board's link: this exchange's kind
-    if kind is not None:
-        kind[0] = _K_RESEND
+    st = getattr(link, "_st", None)           # a board's link (firmware.hal.stdio): this exchange's kind
+    if st is not None:
+        st[6] = 3                             # its _ST_KIND: _K_RESEND
     if status is not None:
         link.send_raw(P_STATUS, me, dst, status)
     link.send_raw(P_FSM_SPI, me, dst, out)
@@ -142,9 +134,9 @@ def _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks):
     HIL host that clocks us: on CAN, ISO-TP to an absent node would block); returns its payload."""
     if rx_drops is not None:
         ctl.n_rx_drop = rx_drops() + bad_ticks
-    kind = getattr(link, "kind", None)        # a metered board's link: this exchange's kind
-    if kind is not None:
-        kind[0] = _K_STATUS
+    st = getattr(link, "_st", None)           # a board's link (firmware.hal.stdio): this exchange's kind
+    if st is not None:
+        st[6] = 2                             # its _ST_KIND: _K_STATUS
     status = ctl.status_payload(tick)
     link.send_raw(P_STATUS, me, dst, status)
     return status

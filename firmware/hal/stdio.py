@@ -24,9 +24,10 @@ _ST_RX_FRAMES = const(2)
 _ST_RX_SRC = const(3)
 _ST_RX_SEQ = const(4)
 _ST_SPI_N = const(5)
-# the kinds of TICK exchange a meter tells apart (``kind[0]``, set by ``firmware.hal.link.serve_controller`` for the
-# bytecode path): the common tick in machine code, the same with a new H^-1 bin, a CTRL_STATUS tick, a resent TICK
-# answered from the cache, any other (the init tick, a mode's or saturation's bytecode step)
+_ST_KIND = const(6)                    # the exchange's kind (_K_*): serve_controller sets a resend's or a status's
+# the kinds of TICK exchange a meter tells apart (in ``_st[_ST_KIND]`` for the bytecode path, which
+# ``firmware.hal.link.serve_controller`` sets): the common tick in machine code, the same with a new H^-1 bin, a
+# CTRL_STATUS tick, a resent TICK answered from the cache, any other (the init tick, a mode's or saturation's step)
 _K_COMMON = const(0)
 _K_BIN = const(1)
 _K_STATUS = const(2)
@@ -40,7 +41,7 @@ class StdioLink:
     """``serve_controller``'s link on the console UART: ``node``, ``recv_ms``, ``send_raw``, ``closed``,
     ``counters``, ``rx_drops``, ``close``. ``node``: the node address (``protocol.consts.NODE_*``); ``meter``: an
     object with ``now()`` (a 16-bit clock) and ``exchange(t0, work, n, kind)``, told of each TICK exchange (``_K_*``;
-``kind[0]``: the bytecode path's, which ``serve_controller`` sets for a resend or a status): the decoding
+``_st[_ST_KIND]``: the bytecode path's, which ``serve_controller`` sets for a resend or a status): the decoding
     of each of its frame's bytes, then from the frame's end to its FSM_SPI framed, less the UART's own reads and
     writes (on a board an interrupt or a DMA channel moves the bytes while the CPU does other work), in ``n``
     timed intervals (``firmware.pil_main.Meter``); ``read_frame(buf, n)``: a board's UART driver reading a whole
@@ -59,8 +60,7 @@ class StdioLink:
         # decoded in place, and sized for the packet table (32 KB of RAM: nothing twice, nothing unused)
         self._dec = frame.Decoder(raw=self._frame, max_frame=_MAX_FRAME)
         self._enc = frame.Encoder(LARGEST_PAYLOAD)
-        self._st = array("i", [0, 0, 0, -1, -1, 0])
-        self.kind = array("i", [_K_OTHER])
+        self._st = array("i", [0, 0, 0, -1, -1, 0, _K_OTHER])    # and the exchange's kind (_ST_KIND)
         self.closed = False
         self._meter = meter
         self._read_frame = read_frame
@@ -206,8 +206,8 @@ class StdioLink:
             self._frame_n -= 1
         st[_ST_TX_FRAMES] += 1
         if pid == P_FSM_SPI and mt is not None:     # the answer to a TICK: its exchange is over
-            mt.exchange(self._t_frame, self._frame_work, self._frame_n + 1, self.kind[0])
-            self.kind[0] = _K_OTHER            # the next one's, unless serve_controller says otherwise
+            mt.exchange(self._t_frame, self._frame_work, self._frame_n + 1, self._st[_ST_KIND])
+            self._st[_ST_KIND] = _K_OTHER            # the next one's, unless serve_controller says otherwise
 
     def rx_drops(self):
         """Frames the decoder dropped (every ``frame.DROP_REASONS``)."""

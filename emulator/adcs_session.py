@@ -95,6 +95,7 @@ from emulator.spacecraft import scenario
 from emulator.spacecraft.devices import Magnetometer, Magnetorquers, SpacecraftDevices
 from emulator.spacecraft.wheels import N_WHEELS
 from firmware.adcs.apkf_lean import MOMENTUM
+from firmware.adcs.control import check_zeta
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MAIN = os.path.join(ROOT, "firmware", "adcs", "main_can.py")
@@ -148,19 +149,21 @@ class AdcsSession:
     probe(tick, t, u) after each cycle of the app, ``self.app``, with the truth still at the cycle's time),
     ``estimation`` (runtime inproc: the app's filters other than the lean ones that fly, ``App``'s keyword; the
     ground's are ``ground.adcs.estimators.estimation``), ``wheel_speed_limit_rpm`` (the thesis world's true wheels'
-    limit, ``scenario.pointing_world``'s; the flight world's is the file's)."""
+    limit, ``scenario.pointing_world``'s; the flight world's is the file's), ``zeta`` (the PD's damping ratio,
+    Eq. 6.6, the config's ``pd_zeta``; None: the firmware's ``ZETA``, and no key)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
                  spacecraft=None, magnetic_devices=False, world="thesis", flight=None, probe=None,
-                 estimation=None, wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM):
+                 estimation=None, wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, zeta=None):
         _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults, estimation)
         self.probe = probe
         self.estimation = estimation
         self.apkf_momentum = apkf_momentum
         self.runtime, self.satb, self.seed = runtime, bool(satb_gnss), int(seed)
         self.ts, self.hold_s = float(ts), float(hold_s)
+        self.zeta = None if zeta is None else check_zeta(zeta)
         self.log = log
         self.link_faults = link_faults
         self.heap_out = heap_out
@@ -234,7 +237,8 @@ class AdcsSession:
                 "laser_axis": scenario.laser_axis(d).tolist(),
                 "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0,
                 "isotp_timeout_ms": ISOTP_TIMEOUT_MS, "world": self.world_name, "flight": self.flight,
-                "magnetorquers": d["magnetorquers"], **(scenario.FLIGHT_STKF if self.world_name == "flight" else {})}
+                "magnetorquers": d["magnetorquers"], **(scenario.FLIGHT_STKF if self.world_name == "flight" else {}),
+                **({} if self.zeta is None else {"pd_zeta": self.zeta})}
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""

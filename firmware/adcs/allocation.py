@@ -64,7 +64,7 @@ class Allocation:
         self.cof_failed = -1                # the failed set self.Cu and self.cof were made for
         self.cof = None
         self.K, self.D = zeros(9), zeros(9)
-        control.gains(self.K, self.D, self.J, float(cfg.get("ts", 33.0)))
+        control.gains(self.K, self.D, self.J, float(cfg.get("ts", 33.0)), cfg.get("pd_zeta", control.ZETA))
         self.tau, self.tff, self.H, self.u = zeros(3), zeros(3), zeros(3), zeros(4)
         self.A, self.b = zeros(9), zeros(3)
         self.m_cmd = zeros(3)

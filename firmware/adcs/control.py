@@ -139,8 +139,20 @@ def natural_frequency(ts):
     return 8.0 / ts
 
 
+def check_zeta(zeta):
+    """The PD's damping ratio zeta (Eq. 6.6) as a float; ValueError unless finite and > 0."""
+    try:
+        z = float(zeta)
+    except (TypeError, ValueError):
+        z = 0.0
+    if not 0.0 < z < float("inf"):
+        raise ValueError("PD damping ratio zeta must be finite and > 0, got %r" % (zeta,))
+    return z
+
+
 def gains(K, D, J, ts, zeta=ZETA):
     """K = 2 wn^2 J, D = 2 zeta wn J (Eq. 6.6), 3 x 3 flat."""
+    zeta = check_zeta(zeta)
     wn = natural_frequency(ts)
     for i in range(9):
         K[i] = 2.0 * wn * wn * J[i]

@@ -95,10 +95,10 @@ def consistency(fsw, k_from, p=0.95):
 
 def run_result(s, rec, k_done, K, complete, wall_s, world, estimator, settle_s, **run):
     """What both worlds' results say of a run of the session ``s`` and its recorder: the ``run``'s arguments
-    (ts_s, satb_gnss, seed, truth, duration_s), how far it got, the flight software it flew, the vehicle, the
-    wheels, the modes, the gate's resets and the devices' faults (the session's: the schedule, its log, the
-    readings the app missed, the failed wheels and magnetic devices); ``health_events`` the magnetic devices out
-    or back with their reasons (``StatusWatch.health_events``)."""
+    (ts_s, satb_gnss, seed, truth, duration_s; zeta, the PD's damping ratio, as ``pd_zeta`` when not None), how
+    far it got, the flight software it flew, the vehicle, the wheels, the modes, the gate's resets and the devices'
+    faults (the session's: the schedule, its log, the readings the app missed, the failed wheels and magnetic
+    devices); ``health_events`` the magnetic devices out or back with their reasons (``StatusWatch.health_events``)."""
     from ground.adcs.modes import time_in
     from ground.adcs.pointing import orbit_period
     d = s.spacecraft
@@ -110,6 +110,8 @@ def run_result(s, rec, k_done, K, complete, wall_s, world, estimator, settle_s, 
            "wheel_datasheet_rpm": d["wheels"]["speed_limit_rpm"], "orbit_period_s": orbit_period(s.xg[0, 0]),
            "mode_changes": s.mode_changes, "time_in_mode_s": time_in(s.mode_changes, k_done),
            "apkf_attitude_resets": [list(r) for r in rec.resets], "health_events": list(s.watch.health_events)}
+    if run.get("zeta") is not None:
+        out["pd_zeta"] = float(run["zeta"])
     if s.faults:
         sm = s.summary()
         out["devices"] = {k: sm[k] for k in ("faults", "fault_log", "firmware_missed", "wheels_failed", "last_mode")}

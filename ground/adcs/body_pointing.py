@@ -40,6 +40,7 @@ Units in the outputs: arcsec and arcsec/s; J (Eq. 6.22) in rad^2, like Fig. 6-2'
 
 import io
 import os
+import zipfile
 
 import numpy as np
 
@@ -172,7 +173,7 @@ def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
              wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None,
-             world="thesis", flight=None, estimator=None, faults=None):
+             world="thesis", flight=None, estimator=None, faults=None, zeta=None):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection time after
     the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict: 10 Hz arrays, fsw_* at 1 Hz). A
     KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
@@ -197,7 +198,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     on). ``estimator``: its filters, "ground" (the thesis world's default: the 41-state APKF and the full STKF) or
     "lean" (the flight world's default: those that fly). ``faults``: the spacecraft's device faults
     (``emulator.adcs_bus``: wheel_silent, startracker_blind, gnss_outage, beacon_lost; seconds from the run's
-    start), in either world."""
+    start), in either world. ``zeta``: the PD's damping ratio (Eq. 6.6; None: the firmware's, 1; the result's
+    ``pd_zeta`` when given)."""
     ts = check_ts(ts)
     if world not in WORLDS:
         raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
@@ -207,7 +209,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         return flight_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
                                      truth=truth, cache_dir=cache_dir, progress=progress, hold_s=hold_s,
                                      on_second=on_second, tach_noise_rpm=tach_noise_rpm, spacecraft=spacecraft,
-                                     flight=flight, estimator=estimator or "lean", faults=faults)
+                                     flight=flight, estimator=estimator or "lean", faults=faults, zeta=zeta)
     flight_world.check_flight(flight)                  # known options, which the thesis world does not use
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")
@@ -222,12 +224,17 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     return thesis_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
                                  truth=truth, cache_dir=cache_dir, progress=progress, settle_ts=settle_ts,
                                  hold_s=hold_s, on_second=on_second, wheel_speed_limit_rpm=wheel_speed_limit_rpm,
-                                 spacecraft=d, estimator=estimator or "ground", faults=faults)
+                                 spacecraft=d, estimator=estimator or "ground", faults=faults, zeta=zeta)
 
 
 def save_history(path, hist):
+    """history.npz as np.savez_compressed writes it (one .npy per array, deflated; np.load reads it), at zlib
+    level 1: half the CPU of the default level for an archive 0.5 % larger (a 1-orbit flight-world run's)."""
     buf = io.BytesIO()
-    np.savez_compressed(buf, **hist)
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for name, a in hist.items():
+            with zf.open(name + ".npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(a))
     write_atomic(path, buf.getvalue())
 
 

@@ -63,7 +63,7 @@ def require_magnetorquers(d):
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, hold_s=HOLD_S, on_second=None, tach_noise_rpm=None, spacecraft=None,
-             flight=None, faults=None, estimator="lean"):
+             flight=None, faults=None, estimator="lean", zeta=None):
     """One flight-world run (the module docstring): the app in process for ``duration_s`` seconds. ``params``:
     the parameter-file dict (checked against the vehicle); ``flight``: options over ``FLIGHT``; ``faults``: the
     session's device faults; ``on_second(k, hist, fsw, x)`` as ``body_pointing.simulate``'s. Returns (result,
@@ -89,7 +89,7 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     s, rec, hist, k_done, complete, wall_s = app_host.fly(
         K, "bps flight ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), progress, on_second,
         satb_gnss=satb_gnss, seed=seed, ts=ts, params=params, faults=faults, truth=truth, cache_dir=cache_dir,
-        hold_s=hold_s, spacecraft=d, world="flight", flight=fo, estimation=log)
+        hold_s=hold_s, spacecraft=d, world="flight", flight=fo, estimation=log, zeta=zeta)
     lb = laser_axis(d)
     return _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s,
                    estimator, log)
@@ -161,7 +161,7 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
     first_point = next((c["t_s"] for c in s.mode_changes if c["to"] == "POINT"), None)
     blind = s.blind_share(first_point) if first_point is not None else None
     res = app_host.run_result(s, rec, k_done, K, complete, wall_s, "flight", estimator, period, ts_s=ts,
-                              satb_gnss=satb_gnss, seed=seed, truth=truth, duration_s=duration_s)
+                              satb_gnss=satb_gnss, seed=seed, truth=truth, duration_s=duration_s, zeta=s.zeta)
     res.update(wheel_speed_limit_rpm=float(d["wheels"]["speed_limit_rpm"]), star_tracker_blind_share=blind,
                faults=s.faults, fault_log=s.fault_log)
     mtq = d["magnetorquers"]

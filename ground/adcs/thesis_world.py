@@ -21,7 +21,8 @@ from ground.adcs.pointing import TS_THESIS, add_statistics, check_ts, close_hist
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, hold_s=HOLD_S, on_second=None,
-             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, spacecraft=None, estimator="ground", faults=None):
+             wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, spacecraft=None, estimator="ground", faults=None,
+             zeta=None):
     """One thesis-world run; the arguments and the result as ``body_pointing.simulate``'s (which checks them and
     calls this). Returns (result, history): the history's 10 Hz truth and its 1 Hz rows ``fsw_*`` the app's state
     after cycle k (NaN before the APKF starts, and at the last row, which no cycle reaches)."""
@@ -32,13 +33,13 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         K, "bps ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), progress, on_second,
         satb_gnss=satb_gnss, seed=seed, ts=ts, params=params, truth=truth, cache_dir=cache_dir, hold_s=hold_s,
         spacecraft=d, world="thesis", wheel_speed_limit_rpm=wheel_speed_limit_rpm, faults=faults,
-        estimation=app_host.estimation_for(estimator, d))
+        estimation=app_host.estimation_for(estimator, d), zeta=zeta)
     lb = laser_axis(d)
     rate = scenario.WORLD_RATE_HZ
     dth, dom, rows = close_history(hist, rec.fsw, s.xg, rate, k_done, lb)
     sel = hist["t"] >= t_settle
     res = app_host.run_result(s, rec, k_done, K, complete, wall_s, "thesis", estimator, t_settle, ts_s=check_ts(ts),
-                              satb_gnss=satb_gnss, seed=seed, truth=truth, duration_s=duration_s)
+                              satb_gnss=satb_gnss, seed=seed, truth=truth, duration_s=duration_s, zeta=s.zeta)
     res["max_wheel_speed_rpm"] = float(np.abs(hist["w_rel"]).max() * 60 / (2 * np.pi))
     res["wheel_speed_limit_rpm"] = float(wheel_speed_limit_rpm)
     secs = np.arange(k_done + 1) >= t_settle         # the star tracker's blind share after the settling

@@ -23,7 +23,10 @@ runs, each body error also passed through the fine loop's sensitivity |S| (``--r
 response`` summary.json), t_s chosen by the residual's 3 sigma (arcsec) after the fine loop
 (``ground.adcs.terminal_tuning``); the summary adds residual_sigma_arcsec, residual_3sigma_arcsec, the body 3 sigma
 figures per t_s, ts_best_body_s, ts_best_terminal_s (= ts_best_s), ts_best_terminal_in_budget_s (among the t_s
-within the body budgets); ``fig6-2_objectives.png`` shows both objectives.
+within the body budgets); ``fig6-2_objectives.png`` shows both objectives. ``--zeta Z1,Z2,...``: the PD's
+damping ratios (Eq. 6.6; default the thesis's 1 alone), the sweep over the (t_s, zeta) grid (``ts_s`` and ``zeta``
+per point, ``zeta_values``, each best's zeta beside its t_s; with the terminal objective ``by_zeta``), one curve
+per zeta in the figures.
 """
 
 import hashlib
@@ -175,6 +178,7 @@ def flight_checks(s):
 
 def _cmd_bps(a):
     ts = bps.check_ts(a.ts)
+    zeta = None if a.zeta is None else terminal_tuning.check_zeta(a.zeta)
     if a.estimator is not None and a.world != "flight":
         raise ValueError("--estimator is the flight world's (--world flight); the thesis world flies the ground's "
                          "41-state APKF and full STKF")
@@ -199,7 +203,7 @@ def _cmd_bps(a):
     try:
         res, hist = bps.simulate(ts=ts, satb_gnss=a.satb_gnss, duration_s=a.duration, seed=a.seed, params=params,
                                  truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet,
-                                 spacecraft=d, world=a.world, estimator=a.estimator)
+                                 spacecraft=d, world=a.world, estimator=a.estimator, zeta=zeta)
         res["requirements"] = sf.requirements(d)             # the budgets the verdict reads
         if a.world == "flight":
             return _finish_flight(a, out, res, hist, record, args_text)
@@ -283,18 +287,24 @@ def _finish_flight(a, out, res, hist, record, args_text):
     return 0
 
 
-def sweep_summary(ts_list, results, complete, satb_gnss):
+def sweep_summary(ts_list, results, complete, satb_gnss, zeta_list=None, zetas=None):
+    """The sweep's summary: J per point (t_s, with a grid its ``zeta``: ``zeta_list`` per point, ``zetas`` the
+    values) and its minimum."""
     J = [None if (r is None or "error" in r or r.get("J_rad2") is None or not r.get("complete", False))
          else r["J_rad2"] for r in results]
-    ok = [(j, t) for j, t in zip(J, ts_list) if j is not None]
-    return {"ts_s": list(ts_list), "J": J, "ts_best_s": min(ok)[1] if ok else None, "complete": bool(complete),
-            "satb_gnss": satb_gnss, "ts_thesis_s": bps.TS_THESIS, "J_unit": "rad^2",
-            "failures": [{"ts_s": t, "error": r["error"]} for t, r in zip(ts_list, results)
-                         if r is not None and "error" in r]}
+    i = terminal_tuning.best_index(J)
+    s = {"ts_s": list(ts_list), "J": J, "ts_best_s": None if i is None else ts_list[i], "complete": bool(complete),
+         "satb_gnss": satb_gnss, "ts_thesis_s": bps.TS_THESIS, "J_unit": "rad^2",
+         "failures": [dict({"ts_s": t, "error": r["error"]}, **({} if zeta_list is None else {"zeta": zeta_list[n]}))
+                      for n, (t, r) in enumerate(zip(ts_list, results)) if r is not None and "error" in r]}
+    if zeta_list is not None:
+        s.update(zeta=list(zeta_list), zeta_values=list(zetas), zeta_best_s=None if i is None else zeta_list[i])
+    return s
 
 
 def _cmd_sweep(a):
-    ts_list = parse_ts_range(a.ts)
+    zetas = terminal_tuning.parse_zeta_list(a.zeta)                  # None: the thesis's zeta = 1, no grid
+    ts_list, zeta_list = terminal_tuning.grid(parse_ts_range(a.ts), zetas, MAX_SWEEP_POINTS)
     check_run_args(a)
     table = terminal_tuning.check_args(a.objective, a.rejection)     # None: the body objective
     if a.scheduler is None:
@@ -303,8 +313,9 @@ def _cmd_sweep(a):
     out = a.output
     campaign.check_scheduler(a.scheduler)
     satb = a.satb_gnss
-    campaign.campaign_folder(out, (FIGURE_SWEEP, terminal_tuning.FIGURE), dict(sweep_summary(ts_list, [None] * len(ts_list), False, satb),
-                                                        spacecraft=record))
+    campaign.campaign_folder(out, (FIGURE_SWEEP, terminal_tuning.FIGURE),
+                             dict(sweep_summary(ts_list, [None] * len(ts_list), False, satb, zeta_list, zetas),
+                                  spacecraft=record))
     t0 = time.perf_counter()
     complete = True
     try:
@@ -313,6 +324,8 @@ def _cmd_sweep(a):
         bps.write_params(os.path.join(out, "params.json"), params, d)
         prepare_truth(a, 30 + 4 * max(ts_list) + a.duration, os.path.abspath(a.cache_dir), d)
         fn, extra = (bps.sweep_one, {}) if table is None else (terminal_tuning.sweep_one, {"rejection": table})
+        if zeta_list is not None:
+            fn, extra = terminal_tuning.sweep_one, dict(extra, zeta_list=zeta_list)
         results = campaign.run_campaign(fn, list(range(len(ts_list))), out, workers=a.workers,
                                         scheduler=a.scheduler, progress=not a.quiet, desc="sweep t_s",
                                         ts_list=ts_list, params=params, satb_gnss=satb, duration_s=a.duration,
@@ -323,7 +336,7 @@ def _cmd_sweep(a):
         results = campaign.finished_results(out, len(ts_list))
     if any(r is not None and "error" not in r and not r.get("complete", True) for r in results):
         complete = False                                # a t_s cut short by Ctrl-C (in a worker)
-    s = sweep_summary(ts_list, results, complete, satb)
+    s = sweep_summary(ts_list, results, complete, satb, zeta_list, zetas)
     s["wall_s"] = time.perf_counter() - t0
     s["duration_s"] = a.duration
     s["spacecraft"] = record
@@ -333,11 +346,7 @@ def _cmd_sweep(a):
         plot_sweep(os.path.join(out, FIGURE_SWEEP), s)
         if table is not None:
             plot_objectives(os.path.join(out, terminal_tuning.FIGURE), s)
-    lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "Spacecraft %s." % record["name"], "",
-             "| t_s (s) | J (rad²) |", "|---|---|"]
-    lines += ["| %g | %s |" % (t, "—" if j is None else "%.4e" % j) for t, j in zip(s["ts_s"], s["J"])]
-    lines += ["", "minimum at t_s = %s s (thesis: 33 s); %g s collected per t_s, %s SatB's GNSS; complete: %s"
-              % (s.get("ts_best_body_s", s["ts_best_s"]), a.duration, "with" if satb else "without", complete), ""]
+    lines = sweep_lines(s, record, a.duration, satb, complete)
     if table is not None:
         lines += terminal_tuning.report_lines(s)
     write_atomic(os.path.join(out, "report.md"), "\n".join(lines))
@@ -348,9 +357,27 @@ def _cmd_sweep(a):
         return 130
     if s["failures"]:
         for f in s["failures"]:
-            print("fps adcs sweep: t_s = %g s failed: %s" % (f["ts_s"], f["error"]), file=sys.stderr)
+            print("fps adcs sweep: t_s = %g s%s failed: %s" % (f["ts_s"], "" if "zeta" not in f else ", ζ = %g"
+                                                              % f["zeta"], f["error"]), file=sys.stderr)
         return 1
     return 0
+
+
+def sweep_lines(s, record, duration, satb, complete):
+    """report.md's J table of the sweep (a ζ column on a grid) and its minimum."""
+    zs = s.get("zeta")
+    lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "Spacecraft %s." % record["name"], "",
+             "| t_s (s) |%s J (rad²) |" % ("" if zs is None else " ζ |"), "|---|---|" + ("" if zs is None else "---|")]
+    lines += ["| %g |%s %s |" % (t, "" if zs is None else " %g |" % zs[n], "—" if j is None else "%.4e" % j)
+              for n, (t, j) in enumerate(zip(s["ts_s"], s["J"]))]
+    best = s.get("ts_best_body_s", s["ts_best_s"])
+    if zs is not None and best is not None:
+        best = "%s s, ζ = %g" % (best, s.get("zeta_best_body", s["zeta_best_s"]))
+    else:
+        best = "%s s" % best
+    lines += ["", "minimum at t_s = %s (thesis: 33 s%s); %g s collected per t_s, %s SatB's GNSS; complete: %s"
+              % (best, "" if zs is None else ", ζ = 1", duration, "with" if satb else "without", complete), ""]
+    return lines
 
 
 def _common(p):
@@ -387,6 +414,9 @@ def register_bps(sub):
                    "slew and re-acquisition; its figures are per pointing pass after the first orbit")
     p.add_argument("--orbits", type=float, default=3.0,
                    help="flight world: the run's length in orbits when --duration is not given (default 3)")
+    p.add_argument("--zeta", type=float, default=None, metavar="Z",
+                   help="the PD's damping ratio ζ (Eq. 6.6, dimensionless: D = 2 ζ wn J), finite and > 0 "
+                   "(default 1, the thesis's)")
     p.add_argument("--estimator", choices=flight_world.ESTIMATORS, default=None,
                    help="flight world: the app's filters, lean (default: the lean APKF and STKF that fly) or "
                    "ground (the 41-state APKF and the full STKF, for analysis: the same modes, command and "
@@ -409,6 +439,9 @@ def register_sweep(sub):
                    help="--objective terminal: the fine loop's |S|, model (default: ground.response's loop model "
                    "of the thesis bench, 637.8 Hz, g = 0.5) or an fps response run's summary.json (measured, "
                    "extended as |S| proportional to f below its lowest tone in Hz)")
+    p.add_argument("--zeta", default=None, metavar="Z1,Z2,...",
+                   help="the PD's damping ratios ζ (Eq. 6.6, dimensionless: D = 2 ζ wn J), each finite and > 0: "
+                   "the sweep runs every (t_s, ζ) pair (default: 1 alone, the thesis's)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count; "
                    "1 = in-process)")

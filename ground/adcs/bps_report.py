@@ -270,17 +270,32 @@ def plot_flight(out, hist, s):
     save_png(fig, os.path.join(out, FIGURES_FLIGHT[1]), dpi=90)
 
 
+def zeta_groups(s):
+    """The points of a sweep summary per curve: [(zeta, indices)], one (None, all) without a zeta grid."""
+    if s.get("zeta") is None:
+        return [(None, list(range(len(s["ts_s"]))))]
+    return [(z, [i for i, zi in enumerate(s["zeta"]) if zi == z]) for z in s["zeta_values"]]
+
+
+def _curve(s, key, idx):
+    """{t_s: value} of the points ``idx`` whose ``key`` is not None."""
+    return dict((s["ts_s"][i], s[key][i]) for i in idx if s[key][i] is not None)
+
+
 def plot_sweep(path, s):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from ground.plots import save_png
-    pts = [(t, j) for t, j in zip(s["ts_s"], s["J"]) if j is not None]
     fig, ax = plt.subplots(figsize=(7, 4))
-    if pts:
-        ax.plot(*zip(*pts), "o-")
+    for k, (z, idx) in enumerate(zeta_groups(s)):
+        pts = _curve(s, "J", idx)
+        if pts:
+            ax.plot(list(pts), list(pts.values()), "o-", color="C%d" % (2 * k),
+                    label=None if z is None else "J(t_s), ours, ζ = %g" % z)
     if s["ts_best_s"] is not None:
-        ax.axvline(s["ts_best_s"], color="C1", ls="--", label="ours: %g s" % s["ts_best_s"])
+        ax.axvline(s["ts_best_s"], color="C1", ls="--", label="ours: %g s%s" % (
+            s["ts_best_s"], "" if s.get("zeta") is None else ", ζ = %g" % s["zeta_best_s"]))
     ax.axvline(bps.TS_THESIS, color="k", ls=":", label="thesis: 33 s")
     ax.set_xlabel("t_s (s)")
     ax.set_ylabel("J (rad²)")
@@ -289,37 +304,49 @@ def plot_sweep(path, s):
     ax.yaxis.set_minor_locator(LogLocator(subs=(2, 3, 5)))          # J spans less than a decade: label 2, 3, 5
     ax.yaxis.set_minor_formatter(LogFormatterSciNotation(labelOnlyBase=False, minor_thresholds=(4, 1)))
     ax.grid(True, which="both", lw=0.3)
-    ax.plot([], [], "C0o-", label="J(t_s), ours")
+    if s.get("zeta") is None:
+        ax.plot([], [], "C0o-", label="J(t_s), ours")
     ax.legend()
     ax.set_title("Objective J for the settling time (Fig. 6-2)")
     fig.tight_layout()
     save_png(fig, path, dpi=90)
 
 
+def _index_of(s, what):
+    """The point of the summary's best ``what`` (body, terminal, terminal_in_budget): its t_s and zeta; None."""
+    t, z = s["ts_best_%s_s" % what], s.get("zeta_best_%s" % what)
+    zs = s.get("zeta") or [None] * len(s["ts_s"])
+    return next((i for i, (ti, zi) in enumerate(zip(s["ts_s"], zs)) if ti == t and zi == z), None)
+
+
 def plot_objectives(path, s):
     """Fig. 6-2 with both objectives of a ``--objective terminal`` sweep: J of the body error (left axis, rad²)
-    and the 3σ residual after the fine loop (right axis, arcsec), both on log scales, each one's minimum marked
-    (the residual's also among the t_s within the body budgets), and the thesis's 33 s."""
+    and the 3σ residual after the fine loop (right axis, arcsec), both on log scales (on a zeta grid one curve
+    per zeta and objective, a colour per zeta), each one's minimum marked (the residual's also among the points
+    within the body budgets), and the thesis's 33 s."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from ground.plots import save_png
     fig, ax = plt.subplots(figsize=(8, 4.5))
     ax2 = ax.twinx()
-    curves = ((ax, "J", "C0", "o-", "body objective J (rad²)", (("", s["ts_best_body_s"], "*"),)),
+    grid = s.get("zeta") is not None
+    curves = ((ax, "J", "C0", "o--" if grid else "o-", "body objective J (rad²)", (("", "body", "*"),)),
               (ax2, "residual_3sigma_arcsec", "C3", "s-", "terminal objective: 3σ residual after the fine loop "
-               "(arcsec)", (("", s["ts_best_terminal_s"], "*"),
-                            (" within the body budgets", s["ts_best_terminal_in_budget_s"], "P"))))
+               "(arcsec)", (("", "terminal", "*"), (" within the body budgets", "terminal_in_budget", "P"))))
     for a_, key, color, style, label, bests in curves:
-        pts = dict((t, v) for t, v in zip(s["ts_s"], s[key]) if v is not None)
-        if pts:
-            a_.plot(list(pts), list(pts.values()), style, color=color, ms=4, label=label)
-            a_.set_ylabel(label, color=color)
-            a_.set_yscale("log")
+        for k, (z, idx) in enumerate(zeta_groups(s)):
+            pts = _curve(s, key, idx)
+            if pts:
+                a_.plot(list(pts), list(pts.values()), style, color="C%d" % k if grid else color, ms=4,
+                        label="%s, ζ = %g" % (label.split(" (")[0], z) if grid else label)
+                a_.set_ylabel(label, color="k" if grid else color)
+                a_.set_yscale("log")
         for what, best, marker in bests:
-            if best is not None:
-                a_.plot([best], [pts[best]], marker, color=color, ms=15, mec="k",
-                        label="minimum%s: %g s" % (what, best))
+            i = _index_of(s, best)
+            if i is not None:
+                a_.plot([s["ts_s"][i]], [s[key][i]], marker, color=color, ms=15, mec="k", label="minimum%s: %g s%s"
+                        % (what, s["ts_s"][i], ", ζ = %g" % s["zeta"][i] if grid else ""))
     ax.axvline(bps.TS_THESIS, color="k", ls=":", label="thesis: 33 s")
     ax.set_xlabel("t_s (s)")
     ax.grid(True, which="both", lw=0.3)

@@ -26,9 +26,10 @@ as |S| proportional to f (the integral loop's low-frequency slope: S ~ j w T / g
 The residual is the body error's share only: the fine loop's own floor (the quadcell's and the DACs' noise) adds
 to it in quadrature whatever t_s is, so it moves no optimum (``fps system`` measures the whole).
 
-The PD's damping ratio is not swept: the flight app's allocation computes its gains from the flight config's t_s
-with zeta = 1 fixed in the firmware (``firmware/adcs/control.py``, ``ZETA``), and the thesis world flies that
-app; a zeta sweep needs a flight config key for it first.
+The PD's damping ratio zeta (D = 2 zeta wn J, Eq. 6.6; the firmware's ``ZETA`` = 1 by default) is the flight
+config's ``pd_zeta``: ``--zeta Z1,Z2,...`` sweeps the (t_s, zeta) grid (``grid``: zeta outer, t_s inner), each
+objective's best pair and, per zeta, its best t_s (``by_zeta``) in the summary; without it the sweep is the
+thesis's, zeta = 1, and its summary has no zeta key.
 """
 
 import json
@@ -54,6 +55,37 @@ def check_args(objective, rejection):
             raise ValueError("--rejection is the terminal objective's (--objective terminal)")
         return None
     return rejection_table(MODEL if rejection is None else rejection)
+
+
+def check_zeta(zeta, option="--zeta"):
+    """A damping ratio as a float (``firmware.adcs.control.check_zeta``); ValueError naming ``option``."""
+    from firmware.adcs.control import check_zeta as check
+    try:
+        return check(zeta)
+    except (TypeError, ValueError):
+        raise ValueError("%s must be a finite number > 0 (the PD's damping ratio, Eq. 6.6), got %r"
+                         % (option, zeta)) from None
+
+
+def parse_zeta_list(text):
+    """``--zeta`` of the sweep: '0.7,1,1.4' -> [0.7, 1.0, 1.4] (each finite and > 0, no repeats); None -> None
+    (the thesis's zeta = 1, no grid). ValueError naming --zeta."""
+    if text is None:
+        return None
+    vals = [check_zeta(v.strip()) for v in str(text).split(",")]
+    if len(set(vals)) != len(vals):
+        raise ValueError("--zeta lists a value twice: %r" % (text,))
+    return vals
+
+
+def grid(ts_list, zetas, max_points):
+    """The sweep's points: (t_s per point, zeta per point or None): ``ts_list`` alone when ``zetas`` is None,
+    else each zeta (outer) with each t_s (inner). ValueError naming --zeta past ``max_points``."""
+    if zetas is None:
+        return list(ts_list), None
+    if len(ts_list) * len(zetas) > max_points:
+        raise ValueError("--ts and --zeta give %d grid points; at most %d" % (len(ts_list) * len(zetas), max_points))
+    return [t for _ in zetas for t in ts_list], [z for z in zetas for _ in ts_list]
 
 
 def rejection_table(source):
@@ -141,13 +173,16 @@ def terminal_residual(res, hist, table):
             "samples": int(len(x))}
 
 
-def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, rejection=None, **kw):
-    """Campaign entry of the terminal sweep: ``bps.sweep_one``'s run, its result with ``terminal`` (the
-    ``terminal_residual`` through the ``rejection`` table) added."""
+def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, rejection=None, zeta_list=None, **kw):
+    """Campaign entry of the terminal sweep and of the (t_s, zeta) grid: ``bps.sweep_one``'s run of point
+    ``seed`` (its zeta ``zeta_list[seed]``, None: the firmware's), its result with ``terminal`` (the
+    ``terminal_residual`` through the ``rejection`` table; none without a table) added."""
     from ground.adcs import body_pointing as bps
     from ground.fileio import write_json
-    res, hist = bps.simulate(ts=ts_list[seed], params=params, seed=noise_seed, **kw)
-    res["terminal"] = terminal_residual(res, hist, rejection)
+    zeta = None if zeta_list is None else zeta_list[seed]
+    res, hist = bps.simulate(ts=ts_list[seed], params=params, seed=noise_seed, zeta=zeta, **kw)
+    if rejection is not None:
+        res["terminal"] = terminal_residual(res, hist, rejection)
     if run_dir:
         os.makedirs(run_dir, exist_ok=True)
         write_json(os.path.join(run_dir, "result.json"), res)
@@ -156,46 +191,101 @@ def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, rejection=No
     return res
 
 
+def best_index(values, keep=None):
+    """The index of the least value that is not None (and ``keep[i]``, when given); None when there is none."""
+    ok = [(v, i) for i, v in enumerate(values) if v is not None and (keep is None or keep[i])]
+    return min(ok)[1] if ok else None
+
+
+def best_pair(s, i, what):
+    """``ts_best_<what>_s`` (and with a zeta grid ``zeta_best_<what>``) of point ``i`` (None: none)."""
+    out = {"ts_best_%s_s" % what: None if i is None else s["ts_s"][i]}
+    if s.get("zeta") is not None:
+        out["zeta_best_%s" % what] = None if i is None else s["zeta"][i]
+    return out
+
+
 def add_summary(s, results, table, requirements):
-    """The sweep's summary ``s`` (``bps_cli.sweep_summary``: J per t_s, ``ts_best_s`` its minimum) with the
-    terminal objective: ``residual_sigma_arcsec`` [X, Y] and ``residual_3sigma_arcsec`` per t_s (None where J is
-    None), each run's body ``pointing_3sigma_arcsec`` and ``stability_3sigma_arcsec_s``, ``ts_best_body_s`` (J's
-    minimum), ``ts_best_terminal_s`` and ``ts_best_s`` (the residual's minimum), ``ts_best_terminal_in_budget_s``
-    (the residual's minimum over the t_s whose body 3σ figures meet ``requirements``, the spacecraft file's
-    budgets: the fine loop needs the body within them to hold the beam), the rejection's source. Returns ``s``."""
+    """The sweep's summary ``s`` (``bps_cli.sweep_summary``: J per point, ``ts_best_s`` its minimum) with the
+    terminal objective: ``residual_sigma_arcsec`` [X, Y] and ``residual_3sigma_arcsec`` per point (None where J
+    is None), each run's body ``pointing_3sigma_arcsec`` and ``stability_3sigma_arcsec_s``, ``ts_best_body_s``
+    (J's minimum), ``ts_best_terminal_s`` and ``ts_best_s`` (the residual's minimum),
+    ``ts_best_terminal_in_budget_s`` (the residual's minimum over the points whose body 3σ figures meet
+    ``requirements``, the spacecraft file's budgets: the fine loop needs the body within them to hold the beam),
+    the rejection's source; with a zeta grid each best's ``zeta_best_<body|terminal|terminal_in_budget>``
+    (``zeta_best_s`` the terminal's) and ``by_zeta`` (``zeta_table``). Returns ``s``."""
     term = [None if j is None or not (r or {}).get("terminal") else r["terminal"] for j, r in zip(s["J"], results)]
     r3 = [None if v is None else v["residual_3sigma_arcsec"] for v in term]
     p3 = [None if v is None else r["pointing_3sigma_arcsec"] for v, r in zip(term, results)]
     w3 = [None if v is None else r["stability_3sigma_arcsec_s"] for v, r in zip(term, results)]
     pb, wb = requirements["body_pointing_3sigma_arcsec"], requirements["body_stability_3sigma_arcsec_s"]
-    ok = [(v, t) for v, t in zip(r3, s["ts_s"]) if v is not None]
-    within = [(v, t) for v, t, p, w in zip(r3, s["ts_s"], p3, w3) if v is not None and p <= pb and w <= wb]
-    best = min(ok)[1] if ok else None
+    within = [v is not None and p <= pb and w <= wb for v, p, w in zip(r3, p3, w3)]
     s.update(objective="terminal", rejection={"source": table["source"], "what": table["what"]},
              residual_sigma_arcsec=[None if v is None else v["residual_sigma_arcsec"] for v in term],
              residual_3sigma_arcsec=r3, residual_unit="arcsec", pointing_3sigma_arcsec=p3,
-             stability_3sigma_arcsec_s=w3, budgets={"pointing_3sigma_arcsec": pb, "stability_3sigma_arcsec_s": wb},
-             ts_best_body_s=s["ts_best_s"], ts_best_terminal_s=best, ts_best_s=best,
-             ts_best_terminal_in_budget_s=min(within)[1] if within else None)
+             stability_3sigma_arcsec_s=w3, budgets={"pointing_3sigma_arcsec": pb, "stability_3sigma_arcsec_s": wb})
+    s.update(best_pair(s, best_index(s["J"]), "body"), **best_pair(s, best_index(r3), "terminal"))
+    s.update(best_pair(s, best_index(r3, within), "terminal_in_budget"), ts_best_s=s["ts_best_terminal_s"])
+    if s.get("zeta") is not None:
+        s.update(zeta_best_s=s["zeta_best_terminal"], by_zeta=zeta_table(s, within))
     return s
 
 
+def zeta_table(s, within):
+    """Per zeta of the grid: its least residual 3σ over t_s and that t_s, and the same among the points within the
+    body budgets (``within``), {"zeta", "ts_best_terminal_s", "residual_3sigma_arcsec", "ts_best_in_budget_s",
+    "residual_3sigma_in_budget_arcsec"}."""
+    out = []
+    r3 = s["residual_3sigma_arcsec"]
+    for z in s["zeta_values"]:
+        mine = [v if zi == z else None for v, zi in zip(r3, s["zeta"])]
+        i, k = best_index(mine), best_index(mine, within)
+        out.append({"zeta": z, "ts_best_terminal_s": None if i is None else s["ts_s"][i],
+                    "residual_3sigma_arcsec": None if i is None else r3[i],
+                    "ts_best_in_budget_s": None if k is None else s["ts_s"][k],
+                    "residual_3sigma_in_budget_arcsec": None if k is None else r3[k]})
+    return out
+
+
+def _at(s, what):
+    """'<t_s> s' of a best (with its zeta on a grid)."""
+    t, z = s["ts_best_%s_s" % what], s.get("zeta_best_%s" % what)
+    return "%s s" % t if s.get("zeta") is None or t is None else "%s s, ζ = %g" % (t, z)
+
+
 def report_lines(s):
-    """report.md's table of both objectives per t_s and their optima."""
+    """report.md's table of both objectives per point and their optima (per zeta too, on a grid)."""
     b = s["budgets"]
+    zs = s.get("zeta")
     out = ["## Both objectives (Sec. 8.3: the attitude loop tuned with the fine loop)", "",
            "Residual after the fine loop: the body error through %s." % s["rejection"]["what"], "",
-           "| t_s (s) | J (rad²) | residual 1σ X, Y (arcsec) | residual 3σ (arcsec) | body 3σ pointing (arcsec), "
-           "stability (arcsec/s) |", "|---|---|---|---|---|"]
-    for t, j, sg, r3, p, w in zip(s["ts_s"], s["J"], s["residual_sigma_arcsec"], s["residual_3sigma_arcsec"],
-                                  s["pointing_3sigma_arcsec"], s["stability_3sigma_arcsec_s"]):
-        out.append("| %g | %s | %s | %s | %s |" % (
-            t, "—" if j is None else "%.4e" % j, "—" if sg is None else "%.4f, %.4f" % tuple(sg),
+           "| t_s (s) |%s J (rad²) | residual 1σ X, Y (arcsec) | residual 3σ (arcsec) | body 3σ pointing (arcsec), "
+           "stability (arcsec/s) |" % ("" if zs is None else " ζ |"), "|---|---|---|---|---|" + ("" if zs is None
+                                                                                               else "---|")]
+    for n, (t, j, sg, r3, p, w) in enumerate(zip(s["ts_s"], s["J"], s["residual_sigma_arcsec"],
+                                                 s["residual_3sigma_arcsec"], s["pointing_3sigma_arcsec"],
+                                                 s["stability_3sigma_arcsec_s"])):
+        out.append("| %g |%s %s | %s | %s | %s |" % (
+            t, "" if zs is None else " %g |" % zs[n], "—" if j is None else "%.4e" % j,
+            "—" if sg is None else "%.4f, %.4f" % tuple(sg),
             "—" if r3 is None else "%.4f" % r3, "—" if p is None else "%.1f, %.1f%s" % (
                 p, w, "" if p <= b["pointing_3sigma_arcsec"] and w <= b["stability_3sigma_arcsec_s"] else
                 " (over the budget)")))
-    out += ["", "optimum: body objective (J) t_s = %s s; terminal objective (residual 3σ) t_s = %s s, %s s among the "
-            "t_s whose body 3σ meets the budgets (%g arcsec, %g arcsec/s); thesis 33 s." % (
-                s["ts_best_body_s"], s["ts_best_terminal_s"], s["ts_best_terminal_in_budget_s"],
-                b["pointing_3sigma_arcsec"], b["stability_3sigma_arcsec_s"]), ""]
+    out += ["", "optimum: body objective (J) t_s = %s; terminal objective (residual 3σ) t_s = %s, %s among the "
+            "points whose body 3σ meets the budgets (%g arcsec, %g arcsec/s); thesis 33 s%s." % (
+                _at(s, "body"), _at(s, "terminal"), _at(s, "terminal_in_budget"),
+                b["pointing_3sigma_arcsec"], b["stability_3sigma_arcsec_s"], "" if zs is None else ", ζ = 1"), ""]
+    if zs is not None:
+        out += ["| ζ | best t_s (s) | residual 3σ (arcsec) | best t_s within the budgets (s) | its residual 3σ "
+                "(arcsec) |", "|---|---|---|---|---|"]
+        out += ["| %g | %s | %s | %s | %s |" % (r["zeta"], _num(r["ts_best_terminal_s"], "%g"),
+                                               _num(r["residual_3sigma_arcsec"], "%.4f"),
+                                               _num(r["ts_best_in_budget_s"], "%g"),
+                                               _num(r["residual_3sigma_in_budget_arcsec"], "%.4f"))
+                for r in s["by_zeta"]]
+        out.append("")
     return out
+
+
+def _num(v, fmt):
+    return "—" if v is None else fmt % v

@@ -122,8 +122,8 @@ def board_rows(budget):
     print("\nThe controller on the 32 KB board (fps hil --runtime qemu, %d s, twice, the thesis's 11x11 H table; the "
           "board's own figures from its summary.json: %s)\n" % (HIL_S, ips["what"]))
     print("| figure | thesis / goal | ours |\n|---|---|---|")
-    print("| RAM: GC heap (reserved) + stack high-water, of the board's %d KB | <= 31 KB (SAMD21G18: 32 KB, MicroPython's "
-          "variables 0.8 KB) | %.1f KB + %.1f KB = %.1f KB (%s) |" % (
+    print("| RAM: GC heap (reserved) + stack high-water, of the board's %d KB | <= 31 KB (SAMD21G18: 32 KB, "
+          "MicroPython's variables 0.8 KB) | %.1f KB + %.1f KB = %.1f KB (%s) |" % (
               t["ram_bytes"] // 1024, t["heap_bytes"] / 1024, t["stack_high_water_bytes"] / 1024, ram / 1024,
               "met" if ram <= 31 * 1024 else "missed"))
     k0, k1 = (r["instructions_per_step"]["kinds"] for r in runs)

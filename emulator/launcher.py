@@ -92,10 +92,11 @@ def start_board(cmd, start, connect, first_line=None, name="qemu-system-arm (a P
     ``first_line`` (text, a newline added) written to the board if given, and ``connect(path)`` called, which opens
     the caller's link on the pty (while this side still holds it open: QEMU drops what a board writes to a pty
     nobody holds). ``name``: the process as messages call it. ``console_log``: what the UART sends also written to
-a file, the process's ``console`` (its last bytes: a traceback at boot, ``FirmwareProcess.crashed``).
-``speaks_first_s``: a firmware that frames a packet unasked once it runs (the controller's HELLO) is waited for
-that long, and one that prints a traceback instead is reported at once (``_first_words``). Returns (the ``FirmwareProcess``, what ``connect``
-    returned). OSError saying what the board did instead."""
+    a file, the process's ``console`` (its last bytes: a traceback at boot, ``FirmwareProcess.crashed``).
+    ``speaks_first_s``: a firmware that frames a packet unasked once it runs (the controller's HELLO) is waited
+    for that long, and one that prints a traceback instead is reported at once (``_first_words``). Returns (the
+    ``FirmwareProcess``, what ``connect`` returned). OSError saying what the board did instead; PilUnavailable
+    without QEMU."""
     import re
     import select
     import time

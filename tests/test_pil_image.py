@@ -124,3 +124,21 @@ def test_a_board_whose_firmware_stops_at_boot_is_reported_with_its_traceback(tmp
         link.close()
         proc.stop()
     assert time.monotonic() - t0 < 10.0
+
+
+@pytest.mark.skipif(not os.path.exists(pil_build.ADCS_IMAGE) or shutil.which("qemu-system-arm") is None,
+                    reason="no ADCS PIL image (make pil)")
+def test_a_boards_console_shows_its_traceback_within_2_s():
+    """The ADCS board's UART is also logged (its CAN link reads the same pty): a firmware that stops is seen in
+    the log, which the session's HELLO loop reads, without waiting out its HELLO retries."""
+    import time
+    cmd = launcher.qemu_command(pil_build.ADCS_IMAGE, serial="pty", icount=True, machine=launcher.ADCS_MACHINE)
+    proc, _ = launcher.start_board(cmd, "raise ValueError('a bad configuration')", lambda path: None)
+    try:
+        t0 = time.monotonic()
+        while not proc.crashed() and time.monotonic() - t0 < 2.0:
+            time.sleep(0.05)
+        assert "ValueError: a bad configuration" in proc.crashed()
+    finally:
+        proc.kill()
+        proc.stop()

@@ -173,6 +173,7 @@ class AdcsSession:
         fly = world == "flight"
         if fly and d["magnetorquers"] is None:
             raise ValueError("magnetorquers = null: the flight world unloads the wheels with magnetorquers")
+        self.truth = truth
         self.world = w = scenario.pointing_world(self.K, self.seed, self.satb, truth, cache_dir, SPAN_MARGIN_S,
                                                  n_tags=self.K + 1, spacecraft=d, flight=fly,
                                                  wheel_speed_limit_rpm=wheel_speed_limit_rpm)
@@ -221,7 +222,8 @@ class AdcsSession:
         the spacecraft file's nominal figures, not the emulated (true) vehicle's, as ground/adcs/body_pointing.py's flight
         software: the wheels' axes, torque limit, friction model and read-out noise, the star tracker's, GNSS's
         and beacon's noise, the APKF's initial 1 sigma, the STKF's P0 and the laser axis; in the flight world the STKF's
-        dynamics (``scenario.FLIGHT_STKF``: J2 and its process noise)."""
+        dynamics (``scenario.FLIGHT_STKF``: J2 and its process noise) when the truth is hpop's, whose Earth has
+        J2; a two-body truth has none, and the STKF keeps the thesis's two-body model and qa there."""
         d = self.spacecraft
         w, u, g = d["wheels"], d["uncertainty"], d["gnss"]
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
@@ -237,7 +239,8 @@ class AdcsSession:
                 "laser_axis": scenario.laser_axis(d).tolist(),
                 "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0,
                 "isotp_timeout_ms": ISOTP_TIMEOUT_MS, "world": self.world_name, "flight": self.flight,
-                "magnetorquers": d["magnetorquers"], **(scenario.FLIGHT_STKF if self.world_name == "flight" else {}),
+                "magnetorquers": d["magnetorquers"], **(scenario.FLIGHT_STKF if self.world_name == "flight"
+                                                         and self.truth == "hpop" else {}),
                 **({} if self.zeta is None else {"pd_zeta": self.zeta})}
 
     def start(self):

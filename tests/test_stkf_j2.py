@@ -167,12 +167,16 @@ def test_lean_stkf_refuses_a_bad_model():
         stkf_lean.LeanStkf(x0, [1.0] * 12, 0.0, qa=-1.0)
 
 
-def test_flight_world_configures_j2_and_the_thesis_world_does_not():
-    """The session's configuration: the flight world's STKF flies J2 with its derived qa, the thesis world's
-    has neither key (the thesis's two-body model and qa)."""
+def test_flight_world_configures_j2_under_hpop_and_the_others_do_not(tmp_path):
+    """The session's configuration: the flight world's STKF flies J2 with its derived qa under the hpop truth;
+    the thesis world, and the flight world over a two-body truth (an Earth without J2), have neither key (the
+    thesis's two-body model and qa)."""
     from emulator.adcs_session import AdcsSession
     from emulator.spacecraft.scenario import FLIGHT_STKF
-    cfg = {w: AdcsSession(runtime="inproc", duration_s=2.0, world=w).config() for w in ("thesis", "flight")}
-    assert {k: cfg["flight"][k] for k in FLIGHT_STKF} == {"stkf_gravity": "j2", "stkf_qa": FLIGHT_STKF["stkf_qa"]}
-    assert estimation.stkf_model(cfg["flight"]) == {"gravity": "j2", "qa": FLIGHT_STKF["stkf_qa"]}
-    assert "stkf_gravity" not in cfg["thesis"] and "stkf_qa" not in cfg["thesis"]
+    cfg = {(w, t): AdcsSession(runtime="inproc", duration_s=2.0, world=w, truth=t, cache_dir=str(tmp_path)).config()
+           for w, t in (("thesis", "hpop"), ("flight", "hpop"), ("flight", "two-body"))}
+    j2 = cfg["flight", "hpop"]
+    assert {k: j2[k] for k in FLIGHT_STKF} == {"stkf_gravity": "j2", "stkf_qa": FLIGHT_STKF["stkf_qa"]}
+    assert estimation.stkf_model(j2) == {"gravity": "j2", "qa": FLIGHT_STKF["stkf_qa"]}
+    for key in (("thesis", "hpop"), ("flight", "two-body")):
+        assert "stkf_gravity" not in cfg[key] and "stkf_qa" not in cfg[key]

@@ -54,8 +54,8 @@ WORLD_RATE_HZ = 20                               # the orbit grid of pointing_wo
 POINTING_WHEEL_RPM = 1e5
 HOLD_S = 30.0      # rate damping while the APKF converges on the star tracker (as the 30 s hold of Sec. 4.7.1)
 LAG_S = 4.0        # the STKF smoother's lag: relay delay U(2, 3) s (Sec. 5.5.1) + up to 1 s to the next cycle
-# The flight world's STKF dynamics (the app's configuration keys; the thesis world keeps the thesis's two-body
-# model and qa): the J2 model with the white acceleration noise of the hpop truth's acceleration beyond it,
+# The flight world's STKF dynamics under the hpop truth (the app's configuration keys; the thesis world and a
+# two-body truth, whose Earth has no J2, keep the thesis's two-body model and qa): the J2 model with the white acceleration noise of the hpop truth's acceleration beyond it,
 # q = 2 sigma_a^2 tau per axis, the largest over the presets' orbits rounded up (docs/ADCS.md, "The flight
 # STKF's gravity model"; bench/bench_stkf_gravity.py measures it)
 FLIGHT_STKF = {"stkf_gravity": "j2", "stkf_qa": 5e-6}

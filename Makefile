@@ -20,7 +20,8 @@ export PYTHONDONTWRITEBYTECODE :=
 
 all: test
 
-$(STAMP): requirements.lock pyproject.toml emulator/spacecraft/_truth.c
+$(STAMP): requirements.lock pyproject.toml emulator/spacecraft/_truth.c firmware/adcs/native/adcsk.c \
+           firmware/adcs/native/adcsk_cpython.c
 	test -x $(PY) || $(PYTHON3) -m venv $(VENV)
 	$(PY) -m pip install -q --disable-pip-version-check --no-compile -r requirements.lock
 	$(PY) -m pip install -q --disable-pip-version-check --no-compile --no-deps -e .

@@ -479,8 +479,9 @@ class LeanApkf:
 
 
 if linalg.kernels is not None:          # the C kernels, when built (linalg's comment): the same results
-    def phi(Phi, F, dt, work, order=4):
+    def _phi_c(Phi, F, dt, work, order=4):
         """``phi`` above, in C (adcsk.phi9)."""
         linalg.kernels.phi9(Phi, F, dt, work.T1, order)
 
-    covariance_predict = linalg.kernels.covariance_predict
+    phi = linalg.either(_phi_c, phi)
+    covariance_predict = linalg.either(linalg.kernels.covariance_predict, covariance_predict)

@@ -353,15 +353,42 @@ def _solve_cols_loops(X, L, n, m):
 # The C kernels (firmware/adcs/native/adcsk.c, built by ``make natmod`` into firmware/adcs/adcsk.mpy): these
 # functions and the filters' hot loops, the same operations in the same order over the same buffers, so the
 # results are equal bit for bit (tests/test_adcs_natmod.py), and no float is boxed. Where the module is not
-# there (CPython, or MicroPython without it) the Python forms above run; so they do where it was built for
-# another arch or MicroPython version (the import raises ValueError: "incompatible .mpy"), the safe state.
+# there (MicroPython without it) the Python forms above run; so they do where it was built for another arch or
+# MicroPython version (the import raises ValueError: "incompatible .mpy"), the safe state. On CPython the same
+# C is the extension firmware.adcs._adcsk (native/adcsk_cpython.c, built on install when a C compiler is there;
+# tests/test_kernels_cpython.py), each kernel through ``either``.
+_cpython = False
 try:
     from firmware.adcs import adcsk as kernels
 except (ImportError, ValueError):
     try:
         import adcsk as kernels                   # a board's image: built in (tools/pil_build.py's ADCS board)
     except ImportError:
-        kernels = None
+        try:
+            from firmware.adcs import _adcsk as kernels
+            _cpython = True
+        except ImportError:
+            kernels = None
+
+
+def either(kernel, python):
+    """The C ``kernel``, or its Python form ``python`` for a call the kernel refuses with a TypeError before it
+    writes anything: an argument that is no float buffer, float or int (a test's ``zeros`` giving lists of
+    floats or of numpy.float32, whose arithmetic only the Python form does). Under MicroPython the kernel itself."""
+    if not _cpython:
+        return kernel
+
+    def run(*args):
+        try:
+            return kernel(*args)
+        except TypeError:
+            return python(*args)
+    run.python = python
+    return run
+
+
 if kernels is not None:
-    matmul, matmul_bt, symmetrize = kernels.matmul, kernels.matmul_bt, kernels.symmetrize
-    cholesky, chol_solve_rows, joseph_select = kernels.cholesky, kernels.chol_solve_rows, kernels.joseph_select
+    matmul, matmul_bt = either(kernels.matmul, matmul), either(kernels.matmul_bt, matmul_bt)
+    symmetrize, cholesky = either(kernels.symmetrize, symmetrize), either(kernels.cholesky, cholesky)
+    chol_solve_rows = either(kernels.chol_solve_rows, chol_solve_rows)
+    joseph_select = either(kernels.joseph_select, joseph_select)

@@ -342,5 +342,6 @@ def _add_gain(x, n, Kt, r, m):
 
 _K = linalg.kernels          # the C kernels, when built (linalg's comment): the same results, bit for bit
 if _K is not None:
-    rows_mul_mirror, sandwich, _ikh_rows, _ikh_sandwich = _K.rows_mul_mirror, _K.sandwich, _K.ikh_rows, \
-        _K.ikh_sandwich
+    rows_mul_mirror = linalg.either(_K.rows_mul_mirror, rows_mul_mirror)
+    sandwich = linalg.either(_K.sandwich, sandwich)
+    _ikh_rows, _ikh_sandwich = linalg.either(_K.ikh_rows, _ikh_rows), linalg.either(_K.ikh_sandwich, _ikh_sandwich)

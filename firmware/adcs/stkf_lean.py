@@ -351,9 +351,11 @@ class LeanStkf:
         Qa = w.Q
         q = (Qa[0], Qa[3], Qa[21])                        # Qa per axis [[q3, q2], [q2, q1]]
         if _K is not None:                                # ``between`` in C
-            _K.between(w.hp, w.S, P, ld, ia, ic, w.A, w.B, w.T, q, m)
-        else:
-            between(w.hp, w.S, P, ld, ia, ic, w.A, w.B, w.T, q, m, w.ar, w.br, w.l6)
+            try:
+                return _K.between(w.hp, w.S, P, ld, ia, ic, w.A, w.B, w.T, q, m)
+            except TypeError:                             # no float buffers (linalg.either): the Python form
+                pass
+        between(w.hp, w.S, P, ld, ia, ic, w.A, w.B, w.T, q, m, w.ar, w.br, w.l6)
 
     @micropython.native
     def _update_rows(self, z, R, m):
@@ -364,7 +366,10 @@ class LeanStkf:
         w, ld, P, X = self.work, self.ld, self.P, self.X
         S, L, d, r = w.S, w.L, w.d, w.r
         if _K is not None:                                # this method, in C
-            return _K.update_rows(P, ld, X, w.hp, S, R, L, d, r, z, m)
+            try:
+                return _K.update_rows(P, ld, X, w.hp, S, R, L, d, r, z, m)
+            except TypeError:                             # no float buffers (linalg.either): the Python form
+                pass
         for i in range(6):                                # S0 + R, lower triangle: all cholesky reads
             for j in range(i * 6, i * 7 + 1):
                 S[j] = S[j] + R[j]

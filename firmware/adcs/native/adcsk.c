@@ -8,11 +8,12 @@
 // multiply-add). The Python forms stay the reference and run wherever the module is not built (CPython, or a
 // port without native modules). Only the arithmetic moves: no float is boxed, so a call allocates nothing.
 
-#ifndef ADCSK_BUILTIN
+#if !defined(ADCSK_BUILTIN) && !defined(ADCSK_CPYTHON)
 #include "py/dynruntime.h"
 #endif
 // ADCSK_BUILTIN: compiled into a firmware image as a built-in module ``adcsk`` (a board's, ground/pil_build.py),
-// with its own runtime.h and libm-free sqrt (the FPU's instruction, -fno-math-errno)
+// with its own runtime.h and libm-free sqrt (the FPU's instruction, -fno-math-errno); ADCSK_CPYTHON: into the
+// CPython extension (adcsk_cpython.c, which gives the MicroPython calls used here over CPython's)
 
 #if defined(__arm__) && !defined(ADCSK_BUILTIN)
 // newlib's sqrt wrapper pulls in data a native module cannot hold; its IEEE core is the same correctly
@@ -674,7 +675,7 @@ const mp_obj_module_t adcsk_module = {
 };
 MP_REGISTER_MODULE(MP_QSTR_adcsk, adcsk_module);
 
-#else
+#elif !defined(ADCSK_CPYTHON)
 
 #define ADCSK_STORE(q, o) mp_store_global(q, MP_OBJ_FROM_PTR(&o));
 mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *args) {

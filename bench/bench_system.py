@@ -13,6 +13,11 @@ Then the attitude loop tuned for the terminal (Sec. 8.3; ``terminal_tuning``): t
 ground, thesis world, the same seed) at the thesis's 33 s and at each optimum, the residual at the fine loop's
 output measured beside the sweep's prediction. ``SYSTEM_BENCH_REDUCED=1`` shortens that part (10:150:10, 1000 s
 per t_s, 120 s plays) and says so.
+
+Then the PD's damping ratio for the terminal (``zeta_tuning``): the same sweep over the (t_s, zeta) grid
+(``--ts 20:140:20 --zeta 0.7,1,1.4 --duration 1000 --truth two-body``, short by design), each zeta's least residual
+and its t_s (overall and within the body budgets) against zeta = 1's (the thesis's, Eq. 6.6), and the residual
+over the body stability 3σ (the fine loop's effective lag, ms: the residual is the body rate times it).
 """
 
 import contextlib
@@ -39,6 +44,7 @@ TUNING_REDUCED = os.environ.get("SYSTEM_BENCH_REDUCED") == "1"
 TUNING_TS, TUNING_SWEEP_S, TUNING_PLAY_S = ("10:150:10", 1000.0, 120.0) if TUNING_REDUCED else ("10:150:5", 4000.0,
                                                                                                600.0)
 TUNING_TRUTH = "hpop"
+ZETA_TS, ZETA_VALUES, ZETA_SWEEP_S, ZETA_TRUTH = "20:140:20", "0.7,1,1.4", 1000.0, "two-body"
 
 
 def main(duration_s=DURATION_S):
@@ -48,6 +54,7 @@ def main(duration_s=DURATION_S):
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     terminal_tuning()
+    zeta_tuning()
 
 
 def _cpu():
@@ -191,14 +198,52 @@ def terminal_tuning():
         raise RuntimeError("fps system (terminal tuning): " + "; ".join(failed))
 
 
-def _tuning_sweep(tmp, ts, name):
-    """``fps adcs sweep --objective terminal`` over ``ts`` (cached calibration and truth in ``tmp``): its
-    summary; RuntimeError if it failed."""
+def zeta_tuning():
+    """The terminal objective over the (t_s, zeta) grid (``ZETA_*``): per zeta its least residual 3σ and t_s, the
+    same within the body budgets, each against zeta = 1's, and residual / body stability 3σ (ms)."""
+    tmp = tempfile.mkdtemp(prefix="bench_zeta_")
+    try:
+        s = _tuning_sweep(tmp, ZETA_TS, "zeta", ["--zeta", ZETA_VALUES], ZETA_SWEEP_S, ZETA_TRUTH)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    print("\n### The PD's damping ratio ζ for the terminal (Eq. 6.6; the thesis's ζ = 1)\n")
+    print("fps adcs sweep --objective terminal --ts %s --zeta %s --duration %g --truth %s: SatB's GNSS, seed 0, the "
+          "fine loop's model |S|; %.0f s wall.\n" % (ZETA_TS, ZETA_VALUES, ZETA_SWEEP_S, ZETA_TRUTH, s["wall_s"]))
+    print("| ζ | t_s of the least residual (s) | residual 3σ (″) | against ζ = 1 | within the body budgets: t_s (s), "
+          "residual 3σ (″) | against ζ = 1 | body stability 3σ there (″/s) | residual / stability (ms) |")
+    print("|---|---|---|---|---|---|---|---|")
+    ref = next(r for r in s["by_zeta"] if r["zeta"] == 1.0)
+    for r in s["by_zeta"]:
+        k = next((i for i, (t, z) in enumerate(zip(s["ts_s"], s["zeta"]))
+                  if t == r["ts_best_terminal_s"] and z == r["zeta"]), None)
+        w = None if k is None else s["stability_3sigma_arcsec_s"][k]
+        print("| %g | %s | %s | %s | %s, %s | %s | %s | %s |" % (
+            r["zeta"], _g(r["ts_best_terminal_s"]), _g(r["residual_3sigma_arcsec"], "%.4f"),
+            _ratio(r["residual_3sigma_arcsec"], ref["residual_3sigma_arcsec"]), _g(r["ts_best_in_budget_s"]),
+            _g(r["residual_3sigma_in_budget_arcsec"], "%.4f"),
+            _ratio(r["residual_3sigma_in_budget_arcsec"], ref["residual_3sigma_in_budget_arcsec"]), _g(w, "%.1f"),
+            "—" if not w else "%.2f" % (1000 * r["residual_3sigma_arcsec"] / w)))
+    print("\nBest over the grid: (t_s, ζ) = (%s s, %s); within the body budgets (%s s, %s).\n"
+          % (s["ts_best_terminal_s"], s["zeta_best_terminal"], s["ts_best_terminal_in_budget_s"],
+             s["zeta_best_terminal_in_budget"]))
+
+
+def _g(v, fmt="%g"):
+    return "—" if v is None else fmt % v
+
+
+def _ratio(v, ref):
+    return "—" if v is None or not ref else "%.3f" % (v / ref)
+
+
+def _tuning_sweep(tmp, ts, name, extra=(), duration_s=TUNING_SWEEP_S, truth=TUNING_TRUTH):
+    """``fps adcs sweep --objective terminal`` over ``ts`` (cached calibration and truth in ``tmp``; ``extra``
+    options): its summary; RuntimeError if it failed."""
     out = os.path.join(tmp, name)
     with contextlib.redirect_stdout(io.StringIO()):
-        rc = cli.main(["adcs", "sweep", "--objective", "terminal", "--ts", ts, "--duration", "%g" % TUNING_SWEEP_S,
-                       "--workers", "2", "--truth", TUNING_TRUTH, "--cache-dir", os.path.join(tmp, "cache"), "--quiet",
-                       "--no-plots", "-o", out])
+        rc = cli.main(["adcs", "sweep", "--objective", "terminal", "--ts", ts, "--duration", "%g" % duration_s,
+                       "--workers", "2", "--truth", truth, "--cache-dir", os.path.join(tmp, "cache"), "--quiet",
+                       "--no-plots", "-o", out] + list(extra))
     if rc != 0:
         raise RuntimeError("fps adcs sweep --objective terminal --ts %s: exit %d" % (ts, rc))
     with open(os.path.join(out, "summary.json")) as f:

@@ -24,14 +24,13 @@ except ImportError:
 need_extension = pytest.mark.skipif(_adcsk is None, reason="firmware.adcs._adcsk is not built (no C compiler at "
                                                             "install)")
 SCRIPT = os.path.join(ROOT, "tests", "mp", "adcsk_digests.py")
-WITHOUT = "import sys\nsys.modules['firmware.adcs._adcsk'] = None\n"     # the import fails: the Python forms
 
 
-def digests(pre, *args):
-    code = pre + "import runpy, sys\nsys.argv = sys.argv[1:]\nrunpy.run_path(sys.argv[0], " \
-        "run_name='__main__')\n"
+def digests(form, *args):
+    """The script's digests under CPython with the ADCS kernels' ``form`` (FPS_ADCS_KERNELS)."""
+    code = "import runpy, sys\nsys.argv = sys.argv[1:]\nrunpy.run_path(sys.argv[0], run_name='__main__')\n"
     p = subprocess.run([sys.executable, "-c", code, SCRIPT] + [str(a) for a in args], cwd=ROOT,
-                       capture_output=True, text=True, timeout=120)
+                       env=dict(os.environ, FPS_ADCS_KERNELS=form), capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     return json.loads(p.stdout.strip().splitlines()[-1])
 
@@ -45,8 +44,8 @@ def test_the_c_kernels_equal_the_python_forms_bit_for_bit(tmp_path):
         cfg, rec = s.config(), s.recorded
     (tmp_path / "cfg.json").write_text(json.dumps(cfg))
     (tmp_path / "rec.json").write_text(json.dumps(rec))
-    c = digests("", tmp_path / "cfg.json", tmp_path / "rec.json")
-    py = digests(WITHOUT, tmp_path / "cfg.json", tmp_path / "rec.json")
+    c = digests("c", tmp_path / "cfg.json", tmp_path / "rec.json")
+    py = digests("python", tmp_path / "cfg.json", tmp_path / "rec.json")
     assert c.pop("kernels") is True and py.pop("kernels") is False
     assert c["session cycles"] == 60 and c["satb fused"] > 40     # the smoother's update ran
     assert len(c) > 25

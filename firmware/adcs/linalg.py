@@ -356,7 +356,8 @@ def _solve_cols_loops(X, L, n, m):
 # there (MicroPython without it) the Python forms above run; so they do where it was built for another arch or
 # MicroPython version (the import raises ValueError: "incompatible .mpy"), the safe state. On CPython the same
 # C is the extension firmware.adcs._adcsk (native/adcsk_cpython.c, built on install when a C compiler is there;
-# tests/test_kernels_cpython.py), each kernel through ``either``.
+# tests/test_kernels_cpython.py), each kernel through ``either``; ``FPS_ADCS_KERNELS=python`` in the environment
+# leaves the Python forms.
 _cpython = False
 try:
     from firmware.adcs import adcsk as kernels
@@ -369,6 +370,10 @@ except (ImportError, ValueError):
             _cpython = True
         except ImportError:
             kernels = None
+if _cpython:
+    import os
+    if os.environ.get("FPS_ADCS_KERNELS", "").lower() == "python":     # the Python forms asked for (a bench)
+        kernels, _cpython = None, False
 
 
 def either(kernel, python):

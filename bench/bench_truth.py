@@ -1,12 +1,15 @@
 """The truth's speed: microseconds per RK4 step of ``Spacecraft.step`` in its Python form and its C kernel
 (``emulator.spacecraft.kernel``) beside Basilisk's 13.5-19 us per step; where one campaign vehicle's CPU time goes
-(3 orbits, the kernel); and the wall time of a 3-orbit ``fps adcs campaign`` on this machine's cores beside the goal
-of 100 vehicles in 15 min, extrapolated from a measured campaign of ``CAMPAIGN_RUNS`` vehicles
-(``BENCH_TRUTH_RUNS``), with each form: from its wall time, and from its processes' CPU time over the cores (what
-an idle machine would take; a shared machine's wall time is read against its load)."""
+(3 orbits, the truth's kernel) with the ADCS app's kernels in their Python forms (``FPS_ADCS_KERNELS=python``, the
+before) and in C (firmware.adcs._adcsk, the after), with the 100 vehicles that CPU makes over this machine's cores
+beside the goal; and the wall time of a 3-orbit ``fps adcs campaign`` on the cores beside the goal of 100 vehicles
+in 15 min, extrapolated from a measured campaign of ``CAMPAIGN_RUNS`` vehicles (``BENCH_TRUTH_RUNS``) with each
+ADCS form: from its wall time, and from its processes' CPU time over the cores (what an idle machine would take; a
+shared machine's wall time is read against its load)."""
 
 import contextlib
 import functools
+import io
 import json
 import os
 import resource
@@ -65,10 +68,11 @@ def _children_cpu():
     return r.ru_utime + r.ru_stime
 
 
-def campaign_wall(runs, form):
-    """Wall time and CPU time (s) of ``fps adcs campaign --runs runs --orbits 3`` on all cores with the truth's
-    ``form``, and the form its first run recorded."""
-    env = dict(os.environ, FPS_TRUTH=form)
+def campaign_wall(runs, adcs):
+    """Wall time and CPU time (s) of ``fps adcs campaign --runs runs --orbits 3`` on all cores with the ADCS kernels'
+    form ``adcs`` ("python" or "c", ``FPS_ADCS_KERNELS``) and the truth's kernel where built, and the truth's form
+    its first run recorded."""
+    env = dict(os.environ, FPS_ADCS_KERNELS=adcs)
     with tempfile.TemporaryDirectory() as d:
         t0, c0 = time.perf_counter(), _children_cpu()
         p = subprocess.run([sys.executable, "-m", "ground.cli", "adcs", "campaign", "--runs", str(runs), "--orbits",
@@ -106,8 +110,9 @@ def _timers(parts):
 
 
 def vehicle_split(orbits=3.0):
-    """One campaign vehicle (``population.run_vehicle``, seed 0, two-body truth) in process: its CPU time (s) and
-    the parts' [CPU s, calls] (nested parts are inside their parents)."""
+    """One campaign vehicle (``population.run_vehicle``, seed 0, two-body truth) in process: its CPU time (s), the
+    parts' [CPU s, calls] (nested parts are inside their parents) and its history.npz's CPU (s) and bytes with
+    ``body_pointing.save_history`` (zlib level 1) and with np.savez_compressed (zlib's default level 6)."""
     from emulator import adcs_bus, adcs_session
     from emulator.spacecraft import dynamics, environment
     from ground.adcs import app_host, body_pointing, bps_cli, flight_world, population
@@ -124,12 +129,71 @@ def vehicle_split(orbits=3.0):
              (flight_world, "_result", "the result: statistics, budget, NEES"),
              (body_pointing, "save_history", "history.npz"))
     d, _ = load_spacecraft(None, partner=True, flight=True)
-    with tempfile.TemporaryDirectory() as out, _timers(parts) as spent:
-        c0 = time.process_time()
-        population.run_vehicle(0, os.path.join(out, "run_0000"), d, vehicle="drawn", orbits=orbits,
-                               truth="two-body", cache_dir=os.path.join(out, "cache"))
-        total = time.process_time() - c0
-    return total, [(label, spent[label]) for _, _, label in parts]
+    with tempfile.TemporaryDirectory() as out:
+        with _timers(parts) as spent:
+            c0 = time.process_time()
+            population.run_vehicle(0, os.path.join(out, "run_0000"), d, vehicle="drawn", orbits=orbits,
+                                   truth="two-body", cache_dir=os.path.join(out, "cache"))
+            total = time.process_time() - c0
+        npz = _npz_levels(body_pointing, os.path.join(out, "run_0000", "history.npz"))
+    return total, [(label, spent[label]) for _, _, label in parts], npz
+
+
+def _npz_levels(body_pointing, path):
+    """{"level 1": (CPU s, bytes), "level 6": ...}: the history at ``path`` written again both ways."""
+    with np.load(path) as z:
+        hist = {k: z[k] for k in z.files}
+    out = {}
+    with tempfile.TemporaryDirectory() as d:
+        t = time.process_time()
+        body_pointing.save_history(os.path.join(d, "h.npz"), hist)
+        out["level 1"] = (time.process_time() - t, os.path.getsize(os.path.join(d, "h.npz")))
+    buf = io.BytesIO()
+    t = time.process_time()
+    np.savez_compressed(buf, **hist)
+    out["level 6"] = (time.process_time() - t, len(buf.getvalue()))
+    return out
+
+
+def vehicle_split_form(adcs):
+    """``vehicle_split`` in a process of its own with the ADCS kernels' form ``adcs`` ("python" or "c")."""
+    p = subprocess.run([sys.executable, "-c", "import json\nfrom bench.bench_truth import vehicle_split\n"
+                        "print(json.dumps(vehicle_split()))"], env=dict(os.environ, FPS_ADCS_KERNELS=adcs),
+                       cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))), capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError("vehicle_split (%s) exit %d: %s" % (adcs, p.returncode, p.stderr[-400:]))
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def print_split(cores):
+    """The per-part table, before (the ADCS kernels' Python forms) and after (C), and the 100 vehicles that CPU
+    makes over ``cores`` beside the goal."""
+    from firmware.adcs import linalg
+    forms = ("python", "c") if linalg.kernels is not None else ("python",)
+    runs = {f: vehicle_split_form(f) for f in forms}
+    after = forms[-1]
+    print("\n| one campaign vehicle, 3 orbits, the truth's kernel: part | CPU (s), ADCS kernels in Python | CPU (s), "
+          "in C | calls | per call in Python (us) | in C (us) |")
+    print("|---|---|---|---|---|---|")
+    print("| all | %.2f | %s | 1 | | |" % (runs["python"][0], "%.2f" % runs["c"][0] if "c" in runs else "not built"))
+    for i, (label, (cpu, n)) in enumerate(runs["python"][1]):
+        ca = runs[after][1][i][1][0]
+        print("| %s | %.2f | %.2f | %d | %.0f | %.0f |" % (label, cpu, ca, n, 1e6 * cpu / max(n, 1),
+                                                           1e6 * ca / max(n, 1)))
+    npz = runs[after][2]
+    print("\nhistory.npz written again: zlib level 1 (save_history) %.2f s, %d bytes; level 6 (np.savez_compressed) "
+          "%.2f s, %d bytes." % (npz["level 1"][0], npz["level 1"][1], npz["level 6"][0], npz["level 6"][1]))
+    print("\n| %d vehicles from one vehicle's CPU / %d cores | CPU a vehicle (s) | min | goal (min) |"
+          % (GOAL_RUNS, cores))
+    print("|---|---|---|---|")
+    for f in forms:
+        est = runs[f][0] * GOAL_RUNS / cores / 60.0
+        print("| ADCS kernels in %s | %.1f | %.1f | %g%s |" % ("C" if f == "c" else "Python", runs[f][0], est,
+                                                             GOAL_MIN, verdict(est, GOAL_MIN)))
+    truth = next(cpu for label, (cpu, _) in runs[after][1] if "RK4" in label)
+    print("\nWith the truth at no cost at all, %d such vehicles would take %.1f min of CPU over %d cores (the goal: "
+          "%g min)." % (GOAL_RUNS, (runs[after][0] - truth) * GOAL_RUNS / cores / 60.0, cores, GOAL_MIN))
+    return forms
 
 
 def main():
@@ -144,28 +208,20 @@ def main():
             name, us["python"], "%.1f" % k if k else "not built",
             "%.0fx" % (us["python"] / k) if k else "-", BASILISK_US[0], BASILISK_US[1],
             verdict(k, BASILISK_US[0]) if k else " (missed: no kernel)"))
-    total, split = vehicle_split()
-    print("\n| one campaign vehicle, 3 orbits, C kernel: part | CPU (s) | share | calls | per call (us) |")
-    print("|---|---|---|---|---|")
-    print("| all | %.2f | 100 %% | 1 | |" % total)
-    for label, (cpu, n) in split:
-        print("| %s | %.2f | %.0f %% | %d | %.0f |" % (label, cpu, 100 * cpu / total, n, 1e6 * cpu / max(n, 1)))
     cores = os.cpu_count() or 1
-    truth = next(cpu for label, (cpu, _) in split if "RK4" in label)
-    print("\nWith the truth at no cost at all, %d such vehicles would take %.1f min of CPU over %d cores (the goal: "
-          "%g min)." % (GOAL_RUNS, (total - truth) * GOAL_RUNS / cores / 60.0, cores, GOAL_MIN))
-    print("\n| %d-orbit campaign, %d cores | measured: %d vehicles, wall (s) | CPU (s) | %d vehicles from the wall "
-          "(min) | %d vehicles from the CPU / %d cores (min) | goal (min) |"
+    adcs_forms = print_split(cores)
+    print("\n| %d-orbit campaign, %d cores, the truth's kernel | measured: %d vehicles, wall (s) | CPU (s) | %d vehicles "
+          "from the wall (min) | %d vehicles from the CPU / %d cores (min) | goal (min) |"
           % (3, cores, CAMPAIGN_RUNS, GOAL_RUNS, GOAL_RUNS, cores))
     print("|---|---|---|---|---|---|")
-    for f in forms:
+    for f in adcs_forms:
         wall, cpu, ran = campaign_wall(CAMPAIGN_RUNS, f)
         est, est_cpu = wall * GOAL_RUNS / CAMPAIGN_RUNS / 60.0, cpu * GOAL_RUNS / CAMPAIGN_RUNS / cores / 60.0
-        print("| truth: %s | %.0f | %.0f | %.1f | %.1f | %g%s |" % (ran or f, wall, cpu, est, est_cpu, GOAL_MIN,
-                                                               verdict(min(est, est_cpu), GOAL_MIN)))
+        print("| ADCS kernels in %s (truth: %s) | %.0f | %.0f | %.1f | %.1f | %g%s |" % (
+            "C" if f == "c" else "Python", ran, wall, cpu, est, est_cpu, GOAL_MIN, verdict(min(est, est_cpu),
+                                                                                            GOAL_MIN)))
     print("\nExtrapolated (not measured): the measured campaign scaled by %d / %d vehicles (independent runs spread "
           "over the cores); the CPU column assumes the cores are the campaign's alone." % (GOAL_RUNS, CAMPAIGN_RUNS))
-
 
 if __name__ == "__main__":
     from bench.run import standalone

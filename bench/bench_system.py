@@ -209,20 +209,20 @@ def zeta_tuning():
     print("\n### The PD's damping ratio ζ for the terminal (Eq. 6.6; the thesis's ζ = 1)\n")
     print("fps adcs sweep --objective terminal --ts %s --zeta %s --duration %g --truth %s: SatB's GNSS, seed 0, the "
           "fine loop's model |S|; %.0f s wall.\n" % (ZETA_TS, ZETA_VALUES, ZETA_SWEEP_S, ZETA_TRUTH, s["wall_s"]))
-    print("| ζ | t_s of the least residual (s) | residual 3σ (″) | against ζ = 1 | within the body budgets: t_s (s), "
-          "residual 3σ (″) | against ζ = 1 | body stability 3σ there (″/s) | residual / stability (ms) |")
+    print("| ζ | t_s of the least residual (s) | residual 3σ (″) | against ζ = 1 | body stability 3σ there (″/s) | "
+          "residual / stability (ms) | within the body budgets: t_s (s), residual 3σ (″) | against ζ = 1 |")
     print("|---|---|---|---|---|---|---|---|")
     ref = next(r for r in s["by_zeta"] if r["zeta"] == 1.0)
     for r in s["by_zeta"]:
         k = next((i for i, (t, z) in enumerate(zip(s["ts_s"], s["zeta"]))
                   if t == r["ts_best_terminal_s"] and z == r["zeta"]), None)
         w = None if k is None else s["stability_3sigma_arcsec_s"][k]
-        print("| %g | %s | %s | %s | %s, %s | %s | %s | %s |" % (
+        print("| %g | %s | %s | %s | %s | %s | %s, %s | %s |" % (
             r["zeta"], _g(r["ts_best_terminal_s"]), _g(r["residual_3sigma_arcsec"], "%.4f"),
-            _ratio(r["residual_3sigma_arcsec"], ref["residual_3sigma_arcsec"]), _g(r["ts_best_in_budget_s"]),
+            _ratio(r["residual_3sigma_arcsec"], ref["residual_3sigma_arcsec"]), _g(w, "%.1f"),
+            "—" if not w else "%.2f" % (1000 * r["residual_3sigma_arcsec"] / w), _g(r["ts_best_in_budget_s"]),
             _g(r["residual_3sigma_in_budget_arcsec"], "%.4f"),
-            _ratio(r["residual_3sigma_in_budget_arcsec"], ref["residual_3sigma_in_budget_arcsec"]), _g(w, "%.1f"),
-            "—" if not w else "%.2f" % (1000 * r["residual_3sigma_arcsec"] / w)))
+            _ratio(r["residual_3sigma_in_budget_arcsec"], ref["residual_3sigma_in_budget_arcsec"])))
     print("\nBest over the grid: (t_s, ζ) = (%s s, %s); within the body budgets (%s s, %s).\n"
           % (s["ts_best_terminal_s"], s["zeta_best_terminal"], s["ts_best_terminal_in_budget_s"],
              s["zeta_best_terminal_in_budget"]))

@@ -41,10 +41,21 @@ def _load():
     return os.getloadavg()[0]
 
 
+def wait_for_load(target=6.0, limit_s=120.0):
+    """Wait until the 1-minute load average reaches ``target`` (it lags the busy loops by about a minute), at
+    most ``limit_s``; returns the load reached."""
+    import time
+    t_end = time.monotonic() + limit_s
+    while _load() < target and time.monotonic() < t_end:
+        time.sleep(2.0)
+    return _load()
+
+
 def main(runs=RUNS):
     tmp = tempfile.mkdtemp(prefix="bench_under_load_")
     try:
         with busy_loops():
+            wait_for_load()
             _main(tmp, runs)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

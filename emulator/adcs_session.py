@@ -456,7 +456,7 @@ class AdcsSession:
                                     "beacon": st.get("miss_beacon"), "st_invalid": st.get("n_st_invalid"),
                                     "beacon_invalid": st.get("n_beacon_invalid"), "gnss_b_fused": st.get("n_gnss_b"),
                                     "stkf_refused": st.get("n_refused"),
-                                    "rx_drops": st.get("n_rx_drop")},
+                                    "rx_drops": st.get("n_rx_drop"), "rx_damaged": st.get("n_rx_damaged")},
                 "wheels_failed": st.get("wheels_failed"), "last_mode": st.get("adcs_mode_name"),
                 "link": self.link.counters() if self.link is not None else {},
                 "link_faults": self.link_faults.as_dict() if self.link_faults is not None else None,

@@ -270,6 +270,8 @@ PACKETS = (
         ("cycle_us", "I", "us", 1, None, None, 0, "time the cycle took on this computer"),
         ("magnetic_failed", "B", "", 1, 0, 15, 0, "bits 0-2: rod i out of the unloading (its driver silent in 3 "
          "MTQ_TLM in a row); bit 3: the magnetometer silent 3 cycles in a row (the unloading on the field model)"),
+        ("n_rx_damaged", "H", "", 1, None, None, 0, "of n_rx_drop, those that arrived damaged (the rest came too "
+         "late or were cut off: slowness, not the wire; wraps)"),
     )),
     (0x47, "ADCS_MISSING", "ADCS", "SPACECRAFT",
      "lockstep: the open cycle's burst lacks these packets, send them again (answers a resent ADCS_TICK)", (

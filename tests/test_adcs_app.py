@@ -101,6 +101,23 @@ def test_rx_drops_count_each_can_reason_once():
     assert _drops(Port()) == len(set(canmap.DROP_REASONS))
 
 
+def test_rx_damaged_counts_what_arrived_damaged_not_what_came_late():
+    """ADCS_STATUS.n_rx_damaged: of the drops, those that arrived damaged; an ISO-TP reception that timed out
+    (a slow host) is a drop, not damage."""
+    from firmware.adcs.lockstep import _damaged
+
+    class Port:
+        def __init__(self, c):
+            self.c = c
+
+        def counters(self):
+            return self.c
+    late = Port({"isotp_ConsecutiveFrameTimeoutError": 3})
+    bad = Port({"bad_crc": 2, "isotp_ConsecutiveFrameTimeoutError": 3})
+    assert _drops(late) == 3 and _damaged(late) == 0
+    assert _drops(bad) == 5 and _damaged(bad) == 2
+
+
 @pytest.mark.parametrize("momentum", ["torque", "filtered"])
 def test_the_apkf_input_is_a_checked_option(momentum):
     """apkf_momentum chooses the lean APKF's momentum input (filtered by default); the commanded torques and

@@ -97,9 +97,9 @@ class App:
         """Forget the readings received (the spacecraft gave up a cycle whose burst was incomplete)."""
         self.rd.clear()
 
-    def status_payload(self, tick, cycle_us=0, n_rx_drop=0):
+    def status_payload(self, tick, cycle_us=0, n_rx_drop=0, n_rx_damaged=0):
         """ADCS_STATUS of cycle ``tick`` (``telemetry.status_payload``)."""
-        return telemetry.status_payload(self, tick, cycle_us, n_rx_drop)
+        return telemetry.status_payload(self, tick, cycle_us, n_rx_drop, n_rx_damaged)
 
     def commands(self, u, tick=0):
         """[(dst, RW_CMD payload)] of cycle ``tick`` (``telemetry.commands``)."""

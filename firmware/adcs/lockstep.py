@@ -21,6 +21,12 @@ def _drops(port):
     return canmap.rx_drops(port.counters())
 
 
+def _damaged(port):
+    """Of those, the ones that arrived damaged (``protocol.can.rx_damaged``: never a timeout or a cut-off
+    transfer, which a slow host causes)."""
+    return canmap.rx_damaged(port.counters())
+
+
 _B_GNSS_A = 1 << STALE_GNSS_A
 _B_GNSS_B = 1 << STALE_GNSS_B
 
@@ -185,7 +191,7 @@ def serve(app, port, ticks_us=None, poll_ms=1000, heap=None):
             heap(tick, mem.mem_alloc() - m0)
             mem.enable()
         dt = ticks_diff(ticks_us(), t0) if ticks_us else 0
-        return cycle_replies(app, cmds, tick, ls.host, dt, _drops(port))
+        return cycle_replies(app, cmds, tick, ls.host, dt, _drops(port), _damaged(port))
 
     ls = Lockstep(app, step)
     while not port.closed:

@@ -27,9 +27,10 @@ def mtq_payload(m_cmd, tick):
     return struct.pack(FMT_MTQ_CMD, m_cmd[0], m_cmd[1], m_cmd[2], 1, tick & 0xFF)
 
 
-def status_payload(app, tick, cycle_us=0, n_rx_drop=0):
+def status_payload(app, tick, cycle_us=0, n_rx_drop=0, n_rx_damaged=0):
     """ADCS_STATUS of cycle ``tick`` from the app's components: the APKF's attitude and rate (the star tracker's
-    fix and zero before it starts), the STKF's rA and rB, the attitude's 1 sigma, the counters (mod 2^16)."""
+    fix and zero before it starts), the STKF's rA and rB, the attitude's 1 sigma, the counters (mod 2^16): the
+    link's drops and, of those, the damaged ones."""
     est, hl = app.est, app.health
     a = est.apkf
     x = a.x if a is not None else app.rd.qst
@@ -43,14 +44,15 @@ def status_payload(app, tick, cycle_us=0, n_rx_drop=0):
                        hl.n_st_invalid & 0xFFFF, hl.n_beacon_invalid & 0xFFFF, hl.n_gnss_b & 0xFFFF,
                        hl.n_refused & 0xFFFF,
                        n_rx_drop & 0xFFFF, age, x[0], x[1], x[2], x[3], w[0], w[1], w[2],
-                       X[0], X[1], X[2], X[6], X[7], X[8], est.sigma_att(), cycle_us & 0xFFFFFFFF, hl.magnetic)
+                       X[0], X[1], X[2], X[6], X[7], X[8], est.sigma_att(), cycle_us & 0xFFFFFFFF, hl.magnetic,
+                       n_rx_damaged & 0xFFFF)
 
 
-def cycle_replies(app, cmds, tick, host, cycle_us=0, n_rx_drop=0):
+def cycle_replies(app, cmds, tick, host, cycle_us=0, n_rx_drop=0, n_rx_damaged=0):
     """A cycle's replies [(pid, dst, payload)]: the RW_CMDs ``cmds`` (``commands``), in the flight world the
     magnetorquers' MTQ_CMD, then the ADCS_STATUS to ``host`` that closes the cycle."""
     out = [(P_RW_CMD, dst_w, pl) for dst_w, pl in cmds]
     if app.fly:
         out.append((P_MTQ_CMD, NODE_MTQ, mtq_payload(app.act.m_cmd, tick)))
-    out.append((P_ADCS_STATUS, host, status_payload(app, tick, cycle_us, n_rx_drop)))
+    out.append((P_ADCS_STATUS, host, status_payload(app, tick, cycle_us, n_rx_drop, n_rx_damaged)))
     return out

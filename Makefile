@@ -82,14 +82,14 @@ consts: $(STAMP)
 	$(PY) -m tools.gen_consts
 
 distfile: $(STAMP)
-	$(VENV)/bin/fps distfile generate --source bps --duration 600 --seed 1 --bps-cache $(OUT)/bps_cache \
+	$(VENV)/bin/fps distfile generate --source bps --duration 600 --seed 1 --cache-dir $(OUT)/bps_cache \
 	    -o $(OUT)/bps600.dist
 
 calibrate: $(STAMP)
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
 
 hil: $(STAMP)
-	$(VENV)/bin/fps distfile generate --source bps --duration 600 --seed 1 --bps-cache $(OUT)/bps_cache \
+	$(VENV)/bin/fps distfile generate --source bps --duration 600 --seed 1 --cache-dir $(OUT)/bps_cache \
 	    -o $(OUT)/bps600.dist
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
 	$(VENV)/bin/fps hil --distfile $(OUT)/bps600.dist --calibration $(OUT)/calibration.json \
@@ -99,7 +99,7 @@ hil: $(STAMP)
 system: $(STAMP) $(NATMOD)
 	$(VENV)/bin/fps calibrate -o $(OUT)/calibration.json
 	$(VENV)/bin/fps system --duration 600 --seed 1 --runtime micropython --calibration $(OUT)/calibration.json \
-	    --bps-cache $(OUT)/bps_cache -o $(OUT)/system
+	    --cache-dir $(OUT)/bps_cache -o $(OUT)/system
 
 clean:
 	rm -rf $(OUT) build *.egg-info .pytest_cache .hypothesis

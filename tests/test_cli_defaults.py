@@ -38,3 +38,41 @@ def test_every_option_states_its_default():
     silent = ["fps %s %s (default %r)" % (" ".join(path), max(a.option_strings, key=len), a.default)
               for path, p in all_commands() for a in p._actions if a.option_strings and _silent_default(a)]
     assert not silent, "options whose --help does not state their default: " + "; ".join(silent)
+
+
+def _shared_table():
+    """docs/CLI.md's "Shared options" table: {option: its default cell}."""
+    import os
+    import re
+    text = open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "CLI.md")).read()
+    body = text.split("## Shared options", 1)[1].split("\n## ", 1)[0]
+    rows = {}
+    for line in body.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].startswith("`--"):
+            for opt in re.findall(r"`(--[a-z0-9-]+)`", cells[0]):
+                rows[opt] = cells[2]
+    return rows
+
+
+def test_every_shared_option_whose_default_differs_is_in_the_docs_table():
+    """An option several commands take, whose default is not the same on all of them, has a row in docs/CLI.md's
+    "Shared options" table naming each command whose default is not the common one."""
+    import collections
+    defaults = collections.defaultdict(dict)
+    for path, p in all_commands():
+        for a in p._actions:
+            if a.option_strings and a.dest != "help" and a.default is not argparse.SUPPRESS:
+                defaults[max(a.option_strings, key=len)][" ".join(path)] = a.default
+    rows, missing = _shared_table(), []
+    for opt, by_cmd in defaults.items():
+        common = collections.Counter(repr(v) for v in by_cmd.values()).most_common(1)[0][0]
+        odd = sorted(c for c, v in by_cmd.items() if repr(v) != common)
+        if len(by_cmd) < 2 or not odd:
+            continue
+        cell = rows.get(opt) or rows.get(opt.replace("--no-", "--"))
+        if cell is None:
+            missing.append("%s (no row)" % opt)
+            continue
+        missing += ["%s on fps %s" % (opt, c) for c in odd if "`%s`" % c not in cell and c.split()[-1] not in cell]
+    assert not missing, "docs/CLI.md's shared options table leaves out: " + "; ".join(missing)

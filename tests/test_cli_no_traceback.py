@@ -448,8 +448,8 @@ def test_a_cache_folder_that_cannot_be_one_is_refused_first(capsys, tmp_path):
         for argv, opt in ((["adcs", "bps", "--cache-dir", bad, "--duration", "10", "-o", out], "--cache-dir"),
                           (["adcs", "sweep", "--cache-dir", bad, "--duration", "10", "-o", out], "--cache-dir"),
                           (["distfile", "generate", "--source", "bps", "--bps-cache", bad, "--duration", "10",
-                            "-o", out + ".dist"], "--bps-cache"),
-                          (["system", "--bps-cache", bad, "-o", out], "--bps-cache")):
+                            "-o", out + ".dist"], "--cache-dir/--bps-cache"),
+                          (["system", "--cache-dir", bad, "-o", out], "--cache-dir/--bps-cache")):
             rc, _, err = run(capsys, argv)
             last = err.strip().splitlines()[-1]
             assert rc == 2 and "argument %s" % opt in last and msg in last, (argv, rc, err)

@@ -2,7 +2,7 @@
 
 The run (``ground.adcs.body_pointing.simulate``, flown by ``--spacecraft``) starts after the calibration (from ``--params
 FILE`` or the cached nine sets of ``--seed``); the history given to the distfile is the collection window (after
-the 30 s hold and 4 t_s), its time origin at the window's start. Runs are cached in ``--bps-cache`` (default out/bps_cache) under
+the 30 s hold and 4 t_s), its time origin at the window's start. Runs are cached in ``--cache-dir`` (default out/bps_cache) under
 a hash of every input (t_s, SatB GNSS, parameter file content, duration, seed, truth, simulator version, the
 spacecraft file's hash unless it is thesis-3u); an
 entry is written atomically and only for a complete run, so the cache never holds a partial run. A sidecar
@@ -41,7 +41,7 @@ class BpsSource:
         from ground.adcs.options import load_spacecraft
         self.ts = bps.check_ts(ts)
         if truth not in TRUTHS:
-            raise ValueError("--bps-truth must be one of %s, got %r" % ("/".join(TRUTHS), truth))
+            raise ValueError("--truth must be one of %s, got %r" % ("/".join(TRUTHS), truth))
         self.satb_gnss, self.truth, self.quiet = bool(satb_gnss), truth, quiet
         self.cache_dir = cache_dir if cache_dir is not None else bps_cli.CACHE_DEFAULT
         self.params_path = params_path
@@ -56,9 +56,11 @@ class BpsSource:
         add_satb_gnss_option(p, False)
         p.add_argument("--params", default=None, help="bps: parameter file (default: the cached calibration "
                        "of --seed)")
-        p.add_argument("--bps-truth", choices=TRUTHS, default="hpop", help="bps: true orbits (default hpop)")
-        p.add_argument("--bps-cache", default=None, type=cache_folder,
-                       help="bps: run cache folder (default out/bps_cache)")
+        p.add_argument("--truth", "--bps-truth", dest="bps_truth", choices=TRUTHS, default="hpop",
+                       help="bps: true orbits (default hpop; --bps-truth is the same option)")
+        p.add_argument("--cache-dir", "--bps-cache", dest="bps_cache", default=None, type=cache_folder, metavar="DIR",
+                       help="bps: calibration and truth cache folder (default out/bps_cache; --bps-cache is the "
+                            "same option)")
         p.add_argument("--spacecraft", default=None, metavar="NAME|FILE",
                        help="bps: the vehicle, a preset or a spacecraft file (default thesis-3u), as fps adcs bps: "
                             "its truth block, or, for a file without one, a vehicle drawn from --seed within its "

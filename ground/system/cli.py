@@ -91,8 +91,9 @@ def register(sub, name, help_):
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop", help="true orbits (default hpop)")
     p.add_argument("--params", default=None, help="ADCS parameter file (fps adcs bps format; default: the cached "
                    "nine calibration sets of --seed)")
-    p.add_argument("--bps-cache", default=None, type=cache_folder,
-                   help="calibration and truth cache folder (default out/bps_cache)")
+    p.add_argument("--cache-dir", "--bps-cache", dest="bps_cache", default=None, type=cache_folder, metavar="DIR",
+                   help="calibration and truth cache folder (default out/bps_cache; --bps-cache is the same "
+                        "option)")
     p.add_argument("--calibration", default=None, help="H calibration JSON (fps calibrate; default: calibrate "
                    "in-process first, 121 points, written to the run folder)")
     add_fault_options(p, "seconds from the ADCS's start, the play beginning after its 30 s hold and 4 t_s; "

@@ -349,14 +349,18 @@ def _cmd(a):
         plots.calibration_difference(cal, base + "_fig7-17.png")
         print("plots: %s_fig7-16.png, %s_fig7-17.png" % (base, base))
     if not a.no_truth:
-        from emulator.bench import Bench
-        from emulator.truth import true_h_field
-        truth = true_h_field(Bench(cfg, noise=False), grid_v, a.dv)
-        errs = compare_truth(cal, truth)
-        worst = max(errs, key=lambda e: e[1])
-        print("against the emulator's true H: worst relative error %.3f %% at P-FSM (%g, %g) V, mean %.3f %%"
-              % (100 * worst[1], worst[0][0], worst[0][1], 100 * np.mean([e[1] for e in errs])))
+        _say_truth(cal, cfg, grid_v, a.dv)
     return 0
+
+
+def _say_truth(cal, cfg, grid_v, dv):
+    """The calibration against the emulator's true H field: its worst and mean relative errors."""
+    from emulator.bench import Bench
+    from emulator.truth import true_h_field
+    errs = compare_truth(cal, true_h_field(Bench(cfg, noise=False), grid_v, dv))
+    worst = max(errs, key=lambda e: e[1])
+    print("against the emulator's true H: worst relative error %.3f %% at P-FSM (%g, %g) V, mean %.3f %%"
+          % (100 * worst[1], worst[0][0], worst[0][1], 100 * np.mean([e[1] for e in errs])))
 
 
 def register(sub, name, help_):

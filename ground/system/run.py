@@ -77,7 +77,6 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     magnetorquers, the rate-limited slew; the lean firmware flies its modes, ``firmware/adcs/flight.py``); in the
     flight world the play starts at ``bps.flight_settle_s`` (the planned slew, re-acquisition and 4 t_s)."""
     from ground import runtime
-    from ground.adcs import bps_cli
     from ground.calibrate import load_calibration
 
     t_wall0 = time.perf_counter()
@@ -95,12 +94,8 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
                     "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed, "phase": "start", "stopped_in": None,
                     "spacecraft": record, "world": world, "requirements": sf.requirements(d)})
     write_json(rec.path("summary.json"), summary)
-    cache = bps_cache or bps_cli.CACHE_DEFAULT
-    spec = {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,
-            "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
-            "bps_cache": cache, "cache_dir": os.path.abspath(cache), "faults": faults or None, "spacecraft": d,
-            "link_faults": link_faults.describe() if link_faults is not None else None, "world": world,
-            "t_settle": t_settle}
+    spec = _spec(adcs, runtime_name, satb_gnss, seed, ts, truth, duration_s, params, bps_cache, faults, d,
+                 link_faults, world, t_settle)
     live = LiveDisturbance(t_settle)
     say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
@@ -141,6 +136,18 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
         raise
     run.raise_if_stopped(out_dir, summary)
     return summary
+
+
+def _spec(adcs, runtime_name, satb_gnss, seed, ts, truth, duration_s, params, bps_cache, faults, d, link_faults,
+          world, t_settle):
+    """The ADCS process's specification (``ground.system.adcs``): what it flies, where its cache is."""
+    from ground.adcs import bps_cli
+    cache = bps_cache or bps_cli.CACHE_DEFAULT
+    return {"adcs": adcs, "runtime": runtime_name, "satb_gnss": bool(satb_gnss), "seed": int(seed), "ts": ts,
+            "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
+            "bps_cache": cache, "cache_dir": os.path.abspath(cache), "faults": faults or None, "spacecraft": d,
+            "link_faults": link_faults.describe() if link_faults is not None else None, "world": world,
+            "t_settle": t_settle}
 
 
 def _h_calibration(cal, summary, say, seed, config, rec):

@@ -86,7 +86,7 @@ import numpy as np
 from emulator import orbits
 from emulator.adcs_bus import N, P, FaultSchedule, SpacecraftBus, check_faults
 from emulator.adcs_replies import ReplyWait, StatusWatch
-from emulator.launcher import (ADCS_IMAGE, ADCS_MACHINE, PIL_ISOTP_TIMEOUT_MS, FirmwareProcess, check_pil, command,
+from emulator.launcher import (ADCS_IMAGE, ADCS_MACHINE, PIL_ISOTP_TIMEOUT_MS, FirmwareProcess, command,
                                qemu_command, start_board)
 from emulator.runtime import last_lines
 from protocol import core
@@ -132,8 +132,6 @@ def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, lin
         raise ValueError("another estimation runs in this process: runtime inproc only")
     if runtime == "inproc" and link_faults is not None:
         raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
-    if runtime == "qemu":
-        check_pil("adcs")                # QEMU and an image built from the tree's sources (make pil)
 
 
 class AdcsSession:

@@ -57,18 +57,6 @@ class PilUnavailable(ValueError):
     tree's sources (bad input: exit 2, the message naming ``make pil``)."""
 
 
-def check_pil(board="controller"):
-    """PilUnavailable unless qemu-system-arm is at hand and ``board``'s image ("controller": the Cortex-M0's,
-    "adcs": the Cortex-M7's) is built from the tree's sources (``tools.pil_build.stale``: the digest it carries)."""
-    from tools import pil_build
-    if shutil.which("qemu-system-arm") is None:
-        raise PilUnavailable("runtime qemu needs qemu-system-arm (install: %s) and the PIL images (make pil)"
-                             % pil_build.install_hint(["qemu-system-arm"]))
-    why = pil_build.stale(pil_build.ADCS_MEM if board == "adcs" else pil_build.TARGET_MEM)
-    if why:
-        raise PilUnavailable("runtime qemu: %s" % why)
-
-
 def qemu_command(image=PIL_IMAGE, serial="pty", icount=False, monitor=None, ram_bytes=PIL_RAM_BYTES,
                  machine="microbit"):
     """qemu-system-arm's command line for a PIL image on QEMU's ``machine``: for the microbit, ``ram_bytes`` of SRAM

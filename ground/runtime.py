@@ -170,11 +170,26 @@ def _start(runtime, link_kind, rate_hz):
 BOOT_WORDS_S = 10.0          # wall seconds the PIL board has from its start to its first frame (its HELLO)
 
 
+def check_pil(board="controller"):
+    """``emulator.launcher.PilUnavailable`` (exit 2) unless qemu-system-arm is at hand and ``board``'s image
+    ("controller": the Cortex-M0's, "adcs": the Cortex-M7's) is built from the tree's sources
+    (``tools.pil_build.stale``: the digest it carries): every command that takes ``--runtime qemu`` asks first."""
+    import shutil
+    from emulator.launcher import PilUnavailable
+    from tools import pil_build
+    if shutil.which("qemu-system-arm") is None:
+        raise PilUnavailable("runtime qemu needs qemu-system-arm (install: %s) and the PIL images (make pil)"
+                             % pil_build.install_hint(["qemu-system-arm"]))
+    why = pil_build.stale(pil_build.ADCS_MEM if board == "adcs" else pil_build.TARGET_MEM)
+    if why:
+        raise PilUnavailable("runtime qemu: %s" % why)
+
+
 def _start_qemu(boot_s=60.0):
     """QEMU with the PIL image, its UART on a pty; ``firmware.pil_main`` started through the raw REPL. Returns (the
     bench's serial link on that pty, the QEMU process). ``emulator.launcher.PilUnavailable`` (a ValueError) without
-    QEMU or with an image that is not the tree's; OSError when the board does not start."""
-    from emulator.launcher import check_pil, qemu_command, start_board
+    QEMU or with an image that is not the tree's (``check_pil``); OSError when the board does not start."""
+    from emulator.launcher import qemu_command, start_board
     from tools import pil_build
     from protocol.link import open_serial
     check_pil("controller")
@@ -249,7 +264,7 @@ def tick_timeout(link, tick_timeout_ms=None, runtime=None):
 def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=None,
                   tick_tries=TICK_TRIES, max_failed_ticks=MAX_FAILED_TICKS, rate_hz=637.8, baud=BAUD_DEFAULT, **_):
     """ValueError naming the flag for a runtime/link/option combination ``open_rig`` would refuse; for runtime qemu,
-    QEMU missing or the image not the tree's (``emulator.launcher.check_pil``: make pil)."""
+    QEMU missing or the image not the tree's (``check_pil``: make pil)."""
     check(runtime, link)
     if isinstance(baud, bool) or not isinstance(baud, int) or not BAUD_RANGE[0] <= baud <= BAUD_RANGE[1]:
         raise ValueError("--baud %r: must be a whole number of bit/s from %d to %d" % ((baud,) + BAUD_RANGE))
@@ -270,7 +285,6 @@ def check_options(runtime, link, port=None, link_faults=None, tick_timeout_ms=No
         raise ValueError("--link-faults needs a link: use --runtime cpython|micropython|board with --link serial, "
                          "or --runtime cpython with --link can")
     if runtime == "qemu":              # the options first: their messages name the flag
-        from emulator.launcher import check_pil
         check_pil("controller")
 
 

@@ -18,7 +18,13 @@ def import_graph():
             m = f[:-3].replace("/", ".")
             mods[m[:-9] if m.endswith(".__init__") else m] = f
 
+    def c_extension(name):
+        """A module built from a C source of ours (e.g. the truth's kernel): it imports none of our modules."""
+        return os.path.exists(os.path.join(ROOT, name.replace(".", "/") + ".c"))
+
     def ours(name):
+        if c_extension(name):
+            return None
         while name and name not in mods:
             name = name.rsplit(".", 1)[0] if "." in name else ""
         return name or None
@@ -32,7 +38,7 @@ def import_graph():
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
                 for a in node.names:
                     full = node.module + "." + a.name
-                    deps.add(ours(full) if full in mods else ours(node.module))
+                    deps.add(ours(full) if full in mods or c_extension(full) else ours(node.module))
         deps.discard(None)
         deps.discard(m)
         graph[m] = deps

@@ -144,3 +144,15 @@ class SurfaceTorques:
         b2 = 2*(e1*e3 + q4*e2) * f0 + 2*(e2*e3 - q4*e1) * f1 + (q4*q4 - e1*e1 - e2*e2 + e3*e3) * f2
         c0, c1, c2 = self.cp
         return np.array([c1 * b2 - c2 * b1, c2 * b0 - c0 * b2, c0 * b1 - c1 * b0])
+
+
+class GridOrbit:
+    """An orbit given on a uniform time grid (rate_hz samples from t0): ``position(t)`` is the nearest
+    sample (the caller interpolated the grid finely enough, as ``scenario.pointing_world`` does at 20 Hz)."""
+
+    def __init__(self, t0, rate_hz, r):
+        self.t0, self.rate, self.r = float(t0), float(rate_hz), r
+
+    def position(self, t):
+        i = int(round((t - self.t0) * self.rate))
+        return self.r[min(max(i, 0), len(self.r) - 1)]

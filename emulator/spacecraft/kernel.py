@@ -5,7 +5,7 @@ steps). Its ``Kernel`` holds the spacecraft's constants and environment; ``Kerne
 ``Kernel.torque`` is ``Spacecraft.external_torque``, with the same operations in the same order, compiled without floating-point contraction, so the two agree to rounding
 (tests/test_truth_kernel.py).
 
-The kernel evaluates in C the circular orbit, the orbit grid of ``scenario.GridOrbit``, the tilted dipole, the
+The kernel evaluates in C the circular orbit, the orbit grid of ``environment.GridOrbit``, the tilted dipole, the
 flight world's ``SurfaceTorques`` and the wheels' jitter; any other orbit, field or disturbance it calls back in
 Python, once per RK4 stage as the Python form does. ``FPS_TRUTH=python`` in the environment makes every
 spacecraft step the Python form.
@@ -56,12 +56,11 @@ def _table(a):
 
 def _orbit(orbit):
     """(kind, keyword arguments) of the orbit."""
-    from emulator.spacecraft.scenario import GridOrbit
     if orbit is None:
         return ORB_NONE, {}
     if type(orbit) is env.CircularOrbit:
         return ORB_CIRCULAR, {"circular": [orbit.a, orbit.n, orbit.u0] + list(orbit.p) + list(orbit.w)}
-    if type(orbit) is GridOrbit and _table(orbit.r) is not None:
+    if type(orbit) is env.GridOrbit and _table(orbit.r) is not None:
         return ORB_GRID, {"grid": orbit.r, "grid_t0_rate": (orbit.t0, orbit.rate)}
     return ORB_PY, {"orbit_fn": orbit.position}
 

@@ -30,7 +30,7 @@ import numpy as np
 from emulator.navsensors import Beacon, Gnss, Relay
 from emulator.spacecraft.devices import StarTracker
 from emulator.spacecraft.dynamics import J0_THESIS, Spacecraft, dcm, inertia_matrix, quat_mul
-from emulator.spacecraft.environment import TiltedDipoleField
+from emulator.spacecraft.environment import GridOrbit, TiltedDipoleField  # noqa: F401  (scenario.GridOrbit)
 from emulator.spacecraft.wheels import J_RW_NOMINAL, Wheels, WheelParams, pyramid_c0
 from protocol import paramfile
 from protocol.units import RAD_PER_ARCSEC
@@ -314,18 +314,6 @@ def simulate(case=1, seed=0, dt=1.0, maneuver=None, gyro=False, null_fraction=0.
     out["case"] = case
     return out
 
-
-
-class GridOrbit:
-    """An orbit given on a uniform time grid (rate_hz samples from t0): ``position(t)`` is the nearest
-    sample (the caller interpolated the grid finely enough, as ``pointing_world`` does at 20 Hz)."""
-
-    def __init__(self, t0, rate_hz, r):
-        self.t0, self.rate, self.r = float(t0), float(rate_hz), r
-
-    def position(self, t):
-        i = int(round((t - self.t0) * self.rate))
-        return self.r[min(max(i, 0), len(self.r) - 1)]
 
 
 # truth_params' 1σ, in the file's order: tau_d (3), J5 (5), m (3), delta1, delta2 (4 + 4), Jrw (4)

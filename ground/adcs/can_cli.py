@@ -205,6 +205,9 @@ def _session(a, d):
     if a.link_faults:
         from protocol.faults import LinkFaults
         link_faults = LinkFaults.parse(a.link_faults)
+    if a.runtime == "qemu":                 # QEMU and an ADCS image built from the tree's sources (make pil)
+        from ground.runtime import check_pil
+        check_pil("adcs")
     log = None if a.quiet else _log
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
                           params=a.params, faults=faults, log=log, link_faults=link_faults, spacecraft=d,

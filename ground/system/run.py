@@ -40,7 +40,7 @@ def check_inputs(duration_s, runtime_name, adcs, ts, truth, seed=0):
     if truth not in TRUTHS:
         raise ValueError("--truth must be one of %s, got %r" % ("/".join(TRUTHS), truth))
     if runtime_name == "qemu":           # both boards' images, before the ADCS process starts (make pil)
-        from emulator.launcher import check_pil
+        from ground.runtime import check_pil
         check_pil("controller")
         if adcs == "firmware":
             check_pil("adcs")

@@ -45,3 +45,16 @@ def test_a_campaign_resumes_and_refuses_another_campaigns_folder(tmp_path, capsy
     assert cli.main(SHORT + ["--runs", "3", "-o", str(out)]) == 2
     assert "holds another campaign (it differs in seeds)" in capsys.readouterr().err
     assert os.stat(out / "run_0000" / "result.json").st_mtime_ns == t0
+
+
+def test_a_vehicle_whose_run_failed_counts_as_a_miss():
+    """A run that failed (its APKF diverged on that vehicle) is in the shares as a vehicle that met no check,
+    with its cause, not left out of them."""
+    from ground.adcs import population
+    ok = {"seed": 0, "ok": True, "checks": {"pointing": {"ok": True, "what": "3σ pointing <= 150"}},
+          "figures": {"pointing_3sigma_arcsec": 15.0}, "vehicle": {}, "line_of_sight": True}
+    bad = {"seed": 1, "error": "FloatingPointError: APKF diverged at t = 554 s: P is not positive definite"}
+    s = population.aggregate([ok, bad], {})
+    assert s["all_checks"]["met"] == 1 and s["all_checks"]["of"] == 2 and s["all_checks"]["share"] == 0.5
+    assert s["checks"]["pointing"]["of"] == 2 and s["runs_failed"] == 1
+    assert s["failures"] == [{"seed": 1, "error": bad["error"]}]

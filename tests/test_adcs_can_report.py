@@ -43,3 +43,19 @@ def test_a_missed_budget_is_named_on_stderr_with_exit_3(tmp_path, capsys):
     assert rc == 3 and s["budgets_met"] is False
     assert "BUDGET MISSED (the spacecraft file's budgets): body pointing 3σ (arcsec)" in err
     assert "| 1 | **NO** |" in report.read_text()
+
+
+def test_the_report_of_a_run_stopped_before_its_first_cycle():
+    """SIGTERM while the board boots: no cycle, no wall time, no status from the firmware; the report and the
+    verdict still say so, without an error."""
+    import argparse
+    from ground.adcs import can_cli
+    s = {"complete": False, "interrupted": True, "cycles": 0, "last_mode": None, "late_cycles": 0, "wall_s": 0.0,
+         "speed_x_realtime": None, "firmware_missed": {"rw": [None] * 4, "startracker": None},
+         "retries": {"cycles_retried": 0, "tick_resent": 0, "packets_resent": 0}, "mode_changes": [],
+         "requirements": sf.requirements(None), "settle_s": 162.0, "budgets_met": None, "spacecraft": {}}
+    a = argparse.Namespace(world="thesis", runtime="qemu", ts=33.0, seed=0, satb_gnss=False)
+    text = can_cli.report_md(s, a)
+    assert "0 cycles of 1 s, last mode None, 0 late cycles; 0.0 s wall (—× real time)" in text
+    assert "missed by the firmware: none" in text
+    assert can_cli.verdict_lines(s) == ["INTERRUPTED after 0 cycles: partial run, complete=false"]

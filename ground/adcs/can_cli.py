@@ -165,9 +165,9 @@ def report_md(s, a):
     out += ["", "The figures are taken after %.0f s (the hold and the settling); the budgets are %s." % (
         s["settle_s"], "the spacecraft file's" if s["requirements"]["source"] == "file" else "the thesis's (Sec. 6.4)"),
         "", "## The run", "",
-        "- %d cycles of 1 s, last mode %s, %d late cycles; %.1f s wall (%.2f× real time)" % (
-            s["cycles"], s["last_mode"], s["late_cycles"], s.get("wall_s", float("nan")),
-            s.get("speed_x_realtime", float("nan"))),
+        "- %s cycles of 1 s, last mode %s, %s late cycles; %s s wall (%s× real time)" % (
+            _num(s.get("cycles"), "%d"), s.get("last_mode"), _num(s.get("late_cycles"), "%d"),
+            _num(s.get("wall_s"), "%.1f"), _num(s.get("speed_x_realtime"), "%.2f")),
         "- missed by the firmware: %s" % _missed_text(s["firmware_missed"]),
         "- link retries: %d cycles retried, %d TICKs and %d packets resent. Retries are the lockstep's normal "
         "answer to frames that came late or damaged (a loaded machine makes more); each cycle still flies exactly "
@@ -184,11 +184,17 @@ def report_md(s, a):
     return "\n".join(out) + "\n"
 
 
+def _num(v, fmt):
+    """``v`` as ``fmt``, or "—" when the run has none (stopped before its first cycle)."""
+    return "—" if v is None else fmt % v
+
+
 def _missed_text(m):
-    """The firmware's missed-input counters as words, the non-zero ones only (``none`` when all are zero)."""
+    """The firmware's missed-input counters as words, the non-zero ones only (``none`` when all are zero or the
+    firmware sent no status)."""
     parts = []
-    for k, v in m.items():
-        n = sum(v) if isinstance(v, list) else v
+    for k, v in (m or {}).items():
+        n = sum(x or 0 for x in v) if isinstance(v, list) else v
         if n:
             parts.append("%s %s" % (k.replace("_", " "), v if isinstance(v, list) else n))
     return ", ".join(parts) or "none"

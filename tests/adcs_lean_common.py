@@ -37,3 +37,15 @@ def positive_definite(P):
     except np.linalg.LinAlgError:
         return False
 
+
+def record_session(tmp_path, seconds=60):
+    """A CPython ADCS session of ``seconds`` cycles with SatB's relayed fixes, recorded: (its config.json, its
+    recorded bursts' json), for the digest scripts that replay it."""
+    from emulator.adcs_session import AdcsSession
+    with AdcsSession(runtime="cpython", duration_s=seconds, hold_s=20.0, satb_gnss=True, record=True) as s:
+        for _ in range(seconds):
+            s.cycle()
+        cfg, rec = s.config(), s.recorded
+    (tmp_path / "cfg.json").write_text(json.dumps(cfg))
+    (tmp_path / "rec.json").write_text(json.dumps(rec))
+    return tmp_path / "cfg.json", tmp_path / "rec.json"

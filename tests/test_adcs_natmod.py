@@ -11,8 +11,8 @@ import tarfile
 
 import pytest
 
-from emulator.adcs_session import AdcsSession
 from tools import natmod_build
+from tests.adcs_lean_common import record_session
 from tests.test_firmware_mp import MICROPYTHON, ROOT
 
 MODULE = natmod_build.TARGET
@@ -43,14 +43,9 @@ def without_module(tmp_path):
 
 def test_the_c_kernels_equal_the_python_forms_bit_for_bit(tmp_path):
     need_module()
-    with AdcsSession(runtime="cpython", duration_s=60, hold_s=20.0, satb_gnss=True, record=True) as s:
-        for _ in range(60):
-            s.cycle()
-        cfg, rec = s.config(), s.recorded
-    (tmp_path / "cfg.json").write_text(json.dumps(cfg))
-    (tmp_path / "rec.json").write_text(json.dumps(rec))
-    c = digests(ROOT, tmp_path / "cfg.json", tmp_path / "rec.json")
-    py = digests(without_module(tmp_path), tmp_path / "cfg.json", tmp_path / "rec.json")
+    cfg, rec = record_session(tmp_path)
+    c = digests(ROOT, cfg, rec)
+    py = digests(without_module(tmp_path), cfg, rec)
     assert c.pop("kernels") is True and py.pop("kernels") is False
     assert c["session cycles"] == 60 and c["satb fused"] > 40     # the smoother's update ran
     assert len(c) > 25

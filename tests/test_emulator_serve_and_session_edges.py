@@ -11,14 +11,28 @@ from ground.cli import main as fps
 
 
 # --- fps emulator serve: a run ended early still leaves its summary ----------------------------------------
-def test_bench_serve_writes_a_partial_summary_when_the_controller_leaves(tmp_path, monkeypatch, capsys):
+def _serve_against(monkeypatch, controller, *args):
+    """``fps emulator serve``'s link with ``controller(peer_path, *args)`` on a thread at its other end; returns
+    the threads started."""
     import threading
 
     import protocol.link
+    real_open = protocol.link.open_link
+    threads = []
+
+    def open_link(spec, node, **kw):
+        link = real_open(spec, node, **kw)
+        th = threading.Thread(target=controller, args=(link.peer_path,) + args, daemon=True)
+        th.start()
+        threads.append(th)
+        return link
+    monkeypatch.setattr(protocol.link, "open_link", open_link)
+    return threads
+
+
+def test_bench_serve_writes_a_partial_summary_when_the_controller_leaves(tmp_path, monkeypatch, capsys):
     from protocol import core
     from protocol.stream import StreamLink
-    real_open = protocol.link.open_link
-    peers = []
 
     def controller(path, n):
         """HELLO, then answer n TICKs with an empty FSM_SPI (an overrun each), then leave."""
@@ -32,13 +46,7 @@ def test_bench_serve_writes_a_partial_summary_when_the_controller_leaves(tmp_pat
                     done += 1
         s.close()
 
-    def open_link(spec, node, **kw):
-        link = real_open(spec, node, **kw)
-        th = threading.Thread(target=controller, args=(link.peer_path, 20), daemon=True)
-        th.start()
-        peers.append(th)
-        return link
-    monkeypatch.setattr(protocol.link, "open_link", open_link)
+    peers = _serve_against(monkeypatch, controller, 20)
     out = tmp_path / "serve.json"
     assert fps(["emulator", "serve", "--duration", "5", "--deadline", "2", "--wait", "5", "-o", str(out)]) == 1
     peers[0].join(5)
@@ -55,10 +63,8 @@ def test_bench_serve_ends_on_a_controller_that_stops_answering(tmp_path, monkeyp
     the partial summary."""
     import threading
 
-    import protocol.link
     from protocol import core
     from protocol.stream import StreamLink
-    real_open = protocol.link.open_link
     hang = threading.Event()
 
     def controller(path):
@@ -74,11 +80,7 @@ def test_bench_serve_ends_on_a_controller_that_stops_answering(tmp_path, monkeyp
         hang.wait(30)
         s.close()
 
-    def open_link(spec, node, **kw):
-        link = real_open(spec, node, **kw)
-        threading.Thread(target=controller, args=(link.peer_path,), daemon=True).start()
-        return link
-    monkeypatch.setattr(protocol.link, "open_link", open_link)
+    _serve_against(monkeypatch, controller)
     out = tmp_path / "serve.json"
     try:
         rc = fps(["emulator", "serve", "--duration", "600", "--deadline", "0.2", "--max-failed-ticks", "5",
@@ -242,12 +244,8 @@ def test_adcs_session_ends_when_the_firmware_is_hung():
 def test_bench_serve_says_hello_until_a_controller_whose_own_hello_was_lost_answers(tmp_path, monkeypatch):
     """A controller whose first HELLO never arrived (it does not say it again; it answers each HELLO with its
     own, as the firmware does): the bench's HELLOs reach it and the run completes."""
-    import threading
-
-    import protocol.link
     from protocol import core
     from protocol.stream import StreamLink
-    real_open = protocol.link.open_link
 
     def controller(path):
         s = StreamLink(path, "CONTROLLER")
@@ -258,11 +256,7 @@ def test_bench_serve_says_hello_until_a_controller_whose_own_hello_was_lost_answ
                 elif pid == core.PACKET_ID["TICK"]:
                     s.send("FSM_SPI", "BENCH", tick=core.decode_payload(pid, payload)[0], n=0)
 
-    def open_link(spec, node, **kw):
-        link = real_open(spec, node, **kw)
-        threading.Thread(target=controller, args=(link.peer_path,), daemon=True).start()
-        return link
-    monkeypatch.setattr(protocol.link, "open_link", open_link)
+    _serve_against(monkeypatch, controller)
     out = tmp_path / "serve.json"
     assert fps(["emulator", "serve", "--duration", "0.2", "--deadline", "0.5", "--wait", "5", "-o", str(out)]) == 0
     d = json.loads(out.read_text())

@@ -12,8 +12,8 @@ from array import array
 import numpy as np
 import pytest
 
-from emulator.adcs_session import AdcsSession
 from firmware.adcs import linalg
+from tests.adcs_lean_common import record_session
 from tests.test_firmware_mp import ROOT
 
 try:
@@ -38,14 +38,9 @@ def digests(form, *args):
 @need_extension
 def test_the_c_kernels_equal_the_python_forms_bit_for_bit(tmp_path):
     assert linalg.kernels is _adcsk                          # selected on CPython
-    with AdcsSession(runtime="cpython", duration_s=60, hold_s=20.0, satb_gnss=True, record=True) as s:
-        for _ in range(60):
-            s.cycle()
-        cfg, rec = s.config(), s.recorded
-    (tmp_path / "cfg.json").write_text(json.dumps(cfg))
-    (tmp_path / "rec.json").write_text(json.dumps(rec))
-    c = digests("c", tmp_path / "cfg.json", tmp_path / "rec.json")
-    py = digests("python", tmp_path / "cfg.json", tmp_path / "rec.json")
+    cfg, rec = record_session(tmp_path)
+    c = digests("c", cfg, rec)
+    py = digests("python", cfg, rec)
     assert c.pop("kernels") is True and py.pop("kernels") is False
     assert c["session cycles"] == 60 and c["satb fused"] > 40     # the smoother's update ran
     assert len(c) > 25

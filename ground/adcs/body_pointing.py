@@ -248,10 +248,13 @@ def run_one(seed, run_dir, params=None, **kw):
     return res
 
 
-def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, **kw):
-    """Campaign entry for the sweep: ``seed`` indexes ts_list (one run per t_s, all with ``noise_seed``)."""
+def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, finish=None, **kw):
+    """Campaign entry for the sweep: ``seed`` indexes ts_list (one run per t_s, all with ``noise_seed``);
+    ``finish(res, hist)``, when given, adds to the result before it is written."""
     ts = ts_list[seed]
     res, hist = simulate(ts=ts, params=params, seed=noise_seed, **kw)
+    if finish is not None:
+        finish(res, hist)
     if run_dir:
         os.makedirs(run_dir, exist_ok=True)
         write_json(os.path.join(run_dir, "result.json"), res)

@@ -178,17 +178,12 @@ def sweep_one(seed, run_dir, ts_list=(), params=None, noise_seed=0, rejection=No
     ``seed`` (its zeta ``zeta_list[seed]``, None: the firmware's), its result with ``terminal`` (the
     ``terminal_residual`` through the ``rejection`` table; none without a table) added."""
     from ground.adcs import body_pointing as bps
-    from ground.fileio import write_json
-    zeta = None if zeta_list is None else zeta_list[seed]
-    res, hist = bps.simulate(ts=ts_list[seed], params=params, seed=noise_seed, zeta=zeta, **kw)
-    if rejection is not None:
+
+    def add_terminal(res, hist):
         res["terminal"] = terminal_residual(res, hist, rejection)
-    if run_dir:
-        os.makedirs(run_dir, exist_ok=True)
-        write_json(os.path.join(run_dir, "result.json"), res)
-    if not res["complete"]:          # simulate caught a Ctrl-C: the sweep stops too (this t_s stays partial)
-        raise KeyboardInterrupt
-    return res
+    zeta = None if zeta_list is None else zeta_list[seed]
+    return bps.sweep_one(seed, run_dir, ts_list, params, noise_seed, zeta=zeta,
+                         finish=None if rejection is None else add_terminal, **kw)
 
 
 def best_index(values, keep=None):

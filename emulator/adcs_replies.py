@@ -15,6 +15,8 @@ RETRY_S = 0.03                       # a further try's first wait: an answer fro
 TRY_BACKOFF = 1.5                    # each further try of a cycle waits this much longer (up to TRY_MAX_S)
 MODE_NAME = dict((v, k) for k, v in table.ADCS_MODES)
 STALE_BITS = table.ADCS_STALE
+# a planned slew's blind star tracker, as the thesis world's DEGRADED names it (not a fault)
+PLANNED_BLIND = "star tracker blind by plan: slew (STARTRACKER stale, not a fault)"
 
 
 class ReplyWait:
@@ -119,11 +121,16 @@ class StatusWatch:
     (``cycle_us``: n, sum, largest; ``filters_start_us`` the first cycle out of INIT, which starts the filters,
     apart), each mode change with its reason (``mode_changes``: {"t_s", "from", "to",
     "reason"}; also an event in ``fault_log``), each magnetic device out or back (``health_events``:
-    ``adcs_bus.magnetic_events``; also in ``fault_log``)."""
+    ``adcs_bus.magnetic_events``; also in ``fault_log``). ``slew`` (t0, t1), s: the planned slew, whose star
+    tracker is blind by plan (the thesis world's firmware reports it DEGRADED: it has no slew mode);
+    ``st_fault`` (t0, t1), s: an injected ``startracker_blind``, always a fault."""
 
-    def __init__(self, say, fault_log):
+    def __init__(self, say, fault_log, slew=None, st_fault=None):
         self.say = say
         self.fault_log = fault_log
+        self.slew, self.st_fault = slew, st_fault
+        self.st_blind_from = None            # the first cycle (s) of the star tracker's current blind stretch
+        self.planned = False                 # the mode entered last was the planned slew's blind DEGRADED
         self.last = None
         self.cycle_us = [0, 0, 0]
         self.filters_start_us = None         # the cycle that starts the filters, apart from cycle_us
@@ -137,6 +144,8 @@ class StatusWatch:
         status["adcs_mode_name"] = MODE_NAME.get(status["adcs_mode"], "?")
         status["stale_names"] = [n for n, b in STALE_BITS if status["stale"] >> b & 1]
         self.last = status
+        blind = "STARTRACKER" in status["stale_names"]
+        self.st_blind_from = (self.st_blind_from if self.st_blind_from is not None else t) if blind else None
         if self.filters_start_us is None and status["adcs_mode_name"] != "INIT":
             self.filters_start_us = status["cycle_us"]     # the first cycle out of INIT starts the filters
         else:
@@ -151,18 +160,33 @@ class StatusWatch:
         self.magnetic = status["magnetic_failed"]
         name = status["adcs_mode_name"]
         if name != self.mode:
+            planned = self.blind_by_plan(status, t)
             if self.mode is not None:
-                self.mode_changes.append({"t_s": t, "from": self.mode, "to": name,
-                                          "reason": why(self.mode, status, st_blind_before)})
+                self.mode_changes.append({"t_s": t, "from": self.mode, "to": name, "reason": PLANNED_BLIND
+                                          if planned else "the star tracker is back after the planned slew"
+                                          if self.planned else why(self.mode, status, st_blind_before)})
+            self.planned = planned
             self.fault_log.append({"t_s": t, "event": "ADCS mode %s" % name})
-            self.say("t = %.0f s: ADCS mode %s -> %s%s" % (t, self.mode, name, (
-                " (stale: %s)" % ", ".join(status["stale_names"])) if status["stale_names"] else ""))
+            self.say("t = %.0f s: ADCS mode %s -> %s%s" % (t, self.mode, name, " (%s)" % PLANNED_BLIND if planned
+                                                            else (" (stale: %s)" % ", ".join(status["stale_names"]))
+                                                            if status["stale_names"] else ""))
             self.mode = name
         return {"q": np.array([status[n] for n in ("q0", "q1", "q2", "q3")]),
                 "w": np.array([status[n] for n in ("wx", "wy", "wz")]),
                 "ra": np.array([status[n] for n in ("rax", "ray", "raz")]),
                 "rb": np.array([status[n] for n in ("rbx", "rby", "rbz")]),
                 "att_sigma_rad": status["att_sigma"], "t": t}
+
+
+    def blind_by_plan(self, status, t):
+        """True when cycle t's DEGRADED is the planned slew's blind star tracker alone: no other sensor stale, no
+        wheel failed, the blind stretch begun within ``slew`` and no injected ``startracker_blind`` over it."""
+        if status["adcs_mode_name"] != "DEGRADED" or status["stale_names"] != ["STARTRACKER"] or \
+                status["wheels_failed"] or self.slew is None or self.st_blind_from is None:
+            return False
+        f = self.st_fault
+        return self.slew[0] <= self.st_blind_from <= self.slew[1] and (f is None or f[1] <= self.st_blind_from
+                                                                        or f[0] > t)
 
 
 def why(before, status, st_blind_before):

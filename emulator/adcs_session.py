@@ -187,7 +187,8 @@ class AdcsSession:
         # the flight world's firmware sends an MTQ_CMD each cycle: waited for as the RW_CMDs (a lost one is asked
         # for again with the tick), so that a lossy link's run stays the clean run's
         self.wait = ReplyWait(self.bus, fly and devices is not None and devices.mtq is not None, reply_timeout_s)
-        self.watch = StatusWatch(self._say, self.schedule.log)
+        self.watch = StatusWatch(self._say, self.schedule.log, None if fly else (self.hold_s,
+                                 self.hold_s + 4 * self.ts), self.schedule.faults.get("startracker_blind"))
         self.k = 0
         self.proc = None
         self.link = None

@@ -132,7 +132,9 @@ class LeanStkf:
     list drops its oldest node, and a tag older than the oldest node left is refused.
 
     SatA: ``xa`` (6), ``Pa`` (6 x 6). SatB's nodes, newest first: ``X[6 i: 6 i + 6]`` at ``t[i]``, i < ``k``,
-    joint covariance ``P`` (leading dimension ``ld``)."""
+    joint covariance ``P`` (leading dimension ``ld``); ``n`` states per satellite."""
+
+    n = N
 
     def __init__(self, x0, P0diag, t0, lag_s=LAG_S, cap=6, qa=QA_THESIS, tol=1e-9, gravity="two-body"):
         if gravity not in GRAVITY:
@@ -195,25 +197,25 @@ class LeanStkf:
         """Open an empty node slot at pos: nodes pos .. k-1 move one place older (a full list drops its
         oldest node: marginalising is exact). The caller fills the slot (at pos 0 its rows and columns hold
         stale values until then)."""
-        ld, P, X, t = self.ld, self.P, self.X, self.t
+        ld, P, X, t, n = self.ld, self.P, self.X, self.t, self.n
         k = self.k
         if k == self.cap:
             k -= 1
-        m, p = k * N, pos * N
-        X[p + N:m + N] = X[p:m]
+        m, p = k * n, pos * n
+        X[p + n:m + n] = X[p:m]
         for i in range(k - 1, pos - 1, -1):
             t[i + 1] = t[i]
         if pos == 0:                             # the block moves by one slice, (i, j) -> (i + N, j + N); the
-            n = (m - 1) * ld + m                 # columns between its rows land in the slot or past the block
-            P[N * ld + N:N * ld + N + n] = P[0:n]
+            c = (m - 1) * ld + m                 # columns between its rows land in the slot or past the block
+            P[n * ld + n:n * ld + n + c] = P[0:c]
             self.k = k + 1
             return
         for i in range(m - 1, -1, -1):          # bottom row first: nothing is overwritten before it moves
             a = i * ld                           # (row slices: no float is read one by one)
-            b = a + N * ld if i >= p else a
+            b = a + n * ld if i >= p else a
             if b != a and p:
                 P[b:b + p] = P[a:a + p]
-            P[b + p + N:b + m + N] = P[a + p:a + m]
+            P[b + p + n:b + m + n] = P[a + p:a + m]
         self.k = k + 1
 
     @micropython.native
@@ -279,10 +281,10 @@ class LeanStkf:
             wa = self.wa
             for j in range(6):
                 wa.r[j] = z[j] - self.xa[j]
-            if not linalg.joseph_select(self.Pa, 6, 0, 6, R, wa.Kt, wa.L, wa.W, wa.RK):
+            if not linalg.joseph_select(self.Pa, self.n, 0, 6, R, wa.Kt, wa.L, wa.W, wa.RK):
                 self.refused += 1
                 raise ValueError("innovation covariance is not positive definite")
-            _add_gain(self.xa, 6, wa.Kt, wa.r, 6)
+            _add_gain(self.xa, self.n, wa.Kt, wa.r, 6)
             return
         if t < self.t[0] - self.lag - self.tol:
             self.refused += 1
@@ -296,11 +298,11 @@ class LeanStkf:
         for i in range(self.k):
             ti = self.t[i]
             if abs(ti - t) <= self.tol:                 # at a node: Eq. 5.24 with C = [0 .. I6 .. 0]
-                m = (i + 1) * N
+                m = (i + 1) * self.n
                 self._hp_node(i, m)
                 break
             if ti < t:                                  # between nodes c = i - 1 and a = i
-                m = (i + 1) * N
+                m = (i + 1) * self.n
                 self._hp_between(i - 1, i, t - ti, self.t[i - 1] - t, m)
                 between = True
                 break
@@ -419,6 +421,25 @@ class LeanStkf:
         h = A (rB - rA)/rho, H_B = A (I - u u^T)/rho = -A Hb,A (Eq. 5.16-5.17) on B's current node;
         R = sigma_b^2 I + [y x] P_att [y x]^T (Sec. 5.3.3) + (A Hb,A) P_rA (A Hb,A)^T (rA considered).
         Joseph form for B's current node; its older nodes get zero gain: P_0j = (I - K H) P_0j."""
+        self._beacon_model(y, q, P_att, sigma_b, t)
+        w, P, ld, X = self.work, self.P, self.ld, self.X
+        H, r, R3, Kt, T, S = w.H, w.r, w.R3, w.Kt, w.t36, w.S
+        _beacon_innovation(Kt, T, S, R3, H, P, ld, self.Pa)    # R += H P_rA H^T, S = R + H P_rB H^T
+        if not linalg.cholesky(w.L, S, 3):
+            self.refused += 1
+            raise ValueError("beacon innovation covariance is not positive definite")
+        linalg._solve_cols(Kt, w.L, 6, 3)                     # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
+        K, G = Kt, w.G
+        r0, r1, r2 = r[0], r[1], r[2]
+        for i in range(6):
+            X[i] = X[i] + K[i] * r0 + K[6 + i] * r1 + K[12 + i] * r2
+        _joseph_terms(G, w.RK, w.KRK, K, H, R3)                # I - K H = [G | I's columns 3 .. 5], K R K^T
+        _ikh_rows(P, ld, N, self.k * N, G)                     # P_0j = (I - K H) P_0j
+        _ikh_sandwich(P, ld, G, w.KRK, T)                      # Joseph form (Eq. 4.142)
+
+    @micropython.native
+    def _beacon_model(self, y, q, P_att, sigma_b, t):
+        """The beacon's checks, then H_B (``work.H``), y - h (``work.r``) and R without rA (``work.R3``)."""
         if not (_finite(y, 3) and _finite(q, 4) and _finite(P_att, 9) and sigma_b - sigma_b == 0.0
                 and sigma_b > 0):
             self.refused += 1
@@ -427,7 +448,7 @@ class LeanStkf:
         if t is not None and abs(t - self.t[0]) > self.tol:
             self.refused += 1
             raise ValueError("the beacon must be time-tagged now (%.3f s off)" % (t - self.t[0]))
-        w, P, ld, X, xa = self.work, self.P, self.ld, self.X, self.xa
+        w, X, xa = self.work, self.X, self.xa
         d0, d1, d2 = X[0] - xa[0], X[1] - xa[1], X[2] - xa[2]
         rho = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if not rho > 0:
@@ -450,20 +471,7 @@ class LeanStkf:
             H[o + 1] = (a1 - au * u1) / rho
             H[o + 2] = (a2 - au * u2) / rho
             r[i] = y[i] - au
-        R3, Kt, T, S = w.R3, w.Kt, w.t36, w.S
-        _beacon_noise(R3, y, P_att, sigma_b)                   # R = sigma^2 I + [y x] P_att [y x]^T
-        _beacon_innovation(Kt, T, S, R3, H, P, ld, self.Pa)    # R += H P_rA H^T, S = R + H P_rB H^T
-        if not linalg.cholesky(w.L, S, 3):
-            self.refused += 1
-            raise ValueError("beacon innovation covariance is not positive definite")
-        linalg._solve_cols(Kt, w.L, 6, 3)                     # K^T (3 x 6) = S^-1 H P[0:3, 0:6]
-        K, G = Kt, w.G
-        r0, r1, r2 = r[0], r[1], r[2]
-        for i in range(6):
-            X[i] = X[i] + K[i] * r0 + K[6 + i] * r1 + K[12 + i] * r2
-        _joseph_terms(G, w.RK, w.KRK, K, H, R3)                # I - K H = [G | I's columns 3 .. 5], K R K^T
-        _ikh_rows(P, ld, N, self.k * N, G)                     # P_0j = (I - K H) P_0j
-        _ikh_sandwich(P, ld, G, w.KRK, T)                      # Joseph form (Eq. 4.142)
+        _beacon_noise(w.R3, y, P_att, sigma_b)                 # R = sigma^2 I + [y x] P_att [y x]^T
 
 
 @micropython.native

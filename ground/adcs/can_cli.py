@@ -26,7 +26,8 @@ from emulator.spacecraft import scenario
 from ground.adcs import body_pointing as bps, campaign
 from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_spacecraft_option, faults_from_args,
                              fly, load_spacecraft)
-from ground.fileio import folder_line, output_folder, run_folder, write_atomic, write_json
+from ground import verdict
+from ground.fileio import output_folder, run_folder, write_atomic, write_json
 from protocol import spacecraft as sf
 from protocol.units import RAD_PER_ARCSEC
 
@@ -116,9 +117,7 @@ def run(a):
     write_json(os.path.join(out, "summary.json"), summary)
     write_atomic(os.path.join(out, "report.md"), report_md(summary, a))
     _say(summary, a)
-    print(folder_line(out))
-    for line in verdict_lines(summary):
-        print(line, file=sys.stderr if line.startswith(("BUDGET", "INTERRUPTED")) else sys.stdout)
+    verdict.close(out, verdict_lines(summary))
     if interrupted:
         return 130
     return 3 if summary["budgets_met"] is False else 0
@@ -152,17 +151,14 @@ def verdict_lines(s):
 
 def report_md(s, a):
     """report.md: the verdict table, the run, the mode changes and the faults."""
-    mark = {True: "yes", False: "**NO**", None: "—"}
     sc = s.get("spacecraft") or {}
     out = ["# fps adcs can: the ADCS flight software over CAN", "",
            "Spacecraft %s (file %s, sha256 %s, vehicle %s); world %s; runtime %s; t_s = %g s; seed %d; %s SatB's "
            "GNSS. complete: %s" % (sc.get("name"), sc.get("source"), sc.get("sha256"),
                                    (sc.get("vehicle") or {}).get("vehicle", "file"), a.world, a.runtime, a.ts,
-                                   a.seed, "with" if a.satb_gnss else "without", s["complete"]), "",
-           "## Verdict", "", "| requirement | ours | budget | met |", "|---|---|---|---|"]
-    for what, v, lim, met in verdict_rows(s):
-        out.append("| %s | %s | %g | %s |" % (what, "—" if v is None else "%.1f" % v, lim, mark[met]))
-    out += ["", "The figures are taken after %.0f s (the hold and the settling); the budgets are %s." % (
+                                   a.seed, "with" if a.satb_gnss else "without", s["complete"]), ""]
+    out += verdict.table([(w, None if v is None else round(v, 1), lim, met) for w, v, lim, met in verdict_rows(s)])
+    out += ["The figures are taken after %.0f s (the hold and the settling); the budgets are %s." % (
         s["settle_s"], "the spacecraft file's" if s["requirements"]["source"] == "file" else "the thesis's (Sec. 6.4)"),
         "", "## The run", "",
         "- %s cycles of 1 s, last mode %s, %s late cycles; %s s wall (%s× real time)" % (

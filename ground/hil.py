@@ -32,13 +32,13 @@ import numpy as np
 
 from emulator.hcal import STEPS, fit_h
 from emulator.runtime import sigterm_as_interrupt
-from ground import report
+from ground import report, verdict
 from ground.calibrate import load_calibration
 from ground.link_report import link_counters
 from ground.distfile_cli import V_PER_ARCSEC, check_playable, load as load_distfile
 from ground.fileio import output_folder, run_folder, write_atomic, write_json
 from ground.hil_report import (_nonzero, _per_10s, _rate, jitter_harmonics, mode_changes,  # noqa: F401
-                               saturation_summary, verdict_lines)
+                               report_md, saturation_summary, verdict_lines)
 from ground.rig import AD660_CODES_PER_VOLT
 from ground.runtime import tick_timeout
 from protocol import htable
@@ -210,8 +210,7 @@ def run_hil(distfile_path, calibration_path, duration_s, runtime_name, link_name
     summary["disturbance"]["source"] = d.source
     summary["jitter_harmonics"] = jitter_harmonics(distfile_path, rec, rec.t0_us, run.rig)
     write_json(rec.path("summary.json"), summary)
-    write_atomic(rec.path("report.md"), report.table(summary) + "\n\n" + report.saturation_md(
-        summary.get("saturation")) + "\n\n" + "\n".join("- " + line for line in verdict_lines(summary)) + "\n")
+    write_atomic(rec.path("report.md"), report_md(summary))
     run.raise_if_stopped(out_dir, summary)
     return summary
 
@@ -469,9 +468,6 @@ def _cmd(a):
           "overruns %d" % (a.runtime, a.link, s["duration_s"], s["play_wall_s"], s["real_time_factor"],
                            _x(s["real_time_factor_first_minute"]), _x(s["real_time_factor_last_minute"]),
                            s["overruns"]))
-    files = "summary.json, report.md, samples.npz, telemetry.csv"
-    if not a.no_plots and s.get("q2_samples"):
-        files += ", fig7-18_scatter.png, fig7-19_time.png"
     if s.get("jitter_harmonics") and isinstance(s["jitter_harmonics"], list):
         print()
         print("| wheel harmonic (Hz) | in the file X / Y (arcsec) | played | after the FSM loop (truth) | "
@@ -481,9 +477,7 @@ def _cmd(a):
             print("| %.2f | %.4f / %.4f | %.4f / %.4f | %.4f / %.4f | %.4f / %.4f |" % (
                 h["wheel_hz"], *h["file_arcsec"], *h["played_arcsec"], *h["after_loop_arcsec"],
                 *h["model_after_arcsec"]))
-    print("run folder %s: %s" % (a.output, files))
-    for line in verdict_lines(s):
-        print(line)
+    verdict.close(a.output, verdict_lines(s))
     return 0 if s["requirement_met"] else 3
 
 

@@ -144,6 +144,24 @@ def _nonzero(d):
     return ", ".join("%s=%s" % (k, v) for k, v in sorted(d.items()) if v not in (0, None, "", [])) or "all zero"
 
 
+def verdict_rows(s):
+    """The verdict's row: the Q2 samples' largest radial error against the requirement (met None until the run
+    completes)."""
+    q2 = s.get("q2") or {}
+    return [("every Q2 sample within %.2f″ (largest radial error, arcsec)" % report.REQUIREMENT_ARCSEC,
+             q2.get("max_radial_arcsec"), report.REQUIREMENT_ARCSEC,
+             bool(s.get("requirement_met")) if s.get("complete") else None)]
+
+
+def report_md(s, title="fps hil: the emulated hardware in the loop (Sec. 7.5)"):
+    """report.md: the verdict table, the thesis's figures beside ours, the FSM saturation and the closing
+    lines."""
+    from ground.verdict import table
+    return "\n".join(["# " + title, ""] + table(verdict_rows(s)) + [
+        report.table(s), "", report.saturation_md(s.get("saturation")), ""] +
+        ["- " + line for line in verdict_lines(s)]) + "\n"
+
+
 def verdict_lines(s):
     """The closing lines: requirement, beam, FSM saturation, mode changes, link faults (every run, failed or
     not). The SATURATED entries and returns are summed up in the saturation line, not listed one by one."""

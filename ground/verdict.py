@@ -41,10 +41,10 @@ def runs_row(ok, n, what="runs completed (none failed nor diverged)"):
     return (what, "%d of %d" % (ok, n), "all", ok == n)
 
 
-def close(out, lines=()):
-    """The terminal's closing lines: the run-folder line (``fileio.folder_line``), then ``lines``, those of a
-    miss or a failure (starting with a capital word: MISSED, FAILED, INTERRUPTED) on stderr."""
+def close(out, lines=(), err=()):
+    """The terminal's closing lines: the run-folder line (``fileio.folder_line``), then ``lines``, those
+    starting with one of ``err`` (e.g. "BUDGET", "INTERRUPTED") on stderr."""
     print(folder_line(out))
     for line in lines:
-        print(line, file=sys.stderr if line.split(" ", 1)[0].isupper() else sys.stdout)
+        print(line, file=sys.stderr if err and line.startswith(tuple(err)) else sys.stdout)
     sys.stdout.flush()

@@ -117,7 +117,7 @@ def run(a):
     write_json(os.path.join(out, "summary.json"), summary)
     write_atomic(os.path.join(out, "report.md"), report_md(summary, a))
     _say(summary, a)
-    verdict.close(out, verdict_lines(summary))
+    verdict.close(out, verdict_lines(summary), err=("BUDGET", "INTERRUPTED"))
     if interrupted:
         return 130
     return 3 if summary["budgets_met"] is False else 0

@@ -5,11 +5,11 @@ import os
 import sys
 
 
-from ground import hil
+from ground import hil, verdict
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
 from ground.adcs.options import add_fault_options, add_satb_gnss_option, faults_from_args
 from ground.fileio import cache_folder
-from ground.system.constants import ADCS_KINDS, FIGURE, LEAD_S, RUNTIMES, firmware_available
+from ground.system.constants import ADCS_KINDS, LEAD_S, RUNTIMES, firmware_available
 from ground.system.reporting import _x, exit_code, side_by_side, verdict_lines
 from ground.system.run import run_system
 
@@ -56,12 +56,8 @@ def _cmd(a):
     print("ADCS %s, controller %s over serial: %.1f s virtual in %.1f s wall, real-time factor %s (play %s)"
           % (a.adcs, a.runtime, s["duration_s"], s["wall_s"], _x(s["real_time_factor"]),
              _x(s["real_time_factor_play"])))
-    print("run folder %s: summary.json, report.md, samples.npz, body.npz, telemetry.csv%s"
-          % (a.output, ", " + FIGURE if not a.no_plots else ""))
-    rc = exit_code(s)
-    for line in verdict_lines(s):
-        print(line)
-    return rc
+    verdict.close(a.output, verdict_lines(s))
+    return exit_code(s)
 
 
 EXIT_STATUS = """exit status: 0 complete, and both loops within their budgets (fine: every Q2 sample within 11.98

@@ -75,7 +75,7 @@ def legend(ax, outside=False, **kw):
         return ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False, **kw)
     if outside:
         return ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=4, fontsize=8, frameon=False, **kw)
-    return ax.legend(fontsize=8, **kw)
+    return ax.legend(**dict({"fontsize": 8}, **kw))
 
 
 def _centre_index(v0):
@@ -258,3 +258,88 @@ def adcs_can_pointing(h, path, faults=None):
     a.set_title("ADCS on CAN: body pointing error and mode")
     fig.tight_layout()
     save_png(fig, path)
+
+
+def sigma_traces(ax, t, err, sig, names, n=3, lw=0.6, key=True):
+    """Each column of ``err`` (solid, named in the legend) with its ±n``sig`` (dashed, the same colour; ``key``:
+    a legend entry for the dashes): an estimator's error against its own nσ, colour i the i-th name."""
+    for i, name in enumerate(names):
+        c = "C%d" % i
+        ax.plot(t, err[:, i], color=c, lw=lw, label=name)
+        ax.plot(t, n * sig[:, i], color=c, ls="--", lw=lw)
+        ax.plot(t, -n * sig[:, i], color=c, ls="--", lw=lw)
+    if key:
+        ax.plot([], [], color="k", ls="--", lw=lw, label="±%dσ (dashed, each trace's colour)" % n)
+
+
+def zoom_after(ax, t, t0, ys, q=0.5, margin=1.5):
+    """Y limits on the steady state: ±``margin`` x the largest ``q`` quantile of |y| over t >= t0 among ``ys``
+    (a start-up transient, and with a low ``q`` recurring excursions, run off the axis: ``inset`` shows them).
+    Returns the limit (None: no finite data there)."""
+    t = np.asarray(t, float)
+    sel = t >= t0
+    lim = 0.0
+    for y in ys:
+        v = np.abs(np.asarray(y, float)[sel])
+        v = v[np.isfinite(v)]
+        if v.size:
+            lim = max(lim, float(np.quantile(v, q)))
+    if not lim > 0:
+        return None
+    ax.set_ylim(-margin * lim, margin * lim)
+    return margin * lim
+
+
+def beyond(ax, t, ys, label, mask=False):
+    """Shade where any of ``ys`` runs off the axes' y range, labelled once: what the zoom leaves out (``inset``
+    shows it). ``mask``: the axes' traces over ``t`` are left out there too (made before ``inset`` copies them, the
+    inset keeps them), so that a trace off the axis outside the shading is one beyond its own envelope."""
+    t = np.asarray(t, float)
+    hi = ax.get_ylim()[1]
+    off = np.zeros(len(t), bool)
+    for y in ys:
+        off |= np.abs(np.nan_to_num(np.asarray(y, float))) > hi
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], off.astype(int), [0]])))
+    spans = [(t[a], t[b - 1]) for a, b in zip(edges[::2], edges[1::2])]
+    for k, (t0, t1) in enumerate(spans):
+        ax.axvspan(t0, t1, color="0.9", lw=0, zorder=0, label=label if k == 0 else None)
+    if mask and off.any():
+        for ln in ax.lines:
+            y = np.array(ln.get_ydata(), float)
+            if len(y) == len(t):
+                y[off] = np.nan
+                ln.set_ydata(y)
+    return spans
+
+
+def inset(ax, t_end=None, bounds=(0.07, 0.56, 0.3, 0.4), title="full scale", log_ratio=20.0):
+    """An inset of the axes' traces (lines of more than two points) at their full scale, up to ``t_end`` (None:
+    all): the transient the zoomed axes leave out, the main axes' y range shaded. Symlog y (linear within the
+    main range) when the traces reach ``log_ratio`` x beyond it. Labelled "<inset>"."""
+    ins = ax.inset_axes(bounds)
+    ins.set_label("<inset>")
+    hi = ax.get_ylim()[1]
+    top = 0.0
+    for ln in ax.lines:
+        x, y = np.asarray(ln.get_xdata(), float), np.asarray(ln.get_ydata(), float)
+        if len(x) <= 2:
+            continue
+        m = np.ones(len(x), bool) if t_end is None else x <= t_end
+        ins.plot(x[m], y[m], color=ln.get_color(), ls=ln.get_linestyle(), lw=0.5)
+        v = np.abs(y[m][np.isfinite(y[m])])
+        top = max(top, float(v.max()) if v.size else 0.0)
+    if hi > 0 and top > log_ratio * hi:
+        ins.set_yscale("symlog", linthresh=hi)
+    ins.axhspan(-hi, hi, color="gold", alpha=0.25, lw=0)
+    ins.tick_params(labelsize=6, pad=1)
+    ins.text(0.98, 0.95, title, transform=ins.transAxes, ha="right", va="top", fontsize=6)
+    ins.patch.set_alpha(0.9)
+    return ins
+
+
+def pass_levels(ax, spans, values, label, color="k"):
+    """A figure per span (each pointing pass's 3σ) as solid ± segments over it, labelled once."""
+    for (t0, t1), v in zip(spans, values):
+        if v is not None:
+            ax.hlines([v, -v], t0, t1, colors=color, lw=1.6, label=label, zorder=5)
+            label = None

@@ -1,5 +1,6 @@
 """report.md (the thesis's Sec. 4.8 table beside ours) and plots like Fig. 4-5 for an ``fps adcs`` campaign."""
 
+import json
 import os
 import warnings
 
@@ -137,53 +138,76 @@ def _jxx_ref(summary):
     return "= %.4g kg m^2" % v[0] if len(v) == 1 else "%.4g-%.4g kg m^2" % (v[0], v[-1])
 
 
-# series.npz holds the APKF's parameters in its Jxx-relative units (``runs.physical_params``): "rel." below
-APKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600)),
-               ("rate (arcsec/s)", slice(3, 6), 1 / (np.pi / 180 / 3600)),
-               ("tau_d (1e-6 N m, rel.)", slice(6, 9), 1e6), ("Jyy, Jzz (1e-3 kg m^2, rel.)", slice(9, 11), 1e3),
-               ("Jxy, Jxz, Jyz (1e-3 kg m^2, rel.)", slice(11, 14), 1e3), ("dipole (A m^2, rel.)", slice(14, 17), 1.0),
-               ("delta_rw,1 (deg)", slice(17, 21), 180 / np.pi), ("delta_rw,2 (deg)", slice(21, 25), 180 / np.pi),
-               ("Jrw (1e-8 kg m^2, rel.)", slice(25, 29), 1e8), ("W_rw (rpm)", slice(29, 33), 60 / (2 * np.pi))]
-MEKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600)),
-               ("gyro bias (deg/h)", slice(3, 6), 180 / np.pi * 3600)]
+# series.npz holds the APKF's parameters in its Jxx-relative units (Sec. 4.6.2, ``runs.physical_params``): tau_d,
+# J and the dipole are the spacecraft's times s = Jxx_ref / Jxx ("Jxx-rel" below; divided by the run's s when its
+# result.json gives it), Jrw_i also over |c_i|. (y label, columns, factor, component names, relative)
+XYZ = ("x", "y", "z")
+WHEELS = ("wheel 1", "wheel 2", "wheel 3", "wheel 4")
+APKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600), XYZ, False),
+               ("rate (arcsec/s)", slice(3, 6), 1 / (np.pi / 180 / 3600), XYZ, False),
+               ("tau_d (1e-6 N m)", slice(6, 9), 1e6, XYZ, True),
+               ("Jyy, Jzz (1e-3 kg m²)", slice(9, 11), 1e3, ("Jyy", "Jzz"), True),
+               ("Jxy, Jxz, Jyz (1e-3 kg m²)", slice(11, 14), 1e3, ("Jxy", "Jxz", "Jyz"), True),
+               ("dipole (A m²)", slice(14, 17), 1.0, XYZ, True),
+               ("delta_rw,1 (deg)", slice(17, 21), 180 / np.pi, WHEELS, False),
+               ("delta_rw,2 (deg)", slice(21, 25), 180 / np.pi, WHEELS, False),
+               ("Jrw (1e-8 kg m², filter's)", slice(25, 29), 1e8, WHEELS, False),
+               ("W_rw (rpm)", slice(29, 33), 60 / (2 * np.pi), WHEELS, False)]
+MEKF_GROUPS = [("attitude (arcsec)", slice(0, 3), 2 / (np.pi / 180 / 3600), XYZ, False),
+               ("gyro bias (deg/h)", slice(3, 6), 180 / np.pi * 3600, XYZ, False)]
+
+
+def _param_scale(series_npz):
+    """The run's s = Jxx_ref / Jxx from the result.json beside its series, None when not there."""
+    try:
+        with open(os.path.join(os.path.dirname(series_npz), "result.json")) as f:
+            v = json.load(f).get("param_scale")
+    except (OSError, ValueError):
+        return None
+    return float(v) if v else None
 
 
 def plot_run(series_npz, name, path):
-    """Fig. 4-5 style: each state group's error (solid) with its +-3 sigma bounds (dashed), one run; each panel
-    zoomed on twice its typical 3 sigma past the first third (the start-up transient and the maneuvers' spikes
-    would hide the steady state; they run off the axis), one legend for the components and line styles."""
+    """Fig. 4-5 style: each state group's error (solid) with its ±3σ (dashed, the same colour), one run, each
+    panel's legend naming its components. Each panel is zoomed on twice its lower-quartile 3σ past the first third
+    (the steady state between the maneuvers), the seconds where a trace runs off it shaded, and an inset shows
+    the whole run at full scale (symlog beyond the zoom). The relative parameters are divided by the run's s."""
     from matplotlib.lines import Line2D
-    from ground.plots import save_png, subplots
+    from matplotlib.patches import Patch
+    from ground.plots import beyond, inset, legend, save_png, sigma_traces, subplots, zoom_after
     d = np.load(series_npz)
     t, e, s = d["t"], d["error"], d["sigma"]
+    sc = _param_scale(series_npz) if name == "apkf" else None
     groups = APKF_GROUPS if name == "apkf" else MEKF_GROUPS
-    ncol = 2
     nrow = (len(groups) + 1) // 2
-    fig, axs = subplots(nrow, ncol, width=11, row_height=2.3 if nrow > 2 else 3.4, sharex=True)
-    for ax, (label, sl, k) in zip(axs.flat, groups):
-        for i, c in zip(range(sl.start, sl.stop), "bgrmk"):
-            ax.plot(t, e[:, i] * k, c, lw=0.7)
-            ax.plot(t, 3 * s[:, i] * k, c + "--", lw=0.5)
-            ax.plot(t, -3 * s[:, i] * k, c + "--", lw=0.5)
-        ax.set_ylabel(label, fontsize=8)
-        tail = slice(len(t) // 3, None)           # past the start-up transient
-        lim = np.nanmedian(np.abs(3 * s[tail, sl] * k)) if len(t) > 3 else 1.0    # the typical 3σ: maneuvers'
-        if np.isfinite(lim) and lim > 0:                                           # spikes run off the axis
-            ax.set_ylim(-2 * lim, 2 * lim)
+    fig, axs = subplots(nrow, 2, width=13, row_height=3.0 if nrow > 2 else 3.4, sharex=True)
+    t0 = t[len(t) // 3] if len(t) > 3 else t[0]
+    for ax, (label, sl, k, names, rel) in zip(axs.flat, groups):
+        k = k / sc if rel and sc else k
+        sigma_traces(ax, t, e[:, sl] * k, s[:, sl] * k, names, key=False)     # the dashes' key: the figure's
+        ax.set_ylabel(label[:-1] + ", Jxx-rel)" if rel and not sc else label, fontsize=8)
+        env = [3 * s[:, i] * k for i in range(sl.start, sl.stop)]
+        if zoom_after(ax, t, t0, env, q=0.25, margin=2.0):
+            inset(ax)
+            beyond(ax, t, env, None, mask=True)
+        legend(ax, loc="upper right", ncol=len(names), fontsize=7, framealpha=0.8)
     for ax in axs[-1]:
         ax.set_xlabel("time (s)")
     for ax in list(axs.flat)[len(groups):]:
         ax.axis("off")
-    keys = [Line2D([], [], color=c, lw=0.9, label=n) for c, n in zip("bgrm", ("1st component (x, wheel 1)",
-                                                                              "2nd (y, wheel 2)", "3rd (z, wheel 3)",
-                                                                              "4th (wheel 4)"))]
-    keys += [Line2D([], [], color="k", lw=0.7, label="error"), Line2D([], [], color="k", ls="--", lw=0.5,
-                                                                       label="+-3σ")]
-    fig.legend(handles=keys, loc="lower center", ncol=6, fontsize=8, frameon=False)
-    fig.suptitle("%s: estimation error and +-3σ (axes at twice the typical 3σ), cf. Fig. 4-%s"
-                 % (name.upper(), "5" if name == "apkf" else "1"))
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
-    save_png(fig, path, dpi=100)
+    keys = [Line2D([], [], color="k", lw=0.9, label="error (solid)"),
+            Line2D([], [], color="k", ls="--", lw=0.7, label="±3σ, the filter's (dashed, the trace's colour)"),
+            Patch(color="0.9", label="3σ beyond the zoomed axis (maneuvers, start-up): traces left out, see inset"),
+            Patch(color="gold", alpha=0.25, label="inset: the whole run, the zoomed range shaded")]
+    fig.legend(handles=keys, loc="lower center", ncol=2, fontsize=8, frameon=False)
+    note = ("" if name != "apkf" else "Jxx-rel: the APKF's Jxx-relative units (Sec. 4.6.2), x s = Jxx_ref/Jxx; "
+            if not sc else "tau_d, J, dipole divided by this run's s = Jxx_ref/Jxx = %.3f (physical units); " % sc)
+    note += "Jrw in the filter's units (x s/|c_i|); " if name == "apkf" else ""
+    fig.text(0.5, 0.055, note + "holds where each solid trace stays inside its dashed pair.", ha="center", fontsize=8)
+    fig.suptitle("%s: estimation error against its ±3σ, one run (axes at twice the lower-quartile 3σ past %.0f s), "
+                 "cf. Fig. 4-%s" % (name.upper(), t0, "5" if name == "apkf" else "1"))
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    save_png(fig, path, dpi=90)
 
 
 def plot_spread(results, summary, path):
@@ -194,43 +218,54 @@ def plot_spread(results, summary, path):
         _plot_spread(results, summary, path)
 
 
+SPREAD_WINDOW = 9                                # s: the spread's RMS over the runs, smoothed over this window
+
+
 def _plot_spread(results, summary, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from ground.plots import save_png
+    """The attitude error of every run per axis with ±3 x the RMS over the runs, zoomed as ``plot_run`` (the
+    maneuvers' excursions shaded, left out and in an inset), and the mean NEES against its 95 % band from the
+    second it is counted (log scale, on the counted seconds' range)."""
+    from ground.plots import beyond, inset, legend, save_png, subplots, zoom_after
     ok = [r for r in results if r and "series" in r and not r.get("diverged")]      # the summary's runs
     if not ok:
         return
     a = np.array([r["series"]["att_err"] for r in ok], dtype=float)
     nees = np.array([r["series"]["nees"] for r in ok], dtype=float)
     t = np.arange(a.shape[1])
-    fig, axs = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
-    for i, ax in enumerate(axs[:3]):
+    t0 = t[len(t) // 3] if len(t) > 3 else 0
+    fig, axs = subplots(4, 1, width=10, row_height=2.4, sharex=True)
+    for i, ax in enumerate(axs[:3, 0]):
         for j, run in enumerate(a[:, :, i]):
-            ax.plot(t, run, lw=0.4, alpha=0.5, label="each run (%d)" % len(a) if j == 0 else None)
-        rms = np.sqrt(np.nanmean(a[:, :, i] ** 2, axis=0)) if len(a) else None
-        ax.plot(t, 3 * rms, "k--", lw=0.8, label="3 x RMS over runs")
+            ax.plot(t, run, lw=0.5, color="C%d" % (j % 10), alpha=0.7, label="each run (%d)" % len(a) if j == 0
+                    else None)
+        ms = np.nan_to_num(np.nanmean(a[:, :, i] ** 2, axis=0))
+        rms = np.sqrt(np.convolve(ms, np.ones(SPREAD_WINDOW) / SPREAD_WINDOW, mode="same"))
+        ax.plot(t, 3 * rms, "k--", lw=0.8, label="±3 x RMS over the runs and %d s" % SPREAD_WINDOW)
         ax.plot(t, -3 * rms, "k--", lw=0.8)
         ax.set_ylabel("%s error (arcsec)" % "xyz"[i])
-        fin = np.nanmax(np.abs(a[:, a.shape[1] // 3:, i])) if a.shape[1] > 3 else 1
-        if np.isfinite(fin) and fin > 0:
-            ax.set_ylim(-1.2 * fin, 1.2 * fin)
-    axs[0].legend(fontsize=8)
+        if zoom_after(ax, t, t0, [3 * rms], q=0.25, margin=2.0):
+            inset(ax, bounds=(0.06, 0.55, 0.25, 0.42))
+            beyond(ax, t, [3 * rms], "3 x RMS beyond this axis (maneuvers): left out, see the inset", mask=True)
+        legend(ax, loc="upper right", fontsize=7, framealpha=0.8)
     mean = np.nanmean(nees, axis=0)
-    axs[3].semilogy(t, mean, "b", lw=0.7, label="mean NEES over %d runs" % len(nees))
     n = summary.get("nees")
+    nz = axs[3, 0]
+    nz.semilogy(t, mean, "b", lw=0.7, label="mean NEES over %d runs" % len(nees))
     if n:
-        axs[3].axhline(n["band"][0], color="k", ls="--", lw=0.7)
-        axs[3].axhline(n["band"][1], color="k", ls="--", lw=0.7, label="95 % band")
-        axs[3].axvline(n["from_s"], color="gray", lw=0.5, label="NEES counted from %g s" % n["from_s"])
-    axs[3].set_ylabel("NEES (-)")
-    axs[3].set_xlabel("time (s)")
-    axs[3].legend(fontsize=8)
-    fig.suptitle("Monte Carlo spread: %s%s" % (summary["filter"].upper(),
-                                                "" if summary["filter"] == "mekf" else ", case %d" % summary["case"]))
+        nz.axhline(n["band"][0], color="k", ls="--", lw=0.7)
+        nz.axhline(n["band"][1], color="k", ls="--", lw=0.7, label="95 %% band [%.2f, %.2f]" % tuple(n["band"]))
+        nz.axvline(n["from_s"], color="gray", lw=0.5, label="NEES counted from %g s" % n["from_s"])
+        v = mean[(t >= n["from_s"]) & np.isfinite(mean)]
+        if v.size and v.min() > 0:
+            nz.set_ylim(min(v.min(), n["band"][0]) / 2, max(v.max(), n["band"][1]) * 2)
+    nz.set_ylabel("NEES (-)")
+    nz.set_xlabel("time (s)")
+    legend(nz, loc="lower right", fontsize=7, framealpha=0.8)
+    fig.suptitle("Monte Carlo spread: %s%s; holds where the runs stay inside ±3 x RMS and the NEES in its band"
+                 % (summary["filter"].upper(), "" if summary["filter"] == "mekf" else ", case %d" % summary["case"]),
+                 fontsize=10)
     fig.tight_layout()
-    save_png(fig, path, dpi=100)
+    save_png(fig, path, dpi=90)
 
 
 FIGURES = ("fig4-5_errors.png", "monte_carlo.png")

@@ -38,6 +38,7 @@ import time
 import numpy as np
 
 from emulator.spacecraft import scenario
+from ground import verdict
 from ground.adcs import body_pointing as bps, campaign, flight_world, runs, terminal_tuning
 from ground.adcs.bps_report import (FIGURES_FLIGHT, plot_flight, plot_history, plot_objectives, plot_sweep,
                                     report_flight_md, report_md)
@@ -152,7 +153,8 @@ def judge_flight(s):
 
 
 def flight_checks(s):
-    """The flight world's requirements of one run (``fps adcs bps --world flight``), each {"ok", "what"}:
+    """The flight world's requirements of one run (``fps adcs bps --world flight``), each {"ok", "what", "ours",
+    "budget"}:
     every pointing pass after the first orbit within the 3 sigma budgets, the wheels within their share of their
     speed limit after the first orbit, the star tracker blind less than ``BLIND_MAX`` of the time after the first
     slew, and at least one pass collected."""
@@ -163,16 +165,23 @@ def flight_checks(s):
     lim = s["wheel_speed_limit_rpm"]
     blind = s.get("star_tracker_blind_share")
     wmax = s.get("max_wheel_speed_rpm")
+    worst = {k: max((p[k] for p in passes), default=None) for k in ("pointing_3sigma_arcsec",
+                                                                     "stability_3sigma_arcsec_s")}
     return {
-        "passes": {"ok": bool(passes), "what": "%d pointing pass(es) after the first orbit" % len(passes)},
+        "passes": {"ok": bool(passes), "what": "%d pointing pass(es) after the first orbit" % len(passes),
+                   "ours": len(passes), "budget": ">= 1"},
         "pointing": {"ok": bool(passes) and all(p["pointing_3sigma_arcsec"] <= pb for p in passes),
-                     "what": "every pass's 3σ pointing <= %g arcsec" % pb},
+                     "what": "every pass's 3σ pointing <= %g arcsec" % pb,
+                     "ours": worst["pointing_3sigma_arcsec"], "budget": pb},
         "stability": {"ok": bool(passes) and all(p["stability_3sigma_arcsec_s"] <= wb for p in passes),
-                      "what": "every pass's 3σ stability <= %g arcsec/s" % wb},
+                      "what": "every pass's 3σ stability <= %g arcsec/s" % wb,
+                      "ours": worst["stability_3sigma_arcsec_s"], "budget": wb},
         "wheels": {"ok": wmax is not None and wmax <= band * lim,
-                   "what": "wheels <= %.0f %% of %.0f rpm after the first orbit" % (100 * band, lim)},
+                   "what": "wheels <= %.0f %% of %.0f rpm after the first orbit (rpm)" % (100 * band, lim),
+                   "ours": wmax, "budget": band * lim},
         "star_tracker": {"ok": blind is not None and blind < BLIND_MAX,
-                         "what": "star tracker blind < %.0f %% of the time after the first slew" % (100 * BLIND_MAX)},
+                         "what": "star tracker blind < %.0f %% of the time after the first slew (share)"
+                         % (100 * BLIND_MAX), "ours": blind, "budget": BLIND_MAX},
     }
 
 
@@ -233,8 +242,7 @@ def _cmd_bps(a):
     write_atomic(os.path.join(out, "report.md"), report_md(s, args_text))
     write_json(os.path.join(out, "summary.json"), s)
     print(report_md(s, args_text))
-    print("run folder %s: summary.json, history.npz, params.json, report.md%s"
-          % (out, "".join(", " + p for p in plots)))
+    verdict.close(out)
     if not s["complete"]:
         print("interrupted: partial run in %s (summary complete=false)" % out, file=sys.stderr)
         return 130
@@ -273,7 +281,7 @@ def _finish_flight(a, out, res, hist, record, args_text):
     write_atomic(os.path.join(out, "report.md"), text)
     write_json(os.path.join(out, "summary.json"), s)
     print(text)
-    print("run folder %s: summary.json, history.npz, params.json, report.md%s" % (out, "".join(", " + p for p in plots)))
+    verdict.close(out)
     if not s["complete"]:
         print("interrupted: partial run in %s (summary complete=false)" % out, file=sys.stderr)
         return 130
@@ -352,6 +360,7 @@ def _cmd_sweep(a):
     write_atomic(os.path.join(out, "report.md"), "\n".join(lines))
     write_json(os.path.join(out, "summary.json"), s)
     print("\n".join(lines))
+    verdict.close(out)
     if not complete:
         print("interrupted: partial sweep in %s (summary complete=false)" % out, file=sys.stderr)
         return 130
@@ -364,9 +373,12 @@ def _cmd_sweep(a):
 
 
 def sweep_lines(s, record, duration, satb, complete):
-    """report.md's J table of the sweep (a ζ column on a grid) and its minimum."""
+    """report.md's verdict (every t_s computed), the J table of the sweep (a ζ column on a grid) and its
+    minimum."""
     zs = s.get("zeta")
-    lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "Spacecraft %s." % record["name"], "",
+    row = verdict.runs_row(sum(j is not None for j in s["J"]), len(s["J"]), "t_s points computed (none failed)")
+    lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "Spacecraft %s." % record["name"], ""]
+    lines += verdict.table([row[:3] + (row[3] if complete else None,)]) + [
              "| t_s (s) |%s J (rad²) |" % ("" if zs is None else " ζ |"), "|---|---|" + ("" if zs is None else "---|")]
     lines += ["| %g |%s %s |" % (t, "" if zs is None else " %g |" % zs[n], "—" if j is None else "%.4e" % j)
               for n, (t, j) in enumerate(zip(s["ts_s"], s["J"]))]

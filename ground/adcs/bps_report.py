@@ -8,6 +8,7 @@ import numpy as np
 
 from ground.adcs import body_pointing as bps, control
 from ground.adcs.modes import MODE_CODE, MODES
+from ground.verdict import table as verdict_table
 from protocol.spacecraft import THESIS_REQUIREMENTS
 
 FIGURES_FLIGHT = ("flight_pointing.png", "flight_wheels.png")
@@ -41,11 +42,13 @@ def report_md(s, args_text):
                                                                        sd[i] / t[1]))
     p3, w3 = s.get("pointing_3sigma_arcsec"), s.get("stability_3sigma_arcsec_s")
     th3 = bps.thesis_3sigma(s["satb_gnss"])
-    out += ["", "| budget (3σ, two axes in total) | limit | thesis | ours |", "|---|---|---|---|",
-            "| pointing (arcsec) | %g | %.1f | %s |" % (bps.BUDGET_POINTING_3SIGMA, th3[0],
-                                                        "—" if p3 is None else "%.1f" % p3),
-            "| stability (arcsec/s) | %g | %.1f | %s |" % (bps.BUDGET_STABILITY_3SIGMA, th3[1],
-                                                           "—" if w3 is None else "%.1f" % w3), "",
+    req = s.get("requirements") or THESIS_REQUIREMENTS
+    budgets = (req["body_pointing_3sigma_arcsec"], req["body_stability_3sigma_arcsec_s"])
+    out += [""] + verdict_table([("3σ %s, two axes in total" % what, None if v is None else round(v, 1), b,
+                                  None if v is None else v <= b, th)
+                                 for what, v, b, th in (("pointing (arcsec)", p3, budgets[0], th3[0]),
+                                                        ("stability (arcsec/s)", w3, budgets[1], th3[1]))],
+                                extra="thesis") + [
             "J = %s rad² (Eq. 6.22); largest pointing error %s arcsec; largest wheel speed %.0f rpm (the "
             "emulated wheels' datasheet: %s rpm; this run's limit %.0f rpm, reached %s times); "
             "wall %.1f s." % ("—" if s.get("J_rad2") is None else "%.3e" % s["J_rad2"],
@@ -185,9 +188,7 @@ def report_flight_md(s, args_text):
            "complete: %s" % (_name(s.get("spacecraft")), s["ts_s"], "with" if s["satb_gnss"] else "without",
                             s["simulated_s"], s["simulated_s"] / s["orbit_period_s"], s["orbit_period_s"],
                             s["truth"], s["seed"], s["complete"]), ""] + occultation_md(s) + [
-           "| requirement | met |", "|---|---|"]
-    for c in s["checks"].values():
-        out.append("| %s | %s |" % (c["what"], "yes" if c["ok"] else "**NO**"))
+           ] + verdict_table([(c["what"], c.get("ours"), c.get("budget"), c["ok"]) for c in s["checks"].values()])
     out += ["", "| pass (orbit) | from (s) | samples (10 Hz, POINT) | 3σ pointing (arcsec) | 3σ stability "
             "(arcsec/s) | largest wheel speed (rpm) |", "|---|---|---|---|---|---|"]
     for p in s["passes"]:

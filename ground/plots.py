@@ -333,7 +333,6 @@ def inset(ax, t_end=None, bounds=(0.07, 0.56, 0.3, 0.4), title="full scale", log
     ins.axhspan(-hi, hi, color="gold", alpha=0.25, lw=0)
     ins.tick_params(labelsize=6, pad=1)
     ins.text(0.98, 0.95, title, transform=ins.transAxes, ha="right", va="top", fontsize=6)
-    ins.patch.set_alpha(0.9)
     return ins
 
 
@@ -343,3 +342,25 @@ def pass_levels(ax, spans, values, label, color="k"):
         if v is not None:
             ax.hlines([v, -v], t0, t1, colors=color, lw=1.6, label=label, zorder=5)
             label = None
+
+
+def orbit_frame(r, v):
+    """The rows (along-track, cross-track, radial) of each orbit state's frame, (n, 3, 3) from positions and
+    velocities (n, 3): radial r/|r|, cross-track along r x v, along-track their cross product (the velocity's
+    direction on a circular orbit)."""
+    r, v = np.asarray(r, float), np.asarray(v, float)
+    rad = r / np.linalg.norm(r, axis=1)[:, None]
+    h = np.cross(r, v)
+    cross = h / np.linalg.norm(h, axis=1)[:, None]
+    return np.stack([np.cross(cross, rad), cross, rad], axis=1)
+
+
+def in_frame(M, err, P):
+    """Errors (n, 3) and their 1σ from covariances (n, 3, 3) resolved in the frames M (n, 3, 3): (M e, sqrt(diag(M
+    P M^T)))."""
+    e = np.einsum("nij,nj->ni", M, err)
+    s = np.sqrt(np.einsum("nij,njk,nik->ni", M, P, M))
+    return e, s
+
+
+FRAME_AXES = ("along-track", "cross-track", "radial")

@@ -152,7 +152,9 @@ def test_the_stkf_plots(figs, tmp_path, n_runs):
     stkf_sim.plots(str(tmp_path), dirs, 2)
     for name in ("fig5-6_states.png", "fig5-7_pointing.png"):
         check(figs[name])
-    assert ("others grey" in figs["fig5-6_states.png"]._suptitle.get_text()) == (n_runs > 1)
+    f = figs["fig5-6_states.png"]
+    names = [x for ax in f.axes for x in _legend_texts(f, ax)]
+    assert any("the other 2 runs" in x for x in names) == (n_runs > 1)
 
 
 def test_the_body_pointing_plots(figs, tmp_path):

@@ -167,7 +167,7 @@ def simulate(case, duration_s=1200.0, seed=0, truth="two-body", cache_dir=None, 
     gaps = _Gaps(log, ("gnss_a", "beacon") + (("relay",) if case == 2 else ()))
     hist = {k: np.zeros((K + 1,) + s) for k, s in
             (("err", (12,)), ("sig", (12,)), ("perr", (2,)), ("psig", (2,)), ("nees", ()), ("lerr", ()),
-             ("merr", (3,)), ("msig", (3,)), ("aerr", (3,)), ("asig", (3,)))}
+             ("merr", (3,)), ("msig", (3,)), ("aerr", (3,)), ("asig", (3,)), ("xB", (6,)), ("PB", (36,)))}
     hist["t"] = np.arange(K + 1, dtype=float)
     step_s = []
     jb = 0
@@ -260,7 +260,8 @@ def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att, mis):
     """Row k of the history: the estimate's error and 1 sigma, its NEES, the pointing error and its 1 sigma,
     the line of sight's direction error (arcsec, J2000: the orbits' alone, without the attitude's), the
     misalignment's error and 1 sigma (arcsec; "ignore": the figure's error, 1 sigma 0), the attitude knowledge's
-    error d_alpha (A_true = A(d_alpha) A_hat, Eq. 4.77) and the 1 sigma the filter is given (arcsec);
+    error d_alpha (A_true = A(d_alpha) A_hat, Eq. 4.77) and the 1 sigma the filter is given (arcsec), SatB's
+    estimate [rB, vB] and its 6 x 6 covariance (m, m/s; the plots resolve rB's and vB's errors in its orbit's frame);
     FloatingPointError when the filter diverged (NaN, or an orbit under the Earth's surface)."""
     x, Pk = flt.x, flt.Pk
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(Pk))):
@@ -271,6 +272,7 @@ def _record(hist, k, t, flt, x_true, A_hat, A_true, P_att, mis):
     hist["err"][k] = x[:stkf.N] - x_true
     sig = np.sqrt(np.diag(Pk))
     hist["sig"][k] = sig[:stkf.N]
+    hist["xB"][k], hist["PB"][k] = x[6:12], Pk[6:12, 6:12].ravel()
     hist["nees"][k] = hist["err"][k] @ np.linalg.solve(Pk[:stkf.N, :stkf.N], hist["err"][k])
     if mis["estimate"]:
         hist["merr"][k] = (x[stkf.IM] - mis["truth"]) / RAD_PER_ARCSEC
@@ -502,71 +504,9 @@ def report_md(summary, case, args_text):
 
 
 def plots(out_dir, run_dirs, case):
-    """Fig. 5-4/5-6 (state errors with +-3 sigma) and Fig. 5-5/5-7 (pointing vector), first run bold."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from ground.plots import save_png
-    hs = []
-    for d in run_dirs:
-        p = os.path.join(d, "history.npz")
-        if os.path.exists(p):
-            with np.load(p) as z:
-                hs.append({k: z[k] for k in z.files})
-    if not hs:
-        return []
-    files = []
-    fig, ax = plt.subplots(3, 4, figsize=(14, 8), sharex=True)
-    titles = ["rA error (m)", "vA error (m/s)", "rB error (m)", "vB error (m/s)"]
-    for c in range(4):
-        for r in range(3):
-            i = 3 * c + r
-            a = ax[r, c]
-            for h in hs[1:]:
-                a.plot(h["t"], h["err"][:, i], color="0.75", lw=0.5)
-            h = hs[0]
-            a.plot(h["t"], h["err"][:, i], "b", lw=0.8)
-            a.plot(h["t"], 3 * h["sig"][:, i], "r--", lw=0.8)
-            a.plot(h["t"], -3 * h["sig"][:, i], "r--", lw=0.8)
-            lim = 6 * max(h["sig"][len(h["t"]) // 4:, i].max(), 1e-9)
-            a.set_ylim(-lim, lim)
-            a.grid(True, lw=0.3)
-            a.set_ylabel("%s %s" % ("xyz"[r], titles[c].split(" ", 1)[1]), fontsize=8)
-            if r == 0:
-                a.set_title(titles[c])
-        ax[2, c].set_xlabel("time (s)")
-    ax[0, 0].plot([], [], "b", label="error" + (" (first run)" if len(hs) > 1 else ""))
-    if len(hs) > 1:
-        ax[0, 0].plot([], [], color="0.75", label="the other %d runs" % (len(hs) - 1))
-    ax[0, 0].plot([], [], "r--", label="+-3σ")
-    ax[0, 0].legend(fontsize=7, loc="upper right")
-    fig.suptitle("STKF Case %d: state errors%s, +-3σ dashed"
-                 % (case, " (first run blue, the others grey)" if len(hs) > 1 else ""))
-    fig.tight_layout()
-    name = FIGURES[0 if case == 1 else 2]
-    save_png(fig, os.path.join(out_dir, name), dpi=90)
-    files.append(name)
-    fig, ax = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
-    for j in range(2):
-        for h in hs[1:]:
-            ax[j].plot(h["t"], h["perr"][:, j], color="0.75", lw=0.5)
-        h = hs[0]
-        ax[j].plot(h["t"], h["perr"][:, j], "b", lw=0.8)
-        ax[j].plot(h["t"], 3 * h["psig"][:, j], "r--", lw=0.8)
-        ax[j].plot(h["t"], -3 * h["psig"][:, j], "r--", lw=0.8)
-        ax[j].set_ylim(-150, 150)
-        ax[j].set_ylabel("angle %d (arcsec)" % (j + 1))
-        ax[j].grid(True, lw=0.3)
-    ax[0].plot([], [], "b", label="error" + (" (first run)" if len(hs) > 1 else ""))
-    ax[0].plot([], [], "r--", label="+-3σ")
-    ax[0].legend(fontsize=8, loc="upper right")
-    ax[1].set_xlabel("time (s)")
-    fig.suptitle("STKF Case %d: pointing vector error in the body frame, +-3 sigma" % case)
-    fig.tight_layout()
-    name = FIGURES[1 if case == 1 else 3]
-    save_png(fig, os.path.join(out_dir, name), dpi=90)
-    files.append(name)
-    return files
+    """Fig. 5-4/5-6 (state errors with ±3σ) and Fig. 5-5/5-7 (pointing vector): ``stkf_plots``."""
+    from ground.adcs import stkf_plots
+    return stkf_plots.plots(out_dir, run_dirs, case, FIGURES)
 
 
 def dumps(obj):

@@ -351,7 +351,7 @@ def _plot(out_dir, freqs, s_meas, model, summary):
 
 
 def _cmd(a):
-    import sys
+    import os
     from emulator.config import load_config
     from ground import runtime
     if a.timing == "custom" and not a.config:
@@ -366,18 +366,30 @@ def _cmd(a):
         cal = load_calibration(a.calibration)
     s = run_response(a.output, cfg, a.from_hz, a.to_hz, a.points, a.runtime, a.link, cal, a.amp, a.seed,
                      plots=not a.no_plots, quiet=a.quiet, link_opts=runtime.link_options(a))
-    print("| f (Hz) | |S| measured | |S| model | phase measured (deg) | phase model (deg) |")
-    print("|---|---|---|---|---|")
-    for row in zip(s["freq_hz"], s["s_measured"], s["s_model"], s["phase_measured_deg"], s["phase_model_deg"]):
-        print("| %.2f | %.3f | %.3f | %.1f | %.1f |" % row)
-    print("board timing %s (samples at %s us, words land at %.1f us), g = 0.5: gain margin %.1f dB, phase margin "
-          "%.1f deg, -3 dB rejection bandwidth %.1f Hz; %d tones in %.3g s wall"
-          % (s["timing"]["timing"], s["timing"]["sample_us"], s["timing"]["land_us"], s["gain_margin_db"],
-             s["phase_margin_deg"], s["bandwidth_hz"], len(s["freq_hz"]), s["wall_s"]))
-    files = ", ".join(("summary.json",) + (() if a.no_plots else FIGURES))
-    print("run folder %s: %s" % (a.output, files))
-    sys.stdout.flush()
+    lines = table_lines(s)
+    print("\n".join(lines))
+    from ground import verdict
+    from ground.fileio import write_atomic
+    worst = max((abs(m - d) / d for m, d in zip(s["s_measured"], s["s_model"]) if d), default=None)
+    write_atomic(os.path.join(a.output, "report.md"), "\n".join(
+        ["# fps response: the loop's sensitivity |S|, measured beside the model", ""] + verdict.table(
+            [("largest relative difference of the measured \\|S\\| from the model's (a measurement: no "
+              "requirement, exit 0)", worst, None, None)]) + lines) + "\n")
+    verdict.close(a.output)
     return 0
+
+
+def table_lines(s):
+    """The measured |S| and phase beside the model's, per tone, and the margins (report.md and the terminal)."""
+    lines = ["| f (Hz) | \\|S\\| measured | \\|S\\| model | phase measured (deg) | phase model (deg) |",
+             "|---|---|---|---|---|"]
+    for row in zip(s["freq_hz"], s["s_measured"], s["s_model"], s["phase_measured_deg"], s["phase_model_deg"]):
+        lines.append("| %.2f | %.3f | %.3f | %.1f | %.1f |" % row)
+    lines += ["", "board timing %s (samples at %s us, words land at %.1f us), g = 0.5: gain margin %.1f dB, phase "
+              "margin %.1f deg, -3 dB rejection bandwidth %.1f Hz; %d tones in %.3g s wall"
+              % (s["timing"]["timing"], s["timing"]["sample_us"], s["timing"]["land_us"], s["gain_margin_db"],
+                 s["phase_margin_deg"], s["bandwidth_hz"], len(s["freq_hz"]), s["wall_s"])]
+    return lines
 
 
 def register(sub, name, help_):

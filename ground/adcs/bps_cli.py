@@ -379,7 +379,8 @@ def sweep_lines(s, record, duration, satb, complete):
     row = verdict.runs_row(sum(j is not None for j in s["J"]), len(s["J"]), "t_s points computed (none failed)")
     lines = ["# Settling-time sweep (Sec. 6.4.3)", "", "Spacecraft %s." % record["name"], ""]
     lines += verdict.table([row[:3] + (row[3] if complete else None,)]) + [
-             "| t_s (s) |%s J (rad²) |" % ("" if zs is None else " ζ |"), "|---|---|" + ("" if zs is None else "---|")]
+             "| t_s (s) |%s J (rad²) |" % ("" if zs is None else " ζ |"),
+             "|---|---|" + ("" if zs is None else "---|")]
     lines += ["| %g |%s %s |" % (t, "" if zs is None else " %g |" % zs[n], "—" if j is None else "%.4e" % j)
               for n, (t, j) in enumerate(zip(s["ts_s"], s["J"]))]
     best = s.get("ts_best_body_s", s["ts_best_s"])

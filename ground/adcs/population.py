@@ -23,6 +23,7 @@ import sys
 import numpy as np
 
 from ground.fileio import write_atomic, write_json
+from ground.verdict import close, table as verdict_table
 
 FIGURE = "population_cdf.png"
 CONFIDENCE = 0.95
@@ -131,8 +132,10 @@ def report_md(s):
     L = ["# Flight-world campaign over a population of vehicles", "",
          "Spacecraft %s (sha256 %s), %d vehicles (%s), %g orbits each, seeds %d-%d; %s." % (
              s["spacecraft"]["name"], s["spacecraft"]["sha256"], s["runs"], s["vehicle_text"], s["orbits"],
-             s["seeds"][0], s["seeds"][-1], "complete" if s["complete"] else "INCOMPLETE (resume to finish)"), "",
-         "| check | vehicles meeting it | share | 95 % interval |", "|---|---|---|---|"]
+             s["seeds"][0], s["seeds"][-1], "complete" if s["complete"] else "INCOMPLETE (resume to finish)"), ""]
+    L += verdict_table([("%s: %s (vehicles meeting it)" % (k, c["what"]), "%d of %d" % (c["met"], c["of"]), "all",
+                         c["met"] == c["of"] if c["of"] and s["complete"] else None) for k, c in s["checks"].items()])
+    L += ["| check | vehicles meeting it | share | 95 % interval |", "|---|---|---|---|"]
     for k, c in list(s["checks"].items()) + [("every check", dict(s["all_checks"], what="all of the above"))]:
         L.append("| %s: %s | %d of %d | %s | %s-%s |" % (k, c["what"], c["met"], c["of"], _fmt(c["share"], "%.2f"),
                                                         _fmt(c["ci95"][0], "%.2f"), _fmt(c["ci95"][1], "%.2f")))
@@ -237,7 +240,7 @@ def run(a):
     text = report_md(s)
     write_atomic(os.path.join(out, "report.md"), text)
     print(text)
-    print("campaign folder %s: summary.json, report.md%s" % (out, "" if a.no_plots else ", " + FIGURE))
+    close(out)
     if interrupted:
         print("interrupted: %d of %d vehicles flown; run the same command again to resume" % (s["runs_done"],
                                                                                              len(seeds)),

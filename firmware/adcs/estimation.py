@@ -60,14 +60,34 @@ def stkf_cap(lag_s, rate_hz=1.0):
 
 def stkf_model(cfg):
     """The STKF's dynamics from the configuration: ``stkf_gravity`` ("two-body", Eq. 5.7, the default; "j2": with
-    the J2 term) and ``stkf_qa`` (the white acceleration noise, m^2/s^3, Eq. 5.8; default the thesis's 0.01), as
-    ``LeanStkf``'s keywords. ValueError naming the key for a bad value."""
-    gravity, qa = cfg.get("stkf_gravity", "two-body"), cfg.get("stkf_qa", stkf_lean.QA_THESIS)
+    the J2 term) and ``stkf_accel``: "white" (the default: white acceleration noise ``stkf_qa``, m^2/s^3, Eq. 5.8;
+    default the thesis's 0.01; ``LeanStkf``'s keywords) or "markov" (the acceleration as a first-order
+    Gauss-Markov state per axis of 1 sigma ``stkf_sigma_a``, m/s^2, and correlation time ``stkf_tau``, s;
+    ``stkf_dmc.DmcStkf``'s keywords). ValueError naming the key for a bad value."""
+    gravity, accel = cfg.get("stkf_gravity", "two-body"), cfg.get("stkf_accel", "white")
     if not (isinstance(gravity, str) and gravity in stkf_lean.GRAVITY):
         raise ValueError("stkf_gravity must be one of %s, got %r" % (", ".join(sorted(stkf_lean.GRAVITY)), gravity))
-    if not (isinstance(qa, (int, float)) and not isinstance(qa, bool) and qa - qa == 0 and qa > 0):
-        raise ValueError("stkf_qa must be a number > 0 (m^2/s^3), got %r" % (qa,))
-    return {"gravity": gravity, "qa": float(qa)}
+    if accel not in ("white", "markov"):
+        raise ValueError("stkf_accel must be white or markov, got %r" % (accel,))
+    keys = ("stkf_qa",) if accel == "white" else ("stkf_sigma_a", "stkf_tau")
+    out = {"gravity": gravity}
+    for key in keys:
+        v = cfg.get(key, stkf_lean.QA_THESIS if key == "stkf_qa" else None)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v - v == 0 and v > 0):
+            raise ValueError("%s must be a number > 0 (%s), got %r" % (key, UNITS[key], v))
+        out[key[5:]] = float(v)
+    return out
+
+
+UNITS = {"stkf_qa": "m^2/s^3", "stkf_sigma_a": "m/s^2", "stkf_tau": "s"}
+
+
+def stkf_filter(kw):
+    """The STKF class for ``stkf_model``'s keywords: ``stkf_dmc.DmcStkf`` (imported only then) for markov's."""
+    if "tau" not in kw:
+        return stkf_lean.LeanStkf
+    from firmware.adcs import stkf_dmc
+    return stkf_dmc.DmcStkf
 
 
 def vehicle(cfg):
@@ -108,8 +128,8 @@ class Estimation:
         for i in range(6):
             self.Rg[i * 7] = (sg[0] if i < 3 else sg[1]) ** 2
         lag = float(cfg.get("lag_s", stkf_lean.LAG_S)) if rd.satb else 0.0
-        self.stkf = stkf_lean.LeanStkf(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=stkf_cap(lag),
-                                       **stkf_model(cfg))
+        kw = stkf_model(cfg)
+        self.stkf = stkf_filter(kw)(cfg["stkf_x0"], cfg["stkf_P0"], 0.0, lag, cap=stkf_cap(lag), **kw)
         self.xs = stkf_lean.zeros_d(12)
         self.sig = stkf_lean.zeros_d(12)
         self.stkf.get(self.xs, self.sig)

@@ -1,0 +1,138 @@
+"""The lean STKF with dynamic model compensation (firmware/adcs/stkf_dmc.py): Phi of the augmented state against a
+numerical Jacobian of its propagation, Q's blocks against the integral of Phi q Phi^T, the white filter unchanged by
+the configuration, the 12-state view, and a markov filter's NEES on a short synthetic case."""
+
+from array import array
+
+import numpy as np
+import pytest
+
+from firmware.adcs import estimation, stkf_dmc, stkf_lean
+from firmware.adcs import stkf_kernels as K
+
+X6 = np.array([4.1e6, -3.2e6, 4.2e6, 4.9e3, 5.3e3, 0.3e3])
+SIGMA_A, TAU = 9.07e-5, 289.0
+
+
+def _f9(x9, dt):
+    b = array("d", list(x9))
+    stkf_dmc.f_gm(b, 0, dt, K.J2_TERM, 1.0 / TAU, stkf_dmc.rk_work())
+    return np.array(b)
+
+
+def _phi9(x9, dt):
+    b = array("d", bytes(8 * 81))
+    stkf_dmc.phi_gm(b, array("d", list(x9)), 0, dt, K.J2_TERM, 1.0 / TAU, array("d", bytes(8 * 36)))
+    return np.array(b).reshape(9, 9)
+
+
+@pytest.mark.parametrize("dt", [1.0, 0.4, -0.6])
+def test_phi_of_the_augmented_state_is_the_numerical_jacobian(dt):
+    x9 = np.concatenate([X6, [3e-5, -6e-5, 8e-5]])
+    steps = np.array([1.0] * 3 + [1e-2] * 6)              # (central differences of f at |r| ~ 7e6 m: ~1e-8 noise)
+    J = np.zeros((9, 9))
+    for j in range(9):
+        e = np.zeros(9)
+        e[j] = steps[j]
+        J[:, j] = (_f9(x9 + e, dt) - _f9(x9 - e, dt)) / (2 * steps[j])
+    Phi = _phi9(x9, dt)
+    assert np.abs(Phi - J).max() < 1e-7
+    vw = Phi[3:6, 6:9] - np.diag(np.diag(Phi[3:6, 6:9]))   # Phi_vw's G dt^3/6, |.| ~ 1e-7 over 1 s
+    assert np.abs(vw).max() > 2e-8 * abs(dt) ** 3 and np.abs(Phi[3:6, 6:9] - J[3:6, 6:9]).max() < 3e-9
+    assert Phi[6, 6] == pytest.approx(np.exp(-abs(dt) / TAU) if dt > 0 else np.exp(-dt / TAU), rel=1e-15)
+
+
+def test_the_white_filter_is_the_lean_stkf_without_w():
+    x = _f9(np.concatenate([X6, np.zeros(3)]), 7.0)[0:6]
+    b = array("d", list(X6))
+    K.f(b, 0, 7.0, K.J2_TERM)
+    assert np.allclose(x, np.array(b), rtol=0, atol=1e-6)
+    assert np.allclose(_phi9(X6.tolist() + [0.0] * 3, 1.0)[0:6, 0:6],
+                       (lambda P: (K.phi(P, array("d", X6), 0, 1.0, K.J2_TERM), np.array(P).reshape(6, 6))[1])(
+                           array("d", bytes(8 * 36))), rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("dt", [0.05, 1.0, 20.0, 144.5, 600.0])      # beta dt: series below 0.5, closed form above
+def test_q_is_the_integral_of_phi_q_phi_t(dt):
+    beta = 1.0 / TAU
+    q = 2.0 * SIGMA_A ** 2 * beta
+    t = np.linspace(0.0, dt, 20001)
+    x = beta * t
+    phis = np.vstack([(x - 1 + np.exp(-x)) / beta ** 2 if dt > 1 else t * t * (0.5 - x / 6 + x * x / 24 - x ** 3 / 120),
+                      (1 - np.exp(-x)) / beta if dt > 1 else t * (1 - x / 2 + x * x / 6 - x ** 3 / 24),
+                      np.exp(-x)])
+    w = np.full(len(t), t[1] - t[0])                       # Simpson's weights
+    w[1:-1:2] *= 4 / 3
+    w[2:-1:2] *= 2 / 3
+    w[[0, -1]] *= 1 / 3
+    brute = q * np.einsum("it,jt,t->ij", phis, phis, w)
+    got = stkf_dmc.gm_q(dt, SIGMA_A, beta)
+    want = [brute[0, 0], brute[0, 1], brute[0, 2], brute[1, 1], brute[1, 2], brute[2, 2]]
+    assert got == pytest.approx(want, rel=1e-9)
+    Q = array("d", bytes(8 * 81))
+    stkf_dmc.process_noise_gm(Q, dt, SIGMA_A, beta)
+    Q = np.array(Q).reshape(9, 9)
+    assert np.allclose(Q, Q.T, rtol=0, atol=0) and np.all(np.linalg.eigvalsh(Q) > 0)
+    assert Q[1, 4] == got[1] and Q[2, 8] == got[2] and Q[0, 1] == 0.0
+
+
+def test_q_is_continuous_where_the_series_meets_the_closed_form():
+    beta, x0 = 1.0 / TAU, stkf_dmc.X_SERIES
+    below = stkf_dmc.gm_q(x0 * TAU * (1 - 1e-12), SIGMA_A, beta)
+    above = stkf_dmc.gm_q(x0 * TAU * (1 + 1e-12), SIGMA_A, beta)
+    assert below == pytest.approx(above, rel=1e-10)
+
+
+def test_the_configuration_picks_the_filter_and_refuses_bad_values():
+    assert estimation.stkf_model({}) == {"gravity": "two-body", "qa": K.QA_THESIS}
+    assert estimation.stkf_model({"stkf_gravity": "j2", "stkf_qa": 5e-6, "stkf_accel": "white"}) == \
+        {"gravity": "j2", "qa": 5e-6}
+    kw = estimation.stkf_model({"stkf_gravity": "j2", "stkf_accel": "markov", "stkf_sigma_a": 9e-5, "stkf_tau": 290})
+    assert kw == {"gravity": "j2", "sigma_a": 9e-5, "tau": 290.0}
+    for bad in ({"stkf_accel": "pink"}, {"stkf_accel": "markov", "stkf_sigma_a": 0.0, "stkf_tau": 300.0},
+                {"stkf_accel": "markov", "stkf_sigma_a": 1e-4}, {"stkf_accel": "markov", "stkf_sigma_a": 1e-4,
+                                                                 "stkf_tau": float("nan")}):
+        with pytest.raises(ValueError, match="stkf_"):
+            estimation.stkf_model(bad)
+    with pytest.raises(ValueError, match="sigma_a"):
+        stkf_dmc.DmcStkf([0.0] * 12, [1.0] * 12, 0.0, sigma_a=-1.0)
+
+
+def _truth(n, seed):
+    """SatA and SatB 1 s apart over n s under J2 plus a Gauss-Markov acceleration (the filter's model)."""
+    rng = np.random.default_rng(seed)
+    x = np.array([np.concatenate([X6, np.zeros(3)]),
+                  np.concatenate([[4.3e6, -1.4e6, 5.0e6, 5.3e3, 5.0e3, -3.1e3], np.zeros(3)])])
+    x[:, 6:9] = SIGMA_A * rng.standard_normal((2, 3))
+    e, out = np.exp(-1.0 / TAU), [x.copy()]
+    for _ in range(n):
+        for s in range(2):
+            w0 = x[s, 6:9].copy()
+            x[s] = _f9(x[s], 1.0)
+            x[s, 6:9] = e * w0 + SIGMA_A * np.sqrt(1 - e * e) * rng.standard_normal(3)
+        out.append(x.copy())
+    return np.array(out)
+
+
+def test_a_markov_filter_stays_consistent_on_a_short_synthetic_case():
+    n, rng = 300, np.random.default_rng(3)
+    xt = _truth(n, 2)
+    R = [0.0] * 36
+    for i in range(6):
+        R[i * 7] = (10.0 if i < 3 else 0.1) ** 2
+    P0 = [100.0 ** 2] * 3 + [1.0] * 3 + [100.0 ** 2] * 3 + [1.0] * 3
+    x0 = np.concatenate([xt[0, 0, :6], xt[0, 1, :6]]) + np.sqrt(P0) * rng.standard_normal(12)
+    f = stkf_dmc.DmcStkf(x0.tolist(), P0, 0.0, sigma_a=SIGMA_A, tau=TAU)
+    x, sig, nees = array("d", bytes(96)), array("d", bytes(96)), []
+    for k in range(1, n + 1):
+        f.predict(float(k))
+        f.update_gnss((xt[k, 0, :6] + np.sqrt(np.array(R[::7])) * rng.standard_normal(6)).tolist(), R, 0)
+        if k >= 3:                                   # SatB's, 2 s late, through the smoother
+            f.update_gnss((xt[k - 2, 1, :6] + np.sqrt(np.array(R[::7])) * rng.standard_normal(6)).tolist(), R, 1,
+                          t=float(k - 2))
+        f.get(x, sig)
+        e = np.array(x) - np.concatenate([xt[k, 0, :6], xt[k, 1, :6]])
+        nees.append(e @ np.linalg.solve(np.array(f.Pk), e))
+    assert f.refused == 0 and np.allclose(np.sqrt(np.diag(np.array(f.Pk))), np.array(sig), rtol=1e-6)
+    mean = float(np.mean(nees[100:]))
+    assert 8.0 < mean < 16.5                       # 12 states: chi^2(12)'s mean, 200 correlated seconds

@@ -236,7 +236,7 @@ def _cmd_bps(a):
         name = FIGURES_BPS[1 if a.satb_gnss else 0]
         plot_history(os.path.join(out, name), hist, s["settle_s"],
                      "Pointing error and stability, t_s = %g s, %s SatB's GNSS"
-                     % (ts, "with" if a.satb_gnss else "without"))
+                     % (ts, "with" if a.satb_gnss else "without"), s)
         plots.append(name)
     s["plots"] = plots
     write_atomic(os.path.join(out, "report.md"), report_md(s, args_text))

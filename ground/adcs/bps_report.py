@@ -7,7 +7,6 @@ import os
 import numpy as np
 
 from ground.adcs import body_pointing as bps, control
-from ground.adcs.modes import MODE_CODE, MODES
 from ground.verdict import table as verdict_table
 from protocol.spacecraft import THESIS_REQUIREMENTS
 
@@ -92,32 +91,10 @@ def budget_md(b):
     return out + ["", "The parts are correlated (the controller acts on q̂), so their σ do not add in quadrature.", ""]
 
 
-def plot_history(path, hist, settle_s, title):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from ground.plots import save_png
-    t = hist["t"]
-    fig, ax = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
-    for i in range(2):
-        ax[i, 0].plot(t, hist["dtheta_arcsec"][:, i], lw=0.6, label="δθ%d" % (i + 1))
-        ax[i, 0].set_ylabel("δθ%d (arcsec)" % (i + 1))
-        ax[i, 1].plot(t, hist["domega_arcsec_s"][:, i], lw=0.6, label="δω%d" % (i + 1))
-        ax[i, 1].set_ylabel("δω%d (arcsec/s)" % (i + 1))
-        sel = t >= settle_s
-        if sel.any():
-            lim = 1.2 * np.abs(hist["dtheta_arcsec"][sel, i]).max()
-            ax[i, 0].set_ylim(-lim, lim)
-            lim = 1.2 * np.abs(hist["domega_arcsec_s"][sel, i]).max()
-            ax[i, 1].set_ylim(-lim, lim)
-        for a_ in ax[i]:
-            a_.axvline(settle_s, color="k", lw=0.5, ls="--", label="collection starts (%.0f s)" % settle_s)
-            a_.legend(fontsize=7, loc="upper right")
-    ax[1, 0].set_xlabel("time (s)")
-    ax[1, 1].set_xlabel("time (s)")
-    fig.suptitle(title)
-    fig.tight_layout()
-    save_png(fig, path, dpi=90)
+def plot_history(path, hist, settle_s, title, s=None):
+    """Fig. 6-3/6-4 (``bps_plots.plot_history``)."""
+    from ground.adcs import bps_plots
+    bps_plots.plot_history(path, hist, settle_s, title, s)
 
 
 def _f(v, fmt):
@@ -225,50 +202,9 @@ def report_flight_md(s, args_text):
 
 
 def plot_flight(out, hist, s):
-    """flight_pointing.png (the pointing error and stability with the orbits and the modes) and
-    flight_wheels.png (wheel speeds, the wheels' momentum and the magnetorquers' dipole over the orbits)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from ground.plots import save_png
-    t, T = hist["t"], s["orbit_period_s"]
-    t1 = np.arange(len(hist["fsw_mode"]))
-    point = hist["fsw_mode"][:, 0] == MODE_CODE["POINT"]
-    fig, ax = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
-    for i, (key, unit) in enumerate((("dtheta_arcsec", "arcsec"), ("domega_arcsec_s", "arcsec/s"))):
-        ax[i].plot(t / T, hist[key], lw=0.4)
-        sel = t >= T
-        v = np.abs(hist[key][sel])
-        lim = 1.2 * np.max(v[np.isfinite(v)], initial=0.0)
-        if lim > 0:                                         # the axis after the first orbit's slew
-            ax[i].set_ylim(-lim, lim)
-        ax[i].set_ylabel("%s (%s)" % ("pointing δθ1, δθ2" if i == 0 else "stability δω1, δω2", unit))
-    ax[2].step(t1 / T, hist["fsw_mode"][:, 0], where="post", lw=0.8)
-    ax[2].set_yticks(range(len(MODES)))
-    ax[2].set_yticklabels(MODES)
-    ax[2].set_xlabel("time (orbits of %.0f s)" % T)
-    for a_ in ax:
-        for k in range(1, int(t[-1] / T) + 1):
-            a_.axvline(k, color="k", lw=0.5, ls="--")
-    fig.suptitle("Flight world: pointing per pass (after the dashed line: collected in POINT, %d%% of the "
-                 "seconds)" % round(100 * point.mean()))
-    fig.tight_layout()
-    save_png(fig, os.path.join(out, FIGURES_FLIGHT[0]), dpi=90)
-    fig, ax = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
-    ax[0].plot(t / T, hist["w_rel"] * 60 / (2 * np.pi), lw=0.5)
-    lim = s["wheel_speed_limit_rpm"]
-    band = (s.get("requirements") or THESIS_REQUIREMENTS)["wheel_speed_share"]     # the run's verdict's share
-    for v in (-band * lim, band * lim):
-        ax[0].axhline(v, color="r", lw=0.6, ls=":")
-    ax[0].set_ylabel("wheel speeds (rpm)")
-    ax[1].plot(t1 / T, 1e3 * np.linalg.norm(hist["fsw_h_w"], axis=1), lw=0.6)
-    ax[1].set_ylabel("wheels' momentum |h| (mN m s)")
-    ax[2].plot(t1 / T, hist["fsw_m_cmd"], lw=0.6)
-    ax[2].set_ylabel("magnetorquer dipole (A m²)")
-    ax[2].set_xlabel("time (orbits of %.0f s)" % T)
-    fig.suptitle("Flight world: wheels (dotted: %.0f %% of the limit) and momentum unloading" % (100 * band))
-    fig.tight_layout()
-    save_png(fig, os.path.join(out, FIGURES_FLIGHT[1]), dpi=90)
+    """flight_pointing.png and flight_wheels.png (``bps_plots.plot_flight``)."""
+    from ground.adcs import bps_plots
+    bps_plots.plot_flight([os.path.join(out, f) for f in FIGURES_FLIGHT], hist, s)
 
 
 def zeta_groups(s):

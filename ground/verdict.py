@@ -26,7 +26,7 @@ def table(rows, extra=None):
     head = "| requirement | ours | budget | met |" + (" %s |" % extra if extra else "")
     out = ["## Verdict", "", head, "|---" * (5 if extra else 4) + "|"]
     for r in rows:
-        cells = [r[0], _cell(r[1]), _cell(r[2]), MARK[r[3]]] + ([_cell(r[4])] if extra else [])
+        cells = [r[0], _cell(r[1]), _cell(r[2]), MARK[r[3]]] + ([_cell(r[4] if len(r) > 4 else None)] if extra else [])
         out.append("| " + " | ".join(cells) + " |")
     return out + [""]
 

@@ -177,10 +177,10 @@ def flight_checks(s):
                       "what": "every pass's 3σ stability <= %g arcsec/s" % wb,
                       "ours": worst["stability_3sigma_arcsec_s"], "budget": wb},
         "wheels": {"ok": wmax is not None and wmax <= band * lim,
-                   "what": "wheels <= %.0f %% of %.0f rpm after the first orbit (rpm)" % (100 * band, lim),
+                   "what": "wheels <= %.0f %% of %.0f rpm after the first orbit" % (100 * band, lim),
                    "ours": wmax, "budget": band * lim},
         "star_tracker": {"ok": blind is not None and blind < BLIND_MAX,
-                         "what": "star tracker blind < %.0f %% of the time after the first slew (share)"
+                         "what": "star tracker blind < %.0f %% of the time after the first slew"
                          % (100 * BLIND_MAX), "ours": blind, "budget": BLIND_MAX},
     }
 

@@ -199,6 +199,8 @@ class SpacecraftBus:
         self.st_blind_before = 0.0               # and the blind stretch that output ended (s)
         self.st_valid_log = []                   # per cycle: the star tracker's output valid
         self.beacon_occulted = 0                 # cycles the Earth hid the partner from the beacon camera
+        g = self.xg[::scenario.WORLD_RATE_HZ]
+        self.hidden = occulted(g[:, 0, 0:3], g[:, 1, 0:3])    # per whole second: the Earth between the two
         self.recorded = [] if record else None
         self._rec = []
         self.pkts = []                           # (bit, pid, src, payload) of the open cycle's burst
@@ -241,7 +243,7 @@ class SpacecraftBus:
             self.commanded[i] = False
         self._star_tracker(k, t, t_ms)
         x = self.xg[k * scenario.WORLD_RATE_HZ].ravel()
-        self._navigation(x, t, t_ms)
+        self._navigation(x, t, t_ms, bool(self.hidden[k]))
         mask, n_b = 0, 0
         for bit, _, _, _ in self.pkts:
             mask |= bit
@@ -264,8 +266,9 @@ class SpacecraftBus:
             P["STARTRACKER"], t_ms=t_ms, q0=float(qm[0]), q1=float(qm[1]), q2=float(qm[2]), q3=float(qm[3]),
             valid=int(ok)))
 
-    def _navigation(self, x, t, t_ms):
-        """SatA's GNSS, SatB's relayed fixes due at t, the beacon; x the orbits' truth at t."""
+    def _navigation(self, x, t, t_ms, hidden):
+        """SatA's GNSS, SatB's relayed fixes due at t, the beacon; x the orbits' truth at t, ``hidden`` whether the
+        Earth (and its air) is between the two then (no beacon)."""
         w = self.w
         outage = self.faults.on("gnss_outage", t)
         zg = w.gnss_a.measure(x[0:6])                      # drawn always: streams stay aligned
@@ -279,7 +282,6 @@ class SpacecraftBus:
                 if not outage:
                     self._send(P["GNSS"], N["GNSS"], gnss_payload(int(round(tm * 1000)), 1, z))
         y = w.beacon.measure_dcm(x[0:3], x[6:9], dcm(self.sc.q))
-        hidden = bool(occulted(x[0:3], x[6:9]))         # the Earth (and its air) between the two: no beacon
         self.beacon_occulted += hidden
         lost = hidden or self.faults.on("beacon_lost", t)
         y = y / np.linalg.norm(y)

@@ -382,18 +382,17 @@ class AdcsSession:
         else:
             self.wait.late_run = 0
         applied = self.bus.apply(self.wait.cmd, self.wait.mtq_cmd)
-        out = {k: np.zeros((10, n)) for k, n in (("q", 4), ("w", 3), ("w_rel", 4), ("ra", 3), ("va", 3), ("rb", 3),
-                                                 ("vb", 3))}
-        out["t"] = np.zeros(10)
+        sc, X, t10, w_rel = self.sc, np.empty((10, 15)), np.empty(10), np.empty((10, 4))
         for j in range(10):
-            self.sc.step()
-            g = self.xg[(self.k * 10 + j + 1) * (scenario.WORLD_RATE_HZ // 10)]
-            out["t"][j] = self.sc.t
-            out["q"][j], out["w"][j], out["w_rel"][j] = self.sc.q, self.sc.omega, self.sc.omega_rw_rel
-            out["ra"][j], out["va"][j], out["rb"][j], out["vb"][j] = g[0, 0:3], g[0, 3:6], g[1, 0:3], g[1, 3:6]
-        if not np.all(np.isfinite(self.sc.x)):
-            raise FloatingPointError("truth diverged at t = %.1f s" % self.sc.t)
-        self.wheel_rpm_log.append(float(np.abs(self.sc.omega_rw_rel).max() * 60 / (2 * np.pi)))
+            sc.step()
+            X[j], t10[j], w_rel[j] = sc.x, sc.t, sc.omega_rw_rel
+        sub = scenario.WORLD_RATE_HZ // 10
+        g = self.xg[(self.k * 10 + 1) * sub:(self.k * 10 + 10) * sub + 1:sub]
+        out = {"t": t10, "q": X[:, 0:4], "w": X[:, 4:7], "w_rel": w_rel,
+               "ra": g[:, 0, 0:3], "va": g[:, 0, 3:6], "rb": g[:, 1, 0:3], "vb": g[:, 1, 3:6]}
+        if not np.all(np.isfinite(sc.x)):
+            raise FloatingPointError("truth diverged at t = %.1f s" % sc.t)
+        self.wheel_rpm_log.append(float(np.abs(w_rel[9]).max() * 60 / (2 * np.pi)))
         est = self.watch.take(status, t, self.bus.st_blind_before) if status else {}
         out["status"], out["est"], out["rw_cmd"] = status, est, applied
         self.k += 1

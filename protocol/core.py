@@ -52,6 +52,19 @@ def node_id(name_or_num):
     return name_or_num
 
 
+def field_range(field):
+    """(lo, hi) raw range of a field: its declared bounds, else its format's."""
+    fmt = field[1]
+    lo, hi = field[4], field[5]
+    r = _INT_RANGE.get(fmt)
+    if r is not None:
+        if lo is None:
+            lo = r[0]
+        if hi is None:
+            hi = r[1]
+    return lo, hi
+
+
 class PacketDef:
     """A packet declaration with its derived struct format (all fields little-endian)."""
 
@@ -61,6 +74,7 @@ class PacketDef:
         self.size = struct.calcsize(self.fmt)
         self.names = tuple(f[0] for f in self.fields)
         self.defaults = tuple(f[6] for f in self.fields)
+        self.ranges = tuple(field_range(f) for f in self.fields)
 
 
 PACKET = {}       # id -> PacketDef
@@ -93,43 +107,33 @@ def field_scales(name_or_id):
     return dict((f[0], f[3]) for f in packet_def(name_or_id).fields)
 
 
-def field_range(field):
-    """(lo, hi) raw range of a field: its declared bounds, else its format's."""
-    fmt = field[1]
-    lo, hi = field[4], field[5]
-    r = _INT_RANGE.get(fmt)
-    if r is not None:
-        if lo is None:
-            lo = r[0]
-        if hi is None:
-            hi = r[1]
-    return lo, hi
+def _name(pkt, field):
+    return pkt.name + "." + field[0]
 
 
-def _check(pkt, field, v):
+def _check(pkt, field, v, lo, hi):
+    """The raw value ``v`` of ``field`` checked against its format and its (lo, hi) range (``field_range``)."""
     fmt = field[1]
-    name = pkt.name + "." + field[0]
     if fmt[-1] == "s":
         if not isinstance(v, (bytes, bytearray)):
-            raise ValueError("%s: expected bytes, got %r" % (name, v))
+            raise ValueError("%s: expected bytes, got %r" % (_name(pkt, field), v))
         if len(v) > int(fmt[:-1]):
-            raise ValueError("%s: %d bytes > %s" % (name, len(v), fmt[:-1]))
+            raise ValueError("%s: %d bytes > %s" % (_name(pkt, field), len(v), fmt[:-1]))
         return bytes(v)
-    lo, hi = field_range(field)
     if fmt in _INT_RANGE:
         if isinstance(v, bool) or not isinstance(v, int):
-            raise ValueError("%s: expected an integer, got %r" % (name, v))
+            raise ValueError("%s: expected an integer, got %r" % (_name(pkt, field), v))
     else:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v:
-            raise ValueError("%s: expected a number, got %r" % (name, v))
+            raise ValueError("%s: expected a number, got %r" % (_name(pkt, field), v))
         # refuse what struct would reject or silently carry: non-finite values, and beyond float32 for 'f'
         flo, fhi = (-FLOAT32_MAX, FLOAT32_MAX) if fmt == "f" else (-FLOAT64_MAX, FLOAT64_MAX)
         if v < flo or v > fhi:
-            raise ValueError("%s = %r out of range [%r, %r]" % (name, v, flo if lo is None else lo,
+            raise ValueError("%s = %r out of range [%r, %r]" % (_name(pkt, field), v, flo if lo is None else lo,
                                                                 fhi if hi is None else hi))
         v = float(v)
     if (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise ValueError("%s = %r out of range [%r, %r]" % (name, v, lo, hi))
+        raise ValueError("%s = %r out of range [%r, %r]" % (_name(pkt, field), v, lo, hi))
     return v
 
 
@@ -142,13 +146,12 @@ def encode_payload(name_or_id, values=None, **kw):
     pkt = packet_def(name_or_id)
     if values:
         kw.update(values)
+    names = pkt.names
     for k in kw:
-        if k not in pkt.names:
-            raise ValueError("%s has no field %r (fields: %s)" % (pkt.name, k, ", ".join(pkt.names)))
-    args = []
-    for f in pkt.fields:
-        args.append(_check(pkt, f, kw.get(f[0], f[6])))
-    return struct.pack(pkt.fmt, *args)
+        if k not in names:
+            raise ValueError("%s has no field %r (fields: %s)" % (pkt.name, k, ", ".join(names)))
+    return struct.pack(pkt.fmt, *[_check(pkt, f, kw.get(f[0], f[6]), r[0], r[1])
+                                  for f, r in zip(pkt.fields, pkt.ranges)])
 
 
 def decode_payload(pid, payload):

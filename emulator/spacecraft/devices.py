@@ -109,6 +109,7 @@ class Magnetorquers:
         if isinstance(dipole_limit_am2, bool) or not (np.isfinite(dipole_limit_am2) and dipole_limit_am2 > 0):
             raise ValueError("dipole_limit_am2 must be a finite number > 0, got %r" % (dipole_limit_am2,))
         self.axes = a / n[:, None]
+        self._lsq = np.linalg.pinv(self.axes.T)   # the least-squares shares of a body dipole
         self.limit = float(dipole_limit_am2)
         self.share = np.zeros(3)                  # each rod's dipole (A m^2, along its axis)
         self.applied = np.zeros(3)
@@ -129,7 +130,7 @@ class Magnetorquers:
         m = np.asarray(m_body, dtype=float)
         if m.shape != (3,) or not np.all(np.isfinite(m)):
             raise ValueError("m_body must be 3 finite numbers (A m^2), got %r" % (m_body,))
-        s = np.linalg.lstsq(self.axes.T, m, rcond=None)[0]
+        s = self._lsq @ m
         self.saturated = np.abs(s) > self.limit
         self.share = np.clip(s, -self.limit, self.limit)
         self.set_dead(self.dead)

@@ -74,6 +74,17 @@ def _dcm_rows(q):
             (2*(e1*e3 + q4*e2), 2*(e2*e3 - q4*e1), q4*q4 - e1*e1 - e2*e2 + e3*e3))
 
 
+def dcms(q):
+    """A(q) (Eq. 4.7) of each row of q (n, 4): (n, 3, 3), the same numbers as ``dcm`` row by row."""
+    q = np.asarray(q, float)
+    e1, e2, e3, q4 = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    A = np.empty((len(q), 3, 3))
+    A[:, 0, 0], A[:, 0, 1], A[:, 0, 2] = q4*q4 + e1*e1 - e2*e2 - e3*e3, 2*(e1*e2 + q4*e3), 2*(e1*e3 - q4*e2)
+    A[:, 1, 0], A[:, 1, 1], A[:, 1, 2] = 2*(e1*e2 - q4*e3), q4*q4 - e1*e1 + e2*e2 - e3*e3, 2*(e2*e3 + q4*e1)
+    A[:, 2, 0], A[:, 2, 1], A[:, 2, 2] = 2*(e1*e3 + q4*e2), 2*(e2*e3 - q4*e1), q4*q4 - e1*e1 - e2*e2 + e3*e3
+    return A
+
+
 def _rows_dot(a, v):
     """a v for a 3 x 3 given as rows and a 3-list."""
     return tuple(r[0] * v[0] + r[1] * v[1] + r[2] * v[2] for r in a)

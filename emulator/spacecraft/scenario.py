@@ -405,17 +405,36 @@ def orbit_truth(kind, duration_s, orbit=None, cache_dir=None):
                                 spacecraft=o["surface"])
 
 
+_GRID = {}      # the last grid made in this process (a campaign's vehicles fly the same orbits): key -> its arrays
+
+
+def _grid_key(K, truth, cache_dir, span_margin_s, orbit):
+    """What ``truth_grid``'s arrays depend on: ``orbit_truth``'s inputs (x0s, epoch, surface) and the span."""
+    o = None if orbit is None else (b"".join(np.asarray(x, float).tobytes() for x in orbit["x0s"]),
+                                    repr(orbit["epoch_utc"]), repr(sorted(orbit["surface"].items())))
+    return K, truth, cache_dir, float(span_margin_s), o
+
+
 def truth_grid(K, truth="two-body", cache_dir=None, span_margin_s=2.0, orbit=None):
     """SatA's and SatB's orbits for a run of K s: the 1 s truth samples (``emulator.orbits.truth_samples``, from
     ``orbit``, an ``orbit_setup``; None: the thesis's Eq. 5.53) and their 10th-order Lagrange interpolation
     (Sec. 6.4.1) on the ``WORLD_RATE_HZ`` grid over [0, K + 1] s.
 
-    Returns (t_s, xs, tg, xg): t_s (n,) s, xs (n, 2, 6) and xg (len(tg), 2, 6) [r (m), v (m/s)] of SatA, SatB."""
+    Returns (t_s, xs, tg, xg): t_s (n,) s, xs (n, 2, 6) and xg (len(tg), 2, 6) [r (m), v (m/s)] of SatA, SatB,
+    read-only: the last grid is kept and handed to the next run of the same orbits in this process."""
     from emulator.interp import lagrange        # the interpolation of Sec. 6.4.1 (numpy)
+    key = _grid_key(K, truth, cache_dir, span_margin_s, orbit)
+    if key in _GRID:
+        return _GRID[key]
     t_s, xs = orbit_truth(truth, truth_span(K, span_margin_s), orbit, cache_dir)
     tg = np.arange(0, (K + 1) * WORLD_RATE_HZ + 1) / WORLD_RATE_HZ
     xg = lagrange(t_s, xs.reshape(len(t_s), -1), tg, order=10).reshape(len(tg), 2, 6)
-    return t_s, xs, tg, xg
+    out = (t_s, xs, tg, xg)
+    for a in out:
+        a.flags.writeable = False
+    _GRID.clear()
+    _GRID[key] = out
+    return out
 
 
 class PointingWorld:

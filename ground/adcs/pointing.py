@@ -8,7 +8,7 @@ Units: arcsec and arcsec/s in the outputs; J (Eq. 6.22) in rad^2, like Fig. 6-2'
 
 import numpy as np
 
-from emulator.spacecraft.dynamics import dcm
+from emulator.spacecraft.dynamics import dcm, dcms
 from ground.adcs import control, occultation, quat, stkf
 from protocol.spacecraft import THESIS_REQUIREMENTS
 from protocol.units import RAD_PER_ARCSEC
@@ -45,7 +45,7 @@ def pointing_errors(q, w, ra, va, rb, vb, laser_axis=control.LASER_AXIS):
     (the line of sight's rate seen from the turning body), domega = (T_b v_b)[0:2] / |p|.
     """
     Tb = l_frame(laser_axis)
-    A = np.array([dcm(qq) for qq in q])
+    A = dcms(q)
     p = rb - ra
     rho = np.linalg.norm(p, axis=1)
     pb = np.einsum("nij,nj->ni", A, p)

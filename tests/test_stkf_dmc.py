@@ -1,14 +1,18 @@
 """The lean STKF with dynamic model compensation (firmware/adcs/stkf_dmc.py): Phi of the augmented state against a
-numerical Jacobian of its propagation, Q's blocks against the integral of Phi q Phi^T, the white filter unchanged by
-the configuration, the 12-state view, and a markov filter's NEES on a short synthetic case."""
+numerical Jacobian of its propagation, Q's blocks against the integral of Phi q Phi^T, the configuration (white: the
+lean STKF), the 12-state view, a markov filter's NEES on a short synthetic case, SatA's float32 covariance, and the
+same results under micropython."""
 
+import json
 from array import array
 
 import numpy as np
 import pytest
 
-from firmware.adcs import estimation, stkf_dmc, stkf_lean
+from firmware.adcs import estimation, linalg, stkf_dmc, stkf_lean
 from firmware.adcs import stkf_kernels as K
+from ground.adcs.lean_scenario import stkf_scenario
+from tests.adcs_lean_common import run_mp
 
 X6 = np.array([4.1e6, -3.2e6, 4.2e6, 4.9e3, 5.3e3, 0.3e3])
 SIGMA_A, TAU = 9.07e-5, 289.0
@@ -89,6 +93,8 @@ def test_the_configuration_picks_the_filter_and_refuses_bad_values():
         {"gravity": "j2", "qa": 5e-6}
     kw = estimation.stkf_model({"stkf_gravity": "j2", "stkf_accel": "markov", "stkf_sigma_a": 9e-5, "stkf_tau": 290})
     assert kw == {"gravity": "j2", "sigma_a": 9e-5, "tau": 290.0}
+    assert estimation.stkf_filter(kw) is stkf_dmc.DmcStkf
+    assert estimation.stkf_filter(estimation.stkf_model({"stkf_qa": 1e-3})) is stkf_lean.LeanStkf
     for bad in ({"stkf_accel": "pink"}, {"stkf_accel": "markov", "stkf_sigma_a": 0.0, "stkf_tau": 300.0},
                 {"stkf_accel": "markov", "stkf_sigma_a": 1e-4}, {"stkf_accel": "markov", "stkf_sigma_a": 1e-4,
                                                                  "stkf_tau": float("nan")}):
@@ -136,3 +142,49 @@ def test_a_markov_filter_stays_consistent_on_a_short_synthetic_case():
     assert f.refused == 0 and np.allclose(np.sqrt(np.diag(np.array(f.Pk))), np.array(sig), rtol=1e-6)
     mean = float(np.mean(nees[100:]))
     assert 8.0 < mean < 16.5                       # 12 states: chi^2(12)'s mean, 200 correlated seconds
+
+
+def _run(sc, zeros=None, lag=0.0, cap=3):
+    """DmcStkf (sigma_a 1e-4 m/s^2, tau 300 s) over the lean scenario ``sc``: the estimate and 1 sigma of every
+    second, and the filter; ``zeros`` SatA's covariance buffers (linalg.zeros: float32)."""
+    orig = linalg.zeros
+    if zeros is not None:
+        linalg.zeros = zeros
+    try:
+        f = stkf_dmc.DmcStkf(sc["x0"], sc["P0"], 0.0, lag, cap, sigma_a=1e-4, tau=300.0)
+    finally:
+        linalg.zeros = orig
+    out, x, s = [], [0.0] * 12, [0.0] * 12
+    for k, st in enumerate(sc["steps"]):
+        if k:
+            f.predict(st["t"])
+        f.update_gnss(st["za"], sc["R"], 0)
+        f.update_beacon(st["y"], st["q"], sc["P_att"], sc["sigma_b"])
+        for tm, v in st["zb"]:
+            f.update_gnss(v, sc["R"], 1, tm)
+        f.get(x, s)
+        out.append(x + s)
+    return np.array(out), f
+
+
+def test_satas_float32_covariance_holds_and_gives_the_float64_estimate():
+    sc = stkf_scenario(300, case=1)
+    x64, _ = _run(sc, zeros=lambda n: array("d", bytes(8 * n)))
+    x32, f = _run(sc)
+    Pa = np.array(f.Pa, float).reshape(9, 9)
+    d = np.sqrt(np.diag(Pa))
+    assert f.Pa.typecode == "f" and np.array_equal(Pa, Pa.T) and np.linalg.cond(Pa / np.outer(d, d)) < 1e3
+    assert np.abs(x32 - x64).max(axis=0)[[0, 3, 6, 9]] == pytest.approx([0, 0, 0, 0], abs=1e-3)
+    assert np.allclose(x32[:, 12:], x64[:, 12:], rtol=1e-5)
+
+
+def test_the_markov_filter_runs_the_same_under_micropython(tmp_path):
+    """30 s with SatB's GNSS 2-3 s late (nodes generated): micropython's estimate and 1 sigma are CPython's."""
+    sc = stkf_scenario(30, case=2)
+    p = tmp_path / "sc.json"
+    p.write_text(json.dumps(sc))
+    res = run_mp("stkf_dmc.py", p, "markov")
+    x, f = _run(sc, lag=4.0, cap=6)
+    assert res["refused"] == f.refused == 0 and res["generated"] == f.generated > 20
+    assert np.abs(np.array(res["x"]) - x[:, :12]).max() < 1e-3
+    assert np.allclose(res["sig"], x[:, 12:], rtol=1e-5, atol=0)

@@ -171,43 +171,54 @@ def rk_work():
     return [[0.0] * 9 for _ in range(7)]
 
 
-@micropython.native
-def sandwich_n(P, ld, r0, src, F, Q, T, n):
-    """P[r0:r0+n, r0:r0+n] = F P[src:src+n, src:src+n] F^T + Q (Eq. 3.31, n x n), written symmetric; T (n x n)
-    work holding F P."""
-    s = src * ld + src
-    for i in range(n):
-        fi = i * n
-        for c in range(n):
-            v = 0.0
-            for k in range(n):
-                v += F[fi + k] * P[s + k * ld + c]
-            T[fi + c] = v
-    for i in range(n):
-        ti = i * n
-        a = (r0 + i) * ld + r0
-        for j in range(i, n):
-            fj = j * n
-            v = Q[ti + j]
-            for k in range(n):
-                v += T[ti + k] * F[fj + k]
-            P[a + j] = v
-            P[(r0 + j) * ld + r0 + i] = v
+# Phi's nonzero columns by row (the module docstring's blocks): r rows r, v and their w; v rows all; w rows their w
+PHI_NZ = tuple(tuple(range(6)) + (6 + i,) for i in range(3)) + (tuple(range(9)),) * 3 + tuple((6 + i,) for i in range(3))
 
 
 @micropython.native
-def rows_mul_n(P, ld, src, c_lo, c_hi, F, n, v):
-    """P[0:n, c] = F P[src:src+n, c] and P[c, 0:n] = its transpose for c_lo <= c < c_hi (Eq. 5.21's
-    P0j = Phi P0j; src = 0 in place, column by column); v (n) work."""
+def _phi_vec(F, p, v, j0):
+    """v[j] = (F p)[j] for j0 <= j < 9, F = Phi (9 x 9) with its zeros (``PHI_NZ``) left out."""
+    for j in range(j0, NA):
+        o, t = NA * j, 0.0
+        for k in PHI_NZ[j]:
+            t += F[o + k] * p[k]
+        v[j] = t
+
+
+@micropython.native
+def rows_mul_phi(P, ld, src, c_lo, c_hi, F, p, v):
+    """P[0:9, c] = F P[src:src+9, c] and P[c, 0:9] = its transpose for c_lo <= c < c_hi (Eq. 5.21's
+    P0j = Phi P0j for nodes of 9 states); p, v (9) work."""
     s = src * ld
     for c in range(c_lo, c_hi):
-        for i in range(n):
-            fi, t = i * n, 0.0
-            for k in range(n):
-                t += F[fi + k] * P[s + k * ld + c]
-            v[i] = t
-        for i in range(n):
-            P[i * ld + c] = P[c * ld + i] = v[i]
+        for k in range(NA):
+            p[k] = P[s + k * ld + c]
+        _phi_vec(F, p, v, 0)
+        b = c * ld
+        for k in range(NA):
+            P[k * ld + c] = P[b + k] = v[k]
+
+
+@micropython.native
+def sandwich_phi(P, ld, r0, src, F, Q, T, p, v):
+    """P[r0:r0+9, r0:r0+9] = F P[src:src+9, src:src+9] F^T + Q (Eq. 3.31; F = Phi), written symmetric: T = F P
+    (9 x 9 work, in T's precision), then row i of the result is F T[i, :]^T + Q[i, :] (P symmetric)."""
+    s = src * ld + src
+    for c in range(NA):
+        for k in range(NA):
+            p[k] = P[s + k * ld + c]
+        _phi_vec(F, p, v, 0)
+        for k in range(NA):
+            T[NA * k + c] = v[k]
+    for i in range(NA):
+        for k in range(NA):
+            p[k] = T[NA * i + k]
+        _phi_vec(F, p, v, i)
+        a = (r0 + i) * ld + r0
+        for j in range(i, NA):
+            t = Q[NA * i + j] + v[j]
+            P[a + j] = t
+            P[(r0 + j) * ld + r0 + i] = t
 
 
 class Work:
@@ -219,10 +230,11 @@ class Work:
         self.Phi, self.Fb, self.Q, self.Qb, self.A, self.B, self.T = z(81), z(81), z(81), z(81), z(81), z(81), z(81)
         self.L, self.S, self.T6 = z(81), z(36), z(36)
         self.hp = [zeros_d(m) for _ in range(6)]      # Hp = C P (6 x m), as stkf_lean.Work's
-        self.xb, self.xc, self.v = z(NA), z(NA), [0.0] * NA
+        self.xb, self.xc, self.v, self.p = z(NA), z(NA), [0.0] * NA, [0.0] * NA
         self.r, self.d = z(6), z(12)
-        self.H, self.R3, self.A3, self.Kt = [0.0] * 9, [0.0] * 9, z(9), z(3 * NA)
+        self.H, self.R3, self.A3, self.Kt, self.U = [0.0] * 9, [0.0] * 9, z(9), z(3 * NA), z(3 * NA)
         self.rk = rk_work()
+        self.AB, self.pq = [[0.0] * (2 * NA) for _ in range(6)], [0.0] * (2 * NA)
         a = self.a = stkf_lean.WorkA()
         a.Kt, a.W, a.RK, a.Pd = linalg.zeros(6 * NA), linalg.zeros(81), linalg.zeros(6 * NA), linalg.zeros(81)
 
@@ -277,6 +289,7 @@ class DmcStkf(stkf_lean.LeanStkf):
                 out[i][j], out[6 + i][6 + j] = self.Pa[9 * i + j], self.P[i * self.ld + j]
         return out
 
+    @micropython.native
     def predict(self, t_new):
         """Both satellites over dt = t_new - now with Phi and Q of the module docstring (A: x = f(x),
         P = Phi P Phi^T + Q; B: a new current node, Eq. 5.20-5.22, as LeanStkf.predict)."""
@@ -288,7 +301,7 @@ class DmcStkf(stkf_lean.LeanStkf):
         process_noise_gm(w.Q, dt, self.sigma_a, b)
         phi_gm(w.Phi, self.xa, 0, dt, j2, b, w.T6)
         f_gm(self.xa, 0, dt, j2, b, w.rk)
-        sandwich_n(self.Pa, NA, 0, 0, w.Phi, w.Q, wa.Pd, NA)
+        sandwich_phi(self.Pa, NA, 0, 0, w.Phi, w.Q, wa.Pd, w.p, w.v)
         phi_gm(w.Phi, self.X, 0, dt, j2, b, w.T6)
         self._prune(t_new)
         self._shift(0)
@@ -296,8 +309,8 @@ class DmcStkf(stkf_lean.LeanStkf):
         X[0:NA] = X[NA:2 * NA]
         f_gm(X, 0, dt, j2, b, w.rk)
         self.t[0] = t_new
-        rows_mul_n(P, ld, NA, NA, self.k * NA, w.Phi, NA, w.v)
-        sandwich_n(P, ld, 0, NA, w.Phi, w.Q, w.T, NA)
+        rows_mul_phi(P, ld, NA, NA, self.k * NA, w.Phi, w.p, w.v)
+        sandwich_phi(P, ld, 0, NA, w.Phi, w.Q, w.T, w.p, w.v)
 
     def _hp_node(self, i, m):
         """Hp = C P = P[9 i: 9 i + 6, 0:m] (r, v of node i), S0 = its 6 x 6 block, h = x_i's r, v (Eq. 5.24)."""
@@ -310,6 +323,7 @@ class DmcStkf(stkf_lean.LeanStkf):
                 w.S[a * 6 + b] = h[c0 + b]
             w.d[6 + a] = self.X[c0 + a]
 
+    @micropython.native
     def _hp_between(self, ic, ia, dt_a, dt_b, m):
         """LeanStkf._hp_between with nodes of 9 states (Eq. 5.46-5.52; ``_generated_node``): the generated node
         b's r, v as a measurement of a and c, Hp = A[0:6] P[a rows, 0:m] + B[0:6] P[c rows, 0:m] and S0 = its
@@ -319,14 +333,8 @@ class DmcStkf(stkf_lean.LeanStkf):
             self.refused += 1
             raise ValueError("Qca is not positive definite")
         A, B, T, Qa, S = w.A, w.B, w.T, w.Q, w.S
-        sa, sc, ca, cc = ia * NA * ld, ic * NA * ld, ia * NA, ic * NA
-        for a in range(6):
-            h, ao = w.hp[a], a * NA
-            for j in range(m):
-                v = 0.0
-                for k in range(NA):
-                    v += A[ao + k] * P[sa + k * ld + j] + B[ao + k] * P[sc + k * ld + j]
-                h[j] = v
+        _hp_rows(w.hp, P, ld, ia, ic, m, w.AB, w.pq, A, B)
+        ca, cc = ia * NA, ic * NA
         for a in range(6):
             h, ao = w.hp[a], a * NA
             for b in range(a, 6):
@@ -335,6 +343,7 @@ class DmcStkf(stkf_lean.LeanStkf):
                     v += h[ca + k] * A[bo + k] + h[cc + k] * B[bo + k] + T[ao + k] * Qa[k * NA + b]
                 S[a * 6 + b] = S[b * 6 + a] = v
 
+    @micropython.native
     def _generated_node(self, ia, ic, dt_a, dt_b):
         """stkf_lean._generated_node with nodes of 9 states (Eq. 5.46-5.52): Fa = Phi(x_a, dt_a) (``Phi``),
         Fb = Phi(f(x_a, dt_a), dt_b), Qa, Qb, Qca = Fb Qa Fb^T + Qb, B = Qa Fb^T Qca^-1, T = I - B Fb,
@@ -378,6 +387,7 @@ class DmcStkf(stkf_lean.LeanStkf):
             d[6 + i] = s
         return True
 
+    @micropython.native
     def update_beacon(self, y, q, P_att, sigma_b, t=None):
         """LeanStkf.update_beacon (Eq. 5.13-5.17, Sec. 5.3.3; rA considered, the Joseph form on B's current
         node, zero gain on its older nodes) with nodes of 9 states: K = P[0:9, 0:3] H_B^T S^-1."""
@@ -401,19 +411,60 @@ class DmcStkf(stkf_lean.LeanStkf):
         if not linalg.cholesky(w.L, S, 3):
             self.refused += 1
             raise ValueError("beacon innovation covariance is not positive definite")
-        linalg._solve_cols(Kt, w.L, NA, 3)              # K^T (3 x 9) = S^-1 H P[0:3, 0:9]
+        U = w.U
+        U[0:3 * NA] = Kt[0:3 * NA]                      # U = H P[0:3, 0:9]
+        linalg._solve_cols(Kt, w.L, NA, 3)              # K^T (3 x 9) = S^-1 U
         for i in range(NA):
             X[i] = X[i] + Kt[i] * r[0] + Kt[NA + i] * r[1] + Kt[2 * NA + i] * r[2]
-        F, Q = w.B, w.Qb                                # F = I - K H (H = [H_B 0]), Q = K R K^T
+        _joseph_dmc(P, ld, self.k * NA, Kt, U, H, R, w.T, w.p)
+
+
+@micropython.native
+def _hp_rows(Hp, P, ld, ia, ic, m, AB, pq, A, B):
+    """Hp[a][j] = A[a, :] P[a rows, j] + B[a, :] P[c rows, j] for a < 6, j < m (nodes ia, ic of 9 states); AB
+    (6 lists of 18: A's and B's rows side by side) and pq (18: the two columns) work."""
+    for a in range(6):
+        r = AB[a]
+        for k in range(NA):
+            r[k], r[NA + k] = A[NA * a + k], B[NA * a + k]
+    sa, sc = ia * NA * ld, ic * NA * ld
+    for j in range(m):
+        for k in range(NA):
+            pq[k], pq[NA + k] = P[sa + k * ld + j], P[sc + k * ld + j]
+        for a in range(6):
+            r, t = AB[a], 0.0
+            for k in range(2 * NA):
+                t += r[k] * pq[k]
+            Hp[a][j] = t
+
+
+@micropython.native
+def _joseph_dmc(P, ld, m, Kt, U, H, R, W, u):
+    """The beacon's update of B's nodes for I - K H (H = [H_B 0] on rB, K^T 3 x 9, U = H P[0:3, 0:9]): the older
+    nodes' P_0j = (I - K H) P_0j (zero gain on them), and the Joseph form (Eq. 4.142) of the current one,
+    P00 = W - (W H^T) K^T + K R K^T with W = (I - K H) P00 = P00 - K U. W (81) and u (9) work."""
+    for c in range(NA, m):
+        b = c * ld
+        for a in range(3):
+            u[a] = H[3 * a] * P[c] + H[3 * a + 1] * P[ld + c] + H[3 * a + 2] * P[2 * ld + c]
         for i in range(NA):
-            for j in range(NA):
-                v = 1.0 if i == j else 0.0
-                if j < 3:
-                    v -= Kt[i] * H[j] + Kt[NA + i] * H[3 + j] + Kt[2 * NA + i] * H[6 + j]
-                F[NA * i + j] = v
-                s = 0.0
-                for a in range(3):
-                    s += Kt[NA * a + i] * (R[3 * a] * Kt[j] + R[3 * a + 1] * Kt[NA + j] + R[3 * a + 2] * Kt[2 * NA + j])
-                Q[NA * i + j] = s
-        rows_mul_n(P, ld, 0, NA, self.k * NA, F, NA, w.v)   # P_0j = (I - K H) P_0j
-        sandwich_n(P, ld, 0, 0, F, Q, w.T, NA)              # Joseph form (Eq. 4.142)
+            t = P[i * ld + c] - (Kt[i] * u[0] + Kt[NA + i] * u[1] + Kt[2 * NA + i] * u[2])
+            P[i * ld + c] = P[b + i] = t
+    for i in range(NA):
+        k0, k1, k2 = Kt[i], Kt[NA + i], Kt[2 * NA + i]
+        for j in range(NA):
+            W[NA * i + j] = P[i * ld + j] - (k0 * U[j] + k1 * U[NA + j] + k2 * U[2 * NA + j])
+    for i in range(NA):
+        o = NA * i
+        w0, w1, w2 = W[o], W[o + 1], W[o + 2]
+        v0 = w0 * H[0] + w1 * H[1] + w2 * H[2]          # W H^T, row i
+        v1 = w0 * H[3] + w1 * H[4] + w2 * H[5]
+        v2 = w0 * H[6] + w1 * H[7] + w2 * H[8]
+        k0, k1, k2 = Kt[i], Kt[NA + i], Kt[2 * NA + i]
+        r0 = k0 * R[0] + k1 * R[3] + k2 * R[6]           # (K R), row i
+        r1 = k0 * R[1] + k1 * R[4] + k2 * R[7]
+        r2 = k0 * R[2] + k1 * R[5] + k2 * R[8]
+        for j in range(i, NA):
+            g0, g1, g2 = Kt[j], Kt[NA + j], Kt[2 * NA + j]
+            t = W[o + j] - (v0 * g0 + v1 * g1 + v2 * g2) + (r0 * g0 + r1 * g1 + r2 * g2)
+            P[i * ld + j] = P[j * ld + i] = t

@@ -1,6 +1,7 @@
 # Under micropython: the lean STKF, white (stkf_lean.LeanStkf) or markov (stkf_dmc.DmcStkf, argv[2] "markov"), with
 # the J2 model over the inputs in argv[1] (JSON, ground/adcs/lean_scenario.stkf_scenario); prints the estimate and
 # 1 sigma of every second, and the microseconds per 1 Hz cycle (predict, SatA's GNSS, the beacon, SatB's GNSS).
+# argv[3] (optional): run only that many cycles and print nothing (the callgrind count).
 import json
 import sys
 import time
@@ -9,10 +10,12 @@ from firmware.adcs import linalg, stkf_dmc, stkf_lean
 
 with open(sys.argv[1]) as fh:
     sc = json.load(fh)
+lag = 4.0 if any(st["zb"] for st in sc["steps"]) else 0.0      # as the app: no SatB GNSS, no smoother lag
+cap = 6 if lag else 3
 if sys.argv[2] == "markov":
-    f = stkf_dmc.DmcStkf(sc["x0"], sc["P0"], 0.0, sigma_a=1e-4, tau=300.0, gravity="j2")
+    f = stkf_dmc.DmcStkf(sc["x0"], sc["P0"], 0.0, lag, cap, sigma_a=1e-4, tau=300.0, gravity="j2")
 else:
-    f = stkf_lean.LeanStkf(sc["x0"], sc["P0"], 0.0, qa=5e-6, gravity="j2")
+    f = stkf_lean.LeanStkf(sc["x0"], sc["P0"], 0.0, lag, cap, qa=5e-6, gravity="j2")
 R, P_att = linalg.zeros(36), linalg.zeros(9)
 for i in range(36):
     R[i] = sc["R"][i]
@@ -21,7 +24,8 @@ for i in range(9):
 z, y, q = stkf_lean.zeros_d(6), stkf_lean.zeros_d(3), stkf_lean.zeros_d(4)
 x, s = stkf_lean.zeros_d(12), stkf_lean.zeros_d(12)
 xs, sg, us = [], [], []
-for k, step in enumerate(sc["steps"]):
+n = int(sys.argv[3]) if len(sys.argv) > 3 else len(sc["steps"])
+for k, step in enumerate(sc["steps"][:n]):
     for i in range(6):
         z[i] = step["za"][i]
     for i in range(3):
@@ -38,8 +42,11 @@ for k, step in enumerate(sc["steps"]):
             z[i] = v[i]
         f.update_gnss(z, R, 1, tm)
     f.get(x, s)
+    if len(sys.argv) > 3:
+        continue
     us.append(time.ticks_diff(time.ticks_us(), t0))
     xs.append([x[i] for i in range(12)])
     sg.append([s[i] for i in range(12)])
-print(json.dumps({"x": xs, "sig": sg, "us": us, "generated": f.generated, "refused": f.refused,
-                  "kernels": linalg.kernels is not None}))
+if len(sys.argv) < 4:
+    print(json.dumps({"x": xs, "sig": sg, "us": us, "generated": f.generated, "refused": f.refused,
+                      "kernels": linalg.kernels is not None}))

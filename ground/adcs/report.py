@@ -236,7 +236,7 @@ def _plot_spread(results, summary, path):
     fig, axs = subplots(4, 1, width=10, row_height=2.4, sharex=True)
     for i, ax in enumerate(axs[:3, 0]):
         for j, run in enumerate(a[:, :, i]):
-            ax.plot(t, run, lw=0.5, color="C%d" % (j % 10), alpha=0.7, label="each run (%d)" % len(a) if j == 0
+            ax.plot(t, run, lw=0.5, color="tab:blue", alpha=0.5, label="each run (%d)" % len(a) if j == 0
                     else None)
         ms = np.nan_to_num(np.nanmean(a[:, :, i] ** 2, axis=0))
         rms = np.sqrt(np.convolve(ms, np.ones(SPREAD_WINDOW) / SPREAD_WINDOW, mode="same"))

@@ -215,8 +215,9 @@ def verdict_lines(s):
         lines.append(acq)
     b = (s.get("link") or {}).get("bench") or {}
     if b.get("controller_resent") or b.get("command_retries") or b.get("overruns"):
-        lines.append("link: %d TICKs resent, %d command retries, %d overruns (ticks the mirror held)" % (
-            b.get("controller_resent", 0), b.get("command_retries", 0), b.get("overruns", 0)))
+        lines.append("link: %d TICKs resent, %d command retries (normal: a frame that came late or damaged is sent "
+                     "again while the clock waits, so no tick is lost), %d overruns (ticks the mirror held)" % (
+                         b.get("controller_resent", 0), b.get("command_retries", 0), b.get("overruns", 0)))
     return lines
 
 

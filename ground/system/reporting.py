@@ -6,6 +6,7 @@ import numpy as np
 
 from ground import hil, report
 from ground.system.constants import FIGURE, GOAL_RTF
+from ground.verdict import table as verdict_table
 
 
 def verdict(s):
@@ -86,16 +87,14 @@ def verdict_md(s):
     """The report's verdict: each loop's figure against its budget, and the terminal's."""
     v = s.get("verdict") or verdict(s)
     f, b = v["fine"], v["body"]
-    yes = (lambda m: "—" if m is None else ("yes" if m else "**NO**"))
-    rows = [("fine (Q2)", "largest radial error (arcsec)", f["worst_arcsec"], f["budget_arcsec"], f["over_arcsec"],
-             f["met"]),
-            ("body (ADCS)", "3σ pointing (arcsec)", b["pointing_3sigma_arcsec"], b["pointing_budget_arcsec"],
-             b["pointing_over_arcsec"], None if b["met"] is None else b["pointing_over_arcsec"] == 0),
-            ("body (ADCS)", "3σ stability (arcsec/s)", b["stability_3sigma_arcsec_s"], b["stability_budget_arcsec_s"],
-             b["stability_over_arcsec_s"], None if b["met"] is None else b["stability_over_arcsec_s"] == 0)]
-    out = ["## Verdict", "", "| loop | figure | this run | budget | over by | met |", "|---|---|---|---|---|---|"]
-    for loop, label, val, budget, over, met in rows:
-        out.append("| %s | %s | %s | %g | %s | %s |" % (loop, label, _f(val), budget, _f(over), yes(met)))
+    rows = [("fine loop (Q2): largest radial error (arcsec)", f["worst_arcsec"], f["budget_arcsec"], f["met"],
+             f["over_arcsec"]),
+            ("body loop (ADCS): 3σ pointing (arcsec)", b["pointing_3sigma_arcsec"], b["pointing_budget_arcsec"],
+             None if b["met"] is None else b["pointing_over_arcsec"] == 0, b["pointing_over_arcsec"]),
+            ("body loop (ADCS): 3σ stability (arcsec/s)", b["stability_3sigma_arcsec_s"],
+             b["stability_budget_arcsec_s"], None if b["met"] is None else b["stability_over_arcsec_s"] == 0,
+             b["stability_over_arcsec_s"])]
+    out = verdict_table(rows, extra="over by")[:-1]
     if f["beam_lost_samples"]:
         out.append("")
         out.append("The beam was lost on Q2 in %d of %d samples (the fine loop misses)."

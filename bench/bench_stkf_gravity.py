@@ -1,38 +1,57 @@
-"""The flight STKF's gravity model (firmware/adcs/stkf_kernels.py; docs/ADCS.md, "The flight STKF's gravity
-model"), per shipped spacecraft (generic-12u with a partner 10 deg behind it, ``bps.with_partner``, as
-bench_flight flies it), brahe truth (EGM2008 30 x 30, drag, solar pressure, sun and moon), seed 0.
+"""The flight STKF's gravity model (firmware/adcs/stkf_kernels.py) and its acceleration model (firmware/adcs/
+stkf_dmc.py; docs/ADCS.md, "The flight STKF's gravity model"), per shipped spacecraft (generic-12u with a partner
+10 deg behind it, ``bps.with_partner``, as bench_flight flies it), brahe truth (EGM2008 30 x 30, drag, solar
+pressure, sun and moon).
 
 1. The process noise that goes with each model, from the physics: over 2 orbits of the truth, the acceleration
    the model leaves out, a(k) = (v(k + 1) - f(x(k), 1 s)_v) / 1 s (the filter's own one-second prediction from
    the true state: its integration and its frame are in it); sigma_a its RMS per axis, tau the lag where its
    autocorrelation (both satellites, three axes) falls to 1/e, and q = 2 sigma_a^2 tau, the low-frequency
    density per axis of a first-order Gauss-Markov acceleration of that variance and correlation time. The
-   flight world's qa (``scenario.FLIGHT_STKF``): the largest q of the J2 model over the presets, rounded up to
-   one significant figure.
+   white model's qa (``scenario.FLIGHT_STKF``): the largest q of the J2 model over the presets, rounded up to
+   one significant figure. The markov model's (``stkf_accel`` = markov, the acceleration as a Gauss-Markov
+   state): sigma_a the J2 model's largest over the presets rounded up to one significant figure, tau the
+   presets' mean rounded to one significant figure.
 2. The flight world's STKF consistency over the second of 2 orbits (``fps adcs bps --world flight --truth hpop
-   --orbits 2``'s ``stkf_consistency``): two-body with the thesis's qa against J2 with the derived qa. Goal: the
-   12-state NEES within its 95 % band in >= 90 % of the seconds (a consistent filter: ~95 %).
+   --orbits 2``'s ``stkf_consistency``), seeds 0 and 1: two-body with the thesis's qa, J2 with the derived qa, J2
+   with the Gauss-Markov acceleration. Goal: the 12-state NEES within its 95 % band in >= 90 % of the seconds
+   (a consistent filter: ~95 %); beside it the shares below and above the band and each satellite's 6-state
+   NEES in its band, and the run's CPU seconds (CPython, the whole flight world).
+3. The STKF cycle's cost under MicroPython (unix port, the C kernels where built): x86-64 instructions per 1 Hz
+   cycle (callgrind, cycles 20-50 of tests/mp/stkf_dmc.py differenced) of the J2 filter, white and markov,
+   without SatB's GNSS (the flight world's) and with it relayed (lag 4 s: nodes generated); the rest of the app
+   cycle is the same with either (docs/BENCHMARKS.md: <= 10 M per cycle).
 """
 
 import contextlib
+import json
 import math
 import os
+import tempfile
+import time
 from array import array
 
 import numpy as np
 
+from bench import mp
 from emulator.spacecraft import scenario
 from firmware.adcs import stkf_kernels as K
 from ground.adcs import body_pointing as bps
 from ground.adcs import bps_cli, flight_world
+from ground.adcs.pointing import nees, nees_band
 from protocol import spacecraft as sf
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CACHE = os.path.join(ROOT, "out", "orbit_cache")
 SPACECRAFT = ("thesis-3u", "generic-6u", "generic-12u")
 ORBITS = 2
+SEEDS = (0, 1)
 GOAL = 0.90
-MODELS = {"two-body": {"stkf_gravity": "two-body", "stkf_qa": K.QA_THESIS}, "j2": dict(scenario.FLIGHT_STKF)}
+GOAL_INSTR = 10e6          # the app's 1 Hz cycle (docs/BENCHMARKS.md)
+CG = (20, 50)
+MODELS = {"two-body": {"stkf_gravity": "two-body", "stkf_qa": K.QA_THESIS},
+          "j2": {"stkf_gravity": "j2", "stkf_qa": 5e-6},
+          "j2-markov": {"stkf_gravity": "j2", "stkf_accel": "markov", "stkf_sigma_a": 1e-4, "stkf_tau": 300.0}}
 
 
 def vehicle(name):
@@ -93,22 +112,50 @@ def stkf_model(model):
         scenario.FLIGHT_STKF.update(saved)
 
 
+def round_1(x):
+    """x rounded to one significant figure."""
+    e = 10.0 ** math.floor(math.log10(x))
+    return round(x / e) * e
+
+
 def consistency(d, model, seed=0):
-    """The flight world's ``stkf_consistency`` of a 2-orbit hpop run of ``d`` with the STKF ``model``."""
+    """The flight world's ``stkf_consistency`` of a 2-orbit hpop run of ``d`` with the STKF ``model``, with
+    ``below``, ``above`` (the 12-state NEES's shares of seconds under and over its band), ``a6``, ``b6`` (each
+    satellite's 6-state NEES's share in its band, its 6 x 6 block) and ``cpu_s`` (the run's CPU seconds)."""
     params = bps_cli.calibration(seed, os.path.join(ROOT, "out", "bps_cache"), progress=False, spacecraft=d)
     period = bps.orbit_period(scenario.orbit_setup(d)["x0s"][0])
+    t0 = time.process_time()
     with stkf_model(model):
-        res, _ = flight_world.simulate(params=params, duration_s=ORBITS * period, seed=seed, truth="hpop",
-                                       cache_dir=CACHE, spacecraft=d)
-    return res["stkf_consistency"]
+        res, hist = flight_world.simulate(params=params, duration_s=ORBITS * period, seed=seed, truth="hpop",
+                                          cache_dir=CACHE, spacecraft=d)
+    c = dict(res["stkf_consistency"], cpu_s=time.process_time() - t0)
+    k0 = int(np.ceil(period))
+    e, P = hist["fsw_stkf_x_err"][k0:], hist["fsw_stkf_P"][k0:].reshape(-1, 12, 12)
+    n12 = hist["fsw_stkf_nees12_full_cov"][k0:, 0]
+    n12 = n12[np.isfinite(n12)]
+    lo, hi = nees_band(12, 0.95)
+    c["below"], c["above"] = float(np.mean(n12 < lo)), float(np.mean(n12 > hi))
+    lo, hi = nees_band(6, 0.95)
+    for key, sl in (("a6", slice(0, 6)), ("b6", slice(6, 12))):
+        n6 = nees(e[:, sl], P[:, sl, sl])
+        n6 = n6[np.isfinite(n6)]
+        c[key] = float(np.mean((n6 >= lo) & (n6 <= hi)))
+    return c
+
+
+def _label(model):
+    m = MODELS[model]
+    if m.get("stkf_accel") == "markov":
+        return "%s (sigma_a %.0e, tau %.0f s)" % (model, m["stkf_sigma_a"], m["stkf_tau"])
+    return "%s (%.0e)" % (model, m["stkf_qa"])
 
 
 def _noise_table(vehicles):
     print("Residual acceleration beyond each model (hpop truth, %d orbits, both satellites): sigma_a per axis, "
           "autocorrelation time tau (1/e), q = 2 sigma_a^2 tau\n" % ORBITS)
-    print("| spacecraft | model | sigma_a (m/s^2) | tau (s) | q (m^2/s^3) | the filter's qa |")
+    print("| spacecraft | model | sigma_a (m/s^2) | tau (s) | q (m^2/s^3) | the white filter's qa |")
     print("|---|---|---|---|---|---|")
-    qs = []
+    qs, sas, taus = [], [], []
     for name, d in vehicles:
         x = truth(d)[1]
         for model, j2 in (("two-body", 0.0), ("j2", K.J2_TERM)):
@@ -116,30 +163,65 @@ def _noise_table(vehicles):
             s, tau, q = noise_density(a)
             if model == "j2":
                 qs.append(q)
+                sas.append(s)
+                taus.append(tau)
             print("| %s | %s | %.2e | %.0f | %.2e | %.0e |" % (name, model, s, tau, q, MODELS[model]["stkf_qa"]))
-    rule, flown = round_up(max(qs)), scenario.FLIGHT_STKF["stkf_qa"]
-    same = "the rule's" if math.isclose(rule, flown, rel_tol=1e-9) else "**not the rule's**"
-    print("\nThe flight world's qa: the J2 model's largest q rounded up = %.0e m^2/s^3; scenario.FLIGHT_STKF "
-          "flies %.0e (%s)\n" % (rule, flown, same))
+    mk = MODELS["j2-markov"]
+    for what, rule, flown in (("white qa (the largest q rounded up)", round_up(max(qs)), MODELS["j2"]["stkf_qa"]),
+                              ("markov sigma_a (the largest rounded up)", round_up(max(sas)), mk["stkf_sigma_a"]),
+                              ("markov tau (the mean rounded)", round_1(float(np.mean(taus))), mk["stkf_tau"])):
+        same = "the rule's" if math.isclose(rule, flown, rel_tol=1e-9) else "**not the rule's**"
+        print("\nThe J2 model's %s = %.3g; the bench flies %.3g (%s)" % (what, rule, flown, same))
+    print("\nscenario.FLIGHT_STKF: %s\n" % (scenario.FLIGHT_STKF,))
+
+
+def _consistency_table(vehicles):
+    print("Flight world, %d orbits, hpop truth: the STKF's consistency over the second orbit (goal: the 12-state "
+          "NEES in its 95 %% band >= %.2f; RMS error / RMS 1 sigma per part, 1 when consistent)\n" % (ORBITS, GOAL))
+    print("| spacecraft | seed | model | NEES in band (goal >= %.2f) | below / above | SatA 6 / SatB 6 in band | rA | vA "
+          "| rB | vB | rB error, RMS norm (m) | run CPU (s) |" % GOAL)
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for name, d in vehicles:
+        for seed in SEEDS:
+            for model in MODELS:
+                c = consistency(d, model, seed)
+                share = c["nees12_full_cov"]["nees_in_band_share"]
+                parts = ["%.2f-%.2f" % (min(c[p]["rms_over_sigma"]), max(c[p]["rms_over_sigma"]))
+                         for p in ("ra", "va", "rb", "vb")]
+                print("| %s | %d | %s | %.3f%s | %.3f / %.3f | %.3f / %.3f | %s | %.0f | %.1f |" % (
+                    name, seed, _label(model), share, "" if share >= GOAL else " (missed)", c["below"], c["above"],
+                    c["a6"], c["b6"], " | ".join(parts), float(np.sqrt(np.sum(np.square(c["rb"]["rms_error"])))),
+                    c["cpu_s"]), flush=True)
+
+
+def _cost_table():
+    """Instructions per STKF cycle under micropython (callgrind), white and markov, without and with SatB's GNSS."""
+    from ground.adcs.lean_scenario import stkf_scenario
+    script = os.path.join(ROOT, "tests", "mp", "stkf_dmc.py")
+    print("\nThe STKF's 1 Hz cycle under MicroPython (unix x64 port%s; J2; callgrind, cycles %d-%d): x86-64 "
+          "instructions per cycle (the app cycle's goal: <= %.0f M, docs/BENCHMARKS.md)\n"
+          % (", C kernels" if os.path.exists(os.path.join(ROOT, "firmware", "adcs", "adcsk.mpy")) else "",
+             CG[0], CG[1], GOAL_INSTR / 1e6))
+    print("| SatB's GNSS | white (M) | markov (M) | change (M) |")
+    print("|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as d:
+        for case, label in ((1, "none (the flight world's)"), (2, "relayed, lag 4 s")):
+            path = os.path.join(d, "sc%d.json" % case)
+            with open(path, "w") as fh:
+                json.dump(stkf_scenario(CG[1] + 1, case=case), fh)
+            m = {}
+            for model in ("white", "markov"):
+                n = [mp.run(script, [path, model, k], callgrind=True, heap="64M") for k in CG]
+                m[model] = (n[1] - n[0]) / (CG[1] - CG[0]) / 1e6
+            print("| %s | %.2f | %.2f | %+.2f |" % (label, m["white"], m["markov"], m["markov"] - m["white"]),
+                  flush=True)
 
 
 def main():
     vehicles = [(n, vehicle(n)) for n in SPACECRAFT]
     _noise_table(vehicles)
-    print("Flight world, %d orbits, hpop truth, seed 0: the STKF's consistency over the second orbit (goal: the "
-          "12-state NEES in its 95 %% band >= %.2f; RMS error / RMS 1 sigma per part, 1 when consistent)\n"
-          % (ORBITS, GOAL))
-    print("| spacecraft | model (qa) | NEES in band (goal >= %.2f) | rA | vA | rB | vB | rB error, RMS norm (m) |" % GOAL)
-    print("|---|---|---|---|---|---|---|---|")
-    for name, d in vehicles:
-        for model in MODELS:
-            c = consistency(d, model)
-            share = c["nees12_full_cov"]["nees_in_band_share"]
-            parts = ["%.2f-%.2f" % (min(c[p]["rms_over_sigma"]), max(c[p]["rms_over_sigma"]))
-                     for p in ("ra", "va", "rb", "vb")]
-            print("| %s | %s (%.0e) | %.3f%s | %s | %.0f |" % (
-                name, model, MODELS[model]["stkf_qa"], share, "" if share >= GOAL else " (missed)",
-                " | ".join(parts), float(np.sqrt(np.sum(np.square(c["rb"]["rms_error"]))))))
+    _consistency_table(vehicles)
+    _cost_table()
 
 
 if __name__ == "__main__":

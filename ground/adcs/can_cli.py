@@ -40,7 +40,9 @@ def register(sub):
     p = sub.add_parser("can", help="the ADCS flight firmware on CAN against the emulated spacecraft",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=600.0,
-                   help="virtual seconds, 1 to %g (default 600)" % campaign.MAX_DURATION_S)
+                   help="the whole session from power-on in virtual seconds, the hold and the settling included "
+                        "(fps system's --duration is the window after them: docs/CLI.md, \"Shared options\"), "
+                        "1 to %g (default 600)" % campaign.MAX_DURATION_S)
     p.add_argument("--runtime", default="micropython", choices=RUNTIMES,
                    help="the firmware's interpreter: micropython or cpython in a process of its own on CAN, "
                         "inproc (the same app and bytes in this process, no link), or qemu, the ADCS PIL board of "

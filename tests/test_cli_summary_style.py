@@ -62,3 +62,13 @@ def test_the_folder_line_names_what_is_there(tmp_path, gone):
         (d / "run_0000").mkdir()
     line = verdict.folder_line(str(d))
     assert line.endswith("(not written)" if gone else "summary.json, b.png, run_0000/")
+
+
+def test_a_sweep_with_a_failed_t_s_says_so_in_its_verdict():
+    from ground.adcs.bps_cli import sweep_lines, sweep_summary
+    s = sweep_summary([20.0, 30.0], [{"J_rad2": 1e-7, "complete": True}, {"error": "diverged"}], True, False)
+    md = "\n".join(sweep_lines(s, {"name": "thesis-3u"}, 20.0, False, True))
+    assert "| t_s points computed (none failed) | 1 of 2 | all | **NO** |" in md and md.index("## Verdict") < \
+        md.index("| t_s (s) |")
+    s = sweep_summary([20.0], [{"J_rad2": 1e-7, "complete": True}], True, False)
+    assert "| 1 of 1 | all | yes |" in "\n".join(sweep_lines(s, {"name": "thesis-3u"}, 20.0, False, True))

@@ -321,8 +321,9 @@ def _flight(n=3000, T=1000.0):
     P = np.tile(np.eye(12) * 100.0, (n, 1, 1))
     dth = rng.normal(0, 20, (len(t), 2))
     dth[:500] = 5000.0                                            # the slew
-    mode = np.full((n, 1), 2.0)
-    mode[:50] = 4
+    from ground.adcs.modes import MODE_CODE
+    mode = np.full((n, 1), float(MODE_CODE["POINT"]))
+    mode[:50] = MODE_CODE["SLEW"]
     hist = {"t": t, "dtheta_arcsec": dth, "domega_arcsec_s": rng.normal(0, 3, (len(t), 2)),
             "w_rel": np.full((len(t), 4), 100.0), "fsw_mode": mode, "fsw_h_w": np.zeros((n, 3)),
             "fsw_m_cmd": np.zeros((n, 3)), "fsw_est_err": rng.normal(0, 5, (n, 8)),
@@ -339,9 +340,8 @@ def _flight(n=3000, T=1000.0):
     return hist, s
 
 
-def test_the_flight_plots_draw_the_budgets_and_each_pass(figs, tmp_path, monkeypatch):
+def test_the_flight_plots_draw_the_budgets_and_each_pass(figs, tmp_path):
     from ground.adcs import bps_report
-    monkeypatch.setattr("ground.adcs.bps_plots.MODE_CODE", {"POINT": 2})
     hist, s = _flight()
     bps_report.plot_flight(str(tmp_path), hist, s)
     f, w = figs["flight_pointing.png"], figs["flight_wheels.png"]

@@ -111,7 +111,8 @@ def markdown(summary):
                      % (n["note"], n["from_s"], n["mean_after"] or float("nan"), n["dof"], n["runs"], n["band"][0],
                         n["band"][1], summary["nees_in_band_share"], n["from_s"]))
     lines.append("Final 1 sigma are the filter's P at the last step (mean over runs); the final attitude error is the "
-                 "RMS over runs. Beside the thesis: attitude and rate within 25 %% of the thesis, parameters within a factor "
+                 "RMS over runs. Beside the thesis: attitude and rate within 25 %% of the thesis, parameters within a "
+                 "factor "
                  "of 2. Parameter sigmas are physical (kg m^2, A m^2): the filter's Jxx-relative figures "
                  "(Jxx_ref %s, the spacecraft file's Jxx, Sec. 4.6.2) divided by the run's s = Jxx_ref / Jxx "
                  "(the true Jxx); the thesis's are as printed. Runs that diverged are left out of every figure.\n"

@@ -103,5 +103,5 @@ def test_fps_response_cli_writes_the_summary_keys(tmp_path, capsys):
         assert k in s
     assert len(s["s_measured"]) == 4 and s["complete"]
     out = capsys.readouterr().out
-    assert out.strip().splitlines()[-1].endswith("summary.json")
+    assert out.strip().splitlines()[-1].endswith(": summary.json, report.md")        # --no-plots: no figure
     assert main(["response", "--to", "400", "-o", str(tmp_path)]) == 2       # above the loop's Nyquist

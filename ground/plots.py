@@ -180,14 +180,17 @@ def hil_scatter(series, path, requirement_arcsec=11.98):
     save_png(fig, path)
 
 
-def hil_time_history(series, path):
-    """Fig. 7-19: X and Y pointing errors against time, the legend below the axes (it covers no trace).
-    ``series``: {label: (t, x, y)}."""
+def hil_time_history(series, path, requirement_arcsec=11.98):
+    """Fig. 7-19: X and Y pointing errors against time on the data's scale, the requirement labelled (beyond
+    the axis when the data sit far inside it), the legend below the axes (it covers no trace). ``series``:
+    {label: (t, x, y)}."""
     fig, axs = subplots(2, 1, sharex=True, row_height=2.6)
     for label, (t, x, y) in series.items():
         step = max(1, len(t) // 60000)
         axs[0, 0].plot(t[::step], x[::step], lw=0.4, label=label)
         axs[1, 0].plot(t[::step], y[::step], lw=0.4, label=label)
+    for ax in axs[:, 0]:
+        band(ax, requirement_arcsec, "requirement %.2f%s" % (requirement_arcsec, ARCSEC_SIGN))
     axs[0, 0].set_ylabel("X error (arcsec)")
     axs[1, 0].set_ylabel("Y error (arcsec)")
     axs[1, 0].set_xlabel("time (s)")

@@ -320,7 +320,7 @@ def _plot(out_dir, freqs, s_meas, model, summary):
     fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(7, 6))
     a1.semilogx(f, 20 * np.log10(np.abs(sm)), label="model |S| (truth)")
     a1.semilogx(freqs, 20 * np.log10(np.abs(s_meas)), "o", label="measured |S|")
-    a1.axhline(-3, ls=":", c="gray")
+    a1.axhline(-3, ls=":", c="gray", label="-3 dB: the bandwidth where |S| crosses it")
     a1.set_ylabel("|S| (dB)")
     a1.set_title("Sensitivity, X axis, %s timing: GM %.1f dB, PM %.1f deg, -3 dB %.1f Hz"
                  % (summary["timing"]["timing"], summary["gain_margin_db"], summary["phase_margin_deg"],

@@ -113,6 +113,10 @@ def test_the_hil_time_history_keeps_its_legend_off_the_traces(figs, tmp_path):
     check(f)
     lg = f.axes[1].get_legend()
     assert lg is not None and lg.get_bbox_to_anchor().y0 < f.axes[1].get_position().y0 * f.bbox.height
+    assert "requirement 11.98″ (beyond this zoomed axis)" in legend_of(f, f.axes[1])
+    big = {"Q2": (t, 20 * np.sin(t), np.cos(t))}
+    plots.hil_time_history(big, str(tmp_path / "fig7-19_time.png"), requirement_arcsec=12.5)
+    assert level_at(figs["fig7-19_time.png"].axes[0], 12.5)       # drawn where the data reach it
 
 
 def test_the_system_plot_zooms_on_the_fine_error_and_shades_the_faults(figs, tmp_path):
@@ -229,6 +233,8 @@ def test_the_docs_show_every_figure_with_its_command():
             assert "`fps %s`" % " ".join(cmd).replace("{d}/", "") in text
         if thesis:
             assert thesis in text
+    for section in text.split("\n## ")[1:]:                     # each says how to read the requirement
+        assert "holds" in section or "No requirement" in section, section.splitlines()[0]
 
 
 def test_the_filter_error_plot_names_each_panels_components_and_insets_the_transient(figs, tmp_path):

@@ -57,6 +57,7 @@ from firmware.hal.link import serve_controller  # noqa: E402
 from firmware.hal.stdio import StdioLink  # noqa: E402
 from firmware.hal import nrf51  # noqa: E402
 from firmware.hal import fast_tick  # noqa: E402
+from firmware.hal import fast_status  # noqa: E402
 
 TABLE_GRID = 11
 MAGIC = const(0x0C0FFEE)
@@ -106,7 +107,7 @@ def main():
         serve_controller(ViperController(max_table_bytes=table_bytes, static=True),
                          StdioLink(protocol.consts.NODE_CONTROLLER, meter=Meter(pil_board.STACK_BOTTOM),
                                    read_frame=nrf51.read_frame, write_frame=nrf51.write_frame,
-                                   fast=fast_tick.answer),
+                                   fast=fast_tick.answer, status=fast_status.status),
                          rate_hz=637.8)
     except Exception as exc:            # MemoryError included
         sys.print_exception(exc)

@@ -84,7 +84,7 @@ class Memory:
 CONTROLLER_FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hinv.py", "firmware/upload.py",
                      "firmware/controller.py", "firmware/controller_viper.py",
                      "firmware/hal/__init__.py", "firmware/hal/link.py", "firmware/hal/stdio.py",
-                     "firmware/hal/nrf51.py", "firmware/hal/fast_tick.py",
+                     "firmware/hal/nrf51.py", "firmware/hal/fast_tick.py", "firmware/hal/fast_status.py",
                      "firmware/pil_main.py",
                      "protocol/__init__.py", "protocol/compat.py", "protocol/consts.py", "protocol/frame.py",
                      "protocol/hblob.py", "protocol/htable.py", "protocol/fast.py")
@@ -92,7 +92,7 @@ CONTROLLER_FROZEN = ("firmware/__init__.py", "firmware/ad5664r.py", "firmware/hi
 FROZEN = CONTROLLER_FROZEN + ("firmware/player.py", "firmware/player_viper.py", "firmware/ad660.py",
                               "protocol/distfile.py", "protocol/core.py", "protocol/table.py")
 # the known-answer scripts the PIL tests run on the lab board (tests/mp: the same ones the unix port runs)
-FROZEN_TESTS = ("firmware_plant.py", "pil_probe.py", "pil_player_probe.py")
+FROZEN_TESTS = ("firmware_plant.py", "pil_probe.py", "pil_player_probe.py", "firmware_fast_status.py")
 SAMD21G18_FLASH = 256 * 1024      # the thesis's CtrlArduino: 256 KB of flash, 32 KB of SRAM
 
 # The thesis's board (a SAMD21G18: 32 KB of SRAM, 256 KB of flash), what --runtime qemu runs: the controller's
@@ -160,6 +160,13 @@ PATCHES = (
      "#else\n#define MICROPY_EMIT_THUMB          (1)\n#define MICROPY_EMIT_THUMB_ARMV7M   (0)\n#endif\n"),
     ("#define MICROPY_PY_SYS_STDIO_BUFFER (0)\n", "#define MICROPY_PY_SYS_STDIO_BUFFER (1)\n"),
 )
+# tools/mpy-tool.py (what freezes the modules): ARMv6-M native code aligned to 4 bytes, not 2. The armv6m emitter
+# loads a constant it cannot build from 8-bit immediates (0x3FFFFFFF; a boxed 0xFFFF argument) PC-relative, its
+# word's alignment reckoned from the code's start: at a start 2 bytes off a word, the word read is off by 2 bytes
+# (measured on the Cortex-M0: a frozen firmware.hal.fast_tick.answer took the CRC-16's 0xFFFF as 0xF000)
+MPY_TOOL_PATCHES = (("            MP_NATIVE_ARCH_ARMV6,\n            MP_NATIVE_ARCH_XTENSA,\n",
+                     "            MP_NATIVE_ARCH_ARMV6,\n            MP_NATIVE_ARCH_ARMV6M,\n"
+                     "            MP_NATIVE_ARCH_XTENSA,\n"),)
 # main.c: (what the port has, what the PIL image needs): the stack check inside the linker script's stack
 MAIN_PATCHES = (("    mp_stack_set_limit(10240);\n", "    mp_stack_set_limit(MICROPY_PIL_STACK_LIMIT);\n"),)
 # mcu/arm/startup.c: a Cortex-M's FPU is off at reset; a hard-float image turns it on before any C code runs
@@ -403,11 +410,14 @@ def finish_image(mem, digests):
 
 
 def patch_port(src):
-    """ports/qemu's configuration and main.c with ``PATCHES`` and ``MAIN_PATCHES`` made (the tree's own files kept
-    as .orig)."""
-    for name, patches in (("mpconfigport.h", PATCHES), ("main.c", MAIN_PATCHES),
-                          (os.path.join("mcu", "arm", "startup.c"), STARTUP_PATCHES)):
-        path = os.path.join(src, "ports", "qemu", name)
+    """ports/qemu's configuration and main.c with ``PATCHES`` and ``MAIN_PATCHES`` made, and mpy-tool.py with
+    ``MPY_TOOL_PATCHES`` (the tree's own files kept as .orig); the frozen modules are generated again when
+    mpy-tool.py changes."""
+    q = os.path.join("ports", "qemu")
+    for name, patches in ((os.path.join(q, "mpconfigport.h"), PATCHES), (os.path.join(q, "main.c"), MAIN_PATCHES),
+                          (os.path.join(q, "mcu", "arm", "startup.c"), STARTUP_PATCHES),
+                          (os.path.join("tools", "mpy-tool.py"), MPY_TOOL_PATCHES)):
+        path = os.path.join(src, name)
         orig = path + ".orig"
         if not os.path.exists(orig):
             shutil.copyfile(path, orig)
@@ -415,22 +425,28 @@ def patch_port(src):
             text = f.read()
         for old, new in patches:
             if old not in text:
-                raise BuildError("ports/qemu/%s is not the 1.25.0 one this build patches (%r missing)"
+                raise BuildError("%s is not the 1.25.0 one this build patches (%r missing)"
                                  % (name, old.strip().splitlines()[0]))
             text = text.replace(old, new)
-        _write_if_changed(path, text)
+        if _write_if_changed(path, text) and patches is MPY_TOOL_PATCHES:
+            for mem in (TARGET_MEM, SMALL_MEM, LAB_MEM):
+                for f in ("frozen_content.c", "frozen_content.o", "firmware.elf"):
+                    if os.path.exists(os.path.join(mem.dir, f)):
+                        os.remove(os.path.join(mem.dir, f))
 
 
 def _write_if_changed(path, text):
-    """Write ``text`` unless the file holds it already (make rebuilds what depends on a newer file)."""
+    """Write ``text`` unless the file holds it already (make rebuilds what depends on a newer file); True if
+    written."""
     try:
         with open(path) as f:
             if f.read() == text:
-                return
+                return False
     except OSError:
         pass
     with open(path, "w") as f:
         f.write(text)
+    return True
 
 
 def build(src=None, mems=(TARGET_MEM, SMALL_MEM, LAB_MEM)):

@@ -3,11 +3,15 @@
 ``firmware.hal.link.serve_controller`` answers a TICK in bytecode: the decoder's packet tuple, ``struct``, the
 exactly-once checks, the encoder. On the thesis's Cortex-M0 that took about 107,000 instructions a tick (measured,
 ``make bench``'s PIL table), more than the whole 1.568 ms tick at 48 MHz. ``answer`` does the common tick in one
-viper call: the next TICK in sequence, to this node, in the ADC's range, with no CTRL_STATUS due, from the same
-source with the next sequence number. It decodes the frame (COBS and CRC-16, ``protocol.fast``), steps the
+viper call: the next TICK in sequence, to this node, in the ADC's range, from the same
+source with a later sequence number (a gap counted as the decoder counts it: commands from the ground share the
+bench's sequence numbers). It decodes the frame (COBS and CRC-16, ``protocol.fast``), steps the
 controller (``ctl.heard(True)`` inline, then ``ctl.step``: the same steps, in the same order, as ``serve_controller``), and
 frames the FSM_SPI answer; anything else it leaves untouched for the bytecode path (returns 0), which answers it as
-it always did. So the codes and the answers are the same, bit for bit (tests/test_pil.py runs both).
+it does every packet. So the codes and the answers are the same, bit for bit (tests/test_pil.py runs both).
+
+A tick with a CTRL_STATUS due is answered too: its FSM_SPI first (the loop's output), then ``status`` packs the
+status (``firmware.hal.fast_status.status``: ``Controller.status_payload``'s bytes, no allocation), sent after.
 """
 
 import micropython
@@ -43,12 +47,15 @@ _ST_RX_SRC = const(3)
 _ST_RX_SEQ = const(4)
 _ST_SPI_N = const(5)
 # --- end of generated constants ---
+_ST_RX_GAPS = const(7)               # firmware/hal/stdio.py's: sequence gaps (tests/test_fast_status.py checks it)
 
 
 @micropython.viper
 def answer(lk, ctl, n: int, last: int) -> int:
     """Answer the frame ``lk._frame[0:n]`` (its 0x00 included) if it is the common TICK ``last + 1``: the FSM_SPI
-    frame goes into ``lk._out`` and its length is returned. 0 if it is not one (nothing changed, nothing sent).
+    frame goes into ``lk._out`` and its length is returned, negated when a CTRL_STATUS is due after it
+    (``firmware.hal.fast_status``).
+    0 if it is not one (nothing changed, nothing sent).
     ``lk``: the link (``_frame``, ``_raw``, ``_out``, ``_st``, ``node``); ``ctl``: the controller, its ``words`` an array('i') (``ViperController``)."""
     if n < 2 or n > _TICK_RAW + 4:   # a TICK's frame is 22 or 23 bytes with its 0x00
         return 0
@@ -62,8 +69,11 @@ def answer(lk, ctl, n: int, last: int) -> int:
     seq = int(raw[4])
     if int(raw[0]) != _VERSION or int(raw[1]) != _P_TICK or (int(raw[3]) != me and int(raw[3]) != _BROADCAST):
         return 0
-    if src != int(st[_ST_RX_SRC]) or seq != ((int(st[_ST_RX_SEQ]) + 1) & 0xFF):
-        return 0                     # a sequence gap or a new source: the decoder counts it
+    g = (seq - int(st[_ST_RX_SEQ])) & 0xFF      # this source's frames since its last: 1 and the missed ones
+    if int(st[_ST_RX_SRC]) < 0:
+        g = 1                        # the first TICKs' source (the board's first tick): taken up, no gap counted
+    elif src != int(st[_ST_RX_SRC]) or g == 0 or g >= 128:
+        return 0                     # a new source, a repeated or an older sequence number: the decoder's
     if int(raw[8]) >= 0x40:          # ticks from 2^30 on: beyond a small int on a 32-bit port
         return 0
     tick = int(raw[5]) | (int(raw[6]) << 8) | (int(raw[7]) << 16) | (int(raw[8]) << 24)
@@ -74,11 +84,10 @@ def answer(lk, ctl, n: int, last: int) -> int:
     vs = int(raw[17]) | (int(raw[18]) << 8)
     if (vx | vy | vs) >> 12:
         return 0
-    d = int(ctl.decim)
-    if d != 0 and tick % d == 0:     # a CTRL_STATUS is due: the bytecode path sends it
-        return 0
     st[_ST_RX_FRAMES] = st[_ST_RX_FRAMES] + 1
+    st[_ST_RX_SRC] = src
     st[_ST_RX_SEQ] = seq
+    st[_ST_RX_GAPS] = st[_ST_RX_GAPS] + g - 1   # a sequence gap, counted as the decoder counts it
     s = ptr32(ctl._s)                # ctl.heard(True), inline
     s[_S_PKT] = (s[_S_TICKS] + 1) & _COUNT_MAX
     s[_S_QUIET] = 0
@@ -115,4 +124,7 @@ def answer(lk, ctl, n: int, last: int) -> int:
     m = int(fast.cobs_encode(rb, _SPI_BODY + 2, ob))
     out[m] = 0
     st[_ST_TX_FRAMES] = st[_ST_TX_FRAMES] + 1
+    d = int(ctl.decim)
+    if d != 0 and tick % d == 0:     # a CTRL_STATUS is due after this answer
+        return -1 - m
     return m + 1

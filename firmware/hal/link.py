@@ -36,8 +36,8 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     jump (so a damaged tick number neither counts nor sends the controller to SAFE), as does a wait of
     ``poll_ms`` without any packet. A HELLO from the bench starts a new session (tick numbers may start again).
     CTRL_STATUS is due on ticks k with k % decim == 0 (``status_due_at``), so the bench knows which ticks
-    carry one; it goes out before the FSM_SPI, to the TICK's sender. A link with ``answer_ticks`` answers the
-    common ticks itself (``_fast_ticks``). A TICK whose Q1 counts lie beyond the 12-bit ADC (the packet table's
+    carry one; it goes out after the FSM_SPI (the loop's output first), to the TICK's sender. A link with
+    ``answer_ticks`` answers the common ticks itself (``_fast_ticks``), those with a CTRL_STATUS due included. A TICK whose Q1 counts lie beyond the 12-bit ADC (the packet table's
     0..4095: only damage the CRC-16 missed makes one) is dropped unanswered and counted with the frames dropped
     (``n_rx_drop``); the step's integers stay within +-2^30 (on a 32-bit board a larger count overflows: a heap
     allocation under ``heap_lock``, or a wrapped ratio in viper).
@@ -56,8 +56,13 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     link.send_raw(P_HELLO, me, BROADCAST, hello_payload(me, FW_VERSION))
     silent_ticks = int(poll_ms * rate_hz / 1000) or 1
     while not link.closed:
-        if fast is not None and stale < 0 and not gap and 0 <= last < 0x3FFFFFFF:
-            last = _fast_ticks(fast, ctl, last, out)
+        if fast is not None and stale < 0 and not gap and -1 <= last < 0x3FFFFFFF:   # -1: a session's tick 0
+            if rx_drops is not None:              # CTRL_STATUS's n_rx_drop for the machine-code path
+                ctl.n_rx_drop = rx_drops() + bad_ticks
+            t = _fast_ticks(fast, ctl, last, out)
+            if t != last and ctl.status_due_at(t):
+                status, status_tick = link.status_sent(), t     # its status kept for a resend
+            last = t
         pkts = link.recv_ms(poll_ms)
         if not pkts:
             ctl.link_silent(silent_ticks)
@@ -98,9 +103,10 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 heap_unlock()
             struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
             if ctl.status_due_at(tick):
-                status = _send_status(ctl, link, me, src, tick, rx_drops, bad_ticks)
+                status = _send_status(ctl, link, me, src, tick, rx_drops, bad_ticks, out)
                 status_tick = tick
-            link.send_raw(P_FSM_SPI, me, src, out)
+            else:
+                link.send_raw(P_FSM_SPI, me, src, out)
     _closed(link)
 
 
@@ -118,25 +124,27 @@ def _fast_ticks(fast, ctl, last, out):
 
 
 def _answer_again(ctl, link, me, dst, status, out):
-    """A resent TICK answered again (counted in n_dup): the CTRL_STATUS it carried (None: none), then its
-    FSM_SPI."""
+    """A resent TICK answered again (counted in n_dup): its FSM_SPI, then the CTRL_STATUS it carried (None:
+    none)."""
     ctl.n_dup += 1
     st = getattr(link, "_st", None)           # a board's link (firmware.hal.stdio): this exchange's kind
     if st is not None:
         st[6] = 3                             # its _ST_KIND: _K_RESEND
+    link.send_raw(P_FSM_SPI, me, dst, out)
     if status is not None:
         link.send_raw(P_STATUS, me, dst, status)
-    link.send_raw(P_FSM_SPI, me, dst, out)
 
 
-def _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks):
-    """Tick's CTRL_STATUS, with the frames the link dropped and the bad TICKs in n_rx_drop, sent to dst (the
-    HIL host that clocks us: on CAN, ISO-TP to an absent node would block); returns its payload."""
+def _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks, out):
+    """Tick's FSM_SPI (``out``), then its CTRL_STATUS, with the frames the link dropped and the bad TICKs in
+    n_rx_drop, both sent to dst (the HIL host that clocks us: on CAN, ISO-TP to an absent node would block);
+    returns the status's payload."""
     if rx_drops is not None:
         ctl.n_rx_drop = rx_drops() + bad_ticks
     st = getattr(link, "_st", None)           # a board's link (firmware.hal.stdio): this exchange's kind
     if st is not None:
         st[6] = 2                             # its _ST_KIND: _K_STATUS
+    link.send_raw(P_FSM_SPI, me, dst, out)
     status = ctl.status_payload(tick)
     link.send_raw(P_STATUS, me, dst, status)
     return status

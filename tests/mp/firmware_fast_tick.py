@@ -14,7 +14,7 @@ import micropython
 import firmware_plant as fp
 from firmware.controller import S_BXQ, S_BYQ, TRACK, Controller
 from firmware.controller_viper import ViperController
-from firmware.hal import fast_tick
+from firmware.hal import fast_status, fast_tick
 from firmware.hal.link import serve_controller
 from firmware.hal.stdio import StdioLink
 from protocol import consts, core, htable
@@ -29,24 +29,38 @@ class End(Exception):
 
 class Wire:
     """A board's UART driver over a list of frames: ``read_frame`` copies the next into buf (bytes beyond n
-    dropped, its length returned, as ``firmware.hal.nrf51.read_frame``); ``write_frame`` keeps what is sent."""
+    dropped, its length returned, as ``firmware.hal.nrf51.read_frame``); ``write_frame`` keeps what is sent. Neither
+    allocates: the link's machine-code path runs them with the heap locked."""
 
     def __init__(self, frames):
         self.frames = frames
         self.i = 0
-        self.out = bytearray()
+        self.buf = bytearray(64 * 1024)
+        self.n = 0
+        self.end = End()
 
     def read_frame(self, buf, n):
         if self.i >= len(self.frames):
-            raise End()
+            raise self.end
         f = self.frames[self.i]
         self.i += 1
-        for j in range(min(len(f), n)):
+        j = 0
+        while j < len(f) and j < n:
             buf[j] = f[j]
+            j += 1
         return len(f)
 
     def write_frame(self, buf, n):
-        self.out.extend(bytes(buf[:n]))
+        j = 0
+        k = self.n
+        while j < n:
+            self.buf[k + j] = buf[j]
+            j += 1
+        self.n = k + n
+
+    @property
+    def out(self):
+        return self.buf[:self.n]
 
 
 def samples(n, seed):
@@ -132,7 +146,8 @@ def serve(frames, fast):
         if r:
             answered[0] += 1
         return r
-    lk = StdioLink(ME, read_frame=w.read_frame, write_frame=w.write_frame, fast=counted if fast else None)
+    lk = StdioLink(ME, read_frame=w.read_frame, write_frame=w.write_frame, fast=counted if fast else None,
+                   status=fast_status.status)
     try:
         serve_controller(c, lk)
     except End:

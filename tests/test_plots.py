@@ -141,6 +141,18 @@ def test_the_adcs_can_plot(figs, tmp_path):
     f = figs["pointing.png"]
     check(f)
     assert f.axes[0].get_title() and f.axes[1].get_ylabel().startswith("ADCS mode")
+    h["dtheta_arcsec"] = np.column_stack([5000 * np.exp(-h["t"]) + 20 * np.sin(h["t"]), np.zeros(n)])
+    h["domega_arcsec_s"] = h["dtheta_arcsec"] / 10
+    s = {"settle_s": 20.0, "requirements": {"body_pointing_3sigma_arcsec": 140.0, "body_stability_3sigma_arcsec_s":
+                                            30.0}, "pointing": {"pointing_3sigma_arcsec": 60.0,
+                                                                "stability_3sigma_arcsec_s": 6.0}}
+    plots.adcs_can_pointing(h, str(tmp_path / "pointing.png"), {"gnss_outage": [10, 20]}, s)
+    f = figs["pointing.png"]
+    check(f)
+    p, st = [ax for ax in f.axes if ax.get_label() != "<inset>"][:2]
+    assert level_at(p, 140.0) and level_at(p, 60.0) and level_at(st, 30.0) and level_at(st, 6.0)
+    assert p.get_ylim()[1] < 1000 and insets(p)[0].get_ylim()[1] > 4000     # past the start-up, which it insets
+    assert "gnss outage" in legend_of(f, p)
 
 
 @pytest.mark.parametrize("name, width", [("apkf", 33), ("mekf", 6)])

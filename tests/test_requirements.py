@@ -57,5 +57,6 @@ def test_the_flight_wheel_plot_draws_the_files_wheel_band(tmp_path, monkeypatch)
             "fsw_m_cmd": np.zeros((n, 3))}
     s = {"orbit_period_s": 10.0, "wheel_speed_limit_rpm": 6000.0, "requirements": sf.requirements(_file(TIGHT))}
     bps_report.plot_flight(str(tmp_path), hist, s)
-    dotted = sorted(ln.get_ydata()[0] for ln in figs[1].axes[0].lines if ln.get_linestyle() == ":")
-    assert dotted == [-3000.0, 3000.0] and "50 % of the limit" in figs[1]._suptitle.get_text()
+    dashed = sorted(ln.get_ydata()[0] for ln in figs[1].axes[0].lines if ln.get_linestyle() == "--")
+    assert dashed == [-3000.0, 3000.0]
+    assert any("50 % of the 6000 rpm limit" in t.get_text() for t in figs[1].axes[0].get_legend().get_texts())

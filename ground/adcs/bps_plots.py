@@ -27,20 +27,19 @@ def _budget_axes(ax, t, y, t0, budget, unit, t_inset):
     inset(ax, t_end=t_inset, bounds=(1.02, 0.08, 0.16, 0.84), title="start-up")
 
 
-def plot_history(path, hist, settle_s, title, s=None):
-    """Fig. 6-3/6-4: δθ1, δθ2 and δω1, δω2 from the start, zoomed on the collected seconds (after ``settle_s``)
-    with the start-up inset, the budgets and the run's 3σ (3 sqrt(σ1² + σ2²) over the collected seconds, the
-    figure the verdict compares) drawn; ``s``: the summary (its ``requirements``; default the thesis's)."""
-    req = (s or {}).get("requirements") or THESIS_REQUIREMENTS
+def pointing_panels(axs, hist, settle_s, req, figures=None):
+    """δθ1, δθ2 and δω1, δω2 (``hist``: t, dtheta_arcsec, domega_arcsec_s) into the two axes ``axs``, zoomed on
+    the seconds after ``settle_s`` with the start-up inset, the budgets of ``req`` and the run's 3σ (``figures``'
+    pointing_3sigma_arcsec and stability_3sigma_arcsec_s, the ones the verdict compares; without them 3 sqrt(σ1²
+    + σ2²) over those seconds) drawn, the collection's start marked."""
     t = hist["t"]
-    fig, ax = subplots(2, 1, width=12, row_height=2.8, sharex=True)
     sel = t >= settle_s
-    for a, (key, sym, unit, rk, fk) in zip(ax[:, 0], QUANTITIES):
+    for a, (key, sym, unit, rk, fk) in zip(axs, QUANTITIES):
         y = hist[key]
         for i in range(2):
             a.plot(t, y[:, i], lw=0.5, color="C%d" % i, label="%s%d" % (sym, i + 1))
         _budget_axes(a, t, y, settle_s, req[rk], unit, settle_s)
-        v = (s or {}).get(fk)
+        v = (figures or {}).get(fk)
         if v is None and sel.sum() > 1:
             v = 3 * float(np.hypot(*np.std(y[sel], axis=0)))
         if v is not None:
@@ -48,6 +47,13 @@ def plot_history(path, hist, settle_s, title, s=None):
         a.axvline(settle_s, color="k", lw=0.6, ls=":", label="collection starts (%.0f s)" % settle_s)
         a.set_ylabel("%s1, %s2 (%s)" % (sym, sym, unit))
         legend(a, loc="upper right", ncol=3, fontsize=7, framealpha=0.85)
+
+
+def plot_history(path, hist, settle_s, title, s=None):
+    """Fig. 6-3/6-4 (``pointing_panels``); ``s``: the summary (its ``requirements``, default the thesis's, and
+    its 3σ figures)."""
+    fig, ax = subplots(2, 1, width=12, row_height=2.8, sharex=True)
+    pointing_panels(ax[:, 0], hist, settle_s, (s or {}).get("requirements") or THESIS_REQUIREMENTS, s)
     ax[1, 0].set_xlabel("time (s)")
     fig.suptitle(title + "; holds where the black 3σ lines lie inside the red budget", fontsize=10)
     fig.tight_layout()

@@ -115,7 +115,7 @@ def run(a):
     bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:
         from ground import plots
-        plots.adcs_can_pointing(h, os.path.join(out, FIGURE), faults)
+        plots.adcs_can_pointing(h, os.path.join(out, FIGURE), faults, summary)
     write_json(os.path.join(out, "summary.json"), summary)
     write_atomic(os.path.join(out, "report.md"), report_md(summary, a))
     _say(summary, a)

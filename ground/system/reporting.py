@@ -133,11 +133,12 @@ def thesis_body():
     return out
 
 
-def _plot(rec, feed, q2cal, t_settle, faults=None):
+def _plot(rec, feed, q2cal, t_settle, faults=None, requirements=None):
     """system_pointing.png on the ADCS's clock (the fault options'): the body error over the window played and the
-    fine error, both from the ADCS's start."""
+    fine error, both from the ADCS's start, against the ``requirements`` the verdict reads (default the
+    thesis's)."""
     from ground import plots as plt_mod
-    from ground.adcs import body_pointing as bps
+    from protocol import spacecraft as sf
     t, dth, _dom, _te, _e = feed.arrays()
     q2, _truth = rec.arrays()
     body = fine = None
@@ -149,8 +150,9 @@ def _plot(rec, feed, q2cal, t_settle, faults=None):
         ok = np.all(np.isfinite(e), axis=1)
         fine = ((q2[ok, 1] - rec.t0_us) * 1e-6 + t_settle, e[ok, 0], e[ok, 1])
     if body is not None or fine is not None:
-        plt_mod.system_time_history(body, fine, rec.path(FIGURE), report.REQUIREMENT_ARCSEC,
-                                    bps.BUDGET_POINTING_3SIGMA, faults)
+        r = requirements or sf.requirements(None)
+        plt_mod.system_time_history(body, fine, rec.path(FIGURE), r["fine_pointing_arcsec"],
+                                    r["body_pointing_3sigma_arcsec"], faults)
 
 
 def _f(v, fmt="%.2f"):

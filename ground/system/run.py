@@ -188,7 +188,7 @@ def _finish(run, rec, summary, q2cal, plots, feed, live, t_settle, t_wall0, faul
     summary["requirement_met"] = summary["verdict"]["met"]
     write_json(rec.path("summary.json"), summary)
     if plots:
-        _plot(rec, feed, q2cal, t_settle, faults)
+        _plot(rec, feed, q2cal, t_settle, faults, summary["requirements"])
     write_atomic(rec.path("report.md"), report_md(summary))
 
 

@@ -230,12 +230,17 @@ def system_time_history(body, fine, path, requirement_arcsec=11.98, budget_3sigm
         ax.plot(t[::step], y[::step], lw=0.4, label="%s %s" % (name, comps[1]))
         ax.set_ylabel("%s (arcsec)" % name.split(" (")[0])
         zoom(ax, np.concatenate([x, y]), lo_share=0.001)
+        if comps[0] == "δθ1" and len(t) > 1:                  # the body budget is on the 3σ: the window's drawn
+            v = 3 * float(np.hypot(np.std(x), np.std(y)))
+            ax.set_ylim(min(ax.get_ylim()[0], -1.1 * v), max(ax.get_ylim()[1], 1.1 * v))
+            pass_levels(ax, [(t[0], t[-1])], [v], "3σ over the window, both axes: %.1f%s" % (v, ARCSEC_SIGN))
         band(ax, lim, lim_label)
         for (w, label) in fault_windows(faults):
             shade(ax, [w], label)
         legend(ax, outside="right")
     axs[-1, 0].set_xlabel("time from the ADCS's start (s)")
-    axs[0, 0].set_title("Body pointing error (ADCS) and fine pointing error (Q2), one time axis")
+    axs[0, 0].set_title("Body pointing error (ADCS) and fine pointing error (Q2), one time axis; holds where the "
+                        "black 3σ lies inside the body budget and every fine sample inside its requirement", fontsize=9)
     fig.tight_layout()
     save_png(fig, path)
 

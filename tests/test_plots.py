@@ -131,6 +131,7 @@ def test_the_system_plot_zooms_on_the_fine_error_and_shades_the_faults(figs, tmp
     assert fa.get_ylim()[1] < 1.0 and any("beyond this zoomed axis" in x for x in _legend_texts(f, fa))
     assert any("δθ1" in x for x in _legend_texts(f, b)) and any("startracker blind" in x for x in _legend_texts(f, b))
     assert "ADCS's start" in fa.get_xlabel() and fa.get_xlim()[0] >= 160
+    assert level_at(b, 3 * np.hypot(np.std(body[1]), np.std(body[2])))        # the window's 3σ beside the budget
 
 
 def test_the_adcs_can_plot(figs, tmp_path):

@@ -240,7 +240,7 @@ def _adcs_can(tmp, failed):
     for name, spec in (("clean", None), ("`%s` (completes, identical)" % CAN_MILD, CAN_MILD),
                        ("`%s` (goal: completes, identical)" % LIGHT, LIGHT)):
         out = os.path.join(tmp, "adcs_%d" % (ref is not None))
-        rc, wall, s = _fps_timed(["adcs", "can", "--duration", "%g" % ADCS_DURATION_S, "--quiet", "--no-plots",
+        rc, wall, s = _fps_timed(["adcs", "can", "--session", "%g" % ADCS_DURATION_S, "--quiet", "--no-plots",
                                   "-o", out], spec)
         r = s.get("retries") or {}
         ident = "—"

@@ -91,7 +91,7 @@ def _main(tmp, runs):
     ref = None
     for k in range(runs + 1):
         out = os.path.join(tmp, "adcs_%d" % k)
-        rc, wall, s = _fps_timed(["adcs", "can", "--duration", "%g" % ADCS_S, "--quiet", "--no-plots", "-o", out],
+        rc, wall, s = _fps_timed(["adcs", "can", "--session", "%g" % ADCS_S, "--quiet", "--no-plots", "-o", out],
                                  "first=1" if k == runs else None)
         ref = ref or out
         same = _same_history(ref, out) if s.get("complete") else "stopped: %s" % (s.get("error") or "")[:80]

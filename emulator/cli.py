@@ -37,8 +37,9 @@ def register(sub, name, help_):
                    help="serial (default): a pseudo-terminal pair (prints the slave path); can: slcan over a pty")
     s.add_argument("--seed", type=int, default=0, help="the emulator's seed, >= 0 (default 0)")
     s.add_argument("--duration", type=float,
-                   help="seconds to run (bench: virtual, default 10, at most what 80 %% of this machine's memory "
-                        "holds at ~400 B a tick; wheels: wall = virtual, default until stopped)")
+                   help="the seconds collected: the run its summary covers (bench: virtual, default 10, at most what "
+                        "80 %% of this machine's memory holds at ~400 B a tick; wheels: wall = virtual, default "
+                        "until stopped)")
     s.add_argument("--wait", type=float, default=30.0,
                    help="wall seconds to wait for the peer's first packet (bench: HELLO; wheels: any; default 30)")
     s.add_argument("-o", "--output", type=output_file, help="write the run summary (JSON) here")

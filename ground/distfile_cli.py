@@ -320,7 +320,8 @@ def register(sub, name, help_):
     s = p.add_subparsers(dest="distfile_cmd", metavar="ACTION")
     g = s.add_parser("generate", help="generate a distfile from a source")
     g.add_argument("--source", default="stat", choices=sorted(sources.SOURCES), help="disturbance source (default stat)")
-    g.add_argument("--duration", type=float, default=600.0, help="seconds (default 600)")
+    g.add_argument("--duration", type=float, default=600.0, help="the seconds collected into the file, "
+                   "the window of its statistics (fps hil plays up to them; default 600)")
     g.add_argument("--seed", type=int, default=None,
                    help="random seed (default 1; not for --source csv, which has no randomness)")
     g.add_argument("--step-us", type=float, default=resample.DIST_PERIOD_US,

@@ -507,7 +507,8 @@ def register(sub, name, help_):
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--distfile", required=True, help="distfile to play (fps distfile generate)")
     p.add_argument("--calibration", required=True, help="H calibration JSON (fps calibrate)")
-    p.add_argument("--duration", type=float, default=600.0, help="virtual seconds to run (default 600)")
+    p.add_argument("--duration", type=float, default=600.0, help="the seconds collected: the play, virtual s "
+                   "(default 600)")
     from ground.runtime import add_link_arguments
     add_link_arguments(p)
     add_run_arguments(p)

@@ -179,7 +179,7 @@ def test_a_lost_wheel_leaves_the_allocation_and_the_pointing_keeps_its_budget(tm
     from ground.cli import main as fps
     out = tmp_path / "lost"
     assert fps(["adcs", "can", "--runtime", "inproc", "--world", "flight", "--wheel-silent", "1:300",
-                "--duration", "1800", "--no-plots", "--quiet", "-o", str(out)]) == 0
+                "--session", "1800", "--no-plots", "--quiet", "-o", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["wheels_failed"] == 2 and s["pointing"]["pointing_3sigma_arcsec"] < 150.0
     assert s["max_wheel_speed_rpm"] < 0.8 * s["wheel_speed_limit_rpm"]

@@ -290,7 +290,7 @@ def test_fps_adcs_can_writes_a_run_folder_and_refuses_bad_input(tmp_path):
     import json
     from ground import cli
     out = tmp_path / "run"
-    rc = cli.main(["adcs", "can", "--duration", "12", "--runtime", "cpython", "--beacon-lost", "1", "--quiet",
+    rc = cli.main(["adcs", "can", "--session", "12", "--runtime", "cpython", "--beacon-lost", "1", "--quiet",
                    "-o", str(out)])
     assert rc == 0
     s = json.loads((out / "summary.json").read_text())
@@ -299,7 +299,7 @@ def test_fps_adcs_can_writes_a_run_folder_and_refuses_bad_input(tmp_path):
     h = np.load(out / "history.npz")
     assert h["t"].shape == (120,) and h["dtheta_arcsec"].shape == (120, 2) and h["status_tick"].tolist() == list(range(12))
     assert (out / "pointing.png").stat().st_size > 0
-    for bad in (["--wheel-silent", "7:3"], ["--gnss-outage", "50"], ["--duration", "0"]):
+    for bad in (["--wheel-silent", "7:3"], ["--gnss-outage", "50"], ["--session", "0"]):
         assert cli.main(["adcs", "can", "--runtime", "cpython", "--quiet", "-o", str(tmp_path / "b")] + bad) == 2
 
 
@@ -315,7 +315,7 @@ def test_fps_adcs_can_interrupted_leaves_a_valid_partial_folder(tmp_path, monkey
         return real(self)
     monkeypatch.setattr(adcs_session.AdcsSession, "cycle", cycle)
     out = tmp_path / "run"
-    assert cli.main(["adcs", "can", "--duration", "30", "--runtime", "cpython", "--quiet", "-o", str(out)]) == 130
+    assert cli.main(["adcs", "can", "--session", "30", "--runtime", "cpython", "--quiet", "-o", str(out)]) == 130
     s = json.loads((out / "summary.json").read_text())
     assert s["complete"] is False and s["cycles"] == 5
     assert np.load(out / "history.npz")["t"].shape == (50,)
@@ -328,7 +328,7 @@ def test_a_lost_hello_either_way_costs_a_retry_not_the_session(tmp_path, runtime
     import json
     from ground import cli
     out = tmp_path / "run"
-    assert cli.main(["adcs", "can", "--duration", "3", "--runtime", runtime, "--quiet", "--no-plots",
+    assert cli.main(["adcs", "can", "--session", "3", "--runtime", runtime, "--quiet", "--no-plots",
                      "--link-faults", "first=1", "-o", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["complete"] and s["cycles"] == 3 and s["retries"]["hello_tries"] >= 2
@@ -344,7 +344,7 @@ def test_a_firmware_that_never_answers_hello_is_named_with_the_link_not_the_inpu
     from ground import cli
     monkeypatch.setattr(adcs_session, "HELLO_WAIT_S", 1.5)
     out = tmp_path / "run"
-    assert cli.main(["adcs", "can", "--duration", "3", "--runtime", "cpython", "--quiet", "--no-plots",
+    assert cli.main(["adcs", "can", "--session", "3", "--runtime", "cpython", "--quiet", "--no-plots",
                      "--link-faults", "first=1000000", "-o", str(out)]) == 1
     err = capsys.readouterr().err
     assert "did not answer HELLO over CAN (slcan on /dev/pts/" in err and "within 1.5 s" in err

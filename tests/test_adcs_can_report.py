@@ -9,7 +9,7 @@ from protocol import spacecraft as sf
 
 
 def _run(tmp_path, capsys, requirements=None):
-    argv = ["adcs", "can", "--world", "flight", "--duration", "400", "--runtime", "inproc", "--seed", "3",
+    argv = ["adcs", "can", "--world", "flight", "--session", "400", "--runtime", "inproc", "--seed", "3",
             "--quiet", "--no-plots", "-o", str(tmp_path / "run")]
     if requirements is not None:
         d = json.load(open(sf.preset_path("thesis-3u")))

@@ -137,7 +137,7 @@ def test_stkf_interrupted_in_a_reused_folder_counts_only_its_own_runs(tmp_path, 
 def test_adcs_can_run_that_misses_its_budget_does_not_exit_0(tmp_path, capsys):
     """t_s = 5 s is far too stiff for the 1 Hz loop: the pointing diverges; the summary and the exit agree."""
     out = tmp_path / "can"
-    rc, _, err = _fps(capsys, ["adcs", "can", "--runtime", "cpython", "--duration", "80", "--ts", "5", "--quiet",
+    rc, _, err = _fps(capsys, ["adcs", "can", "--runtime", "cpython", "--session", "80", "--ts", "5", "--quiet",
                                "--no-plots", "-o", out])
     s = _summary(out)
     assert s["complete"] and s["pointing"]["pointing_3sigma_arcsec"] > bps.BUDGET_POINTING_3SIGMA
@@ -154,7 +154,7 @@ def test_adcs_can_run_that_misses_its_budget_does_not_exit_0(tmp_path, capsys):
     (["system", "--adcs", "ground", "--runtime", "cpython", "--truth", "two-body", "--duration", "1e12"],
      "--duration"),
     (["adcs", "can", "--runtime", "cpython", "--ts", "1e9"], "--ts"),
-    (["adcs", "can", "--runtime", "cpython", "--duration", "1e12"], "--duration"),
+    (["adcs", "can", "--runtime", "cpython", "--session", "1e12"], "--session"),
     (["adcs", "stkf", "--case", "1", "--truth", "two-body", "--duration", "1e9"], "--duration"),
     (["adcs", "stkf", "--case", "1", "--truth", "two-body", "--duration", "inf"], "--duration"),
     (["adcs", "stkf", "--case", "2", "--truth", "two-body", "--lag", "inf"], "--lag"),
@@ -177,7 +177,7 @@ def test_too_large_or_negative_inputs_are_refused_up_front(argv, flag, params_fi
 
 
 @pytest.mark.parametrize("argv", [["adcs", "apkf", "--workers", "1"], ["adcs", "bps", "--truth", "two-body"],
-                                  ["adcs", "can", "--runtime", "cpython", "--duration", "2"]])
+                                  ["adcs", "can", "--runtime", "cpython", "--session", "2"]])
 def test_a_binary_parameter_file_is_named_in_the_error(argv, tmp_path, capsys):
     p = tmp_path / "params.json"
     p.write_bytes(b"\xff\xfe\x00{")
@@ -280,7 +280,7 @@ def test_adcs_can_refuses_the_parameter_files_fps_adcs_bps_refuses(edit, words, 
     edit(d)
     p = tmp_path / "bad.json"
     p.write_text(json.dumps(d))
-    rc, _, err = _fps(capsys, ["adcs", "can", "--runtime", "cpython", "--duration", "2", "--quiet", "--no-plots",
+    rc, _, err = _fps(capsys, ["adcs", "can", "--runtime", "cpython", "--session", "2", "--quiet", "--no-plots",
                                "--params", p, "-o", tmp_path / "x"])
     last = err.strip().splitlines()[-1] if err.strip() else ""
     assert rc == 2 and str(p) in last and words in last, err

@@ -216,7 +216,7 @@ def test_bps_on_the_6u_calibrates_and_points_the_6u(tmp_path, capsys, perfect_pa
 
 
 def test_can_thesis_3u_is_the_default_bit_for_bit_and_the_firmware_gets_the_6u(tmp_path, thesis_copy):
-    argv = ["adcs", "can", "--runtime", "cpython", "--duration", "4", "--satb-gnss", "--quiet", "--no-plots"]
+    argv = ["adcs", "can", "--runtime", "cpython", "--session", "4", "--satb-gnss", "--quiet", "--no-plots"]
     outs = _three(tmp_path, argv, thesis_copy)
     for o in outs[1:]:
         _same_npz(outs[0] / "history.npz", o / "history.npz")

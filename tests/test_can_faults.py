@@ -411,7 +411,7 @@ def test_fps_adcs_can_on_a_loaded_machine_flies_the_same_every_time(tmp_path):
         outs = []
         for k in range(2):
             out = tmp_path / ("run%d" % k)
-            p = _fps("adcs", "can", "--duration", "60", "--runtime", runtime, "--quiet", "--no-plots",
+            p = _fps("adcs", "can", "--session", "60", "--runtime", runtime, "--quiet", "--no-plots",
                      "-o", str(out))
             assert p.returncode in (0, 3), p.stderr
             outs.append(out)
@@ -436,7 +436,7 @@ def test_fps_adcs_can_rides_through_link_faults_bit_identical(tmp_path):
     runs = {}
     for name, extra in (("clean", []), ("faults", ["--link-faults", "bytes=0.001,frames=0.05,seed=2"])):
         out = tmp_path / name
-        p = _fps("adcs", "can", "--duration", "25", "--quiet", "--no-plots", "-o", str(out), *extra)
+        p = _fps("adcs", "can", "--session", "25", "--quiet", "--no-plots", "-o", str(out), *extra)
         assert p.returncode == 0, p.stderr
         runs[name] = out
     a, b = (np.load(runs[n] / "history.npz") for n in ("clean", "faults"))

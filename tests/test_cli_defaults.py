@@ -76,3 +76,51 @@ def test_every_shared_option_whose_default_differs_is_in_the_docs_table():
             continue
         missing += ["%s on fps %s" % (opt, c) for c in odd if "`%s`" % c not in cell and c.split()[-1] not in cell]
     assert not missing, "docs/CLI.md's shared options table leaves out: " + "; ".join(missing)
+
+
+WHOLE_SESSION = ("whole session", "from power-on", "whole run")
+
+
+def _options(name):
+    """{command words: the action} of every command's visible option ``name``."""
+    return {" ".join(path): a for path, p in all_commands() for a in p._actions
+            if name in a.option_strings and a.help is not argparse.SUPPRESS}
+
+
+def test_every_duration_is_the_window_collected():
+    """--duration means one thing on every command: the seconds the run's statistics are collected over (for fps
+    hil, the play); its --help says so, never the whole session (that is --session)."""
+    from ground.adcs.options import WINDOW_WORD
+    durations = _options("--duration")
+    assert {"hil", "system", "adcs bps", "adcs sweep", "adcs stkf"} <= set(durations)
+    odd = ["fps %s: %s" % (c, a.help) for c, a in durations.items()
+           if WINDOW_WORD not in a.help or any(w in a.help for w in WHOLE_SESSION)]
+    assert not odd, "--duration whose --help is not the window collected: " + "; ".join(odd)
+
+
+def test_the_whole_session_is_named_session():
+    """The whole session from power-on is --session, on the commands that fly one and nowhere else, and no other
+    option's --help claims it."""
+    sessions = _options("--session")
+    assert set(sessions) == {"adcs can", "adcs bps"}
+    assert all("whole session from power-on" in a.help and "default" in a.help for a in sessions.values())
+    others = ["fps %s %s" % (" ".join(path), max(a.option_strings, key=len)) for path, p in all_commands()
+              for a in p._actions if a.option_strings and "--session" not in a.option_strings
+              and a.help and a.help is not argparse.SUPPRESS and "whole session" in a.help]
+    assert not others, "options claiming the whole session besides --session: " + "; ".join(others)
+
+
+def test_the_old_session_length_is_refused_by_name(tmp_path, capsys):
+    """--duration on fps adcs can, or with the flight world on fps adcs bps, exits 2 naming the option to use; so
+    does --session in the thesis world."""
+    from ground.cli import main
+    out = str(tmp_path / "o")
+    for argv, names in ((["adcs", "can", "--duration", "5"], ("--session",)),
+                        (["adcs", "bps", "--world", "flight", "--duration", "5"], ("--session", "--orbits")),
+                        (["adcs", "bps", "--session", "5"], ("--duration",))):
+        try:
+            rc = main(argv + ["-o", out])
+        except SystemExit as exc:
+            rc = exc.code
+        err = capsys.readouterr().err
+        assert rc == 2 and all(n in err for n in names) and "Traceback" not in err, (argv, err)

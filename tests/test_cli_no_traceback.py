@@ -275,7 +275,7 @@ def hostile(tmp_path_factory):
 def _hostile_file_cases(f, h, o):
     """(argument list, the file, the key it must name or None) for each hostile file of ``hostile`` given to
     every command that takes that kind of file."""
-    takes = {"faults": [["system", "--adcs", "ground", "-o", o], ["adcs", "can", "--duration", "2", "-o", o]],
+    takes = {"faults": [["system", "--adcs", "ground", "-o", o], ["adcs", "can", "--session", "2", "-o", o]],
              "spacecraft": [["adcs", "apkf", "-o", o], ["adcs", "mekf", "-o", o], ["adcs", "stkf", "--case", "1",
                                                                                     "-o", o],
                             ["adcs", "bps", "-o", o], ["adcs", "sweep", "-o", o], ["adcs", "can", "-o", o],
@@ -416,7 +416,7 @@ def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(capsys
     under = str(f / "x")
     cases = [(["adcs", cmd, "-o", under] + extra, "is a file, so no folder can be made under it")
              for cmd, extra in (("apkf", []), ("mekf", []), ("stkf", ["--case", "1"]), ("bps", []), ("sweep", []),
-                                ("can", ["--duration", "2"]))]
+                                ("can", ["--session", "2"]))]
     cases += [([cmd, "-o", under] + extra, "is a file, so no folder can be made under it")
               for cmd, extra in (("hil", ["--distfile", files["dist"], "--calibration", files["cal"]]),
                                  ("response", []), ("system", []), ("calibrate", []))]

@@ -23,7 +23,7 @@ def _runs(tmp_path):
         "stkf": ["adcs", "stkf", "--case", "1", "--truth", "two-body", "--duration", "20", "--quiet"],
         "bps": ["adcs", "bps", "--ts", "20", "--duration", "30", "--seed", "2", "--truth", "two-body", "--quiet",
                 "--cache-dir", str(tmp_path / "cache")],
-        "can": ["adcs", "can", "--duration", "40", "--runtime", "inproc", "--quiet"],
+        "can": ["adcs", "can", "--session", "40", "--runtime", "inproc", "--quiet"],
     }
 
 

@@ -121,7 +121,7 @@ def test_bad_fault_values_exit_2_naming_the_option(tmp_path, capsys):
                        (["--magnetometer-silent", "1e9"], "--magnetometer-silent 1e+09"),
                        (["--faults", '{"magnetorquer_dead": [1, "a"]}'], '"magnetorquer_dead": [1, "a"]'),
                        (["--magnetorquer-dead", "1:5", "--world", "thesis"], "no magnetic devices")):
-        argv = ["adcs", "can", "--runtime", "inproc", "--duration", "20", "--quiet", "--no-plots",
+        argv = ["adcs", "can", "--runtime", "inproc", "--session", "20", "--quiet", "--no-plots",
                 "-o", str(tmp_path / "x")]
         argv += [] if "--world" in args else ["--world", "flight"]
         rc = fps(argv + args)

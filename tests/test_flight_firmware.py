@@ -83,7 +83,7 @@ def _fps(*args, timeout=900):
 
 
 def test_fps_adcs_can_and_system_in_the_flight_world(tmp_path):
-    p = _fps("adcs", "can", "--world", "flight", "--duration", "360", "--quiet", "--no-plots",
+    p = _fps("adcs", "can", "--world", "flight", "--session", "360", "--quiet", "--no-plots",
              "-o", str(tmp_path / "can"))
     assert p.returncode == 0, p.stderr
     s = json.load(open(tmp_path / "can" / "summary.json"))

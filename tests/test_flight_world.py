@@ -191,7 +191,7 @@ def test_the_thesis_world_is_untouched_by_the_flight_options(params):
 
 def test_cli_flight_world_checks_and_refusals(tmp_path, capsys):
     out = tmp_path / "run"
-    rc = fps(["adcs", "bps", "--world", "flight", "--duration", "400", "--truth", "two-body", "--quiet",
+    rc = fps(["adcs", "bps", "--world", "flight", "--session", "400", "--truth", "two-body", "--quiet",
               "--no-plots", "--cache-dir", str(tmp_path / "cache"), "-o", str(out)])
     assert rc == 3                                      # no pass collected: the run cannot report success
     s = json.load(open(out / "summary.json"))

@@ -236,7 +236,7 @@ def test_fps_hil_qemu_leaves_no_qemu(fps_run, inputs, tmp_path, sig):
 def _adcs_can(fps_run, out, runtime, sig):
     """fps adcs can given ``sig`` 3 s after its firmware's process started: none of its processes is left;
     SIGTERM: exit 130, the history of every cycle flown so far in the folder."""
-    f = fps_run("adcs", "can", "--duration", "3000", "--runtime", runtime, "--quiet", "--no-plots", "-o", out)
+    f = fps_run("adcs", "can", "--session", "3000", "--runtime", runtime, "--quiet", "--no-plots", "-o", out)
     f.wait_for("the ADCS firmware's process", _count("qemu-system-arm" if runtime == "qemu" else "micropython"))
     f.pause(3.0)
     if not _stopped(f, sig):

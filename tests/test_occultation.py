@@ -127,8 +127,9 @@ def _fly_far_side(tmp_path, world, duration_s):
     saying NO LINE OF SIGHT, without a traceback."""
     sc, params = _far_side(tmp_path)
     out = tmp_path / "run"
-    p = subprocess.run([sys.executable, "-m", "ground.cli", "adcs", "bps", "--world", world, "--duration",
-                        str(duration_s), "--spacecraft", str(sc), "--params", str(params), "--truth", "two-body",
+    p = subprocess.run([sys.executable, "-m", "ground.cli", "adcs", "bps", "--world", world,
+                        "--session" if world == "flight" else "--duration", str(duration_s), "--spacecraft", str(sc),
+                        "--params", str(params), "--truth", "two-body",
                         "--quiet", "--no-plots", "--cache-dir", str(tmp_path / "cache"), "-o", str(out)],
                        cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert p.returncode == 3, p.stderr

@@ -31,9 +31,9 @@ def params(tmp_path_factory):
 
 def test_bps_flight_world_and_adcs_can_give_the_same_attitude_history(tmp_path, params):
     n = "240"
-    _fps("adcs", "bps", "--world", "flight", "--duration", n, "--seed", "2", "--params", params, "--truth",
+    _fps("adcs", "bps", "--world", "flight", "--session", n, "--seed", "2", "--params", params, "--truth",
          "two-body", "--quiet", "--no-plots", "--cache-dir", str(tmp_path / "cache"), "-o", str(tmp_path / "bps"))
-    _fps("adcs", "can", "--world", "flight", "--duration", n, "--seed", "2", "--params", params, "--runtime",
+    _fps("adcs", "can", "--world", "flight", "--session", n, "--seed", "2", "--params", params, "--runtime",
          "cpython", "--quiet", "--no-plots", "-o", str(tmp_path / "can"))
     a, b = np.load(tmp_path / "bps" / "history.npz"), np.load(tmp_path / "can" / "history.npz")
     assert a["q"].shape == (10 * int(n) + 1, 4) and a["q"].shape[0] == b["q"].shape[0] + 1

@@ -224,7 +224,7 @@ def test_fps_adcs_can_on_the_cortex_m7_board_flies_as_the_unix_port(tmp_path):
     from ground.adcs.quat import angle_arcsec
     runs = {}
     for r in ("qemu", "micropython"):
-        p = _fps("adcs", "can", "--runtime", r, "--duration", "40", "--no-plots", "-o", str(tmp_path / r))
+        p = _fps("adcs", "can", "--runtime", r, "--session", "40", "--no-plots", "-o", str(tmp_path / r))
         runs[r] = json.load(open(tmp_path / r / "summary.json"))
         runs[r]["h"] = np.load(tmp_path / r / "history.npz")
         if r == "qemu":

@@ -72,7 +72,7 @@ def test_qemu_commands_refuse_a_stale_image_with_exit_2(tmp_path, monkeypatch, c
 def test_fps_adcs_can_refuses_a_stale_image_or_no_qemu_with_exit_2(tmp_path, monkeypatch, capsys):
     from ground import cli
     monkeypatch.setattr(pil_build, "ADCS_MEM", _stale_copy(tmp_path, pil_build.ADCS_MEM))
-    argv = ["adcs", "can", "--runtime", "qemu", "--duration", "2", "--no-plots", "-o", str(tmp_path / "out")]
+    argv = ["adcs", "can", "--runtime", "qemu", "--session", "2", "--no-plots", "-o", str(tmp_path / "out")]
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert "stale" in err and "make pil" in err

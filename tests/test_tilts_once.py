@@ -143,7 +143,7 @@ def test_one_vehicle_two_writings_fly_alike_over_can(tmp_path):
         path = tmp_path / (name + ".json")
         path.write_text(json.dumps(f))
         out = tmp_path / name
-        rc = fps(["adcs", "can", "--world", "flight", "--duration", "700", "--runtime", "inproc", "--spacecraft",
+        rc = fps(["adcs", "can", "--world", "flight", "--session", "700", "--runtime", "inproc", "--spacecraft",
                   str(path), "--seed", "3", "--quiet", "--no-plots", "-o", str(out)])
         assert rc == 0
         sums.append(json.load(open(out / "summary.json")))

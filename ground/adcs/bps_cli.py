@@ -42,7 +42,8 @@ from ground import verdict
 from ground.adcs import body_pointing as bps, campaign, flight_world, runs, terminal_tuning
 from ground.adcs.bps_report import (FIGURES_FLIGHT, plot_flight, plot_history, plot_objectives, plot_sweep,
                                     report_flight_md, report_md)
-from ground.adcs.options import add_satb_gnss_option, add_spacecraft_option, fly, load_spacecraft
+from ground.adcs.options import (add_satb_gnss_option, add_session_option, add_spacecraft_option, check_session, fly,
+                                load_spacecraft)
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 from protocol import spacecraft as sf
 
@@ -143,6 +144,19 @@ def orbits_duration(d, orbits):
     return orbits * bps.orbit_period(scenario.orbit_setup(d)["x0s"][0])
 
 
+def _check_length(a):
+    """ValueError for a length the world does not take: --duration (the window collected after the settling) in
+    the flight world, whose figures are per pointing pass; --session (the whole run) in the thesis world."""
+    if a.world == "flight" and a.duration is not None:
+        raise ValueError("--duration %g: --duration is the window collected after the settling, and the flight "
+                         "world's figures are per pointing pass after the first orbit: give the run's length as "
+                         "--orbits N or --session S (the whole run in seconds)" % a.duration)
+    if a.world == "thesis" and a.session is not None:
+        raise ValueError("--session %g: --session is the flight world's whole run (--world flight); the thesis "
+                         "world's length is --duration S, the seconds collected after the 30 s hold and 4 t_s"
+                         % a.session)
+
+
 def judge_flight(s):
     """The flight world's verdict into the result ``s``: its ``checks`` (``flight_checks``) and ``budgets_met``
     (complete, every check met and the partner in sight)."""
@@ -191,9 +205,10 @@ def _cmd_bps(a):
     if a.estimator is not None and a.world != "flight":
         raise ValueError("--estimator is the flight world's (--world flight); the thesis world flies the ground's "
                          "41-state APKF and full STKF")
+    _check_length(a)
     d, record, params = _vehicle(a)
-    if a.world == "flight" and a.duration is None:
-        a.duration = orbits_duration(d, a.orbits)
+    if a.world == "flight":                  # the whole run, not a collected window: --session or --orbits
+        a.duration = orbits_duration(d, a.orbits) if a.session is None else check_session(a.session)
     check_run_args(a)
     out = a.output
     run_folder(out, FIGURES_BPS + FIGURES_FLIGHT)
@@ -393,11 +408,10 @@ def sweep_lines(s, record, duration, satb, complete):
     return lines
 
 
-def _common(p):
-    p.add_argument("--duration", type=float, default=None,
-                   help="thesis world: seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling, 1 to "
-                   "%g (default 4000); flight world: the whole run in s (default --orbits orbits)"
-                   % campaign.MAX_DURATION_S)
+def _common(p, duration_help):
+    """The options bps and sweep share; ``duration_help``: what --duration collects (its --help, %g the range)."""
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help=duration_help % campaign.MAX_DURATION_S)
     p.add_argument("--seed", type=int, default=0, help="noise seed, also the calibration's, 0 to "
                    "2**32 - 1 (default 0)")
     p.add_argument("--params", default=None, help="parameter file (JSON) from an earlier run's params.json, "
@@ -425,8 +439,11 @@ def register_bps(sub):
                    "management, pointing from rest after a 30 s hold; flight: the spacecraft file's wheel speed "
                    "and torque limits, drag and solar pressure torques, magnetorquer unloading, a rate-limited "
                    "slew and re-acquisition; its figures are per pointing pass after the first orbit")
-    p.add_argument("--orbits", type=float, default=3.0,
-                   help="flight world: the run's length in orbits when --duration is not given (default 3)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--orbits", type=float, default=3.0,
+                   help="flight world: the run's length in orbits, (0, 100] (default 3)")
+    add_session_option(g, None, "flight world, instead of --orbits: the whole run, 1 to %g (default: --orbits "
+                       "orbits)" % campaign.MAX_DURATION_S)
     p.add_argument("--zeta", type=float, default=None, metavar="Z",
                    help="the PD's damping ratio ζ (Eq. 6.6, dimensionless: D = 2 ζ wn J), finite and > 0 "
                    "(default 1, the thesis's)")
@@ -434,7 +451,9 @@ def register_bps(sub):
                    help="flight world: the app's filters, lean (default: the lean APKF and STKF that fly) or "
                    "ground (the 41-state APKF and the full STKF, for analysis: the same modes, command and "
                    "allocation on their estimates)")
-    _common(p)
+    _common(p, "thesis world: the seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling, the window "
+            "the verdict judges, 1 to %g (default 4000); the flight world, judged per pointing pass, takes --orbits "
+            "or --session instead")
     p.set_defaults(func=_cmd_bps)
 
 
@@ -459,5 +478,6 @@ def register_sweep(sub):
     g.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count; "
                    "1 = in-process)")
     g.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler address (tcp://host:port)")
-    _common(p)
+    _common(p, "the seconds collected at 10 Hz for each t_s after the 30 s hold and 4 t_s of settling, the window "
+            "J is taken over, 1 to %g (default 4000)")
     p.set_defaults(func=_cmd_sweep)

@@ -24,8 +24,8 @@ import numpy as np
 from emulator.adcs_session import RUNTIMES
 from emulator.spacecraft import scenario
 from ground.adcs import body_pointing as bps, campaign
-from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_spacecraft_option, faults_from_args,
-                             fly, load_spacecraft)
+from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_session_option, add_spacecraft_option,
+                                check_session, faults_from_args, fly, load_spacecraft, refuse_option)
 from ground import verdict
 from ground.fileio import output_folder, run_folder, write_atomic, write_json
 from protocol import spacecraft as sf
@@ -39,10 +39,12 @@ STATUS_KEYS = ("tick", "adcs_mode", "stale", "wheels_failed", "miss_st", "miss_g
 def register(sub):
     p = sub.add_parser("can", help="the ADCS flight firmware on CAN against the emulated spacecraft",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--duration", type=float, default=600.0,
-                   help="the whole session from power-on in virtual seconds, the hold and the settling included "
-                        "(fps system's --duration is the window after them: docs/CLI.md, \"Shared options\"), "
-                        "1 to %g (default 600)" % campaign.MAX_DURATION_S)
+    add_session_option(p, 600.0, "the 30 s hold and 4 t_s of settling (flight world: the planned slew and 4 t_s) "
+                       "included, the pointing figures collected after them, 1 to %g (default 600)"
+                       % campaign.MAX_DURATION_S)
+    refuse_option(p, "--duration", "fps adcs can's length is --session S, the whole session from power-on in "
+                  "seconds, the hold and the settling included (--duration, on fps system and fps adcs bps, is "
+                  "the window collected after the settling)")
     p.add_argument("--runtime", default="micropython", choices=RUNTIMES,
                    help="the firmware's interpreter: micropython or cpython in a process of its own on CAN, "
                         "inproc (the same app and bytes in this process, no link), or qemu, the ADCS PIL board of "
@@ -76,7 +78,7 @@ def register(sub):
 
 def run(a):
     from emulator.spacecraft.scenario import HOLD_S
-    campaign.check_duration(a.duration)
+    check_session(a.session)
     bps.check_ts(a.ts)
     campaign.check_seed(a.seed)
     d, source = load_spacecraft(a.spacecraft, partner=True)
@@ -213,7 +215,7 @@ def _session(a, d):
         from ground.runtime import check_pil
         check_pil("adcs")
     log = None if a.quiet else _log
-    session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.duration, ts=a.ts,
+    session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.session, ts=a.ts,
                           params=a.params, faults=faults, log=log, link_faults=link_faults, spacecraft=d,
                           world=a.world)
     return session, faults

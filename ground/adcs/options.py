@@ -32,6 +32,32 @@ def add_campaign_options(p, cases=True):
     p.add_argument("-o", "--output", required=True, type=output_folder, help="campaign folder")
 
 
+WINDOW_WORD = "collected"     # what every --duration's --help names: the window the statistics are collected over
+
+
+def add_session_option(p, default, what):
+    """``--session S`` on ``p`` (a parser or a group): the whole session in virtual seconds from power-on, where a
+    command flies one; ``what``: its range, default and what it includes."""
+    p.add_argument("--session", type=float, default=default, metavar="S",
+                   help="the whole session from power-on in virtual seconds, %s" % what)
+
+
+def check_session(session_s):
+    """``--session`` (s) in [1, campaign.MAX_DURATION_S]; ValueError naming it otherwise (NaN included)."""
+    from ground.adcs.campaign import MAX_DURATION_S
+    if not 1 <= session_s <= MAX_DURATION_S:
+        raise ValueError("--session must be in [1, %g] s, got %r" % (MAX_DURATION_S, session_s))
+    return session_s
+
+
+def refuse_option(p, option, why):
+    """``option`` on ``p``, hidden from --help: given, the command exits 2 (argparse's error) with ``why``."""
+    class Refused(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            parser.error("%s: %s" % (option_string, why))
+    p.add_argument(option, action=Refused, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+
+
 def add_workers_options(p):
     """``--workers N`` or ``--scheduler ADDR``: where a campaign's runs go (``ground.adcs.campaign``)."""
     g = p.add_mutually_exclusive_group()

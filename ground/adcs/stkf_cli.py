@@ -133,8 +133,8 @@ def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0])
     p.add_argument("--case", type=int, choices=(1, 2), required=True,
                    help="1: SatA GNSS + beacon; 2: plus SatB GNSS relayed with a U(2, 3) s delay")
-    p.add_argument("--duration", type=float, default=1200.0, help="simulated seconds, 1 to %g (default 1200, as "
-                   "Sec. 5.5)" % campaign.MAX_DURATION_S)
+    p.add_argument("--duration", type=float, default=1200.0, help="the seconds collected: the run from its start, "
+                   "simulated s, 1 to %g (default 1200, as Sec. 5.5)" % campaign.MAX_DURATION_S)
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs (seeds seed .. seed+runs-1; default 1)")
     p.add_argument("--seed", type=int, default=0, help="first seed, >= 0 (default 0)")
     p.add_argument("--truth", choices=("hpop", "two-body"), default="hpop",

@@ -73,8 +73,9 @@ def register(sub, name, help_):
     p = sub.add_parser(name, help=help_, description=__doc__.split("\n\n")[0], epilog=EXIT_STATUS,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--duration", type=float, default=600.0,
-                   help="virtual seconds of the collection window played to the P-FSM, at most %g (default 600); "
-                        "the ADCS runs 30 s + 4 t_s of settling before it and %g s beyond" % (MAX_DURATION_S, LEAD_S))
+                   help="the seconds collected: the window played to the P-FSM, the one the verdict judges, virtual s, "
+                        "at most %g (default 600); the ADCS runs its settling before it (thesis world 30 s + 4 t_s, "
+                        "flight world the planned slew and 4 t_s) and %g s beyond" % (MAX_DURATION_S, LEAD_S))
     p.add_argument("--adcs", choices=ADCS_KINDS, default="firmware" if firmware_available() else "ground",
                    help="firmware: the ADCS flight software on CAN against the emulated spacecraft; ground: the "
                         "body pointing simulator of Sec. 6.4 (default: firmware when this build has it)")

@@ -39,7 +39,6 @@ from firmware.adcs.linalg import micropython     # the module, or CPython's no-o
 from firmware.adcs.stkf_kernels import MU, _finite, phi, zeros_d
 
 NA = 9                     # states per satellite: r, v, w
-ACCEL = ("white", "markov")
 X_SERIES = 0.5             # beta dt below which Phi's and Q's w terms are their power series
 K_SERIES = 16
 
@@ -242,7 +241,7 @@ class Work:
 class DmcStkf(stkf_lean.LeanStkf):
     """The lean STKF with dynamic model compensation (module docstring).
 
-    ``DmcStkf(x0, P0diag, t0, lag_s=LAG_S, cap=6, sigma_a=..., tau=..., tol=1e-9, gravity="j2")``: x0, P0diag
+    ``DmcStkf(x0, P0diag, t0, lag_s=LAG_S, cap=6, sigma_a=1e-4, tau=300.0, tol=1e-9, gravity="j2")``: x0, P0diag
     as LeanStkf's ([rA, vA, rB, vB], 12); sigma_a (m/s^2) and tau (s) the residual acceleration's steady 1 sigma
     per axis and correlation time, its states starting at 0 with variance sigma_a^2. ``get``,
     ``position_cov`` and ``Pk`` give the 12 states [rA, vA, rB, vB] (``Pk`` their 12 x 12 covariance, the

@@ -3,9 +3,10 @@
 (``-icount shift=0``: one a virtual ns; the nRF51's TIMER0 at 16 MHz, 62.5 instructions a tick).
 
 The kinds (``firmware.hal.stdio.K_*``): ``common`` (machine code, the cached H^-1 bin), ``bin_change``
-(machine code, a new bin: the bilinear lookup in the step), ``status`` (bytecode, CTRL_STATUS framed),
-``resend`` (a resent TICK answered from the cache: its count follows the host's load, so it is kept out of the
-totals), ``other`` (bytecode: the init tick, a mode's or saturation's step)."""
+(machine code, a new bin: the bilinear lookup in the step), ``status`` (a CTRL_STATUS tick: its FSM_SPI, then the
+status packed and framed after it; machine code, ``firmware.hal.fast_status``), ``resend`` (a resent TICK answered
+from the cache, bytecode: its count follows the host's load, so it is kept out of the totals), ``other`` (a TICK
+the machine code leaves to the bytecode path: one after a stale TICK or a jump in the tick numbers)."""
 
 MAGIC = 0x0C0FFEE                 # firmware.pil_main.MAGIC
 KINDS = ("common", "bin_change", "status", "resend", "other")
@@ -13,12 +14,13 @@ BUCKETS = 18                      # firmware.pil_main.BUCKETS: a bucket per bit 
 KIND_WORDS = 3 + BUCKETS
 WORDS = 2 + len(KINDS) * KIND_WORDS
 INSN_PER_TIMER_TICK = 62.5        # firmware.hal.nrf51.INSN_PER_TICK
-WHAT = ("one TICK exchange: its frame decoded, the step, CTRL_STATUS when due, the FSM_SPI framed; the UART's own "
+WHAT = ("one TICK exchange: its frame decoded, the step, the FSM_SPI framed, then CTRL_STATUS when due; the UART's own "
         "byte moves left out (firmware.hal.nrf51's machine code reads and writes: an interrupt or DMA on a board); "
         "-icount shift=0, TIMER0 at 16 MHz (62.5 instructions a tick), the clock reads taken off. By kind: common "
         "and bin_change answered in machine code (firmware.hal.fast_tick), bin_change with a new H^-1 bin; status "
-        "the CTRL_STATUS ticks (bytecode); resend a resent TICK answered from the cache (left out of n, mean and "
-        "max: their number follows the host's load); other the rest of the bytecode path. histogram: [lowest, "
+        "the CTRL_STATUS ticks (machine code, firmware.hal.fast_status); resend a resent TICK answered from the cache "
+        "(bytecode; left out of n, mean and max: their number follows the host's load); other the TICKs of the "
+        "bytecode path. histogram: [lowest, "
         "highest instructions, count] by the duration's bit length in timer ticks")
 
 

@@ -3,6 +3,7 @@
 on a Cortex-M0) has no ``select`` and no ``time``: ``recv_ms`` blocks until a packet is complete whatever its
 timeout, so link silence is not counted on this HAL (the lockstep bench always sends the next TICK)."""
 
+import gc
 import sys
 from array import array
 
@@ -162,9 +163,12 @@ class StdioLink:
         """Answer TICKs ``last + 1``, ``last + 2``, ... in machine code (``fast``) while each is the common one (a
         CTRL_STATUS due included: after its FSM_SPI, ``firmware.hal.fast_tick.status``); return the last tick
         answered, and the words' count its step returned. The first frame that is not one is kept, undecoded, for
-        ``recv_ms``. The heap is locked meanwhile: an allocation would raise MemoryError, so none runs the GC.
+        ``recv_ms``. The heap is collected first, between two exchanges (the bytecode path before allocated), then
+        locked: an allocation would raise MemoryError, so no tick here runs the GC, and a bytecode exchange after
+        starts from a collected heap.
         Each exchange is timed as ``recv_ms`` and ``send_raw`` time theirs: from the frame's end to its answer
         framed (a status tick: to its CTRL_STATUS framed), the UART writes left out."""
+        gc.collect()
         heap_lock()
         try:
             last = self._fast_loop(ctl, last)

@@ -58,3 +58,23 @@ def test_a_vehicle_whose_run_failed_counts_as_a_miss():
     assert s["all_checks"]["met"] == 1 and s["all_checks"]["of"] == 2 and s["all_checks"]["share"] == 0.5
     assert s["checks"]["pointing"]["of"] == 2 and s["runs_failed"] == 1
     assert s["failures"] == [{"seed": 1, "error": bad["error"]}]
+
+
+def test_a_residual_dipole_beyond_the_rods_is_named_as_the_wheels_miss_cause():
+    """The cause a vehicle shows: its residual dipole (the file's plus the drawn error) needs more of a rod than
+    its limit, and the wheels' check missed; named only then, with the shares against the limit."""
+    from protocol import spacecraft as sf
+    d = sf.load("thesis-3u")
+    lim = d["magnetorquers"]["dipole_limit_am2"]
+    d = dict(d, truth=dict(d.get("truth") or {}, residual_dipole_error_am2=[0.0, 1.5 * lim, 0.0]))
+    r = population.dipole_beyond_rods(d)
+    assert r["beyond"] and abs(r["shares_am2"][1] - (d["residual_dipole_am2"][1] + 1.5 * lim)) < 1e-12
+    missed = {"checks": {"wheels": {"ok": False, "what": "wheels"}}, "mtq_duty": 1.0}
+    causes = population.miss_causes(missed, d)
+    assert len(causes) == 1 and "beyond the rods' ±%g A m^2" % lim in causes[0]
+    assert population.miss_causes({"checks": {"wheels": {"ok": True, "what": "wheels"}}}, d) == []
+    small = dict(d, truth=dict(d["truth"], residual_dipole_error_am2=[0.0, 0.0, 0.0]),
+                 residual_dipole_am2=[0.0, 0.5 * lim, 0.0])
+    assert not population.dipole_beyond_rods(small)["beyond"] and population.miss_causes(missed, small) == []
+    worst = population.aggregate([dict(missed, seed=3, ok=False, figures={}, vehicle={}, causes=causes)], {})
+    assert causes[0] in worst["worst"][0]["missed"]

@@ -60,6 +60,37 @@ def figures_of(res):
             "stkf_nees_in_band_share": n12["nees_in_band_share"] if n12 else None}
 
 
+def dipole_beyond_rods(d):
+    """The rods' shares (A m^2, one per rod: least squares on their axes) that cancelling the flown vehicle's
+    residual dipole (the file's figure plus its truth block's error) takes, and the rods' limit; a share beyond
+    the limit is a dipole the magnetorquers cannot cancel, whose torque the wheels then absorb. None without
+    magnetorquers."""
+    mtq = d.get("magnetorquers")
+    if mtq is None:
+        return None
+    err = ((d.get("truth") or {}).get("residual_dipole_error_am2")) or [0.0, 0.0, 0.0]
+    m = np.asarray(d["residual_dipole_am2"], float) + np.asarray(err, float)
+    a = np.array([np.asarray(x, float) / np.linalg.norm(x) for x in mtq["axes"]])
+    shares = np.linalg.pinv(a.T) @ m
+    return {"dipole_am2": m.tolist(), "shares_am2": shares.tolist(), "limit_am2": float(mtq["dipole_limit_am2"]),
+            "beyond": bool(np.any(np.abs(shares) > mtq["dipole_limit_am2"]))}
+
+
+def miss_causes(res, d):
+    """The named causes of a vehicle's missed checks that the vehicle itself shows (beyond the checks' own words):
+    a residual dipole beyond the rods' authority when the wheels' check missed with the rods saturated."""
+    out = []
+    rods = dipole_beyond_rods(d)
+    wheels = res["checks"].get("wheels", {}).get("ok", True)
+    if rods is not None and rods["beyond"] and not wheels:
+        out.append("the residual dipole (%s) A m^2 needs rod shares (%s) beyond the rods' ±%g A m^2: the "
+                   "magnetorquers cannot cancel it, the wheels absorb its torque (duty %s)" % (
+                       ", ".join("%.2f" % v for v in rods["dipole_am2"]),
+                       ", ".join("%.2f" % v for v in rods["shares_am2"]), rods["limit_am2"],
+                       _fmt(res.get("mtq_duty"), "%.2f")))
+    return out
+
+
 def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="two-body", ts=33.0,
                 satb_gnss=False, cache_dir=None):
     """One vehicle of the campaign (top level, picklable): drawn from ``seed``, calibrated, flown ``orbits``
@@ -80,6 +111,7 @@ def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="tw
     res["requirements"] = sf.requirements(d)
     res["ok"] = bps_cli.judge_flight(res)["budgets_met"]
     res["figures"] = figures_of(res)
+    res["causes"] = miss_causes(res, d)
     if run_dir:
         os.makedirs(run_dir, exist_ok=True)
         bps.write_params(os.path.join(run_dir, "params.json"), params, d)
@@ -118,7 +150,7 @@ def aggregate(results, identity):
     worst = sorted(good, key=lambda r: (r["ok"], -(r["figures"].get("pointing_3sigma_arcsec") or np.inf)))[:WORST]
     out["worst"] = [{"seed": r["seed"], "ok": r["ok"], "figures": r["figures"],
                      "missed": [c["what"] for c in r["checks"].values() if not c["ok"]]
-                     + ([] if r.get("line_of_sight", True) else ["no line of sight"]),
+                     + ([] if r.get("line_of_sight", True) else ["no line of sight"]) + r.get("causes", []),
                      "vehicle": r["vehicle"]} for r in worst]
     return out
 

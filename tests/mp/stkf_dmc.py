@@ -12,7 +12,7 @@ with open(sys.argv[1]) as fh:
     sc = json.load(fh)
 lag = 4.0 if any(st["zb"] for st in sc["steps"]) else 0.0      # as the app: no SatB GNSS, no smoother lag
 cap = 6 if lag else 3
-if sys.argv[2] == "markov":
+if sys.argv[2] == "markov":                                       # bench_stkf_gravity's models
     f = stkf_dmc.DmcStkf(sc["x0"], sc["P0"], 0.0, lag, cap, sigma_a=1e-4, tau=300.0, gravity="j2")
 else:
     f = stkf_lean.LeanStkf(sc["x0"], sc["P0"], 0.0, lag, cap, qa=5e-6, gravity="j2")

@@ -112,12 +112,13 @@ def test_the_whole_session_is_named_session():
 
 def test_the_old_session_length_is_refused_by_name(tmp_path, capsys):
     """--duration on fps adcs can, or with the flight world on fps adcs bps, exits 2 naming the option to use; so
-    does --session in the thesis world."""
+    does --session in the thesis world, or out of its range."""
     from ground.cli import main
     out = str(tmp_path / "o")
     for argv, names in ((["adcs", "can", "--duration", "5"], ("--session",)),
                         (["adcs", "bps", "--world", "flight", "--duration", "5"], ("--session", "--orbits")),
-                        (["adcs", "bps", "--session", "5"], ("--duration",))):
+                        (["adcs", "bps", "--session", "5"], ("--duration",)),
+                        (["adcs", "bps", "--world", "flight", "--session", "0"], ("--session must be in [1,",))):
         try:
             rc = main(argv + ["-o", out])
         except SystemExit as exc:

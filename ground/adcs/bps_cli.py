@@ -442,8 +442,8 @@ def register_bps(sub):
     g = p.add_mutually_exclusive_group()
     g.add_argument("--orbits", type=float, default=3.0,
                    help="flight world: the run's length in orbits, (0, 100] (default 3)")
-    add_session_option(g, None, "flight world, instead of --orbits: the whole run, 1 to %g (default: --orbits "
-                       "orbits)" % campaign.MAX_DURATION_S)
+    add_session_option(g, None, "the slew and every orbit flown (flight world only, instead of --orbits), 1 to "
+                       "%g (default: --orbits orbits)" % campaign.MAX_DURATION_S)
     p.add_argument("--zeta", type=float, default=None, metavar="Z",
                    help="the PD's damping ratio ζ (Eq. 6.6, dimensionless: D = 2 ζ wn J), finite and > 0 "
                    "(default 1, the thesis's)")

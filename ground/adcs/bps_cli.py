@@ -220,7 +220,8 @@ def _cmd_bps(a):
         if params is None:
             params = calibration(a.seed, a.cache_dir, not a.quiet, d)
         bps.write_params(os.path.join(out, "params.json"), params, d)
-        prepare_truth(a, a.duration if a.world == "flight" else 30 + 4 * ts + a.duration, os.path.abspath(a.cache_dir), d)
+        prepare_truth(a, a.duration if a.world == "flight" else 30 + 4 * ts + a.duration, os.path.abspath(a.cache_dir),
+                      d)
     except KeyboardInterrupt:
         print("interrupted before the pointing run: %s has complete=false" % out, file=sys.stderr)
         return 130

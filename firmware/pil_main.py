@@ -71,11 +71,12 @@ class Meter:
     def __init__(self, box):
         self.box = box
         self.now = nrf51.now
+        self.start = nrf51.edge         # a machine-code exchange's start, at a timer step (``nrf51.edge``)
         nrf51.start(16)
         m = machine.mem32
         for k in range(1, _BOX_WORDS):
             m[box + 4 * k] = 0
-        t = self.now()
+        t = self.start()
         m[box + 4] = (self.now() - t) & 0xFFFF     # one read's own cost, taken off each exchange
         m[box] = MAGIC
 

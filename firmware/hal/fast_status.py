@@ -37,15 +37,6 @@ _S_N_SAT_EP = const(30)
 
 
 @micropython.viper
-def _put(b: ptr8, i: int, x: int, n: int):
-    """x's n low bytes into b[i:i + n], little-endian (a negative x in two's complement)."""
-    j = 0
-    while j < n:
-        b[i + j] = (x >> (8 * j)) & 0xFF
-        j += 1
-
-
-@micropython.viper
 def _uv(q8: int) -> int:
     """``firmware.controller._uv`` for |q8| < 2^24 in 32-bit integers: round(q8 * 10^7 / 2^25), half away from zero,
     as (|q8| * 78125 + 2^17) >> 18 with |q8| split at bit 12 (each product below 2^29)."""
@@ -56,6 +47,22 @@ def _uv(q8: int) -> int:
         x = 0 - q8
     a = (x >> 12) * 78125
     return sg * ((a >> 6) + ((((a & 63) << 12) + (x & 0xFFF) * 78125 + 0x20000) >> 18))
+
+
+# the payload's fields after mode and flags: (offset in the frame's body, bytes, source), the source a state slot
+# (< 100) or one of the codes below, in the packet table's order
+_TICK = const(100)
+_UV = const(101)                      # 101, 102: the command in uV (x, y)
+_RATIO = const(103)                   # 103, 104: rx, ry clamped to int16
+_WORD = const(105)                    # 105 .. 108: the AD5664R words' low 16 bits
+_N_UNKNOWN = const(109)
+_N_DUP = const(110)
+_N_GAP = const(111)
+_N_RX_DROP = const(112)
+_FIELDS = bytes((5, 4, _TICK, 11, 4, _UV, 15, 4, _UV + 1, 19, 2, _RATIO, 21, 2, _RATIO + 1, 23, 2, _S_VS,
+                 25, 2, _WORD, 27, 2, _WORD + 1, 29, 2, _WORD + 2, 31, 2, _WORD + 3, 33, 2, _S_N_LOST, 35, 4, _S_N_SAT,
+                 39, 2, _N_UNKNOWN, 42, 2, _N_DUP, 44, 2, _N_GAP, 46, 2, _N_RX_DROP, 48, 4, _S_SAT_RUN,
+                 52, 4, _S_SAT_LAST, 56, 2, _S_N_SAT_EP))
 
 
 @micropython.viper
@@ -77,7 +84,6 @@ def status(lk, ctl, tick: int) -> int:
     b[2] = int(lk.node)
     b[3] = int(st[_ST_RX_SRC])
     b[4] = t
-    _put(sb, 5, tick, 4)
     b[9] = int(s[_S_MODE]) & 7
     f = 0
     if int(s[_S_VS]) >= int(s[_S_THR]):
@@ -87,33 +93,40 @@ def status(lk, ctl, tick: int) -> int:
     if ctl.table:                                        # a HinvTable (true) or None
         f |= 4                                           # table loaded
     b[10] = f
-    _put(sb, 11, _uv(((s[_S_VX] + bb) & m) - bb), 4)
-    _put(sb, 15, _uv(((s[_S_VY] + bb) & m) - bb), 4)
-    i = 0
-    while i < 2:                                         # rx, ry: int16, clamped
-        r = ((s[_S_RX + i] + bb) & m) - bb
-        if r < -32768:
-            r = -32768
-        elif r > 32767:
-            r = 32767
-        _put(sb, 19 + 2 * i, r, 2)
-        i += 1
-    _put(sb, 23, int(s[_S_VS]), 2)
     w = ptr32(ctl.words)
+    fd = ptr8(_FIELDS)
     i = 0
-    while i < 4:
-        _put(sb, 25 + 2 * i, int(w[i]), 2)
-        i += 1
-    _put(sb, 33, int(s[_S_N_LOST]), 2)
-    _put(sb, 35, int(s[_S_N_SAT]), 4)
-    _put(sb, 39, int(ctl.n_unknown), 2)
+    while i < 57:                                        # _FIELDS: 19 fields of 3 bytes
+        c = fd[i + 2]
+        if c < _TICK:
+            x = ((s[c] + bb) & m) - bb
+        elif c == _TICK:
+            x = tick
+        elif c < _RATIO:
+            x = int(_uv(((s[_S_VX + c - _UV] + bb) & m) - bb))
+        elif c < _WORD:
+            x = ((s[_S_RX + c - _RATIO] + bb) & m) - bb
+            if x < -32768:
+                x = -32768
+            elif x > 32767:
+                x = 32767
+        elif c < _N_UNKNOWN:
+            x = int(w[c - _WORD])
+        elif c == _N_UNKNOWN:
+            x = int(ctl.n_unknown)
+        elif c == _N_DUP:
+            x = int(ctl.n_dup)
+        elif c == _N_GAP:
+            x = int(ctl.n_gap)
+        else:
+            x = int(ctl.n_rx_drop)
+        o = fd[i]
+        j = 0
+        while j < int(fd[i + 1]):                        # little-endian (a negative x in two's complement)
+            b[o + j] = x >> (8 * j)
+            j += 1
+        i += 3
     b[41] = int(ctl.why)
-    _put(sb, 42, int(ctl.n_dup), 2)
-    _put(sb, 44, int(ctl.n_gap), 2)
-    _put(sb, 46, int(ctl.n_rx_drop), 2)
-    _put(sb, 48, int(s[_S_SAT_RUN]), 4)
-    _put(sb, 52, int(s[_S_SAT_LAST]), 4)
-    _put(sb, 56, int(s[_S_N_SAT_EP]), 2)
     c = int(fast.crc16(sb, _STATUS_BODY, 0xFFFF))
     b[_STATUS_BODY] = c >> 8
     b[_STATUS_BODY + 1] = c & 0xFF

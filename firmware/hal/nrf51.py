@@ -33,6 +33,24 @@ def now():
 
 
 @micropython.viper
+def edge() -> int:
+    """The count just after its next step (16-bit): a duration timed from here starts at the same phase of the
+    timer's tick whenever the code before it ran, so the same instructions read the same ticks (up to this loop's
+    own few instructions)."""
+    base = 0x4000
+    base <<= 16
+    cap = ptr32(base + 0x8040)       # TASKS_CAPTURE[0]
+    cc = ptr32(base + 0x8540)        # CC[0]
+    cap[0] = 1
+    t = cc[0]
+    while True:
+        cap[0] = 1
+        u = cc[0]
+        if u != t:
+            return u & 0xFFFF
+
+
+@micropython.viper
 def read_frame(buf: ptr8, n: int) -> int:
     """UART0's bytes into buf up to and with the next 0x00, polling its RXDRDY event as the port's own driver does
     (``mp_hal_stdin_rx_chr``; the two never run at once); returns the bytes read (more than n: a frame longer than

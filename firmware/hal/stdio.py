@@ -43,7 +43,8 @@ _S_BYQ = const(14)
 class StdioLink:
     """``serve_controller``'s link on the console UART: ``node``, ``recv_ms``, ``send_raw``, ``closed``,
     ``counters``, ``rx_drops``, ``close``. ``node``: the node address (``protocol.consts.NODE_*``); ``meter``: an
-    object with ``now()`` (a 16-bit clock) and ``exchange(t0, work, n, kind)``, told of each TICK exchange (``_K_*``;
+    object with ``now()`` (a 16-bit clock), ``start()`` (the same read at its next step, where the machine-code path
+    times from) and ``exchange(t0, work, n, kind)``, told of each TICK exchange (``_K_*``;
 ``_st[_ST_KIND]``: the bytecode path's, which ``serve_controller`` sets for a resend or a status): the decoding
     of each of its frame's bytes, then from the frame's end to its FSM_SPI framed (a status tick's: to the
     CTRL_STATUS framed after it), less the UART's own reads and
@@ -187,7 +188,7 @@ class StdioLink:
             i = rd(fr, _MAX_FRAME)
             bx = s[_S_BXQ]                     # the cached H^-1 bin: another after the step is a new bin
             by = s[_S_BYQ]
-            t = mt.now() if mt is not None else 0
+            t = mt.start() if mt is not None else 0
             k = ans(self, ctl, i, last)
             if not k:
                 self._held = i
@@ -201,7 +202,7 @@ class StdioLink:
                 continue
             w = (mt.now() - t) & 0xFFFF if mt is not None else 0
             wf(self._out, -k)                  # the loop's output first, then its status
-            t = mt.now() if mt is not None else 0
+            t = mt.start() if mt is not None else 0
             k = self._status(self, ctl, last)
             if mt is not None:
                 mt.exchange(t, w, 2, _K_STATUS)

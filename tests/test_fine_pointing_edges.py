@@ -87,17 +87,18 @@ def test_a_tick_with_counts_beyond_the_adc_is_dropped_not_stepped():
     tick, spi, status = core.PACKET_ID["TICK"], core.PACKET_ID["FSM_SPI"], core.PACKET_ID["CTRL_STATUS"]
     fmt = core.PACKET[tick].fmt
 
-    def answer(payload, wait_s=10.0):  # every reply up to the FSM_SPI, or none within wait_s
+    def answer(payload, wait_s=10.0):  # every reply: the FSM_SPI and a due CTRL_STATUS after it, or none in wait_s
         a.send_raw(tick, a.node, core.NODE["CONTROLLER"], payload)
+        want = {spi, status} if ctl.status_due_at(struct.unpack(fmt, payload)[0]) else {spi}
         got = []
-        while not got or got[-1][0] != spi:
+        while not want <= {p[0] for p in got}:
             more = a.recv(timeout=wait_s)
             if not more:
                 break
             got += more
         return got
 
-    assert [p[0] for p in answer(struct.pack(fmt, 0, 0, 2048, 2048, 3000))] == [status, spi]   # init tick
+    assert [p[0] for p in answer(struct.pack(fmt, 0, 0, 2048, 2048, 3000))] == [spi, status]   # init tick
     # damaged: no answer, no step (a reply arriving after the short wait would show in the next answer and
     # in ctl.ticks / n_dup below, which the thread's order makes exact)
     assert answer(struct.pack(fmt, 1, 1568, 65535, 2048, 3000), 0.3) == []
@@ -141,14 +142,15 @@ def test_a_damaged_tick_number_does_not_make_every_later_tick_stale():
 
     def answer(k, wait=10.0):          # the SPI answer's tick number (None: no answer in ``wait`` s), status
         a.send_raw(tick, a.node, core.NODE["CONTROLLER"], struct.pack(fmt, k, 1568 * k, 1900, 2100, 3000))
+        want = {spi, status} if ctl.status_due_at(k) else {spi}     # the status after the FSM_SPI
         got = []
-        while not got or got[-1][0] != spi:
+        while not want <= {p[0] for p in got}:
             more = a.recv(timeout=wait)
             if not more:
                 return None, None
             got += more
         st = [core.payload_dict(status, p[4]) for p in got if p[0] == status]
-        return core.payload_dict(spi, got[-1][4])["tick"], (st[0] if st else None)
+        return core.payload_dict(spi, [p for p in got if p[0] == spi][0][4])["tick"], (st[0] if st else None)
 
     assert [answer(k)[0] for k in (0, 1, 10 ** 6)] == [0, 1, 10 ** 6]     # 10^6: tick 2, damaged
     assert answer(2, 0.3)[0] is None                 # stale: dropped unanswered

@@ -57,12 +57,8 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     silent_ticks = int(poll_ms * rate_hz / 1000) or 1
     while not link.closed:
         if fast is not None and stale < 0 and not gap and -1 <= last < 0x3FFFFFFF:   # -1: a session's tick 0
-            if rx_drops is not None:              # CTRL_STATUS's n_rx_drop for the machine-code path
-                ctl.n_rx_drop = rx_drops() + bad_ticks
-            t = _fast_ticks(fast, ctl, last, out)
-            if t != last and ctl.status_due_at(t):
-                status, status_tick = link.status_sent(), t     # its status kept for a resend
-            last = t
+            last, status, status_tick = _fast_ticks(fast, ctl, last, out, link, rx_drops, bad_ticks, status,
+                                                    status_tick)
         pkts = link.recv_ms(poll_ms)
         if not pkts:
             ctl.link_silent(silent_ticks)
@@ -102,25 +98,34 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
             finally:                          # never leave the heap locked behind an exception
                 heap_unlock()
             struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
-            if ctl.status_due_at(tick):
-                status = _send_status(ctl, link, me, src, tick, rx_drops, bad_ticks, out)
-                status_tick = tick
-            else:
-                link.send_raw(P_FSM_SPI, me, src, out)
+            status, status_tick = _answer(ctl, link, me, src, tick, rx_drops, bad_ticks, out, status, status_tick)
     _closed(link)
 
 
-def _fast_ticks(fast, ctl, last, out):
+def _fast_ticks(fast, ctl, last, out, link, rx_drops, bad_ticks, status, status_tick):
     """The common ticks after tick ``last``, answered by the link itself (``fast``: its ``answer_ticks``, a
     board's: ``firmware.hal.stdio`` with ``firmware.hal.fast_tick``) in machine code, with the same calls and
-    bytes as ``serve_controller`` (without the heap lock: that step's allocation-free proof is the serve
-    loop's), until a frame is not one; returns the last tick answered, its FSM_SPI kept in ``out`` for a
-    resend."""
+    bytes as ``serve_controller`` (the heap locked there), until a frame is not one; CTRL_STATUS's n_rx_drop set
+    first, as ``_send_status`` sets it. Returns the last tick answered, its FSM_SPI kept in ``out`` for a
+    resend, and the last CTRL_STATUS sent with its tick (``status``, ``status_tick`` when none was)."""
+    if rx_drops is not None:
+        ctl.n_rx_drop = rx_drops() + bad_ticks
     tick, n = fast(ctl, last)
     if tick != last:
         w = ctl.words
         struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
-    return tick
+        if ctl.status_due_at(tick):
+            return tick, link.status_sent(), tick
+    return tick, status, status_tick
+
+
+def _answer(ctl, link, me, dst, tick, rx_drops, bad_ticks, out, status, status_tick):
+    """Tick's FSM_SPI (``out``), then its CTRL_STATUS when one is due; returns the last CTRL_STATUS sent and its
+    tick."""
+    if not ctl.status_due_at(tick):
+        link.send_raw(P_FSM_SPI, me, dst, out)
+        return status, status_tick
+    return _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks, out), tick
 
 
 def _answer_again(ctl, link, me, dst, status, out):

@@ -93,6 +93,16 @@ def noise_density(a):
     return math.sqrt(s2), float(tau), 2.0 * s2 * tau
 
 
+def low_frequency_density(a, spans=(600, 1200)):
+    """2 sigma_a^2 times the pooled autocorrelation's integral to each span (s) of the residual a (n, m): the
+    low-frequency density per axis (m^2/s^3) the residual itself has, beside a Gauss-Markov fit's 2 sigma_a^2 tau."""
+    n = len(a)
+    c0 = float(np.sum(a * a))
+    rho = [1.0] + [float(np.sum(a[:-lag] * a[lag:])) / c0 * n / (n - lag) for lag in range(1, max(spans))]
+    s2 = c0 / a.size
+    return [2.0 * s2 * (0.5 + sum(rho[1:span])) for span in spans]
+
+
 def round_up(q):
     """q rounded up to one significant figure."""
     e = 10.0 ** math.floor(math.log10(q))
@@ -166,6 +176,16 @@ def _noise_table(vehicles):
                 sas.append(s)
                 taus.append(tau)
             print("| %s | %s | %.2e | %.0f | %.2e | %.0e |" % (name, model, s, tau, q, MODELS[model]["stkf_qa"]))
+    print("\nThe J2 residual's own low-frequency density per axis, each satellite: 2 sigma_a^2 times its "
+          "autocorrelation's integral to 600 s / 1200 s, beside 2 sigma_a^2 tau (m^2/s^3)\n")
+    print("| spacecraft | satellite | to 600 s | to 1200 s | 2 sigma_a^2 tau |")
+    print("|---|---|---|---|---|")
+    for name, d in vehicles:
+        x = truth(d)[1]
+        for i in range(x.shape[1]):
+            a = residual(x[:, i, :], K.J2_TERM)
+            print("| %s | %s | %.2e | %.2e | %.2e |" % ((name, "AB"[i]) + tuple(low_frequency_density(a))
+                                                        + (noise_density(a)[2],)))
     mk = MODELS["j2-markov"]
     for what, rule, flown in (("white qa (the largest q rounded up)", round_up(max(qs)), MODELS["j2"]["stkf_qa"]),
                               ("markov sigma_a (the largest rounded up)", round_up(max(sas)), mk["stkf_sigma_a"]),

@@ -30,7 +30,7 @@ _ST_KIND = const(6)                    # the exchange's kind (_K_*): serve_contr
 _ST_RX_GAPS = const(7)                 # sequence gaps in the frames the fast path decoded (the decoder's seq_gaps)
 # the kinds of TICK exchange a meter tells apart (in ``_st[_ST_KIND]`` for the bytecode path, which
 # ``firmware.hal.link.serve_controller`` sets): the common tick in machine code, the same with a new H^-1 bin, a
-# CTRL_STATUS tick, a resent TICK answered from the cache, any other (the init tick, a mode's or saturation's step)
+# CTRL_STATUS tick, a resent TICK answered from the cache, any other TICK the machine code leaves to the bytecode path
 _K_COMMON = const(0)
 _K_BIN = const(1)
 _K_STATUS = const(2)
@@ -162,7 +162,7 @@ class StdioLink:
 
     def _answer_ticks(self, ctl, last):
         """Answer TICKs ``last + 1``, ``last + 2``, ... in machine code (``fast``) while each is the common one (a
-        CTRL_STATUS due included: after its FSM_SPI, ``firmware.hal.fast_tick.status``); return the last tick
+        CTRL_STATUS due included: after its FSM_SPI, ``firmware.hal.fast_status.status``); return the last tick
         answered, and the words' count its step returned. The first frame that is not one is kept, undecoded, for
         ``recv_ms``. The heap is collected first, between two exchanges (the bytecode path before allocated), then
         locked: an allocation would raise MemoryError, so no tick here runs the GC, and a bytecode exchange after

@@ -530,6 +530,23 @@ def test_hil_report_shows_the_disturbance_beside_the_residual():
     assert "disturbance played" in t and "1σ (30.00, 20.00) arcsec" in t and "bps33n" in t
 
 
+def test_the_absolute_wheel_inertia_leaves_out_the_seconds_at_the_speed_limit():
+    """A wheel that runs into its speed limit under a commanded torque reads dW = 0 there: absolute_jrw given the
+    limit leaves those seconds out and gives the inertia back; without it the wheel looks several times heavier
+    (the torque scale of a vehicle whose residual dipole drives its wheels to the limit in the calibration)."""
+    jrw, wmax = np.array([2e-6, 3e-6, 4e-6, 5e-6]), 2000.0
+    rng = np.random.default_rng(2)
+    u = rng.uniform(-5e-4, 5e-4, (600, 4)) + np.array([3e-4, 0.0, 0.0, 0.0])    # wheel 1 driven to its limit
+    W = [np.zeros(4)]
+    for k in range(599):
+        W.append(np.clip(W[-1] + u[k] / jrw, -wmax, wmax))
+    W = np.array(W)
+    assert np.mean(np.abs(W[:, 0]) >= wmax) > 0.3                    # a third of the run at the limit
+    assert np.allclose(bps.absolute_jrw(u, W, speed_max=wmax), jrw, rtol=1e-9)
+    assert bps.absolute_jrw(u, W)[0] / jrw[0] > 1.5
+    assert np.array_equal(bps.absolute_jrw(u[:, 1:], W[:, 1:], speed_max=wmax), bps.absolute_jrw(u[:, 1:], W[:, 1:]))
+
+
 def test_the_absolute_wheel_inertia_takes_the_datasheet_friction():
     """absolute_jrw: wheels spun by known torques against Coulomb + viscous friction give their inertia back when
     the friction is taken (and 3-4 % off when it is not); the calibrated torque scale of a 6U within 1 % of its

@@ -65,19 +65,27 @@ WORLDS = ("thesis", "flight")
 
 
 # --- parameter file ------------------------------------------------------------------------------------------
-def absolute_jrw(u, tach, dt=1.0, friction=None):
+SATURATION_MARGIN = 0.05     # a read-out within this share of the speed limit: the limit may have cut the torque
+
+
+def absolute_jrw(u, tach, dt=1.0, friction=None, speed_max=None):
     """Each wheel's absolute inertia from the commanded motor torques u[k] (held over step k -> k+1) and the
     tachometer read-outs: least squares of dW_i = (u_i - f_i) dt / Jrw_i, f_i the wheel's datasheet friction
     (``friction`` = (Coulomb N m, viscous N m s/rad, smoothing rad/s), at the step's mean read-out speed; None:
-    none) (the body's own acceleration, < 1 % here, is neglected). Our addition: the APKF's calibration is
-    relative (everything scaled by s = Jxx_ref / Jxx, Sec. 4.6.2), and a controller must know the absolute scale
-    to cancel a torque."""
+    none) (the body's own acceleration, < 1 % here, is neglected). ``speed_max`` (rad/s, None: no limit): the
+    steps with a read-out within ``SATURATION_MARGIN`` of the wheels' speed limit are left out, for there the
+    drivers cut the torque (a wheel at its limit reads dW = 0 under a commanded torque, which would make its
+    inertia look larger). Our addition: the APKF's calibration is relative (everything scaled by s = Jxx_ref /
+    Jxx, Sec. 4.6.2), and a controller must know the absolute scale to cancel a torque."""
     dW = np.diff(tach, axis=0)
     uu = u[:-1] * dt
     if friction is not None:
         c, v, sm = friction
         wm = 0.5 * (tach[:-1] + tach[1:])
         uu = uu - control.friction_compensation(wm, c, v, sm) * dt
+    if speed_max is not None:
+        free = np.maximum(np.abs(tach[:-1]), np.abs(tach[1:])) < (1.0 - SATURATION_MARGIN) * speed_max
+        uu, dW = np.where(free, uu, 0.0), np.where(free, dW, 0.0)
     return np.sum(uu * uu, axis=0) / np.sum(uu * dW, axis=0)
 
 
@@ -110,7 +118,7 @@ def calibrate(seed=0, sets=CAL_SETS, progress=False, spacecraft=None):
     u = np.clip(np.vstack([u[1:], np.zeros((1, 4))]), -w.p.torque_max, w.p.torque_max)
     ds = d["wheels"]                                       # the datasheet's friction, not the truth's
     jabs = absolute_jrw(u, o["tach"], friction=(ds["friction_coulomb_nm"], ds["friction_viscous_nms_rad"],
-                                                 ds["friction_smooth_rpm"] * 2 * np.pi / 60))
+                                                 ds["friction_smooth_rpm"] * 2 * np.pi / 60), speed_max=w.speed_max)
     scale = torque_scale(f.x, jabs, f.model)
     meta = {"seed": int(seed), "jrw_abs_kgm2": jabs.tolist(), "scale_true": float(tr["scale"]), "sets": int(sets), "duration_s": float(o["t"][-1]),
             "final_error": {"J5_kgm2": (tr["J5"] - f.x[10:15]).tolist(),

@@ -51,7 +51,7 @@ CACHE_DEFAULT = os.path.join("out", "bps_cache")
 FIGURES_BPS = ("fig6-3_pointing.png", "fig6-4_pointing.png")    # without / with SatB's GNSS, as the thesis's
 FIGURE_SWEEP = "fig6-2_sweep.png"
 BLIND_MAX = 0.10        # and the star tracker is blind less than this share of the time after the first slew
-VERSION = 7          # bump when the simulator's results change: old cache entries stop matching
+VERSION = 8          # bump when the simulator's results change: old cache entries stop matching
 
 
 MAX_SWEEP_POINTS = 1000

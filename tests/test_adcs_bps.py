@@ -180,6 +180,16 @@ def test_a_damaged_calibration_cache_is_computed_again(params, tmp_path, monkeyp
         assert open(path).read() == text
 
 
+def test_a_calibration_outside_the_parameter_files_ranges_fails_before_the_flight(params, tmp_path, monkeypatch):
+    """A calibration whose result the parameter file refuses (here a torque scale of 0.1, below its 0.2) is a
+    failed calibration named as such, never cached to be called damaged later."""
+    from ground.adcs import bps_cli
+    monkeypatch.setattr(bps, "calibrate", lambda seed, progress, spacecraft: dict(params, torque_scale=0.1))
+    with pytest.raises(ValueError, match=r"calibration of seed 3 left the parameter file's ranges.*torque_scale"):
+        bps_cli.calibration(3, str(tmp_path), progress=False)
+    assert os.listdir(tmp_path) == []
+
+
 # --- the simulator ---------------------------------------------------------------------------------------------
 def test_short_pointing_run_tracks_satb(params):
     res, hist = bps.simulate(ts=33, duration_s=60, seed=1, params=params, truth="two-body")

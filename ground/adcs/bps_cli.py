@@ -44,6 +44,7 @@ from ground.adcs.bps_report import (FIGURES_FLIGHT, plot_flight, plot_history, p
                                     report_flight_md, report_md)
 from ground.adcs.options import (add_satb_gnss_option, add_session_option, add_spacecraft_option, check_session, fly,
                                 load_spacecraft)
+from ground.adcs.params import check_params
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 from protocol import spacecraft as sf
 
@@ -103,7 +104,7 @@ def calibration(seed, cache_dir, progress=True, spacecraft=None):
     """The parameter-file dict of the nine calibration sets for ``seed`` flown by the checked spacecraft file
     ``spacecraft`` (None: thesis-3u), from ``cache_dir`` when present (keyed by the file's hash too; written
     atomically: the cache holds whole entries only; a damaged entry, not ours or edited, is computed again and
-    replaced)."""
+    replaced). ValueError naming the key when the calibration's result is outside the parameter file's ranges."""
     d = spacecraft or scenario.thesis_3u()
     key = _key(dict(spacecraft_key(d), kind="calibration", seed=int(seed), sets=bps.CAL_SETS, version=VERSION))
     path = os.path.join(cache_dir, "calibration_%s.json" % key) if cache_dir else None
@@ -116,6 +117,8 @@ def calibration(seed, cache_dir, progress=True, spacecraft=None):
         print("calibration: %d maneuver sets through the APKF (seed %d) ..." % (bps.CAL_SETS, seed),
               file=sys.stderr)
     p = bps.calibrate(seed=seed, progress=progress, spacecraft=d)
+    check_params(p, "the calibration of seed %d left the parameter file's ranges (it failed on this vehicle)"
+                 % seed, d)
     if path:
         os.makedirs(cache_dir, exist_ok=True)
         write_json(path, p)

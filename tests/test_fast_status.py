@@ -1,6 +1,6 @@
 """The board's machine-code CTRL_STATUS (``firmware.hal.fast_status``): its restated numbers are their sources', and
 it frames ``Controller.status_payload``'s bytes without allocating, under the unix port and on the PIL lab board
-(frozen for ARMv6-M, as the controller's board runs it)."""
+(frozen for ARMv6-M, as the controller's board runs it); a resent status tick gets the same status again."""
 
 import json
 import os
@@ -46,6 +46,19 @@ def test_the_machine_code_status_is_the_controllers_under_the_unix_port():
     assert p.returncode == 0, p.stdout + p.stderr
     res = json.loads(p.stdout.splitlines()[-1])
     assert res["n"] == 600 and res["mismatch"] == 0 and res["tx_frames"] == 600 and res["tx_seq"] == 600 % 256
+
+
+def test_a_resent_status_tick_gets_the_same_status_from_the_machine_code_path():
+    """A resent CTRL_STATUS tick is answered from the cache with the status the machine code sent (the link's
+    ``status_sent``): the same bytes as the bytecode path's, the status twice."""
+    if not os.path.exists(MICROPYTHON):
+        pytest.skip("micropython binary not installed in the venv")
+    env = dict(os.environ, MICROPYPATH=ROOT + ":" + os.path.join(ROOT, "tests", "mp"))
+    p = subprocess.run([MICROPYTHON, os.path.join(ROOT, "tests", "mp", "firmware_fast_tick.py"), "300"], cwd=ROOT,
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stdout + p.stderr
+    res = json.loads(p.stdout.splitlines()[-1])
+    assert res["status_resend"] is True and res["same"]["bytes"] is True
 
 
 @pytest.mark.skipif(not os.path.exists(pil_build.LAB_IMAGE) or bool(pil_build.missing_tools()),

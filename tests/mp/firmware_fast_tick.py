@@ -17,7 +17,7 @@ from firmware.controller_viper import ViperController
 from firmware.hal import fast_status, fast_tick
 from firmware.hal.link import serve_controller
 from firmware.hal.stdio import StdioLink
-from protocol import consts, core, htable
+from protocol import consts, core, frame, htable
 
 BENCH = consts.NODE_BENCH
 ME = consts.NODE_CONTROLLER
@@ -183,6 +183,15 @@ def locked(ticks):
     return n_ok, bins
 
 
+def status_resend():
+    """A resent CTRL_STATUS tick (128: its answer lost) answered by both paths: the same bytes, twice the status."""
+    frames = stream(140, 5, events=False)
+    frames.insert(129, frames[128])                  # TICK 128 again: the bench resends it
+    a, b = serve(frames, True)[2], serve(frames, False)[2]
+    ids = [frame.cobs_decode_pure(f)[1] for f in bytes(a.out).split(b"\x00")[:-1]]
+    return bytes(a.out) == bytes(b.out) and ids.count(consts.P_CTRL_STATUS) == 4    # ticks 0, 64, 128 and 128
+
+
 def main(n):
     frames = stream(n, 1)
     ca, la, wa, fast_n = serve(frames, True)
@@ -195,7 +204,7 @@ def main(n):
     }
     print(json.dumps({"same": same, "frames": len(frames), "answered_fast": fast_n, "tx_bytes": len(wa.out),
                       "counters": la.counters(), "n_dup": ca.n_dup, "n_gap": ca.n_gap, "mode": ca.mode,
-                      "locked": locked(600)}))
+                      "locked": locked(600), "status_resend": status_resend()}))
 
 
 main(int(sys.argv[1]) if len(sys.argv) > 1 else 1300)

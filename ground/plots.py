@@ -245,37 +245,6 @@ def system_time_history(body, fine, path, requirement_arcsec=11.98, budget_3sigm
     save_png(fig, path)
 
 
-def adcs_can_pointing(h, path, faults=None, s=None):
-    """``fps adcs can``: the body pointing error δθ1, δθ2 and stability δω1, δω2 (Eq. 6.12-6.16) against the 3σ
-    budgets and the run's 3σ after the settling, zoomed on it with the start-up inset (``bps_plots``), and the
-    ADCS mode per cycle; device faults shaded. ``s``: the summary (settle_s, requirements, pointing); without
-    it the thesis's budgets, the whole run."""
-    from ground.adcs.bps_plots import pointing_panels
-    from protocol.spacecraft import THESIS_REQUIREMENTS
-    from protocol.table import ADCS_MODES
-    s = s or {}
-    t = np.asarray(h["t"], float)
-    fig, ax = subplots(3 if "domega_arcsec_s" in h else 2, 1, width=11, sharex=True)
-    hist = {"t": t, "dtheta_arcsec": h["dtheta_arcsec"],
-            "domega_arcsec_s": h.get("domega_arcsec_s", np.zeros_like(h["dtheta_arcsec"]))}
-    pointing_panels(ax[:-1, 0], hist, s.get("settle_s", t[0] if len(t) else 0.0),
-                    s.get("requirements") or THESIS_REQUIREMENTS, s.get("pointing"))
-    m = ax[-1, 0]
-    for a in ax[:, 0]:
-        for (w, label) in fault_windows(faults):
-            shade(a, [w], label)
-        legend(a, loc="upper right", ncol=3, fontsize=7, framealpha=0.85)
-    m.step(np.arange(len(h["status_adcs_mode"])), h["status_adcs_mode"], where="post", label="ADCS mode")
-    m.set_yticks([v for _, v in ADCS_MODES], [k for k, _ in ADCS_MODES])
-    m.set_ylabel("ADCS mode (-)")
-    m.set_xlabel("time (s)")
-    legend(m, loc="upper right", fontsize=7)
-    ax[0, 0].set_title("ADCS on CAN: body pointing error and stability, mode; holds where the black 3σ lines lie "
-                       "inside the red budget", fontsize=10)
-    fig.tight_layout()
-    save_png(fig, path)
-
-
 def sigma_traces(ax, t, err, sig, names, n=3, lw=0.6, key=True):
     """Each column of ``err`` (solid, named in the legend) with its ±n``sig`` (dashed, the same colour; ``key``:
     a legend entry for the dashes): an estimator's error against its own nσ, colour i the i-th name."""

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ground import plots
+from ground.adcs import bps_plots
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tests", "mp"))
@@ -138,7 +139,7 @@ def test_the_adcs_can_plot(figs, tmp_path):
     n = 400
     h = {"t": np.arange(n) / 10, "dtheta_arcsec": np.column_stack([np.linspace(5000, 20, n), np.zeros(n)]),
          "status_adcs_mode": np.array([0] * 5 + [1] * 20 + [2] * 15)}
-    plots.adcs_can_pointing(h, str(tmp_path / "pointing.png"), {"gnss_outage": [10, 20]})
+    bps_plots.adcs_can_pointing(h, str(tmp_path / "pointing.png"), {"gnss_outage": [10, 20]})
     f = figs["pointing.png"]
     check(f)
     assert f.axes[0].get_title() and f.axes[1].get_ylabel().startswith("ADCS mode")
@@ -147,7 +148,7 @@ def test_the_adcs_can_plot(figs, tmp_path):
     s = {"settle_s": 20.0, "requirements": {"body_pointing_3sigma_arcsec": 140.0, "body_stability_3sigma_arcsec_s":
                                             30.0}, "pointing": {"pointing_3sigma_arcsec": 60.0,
                                                                 "stability_3sigma_arcsec_s": 6.0}}
-    plots.adcs_can_pointing(h, str(tmp_path / "pointing.png"), {"gnss_outage": [10, 20]}, s)
+    bps_plots.adcs_can_pointing(h, str(tmp_path / "pointing.png"), {"gnss_outage": [10, 20]}, s)
     f = figs["pointing.png"]
     check(f)
     p, st = [ax for ax in f.axes if ax.get_label() != "<inset>"][:2]

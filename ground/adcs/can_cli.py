@@ -116,8 +116,8 @@ def run(a):
     h["rw_cmd_nm"] = np.asarray(rows["rw_cmd"])
     bps.save_history(os.path.join(out, "history.npz"), h)
     if not a.no_plots and "dtheta_arcsec" in h:
-        from ground import plots
-        plots.adcs_can_pointing(h, os.path.join(out, FIGURE), faults, summary)
+        from ground.adcs import bps_plots
+        bps_plots.adcs_can_pointing(h, os.path.join(out, FIGURE), faults, summary)
     write_json(os.path.join(out, "summary.json"), summary)
     write_atomic(os.path.join(out, "report.md"), report_md(summary, a))
     _say(summary, a)

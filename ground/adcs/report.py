@@ -7,8 +7,8 @@ import warnings
 import numpy as np
 
 from ground.fileio import write_atomic
-
 from ground.verdict import runs_row, table as verdict_table
+
 # Yoon 2017, Sec. 4.4.1 and 4.8 (final 1 sigma)
 THESIS = {
     ("mekf", None): {"final_sigma_attitude_arcsec": (19.88, 19.88, 57.18)},
@@ -24,9 +24,9 @@ THESIS = {
 }
 # goal: attitude and rate within 25 %, parameters within a factor of 2
 TOL = {"final_sigma_attitude_arcsec": ("rel", 0.25), "final_sigma_rate_arcsec_s": ("rel", 0.25)}
-
 # report.md's and the terminal's column of ours against the thesis: a reference, not a requirement
 REFERENCE = "vs the thesis: ±25 % / ×2 (a reference, not a requirement)"
+
 
 def thesis_row(name, case):
     return THESIS.get((name, None if name == "mekf" else case), {})

@@ -78,3 +78,16 @@ def test_a_residual_dipole_beyond_the_rods_is_named_as_the_wheels_miss_cause():
     assert not population.dipole_beyond_rods(small)["beyond"] and population.miss_causes(missed, small) == []
     worst = population.aggregate([dict(missed, seed=3, ok=False, figures={}, vehicle={}, causes=causes)], {})
     assert causes[0] in worst["worst"][0]["missed"]
+
+
+def test_each_figures_mean_over_the_vehicles_is_in_the_summary_and_the_report():
+    """The mean row: for a filter's NEES share, the population's share of all its seconds in the band."""
+    rs = [{"seed": i, "ok": True, "checks": {"pointing": {"ok": True, "what": "p"}}, "vehicle": {},
+           "figures": {"stkf_nees_in_band_share": v, "pointing_3sigma_arcsec": 10.0}} for i, v in enumerate((0.8, 0.9, 1.0))]
+    s = population.aggregate(rs, {"spacecraft": {"name": "x", "sha256": "0", "source": "x"}, "runs": 3,
+                                  "vehicle_text": "drawn", "orbits": 3, "seeds": [0, 1, 2], "vehicle": "drawn",
+                                  "truth": "two-body", "ts_s": 33.0, "satb_gnss": False})
+    assert abs(s["figures"]["stkf_nees_in_band_share"]["mean"] - 0.9) < 1e-12
+    s["complete"] = True
+    text = population.report_md(s)
+    assert "| min | median | mean |" in text and "| 0.8 | 0.9 | 0.9 |" in text

@@ -144,7 +144,8 @@ def aggregate(results, identity):
     for key, unit, _, what in FIGURES:
         v = np.array([r["figures"][key] for r in good if r["figures"].get(key) is not None], float)
         dist[key] = ({"unit": unit, "what": what, "n": int(len(v)), "min": float(v.min()),
-                      "median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+                      "median": float(np.median(v)), "mean": float(v.mean()), "p95": float(np.percentile(v, 95)),
+                      "max": float(v.max())}
                      if len(v) else {"unit": unit, "what": what, "n": 0})
     out["figures"] = dist
     worst = sorted(good, key=lambda r: (r["ok"], -(r["figures"].get("pointing_3sigma_arcsec") or np.inf)))[:WORST]
@@ -171,11 +172,13 @@ def report_md(s):
     for k, c in list(s["checks"].items()) + [("every check", dict(s["all_checks"], what="all of the above"))]:
         L.append("| %s: %s | %d of %d | %s | %s-%s |" % (k, c["what"], c["met"], c["of"], _fmt(c["share"], "%.2f"),
                                                         _fmt(c["ci95"][0], "%.2f"), _fmt(c["ci95"][1], "%.2f")))
-    L += ["", "| figure | vehicles | min | median | 95th percentile | max |", "|---|---|---|---|---|---|"]
+    L += ["", "| figure | vehicles | min | median | mean | 95th percentile | max |", "|---|---|---|---|---|---|---|"]
     for key, f in s["figures"].items():
-        L.append("| %s (%s) | %d | %s | %s | %s | %s |" % (f["what"], f["unit"], f["n"], _fmt(f.get("min")),
-                                                          _fmt(f.get("median")), _fmt(f.get("p95")),
-                                                          _fmt(f.get("max"))))
+        L.append("| %s (%s) | %d | %s | %s | %s | %s | %s |" % (f["what"], f["unit"], f["n"], _fmt(f.get("min")),
+                                                               _fmt(f.get("median")), _fmt(f.get("mean")),
+                                                               _fmt(f.get("p95")), _fmt(f.get("max"))))
+    L += ["", "A filter's NEES share over the population is the mean row (the runs are equally long: the share of "
+          "all the vehicles' seconds in the band)."]
     L += ["", "Worst vehicles (replay one with `fps adcs bps --world flight --spacecraft %s --vehicle %s --seed N "
           "--orbits %g --truth %s --ts %g%s`):" % (s["spacecraft"]["source"], s["vehicle"], s["orbits"], s["truth"],
                                                    s["ts_s"], " --satb-gnss" if s["satb_gnss"] else ""), "",

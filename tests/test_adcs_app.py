@@ -183,3 +183,21 @@ def test_first_acquisition_damps_the_rate_until_the_star_tracker_answers():
     app.rd.st_got = app.rd.st_valid = False
     app.control(t, app.rd.st_ok())
     assert not app.modes.acquiring and list(app.modes.wc) == pytest.approx([1e-3] * 3)
+
+
+def test_a_broken_attitude_covariance_gates_the_beacon_and_the_cycle_goes_on():
+    """A diverged APKF whose attitude covariance has a negative trace (an extreme drawn vehicle spun up by a
+    dipole its rods cannot cancel) gates the beacon like a large one; the flight app does not stop on it."""
+    app = A.App(AdcsSession(runtime="cpython", world="flight", duration_s=30.0).config())
+    assert app.est.fly
+    attitude = app.est.attitude
+
+    def broken():
+        q = attitude()
+        for i in (0, 4, 8):
+            app.est.Patt[i] = -1e-6
+        return q
+    app.est.attitude = broken
+    for k in range(5):
+        u = app.cycle(k, float(k))
+    assert all(math.isfinite(v) for v in u) and not app.est.beacon_used

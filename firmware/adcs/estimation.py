@@ -285,7 +285,8 @@ class Estimation:
             except ValueError:
                 hl.n_refused += 1
                 rd.gnss_got = False            # not usable (miss_gnss was counted: it came)
-        gated = self.fly and not math.sqrt(self.Patt[0] + self.Patt[4] + self.Patt[8]) <= self.gate_b
+        tr = self.Patt[0] + self.Patt[4] + self.Patt[8]
+        gated = self.fly and not (tr >= 0.0 and math.sqrt(tr) <= self.gate_b)     # a broken P gates it too
         self.beacon_used = False
         if rd.bc_got and rd.bc_valid and not gated and (self.apkf is not None or rd.st_ok()):
             try:

@@ -86,7 +86,8 @@ def consistency(fsw, k_from, p=0.95):
             continue
         e, C = e[ok], c[ok].reshape(-1, 3, 3)
         n = nees(e, C)
-        sig = np.sqrt(np.einsum("kii->ki", C))
+        with np.errstate(invalid="ignore"):         # a diverged filter's negative variance: NaN, said as such
+            sig = np.sqrt(np.einsum("kii->ki", C))
         out[name] = {"seconds": int(ok.sum()), "nees_mean": float(n.mean()),
                      "nees_in_band_share": float(np.mean((n >= lo) & (n <= hi))),
                      "rms_over_sigma": (np.sqrt((e ** 2).mean(axis=0)) / np.sqrt((sig ** 2).mean(axis=0))).tolist()}

@@ -200,7 +200,7 @@ def test_verdict_names_the_loop_that_missed_and_by_how_much():
     v = system.verdict({"complete": True, "q2_samples": 0, "q2": None, "body_pointing": None})
     assert v["met"] is False and v["fine"]["met"] is None and v["body"]["met"] is None
     md = system.verdict_md(dict(_synthetic(pointing=182.0), verdict=system.verdict(_synthetic(pointing=182.0))))
-    assert "| body (ADCS) | 3σ pointing (arcsec) | 182.00 | 150 | 32.00 | **NO** |" in md
+    assert "| body loop (ADCS): 3σ pointing (arcsec) | 182 | 150 | **NO** | 32 |" in md
     assert "**Terminal: BUDGET MISSED**: body: 3σ pointing 182.0″" in md
 
 

@@ -7,7 +7,10 @@ constants; so a module restates what it takes from elsewhere, in a block this to
 - ``firmware/player.py``: the player's actions (``protocol.table.PLAYER_ACTIONS``);
 - ``firmware/controller_viper.py``: the controller's state slots and limits (``firmware/controller.py``'s);
 - ``firmware/hal/fast_tick.py``: the packet table's numbers it parses and builds (``protocol.consts``), the
-  controller's slots it sets, the link's counter layout (``firmware/hal/stdio.py``'s ``_ST_*``).
+  controller's slots it sets, the link's counter layout (``firmware/hal/stdio.py``'s ``_ST_*``);
+- ``firmware/hal/stdio.py``: the controller's cached H^-1 bin slots its meter reads;
+- ``firmware/hal/fast_status.py``: CTRL_STATUS's id and frame body, the link's counters and the controller's slots
+  the status reads.
 
 ``protocol/consts.py`` itself comes from ``python -m protocol.gen``. ``--check`` (and tests/test_gen_consts.py)
 fails, naming the block, when a block is not what its source says; exit 0 when all are current.
@@ -46,7 +49,9 @@ def blocks():
     slots = ("_S_MODE", "_S_TICKS", "_S_VX", "_S_VY", "_S_RX", "_S_RY", "_S_VS", "_S_LOST", "_S_THR", "_S_RXC",
              "_S_RYC", "_S_LIM", "_S_NLIM", "_S_BXQ", "_S_BYQ", "_S_SHIFT", "_S_ROUND", "_S_GH", "_S_SAT_RUN",
              "_S_SIZE", "_TRACK", "_E_MAX", "_COUNT_MAX")
-    link = ("_ST_TX_SEQ", "_ST_TX_FRAMES", "_ST_RX_FRAMES", "_ST_RX_SRC", "_ST_RX_SEQ", "_ST_SPI_N")
+    link = ("_ST_TX_SEQ", "_ST_TX_FRAMES", "_ST_RX_FRAMES", "_ST_RX_SRC", "_ST_RX_SEQ", "_ST_SPI_N", "_ST_RX_GAPS")
+    status = ("_S_MODE", "_S_TICKS", "_S_VX", "_S_VY", "_S_RX", "_S_RY", "_S_VS", "_S_THR", "_S_SAT_TICK",
+              "_S_N_LOST", "_S_N_SAT", "_S_SAT_RUN", "_S_SAT_LAST", "_S_N_SAT_EP")
     return [
         ("firmware/controller.py", "protocol/table.py's MODES", _table(table.MODES)),
         ("firmware/player.py", "protocol/table.py's PLAYER_ACTIONS", _table(table.PLAYER_ACTIONS)),
@@ -59,6 +64,13 @@ def blocks():
         ("firmware/hal/fast_tick.py", "firmware/controller.py", _controller(("_S_TICKS", "_S_PKT", "_S_QUIET",
                                                                              "_COUNT_MAX"))),
         ("firmware/hal/fast_tick.py", "firmware/hal/stdio.py", [(n, getattr(stdio, n), "%d") for n in link]),
+        ("firmware/hal/stdio.py", "firmware/controller.py", _controller(("_S_BXQ", "_S_BYQ"))),
+        ("firmware/hal/fast_status.py", "firmware/hal/stdio.py",
+         [(n, getattr(stdio, n), "%d") for n in ("_ST_TX_SEQ", "_ST_TX_FRAMES", "_ST_RX_SRC")]),
+        ("firmware/hal/fast_status.py", "protocol/consts.py", [
+            ("_VERSION", consts.PROTOCOL_VERSION, "%d"), ("_P_CTRL_STATUS", consts.P_CTRL_STATUS, "0x%02X"),
+            ("_STATUS_BODY", HEADER + struct.calcsize(consts.FMT_CTRL_STATUS), "%d")]),      # header, CTRL_STATUS
+        ("firmware/hal/fast_status.py", "firmware/controller.py", _controller(status)),
     ]
 
 

@@ -46,8 +46,8 @@ _ST_RX_FRAMES = const(2)
 _ST_RX_SRC = const(3)
 _ST_RX_SEQ = const(4)
 _ST_SPI_N = const(5)
+_ST_RX_GAPS = const(7)
 # --- end of generated constants ---
-_ST_RX_GAPS = const(7)               # firmware/hal/stdio.py's: sequence gaps (tests/test_fast_status.py checks it)
 
 
 @micropython.viper

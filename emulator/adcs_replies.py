@@ -177,7 +177,6 @@ class StatusWatch:
                 "rb": np.array([status[n] for n in ("rbx", "rby", "rbz")]),
                 "att_sigma_rad": status["att_sigma"], "t": t}
 
-
     def blind_by_plan(self, status, t):
         """True when cycle t's DEGRADED is the planned slew's blind star tracker alone: no other sensor stale, no
         wheel failed, the blind stretch begun within ``slew`` and no injected ``startracker_blind`` over it."""

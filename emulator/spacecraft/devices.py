@@ -130,11 +130,15 @@ class Magnetorquers:
         m = np.asarray(m_body, dtype=float)
         if m.shape != (3,) or not np.all(np.isfinite(m)):
             raise ValueError("m_body must be 3 finite numbers (A m^2), got %r" % (m_body,))
-        s = self._lsq @ m
+        s = self.shares(m)
         self.saturated = np.abs(s) > self.limit
         self.share = np.clip(s, -self.limit, self.limit)
         self.set_dead(self.dead)
         return self.applied.copy(), self.saturated.copy()
+
+    def shares(self, m_body):
+        """Each rod's least-squares share (A m^2, unclipped) of the body dipole ``m_body``."""
+        return self._lsq @ np.asarray(m_body, dtype=float)
 
     def set_dead(self, mask):
         """Rods whose driver is dead (bit i: rod i) give no dipole from now on; ``applied`` is the others'."""

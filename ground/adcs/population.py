@@ -65,15 +65,15 @@ def dipole_beyond_rods(d):
     residual dipole (the file's figure plus its truth block's error) takes, and the rods' limit; a share beyond
     the limit is a dipole the magnetorquers cannot cancel, whose torque the wheels then absorb. None without
     magnetorquers."""
-    mtq = d.get("magnetorquers")
-    if mtq is None:
+    from emulator.spacecraft.devices import Magnetorquers
+    rods = Magnetorquers.from_spacecraft(d)
+    if rods is None:
         return None
     err = ((d.get("truth") or {}).get("residual_dipole_error_am2")) or [0.0, 0.0, 0.0]
     m = np.asarray(d["residual_dipole_am2"], float) + np.asarray(err, float)
-    a = np.array([np.asarray(x, float) / np.linalg.norm(x) for x in mtq["axes"]])
-    shares = np.linalg.pinv(a.T) @ m
-    return {"dipole_am2": m.tolist(), "shares_am2": shares.tolist(), "limit_am2": float(mtq["dipole_limit_am2"]),
-            "beyond": bool(np.any(np.abs(shares) > mtq["dipole_limit_am2"]))}
+    shares = rods.shares(m)
+    return {"dipole_am2": m.tolist(), "shares_am2": shares.tolist(), "limit_am2": rods.limit,
+            "beyond": bool(np.any(np.abs(shares) > rods.limit))}
 
 
 def miss_causes(res, d):

@@ -37,27 +37,26 @@ def test_the_status_modules_numbers_are_their_sources():
     assert consts.FMT_CTRL_STATUS == "<IBBiihhHHHHHHIHBHHHIIH"        # the byte offsets status() writes
 
 
-def test_the_machine_code_status_is_the_controllers_under_the_unix_port():
+def _unix_port(script, arg):
+    """The last stdout line (JSON) of tests/mp/``script`` run with ``arg`` under the unix port (skip without it)."""
     if not os.path.exists(MICROPYTHON):
         pytest.skip("micropython binary not installed in the venv")
     env = dict(os.environ, MICROPYPATH=ROOT + ":" + os.path.join(ROOT, "tests", "mp"))
-    p = subprocess.run([MICROPYTHON, os.path.join(ROOT, "tests", "mp", "firmware_fast_status.py"), "600"], cwd=ROOT,
-                       env=env, capture_output=True, text=True, timeout=120)
+    p = subprocess.run([MICROPYTHON, os.path.join(ROOT, "tests", "mp", script), arg], cwd=ROOT, env=env,
+                       capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stdout + p.stderr
-    res = json.loads(p.stdout.splitlines()[-1])
+    return json.loads(p.stdout.splitlines()[-1])
+
+
+def test_the_machine_code_status_is_the_controllers_under_the_unix_port():
+    res = _unix_port("firmware_fast_status.py", "600")
     assert res["n"] == 600 and res["mismatch"] == 0 and res["tx_frames"] == 600 and res["tx_seq"] == 600 % 256
 
 
 def test_a_resent_status_tick_gets_the_same_status_from_the_machine_code_path():
     """A resent CTRL_STATUS tick is answered from the cache with the status the machine code sent (the link's
     ``status_sent``): the same bytes as the bytecode path's, the status twice."""
-    if not os.path.exists(MICROPYTHON):
-        pytest.skip("micropython binary not installed in the venv")
-    env = dict(os.environ, MICROPYPATH=ROOT + ":" + os.path.join(ROOT, "tests", "mp"))
-    p = subprocess.run([MICROPYTHON, os.path.join(ROOT, "tests", "mp", "firmware_fast_tick.py"), "300"], cwd=ROOT,
-                       env=env, capture_output=True, text=True, timeout=120)
-    assert p.returncode == 0, p.stdout + p.stderr
-    res = json.loads(p.stdout.splitlines()[-1])
+    res = _unix_port("firmware_fast_tick.py", "300")
     assert res["status_resend"] is True and res["same"]["bytes"] is True
 
 

@@ -25,9 +25,15 @@ import pil_board
 from micropython import const
 
 _KINDS = const(5)                 # firmware.hal.stdio's K_COMMON .. K_OTHER
+_K_STATUS = const(2)
+_K_RESEND = const(3)
 _BUCKETS = const(18)              # a histogram bucket per bit length of a duration in timer ticks (0..17)
 _KIND_WORDS = const(21)           # count, sum, largest, _BUCKETS
-_BOX_WORDS = const(107)           # MAGIC, a clock read's cost, _KINDS * _KIND_WORDS (tools.pil_mailbox)
+_WIRE = const(107)                # the wire's words: byte, cpu, tx, worst, late, n (``Meter.wire``)
+_BOX_WORDS = const(113)           # MAGIC, a clock read's cost, _KINDS * _KIND_WORDS, the wire's (tools.pil_mailbox)
+_CYCLES_PER_TICK = const(100)     # a timer tick's 62.5 instructions at CPI 1.6 (the SAMD21's one flash wait state)
+_PERIOD = const(75259)            # the tick in cycles: 48 MHz / 637.8 Hz
+WIRE_BAUD = const(2000000)        # the UART the wire is modelled at (8N1: 10 bits a byte)
 
 
 def paint_stack():
@@ -71,20 +77,28 @@ class Meter:
     def __init__(self, box):
         self.box = box
         self.now = nrf51.now
-        self.start = nrf51.edge         # a machine-code exchange's start, at a timer step (``nrf51.edge``)
+        self.start = nrf51.mark         # a machine-code exchange's start: the timer cleared (``nrf51.mark``)
         nrf51.start(16)
         m = machine.mem32
         for k in range(1, _BOX_WORDS):
             m[box + 4 * k] = 0
         t = self.start()
         m[box + 4] = (self.now() - t) & 0xFFFF     # one read's own cost, taken off each exchange
+        m[box + 4 * _WIRE] = 10 * 48000000 // WIRE_BAUD
+        b = protocol.frame.frame_bytes
+        s = protocol.consts.SIZES
+        self.frames = (b(s[protocol.consts.P_TICK]), b(s[protocol.consts.P_FSM_SPI]),
+                       b(s[protocol.consts.P_CTRL_STATUS]))
         m[box] = MAGIC
 
-    def exchange(self, t0, work, n, kind):
+    def exchange(self, t0, work, n, kind, first=-1):
         """One exchange of ``kind``: ``work`` ticks, then from t0 to now, in ``n`` timed intervals; less a clock
-        read's own cost for each."""
+        read's own cost for each. ``first``: the ticks until its FSM_SPI was framed, where a status followed
+        (else the whole exchange), for ``wire``."""
+        d = work + ((nrf51.now() - t0) & 0xFFFF)
         m = machine.mem32
-        d = work + ((nrf51.now() - t0) & 0xFFFF) - n * m[self.box + 4]
+        c = m[self.box + 4]
+        d -= n * c
         if d < 0:
             d = 0
         a = self.box + 8 + 4 * _KIND_WORDS * kind
@@ -96,6 +110,32 @@ class Meter:
         while d >> k and k < _BUCKETS - 1:
             k += 1
         m[a + 12 + 4 * k] += 1
+        if kind != _K_RESEND:
+            f = d if first < 0 else max(first - c, 0)
+            self.wire(f * _CYCLES_PER_TICK, (d - f) * _CYCLES_PER_TICK, kind == _K_STATUS)
+
+    def wire(self, first, rest, status):
+        """The tick on the wire, in cycles from its start on the bench's 637.8 Hz grid: the TICK's bytes in at
+        ``WIRE_BAUD``, the computation (``first`` until the FSM_SPI is framed) once they are in and the CPU is free,
+        the FSM_SPI's bytes out once it is framed and the UART has sent what was before it (a DMA channel or an
+        interrupt sends them, full duplex: the next TICK comes in meanwhile); a status tick's CTRL_STATUS packed
+        after it (``rest``) and queued behind it. Keeps the latest FSM_SPI's end (``worst``) and the ticks whose
+        FSM_SPI ended after the tick (``late``)."""
+        m = machine.mem32
+        a = self.box + 4 * _WIRE
+        byte = m[a]
+        r, f, s = self.frames
+        ready = max(r * byte, m[a + 4]) + first
+        end = max(ready, m[a + 8]) + f * byte
+        if end > m[a + 12]:
+            m[a + 12] = end
+        if end > _PERIOD:
+            m[a + 16] += 1
+        m[a + 20] += 1
+        cpu = ready + rest
+        tx = max(cpu, end) + s * byte if status else end
+        m[a + 4] = max(cpu - _PERIOD, 0)
+        m[a + 8] = max(tx - _PERIOD, 0)
 
 
 def main():

@@ -12,7 +12,10 @@ MAGIC = 0x0C0FFEE                 # firmware.pil_main.MAGIC
 KINDS = ("common", "bin_change", "status", "resend", "other")
 BUCKETS = 18                      # firmware.pil_main.BUCKETS: a bucket per bit length of the ticks (0..17)
 KIND_WORDS = 3 + BUCKETS
-WORDS = 2 + len(KINDS) * KIND_WORDS
+WIRE = 2 + len(KINDS) * KIND_WORDS  # firmware.pil_main._WIRE: the wire's words
+WORDS = WIRE + 6
+CYCLES_PER_TIMER_TICK = 100       # firmware.pil_main._CYCLES_PER_TICK: 62.5 instructions at CPI 1.6
+PERIOD_CYCLES = 75259             # firmware.pil_main._PERIOD: 48 MHz / 637.8 Hz
 INSN_PER_TIMER_TICK = 62.5        # firmware.hal.nrf51.INSN_PER_TICK
 WHAT = ("one TICK exchange: its frame decoded, the step, the FSM_SPI framed, then CTRL_STATUS when due; the UART's own "
         "byte moves left out (firmware.hal.nrf51's machine code reads and writes: an interrupt or DMA on a board); "
@@ -35,6 +38,18 @@ def _kind(words, f):
             "histogram": hist}
 
 
+def wire(words):
+    """The board's model of each tick on the wire (``firmware.pil_main.Meter.wire``): the baud, the latest
+    FSM_SPI's end from its tick's start (cycles at 48 MHz, CPI 1.6) against the period, the ticks late."""
+    byte, _, _, worst, late, n = words
+    return {"what": "each tick (resends apart) on the bench's 637.8 Hz grid: the TICK's bytes in, the computation "
+                    "(its instructions at CPI 1.6, 48 MHz) once they are in and the CPU is free, the FSM_SPI's bytes "
+                    "out once the UART has sent what was queued before it (a status tick's CTRL_STATUS, packed and "
+                    "sent after its FSM_SPI); 8N1, full duplex",
+            "baud": round(10 * 48e6 / byte) if byte else None, "byte_cycles": byte, "period_cycles": PERIOD_CYCLES,
+            "worst_cycles": worst, "worst_s": worst / 48e6, "late_ticks": late, "ticks": n}
+
+
 def decode(box):
     """``instructions_per_step`` from the mailbox's words (None when the board wrote none): n, mean and max over
     the exchanges answered the first time, and ``kinds``: each kind's n, sum, mean, max and histogram."""
@@ -50,6 +65,6 @@ def decode(box):
     fast = [kinds["common"], kinds["bin_change"]]
     nf = sum(k["n"] for k in fast)
     return {"what": WHAT, "n": n, "mean": total / n, "max": max(k["max"] or 0 for k in first),
-            "resolution": f, "kinds": kinds,
+            "resolution": f, "kinds": kinds, "wire": wire(box[WIRE:WIRE + 6]),
             "common": {"n": nf, "mean": sum(k["sum"] for k in fast) / nf if nf else None,
                        "max": max(k["max"] or 0 for k in fast) if nf else None}}

@@ -1,7 +1,7 @@
 """The nRF51's peripherals the PIL board (QEMU's microbit machine) uses beyond MicroPython's: TIMER0 as a clock
-(``start(bits)`` runs it at 16 MHz as a 16- or 32-bit counter, ``now()`` captures and reads it; under QEMU's
-``-icount shift=0``, one instruction a virtual ns, a tick is 62.5 instructions; a 16-bit count is a small int on
-the board, so reading it allocates nothing) and UART0 (``read_frame`` and ``write_frame``, viper)."""
+(``start(bits)`` runs it at 16 MHz as a 16- or 32-bit counter, ``mark()`` clears it, ``now()`` captures and reads
+it; under QEMU's ``-icount shift=0``, one instruction a virtual ns, a tick is 62.5 instructions; a 16-bit count is a
+small int on the board, so reading it allocates nothing) and UART0 (``read_frame`` and ``write_frame``, viper)."""
 
 import machine
 import micropython
@@ -33,21 +33,15 @@ def now():
 
 
 @micropython.viper
-def edge() -> int:
-    """The count just after its next step (16-bit): a duration timed from here starts at the same phase of the
-    timer's tick whenever the code before it ran, so the same instructions read the same ticks (up to this loop's
-    own few instructions)."""
+def mark() -> int:
+    """Clear TIMER0 (TASKS_CLEAR, the count to 0 from this store) and return 0: a duration read from here counts
+    the instructions run since this store, to a tick, whatever ran before it (under ``-icount`` QEMU's timer takes
+    the clear's virtual time at the store itself), so the same instructions always read the same ticks."""
     base = 0x4000
     base <<= 16
-    cap = ptr32(base + 0x8040)       # TASKS_CAPTURE[0]
-    cc = ptr32(base + 0x8540)        # CC[0]
-    cap[0] = 1
-    t = cc[0]
-    while True:
-        cap[0] = 1
-        u = cc[0]
-        if u != t:
-            return u & 0xFFFF
+    clear = ptr32(base + 0x800C)     # TASKS_CLEAR
+    clear[0] = 1
+    return 0
 
 
 @micropython.viper

@@ -46,9 +46,10 @@ _S_BYQ = const(14)
 class StdioLink:
     """``serve_controller``'s link on the console UART: ``node``, ``recv_ms``, ``send_raw``, ``closed``,
     ``counters``, ``rx_drops``, ``close``. ``node``: the node address (``protocol.consts.NODE_*``); ``meter``: an
-    object with ``now()`` (a 16-bit clock), ``start()`` (the same read at its next step, where the machine-code path
-    times from) and ``exchange(t0, work, n, kind)``, told of each TICK exchange (``_K_*``;
-``_st[_ST_KIND]``: the bytecode path's, which ``serve_controller`` sets for a resend or a status): the decoding
+    object with ``now()`` (a 16-bit clock), ``start()`` (the start of a duration the machine-code path times: the
+    board's clears its timer) and ``exchange(t0, work, n, kind, first)``, told of each TICK exchange (``_K_*``;
+    ``_st[_ST_KIND]``: the bytecode path's, which ``serve_controller`` sets for a resend or a status; ``first``: a
+    status tick's ticks until its FSM_SPI was framed): the decoding
     of each of its frame's bytes, then from the frame's end to its FSM_SPI framed (a status tick's: to the
     CTRL_STATUS framed after it), less the UART's own reads and
     writes (on a board an interrupt or a DMA channel moves the bytes while the CPU does other work), in ``n``
@@ -208,7 +209,7 @@ class StdioLink:
             t = mt.start() if mt is not None else 0
             k = self._status(self, ctl, last)
             if mt is not None:
-                mt.exchange(t, w, 2, _K_STATUS)
+                mt.exchange(t, w, 2, _K_STATUS, w)
             wf(self._out, k)
 
     def _sync(self):

@@ -147,9 +147,19 @@ def board_rows(budget):
           "%.1f ms, %.1f ticks |" % (w["bytes_per_tick"]["common"], w["bytes_per_tick"]["status"],
                                      w["bytes_per_tick"]["mean"], 1e3 * w["wire_s_common"],
                                      w["ticks_on_the_wire_common"]))
-    print("| the least baud closing the loop: a common tick (its mean); a status tick | - | %s (standard %s); %s |" % (
-        "%.0f" % w["least_baud_common"] if w["least_baud_common"] else "none", w["least_standard_baud_common"],
-        "%.0f" % w["least_baud_status"] if w["least_baud_status"] else "none"))
+    print("| the least baud closing the loop: a common tick alone (its mean); the run's worst figures in a row (a "
+          "status tick among common ticks at their largest, tools.pil_wire.worst_sequence) | - | %s (standard %s); "
+          "%s (standard %s) |" % (
+              "%.0f" % w["least_baud_common"] if w["least_baud_common"] else "none", w["least_standard_baud_common"],
+              "%.0f" % w["least_baud_worst"] if w["least_baud_worst"] else "none", w["least_standard_baud_worst"]))
+    for k, r in enumerate(runs):
+        b = r["target"]["wire"]["board"]
+        print("| run %d: the worst tick with the UART at %d baud (the board's meter: every tick on the wire, "
+              "firmware.pil_main.Meter.wire), cycles at CPI 1.6 from the TICK's first byte to the FSM_SPI's last; "
+              "ticks late | <= %d cycles; 0 | %d (%.0f %%); %d of %d (%s) |" % (
+                  k + 1, b["baud"], b["period_cycles"], b["worst_cycles"], 100.0 * b["worst_cycles"] /
+                  b["period_cycles"], b["late_ticks"], b["ticks"],
+                  "met" if b["worst_cycles"] <= b["period_cycles"] and not b["late_ticks"] else "missed"))
     print("| fps hil --runtime qemu, %d s: real-time factor of the play (the whole command %.0f s wall) | >= 1x | "
           "%.2fx (%s) |" % (HIL_S, wall, s["real_time_factor"], "met" if s["real_time_factor"] >= 1 else "missed"))
 

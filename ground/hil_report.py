@@ -144,13 +144,27 @@ def _nonzero(d):
     return ", ".join("%s=%s" % (k, v) for k, v in sorted(d.items()) if v not in (0, None, "", [])) or "all zero"
 
 
+def wire_deadline(s):
+    """A ``--runtime qemu`` run's ticks on the wire (the board's meter, ``firmware.pil_main.Meter.wire``): None for
+    the other runtimes, else the board's figures with ``met``: every FSM_SPI's last byte out within its tick."""
+    b = ((s.get("target") or {}).get("wire") or {}).get("board")
+    if not b or not b.get("ticks"):
+        return None
+    return dict(b, met=not b["late_ticks"] and b["worst_cycles"] <= b["period_cycles"])
+
+
 def verdict_rows(s):
-    """The verdict's row: the Q2 samples' largest radial error against the requirement (met None until the run
-    completes)."""
+    """The verdict's rows: the Q2 samples' largest radial error against the requirement (met None until the run
+    completes); on the PIL board, the worst tick with the UART's bytes (``wire_deadline``)."""
     q2 = s.get("q2") or {}
-    return [("every Q2 sample within %.2f″ (largest radial error, arcsec)" % report.REQUIREMENT_ARCSEC,
+    rows = [("every Q2 sample within %.2f″ (largest radial error, arcsec)" % report.REQUIREMENT_ARCSEC,
              q2.get("max_radial_arcsec"), report.REQUIREMENT_ARCSEC,
              bool(s.get("requirement_met")) if s.get("complete") else None)]
+    w = wire_deadline(s)
+    if w is not None:
+        rows.append(("every tick's FSM_SPI out within the tick, the UART at %d baud (the board's worst, cycles at "
+                     "48 MHz, CPI 1.6)" % w["baud"], w["worst_cycles"], w["period_cycles"], w["met"]))
+    return rows
 
 
 def report_md(s, title="fps hil: the emulated hardware in the loop (Sec. 7.5)"):
@@ -180,6 +194,12 @@ def verdict_lines(s):
             lines.append("REQUIREMENT MISSED: %s of %d Q2 samples within %.2f″, largest %s″" % (
                 "—" if share is None else "%.4f %%" % (100 * share), s.get("q2_samples", 0),
                 report.REQUIREMENT_ARCSEC, _fmt_num(q2.get("max_radial_arcsec"))))
+    w = wire_deadline(s)
+    if w is not None:
+        lines.append("%s: the worst tick %d cycles from its TICK's first byte to its FSM_SPI's last at %d baud, "
+                     "of %d; %d of %d ticks late (the board's meter, CPI 1.6 at 48 MHz)" % (
+                         "deadlines met on the wire" if w["met"] else "DEADLINE MISSED on the wire",
+                         w["worst_cycles"], w["baud"], w["period_cycles"], w["late_ticks"], w["ticks"]))
     if s.get("q2_beam_lost_samples"):
         lines.append("BEAM LOST on Q2 in %d samples" % s["q2_beam_lost_samples"])
     av = s.get("availability") or {}

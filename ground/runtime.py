@@ -233,7 +233,9 @@ def _stop(link, proc):
             ips = (proc.target or {}).get("instructions_per_step")
             if ips:                    # the link's bytes on the wire and the baud that closes the loop
                 from tools import pil_wire
-                proc.target["wire"] = pil_wire.figures(ips["kinds"]["common"]["mean"], ips["kinds"]["status"]["max"])
+                k = ips["kinds"]
+                proc.target["wire"] = dict(pil_wire.figures(k["common"]["mean"], k["status"]["max"],
+                                                            common_max=ips["common"]["max"]), board=ips["wire"])
         except (OSError, pil_board.BoardError) as exc:
             proc.target = dict(pil_board.TARGET, error="the board's RAM could not be read: %s" % exc)
         shutil.rmtree(proc.monitor_dir, ignore_errors=True)

@@ -174,6 +174,15 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
     assert sum(v["n"] for name, v in k.items() if name != "resend") == ips["n"]
     assert abs(k["status"]["n"] - ips["n"] / 64) <= ips["n"] / 640 and k["bin_change"]["n"] > 0    # every 64th
     assert k["status"]["max"] == ips["max"] and sum(c for _, _, c in k["common"]["histogram"]) == k["common"]["n"]
+    # the board's meter laid every tick on the wire (firmware.pil_main.Meter.wire); its worst is within the bound
+    # the host's model (tools.pil_wire) gives for the run's worst figures in a row, and above any one tick's bytes
+    from tools import pil_wire
+    b = t["wire"]["board"]
+    assert b["ticks"] == ips["n"] and b["baud"] == 2000000
+    sec = 1.6 / 48e6
+    bound, _ = pil_wire.schedule(pil_wire.worst_sequence(ips["common"]["max"] * sec, k["status"]["max"] * sec),
+                                 b["baud"], 1 / 637.8)
+    assert (23 + 30) * 240 < b["worst_cycles"] <= 48e6 * bound + 100, (b, bound)
 
 
 @pytest.mark.skipif(not os.path.exists(pil_build.ADCS_IMAGE) or bool(pil_build.missing_tools()),

@@ -52,7 +52,7 @@ def paint_stack():
 # of C stack, and the chain controller_viper, controller, hinv, htable, consts ran past a 5.5 KB stack (measured).
 paint_stack()
 import protocol.consts  # noqa: E402
-import protocol.frame  # noqa: E402,F401
+import protocol.fast  # noqa: E402,F401
 import protocol.hblob  # noqa: E402,F401
 import firmware.ad5664r  # noqa: E402,F401
 import firmware.upload  # noqa: E402,F401

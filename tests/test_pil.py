@@ -134,6 +134,44 @@ def test_the_stdio_link_frames_and_reads_back_packets():
     assert [p[0] for p in out] == [core.PACKET_ID["HELLO"]] and lk.counters()["tx_frames"] == 1
 
 
+def test_the_stdio_link_decodes_and_counts_as_the_protocols_decoder():
+    """firmware.hal.stdio frames with protocol.fast, not protocol.frame: over frames with every kind of damage, its
+    packets and counters are protocol.frame.Decoder's, its frames protocol.frame.Encoder's bytes."""
+    import io
+    from protocol import core, frame
+    from firmware.hal import stdio
+
+    def body(pid, payload, seq, src=consts.NODE_BENCH, version=consts.PROTOCOL_VERSION):
+        b = bytes((version, pid, src, consts.NODE_CONTROLLER, seq)) + payload
+        return b + frame.crc16(b).to_bytes(2, "big")
+
+    tick = core.encode_payload("TICK", tick=1, vx=2048, vy=2048, vs=1500)
+    good = [frame.cobs_encode(body(consts.P_TICK, tick, k)) for k in (0, 1, 4, 4, 9)]   # a gap, a repeat
+    bad = [b"\x05\x01\x02", frame.cobs_encode(b"\x01\x10"),                           # bad COBS, too short
+           frame.cobs_encode(body(consts.P_TICK, tick, 10)[:-1] + b"\x00"),            # bad CRC
+           frame.cobs_encode(body(0x7F, tick, 11)), frame.cobs_encode(body(consts.P_TICK, tick[:-1], 12)),
+           frame.cobs_encode(body(consts.P_TICK, tick, 13, version=9)), b"\x01" * (stdio._MAX_FRAME + 1)]
+    frames = good[:2] + bad + [b""] + good[2:] + [frame.cobs_encode(body(consts.P_HELLO, bytes(6), 3, src=1))]
+    wire = b"".join(f + b"\x00" for f in frames)
+    lk = stdio.StdioLink(consts.NODE_CONTROLLER, reader=io.BytesIO(wire), writer=io.BytesIO())
+    got = []
+    while not lk.closed:
+        got += lk.recv_ms(100)
+    dec = frame.Decoder(max_frame=stdio._MAX_FRAME)
+    assert got == dec.feed(wire) and len(got) == 6
+    c = lk.counters()
+    assert c.pop("tx_frames") == 0 and c == dec.counters() and lk.rx_drops() == dec.dropped() == 7
+    assert c["seq_gaps"] == 6 and c["seq_dups"] == 1 and all(c[r] == 1 for r in frame.DROP_REASONS)
+    assert stdio._DROPS == frame.DROP_REASONS and stdio._MAX_FRAME == frame.frame_bytes(consts.LARGEST_PAYLOAD)
+    w = io.BytesIO()
+    lk = stdio.StdioLink(consts.NODE_CONTROLLER, writer=w)
+    lk.send_raw(consts.P_CTRL_SET_FSM, lk.node, 1, bytes(8), seq=300)
+    assert w.getvalue() == bytes(frame.Encoder(consts.LARGEST_PAYLOAD).frame(consts.P_CTRL_SET_FSM, lk.node, 1, 300,
+                                                                             bytes(8)))
+    with pytest.raises(ValueError, match="payload is 97 bytes > 96"):
+        lk.send_raw(consts.P_CTRL_SET_FSM, lk.node, 1, bytes(97))
+
+
 @needs_image
 def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_for_bit(tmp_path):
     """The goal: a 20 s fps hil --runtime qemu gives the Q2 samples and the control telemetry of

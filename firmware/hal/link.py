@@ -12,6 +12,12 @@ import struct
 from firmware.controller import FW_VERSION, heap_lock, heap_unlock, hello_payload
 from protocol import consts
 
+try:
+    from micropython import const
+except ImportError:                       # CPython
+    def const(x):
+        return x
+
 P_TICK = consts.P_TICK
 P_FSM_SPI = consts.P_FSM_SPI
 P_STATUS = consts.P_CTRL_STATUS
@@ -20,6 +26,9 @@ BROADCAST = consts.NODE_BROADCAST
 _TICK_FMT = consts.FMT_TICK
 _SPI_FMT = consts.FMT_FSM_SPI
 _SPI_SIZE = consts.SIZES[P_FSM_SPI]
+# a board link's kinds of TICK exchange (``firmware.hal.stdio``'s ``_K_*``) that only this loop knows
+_K_STATUS = const(2)
+_K_RESEND = const(3)
 
 
 def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
@@ -53,6 +62,7 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
     w = ctl.words
     rx_drops = getattr(link, "rx_drops", None)
     fast = getattr(link, "answer_ticks", None)   # a board's machine-code path for the common tick
+    kind = getattr(link, "exchange_kind", None)  # a board's meter: a resend's or a status tick's exchange
     link.send_raw(P_HELLO, me, BROADCAST, hello_payload(me, FW_VERSION))
     silent_ticks = int(poll_ms * rate_hz / 1000) or 1
     while not link.closed:
@@ -76,7 +86,7 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
                 bad_ticks += 1                # the bench resends; stepped, it would break the +-2^30 bound
                 continue
             if tick == last:                  # a resend: the same answer, no second step
-                _answer_again(ctl, link, me, src, status if status_tick == tick else None, out)
+                _answer_again(ctl, link, me, src, status if status_tick == tick else None, out, kind)
                 continue
             if tick < last:                   # stale, or our last came from a tick number the CRC let
                 if stale < 0 or tick < stale:   # through damaged: two in a row going forward are the
@@ -98,7 +108,8 @@ def serve_controller(ctl, link, rate_hz=637.8, poll_ms=100):
             finally:                          # never leave the heap locked behind an exception
                 heap_unlock()
             struct.pack_into(_SPI_FMT, out, 0, tick, n, w[0], w[1], w[2], w[3])
-            status, status_tick = _answer(ctl, link, me, src, tick, rx_drops, bad_ticks, out, status, status_tick)
+            status, status_tick = _answer(ctl, link, me, src, tick, rx_drops, bad_ticks, out, status, status_tick,
+                                          kind)
     _closed(link)
 
 
@@ -119,36 +130,34 @@ def _fast_ticks(fast, ctl, last, out, link, rx_drops, bad_ticks, status, status_
     return tick, status, status_tick
 
 
-def _answer(ctl, link, me, dst, tick, rx_drops, bad_ticks, out, status, status_tick):
+def _answer(ctl, link, me, dst, tick, rx_drops, bad_ticks, out, status, status_tick, kind):
     """Tick's FSM_SPI (``out``), then its CTRL_STATUS when one is due; returns the last CTRL_STATUS sent and its
-    tick."""
+    tick. ``kind``: the link's ``exchange_kind`` (None: the link has none)."""
     if not ctl.status_due_at(tick):
         link.send_raw(P_FSM_SPI, me, dst, out)
         return status, status_tick
-    return _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks, out), tick
+    return _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks, out, kind), tick
 
 
-def _answer_again(ctl, link, me, dst, status, out):
+def _answer_again(ctl, link, me, dst, status, out, kind):
     """A resent TICK answered again (counted in n_dup): its FSM_SPI, then the CTRL_STATUS it carried (None:
     none)."""
     ctl.n_dup += 1
-    st = getattr(link, "_st", None)           # a board's link (firmware.hal.stdio): this exchange's kind
-    if st is not None:
-        st[6] = 3                             # its _ST_KIND: _K_RESEND
+    if kind is not None:
+        kind(_K_RESEND)
     link.send_raw(P_FSM_SPI, me, dst, out)
     if status is not None:
         link.send_raw(P_STATUS, me, dst, status)
 
 
-def _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks, out):
+def _send_status(ctl, link, me, dst, tick, rx_drops, bad_ticks, out, kind):
     """Tick's FSM_SPI (``out``), then its CTRL_STATUS, with the frames the link dropped and the bad TICKs in
     n_rx_drop, both sent to dst (the HIL host that clocks us: on CAN, ISO-TP to an absent node would block);
     returns the status's payload."""
     if rx_drops is not None:
         ctl.n_rx_drop = rx_drops() + bad_ticks
-    st = getattr(link, "_st", None)           # a board's link (firmware.hal.stdio): this exchange's kind
-    if st is not None:
-        st[6] = 2                             # its _ST_KIND: _K_STATUS
+    if kind is not None:
+        kind(_K_STATUS)
     link.send_raw(P_FSM_SPI, me, dst, out)
     status = ctl.status_payload(tick)
     link.send_raw(P_STATUS, me, dst, status)

@@ -1,5 +1,6 @@
-"""Link HAL for a bare-metal board's console UART: packets framed by ``protocol.frame`` over ``sys.stdin.buffer`` and
-``sys.stdout.buffer`` (MicroPython with binary stdio). The PIL image (tools/pil_build.py, MicroPython's qemu port
+"""Link HAL for a bare-metal board's console UART: packets framed as ``protocol.frame`` frames them (its viper core,
+``protocol.fast``, in the link's own buffers) over ``sys.stdin.buffer`` and ``sys.stdout.buffer`` (MicroPython with
+binary stdio). The PIL image (tools/pil_build.py, MicroPython's qemu port
 on a Cortex-M0) has no ``select`` and no ``time``: ``recv_ms`` blocks until a packet is complete whatever its
 timeout, so link silence is not counted on this HAL (the lockstep bench always sends the next TICK)."""
 
@@ -8,8 +9,7 @@ import sys
 from array import array
 
 from firmware.controller import heap_lock, heap_unlock
-from protocol import frame
-from protocol.consts import LARGEST_PAYLOAD, P_CTRL_STATUS, P_FSM_SPI, P_TICK, SIZES
+from protocol.consts import LARGEST_PAYLOAD, P_CTRL_STATUS, P_FSM_SPI, P_TICK, PROTOCOL_VERSION, SIZES
 
 # its own shim, not protocol.compat's: the controller's 32 KB board has no RAM for one more module
 try:
@@ -18,7 +18,31 @@ except ImportError:                    # CPython
     def const(x):
         return x
 
-_MAX_FRAME = frame.frame_bytes(LARGEST_PAYLOAD)     # the packet table's longest frame (not the framing's 255 bytes)
+# the framing (``protocol.frame``): its viper core on a board, not the module (2 KB of heap on the 24 KB board,
+# measured), whose decoder and encoder the link replaces; the reference functions elsewhere
+try:
+    from protocol.fast import frame as _frame, unframe as _unframe
+except ImportError:                    # CPython: protocol.fast is viper
+    from protocol import frame as _ref
+
+    def _unframe(src, i, n, dst):
+        """``protocol.fast.unframe``: src[i:n] COBS-decoded into dst; -1, or the length (+0x10000: a bad CRC)."""
+        raw = _ref.cobs_decode(bytes(src[i:n]))
+        if raw is None:
+            return -1
+        dst[:len(raw)] = raw
+        return len(raw) | (0x10000 if _ref.crc16(raw) else 0)
+
+    def _frame(body, nbody, payload, out):
+        """``protocol.fast.frame``: the frame of the header body[0:nbody] and payload into out; its length."""
+        f = _ref.encode_frame(body[1], body[2], body[3], body[4], bytes(payload))
+        out[:len(f)] = f
+        return len(f)
+
+_HEADER = const(5)                     # protocol.frame's HEADER_SIZE and CRC_SIZE
+_CRC = const(2)
+_BODY = _HEADER + LARGEST_PAYLOAD + _CRC
+_MAX_FRAME = _BODY + _BODY // 254 + 2  # frame.frame_bytes: the packet table's longest frame (not the framing's 255)
 # the link's counters in ``_st`` (the layout ``firmware.hal.fast_tick.answer`` keeps; tests/test_pil.py checks it)
 _ST_TX_SEQ = const(0)
 _ST_TX_FRAMES = const(1)
@@ -28,9 +52,24 @@ _ST_RX_SEQ = const(4)
 _ST_SPI_N = const(5)
 _ST_KIND = const(6)                    # the exchange's kind (_K_*): serve_controller sets a resend's or a status's
 _ST_RX_GAPS = const(7)                 # sequence gaps in the frames the fast path decoded (the decoder's seq_gaps)
+# the decoder's counters (``protocol.frame.Decoder``'s): frames, sequence gaps and repeats, the drops by reason
+_ST_FRAMES = const(8)
+_ST_GAPS = const(9)
+_ST_DUPS = const(10)
+_ST_DROP = const(11)                   # 11 ..: one per _DROPS
+_DROPS = ("bad_cobs", "bad_crc", "too_short", "unknown_id", "bad_length", "bad_version", "oversize")
+_D_COBS = const(11)
+_D_CRC = const(12)
+_D_SHORT = const(13)
+_D_ID = const(14)
+_D_LENGTH = const(15)
+_D_VERSION = const(16)
+_D_OVERSIZE = const(17)
+_ST_SIZE = const(18)
 # the kinds of TICK exchange a meter tells apart (in ``_st[_ST_KIND]`` for the bytecode path, which
-# ``firmware.hal.link.serve_controller`` sets): the common tick in machine code, the same with a new H^-1 bin, a
-# CTRL_STATUS tick, a resent TICK answered from the cache, any other TICK the machine code leaves to the bytecode path
+# ``firmware.hal.link.serve_controller`` sets through ``exchange_kind``): the common tick in machine code, the same
+# with a new H^-1 bin, a CTRL_STATUS tick, a resent TICK answered from the cache, any other TICK the machine code
+# leaves to the bytecode path
 _K_COMMON = const(0)
 _K_BIN = const(1)
 _K_STATUS = const(2)
@@ -45,11 +84,11 @@ _S_BYQ = const(14)
 
 class StdioLink:
     """``serve_controller``'s link on the console UART: ``node``, ``recv_ms``, ``send_raw``, ``closed``,
-    ``counters``, ``rx_drops``, ``close``. ``node``: the node address (``protocol.consts.NODE_*``); ``meter``: an
-    object with ``now()`` (a 16-bit clock), ``start()`` (the start of a duration the machine-code path times: the
-    board's clears its timer) and ``exchange(t0, work, n, kind, first)``, told of each TICK exchange (``_K_*``;
-    ``_st[_ST_KIND]``: the bytecode path's, which ``serve_controller`` sets for a resend or a status; ``first``: a
-    status tick's ticks until its FSM_SPI was framed): the decoding
+    ``counters``, ``rx_drops``, ``exchange_kind``, ``close``. ``node``: the node address
+    (``protocol.consts.NODE_*``); ``meter``: an object with ``now()`` (a 16-bit clock), ``start()`` (the start of a
+    duration the machine-code path times: the board's clears its timer) and ``exchange(t0, work, n, kind, first)``,
+    told of each TICK exchange (``_K_*``; the bytecode path's: ``exchange_kind``, which ``serve_controller`` calls
+    for a resend or a status; ``first``: a status tick's ticks until its FSM_SPI was framed): the decoding
     of each of its frame's bytes, then from the frame's end to its FSM_SPI framed (a status tick's: to the
     CTRL_STATUS framed after it), less the UART's own reads and
     writes (on a board an interrupt or a DMA channel moves the bytes while the CPU does other work), in ``n``
@@ -62,33 +101,36 @@ class StdioLink:
     def __init__(self, node, reader=None, writer=None, meter=None, read_frame=None, write_frame=None, fast=None,
                  status=None):
         self.node = node
-        self._r = reader if reader is not None else sys.stdin.buffer
-        self._w = writer if writer is not None else sys.stdout.buffer
-        self._buf = bytearray(1) if read_frame is None else None
-        self._frame = bytearray(_MAX_FRAME)
-        self._i = 0                # bytes of the frame being read (beyond _MAX_FRAME: counted, not kept)
-        # decoded in place, and sized for the packet table (32 KB of RAM: nothing twice, nothing unused)
-        self._dec = frame.Decoder(raw=self._frame, max_frame=_MAX_FRAME)
-        self._enc = frame.Encoder(LARGEST_PAYLOAD)
-        self._st = array("i", [0, 0, 0, -1, -1, 0, _K_OTHER, 0])    # and the exchange's kind, the gaps
+        self._frame = bytearray(_MAX_FRAME)   # a frame read, decoded in place (32 KB of RAM: nothing twice, nothing unused)
+        self._raw = bytearray(_BODY)          # a frame's body sent (header, payload, CRC); a TICK decoded by ``fast``
+        self._out = bytearray(_MAX_FRAME)     # the frame sent
+        self._st = array("i", [0] * _ST_SIZE)
+        self._st[_ST_RX_SRC] = self._st[_ST_RX_SEQ] = -1
+        self._st[_ST_KIND] = _K_OTHER
+        self._last = {}            # each source's last sequence number (the decoder's)
         self.closed = False
         self._meter = meter
         self._read_frame = read_frame
-        self._wf = write_frame if write_frame is not None else self._stream_write   # (buf, n): buf[0:n] out
+        if read_frame is None:     # a byte at a time from a stream
+            self._r = reader if reader is not None else sys.stdin.buffer
+            self._buf = bytearray(1)
+            self._i = 0            # bytes of the frame being read (beyond _MAX_FRAME: counted, not kept)
+            self._work = 0         # meter ticks spent on the bytes of the frame being read (the waits left out)
+            self._n = 0            # the intervals they were timed in
+        if write_frame is None:
+            self._w = writer if writer is not None else sys.stdout.buffer
+            write_frame = self._stream_write
+        self._wf = write_frame     # (buf, n): buf[0:n] out
         self._fast = fast
         if fast is not None:
-            if read_frame is None or status is None or not self._dec._fast:
-                raise ValueError("the fast TICK path needs read_frame, status and the decoder's viper path")
+            if read_frame is None or status is None:
+                raise ValueError("the fast TICK path needs read_frame and status")
             self._status = status
             self.answer_ticks = self._answer_ticks
-            self._raw = self._enc._body    # a TICK decoded (the frame kept for recv_ms), then its answer's body
-            self._out = self._enc._out     # the answer's frame: the encoder's
             # a CTRL_STATUS's body (header, payload, CRC), kept after it went out: a resend of its tick sends it again
-            self._stat = bytearray(frame.HEADER_SIZE + SIZES[P_CTRL_STATUS] + frame.CRC_SIZE)
+            self._stat = bytearray(_HEADER + SIZES[P_CTRL_STATUS] + _CRC)
         self._held = 0             # a frame the fast path read and left (its length), for recv_ms
         self._t_held = 0
-        self._work = 0             # meter ticks spent on the bytes of the frame being read (the waits left out)
-        self._n = 0                # the intervals they were timed in
         self._t_frame = 0          # meter's time at the end of the last complete frame
         self._frame_work = 0       # its bytes' ticks and intervals, then less the UART writes since
         self._frame_n = 0
@@ -98,11 +140,11 @@ class StdioLink:
         one into a frame buffer (no allocation) and the decoder gets the whole frame at its 0x00: fed byte by byte,
         it would copy a slice per byte, and the garbage would run the GC over and over (14,000 instructions a byte
         on the Cortex-M0, measured)."""
-        b = self._buf
         fr = self._frame
         mt = self._meter
         if self._read_frame is not None:
             return self._recv_frame(fr, mt)
+        b = self._buf
         while not self.closed:
             if not self._r.readinto(b):
                 self.closed = True
@@ -121,10 +163,10 @@ class StdioLink:
                 continue
             self._i = 0
             if i > _MAX_FRAME:         # longer than any frame: dropped whole, the next starts after this 0x00
-                self._dec.drops["oversize"] += 1
+                self._st[_D_OVERSIZE] += 1
                 out = None
             else:
-                out = self._dec.feed(fr, i)
+                out = self._decode(fr, i)
             if mt is not None:
                 self._t_frame = mt.now()
                 self._frame_work = self._work + ((self._t_frame - t) & 0xFFFF)
@@ -148,10 +190,10 @@ class StdioLink:
                     t = mt.now()
             self._sync()
             if i > _MAX_FRAME:
-                self._dec.drops["oversize"] += 1
+                self._st[_D_OVERSIZE] += 1
                 out = None
             else:
-                out = self._dec.feed(fr, i)
+                out = self._decode(fr, i)
             if mt is not None:
                 self._t_frame = mt.now()
                 self._frame_work = (self._t_frame - t) & 0xFFFF
@@ -213,19 +255,59 @@ class StdioLink:
             wf(self._out, k)
 
     def _sync(self):
-        """Tell the decoder of the frames the fast path decoded (its counters, and the sequence to go on from)."""
+        """Count the frames the fast path decoded (and the sequence to go on from) with the decoder's."""
         st = self._st
         if st[_ST_RX_FRAMES]:
-            self._dec.count_frames(st[_ST_RX_FRAMES], st[_ST_RX_SRC], st[_ST_RX_SEQ])
+            st[_ST_FRAMES] += st[_ST_RX_FRAMES]
+            self._last[st[_ST_RX_SRC]] = st[_ST_RX_SEQ]
             st[_ST_RX_FRAMES] = 0
         if st[_ST_RX_GAPS]:
-            g = self._dec.gaps
-            g[st[_ST_RX_SRC]] = g.get(st[_ST_RX_SRC], 0) + st[_ST_RX_GAPS]
+            st[_ST_GAPS] += st[_ST_RX_GAPS]
             st[_ST_RX_GAPS] = 0
+
+    def _decode(self, fr, n):
+        """``protocol.frame.Decoder.feed`` of the one frame fr[0:n] (its 0x00 last), decoded in place: [its
+        packet], or [] with the drop counted by reason (the decoder's checks, in its order)."""
+        if n < 2:
+            return []                            # an empty frame: skipped, as the decoder does
+        st = self._st
+        r = _unframe(fr, 0, n - 1, fr)
+        if r < 0:
+            d = _D_COBS
+        elif r & 0xFFFF < _HEADER + _CRC:
+            d = _D_SHORT
+        elif r > 0xFFFF:
+            d = _D_CRC
+        elif fr[0] != PROTOCOL_VERSION:
+            d = _D_VERSION
+        elif SIZES[fr[1]] == 0xFF:
+            d = _D_ID
+        elif SIZES[fr[1]] != r - _HEADER - _CRC:
+            d = _D_LENGTH
+        else:
+            src = fr[2]
+            seq = fr[4]
+            st[_ST_FRAMES] += 1
+            last = self._last.get(src)
+            if last is not None:
+                g = (seq - last) & 0xFF
+                if g == 0:
+                    st[_ST_DUPS] += 1
+                elif 1 < g < 128:
+                    st[_ST_GAPS] += g - 1
+            self._last[src] = seq
+            return [(fr[1], src, fr[3], seq, bytes(memoryview(fr)[_HEADER:r - _CRC]))]
+        st[d] += 1
+        return []
+
+    def exchange_kind(self, k):
+        """This TICK exchange's kind (``_K_*``) for the meter, where ``serve_controller`` knows it: a resend's or a
+        status tick's (the exchange ends with its last frame sent, ``send_raw``)."""
+        self._st[_ST_KIND] = k
 
     def status_sent(self):
         """The payload of the last CTRL_STATUS the machine-code path sent (a new bytes)."""
-        return bytes(memoryview(self._stat)[frame.HEADER_SIZE:frame.HEADER_SIZE + SIZES[P_CTRL_STATUS]])
+        return bytes(memoryview(self._stat)[_HEADER:_HEADER + SIZES[P_CTRL_STATUS]])
 
     @property
     def tx_frames(self):
@@ -235,17 +317,27 @@ class StdioLink:
         self._w.write(buf if n == len(buf) else memoryview(buf)[:n])
 
     def send_raw(self, pid, src, dst, payload, seq=None):
+        """One packet framed (``protocol.frame.Encoder``'s bytes) and sent; ``seq`` None: the link's next."""
+        if len(payload) > LARGEST_PAYLOAD:
+            raise ValueError("payload is %d bytes > %d" % (len(payload), LARGEST_PAYLOAD))
         st = self._st
         if seq is None:
             seq = st[_ST_TX_SEQ]
             st[_ST_TX_SEQ] = (seq + 1) & 0xFF
-        f = self._enc.frame(pid, src, dst, seq, payload)
+        b = self._raw
+        b[0] = PROTOCOL_VERSION
+        b[1] = pid
+        b[2] = src
+        b[3] = dst
+        b[4] = seq & 0xFF
+        f = self._out
+        n = _frame(b, _HEADER, payload, f)
         mt = self._meter
         if mt is None:
-            self._wf(f, len(f))
+            self._wf(f, n)
         else:                      # the UART write left out: on a board a DMA channel or an interrupt sends it
             t = mt.now()
-            self._wf(f, len(f))
+            self._wf(f, n)
             self._frame_work -= (mt.now() - t) & 0xFFFF
             self._frame_n -= 1
         st[_ST_TX_FRAMES] += 1
@@ -256,13 +348,20 @@ class StdioLink:
             st[_ST_KIND] = _K_OTHER                  # the next one's, unless serve_controller says otherwise
 
     def rx_drops(self):
-        """Frames the decoder dropped (every ``frame.DROP_REASONS``)."""
-        return self._dec.dropped()
+        """Frames the decoder dropped (every reason, ``_DROPS``: ``protocol.frame.DROP_REASONS``)."""
+        st = self._st
+        n = 0
+        for k in range(_ST_DROP, _ST_SIZE):
+            n += st[k]
+        return n
 
     def counters(self):
+        """``protocol.frame.Decoder.counters`` (drops by reason, frames, seq_gaps, seq_dups), and tx_frames."""
         self._sync()
-        d = self._dec.counters()
-        d["tx_frames"] = self.tx_frames
+        st = self._st
+        d = {"frames": st[_ST_FRAMES], "seq_gaps": st[_ST_GAPS], "seq_dups": st[_ST_DUPS], "tx_frames": self.tx_frames}
+        for k in range(len(_DROPS)):
+            d[_DROPS[k]] = st[_ST_DROP + k]
         return d
 
     def close(self):

@@ -127,18 +127,12 @@ ACQ_TICKS = const(64)             # beam-lost ticks in a row before TRACK enters
 FW_VERSION = (1, 0)
 
 
-class _Slot:
-    """Slot i of the state list as an attribute: a descriptor (about 50 bytes of heap each on the board, where a
-    property of two closures took 115, measured)."""
-
-    def __init__(self, i):
-        self.i = i
-
-    def __get__(self, obj, cls=None):
-        return self if obj is None else obj._s[self.i]
-
-    def __set__(self, obj, v):
-        obj._s[self.i] = v
+# The state slots read by name (``Controller.__getattr__``): ``ctl.ticks`` is ``ctl._s[_S_TICKS]``. Names and slots
+# are constants (in flash on the board); an attribute object per slot took about 60 bytes of heap each (measured)
+_SLOT_NAMES = ("ticks", "vx_q8", "vy_q8", "rx", "ry", "vs", "lost", "beam_threshold", "rx_cmd", "ry_cmd", "n_lost",
+               "n_sat", "sat_run", "sat_last", "n_sat_episodes")
+_SLOT_AT = bytes((_S_TICKS, _S_VX, _S_VY, _S_RX, _S_RY, _S_VS, _S_LOST, _S_THR, _S_RXC, _S_RYC, _S_N_LOST, _S_N_SAT,
+                  _S_SAT_RUN, _S_SAT_LAST, _S_N_SAT_EP))
 
 
 class Controller:
@@ -149,22 +143,6 @@ class Controller:
     and the table's integer array for that size are allocated here, once, and reused by every upload (a small
     board, ``firmware.pil_main``: later, its heap holds no free block that large).
     """
-
-    ticks = _Slot(_S_TICKS)
-    vx_q8 = _Slot(_S_VX)
-    vy_q8 = _Slot(_S_VY)
-    rx = _Slot(_S_RX)
-    ry = _Slot(_S_RY)
-    vs = _Slot(_S_VS)
-    lost = _Slot(_S_LOST)
-    beam_threshold = _Slot(_S_THR)
-    rx_cmd = _Slot(_S_RXC)
-    ry_cmd = _Slot(_S_RYC)
-    n_lost = _Slot(_S_N_LOST)
-    n_sat = _Slot(_S_N_SAT)
-    sat_run = _Slot(_S_SAT_RUN)
-    sat_last = _Slot(_S_SAT_LAST)
-    n_sat_episodes = _Slot(_S_N_SAT_EP)
 
     def __init__(self, hal=None, table=None, gain_q15=16384, beam_threshold=200, safe_ticks=638, decim=64,
                  limit_code=ad5664r.TILT_LIMIT_CODE, ramp_code=64, rx_cmd_q15=0, ry_cmd_q15=0, sat_ticks=SAT_TICKS,
@@ -213,6 +191,13 @@ class Controller:
         self.table = None
         if table is not None:
             self.set_table(table)
+
+    def __getattr__(self, name):
+        """A state slot by name (``_SLOT_NAMES``: ticks, vx_q8, ...), read only: the controller writes ``_s``."""
+        for k in range(len(_SLOT_NAMES)):
+            if _SLOT_NAMES[k] == name:
+                return self._s[_SLOT_AT[k]]
+        raise AttributeError(name)
 
     def _state(self):
         return [0] * _S_SIZE
@@ -474,14 +459,15 @@ class Controller:
     def status_payload(self, tick=None):
         """CTRL_STATUS payload bytes (telemetry path; allocates)."""
         w = self.words
-        rx = max(-32768, min(32767, self.rx))
-        ry = max(-32768, min(32767, self.ry))
-        return struct.pack(consts.FMT_CTRL_STATUS, self.ticks if tick is None else tick & 0xFFFFFFFF, self.mode,
-                           self.flags, _uv(self.vx_q8), _uv(self.vy_q8), rx, ry, self.vs,
+        s = self._s
+        rx = max(-32768, min(32767, s[_S_RX]))
+        ry = max(-32768, min(32767, s[_S_RY]))
+        return struct.pack(consts.FMT_CTRL_STATUS, s[_S_TICKS] if tick is None else tick & 0xFFFFFFFF, self.mode,
+                           self.flags, _uv(s[_S_VX]), _uv(s[_S_VY]), rx, ry, s[_S_VS],
                            w[0] & 0xFFFF, w[1] & 0xFFFF, w[2] & 0xFFFF, w[3] & 0xFFFF,
-                           self.n_lost, self.n_sat, self.n_unknown, self.why, self.n_dup & 0xFFFF,
-                           self.n_gap & 0xFFFF, self.n_rx_drop & 0xFFFF, self.sat_run, self.sat_last,
-                           self.n_sat_episodes)
+                           s[_S_N_LOST], s[_S_N_SAT], self.n_unknown, self.why, self.n_dup & 0xFFFF,
+                           self.n_gap & 0xFFFF, self.n_rx_drop & 0xFFFF, s[_S_SAT_RUN], s[_S_SAT_LAST],
+                           s[_S_N_SAT_EP])
 
     def handle(self, pid, src, seq, payload):
         """One packet from the link (``seq`` None on CAN); returns a list of replies ``(pid, dst, payload)``.
@@ -527,8 +513,8 @@ class Controller:
             return consts.E_BAD_VALUE
         if mode == TRACK and self.table is None:
             return consts.E_BAD_STATE
-        self.rx_cmd = rx_cmd
-        self.ry_cmd = ry_cmd
+        self._s[_S_RXC] = rx_cmd
+        self._s[_S_RYC] = ry_cmd
         if gain and gain != self.gain:
             self.gain = gain
             self._s[S_BXQ] = _NO_BIN
@@ -536,7 +522,7 @@ class Controller:
         self.safe_ticks = safe_ticks
         if mode != self.mode and not (mode == TRACK and (self.mode == SATURATED or self.mode == ACQUIRE)):
             self.mode = mode          # TRACK starts from the current command: bumpless (SATURATED, ACQUIRE: TRACK's)
-            self.lost = 0
+            self._s[_S_LOST] = 0
             self._s[_S_SEEN] = 0
             if mode == SAFE:
                 self.why = WHY_COMMANDED

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from firmware import ad5664r
-from firmware.controller import ACQUIRE, CALIBRATE, HOLD, SAFE, TRACK, WHY_BEAM, Controller
+from firmware.controller import _S_VX, _S_VY, ACQUIRE, CALIBRATE, HOLD, SAFE, TRACK, WHY_BEAM, Controller
 from firmware.hinv import HINV_MAX, HinvTable
 from protocol import core, htable, table
 from tests.mp import firmware_plant as fp
@@ -194,8 +194,8 @@ def test_intermediates_within_2_30_and_codes_in_safe_range(samples, gain, rxc, r
                    limit_code=30000)
     c.step(2048, 2048, 0)
     c.mode = TRACK
-    c.vx_q8 = Bounded(c.vx_q8)
-    c.vy_q8 = Bounded(c.vy_q8)
+    c._s[_S_VX] = Bounded(c.vx_q8)
+    c._s[_S_VY] = Bounded(c.vy_q8)
     for vx, vy, vs in samples * 3:
         c.heard(True)
         c.step(Bounded(vx), Bounded(vy), Bounded(vs))
@@ -255,7 +255,7 @@ def test_the_beam_back_for_acq_ticks_returns_to_track_bumpless_and_tracks(grid):
         p.apply(c.on_tick(k, 0, *p.sample()))
         assert c.mode == ACQUIRE and c.words == held and c.lost == 0
     ref = tracking(grid)                         # the law from the same command: what the first step must be
-    ref.vx_q8, ref.vy_q8 = c.vx_q8, c.vy_q8
+    ref._s[_S_VX], ref._s[_S_VY] = c.vx_q8, c.vy_q8
     p.apply(c.on_tick(49, 0, *p.sample()))
     assert (c.mode, c.words, c.why) == (TRACK, held, WHY_BEAM)    # TRACK again; why stays the loss's reason
     smp = p.sample()
@@ -523,3 +523,15 @@ def test_constructor_refuses_bad_settings():
         Controller(beam_threshold=0)
     with pytest.raises(ValueError, match="limit_code"):
         Controller(limit_code=40000)
+
+
+def test_the_state_slots_read_by_name_are_the_state_lists():
+    """``ctl.ticks``, ``ctl.vx_q8``, ... read the state list's slots (no attribute object per slot on the board);
+    a name that is no slot nor attribute raises AttributeError."""
+    from firmware import controller as m
+    c = Controller()
+    for k, name in enumerate(m._SLOT_NAMES):
+        c._s[m._SLOT_AT[k]] = 1000 + k
+    assert [getattr(c, n) for n in m._SLOT_NAMES] == list(range(1000, 1000 + len(m._SLOT_NAMES)))
+    assert (c.ticks, c.vx_q8, c.n_sat_episodes) == (c._s[m._S_TICKS], c._s[m._S_VX], c._s[m._S_N_SAT_EP])
+    assert len(set(m._SLOT_AT)) == len(m._SLOT_NAMES) == 15 and not hasattr(c, "no_such_slot")

@@ -101,7 +101,7 @@ class StdioLink:
     def __init__(self, node, reader=None, writer=None, meter=None, read_frame=None, write_frame=None, fast=None,
                  status=None):
         self.node = node
-        self._frame = bytearray(_MAX_FRAME)   # a frame read, decoded in place (32 KB of RAM: nothing twice, nothing unused)
+        self._frame = bytearray(_MAX_FRAME)   # a frame read, decoded in place (little RAM: nothing twice)
         self._raw = bytearray(_BODY)          # a frame's body sent (header, payload, CRC); a TICK decoded by ``fast``
         self._out = bytearray(_MAX_FRAME)     # the frame sent
         self._st = array("i", [0] * _ST_SIZE)

@@ -97,13 +97,13 @@ FROZEN_TESTS = ("firmware_plant.py", "pil_probe.py", "pil_player_probe.py", "fir
 SAMD21G18_FLASH = 256 * 1024      # the thesis's CtrlArduino: 256 KB of flash, 32 KB of SRAM
 
 # The thesis's board (a SAMD21G18: 32 KB of SRAM, 256 KB of flash), what --runtime qemu runs: the controller's
-# modules only; a heap of 20 KB (with 19 KB building the H table at HTABLE_END ran out, a 3x3 or an 11x11 table as
-# a few bytes of the heap's layout moved; 18 KB runs out building its link at start: measured), a stack region of
-# 6 KB (its high-water mark is about 4.7 KB, measured in every qemu run's summary.json)
+# modules only; a heap of 20 KB (the 11x11 run needs between 17,281 and 17,408 bytes, measured on the 24 KB image:
+# docs/PIL.md), a stack region of 6 KB (its high-water mark is about 4.7 KB, measured in every qemu run's
+# summary.json)
 TARGET_MEM = Memory("MICROBIT", launcher.PIL_RAM_BYTES, 20 * 1024, 6 * 1024, frozen=CONTROLLER_FROZEN,
                     flash_bytes=SAMD21G18_FLASH)
 # the same firmware on 24 KB of SRAM (a smaller part of the family): the tests run the 11x11 table on it. A stack
-# region of 5.5 KB: the high-water mark of its 5 s fps hil (4,832 bytes with a 17 KB heap, where GCs run deeper),
+# region of 5.5 KB: the high-water mark of its 5 s fps hil (4,664 bytes; 4,832 on an image with a 17,408-byte heap),
 # the mailbox below it (428 bytes, firmware.pil_main) and 372 bytes to spare; the heap the rest, 18,240 bytes (the
 # 11x11 run needs between 17,281 and 17,408: measured, docs/PIL.md)
 SMALL_MEM = Memory("MICROBIT-24K", 24 * 1024, 18240, 5 * 1024 + 512, frozen=CONTROLLER_FROZEN,

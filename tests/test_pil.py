@@ -223,6 +223,31 @@ def test_fps_hil_and_calibrate_on_the_qemu_board_are_the_micropython_runs_bit_fo
     assert (23 + 30) * 240 < b["worst_cycles"] <= 48e6 * bound + 100, (b, bound)
 
 
+@needs_image
+@pytest.mark.slow(reason="a 5 s fps hil on the 24 KB board under QEMU, ~25 s: FPS_SLOW=1")
+def test_the_24_kb_board_runs_the_11x11_table_with_its_stack_above_the_mailbox(tmp_path, monkeypatch):
+    """The controller on 24 KB of RAM (``pil_build.SMALL_MEM``) runs a 5 s fps hil with the thesis's 11x11 table,
+    and its stack stays above the mailbox at the bottom of its region (``tools.pil_mailbox``: a high-water mark of
+    the whole region above it would be a stack that ran into it)."""
+    from ground import cli
+    from tools import pil_mailbox
+    mem = pil_build.SMALL_MEM
+    if not os.path.exists(mem.image):
+        pytest.skip("no 24 KB image (make pil)")
+    dist, cal = str(tmp_path / "d.dist"), str(tmp_path / "cal.json")
+    _fps("distfile", "generate", "--source", "stat", "--duration", "5", "--seed", "1", "-o", dist)
+    with open(cal, "w") as f:
+        json.dump(fp.calibration(), f)
+    monkeypatch.setattr(pil_build, "TARGET_MEM", mem)
+    assert cli.main(["hil", "--distfile", dist, "--calibration", cal, "--duration", "5", "--runtime", "qemu",
+                     "--quiet", "--no-plots", "-o", str(tmp_path / "hil")]) == 0
+    s = json.load(open(tmp_path / "hil" / "summary.json"))
+    t = s["target"]
+    assert s["complete"] and t["ram_bytes"] == 24 * 1024 and t["heap_bytes"] == mem.heap_bytes
+    assert 1000 < t["stack_high_water_bytes"] < mem.stack_bytes - 4 * pil_mailbox.WORDS
+    assert len(fp.calibration()["points"]) == 121 and s["instructions_per_step"]["n"] > 3000     # 5 s at 637.8 Hz
+
+
 @pytest.mark.skipif(not os.path.exists(pil_build.ADCS_IMAGE) or bool(pil_build.missing_tools()),
                     reason="no ADCS PIL image (make pil; it needs %s)" % pil_build.install_hint(pil_build.PACKAGES))
 def test_the_lean_adcs_on_the_cortex_m7_board_runs_a_recorded_session_as_the_unix_port(tmp_path):

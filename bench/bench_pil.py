@@ -200,10 +200,19 @@ def _small_board_run():
                 rc = cli.main(["hil", "--distfile", os.path.join(tmp, "d.dist"), "--calibration",
                                os.path.join(tmp, "cal.json"), "--duration", "5", "--runtime", "qemu", "--quiet",
                                "--no-plots", "-o", os.path.join(tmp, "hil")])
+            summary = os.path.join(tmp, "hil", "summary.json")
+            t = (json.load(open(summary)).get("target") or {}) if os.path.exists(summary) else {}
         finally:
             pil_build.TARGET_MEM = target
     text = err.getvalue().strip()
-    return "runs (met)" if rc == 0 else "stops: %s (missed)" % text[text.find("File"):].split(" [")[0]
+    if rc != 0:
+        return "exit %d: %s (missed)" % (rc, text[text.find("File"):].split(" [")[0] if "File" in text else text[-200:])
+    from tools import pil_mailbox
+    room = pil_build.SMALL_MEM.stack_bytes - 4 * pil_mailbox.WORDS      # the stack region above the mailbox
+    hw = t.get("stack_high_water_bytes")
+    if hw is None or hw >= room:
+        return "runs, but its stack reached the mailbox (high water %s of %d B above it) (missed)" % (hw, room)
+    return "runs, its stack's high water %d of the %d B above the mailbox (met)" % (hw, room)
 
 
 if __name__ == "__main__":

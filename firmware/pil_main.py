@@ -8,9 +8,9 @@ block that large.
 
 What the host reads back after a run (through QEMU's monitor, as a debugger reads a board's RAM), at the bottom
 of the stack region (``pil_board``): a mailbox (``tools.pil_mailbox``): ``MAGIC``, one clock read's own cost, then
-for each kind of TICK exchange (``firmware.hal.stdio.K_*``: common, a new H^-1 bin, CTRL_STATUS, a resend answered
-from the cache, other) its count, sum, largest and a histogram by bit length, in ticks of the nRF51's TIMER0 at
-16 MHz (16-bit mode); above it, the stack painted with ``pil_board.STACK_PAINT`` here at start, whose first
+for each kind of TICK exchange (``firmware.hal.stdio._K_*``: common, a new H^-1 bin, CTRL_STATUS, a resend
+answered from the cache, other) its count, sum, largest and a histogram by bit length, in ticks of the nRF51's
+TIMER0 at 16 MHz (16-bit mode), then the wire's words (``Meter.wire``); above it, the stack painted with ``pil_board.STACK_PAINT`` here at start, whose first
 overwritten word is the stack's high-water mark. An exchange is a TICK's frame, read whole from the UART by
 ``firmware.hal.nrf51.read_frame`` (machine code), decoded, then its FSM_SPI (and the CTRL_STATUS after it, when
 due) computed and framed: the decoding, the step and the framing, less the UART's own byte moves
@@ -24,7 +24,7 @@ import sys
 import pil_board
 from micropython import const
 
-_KINDS = const(5)                 # firmware.hal.stdio's K_COMMON .. K_OTHER
+_KINDS = const(5)                 # firmware.hal.stdio's _K_COMMON .. _K_OTHER
 _K_STATUS = const(2)
 _K_RESEND = const(3)
 _BUCKETS = const(18)              # a histogram bucket per bit length of a duration in timer ticks (0..17)
@@ -60,7 +60,7 @@ import firmware.hinv  # noqa: E402,F401
 import firmware.controller  # noqa: E402,F401
 from firmware.controller_viper import ViperController  # noqa: E402
 from firmware.hal.link import serve_controller  # noqa: E402
-from firmware.hal.stdio import StdioLink  # noqa: E402
+from firmware.hal.stdio import StdioLink, frame_bytes  # noqa: E402
 from firmware.hal import nrf51  # noqa: E402
 from firmware.hal import fast_tick  # noqa: E402
 from firmware.hal import fast_status  # noqa: E402
@@ -85,7 +85,7 @@ class Meter:
         t = self.start()
         m[box + 4] = (self.now() - t) & 0xFFFF     # one read's own cost, taken off each exchange
         m[box + 4 * _WIRE] = 10 * 48000000 // WIRE_BAUD
-        b = protocol.frame.frame_bytes
+        b = frame_bytes
         s = protocol.consts.SIZES
         self.frames = (b(s[protocol.consts.P_TICK]), b(s[protocol.consts.P_FSM_SPI]),
                        b(s[protocol.consts.P_CTRL_STATUS]))

@@ -41,8 +41,17 @@ except ImportError:                    # CPython: protocol.fast is viper
 
 _HEADER = const(5)                     # protocol.frame's HEADER_SIZE and CRC_SIZE
 _CRC = const(2)
+
+
+def frame_bytes(max_payload):
+    """``protocol.frame.frame_bytes``: the longest frame (its 0x00 included) of a payload of up to ``max_payload``
+    bytes."""
+    n = _HEADER + max_payload + _CRC
+    return n + n // 254 + 2
+
+
 _BODY = _HEADER + LARGEST_PAYLOAD + _CRC
-_MAX_FRAME = _BODY + _BODY // 254 + 2  # frame.frame_bytes: the packet table's longest frame (not the framing's 255)
+_MAX_FRAME = frame_bytes(LARGEST_PAYLOAD)   # the packet table's longest frame (not the framing's 255)
 # the link's counters in ``_st`` (the layout ``firmware.hal.fast_tick.answer`` keeps; tests/test_pil.py checks it)
 _ST_TX_SEQ = const(0)
 _ST_TX_FRAMES = const(1)

@@ -103,17 +103,28 @@ APKF_6U_WHY = ("measured: the APKF is overconfident where the file's inertia 1 s
                "inertia states")
 
 
-@pytest.mark.parametrize("name,fns", [
-    ("generic-12u", ("apkf", "mekf")), ("generic-6u", ("mekf",)),
-    pytest.param("generic-6u", ("apkf",), marks=pytest.mark.xfail(strict=True, reason=APKF_6U_WHY))])
-def test_the_apkf_and_the_mekf_are_consistent_on_the_other_spacecraft(name, fns):
-    """Each file's own priors against vehicles drawn from its uncertainty (case 1, 2 seeds, 930 s; a file without
-    a truth block flies a drawn vehicle): the mean NEES after the first set near its 6 dof, no parameter beyond
-    3 sigma at the end, no run diverged."""
+APKF_3U_WHY = ("measured: thesis-3u's 10 deg 1 sigma on every wheel tilt (drawn vehicles tilted to 36 deg) and "
+               "its wheels' speed limit with the star tracker blind above 0.1 deg/s. Over 100 drawn vehicles "
+               "(docs/ADCS.md, \"Drawn vehicles\") the tilts' 1 sigma at 3 deg alone gives RMS / 1 sigma 0.95-1.00 "
+               "and parameters within 3 sigma 0.97 against 1.29-1.31 and 0.83; the vehicles that reach a wheel's "
+               "limit have a NEES mean of 12.0 against 7.2, and alike (7.1 / 6.8) with a star tracker answering to "
+               "1 deg/s")
+
+
+@pytest.mark.parametrize("name,fns,tilts", [
+    ("generic-12u", ("apkf", "mekf"), 1.0), ("generic-6u", ("mekf",), 1.0),
+    pytest.param("generic-6u", ("apkf",), 1.0, marks=pytest.mark.xfail(strict=True, reason=APKF_6U_WHY)),
+    pytest.param("thesis-3u", ("apkf",), 1.0, marks=pytest.mark.xfail(strict=True, reason=APKF_3U_WHY)),
+    ("thesis-3u", ("apkf",), 0.3)])
+def test_the_apkf_and_the_mekf_are_consistent_on_the_other_spacecraft(name, fns, tilts):
+    """Each file's own priors against vehicles drawn from its uncertainty (case 1, 2 seeds, 930 s; ``tilts`` scales
+    the file's wheel-tilt 1 sigma, the draws and the filter's P0 alike): the mean NEES after the first set near its 6
+    dof, no parameter beyond 3 sigma at the end, no run diverged."""
     from protocol import spacecraft as sf
     d = sf.load(name)
+    d["uncertainty"]["misalignment_sigma_deg"] *= tilts
     for fn in (getattr(runs, "run_" + f) for f in fns):
-        rs = [fn(seed, None, case=1, spacecraft=d) for seed in range(2)]
+        rs = [fn(seed, None, case=1, spacecraft=d, vehicle="drawn") for seed in range(2)]
         assert all(r["vehicle"]["kind"] == "drawn" for r in rs)
         assert all(r["ok"] for r in rs)
         t0 = int(rs[0]["set_ends_s"][0])

@@ -106,6 +106,19 @@ class Fps:
             time.sleep(0.05)
         pytest.fail("no %s within %g s (children: %s)" % (what, START_S, sorted(self.seen.values())))
 
+    def wait_text(self, what, pattern):
+        """Until its stderr matches the regex ``pattern`` (its tree looked at meanwhile); fails naming ``what``."""
+        import re
+        deadline = time.monotonic() + START_S
+        while time.monotonic() < deadline:
+            self.look()
+            if re.search(pattern, self.stderr()):
+                return
+            if self.proc.poll() is not None:
+                pytest.fail("fps ended (%s) before %s: %s" % (self.proc.returncode, what, self.stderr()[-1500:]))
+            time.sleep(0.05)
+        pytest.fail("no %s within %g s: %s" % (what, START_S, self.stderr()[-1500:]))
+
     def pause(self, seconds):
         """``seconds`` of the run, its tree looked at meanwhile."""
         end = time.monotonic() + seconds
@@ -279,10 +292,9 @@ def test_fps_calibrate_leaves_no_process_and_no_calibration(fps_run, tmp_path, s
 def test_fps_response_leaves_no_process_and_keeps_the_tones_measured(fps_run, tmp_path, sig):
     """Stopped halfway through its tones: summary.json holds those measured (interrupted, no error)."""
     out = str(tmp_path / "run")
-    f = fps_run("response", "--runtime", "micropython", "--from", "0.2", "--points", "60", "--quiet", "--no-plots",
-                "-o", out)
+    f = fps_run("response", "--runtime", "micropython", "--from", "0.2", "--points", "60", "--no-plots", "-o", out)
     f.wait_for("the controller's process", _count("micropython"))
-    f.pause(3.0)
+    f.wait_text("a tone measured (its progress bar)", r"\b[1-9][0-9]*/60\b")    # however loaded the machine
     rc = f.send(sig)
     f.assert_none_left()
     if sig == signal.SIGKILL:

@@ -174,3 +174,12 @@ def test_the_beacon_camera_cannot_see_a_partner_behind_the_earth(tmp_path):
     (hid, invalid, n), (hid_ok, invalid_ok, _) = counts
     assert hid == n == 20 and invalid >= n - 2          # the first cycle or two come before the app reads it
     assert hid_ok == 0 and invalid_ok == 0
+
+
+def test_a_preset_given_a_partner_is_a_spacecraft_file_again(tmp_path):
+    """bps.with_partner's copy written out loads as a file (its name is still a valid one), partner and all."""
+    d = bps.with_partner(sf.load("generic-12u"))
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(d))
+    e = sf.load(str(path))
+    assert e["name"] == "generic-12u-partner" and e["partner"]["position_m"] == d["partner"]["position_m"]

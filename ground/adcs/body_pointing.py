@@ -164,7 +164,8 @@ def truth_span(seconds):
 def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
     """A copy of the checked spacecraft file ``d`` with a partner satellite in its own orbit ``behind_deg``
     behind it (its orbit.state turned about the orbit normal): for a vehicle shipped without one (generic-12u
-    points at a ground station) to fly the partner-tracking worlds. The name gets "+partner"."""
+    points at a ground station) to fly the partner-tracking worlds. The name gets "-partner" (still a valid name:
+    the copy can be written to a file and loaded again)."""
     s = d["orbit"]["state"]
     r, v = np.array(s["position_m"], float), np.array(s["velocity_m_s"], float)
     k = np.cross(r, v)
@@ -173,7 +174,7 @@ def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
 
     def turn(x):                                   # Rodrigues' formula about k
         return x * np.cos(a) + np.cross(k, x) * np.sin(a) + k * (k @ x) * (1 - np.cos(a))
-    return dict(d, name=d["name"] + "+partner",
+    return dict(d, name=d["name"] + "-partner",
                 partner={"position_m": turn(r).tolist(), "velocity_m_s": turn(v).tolist(),
                          "relay_delay_s": list(relay_delay_s)})
 

@@ -12,7 +12,7 @@ import copy
 import numpy as np
 
 from bench.adcs_disturbance import _fmt, _verdict
-from ground.adcs import runs
+from ground.adcs import apkf, runs
 
 # (label, factors on the file's inertia, wheel-tilt and dipole 1 sigma, star-tracker rate limit deg/s or None for
 # the file's); the first row is the file's own block
@@ -100,10 +100,11 @@ def _row(label, d, s):
         _fmt(s["params_within_3sigma_share"]), s["runs_diverged"], s["runs_failed"], "met" if met else "missed")
 
 
-def uncertainty_sweep(campaign, population, name="thesis-3u", rows=SWEEP_3U, workers=2, fix_rows=FIX_ROWS):
+def uncertainty_sweep(campaign, population, name="thesis-3u", rows=SWEEP_3U, workers=2, fix_rows=FIX_ROWS,
+                      tilt_split=True):
     """``population`` vehicles drawn within ``name``'s uncertainty block for each row (``campaign``:
-    ``bench_adcs._campaign``), each split by whether a wheel reached its speed limit, and the file's own
-    population's unlimited vehicles by their largest true tilt; the ``fix_rows`` by the star tracker's outputs
+    ``bench_adcs._campaign``), each split by whether a wheel reached its speed limit, and (``tilt_split``) the first
+    row's unlimited vehicles by their largest true tilt; the ``fix_rows`` by the star tracker's outputs
     (``blind_by_fix``). Returns the tables."""
     from protocol import spacecraft as sf
     d0 = sf.load(name)
@@ -120,10 +121,23 @@ def uncertainty_sweep(campaign, population, name="thesis-3u", rows=SWEEP_3U, wor
     for i, (label, fi, ft, fm, st) in enumerate(rows):
         d = scaled_uncertainty(d0, fi, ft, fm, st)
         res = campaign(runs.run_apkf, 1, workers=workers, runs_n=population, spacecraft=d, vehicle="drawn")[0]
-        for sub, sel in _subsets(i == 0):
+        for sub, sel in _subsets(tilt_split and i == 0):
             lines.append(_row(label + sub, d, runs.aggregate([r for r in res if "error" in r or sel(r)], "apkf", 1)))
         if i in fix_rows:
             fix.append(_fix_row(label, res, *blind_by_fix(d, res)))
     lines.append("A smaller population has a wider band (its NEES in band is not comparable across sizes; its NEES "
                  "mean and RMS / 1 sigma are).")
     return "\n".join(lines + fix)
+
+
+def walk_diagnostic(campaign, population, name="thesis-3u", row=SWEEP_3U[6], workers=2):
+    """What the filter's random walk on tau_d costs over the blind stretches where the truth has none (Case 1):
+    ``row``'s population with Case 1's q_d (``apkf.QD_CONSISTENT``) at zero, a diagnostic, never a default.
+    Returns ``uncertainty_sweep``'s tables for it."""
+    q = apkf.QD_CONSISTENT[1]
+    apkf.QD_CONSISTENT[1] = 0.0                   # forked workers inherit it
+    try:
+        return uncertainty_sweep(campaign, population, name, ((row[0] + ", tau_d's walk at zero (a diagnostic)",)
+                                                              + tuple(row[1:]),), workers, (0,), tilt_split=False)
+    finally:
+        apkf.QD_CONSISTENT[1] = q

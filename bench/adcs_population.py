@@ -141,3 +141,38 @@ def walk_diagnostic(campaign, population, name="thesis-3u", row=SWEEP_3U[6], wor
                                                               + tuple(row[1:]),), workers, (0,), tilt_split=False)
     finally:
         apkf.QD_CONSISTENT[1] = q
+
+
+def p0_against_draws(name="thesis-3u", n=1000):
+    """The APKF's initial P against the drawing: over ``n`` vehicles drawn within ``name``'s block, each parameter's
+    initial error (the truth in the filter's terms, ``scenario.filter_truth``, minus the prior) over its P0 1 sigma,
+    RMS, and the parameters' initial NEES (tau_d left out: no vehicle draws one), its mean and share above the 99 %
+    point. Returns the table."""
+    from types import SimpleNamespace as NS
+    from scipy.stats import chi2
+    from emulator.spacecraft import dispersion, scenario
+    from protocol import spacecraft as sf
+    d = sf.load(name)
+    model, pr = runs.apkf_model(d), runs.apkf_prior(d)
+    x0 = apkf.initial_state(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(4), j5=pr["j5"], jrw=pr["jrw"])
+    x0[15:18], x0[18:22], x0[22:26] = pr["m"], pr["delta1"], pr["delta2"]
+    P = apkf.initial_covariance(model, x0)[9:29, 9:29]              # J5, m, delta1, delta2, Jrw
+    e, scale = [], []
+    for seed in range(n):
+        v = dispersion.flown(d, seed, "drawn")[0]
+        t = sf.true_figures(v)
+        wh = NS(c=np.array(sf.wheel_axes(v, True)).T, j=np.array(t["rotor_inertia_kgm2"]),
+                p=NS(delta1_deg=np.array(t["delta1_deg"]), delta2_deg=np.array(t["delta2_deg"])))
+        ft = scenario.filter_truth(NS(j=np.array(sf.inertia_matrix(v, True)), wheels=wh,
+                                      dipole=np.array(t["residual_dipole_am2"])), model.jxx)
+        e.append(np.concatenate([ft["J5"], ft["m"], ft["delta1"], ft["delta2"], ft["jrw"]]) - x0[10:30])
+        scale.append(ft["scale"])
+    e = np.array(e)
+    rms = np.sqrt(np.mean(e ** 2, axis=0) / np.diag(P))
+    nees = np.einsum("ij,ij->i", e, np.linalg.solve(P, e.T).T)
+    names = runs.PARAM_NAMES[3:]
+    return ("\nThe APKF's P0 against %d vehicles drawn within %s's block (initial error RMS / P0 1 sigma; goal 1):\n\n"
+            "| %s | parameters' initial NEES, mean (%d dof) | above its 99 %% point (1 %% if Gaussian) | scale s = "
+            "Jxx_ref / Jxx, range |\n|%s---|---|---|\n| %s | %.1f | %.3f | %.2f-%.2f |"
+            % (n, name, " | ".join(names), len(names), "---|" * len(names), " | ".join("%.2f" % r for r in rms),
+               nees.mean(), np.mean(nees > chi2.ppf(0.99, len(names))), min(scale), max(scale)))

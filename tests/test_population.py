@@ -80,6 +80,28 @@ def test_a_residual_dipole_beyond_the_rods_is_named_as_the_wheels_miss_cause():
     assert causes[0] in worst["worst"][0]["missed"]
 
 
+def test_a_vehicle_held_in_acquire_is_named_with_its_largest_wheel_tilt():
+    """A vehicle that missed with its wheels within their limit and spent most of the run in ACQUIRE: the time
+    there, the star tracker's blindness and its largest wheel tilt (each wheel's two angles together, the file's
+    figures plus its drawn errors) name the cause; not for a vehicle that met every check, nor for one that
+    pointed most of the run, nor after a dipole cause."""
+    from protocol import spacecraft as sf
+    d = sf.load("thesis-3u")
+    d = dict(d, truth=dict(d["truth"], delta1_error_deg=[0.0, 24.0 - d["wheels"]["delta1_deg"][1], 0.0, 0.0],
+                           delta2_error_deg=[0.0, 7.0 - d["wheels"]["delta2_deg"][1], 0.0, 0.0],
+                           residual_dipole_error_am2=[0.0, 0.0, 0.0]))
+    held = {"ok": False, "checks": {"wheels": {"ok": True, "what": "wheels"}},
+            "time_in_mode_s": {"HOLD": 30.0, "SLEW": 60.0, "POINT": 910.0, "ACQUIRE": 9000.0},
+            "star_tracker_blind_share": 0.88}
+    causes = population.miss_causes(held, d)
+    assert len(causes) == 1 and causes[0].startswith("held in ACQUIRE 90 % of the run (POINT 910 s), the star "
+                                                     "tracker blind 88 % of the time, the wheels within their limit")
+    assert "largest wheel tilt %.1f deg" % max(25.0, *(abs(a) for a in d["wheels"]["delta1_deg"])) in causes[0]
+    assert population.miss_causes(dict(held, ok=True), d) == []
+    pointed = dict(held, time_in_mode_s={"POINT": 9000.0, "ACQUIRE": 1000.0})
+    assert population.miss_causes(pointed, d) == []
+
+
 def test_each_figures_mean_over_the_vehicles_is_in_the_summary_and_the_report():
     """The mean row: for a filter's NEES share, the population's share of all its seconds in the band."""
     rs = [{"seed": i, "ok": True, "checks": {"pointing": {"ok": True, "what": "p"}}, "vehicle": {},

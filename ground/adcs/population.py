@@ -76,9 +76,39 @@ def dipole_beyond_rods(d):
             "beyond": bool(np.any(np.abs(shares) > rods.limit))}
 
 
+def largest_tilt(d):
+    """(the flown vehicle's largest wheel tilt in degrees, the file's 1 sigma of each tilt angle or None): per
+    wheel the hypotenuse of its two angles, its figures plus its truth block's errors."""
+    w, t = d["wheels"], d.get("truth") or {}
+    n = len(w["delta1_deg"])
+    a = [x + e for x, e in zip(w["delta1_deg"], t.get("delta1_error_deg") or [0.0] * n)]
+    b = [x + e for x, e in zip(w["delta2_deg"], t.get("delta2_error_deg") or [0.0] * n)]
+    return float(max(np.hypot(a, b))), (d.get("uncertainty") or {}).get("misalignment_sigma_deg")
+
+
+def held_in_acquire(res, d, share=0.5):
+    """A named cause for a vehicle held in ACQUIRE more than ``share`` of the run: the time there, the star
+    tracker's blindness, the wheels, and the vehicle's largest wheel tilt against the file's 1 sigma (None when the
+    vehicle is not)."""
+    t = res.get("time_in_mode_s") or {}
+    total = sum(t.values())
+    if not total or t.get("ACQUIRE", 0.0) <= share * total:
+        return None
+    tilt, sigma = largest_tilt(d)
+    blind = res.get("star_tracker_blind_share")
+    wheels = res["checks"].get("wheels", {}).get("ok", True)
+    return ("held in ACQUIRE %.0f %% of the run (POINT %.0f s)%s, the wheels %s: the attitude loop did not bring the "
+            "body back under the star tracker's rate limit; the vehicle's largest wheel tilt %.1f deg%s" % (
+                100 * t["ACQUIRE"] / total, t.get("POINT", 0.0),
+                "" if blind is None else ", the star tracker blind %.0f %% of the time" % (100 * blind),
+                "within their limit" if wheels else "beyond their limit", tilt,
+                " (the file's 1 sigma %g deg an angle)" % sigma if sigma else ""))
+
+
 def miss_causes(res, d):
     """The named causes of a vehicle's missed checks that the vehicle itself shows (beyond the checks' own words):
-    a residual dipole beyond the rods' authority when the wheels' check missed with the rods saturated."""
+    a residual dipole beyond the rods' authority when the wheels' check missed with the rods saturated; else a
+    vehicle held in ACQUIRE (``held_in_acquire``)."""
     out = []
     rods = dipole_beyond_rods(d)
     wheels = res["checks"].get("wheels", {}).get("ok", True)
@@ -88,7 +118,8 @@ def miss_causes(res, d):
                        ", ".join("%.2f" % v for v in rods["dipole_am2"]),
                        ", ".join("%.2f" % v for v in rods["shares_am2"]), rods["limit_am2"],
                        _fmt(res.get("mtq_duty"), "%.2f")))
-    return out
+    held = None if out or res.get("ok") else held_in_acquire(res, d)
+    return out + ([held] if held else [])
 
 
 def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="two-body", ts=33.0,

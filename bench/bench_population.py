@@ -4,7 +4,8 @@ flight code) for each preset, with the share of vehicles meeting every check and
 (at least 95 % of 100 vehicles a preset), each check's share, the filters' NEES over the population and whether
 every miss has a named cause (a run's ``causes``, or the error that stopped it).
 
-``BENCH_POPULATION_VEHICLES`` sets the vehicles a preset (default 100: about 10 min of 2 cores a preset)."""
+``BENCH_POPULATION_VEHICLES`` sets the vehicles a preset (default 100: 10-16 min of 2 cores a preset),
+``BENCH_POPULATION_PRESETS`` the presets (comma-separated; default all three)."""
 
 import json
 import os
@@ -14,7 +15,7 @@ import tempfile
 
 from bench import verdict
 
-PRESETS = ("thesis-3u", "generic-6u", "generic-12u")
+PRESETS = tuple(os.environ.get("BENCH_POPULATION_PRESETS", "thesis-3u,generic-6u,generic-12u").split(","))
 VEHICLES = int(os.environ.get("BENCH_POPULATION_VEHICLES", "100"))
 ORBITS = 3
 GOAL = 0.95                       # of the vehicles, every check met

@@ -71,8 +71,8 @@ MAGIC = const(0x0C0FFEE)
 
 class Meter:
     """TIMER0 and the mailbox: ``now()`` in ticks (``firmware.hal.nrf51``, 16-bit); ``exchange(t0, work, n,
-    kind)`` adds one exchange of that kind. Neither allocates (small ints only), so it runs beside the locked
-    heap."""
+    kind)`` adds one exchange of that kind and lays it on the wire (``wire``). Neither allocates (small ints
+    only), so it runs beside the locked heap."""
 
     def __init__(self, box):
         self.box = box

@@ -46,10 +46,11 @@ def clipped(r):
     return sum((r.get("wheel_speed_clips") or {}).get("speed_clip", [0])) > 0
 
 
-def largest_tilt_deg(r):
-    """The largest true tilt of the run's wheels from their nominal axes (deg, a drawn vehicle's)."""
-    t = r["vehicle"]["truth"]
-    return float(np.max(np.hypot(t["delta1_error_deg"], t["delta2_error_deg"])))
+def largest_tilt_deg(d, r):
+    """The largest true tilt of the run's wheels (deg): ``population.largest_tilt`` of ``d`` flown with the run's
+    drawn truth block."""
+    from ground.adcs import population
+    return population.largest_tilt(dict(d, truth=r["vehicle"]["truth"]))[0]
 
 
 def blind_by_fix(d, res):
@@ -79,14 +80,14 @@ def _fix_row(label, res, blind, groups):
         + groups[0] + groups[1])
 
 
-def _subsets(first):
+def _subsets(first, d):
     out = [("", lambda r: True), (", no wheel at its limit", lambda r: not clipped(r)),
            (", a wheel at its limit", clipped)]
     if first:
         out += [(", no wheel at its limit, largest tilt < %g deg" % TILT_SPLIT_DEG,
-                 lambda r: not clipped(r) and largest_tilt_deg(r) < TILT_SPLIT_DEG),
+                 lambda r: not clipped(r) and largest_tilt_deg(d, r) < TILT_SPLIT_DEG),
                 (", no wheel at its limit, largest tilt >= %g deg" % TILT_SPLIT_DEG,
-                 lambda r: not clipped(r) and largest_tilt_deg(r) >= TILT_SPLIT_DEG)]
+                 lambda r: not clipped(r) and largest_tilt_deg(d, r) >= TILT_SPLIT_DEG)]
     return out
 
 
@@ -121,7 +122,7 @@ def uncertainty_sweep(campaign, population, name="thesis-3u", rows=SWEEP_3U, wor
     for i, (label, fi, ft, fm, st) in enumerate(rows):
         d = scaled_uncertainty(d0, fi, ft, fm, st)
         res = campaign(runs.run_apkf, 1, workers=workers, runs_n=population, spacecraft=d, vehicle="drawn")[0]
-        for sub, sel in _subsets(tilt_split and i == 0):
+        for sub, sel in _subsets(tilt_split and i == 0, d):
             lines.append(_row(label + sub, d, runs.aggregate([r for r in res if "error" in r or sel(r)], "apkf", 1)))
         if i in fix_rows:
             fix.append(_fix_row(label, res, *blind_by_fix(d, res)))

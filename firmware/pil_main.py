@@ -10,8 +10,8 @@ What the host reads back after a run (through QEMU's monitor, as a debugger read
 of the stack region (``pil_board``): a mailbox (``tools.pil_mailbox``): ``MAGIC``, one clock read's own cost, then
 for each kind of TICK exchange (``firmware.hal.stdio._K_*``: common, a new H^-1 bin, CTRL_STATUS, a resend
 answered from the cache, other) its count, sum, largest and a histogram by bit length, in ticks of the nRF51's
-TIMER0 at 16 MHz (16-bit mode), then the wire's words (``Meter.wire``); above it, the stack painted with ``pil_board.STACK_PAINT`` here at start, whose first
-overwritten word is the stack's high-water mark. An exchange is a TICK's frame, read whole from the UART by
+TIMER0 at 16 MHz (16-bit mode), then the wire's words (``Meter.wire``); above it, the stack painted with
+``pil_board.STACK_PAINT`` here at start, whose first overwritten word is the stack's high-water mark. An exchange is a TICK's frame, read whole from the UART by
 ``firmware.hal.nrf51.read_frame`` (machine code), decoded, then its FSM_SPI (and the CTRL_STATUS after it, when
 due) computed and framed: the decoding, the step and the framing, less the UART's own byte moves
 (``firmware.hal.stdio``) and the clock reads. Under QEMU's ``-icount shift=0`` one instruction takes one virtual
@@ -84,11 +84,11 @@ class Meter:
             m[box + 4 * k] = 0
         t = self.start()
         m[box + 4] = (self.now() - t) & 0xFFFF     # one read's own cost, taken off each exchange
-        m[box + 4 * _WIRE] = 10 * 48000000 // WIRE_BAUD
-        b = frame_bytes
+        byte = m[box + 4 * _WIRE] = 10 * 48000000 // WIRE_BAUD
         s = protocol.consts.SIZES
-        self.frames = (b(s[protocol.consts.P_TICK]), b(s[protocol.consts.P_FSM_SPI]),
-                       b(s[protocol.consts.P_CTRL_STATUS]))
+        # each frame's cycles on the wire: a TICK in, an FSM_SPI out, a CTRL_STATUS out
+        self.frames = (byte * frame_bytes(s[protocol.consts.P_TICK]), byte * frame_bytes(s[protocol.consts.P_FSM_SPI]),
+                       byte * frame_bytes(s[protocol.consts.P_CTRL_STATUS]))
         m[box] = MAGIC
 
     def exchange(self, t0, work, n, kind, first=-1):
@@ -123,17 +123,16 @@ class Meter:
         FSM_SPI ended after the tick (``late``)."""
         m = machine.mem32
         a = self.box + 4 * _WIRE
-        byte = m[a]
         r, f, s = self.frames
-        ready = max(r * byte, m[a + 4]) + first
-        end = max(ready, m[a + 8]) + f * byte
+        ready = max(r, m[a + 4]) + first
+        end = max(ready, m[a + 8]) + f
         if end > m[a + 12]:
             m[a + 12] = end
         if end > _PERIOD:
             m[a + 16] += 1
         m[a + 20] += 1
         cpu = ready + rest
-        tx = max(cpu, end) + s * byte if status else end
+        tx = max(cpu, end) + s if status else end
         m[a + 4] = max(cpu - _PERIOD, 0)
         m[a + 8] = max(tx - _PERIOD, 0)
 

@@ -100,21 +100,46 @@ def check_seed(seed, name="--seed"):
     return int(seed)
 
 
+_DEFERRED = {"depth": 0, "pending": False}
+
+
+def _interrupt(signum, frame):
+    if _DEFERRED["depth"]:
+        _DEFERRED["pending"] = True      # raised where the deferring block ends (``interrupts_between``)
+    else:
+        raise KeyboardInterrupt
+
+
 @contextlib.contextmanager
 def sigterm_as_interrupt():
     """SIGTERM raises KeyboardInterrupt (like Ctrl-C) while the run is on, so that a process manager's stop
-    still leaves the partial results; the old handler comes back after. Main thread only (signals live there)."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt
+    still leaves the partial results; the old handlers come back after. Ctrl-C goes through the same handler, so
+    both wait for the end of an ``interrupts_between`` block. Main thread only (signals live there)."""
     try:
-        old = signal.signal(signal.SIGTERM, handler)
+        old = {s: signal.signal(s, _interrupt) for s in (signal.SIGTERM, signal.SIGINT)}
     except ValueError:       # not the main thread
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+@contextlib.contextmanager
+def interrupts_between():
+    """A block that Ctrl-C or SIGTERM does not cut: the KeyboardInterrupt is raised when it ends. For a step that
+    waits on threads' locks and queues (a CAN session's cycle): an exception raised inside ``threading``'s own
+    code can leave a lock released twice ("cannot release un-acquired lock") instead of stopping the run."""
+    _DEFERRED["depth"] += 1
+    try:
+        yield
+    finally:
+        _DEFERRED["depth"] -= 1
+    if not _DEFERRED["depth"] and _DEFERRED["pending"]:
+        _DEFERRED["pending"] = False
+        raise KeyboardInterrupt
 
 
 def micropython_binary():

@@ -131,3 +131,37 @@ def test_fps_calibrate_quotes_what_a_stopped_firmware_said(tmp_path, monkeypatch
     err = capsys.readouterr().err
     assert "no answer to HTABLE_END" in err and "PIL board) stopped: MemoryError" in err and "Traceback" not in err
     assert not (tmp_path / "c.json").exists()
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_a_stop_inside_an_uncut_step_lands_where_the_step_ends(sig):
+    """Ctrl-C or SIGTERM during ``interrupts_between`` finishes the step, then raises KeyboardInterrupt; outside
+    one it raises at once. In a child interpreter, whose main thread owns the signals."""
+    code = """
+import os, signal
+from emulator.runtime import sigterm_as_interrupt, interrupts_between
+steps = []
+try:
+    with sigterm_as_interrupt():
+        with interrupts_between():
+            os.kill(os.getpid(), signal.%s)
+            for _ in range(1000):
+                pass
+            steps.append("finished")
+        steps.append("after")
+except KeyboardInterrupt:
+    steps.append("interrupted")
+try:
+    with sigterm_as_interrupt():
+        os.kill(os.getpid(), signal.%s)
+        for _ in range(1000):
+            pass
+        steps.append("not cut")
+except KeyboardInterrupt:
+    steps.append("cut")
+print(",".join(steps))
+""" % (sig, sig)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         cwd=launcher.ROOT)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "finished,interrupted,cut"

@@ -22,6 +22,7 @@ import sys
 import numpy as np
 
 from emulator.adcs_session import RUNTIMES
+from emulator.runtime import interrupts_between
 from emulator.spacecraft import scenario
 from ground.adcs import body_pointing as bps, campaign
 from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_session_option, add_spacecraft_option,
@@ -239,12 +240,13 @@ def _fly(session, a):
     bar = None
     try:
         try:
-            session.start()
+            session.start()          # its waits for the boards' boot stay interruptible
             if not a.quiet:
                 from tqdm import tqdm
                 bar = tqdm(total=session.K, desc="ADCS on CAN (%s)" % a.runtime, unit="s", leave=False)
             for _ in range(session.K):
-                c = session.cycle()
+                with interrupts_between():       # a stop lands between cycles, never inside the bus's threads
+                    c = session.cycle()
                 for k in hist:
                     hist[k].append(c[k])
                 for k in STATUS_KEYS:
@@ -256,7 +258,8 @@ def _fly(session, a):
                     bar.update(1)
             summary = session.summary()
         finally:
-            session.close()
+            with interrupts_between():
+                session.close()
     except KeyboardInterrupt:
         interrupted = True
         summary = session.summary()

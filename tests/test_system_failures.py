@@ -204,6 +204,22 @@ def test_verdict_names_the_loop_that_missed_and_by_how_much():
     assert "**Terminal: BUDGET MISSED**: body: 3σ pointing 182.0″" in md
 
 
+def test_a_late_tick_on_the_controller_boards_wire_misses_the_terminal():
+    """--runtime qemu: the controller board's meter is part of the fine loop's verdict, in the exit status too."""
+    board = {"baud": 2000000, "period_cycles": 75259, "worst_cycles": 70120, "late_ticks": 0, "ticks": 76500}
+    s = dict(_synthetic(), target={"wire": {"board": board}})
+    v = system.verdict(s)
+    assert v["met"] is True and v["board"]["met"] is True and system.exit_code({"verdict": v}) == 0
+    assert "| fine loop (controller board): the worst tick's FSM_SPI out, the UART at 2000000 baud" in \
+        system.verdict_md(dict(s, verdict=v))
+    s["target"]["wire"]["board"] = dict(board, worst_cycles=80000, late_ticks=2)
+    v = system.verdict(s)
+    assert v["met"] is False and v["fine"]["met"] is True and system.exit_code({"verdict": v}) == 3
+    assert v["missed"] == ["fine: the controller board's worst tick 80000 cycles on the wire at 2000000 baud, over "
+                           "its 75259 by 4741; 2 of 76500 ticks late"]
+    assert system.verdict(_synthetic())["board"] is None          # the other runtimes: no board
+
+
 def test_fps_system_exits_3_when_the_body_budget_is_missed_and_0_when_both_are_met(tmp_path, system_inputs, monkeypatch,
                                                                                  capsys):
     out = tmp_path / "met"

@@ -61,7 +61,8 @@ def _cmd(a):
 
 
 EXIT_STATUS = """exit status: 0 complete, and both loops within their budgets (fine: every Q2 sample within 11.98
-arcsec; body: 3 sigma pointing <= 150 arcsec and stability <= 35 arcsec/s); 3 complete but a budget missed
+arcsec; body: 3 sigma pointing <= 150 arcsec and stability <= 35 arcsec/s; --runtime qemu: no tick of the
+controller board late on the wire); 3 complete but a budget missed
 (summary.json's verdict and report.md name the loop and by how much); 1 failed (the ADCS failed or stopped
 answering, link down, controller exited: the folder holds the
 partial run with complete=false, the error and stopped_in); 2 bad input; 130 interrupted (partial folder,

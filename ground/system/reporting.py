@@ -14,9 +14,12 @@ def verdict(s):
     file's block, or the thesis's: ``protocol.spacecraft.requirements``). Fine loop: every Q2 sample within
     ``fine_pointing_arcsec`` (the thesis's 11.98″) and none with the beam lost (``fps hil``'s requirement). Body
     loop: 3σ pointing and stability within ``body_pointing_3sigma_arcsec`` and ``body_stability_3sigma_arcsec_s``
-    (as ``fps adcs can`` judges them). A loop's ``met`` is None without figures; ``met`` is true only when the run
-    completed and both loops are met. ``missed``: one line per figure that missed, naming the loop and by how
+    (as ``fps adcs can`` judges them). On the PIL board (``--runtime qemu``) the fine loop's controller must also
+    send every FSM_SPI within its tick with the UART's bytes (``board``: ``hil_report.wire_deadline``; None on the
+    other runtimes). A loop's ``met`` is None without figures; ``met`` is true only when the run completed and
+    both loops (and the board) are met. ``missed``: one line per figure that missed, naming the loop and by how
     much."""
+    from ground.hil_report import wire_deadline
     from protocol import spacecraft as sf
     r = s.get("requirements") or sf.requirements(None)
     req = r["fine_pointing_arcsec"]
@@ -48,9 +51,15 @@ def verdict(s):
             missed.append("body: 3σ pointing %.1f″ over the %g″ budget by %.1f″" % (p, pb, p - pb))
         if w > wb:
             missed.append("body: 3σ stability %.1f″/s over the %g″/s budget by %.1f″/s" % (w, wb, w - wb))
+    board = wire_deadline(s)
+    if board is not None and not board["met"]:
+        missed.append("fine: the controller board's worst tick %d cycles on the wire at %d baud, over its %d by %d; "
+                      "%d of %d ticks late" % (board["worst_cycles"], board["baud"], board["period_cycles"],
+                                               max(0, board["worst_cycles"] - board["period_cycles"]),
+                                               board["late_ticks"], board["ticks"]))
     complete = bool(s.get("complete"))
-    return {"complete": complete, "met": bool(complete and fine["met"] and body["met"]), "fine": fine,
-            "body": body, "missed": missed}
+    met = complete and fine["met"] and body["met"] and (board is None or board["met"])
+    return {"complete": complete, "met": bool(met), "fine": fine, "body": body, "board": board, "missed": missed}
 
 
 def _over(v, budget):
@@ -94,6 +103,11 @@ def verdict_md(s):
             ("body loop (ADCS): 3σ stability (arcsec/s)", b["stability_3sigma_arcsec_s"],
              b["stability_budget_arcsec_s"], None if b["met"] is None else b["stability_over_arcsec_s"] == 0,
              b["stability_over_arcsec_s"])]
+    w = v.get("board")
+    if w is not None:
+        rows.append(("fine loop (controller board): the worst tick's FSM_SPI out, the UART at %d baud (cycles at "
+                     "48 MHz)" % w["baud"], w["worst_cycles"], w["period_cycles"], w["met"],
+                     max(0, w["worst_cycles"] - w["period_cycles"])))
     out = verdict_table(rows, extra="over by")[:-1]
     if f["beam_lost_samples"]:
         out.append("")

@@ -1,9 +1,12 @@
 """The lean STKF with dynamic model compensation (firmware/adcs/stkf_dmc.py): Phi of the augmented state against a
 numerical Jacobian of its propagation, Q's blocks against the integral of Phi q Phi^T, the configuration (white: the
-lean STKF), the 12-state view, a markov filter's NEES on a short synthetic case, SatA's float32 covariance, and the
-same results under micropython."""
+lean STKF), the 12-state view, a markov filter's NEES on a short synthetic case, SatA's float32 covariance, the
+same results under micropython, and the 9-state C kernels (firmware/adcs/native/adcsk.c): the Python forms' run bit
+for bit under CPython and micropython, no allocation under micropython."""
 
 import json
+import os
+import subprocess
 from array import array
 
 import numpy as np
@@ -13,6 +16,8 @@ from firmware.adcs import estimation, linalg, stkf_dmc, stkf_lean
 from firmware.adcs import stkf_kernels as K
 from ground.adcs.lean_scenario import stkf_scenario
 from tests.adcs_lean_common import run_mp
+from tests.test_adcs_natmod import need_module, without_module
+from tests.test_firmware_mp import MICROPYTHON, ROOT
 
 X6 = np.array([4.1e6, -3.2e6, 4.2e6, 4.9e3, 5.3e3, 0.3e3])
 SIGMA_A, TAU = 9.07e-5, 289.0
@@ -188,3 +193,43 @@ def test_the_markov_filter_runs_the_same_under_micropython(tmp_path):
     assert res["refused"] == f.refused == 0 and res["generated"] == f.generated > 20
     assert np.abs(np.array(res["x"]) - x[:, :12]).max() < 1e-3
     assert np.allclose(res["sig"], x[:, 12:], rtol=1e-5, atol=0)
+
+
+KERNELS = ("rows_mul_phi", "sandwich_phi", "_joseph_dmc", "_hp_rows")
+
+
+@pytest.mark.skipif(not linalg._cpython, reason="the C kernels are not built for CPython (firmware.adcs._adcsk)")
+@pytest.mark.parametrize("case, lag, cap", [(1, 0.0, 3), (2, 4.0, 6)])
+def test_the_c_kernels_give_the_python_forms_run_bit_for_bit(monkeypatch, case, lag, cap):
+    """60 s of the lean scenario (case 2: SatB's GNSS late, nodes generated) with the 9-state kernels in C, then
+    with their Python forms: every estimate, 1 sigma and the final covariances equal bit for bit."""
+    sc = stkf_scenario(60, case=case)
+    xc, fc = _run(sc, lag=lag, cap=cap)
+    for name in KERNELS:
+        monkeypatch.setattr(stkf_dmc, name, getattr(stkf_dmc, name).python)
+    xp, fp = _run(sc, lag=lag, cap=cap)
+    assert fc.generated == fp.generated == (57 if case == 2 else 0)
+    assert np.array_equal(xc, xp) and bytes(fc.P) == bytes(fp.P) and bytes(fc.Pa) == bytes(fp.Pa)
+
+
+def _mp_at(path, script, *args):
+    """tests/mp/<script> under micropython with ``path`` first on its module path (``run_mp``'s, elsewhere)."""
+    env = dict(os.environ, MICROPYPATH=str(path) + ":.frozen")
+    p = subprocess.run([MICROPYTHON, "-X", "heapsize=64M", os.path.join(ROOT, "tests", "mp", script)]
+                       + [str(a) for a in args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def test_the_c_kernels_run_the_markov_filter_bit_for_bit_and_allocate_nothing_under_micropython(tmp_path):
+    """The natmod's 9-state kernels: 30 s with nodes generated give the Python forms' bits under micropython, and
+    each kernel on the filter's buffers runs with the heap locked (a Python loop of the module does not)."""
+    need_module()
+    sc = tmp_path / "sc.json"
+    sc.write_text(json.dumps(stkf_scenario(30, case=2)))
+    c = _mp_at(ROOT, "stkf_dmc.py", sc, "markov")
+    py = _mp_at(without_module(tmp_path), "stkf_dmc.py", sc, "markov")
+    assert c["kernels"] is True and py["kernels"] is False and c["generated"] == py["generated"] > 20
+    assert c["bits"] == py["bits"]
+    assert _mp_at(ROOT, "stkf_dmc_alloc.py") == {"kernels": True, "nodes": 5, "locked": "ok",
+                                                 "python loop": "MemoryError"}

@@ -28,8 +28,10 @@ series, q dt^(i+j+1) sum_k (-x)^k c_ij(k), c_ij(k) = sum_{a+b=k} 1/((a+i)! (b+j)
 r, v, w), summed to k = 15 (its remainder < 1e-12 of the sum).
 
 ``DmcStkf`` is ``stkf_lean.LeanStkf`` with nodes of 9 states: SatA's EKF 9 x 9 (float32), SatB's smoother nodes
-[rB, vB, wB]; GNSS measures r, v (Eq. 5.12 with H = [I6 0]), the beacon rB (Eq. 5.16-5.17). The products here
-are generic loops in Python (no C kernel; the smoother's update of Eq. 5.24 is LeanStkf's, in C when built).
+[rB, vB, wB]; GNSS measures r, v (Eq. 5.12 with H = [I6 0]), the beacon rB (Eq. 5.16-5.17). The 9-state products
+(``rows_mul_phi``, ``sandwich_phi``, ``_joseph_dmc``, ``_hp_rows``) run in C when the kernels are built
+(``linalg.kernels``, firmware/adcs/native/adcsk.c), with the Python forms' results bit for bit; the smoother's
+update of Eq. 5.24 is LeanStkf's (in C as well).
 """
 
 import math
@@ -467,3 +469,10 @@ def _joseph_dmc(P, ld, m, Kt, U, H, R, W, u):
             g0, g1, g2 = Kt[j], Kt[NA + j], Kt[2 * NA + j]
             t = W[o + j] - (v0 * g0 + v1 * g1 + v2 * g2) + (r0 * g0 + r1 * g1 + r2 * g2)
             P[i * ld + j] = P[j * ld + i] = t
+
+
+_K = linalg.kernels          # the C kernels, when built (linalg's comment): the same results, bit for bit
+if _K is not None:
+    rows_mul_phi = linalg.either(_K.rows_mul_phi, rows_mul_phi)
+    sandwich_phi = linalg.either(_K.sandwich_phi, sandwich_phi)
+    _joseph_dmc, _hp_rows = linalg.either(_K.joseph_dmc, _joseph_dmc), linalg.either(_K.hp_rows, _hp_rows)

@@ -9,7 +9,7 @@ import json
 import sys
 from array import array
 
-from firmware.adcs import apkf_lean, linalg, stkf_lean
+from firmware.adcs import apkf_lean, linalg, stkf_dmc, stkf_lean
 
 _state = [12345]
 
@@ -95,6 +95,19 @@ for tc in ("f", "d"):                                    # the STKF's 6 x 6 bloc
     stkf_lean._ikh_rows(P, ld, 6, 30, G)
     stkf_lean._ikh_sandwich(P, ld, G, KRK, [0.0] * 36)
     out["stkf blocks %s" % tc] = digest(P, T)
+
+for tc in ("f", "d"):                                    # the markov STKF's 9-state kernels (stkf_dmc), ld = 54
+    ld, p, v = 54, [0.0] * 9, [0.0] * 9
+    P = spd(tc, ld)
+    F, Q, T = buf("d", 81), spd("d", 9, 0.1), buf(tc, 81)
+    stkf_dmc.rows_mul_phi(P, ld, 9, 9, 45, F, p, v)
+    stkf_dmc.sandwich_phi(P, ld, 0, 9, F, Q, T, p, v)
+    stkf_dmc.sandwich_phi(P, ld, 18, 18, F, Q, T, p, v)
+    Kt, U, W = buf("d", 27), buf("d", 27), buf("d", 81)
+    stkf_dmc._joseph_dmc(P, ld, 45, Kt, U, [rnd() for _ in range(9)], [rnd() for _ in range(9)], W, p)
+    Hp = [buf("d", ld) for _ in range(6)]
+    stkf_dmc._hp_rows(Hp, P, ld, 1, 4, 45, [[0.0] * 18 for _ in range(6)], [0.0] * 18, buf("d", 81), buf("d", 81))
+    out["stkf dmc blocks %s" % tc] = digest(P, T, W, *Hp)
 
 work = apkf_lean.Work()                                  # the APKF's Phi series and covariance predict
 for k in range(54):

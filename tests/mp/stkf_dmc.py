@@ -1,10 +1,14 @@
 # Under micropython: the lean STKF, white (stkf_lean.LeanStkf) or markov (stkf_dmc.DmcStkf, argv[2] "markov"), with
 # the J2 model over the inputs in argv[1] (JSON, ground/adcs/lean_scenario.stkf_scenario); prints the estimate and
 # 1 sigma of every second, and the microseconds per 1 Hz cycle (predict, SatA's GNSS, the beacon, SatB's GNSS).
-# argv[3] (optional): run only that many cycles and print nothing (the callgrind count).
+# argv[3] (optional): run only that many cycles and print nothing (the callgrind count). "bits": a SHA-256 of the
+# estimates, 1 sigma and final covariances, exact (the same run with the C kernels and without gives the same).
+import binascii
+import hashlib
 import json
 import sys
 import time
+from array import array
 
 from firmware.adcs import linalg, stkf_dmc, stkf_lean
 
@@ -48,5 +52,8 @@ for k, step in enumerate(sc["steps"][:n]):
     xs.append([x[i] for i in range(12)])
     sg.append([s[i] for i in range(12)])
 if len(sys.argv) < 4:
+    h = hashlib.sha256()
+    for row in xs + sg + [list(f.P), list(f.Pa)]:
+        h.update(bytes(array("d", row)))
     print(json.dumps({"x": xs, "sig": sg, "us": us, "generated": f.generated, "refused": f.refused,
-                      "kernels": linalg.kernels is not None}))
+                      "kernels": linalg.kernels is not None, "bits": binascii.hexlify(h.digest()).decode()}))

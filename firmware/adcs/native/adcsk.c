@@ -421,21 +421,26 @@ static mp_obj_t ikh_sandwich(size_t n_args, const mp_obj_t *args) {
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(ikh_sandwich_obj, 5, 5, ikh_sandwich);
 
+// Hp: a list of 6 float buffers of at least m each, into H
+static void rows6(mp_obj_t o, size_t m, vec_t *H) {
+    size_t nrow;
+    mp_obj_t *rows;
+    mp_obj_get_array(o, &nrow, &rows);
+    if (nrow != 6) {
+        mp_raise_ValueError(MP_ERROR_TEXT("adcsk: Hp must have 6 rows"));
+    }
+    for (int i = 0; i < 6; i++) {
+        H[i] = vec(rows[i], m);
+    }
+}
+
 // between(Hp, S, P, ld, ia, ic, A, B, T, qa3, m): stkf_kernels.between. Hp (6 rows of m,
 // a list of 6 float buffers) = A P[a rows, :] + B P[c rows, :]; S (6 x 6) = P_bb, the upper triangle
 // mirrored, with (I - B Fb) Qa (T = I - B Fb; qa3 = (q3, q2, q1), Qa per axis [[q3, q2], [q2, q1]]).
 static mp_obj_t between(size_t n_args, const mp_obj_t *args) {
     size_t ld = sz(args[3]), ia = sz(args[4]), ic = sz(args[5]), m = sz(args[10]);
-    size_t nrow;
-    mp_obj_t *rows;
-    mp_obj_get_array(args[0], &nrow, &rows);
-    if (nrow != 6) {
-        mp_raise_ValueError(MP_ERROR_TEXT("adcsk.between: Hp must have 6 rows"));
-    }
     vec_t H[6];
-    for (int i = 0; i < 6; i++) {
-        H[i] = vec(rows[i], m);
-    }
+    rows6(args[0], m, H);
     double a[36], b[36], tq[36], q[3];
     vals(args[6], a, 36);
     vals(args[7], b, 36);
@@ -491,16 +496,11 @@ static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(between_obj, 11, 11, between);
 // False (nothing but S, L and r changed) unless S is positive definite.
 static mp_obj_t update_rows(size_t n_args, const mp_obj_t *args) {
     size_t ld = sz(args[1]), m = sz(args[10]);
-    size_t nrow;
-    mp_obj_t *rows;
-    mp_obj_get_array(args[3], &nrow, &rows);
-    if (nrow != 6 || m > ld) {
-        mp_raise_ValueError(MP_ERROR_TEXT("adcsk.update_rows: Hp must have 6 rows of m <= ld"));
+    if (m > ld) {
+        mp_raise_ValueError(MP_ERROR_TEXT("adcsk.update_rows: m > ld"));
     }
     vec_t V[6];
-    for (int i = 0; i < 6; i++) {
-        V[i] = vec(rows[i], m);
-    }
+    rows6(args[3], m, V);
     vec_t P = vec(args[0], m * ld), X = vec(args[2], m), S = vec(args[4], 36);
     vec_t L = vec(args[6], 36), d = vec(args[7], 12), r = vec(args[8], 6);
     double z[6], R[36];
@@ -560,6 +560,174 @@ static mp_obj_t update_rows(size_t n_args, const mp_obj_t *args) {
     return mp_const_true;
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(update_rows_obj, 11, 11, update_rows);
+
+// ---- stkf_dmc.py (nodes of 9 states: r, v, w) -------------------------------------------------------------
+
+// v[j] = (Phi p)[j] for j0 <= j < 9 over Phi's nonzero columns only (stkf_dmc.PHI_NZ: an r row r, v and its w; a
+// v row all; a w row its w), summed from 0.0 in that order: stkf_dmc._phi_vec
+static void phi_vec(const double *f, const double *p, double *v, int j0) {
+    for (int j = j0; j < 9; j++) {
+        const double *fj = f + 9 * j;
+        double t = 0.0;
+        if (j < 6) {
+            for (int k = 0; k < 6; k++) {
+                t = t + fj[k] * p[k];
+            }
+        }
+        if (j >= 3 && j < 6) {
+            for (int k = 6; k < 9; k++) {
+                t = t + fj[k] * p[k];
+            }
+        } else {
+            int k = j < 3 ? j + 6 : j;
+            t = t + fj[k] * p[k];
+        }
+        v[j] = t;
+    }
+}
+
+// p = P[s + k ld] for k < 9 (a column of 9 rows from P's entry s)
+static void col9(const vec_t *P, size_t ld, size_t s, double *p) {
+    for (int k = 0; k < 9; k++) {
+        p[k] = rd(P, s + k * ld);
+    }
+}
+
+// rows_mul_phi(P, ld, src, c_lo, c_hi, F, p, v): p, v (the Python form's work) are not used
+static mp_obj_t rows_mul_phi(size_t n_args, const mp_obj_t *args) {
+    size_t ld = sz(args[1]), src = sz(args[2]), c_lo = sz(args[3]), c_hi = sz(args[4]);
+    double f[81];
+    vals(args[5], f, 81);
+    if (c_hi > ld || src + 9 > ld) {
+        mp_raise_ValueError(MP_ERROR_TEXT("adcsk.rows_mul_phi: columns out of range"));
+    }
+    vec_t P = vec(args[0], (src + 9 > c_hi ? src + 9 : c_hi) * ld);
+    for (size_t c = c_lo; c < c_hi; c++) {
+        double p[9], v[9];
+        col9(&P, ld, src * ld + c, p);
+        phi_vec(f, p, v, 0);
+        for (size_t k = 0; k < 9; k++) {
+            wr(&P, k * ld + c, v[k]);
+            wr(&P, c * ld + k, v[k]);
+        }
+    }
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(rows_mul_phi_obj, 8, 8, rows_mul_phi);
+
+// sandwich_phi(P, ld, r0, src, F, Q, T, p, v): T (81) in its own precision, as the Python form's; p, v not used
+static mp_obj_t sandwich_phi(size_t n_args, const mp_obj_t *args) {
+    size_t ld = sz(args[1]), r0 = sz(args[2]), src = sz(args[3]);
+    double f[81], q[81];
+    vals(args[4], f, 81);
+    vals(args[5], q, 81);
+    size_t hi = (src > r0 ? src : r0) + 9;
+    if (hi > ld) {
+        mp_raise_ValueError(MP_ERROR_TEXT("adcsk.sandwich_phi: rows out of range"));
+    }
+    vec_t P = vec(args[0], hi * ld), T = vec(args[6], 81);
+    double p[9], v[9];
+    for (size_t c = 0; c < 9; c++) {                 // T = F P, column by column
+        col9(&P, ld, src * ld + src + c, p);
+        phi_vec(f, p, v, 0);
+        for (size_t k = 0; k < 9; k++) {
+            wr(&T, 9 * k + c, v[k]);
+        }
+    }
+    for (size_t i = 0; i < 9; i++) {                 // row i: F T[i, :]^T + Q[i, :], from its diagonal, mirrored
+        for (size_t k = 0; k < 9; k++) {
+            p[k] = rd(&T, 9 * i + k);
+        }
+        phi_vec(f, p, v, (int)i);
+        for (size_t j = i; j < 9; j++) {
+            wr_sym(&P, ld, r0 + i, r0 + j, q[9 * i + j] + v[j]);
+        }
+    }
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(sandwich_phi_obj, 9, 9, sandwich_phi);
+
+// the older nodes' columns c of rows 0..8, and their mirror, times I - K H: joseph_dmc's first part
+static void ikh9_rows(vec_t *P, size_t ld, size_t m, const double *kt, const double *h) {
+    for (size_t c = 9; c < m; c++) {
+        double u[3];
+        for (int a = 0; a < 3; a++) {
+            u[a] = h[3 * a] * rd(P, c) + h[3 * a + 1] * rd(P, ld + c) + h[3 * a + 2] * rd(P, 2 * ld + c);
+        }
+        for (size_t i = 0; i < 9; i++) {
+            double t = rd(P, i * ld + c) - (kt[i] * u[0] + kt[9 + i] * u[1] + kt[18 + i] * u[2]);
+            wr(P, i * ld + c, t);
+            wr(P, c * ld + i, t);
+        }
+    }
+}
+
+// joseph_dmc(P, ld, m, Kt, U, H, R, W, u): stkf_dmc._joseph_dmc; u (the Python form's work) is not used
+static mp_obj_t joseph_dmc(size_t n_args, const mp_obj_t *args) {
+    size_t ld = sz(args[1]), m = sz(args[2]);
+    double kt[27], u[27], h[9], r[9];
+    vals(args[3], kt, 27);
+    vals(args[4], u, 27);
+    vals(args[5], h, 9);
+    vals(args[6], r, 9);
+    if (m > ld || 9 > ld) {
+        mp_raise_ValueError(MP_ERROR_TEXT("adcsk.joseph_dmc: columns out of range"));
+    }
+    vec_t P = vec(args[0], (m > 9 ? m : 9) * ld), W = vec(args[7], 81);
+    ikh9_rows(&P, ld, m, kt, h);
+    for (size_t i = 0; i < 9; i++) {                 // W = P00 - K U
+        for (size_t j = 0; j < 9; j++) {
+            wr(&W, 9 * i + j, rd(&P, i * ld + j) - (kt[i] * u[j] + kt[9 + i] * u[9 + j] + kt[18 + i] * u[18 + j]));
+        }
+    }
+    for (size_t i = 0; i < 9; i++) {                 // P00 = W - (W H^T) K^T + (K R) K^T, upper triangle mirrored
+        double w0 = rd(&W, 9 * i), w1 = rd(&W, 9 * i + 1), w2 = rd(&W, 9 * i + 2);
+        double k0 = kt[i], k1 = kt[9 + i], k2 = kt[18 + i], v[3], kr[3];
+        for (int a = 0; a < 3; a++) {
+            v[a] = w0 * h[3 * a] + w1 * h[3 * a + 1] + w2 * h[3 * a + 2];
+            kr[a] = k0 * r[a] + k1 * r[3 + a] + k2 * r[6 + a];
+        }
+        for (size_t j = i; j < 9; j++) {
+            double g0 = kt[j], g1 = kt[9 + j], g2 = kt[18 + j];
+            double t = rd(&W, 9 * i + j) - (v[0] * g0 + v[1] * g1 + v[2] * g2) + (kr[0] * g0 + kr[1] * g1 + kr[2] * g2);
+            wr_sym(&P, ld, i, j, t);
+        }
+    }
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(joseph_dmc_obj, 9, 9, joseph_dmc);
+
+// hp_rows(Hp, P, ld, ia, ic, m, AB, pq, A, B): stkf_dmc._hp_rows; AB, pq (the Python form's work) are not used
+static mp_obj_t hp_rows(size_t n_args, const mp_obj_t *args) {
+    size_t ld = sz(args[2]), ia = sz(args[3]), ic = sz(args[4]), m = sz(args[5]);
+    size_t top = (ia > ic ? ia : ic) * 9 + 9;
+    if (m > ld || top > ld) {
+        mp_raise_ValueError(MP_ERROR_TEXT("adcsk.hp_rows: nodes out of range"));
+    }
+    vec_t H[6];
+    rows6(args[0], m, H);
+    double ab[108];                                  // row a: A's row a, then B's
+    vals(args[8], ab, 54);
+    vals(args[9], ab + 54, 54);
+    vec_t P = vec(args[1], top * ld);
+    for (size_t j = 0; j < m; j++) {
+        double pq[18];
+        col9(&P, ld, ia * 9 * ld + j, pq);
+        col9(&P, ld, ic * 9 * ld + j, pq + 9);
+        for (int a = 0; a < 6; a++) {
+            double t = 0.0;
+            for (int k = 0; k < 9; k++) {
+                t = t + ab[9 * a + k] * pq[k];
+            }
+            for (int k = 0; k < 9; k++) {
+                t = t + ab[54 + 9 * a + k] * pq[9 + k];
+            }
+            wr(&H[a], j, t);
+        }
+    }
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(hp_rows_obj, 10, 10, hp_rows);
 
 // ---- apkf_lean.py -----------------------------------------------------------------------------------------
 
@@ -657,6 +825,10 @@ static MP_DEFINE_CONST_FUN_OBJ_3(covariance_predict_obj, covariance_predict);
     X(MP_QSTR_ikh_sandwich, ikh_sandwich_obj) \
     X(MP_QSTR_between, between_obj) \
     X(MP_QSTR_update_rows, update_rows_obj) \
+    X(MP_QSTR_rows_mul_phi, rows_mul_phi_obj) \
+    X(MP_QSTR_sandwich_phi, sandwich_phi_obj) \
+    X(MP_QSTR_joseph_dmc, joseph_dmc_obj) \
+    X(MP_QSTR_hp_rows, hp_rows_obj) \
     X(MP_QSTR_phi9, phi9_obj) \
     X(MP_QSTR_covariance_predict, covariance_predict_obj)
 

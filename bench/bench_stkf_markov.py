@@ -16,19 +16,18 @@ from firmware.adcs import linalg, stkf_dmc
 SPACECRAFT, SEED = "thesis-3u", 0
 REPEATS = 2
 GOAL = 1.2                 # markov's CPU over white's
-KERNELS = ("rows_mul_phi", "sandwich_phi", "_joseph_dmc", "_hp_rows")
 
 
 @contextlib.contextmanager
 def python_forms():
     """stkf_dmc's 9-state products in their Python forms meanwhile (the C kernels' ``either`` keeps them)."""
-    saved = {n: getattr(stkf_dmc, n) for n in KERNELS}
-    for n in KERNELS:
+    saved = {n: getattr(stkf_dmc, n) for n in stkf_dmc.KERNELS}
+    for n in stkf_dmc.KERNELS:
         setattr(stkf_dmc, n, getattr(saved[n], "python", saved[n]))
     try:
         yield
     finally:
-        for n in KERNELS:
+        for n in stkf_dmc.KERNELS:
             setattr(stkf_dmc, n, saved[n])
 
 

@@ -195,7 +195,6 @@ def test_the_markov_filter_runs_the_same_under_micropython(tmp_path):
     assert np.allclose(res["sig"], x[:, 12:], rtol=1e-5, atol=0)
 
 
-KERNELS = ("rows_mul_phi", "sandwich_phi", "_joseph_dmc", "_hp_rows")
 
 
 @pytest.mark.skipif(not linalg._cpython, reason="the C kernels are not built for CPython (firmware.adcs._adcsk)")
@@ -205,7 +204,7 @@ def test_the_c_kernels_give_the_python_forms_run_bit_for_bit(monkeypatch, case, 
     with their Python forms: every estimate, 1 sigma and the final covariances equal bit for bit."""
     sc = stkf_scenario(60, case=case)
     xc, fc = _run(sc, lag=lag, cap=cap)
-    for name in KERNELS:
+    for name in stkf_dmc.KERNELS:
         monkeypatch.setattr(stkf_dmc, name, getattr(stkf_dmc, name).python)
     xp, fp = _run(sc, lag=lag, cap=cap)
     assert fc.generated == fp.generated == (57 if case == 2 else 0)

@@ -29,9 +29,8 @@ r, v, w), summed to k = 15 (its remainder < 1e-12 of the sum).
 
 ``DmcStkf`` is ``stkf_lean.LeanStkf`` with nodes of 9 states: SatA's EKF 9 x 9 (float32), SatB's smoother nodes
 [rB, vB, wB]; GNSS measures r, v (Eq. 5.12 with H = [I6 0]), the beacon rB (Eq. 5.16-5.17). The 9-state products
-(``rows_mul_phi``, ``sandwich_phi``, ``_joseph_dmc``, ``_hp_rows``) run in C when the kernels are built
-(``linalg.kernels``, firmware/adcs/native/adcsk.c), with the Python forms' results bit for bit; the smoother's
-update of Eq. 5.24 is LeanStkf's (in C as well).
+(``KERNELS``) run in C when the kernels are built (``linalg.kernels``, firmware/adcs/native/adcsk.c), with the
+Python forms' results bit for bit; the smoother's update of Eq. 5.24 is LeanStkf's (in C as well).
 """
 
 import math
@@ -333,16 +332,8 @@ class DmcStkf(stkf_lean.LeanStkf):
         if not self._generated_node(ia, ic, dt_a, dt_b):
             self.refused += 1
             raise ValueError("Qca is not positive definite")
-        A, B, T, Qa, S = w.A, w.B, w.T, w.Q, w.S
-        _hp_rows(w.hp, P, ld, ia, ic, m, w.AB, w.pq, A, B)
-        ca, cc = ia * NA, ic * NA
-        for a in range(6):
-            h, ao = w.hp[a], a * NA
-            for b in range(a, 6):
-                bo, v = b * NA, 0.0
-                for k in range(NA):
-                    v += h[ca + k] * A[bo + k] + h[cc + k] * B[bo + k] + T[ao + k] * Qa[k * NA + b]
-                S[a * 6 + b] = S[b * 6 + a] = v
+        _hp_rows(w.hp, P, ld, ia, ic, m, w.AB, w.pq, w.A, w.B)
+        _s_between(w.S, w.hp, ia, ic, w.A, w.B, w.T, w.Q)
 
     @micropython.native
     def _generated_node(self, ia, ic, dt_a, dt_b):
@@ -440,6 +431,20 @@ def _hp_rows(Hp, P, ld, ia, ic, m, AB, pq, A, B):
 
 
 @micropython.native
+def _s_between(S, Hp, ia, ic, A, B, T, Qa):
+    """S (6 x 6) = P_bb = Hp_a A^T + Hp_c B^T + T Qa (Eq. 5.46-5.52; Hp of ``_hp_rows``, nodes ia, ic of 9 states,
+    T = I - B Fb), upper triangle mirrored."""
+    ca, cc = ia * NA, ic * NA
+    for a in range(6):
+        h, ao = Hp[a], a * NA
+        for b in range(a, 6):
+            bo, v = b * NA, 0.0
+            for k in range(NA):
+                v += h[ca + k] * A[bo + k] + h[cc + k] * B[bo + k] + T[ao + k] * Qa[k * NA + b]
+            S[a * 6 + b] = S[b * 6 + a] = v
+
+
+@micropython.native
 def _joseph_dmc(P, ld, m, Kt, U, H, R, W, u):
     """The beacon's update of B's nodes for I - K H (H = [H_B 0] on rB, K^T 3 x 9, U = H P[0:3, 0:9]): the older
     nodes' P_0j = (I - K H) P_0j (zero gain on them), and the Joseph form (Eq. 4.142) of the current one,
@@ -471,8 +476,10 @@ def _joseph_dmc(P, ld, m, Kt, U, H, R, W, u):
             P[i * ld + j] = P[j * ld + i] = t
 
 
+KERNELS = ("rows_mul_phi", "sandwich_phi", "_joseph_dmc", "_hp_rows", "_s_between")   # the ones adcsk.c has
 _K = linalg.kernels          # the C kernels, when built (linalg's comment): the same results, bit for bit
 if _K is not None:
     rows_mul_phi = linalg.either(_K.rows_mul_phi, rows_mul_phi)
     sandwich_phi = linalg.either(_K.sandwich_phi, sandwich_phi)
     _joseph_dmc, _hp_rows = linalg.either(_K.joseph_dmc, _joseph_dmc), linalg.either(_K.hp_rows, _hp_rows)
+    _s_between = linalg.either(_K.s_between, _s_between)

@@ -106,8 +106,11 @@ for tc in ("f", "d"):                                    # the markov STKF's 9-s
     Kt, U, W = buf("d", 27), buf("d", 27), buf("d", 81)
     stkf_dmc._joseph_dmc(P, ld, 45, Kt, U, [rnd() for _ in range(9)], [rnd() for _ in range(9)], W, p)
     Hp = [buf("d", ld) for _ in range(6)]
-    stkf_dmc._hp_rows(Hp, P, ld, 1, 4, 45, [[0.0] * 18 for _ in range(6)], [0.0] * 18, buf("d", 81), buf("d", 81))
-    out["stkf dmc blocks %s" % tc] = digest(P, T, W, *Hp)
+    A, B = buf("d", 81), buf("d", 81)
+    stkf_dmc._hp_rows(Hp, P, ld, 1, 4, 45, [[0.0] * 18 for _ in range(6)], [0.0] * 18, A, B)
+    S = buf("d", 36)
+    stkf_dmc._s_between(S, Hp, 1, 4, A, B, buf("d", 81), spd("d", 9, 0.1))
+    out["stkf dmc blocks %s" % tc] = digest(P, T, W, S, *Hp)
 
 work = apkf_lean.Work()                                  # the APKF's Phi series and covariance predict
 for k in range(54):

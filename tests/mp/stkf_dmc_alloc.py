@@ -1,7 +1,7 @@
-# Under micropython: the markov STKF's 9-state kernels (stkf_dmc: rows_mul_phi, sandwich_phi, _joseph_dmc,
-# _hp_rows) called on a DmcStkf's own buffers with the heap locked, each once; prints one JSON line: whether the
-# C kernels are loaded, "ok" or the first call's error under the lock, and the error of a Python loop of the
-# module (stkf_dmc._phi_vec) under the lock (MemoryError: the lock holds).
+# Under micropython: the markov STKF's 9-state kernels (stkf_dmc.KERNELS) called on a DmcStkf's own buffers with
+# the heap locked, each once; prints one JSON line: whether the C kernels are loaded, "ok" or the first call's error
+# under the lock, and the error of a Python loop of the module (stkf_dmc._phi_vec) under the lock (MemoryError: the
+# lock holds).
 import json
 
 import micropython
@@ -32,6 +32,7 @@ def kernels():
     stkf_dmc.sandwich_phi(f.Pa, 9, 0, 0, w.Phi, w.Q, f.wa.Pd, w.p, w.v)
     stkf_dmc._joseph_dmc(f.P, ld, m, w.Kt, w.U, w.H, w.R3, w.T, w.p)
     stkf_dmc._hp_rows(w.hp, f.P, ld, 1, 0, m, w.AB, w.pq, w.A, w.B)
+    stkf_dmc._s_between(w.S, w.hp, 1, 0, w.A, w.B, w.T, w.Q)
 
 
 print(json.dumps({"kernels": linalg.kernels is not None, "nodes": f.k, "locked": locked(kernels),

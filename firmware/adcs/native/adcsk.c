@@ -689,7 +689,8 @@ static mp_obj_t joseph_dmc(size_t n_args, const mp_obj_t *args) {
         }
         for (size_t j = i; j < 9; j++) {
             double g0 = kt[j], g1 = kt[9 + j], g2 = kt[18 + j];
-            double t = rd(&W, 9 * i + j) - (v[0] * g0 + v[1] * g1 + v[2] * g2) + (kr[0] * g0 + kr[1] * g1 + kr[2] * g2);
+            double t = rd(&W, 9 * i + j) - (v[0] * g0 + v[1] * g1 + v[2] * g2)
+                       + (kr[0] * g0 + kr[1] * g1 + kr[2] * g2);
             wr_sym(&P, ld, i, j, t);
         }
     }
@@ -728,6 +729,33 @@ static mp_obj_t hp_rows(size_t n_args, const mp_obj_t *args) {
     return mp_const_none;
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(hp_rows_obj, 10, 10, hp_rows);
+
+// s_between(S, Hp, ia, ic, A, B, T, Qa): stkf_dmc._s_between
+static mp_obj_t s_between(size_t n_args, const mp_obj_t *args) {
+    size_t ia = sz(args[2]), ic = sz(args[3]);
+    vec_t H[6];
+    rows6(args[1], (ia > ic ? ia : ic) * 9 + 9, H);
+    double a[81], b[81], t[81], qa[81];
+    vals(args[4], a, 81);
+    vals(args[5], b, 81);
+    vals(args[6], t, 81);
+    vals(args[7], qa, 81);
+    vec_t S = vec(args[0], 36);
+    size_t ca = ia * 9, cc = ic * 9;
+    for (size_t i = 0; i < 6; i++) {
+        for (size_t j = i; j < 6; j++) {
+            double v = 0.0;
+            for (size_t k = 0; k < 9; k++) {
+                v = v + (rd(&H[i], ca + k) * a[9 * j + k] + rd(&H[i], cc + k) * b[9 * j + k]
+                         + t[9 * i + k] * qa[9 * k + j]);
+            }
+            wr(&S, 6 * i + j, v);
+            wr(&S, 6 * j + i, v);
+        }
+    }
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(s_between_obj, 8, 8, s_between);
 
 // ---- apkf_lean.py -----------------------------------------------------------------------------------------
 
@@ -829,6 +857,7 @@ static MP_DEFINE_CONST_FUN_OBJ_3(covariance_predict_obj, covariance_predict);
     X(MP_QSTR_sandwich_phi, sandwich_phi_obj) \
     X(MP_QSTR_joseph_dmc, joseph_dmc_obj) \
     X(MP_QSTR_hp_rows, hp_rows_obj) \
+    X(MP_QSTR_s_between, s_between_obj) \
     X(MP_QSTR_phi9, phi9_obj) \
     X(MP_QSTR_covariance_predict, covariance_predict_obj)
 

@@ -4,7 +4,8 @@ CPython, the whole flight world) with the white J2 model and with the accelerati
 (``stkf_accel`` = markov, bench_stkf_gravity's models), its 9-state products in C (firmware/adcs/native/adcsk.c,
 the CPython extension) and in their Python forms (what runs where the kernels are not built). Goal: markov <= 1.2x
 white. Each run twice, the lower CPU kept (a shared machine); beside it the run's 12-state NEES share in its band
-(the same with either form of the products: their results are equal bit for bit).
+(the same with either form of the products: their results are equal bit for bit). Then bench_stkf_gravity's
+table of the STKF cycle's x86-64 instructions under MicroPython (callgrind), white and markov.
 """
 
 import contextlib
@@ -59,6 +60,7 @@ def main():
               % (label, s, r, missed(r, GOAL), GOAL, share), flush=True)
     if not built:
         print("\n(the C kernels are not built for CPython: `make install` builds firmware.adcs._adcsk)")
+    gravity._cost_table()
 
 
 if __name__ == "__main__":

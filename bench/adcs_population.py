@@ -132,16 +132,24 @@ def uncertainty_sweep(campaign, population, name="thesis-3u", rows=SWEEP_3U, wor
 
 
 def walk_diagnostic(campaign, population, name="thesis-3u", row=SWEEP_3U[6], workers=2):
-    """What the filter's random walk on tau_d costs over the blind stretches where the truth has none (Case 1):
-    ``row``'s population with Case 1's q_d (``apkf.QD_CONSISTENT``) at zero, a diagnostic, never a default.
-    Returns ``uncertainty_sweep``'s tables for it."""
-    q = apkf.QD_CONSISTENT[1]
-    apkf.QD_CONSISTENT[1] = 0.0                   # forked workers inherit it
+    """What the filter's random walks cost over the blind stretches where the truth has none (Case 1): ``row``'s
+    population with Case 1's q_d (``apkf.QD_CONSISTENT``) at zero, then with the walks of the constant parameters
+    (Sec. 4.8's Q on J5, m, the tilts and Jrw: ``apkf._QP_FIXED``) at zero too; diagnostics, never defaults.
+    Returns ``uncertainty_sweep``'s tables for them."""
+    q, qp = apkf.QD_CONSISTENT[1], apkf._QP_FIXED.copy()
+    out = []
     try:
-        return uncertainty_sweep(campaign, population, name, ((row[0] + ", tau_d's walk at zero (a diagnostic)",)
-                                                              + tuple(row[1:]),), workers, (0,), tilt_split=False)
+        apkf.QD_CONSISTENT[1] = 0.0                   # forked workers inherit it
+        for label in (", tau_d's walk at zero (a diagnostic)", ", tau_d's and the parameters' walks at zero "
+                                                                "(a diagnostic)"):
+            if "parameters'" in label:
+                apkf._QP_FIXED[:] = 0.0
+            out.append(uncertainty_sweep(campaign, population, name, ((row[0] + label,) + tuple(row[1:]),), workers,
+                                         (0,), tilt_split=False))
     finally:
         apkf.QD_CONSISTENT[1] = q
+        apkf._QP_FIXED[:] = qp
+    return "\n".join(out)
 
 
 def p0_against_draws(name="thesis-3u", n=1000):

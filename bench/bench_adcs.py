@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from bench import adcs_disturbance, adcs_population, verdict
+from bench import adcs_disturbance, adcs_population, apkf_linearity, verdict
 from bench.common import timed
 from emulator.spacecraft import scenario
 from ground.adcs import apkf, campaign, quat, report, runs
@@ -492,6 +492,7 @@ def _accuracy(res_2w):
     print(consistency_table(figs))
     print(adcs_population.uncertainty_sweep(_campaign, POPULATION))
     print(adcs_population.walk_diagnostic(_campaign, POPULATION))
+    print(apkf_linearity.linearity_tables())
     print(adcs_population.p0_against_draws())
     by_thesis = {c: figs[("apkf", "thesis-3u", 1, "thesis", "file")] if c == 1 else
                  runs.aggregate(_campaign(runs.run_apkf, c, workers=2, form="thesis")[0], "apkf", c) for c in (1, 2, 3)}

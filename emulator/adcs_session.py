@@ -112,7 +112,8 @@ HELLO_RETRY_S, HELLO_RETRY_MAX_S = 0.05, 0.5    # HELLO sent again after this, d
 ISOTP_TIMEOUT_MS = 20.0              # N_Bs on the lockstep pty, both ends (ISO's 1000 ms is for a real bus)
 
 
-def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults, estimation=None):
+def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults, estimation=None,
+                stkf_accel="white"):
     """``AdcsSession``'s arguments that need no file: ValueError naming the one out of range."""
     if runtime not in RUNTIMES:
         raise ValueError("runtime %r not one of %s" % (runtime, ", ".join(RUNTIMES)))
@@ -132,6 +133,10 @@ def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, lin
         raise ValueError("another estimation runs in this process: runtime inproc only")
     if runtime == "inproc" and link_faults is not None:
         raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
+    scenario.flight_stkf(stkf_accel)                # a known form
+    if stkf_accel != "white" and (world, truth) != ("flight", "hpop"):
+        raise ValueError("stkf_accel %s is the flight STKF's form over the hpop truth (world flight, truth hpop); "
+                         "the %s world over the %s truth flies the thesis's two-body STKF" % (stkf_accel, world, truth))
 
 
 class AdcsSession:
@@ -148,14 +153,17 @@ class AdcsSession:
     ``estimation`` (runtime inproc: the app's filters other than the lean ones that fly, ``App``'s keyword; the
     ground's are ``ground.adcs.estimators.estimation``), ``wheel_speed_limit_rpm`` (the thesis world's true wheels'
     limit, ``scenario.pointing_world``'s; the flight world's is the file's), ``zeta`` (the PD's damping ratio,
-    Eq. 6.6, the config's ``pd_zeta``; None: the firmware's ``ZETA``, and no key)."""
+    Eq. 6.6, the config's ``pd_zeta``; None: the firmware's ``ZETA``, and no key), ``stkf_accel`` (the flight
+    STKF's form over the hpop truth, ``scenario.STKF_ACCELS``: "white", the default, or "markov"; the flight world
+    with truth hpop only)."""
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, hold_s=scenario.HOLD_S,
                  reply_timeout_s=30.0, heap_out=None, record=False, apkf_momentum="filtered", link_faults=None,
                  spacecraft=None, magnetic_devices=False, world="thesis", flight=None, probe=None,
-                 estimation=None, wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, zeta=None):
-        _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults, estimation)
+                 estimation=None, wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, zeta=None, stkf_accel="white"):
+        _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, link_faults, estimation, stkf_accel)
+        self.stkf_accel = stkf_accel
         self.probe = probe
         self.estimation = estimation
         self.apkf_momentum = apkf_momentum
@@ -221,8 +229,9 @@ class AdcsSession:
         the spacecraft file's nominal figures, not the emulated (true) vehicle's, as ground/adcs/body_pointing.py's flight
         software: the wheels' axes, torque limit, friction model and read-out noise, the star tracker's, GNSS's
         and beacon's noise, the APKF's initial 1 sigma, the STKF's P0 and the laser axis; in the flight world the STKF's
-        dynamics (``scenario.FLIGHT_STKF``: J2 and its process noise) when the truth is hpop's, whose Earth has
-        J2; a two-body truth has none, and the STKF keeps the thesis's two-body model and qa there."""
+        dynamics (``scenario.flight_stkf(stkf_accel)``: J2 and its process noise, white or Gauss-Markov) when the
+        truth is hpop's, whose Earth has J2; a two-body truth has none, and the STKF keeps the thesis's two-body
+        model and qa there."""
         d = self.spacecraft
         w, u, g = d["wheels"], d["uncertainty"], d["gnss"]
         return {"params": self.params, "ts": self.ts, "hold_s": self.hold_s, "satb_gnss": self.satb,
@@ -238,9 +247,17 @@ class AdcsSession:
                 "laser_axis": scenario.laser_axis(d).tolist(),
                 "apkf_momentum": self.apkf_momentum, "gmst0_rad": self.world.field.gmst0,
                 "isotp_timeout_ms": ISOTP_TIMEOUT_MS, "world": self.world_name, "flight": self.flight,
-                "magnetorquers": d["magnetorquers"], **(scenario.FLIGHT_STKF if self.world_name == "flight"
-                                                         and self.truth == "hpop" else {}),
+                "magnetorquers": d["magnetorquers"],
+                **(scenario.flight_stkf(self.stkf_accel) if (self.world_name, self.truth) == ("flight", "hpop")
+                   else {}),
                 **({} if self.zeta is None else {"pd_zeta": self.zeta})}
+
+    def stkf_form(self):
+        """The flight software's STKF dynamics, as a run records them: ``accel`` (``stkf_accel``) and the lean
+        STKF's keywords from the configuration (``firmware.adcs.estimation.stkf_model``: gravity, and qa or
+        sigma_a and tau)."""
+        from firmware.adcs.estimation import stkf_model
+        return dict(stkf_model(self.config()), accel=self.stkf_accel)
 
     def start(self):
         """Spawn the firmware, open the slcan bus, wait for its HELLO, send the first burst."""

@@ -59,6 +59,19 @@ LAG_S = 4.0        # the STKF smoother's lag: relay delay U(2, 3) s (Sec. 5.5.1)
 # q = 2 sigma_a^2 tau per axis, the largest over the presets' orbits rounded up (docs/ADCS.md, "The flight
 # STKF's gravity model"; bench/bench_stkf_gravity.py measures it)
 FLIGHT_STKF = {"stkf_gravity": "j2", "stkf_qa": 5e-6}
+# Its other form (``stkf_accel``, ``firmware/adcs/stkf_dmc.py``): the acceleration beyond J2 as a first-order
+# Gauss-Markov state per satellite and axis, sigma_a (m/s^2) the presets' largest rounded up and tau (s) their mean
+# rounded (docs/ADCS.md, "The flight STKF's gravity model")
+FLIGHT_STKF_MARKOV = {"stkf_gravity": FLIGHT_STKF["stkf_gravity"], "stkf_accel": "markov", "stkf_sigma_a": 1e-4,
+                      "stkf_tau": 300.0}
+STKF_ACCELS = ("white", "markov")                # the flight STKF's forms, the first the default
+
+
+def flight_stkf(accel="white"):
+    """The flight world's STKF configuration keys (hpop truth) for the form ``accel`` of ``STKF_ACCELS``."""
+    if accel not in STKF_ACCELS:
+        raise ValueError("stkf_accel must be one of %s, got %r" % (", ".join(STKF_ACCELS), accel))
+    return FLIGHT_STKF if accel == "white" else FLIGHT_STKF_MARKOV
 
 
 def tau_d_case(case, t, q):

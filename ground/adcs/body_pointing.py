@@ -182,7 +182,7 @@ def with_partner(d, behind_deg=10.0, relay_delay_s=(2.0, 3.0)):
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, settle_ts=4.0, feedforward=True, hold_s=HOLD_S, on_second=None,
              wheel_speed_limit_rpm=scenario.POINTING_WHEEL_RPM, tach_noise_rpm=None, spacecraft=None,
-             world="thesis", flight=None, estimator=None, faults=None, zeta=None):
+             world="thesis", flight=None, estimator=None, faults=None, zeta=None, stkf_accel="white"):
     """One pointing-and-tracking run. ``params``: the parameter-file dict. ``duration_s`` is the collection time after
     the 4 t_s of settling (the thesis's 4000 s). Returns (result dict, history dict: 10 Hz arrays, fsw_* at 1 Hz). A
     KeyboardInterrupt returns what was collected so far with ``complete`` false. ``fsw["est_err"]`` (history
@@ -208,7 +208,8 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     "lean" (the flight world's default: those that fly). ``faults``: the spacecraft's device faults
     (``emulator.adcs_bus``: wheel_silent, startracker_blind, gnss_outage, beacon_lost; seconds from the run's
     start), in either world. ``zeta``: the PD's damping ratio (Eq. 6.6; None: the firmware's, 1; the result's
-    ``pd_zeta`` when given)."""
+    ``pd_zeta`` when given). ``stkf_accel``: the flight world's STKF form over the hpop truth
+    (``flight_world.simulate``'s; the thesis world flies "white")."""
     ts = check_ts(ts)
     if world not in WORLDS:
         raise ValueError("world must be one of %s, got %r" % (", ".join(WORLDS), world))
@@ -218,7 +219,11 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
         return flight_world.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=duration_s, seed=seed, params=params,
                                      truth=truth, cache_dir=cache_dir, progress=progress, hold_s=hold_s,
                                      on_second=on_second, tach_noise_rpm=tach_noise_rpm, spacecraft=spacecraft,
-                                     flight=flight, estimator=estimator or "lean", faults=faults, zeta=zeta)
+                                     flight=flight, estimator=estimator or "lean", faults=faults, zeta=zeta,
+                                     stkf_accel=stkf_accel)
+    if stkf_accel != "white":
+        raise ValueError("stkf_accel %s is the flight world's STKF form: the thesis world flies the thesis's STKF"
+                         % (stkf_accel,))
     flight_world.check_flight(flight)                  # known options, which the thesis world does not use
     if params is None:
         raise ValueError("simulate needs the parameter file (run calibrate first)")

@@ -42,8 +42,8 @@ from ground import verdict
 from ground.adcs import body_pointing as bps, campaign, flight_world, runs, terminal_tuning
 from ground.adcs.bps_report import (FIGURES_FLIGHT, plot_flight, plot_history, plot_objectives, plot_sweep,
                                     report_flight_md, report_md)
-from ground.adcs.options import (add_satb_gnss_option, add_session_option, add_spacecraft_option, check_session, fly,
-                                load_spacecraft)
+from ground.adcs.options import (add_satb_gnss_option, add_session_option, add_spacecraft_option,
+                                add_stkf_accel_option, check_session, check_stkf_accel, fly, load_spacecraft)
 from ground.adcs.params import check_params
 from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 from protocol import spacecraft as sf
@@ -208,6 +208,7 @@ def _cmd_bps(a):
     if a.estimator is not None and a.world != "flight":
         raise ValueError("--estimator is the flight world's (--world flight); the thesis world flies the ground's "
                          "41-state APKF and full STKF")
+    stkf_accel = check_stkf_accel(a.stkf_accel, a.world, a.truth, a.estimator)
     _check_length(a)
     d, record, params = _vehicle(a)
     if a.world == "flight":                  # the whole run, not a collected window: --session or --orbits
@@ -217,7 +218,8 @@ def _cmd_bps(a):
     run_folder(out, FIGURES_BPS + FIGURES_FLIGHT)
     args_text = "fps adcs bps " + " ".join(sys.argv[3:])
     summary = {k: None for k in bps.SUMMARY_KEYS}
-    summary.update(complete=False, ts_s=ts, satb_gnss=a.satb_gnss, spacecraft=record, world=a.world)
+    summary.update(complete=False, ts_s=ts, satb_gnss=a.satb_gnss, spacecraft=record, world=a.world,
+                   **({"stkf": {"accel": stkf_accel}} if a.world == "flight" else {}))
     write_json(os.path.join(out, "summary.json"), summary)
     try:
         if params is None:
@@ -231,7 +233,8 @@ def _cmd_bps(a):
     try:
         res, hist = bps.simulate(ts=ts, satb_gnss=a.satb_gnss, duration_s=a.duration, seed=a.seed, params=params,
                                  truth=a.truth, cache_dir=os.path.abspath(a.cache_dir), progress=not a.quiet,
-                                 spacecraft=d, world=a.world, estimator=a.estimator, zeta=zeta)
+                                 spacecraft=d, world=a.world, estimator=a.estimator, zeta=zeta,
+                                 stkf_accel=stkf_accel)
         res["requirements"] = sf.requirements(d)             # the budgets the verdict reads
         if a.world == "flight":
             return _finish_flight(a, out, res, hist, record, args_text)
@@ -455,6 +458,7 @@ def register_bps(sub):
                    help="flight world: the app's filters, lean (default: the lean APKF and STKF that fly) or "
                    "ground (the 41-state APKF and the full STKF, for analysis: the same modes, command and "
                    "allocation on their estimates)")
+    add_stkf_accel_option(p, "--world flight with --truth hpop and the lean estimator")
     _common(p, "thesis world: the seconds collected at 10 Hz after the 30 s hold and 4 t_s of settling, the window "
             "the verdict judges, 1 to %g (default 4000); the flight world, judged per pointing pass, takes --orbits "
             "or --session instead")

@@ -7,6 +7,7 @@ import os
 import numpy as np
 
 from ground.adcs import body_pointing as bps, control
+from ground.adcs.flight_world import stkf_text
 from ground.verdict import table as verdict_table
 from protocol.spacecraft import THESIS_REQUIREMENTS
 
@@ -187,6 +188,7 @@ def report_flight_md(s, args_text):
                 _f(s["max_wheel_speed_rpm"], "%.0f"), s["max_wheel_speed_rpm_run"], s["wheel_speed_limit_rpm"],
                 sum((s.get("wheel_speed_clips") or {}).get("speed_clip", [])), _f(s["wheel_momentum_max_nms"], "%.2e"),
                 _f(s["wheel_momentum_end_nms"], "%.2e"), s["mtq_duty"], 100 * s["mtq_saturated_share"]), ""]
+    out += ["Estimation: %s." % stkf_text(s.get("stkf")), ""]
     out += consistency_md(s.get("consistency"), s.get("stkf_consistency"))
     out += ["| t (s) | mode change | reason |", "|---|---|---|"]
     for c in s["mode_changes"][:50]:

@@ -25,10 +25,13 @@ from emulator.adcs_session import RUNTIMES
 from emulator.runtime import interrupts_between
 from emulator.spacecraft import scenario
 from ground.adcs import body_pointing as bps, campaign
+from ground.adcs.bps_cli import CACHE_DEFAULT
+from ground.adcs.flight_world import stkf_text
 from ground.adcs.options import (add_fault_options, add_satb_gnss_option, add_session_option, add_spacecraft_option,
-                                check_session, faults_from_args, fly, load_spacecraft, refuse_option)
+                                add_stkf_accel_option, check_session, check_stkf_accel, faults_from_args, fly,
+                                load_spacecraft, refuse_option)
 from ground import verdict
-from ground.fileio import output_folder, run_folder, write_atomic, write_json
+from ground.fileio import cache_folder, output_folder, run_folder, write_atomic, write_json
 from protocol import spacecraft as sf
 from protocol.units import RAD_PER_ARCSEC
 
@@ -65,6 +68,12 @@ def register(sub):
                         "solar pressure, its magnetorquers and magnetometer on the bus, and the firmware's flight "
                         "modes (rate-limited slew, re-acquisition, unloading); the pointing figures then start at "
                         "the planned slew's end plus 4 t_s (bps.flight_settle_s)")
+    p.add_argument("--truth", choices=("two-body", "hpop"), default="two-body",
+                   help="true orbits: two-body (default, fast) or hpop (brahe's high-fidelity orbits, computed "
+                        "once into --cache-dir; in the flight world the STKF then flies its J2 model)")
+    p.add_argument("--cache-dir", default=CACHE_DEFAULT, type=cache_folder,
+                   help="the hpop truth's cache (--truth hpop; default %s)" % CACHE_DEFAULT)
+    add_stkf_accel_option(p, "--world flight with --truth hpop")
     add_fault_options(p, "seconds from the session's start")
     p.add_argument("--link-faults", metavar="SPEC", default=None,
                    help="faults on the slcan stream, both directions: bytes=P (a bit flip per ASCII byte), "
@@ -80,6 +89,7 @@ def register(sub):
 def run(a):
     from emulator.spacecraft.scenario import HOLD_S
     check_session(a.session)
+    a.stkf_accel = check_stkf_accel(a.stkf_accel, a.world, a.truth)      # "white" when not given
     bps.check_ts(a.ts)
     campaign.check_seed(a.seed)
     d, source = load_spacecraft(a.spacecraft, partner=True)
@@ -98,6 +108,9 @@ def run(a):
     summary["interrupted"] = interrupted
     summary["spacecraft"] = record
     summary["requirements"] = sf.requirements(d)
+    summary["truth"] = a.truth
+    if a.world == "flight":
+        summary["stkf"] = session.stkf_form()      # the STKF's dynamics flown: its form and keywords
     hist = rows["hist"]
     h = {k: np.concatenate(v) if v else np.zeros((0, 3)) for k, v in hist.items()}
     settle = HOLD_S + 4 * a.ts if a.world == "thesis" else bps.flight_settle_s(d, a.ts)
@@ -158,10 +171,11 @@ def report_md(s, a):
     """report.md: the verdict table, the run, the mode changes and the faults."""
     sc = s.get("spacecraft") or {}
     out = ["# fps adcs can: the ADCS flight software over CAN", "",
-           "Spacecraft %s (file %s, sha256 %s, vehicle %s); world %s; runtime %s; t_s = %g s; seed %d; %s SatB's "
-           "GNSS. complete: %s" % (sc.get("name"), sc.get("source"), sc.get("sha256"),
-                                   (sc.get("vehicle") or {}).get("vehicle", "file"), a.world, a.runtime, a.ts,
-                                   a.seed, "with" if a.satb_gnss else "without", s["complete"]), ""]
+           "Spacecraft %s (file %s, sha256 %s, vehicle %s); world %s; truth %s; runtime %s; t_s = %g s; seed %d; "
+           "%s SatB's GNSS. complete: %s" % (sc.get("name"), sc.get("source"), sc.get("sha256"),
+                                             (sc.get("vehicle") or {}).get("vehicle", "file"), a.world, a.truth,
+                                             a.runtime, a.ts, a.seed, "with" if a.satb_gnss else "without",
+                                             s["complete"]), ""]
     out += verdict.table([(w, None if v is None else round(v, 1), lim, met) for w, v, lim, met in verdict_rows(s)])
     out += ["The figures are taken after %.0f s (the hold and the settling); the budgets are %s." % (
         s["settle_s"], "the spacecraft file's" if s["requirements"]["source"] == "file" else "the thesis's (Sec. 6.4)"),
@@ -174,6 +188,8 @@ def report_md(s, a):
         "answer to frames that came late or damaged (a loaded machine makes more); each cycle still flies exactly "
         "once, so they change no figure." % (s["retries"]["cycles_retried"], s["retries"]["tick_resent"],
                                              s["retries"]["packets_resent"])]
+    if s.get("stkf"):
+        out.append("- %s" % stkf_text(s["stkf"]))
     if s.get("max_wheel_speed_rpm") is not None and s.get("wheel_speed_limit_rpm"):
         out.append("- largest wheel speed after the settling %.0f rpm (limit %g rpm)" % (
             s["max_wheel_speed_rpm"], s["wheel_speed_limit_rpm"]))
@@ -216,9 +232,11 @@ def _session(a, d):
         from ground.runtime import check_pil
         check_pil("adcs")
     log = None if a.quiet else _log
+    hpop = a.truth == "hpop"                # the two-body truth needs no cache
     session = AdcsSession(runtime=a.runtime, satb_gnss=a.satb_gnss, seed=a.seed, duration_s=a.session, ts=a.ts,
                           params=a.params, faults=faults, log=log, link_faults=link_faults, spacecraft=d,
-                          world=a.world)
+                          world=a.world, truth=a.truth, cache_dir=os.path.abspath(a.cache_dir) if hpop else None,
+                          stkf_accel=a.stkf_accel)
     return session, faults
 
 

@@ -63,7 +63,7 @@ def require_magnetorquers(d):
 
 def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=None, truth="two-body",
              cache_dir=None, progress=False, hold_s=HOLD_S, on_second=None, tach_noise_rpm=None, spacecraft=None,
-             flight=None, faults=None, estimator="lean", zeta=None):
+             flight=None, faults=None, estimator="lean", zeta=None, stkf_accel="white"):
     """One flight-world run (the module docstring): the app in process for ``duration_s`` seconds. ``params``:
     the parameter-file dict (checked against the vehicle); ``flight``: options over ``FLIGHT``; ``faults``: the
     session's device faults; ``on_second(k, hist, fsw, x)`` as ``body_pointing.simulate``'s. Returns (result,
@@ -71,8 +71,13 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     (NaN before the APKF starts, and at the last row, which no cycle reaches). A KeyboardInterrupt returns what
     was collected so far with ``complete`` false. ``estimator``: "lean" (the lean APKF and STKF that fly) or
     "ground" (the 41-state APKF and the full STKF, ``ground.adcs.estimators``, for analysis: the same modes,
-    command and allocation on other estimates)."""
+    command and allocation on other estimates). ``stkf_accel``: the lean STKF's form over the hpop truth
+    (``AdcsSession``'s; "markov" with the lean estimator and truth hpop only). The result's ``stkf`` records the
+    form flown (``AdcsSession.stkf_form``)."""
     ts = check_ts(ts)
+    if stkf_accel != "white" and estimator != "lean":
+        raise ValueError("stkf_accel %s is the lean STKF's form: the ground's estimators fly the full STKF, "
+                         "two-body" % (stkf_accel,))
     app_host.estimation_for(estimator, None)            # a known estimator, before anything runs
     fo = check_flight(flight)
     if params is None:
@@ -89,10 +94,21 @@ def simulate(ts=TS_THESIS, satb_gnss=False, duration_s=4000.0, seed=0, params=No
     s, rec, hist, k_done, complete, wall_s = app_host.fly(
         K, "bps flight ts=%g s%s" % (ts, " +SatB GNSS" if satb_gnss else ""), progress, on_second,
         satb_gnss=satb_gnss, seed=seed, ts=ts, params=params, faults=faults, truth=truth, cache_dir=cache_dir,
-        hold_s=hold_s, spacecraft=d, world="flight", flight=fo, estimation=log, zeta=zeta)
+        hold_s=hold_s, spacecraft=d, world="flight", flight=fo, estimation=log, zeta=zeta,
+        stkf_accel=stkf_accel)
     lb = laser_axis(d)
     return _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, truth, duration_s, wall_s,
                    estimator, log)
+
+
+def stkf_text(form):
+    """The STKF's dynamics flown (``AdcsSession.stkf_form``, a result's ``stkf``) in words, for report.md."""
+    if form is None:
+        return "the STKF's dynamics: not recorded"
+    accel = ("a first-order Gauss-Markov acceleration per axis, σ_a %g m/s², τ %g s" % (form["sigma_a"], form["tau"])
+             if "tau" in form else "white acceleration noise, qa %g m²/s³" % form["qa"])
+    return "the STKF's dynamics: %s gravity with %s (`--stkf-accel %s`)" % (
+        "J2" if form["gravity"] == "j2" else form["gravity"], accel, form["accel"])
 
 
 class StkfLog:
@@ -169,6 +185,7 @@ def _result(s, rec, hist, k_done, K, complete, d, lb, fo, ts, satb_gnss, seed, t
     flog = {k: fsw[k] for k in ("m_cmd", "h_w", "mtq_sat", "beacon_used")}
     res.update(flight_statistics(hist, dth, dom, mode10, period, flog, mtq["dipole_limit_am2"], axes, occ))
     res["flight_options"] = fo
+    res["stkf"] = s.stkf_form()                     # the STKF's dynamics flown: its form and keywords
     res["truth_form"] = s.sc.truth_form             # the truth's RK4 step: "kernel" (C) or "python"
     add_statistics(res, dth, dom, sel)
     res["budget"] = budget

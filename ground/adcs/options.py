@@ -1,7 +1,7 @@
 """The options the ``fps adcs`` commands and ``fps system`` share, each defined once: the campaign options, the
-spacecraft file (``--spacecraft``, ``load_spacecraft``), SatB's GNSS (``--satb-gnss``/``--no-satb-gnss``) and the
-emulated devices' faults (one option each, or ``--faults FILE``). Below the commands that use them (``ground.adcs.cli``
-registers those)."""
+spacecraft file (``--spacecraft``, ``load_spacecraft``), SatB's GNSS (``--satb-gnss``/``--no-satb-gnss``), the
+flight STKF's form (``--stkf-accel``) and the emulated devices' faults (one option each, or ``--faults FILE``).
+Below the commands that use them (``ground.adcs.cli`` registers those)."""
 
 import argparse
 
@@ -56,6 +56,34 @@ def refuse_option(p, option, why):
         def __call__(self, parser, namespace, values, option_string=None):
             parser.error("%s: %s" % (option_string, why))
     p.add_argument(option, action=Refused, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+
+
+def add_stkf_accel_option(p, where):
+    """``--stkf-accel {white,markov}``: the flight STKF's form (``scenario.flight_stkf``), given only where the
+    flight world's STKF flies over the hpop truth (``where``: the command's words for it); None when not given."""
+    from emulator.spacecraft.scenario import FLIGHT_STKF, FLIGHT_STKF_MARKOV, STKF_ACCELS
+    p.add_argument("--stkf-accel", choices=STKF_ACCELS, default=None,
+                   help="the flight STKF's acceleration beyond its J2 gravity model (%s): white (default) = white "
+                        "noise of qa %g m^2/s^3 per axis; markov = a first-order Gauss-Markov state per satellite "
+                        "and axis of 1 sigma %g m/s^2 and correlation time %g s (dynamic model compensation, about "
+                        "1.1x white's CPU)" % (where, FLIGHT_STKF["stkf_qa"], FLIGHT_STKF_MARKOV["stkf_sigma_a"],
+                                                FLIGHT_STKF_MARKOV["stkf_tau"]))
+
+
+def check_stkf_accel(given, world, truth, estimator=None):
+    """The form ``--stkf-accel`` flies ("white" when not given); ValueError naming the option when it is given where
+    the flight STKF does not fly: outside the flight world, over a two-body truth (no J2: the thesis's two-body
+    STKF flies), or with the ground's estimators (``estimator`` "ground": the full STKF, two-body)."""
+    if given is None:
+        return "white"
+    why = ("the thesis world flies the thesis's two-body STKF (--world flight)" if world != "flight" else
+           "a two-body truth has no J2, and the STKF keeps the thesis's two-body model (--truth hpop)"
+           if truth != "hpop" else
+           "--estimator ground flies the ground's full STKF, two-body" if estimator == "ground" else None)
+    if why is not None:
+        raise ValueError("--stkf-accel %s: the option chooses the flight STKF's form over its J2 model, which flies "
+                         "in the flight world over the hpop truth; %s" % (given, why))
+    return given
 
 
 def add_workers_options(p):

@@ -123,11 +123,11 @@ def miss_causes(res, d):
 
 
 def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="two-body", ts=33.0,
-                satb_gnss=False, cache_dir=None):
+                satb_gnss=False, cache_dir=None, stkf_accel="white"):
     """One vehicle of the campaign (top level, picklable): drawn from ``seed``, calibrated, flown ``orbits``
-    orbits in the flight world; returns its result with ``vehicle``, ``checks``, ``ok`` (``budgets_met``: every
-    check met, as ``fps adcs bps --world flight`` judges it) and ``figures`` (``figures_of``), and writes
-    ``run_dir``."""
+    orbits in the flight world (its STKF's form ``stkf_accel``, ``flight_world.simulate``'s); returns its result
+    with ``vehicle``, ``checks``, ``ok`` (``budgets_met``: every check met, as ``fps adcs bps --world flight``
+    judges it) and ``figures`` (``figures_of``), and writes ``run_dir``."""
     from emulator.spacecraft import dispersion
     from ground.adcs import body_pointing as bps, bps_cli
     from protocol import spacecraft as sf
@@ -135,7 +135,7 @@ def run_vehicle(seed, run_dir, spacecraft, vehicle="file", orbits=3.0, truth="tw
     params = bps_cli.calibration(seed, cache_dir, False, d)
     res, hist = bps.simulate(ts=ts, satb_gnss=satb_gnss, duration_s=bps_cli.orbits_duration(d, orbits), seed=seed,
                              params=params, truth=truth, cache_dir=cache_dir, progress=False, spacecraft=d,
-                             world="flight")
+                             world="flight", stkf_accel=stkf_accel)
     if not res["complete"]:
         raise KeyboardInterrupt
     res["vehicle"] = vrec
@@ -193,10 +193,13 @@ def _fmt(v, f="%.3g"):
 
 def report_md(s):
     """report.md of the summary ``s``."""
+    accel = s.get("stkf_accel", "white")
     L = ["# Flight-world campaign over a population of vehicles", "",
-         "Spacecraft %s (sha256 %s), %d vehicles (%s), %g orbits each, seeds %d-%d; %s." % (
+         "Spacecraft %s (sha256 %s), %d vehicles (%s), %g orbits each, seeds %d-%d, truth %s, the STKF's "
+         "acceleration %s (`--stkf-accel`); %s." % (
              s["spacecraft"]["name"], s["spacecraft"]["sha256"], s["runs"], s["vehicle_text"], s["orbits"],
-             s["seeds"][0], s["seeds"][-1], "complete" if s["complete"] else "INCOMPLETE (resume to finish)"), ""]
+             s["seeds"][0], s["seeds"][-1], s["truth"], accel,
+             "complete" if s["complete"] else "INCOMPLETE (resume to finish)"), ""]
     L += verdict_table([("%s: %s (vehicles meeting it)" % (k, c["what"]), "%d of %d" % (c["met"], c["of"]), "all",
                          c["met"] == c["of"] if c["of"] and s["complete"] else None) for k, c in s["checks"].items()])
     L += ["| check | vehicles meeting it | share | 95 % interval |", "|---|---|---|---|"]
@@ -211,8 +214,9 @@ def report_md(s):
     L += ["", "A filter's NEES share over the population is the mean row (the runs are equally long: the share of "
           "all the vehicles' seconds in the band)."]
     L += ["", "Worst vehicles (replay one with `fps adcs bps --world flight --spacecraft %s --vehicle %s --seed N "
-          "--orbits %g --truth %s --ts %g%s`):" % (s["spacecraft"]["source"], s["vehicle"], s["orbits"], s["truth"],
-                                                   s["ts_s"], " --satb-gnss" if s["satb_gnss"] else ""), "",
+          "--orbits %g --truth %s --ts %g%s%s`):" % (s["spacecraft"]["source"], s["vehicle"], s["orbits"], s["truth"],
+                                                     s["ts_s"], " --satb-gnss" if s["satb_gnss"] else "",
+                                                     "" if accel == "white" else " --stkf-accel " + accel), "",
           "| seed | every check | worst 3σ pointing (arcsec) | missed |", "|---|---|---|---|"]
     for w in s["worst"]:
         L.append("| %d | %s | %s | %s |" % (w["seed"], "met" if w["ok"] else "MISSED",
@@ -262,19 +266,20 @@ def run(a):
     whose run failed, its cause in the report, misses every check), 130 interrupted (the finished runs kept: run
     it again to resume)."""
     from ground.adcs import bps_cli, campaign
-    from ground.adcs.options import load_spacecraft
+    from ground.adcs.options import check_stkf_accel, load_spacecraft
     from ground.adcs.runs import spacecraft_record
     from protocol import spacecraft as sf
     seeds = campaign.seeds_for(a.seed, a.runs)
     if a.scheduler is None:
         campaign.check_workers(a.workers)
     campaign.check_scheduler(a.scheduler)
+    stkf_accel = check_stkf_accel(a.stkf_accel, "flight", a.truth)
     d, source = load_spacecraft(a.spacecraft, partner=True, flight=True)
     duration = bps_cli.orbits_duration(d, a.orbits)
     out = a.output
     identity = {"format": "fps-adcs-campaign/1", "spacecraft": spacecraft_record(d, source), "vehicle": a.vehicle,
                 "seeds": seeds, "orbits": float(a.orbits), "truth": a.truth, "ts_s": float(a.ts),
-                "satb_gnss": bool(a.satb_gnss), "requirements": sf.requirements(d)}
+                "satb_gnss": bool(a.satb_gnss), "stkf_accel": stkf_accel, "requirements": sf.requirements(d)}
     _open_folder(out, identity)
     kept = _finished(out, seeds)
     todo = [i for i, r in enumerate(kept) if r is None]
@@ -283,7 +288,7 @@ def run(a):
               file=sys.stderr)
     results, interrupted = list(kept), False
     kw = dict(spacecraft=d, vehicle=a.vehicle, orbits=a.orbits, truth=a.truth, ts=a.ts, satb_gnss=a.satb_gnss,
-              cache_dir=os.path.abspath(os.path.join(out, "cache")))
+              cache_dir=os.path.abspath(os.path.join(out, "cache")), stkf_accel=stkf_accel)
     bps_cli.prepare_truth(a, duration, kw["cache_dir"], d)
     try:
         if todo:
@@ -331,6 +336,8 @@ def _open_folder(out, identity):
                 old = json.load(f)
         except (OSError, ValueError) as exc:
             raise ValueError("%s: cannot read the campaign it holds (%s): use a new -o" % (path, exc)) from None
+        if isinstance(old, dict):
+            old.setdefault("stkf_accel", "white")           # a campaign.json without the key flew white
         if old != json.loads(json.dumps(identity)):
             diff = sorted(k for k in set(old) | set(identity) if old.get(k) != json.loads(json.dumps(identity)).get(k))
             raise ValueError("-o %s holds another campaign (it differs in %s): use a new -o, or the same options "
@@ -342,7 +349,7 @@ def _open_folder(out, identity):
 
 def register(sub):
     from emulator.spacecraft.dispersion import VEHICLES
-    from ground.adcs.options import _presets, add_satb_gnss_option, add_workers_options
+    from ground.adcs.options import _presets, add_satb_gnss_option, add_stkf_accel_option, add_workers_options
     from ground.fileio import output_folder
     p = sub.add_parser("campaign", help="the flight world over a population of vehicles drawn from one spacecraft "
                                         "file", description=__doc__.split("\n\n")[0] + "\n\n" + __doc__.split("\n\n")[1])
@@ -360,6 +367,7 @@ def register(sub):
     add_satb_gnss_option(p, False)
     p.add_argument("--truth", choices=("two-body", "hpop"), default="two-body",
                    help="orbit truth: two-body (default) or hpop (brahe's high-fidelity orbits, computed once)")
+    add_stkf_accel_option(p, "with --truth hpop")
     add_workers_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-plots", action="store_true")

@@ -95,7 +95,8 @@ def _ground_run(spec, params, on_cycle=None, stop=None):
                              duration_s=spec["adcs_duration_s"] + (_t_settle(spec) if fly else 0.0),
                              seed=spec["seed"], params=params, truth=spec["truth"], cache_dir=spec["cache_dir"],
                              on_second=second if on_cycle is not None else None, spacecraft=d,
-                             world=spec.get("world", "thesis"), faults=spec.get("faults"))
+                             world=spec.get("world", "thesis"), faults=spec.get("faults"),
+                             stkf_accel=spec.get("stkf_accel", "white"))
     return res, hist, hist["fsw_est_err"]
 
 
@@ -148,7 +149,7 @@ def _send_firmware(spec, params, q, stop):
     s = AdcsSession(runtime=spec["runtime"], satb_gnss=spec["satb_gnss"], seed=spec["seed"], duration_s=float(n),
                     ts=spec["ts"], params=params, log=lambda m: q.put(("log", m)), truth=spec["truth"],
                     cache_dir=spec["cache_dir"], faults=spec.get("faults"), link_faults=link_faults, spacecraft=d,
-                    world=spec.get("world", "thesis"))
+                    world=spec.get("world", "thesis"), stkf_accel=spec.get("stkf_accel", "white"))
     try:
         s.start()
         prev = None          # the truth at the end of the previous cycle: the instant of this cycle's estimate

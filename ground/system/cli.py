@@ -40,7 +40,7 @@ def _cmd(a):
     try:
         s = run_system(a.duration, a.output, a.runtime, a.adcs, a.satb_gnss, a.seed, a.ts, a.truth, a.calibration,
                        a.params, a.bps_cache, cfg, a.q2_dv, a.quiet, not a.no_plots, faults_from_args(a),
-                       _link_faults_arg(a.link_faults), a.spacecraft, a.world, a.vehicle)
+                       _link_faults_arg(a.link_faults), a.spacecraft, a.world, a.vehicle, a.stkf_accel)
     except hil.Interrupted:
         s = _read_summary(a.output)
         print("interrupted after %.1f s of virtual time: partial run in %s (summary complete=false)"
@@ -107,7 +107,8 @@ def register(sub, name, help_):
                         "unloading, a rate-limited slew and re-acquisition (fps adcs bps --world flight), the play "
                         "starting once the planned slew and 4 t_s of settling are over (277 s for thesis-3u at t_s = 33 s); "
                         "thesis: Sec. 6.4's world, the play after 30 s + 4 t_s")
-    from ground.adcs.options import add_spacecraft_option
+    from ground.adcs.options import add_spacecraft_option, add_stkf_accel_option
+    add_stkf_accel_option(p, "--world flight with --truth hpop, either --adcs: both fly the flight app")
     add_spacecraft_option(p, "the ADCS's vehicle, as fps adcs bps (--adcs ground) or fps adcs can (--adcs "
                           "firmware) take it; --params is checked against it")
     hil.add_run_arguments(p, "seed of the ADCS scenario and the bench emulator, >= 0 (default 0)")

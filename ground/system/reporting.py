@@ -232,6 +232,9 @@ def report_md(s):
                "the %g s hold, the planned first slew and its re-acquisition, and 4 t_s of settling" % _hold_s())
     lines.append("Estimates are compared with the truth at the instant of each 1 s cycle's estimate; the window "
                  "starts after %s (t = %.0f s)." % (settled, s.get("settle_s") or 0))
+    if s.get("stkf_accel"):
+        lines.append("The flight STKF's acceleration beyond its J2 model (hpop truth): %s (`--stkf-accel`)."
+                     % s["stkf_accel"])
     lines += ["", "## Fine pointing (Q2 recorder, as fps hil)", "", report.table(s), "",
               report.saturation_md(s.get("saturation")), "",
               "real-time factor: %s over the whole command (%.1f s wall, goal ≥ %gx), %s during the play; "

@@ -11,6 +11,7 @@ import numpy as np
 
 from ground import hil, report
 from ground.adcs.campaign import MAX_DURATION_S     # the ADCS's run is held in memory, as fps adcs bps's
+from ground.adcs.options import check_stkf_accel
 from ground.fileio import run_folder, write_atomic, write_json
 from ground.system.adcs import AdcsFailed, AdcsFeed, estimation_accuracy, settle_s
 from ground.system.constants import ADCS_KINDS, FIGURE, GOAL_RTF, LEAD_S, RUNTIMES, STENCIL_S, firmware_available
@@ -63,7 +64,7 @@ def calibrate_inproc(seed, config, path):
 def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware", satb_gnss=False, seed=0, ts=33.0,
                truth="hpop", calibration_path=None, params_path=None, bps_cache=None, config=None, q2_dvp=0.05,
                quiet=False, plots=True, faults=None, link_faults=None, spacecraft=None, world="thesis",
-               vehicle="file"):
+               vehicle="file", stkf_accel=None):
     """The whole run; returns the summary (also in ``out_dir/summary.json``). Bad input raises ValueError before
     anything is written; afterwards the folder always ends valid, and a failure raises ``hil.RunFailed``, an
     interruption ``hil.Interrupted``. ``faults``: the ADCS session's (``emulator.adcs_session``: wheel_silent,
@@ -75,12 +76,15 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     ``vehicle``: the simulated vehicle, its truth block or drawn from ``seed`` (``emulator.spacecraft.dispersion``).
     ``world``: "thesis" (Sec. 6.4's) or "flight" (``fps adcs bps --world flight``'s: datasheet wheels,
     magnetorquers, the rate-limited slew; the lean firmware flies its modes, ``firmware/adcs/flight.py``); in the
-    flight world the play starts at ``bps.flight_settle_s`` (the planned slew, re-acquisition and 4 t_s)."""
+    flight world the play starts at ``bps.flight_settle_s`` (the planned slew, re-acquisition and 4 t_s).
+    ``stkf_accel``: ``--stkf-accel``, the flight STKF's form over the hpop truth in the flight world, either ADCS
+    (both fly the flight app; None: white, the default; ``options.check_stkf_accel``)."""
     from ground import runtime
     from ground.calibrate import load_calibration
 
     t_wall0 = time.perf_counter()
     ts = check_inputs(duration_s, runtime_name, adcs, ts, truth, seed)
+    stkf_accel = check_stkf_accel(stkf_accel, world, truth)
     hil.check_q2_dv(q2_dvp)
     runtime.check_board(config)
     cal = load_calibration(calibration_path) if calibration_path else None
@@ -92,10 +96,11 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
     summary = hil.new_summary(duration_s)
     summary.update({"adcs": adcs, "runtime": runtime_name, "goal_real_time_factor": GOAL_RTF,
                     "satb_gnss": bool(satb_gnss), "ts_s": ts, "seed": seed, "phase": "start", "stopped_in": None,
-                    "spacecraft": record, "world": world, "requirements": sf.requirements(d)})
+                    "spacecraft": record, "world": world, "requirements": sf.requirements(d),
+                    **({"stkf_accel": stkf_accel} if (world, truth) == ("flight", "hpop") else {})})
     write_json(rec.path("summary.json"), summary)
     spec = _spec(adcs, runtime_name, satb_gnss, seed, ts, truth, duration_s, params, bps_cache, faults, d,
-                 link_faults, world, t_settle)
+                 link_faults, world, t_settle, stkf_accel)
     live = LiveDisturbance(t_settle)
     say = (lambda m: None) if quiet else (lambda m: print("fps system: " + m, file=sys.stderr))
     feed = AdcsFeed(spec, live.add)
@@ -139,7 +144,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
 
 
 def _spec(adcs, runtime_name, satb_gnss, seed, ts, truth, duration_s, params, bps_cache, faults, d, link_faults,
-          world, t_settle):
+          world, t_settle, stkf_accel="white"):
     """The ADCS process's specification (``ground.system.adcs``): what it flies, where its cache is."""
     from ground.adcs import bps_cli
     cache = bps_cache or bps_cli.CACHE_DEFAULT
@@ -147,7 +152,7 @@ def _spec(adcs, runtime_name, satb_gnss, seed, ts, truth, duration_s, params, bp
             "truth": truth, "duration_s": duration_s, "adcs_duration_s": duration_s + LEAD_S, "params": params,
             "bps_cache": cache, "cache_dir": os.path.abspath(cache), "faults": faults or None, "spacecraft": d,
             "link_faults": link_faults.describe() if link_faults is not None else None, "world": world,
-            "t_settle": t_settle}
+            "t_settle": t_settle, "stkf_accel": stkf_accel}
 
 
 def _h_calibration(cal, summary, say, seed, config, rec):
@@ -165,7 +170,8 @@ def spec_config(spec):
     return {"adcs": spec["adcs"], "adcs_runtime": spec["runtime"] if spec["adcs"] == "firmware" else None,
             "ts_s": spec["ts"], "truth": spec["truth"], "settle_s": spec["t_settle"], "seed": spec["seed"],
             "duration_s": spec["duration_s"], "runtime": spec["runtime"], "link": "serial",
-            "faults": spec["faults"], "adcs_link_faults": spec["link_faults"], "live_player": True}
+            "faults": spec["faults"], "adcs_link_faults": spec["link_faults"], "live_player": True,
+            **({"stkf_accel": spec["stkf_accel"]} if (spec["world"], spec["truth"]) == ("flight", "hpop") else {})}
 
 
 def _finish(run, rec, summary, q2cal, plots, feed, live, t_settle, t_wall0, faults):

@@ -173,7 +173,8 @@ def report_md(s, a):
     out = ["# fps adcs can: the ADCS flight software over CAN", "",
            "Spacecraft %s (file %s, sha256 %s, vehicle %s); world %s; truth %s; runtime %s; t_s = %g s; seed %d; "
            "%s SatB's GNSS. complete: %s" % (sc.get("name"), sc.get("source"), sc.get("sha256"),
-                                             (sc.get("vehicle") or {}).get("vehicle", "file"), a.world, a.truth,
+                                             (sc.get("vehicle") or {}).get("vehicle", "file"), a.world,
+                                             s.get("truth", "two-body"),
                                              a.runtime, a.ts, a.seed, "with" if a.satb_gnss else "without",
                                              s["complete"]), ""]
     out += verdict.table([(w, None if v is None else round(v, 1), lim, met) for w, v, lim, met in verdict_rows(s)])

@@ -185,3 +185,13 @@ def test_an_unknown_form_is_argparse_s_error(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         cli.main(["adcs", "bps", "--world", "flight", "--stkf-accel", "pink", "-o", str(tmp_path / "x")])
     assert exc.value.code == 2 and "invalid choice: 'pink'" in capsys.readouterr().err
+
+
+def test_the_commands_that_fly_the_flight_stkf_take_it_and_say_the_forms():
+    from tests.test_cli_defaults import _options
+    helps = _options("--stkf-accel")
+    assert set(helps) == {"adcs bps", "adcs can", "adcs campaign", "system"}
+    for c, a in helps.items():
+        assert a.default is None and tuple(a.choices) == scenario.STKF_ACCELS, c
+        assert all(w in a.help for w in ("white (default)", "m^2/s^3", "Gauss-Markov", "m/s^2", "300 s",
+                                          "--truth hpop")), (c, a.help)

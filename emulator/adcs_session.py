@@ -109,6 +109,9 @@ SPAN_MARGIN_S = 8.0                  # the orbit truth's span beyond the run (``
 MAX_LATE_CYCLES = 3                  # late cycles in a row that end the session: the firmware is hung
 HELLO_WAIT_S = 30.0                  # wall seconds the firmware has to answer HELLO
 HELLO_RETRY_S, HELLO_RETRY_MAX_S = 0.05, 0.5    # HELLO sent again after this, doubling up to the second
+# why the qemu runtime flies the white STKF only
+BOARD_STKF = ("the ADCS PIL image (make pil) freezes the white STKF's modules, not firmware/adcs/stkf_dmc.py; "
+              "fly the markov STKF with runtime micropython, cpython or inproc")
 ISOTP_TIMEOUT_MS = 20.0              # N_Bs on the lockstep pty, both ends (ISO's 1000 ms is for a real bus)
 
 
@@ -134,6 +137,8 @@ def _check_args(runtime, duration_s, ts, truth, apkf_momentum, world, probe, lin
     if runtime == "inproc" and link_faults is not None:
         raise ValueError("link faults need a link: runtime inproc has none (use cpython, micropython or qemu)")
     scenario.flight_stkf(stkf_accel)                # a known form
+    if stkf_accel != "white" and runtime == "qemu":
+        raise ValueError("stkf_accel %s: %s" % (stkf_accel, BOARD_STKF))
     if stkf_accel != "white" and (world, truth) != ("flight", "hpop"):
         raise ValueError("stkf_accel %s is the flight STKF's form over the hpop truth (world flight, truth hpop); "
                          "the %s world over the %s truth flies the thesis's two-body STKF" % (stkf_accel, world, truth))

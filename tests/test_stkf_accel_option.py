@@ -79,6 +79,8 @@ def test_the_session_configures_the_form_and_white_is_unchanged(cache):
             adcs_session._check_args("inproc", 2, 33.0, truth, "filtered", world, None, None, None, "markov")
     with pytest.raises(ValueError, match="stkf_accel must be one of"):
         AdcsSession(stkf_accel="pink", **kw)
+    with pytest.raises(ValueError, match="stkf_accel markov: the ADCS PIL image"):
+        adcs_session._check_args("qemu", 2, 33.0, "hpop", "filtered", "flight", None, None, None, "markov")
 
 
 def test_bps_flight_flies_and_records_markov(tmp_path, params, cache, configs, capsys):
@@ -172,6 +174,9 @@ class _Q:
     (["adcs", "campaign", "--stkf-accel", "markov"], "two-body truth"),
     (["system", "--truth", "two-body", "--stkf-accel", "markov"], "two-body truth"),
     (["system", "--world", "thesis", "--adcs", "ground", "--stkf-accel", "markov"], "the thesis world"),
+    (["adcs", "can", "--world", "flight", "--truth", "hpop", "--runtime", "qemu", "--stkf-accel", "markov"],
+     "the ADCS PIL image"),
+    (["system", "--adcs", "firmware", "--runtime", "qemu", "--stkf-accel", "markov"], "the ADCS PIL image"),
 ])
 def test_refused_where_it_cannot_apply(tmp_path, capsys, argv, why):
     out = tmp_path / "refused"

@@ -89,7 +89,7 @@ def register(sub):
 def run(a):
     from emulator.spacecraft.scenario import HOLD_S
     check_session(a.session)
-    a.stkf_accel = check_stkf_accel(a.stkf_accel, a.world, a.truth)      # "white" when not given
+    a.stkf_accel = check_stkf_accel(a.stkf_accel, a.world, a.truth, runtime=a.runtime)    # "white" when not given
     bps.check_ts(a.ts)
     campaign.check_seed(a.seed)
     d, source = load_spacecraft(a.spacecraft, partner=True)

@@ -70,12 +70,16 @@ def add_stkf_accel_option(p, where):
                                                 FLIGHT_STKF_MARKOV["stkf_tau"]))
 
 
-def check_stkf_accel(given, world, truth, estimator=None):
+def check_stkf_accel(given, world, truth, estimator=None, runtime=None):
     """The form ``--stkf-accel`` flies ("white" when not given); ValueError naming the option when it is given where
     the flight STKF does not fly: outside the flight world, over a two-body truth (no J2: the thesis's two-body
-    STKF flies), or with the ground's estimators (``estimator`` "ground": the full STKF, two-body)."""
+    STKF flies), or with the ground's estimators (``estimator`` "ground": the full STKF, two-body); and markov on
+    the ADCS PIL board (``runtime`` "qemu", ``AdcsSession``'s check)."""
     if given is None:
         return "white"
+    if given != "white" and runtime == "qemu":
+        from emulator.adcs_session import BOARD_STKF
+        raise ValueError("--stkf-accel %s with --runtime qemu: %s" % (given, BOARD_STKF))
     why = ("the thesis world flies the thesis's two-body STKF (--world flight)" if world != "flight" else
            "a two-body truth has no J2, and the STKF keeps the thesis's two-body model (--truth hpop)"
            if truth != "hpop" else

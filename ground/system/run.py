@@ -84,7 +84,7 @@ def run_system(duration_s, out_dir, runtime_name="micropython", adcs="firmware",
 
     t_wall0 = time.perf_counter()
     ts = check_inputs(duration_s, runtime_name, adcs, ts, truth, seed)
-    stkf_accel = check_stkf_accel(stkf_accel, world, truth)
+    stkf_accel = check_stkf_accel(stkf_accel, world, truth, runtime=runtime_name if adcs == "firmware" else None)
     hil.check_q2_dv(q2_dvp)
     runtime.check_board(config)
     cal = load_calibration(calibration_path) if calibration_path else None

@@ -124,7 +124,7 @@ def test_campaign_hands_the_form_to_each_vehicle(tmp_path, monkeypatch, configs)
     assert s["stkf_accel"] == "markov" and json.load(open(out / "campaign.json"))["stkf_accel"] == "markov"
     assert json.load(open(out / "run_0000" / "result.json"))["stkf"]["accel"] == "markov"
     md = (out / "report.md").read_text()
-    assert "acceleration markov" in md and "--truth hpop --ts 33 --stkf-accel markov`" in md
+    assert "J2 model with its acceleration markov" in md and "--truth hpop --ts 33 --stkf-accel markov`" in md
 
 
 def test_a_campaign_folder_without_the_key_resumes_as_white(tmp_path):

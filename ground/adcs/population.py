@@ -195,10 +195,11 @@ def report_md(s):
     """report.md of the summary ``s``."""
     accel = s.get("stkf_accel", "white")
     L = ["# Flight-world campaign over a population of vehicles", "",
-         "Spacecraft %s (sha256 %s), %d vehicles (%s), %g orbits each, seeds %d-%d, truth %s, the STKF's "
-         "acceleration %s (`--stkf-accel`); %s." % (
+         "Spacecraft %s (sha256 %s), %d vehicles (%s), %g orbits each, seeds %d-%d, truth %s, %s; %s." % (
              s["spacecraft"]["name"], s["spacecraft"]["sha256"], s["runs"], s["vehicle_text"], s["orbits"],
-             s["seeds"][0], s["seeds"][-1], s["truth"], accel,
+             s["seeds"][0], s["seeds"][-1], s["truth"],
+             "the STKF's J2 model with its acceleration %s (`--stkf-accel`)" % accel if s["truth"] == "hpop" else
+             "the STKF's two-body model (a two-body truth has no J2)",
              "complete" if s["complete"] else "INCOMPLETE (resume to finish)"), ""]
     L += verdict_table([("%s: %s (vehicles meeting it)" % (k, c["what"]), "%d of %d" % (c["met"], c["of"]), "all",
                          c["met"] == c["of"] if c["of"] and s["complete"] else None) for k, c in s["checks"].items()])

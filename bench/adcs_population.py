@@ -131,19 +131,22 @@ def uncertainty_sweep(campaign, population, name="thesis-3u", rows=SWEEP_3U, wor
     return "\n".join(lines + fix)
 
 
-def walk_diagnostic(campaign, population, name="thesis-3u", row=SWEEP_3U[6], workers=2):
-    """What the filter's random walks cost over the blind stretches where the truth has none (Case 1): ``row``'s
-    population with Case 1's q_d (``apkf.QD_CONSISTENT``) at zero, then with the walks of the constant parameters
-    (Sec. 4.8's Q on J5, m, the tilts and Jrw: ``apkf._QP_FIXED``) at zero too; diagnostics, never defaults.
-    Returns ``uncertainty_sweep``'s tables for them."""
+WALK_ROWS = ((SWEEP_3U[6], False), (SWEEP_3U[6], True), (SWEEP_3U[0], True))
+
+
+def walk_diagnostic(campaign, population, name="thesis-3u", rows=WALK_ROWS, workers=2):
+    """What the filter's random walks cost over the blind stretches where the truth has none (Case 1): each row's
+    population with Case 1's q_d (``apkf.QD_CONSISTENT``) at zero, and where its flag says so the walks of the
+    constant parameters (Sec. 4.8's Q on J5, m, the tilts and Jrw: ``apkf._QP_FIXED``) at zero too; diagnostics,
+    never defaults. Returns ``uncertainty_sweep``'s tables for them."""
     q, qp = apkf.QD_CONSISTENT[1], apkf._QP_FIXED.copy()
     out = []
     try:
-        apkf.QD_CONSISTENT[1] = 0.0                   # forked workers inherit it
-        for label in (", tau_d's walk at zero (a diagnostic)", ", tau_d's and the parameters' walks at zero "
-                                                                "(a diagnostic)"):
-            if "parameters'" in label:
-                apkf._QP_FIXED[:] = 0.0
+        for row, params in rows:
+            apkf.QD_CONSISTENT[1] = 0.0               # forked workers inherit both
+            apkf._QP_FIXED[:] = 0.0 if params else qp
+            label = (", tau_d's and the parameters' walks at zero (a diagnostic)" if params
+                     else ", tau_d's walk at zero (a diagnostic)")
             out.append(uncertainty_sweep(campaign, population, name, ((row[0] + label,) + tuple(row[1:]),), workers,
                                          (0,), tilt_split=False))
     finally:

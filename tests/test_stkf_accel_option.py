@@ -54,12 +54,9 @@ def configs(monkeypatch):
 
 
 def test_one_source_for_the_forms():
-    from bench import bench_stkf_gravity
     assert scenario.flight_stkf() is scenario.FLIGHT_STKF and scenario.flight_stkf("white") is scenario.FLIGHT_STKF
     assert scenario.FLIGHT_STKF_MARKOV == {"stkf_gravity": "j2", "stkf_accel": "markov", "stkf_sigma_a": 1e-4,
                                            "stkf_tau": 300.0}
-    assert bench_stkf_gravity.MODELS["j2"] == scenario.FLIGHT_STKF
-    assert bench_stkf_gravity.MODELS["j2-markov"] == scenario.FLIGHT_STKF_MARKOV
     with pytest.raises(ValueError, match="stkf_accel must be one of white, markov"):
         scenario.flight_stkf("pink")
 

@@ -228,7 +228,7 @@ class FakeSession:
 
     def __init__(self, *, runtime="micropython", satb_gnss=False, seed=0, duration_s=600.0, ts=33.0,
                  params=None, faults=None, log=None, truth="two-body", cache_dir=None, link_faults=None,
-                 spacecraft=None, world="thesis"):
+                 spacecraft=None, world="thesis", stkf_accel=None):
         self.k = 0
         self.closed = False
         self.started = False

@@ -51,11 +51,12 @@ GROUPS = (("tau_d", np.r_[6:9]), ("J5", np.r_[9:14]), ("m", np.r_[14:17]), ("til
           ("Jrw", np.r_[25:29]), ("W, W-, W+", np.r_[29:41]))
 
 
-def stretch_check(seed, after, min_steps, n=400, keep=None):
+def stretch_check(seed, after, min_steps, n=400, keep=None, name=NAME):
     """The first blind stretch of at least ``min_steps`` steps that starts after ``after`` s (its start: the last
     star-tracker output before it), as the module docstring says; ``keep``: the error-state indices left uncertain
-    (the rest of P zeroed, on both sides; None: all). Returns a dict, or None without such a stretch."""
-    _, o, f, k0 = _flown(seed)
+    (the rest of P zeroed, on both sides; None: all); ``name``: the spacecraft file drawn from. Returns a dict, or
+    None without such a stretch."""
+    _, o, f, k0 = _flown(seed, name)
     v, t = o["st_valid"], o["t"]
     k = k0
     while True:
@@ -84,11 +85,11 @@ def stretch_check(seed, after, min_steps, n=400, keep=None):
             "rms_over_sigma": np.sqrt(np.mean(E ** 2, axis=0) / np.diag(Pb)).tolist()}
 
 
-def reacquisitions(seed, until_s):
+def reacquisitions(seed, until_s, name=NAME):
     """``reacquisitions`` of the module docstring up to ``until_s`` s: a list of (t s, stretch steps, prior NEES
     (6 dof), NIS (3 dof), attitude error deg, its largest 1 sigma deg, the parameters' NEES after)."""
     from ground.adcs import quat
-    _, o, f, k0 = _flown(seed)
+    _, o, f, k0 = _flown(seed, name)
     v, t, out = o["st_valid"], o["t"], []
     for k in range(k0 + 1, len(t)):
         if t[k] > until_s:
@@ -109,11 +110,11 @@ def reacquisitions(seed, until_s):
     return out
 
 
-def by_set(seed):
+def by_set(seed, name=NAME):
     """The vehicle's figures per maneuver set (``by_set`` in the module docstring): a list of (from s, to s,
     attitude + rate NEES mean, parameters' NEES at the set's end, largest |z| of the tilts, of Jrw, share of steps
     with a star-tracker output)."""
-    _, o, f, k0 = _flown(seed)
+    _, o, f, k0 = _flown(seed, name)
     v, t, n = o["st_valid"], o["t"], len(o["t"])
     rows, out = [], []
     for k in range(k0, n):
@@ -132,20 +133,21 @@ def by_set(seed):
     return out
 
 
-def linearity_tables(seeds=(0, 1, 3, 5), n=400):
-    """The two diagnostics as markdown tables: ``stretch_check`` in the first set (a stretch of 10 steps or more)
-    and after it (40 or more), and ``by_set`` for the same vehicles."""
+def linearity_tables(seeds=(0, 1, 3, 5), n=400, name=NAME):
+    """The diagnostics as markdown tables for vehicles drawn within ``name``'s block: ``stretch_check`` in the
+    first set (a stretch of 10 steps or more) and after it (40 or more), by state group for the last vehicle,
+    ``by_set`` and ``reacquisitions`` for the same vehicles."""
     from protocol import spacecraft as sf
-    first = sf.load(NAME)
+    first = sf.load(name)
     set1 = runs._simulate(1, seeds[0], None, gyro=False, spacecraft=runs.fly_vehicle(first, seeds[0],
                                                                                      "drawn")[0])["set_ends"][0]
     out = ["\nThe APKF's linear prediction over a blind stretch against its own P carried through the nonlinear "
-           "model (%d draws; thesis-3u drawn vehicles, case 1):\n" % n,
+           "model (%d draws; %s drawn vehicles, case 1):\n" % (n, name),
            "| vehicle | stretch from (s), steps | samples' NEES (6 dof): mean, median, 90th percentile (chi-square: "
            "6, 5.3, 10.6) | RMS / predicted 1 sigma, attitude x, y, z; rate x, y, z |", "|---|---|---|---|"]
     for seed in seeds:
         for after, min_steps in ((0.0, 10), (set1, 40)):
-            r = stretch_check(seed, after, min_steps, n)
+            r = stretch_check(seed, after, min_steps, n, name=name)
             if r is not None:
                 out.append("| %d | %.0f, %d | %.2f, %.2f, %.2f | %s |" % (
                     seed, r["t_s"], r["steps"], r["nees_mean"], r["nees_median"], r["nees_p90"],
@@ -154,22 +156,53 @@ def linearity_tables(seeds=(0, 1, 3, 5), n=400):
             "rest of P zeroed on both sides):\n" % seeds[-1],
             "| uncertain besides attitude and rate | samples' NEES: mean, median, 90th percentile | RMS / predicted 1 "
             "sigma |", "|---|---|---|"]
-    for name, ix in (("none", np.r_[0:0]),) + GROUPS:
-        r = stretch_check(seeds[-1], 0.0, 10, n, keep=np.r_[0:6, ix])
-        out.append("| %s | %.2f, %.2f, %.2f | %s |" % (name, r["nees_mean"], r["nees_median"], r["nees_p90"],
+    for group, ix in (("none", np.r_[0:0]),) + GROUPS:
+        r = stretch_check(seeds[-1], 0.0, 10, n, keep=np.r_[0:6, ix], name=name)
+        out.append("| %s | %.2f, %.2f, %.2f | %s |" % (group, r["nees_mean"], r["nees_median"], r["nees_p90"],
                                                         ", ".join("%.2f" % v for v in r["rms_over_sigma"])))
     out += ["\nThe same vehicles by maneuver set (attitude + rate NEES mean over the set, 6 dof; the parameters' "
             "NEES at its end, 20 dof; the largest |error| / 1 sigma of the tilts and of Jrw there):\n",
             "| vehicle | set (s) | attitude + rate NEES | parameters' NEES | tilts |z| | Jrw |z| | star-tracker "
             "outputs |", "|---|---|---|---|---|---|---|"]
     for seed in seeds:
-        for a, b, ne, npar, zt, zj, fix in by_set(seed):
+        for a, b, ne, npar, zt, zj, fix in by_set(seed, name):
             out.append("| %d | %.0f-%.0f | %.2f | %.1f | %.1f | %.1f | %.2f |" % (seed, a, b, ne, npar, zt, zj, fix))
-    out += ["\nThe first set's re-acquisitions of the same vehicles (the prior at each fix that ends a stretch of 3 "
-            "steps or more, against the truth):\n",
-            "| vehicle | fix (s) | stretch (steps) | prior NEES (6 dof) | NIS (3 dof) | attitude error (deg) | its "
-            "largest 1 sigma (deg) | parameters' NEES after (20 dof) |", "|---|---|---|---|---|---|---|---|"]
+    out.append(reacquisition_table(name, seeds, set1))
+    return "\n".join(out)
+
+
+def stretch_table(name, seeds, after, min_steps, n=400):
+    """``stretch_check`` of the first stretch of ``min_steps`` steps or more after ``after`` s, for vehicles drawn
+    within ``name``'s block: with every state uncertain, and with the attitude, the rate and J5 alone."""
+    out = ["\nThe APKF's linear prediction over the first blind stretch of %d steps or more after %g s, %s drawn "
+           "vehicles (%d draws; every state uncertain / the attitude, rate and J5 alone):\n" % (min_steps, after,
+                                                                                          name, n),
+           "| vehicle | its Jxx, Jyy, Jzz / the file's | stretch from (s), steps | samples' NEES: mean, median, 90th "
+           "percentile | RMS / predicted 1 sigma | J5 alone: NEES mean, median | J5 alone: RMS / predicted 1 sigma |",
+           "|---|---|---|---|---|---|---|"]
+    from protocol import spacecraft as sf
     for seed in seeds:
-        for r in reacquisitions(seed, set1):
+        r = stretch_check(seed, after, min_steps, n, name=name)
+        if r is None:
+            continue
+        j = stretch_check(seed, after, min_steps, n, keep=np.r_[0:6, 9:14], name=name)
+        d = runs.fly_vehicle(sf.load(name), seed, "drawn")[0]
+        moments = np.diag(sf.inertia_matrix(d, True)) / np.array(d["inertia_kgm2"][:3])
+        out.append("| %d | %s | %.0f, %d | %.2f, %.2f, %.2f | %s | %.2f, %.2f | %s |" % (
+            seed, ", ".join("%.2f" % v for v in moments), r["t_s"], r["steps"], r["nees_mean"], r["nees_median"],
+            r["nees_p90"],
+            ", ".join("%.2f" % v for v in r["rms_over_sigma"]), j["nees_mean"], j["nees_median"],
+            ", ".join("%.2f" % v for v in j["rms_over_sigma"])))
+    return "\n".join(out)
+
+
+def reacquisition_table(name, seeds, until_s):
+    """``reacquisitions`` up to ``until_s`` s for vehicles drawn within ``name``'s block, as a markdown table."""
+    out = ["\nThe re-acquisitions up to %g s of %s drawn vehicles (the prior at each fix that ends a stretch of 3 "
+           "steps or more, against the truth):\n" % (until_s, name),
+           "| vehicle | fix (s) | stretch (steps) | prior NEES (6 dof) | NIS (3 dof) | attitude error (deg) | its "
+           "largest 1 sigma (deg) | parameters' NEES after (20 dof) |", "|---|---|---|---|---|---|---|---|"]
+    for seed in seeds:
+        for r in reacquisitions(seed, until_s, name):
             out.append("| %d | %.0f | %d | %.1f | %.1f | %.2f | %.2f | %.1f |" % ((seed,) + r))
     return "\n".join(out)

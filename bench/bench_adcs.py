@@ -493,6 +493,8 @@ def _accuracy(res_2w):
     print(adcs_population.uncertainty_sweep(_campaign, POPULATION))
     print(adcs_population.walk_diagnostic(_campaign, POPULATION))
     print(apkf_linearity.linearity_tables())
+    print(apkf_linearity.stretch_table("generic-6u", (0, 5, 91, 93), 60.0, 10))
+    print(apkf_linearity.reacquisition_table("generic-6u", (0, 5, 91, 93), 210.0))
     print(adcs_population.p0_against_draws())
     by_thesis = {c: figs[("apkf", "thesis-3u", 1, "thesis", "file")] if c == 1 else
                  runs.aggregate(_campaign(runs.run_apkf, c, workers=2, form="thesis")[0], "apkf", c) for c in (1, 2, 3)}

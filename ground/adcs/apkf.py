@@ -22,8 +22,9 @@ ends, then nominal. Adaptive q_d (Eq. 4.152, Case 3): q_d,i = q_d0 + q_d1 |w_i| 
 
 That is the thesis's filter (``APKF(form="thesis")``); its 1 sigma is overconfident on its own scenario. The
 default ``form="consistent"`` keeps the model and adds an iterated update over each blind stretch
-(``update_window``), the second-order terms of the wheels' C(d) Jrw (``second_order_noise``) and of the dipole's
-torque with an attitude error (``dipole_attitude_noise``), R inflated in the
+(``update_window``) faded when its fix fails a chi-square test (``apkf_fading``), the second-order terms of the
+wheels' C(d) Jrw (``second_order_noise``) and of the dipole's torque with an attitude error
+(``dipole_attitude_noise``), R inflated in the
 first set only, and Case 2's q_d matched to its disturbance: see ``APKF``. Either form takes tau_d as the thesis's
 random walk or as a shaping filter's output (``APKF(disturbance=...)``, ``apkf_disturbance``; Sec. 8.3).
 """
@@ -35,6 +36,7 @@ import numpy as np
 
 from ground.adcs import quat
 from ground.adcs.apkf_disturbance import DISTURBANCES, QD1, QD2, shaping  # QD1, QD2: Eq. 4.152's q_d1, q_d2
+from ground.adcs.apkf_fading import faded
 from ground.adcs.apkf_model import (DEG, EYE6, EYE_N, EYE_W, HOUR, ID1, ID2, IJR, IQ, IW, IWM, IWP, IWR, Model, N,
                                     NW, PARAMS, _cross, _f2, _inv3_f, _propagate, _rates_f, _terms_f,
                                     initial_covariance)
@@ -442,15 +444,6 @@ def update(x, P, q_meas, R):
     return correct(x, dx), out
 
 
-def update_standard(x, P, q_meas, R):
-    """The same update with P+ = (I - K H) P (for the tests)."""
-    z = quat.error_vec(q_meas, x[0:4])
-    K = np.linalg.solve(P[IQ, IQ] + R, P[IQ, :]).T
-    H = np.zeros((3, len(P)))
-    H[:, IQ] = np.eye(3)
-    return correct(x, K @ z), (np.eye(len(P)) - K @ H) @ P
-
-
 def correct(x, dx):
     """Apply an error-state correction: q = dq (x) q_hat (``quat.from_small``, Eq. 4.51), the rest additive."""
     out = np.empty_like(x)
@@ -508,7 +501,7 @@ class APKF:
     """The APKF over a recorded run: ``step(t, w_plus, q_meas or None)`` per dt.
 
     ``form``: "consistent" (default) or "thesis", the filter as the thesis writes it (Eq. 4.139-4.142 at every
-    output, Sec. 4.7.4's fictitious noise, Case 2's q_d of Sec. 4.8). The consistent form differs in four
+    output, Sec. 4.7.4's fictitious noise, Case 2's q_d of Sec. 4.8). The consistent form differs in five
     places, each for a measured reason (20 runs of Case 1 unless said):
     - the first star-tracker output after a stretch of two or more steps without one goes through
       ``update_window``: after a blind rotation the attitude can be tens of degrees off (45 deg after the first
@@ -521,7 +514,9 @@ class APKF:
       band in the blind stretches (in band 0.69 / 0.87 of the second / third set's steps; 0.79 / 0.96 with it);
       and the term of the dipole's torque with an attitude error (``dipole_attitude_noise``): without it vehicles
       drawn within thesis-3u's block (0.3 A m^2 dipole) were overconfident over the blind stretches (100 vehicles:
-      NEES mean 9.4 against 8.3 with it, RMS / 1 sigma 1.29-1.31 against 1.20-1.26).
+      NEES mean 9.4 against 8.3 with it, RMS / 1 sigma 1.29-1.31 against 1.20-1.26);
+    - a fix after a stretch whose innovation fails a chi-square test against the prior scales the stretch's start
+      P up until it passes (``apkf_fading``; ``fadings``: one (t, lambda) each).
     ``gate``: a chi-square bound (3 dof) on the star tracker's normalised innovation; an output beyond it is not
     fused but resets the attitude (``reset_attitude``; ``resets``: one (t, NIS, angle arcsec) each). None (the
     default, the thesis's filter): every output is fused.
@@ -548,6 +543,7 @@ class APKF:
         self.form = form
         self.qd = QD_CASE if form == "thesis" else QD_CONSISTENT
         self.second_order = form == "consistent"
+        self.fading, self.fadings = form == "consistent", []
         self.reacquisitions = []
         self._stretch = None            # (x, P, steps, M) since the last star-tracker output
         self.gate = None                # NIS above which a star-tracker output resets the attitude (None: never)
@@ -587,6 +583,10 @@ class APKF:
                 return self.x, self.P
         if stretch is not None and len(stretch[2]) >= 2:
             xa, Pa, steps, M = stretch
+            if self.fading:
+                Pa, self.P, lam = faded(Pa, self.P, M, quat.error_vec(q_meas, self.x[0:4]), R)
+                if lam > 1.0:
+                    self.fadings.append((t + m.dt, lam))
             self.x, self.P, n = update_window(xa, Pa, steps, self.x, self.P, M, q_meas, R, m)
             self.reacquisitions.append((t + m.dt, len(steps), n))
         else:

@@ -66,3 +66,13 @@ def test_the_consistent_form_fades_a_fix_its_prior_cannot_hold_and_the_thesis_fo
     sf, sg = np.sqrt(np.diag(f.P)), np.sqrt(np.diag(g.P))
     assert np.all(sf[apkf.PARAMS] >= sg[apkf.PARAMS]) and np.any(sf[apkf.PARAMS] > 1.01 * sg[apkf.PARAMS])
     assert _run("thesis", 20.0).fadings == []
+
+
+def test_a_run_records_its_fadings():
+    """A generic-6u vehicle whose second first-set fix fails its test is faded; thesis-3u's fixed vehicle never is."""
+    from ground.adcs import runs
+    from protocol import spacecraft as sf
+    r = runs.run_apkf(0, None, case=1, spacecraft=sf.load("generic-6u"), vehicle="drawn", keep_series=False)
+    assert r["fadings"]["count"] >= 1 and r["fadings"]["max_factor"] > 1.0
+    r = runs.run_apkf(0, None, case=1, keep_series=False)
+    assert r["fadings"] == {"count": 0, "max_factor": 1.0}

@@ -42,7 +42,8 @@ def campaign(name, out, vehicles=VEHICLES):
     os.makedirs(out)
     cmd = [sys.executable, "-m", "ground.cli", "adcs", "campaign", "--spacecraft",
            spacecraft_file(name, out), "--vehicle", "drawn",
-           "--runs", str(vehicles), "--orbits", str(ORBITS), "--truth", "hpop", "--quiet", "--no-plots", "-o", os.path.join(out, "campaign")]
+           "--runs", str(vehicles), "--orbits", str(ORBITS), "--truth", "hpop", "--quiet", "--no-plots", "-o",
+           os.path.join(out, "campaign")]
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     if p.returncode not in (0, 3):                 # 3: a check missed, the campaign itself ran
         raise RuntimeError("fps adcs campaign (%s) exited %d: %s" % (name, p.returncode, p.stderr[-1500:]))

@@ -11,9 +11,9 @@ of the stack region (``pil_board``): a mailbox (``tools.pil_mailbox``): ``MAGIC`
 for each kind of TICK exchange (``firmware.hal.stdio._K_*``: common, a new H^-1 bin, CTRL_STATUS, a resend
 answered from the cache, other) its count, sum, largest and a histogram by bit length, in ticks of the nRF51's
 TIMER0 at 16 MHz (16-bit mode), then the wire's words (``Meter.wire``); above it, the stack painted with
-``pil_board.STACK_PAINT`` here at start, whose first overwritten word is the stack's high-water mark. An exchange is a TICK's frame, read whole from the UART by
-``firmware.hal.nrf51.read_frame`` (machine code), decoded, then its FSM_SPI (and the CTRL_STATUS after it, when
-due) computed and framed: the decoding, the step and the framing, less the UART's own byte moves
+``pil_board.STACK_PAINT`` here at start, whose first overwritten word is the stack's high-water mark. An exchange
+is a TICK's frame, read whole from the UART by ``firmware.hal.nrf51.read_frame`` (machine code), decoded, then its
+FSM_SPI (and the CTRL_STATUS after it, when due) computed and framed: the decoding, the step and the framing, less the UART's own byte moves
 (``firmware.hal.stdio``) and the clock reads. Under QEMU's ``-icount shift=0`` one instruction takes one virtual
 ns, so a tick is 62.5 instructions."""
 

@@ -27,10 +27,11 @@ def nis(z, S):
     return float(z @ np.linalg.solve(S, z))
 
 
-def fading_factor(z, S, MPM_qq, bound=BOUND):
+def fading_factor(z, S, MPM_qq, bound=BOUND, n0=None):
     """lambda >= 1 for a fix with attitude innovation ``z``, prior innovation covariance ``S`` = Pb_qq + R and
-    ``MPM_qq`` = (M Pa M^T)_qq: 1 while the NIS is within ``bound``, else the root of NIS(lambda) = 3."""
-    n0 = nis(z, S)
+    ``MPM_qq`` = (M Pa M^T)_qq: 1 while the NIS (``n0``, if already known) is within ``bound``, else the root of
+    NIS(lambda) = 3."""
+    n0 = nis(z, S) if n0 is None else n0
     if not n0 > bound:
         return 1.0
     A = S - MPM_qq
@@ -46,9 +47,12 @@ def fading_factor(z, S, MPM_qq, bound=BOUND):
 
 
 def faded(Pa, Pb, M, z, R, bound=BOUND):
-    """(Pa, Pb, lambda): the stretch's start and the fix's prior covariances after ``fading_factor``."""
+    """(Pa, Pb, lambda): the stretch's start and the fix's prior covariances after ``fading_factor``. A fix within
+    the bound costs one 3 x 3 solve; M Pa M^T is formed only for one beyond it."""
+    S = Pb[0:3, 0:3] + R
+    n0 = nis(z, S)
+    if not n0 > bound:
+        return Pa, Pb, 1.0
     MPM = M @ Pa @ M.T
-    lam = fading_factor(z, Pb[0:3, 0:3] + R, MPM[0:3, 0:3], bound)
-    if lam == 1.0:
-        return Pa, Pb, lam
+    lam = fading_factor(z, S, MPM[0:3, 0:3], bound, n0)
     return Pa * lam, Pb + (lam - 1.0) * MPM, lam

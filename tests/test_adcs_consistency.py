@@ -97,24 +97,8 @@ def test_the_campaign_counts_parameters_within_3_sigma():
     assert s["params_within_3sigma_by_parameter"]["Jyy"] == 1.0
 
 
-APKF_6U_WHY = ("measured: the APKF is overconfident where the file's inertia 1 sigma is large. generic-6u states 30 % "
-               "on each diagonal moment; over 100 drawn vehicles NEES in band 0.82, RMS / 1 sigma 1.02-1.16, "
-               "parameters within 3 sigma 0.99, and the 4 vehicles drawn 1.4-2.3 sigma out in inertia stop (P not "
-               "positive definite): J^-1 about the estimate is not linear out to them (docs/ADCS.md, \"Drawn "
-               "vehicles\")")
-
-
-APKF_3U_WHY = ("measured: thesis-3u's wheels' speed limit with the star tracker blind above 0.1 deg/s (46 of 100 "
-               "drawn vehicles: NEES mean 8.1 against 6.4; alike, 6.2 / 6.3, with a star tracker answering to 1 "
-               "deg/s), the walks' caution over its blind stretches, and first-set predictions heavier-tailed than a "
-               "Gaussian P holds (docs/ADCS.md, \"Drawn vehicles\"). Over 100 drawn vehicles: NEES in band 0.47, "
-               "RMS / 1 sigma 1.07-1.12, parameters within 3 sigma 0.92, none diverged")
-
-
 @pytest.mark.parametrize("name,fns,tilts", [
-    ("generic-12u", ("apkf", "mekf"), 1.0), ("generic-6u", ("mekf",), 1.0),
-    pytest.param("generic-6u", ("apkf",), 1.0, marks=pytest.mark.xfail(strict=True, reason=APKF_6U_WHY)),
-    pytest.param("thesis-3u", ("apkf",), 1.0, marks=pytest.mark.xfail(strict=True, reason=APKF_3U_WHY)),
+    ("generic-12u", ("apkf", "mekf"), 1.0), ("generic-6u", ("apkf", "mekf"), 1.0), ("thesis-3u", ("apkf",), 1.0),
     ("thesis-3u", ("apkf",), 0.3)])
 def test_the_apkf_and_the_mekf_are_consistent_on_the_other_spacecraft(name, fns, tilts):
     """Each file's own priors against vehicles drawn from its uncertainty (case 1, 2 seeds, 930 s; ``tilts`` scales

@@ -57,7 +57,7 @@ def test_reported_sigma_is_the_physical_1sigma_from_P_and_the_scale(inertia, sca
         G[:, i] = (jrw_phys(xp) - jrw_phys(xm)) / (2 * h)
     sig_jrw = np.sqrt(np.diag(G @ f.P[17:29, 17:29] @ G.T))
     assert res["max_sigma_jrw_kgm2"] == pytest.approx(sig_jrw.max(), rel=1e-6)
-    assert np.linalg.norm(m.c0 + m.c1 * x0[0:4] + m.c2 * x0[4:8], axis=0).max() > 1.01    # |c_i| matters here
+    assert np.linalg.norm(m.c0 + m.c1 * x0[0:4] + m.c2 * x0[4:8], axis=0).max() > 1.001   # |c_i| matters here
     p, Gp = runs.physical_params(f.x, s, m)
     np.testing.assert_allclose(np.sqrt(np.diag(Gp @ f.P @ Gp.T))[19:23], sig_jrw, rtol=1e-6)
     e = res["final_error_params"]
@@ -66,22 +66,24 @@ def test_reported_sigma_is_the_physical_1sigma_from_P_and_the_scale(inertia, sca
     np.testing.assert_allclose(e["jrw_kgm2"], w.j - jrw_phys(x0), rtol=1e-9, atol=1e-20)
 
 
-def test_the_generic_6u_with_the_thesis_priors_diverges_and_the_3u_does_not(monkeypatch):
-    """The generic 6U's inertia with the thesis's priors: without the fading the APKF either ends far off with a
-    finite P (not ok, no figures) or loses P (FloatingPointError, which the campaign records as a diverged run).
-    With it, its failed fixes are faded and it ends consistent but lost: an attitude 1 sigma of degrees. The
-    thesis's 3U (930 s) is ok."""
-    lost = runs.run_apkf(0, None, case=1, params={"inertia_kgm2": INERTIA_6U}, keep_series=False)
-    assert lost["fadings"]["count"] >= 1 and max(lost["final_sigma_attitude_arcsec"]) > 3600.0
-    monkeypatch.setattr(apkf, "faded", lambda Pa, Pb, M, z, R: (Pa, Pb, 1.0))
+def _run_6u_with_thesis_priors():
     try:
-        bad = runs.run_apkf(0, None, case=1, params={"inertia_kgm2": INERTIA_6U}, keep_series=False)
+        r = runs.run_apkf(0, None, case=1, params={"inertia_kgm2": INERTIA_6U}, keep_series=False)
     except FloatingPointError as exc:
         assert "APKF diverged" in str(exc)
-        bad = {"seed": 0, "error": "FloatingPointError: %s" % exc}
-    else:
-        assert bad["ok"] is False and bad["diverged"] is True and "NEES median" in bad["diverged_why"]
-        assert all(bad[k] is None for k in runs.FIGURE_KEYS["apkf"])
+        return {"seed": 0, "error": "FloatingPointError: %s" % exc}
+    assert r["ok"] is False and r["diverged"] is True and "NEES median" in r["diverged_why"]
+    assert all(r[k] is None for k in runs.FIGURE_KEYS["apkf"])
+    return r
+
+
+def test_the_generic_6u_with_the_thesis_priors_diverges_and_the_3u_does_not(monkeypatch):
+    """The generic 6U's inertia with the thesis's priors (its moments 6-15 times the prior's): the APKF either
+    loses P (FloatingPointError, which the campaign records as a diverged run) or ends far off with a finite P
+    (not ok, no figures), with its fading or without. The thesis's 3U (930 s) is ok."""
+    bad = _run_6u_with_thesis_priors()
+    monkeypatch.setattr(apkf, "faded", lambda Pa, Pb, M, z, R: (Pa, Pb, 1.0))
+    _run_6u_with_thesis_priors()
     good = runs.run_apkf(0, None, case=1, keep_series=False)
     assert good["ok"] is True and good["diverged"] is False and good["diverged_why"] is None
     s = runs.aggregate([good, bad], "apkf", 1)

@@ -78,6 +78,7 @@ class Model:
         self.R_rw = (tach_rpm * RPM) ** 2
         self.m_ctrl = None      # the magnetorquers' dipole over the step (filter units: A m^2 x s), a known input
         self.disturbance = None  # tau_d's shaping filter (``apkf_disturbance.GaussMarkov``); None: a random walk
+        self.p_lin = None       # J5, m, d1, d2, Jrw to linearise at instead of the estimate's (``apkf_iterated``)
 
     def env_inertial(self, t):
         """(unit orbit radius, 3 mu/r^3, field) in the inertial frame at t."""

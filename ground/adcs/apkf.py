@@ -301,8 +301,9 @@ def predict(x, P, w_plus, model, t, case=1, scale=1.0, M=None, qd=QD_CASE, secon
     """(x, P) at t + dt from t, with the tachometer read-out w_plus at t + dt (rad/s): ``shift_tach``, then
     x by ``propagate`` and P = Phi P Phi^T + Q (Eq. 4.128) with Phi of ``phi`` (Eq. 4.114-4.127) and Q of
     ``process_noise`` (Eq. 4.135-4.136, tau_d's density from ``qd``), computed from the nonzero rows of F and Phi
-    only; with ``model.p_lin`` set, F, Phi and the propagation at it (``_at_lin_point``). ``M`` (41 x 41, if given) is carried through the step in place (``_carry``): the Jacobian of x on a
-    stretch's start. ``second_order``: add ``second_order_noise`` and ``dipole_attitude_noise`` to the rate's
+    only; with ``model.p_lin`` set, F, Phi and the propagation at it (``_at_lin_point``). ``M`` (41 x 41, if
+    given) is carried through the step in place (``_carry``): the Jacobian of x on a stretch's start.
+    ``second_order``: add ``second_order_noise`` and ``dipole_attitude_noise`` to the rate's
     block. With a shaping filter (``model.disturbance``) tau_d's Phi and Q are its (``_linearise``,
     ``_add_shaping_noise``; Q_dd times ``scale`` only if its ``fictitious``) and P, M are n x n with its added
     states."""

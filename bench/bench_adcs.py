@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from bench import adcs_disturbance, adcs_population, apkf_linearity, verdict
+from bench import adcs_disturbance, adcs_population, apkf_first_set, apkf_linearity, verdict
 from bench.common import timed
 from emulator.spacecraft import scenario
 from ground.adcs import apkf, campaign, quat, report, runs
@@ -491,6 +491,7 @@ def _accuracy(res_2w):
     figs = consistency_figures(done)
     print(consistency_table(figs))
     print(adcs_population.uncertainty_sweep(_campaign, POPULATION))
+    print(apkf_first_set.first_set_table(POPULATION))
     print(adcs_population.walk_diagnostic(_campaign, POPULATION))
     print(apkf_linearity.linearity_tables())
     print(apkf_linearity.stretch_table("generic-6u", (0, 5, 91, 93), 60.0, 10))

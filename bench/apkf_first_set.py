@@ -13,8 +13,8 @@ Three filters on the same vehicles (Case 1, the consistent form, vehicle n drawn
 
 Per row: the attitude + rate NEES over the population after the first set (share of steps in its 95 % band, mean),
 RMS error / 1 sigma per attitude and rate axis, the parameters' NEES (J5, m, the tilts, Jrw: 20 dof) at the first
-set's end (mean and median over the vehicles), the share of vehicles whose parameters (tau_d too) are all within
-3 sigma at the end, and the runs that stopped (P not positive definite).
+set's end (mean and median over the vehicles), over the 23 parameters (tau_d too) the smallest share of vehicles
+whose final error is within 3 sigma (as ``runs.aggregate``'s), and the runs that stopped (P not positive definite).
 """
 
 import tempfile
@@ -76,7 +76,7 @@ def row_figures(results):
     z = np.concatenate([r["z"][t0:] for r in ok])
     out.update(in_band=float(np.mean((mean >= lo) & (mean <= hi))), nees_mean=float(mean.mean()), band=(lo, hi),
                rms=np.sqrt(np.mean(z ** 2, axis=0)), params_nees=[r["params_nees_first_set"] for r in ok],
-               params_3sigma=float(np.mean([np.all(np.abs(r["final_z_params"]) <= 3.0) for r in ok])))
+               params_3sigma=float((np.abs(np.array([r["final_z_params"] for r in ok])) <= 3.0).mean(axis=0).min()))
     return out
 
 

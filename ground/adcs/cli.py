@@ -84,8 +84,9 @@ def _apkf(sub):
                    help="consistent (default): the first star-tracker output after a blind stretch through an "
                         "iterated update over the stretch, faded when its innovation fails a chi-square test "
                         "(0.999, 3 dof), the second-order terms of the wheels' axes and of the dipole's torque "
-                        "with an attitude error, R inflated in the first maneuver set only, Case 2's q_d matched "
-                        "to its disturbance; thesis: Eq. 4.139-4.142 and Sec. 4.7.4 as written "
+                        "with an attitude error, R inflated in the first maneuver set only, that set filtered "
+                        "again at its end with the parameters linearised at its own estimate (no fictitious noise "
+                        "after it), Case 2's q_d matched to its disturbance; thesis: Eq. 4.139-4.142 and Sec. 4.7.4 as written "
                         "(reproduces the thesis's tables; its 1 sigma is overconfident: docs/ADCS.md, "
                         "\"Attitude determination\")")
     p.add_argument("--disturbance", choices=DISTURBANCES, default="white",

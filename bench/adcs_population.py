@@ -131,7 +131,8 @@ def uncertainty_sweep(campaign, population, name="thesis-3u", rows=SWEEP_3U, wor
     return "\n".join(lines + fix)
 
 
-WALK_ROWS = ((SWEEP_3U[6], False), (SWEEP_3U[6], True), (SWEEP_3U[0], True))
+WALK_ROWS = ((SWEEP_3U[6], False), (SWEEP_3U[6], True), (SWEEP_3U[0], False), (SWEEP_3U[0], True),
+             (SWEEP_3U[9], False))
 
 
 def walk_diagnostic(campaign, population, name="thesis-3u", rows=WALK_ROWS, workers=2):

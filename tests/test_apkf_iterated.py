@@ -80,3 +80,18 @@ def test_the_thesis_form_and_a_run_without_sets_are_filtered_once():
     assert apkf.APKF(x0, form="thesis", set_ends=(20.0,))._first is None
     assert apkf.APKF(x0)._first is None
     assert apkf_iterated.PASSES >= 1
+
+
+def test_the_set_is_filtered_again_from_where_its_first_step_found_the_filter():
+    """States added after construction (a shaping filter set up by its caller, as bench_adcs's known-disturbance
+    rows do) are part of the start the passes filter from."""
+    from ground.adcs.apkf_disturbance import shaping
+    rng = np.random.default_rng(3)
+    f = apkf.APKF(_state(), case=2, set_ends=(6.0,))
+    f.model.disturbance = shaping(2, "harmonic")
+    f.x, f.P = apkf.shaping_states(f.x, f.P, f.model.disturbance)
+    n = len(f.x)
+    for k in range(10):
+        q = None if 2 <= k < 4 else apkf.quat.from_small(rng.normal(0, 1e-4, 3), f.x[0:4])
+        f.step(float(k), np.array([3000.0, -2000.0, 1500.0, 800.0]) * apkf.RPM, q)
+    assert f.iterations == [(6.0, 2)] and len(f.x) == n and f.P.shape == (n - 1, n - 1)

@@ -279,8 +279,7 @@ def _add_shaping_noise(P, ix, Q, F2, dt):
 
 
 def _at_lin_point(x, model):
-    """Put ``model.p_lin`` (J5, m, d1, d2, Jrw: x[10:30]), where set, in x in place of the estimate's own
-    parameters, returned (None without one): the step is then linearised and propagated there."""
+    """Put ``model.p_lin`` (J5, m, d1, d2, Jrw: x[10:30]), if set, in x; returns the estimate's own (or None)."""
     if model.p_lin is None:
         return None
     p = x[10:30].copy()
@@ -498,11 +497,10 @@ class APKF:
       NEES mean 9.4 against 8.3 with it, RMS / 1 sigma 1.29-1.31 against 1.20-1.26);
     - a fix after a stretch whose innovation fails a chi-square test against the prior scales the stretch's start
       P up until it passes (``apkf_fading``; ``fadings``: one (t, lambda) each);
-    - at the first set's end that set is filtered again from x0, P0 with the parameters linearised at its own
-      end-of-set estimate, ``first_set_passes`` times, and the second set then takes no fictitious noise
-      (``apkf_iterated``; ``iterations``: (t, passes completed)): filtered once, 100 vehicles drawn within
-      thesis-3u's block left the set with the parameters' NEES at 78 for 20 dof (18.5 filtered again) and
-      the attitude and rate overconfident after it (NEES 7.15 for 6; 5.71 filtered again).
+    - at the first set's end the set is filtered again from its start with the parameters linearised at its
+      end-of-set estimate, ``first_set_passes`` times, the second set then without fictitious noise
+      (``apkf_iterated``; ``iterations``: (t, passes)): filtered once, 100 vehicles drawn within thesis-3u's
+      block ended the set with the parameters' NEES at 78 for 20 dof (18.5 filtered again), NEES 7.15 after.
     ``gate``: a chi-square bound (3 dof) on the star tracker's normalised innovation; an output beyond it is not
     fused but resets the attitude (``reset_attitude``; ``resets``: one (t, NIS, angle arcsec) each). None (the
     default, the thesis's filter): every output is fused.
@@ -534,8 +532,8 @@ class APKF:
         self._stretch = None            # (x, P, steps, M) since the last star-tracker output
         self.gate = None                # NIS above which a star-tracker output resets the attitude (None: never)
         self.resets = []
-        # the consistent form's first set, kept to be filtered again at its end (``apkf_iterated``)
-        self._first = ([], self.x.copy(), self.P.copy()) if form == "consistent" and self.set_ends else None
+        # the consistent form's first set: its start, then its steps, filtered again at its end (``apkf_iterated``)
+        self._first = [] if form == "consistent" and self.set_ends else None
         self.iterations = []            # (t, passes) of ``apkf_iterated.refilter``
         self.first_set_passes = PASSES  # its passes (0: the first set is not filtered again)
 
@@ -553,8 +551,10 @@ class APKF:
         the consistent form, at the first set's end the set is filtered again (``apkf_iterated.refilter``)."""
         if self._first is None:
             return self._step(t, w_plus, q_meas)
-        self._first[0].append((t, np.array(w_plus, dtype=float), None if q_meas is None else np.array(q_meas, float),
-                               self.model.m_ctrl))
+        if not self._first:
+            self._first.append((self.x.copy(), self.P.copy()))      # the start as the first step finds it
+        self._first.append((t, np.array(w_plus, dtype=float), None if q_meas is None else np.array(q_meas, float),
+                            self.model.m_ctrl))
         self._step(t, w_plus, q_meas)
         if t + self.model.dt >= self.set_ends[0]:
             if self.first_set_passes:

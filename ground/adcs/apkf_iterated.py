@@ -26,13 +26,13 @@ PASSES = 2          # passes over the first set
 
 
 def refilter(f, passes=PASSES):
-    """Filter the first set again, ``passes`` times (module docstring), for the APKF ``f`` at the set's end; its
-    recorded steps ``f._first`` = (steps, x0, P0), steps (t, w_plus, q_meas or None, m_ctrl) as ``f.step`` took
-    them. f's (x, P) become the last pass's that completes; a pass whose covariance fails ``check_covariance``
+    """Filter the first set again, ``passes`` times (module docstring), for the APKF ``f`` at the set's end;
+    ``f._first`` = [(x0, P0) as its first step found them, then each step's (t, w_plus, q_meas or None,
+    m_ctrl) as ``f.step`` took it]. f's (x, P) become the last pass's that completes; a pass whose covariance fails ``check_covariance``
     or that cannot be carried out (a singular matrix) ends the iteration with the previous one kept.
     ``f.iterations`` gains (t, passes completed)."""
     from ground.adcs.apkf import check_covariance
-    steps, x0, P0 = f._first
+    (x0, P0), steps = f._first[0], f._first[1:]
     f._first = None
     m = f.model
     m_now, done = m.m_ctrl, 0

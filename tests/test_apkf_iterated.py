@@ -95,3 +95,8 @@ def test_the_set_is_filtered_again_from_where_its_first_step_found_the_filter():
         q = None if 2 <= k < 4 else apkf.quat.from_small(rng.normal(0, 1e-4, 3), f.x[0:4])
         f.step(float(k), np.array([3000.0, -2000.0, 1500.0, 800.0]) * apkf.RPM, q)
     assert f.iterations == [(6.0, 2)] and len(f.x) == n and f.P.shape == (n - 1, n - 1)
+
+
+def test_a_run_records_its_passes_over_the_first_set():
+    assert runs.run_apkf(0, None, case=1, keep_series=False)["first_set_passes"] == [2]
+    assert runs.run_apkf(0, None, case=1, keep_series=False, form="thesis")["first_set_passes"] == []

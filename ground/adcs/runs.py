@@ -321,6 +321,7 @@ def run_apkf(seed, run_dir=None, case=1, params=None, keep_series=True, start_at
     res["iterated_updates"] = {"count": len(passes), "max_passes": max(passes, default=0),
                                "mean_passes": float(np.mean(passes)) if passes else 0.0}
     res["fadings"] = {"count": len(f.fadings), "max_factor": max((lam for _, lam in f.fadings), default=1.0)}
+    res["first_set_passes"] = [int(n) for _, n in f.iterations]    # passes over the first set (``apkf_iterated``)
     _write_run(run_dir, res, o["t"], err, sig, nees, z)
     if keep_series:
         res["series"] = _series(err, nees, z)

@@ -149,3 +149,15 @@ def test_the_stkf_campaign_reports_its_consistency():
     for k in ("ra", "va", "rb", "vb"):
         assert 0.3 < s["rms_over_sigma_" + k] < 1.5, (k, s["rms_over_sigma_" + k])
     assert stkf_sim.consistency([])["nees_in_band_share"] is None
+
+
+def test_the_campaign_gives_the_runs_nees_variance_against_chi_squares():
+    """Two runs whose NEES after the first set is 0 and 12 (6 dof): per step a variance of 36 over the runs,
+    three times chi-square's 2 x 6; the steps before the set's end are left out."""
+    def run(seed, level):
+        nees = [100.0] * 5 + [level] * 5
+        return {"seed": seed, "ok": True, "set_ends_s": [5.0], "final_error_attitude_arcsec": [1.0, 1.0, 1.0],
+                "series": {"nees": nees, "att_err": [[0.0, 0.0, 0.0]] * 10, "z_att_rate": [[0.0] * 6] * 10}}
+    s = runs.aggregate([run(0, 0.0), run(1, 12.0)], "apkf", 1)
+    assert s["nees"]["variance_ratio_after"] == pytest.approx(3.0)
+    assert runs.aggregate([run(0, 6.0)], "apkf", 1)["nees"]["variance_ratio_after"] is None

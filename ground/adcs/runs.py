@@ -476,6 +476,9 @@ def aggregate(results, name, case, dof=6):
         s["nees_in_band_share"] = s["nees_in_band_fraction"] = float(inside[sel].mean()) if sel.any() else None
         s["nees"] = {"band": [lo, hi], "from_s": t0, "dof": dof, "mean_after": float(np.mean(mean[sel]))
                      if sel.any() else None, "runs": len(nees),
+                     # the runs' NEES variance per step over chi-square's 2 dof: the band assumes 1
+                     "variance_ratio_after": float(np.mean(np.var(nees[:, sel], axis=0)) / (2 * dof))
+                     if sel.any() and len(nees) > 1 else None,
                      "note": "mean over runs of e^T P^-1 e (attitude + %s); band: 95 %% chi-square"
                              % ("rate" if name == "apkf" else "gyro bias")}
     zf = [r["final_normalised_error"] for r in ok if r.get("final_normalised_error") is not None]

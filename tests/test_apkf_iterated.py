@@ -100,3 +100,26 @@ def test_the_set_is_filtered_again_from_where_its_first_step_found_the_filter():
 def test_a_run_records_its_passes_over_the_first_set():
     assert runs.run_apkf(0, None, case=1, keep_series=False)["first_set_passes"] == [2]
     assert runs.run_apkf(0, None, case=1, keep_series=False, form="thesis")["first_set_passes"] == []
+
+
+def _blind_at_the_end(passes):
+    rng = np.random.default_rng(5)
+    f = apkf.APKF(_state(), case=1, set_ends=(8.0,))
+    f.first_set_passes = passes
+    for k in range(8):
+        q = None if k >= 5 else apkf.quat.from_small(rng.normal(0, 1e-4, 3), f.x[0:4])
+        f.step(float(k), np.array([3000.0, -2000.0, 1500.0, 800.0]) * apkf.RPM, q)
+    return f
+
+
+def test_a_blind_stretch_open_at_the_sets_end_goes_on_from_the_last_pass():
+    """The set ends blind: the stretch the next fix closes starts where the last pass had it, not the first."""
+    once, again = _blind_at_the_end(0), _blind_at_the_end(2)
+    assert again.iterations == [(8.0, 2)]
+    (xa, Pa, steps, M), (xo, Po, steps_o, _) = again._stretch, once._stretch
+    assert [s[0] for s in steps] == [s[0] for s in steps_o] == [5.0, 6.0, 7.0]
+    assert not np.array_equal(xa, xo) and not np.array_equal(Pa, Po)
+    # the stretch leads to the filter's estimate (to the pass's linearisation at its parameters, second order)
+    xb = apkf.propagate_window(xa, steps, again.model)[0]
+    assert np.max(np.abs(apkf.difference(xb, again.x))) < 1e-6
+    assert np.max(np.abs(apkf.difference(xb, once.x))) > 1e-3

@@ -37,7 +37,7 @@ def refilter(f, passes=PASSES):
     f._first = None
     m = f.model
     m_now, done = m.m_ctrl, 0
-    x, P = f.x, f.P
+    x, P, stretch = f.x, f.P, f._stretch
     try:
         for _ in range(passes):
             g = copy.copy(f)
@@ -48,10 +48,12 @@ def refilter(f, passes=PASSES):
                 m.m_ctrl = m_ctrl
                 g._step(t, w_plus, q_meas)
                 check_covariance(g.P, t + m.dt)
-            x, P, done = g.x, g.P, done + 1
+            if not np.all(np.isfinite(g.x)):
+                raise FloatingPointError("the pass's estimate is not finite")
+            x, P, stretch, done = g.x, g.P, g._stretch, done + 1
     except (FloatingPointError, np.linalg.LinAlgError, ZeroDivisionError):
         pass
     finally:
         m.p_lin, m.m_ctrl = None, m_now
-    f.x, f.P = x, P
+    f.x, f.P, f._stretch = x, P, stretch       # a blind stretch open at the set's end goes on from the pass's
     f.iterations.append((steps[-1][0] + m.dt, done))

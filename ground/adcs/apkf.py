@@ -558,7 +558,7 @@ class APKF:
         self._step(t, w_plus, q_meas)
         if t + self.model.dt >= self.set_ends[0]:
             if self.first_set_passes:
-                refilter(self, self.first_set_passes)
+                refilter(self, self.first_set_passes, check_covariance)
             self._first = None
         return self.x, self.P
 

@@ -25,14 +25,13 @@ import numpy as np
 PASSES = 2          # passes over the first set
 
 
-def refilter(f, passes=PASSES):
+def refilter(f, passes, check_covariance):
     """Filter the first set again, ``passes`` times (module docstring), for the APKF ``f`` at the set's end;
     ``f._first`` = [(x0, P0) as its first step found them, then each step's (t, w_plus, q_meas or None,
     m_ctrl) as ``f.step`` took it]. f's (x, P) become the last pass's that completes; a pass whose covariance
     fails ``check_covariance`` or that cannot be carried out (a singular matrix) ends the iteration with the
     previous one kept.
-    ``f.iterations`` gains (t, passes completed)."""
-    from ground.adcs.apkf import check_covariance
+    ``f.iterations`` gains (t, passes completed). ``check_covariance``: ``apkf.check_covariance``."""
     (x0, P0), steps = f._first[0], f._first[1:]
     f._first = None
     m = f.model

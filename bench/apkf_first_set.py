@@ -52,10 +52,10 @@ def run_first_set(seed, run_dir=None, name="thesis-3u", variant="filtered again"
             if k == end:
                 f.model.p_lin = None
             e = runs.apkf_error(o, k, f.x, 1)
-            nees[k] = e[0:6] @ np.linalg.solve(f.P[0:6, 0:6], e[0:6])
+            nees[k] = runs._nees(e[0:6], f.P[0:6, 0:6])
             z[k] = e[0:6] / np.sqrt(np.diag(f.P)[0:6])
             if k == end:
-                pn = float(e[PARAMS] @ np.linalg.solve(f.P[np.ix_(PARAMS, PARAMS)], e[PARAMS]))
+                pn = runs._nees(e[PARAMS], f.P[np.ix_(PARAMS, PARAMS)])
     except FloatingPointError as exc:
         return {"seed": seed, "error": str(exc)}
     finally:
